@@ -1,0 +1,47 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#ifndef ASPH_ERROR_H
+#define ASPH_ERROR_H
+
+#include <stddef.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/*
+ * Functions that can fail return 0 or a negative errno. When a person has to
+ * read why, they also fill an optional struct asph_error: what went wrong and
+ * where (a file with line and column, a field, or both). Every part is
+ * optional: an empty string or 0 means "not known".
+ */
+struct asph_error {
+	int code;              /* the negative errno that was returned */
+	char source[256];      /* file name, or "<preset>", "<stdin>", ... */
+	int line;              /* 1-based, 0 if not applicable */
+	int column;            /* 1-based, 0 if not applicable */
+	char field[128];       /* e.g. "A.6", "aperture_diameter" */
+	char message[512];
+};
+
+/* Clears err (a NULL err is allowed everywhere). */
+void asph_error_clear(struct asph_error *err);
+
+/* Sets code and message; returns code so callers can write
+ * `return asph_error_set(err, -EINVAL, "...")`. */
+int asph_error_set(struct asph_error *err, int code, const char *fmt, ...)
+	__attribute__((format(printf, 3, 4)));
+
+/* Sets the location parts; any may be NULL/0 to leave them as they are. */
+void asph_error_locate(struct asph_error *err, const char *source, int line,
+		       int column, const char *field);
+
+/* "source:line:column: field: message" with absent parts left out.
+ * Returns buf. */
+const char *asph_error_format(const struct asph_error *err, char *buf,
+			      size_t size);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif

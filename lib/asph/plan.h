@@ -1,0 +1,107 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#ifndef ASPH_PLAN_H
+#define ASPH_PLAN_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "asph/error.h"
+#include "asph/surface.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/*
+ * Sampling plans: ordered points on the nominal surface, in the order a
+ * stage visits them, and for the grid methods the mesh they come with.
+ */
+enum asph_plan_method {
+	ASPH_PLAN_OP = 0,       /* orthogonal projection of the disk grid (5.2) */
+	ASPH_PLAN_OT,           /* optimal transport radial map (5.4) */
+	ASPH_PLAN_LB,           /* Laplace-Beltrami map (5.3) */
+	ASPH_PLAN_CI,           /* circle involute embedded in the surface (4) */
+	ASPH_PLAN_RASTER,       /* x-y raster, projected */
+	ASPH_PLAN_CONCENTRIC,   /* concentric circles */
+	ASPH_PLAN_SPIRAL,       /* Archimedean spiral in the vertex plane */
+	ASPH_PLAN_FERMAT,       /* Fermat / golden-angle spiral */
+	ASPH_PLAN_N_METHODS
+};
+
+/* Name as on the command line ("op", "ot", ...) and back. */
+const char *asph_plan_method_name(enum asph_plan_method m);
+int asph_plan_method_from_name(const char *name, enum asph_plan_method *out);
+
+/* How dense a plan is: exactly one of three ways. */
+enum asph_plan_density_kind {
+	ASPH_DENSITY_H = 0,      /* mean edge length / aperture radius (paper) */
+	ASPH_DENSITY_SPACING,    /* mean point spacing on the surface, mm */
+	ASPH_DENSITY_POINTS,     /* approximate number of points */
+};
+
+struct asph_plan_density {
+	enum asph_plan_density_kind kind;
+	double value;
+};
+
+struct asph_plan {
+	enum asph_plan_method method;
+	struct asph_plan_density density;
+	double spacing_mm;       /* the surface spacing the density resolved to */
+	size_t n;
+	double *xyz;             /* 3 n, mm, scan order */
+	size_t n_triangles;      /* 0 when the method has no mesh */
+	uint32_t *triangles;     /* 3 n_triangles, indices into xyz, or NULL */
+};
+
+/*
+ * Computes a plan. -EINVAL (err says which parameter) for a density that is
+ * not positive or finite, or that would give more than max_points points
+ * (0 = no limit).
+ */
+int asph_plan_compute(const struct asph_surface *s, enum asph_plan_method m,
+		      struct asph_plan_density density, size_t max_points,
+		      struct asph_plan **out, struct asph_error *err);
+void asph_plan_free(struct asph_plan *p);
+
+/* Options of asph_plan_compute_opts(); a NULL pointer means all zero. */
+enum asph_plan_flags {
+	/* Grid methods: leave the mesh out (n_triangles = 0). For scan-only
+	 * use and for timing the point generation alone. */
+	ASPH_PLAN_NO_MESH = 1u << 0,
+};
+
+struct asph_plan_options {
+	size_t max_points;       /* refuse larger plans; 0 = no limit */
+	unsigned flags;          /* enum asph_plan_flags */
+};
+
+int asph_plan_compute_opts(const struct asph_surface *s,
+			   enum asph_plan_method m,
+			   struct asph_plan_density density,
+			   const struct asph_plan_options *opts,
+			   struct asph_plan **out, struct asph_error *err);
+
+/*
+ * Resolves a density to the surface spacing e (mm) the method works with
+ * and the number of points the plan will have (exact for every method but
+ * CI, where it is an estimate within a few percent). Same refusals as
+ * asph_plan_compute, except the point limit. Either output may be NULL.
+ * The relations are in docs/sampling-plans.md.
+ */
+int asph_plan_resolve(const struct asph_surface *s, enum asph_plan_method m,
+		      struct asph_plan_density density, double *spacing_mm,
+		      size_t *n_points, struct asph_error *err);
+
+/*
+ * The OT radial map of Eq. (9) on the aperture disk of radius a: the
+ * radius r in [0, a] with A(r) / A(a) = (rho / a)^2, A the surface area
+ * inside a radius. rho is clamped to [0, a].
+ */
+double asph_plan_ot_radius(const struct asph_surface *s, double rho);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif

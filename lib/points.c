@@ -1,0 +1,815 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <strings.h>
+
+#include <jansson.h>
+
+#include "asph/points.h"
+#include "colormap.h"
+#include "util-mem.h"
+
+
+/* Files larger than this are refused rather than read into memory. */
+#define POINTS_FILE_LIMIT ((size_t)4 << 30)
+#define POINTS_MAX ((size_t)1 << 28)
+
+struct asph_points *asph_points_alloc(size_t n)
+{
+	struct asph_points *p = calloc(1, sizeof(*p));
+
+	if (!p || n > POINTS_MAX) {
+		free(p);
+		return NULL;
+	}
+	p->n = n;
+	p->xyz = calloc(n ? 3 * n : 1, sizeof(double));
+	if (!p->xyz) {
+		free(p);
+		return NULL;
+	}
+	return p;
+}
+
+int asph_points_add_value(struct asph_points *p, const char *name)
+{
+	free(p->value);
+	p->value = calloc(p->n ? p->n : 1, sizeof(double));
+	if (!p->value)
+		return -ENOMEM;
+	snprintf(p->value_name, sizeof(p->value_name), "%s", name);
+	return 0;
+}
+
+void asph_points_free(struct asph_points *p)
+{
+	if (!p)
+		return;
+	free(p->xyz);
+	free(p->value);
+	free(p->triangles);
+	free(p);
+}
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
+
+static int fail(struct asph_error *err, const char *source, int line, int col,
+		const char *field, int code, const char *fmt, ...)
+	__attribute__((format(printf, 7, 8)));
+
+static int fail(struct asph_error *err, const char *source, int line, int col,
+		const char *field, int code, const char *fmt, ...)
+{
+	char msg[512];
+	va_list ap;
+
+	va_start(ap, fmt);
+	vsnprintf(msg, sizeof(msg), fmt, ap);
+	va_end(ap);
+	asph_error_set(err, code, "%s", msg);
+	asph_error_locate(err, source, line, col, field);
+	return code;
+}
+
+enum format { FMT_CSV, FMT_PLY, FMT_JSON };
+
+static enum format format_of(const char *path)
+{
+	const char *dot = strrchr(path, '.');
+	if (dot && !strcasecmp(dot, ".ply"))
+		return FMT_PLY;
+	if (dot && !strcasecmp(dot, ".json"))
+		return FMT_JSON;
+	return FMT_CSV;
+}
+
+static int slurp(FILE *f, const char *source, char **out, size_t *out_len,
+		 struct asph_error *err)
+{
+	size_t len = 0, cap = 1 << 16;
+	char *buf = malloc(cap + 1);
+
+	if (!buf)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	for (;;) {
+		if (len == cap) {
+			if (cap >= POINTS_FILE_LIMIT) {
+				free(buf);
+				return fail(err, source, 0, 0, NULL, -EFBIG,
+					    "larger than %zu bytes", POINTS_FILE_LIMIT);
+			}
+			cap *= 2;
+			char *grown = realloc(buf, cap + 1);
+			if (!grown) {
+				free(buf);
+				return asph_error_set(err, -ENOMEM, "out of memory");
+			}
+			buf = grown;
+		}
+		size_t got = fread(buf + len, 1, cap - len, f);
+		len += got;
+		if (got == 0)
+			break;
+	}
+	if (ferror(f)) {
+		free(buf);
+		return fail(err, source, 0, 0, NULL, -EIO, "read error");
+	}
+	buf[len] = '\0';
+	*out = buf;
+	*out_len = len;
+	return 0;
+}
+
+/* ---- CSV ---- */
+
+struct csv_columns {
+	int ix, iy, iz, ivalue;
+	int count;
+	char value_name[32];
+};
+
+static int csv_header(const char *line, size_t len, const char *source,
+		      struct csv_columns *cols, struct asph_error *err)
+{
+	int col = 0;
+	size_t start = 0;
+
+	cols->ix = cols->iy = cols->iz = cols->ivalue = -1;
+	for (size_t i = 0; i <= len; i++) {
+		if (i < len && line[i] != ',')
+			continue;
+		size_t b = start, e = i;
+		while (b < e && (line[b] == ' ' || line[b] == '\t'))
+			b++;
+		while (e > b && (line[e - 1] == ' ' || line[e - 1] == '\t' || line[e - 1] == '\r'))
+			e--;
+		char name[64];
+		snprintf(name, sizeof(name), "%.*s", (int)(e - b), line + b);
+		if (!strcmp(name, "x"))
+			cols->ix = col;
+		else if (!strcmp(name, "y"))
+			cols->iy = col;
+		else if (!strcmp(name, "z"))
+			cols->iz = col;
+		else if (cols->ivalue < 0 && name[0]) {
+			cols->ivalue = col;
+			snprintf(cols->value_name, sizeof(cols->value_name), "%.31s", name);
+		}
+		col++;
+		start = i + 1;
+	}
+	cols->count = col;
+	if (cols->ix < 0 || cols->iy < 0 || cols->iz < 0)
+		return fail(err, source, 1, 1, NULL, -EINVAL,
+			    "the first line must be a header naming the columns x,y,z (got '%.*s')",
+			    (int)(len > 80 ? 80 : len), line);
+	return 0;
+}
+
+static int csv_row(const char *line, size_t len, int lineno, const char *source,
+		   const struct csv_columns *cols, double *xyz, double *value,
+		   struct asph_error *err)
+{
+	static const char *const names[] = { "x", "y", "z" };
+	size_t pos = 0;
+
+	for (int col = 0; col < cols->count; col++) {
+		if (pos > len || (col > 0 && line[pos - 1] != ','))
+			return fail(err, source, lineno, (int)pos + 1, NULL, -EINVAL,
+				    "expected %d columns, found %d", cols->count, col);
+		const char *field = col == cols->ix ? "x" : col == cols->iy ? "y" :
+				    col == cols->iz ? "z" : col == cols->ivalue ? cols->value_name : NULL;
+		size_t end = pos;
+		while (end < len && line[end] != ',')
+			end++;
+		char tmp[128], *stop;
+		size_t b = pos, e = end;
+		while (b < e && (line[b] == ' ' || line[b] == '\t'))
+			b++;
+		while (e > b && (line[e - 1] == ' ' || line[e - 1] == '\t' || line[e - 1] == '\r'))
+			e--;
+		if (field) {
+			if (e - b == 0 || e - b >= sizeof(tmp))
+				return fail(err, source, lineno, (int)b + 1, field, -EINVAL,
+					    e == b ? "empty value" : "value too long");
+			memcpy(tmp, line + b, e - b);
+			tmp[e - b] = '\0';
+			double v = strtod(tmp, &stop);
+			if (*stop != '\0')
+				return fail(err, source, lineno, (int)b + 1, field, -EINVAL,
+					    "not a number: '%s'", tmp);
+			if (!isfinite(v))
+				return fail(err, source, lineno, (int)b + 1, field, -EINVAL,
+					    "not a finite number: '%s'", tmp);
+			if (col == cols->ivalue)
+				*value = v;
+			else
+				xyz[col == cols->ix ? 0 : col == cols->iy ? 1 : 2] = v;
+		}
+		pos = end + 1;
+	}
+	if (pos <= len)
+		return fail(err, source, lineno, (int)pos, NULL, -EINVAL,
+			    "expected %d columns, found more", cols->count);
+	(void)names;
+	return 0;
+}
+
+int asph_points_read_csv_text(const char *text, size_t len,
+			      const char *source, struct asph_points **out,
+			      struct asph_error *err)
+{
+	struct csv_columns cols;
+	size_t pos = 0, n = 0, cap = 1024;
+	int lineno = 0, have_header = 0, r;
+	_cleanup_free_ double *xyz = malloc(3 * cap * sizeof(double));
+	_cleanup_free_ double *val = malloc(cap * sizeof(double));
+
+	if (!xyz || !val)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	while (pos < len) {
+		size_t end = pos;
+		while (end < len && text[end] != '\n')
+			end++;
+		const char *line = text + pos;
+		size_t ll = end - pos;
+		lineno++;
+		pos = end + 1;
+		size_t skip = 0;
+		while (skip < ll && (line[skip] == ' ' || line[skip] == '\t' || line[skip] == '\r'))
+			skip++;
+		if (skip == ll || line[skip] == '#')
+			continue;
+		if (memchr(line, '\0', ll))
+			return fail(err, source, lineno, 1, NULL, -EINVAL, "binary data in a CSV file");
+		if (!have_header) {
+			if ((r = csv_header(line, ll, source, &cols, err)) < 0) {
+				if (err)
+					err->line = lineno;
+				return r;
+			}
+			have_header = 1;
+			continue;
+		}
+		if (n == cap) {
+			if (cap >= POINTS_MAX)
+				return fail(err, source, lineno, 1, NULL, -E2BIG,
+					    "more than %zu points", POINTS_MAX);
+			cap *= 2;
+			double *gx = realloc(xyz, 3 * cap * sizeof(double));
+			if (!gx)
+				return asph_error_set(err, -ENOMEM, "out of memory");
+			xyz = gx;
+			double *gv = realloc(val, cap * sizeof(double));
+			if (!gv)
+				return asph_error_set(err, -ENOMEM, "out of memory");
+			val = gv;
+		}
+		r = csv_row(line, ll, lineno, source, &cols, xyz + 3 * n, val + n, err);
+		if (r < 0)
+			return r;
+		n++;
+	}
+	if (!have_header)
+		return fail(err, source, 0, 0, NULL, -EINVAL,
+			    "empty file: expected a header x,y,z and points");
+	struct asph_points *p = calloc(1, sizeof(*p));
+	if (!p)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	p->n = n;
+	p->xyz = steal_ptr(xyz);
+	if (cols.ivalue >= 0) {
+		p->value = steal_ptr(val);
+		snprintf(p->value_name, sizeof(p->value_name), "%s", cols.value_name);
+	}
+	*out = p;
+	return 0;
+}
+
+/* ---- PLY ---- */
+
+enum ply_type { PLY_NONE, PLY_I8, PLY_U8, PLY_I16, PLY_U16, PLY_I32, PLY_U32, PLY_F32, PLY_F64 };
+
+static enum ply_type ply_type_of(const char *s)
+{
+	static const struct { const char *name; enum ply_type t; } map[] = {
+		{ "char", PLY_I8 }, { "int8", PLY_I8 }, { "uchar", PLY_U8 }, { "uint8", PLY_U8 },
+		{ "short", PLY_I16 }, { "int16", PLY_I16 }, { "ushort", PLY_U16 }, { "uint16", PLY_U16 },
+		{ "int", PLY_I32 }, { "int32", PLY_I32 }, { "uint", PLY_U32 }, { "uint32", PLY_U32 },
+		{ "float", PLY_F32 }, { "float32", PLY_F32 }, { "double", PLY_F64 }, { "float64", PLY_F64 },
+	};
+	for (size_t i = 0; i < ARRAY_SIZE(map); i++)
+		if (!strcmp(s, map[i].name))
+			return map[i].t;
+	return PLY_NONE;
+}
+
+static size_t ply_size(enum ply_type t)
+{
+	switch (t) {
+	case PLY_I8: case PLY_U8: return 1;
+	case PLY_I16: case PLY_U16: return 2;
+	case PLY_I32: case PLY_U32: case PLY_F32: return 4;
+	case PLY_F64: return 8;
+	case PLY_NONE: break;
+	}
+	return 0;
+}
+
+#define PLY_MAX_PROPS 32
+
+struct ply_header {
+	int binary;
+	size_t n_vertex, n_face;
+	int n_props;
+	enum ply_type prop_type[PLY_MAX_PROPS];
+	char prop_name[PLY_MAX_PROPS][32];
+	enum ply_type face_count_type, face_index_type;
+	int vertex_first;   /* vertex element precedes face element */
+	size_t data_offset;
+	int data_line;
+};
+
+static int ply_parse_header(const char *text, size_t len, const char *source,
+			    struct ply_header *h, struct asph_error *err)
+{
+	size_t pos = 0;
+	int lineno = 0, in = 0; /* 1 vertex, 2 face, 3 other */
+
+	memset(h, 0, sizeof(*h));
+	h->vertex_first = 1;
+	for (;;) {
+		if (pos >= len)
+			return fail(err, source, lineno, 1, NULL, -EINVAL, "PLY header without end_header");
+		size_t end = pos;
+		while (end < len && text[end] != '\n')
+			end++;
+		char line[256];
+		size_t ll = end - pos;
+		if (ll >= sizeof(line))
+			return fail(err, source, lineno + 1, 1, NULL, -EINVAL, "PLY header line too long");
+		memcpy(line, text + pos, ll);
+		line[ll] = '\0';
+		if (ll && line[ll - 1] == '\r')
+			line[--ll] = '\0';
+		lineno++;
+		pos = end + 1;
+		char w1[32] = "", w2[32] = "", w3[32] = "", w4[32] = "", w5[32] = "";
+		int nw = sscanf(line, "%31s %31s %31s %31s %31s", w1, w2, w3, w4, w5);
+		if (lineno == 1) {
+			if (strcmp(line, "ply"))
+				return fail(err, source, 1, 1, NULL, -EINVAL, "not a PLY file (no 'ply' magic)");
+			continue;
+		}
+		if (nw <= 0 || !strcmp(w1, "comment") || !strcmp(w1, "obj_info"))
+			continue;
+		if (!strcmp(w1, "format")) {
+			if (!strcmp(w2, "ascii"))
+				h->binary = 0;
+			else if (!strcmp(w2, "binary_little_endian"))
+				h->binary = 1;
+			else
+				return fail(err, source, lineno, 8, "format", -ENOTSUP,
+					    "PLY format '%s' not supported (ascii, binary_little_endian)", w2);
+		} else if (!strcmp(w1, "element")) {
+			char *stop;
+			unsigned long long count = strtoull(w3, &stop, 10);
+			if (nw < 3 || *stop || count > POINTS_MAX)
+				return fail(err, source, lineno, 9, "element", -EINVAL,
+					    "bad element count '%s'", w3);
+			if (!strcmp(w2, "vertex")) {
+				in = 1;
+				h->n_vertex = count;
+			} else if (!strcmp(w2, "face")) {
+				if (h->n_vertex == 0 && h->n_props == 0)
+					h->vertex_first = 0;
+				in = 2;
+				h->n_face = count;
+			} else {
+				if (count)
+					return fail(err, source, lineno, 9, w2, -ENOTSUP,
+						    "PLY element '%s' not supported", w2);
+				in = 3;
+			}
+		} else if (!strcmp(w1, "property")) {
+			if (in == 1) {
+				if (h->n_props == PLY_MAX_PROPS)
+					return fail(err, source, lineno, 1, NULL, -EINVAL, "too many properties");
+				h->prop_type[h->n_props] = ply_type_of(w2);
+				if (h->prop_type[h->n_props] == PLY_NONE || nw < 3)
+					return fail(err, source, lineno, 10, w3, -EINVAL,
+						    "bad vertex property type '%s'", w2);
+				snprintf(h->prop_name[h->n_props], 32, "%s", w3);
+				h->n_props++;
+			} else if (in == 2) {
+				if (strcmp(w2, "list") || nw < 5)
+					return fail(err, source, lineno, 10, NULL, -EINVAL,
+						    "face property must be 'list <count type> <index type> vertex_indices'");
+				h->face_count_type = ply_type_of(w3);
+				h->face_index_type = ply_type_of(w4);
+				if (!h->face_count_type || !h->face_index_type)
+					return fail(err, source, lineno, 15, NULL, -EINVAL, "bad face list types");
+			}
+		} else if (!strcmp(w1, "end_header")) {
+			h->data_offset = pos;
+			h->data_line = lineno + 1;
+			break;
+		} else {
+			return fail(err, source, lineno, 1, NULL, -EINVAL,
+				    "unexpected PLY header line '%s'", line);
+		}
+	}
+	if (!h->vertex_first && h->n_face)
+		return fail(err, source, 0, 0, NULL, -ENOTSUP,
+			    "faces before vertices are not supported");
+	return 0;
+}
+
+static double ply_get_binary(const unsigned char *p, enum ply_type t)
+{
+	switch (t) {
+	case PLY_I8: return (int8_t)p[0];
+	case PLY_U8: return p[0];
+	case PLY_I16: { int16_t v; memcpy(&v, p, 2); return v; }
+	case PLY_U16: { uint16_t v; memcpy(&v, p, 2); return v; }
+	case PLY_I32: { int32_t v; memcpy(&v, p, 4); return v; }
+	case PLY_U32: { uint32_t v; memcpy(&v, p, 4); return v; }
+	case PLY_F32: { float v; memcpy(&v, p, 4); return v; }
+	case PLY_F64: { double v; memcpy(&v, p, 8); return v; }
+	case PLY_NONE: break;
+	}
+	return NAN;
+}
+
+/* Reads the next number of the ASCII body; tracks lines for errors. */
+struct ply_cursor {
+	const char *text;
+	size_t len, pos;
+	int line;
+	size_t line_start;
+};
+
+static int ply_next(struct ply_cursor *c, double *v)
+{
+	while (c->pos < c->len && (c->text[c->pos] == ' ' || c->text[c->pos] == '\t' ||
+				   c->text[c->pos] == '\r' || c->text[c->pos] == '\n')) {
+		if (c->text[c->pos] == '\n') {
+			c->line++;
+			c->line_start = c->pos + 1;
+		}
+		c->pos++;
+	}
+	if (c->pos >= c->len)
+		return -ENODATA;
+	char tmp[64], *stop;
+	size_t e = c->pos;
+	while (e < c->len && !strchr(" \t\r\n", c->text[e]))
+		e++;
+	if (e - c->pos >= sizeof(tmp))
+		return -EINVAL;
+	memcpy(tmp, c->text + c->pos, e - c->pos);
+	tmp[e - c->pos] = '\0';
+	*v = strtod(tmp, &stop);
+	if (*stop)
+		return -EINVAL;
+	c->pos = e;
+	return 0;
+}
+
+static int ply_read_body(const char *text, size_t len, const char *source,
+			 const struct ply_header *h, struct asph_points *p,
+			 struct asph_error *err)
+{
+	int ix = -1, iy = -1, iz = -1, iv = -1;
+	size_t stride = 0;
+
+	for (int i = 0; i < h->n_props; i++) {
+		if (!strcmp(h->prop_name[i], "x")) ix = i;
+		else if (!strcmp(h->prop_name[i], "y")) iy = i;
+		else if (!strcmp(h->prop_name[i], "z")) iz = i;
+		else if (iv < 0 && h->prop_type[i] >= PLY_F32) iv = i;
+		stride += ply_size(h->prop_type[i]);
+	}
+	if (ix < 0 || iy < 0 || iz < 0)
+		return fail(err, source, 0, 0, NULL, -EINVAL, "PLY vertices lack x, y or z");
+	if (iv >= 0 && asph_points_add_value(p, h->prop_name[iv]) < 0)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+
+	struct ply_cursor c = { text, len, h->data_offset, h->data_line, h->data_offset };
+	const unsigned char *bin = (const unsigned char *)text + h->data_offset;
+	size_t avail = len - h->data_offset;
+	double prop[PLY_MAX_PROPS];
+
+	for (size_t i = 0; i < h->n_vertex; i++) {
+		if (h->binary) {
+			if (avail < stride)
+				return fail(err, source, 0, 0, NULL, -EINVAL,
+					    "PLY data ends at vertex %zu of %zu", i, h->n_vertex);
+			for (int k = 0; k < h->n_props; k++) {
+				prop[k] = ply_get_binary(bin, h->prop_type[k]);
+				bin += ply_size(h->prop_type[k]);
+			}
+			avail -= stride;
+		} else {
+			for (int k = 0; k < h->n_props; k++) {
+				int r = ply_next(&c, &prop[k]);
+				if (r < 0)
+					return fail(err, source, c.line, (int)(c.pos - c.line_start) + 1,
+						    h->prop_name[k], -EINVAL,
+						    r == -ENODATA ? "PLY data ends at vertex %zu" :
+								    "not a number at vertex %zu", i);
+			}
+		}
+		for (int k = 0; k < 3; k++) {
+			int idx = k == 0 ? ix : k == 1 ? iy : iz;
+			if (!isfinite(prop[idx]))
+				return fail(err, source, h->binary ? 0 : c.line, 0, h->prop_name[idx],
+					    -EINVAL, "vertex %zu: not a finite number", i);
+			p->xyz[3 * i + k] = prop[idx];
+		}
+		if (iv >= 0)
+			p->value[i] = prop[iv];
+	}
+	if (h->n_face == 0)
+		return 0;
+	p->triangles = malloc(3 * h->n_face * sizeof(uint32_t));
+	if (!p->triangles)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	for (size_t f = 0; f < h->n_face; f++) {
+		double cnt, idx[3];
+		if (h->binary) {
+			size_t cs = ply_size(h->face_count_type), is = ply_size(h->face_index_type);
+			if (avail < cs)
+				return fail(err, source, 0, 0, NULL, -EINVAL, "PLY data ends at face %zu", f);
+			cnt = ply_get_binary(bin, h->face_count_type);
+			bin += cs;
+			avail -= cs;
+			if (cnt != 3)
+				return fail(err, source, 0, 0, NULL, -EINVAL,
+					    "face %zu has %g vertices; only triangles are supported", f, cnt);
+			if (avail < 3 * is)
+				return fail(err, source, 0, 0, NULL, -EINVAL, "PLY data ends at face %zu", f);
+			for (int k = 0; k < 3; k++) {
+				idx[k] = ply_get_binary(bin, h->face_index_type);
+				bin += is;
+			}
+			avail -= 3 * is;
+		} else {
+			if (ply_next(&c, &cnt) < 0 || cnt != 3)
+				return fail(err, source, c.line, 1, NULL, -EINVAL,
+					    "face %zu: expected '3 i j k' (triangles only)", f);
+			for (int k = 0; k < 3; k++)
+				if (ply_next(&c, &idx[k]) < 0)
+					return fail(err, source, c.line, 1, NULL, -EINVAL,
+						    "face %zu: bad vertex index", f);
+		}
+		for (int k = 0; k < 3; k++) {
+			if (!(idx[k] >= 0 && idx[k] < (double)h->n_vertex) || idx[k] != floor(idx[k]))
+				return fail(err, source, h->binary ? 0 : c.line, 0, NULL, -EINVAL,
+					    "face %zu: vertex index %g out of range", f, idx[k]);
+			p->triangles[3 * f + k] = (uint32_t)idx[k];
+		}
+	}
+	p->n_triangles = h->n_face;
+	return 0;
+}
+
+static int read_ply(const char *text, size_t len, const char *source,
+		    struct asph_points **out, struct asph_error *err)
+{
+	struct ply_header h;
+	int r = ply_parse_header(text, len, source, &h, err);
+	if (r < 0)
+		return r;
+	_cleanup_(asph_points_freep) struct asph_points *p = asph_points_alloc(h.n_vertex);
+	if (!p)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	r = ply_read_body(text, len, source, &h, p, err);
+	if (r < 0)
+		return r;
+	*out = steal_ptr(p);
+	return 0;
+}
+
+/* ---- JSON ---- */
+
+static int read_json(const char *text, size_t len, const char *source,
+		     struct asph_points **out, struct asph_error *err)
+{
+	json_error_t jerr;
+	_cleanup_(json_decrefp) json_t *root = json_loadb(text, len, 0, &jerr);
+
+	if (!root)
+		return fail(err, source, jerr.line, jerr.column, NULL, -EINVAL, "%s", jerr.text);
+	json_t *pts = json_object_get(root, "points");
+	if (!json_is_array(pts))
+		return fail(err, source, 0, 0, "points", -EINVAL, "expected an array \"points\" of [x,y,z]");
+	size_t n = json_array_size(pts);
+	_cleanup_(asph_points_freep) struct asph_points *p = asph_points_alloc(n);
+	if (!p)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	for (size_t i = 0; i < n; i++) {
+		json_t *e = json_array_get(pts, i);
+		char field[48];
+		snprintf(field, sizeof(field), "points[%zu]", i);
+		if (!json_is_array(e) || json_array_size(e) != 3)
+			return fail(err, source, 0, 0, field, -EINVAL, "expected [x, y, z]");
+		for (size_t k = 0; k < 3; k++) {
+			json_t *v = json_array_get(e, k);
+			if (!json_is_number(v) || !isfinite(json_number_value(v)))
+				return fail(err, source, 0, 0, field, -EINVAL, "coordinate %zu is not a finite number", k);
+			p->xyz[3 * i + k] = json_number_value(v);
+		}
+	}
+	json_t *tris = json_object_get(root, "triangles");
+	if (json_is_array(tris) && json_array_size(tris) > 0) {
+		size_t nt = json_array_size(tris);
+		p->triangles = malloc(3 * nt * sizeof(uint32_t));
+		if (!p->triangles)
+			return asph_error_set(err, -ENOMEM, "out of memory");
+		for (size_t i = 0; i < nt; i++) {
+			json_t *e = json_array_get(tris, i);
+			char field[48];
+			snprintf(field, sizeof(field), "triangles[%zu]", i);
+			if (!json_is_array(e) || json_array_size(e) != 3)
+				return fail(err, source, 0, 0, field, -EINVAL, "expected [i, j, k]");
+			for (size_t k = 0; k < 3; k++) {
+				json_t *v = json_array_get(e, k);
+				if (!json_is_integer(v) || json_integer_value(v) < 0 ||
+				    (json_int_t)n <= json_integer_value(v))
+					return fail(err, source, 0, 0, field, -EINVAL, "vertex index out of range");
+				p->triangles[3 * i + k] = (uint32_t)json_integer_value(v);
+			}
+		}
+		p->n_triangles = nt;
+	}
+	json_t *vals = json_object_get(root, "values");
+	if (json_is_array(vals)) {
+		if (json_array_size(vals) != n)
+			return fail(err, source, 0, 0, "values", -EINVAL, "expected one value per point");
+		json_t *name = json_object_get(root, "value_name");
+		if (asph_points_add_value(p, json_is_string(name) ? json_string_value(name) : "value") < 0)
+			return asph_error_set(err, -ENOMEM, "out of memory");
+		for (size_t i = 0; i < n; i++) {
+			json_t *v = json_array_get(vals, i);
+			if (!json_is_number(v))
+				return fail(err, source, 0, 0, "values", -EINVAL, "value %zu is not a number", i);
+			p->value[i] = json_number_value(v);
+		}
+	}
+	*out = steal_ptr(p);
+	return 0;
+}
+
+int asph_points_read(const char *path, struct asph_points **out,
+		     struct asph_error *err)
+{
+	int is_stdin = !strcmp(path, "-");
+	const char *source = is_stdin ? "<stdin>" : path;
+	_cleanup_fclose_ FILE *f = is_stdin ? NULL : fopen(path, "re");
+	_cleanup_free_ char *text = NULL;
+	size_t len = 0;
+
+	if (!is_stdin && !f) {
+		int e = -errno;
+		return fail(err, source, 0, 0, NULL, e, "cannot open: %s", strerror(-e));
+	}
+	int r = slurp(is_stdin ? stdin : f, source, &text, &len, err);
+	if (r < 0)
+		return r;
+	switch (is_stdin ? FMT_CSV : format_of(path)) {
+	case FMT_PLY:
+		return read_ply(text, len, source, out, err);
+	case FMT_JSON:
+		return read_json(text, len, source, out, err);
+	case FMT_CSV:
+		break;
+	}
+	return asph_points_read_csv_text(text, len, source, out, err);
+}
+
+/* ---- writing ---- */
+
+static void value_range(const struct asph_points *p,
+			const struct asph_points_write_options *o, double *lo,
+			double *hi)
+{
+	*lo = o ? o->colour_lo : 0;
+	*hi = o ? o->colour_hi : 0;
+	if (*lo != *hi)
+		return;
+	double m = 0;
+	for (size_t i = 0; i < p->n; i++)
+		if (isfinite(p->value[i]))
+			m = fmax(m, fabs(p->value[i]));
+	if (m == 0)
+		m = 1;
+	*lo = -m;
+	*hi = m;
+}
+
+static void write_csv(FILE *f, const struct asph_points *p, int prec)
+{
+	fprintf(f, "x,y,z%s%s\n", p->value ? "," : "", p->value ? p->value_name : "");
+	for (size_t i = 0; i < p->n; i++) {
+		const double *q = p->xyz + 3 * i;
+		if (p->value)
+			fprintf(f, "%.*g,%.*g,%.*g,%.*g\n", prec, q[0], prec, q[1], prec, q[2],
+				prec, p->value[i]);
+		else
+			fprintf(f, "%.*g,%.*g,%.*g\n", prec, q[0], prec, q[1], prec, q[2]);
+	}
+}
+
+static void write_ply(FILE *f, const struct asph_points *p, int prec,
+		      const struct asph_points_write_options *o)
+{
+	double lo = 0, hi = 0;
+
+	fprintf(f, "ply\nformat ascii 1.0\ncomment asphd points (mm)\n");
+	fprintf(f, "element vertex %zu\nproperty double x\nproperty double y\nproperty double z\n", p->n);
+	if (p->value) {
+		value_range(p, o, &lo, &hi);
+		fprintf(f, "comment colour range %s [%.6g, %.6g]\n", p->value_name, lo, hi);
+		fprintf(f, "property double %s\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n",
+			p->value_name);
+	}
+	if (p->n_triangles)
+		fprintf(f, "element face %zu\nproperty list uchar int vertex_indices\n", p->n_triangles);
+	fprintf(f, "end_header\n");
+	for (size_t i = 0; i < p->n; i++) {
+		const double *q = p->xyz + 3 * i;
+		fprintf(f, "%.*g %.*g %.*g", prec, q[0], prec, q[1], prec, q[2]);
+		if (p->value) {
+			uint8_t rgb[3];
+			colormap_diverging((p->value[i] - lo) / (hi - lo), rgb);
+			fprintf(f, " %.*g %u %u %u", prec, p->value[i], rgb[0], rgb[1], rgb[2]);
+		}
+		fputc('\n', f);
+	}
+	for (size_t t = 0; t < p->n_triangles; t++)
+		fprintf(f, "3 %u %u %u\n", p->triangles[3 * t], p->triangles[3 * t + 1],
+			p->triangles[3 * t + 2]);
+}
+
+static void write_json(FILE *f, const struct asph_points *p, int prec)
+{
+	fprintf(f, "{\"units\": \"mm\", \"points\": [");
+	for (size_t i = 0; i < p->n; i++) {
+		const double *q = p->xyz + 3 * i;
+		fprintf(f, "%s[%.*g, %.*g, %.*g]", i ? ",\n" : "\n", prec, q[0], prec, q[1], prec, q[2]);
+	}
+	fprintf(f, "\n]");
+	if (p->value) {
+		fprintf(f, ",\n\"value_name\": \"%s\", \"values\": [", p->value_name);
+		for (size_t i = 0; i < p->n; i++)
+			fprintf(f, "%s%.*g", i ? ", " : "", prec, p->value[i]);
+		fprintf(f, "]");
+	}
+	if (p->n_triangles) {
+		fprintf(f, ",\n\"triangles\": [");
+		for (size_t t = 0; t < p->n_triangles; t++)
+			fprintf(f, "%s[%u, %u, %u]", t ? ",\n" : "\n", p->triangles[3 * t],
+				p->triangles[3 * t + 1], p->triangles[3 * t + 2]);
+		fprintf(f, "\n]");
+	}
+	fprintf(f, "}\n");
+}
+
+int asph_points_write(const char *path, const struct asph_points *p,
+		      const struct asph_points_write_options *opts,
+		      struct asph_error *err)
+{
+	int is_stdout = !strcmp(path, "-");
+	int prec = opts && opts->precision > 0 ? opts->precision : 17;
+	FILE *f = is_stdout ? stdout : fopen(path, "we");
+
+	if (!f) {
+		int e = -errno;
+		return fail(err, path, 0, 0, NULL, e, "cannot create: %s", strerror(-e));
+	}
+	switch (is_stdout ? FMT_CSV : format_of(path)) {
+	case FMT_PLY:
+		write_ply(f, p, prec, opts);
+		break;
+	case FMT_JSON:
+		write_json(f, p, prec);
+		break;
+	case FMT_CSV:
+		write_csv(f, p, prec);
+		break;
+	}
+	int failed = fflush(f) != 0 || ferror(f);
+	int e = errno;
+	if (!is_stdout && fclose(f) != 0)
+		failed = 1, e = errno;
+	if (failed)
+		return fail(err, is_stdout ? "<stdout>" : path, 0, 0, NULL, -e,
+			    "write error: %s", strerror(e));
+	return 0;
+}

@@ -1,0 +1,305 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <errno.h>
+#include <stdarg.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <jansson.h>
+
+#include "asph/prescription.h"
+#include "jsonpos.h"
+#include "util-mem.h"
+
+
+/* Table 1 of the paper (it calls the coefficients alpha_4..alpha_12). */
+static const struct preset {
+	const char *name;
+	double R, k, A4, A6, A8, A10, A12, diameter;
+} presets[] = {
+	{ "weak", 40.6193, 0, -6.79375e-7, -4.85203e-10, -2.05223e-13,
+	  -6.2324e-17, -4.4857e-20, 39 },
+	{ "strong", 20.097, -1, -2.0868e-5, -3.9031e-9, 3.4102e-11,
+	  -3.2381e-14, 0, 40 },
+	{ "turning-point", 94.6, -23.2046, -6.86465e-6, -1.21832e-8,
+	  2.22491e-11, -8.06098e-14, 0, 60 },
+};
+
+static const char *const preset_names[] = { "weak", "strong", "turning-point", NULL };
+
+const char *const *asph_prescription_preset_names(void)
+{
+	return preset_names;
+}
+
+int asph_prescription_preset(const char *name, struct asph_prescription *out)
+{
+	for (size_t i = 0; i < ARRAY_SIZE(presets); i++) {
+		const struct preset *p = &presets[i];
+		if (strcmp(name, p->name))
+			continue;
+		memset(out, 0, sizeof(*out));
+		out->type = ASPH_SURFACE_EVEN_ASPHERE;
+		snprintf(out->name, sizeof(out->name), "%s", p->name);
+		out->R = p->R;
+		out->k = p->k;
+		out->A[4] = p->A4;
+		out->A[6] = p->A6;
+		out->A[8] = p->A8;
+		out->A[10] = p->A10;
+		out->A[12] = p->A12;
+		out->aperture_diameter = p->diameter;
+		return 0;
+	}
+	return -ENOENT;
+}
+
+struct parse_ctx {
+	const char *text;
+	size_t len;
+	const char *source;
+	struct asph_error *err;
+};
+
+/* Fails with the location of `field` (a dotted path) in the text. */
+static int fail_at(const struct parse_ctx *c, const char *field, int code,
+		   const char *fmt, ...) __attribute__((format(printf, 4, 5)));
+
+static int fail_at(const struct parse_ctx *c, const char *field, int code,
+		   const char *fmt, ...)
+{
+	int line = 0, col = 0;
+	char msg[512];
+	va_list ap;
+
+	if (!c->err)
+		return code;
+	va_start(ap, fmt);
+	vsnprintf(msg, sizeof(msg), fmt, ap);
+	va_end(ap);
+	if (field)
+		json_locate_dotted(c->text, c->len, field, &line, &col);
+	asph_error_set(c->err, code, "%s", msg);
+	asph_error_locate(c->err, c->source, line, col, field);
+	return code;
+}
+
+static int get_number(const struct parse_ctx *c, json_t *v, const char *field,
+		      double *out)
+{
+	if (!json_is_number(v))
+		return fail_at(c, field, -EINVAL, "expected a number");
+	*out = json_number_value(v);
+	if (!isfinite(*out))
+		return fail_at(c, field, -EINVAL, "not a finite number");
+	return 0;
+}
+
+static int parse_coefficients(const struct parse_ctx *c, json_t *obj,
+			      struct asph_prescription *out)
+{
+	const char *key;
+	json_t *v;
+
+	if (!json_is_object(obj))
+		return fail_at(c, "A", -EINVAL,
+			       "expected an object of coefficients, e.g. {\"4\": -2.1e-5}");
+	json_object_foreach(obj, key, v) {
+		char field[64], *end;
+		snprintf(field, sizeof(field), "A.%s", key);
+		errno = 0;
+		long power = strtol(key, &end, 10);
+		if (*key == '\0' || *end != '\0' || errno)
+			return fail_at(c, field, -EINVAL,
+				       "coefficient key '%s' is not a power of r", key);
+		if (power < 2 || power > ASPH_SURFACE_MAX_POWER || power % 2)
+			return fail_at(c, field, -EINVAL,
+				       "an even asphere has coefficients for powers 2, 4, ..., %d; got %ld",
+				       ASPH_SURFACE_MAX_POWER, power);
+		int r = get_number(c, v, field, &out->A[power]);
+		if (r < 0)
+			return r;
+	}
+	return 0;
+}
+
+static int parse_members(const struct parse_ctx *c, json_t *root,
+			 struct asph_prescription *out)
+{
+	static const char *const known[] = { "type", "name", "R", "k", "A",
+					     "aperture_diameter" };
+	const char *key;
+	json_t *v;
+	int r;
+
+	json_object_foreach(root, key, v) {
+		size_t i;
+		for (i = 0; i < ARRAY_SIZE(known); i++)
+			if (!strcmp(key, known[i]))
+				break;
+		if (i == ARRAY_SIZE(known))
+			return fail_at(c, key, -EINVAL,
+				       "unknown member '%s' (expected type, name, R, k, A, aperture_diameter)",
+				       key);
+	}
+
+	v = json_object_get(root, "type");
+	if (!v)
+		return fail_at(c, NULL, -EINVAL, "missing member \"type\" (e.g. \"even_asphere\")");
+	if (!json_is_string(v))
+		return fail_at(c, "type", -EINVAL, "expected a string");
+	if (strcmp(json_string_value(v), "even_asphere"))
+		return fail_at(c, "type", -EINVAL, "unknown surface type '%s' (known: even_asphere)",
+			       json_string_value(v));
+	out->type = ASPH_SURFACE_EVEN_ASPHERE;
+
+	v = json_object_get(root, "name");
+	if (v) {
+		if (!json_is_string(v))
+			return fail_at(c, "name", -EINVAL, "expected a string");
+		snprintf(out->name, sizeof(out->name), "%s", json_string_value(v));
+	}
+
+	v = json_object_get(root, "R");
+	if (!v)
+		return fail_at(c, NULL, -EINVAL, "missing member \"R\" (vertex radius of curvature, mm)");
+	if ((r = get_number(c, v, "R", &out->R)) < 0)
+		return r;
+
+	v = json_object_get(root, "k");
+	if (v && (r = get_number(c, v, "k", &out->k)) < 0)
+		return r;
+
+	v = json_object_get(root, "A");
+	if (v && (r = parse_coefficients(c, v, out)) < 0)
+		return r;
+
+	v = json_object_get(root, "aperture_diameter");
+	if (!v)
+		return fail_at(c, NULL, -EINVAL, "missing member \"aperture_diameter\" (mm)");
+	if ((r = get_number(c, v, "aperture_diameter", &out->aperture_diameter)) < 0)
+		return r;
+	return 0;
+}
+
+int asph_prescription_parse(const char *text, size_t len, const char *source,
+			    struct asph_prescription *out,
+			    struct asph_error *err)
+{
+	struct parse_ctx c = { text, len, source ? source : "<input>", err };
+	json_error_t jerr;
+	int r;
+
+	memset(out, 0, sizeof(*out));
+	_cleanup_(json_decrefp) json_t *root =
+		json_loadb(text, len, JSON_REJECT_DUPLICATES, &jerr);
+	if (!root) {
+		asph_error_set(err, -EINVAL, "%s", jerr.text);
+		asph_error_locate(err, c.source, jerr.line, jerr.column, NULL);
+		return -EINVAL;
+	}
+	if (!json_is_object(root))
+		return fail_at(&c, "", -EINVAL, "a prescription is a JSON object");
+	r = parse_members(&c, root, out);
+	if (r < 0)
+		return r;
+
+	struct asph_error check;
+	asph_error_clear(&check);
+	r = asph_prescription_check(out, &check);
+	if (r < 0)
+		return fail_at(&c, check.field[0] ? check.field : NULL, r, "%s",
+			       check.message);
+	return 0;
+}
+
+int asph_prescription_load_file(const char *path,
+				struct asph_prescription *out,
+				struct asph_error *err)
+{
+	_cleanup_fclose_ FILE *f = fopen(path, "re");
+	_cleanup_free_ char *buf = NULL;
+	size_t len = 0, cap = 0;
+	/* A prescription is small; anything this large is not one. */
+	const size_t limit = 1 << 20;
+
+	if (!f) {
+		int e = -errno;
+		asph_error_locate(err, path, 0, 0, NULL);
+		return asph_error_set(err, e, "cannot open: %s", strerror(-e));
+	}
+	for (;;) {
+		if (len == cap) {
+			cap = cap ? cap * 2 : 4096;
+			char *grown = realloc(buf, cap);
+			if (!grown)
+				return asph_error_set(err, -ENOMEM, "out of memory");
+			buf = grown;
+		}
+		size_t got = fread(buf + len, 1, cap - len, f);
+		len += got;
+		if (got == 0)
+			break;
+		if (len > limit) {
+			asph_error_locate(err, path, 0, 0, NULL);
+			return asph_error_set(err, -EFBIG,
+					      "larger than %zu bytes: not a prescription", limit);
+		}
+	}
+	if (ferror(f)) {
+		asph_error_locate(err, path, 0, 0, NULL);
+		return asph_error_set(err, -EIO, "read error");
+	}
+	int r = asph_prescription_parse(buf, len, path, out, err);
+	if (r == 0 && out->name[0] == '\0') {
+		const char *base = strrchr(path, '/');
+		base = base ? base + 1 : path;
+		snprintf(out->name, sizeof(out->name), "%.*s",
+			 (int)strcspn(base, "."), base);
+	}
+	return r;
+}
+
+int asph_prescription_load(const char *name_or_path,
+			   struct asph_prescription *out,
+			   struct asph_error *err)
+{
+	if (asph_prescription_preset(name_or_path, out) == 0)
+		return 0;
+	int r = asph_prescription_load_file(name_or_path, out, err);
+	if (r == -ENOENT && !strchr(name_or_path, '/') && !strchr(name_or_path, '.')) {
+		asph_error_clear(err);
+		asph_error_locate(err, name_or_path, 0, 0, NULL);
+		return asph_error_set(err, -ENOENT,
+				      "neither a preset (weak, strong, turning-point) nor a file");
+	}
+	return r;
+}
+
+int asph_prescription_to_json(const struct asph_prescription *p, char **out)
+{
+	_cleanup_(json_decrefp) json_t *root = json_object();
+	json_t *coeffs = json_object();
+
+	if (!root || !coeffs) {
+		json_decref(coeffs);
+		return -ENOMEM;
+	}
+	json_object_set_new(root, "type", json_string(asph_surface_type_name(p->type)));
+	if (p->name[0])
+		json_object_set_new(root, "name", json_string(p->name));
+	json_object_set_new(root, "R", json_real(p->R));
+	json_object_set_new(root, "k", json_real(p->k));
+	for (int i = 1; i <= ASPH_SURFACE_MAX_POWER; i++) {
+		if (p->A[i] == 0)
+			continue;
+		char key[8];
+		snprintf(key, sizeof(key), "%d", i);
+		json_object_set_new(coeffs, key, json_real(p->A[i]));
+	}
+	json_object_set_new(root, "A", coeffs);
+	json_object_set_new(root, "aperture_diameter", json_real(p->aperture_diameter));
+	*out = json_dumps(root, JSON_REAL_PRECISION(17) | JSON_PRESERVE_ORDER);
+	return *out ? 0 : -ENOMEM;
+}

@@ -1,0 +1,65 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* Scope-bound cleanup, shared by every part of the tree. Internal header. */
+#ifndef ASPH_UTIL_MEM_H
+#define ASPH_UTIL_MEM_H
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <unistd.h>
+#include <errno.h>
+
+#define _cleanup_(f) __attribute__((cleanup(f)))
+
+static inline void freep(void *p)
+{
+	free(*(void **)p);
+}
+
+static inline void fclosep(FILE **f)
+{
+	if (*f)
+		fclose(*f);
+}
+
+static inline void closep(int *fd)
+{
+	if (*fd >= 0) {
+		int saved = errno;
+		close(*fd);
+		errno = saved;
+	}
+}
+
+/* Defines fn##p() that calls fn on a non-NULL pointer, for _cleanup_().
+ * (jansson already provides json_decrefp for json_t *.) */
+#define DEFINE_TRIVIAL_CLEANUP_FUNC(type, fn)         \
+	static inline void fn##p(type *p)             \
+	{                                             \
+		if (*p)                               \
+			fn(*p);                       \
+	}
+
+#define _cleanup_free_ _cleanup_(freep)
+#define _cleanup_fclose_ _cleanup_(fclosep)
+#define _cleanup_close_ _cleanup_(closep)
+
+/* Hands ownership out of a _cleanup_ variable. */
+#define steal_ptr(ptr_)                        \
+	__extension__({                                     \
+		__typeof__(ptr_) *p_ = &(ptr_); \
+		__typeof__(ptr_) v_ = *p_;      \
+		*p_ = NULL;                    \
+		v_;                            \
+	})
+
+#define steal_fd(fd_)              \
+	__extension__({                         \
+		int *p_ = &(fd_);  \
+		int v_ = *p_;      \
+		*p_ = -1;          \
+		v_;                \
+	})
+
+#define ARRAY_SIZE(a) (sizeof(a) / sizeof((a)[0]))
+
+#endif

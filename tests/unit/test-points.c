@@ -1,0 +1,224 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <errno.h>
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+
+#include "asph/points.h"
+
+static char dir[] = "/tmp/asph-test-points-XXXXXX";
+
+static int setup(void **state)
+{
+	return mkdtemp(dir) ? 0 : -1;
+}
+
+static int teardown(void **state)
+{
+	char cmd[128];
+	snprintf(cmd, sizeof(cmd), "rm -rf '%s'", dir);
+	return system(cmd) == 0 ? 0 : -1;
+}
+
+static struct asph_points *sample(size_t n, int with_value, int with_mesh)
+{
+	struct asph_points *p = asph_points_alloc(n);
+	assert_non_null(p);
+	for (size_t i = 0; i < n; i++) {
+		/* values whose decimal forms need all 17 digits */
+		p->xyz[3 * i] = sin(1.37 * (double)i + 0.1) * 19.7;
+		p->xyz[3 * i + 1] = cos(2.91 * (double)i) * 7.3e-3;
+		p->xyz[3 * i + 2] = exp(-(double)i / 7.0) / 3.0;
+	}
+	if (with_value) {
+		assert_int_equal(asph_points_add_value(p, "residual_nm"), 0);
+		for (size_t i = 0; i < n; i++)
+			p->value[i] = ((double)i - 3.3) * 1.7;
+	}
+	if (with_mesh && n >= 3) {
+		p->n_triangles = n - 2;
+		p->triangles = malloc(3 * p->n_triangles * sizeof(uint32_t));
+		for (size_t t = 0; t < p->n_triangles; t++) {
+			p->triangles[3 * t] = (uint32_t)t;
+			p->triangles[3 * t + 1] = (uint32_t)t + 1;
+			p->triangles[3 * t + 2] = (uint32_t)t + 2;
+		}
+	}
+	return p;
+}
+
+static void round_trip(const char *ext, int with_value, int with_mesh)
+{
+	char path[256];
+	snprintf(path, sizeof(path), "%s/pts.%s", dir, ext);
+	struct asph_points *p = sample(11, with_value, with_mesh), *q = NULL;
+	struct asph_error err;
+	assert_int_equal(asph_points_write(path, p, NULL, &err), 0);
+	assert_int_equal(asph_points_read(path, &q, &err), 0);
+	assert_int_equal(q->n, p->n);
+	assert_memory_equal(q->xyz, p->xyz, 3 * p->n * sizeof(double));
+	if (with_value) {
+		assert_non_null(q->value);
+		assert_string_equal(q->value_name, "residual_nm");
+		assert_memory_equal(q->value, p->value, p->n * sizeof(double));
+	}
+	if (with_mesh) {
+		assert_int_equal(q->n_triangles, p->n_triangles);
+		assert_memory_equal(q->triangles, p->triangles, 3 * p->n_triangles * sizeof(uint32_t));
+	}
+	asph_points_free(p);
+	asph_points_free(q);
+}
+
+static void test_round_trips(void **state)
+{
+	round_trip("csv", 0, 0);
+	round_trip("csv", 1, 0);
+	round_trip("ply", 0, 1);
+	round_trip("ply", 1, 1);
+	round_trip("json", 1, 1);
+	round_trip("json", 0, 0);
+}
+
+static void test_ply_binary(void **state)
+{
+	char path[256];
+	snprintf(path, sizeof(path), "%s/bin.ply", dir);
+	FILE *f = fopen(path, "wb");
+	assert_non_null(f);
+	fprintf(f, "ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
+		   "property float x\nproperty float y\nproperty float z\nproperty uchar red\n"
+		   "element face 1\nproperty list uchar uint vertex_indices\nend_header\n");
+	const float v[3][3] = { { 1.5f, -2.25f, 0.125f }, { 3, 4, 5 }, { -1, 0.5f, 2 } };
+	for (int i = 0; i < 3; i++) {
+		fwrite(v[i], sizeof(float), 3, f);
+		fputc(200, f);
+	}
+	unsigned char cnt = 3;
+	uint32_t idx[3] = { 2, 0, 1 };
+	fwrite(&cnt, 1, 1, f);
+	fwrite(idx, 4, 3, f);
+	fclose(f);
+	struct asph_points *p = NULL;
+	struct asph_error err;
+	assert_int_equal(asph_points_read(path, &p, &err), 0);
+	assert_int_equal(p->n, 3);
+	assert_true(p->xyz[0] == 1.5 && p->xyz[1] == -2.25 && p->xyz[8] == 2);
+	assert_int_equal(p->n_triangles, 1);
+	assert_true(p->triangles[0] == 2 && p->triangles[2] == 1);
+	asph_points_free(p);
+}
+
+struct bad_csv {
+	const char *text;
+	int line, column;
+	const char *field;
+	const char *needle;
+};
+
+static const struct bad_csv bad[] = {
+	{ "", 0, 0, "", "empty file" },
+	{ "# only a comment\n\n", 0, 0, "", "empty file" },
+	{ "1,2,3\n", 1, 1, "", "header" },
+	{ "x,y\n1,2\n", 1, 1, "", "header" },
+	{ "x,y,z\n1,2,3\n4,nan,6\n", 3, 3, "y", "not a finite number" },
+	{ "x,y,z\n1,2,3\n4,5\n", 3, 0, "", "expected 3 columns" },
+	{ "x,y,z\n1,2,3,4\n", 2, 0, "", "found more" },
+	{ "x,y,z\n1,2,abc\n", 2, 5, "z", "not a number: 'abc'" },
+	{ "x,y,z\n1,,3\n", 2, 3, "y", "empty value" },
+	{ "x,y,z\n1,2,inf\n", 2, 5, "z", "not a finite number" },
+	{ "x,y,z\n1,2,1e999\n", 2, 5, "z", "not a finite number" },
+};
+
+static void test_csv_errors(void **state)
+{
+	for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++) {
+		struct asph_points *p = NULL;
+		struct asph_error err;
+		asph_error_clear(&err);
+		int r = asph_points_read_csv_text(bad[i].text, strlen(bad[i].text), "pts.csv", &p, &err);
+		if (r != -EINVAL || p || err.line != bad[i].line ||
+		    (bad[i].column && err.column != bad[i].column) ||
+		    strcmp(err.field, bad[i].field) || !strstr(err.message, bad[i].needle) ||
+		    strcmp(err.source, "pts.csv")) {
+			char buf[512];
+			print_error("case %zu: r=%d '%s'\n", i, r, asph_error_format(&err, buf, sizeof(buf)));
+			fail();
+		}
+	}
+}
+
+static void test_csv_tolerant(void **state)
+{
+	const char text[] = "# plan\r\n x , y , z ,residual_nm\r\n1, 2 ,3,4\r\n\r\n# gap\n5,6,7,8";
+	struct asph_points *p = NULL;
+	assert_int_equal(asph_points_read_csv_text(text, strlen(text), "t", &p, NULL), 0);
+	assert_int_equal(p->n, 2);
+	assert_true(p->xyz[3] == 5 && p->xyz[5] == 7);
+	assert_string_equal(p->value_name, "residual_nm");
+	assert_true(p->value[1] == 8);
+	asph_points_free(p);
+}
+
+static void test_ply_errors(void **state)
+{
+	const char *cases[][2] = {
+		{ "plx\n", "no 'ply' magic" },
+		{ "ply\nformat ascii 1.0\nelement vertex 2\nproperty double x\nproperty double y\n"
+		  "property double z\nend_header\n1 2 3\n", "ends at vertex 1" },
+		{ "ply\nformat ascii 1.0\nelement vertex 1\nproperty double x\nproperty double y\n"
+		  "property double z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+		  "1 2 3\n3 0 0 7\n", "out of range" },
+		{ "ply\nformat binary_big_endian 1.0\nend_header\n", "not supported" },
+		{ "ply\nformat ascii 1.0\nelement vertex 1\nproperty double x\n", "without end_header" },
+		{ "ply\nformat ascii 1.0\nelement vertex 1\nproperty double x\nproperty double y\n"
+		  "property double z\nend_header\n1 nan 3\n", "not a finite" },
+	};
+	for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
+		char path[256];
+		snprintf(path, sizeof(path), "%s/bad%zu.ply", dir, i);
+		FILE *f = fopen(path, "w");
+		fputs(cases[i][0], f);
+		fclose(f);
+		struct asph_points *p = NULL;
+		struct asph_error err;
+		asph_error_clear(&err);
+		assert_true(asph_points_read(path, &p, &err) < 0);
+		assert_null(p);
+		if (!strstr(err.message, cases[i][1])) {
+			print_error("case %zu: '%s'\n", i, err.message);
+			fail();
+		}
+	}
+}
+
+static void test_missing_file(void **state)
+{
+	struct asph_points *p = NULL;
+	struct asph_error err;
+	assert_int_equal(asph_points_read("/nonexistent/dir/p.csv", &p, &err), -ENOENT);
+	assert_string_equal(err.source, "/nonexistent/dir/p.csv");
+	struct asph_points *q = sample(3, 0, 0);
+	assert_int_equal(asph_points_write("/nonexistent/dir/p.csv", q, NULL, &err), -ENOENT);
+	asph_points_free(q);
+}
+
+int main(void)
+{
+	const struct CMUnitTest tests[] = {
+		cmocka_unit_test(test_round_trips),
+		cmocka_unit_test(test_ply_binary),
+		cmocka_unit_test(test_csv_errors),
+		cmocka_unit_test(test_csv_tolerant),
+		cmocka_unit_test(test_ply_errors),
+		cmocka_unit_test(test_missing_file),
+	};
+	return cmocka_run_group_tests(tests, setup, teardown);
+}

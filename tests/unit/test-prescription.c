@@ -1,0 +1,177 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <errno.h>
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+
+#include "asph/prescription.h"
+
+static const char good[] =
+	"{\n"
+	"  \"type\": \"even_asphere\",\n"
+	"  \"name\": \"cam-1\",\n"
+	"  \"R\": 20.097,\n"
+	"  \"k\": -1,\n"
+	"  \"A\": {\"4\": -2.0868e-5, \"6\": -3.9031e-9, \"8\": 3.4102e-11},\n"
+	"  \"aperture_diameter\": 40\n"
+	"}\n";
+
+static void test_parse_good(void **state)
+{
+	struct asph_prescription p;
+	struct asph_error err;
+	assert_int_equal(asph_prescription_parse(good, strlen(good), "good.json", &p, &err), 0);
+	assert_int_equal(p.type, ASPH_SURFACE_EVEN_ASPHERE);
+	assert_string_equal(p.name, "cam-1");
+	assert_true(p.R == 20.097 && p.k == -1 && p.aperture_diameter == 40);
+	assert_true(p.A[4] == -2.0868e-5 && p.A[6] == -3.9031e-9 && p.A[8] == 3.4102e-11);
+	assert_true(p.A[10] == 0 && p.A[2] == 0);
+}
+
+/* Table 1 of the paper. */
+static void test_presets(void **state)
+{
+	struct asph_prescription p;
+	assert_int_equal(asph_prescription_preset("weak", &p), 0);
+	assert_true(p.R == 40.6193 && p.k == 0 && p.A[12] == -4.4857e-20 && p.aperture_diameter == 39);
+	assert_int_equal(asph_prescription_preset("strong", &p), 0);
+	assert_true(p.R == 20.097 && p.k == -1 && p.A[4] == -2.0868e-5 && p.A[12] == 0 &&
+		    p.aperture_diameter == 40);
+	assert_int_equal(asph_prescription_preset("turning-point", &p), 0);
+	assert_true(p.R == 94.6 && p.k == -23.2046 && p.A[10] == -8.06098e-14 &&
+		    p.aperture_diameter == 60);
+	assert_int_equal(asph_prescription_preset("medium", &p), -ENOENT);
+	int n = 0;
+	for (const char *const *name = asph_prescription_preset_names(); *name; name++, n++)
+		assert_int_equal(asph_prescription_preset(*name, &p), 0);
+	assert_int_equal(n, 3);
+}
+
+static void test_json_round_trip(void **state)
+{
+	const char *const *names = asph_prescription_preset_names();
+	for (; *names; names++) {
+		struct asph_prescription p, q;
+		char *text = NULL;
+		assert_int_equal(asph_prescription_preset(*names, &p), 0);
+		assert_int_equal(asph_prescription_to_json(&p, &text), 0);
+		assert_int_equal(asph_prescription_parse(text, strlen(text), "x", &q, NULL), 0);
+		assert_memory_equal(&p, &q, sizeof(p));
+		free(text);
+	}
+}
+
+static void test_load_file_and_preset(void **state)
+{
+	char path[] = "/tmp/asph-test-presc-XXXXXX.json";
+	int fd = mkstemps(path, 5);
+	assert_true(fd >= 0);
+	assert_int_equal(write(fd, good, strlen(good)), (ssize_t)strlen(good));
+	close(fd);
+	struct asph_prescription p;
+	struct asph_error err;
+	assert_int_equal(asph_prescription_load(path, &p, &err), 0);
+	assert_string_equal(p.name, "cam-1");
+	assert_int_equal(asph_prescription_load("strong", &p, &err), 0);
+	assert_string_equal(p.name, "strong");
+	unlink(path);
+	assert_int_equal(asph_prescription_load(path, &p, &err), -ENOENT);
+	assert_string_equal(err.source, path);
+	assert_int_equal(asph_prescription_load("medium", &p, &err), -ENOENT);
+	assert_non_null(strstr(err.message, "neither a preset"));
+}
+
+struct bad_case {
+	const char *text;
+	int line;                /* expected line, 0: not checked */
+	const char *at;          /* the error points at the first occurrence of
+				    this text (line and column), NULL: unchecked */
+	const char *field;       /* "" when none */
+	const char *needle;      /* must appear in the message */
+};
+
+#define HEAD "{\"type\": \"even_asphere\", "
+static const struct bad_case bad[] = {
+	{ "", 1, NULL, "", "" },
+	{ "{\"type\": \"even_asphere\", \"R\": 20", 1, NULL, "", "" },
+	{ "[1, 2]", 1, "[", "", "JSON object" },
+	{ "{\"R\": 20, \"aperture_diameter\": 10}", 0, NULL, "", "missing member \"type\"" },
+	{ "{\"type\": 3, \"R\": 20, \"aperture_diameter\": 10}", 1, "\"type\"", "type", "expected a string" },
+	{ "{\"type\": \"toroid\", \"R\": 20, \"aperture_diameter\": 10}", 1, "\"type\"", "type", "unknown surface type 'toroid'" },
+	{ HEAD "\"aperture_diameter\": 10}", 0, NULL, "", "missing member \"R\"" },
+	{ HEAD "\"R\": \"20\", \"aperture_diameter\": 10}", 1, "\"R\"", "R", "expected a number" },
+	{ HEAD "\n  \"R\": 0,\n  \"aperture_diameter\": 10}", 2, "\"R\"", "R", "R = 0" },
+	{ HEAD "\"R\": 20, \"k\": \"x\", \"aperture_diameter\": 10}", 1, "\"k\"", "k", "expected a number" },
+	{ HEAD "\"R\": 20, \"A\": [1e-5], \"aperture_diameter\": 10}", 1, "\"A\"", "A", "expected an object" },
+	{ HEAD "\"R\": 20, \"A\": {\"five\": 1e-5}, \"aperture_diameter\": 10}", 1, "\"five\"", "A.five", "not a power" },
+	{ HEAD "\"R\": 20, \"A\": {\"3\": 1e-5}, \"aperture_diameter\": 10}", 1, "\"3\"", "A.3", "powers 2, 4" },
+	{ HEAD "\"R\": 20, \"A\": {\"22\": 1e-5}, \"aperture_diameter\": 10}", 1, "\"22\"", "A.22", "got 22" },
+	{ HEAD "\"R\": 20, \"A\": {\"4\": \"1e-5\"}, \"aperture_diameter\": 10}", 1, "\"4\"", "A.4", "expected a number" },
+	{ HEAD "\"R\": 20}", 0, NULL, "", "missing member \"aperture_diameter\"" },
+	{ HEAD "\"R\": 20, \"aperture_diameter\": -3}", 1, "\"aperture_diameter\"", "aperture_diameter", "positive" },
+	{ HEAD "\"R\": 20,\n \"aperture_diamter\": 10}", 2, "\"aperture_diamter\"", "aperture_diamter", "unknown member" },
+	{ HEAD "\"R\": 20, \"R\": 21, \"aperture_diameter\": 10}", 1, NULL, "", "duplicate" },
+	{ HEAD "\"R\": 10,\n\"k\": 0, \"aperture_diameter\": 30}", 2, "\"k\"", "k", "r = 10 mm" },
+	{ HEAD "\"R\": 1e400, \"aperture_diameter\": 10}", 1, NULL, "", "overflow" },
+	{ HEAD "\"name\": 5, \"R\": 20, \"aperture_diameter\": 10}", 1, "\"name\"", "name", "expected a string" },
+	{ HEAD "\"R\": 20, \"aperture_diameter\": 10} trailing", 1, NULL, "", "end of file expected" },
+	{ "{\"type\": \"even_asphere\", \"R\": 20, \"aperture_diameter\": 10, \"A\": {\"6\": 1e-7, \"6\": 2e-7}}", 1, NULL, "", "duplicate" },
+};
+
+/* Whether err's line and column are those of the first occurrence of at,
+ * counted independently of the parser. */
+static int points_at(const char *text, const char *at, const struct asph_error *err)
+{
+	if (!at)
+		return 1;
+	const char *hit = strstr(text, at);
+	assert_non_null(hit);
+	int line = 1, col = 1;
+	for (const char *c = text; c < hit; c++) {
+		if (*c == '\n') {
+			line++;
+			col = 1;
+		} else {
+			col++;
+		}
+	}
+	return err->line == line && err->column == col;
+}
+
+static void test_refusals(void **state)
+{
+	for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++) {
+		const struct bad_case *b = &bad[i];
+		struct asph_prescription p;
+		struct asph_error err;
+		char buf[1024];
+		asph_error_clear(&err);
+		int r = asph_prescription_parse(b->text, strlen(b->text), "lens.json", &p, &err);
+		asph_error_format(&err, buf, sizeof(buf));
+		if (r != -EINVAL || strcmp(err.source, "lens.json") ||
+		    (b->line && err.line != b->line) || !points_at(b->text, b->at, &err) ||
+		    strcmp(err.field, b->field) || !strstr(err.message, b->needle)) {
+			print_error("case %zu: r=%d '%s'\n", i, r, buf);
+			fail();
+		}
+	}
+}
+
+int main(void)
+{
+	const struct CMUnitTest tests[] = {
+		cmocka_unit_test(test_parse_good),
+		cmocka_unit_test(test_presets),
+		cmocka_unit_test(test_json_round_trip),
+		cmocka_unit_test(test_load_file_and_preset),
+		cmocka_unit_test(test_refusals),
+	};
+	return cmocka_run_group_tests(tests, NULL, NULL);
+}

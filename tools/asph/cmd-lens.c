@@ -1,0 +1,124 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <getopt.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <jansson.h>
+
+#include "asph/prescription.h"
+#include "asph-tool.h"
+#include "util-mem.h"
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_surface *, asph_surface_free)
+
+struct lens_facts {
+	double a, sag_edge, slope_edge, max_slope, r_max_slope, area, gamma;
+};
+
+static void lens_facts(const struct asph_surface *s, struct lens_facts *f)
+{
+	double d[3];
+
+	f->a = asph_surface_aperture_radius(s);
+	asph_surface_sag_derivs(s, f->a, d);
+	f->sag_edge = d[0];
+	f->slope_edge = d[1];
+	f->max_slope = asph_surface_max_slope(s, &f->r_max_slope);
+	f->area = asph_surface_area(s, f->a);
+	f->gamma = asph_surface_gamma(s);
+}
+
+static int show_json(const struct asph_surface *s, const struct lens_facts *f)
+{
+	_cleanup_free_ char *ptext = NULL;
+	json_error_t jerr;
+
+	if (asph_prescription_to_json(asph_surface_prescription(s), &ptext) < 0)
+		return EXIT_FAILURE_RUN;
+	_cleanup_(json_decrefp) json_t *root = json_object();
+	json_object_set_new(root, "prescription", json_loads(ptext, 0, &jerr));
+	json_object_set_new(root, "aperture_radius_mm", json_real(f->a));
+	json_object_set_new(root, "sag_edge_mm", json_real(f->sag_edge));
+	json_object_set_new(root, "slope_edge", json_real(f->slope_edge));
+	json_object_set_new(root, "max_slope", json_real(f->max_slope));
+	json_object_set_new(root, "r_max_slope_mm", json_real(f->r_max_slope));
+	json_object_set_new(root, "area_mm2", json_real(f->area));
+	json_object_set_new(root, "gamma", json_real(f->gamma));
+	json_dumpf(root, stdout, JSON_INDENT(2) | JSON_PRESERVE_ORDER | JSON_REAL_PRECISION(17));
+	fputc('\n', stdout);
+	return EXIT_OK;
+}
+
+static void show_text(const struct asph_surface *s, const struct lens_facts *f)
+{
+	const struct asph_prescription *p = asph_surface_prescription(s);
+
+	printf("Lens %s (%s)\n", p->name[0] ? p->name : "(unnamed)",
+	       asph_surface_type_name(p->type));
+	printf("  R                   %.10g mm\n", p->R);
+	printf("  k                   %.10g\n", p->k);
+	for (int i = 1; i <= ASPH_SURFACE_MAX_POWER; i++)
+		if (p->A[i] != 0)
+			printf("  A%-2d                 %.10g mm^%d\n", i, p->A[i], 1 - i);
+	printf("  aperture diameter   %.10g mm\n", p->aperture_diameter);
+	printf("Sag at the edge       %.9f mm\n", f->sag_edge);
+	printf("Slope at the edge     %.6f (%.3f deg)\n", f->slope_edge,
+	       atan(f->slope_edge) * 180 / M_PI);
+	printf("Maximum slope         %.6f (%.3f deg) at r = %.4f mm\n", f->max_slope,
+	       atan(f->max_slope) * 180 / M_PI, f->r_max_slope);
+	printf("Surface area          %.6f mm^2\n", f->area);
+	printf("gamma (area / disk)   %.4f\n", f->gamma);
+}
+
+static void usage(FILE *out)
+{
+	fprintf(out, "Usage: asph lens show LENS [--json]\n"
+		     "       asph lens presets\n\n"
+		     "LENS is a preset (weak, strong, turning-point) or a prescription file (JSON).\n"
+		     "  --json   print one JSON object (sag_edge_mm, max_slope, area_mm2, gamma, ...)\n");
+}
+
+int cmd_lens(int argc, char **argv)
+{
+	static const struct option options[] = {
+		{ "json", no_argument, NULL, 'j' },
+		{ "help", no_argument, NULL, 'h' },
+		{ 0 }
+	};
+	int json = 0, c;
+
+	optind = 1;
+	while ((c = getopt_long(argc, argv, "h", options, NULL)) != -1) {
+		switch (c) {
+		case 'j':
+			json = 1;
+			break;
+		case 'h':
+			usage(stdout);
+			return EXIT_OK;
+		default:
+			usage(stderr);
+			return EXIT_USAGE;
+		}
+	}
+	if (optind < argc && !strcmp(argv[optind], "presets") && optind + 1 == argc) {
+		for (const char *const *n = asph_prescription_preset_names(); *n; n++)
+			printf("%s\n", *n);
+		return EXIT_OK;
+	}
+	if (optind + 2 != argc || strcmp(argv[optind], "show")) {
+		usage(stderr);
+		return EXIT_USAGE;
+	}
+	_cleanup_(asph_surface_freep) struct asph_surface *s = NULL;
+	if (tool_load_surface(argv[optind + 1], &s) < 0)
+		return EXIT_FAILURE_RUN;
+	struct lens_facts f;
+	lens_facts(s, &f);
+	if (json)
+		return show_json(s, &f);
+	show_text(s, &f);
+	return EXIT_OK;
+}

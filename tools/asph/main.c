@@ -1,0 +1,75 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <stdio.h>
+#include <string.h>
+
+#include <gsl/gsl_errno.h>
+
+#include "config.h"
+#include "asph/prescription.h"
+#include "asph-tool.h"
+#include "util-mem.h"
+
+/* Keep sorted as `asph --help` shows it. */
+static const struct tool_command commands[] = {
+	{ "lens", "show or check a lens prescription", cmd_lens },
+};
+
+void tool_print_error(const char *context, const struct asph_error *err)
+{
+	char buf[1024];
+
+	asph_error_format(err, buf, sizeof(buf));
+	if (context)
+		fprintf(stderr, "asph: %s: %s\n", context, buf);
+	else
+		fprintf(stderr, "asph: %s\n", buf);
+}
+
+int tool_load_surface(const char *lens, struct asph_surface **out)
+{
+	struct asph_prescription p;
+	struct asph_error err;
+	int r;
+
+	asph_error_clear(&err);
+	r = asph_prescription_load(lens, &p, &err);
+	if (r == 0)
+		r = asph_surface_alloc(&p, out, &err);
+	if (r < 0)
+		tool_print_error(NULL, &err);
+	return r;
+}
+
+static void usage(FILE *f)
+{
+	fprintf(f, "Usage: asph COMMAND [OPTIONS...]\n\n"
+		   "Offline tool of asphd: lenses, sampling plans, quality, fitting, scans.\n\n"
+		   "Commands:\n");
+	for (size_t i = 0; i < ARRAY_SIZE(commands); i++)
+		fprintf(f, "  %-10s %s\n", commands[i].name, commands[i].summary);
+	fprintf(f, "\nRun 'asph COMMAND --help' for the options of a command.\n");
+}
+
+int main(int argc, char **argv)
+{
+	/* GSL's default handler aborts; every caller checks return codes. */
+	gsl_set_error_handler_off();
+	if (argc < 2) {
+		usage(stderr);
+		return EXIT_USAGE;
+	}
+	if (!strcmp(argv[1], "--help") || !strcmp(argv[1], "-h")) {
+		usage(stdout);
+		return EXIT_OK;
+	}
+	if (!strcmp(argv[1], "--version")) {
+		printf("asph %s\n", ASPH_VERSION);
+		return EXIT_OK;
+	}
+	for (size_t i = 0; i < ARRAY_SIZE(commands); i++)
+		if (!strcmp(argv[1], commands[i].name))
+			return commands[i].run(argc - 1, argv + 1);
+	fprintf(stderr, "asph: unknown command '%s'\n", argv[1]);
+	usage(stderr);
+	return EXIT_USAGE;
+}
