@@ -15,10 +15,24 @@ extern "C" {
 typedef struct { double v; } asph_nm;
 typedef struct { double v; } asph_urad;
 
-static inline asph_nm asph_nm_from_mm(double mm) { return (asph_nm){ mm * 1e6 }; }
-static inline double asph_nm_to_mm(asph_nm nm) { return nm.v * 1e-6; }
-static inline asph_urad asph_urad_from_rad(double rad) { return (asph_urad){ rad * 1e6 }; }
-static inline double asph_urad_to_rad(asph_urad u) { return u.v * 1e-6; }
+static inline asph_nm asph_nm_from_mm(double mm)
+{
+	asph_nm nm = { mm * 1e6 };
+	return nm;
+}
+static inline double asph_nm_to_mm(asph_nm nm)
+{
+	return nm.v * 1e-6;
+}
+static inline asph_urad asph_urad_from_rad(double rad)
+{
+	asph_urad u = { rad * 1e6 };
+	return u;
+}
+static inline double asph_urad_to_rad(asph_urad u)
+{
+	return u.v * 1e-6;
+}
 
 #ifdef __cplusplus
 }
