@@ -260,6 +260,50 @@ static void draw_title(cairo_t *cr, const struct plot_rect *panel,
 		     panel->y + 0.5 * TITLE_BAND + 4, 0.5, 0.5);
 }
 
+/* A 1-pixel black outline on the pixel grid, and the tick label font. */
+static void outline(cairo_t *cr, const struct plot_rect *r)
+{
+	cairo_set_source_rgb(cr, 0, 0, 0);
+	cairo_set_line_width(cr, 1);
+	cairo_rectangle(cr, r->x + 0.5, r->y + 0.5, r->w - 1, r->h - 1);
+	cairo_stroke(cr);
+	cairo_select_font_face(cr, "sans-serif", CAIRO_FONT_SLANT_NORMAL,
+			       CAIRO_FONT_WEIGHT_NORMAL);
+	cairo_set_font_size(cr, 12);
+}
+
+/* A 5-pixel tick from (u, v) in direction (du, dv), snapped to the grid. */
+static void tick(cairo_t *cr, double u, double v, int du, int dv)
+{
+	if (du == 0)
+		u = floor(u) + 0.5;
+	else
+		v = floor(v) + 0.5;
+	cairo_move_to(cr, u, v);
+	cairo_line_to(cr, u + 5 * du, v + 5 * dv);
+	cairo_stroke(cr);
+}
+
+/* Multiples of step in [lo, hi], counted so that rounding drops none. */
+static long first_tick(double lo, double step)
+{
+	return (long)ceil(lo / step - 1e-9);
+}
+
+static int tick_in_range(long k, double hi, double step)
+{
+	return (double)k * step <= hi + 1e-9 * step;
+}
+
+static void rotated_label(cairo_t *cr, const char *text, double x, double y)
+{
+	cairo_save(cr);
+	cairo_translate(cr, x, y);
+	cairo_rotate(cr, -M_PI / 2);
+	show_text_at(cr, text, 0, 0, 0.5, 0.5);
+	cairo_restore(cr);
+}
+
 static void draw_axes(cairo_t *cr, const struct plot_frame *f)
 {
 	const struct plot_rect *b = &f->box;
@@ -268,36 +312,22 @@ static void draw_axes(cairo_t *cr, const struct plot_frame *f)
 	char label[32];
 	double u, v;
 
-	cairo_set_source_rgb(cr, 0, 0, 0);
-	cairo_set_line_width(cr, 1);
-	cairo_rectangle(cr, b->x + 0.5, b->y + 0.5, b->w - 1, b->h - 1);
-	cairo_stroke(cr);
-	cairo_select_font_face(cr, "sans-serif", CAIRO_FONT_SLANT_NORMAL,
-			       CAIRO_FONT_WEIGHT_NORMAL);
-	cairo_set_font_size(cr, 12);
-	for (double x = ceil(f->x0 / step) * step; x <= x1; x += step) {
-		plot_frame_to_pixel(f, x, f->y0, &u, &v);
-		cairo_move_to(cr, floor(u) + 0.5, v);
-		cairo_line_to(cr, floor(u) + 0.5, v + 5);
-		cairo_stroke(cr);
-		tick_label(x, step, label, sizeof(label));
+	outline(cr, b);
+	for (long k = first_tick(f->x0, step); tick_in_range(k, x1, step); k++) {
+		plot_frame_to_pixel(f, (double)k * step, f->y0, &u, &v);
+		tick(cr, u, v, 0, 1);
+		tick_label((double)k * step, step, label, sizeof(label));
 		show_text_at(cr, label, u, v + 8, 0.5, 0);
 	}
-	for (double y = ceil(f->y0 / step) * step; y <= y1; y += step) {
-		plot_frame_to_pixel(f, f->x0, y, &u, &v);
-		cairo_move_to(cr, u, floor(v) + 0.5);
-		cairo_line_to(cr, u - 5, floor(v) + 0.5);
-		cairo_stroke(cr);
-		tick_label(y, step, label, sizeof(label));
+	for (long k = first_tick(f->y0, step); tick_in_range(k, y1, step); k++) {
+		plot_frame_to_pixel(f, f->x0, (double)k * step, &u, &v);
+		tick(cr, u, v, -1, 0);
+		tick_label((double)k * step, step, label, sizeof(label));
 		show_text_at(cr, label, u - 8, v, 1, 0.5);
 	}
 	cairo_set_font_size(cr, 13);
 	show_text_at(cr, "x (mm)", b->x + 0.5 * b->w, b->y + b->h + 30, 0.5, 0);
-	cairo_save(cr);
-	cairo_translate(cr, b->x - 52, b->y + 0.5 * b->h);
-	cairo_rotate(cr, -M_PI / 2);
-	show_text_at(cr, "y (mm)", 0, 0, 0.5, 0.5);
-	cairo_restore(cr);
+	rotated_label(cr, "y (mm)", b->x - 52, b->y + 0.5 * b->h);
 }
 
 static void draw_colour_bar(cairo_t *cr, const struct plot_frame *f,
@@ -316,19 +346,11 @@ static void draw_colour_bar(cairo_t *cr, const struct plot_frame *f,
 		cairo_rectangle(cr, r->x, r->y + i, r->w, 1);
 		cairo_fill(cr);
 	}
-	cairo_set_source_rgb(cr, 0, 0, 0);
-	cairo_set_line_width(cr, 1);
-	cairo_rectangle(cr, r->x + 0.5, r->y + 0.5, r->w - 1, r->h - 1);
-	cairo_stroke(cr);
-	cairo_select_font_face(cr, "sans-serif", CAIRO_FONT_SLANT_NORMAL,
-			       CAIRO_FONT_WEIGHT_NORMAL);
-	cairo_set_font_size(cr, 12);
-	for (double v = ceil(cs->lo / step - 1e-9) * step;
-	     v <= cs->hi + 1e-9 * step; v += step) {
+	outline(cr, r);
+	for (long k = first_tick(cs->lo, step); tick_in_range(k, cs->hi, step); k++) {
+		double v = (double)k * step;
 		double y = r->y + r->h * (1 - (v - cs->lo) / (cs->hi - cs->lo));
-		cairo_move_to(cr, r->x + r->w, floor(y) + 0.5);
-		cairo_line_to(cr, r->x + r->w + 5, floor(y) + 0.5);
-		cairo_stroke(cr);
+		tick(cr, r->x + r->w, y, 1, 0);
 		tick_label(v, step, text, sizeof(text));
 		cairo_text_extents(cr, text, &te);
 		widest = fmax(widest, te.width);
@@ -337,11 +359,7 @@ static void draw_colour_bar(cairo_t *cr, const struct plot_frame *f,
 	if (!label || !*label)
 		return;
 	cairo_set_font_size(cr, 13);
-	cairo_save(cr);
-	cairo_translate(cr, r->x + r->w + 8 + widest + 18, r->y + 0.5 * r->h);
-	cairo_rotate(cr, -M_PI / 2);
-	show_text_at(cr, label, 0, 0, 0.5, 0.5);
-	cairo_restore(cr);
+	rotated_label(cr, label, r->x + r->w + 8 + widest + 18, r->y + 0.5 * r->h);
 }
 
 static void draw_points(cairo_t *cr, const struct asph_plot_panel *p,

@@ -6,6 +6,7 @@
 #include <stdint.h>
 
 #include "asph/error.h"
+#include "asph/points.h"
 #include "asph/surface.h"
 
 #ifdef __cplusplus
@@ -57,7 +58,10 @@ struct asph_plan {
 /*
  * Computes a plan. -EINVAL (err says which parameter) for a density that is
  * not positive or finite, or that would give more than max_points points
- * (0 = no limit).
+ * (0 = no limit). -E2BIG when the mesh of a grid plan (op, ot, lb) would
+ * exceed what the triangulation takes (ASPH_DELAUNAY_MAX_POINTS, 2^29);
+ * ASPH_PLAN_NO_MESH of asph_plan_compute_opts() has no such limit.
+ * docs/sampling-plans.md describes the methods, densities and scan orders.
  */
 int asph_plan_compute(const struct asph_surface *s, enum asph_plan_method m,
 		      struct asph_plan_density density, size_t max_points,
@@ -84,14 +88,17 @@ int asph_plan_compute_opts(const struct asph_surface *s,
 
 /*
  * Resolves a density to the surface spacing e (mm) the method works with
- * and the number of points the plan will have (exact for every method but
- * CI, where it is an estimate within a few percent). Same refusals as
+ * and the exact number of points the plan will have. Same refusals as
  * asph_plan_compute, except the point limit. Either output may be NULL.
  * The relations are in docs/sampling-plans.md.
  */
 int asph_plan_resolve(const struct asph_surface *s, enum asph_plan_method m,
 		      struct asph_plan_density density, double *spacing_mm,
 		      size_t *n_points, struct asph_error *err);
+
+/* A copy of the plan as points (xyz and the mesh, if any) for
+ * asph_points_write(). */
+int asph_plan_to_points(const struct asph_plan *p, struct asph_points **out);
 
 /*
  * The OT radial map of Eq. (9) on the aperture disk of radius a: the

@@ -47,11 +47,23 @@ void asph_zernike_noll_all(int n_terms, double rho, double theta,
 double asph_zernike_series(const double *coef, int n_terms, double rho,
 			   double theta, double grad[2]);
 
+/* The series at n points: value[i], and grad[2i], grad[2i+1] unless grad is
+ * NULL. Faster than n calls of asph_zernike_series(). */
+void asph_zernike_series_many(const double *coef, int n_terms,
+			      const double *rho, const double *theta, size_t n,
+			      double *value, double *grad);
+
 /*
  * Least-squares decomposition of values sampled at (rho_i, theta_i):
  * coef minimizes sum_i w_i (value_i - sum_j coef_j Z_j)^2 (w = NULL: all 1;
- * points with w_i = 0 do not count). Solved by Householder QR (GSL),
- * streamed over blocks of points, so memory does not grow with n.
+ * points with w_i = 0 do not count). Solved with GSL by Cholesky on the
+ * normal equations (the terms are orthonormal over the disk, so for points
+ * spread over it the system is close to diagonal), or, when that system is
+ * not safely conditioned, by Householder QR; both streamed over blocks of
+ * points, so memory does not grow with n.
+ *
+ * GSL reports the ill-conditioned case through its error handler, which a
+ * program turns off (gsl_set_error_handler_off()) as the tools do.
  *
  * -EINVAL: n_terms outside 1..ASPH_ZERNIKE_MAX_J, a non-finite input.
  * -EDOM: the points do not determine the coefficients (fewer weighted points

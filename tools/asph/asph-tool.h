@@ -21,7 +21,17 @@ struct tool_command {
 	int (*run)(int argc, char **argv);   /* argv[0] is the command name */
 };
 
+int cmd_drivers(int argc, char **argv);
+int cmd_export(int argc, char **argv);
+int cmd_fit(int argc, char **argv);
 int cmd_lens(int argc, char **argv);
+int cmd_plan(int argc, char **argv);
+int cmd_plot(int argc, char **argv);
+int cmd_quality(int argc, char **argv);
+int cmd_replay(int argc, char **argv);
+int cmd_scan(int argc, char **argv);
+int cmd_scaninfo(int argc, char **argv);
+int cmd_synth(int argc, char **argv);
 
 /* Prints "asph: <formatted error>" to stderr. */
 void tool_print_error(const char *context, const struct asph_error *err);

@@ -11,7 +11,17 @@
 
 /* Keep sorted as `asph --help` shows it. */
 static const struct tool_command commands[] = {
+	{ "drivers", "list the instrument drivers with their roles and options", cmd_drivers },
+	{ "export", "write the points of a recorded scan as CSV, PLY or JSON", cmd_export },
+	{ "fit", "best-fit measured points to the lens; residual, PV, PVr, Zernike", cmd_fit },
 	{ "lens", "show or check a lens prescription", cmd_lens },
+	{ "plan", "compute a sampling plan: points in scan order", cmd_plan },
+	{ "plot", "draw a plan and a heatmap of its triangles' area ratio or q (PNG)", cmd_plot },
+	{ "quality", "triangle quality of a plan: q and A_i / mean A statistics", cmd_quality },
+	{ "replay", "characterize a recorded scan (asph fit on its points)", cmd_replay },
+	{ "scan", "measure a plan with an instrument into a scan file", cmd_scan },
+	{ "scaninfo", "show a recorded scan: header, points, outcome, recovery", cmd_scaninfo },
+	{ "synth", "synthetic measurement: plan points of a misaligned part with form error", cmd_synth },
 };
 
 void tool_print_error(const char *context, const struct asph_error *err)

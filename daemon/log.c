@@ -1,0 +1,59 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <stdarg.h>
+#include <stdbool.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <sys/stat.h>
+
+#include <systemd/sd-journal.h>
+
+#include "log.h"
+
+static int max_level = LOG_INFO;
+static bool to_journal;
+
+/* True when stderr is the journal stream systemd set up for us. */
+static bool stderr_is_journal(void)
+{
+	const char *e = getenv("JOURNAL_STREAM");
+	unsigned long long dev, ino;
+	struct stat st;
+
+	if (!e || sscanf(e, "%llu:%llu", &dev, &ino) != 2)
+		return false;
+	if (fstat(2, &st) < 0)
+		return false;
+	return st.st_dev == dev && st.st_ino == ino;
+}
+
+void log_setup(int max_priority)
+{
+	max_level = max_priority;
+	to_journal = stderr_is_journal();
+}
+
+void log_job(int priority, int64_t job, const char *fmt, ...)
+{
+	char msg[1024];
+	va_list ap;
+
+	if (priority > max_level)
+		return;
+	va_start(ap, fmt);
+	vsnprintf(msg, sizeof(msg), fmt, ap);
+	va_end(ap);
+	if (to_journal) {
+		if (job > 0)
+			sd_journal_send("MESSAGE=%s", msg, "PRIORITY=%d", priority,
+					"ASPHD_JOB_ID=%" PRId64, job,
+					"SYSLOG_IDENTIFIER=asphd", NULL);
+		else
+			sd_journal_send("MESSAGE=%s", msg, "PRIORITY=%d", priority,
+					"SYSLOG_IDENTIFIER=asphd", NULL);
+		return;
+	}
+	if (job > 0)
+		fprintf(stderr, "asphd: job %" PRId64 ": %s\n", job, msg);
+	else
+		fprintf(stderr, "asphd: %s\n", msg);
+}

@@ -1,0 +1,427 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/*
+ * The worker thread of one instrument. It owns the instrument's devices
+ * while a job runs; the event loop only flips controls (under the lock)
+ * and receives reports through the eventfd.
+ */
+#include <errno.h>
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/eventfd.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "asph/executor.h"
+#include "asph/instrument.h"
+#include "asph/plan.h"
+#include "asph/prescription.h"
+#include "asph/scanfile.h"
+#include "log.h"
+#include "result.h"
+#include "runner.h"
+#include "util-mem.h"
+
+#define INSTRUMENT_TIMEOUT_MS 10000
+
+struct runner {
+	const struct asph_instrument_config *ic;
+	runner_report_fn fn;
+	void *data;
+	int efd;
+	sd_event_source *src;
+	pthread_t thread;
+	bool thread_started;
+
+	pthread_mutex_t lock;
+	pthread_cond_t cond;
+	/* under lock */
+	struct runner_job *job;         /* waiting or running */
+	bool running, quit;
+	bool want_pause, want_abort, want_stop;
+	struct asph_scan *scan;
+	struct runner_report *queue;    /* reports for the loop */
+	size_t n_queue, cap_queue;
+};
+
+void runner_job_free(struct runner_job *j)
+{
+	if (!j)
+		return;
+	free(j->spec);
+	free(j->scan_path);
+	free(j->result_dir);
+	free(j->metadata);
+	free(j);
+}
+
+/* ------------------------------------------------------------ reports */
+
+static void post(struct runner *r, const struct runner_report *rep)
+{
+	uint64_t one = 1;
+
+	pthread_mutex_lock(&r->lock);
+	/* Only the newest progress matters to the loop. */
+	if (rep->kind == RUNNER_PROGRESS && r->n_queue > 0 &&
+	    r->queue[r->n_queue - 1].kind == RUNNER_PROGRESS) {
+		r->queue[r->n_queue - 1] = *rep;
+	} else {
+		if (r->n_queue == r->cap_queue) {
+			size_t cap = r->cap_queue ? 2 * r->cap_queue : 8;
+			struct runner_report *q = realloc(r->queue, cap * sizeof(*q));
+			if (!q) {
+				pthread_mutex_unlock(&r->lock);
+				free(rep->result);
+				return;
+			}
+			r->queue = q;
+			r->cap_queue = cap;
+		}
+		r->queue[r->n_queue++] = *rep;
+	}
+	pthread_mutex_unlock(&r->lock);
+	if (write(r->efd, &one, sizeof(one)) < 0 && errno != EAGAIN)
+		log_warning("eventfd: %s", strerror(errno));
+}
+
+static int on_reports(sd_event_source *s, int fd, uint32_t revents, void *data)
+{
+	struct runner *r = data;
+	struct runner_report *q;
+	uint64_t v;
+	size_t n;
+
+	if (read(r->efd, &v, sizeof(v)) < 0 && errno != EAGAIN)
+		return 0;
+	pthread_mutex_lock(&r->lock);
+	q = r->queue;
+	n = r->n_queue;
+	r->queue = NULL;
+	r->n_queue = r->cap_queue = 0;
+	pthread_mutex_unlock(&r->lock);
+	for (size_t i = 0; i < n; i++)
+		r->fn(&q[i], r->data);
+	free(q);
+	return 0;
+}
+
+static void on_progress(const struct asph_scan_progress *p, void *data)
+{
+	struct runner *r = data;
+	struct runner_report rep = {
+		.kind = RUNNER_PROGRESS,
+		.done = p->done,
+		.total = p->total,
+		.rate = p->rate,
+		.eta_s = p->eta_s,
+	};
+
+	pthread_mutex_lock(&r->lock);
+	rep.job = r->job ? r->job->id : 0;
+	pthread_mutex_unlock(&r->lock);
+	post(r, &rep);
+}
+
+/* ---------------------------------------------------------- the job */
+
+struct run {
+	struct runner *r;
+	struct runner_job *job;
+	struct job_plan jp;             /* parsed spec, surface, plan */
+	struct asph_instrument *inst;
+	struct asph_error err;
+	int64_t started_ns;
+};
+
+static void done(struct run *run, enum runner_outcome outcome, char *result)
+{
+	struct runner_report rep = {
+		.kind = RUNNER_DONE,
+		.job = run->job->id,
+		.outcome = outcome,
+		.result = result,
+	};
+
+	if (outcome == RUNNER_FAILED)
+		asph_error_format(&run->err, rep.reason, sizeof(rep.reason));
+	post(run->r, &rep);
+}
+
+static int open_writer(struct run *run, uint64_t *start,
+		       struct asph_scanfile_writer **w)
+{
+	struct runner_job *job = run->job;
+	struct asph_scanfile_writer_options wo = { 0 };
+	_cleanup_free_ char *instrument = NULL;
+	struct asph_scanfile_header_info info;
+	struct stat st;
+	int r;
+
+	*start = 0;
+	if (job->resume && stat(job->scan_path, &st) == 0) {
+		struct asph_scanfile *rec = NULL;
+		wo.flags = ASPH_SCANFILE_REOPEN_ENDED;
+		r = asph_scanfile_writer_resume(job->scan_path, &wo, &rec, w, &run->err);
+		if (r < 0)
+			return r;
+		/* The executor measures in plan order: go on after the last
+		 * point recorded. */
+		for (size_t i = 0; i < rec->n; i++)
+			if (rec->points[i].plan_index + 1 > *start)
+				*start = rec->points[i].plan_index + 1;
+		asph_scanfile_free(rec);
+		log_job(LOG_INFO, job->id, "resuming the scan at plan point %" PRIu64, *start);
+		return 0;
+	}
+	r = asph_instrument_config_to_json(run->r->ic, &instrument);
+	if (r < 0)
+		return asph_error_set(&run->err, r, "cannot describe the instrument");
+	info.prescription = run->jp.prescription_json;
+	info.plan = run->jp.plan_json;
+	info.instrument = instrument;
+	info.metadata = job->metadata;
+	wo.flags = ASPH_SCANFILE_OVERWRITE;
+	return asph_scanfile_writer_create(job->scan_path, &info, &wo, w, &run->err);
+}
+
+/* Runs the executor; returns its code. */
+static int measure(struct run *run)
+{
+	struct runner *r = run->r;
+	struct asph_scanfile_writer *w = NULL;
+	struct asph_scan_options so = {
+		.flags = ASPH_SCAN_ABORT_RESUMABLE | ASPH_SCAN_STREAM,
+		.progress = on_progress,
+		.progress_data = r,
+		.progress_interval_ns = (uint64_t)run->job->progress_interval_ms * 1000000u,
+		/* Short sweeps keep progress, pause and stop prompt. */
+		.stream_batch = 256,
+	};
+	struct asph_scan *scan = NULL;
+	int rc;
+
+	rc = asph_instrument_open(r->ic, INSTRUMENT_TIMEOUT_MS, &run->inst, &run->err);
+	if (rc < 0)
+		return rc;
+	rc = open_writer(run, &so.start_index, &w);
+	if (rc < 0)
+		return rc;
+	rc = asph_scan_new(run->inst, run->jp.surface, run->jp.plan->xyz, run->jp.plan->n,
+			   &so, &scan, &run->err);
+	if (rc < 0) {
+		asph_scanfile_writer_close(w, NULL);
+		return rc;
+	}
+	pthread_mutex_lock(&r->lock);
+	r->scan = scan;
+	if (r->want_abort || r->want_stop)
+		asph_scan_abort(scan);
+	else if (r->want_pause)
+		asph_scan_pause(scan);
+	pthread_mutex_unlock(&r->lock);
+
+	rc = asph_scan_run(scan, w, &run->err);
+
+	pthread_mutex_lock(&r->lock);
+	r->scan = NULL;
+	pthread_mutex_unlock(&r->lock);
+	asph_scan_free(scan);
+	return rc;
+}
+
+static void run_job(struct runner *r, struct runner_job *job)
+{
+	struct run run = { .r = r, .job = job };
+	struct runner_report rep = { .kind = RUNNER_STARTED, .job = job->id, .eta_s = -1 };
+	bool stop;
+	int rc;
+
+	asph_error_clear(&run.err);
+	rc = job_plan_build(job->spec, job->max_points, &run.jp, &run.err);
+	if (rc < 0) {
+		done(&run, RUNNER_FAILED, NULL);
+		job_plan_release(&run.jp);
+		return;
+	}
+	rep.total = run.jp.plan->n;
+	post(r, &rep);
+	rc = measure(&run);
+	asph_instrument_close(run.inst);
+	pthread_mutex_lock(&r->lock);
+	stop = r->want_stop;
+	pthread_mutex_unlock(&r->lock);
+	if (rc == -ECANCELED)
+		done(&run, stop ? RUNNER_STOPPED : RUNNER_ABORTED, NULL);
+	else if (rc < 0)
+		done(&run, RUNNER_FAILED, NULL);
+	else {
+		char *result = NULL;
+		rc = result_build(job, &run.jp, r->ic, &result, &run.err);
+		done(&run, rc < 0 ? RUNNER_FAILED : RUNNER_COMPLETED, result);
+	}
+	job_plan_release(&run.jp);
+}
+
+static void *worker(void *data)
+{
+	struct runner *r = data;
+
+	pthread_mutex_lock(&r->lock);
+	for (;;) {
+		while (!r->quit && (!r->job || r->running))
+			pthread_cond_wait(&r->cond, &r->lock);
+		if (r->quit)
+			break;
+		struct runner_job *job = r->job;
+		r->running = true;
+		pthread_mutex_unlock(&r->lock);
+
+		run_job(r, job);
+
+		pthread_mutex_lock(&r->lock);
+		r->job = NULL;
+		r->running = false;
+		r->want_pause = r->want_abort = r->want_stop = false;
+		runner_job_free(job);
+		pthread_cond_broadcast(&r->cond);
+	}
+	pthread_mutex_unlock(&r->lock);
+	return NULL;
+}
+
+/* ---------------------------------------------------------- controls */
+
+int runner_new(const struct asph_instrument_config *instrument,
+	       sd_event *event, runner_report_fn fn, void *data,
+	       struct runner **out)
+{
+	struct runner *r = calloc(1, sizeof(*r));
+	int rc;
+
+	if (!r)
+		return -ENOMEM;
+	r->ic = instrument;
+	r->fn = fn;
+	r->data = data;
+	pthread_mutex_init(&r->lock, NULL);
+	pthread_cond_init(&r->cond, NULL);
+	r->efd = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
+	if (r->efd < 0) {
+		rc = -errno;
+		runner_free(r);
+		return rc;
+	}
+	rc = sd_event_add_io(event, &r->src, r->efd, EPOLLIN, on_reports, r);
+	if (rc >= 0) {
+		rc = -pthread_create(&r->thread, NULL, worker, r);
+		r->thread_started = rc == 0;
+	}
+	if (rc < 0) {
+		runner_free(r);
+		return rc;
+	}
+	*out = r;
+	return 0;
+}
+
+void runner_free(struct runner *r)
+{
+	if (!r)
+		return;
+	if (r->thread_started) {
+		runner_stop(r);
+		pthread_mutex_lock(&r->lock);
+		r->quit = true;
+		pthread_cond_broadcast(&r->cond);
+		pthread_mutex_unlock(&r->lock);
+		pthread_join(r->thread, NULL);
+	}
+	/* Reports nobody will read: free what they own. */
+	for (size_t i = 0; i < r->n_queue; i++)
+		free(r->queue[i].result);
+	free(r->queue);
+	runner_job_free(r->job);
+	sd_event_source_disable_unref(r->src);
+	if (r->efd >= 0)
+		close(r->efd);
+	pthread_cond_destroy(&r->cond);
+	pthread_mutex_destroy(&r->lock);
+	free(r);
+}
+
+int runner_start(struct runner *r, struct runner_job *job)
+{
+	pthread_mutex_lock(&r->lock);
+	if (r->job) {
+		pthread_mutex_unlock(&r->lock);
+		return -EBUSY;
+	}
+	r->job = job;
+	r->want_pause = r->want_abort = r->want_stop = false;
+	pthread_cond_broadcast(&r->cond);
+	pthread_mutex_unlock(&r->lock);
+	return 0;
+}
+
+void runner_pause(struct runner *r)
+{
+	pthread_mutex_lock(&r->lock);
+	r->want_pause = true;
+	if (r->scan)
+		asph_scan_pause(r->scan);
+	pthread_mutex_unlock(&r->lock);
+}
+
+void runner_resume(struct runner *r)
+{
+	pthread_mutex_lock(&r->lock);
+	r->want_pause = false;
+	if (r->scan)
+		asph_scan_resume(r->scan);
+	pthread_mutex_unlock(&r->lock);
+}
+
+static void abort_with(struct runner *r, bool stop)
+{
+	pthread_mutex_lock(&r->lock);
+	if (r->job) {
+		if (stop)
+			r->want_stop = true;
+		else
+			r->want_abort = true;
+		if (r->scan)
+			asph_scan_abort(r->scan);
+	}
+	pthread_mutex_unlock(&r->lock);
+}
+
+void runner_abort(struct runner *r)
+{
+	abort_with(r, false);
+}
+
+void runner_stop(struct runner *r)
+{
+	abort_with(r, true);
+}
+
+bool runner_busy(struct runner *r)
+{
+	bool busy;
+
+	pthread_mutex_lock(&r->lock);
+	busy = r->job != NULL;
+	pthread_mutex_unlock(&r->lock);
+	return busy;
+}
+
+/* Waits until the current job has ended. */
+void runner_wait_idle(struct runner *r)
+{
+	pthread_mutex_lock(&r->lock);
+	while (r->job)
+		pthread_cond_wait(&r->cond, &r->lock);
+	pthread_mutex_unlock(&r->lock);
+}

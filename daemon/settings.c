@@ -1,0 +1,276 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <errno.h>
+#include <limits.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <jansson.h>
+
+#include "asph-proto.h"
+#include "settings.h"
+#include "jsonpos.h"
+#include "util-mem.h"
+
+struct loader {
+	const char *source;
+	const char *text;
+	size_t len;
+	config_error_fn report;
+	void *data;
+	int n_errors;
+};
+
+static void complain(struct loader *ld, const char *field, const char *fmt, ...)
+	__attribute__((format(printf, 3, 4)));
+
+static void complain(struct loader *ld, const char *field, const char *fmt, ...)
+{
+	struct asph_error e;
+	va_list ap;
+	int line = 0, column = 0;
+
+	asph_error_clear(&e);
+	e.code = -EINVAL;
+	va_start(ap, fmt);
+	vsnprintf(e.message, sizeof(e.message), fmt, ap);
+	va_end(ap);
+	if (field && ld->text)
+		json_locate_dotted(ld->text, ld->len, field, &line, &column);
+	asph_error_locate(&e, ld->source, line, column, field);
+	ld->n_errors++;
+	if (ld->report)
+		ld->report(&e, ld->data);
+}
+
+static const struct daemon_limits default_limits = {
+	.max_clients = 256,
+	.max_request_bytes = 1u << 20,
+	.max_output_bytes = 8u << 20,
+	.max_queue = 10000,
+	.max_plan_points = 5000000,
+	.max_subscriptions = 64,
+	.request_timeout_ms = 30000,
+	.progress_interval_ms = 250,
+	.max_label_bytes = 256,
+};
+
+int config_defaults(struct daemon_config **out)
+{
+	struct daemon_config *c = calloc(1, sizeof(*c));
+
+	if (!c)
+		return -ENOMEM;
+	c->socket_path = strdup(PROTO_DEFAULT_SOCKET);
+	c->state_dir = strdup("/var/lib/asphd");
+	if (!c->socket_path || !c->state_dir) {
+		config_free(c);
+		return -ENOMEM;
+	}
+	c->socket_mode = 0660;
+	c->limits = default_limits;
+	*out = c;
+	return 0;
+}
+
+void config_free(struct daemon_config *c)
+{
+	if (!c)
+		return;
+	free(c->source);
+	free(c->socket_path);
+	free(c->socket_group);
+	free(c->operator_group);
+	free(c->tcp_listen);
+	free(c->token_file);
+	free(c->state_dir);
+	free(c->instruments_json);
+	free(c->text);
+	free(c);
+}
+
+static void take_string(struct loader *ld, json_t *v, const char *field,
+			char **dst, bool absolute_path)
+{
+	if (!json_is_string(v) || json_string_length(v) == 0 ||
+	    strlen(json_string_value(v)) != json_string_length(v)) {
+		complain(ld, field, "must be a non-empty string");
+		return;
+	}
+	if (absolute_path && json_string_value(v)[0] != '/') {
+		complain(ld, field, "must be an absolute path");
+		return;
+	}
+	free(*dst);
+	*dst = strdup(json_string_value(v));
+}
+
+static void take_mode(struct loader *ld, json_t *v, mode_t *dst)
+{
+	const char *s = json_string_value(v);
+	char *end;
+	unsigned long m;
+
+	if (!s || !*s) {
+		complain(ld, "socket_mode", "must be an octal string such as \"0660\"");
+		return;
+	}
+	errno = 0;
+	m = strtoul(s, &end, 8);
+	if (errno || *end || m > 0777 || (m & 0002)) {
+		complain(ld, "socket_mode",
+			 "must be octal, at most 0777 and not writable by others");
+		return;
+	}
+	*dst = (mode_t)m;
+}
+
+static const struct {
+	const char *name;
+	size_t offset;
+	uint32_t min, max;
+} limit_fields[] = {
+#define LIMIT(n, lo, hi) { #n, offsetof(struct daemon_limits, n), lo, hi }
+	LIMIT(max_clients, 1, 65536),
+	LIMIT(max_request_bytes, 1024, 64u << 20),
+	LIMIT(max_output_bytes, 65536, 1u << 30),
+	LIMIT(max_queue, 1, 10000000),
+	LIMIT(max_plan_points, 10, 100000000),
+	LIMIT(max_subscriptions, 1, 65536),
+	LIMIT(request_timeout_ms, 100, 3600000),
+	LIMIT(progress_interval_ms, 10, 60000),
+	LIMIT(max_label_bytes, 16, 4096),
+#undef LIMIT
+};
+
+static void take_limits(struct loader *ld, json_t *obj, struct daemon_limits *l)
+{
+	const char *key;
+	json_t *v;
+	char field[96];
+
+	if (!json_is_object(obj)) {
+		complain(ld, "limits", "must be an object");
+		return;
+	}
+	json_object_foreach(obj, key, v) {
+		size_t i;
+		snprintf(field, sizeof(field), "limits.%.60s", key);
+		for (i = 0; i < ARRAY_SIZE(limit_fields); i++)
+			if (!strcmp(limit_fields[i].name, key))
+				break;
+		if (i == ARRAY_SIZE(limit_fields)) {
+			complain(ld, field, "unknown limit");
+			continue;
+		}
+		if (!json_is_integer(v) || json_integer_value(v) < limit_fields[i].min ||
+		    json_integer_value(v) > limit_fields[i].max) {
+			complain(ld, field, "must be an integer in [%u, %u]",
+				 limit_fields[i].min, limit_fields[i].max);
+			continue;
+		}
+		*(uint32_t *)((char *)l + limit_fields[i].offset) =
+			(uint32_t)json_integer_value(v);
+	}
+}
+
+static void take_member(struct loader *ld, struct daemon_config *c,
+			const char *key, json_t *v)
+{
+	if (!strcmp(key, "socket"))
+		take_string(ld, v, key, &c->socket_path, true);
+	else if (!strcmp(key, "socket_group"))
+		take_string(ld, v, key, &c->socket_group, false);
+	else if (!strcmp(key, "socket_mode"))
+		take_mode(ld, v, &c->socket_mode);
+	else if (!strcmp(key, "operator_group"))
+		take_string(ld, v, key, &c->operator_group, false);
+	else if (!strcmp(key, "tcp_listen"))
+		take_string(ld, v, key, &c->tcp_listen, false);
+	else if (!strcmp(key, "token_file"))
+		take_string(ld, v, key, &c->token_file, true);
+	else if (!strcmp(key, "state_dir"))
+		take_string(ld, v, key, &c->state_dir, true);
+	else if (!strcmp(key, "limits"))
+		take_limits(ld, v, &c->limits);
+	else if (!strcmp(key, "instruments")) {
+		if (!json_is_array(v) || json_array_size(v) == 0) {
+			complain(ld, key, "must be a non-empty array");
+			return;
+		}
+		/* Kept as the drivers' own format for their parser. */
+		free(c->instruments_json);
+		json_t *wrap = json_pack("{s:O}", "instruments", v);
+		c->instruments_json = wrap ? json_dumps(wrap, JSON_COMPACT) : NULL;
+		json_decref(wrap);
+	} else
+		complain(ld, key, "unknown setting");
+}
+
+int config_load(const char *path, struct daemon_config **out,
+		config_error_fn report, void *data)
+{
+	struct loader ld = { .source = path, .report = report, .data = data };
+	struct daemon_config *c = NULL;
+	_cleanup_free_ char *text = NULL;
+	json_error_t je;
+	json_t *root, *v;
+	const char *key;
+	size_t len;
+	int r;
+
+	r = config_defaults(&c);
+	if (r < 0)
+		return r;
+	if (!path) {
+		*out = c;
+		return 0;
+	}
+	c->source = strdup(path);
+	{
+		_cleanup_fclose_ FILE *f = fopen(path, "re");
+		if (!f) {
+			r = -errno;
+			struct asph_error e;
+			asph_error_set(&e, r, "cannot open: %s", strerror(-r));
+			asph_error_locate(&e, path, 0, 0, NULL);
+			if (report)
+				report(&e, data);
+			config_free(c);
+			return r;
+		}
+		text = malloc(1u << 20);
+		len = text ? fread(text, 1, 1u << 20, f) : 0;
+		if (!text || len == 1u << 20 || ferror(f)) {
+			complain(&ld, NULL, "cannot read, or larger than 1 MiB");
+			config_free(c);
+			return -EINVAL;
+		}
+	}
+	ld.text = text;
+	ld.len = len;
+	root = json_loadb(text, len, JSON_REJECT_DUPLICATES, &je);
+	if (!root) {
+		struct asph_error e;
+		asph_error_set(&e, -EINVAL, "%s", je.text);
+		asph_error_locate(&e, path, je.line, je.column, NULL);
+		if (report)
+			report(&e, data);
+		config_free(c);
+		return -EINVAL;
+	}
+	if (!json_is_object(root))
+		complain(&ld, NULL, "the configuration must be a JSON object");
+	else
+		json_object_foreach(root, key, v)
+			take_member(&ld, c, key, v);
+	json_decref(root);
+	if (ld.n_errors) {
+		config_free(c);
+		return -EINVAL;
+	}
+	c->text = steal_ptr(text);
+	c->text_len = len;
+	*out = c;
+	return 0;
+}

@@ -1,0 +1,62 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/*
+ * asphd's configuration file (/etc/asphd/asphd.conf, JSON; docs/daemon.md):
+ * who may operate, where to listen, the limits, and the instruments (the
+ * "instruments" member in the drivers' format, docs/drivers.md).
+ */
+#ifndef ASPHD_SETTINGS_H
+#define ASPHD_SETTINGS_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <sys/types.h>
+
+#include "asph/error.h"
+
+struct daemon_limits {
+	uint32_t max_clients;
+	uint32_t max_request_bytes;     /* one line */
+	uint32_t max_output_bytes;      /* queued to one client */
+	uint32_t max_queue;             /* jobs queued, paused or interrupted */
+	uint32_t max_plan_points;
+	uint32_t max_subscriptions;     /* clients subscribed to events */
+	uint32_t request_timeout_ms;    /* an incomplete request */
+	uint32_t progress_interval_ms;  /* between progress events of a job */
+	uint32_t max_label_bytes;
+};
+
+struct daemon_config {
+	char *source;                   /* the file, or NULL for defaults */
+	char *socket_path;
+	char *socket_group;             /* NULL: the daemon's group */
+	mode_t socket_mode;
+	char *operator_group;           /* NULL: only root operates */
+	char *tcp_listen;               /* "host:port" or NULL (off) */
+	char *token_file;
+	char *state_dir;
+	struct daemon_limits limits;
+	/* Instruments: {"instruments": [...]} as JSON text for the drivers'
+	 * parser, or NULL for the default single "mock" instrument. */
+	char *instruments_json;
+	char *text;                     /* the file, to locate their errors */
+	size_t text_len;
+};
+
+/* Called once for every error found (the load goes on where it can). */
+typedef void (*config_error_fn)(const struct asph_error *err, void *data);
+
+/*
+ * Loads path (NULL: the defaults). Every problem is reported through
+ * report (may be NULL); returns 0 or -EINVAL when there was any, -errno
+ * when the file cannot be read. The instruments are checked separately
+ * (instruments_check in instruments.c), since that needs the drivers.
+ */
+int config_load(const char *path, struct daemon_config **out,
+		config_error_fn report, void *data);
+void config_free(struct daemon_config *c);
+
+/* The defaults without a file. */
+int config_defaults(struct daemon_config **out);
+
+#endif

@@ -1,0 +1,576 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <sqlite3.h>
+
+#include "store.h"
+#include "util-mem.h"
+
+#define SCHEMA_VERSION 1
+
+static const char *const state_names[JOB_N_STATES] = {
+	[JOB_QUEUED] = "queued",
+	[JOB_RUNNING] = "running",
+	[JOB_PAUSED] = "paused",
+	[JOB_COMPLETED] = "completed",
+	[JOB_FAILED] = "failed",
+	[JOB_CANCELLED] = "cancelled",
+	[JOB_INTERRUPTED] = "interrupted",
+};
+
+const char *job_state_name(enum job_state s)
+{
+	return (unsigned)s < JOB_N_STATES ? state_names[s] : "unknown";
+}
+
+int job_state_from_name(const char *name, enum job_state *out)
+{
+	for (int i = 0; i < JOB_N_STATES; i++)
+		if (!strcmp(state_names[i], name)) {
+			*out = (enum job_state)i;
+			return 0;
+		}
+	return -EINVAL;
+}
+
+bool job_state_final(enum job_state s)
+{
+	return s == JOB_COMPLETED || s == JOB_FAILED || s == JOB_CANCELLED;
+}
+
+void job_record_clear(struct job_record *j)
+{
+	free(j->label);
+	free(j->instrument);
+	free(j->user);
+	free(j->spec);
+	free(j->reason);
+	free(j->result);
+	free(j->scan_path);
+	memset(j, 0, sizeof(*j));
+}
+
+struct store {
+	sqlite3 *db;
+};
+
+static const char schema[] =
+	"CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);"
+	"CREATE TABLE IF NOT EXISTS jobs ("
+	" id INTEGER PRIMARY KEY AUTOINCREMENT,"
+	" state INTEGER NOT NULL, priority INTEGER NOT NULL, seq INTEGER NOT NULL,"
+	" label TEXT, instrument TEXT NOT NULL, uid INTEGER NOT NULL, user TEXT,"
+	" spec TEXT NOT NULL, submitted_ns INTEGER NOT NULL, started_ns INTEGER NOT NULL,"
+	" finished_ns INTEGER NOT NULL, points_done INTEGER NOT NULL,"
+	" points_total INTEGER NOT NULL, reason TEXT, result TEXT, scan_path TEXT,"
+	" resume INTEGER NOT NULL, attempts INTEGER NOT NULL);"
+	"CREATE INDEX IF NOT EXISTS jobs_queue ON jobs (state, instrument, priority DESC, seq);"
+	"CREATE TABLE IF NOT EXISTS history ("
+	" job INTEGER NOT NULL REFERENCES jobs(id), t_ns INTEGER NOT NULL,"
+	" state INTEGER NOT NULL, reason TEXT, actor_uid INTEGER NOT NULL);"
+	"CREATE INDEX IF NOT EXISTS history_job ON history (job);";
+
+static int sql_error(struct store *s, struct asph_error *err, const char *what)
+{
+	return asph_error_set(err, -EIO, "%s: %s", what, sqlite3_errmsg(s->db));
+}
+
+static int exec(struct store *s, const char *sql)
+{
+	return sqlite3_exec(s->db, sql, NULL, NULL, NULL) == SQLITE_OK ? 0 : -EIO;
+}
+
+static int check_version(struct store *s, struct asph_error *err)
+{
+	_cleanup_free_ char *v = NULL;
+	char buf[16];
+	int r = store_meta_get(s, "schema", &v);
+
+	if (r == -ENOENT) {
+		snprintf(buf, sizeof(buf), "%d", SCHEMA_VERSION);
+		return store_meta_set(s, "schema", buf);
+	}
+	if (r < 0)
+		return sql_error(s, err, "reading the schema version");
+	if (atoi(v) > SCHEMA_VERSION)
+		return asph_error_set(err, -EPROTO,
+				      "the job store has schema %s, newer than %d",
+				      v, SCHEMA_VERSION);
+	return 0;
+}
+
+int store_open(const char *path, struct store **out, struct asph_error *err)
+{
+	struct store *s = calloc(1, sizeof(*s));
+	int r;
+
+	if (!s)
+		return -ENOMEM;
+	if (sqlite3_open_v2(path, &s->db, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE |
+			    SQLITE_OPEN_NOMUTEX, NULL) != SQLITE_OK) {
+		r = asph_error_set(err, -EIO, "cannot open the job store %s: %s", path,
+				   s->db ? sqlite3_errmsg(s->db) : "out of memory");
+		store_close(s);
+		return r;
+	}
+	sqlite3_busy_timeout(s->db, 5000);
+	/* WAL with synchronous=FULL: a committed state change survives power
+	 * loss, and readers never block the writer. */
+	if (exec(s, "PRAGMA journal_mode=WAL;") < 0 ||
+	    exec(s, "PRAGMA synchronous=FULL;") < 0 ||
+	    exec(s, "PRAGMA foreign_keys=ON;") < 0 ||
+	    exec(s, schema) < 0) {
+		r = sql_error(s, err, path);
+		store_close(s);
+		return r;
+	}
+	r = check_version(s, err);
+	if (r < 0) {
+		store_close(s);
+		return r;
+	}
+	*out = s;
+	return 0;
+}
+
+void store_close(struct store *s)
+{
+	if (!s)
+		return;
+	sqlite3_close(s->db);
+	free(s);
+}
+
+static void finalizep(sqlite3_stmt **st)
+{
+	if (*st)
+		sqlite3_finalize(*st);
+}
+#define _cleanup_stmt_ _cleanup_(finalizep)
+
+static sqlite3_stmt *prepare(struct store *s, const char *sql)
+{
+	sqlite3_stmt *st = NULL;
+
+	if (sqlite3_prepare_v2(s->db, sql, -1, &st, NULL) != SQLITE_OK)
+		return NULL;
+	return st;
+}
+
+static int step_done(sqlite3_stmt *st)
+{
+	return sqlite3_step(st) == SQLITE_DONE ? 0 : -EIO;
+}
+
+static void bind_text(sqlite3_stmt *st, int i, const char *v)
+{
+	if (v)
+		sqlite3_bind_text(st, i, v, -1, SQLITE_TRANSIENT);
+	else
+		sqlite3_bind_null(st, i);
+}
+
+static char *column_text(sqlite3_stmt *st, int i)
+{
+	const unsigned char *t = sqlite3_column_text(st, i);
+
+	return t ? strdup((const char *)t) : NULL;
+}
+
+#define JOB_COLUMNS "id, state, priority, seq, label, instrument, uid, user, spec," \
+	" submitted_ns, started_ns, finished_ns, points_done, points_total," \
+	" reason, result, scan_path, resume, attempts"
+
+static int read_job(sqlite3_stmt *st, struct job_record *j)
+{
+	memset(j, 0, sizeof(*j));
+	j->id = sqlite3_column_int64(st, 0);
+	j->state = (enum job_state)sqlite3_column_int(st, 1);
+	j->priority = sqlite3_column_int64(st, 2);
+	j->seq = sqlite3_column_int64(st, 3);
+	j->label = column_text(st, 4);
+	j->instrument = column_text(st, 5);
+	j->uid = sqlite3_column_int64(st, 6);
+	j->user = column_text(st, 7);
+	j->spec = column_text(st, 8);
+	j->submitted_ns = sqlite3_column_int64(st, 9);
+	j->started_ns = sqlite3_column_int64(st, 10);
+	j->finished_ns = sqlite3_column_int64(st, 11);
+	j->points_done = sqlite3_column_int64(st, 12);
+	j->points_total = sqlite3_column_int64(st, 13);
+	j->reason = column_text(st, 14);
+	j->result = column_text(st, 15);
+	j->scan_path = column_text(st, 16);
+	j->resume = sqlite3_column_int(st, 17) != 0;
+	j->attempts = sqlite3_column_int64(st, 18);
+	if (!j->instrument || !j->spec) {
+		job_record_clear(j);
+		return -ENOMEM;
+	}
+	return 0;
+}
+
+static int add_history(struct store *s, int64_t id, enum job_state state,
+		       const char *reason, int64_t actor, int64_t now)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
+		"INSERT INTO history (job, t_ns, state, reason, actor_uid) VALUES (?,?,?,?,?)");
+
+	if (!st)
+		return -EIO;
+	sqlite3_bind_int64(st, 1, id);
+	sqlite3_bind_int64(st, 2, now);
+	sqlite3_bind_int(st, 3, state);
+	bind_text(st, 4, reason);
+	sqlite3_bind_int64(st, 5, actor);
+	return step_done(st);
+}
+
+int store_insert(struct store *s, struct job_record *j, int64_t now_ns)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = NULL;
+	int r;
+
+	r = store_begin(s);
+	if (r < 0)
+		return r;
+	st = prepare(s, "INSERT INTO jobs (state, priority, seq, label, instrument, uid,"
+		     " user, spec, submitted_ns, started_ns, finished_ns, points_done,"
+		     " points_total, reason, result, scan_path, resume, attempts)"
+		     " VALUES (?,?,(SELECT IFNULL(MAX(seq),0)+1 FROM jobs),?,?,?,?,?,?,0,0,0,?,NULL,NULL,?,0,0)");
+	if (!st) {
+		store_rollback(s);
+		return -EIO;
+	}
+	sqlite3_bind_int(st, 1, j->state);
+	sqlite3_bind_int64(st, 2, j->priority);
+	bind_text(st, 3, j->label);
+	bind_text(st, 4, j->instrument);
+	sqlite3_bind_int64(st, 5, j->uid);
+	bind_text(st, 6, j->user);
+	bind_text(st, 7, j->spec);
+	sqlite3_bind_int64(st, 8, now_ns);
+	sqlite3_bind_int64(st, 9, j->points_total);
+	bind_text(st, 10, j->scan_path);
+	if (step_done(st) < 0) {
+		store_rollback(s);
+		return -EIO;
+	}
+	j->id = sqlite3_last_insert_rowid(s->db);
+	j->submitted_ns = now_ns;
+	r = add_history(s, j->id, j->state, NULL, j->uid, now_ns);
+	if (r < 0) {
+		store_rollback(s);
+		return r;
+	}
+	r = store_commit(s);
+	if (r < 0)
+		return r;
+	{
+		_cleanup_stmt_ sqlite3_stmt *q = prepare(s, "SELECT seq FROM jobs WHERE id = ?");
+		if (q) {
+			sqlite3_bind_int64(q, 1, j->id);
+			if (sqlite3_step(q) == SQLITE_ROW)
+				j->seq = sqlite3_column_int64(q, 0);
+		}
+	}
+	return 0;
+}
+
+int store_get(struct store *s, int64_t id, struct job_record *out)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "SELECT " JOB_COLUMNS " FROM jobs WHERE id = ?");
+	int r;
+
+	if (!st)
+		return -EIO;
+	sqlite3_bind_int64(st, 1, id);
+	r = sqlite3_step(st);
+	if (r == SQLITE_DONE)
+		return -ENOENT;
+	if (r != SQLITE_ROW)
+		return -EIO;
+	return read_job(st, out);
+}
+
+int store_set_state(struct store *s, int64_t id, enum job_state state,
+		    const char *reason, int64_t actor_uid, int64_t now_ns)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = NULL;
+	int r = store_begin(s);
+
+	if (r < 0)
+		return r;
+	st = prepare(s, "UPDATE jobs SET state = ?, reason = IFNULL(?, reason) WHERE id = ?");
+	if (!st) {
+		store_rollback(s);
+		return -EIO;
+	}
+	sqlite3_bind_int(st, 1, state);
+	bind_text(st, 2, reason);
+	sqlite3_bind_int64(st, 3, id);
+	r = step_done(st);
+	if (r == 0)
+		r = add_history(s, id, state, reason, actor_uid, now_ns);
+	if (r < 0) {
+		store_rollback(s);
+		return r;
+	}
+	return store_commit(s);
+}
+
+int store_update(struct store *s, const struct job_record *j)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
+		"UPDATE jobs SET state=?, priority=?, seq=?, started_ns=?, finished_ns=?,"
+		" points_done=?, points_total=?, reason=?, result=?, scan_path=?, resume=?,"
+		" attempts=? WHERE id=?");
+
+	if (!st)
+		return -EIO;
+	sqlite3_bind_int(st, 1, j->state);
+	sqlite3_bind_int64(st, 2, j->priority);
+	sqlite3_bind_int64(st, 3, j->seq);
+	sqlite3_bind_int64(st, 4, j->started_ns);
+	sqlite3_bind_int64(st, 5, j->finished_ns);
+	sqlite3_bind_int64(st, 6, j->points_done);
+	sqlite3_bind_int64(st, 7, j->points_total);
+	bind_text(st, 8, j->reason);
+	bind_text(st, 9, j->result);
+	bind_text(st, 10, j->scan_path);
+	sqlite3_bind_int(st, 11, j->resume);
+	sqlite3_bind_int64(st, 12, j->attempts);
+	sqlite3_bind_int64(st, 13, j->id);
+	return step_done(st);
+}
+
+int store_set_progress(struct store *s, int64_t id, int64_t done, int64_t total)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
+		"UPDATE jobs SET points_done = ?, points_total = ? WHERE id = ?");
+
+	if (!st)
+		return -EIO;
+	sqlite3_bind_int64(st, 1, done);
+	sqlite3_bind_int64(st, 2, total);
+	sqlite3_bind_int64(st, 3, id);
+	return step_done(st);
+}
+
+/* Builds the WHERE clause; binds follow the same order. */
+static void filter_sql(const struct store_filter *f, char *sql, size_t size)
+{
+	size_t n = strlen(sql);
+
+	n += (size_t)snprintf(sql + n, size - n, " WHERE 1");
+	if (f->states)
+		n += (size_t)snprintf(sql + n, size - n, " AND ((1 << state) & ?)");
+	if (f->instrument)
+		n += (size_t)snprintf(sql + n, size - n, " AND instrument = ?");
+	if (f->uid >= 0)
+		n += (size_t)snprintf(sql + n, size - n, " AND uid = ?");
+	if (f->label)
+		n += (size_t)snprintf(sql + n, size - n, " AND label = ?");
+	if (f->before_id > 0)
+		snprintf(sql + n, size - n, " AND id < ?");
+}
+
+static int filter_bind(sqlite3_stmt *st, const struct store_filter *f)
+{
+	int i = 1;
+
+	if (f->states)
+		sqlite3_bind_int64(st, i++, f->states);
+	if (f->instrument)
+		bind_text(st, i++, f->instrument);
+	if (f->uid >= 0)
+		sqlite3_bind_int64(st, i++, f->uid);
+	if (f->label)
+		bind_text(st, i++, f->label);
+	if (f->before_id > 0)
+		sqlite3_bind_int64(st, i++, f->before_id);
+	return i;
+}
+
+int store_list(struct store *s, const struct store_filter *f,
+	       store_job_fn fn, void *data, int64_t *total)
+{
+	char sql[512] = "SELECT " JOB_COLUMNS " FROM jobs";
+	_cleanup_stmt_ sqlite3_stmt *st = NULL;
+	int i, r;
+
+	if (total) {
+		char csql[256] = "SELECT COUNT(*) FROM jobs";
+		_cleanup_stmt_ sqlite3_stmt *c = NULL;
+		filter_sql(f, csql, sizeof(csql));
+		c = prepare(s, csql);
+		if (!c)
+			return -EIO;
+		filter_bind(c, f);
+		if (sqlite3_step(c) != SQLITE_ROW)
+			return -EIO;
+		*total = sqlite3_column_int64(c, 0);
+	}
+	filter_sql(f, sql, sizeof(sql));
+	strncat(sql, f->queue_order ? " ORDER BY priority DESC, seq" : " ORDER BY id DESC",
+		sizeof(sql) - strlen(sql) - 1);
+	strncat(sql, " LIMIT ? OFFSET ?", sizeof(sql) - strlen(sql) - 1);
+	st = prepare(s, sql);
+	if (!st)
+		return -EIO;
+	i = filter_bind(st, f);
+	sqlite3_bind_int64(st, i, f->limit > 0 ? f->limit : -1);
+	sqlite3_bind_int64(st, i + 1, f->offset);
+	while ((r = sqlite3_step(st)) == SQLITE_ROW) {
+		struct job_record j;
+		int k = read_job(st, &j);
+		if (k < 0)
+			return k;
+		k = fn(&j, data);
+		job_record_clear(&j);
+		if (k < 0)
+			return k;
+	}
+	return r == SQLITE_DONE ? 0 : -EIO;
+}
+
+int store_next(struct store *s, const char *instrument, struct job_record *out)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "SELECT " JOB_COLUMNS
+		" FROM jobs WHERE state = ? AND instrument = ? ORDER BY priority DESC, seq LIMIT 1");
+	int r;
+
+	if (!st)
+		return -EIO;
+	sqlite3_bind_int(st, 1, JOB_QUEUED);
+	bind_text(st, 2, instrument);
+	r = sqlite3_step(st);
+	if (r == SQLITE_DONE)
+		return -ENOENT;
+	if (r != SQLITE_ROW)
+		return -EIO;
+	return read_job(st, out);
+}
+
+int store_history(struct store *s, int64_t id, store_event_fn fn, void *data)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
+		"SELECT t_ns, state, reason, actor_uid FROM history WHERE job = ? ORDER BY rowid");
+	int r;
+
+	if (!st)
+		return -EIO;
+	sqlite3_bind_int64(st, 1, id);
+	while ((r = sqlite3_step(st)) == SQLITE_ROW) {
+		struct store_event e = {
+			.t_ns = sqlite3_column_int64(st, 0),
+			.state = (enum job_state)sqlite3_column_int(st, 1),
+			.reason = (const char *)sqlite3_column_text(st, 2),
+			.actor_uid = sqlite3_column_int64(st, 3),
+		};
+		int k = fn(&e, data);
+		if (k < 0)
+			return k;
+	}
+	return r == SQLITE_DONE ? 0 : -EIO;
+}
+
+int store_recover(struct store *s, int64_t now_ns)
+{
+	_cleanup_stmt_ sqlite3_stmt *sel = prepare(s,
+		"SELECT id FROM jobs WHERE state IN (?, ?)");
+	int64_t ids[64];
+	int n = 0, total = 0, r;
+
+	if (!sel)
+		return -EIO;
+	do {
+		n = 0;
+		sqlite3_reset(sel);
+		sqlite3_bind_int(sel, 1, JOB_RUNNING);
+		sqlite3_bind_int(sel, 2, JOB_PAUSED);
+		while (n < (int)ARRAY_SIZE(ids) && sqlite3_step(sel) == SQLITE_ROW)
+			ids[n++] = sqlite3_column_int64(sel, 0);
+		sqlite3_reset(sel);
+		for (int i = 0; i < n; i++) {
+			r = store_set_state(s, ids[i], JOB_INTERRUPTED,
+					    "the daemon stopped during the scan", 0, now_ns);
+			if (r < 0)
+				return r;
+			_cleanup_stmt_ sqlite3_stmt *u = prepare(s,
+				"UPDATE jobs SET resume = 1 WHERE id = ? AND scan_path IS NOT NULL");
+			if (!u)
+				return -EIO;
+			sqlite3_bind_int64(u, 1, ids[i]);
+			if (step_done(u) < 0)
+				return -EIO;
+		}
+		total += n;
+	} while (n == (int)ARRAY_SIZE(ids));
+	return total;
+}
+
+int store_count(struct store *s, int64_t counts[JOB_N_STATES])
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
+		"SELECT state, COUNT(*) FROM jobs GROUP BY state");
+	int r;
+
+	if (!st)
+		return -EIO;
+	memset(counts, 0, sizeof(int64_t) * JOB_N_STATES);
+	while ((r = sqlite3_step(st)) == SQLITE_ROW) {
+		int k = sqlite3_column_int(st, 0);
+		if (k >= 0 && k < JOB_N_STATES)
+			counts[k] = sqlite3_column_int64(st, 1);
+	}
+	return r == SQLITE_DONE ? 0 : -EIO;
+}
+
+int store_meta_get(struct store *s, const char *key, char **value)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "SELECT value FROM meta WHERE key = ?");
+	int r;
+
+	if (!st)
+		return -EIO;
+	bind_text(st, 1, key);
+	r = sqlite3_step(st);
+	if (r == SQLITE_DONE)
+		return -ENOENT;
+	if (r != SQLITE_ROW)
+		return -EIO;
+	*value = column_text(st, 0);
+	return *value ? 0 : -ENOMEM;
+}
+
+int store_meta_set(struct store *s, const char *key, const char *value)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
+		"INSERT INTO meta (key, value) VALUES (?, ?)"
+		" ON CONFLICT(key) DO UPDATE SET value = excluded.value");
+
+	if (!st)
+		return -EIO;
+	bind_text(st, 1, key);
+	bind_text(st, 2, value);
+	return step_done(st);
+}
+
+int store_begin(struct store *s)
+{
+	return exec(s, "BEGIN IMMEDIATE");
+}
+
+int store_commit(struct store *s)
+{
+	return exec(s, "COMMIT");
+}
+
+void store_rollback(struct store *s)
+{
+	exec(s, "ROLLBACK");
+}

@@ -1,0 +1,119 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/*
+ * The job store: SQLite in WAL mode under the state directory. Jobs, their
+ * states and every transition survive a restart. Used from the event loop
+ * thread only.
+ */
+#ifndef ASPHD_STORE_H
+#define ASPHD_STORE_H
+
+#include <stdbool.h>
+#include <stdint.h>
+
+#include "asph/error.h"
+
+enum job_state {
+	JOB_QUEUED = 0,
+	JOB_RUNNING,
+	JOB_PAUSED,
+	JOB_COMPLETED,
+	JOB_FAILED,
+	JOB_CANCELLED,
+	JOB_INTERRUPTED,
+	JOB_N_STATES
+};
+
+const char *job_state_name(enum job_state s);
+int job_state_from_name(const char *name, enum job_state *out);
+/* Completed, failed, cancelled: nothing more happens unless re-queued. */
+bool job_state_final(enum job_state s);
+
+struct job_record {
+	int64_t id;
+	enum job_state state;
+	int64_t priority;       /* higher runs first */
+	int64_t seq;            /* then lower first */
+	char *label;
+	char *instrument;
+	int64_t uid;
+	char *user;
+	char *spec;             /* the normalized submission, JSON */
+	int64_t submitted_ns, started_ns, finished_ns;   /* 0 = not yet */
+	int64_t points_done, points_total;
+	char *reason;           /* of the last failure or interruption */
+	char *result;           /* JSON, once completed */
+	char *scan_path;        /* relative to the state directory */
+	bool resume;            /* the next run continues scan_path */
+	int64_t attempts;
+};
+
+void job_record_clear(struct job_record *j);
+
+struct store;
+
+/* Opens or creates path; upgrades nothing it does not know (-EPROTO for a
+ * newer schema). */
+int store_open(const char *path, struct store **out, struct asph_error *err);
+void store_close(struct store *s);
+
+/* Inserts j (id and seq are assigned and written back), with a history
+ * entry. */
+int store_insert(struct store *s, struct job_record *j, int64_t now_ns);
+/* -ENOENT when there is no such job. */
+int store_get(struct store *s, int64_t id, struct job_record *out);
+
+/* A state change with its history entry; reason may be NULL. */
+int store_set_state(struct store *s, int64_t id, enum job_state state,
+		    const char *reason, int64_t actor_uid, int64_t now_ns);
+/* Writes every mutable column of j (state history is not touched). */
+int store_update(struct store *s, const struct job_record *j);
+int store_set_progress(struct store *s, int64_t id, int64_t done,
+		       int64_t total);
+
+struct store_filter {
+	unsigned states;        /* bit per enum job_state; 0 = all */
+	const char *instrument; /* or NULL */
+	int64_t uid;            /* -1 = any */
+	const char *label;      /* exact, or NULL */
+	int64_t before_id;      /* only ids below; 0 = no bound */
+	int64_t offset, limit;
+	bool queue_order;       /* priority, seq; else newest first */
+};
+
+typedef int (*store_job_fn)(const struct job_record *j, void *data);
+
+/* Calls fn for each matching job; returns the count of jobs that match the
+ * filter without offset/limit in *total (may be NULL). */
+int store_list(struct store *s, const struct store_filter *f,
+	       store_job_fn fn, void *data, int64_t *total);
+
+/* The queued job of an instrument that runs next; -ENOENT when none. */
+int store_next(struct store *s, const char *instrument,
+	       struct job_record *out);
+
+struct store_event {
+	int64_t t_ns;
+	enum job_state state;
+	const char *reason;
+	int64_t actor_uid;
+};
+typedef int (*store_event_fn)(const struct store_event *e, void *data);
+int store_history(struct store *s, int64_t id, store_event_fn fn, void *data);
+
+/* Jobs that were running or paused when the daemon stopped become
+ * interrupted; returns how many. */
+int store_recover(struct store *s, int64_t now_ns);
+
+/* Number of jobs per state. */
+int store_count(struct store *s, int64_t counts[JOB_N_STATES]);
+
+/* Key-value settings that outlive a restart (e.g. "queue.running"). */
+int store_meta_get(struct store *s, const char *key, char **value);
+int store_meta_set(struct store *s, const char *key, const char *value);
+
+/* Runs several changes in one transaction. */
+int store_begin(struct store *s);
+int store_commit(struct store *s);
+void store_rollback(struct store *s);
+
+#endif

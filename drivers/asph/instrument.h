@@ -1,0 +1,178 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#ifndef ASPH_INSTRUMENT_H
+#define ASPH_INSTRUMENT_H
+
+#include <stdbool.h>
+#include <stddef.h>
+
+#include "asph/driver.h"
+#include "asph/error.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/*
+ * The host side of the driver interface: the registry of drivers (built in
+ * and plugins), option values checked against a driver's descriptors, and
+ * instruments (a stage driver and a probe driver with their options) from a
+ * configuration file or a spec such as "mock:rate=20000".
+ */
+
+/* -------------------------------------------------------- registry */
+
+struct asph_registry;
+
+/* A registry with the built-in drivers (those of meson's `drivers`). */
+int asph_registry_new(struct asph_registry **out, struct asph_error *err);
+void asph_registry_free(struct asph_registry *r);
+
+/*
+ * Loads one plugin (a shared object exporting ASPH_DRIVER_PLUGIN_SYMBOL).
+ * -ENOEXEC with the reason for a file that is not a plugin, -EPROTO for an
+ * ABI version other than ours, -EINVAL for a malformed driver table (bad
+ * name, options whose defaults do not parse, missing operations), -EEXIST
+ * for a driver name already registered.
+ */
+int asph_registry_load_plugin(struct asph_registry *r, const char *path,
+			      struct asph_error *err);
+
+/* Called for each plugin of a directory that does not load. */
+typedef void (*asph_registry_warn_fn)(const struct asph_error *err,
+				      void *data);
+
+/* Loads every *.so of dir (sorted by name); a plugin that fails is reported
+ * through warn (may be NULL) and skipped. Returns the number loaded, or
+ * -errno when dir cannot be read (-ENOENT is not an error: returns 0). */
+int asph_registry_load_dir(struct asph_registry *r, const char *dir,
+			   asph_registry_warn_fn warn, void *data,
+			   struct asph_error *err);
+
+/* The default plugin directories: $ASPH_DRIVER_PATH (colon-separated) if
+ * set, else the installed one. */
+int asph_registry_load_default_dirs(struct asph_registry *r,
+				    asph_registry_warn_fn warn, void *data,
+				    struct asph_error *err);
+
+size_t asph_registry_count(const struct asph_registry *r);
+const struct asph_driver *asph_registry_get(const struct asph_registry *r,
+					    size_t i);
+/* Where a driver came from: "built-in" or the plugin's path. */
+const char *asph_registry_origin(const struct asph_registry *r, size_t i);
+const struct asph_driver *asph_registry_find(const struct asph_registry *r,
+					     const char *name);
+
+/* Checks a driver table as the registry does (plugins are checked on
+ * load). */
+int asph_driver_validate(const struct asph_driver *d, struct asph_error *err);
+
+/* Every driver with its roles and options, as asph drivers --json prints
+ * it: { "driver_abi": N, "drivers": [ { "name", "description", "version",
+ * "origin", "roles", "options": [ { "name", "type", "default", "unit",
+ * "min", "max", "choices", "roles", "help" } ] } ] }. malloc'd. */
+int asph_registry_to_json(const struct asph_registry *r, bool pretty,
+			  char **out);
+
+const char *asph_option_type_name(enum asph_option_type t);
+const char *asph_kinematics_name(enum asph_kinematics k);
+const char *asph_probe_type_name(enum asph_probe_type t);
+
+/* ---------------------------------------------------------- options */
+
+struct asph_options;
+
+/* Values for drv's options, all at their defaults. */
+int asph_options_new(const struct asph_driver *drv, struct asph_options **out,
+		     struct asph_error *err);
+void asph_options_free(struct asph_options *o);
+
+/*
+ * Sets an option from text. -ENOENT for an unknown option, -EINVAL for a
+ * value of the wrong type, -ERANGE for one outside the range or not among
+ * the choices; err names the option (field) and says what it accepts.
+ */
+int asph_options_set(struct asph_options *o, const char *name,
+		     const char *text, struct asph_error *err);
+
+/* The values, parallel to the driver's option descriptors. */
+const struct asph_option_value *
+asph_options_values(const struct asph_options *o);
+const struct asph_driver *asph_options_driver(const struct asph_options *o);
+
+/* The value as text, as asph_options_set() takes it (buf returned). */
+const char *asph_option_value_format(const struct asph_option_value *v,
+				     char *buf, size_t size);
+
+/* ----------------------------------------------------- instruments */
+
+struct asph_instrument_config {
+	char name[64];
+	const struct asph_driver *stage_driver;
+	const struct asph_driver *probe_driver;
+	struct asph_options *stage_options;
+	struct asph_options *probe_options;
+};
+
+struct asph_config {
+	size_t n;
+	struct asph_instrument_config *instruments;
+};
+
+/*
+ * A spec in the style of sigrok-cli: NAME[:key=value,...]. The driver NAME
+ * plays both roles (so it must have both) and the options apply to each
+ * role that uses them. The instrument is named NAME.
+ */
+int asph_instrument_spec_parse(const struct asph_registry *reg,
+			       const char *spec,
+			       struct asph_config **out,
+			       struct asph_error *err);
+
+/*
+ * A JSON configuration file (format in docs/drivers.md):
+ *   { "instruments": [ { "name": ..., "stage": { "driver": ...,
+ *     "options": { ... } }, "probe": { ... } } ] }
+ * Errors carry the file, line, column and the dotted field.
+ */
+int asph_config_load(const struct asph_registry *reg, const char *path,
+		     struct asph_config **out, struct asph_error *err);
+int asph_config_parse(const struct asph_registry *reg, const char *text,
+		      size_t len, const char *source,
+		      struct asph_config **out, struct asph_error *err);
+void asph_config_free(struct asph_config *c);
+
+/*
+ * What a --instrument argument names: an existing file (FILE, or
+ * FILE#NAME for one of several instruments; FILE alone takes the first),
+ * else a spec.
+ */
+int asph_config_resolve(const struct asph_registry *reg, const char *arg,
+			struct asph_config **out, size_t *index,
+			struct asph_error *err);
+
+/* The instrument as JSON text (drivers, versions, every option's value),
+ * for the recorded scan's header. malloc'd. */
+int asph_instrument_config_to_json(const struct asph_instrument_config *c,
+				   char **out);
+
+/* An instrument with its devices open. */
+struct asph_instrument {
+	const struct asph_instrument_config *config;
+	const struct asph_driver *stage_driver, *probe_driver;
+	struct asph_device *stage, *probe;
+	struct asph_stage_info stage_info;
+	struct asph_probe_info probe_info;
+};
+
+/* Opens the stage, then the probe, and reads their info. c must outlive
+ * the instrument. */
+int asph_instrument_open(const struct asph_instrument_config *c,
+			 unsigned timeout_ms, struct asph_instrument **out,
+			 struct asph_error *err);
+void asph_instrument_close(struct asph_instrument *inst);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif

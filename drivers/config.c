@@ -1,0 +1,515 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* Instrument configurations: sigrok-cli style specs and JSON files. */
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+#include <jansson.h>
+
+#include "asph/instrument.h"
+#include "jsonpos.h"
+#include "options-internal.h"
+#include "util-mem.h"
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_config *, asph_config_free)
+
+void asph_config_free(struct asph_config *c)
+{
+	if (!c)
+		return;
+	for (size_t i = 0; i < c->n; i++) {
+		asph_options_free(c->instruments[i].stage_options);
+		asph_options_free(c->instruments[i].probe_options);
+	}
+	free(c->instruments);
+	free(c);
+}
+
+static int config_alloc(size_t n, struct asph_config **out, struct asph_error *err)
+{
+	struct asph_config *c = calloc(1, sizeof(*c));
+
+	if (c)
+		c->instruments = calloc(n ? n : 1, sizeof(*c->instruments));
+	if (!c || !c->instruments) {
+		free(c);
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	}
+	c->n = n;
+	*out = c;
+	return 0;
+}
+
+static int role_options(const struct asph_driver *drv, unsigned role,
+			const struct asph_driver **slot, struct asph_options **opts,
+			struct asph_error *err)
+{
+	if (!(drv->roles & role))
+		return asph_error_set(err, -EINVAL, "driver '%s' cannot be a %s", drv->name,
+				      role == ASPH_ROLE_STAGE ? "stage" : "probe");
+	*slot = drv;
+	return asph_options_new(drv, opts, err);
+}
+
+/* ------------------------------------------------------------- spec */
+
+static int spec_option(struct asph_instrument_config *ic, char *kv,
+		       struct asph_error *err)
+{
+	char *eq = strchr(kv, '=');
+
+	if (!eq || eq == kv)
+		return asph_error_set(err, -EINVAL, "'%s' is not key=value", kv);
+	*eq = '\0';
+	int r = asph_options_set(ic->stage_options, kv, eq + 1, err);
+	if (r == 0)
+		r = asph_options_set(ic->probe_options, kv, eq + 1, err);
+	return r;
+}
+
+int asph_instrument_spec_parse(const struct asph_registry *reg,
+			       const char *spec, struct asph_config **out,
+			       struct asph_error *err)
+{
+	_cleanup_(asph_config_freep) struct asph_config *c = NULL;
+	_cleanup_free_ char *copy = strdup(spec);
+	int r;
+
+	if (!copy)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	char *opts = strchr(copy, ':');
+	if (opts)
+		*opts++ = '\0';
+	const struct asph_driver *drv = asph_registry_find(reg, copy);
+	if (!drv)
+		return asph_error_set(err, -ENOENT,
+				      "no driver '%s' (and no such configuration file); see asph drivers",
+				      copy);
+	r = config_alloc(1, &c, err);
+	if (r < 0)
+		return r;
+	struct asph_instrument_config *ic = &c->instruments[0];
+	snprintf(ic->name, sizeof(ic->name), "%s", drv->name);
+	r = role_options(drv, ASPH_ROLE_STAGE, &ic->stage_driver, &ic->stage_options, err);
+	if (r == 0)
+		r = role_options(drv, ASPH_ROLE_PROBE, &ic->probe_driver, &ic->probe_options, err);
+	char *save = NULL;
+	for (char *kv = opts ? strtok_r(opts, ",", &save) : NULL; r == 0 && kv;
+	     kv = strtok_r(NULL, ",", &save))
+		r = spec_option(ic, kv, err);
+	if (r < 0) {
+		asph_error_locate(err, spec, 0, 0, NULL);
+		return r;
+	}
+	*out = steal_ptr(c);
+	return 0;
+}
+
+/* ------------------------------------------------------------- JSON */
+
+struct json_src {
+	const char *text;
+	size_t len;
+	const char *source;
+};
+
+/* Sets the error's location to the member at the dotted path. */
+static int at(const struct json_src *src, struct asph_error *err, int code,
+	      const char *dotted)
+{
+	int line = 0, column = 0;
+
+	json_locate_dotted(src->text, src->len, dotted, &line, &column);
+	if (err)
+		err->field[0] = '\0';
+	asph_error_locate(err, src->source, line, column, dotted);
+	return code;
+}
+
+static int value_text(const struct asph_option_desc *d, json_t *v, char *buf,
+		      size_t size, const char **text)
+{
+	*text = buf;
+	switch (d->type) {
+	case ASPH_OPTION_BOOL:
+		if (!json_is_boolean(v))
+			return -EINVAL;
+		snprintf(buf, size, "%s", json_is_true(v) ? "true" : "false");
+		return 0;
+	case ASPH_OPTION_INT:
+		if (!json_is_integer(v))
+			return -EINVAL;
+		snprintf(buf, size, "%lld", (long long)json_integer_value(v));
+		return 0;
+	case ASPH_OPTION_DOUBLE:
+		if (!json_is_number(v))
+			return -EINVAL;
+		snprintf(buf, size, "%.17g", json_number_value(v));
+		return 0;
+	case ASPH_OPTION_STRING:
+	case ASPH_OPTION_ENUM:
+		if (!json_is_string(v))
+			return -EINVAL;
+		*text = json_string_value(v);
+		return 0;
+	}
+	return -EINVAL;
+}
+
+static const char *json_type_word(enum asph_option_type t)
+{
+	switch (t) {
+	case ASPH_OPTION_BOOL: return "true or false";
+	case ASPH_OPTION_INT: return "an integer";
+	case ASPH_OPTION_DOUBLE: return "a number";
+	default: return "a string";
+	}
+}
+
+static int json_options(const struct json_src *src, json_t *obj,
+			struct asph_options *opts, const char *path,
+			struct asph_error *err)
+{
+	const struct asph_driver *drv = asph_options_driver(opts);
+	const char *key;
+	json_t *v;
+	char dotted[256], buf[64];
+
+	if (!json_is_object(obj)) {
+		asph_error_set(err, -EINVAL, "options must be an object");
+		return at(src, err, -EINVAL, path);
+	}
+	json_object_foreach(obj, key, v) {
+		int i = option_index(drv, key);
+		const char *text;
+		int r;
+
+		if (snprintf(dotted, sizeof(dotted), "%s.%s", path, key) >= (int)sizeof(dotted))
+			dotted[0] = '\0';
+		if (i < 0) {
+			asph_error_set(err, -ENOENT, "driver '%s' has no option '%s' (see asph drivers)",
+				       drv->name, key);
+			return at(src, err, -ENOENT, dotted);
+		}
+		if (value_text(&drv->options[i], v, buf, sizeof(buf), &text) < 0) {
+			asph_error_set(err, -EINVAL, "option '%s' expects %s", key,
+				       json_type_word(drv->options[i].type));
+			return at(src, err, -EINVAL, dotted);
+		}
+		r = asph_options_set(opts, key, text, err);
+		if (r < 0)
+			return at(src, err, r, dotted);
+	}
+	return 0;
+}
+
+static int json_role(const struct json_src *src, const struct asph_registry *reg,
+		     json_t *obj, unsigned role, const char *path,
+		     const struct asph_driver **drv_out,
+		     struct asph_options **opts, struct asph_error *err)
+{
+	char dotted[256];
+	const char *key;
+	json_t *v;
+
+	if (!obj) {
+		/* point at the instrument that lacks it */
+		char parent[256];
+		int line = 0, column = 0;
+		snprintf(parent, sizeof(parent), "%s", path);
+		*strrchr(parent, '.') = '\0';
+		json_locate_dotted(src->text, src->len, parent, &line, &column);
+		asph_error_set(err, -EINVAL, "missing: an object with \"driver\"");
+		asph_error_locate(err, src->source, line, column, path);
+		return -EINVAL;
+	}
+	if (!json_is_object(obj)) {
+		asph_error_set(err, -EINVAL, "not an object with \"driver\"");
+		return at(src, err, -EINVAL, path);
+	}
+	json_object_foreach(obj, key, v) {
+		if (strcmp(key, "driver") && strcmp(key, "options")) {
+			snprintf(dotted, sizeof(dotted), "%s.%s", path, key);
+			asph_error_set(err, -EINVAL, "unknown member '%s' (driver, options)", key);
+			return at(src, err, -EINVAL, dotted);
+		}
+	}
+	snprintf(dotted, sizeof(dotted), "%s.driver", path);
+	const char *name = json_string_value(json_object_get(obj, "driver"));
+	if (!name) {
+		asph_error_set(err, -EINVAL, "\"driver\" must be a driver name");
+		return at(src, err, -EINVAL, json_object_get(obj, "driver") ? dotted : path);
+	}
+	const struct asph_driver *drv = asph_registry_find(reg, name);
+	if (!drv) {
+		asph_error_set(err, -ENOENT, "no driver '%s' (see asph drivers)", name);
+		return at(src, err, -ENOENT, dotted);
+	}
+	int r = role_options(drv, role, drv_out, opts, err);
+	if (r < 0)
+		return at(src, err, r, dotted);
+	json_t *o = json_object_get(obj, "options");
+	snprintf(dotted, sizeof(dotted), "%s.options", path);
+	return o ? json_options(src, o, *opts, dotted, err) : 0;
+}
+
+static int json_instrument(const struct json_src *src,
+			   const struct asph_registry *reg, json_t *obj,
+			   size_t idx, struct asph_instrument_config *ic,
+			   struct asph_error *err)
+{
+	char path[64], dotted[192];
+	const char *key;
+	json_t *v;
+
+	snprintf(path, sizeof(path), "instruments.[%zu]", idx);
+	if (!json_is_object(obj)) {
+		asph_error_set(err, -EINVAL, "an instrument must be an object");
+		return at(src, err, -EINVAL, path);
+	}
+	json_object_foreach(obj, key, v) {
+		if (strcmp(key, "name") && strcmp(key, "stage") && strcmp(key, "probe")) {
+			snprintf(dotted, sizeof(dotted), "%s.%s", path, key);
+			asph_error_set(err, -EINVAL, "unknown member '%s' (name, stage, probe)", key);
+			return at(src, err, -EINVAL, dotted);
+		}
+	}
+	json_t *name = json_object_get(obj, "name");
+	snprintf(dotted, sizeof(dotted), "%s.name", path);
+	if (name && (!json_is_string(name) || !json_string_length(name) ||
+		     json_string_length(name) >= sizeof(ic->name))) {
+		asph_error_set(err, -EINVAL, "name must be a string of 1 to %zu bytes",
+			       sizeof(ic->name) - 1);
+		return at(src, err, -EINVAL, dotted);
+	}
+	if (name)
+		snprintf(ic->name, sizeof(ic->name), "%s", json_string_value(name));
+	else
+		snprintf(ic->name, sizeof(ic->name), "instrument%zu", idx + 1);
+	snprintf(dotted, sizeof(dotted), "%s.stage", path);
+	int r = json_role(src, reg, json_object_get(obj, "stage"), ASPH_ROLE_STAGE,
+			  dotted, &ic->stage_driver, &ic->stage_options, err);
+	if (r < 0)
+		return r;
+	snprintf(dotted, sizeof(dotted), "%s.probe", path);
+	return json_role(src, reg, json_object_get(obj, "probe"), ASPH_ROLE_PROBE,
+			 dotted, &ic->probe_driver, &ic->probe_options, err);
+}
+
+static int check_names(const struct json_src *src, const struct asph_config *c,
+		       struct asph_error *err)
+{
+	char path[64];
+
+	for (size_t i = 0; i < c->n; i++)
+		for (size_t j = 0; j < i; j++)
+			if (!strcmp(c->instruments[i].name, c->instruments[j].name)) {
+				snprintf(path, sizeof(path), "instruments.[%zu].name", i);
+				asph_error_set(err, -EINVAL, "instrument name '%s' used twice",
+					       c->instruments[i].name);
+				return at(src, err, -EINVAL, path);
+			}
+	return 0;
+}
+
+int asph_config_parse(const struct asph_registry *reg, const char *text,
+		      size_t len, const char *source, struct asph_config **out,
+		      struct asph_error *err)
+{
+	struct json_src src = { text, len, source };
+	_cleanup_(asph_config_freep) struct asph_config *c = NULL;
+	json_error_t jerr;
+	const char *key;
+	json_t *v;
+
+	_cleanup_(json_decrefp) json_t *root = json_loadb(text, len, JSON_REJECT_DUPLICATES, &jerr);
+	if (!root) {
+		asph_error_set(err, -EINVAL, "%s", jerr.text);
+		asph_error_locate(err, source, jerr.line, jerr.column, NULL);
+		return -EINVAL;
+	}
+	if (!json_is_object(root)) {
+		asph_error_set(err, -EINVAL, "the configuration must be a JSON object");
+		asph_error_locate(err, source, 1, 1, NULL);
+		return -EINVAL;
+	}
+	json_object_foreach(root, key, v) {
+		if (strcmp(key, "instruments")) {
+			asph_error_set(err, -EINVAL, "unknown member '%s' (instruments)", key);
+			return at(&src, err, -EINVAL, key);
+		}
+	}
+	json_t *list = json_object_get(root, "instruments");
+	if (!json_is_array(list) || json_array_size(list) == 0) {
+		asph_error_set(err, -EINVAL, "\"instruments\" must be a non-empty array");
+		return list ? at(&src, err, -EINVAL, "instruments")
+			    : (asph_error_locate(err, source, 1, 1, "instruments"), -EINVAL);
+	}
+	int r = config_alloc(json_array_size(list), &c, err);
+	for (size_t i = 0; r == 0 && i < c->n; i++)
+		r = json_instrument(&src, reg, json_array_get(list, i), i,
+				    &c->instruments[i], err);
+	if (r == 0)
+		r = check_names(&src, c, err);
+	if (r < 0)
+		return r;
+	*out = steal_ptr(c);
+	return 0;
+}
+
+int asph_config_load(const struct asph_registry *reg, const char *path,
+		     struct asph_config **out, struct asph_error *err)
+{
+	_cleanup_fclose_ FILE *f = fopen(path, "re");
+	_cleanup_free_ char *text = NULL;
+	size_t len = 0;
+
+	if (!f) {
+		int e = -errno;
+		asph_error_set(err, e, "cannot open: %s", strerror(-e));
+		asph_error_locate(err, path, 0, 0, NULL);
+		return e;
+	}
+	FILE *mem = open_memstream(&text, &len);
+	if (!mem)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	char buf[8192];
+	size_t got;
+	while ((got = fread(buf, 1, sizeof(buf), f)) > 0 && len + got < (16u << 20))
+		fwrite(buf, 1, got, mem);
+	fclose(mem);
+	if (ferror(f)) {
+		asph_error_set(err, -EIO, "read error");
+		asph_error_locate(err, path, 0, 0, NULL);
+		return -EIO;
+	}
+	return asph_config_parse(reg, text, len, path, out, err);
+}
+
+int asph_config_resolve(const struct asph_registry *reg, const char *arg,
+			struct asph_config **out, size_t *index,
+			struct asph_error *err)
+{
+	_cleanup_free_ char *path = strdup(arg);
+	struct stat st;
+
+	if (!path)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	*index = 0;
+	char *hash = strrchr(path, '#');
+	if (stat(path, &st) != 0 && hash) {
+		*hash = '\0';
+		if (stat(path, &st) != 0)
+			*hash = '#', hash = NULL;
+	} else {
+		hash = NULL;
+	}
+	if (stat(path, &st) != 0)
+		return asph_instrument_spec_parse(reg, arg, out, err);
+	int r = asph_config_load(reg, path, out, err);
+	if (r < 0 || !hash)
+		return r;
+	for (size_t i = 0; i < (*out)->n; i++)
+		if (!strcmp((*out)->instruments[i].name, hash + 1))
+			return *index = i, 0;
+	asph_config_free(*out);
+	*out = NULL;
+	asph_error_set(err, -ENOENT, "no instrument '%s' in the configuration", hash + 1);
+	asph_error_locate(err, path, 0, 0, NULL);
+	return -ENOENT;
+}
+
+static json_t *role_json(const struct asph_driver *drv, const struct asph_options *o,
+		 unsigned role)
+{
+	json_t *obj = json_object(), *opts = json_object();
+	const struct asph_option_value *v = asph_options_values(o);
+
+	json_object_set_new(obj, "driver", json_string(drv->name));
+	json_object_set_new(obj, "version", json_string(drv->version ? drv->version : ""));
+	for (size_t i = 0; i < drv->n_options; i++) {
+		json_t *j = NULL;
+		if (drv->options[i].roles && !(drv->options[i].roles & role))
+			continue;
+		switch (v[i].type) {
+		case ASPH_OPTION_BOOL: j = json_boolean(v[i].b); break;
+		case ASPH_OPTION_INT: j = json_integer(v[i].i); break;
+		case ASPH_OPTION_DOUBLE: j = json_real(v[i].d); break;
+		default: j = json_string(v[i].s ? v[i].s : ""); break;
+		}
+		json_object_set_new(opts, drv->options[i].name, j);
+	}
+	json_object_set_new(obj, "options", opts);
+	return obj;
+}
+
+int asph_instrument_config_to_json(const struct asph_instrument_config *c,
+				   char **out)
+{
+	_cleanup_(json_decrefp) json_t *root = json_object();
+
+	json_object_set_new(root, "name", json_string(c->name));
+	json_object_set_new(root, "driver_abi", json_integer(ASPH_DRIVER_ABI_VERSION));
+	json_object_set_new(root, "stage", role_json(c->stage_driver, c->stage_options, ASPH_ROLE_STAGE));
+	json_object_set_new(root, "probe", role_json(c->probe_driver, c->probe_options, ASPH_ROLE_PROBE));
+	*out = json_dumps(root, JSON_COMPACT | JSON_PRESERVE_ORDER | JSON_REAL_PRECISION(17));
+	return *out ? 0 : -ENOMEM;
+}
+
+/* ------------------------------------------------------- instrument */
+
+void asph_instrument_close(struct asph_instrument *inst)
+{
+	if (!inst)
+		return;
+	if (inst->probe)
+		inst->probe_driver->probe->close(inst->probe);
+	if (inst->stage)
+		inst->stage_driver->stage->close(inst->stage);
+	free(inst);
+}
+
+static int open_devices(struct asph_instrument *in, unsigned timeout_ms,
+			struct asph_error *err)
+{
+	const struct asph_instrument_config *c = in->config;
+	int r = c->stage_driver->stage->open(c->stage_driver,
+					     asph_options_values(c->stage_options),
+					     timeout_ms, &in->stage, err);
+	if (r < 0)
+		return r;
+	r = c->probe_driver->probe->open(c->probe_driver,
+					 asph_options_values(c->probe_options),
+					 timeout_ms, &in->probe, err);
+	if (r < 0)
+		return r;
+	r = c->stage_driver->stage->info(in->stage, &in->stage_info, err);
+	if (r < 0)
+		return r;
+	if (in->stage_info.n_axes != 3)
+		return asph_error_set(err, -EPROTO, "stage '%s' reports %u axes; 3 are needed",
+				      c->stage_driver->name, in->stage_info.n_axes);
+	return c->probe_driver->probe->info(in->probe, &in->probe_info, err);
+}
+
+int asph_instrument_open(const struct asph_instrument_config *c,
+			 unsigned timeout_ms, struct asph_instrument **out,
+			 struct asph_error *err)
+{
+	struct asph_instrument *in = calloc(1, sizeof(*in));
+
+	if (!in)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	in->config = c;
+	in->stage_driver = c->stage_driver;
+	in->probe_driver = c->probe_driver;
+	int r = open_devices(in, timeout_ms, err);
+	if (r < 0) {
+		asph_instrument_close(in);
+		return r;
+	}
+	*out = in;
+	return 0;
+}

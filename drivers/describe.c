@@ -1,0 +1,70 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* The registry described as JSON (asph drivers --json, the daemon's
+ * driver.list). */
+#include <errno.h>
+
+#include <jansson.h>
+
+#include "asph/instrument.h"
+#include "util-mem.h"
+
+static json_t *roles_json(unsigned roles)
+{
+	json_t *a = json_array();
+
+	if (!roles || (roles & ASPH_ROLE_STAGE))
+		json_array_append_new(a, json_string("stage"));
+	if (!roles || (roles & ASPH_ROLE_PROBE))
+		json_array_append_new(a, json_string("probe"));
+	return a;
+}
+
+static json_t *option_json(const struct asph_option_desc *o)
+{
+	json_t *j = json_object();
+
+	json_object_set_new(j, "name", json_string(o->name));
+	json_object_set_new(j, "type", json_string(asph_option_type_name(o->type)));
+	json_object_set_new(j, "default", json_string(o->default_value));
+	if (o->unit)
+		json_object_set_new(j, "unit", json_string(o->unit));
+	if (o->ranged) {
+		json_object_set_new(j, "min", json_real(o->min));
+		json_object_set_new(j, "max", json_real(o->max));
+	}
+	if (o->choices) {
+		json_t *c = json_array();
+		for (size_t i = 0; o->choices[i]; i++)
+			json_array_append_new(c, json_string(o->choices[i]));
+		json_object_set_new(j, "choices", c);
+	}
+	json_object_set_new(j, "roles", roles_json(o->roles));
+	json_object_set_new(j, "help", json_string(o->help));
+	return j;
+}
+
+int asph_registry_to_json(const struct asph_registry *reg, bool pretty, char **out)
+{
+	_cleanup_(json_decrefp) json_t *root = json_object();
+	json_t *list = json_array();
+
+	json_object_set_new(root, "driver_abi", json_integer(ASPH_DRIVER_ABI_VERSION));
+	for (size_t i = 0; i < asph_registry_count(reg); i++) {
+		const struct asph_driver *d = asph_registry_get(reg, i);
+		json_t *j = json_object(), *opts = json_array();
+		json_object_set_new(j, "name", json_string(d->name));
+		json_object_set_new(j, "description", json_string(d->description ? d->description : ""));
+		json_object_set_new(j, "version", json_string(d->version ? d->version : ""));
+		json_object_set_new(j, "origin", json_string(asph_registry_origin(reg, i)));
+		json_object_set_new(j, "roles", roles_json(d->roles));
+		for (size_t k = 0; k < d->n_options; k++)
+			json_array_append_new(opts, option_json(&d->options[k]));
+		json_object_set_new(j, "options", opts);
+		json_array_append_new(list, j);
+	}
+	json_object_set_new(root, "drivers", list);
+	*out = json_dumps(root, (pretty ? JSON_INDENT(2) : JSON_COMPACT) | JSON_PRESERVE_ORDER |
+				JSON_REAL_PRECISION(17));
+	return *out ? 0 : -ENOMEM;
+}
+

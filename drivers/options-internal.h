@@ -1,0 +1,20 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* Option parsing shared by the registry and the configuration. Internal. */
+#ifndef ASPH_OPTIONS_INTERNAL_H
+#define ASPH_OPTIONS_INTERNAL_H
+
+#include "asph/instrument.h"
+
+/* A descriptor is sane and its default parses. */
+int option_desc_validate(const struct asph_option_desc *d,
+			 struct asph_error *err);
+
+/* Parses text for d into v (strings point into text's copy held by the
+ * caller). Errors name d->name. */
+int option_parse(const struct asph_option_desc *d, const char *text,
+		 struct asph_option_value *v, struct asph_error *err);
+
+/* The index of name in drv's options, or -1. */
+int option_index(const struct asph_driver *drv, const char *name);
+
+#endif

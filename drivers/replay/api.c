@@ -1,0 +1,266 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* The replay instrument: a recorded scan played back. The stage goes
+ * wherever it is told; the probe answers each plan point with the point
+ * recorded for it, as an absolute reading, so that measuring the same plan
+ * again reproduces the recording bit for bit. */
+#include <errno.h>
+#include <math.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "asph/driver.h"
+#include "asph/scanfile.h"
+
+enum { OPT_FILE, OPT_TIME_FACTOR, N_OPTIONS };
+
+static const struct asph_option_desc replay_options[N_OPTIONS] = {
+	[OPT_FILE] = { "file", ASPH_OPTION_STRING, "", .roles = ASPH_ROLE_PROBE,
+		       .help = "the recorded scan to play back (required)" },
+	[OPT_TIME_FACTOR] = { "time_factor", ASPH_OPTION_DOUBLE, "0", .ranged = true, .min = 0,
+			      .max = 1000, .roles = ASPH_ROLE_PROBE,
+			      .help = "replays the recorded timing scaled by this (0: no waiting)" },
+};
+
+struct asph_device {
+	atomic_bool stop;
+	double pos[3];
+	bool homed;
+	/* probe */
+	struct asph_scanfile *scan;
+	size_t *by_index;       /* plan index -> point + 1, 0 = none */
+	size_t n_index;
+	double time_factor;
+	uint64_t last_t_ns;
+};
+
+static int stage_open(const struct asph_driver *drv, const struct asph_option_value *o,
+		      unsigned timeout_ms, struct asph_device **out, struct asph_error *err)
+{
+	struct asph_device *d = calloc(1, sizeof(*d));
+
+	if (!d)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	atomic_init(&d->stop, false);
+	*out = d;
+	return 0;
+}
+
+static void dev_close(struct asph_device *d)
+{
+	if (!d)
+		return;
+	asph_scanfile_free(d->scan);
+	free(d->by_index);
+	free(d);
+}
+
+static int stage_info(struct asph_device *d, struct asph_stage_info *out,
+		      struct asph_error *err)
+{
+	static const char *const names[] = { "x", "y", "z" };
+
+	memset(out, 0, sizeof(*out));
+	out->kinematics = ASPH_KINEMATICS_XYZ;
+	out->n_axes = 3;
+	for (int k = 0; k < 3; k++) {
+		snprintf(out->axes[k].name, sizeof(out->axes[k].name), "%s", names[k]);
+		snprintf(out->axes[k].unit, sizeof(out->axes[k].unit), "mm");
+		out->axes[k].min = -1e6;
+		out->axes[k].max = 1e6;
+	}
+	snprintf(out->model, sizeof(out->model), "replay stage");
+	return 0;
+}
+
+static int cancelled(struct asph_device *d, struct asph_error *err)
+{
+	if (atomic_load_explicit(&d->stop, memory_order_relaxed))
+		return asph_error_set(err, -ECANCELED, "stopped");
+	return 0;
+}
+
+static int stage_home(struct asph_device *d, unsigned timeout_ms, struct asph_error *err)
+{
+	memset(d->pos, 0, sizeof(d->pos));
+	d->homed = true;
+	return cancelled(d, err);
+}
+
+static int stage_move(struct asph_device *d, const double *t, unsigned timeout_ms,
+		      struct asph_error *err)
+{
+	int r = cancelled(d, err);
+	if (r == 0)
+		memcpy(d->pos, t, sizeof(d->pos));
+	return r;
+}
+
+static int stage_sweep(struct asph_device *d, const double *pos, size_t n,
+		       unsigned timeout_ms, struct asph_error *err)
+{
+	return n ? stage_move(d, pos + 3 * (n - 1), timeout_ms, err) : 0;
+}
+
+static int stage_position(struct asph_device *d, double *pos, unsigned timeout_ms,
+			  struct asph_error *err)
+{
+	memcpy(pos, d->pos, sizeof(d->pos));
+	return 0;
+}
+
+static int stage_status(struct asph_device *d, struct asph_stage_status *out,
+			unsigned timeout_ms, struct asph_error *err)
+{
+	memset(out, 0, sizeof(*out));
+	out->state = d->homed ? ASPH_STAGE_IDLE : ASPH_STAGE_NOT_HOMED;
+	out->homed = d->homed;
+	memcpy(out->position, d->pos, sizeof(d->pos));
+	return 0;
+}
+
+static int dev_stop(struct asph_device *d, struct asph_error *err)
+{
+	atomic_store(&d->stop, true);
+	return 0;
+}
+
+/* The last point recorded for each plan index wins (a retried point). */
+static int build_index(struct asph_device *d, struct asph_error *err)
+{
+	for (size_t i = 0; i < d->scan->n; i++)
+		if (d->scan->points[i].plan_index >= d->n_index)
+			d->n_index = d->scan->points[i].plan_index + 1;
+	d->by_index = calloc(d->n_index ? d->n_index : 1, sizeof(*d->by_index));
+	if (!d->by_index)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	for (size_t i = 0; i < d->scan->n; i++)
+		d->by_index[d->scan->points[i].plan_index] = i + 1;
+	return 0;
+}
+
+static int probe_open(const struct asph_driver *drv, const struct asph_option_value *o,
+		      unsigned timeout_ms, struct asph_device **out, struct asph_error *err)
+{
+	struct asph_device *d = NULL;
+	int r;
+
+	if (!o[OPT_FILE].s || !*o[OPT_FILE].s) {
+		asph_error_set(err, -EINVAL, "option 'file' is required: the scan to play back");
+		asph_error_locate(err, NULL, 0, 0, "file");
+		return -EINVAL;
+	}
+	r = stage_open(drv, o, timeout_ms, &d, err);
+	if (r < 0)
+		return r;
+	d->time_factor = o[OPT_TIME_FACTOR].d;
+	r = asph_scanfile_read(o[OPT_FILE].s, &d->scan, err);
+	if (r == 0)
+		r = build_index(d, err);
+	if (r < 0) {
+		dev_close(d);
+		return r;
+	}
+	*out = d;
+	return 0;
+}
+
+static int probe_info(struct asph_device *d, struct asph_probe_info *out,
+		      struct asph_error *err)
+{
+	memset(out, 0, sizeof(*out));
+	out->type = ASPH_PROBE_OPTICAL;
+	out->range_min = -1e6;
+	out->range_max = 1e6;
+	out->can_stream = true;
+	snprintf(out->model, sizeof(out->model), "replay probe");
+	return 0;
+}
+
+static void pace(struct asph_device *d, uint64_t t_ns)
+{
+	if (d->time_factor > 0 && t_ns > d->last_t_ns) {
+		double s = d->time_factor * (double)(t_ns - d->last_t_ns) * 1e-9;
+		struct timespec ts = { (time_t)s, (long)((s - floor(s)) * 1e9) };
+		nanosleep(&ts, NULL);
+	}
+	d->last_t_ns = t_ns;
+}
+
+static int probe_read(struct asph_device *d, const struct asph_probe_context *ctx,
+		      struct asph_reading *out, unsigned timeout_ms, struct asph_error *err)
+{
+	int r = cancelled(d, err);
+	if (r < 0)
+		return r;
+	size_t k = ctx->plan_index < d->n_index ? d->by_index[ctx->plan_index] : 0;
+	if (!k)
+		return asph_error_set(err, -ENODATA,
+				      "the recording has no point for plan point %llu (was it recorded with this plan?)",
+				      (unsigned long long)ctx->plan_index);
+	const struct asph_scanfile_point *p = &d->scan->points[k - 1];
+	pace(d, p->t_ns);
+	memset(out, 0, sizeof(*out));
+	out->flags = ASPH_READING_ABSOLUTE;
+	if (p->flags & ASPH_SCANFILE_POINT_TIP_COMPENSATED)
+		out->flags |= ASPH_READING_TIP_COMPENSATED;
+	if (p->flags & ASPH_SCANFILE_POINT_OUT_OF_RANGE)
+		out->flags |= ASPH_READING_OUT_OF_RANGE;
+	if (p->flags & ASPH_SCANFILE_POINT_LOW_SIGNAL)
+		out->flags |= ASPH_READING_LOW_SIGNAL;
+	out->xyz[0] = p->x;
+	out->xyz[1] = p->y;
+	out->xyz[2] = p->z;
+	out->raw = p->raw;
+	out->value = p->z - ctx->xyz[2];
+	return 0;
+}
+
+static int probe_stream(struct asph_device *d, const struct asph_probe_context *ctx,
+			size_t n, struct asph_reading *out, size_t *n_done,
+			unsigned timeout_ms, struct asph_error *err)
+{
+	*n_done = 0;
+	for (size_t i = 0; i < n; i++) {
+		int r = probe_read(d, ctx + i, out + i, timeout_ms, err);
+		if (r < 0)
+			return r;
+		*n_done = i + 1;
+	}
+	return 0;
+}
+
+static const struct asph_stage_ops replay_stage = {
+	.open = stage_open,
+	.close = dev_close,
+	.info = stage_info,
+	.home = stage_home,
+	.move_to = stage_move,
+	.sweep = stage_sweep,
+	.position = stage_position,
+	.status = stage_status,
+	.stop = dev_stop,
+};
+
+static const struct asph_probe_ops replay_probe = {
+	.open = probe_open,
+	.close = dev_close,
+	.info = probe_info,
+	.read = probe_read,
+	.stream = probe_stream,
+	.stop = dev_stop,
+};
+
+const struct asph_driver replay_driver = {
+	.abi_version = ASPH_DRIVER_ABI_VERSION,
+	.name = "replay",
+	.description = "plays a recorded scan back as an instrument",
+	.version = "1.0",
+	.roles = ASPH_ROLE_STAGE | ASPH_ROLE_PROBE,
+	.options = replay_options,
+	.n_options = N_OPTIONS,
+	.stage = &replay_stage,
+	.probe = &replay_probe,
+};

@@ -1,0 +1,245 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#ifndef ASPH_FIT_H
+#define ASPH_FIT_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "asph/error.h"
+#include "asph/surface.h"
+#include "asph/units.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/*
+ * Characterization: best fit of measured points to the nominal surface, and
+ * the form error that remains. docs/characterization.md states every
+ * convention; the short version:
+ *
+ * Pose. A part lying with misalignment (tx, ty, tz, rx, ry) is measured at
+ *     p = Ry(ry) Rx(rx) q + t
+ * where q is a point of the part in its own frame (vertex at the origin,
+ * axis +z), Rx(a), Ry(b) are right-handed rotations about the machine x and
+ * y axes (first rx, then ry), and t = (tx, ty, tz) is applied last. The fit
+ * reports the pose in that same convention, so that fitting points made
+ * with a pose returns that pose.
+ *
+ * Residual. The signed distance of q = Rx(-rx) Ry(-ry) (p - t) from the
+ * nominal surface along its normal (n_z > 0), positive on the +z side of the
+ * surface ("normal"), or q_z - Z(|q_xy|) ("sag").
+ */
+
+enum asph_fit_dof {
+	ASPH_FIT_TX = 0,        /* shift, mm */
+	ASPH_FIT_TY,
+	ASPH_FIT_TZ,
+	ASPH_FIT_RX,            /* tilt, rad */
+	ASPH_FIT_RY,
+	ASPH_FIT_R,             /* vertex radius, mm (absolute value fitted) */
+	ASPH_FIT_K,             /* conic constant */
+	ASPH_FIT_N_DOF
+};
+
+#define ASPH_FIT_DOF_BIT(d) (1u << (d))
+#define ASPH_FIT_DOF_RIGID 0x1fu   /* tx, ty, tz, rx, ry */
+
+/* "tx", "ty", "tz", "rx", "ry", "R", "k". */
+const char *asph_fit_dof_name(enum asph_fit_dof d);
+
+/* Parses a comma-separated list such as "tx,ty,tz,rx,ry,R" into a mask.
+ * -EINVAL for an unknown or repeated name, or an empty list. */
+int asph_fit_dof_parse(const char *list, unsigned *mask,
+		       struct asph_error *err);
+
+/* --- Pose --------------------------------------------------------------- */
+
+struct asph_pose {
+	double t[3];            /* tx, ty, tz, mm */
+	double rx, ry;          /* rad */
+};
+
+/* p = Ry(ry) Rx(rx) q + t: from the part's frame to the machine's. */
+void asph_pose_apply(const struct asph_pose *pose, const double q[3],
+		     double p[3]);
+/* q = Rx(-rx) Ry(-ry) (p - t): the inverse. */
+void asph_pose_apply_inverse(const struct asph_pose *pose, const double p[3],
+			     double q[3]);
+
+/* --- Closest point ------------------------------------------------------ */
+
+struct asph_closest {
+	double foot[3];         /* nearest point of the surface, mm */
+	double normal[3];       /* unit normal there, n_z > 0 */
+	double distance;        /* (p - foot) . normal, mm */
+	double foot_radius;     /* |foot_xy|, mm */
+	int inside;             /* foot_radius <= aperture radius */
+	int iterations;         /* Newton steps taken */
+};
+
+/*
+ * Orthogonal projection of p onto the surface of revolution (continued past
+ * the aperture where the sag is defined): safeguarded Newton on the squared
+ * distance in the meridian plane of p, started from the sag at p's radius.
+ * -EDOM when there is no foot (p far outside the surface's domain, or no
+ * convergence); a foot past the aperture is returned with inside = 0.
+ */
+int asph_fit_closest_point(const struct asph_surface *s, const double p[3],
+			   struct asph_closest *out);
+
+/* --- Best fit ----------------------------------------------------------- */
+
+enum asph_fit_residual_kind {
+	ASPH_FIT_RESIDUAL_NORMAL = 0,
+	ASPH_FIT_RESIDUAL_SAG,
+};
+
+const char *asph_fit_residual_name(enum asph_fit_residual_kind k);
+int asph_fit_residual_from_name(const char *name,
+				enum asph_fit_residual_kind *out);
+
+#define ASPH_FIT_MAX_ZERNIKE 66     /* radial order 10 */
+#define ASPH_FIT_DEFAULT_ZERNIKE 36 /* Evans' PVr uses a 36-term fit */
+
+struct asph_fit_options {
+	unsigned dof;               /* mask; 0 = ASPH_FIT_DOF_RIGID */
+	enum asph_fit_residual_kind residual;
+	int robust;                 /* Tukey biweight reweighting */
+	int max_iterations;         /* per pass; 0 = 200 */
+	double xtol;                /* step test; 0 = 1e-9 (see docs) */
+	double aperture_tolerance;  /* mm past the aperture radius still
+				       inside; 0 = 1e-3, < 0 = none */
+	double max_outside_fraction; /* refuse above; 0 = 0.5 */
+	int n_zernike;              /* 0 = 36; up to ASPH_FIT_MAX_ZERNIKE */
+	struct asph_pose start;     /* initial pose (all 0 is fine for parts
+				       within a few 0.1 mm and mrad) */
+};
+
+/* Per-point state after the fit. */
+enum asph_fit_point_status {
+	ASPH_FIT_POINT_USED = 0,
+	ASPH_FIT_POINT_OUTSIDE,     /* no foot inside the aperture: excluded */
+	ASPH_FIT_POINT_OUTLIER,     /* weight 0 in the robust fit */
+};
+
+struct asph_fit_result {
+	size_t n_points;
+	size_t n_used;              /* points in the statistics */
+	size_t n_outside_aperture;
+	size_t n_outliers;          /* zero weight after the robust fit */
+	size_t n_downweighted;      /* weight below 1/2 (includes outliers) */
+	unsigned dof;
+	enum asph_fit_residual_kind residual;
+	double value[ASPH_FIT_N_DOF];       /* fitted, in the DOF's unit */
+	double uncertainty[ASPH_FIT_N_DOF]; /* standard uncertainty */
+	int iterations;             /* LM iterations, all passes */
+	int passes;                 /* LM runs (exclusion, reweighting) */
+	int converged;
+	char reason[96];
+	double sigma_mm;            /* residual standard deviation used for
+				       the uncertainties */
+	asph_nm rms;                /* of the residual over used points */
+	asph_nm pv;
+	asph_nm pvr;                /* PV of the Zernike fit + 3 RMS left */
+	asph_nm zernike_fit_rms_left;
+	asph_urad slope_rms;        /* of the Zernike fit's gradient */
+	int n_zernike;
+	asph_nm zernike[ASPH_FIT_MAX_ZERNIKE]; /* Noll order, Z_1 first */
+};
+
+struct asph_fit;
+
+/*
+ * A workspace for up to n_max points. The surface must outlive it. opts may
+ * be NULL (defaults). -EINVAL for bad options, -ENOMEM.
+ */
+int asph_fit_alloc(const struct asph_surface *s, size_t n_max,
+		   const struct asph_fit_options *opts, struct asph_fit **out,
+		   struct asph_error *err);
+void asph_fit_free(struct asph_fit *w);
+
+/*
+ * The fit runs GSL's solvers: a program using it turns GSL's abort-on-error
+ * handler off (gsl_set_error_handler_off()), so that a solver failure comes
+ * back as an error code.
+ *
+ * Step by step, as GSL's solvers: init, then iterate until test says done;
+ * result. xyz (3 n, machine frame, mm) is read, not copied: it must stay
+ * valid until the fit is done.
+ *
+ * init refuses (-EINVAL) n > n_max, a non-finite coordinate, fewer points
+ * than DOF + 1, points that all lie on one line (or at one place) in x-y.
+ * iterate runs one Levenberg-Marquardt step; when a pass has converged it
+ * starts the next (points whose foot left the aperture excluded, robust
+ * weights updated). It returns -EDOM when too many points have no foot inside
+ * the aperture (err says how many) and -ERANGE when the solver fails.
+ * test returns 1 when the fit is finished, 0 while it needs more steps.
+ */
+int asph_fit_init(struct asph_fit *w, const double *xyz, size_t n,
+		  struct asph_error *err);
+int asph_fit_iterate(struct asph_fit *w, struct asph_error *err);
+int asph_fit_test(const struct asph_fit *w);
+
+/* Progress, cheap to call after any iterate. */
+struct asph_fit_progress {
+	int pass;
+	int iteration;              /* in the current pass */
+	int total_iterations;
+	double rms_mm;              /* weighted RMS residual now */
+	double value[ASPH_FIT_N_DOF];
+};
+void asph_fit_get_progress(const struct asph_fit *w,
+			   struct asph_fit_progress *out);
+
+/* Residual statistics, Zernike decomposition, uncertainties. After test
+ * says done. When the points used cannot determine the Zernike terms (too
+ * few, or badly spread) the fit still stands: n_zernike is 0 and pvr,
+ * slope_rms and zernike_fit_rms_left are NaN. */
+int asph_fit_get_result(struct asph_fit *w, struct asph_fit_result *out,
+			struct asph_error *err);
+
+/* All of the above. */
+int asph_fit_run(struct asph_fit *w, const double *xyz, size_t n,
+		 struct asph_fit_result *out, struct asph_error *err);
+
+/* After the fit: residual per point in mm (NaN where status is OUTSIDE),
+ * status per point, and the robust weight per point (1 when not robust). */
+const double *asph_fit_residuals(const struct asph_fit *w);
+const uint8_t *asph_fit_point_status(const struct asph_fit *w);
+const double *asph_fit_weights(const struct asph_fit *w);
+
+/* --- Synthetic measurements (tests, the mock instrument) ----------------- */
+
+struct asph_synth_term {
+	int j;                      /* Noll index */
+	double nm;                  /* coefficient */
+};
+
+struct asph_synth_options {
+	struct asph_pose pose;
+	const struct asph_synth_term *terms;
+	size_t n_terms;
+	double noise_nm;            /* Gaussian, standard deviation, along the
+				       surface normal of the part */
+	unsigned long seed;
+};
+
+/*
+ * A part with form error sum_j c_j Z_j(r/a, theta) (nm, along the surface
+ * normal at (x, y)) and noise, lying with the given pose, measured at the
+ * nominal points xyz_nominal (on the surface; only their x, y are used):
+ * xyz_out[i] = pose(S(x, y) + (e(x, y) + noise_i) n(x, y)). Deterministic
+ * for a seed (GSL's MT19937 and ziggurat Gaussian). xyz_out may equal
+ * xyz_nominal. -EINVAL for a bad Noll index, a point outside the aperture.
+ */
+int asph_fit_synthesize(const struct asph_surface *s,
+			const double *xyz_nominal, size_t n,
+			const struct asph_synth_options *opts, double *xyz_out,
+			struct asph_error *err);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif

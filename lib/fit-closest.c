@@ -1,0 +1,313 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* The fit's surface model, the closest point, the pose and the DOF names. */
+#include <errno.h>
+#include <math.h>
+#include <string.h>
+
+#include "asph/fit.h"
+#include "fit-model.h"
+#include "util-mem.h"
+
+/* Newton stops when the next step in r is below this (mm, relative to
+ * 1 + a). That last step is still applied (by Taylor expansion), which
+ * leaves the foot off by about the curvature times the step squared
+ * (< 1e-12 mm); the distance, stationary at the foot, is then exact to
+ * rounding. */
+#define FOOT_TOL 1e-7
+#define FOOT_MAX_ITER 60
+
+void fit_model_init(struct fit_model *m, const struct asph_surface *s)
+{
+	const struct asph_prescription *p = asph_surface_prescription(s);
+
+	m->s = s;
+	m->a = asph_surface_aperture_radius(s);
+	m->conic_changed = 0;
+	m->c0 = m->c = 1.0 / p->R;
+	m->K0 = m->K = 1.0 + p->k;
+}
+
+void fit_model_set_conic(struct fit_model *m, double R, double k)
+{
+	m->c = 1.0 / R;
+	m->K = 1.0 + k;
+	m->conic_changed = (m->c != m->c0 || m->K != m->K0);
+}
+
+/* Conic sag and its first two derivatives at r >= 0; NaN past the domain. */
+static void conic_derivs(double c, double K, double r, double d[3])
+{
+	double u = 1.0 - K * c * c * r * r;
+	double sq = sqrt(u);
+
+	d[0] = c * r * r / (1.0 + sq);
+	d[1] = c * r / sq;
+	d[2] = c / (u * sq);
+}
+
+void fit_model_derivs(const struct fit_model *m, double r, double d[3])
+{
+	r = fabs(r);
+	asph_surface_sag_derivs(m->s, r, d);
+	if (m->conic_changed) {
+		double dn[3], d0[3];
+		conic_derivs(m->c, m->K, r, dn);
+		conic_derivs(m->c0, m->K0, r, d0);
+		for (int i = 0; i < 3; i++)
+			d[i] += dn[i] - d0[i];
+	}
+}
+
+/*
+ * With S = sqrt(1 - K c^2 r^2) and 1 - S^2 = K c^2 r^2:
+ *   d conic / dc = r^2 / (S (1 + S)),     dc/dR = -c^2,
+ *   d conic / dk = c^3 r^4 / (2 S (1 + S)^2).
+ */
+void fit_model_conic_partials(const struct fit_model *m, double r,
+			      double *dz_dR, double *dz_dk)
+{
+	double c = m->c, r2 = r * r;
+	double sq = sqrt(1.0 - m->K * c * c * r2);
+
+	*dz_dR = -c * c * r2 / (sq * (1.0 + sq));
+	*dz_dk = c * c * c * r2 * r2 / (2.0 * sq * (1.0 + sq) * (1.0 + sq));
+}
+
+/* Squared distance in the meridian plane, and the model at signed r. */
+static double meridian_eval(const struct fit_model *m, double r, double rho,
+			    double z, double d[3])
+{
+	fit_model_derivs(m, r, d);
+	if (r < 0)
+		d[1] = -d[1];   /* Z is even in r, Z' odd, Z'' even */
+	return (r - rho) * (r - rho) + (d[0] - z) * (d[0] - z);
+}
+
+/* Newton's step on the squared distance from (r, d), its Hessian safely
+ * positive (Gauss-Newton's where it is not). */
+static double newton_step(double r, double rho, double z, const double d[3])
+{
+	double gn = 1.0 + d[1] * d[1];
+	double h = gn + (d[0] - z) * d[2];
+
+	return -((r - rho) + (d[0] - z) * d[1]) / (h > 0.1 * gn ? h : gn);
+}
+
+/* Applies the last step, below tolerance, by Taylor expansion: it puts the
+ * foot at rounding level for no further evaluation of the surface. */
+static void foot_finish(double r, double step, double rho, double z,
+			double d[3], struct fit_foot *f)
+{
+	double inv;
+
+	r += step;
+	d[0] += step * (d[1] + 0.5 * step * d[2]);
+	d[1] += step * d[2];
+	inv = 1.0 / sqrt(1.0 + d[1] * d[1]);
+	f->r = r;
+	f->rho = rho;
+	f->z = d[0];
+	f->slope = d[1];
+	f->dist = ((rho - r) * -d[1] + (z - d[0])) * inv;
+}
+
+/* One safeguarded step from (r, d, phi): Newton's, limited to a quarter of
+ * the aperture and halved until the distance does not grow. Returns 1 when
+ * converged at r, 0 after a step, -1 on failure. */
+static int foot_step(const struct fit_model *m, double rho, double z,
+		     double *r, double d[3], double *phi)
+{
+	double step = newton_step(*r, rho, z, d);
+	double tol = FOOT_TOL * (1.0 + m->a), dn[3];
+
+	if (fabs(step) <= tol)
+		return 1;
+	if (fabs(step) > 0.25 * m->a)
+		step = copysign(0.25 * m->a, step);
+	for (int k = 0; k < 60; k++) {
+		double rn = *r + step;
+		double phin = meridian_eval(m, rn, rho, z, dn);
+		/* Tiny steps are Newton's quadratic tail: rounding in phi must
+		 * not reject them. */
+		if (isfinite(phin) && (phin <= *phi || fabs(step) < 1e-6 * (1.0 + m->a))) {
+			*r = rn;
+			*phi = phin;
+			memcpy(d, dn, sizeof(dn));
+			return 0;
+		}
+		step *= 0.5;
+		if (fabs(step) <= tol)
+			return 1;
+	}
+	return -1;
+}
+
+/* The safeguarded iteration, for starts far from the foot; d holds the
+ * surface at r. */
+static int foot_search(const struct fit_model *m, double rho, double z,
+		       double r, double d[3], struct fit_foot *f)
+{
+	double phi = (r - rho) * (r - rho) + (d[0] - z) * (d[0] - z);
+	int it, st = 0;
+
+	if (!isfinite(phi)) {
+		r = 0.0;        /* the vertex is always in the domain */
+		phi = meridian_eval(m, r, rho, z, d);
+	}
+	for (it = 0; it < FOOT_MAX_ITER; it++) {
+		st = foot_step(m, rho, z, &r, d, &phi);
+		if (st != 0)
+			break;
+	}
+	if (st != 1 || !isfinite(phi))
+		return -EDOM;
+	foot_finish(r, newton_step(r, rho, z, d), rho, z, d, f);
+	f->iterations = it + 1;
+	return 0;
+}
+
+int fit_foot(const struct fit_model *m, const double q[3], double r0,
+	     struct fit_foot *f)
+{
+	/* hypot's overflow guard is not needed at mm scale, and costs. */
+	double rho = sqrt(q[0] * q[0] + q[1] * q[1]), d[3], step;
+
+	if (!isfinite(r0))
+		r0 = rho;
+	meridian_eval(m, r0, rho, q[2], d);
+	step = newton_step(r0, rho, q[2], d);
+	/* Fast path: a start (the previous foot) already within tolerance
+	 * costs one evaluation of the surface. */
+	if (fabs(step) <= FOOT_TOL * (1.0 + m->a)) {
+		foot_finish(r0, step, rho, q[2], d, f);
+		f->iterations = 0;
+		return 0;
+	}
+	return foot_search(m, rho, q[2], r0, d, f);
+}
+
+void fit_foot_normal(const struct fit_foot *f, const double q[3], double n[3])
+{
+	double inv = 1.0 / sqrt(1.0 + f->slope * f->slope);
+	double ux = f->rho > 0 ? q[0] / f->rho : 1.0;
+	double uy = f->rho > 0 ? q[1] / f->rho : 0.0;
+
+	n[0] = -f->slope * ux * inv;
+	n[1] = -f->slope * uy * inv;
+	n[2] = inv;
+}
+
+int asph_fit_closest_point(const struct asph_surface *s, const double p[3],
+			   struct asph_closest *out)
+{
+	struct fit_model m;
+	struct fit_foot f;
+	int r;
+
+	fit_model_init(&m, s);
+	r = fit_foot(&m, p, NAN, &f);
+	if (r < 0)
+		return r;
+	out->foot[0] = f.rho > 0 ? f.r * p[0] / f.rho : f.r;
+	out->foot[1] = f.rho > 0 ? f.r * p[1] / f.rho : 0.0;
+	out->foot[2] = f.z;
+	fit_foot_normal(&f, p, out->normal);
+	out->distance = f.dist;
+	out->foot_radius = fabs(f.r);
+	out->inside = out->foot_radius <= m.a;
+	out->iterations = f.iterations;
+	return 0;
+}
+
+/* --- Pose --------------------------------------------------------------- */
+
+void asph_pose_apply(const struct asph_pose *pose, const double q[3],
+		     double p[3])
+{
+	double cx = cos(pose->rx), sx = sin(pose->rx);
+	double cy = cos(pose->ry), sy = sin(pose->ry);
+	/* Rx(rx) first ... */
+	double y1 = cx * q[1] - sx * q[2], z1 = sx * q[1] + cx * q[2];
+	/* ... then Ry(ry), then the shift. */
+	p[0] = cy * q[0] + sy * z1 + pose->t[0];
+	p[1] = y1 + pose->t[1];
+	p[2] = -sy * q[0] + cy * z1 + pose->t[2];
+}
+
+void asph_pose_apply_inverse(const struct asph_pose *pose, const double p[3],
+			     double q[3])
+{
+	double cx = cos(pose->rx), sx = sin(pose->rx);
+	double cy = cos(pose->ry), sy = sin(pose->ry);
+	double u[3] = { p[0] - pose->t[0], p[1] - pose->t[1], p[2] - pose->t[2] };
+	/* Ry(-ry) ... */
+	double x1 = cy * u[0] - sy * u[2], z1 = sy * u[0] + cy * u[2];
+	/* ... then Rx(-rx). */
+	q[0] = x1;
+	q[1] = cx * u[1] + sx * z1;
+	q[2] = -sx * u[1] + cx * z1;
+}
+
+/* --- Names -------------------------------------------------------------- */
+
+static const char *const dof_names[ASPH_FIT_N_DOF] = {
+	"tx", "ty", "tz", "rx", "ry", "R", "k",
+};
+
+const char *asph_fit_dof_name(enum asph_fit_dof d)
+{
+	return (unsigned)d < ASPH_FIT_N_DOF ? dof_names[d] : NULL;
+}
+
+static int dof_lookup(const char *name, size_t len)
+{
+	for (int d = 0; d < ASPH_FIT_N_DOF; d++)
+		if (strlen(dof_names[d]) == len && !strncmp(dof_names[d], name, len))
+			return d;
+	return -1;
+}
+
+int asph_fit_dof_parse(const char *list, unsigned *mask,
+		       struct asph_error *err)
+{
+	unsigned out = 0;
+	const char *p = list;
+
+	if (!list || !*list)
+		return asph_error_set(err, -EINVAL, "empty list of degrees of freedom");
+	for (;;) {
+		size_t len = strcspn(p, ",");
+		int d = dof_lookup(p, len);
+		if (d < 0)
+			return asph_error_set(err, -EINVAL,
+					      "unknown degree of freedom '%.*s' (tx, ty, tz, rx, ry, R, k)",
+					      (int)len, p);
+		if (out & ASPH_FIT_DOF_BIT(d))
+			return asph_error_set(err, -EINVAL,
+					      "degree of freedom '%s' given twice", dof_names[d]);
+		out |= ASPH_FIT_DOF_BIT(d);
+		if (p[len] == '\0')
+			break;
+		p += len + 1;
+	}
+	*mask = out;
+	return 0;
+}
+
+static const char *const residual_names[] = { "normal", "sag" };
+
+const char *asph_fit_residual_name(enum asph_fit_residual_kind k)
+{
+	return (unsigned)k < ARRAY_SIZE(residual_names) ? residual_names[k] : NULL;
+}
+
+int asph_fit_residual_from_name(const char *name,
+				enum asph_fit_residual_kind *out)
+{
+	for (size_t i = 0; i < ARRAY_SIZE(residual_names); i++)
+		if (!strcmp(name, residual_names[i])) {
+			*out = (enum asph_fit_residual_kind)i;
+			return 0;
+		}
+	return -EINVAL;
+}

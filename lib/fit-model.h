@@ -1,0 +1,55 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* The surface model the fit works on, and the closest-point kernel.
+ * Internal to lib/fit*.c. */
+#ifndef ASPH_FIT_MODEL_H
+#define ASPH_FIT_MODEL_H
+
+#include "asph/fit.h"
+#include "asph/surface.h"
+
+/*
+ * The nominal surface, optionally with its base conic changed:
+ *   Z(r) = Z_nominal(r) + conic(r; c, K) - conic(r; c0, K0),
+ * conic(r; c, K) = c r^2 / (1 + sqrt(1 - K c^2 r^2)), c = 1/R, K = 1 + k.
+ * For an even asphere this is exactly the prescription with R, k replaced;
+ * for any surface type it is "the same surface with another base conic".
+ */
+struct fit_model {
+	const struct asph_surface *s;
+	double a;               /* aperture radius */
+	int conic_changed;
+	double c0, K0;          /* nominal */
+	double c, K;            /* current */
+};
+
+void fit_model_init(struct fit_model *m, const struct asph_surface *s);
+void fit_model_set_conic(struct fit_model *m, double R, double k);
+
+/* d[0..2] = Z, Z', Z'' at |r| (Z' for |r|: the caller applies parity). */
+void fit_model_derivs(const struct fit_model *m, double r, double d[3]);
+
+/* dZ/dR and dZ/dk of the current conic at |r|. */
+void fit_model_conic_partials(const struct fit_model *m, double r,
+			      double *dz_dR, double *dz_dk);
+
+/* Foot of q in its meridian plane. r is the signed meridian coordinate
+ * along the azimuth of q, i.e. (q_x, q_y) / rho (negative: across the
+ * axis; +x when rho = 0). */
+struct fit_foot {
+	double r;
+	double rho;             /* |q_xy| */
+	double z;               /* Z(|r|) */
+	double slope;           /* dZ/dr at the signed r */
+	double dist;            /* signed normal distance */
+	int iterations;
+};
+
+/* r0: a start for r (the previous foot), or NaN to start from the sag at
+ * q's radius. Returns 0, or -EDOM when there is no foot. */
+int fit_foot(const struct fit_model *m, const double q[3], double r0,
+	     struct fit_foot *f);
+
+/* Unit normal at the foot of q, n_z > 0. */
+void fit_foot_normal(const struct fit_foot *f, const double q[3], double n[3]);
+
+#endif

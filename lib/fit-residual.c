@@ -1,0 +1,248 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* What the fit leaves: residual statistics, the Zernike decomposition, PVr,
+ * slope error, and the uncertainties of the fitted values. */
+#include <errno.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <gsl/gsl_blas.h>
+#include <gsl/gsl_errno.h>
+
+#include "asph/fit.h"
+#include "asph/zernike.h"
+#include "fit-internal.h"
+#include "util-mem.h"
+
+void fit_point_polar(const struct asph_fit *w, size_t i, double *rho,
+		     double *theta)
+{
+	struct asph_pose pose = {
+		{ w->full[0], w->full[1], w->full[2] },
+		w->full[ASPH_FIT_RX], w->full[ASPH_FIT_RY],
+	};
+	double q[3], r = w->r_foot[i], rq;
+
+	asph_pose_apply_inverse(&pose, w->xyz + 3 * i, q);
+	rq = hypot(q[0], q[1]);
+	if (w->opt.residual == ASPH_FIT_RESIDUAL_SAG || !(rq > 0)) {
+		*rho = rq / w->model.a;
+		*theta = atan2(q[1], q[0]);
+		return;
+	}
+	/* The foot lies on q's meridian, across the axis when r < 0. */
+	*rho = fabs(r) / w->model.a;
+	*theta = atan2(r * q[1] / rq, r * q[0] / rq);
+}
+
+static void count_points(const struct asph_fit *w, struct asph_fit_result *out)
+{
+	out->n_points = w->n;
+	out->n_used = out->n_outside_aperture = out->n_outliers = 0;
+	out->n_downweighted = 0;
+	for (size_t i = 0; i < w->n; i++) {
+		switch (w->status[i]) {
+		case ASPH_FIT_POINT_USED:
+			out->n_used++;
+			break;
+		case ASPH_FIT_POINT_OUTSIDE:
+			out->n_outside_aperture++;
+			continue;
+		default:
+			out->n_outliers++;
+			break;
+		}
+	}
+	out->n_downweighted = w->n_downweighted;
+}
+
+/* Standard uncertainties: sqrt(diag((J^T J)^-1) s^2), J and the residual
+ * weighted as in the last pass, s^2 = chi^2 / (points counted - DOF). */
+static void uncertainties(struct asph_fit *w, struct asph_fit_result *out)
+{
+	gsl_vector *f = gsl_multifit_nlinear_residual(w->solver);
+	gsl_matrix *J = gsl_multifit_nlinear_jac(w->solver);
+	size_t counted = 0;
+	double chi2 = 0, s2;
+
+	for (size_t i = 0; i < w->n; i++)
+		if (w->status[i] != ASPH_FIT_POINT_OUTSIDE && w->weight[i] > 0)
+			counted++;
+	gsl_blas_ddot(f, f, &chi2);
+	s2 = counted > (size_t)w->p ? chi2 / (double)(counted - (size_t)w->p) : NAN;
+	out->sigma_mm = sqrt(s2);
+	/* J is over the solver's y = T^-1 (x - xref): Cov(x) = T Cov(y) T^T. */
+	gsl_multifit_nlinear_covar(J, 0.0, w->covar);
+	for (int d = 0; d < ASPH_FIT_N_DOF; d++)
+		out->uncertainty[d] = 0.0;
+	for (int k = 0; k < w->p; k++) {
+		double v = 0;
+		for (int i = 0; i < w->p; i++)
+			for (int j = 0; j < w->p; j++)
+				v += w->T[k][i] * w->T[k][j] *
+				     gsl_matrix_get(w->covar, (size_t)i, (size_t)j);
+		out->uncertainty[w->idx[k]] = sqrt(v * s2);
+	}
+}
+
+struct field {
+	double *rho, *theta, *val, *mask;
+};
+
+static void field_free(struct field *f)
+{
+	free(f->rho);
+	free(f->theta);
+	free(f->val);
+	free(f->mask);
+}
+
+/* The residual in nm at the used points (mask 1), 0 with mask 0 elsewhere. */
+static int field_build(const struct asph_fit *w, struct field *f,
+		       struct asph_error *err)
+{
+	f->rho = malloc(w->n * sizeof(double) + 1);
+	f->theta = malloc(w->n * sizeof(double) + 1);
+	f->val = malloc(w->n * sizeof(double) + 1);
+	f->mask = malloc(w->n * sizeof(double) + 1);
+	if (!f->rho || !f->theta || !f->val || !f->mask)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	for (size_t i = 0; i < w->n; i++) {
+		int used = w->status[i] == ASPH_FIT_POINT_USED;
+		fit_point_polar(w, i, &f->rho[i], &f->theta[i]);
+		f->val[i] = used ? asph_nm_from_mm(w->resid[i]).v : 0.0;
+		f->mask[i] = used;
+	}
+	return 0;
+}
+
+int fit_smooth_residual(struct asph_fit *w, double *left,
+			struct asph_error *err)
+{
+	struct field f = { 0 };
+	double coef[ASPH_FIT_MAX_ZERNIKE];
+	int n_z = w->opt.n_zernike, r;
+
+	r = field_build(w, &f, err);
+	for (size_t i = 0; r == 0 && i < w->n; i++) {
+		int inside = w->status[i] != ASPH_FIT_POINT_OUTSIDE;
+		f.val[i] = inside ? asph_nm_from_mm(w->resid[i]).v : 0.0;
+		f.mask[i] = inside ? w->weight[i] : 0.0;
+	}
+	if (r == 0)
+		r = asph_zernike_decompose(f.rho, f.theta, f.val, f.mask, w->n,
+					   n_z, coef, err);
+	if (r == -EDOM) {
+		/* Too few points for the terms: the scale then comes from the
+		 * residual itself. */
+		memset(coef, 0, sizeof(coef));
+		asph_error_clear(err);
+		r = 0;
+	}
+	if (r == 0)   /* the fit in nm, into val */
+		asph_zernike_series_many(coef, n_z, f.rho, f.theta, w->n, f.val, NULL);
+	for (size_t i = 0; r == 0 && i < w->n; i++)
+		left[i] = w->status[i] == ASPH_FIT_POINT_OUTSIDE ? NAN :
+			  w->resid[i] - asph_nm_to_mm((asph_nm){ f.val[i] });
+	field_free(&f);
+	return r;
+}
+
+static void basic_stats(const struct field *f, size_t n,
+			struct asph_fit_result *out)
+{
+	double sum = 0, sum2 = 0, lo = INFINITY, hi = -INFINITY, mean;
+	size_t m = 0;
+
+	for (size_t i = 0; i < n; i++) {
+		if (!f->mask[i])
+			continue;
+		sum += f->val[i];
+		lo = fmin(lo, f->val[i]);
+		hi = fmax(hi, f->val[i]);
+		m++;
+	}
+	mean = sum / (double)m;
+	for (size_t i = 0; i < n; i++)
+		if (f->mask[i])
+			sum2 += (f->val[i] - mean) * (f->val[i] - mean);
+	out->rms.v = sqrt(sum2 / (double)m);
+	out->pv.v = hi - lo;
+}
+
+/* PVr (Evans 2009) and the RMS slope of the Zernike fit. */
+static int zernike_stats(const struct asph_fit *w, const struct field *f,
+			 const double *coef, struct asph_fit_result *out,
+			 struct asph_error *err)
+{
+	_cleanup_free_ double *zf = malloc(w->n * sizeof(double) + 1);
+	_cleanup_free_ double *g = malloc(2 * w->n * sizeof(double) + 1);
+	double lo = INFINITY, hi = -INFINITY, left2 = 0, slope2 = 0;
+	size_t m = 0;
+
+	if (!zf || !g)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	asph_zernike_series_many(coef, out->n_zernike, f->rho, f->theta, w->n, zf, g);
+	for (size_t i = 0; i < w->n; i++) {
+		if (!f->mask[i])
+			continue;
+		lo = fmin(lo, zf[i]);
+		hi = fmax(hi, zf[i]);
+		left2 += (f->val[i] - zf[i]) * (f->val[i] - zf[i]);
+		/* nm per unit rho -> mm per mm of the aperture radius */
+		slope2 += (g[2 * i] * g[2 * i] + g[2 * i + 1] * g[2 * i + 1]) * 1e-12 /
+			  (w->model.a * w->model.a);
+		m++;
+	}
+	out->zernike_fit_rms_left.v = sqrt(left2 / (double)m);
+	out->pvr.v = (hi - lo) + 3.0 * out->zernike_fit_rms_left.v;
+	out->slope_rms = asph_urad_from_rad(sqrt(slope2 / (double)m));
+	return 0;
+}
+
+int fit_fill_statistics(struct asph_fit *w, struct asph_fit_result *out,
+			struct asph_error *err)
+{
+	struct field f = { 0 };
+	double coef[ASPH_FIT_MAX_ZERNIKE];
+	int r;
+
+	out->n_zernike = w->opt.n_zernike;
+	r = field_build(w, &f, err);
+	if (r == 0)
+		basic_stats(&f, w->n, out);
+	if (r == 0)
+		r = asph_zernike_decompose(f.rho, f.theta, f.val, f.mask, w->n,
+					   out->n_zernike, coef, err);
+	if (r == 0) {
+		for (int j = 0; j < out->n_zernike; j++)
+			out->zernike[j].v = coef[j];
+		r = zernike_stats(w, &f, coef, out, err);
+	} else if (r == -EDOM) {
+		/* The fit stands; only the decomposition needs more points. */
+		out->n_zernike = 0;
+		out->pvr.v = out->slope_rms.v = out->zernike_fit_rms_left.v = NAN;
+		asph_error_clear(err);
+		r = 0;
+	}
+	field_free(&f);
+	return r;
+}
+
+int asph_fit_get_result(struct asph_fit *w, struct asph_fit_result *out,
+			struct asph_error *err)
+{
+	if (!asph_fit_test(w))
+		return asph_error_set(err, -EINVAL, "fit not finished");
+	memset(out, 0, sizeof(*out));
+	count_points(w, out);
+	out->dof = w->opt.dof;
+	out->residual = w->opt.residual;
+	memcpy(out->value, w->full, sizeof(out->value));
+	out->iterations = w->total_iter;
+	out->passes = w->pass;
+	out->converged = w->converged;
+	snprintf(out->reason, sizeof(out->reason), "%s", w->reason);
+	uncertainties(w, out);
+	return fit_fill_statistics(w, out, err);
+}

@@ -1,0 +1,560 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* Sampling plans: density resolution, the methods' maps, the disk mesh. */
+#include <errno.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "asph/delaunay.h"
+#include "asph/involute.h"
+#include "asph/lb.h"
+#include "asph/plan.h"
+#include "plan.h"
+#include "util-mem.h"
+
+/* Largest plan: triangle indices are 32-bit. */
+#define PLAN_MAX_POINTS ((size_t)UINT32_MAX - 1)
+
+/* Triangles of the disk grid below this q are dropped (paper 5.1). */
+#define DISK_MESH_MIN_Q 0.75
+
+static const char *const method_names[ASPH_PLAN_N_METHODS] = {
+	[ASPH_PLAN_OP] = "op",
+	[ASPH_PLAN_OT] = "ot",
+	[ASPH_PLAN_LB] = "lb",
+	[ASPH_PLAN_CI] = "ci",
+	[ASPH_PLAN_RASTER] = "raster",
+	[ASPH_PLAN_CONCENTRIC] = "concentric",
+	[ASPH_PLAN_SPIRAL] = "spiral",
+	[ASPH_PLAN_FERMAT] = "fermat",
+};
+
+const char *asph_plan_method_name(enum asph_plan_method m)
+{
+	if ((unsigned)m >= ASPH_PLAN_N_METHODS)
+		return "unknown";
+	return method_names[m];
+}
+
+int asph_plan_method_from_name(const char *name, enum asph_plan_method *out)
+{
+	for (unsigned i = 0; name && i < ASPH_PLAN_N_METHODS; i++) {
+		if (!strcmp(name, method_names[i])) {
+			*out = (enum asph_plan_method)i;
+			return 0;
+		}
+	}
+	return -EINVAL;
+}
+
+/*
+ * Measured on flat patterns of 1.26e5 points on the unit disk (Delaunay
+ * triangulation, mean edge length; points per area), docs/sampling-plans.md,
+ * "Density". Each lattice has one point per p^2 of area to within 0.5 %.
+ * CI is the disk grid's lattice laid on the surface.
+ */
+static const struct plan_lattice lattices[ASPH_PLAN_N_METHODS] = {
+	[ASPH_PLAN_OP] = { 1.0, 1.099 },
+	[ASPH_PLAN_OT] = { 1.0, 1.099 },
+	[ASPH_PLAN_LB] = { 1.0, 1.099 },
+	[ASPH_PLAN_CI] = { 1.0, 1.099 },
+	[ASPH_PLAN_RASTER] = { 1.0, 1.138 },   /* (2 + sqrt 2) / 3 */
+	[ASPH_PLAN_CONCENTRIC] = { 1.0, 1.098 },
+	[ASPH_PLAN_SPIRAL] = { 1.0, 1.099 },
+	[ASPH_PLAN_FERMAT] = { 1.0, 1.114 },
+};
+
+const struct plan_lattice *plan_lattice_of(enum asph_plan_method m)
+{
+	return &lattices[(unsigned)m < ASPH_PLAN_N_METHODS ? m : 0];
+}
+
+/* ---- density ------------------------------------------------------------- */
+
+static int is_grid_method(enum asph_plan_method m)
+{
+	return m == ASPH_PLAN_OP || m == ASPH_PLAN_OT || m == ASPH_PLAN_LB;
+}
+
+static const char *density_field(enum asph_plan_density_kind k)
+{
+	switch (k) {
+	case ASPH_DENSITY_H:
+		return "h";
+	case ASPH_DENSITY_SPACING:
+		return "spacing";
+	case ASPH_DENSITY_POINTS:
+		return "points";
+	}
+	return "density";
+}
+
+/* What a density resolves to for one method on one surface. */
+struct plan_size {
+	double e;       /* surface spacing, mm */
+	double p;       /* the method's lattice pitch, mm */
+	size_t n;       /* points */
+};
+
+/* Exact point count of the method's pattern at pitch p (CI: the involute's
+ * own count, asph/involute.h). SIZE_MAX for anything far too large. */
+static size_t pattern_count(const struct asph_surface *s,
+			    enum asph_plan_method m, double p)
+{
+	double a = asph_surface_aperture_radius(s);
+	double area = asph_surface_area(s, a), guess;
+
+	/* The exact counters loop over rows and rings: screen absurd sizes
+	 * first so they never run for long. */
+	guess = m == ASPH_PLAN_CI ? area / (p * p) : M_PI * a * a / (p * p);
+	if (!(guess < 2.0 * (double)PLAN_MAX_POINTS))
+		return SIZE_MAX;
+	switch (m) {
+	case ASPH_PLAN_OP:
+	case ASPH_PLAN_OT:
+	case ASPH_PLAN_LB:
+		return plan_disk_grid_count(a, p, NULL);
+	case ASPH_PLAN_CI: {
+		double r0 = p / (2.0 * M_PI);
+		return (size_t)floor((area - asph_surface_area(s, r0)) /
+				     (p * p)) + 1;
+	}
+	case ASPH_PLAN_RASTER:
+		return plan_raster_count(a, p);
+	case ASPH_PLAN_CONCENTRIC:
+		return plan_concentric_count(a, p);
+	case ASPH_PLAN_SPIRAL:
+		return plan_spiral_count(a, p);
+	case ASPH_PLAN_FERMAT:
+	case ASPH_PLAN_N_METHODS:
+		break;
+	}
+	return plan_fermat_count(a, p);
+}
+
+/* Pitch / spacing ratio: vertex-plane and disk lattices are stretched by
+ * about sqrt(gamma) on the surface; CI's pitch is measured on it. */
+static double pitch_per_spacing(const struct asph_surface *s,
+				enum asph_plan_method m)
+{
+	double c = plan_lattice_of(m)->edge_per_pitch;
+
+	if (m == ASPH_PLAN_CI)
+		return 1.0 / c;
+	return 1.0 / (c * sqrt(asph_surface_gamma(s)));
+}
+
+/* --points N: the pitch whose exact count is closest to N, from the
+ * lattice's area per point and two secant-like refinements. */
+static double pitch_for_points(const struct asph_surface *s,
+			       enum asph_plan_method m, double n_req)
+{
+	double a = asph_surface_aperture_radius(s);
+	double area = m == ASPH_PLAN_CI ? asph_surface_area(s, a)
+					: M_PI * a * a;
+	double p = sqrt(area / (plan_lattice_of(m)->area_per_pitch2 * n_req));
+
+	for (int it = 0; it < 2; it++) {
+		size_t n = pattern_count(s, m, p);
+		if (n == 0 || n > PLAN_MAX_POINTS)
+			break;
+		p *= sqrt((double)n / n_req);
+	}
+	return p;
+}
+
+static int resolve(const struct asph_surface *s, enum asph_plan_method m,
+		   struct asph_plan_density d, struct plan_size *out,
+		   struct asph_error *err)
+{
+	const char *field = density_field(d.kind);
+	double a = asph_surface_aperture_radius(s), ratio;
+
+	if ((unsigned)m >= ASPH_PLAN_N_METHODS) {
+		asph_error_locate(err, NULL, 0, 0, "method");
+		return asph_error_set(err, -EINVAL, "unknown method %d", m);
+	}
+	if (!isfinite(d.value) || d.value <= 0) {
+		asph_error_locate(err, NULL, 0, 0, field);
+		return asph_error_set(err, -EINVAL,
+				      "must be positive and finite (got %g)",
+				      d.value);
+	}
+	ratio = pitch_per_spacing(s, m);
+	switch (d.kind) {
+	case ASPH_DENSITY_H:
+		out->e = d.value * a;
+		out->p = out->e * ratio;
+		break;
+	case ASPH_DENSITY_SPACING:
+		out->e = d.value;
+		out->p = out->e * ratio;
+		break;
+	case ASPH_DENSITY_POINTS:
+		out->p = pitch_for_points(s, m, d.value);
+		out->e = out->p / ratio;
+		break;
+	default:
+		asph_error_locate(err, NULL, 0, 0, "density");
+		return asph_error_set(err, -EINVAL, "unknown density kind %d",
+				      d.kind);
+	}
+	if (!(out->e <= a)) {
+		asph_error_locate(err, NULL, 0, 0, field);
+		return asph_error_set(err, -EINVAL,
+				      "%g is too coarse: it gives a spacing of %.6g mm, "
+				      "more than the aperture radius %.6g mm (h > 1)",
+				      d.value, out->e, a);
+	}
+	out->n = pattern_count(s, m, out->p);
+	if (out->n > PLAN_MAX_POINTS) {
+		asph_error_locate(err, NULL, 0, 0, field);
+		return asph_error_set(err, -EINVAL,
+				      "%g gives more than %zu points, the most a plan can hold",
+				      d.value, PLAN_MAX_POINTS);
+	}
+	return 0;
+}
+
+int asph_plan_resolve(const struct asph_surface *s, enum asph_plan_method m,
+		      struct asph_plan_density density, double *spacing_mm,
+		      size_t *n_points, struct asph_error *err)
+{
+	struct plan_size sz;
+	int r = resolve(s, m, density, &sz, err);
+
+	if (r < 0)
+		return r;
+	if (spacing_mm)
+		*spacing_mm = sz.e;
+	if (n_points)
+		*n_points = sz.n;
+	return 0;
+}
+
+/* ---- maps from the disk or the vertex plane onto the surface ------------ */
+
+double asph_plan_ot_radius(const struct asph_surface *s, double rho)
+{
+	double a = asph_surface_aperture_radius(s);
+
+	if (!(rho > 0))
+		return 0;
+	if (rho >= a)
+		return a;
+	double f = rho / a;
+	return asph_surface_radius_at_area(s, asph_surface_area(s, a) * f * f);
+}
+
+/* Vertical projection: z = Z(r), r in the third slot. */
+static void lift_projected(const struct asph_surface *s, double *xyz,
+			   size_t n)
+{
+	for (size_t i = 0; i < n; i++)
+		xyz[3 * i + 2] = asph_surface_sag(s, xyz[3 * i + 2]);
+}
+
+/* Moves the disk point at radius rho to radius r at height z. */
+static void place_radial_z(double *p, double r, double z)
+{
+	double rho = p[2], f = rho > 0 ? r / rho : 0.0;
+
+	p[0] *= f;
+	p[1] *= f;
+	p[2] = z;
+}
+
+static void place_radial(const struct asph_surface *s, double *p, double r)
+{
+	place_radial_z(p, r, asph_surface_sag(s, r));
+}
+
+/* The area density f = dA/dr = 2 pi r w and g = f', w = sqrt(1 + Z'^2). */
+static void area_density(double r, const double d[3], double *f, double *g)
+{
+	double u = 1.0 + d[1] * d[1], w = sqrt(u);
+
+	*f = 2.0 * M_PI * r * w;
+	*g = 2.0 * M_PI * (u + r * d[1] * d[2]) / w;
+}
+
+/* Exact: r = Phi^-1 of the target area, restarting the stepper there. */
+static double ot_exact(const struct asph_surface *s, double target,
+		       struct inverse_step *st, double *z)
+{
+	double r = asph_surface_radius_at_area(s, target), d[3];
+
+	double f, g;
+
+	asph_surface_sag_derivs(s, r, d);
+	area_density(r, d, &f, &g);
+	inverse_step_set(st, r, target, f, g);
+	*z = d[0];
+	return r;
+}
+
+/* One contiguous run of the disk grid with its own stepper. */
+struct ot_lane {
+	size_t i, end, since;
+	double prev;
+	struct inverse_step st;
+};
+
+static void ot_point(const struct asph_surface *s, double *xyz,
+		     struct ot_lane *l, double a, double per_rho2)
+{
+	double *p = xyz + 3 * l->i++, rho = p[2], r, z, d[3], f, g;
+
+	if (rho >= a) {
+		place_radial(s, p, a);
+		return;
+	}
+	double target = per_rho2 * rho * rho;
+	if (l->since < INVERSE_STEP_ANCHOR && rho > l->prev) {
+		double x0 = inverse_step_predict(&l->st, target);
+		asph_surface_sag_derivs(s, x0, d);
+		area_density(x0, d, &f, &g);
+		if (inverse_step_finish(&l->st, target, x0, f, g, &r) == 0) {
+			place_radial_z(p, r, d[0] + d[1] * (r - x0));
+			l->since++;
+			l->prev = rho;
+			return;
+		}
+	}
+	r = ot_exact(s, target, &l->st, &z);
+	place_radial_z(p, r, z);
+	l->since = 0;
+	l->prev = rho;
+}
+
+#define OT_LANES 4
+
+/*
+ * phi(rho) = Phi^-1(rho^2) of Eq. (9) on the disk of radius a: the target
+ * area is A(a) (rho/a)^2. The disk grid comes in spiral order, so rho
+ * grows from one point to the next and the stepper of plan.h applies;
+ * every INVERSE_STEP_ANCHOR points, and wherever it refuses a step, the
+ * radius comes from the exact inverse of the area. A stepper is one long
+ * dependency chain, so the grid is cut into OT_LANES runs stepped side by
+ * side, which the processor overlaps.
+ */
+static void lift_ot(const struct asph_surface *s, double *xyz, size_t n)
+{
+	double a = asph_surface_aperture_radius(s);
+	double per_rho2 = asph_surface_area(s, a) / (a * a);
+	size_t len = (n + OT_LANES - 1) / OT_LANES;
+	struct ot_lane lanes[OT_LANES];
+
+	for (size_t l = 0; l < OT_LANES; l++) {
+		size_t b = l * len < n ? l * len : n;
+		lanes[l] = (struct ot_lane){ .i = b, .end = b + len < n ? b + len : n,
+					     .since = INVERSE_STEP_ANCHOR, .prev = a };
+	}
+	for (size_t j = 0; j < len; j++)
+		for (size_t l = 0; l < OT_LANES; l++)
+			if (lanes[l].i < lanes[l].end)
+				ot_point(s, xyz, &lanes[l], a, per_rho2);
+}
+
+static int lift_lb(const struct asph_surface *s, double *xyz, size_t n,
+		   struct asph_error *err)
+{
+	struct asph_lb_map *m = NULL;
+	double a = asph_surface_aperture_radius(s);
+	int r = asph_lb_map_alloc(s, &m, err);
+
+	if (r < 0)
+		return r;
+	for (size_t i = 0; i < n; i++) {
+		double rho = xyz[3 * i + 2];
+		double rr = rho >= a ? a : asph_lb_map_radius(m, rho);
+		place_radial(s, xyz + 3 * i, rr);
+	}
+	asph_lb_map_free(m);
+	return 0;
+}
+
+/* ---- disk mesh ------------------------------------------------------------ */
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_delaunay *, asph_delaunay_free)
+
+int plan_disk_mesh(const double *xyr, size_t n, uint32_t **triangles,
+		   size_t *n_triangles, struct asph_error *err)
+{
+	_cleanup_(asph_delaunay_freep) struct asph_delaunay *w = NULL;
+	_cleanup_free_ double *xy = NULL;
+	_cleanup_free_ uint32_t *tri = NULL;
+	size_t nt = 0, kept = 0;
+	int r;
+
+	if (n > ASPH_DELAUNAY_MAX_POINTS)
+		return asph_error_set(err, -E2BIG,
+				      "a mesh of %zu points is more than the triangulation takes (%zu); "
+				      "ask for the plan without its mesh",
+				      n, ASPH_DELAUNAY_MAX_POINTS);
+	xy = malloc(2 * n * sizeof(*xy));
+	if (!xy)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	w = asph_delaunay_alloc(n);
+	if (!w)
+		return asph_error_set(err, -ENOMEM, "out of memory (triangulation of %zu points)", n);
+	for (size_t i = 0; i < n; i++) {
+		xy[2 * i] = xyr[3 * i];
+		xy[2 * i + 1] = xyr[3 * i + 1];
+	}
+	r = asph_delaunay_triangulate(w, xy, n, &tri, &nt, err);
+	if (r < 0)
+		return r;
+	for (size_t t = 0; t < nt; t++) {
+		const uint32_t *v = tri + 3 * t;
+		if (plan_triangle_q_2d(xy + 2 * v[0], xy + 2 * v[1],
+				       xy + 2 * v[2]) < DISK_MESH_MIN_Q)
+			continue;
+		memmove(tri + 3 * kept++, v, 3 * sizeof(*v));
+	}
+	*n_triangles = kept;
+	*triangles = steal_ptr(tri);
+	return 0;
+}
+
+/* ---- plans ----------------------------------------------------------------- */
+
+void asph_plan_free(struct asph_plan *p)
+{
+	if (!p)
+		return;
+	free(p->xyz);
+	free(p->triangles);
+	free(p);
+}
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_plan *, asph_plan_free)
+
+int asph_plan_to_points(const struct asph_plan *p, struct asph_points **out)
+{
+	struct asph_points *pts = asph_points_alloc(p->n);
+
+	if (!pts)
+		return -ENOMEM;
+	memcpy(pts->xyz, p->xyz, 3 * p->n * sizeof(*p->xyz));
+	if (p->n_triangles) {
+		pts->triangles = malloc(3 * p->n_triangles * sizeof(*p->triangles));
+		if (!pts->triangles) {
+			asph_points_free(pts);
+			return -ENOMEM;
+		}
+		memcpy(pts->triangles, p->triangles,
+		       3 * p->n_triangles * sizeof(*p->triangles));
+		pts->n_triangles = p->n_triangles;
+	}
+	*out = pts;
+	return 0;
+}
+
+static int fill_pattern(enum asph_plan_method m, double a, double p,
+			double *xyr)
+{
+	switch (m) {
+	case ASPH_PLAN_RASTER:
+		plan_raster_fill(a, p, xyr);
+		return 0;
+	case ASPH_PLAN_CONCENTRIC:
+		plan_concentric_fill(a, p, xyr);
+		return 0;
+	case ASPH_PLAN_SPIRAL:
+		plan_spiral_fill(a, p, xyr);
+		return 0;
+	case ASPH_PLAN_FERMAT:
+		return plan_fermat_fill(a, p, xyr);
+	default:
+		plan_disk_grid_fill(a, p, xyr);
+		return 0;
+	}
+}
+
+static int compute_ci(const struct asph_surface *s, struct asph_plan *plan,
+		      double p, struct asph_error *err)
+{
+	size_t n = 0;
+	int r = asph_involute_points(s, p, 0, &plan->xyz, &n, err);
+
+	plan->n = n;
+	return r;
+}
+
+static int compute_points(const struct asph_surface *s, struct asph_plan *plan,
+			  const struct plan_size *sz, unsigned flags,
+			  struct asph_error *err)
+{
+	double a = asph_surface_aperture_radius(s);
+	enum asph_plan_method m = plan->method;
+	int r;
+
+	if (m == ASPH_PLAN_CI)
+		return compute_ci(s, plan, sz->p, err);
+	plan->xyz = malloc(3 * sz->n * sizeof(*plan->xyz));
+	if (!plan->xyz)
+		return asph_error_set(err, -ENOMEM, "out of memory (%zu points)", sz->n);
+	plan->n = sz->n;
+	r = fill_pattern(m, a, sz->p, plan->xyz);
+	if (r < 0)
+		return asph_error_set(err, r, "out of memory (%zu points)", sz->n);
+	if (is_grid_method(m) && !(flags & ASPH_PLAN_NO_MESH)) {
+		r = plan_disk_mesh(plan->xyz, plan->n, &plan->triangles,
+				   &plan->n_triangles, err);
+		if (r < 0)
+			return r;
+	}
+	switch (m) {
+	case ASPH_PLAN_OT:
+		lift_ot(s, plan->xyz, plan->n);
+		return 0;
+	case ASPH_PLAN_LB:
+		return lift_lb(s, plan->xyz, plan->n, err);
+	default:
+		lift_projected(s, plan->xyz, plan->n);
+		return 0;
+	}
+}
+
+int asph_plan_compute_opts(const struct asph_surface *s,
+			   enum asph_plan_method m,
+			   struct asph_plan_density density,
+			   const struct asph_plan_options *opts,
+			   struct asph_plan **out, struct asph_error *err)
+{
+	size_t max_points = opts ? opts->max_points : 0;
+	unsigned flags = opts ? opts->flags : 0;
+	_cleanup_(asph_plan_freep) struct asph_plan *plan = NULL;
+	struct plan_size sz;
+	int r = resolve(s, m, density, &sz, err);
+
+	if (r < 0)
+		return r;
+	if (max_points && sz.n > max_points) {
+		asph_error_locate(err, NULL, 0, 0, density_field(density.kind));
+		return asph_error_set(err, -EINVAL,
+				      "%g gives %zu points, more than the limit of %zu",
+				      density.value, sz.n, max_points);
+	}
+	plan = calloc(1, sizeof(*plan));
+	if (!plan)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	plan->method = m;
+	plan->density = density;
+	plan->spacing_mm = sz.e;
+	r = compute_points(s, plan, &sz, flags, err);
+	if (r < 0)
+		return r;
+	*out = steal_ptr(plan);
+	return 0;
+}
+
+int asph_plan_compute(const struct asph_surface *s, enum asph_plan_method m,
+		      struct asph_plan_density density, size_t max_points,
+		      struct asph_plan **out, struct asph_error *err)
+{
+	struct asph_plan_options o = { .max_points = max_points };
+
+	return asph_plan_compute_opts(s, m, density, &o, out, err);
+}

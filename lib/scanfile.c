@@ -1,0 +1,279 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* Recorded scans: the layout helpers both sides share, names, export. */
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "asph/scanfile.h"
+#include "crc32c.h"
+#include "scanfile-format.h"
+#include "util-mem.h"
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile *, asph_scanfile_free)
+
+static const char *const outcome_names[] = {
+	[ASPH_SCANFILE_UNFINISHED] = "unfinished",
+	[ASPH_SCANFILE_COMPLETED] = "completed",
+	[ASPH_SCANFILE_ABORTED] = "aborted",
+	[ASPH_SCANFILE_FAILED] = "failed",
+};
+
+const char *asph_scanfile_outcome_name(enum asph_scanfile_outcome o)
+{
+	if ((unsigned)o >= ARRAY_SIZE(outcome_names))
+		return "unknown";
+	return outcome_names[o];
+}
+
+int asph_scanfile_outcome_from_name(const char *name,
+				    enum asph_scanfile_outcome *out)
+{
+	for (size_t i = 0; i < ARRAY_SIZE(outcome_names); i++) {
+		if (!strcmp(name, outcome_names[i])) {
+			*out = (enum asph_scanfile_outcome)i;
+			return 0;
+		}
+	}
+	return -EINVAL;
+}
+
+static const char *const flag_names[] = {
+	"tip-compensated", "out-of-range", "low-signal", "retried",
+};
+
+const char *asph_scanfile_flag_name(uint32_t flag)
+{
+	for (size_t i = 0; i < ARRAY_SIZE(flag_names); i++)
+		if (flag == 1u << i)
+			return flag_names[i];
+	return NULL;
+}
+
+int asph_scanfile_flags_parse(const char *list, uint32_t *out,
+			      struct asph_error *err)
+{
+	uint32_t mask = 0;
+
+	for (const char *p = list; *p;) {
+		size_t len = strcspn(p, ",");
+		size_t i = 0;
+		while (i < ARRAY_SIZE(flag_names) &&
+		       (strlen(flag_names[i]) != len || strncmp(p, flag_names[i], len)))
+			i++;
+		if (i == ARRAY_SIZE(flag_names))
+			return asph_error_set(err, -EINVAL, "unknown point flag '%.*s' (known: "
+					      "tip-compensated, out-of-range, low-signal, retried)",
+					      (int)len, p);
+		mask |= 1u << i;
+		p += len + (p[len] == ',');
+	}
+	*out = mask;
+	return 0;
+}
+
+static const char *const stop_names[] = {
+	[ASPH_SCANFILE_STOP_END] = "end",
+	[ASPH_SCANFILE_STOP_TORN] = "torn",
+	[ASPH_SCANFILE_STOP_CHECKSUM] = "checksum",
+	[ASPH_SCANFILE_STOP_CORRUPT] = "corrupt",
+};
+
+const char *asph_scanfile_stop_name(enum asph_scanfile_stop s)
+{
+	if ((unsigned)s >= ARRAY_SIZE(stop_names))
+		return "unknown";
+	return stop_names[s];
+}
+
+/* Record layout (version 1.0), all little-endian:
+ * plan index u64, x y z raw f64, t_ns u64, flags u32, reserved u32 (0). */
+void scanfile_point_encode(const struct asph_scanfile_point *pt, uint8_t *out)
+{
+	put_le64(out + 0, pt->plan_index);
+	put_f64(out + 8, pt->x);
+	put_f64(out + 16, pt->y);
+	put_f64(out + 24, pt->z);
+	put_f64(out + 32, pt->raw);
+	put_le64(out + 40, pt->t_ns);
+	put_le32(out + 48, pt->flags);
+	put_le32(out + 52, 0);
+}
+
+void scanfile_point_decode(const uint8_t *in, struct asph_scanfile_point *pt)
+{
+	pt->plan_index = get_le64(in + 0);
+	pt->x = get_f64(in + 8);
+	pt->y = get_f64(in + 16);
+	pt->z = get_f64(in + 24);
+	pt->raw = get_f64(in + 32);
+	pt->t_ns = get_le64(in + 40);
+	pt->flags = get_le32(in + 48);
+}
+
+void block_header_encode(const struct block_header *h, uint8_t *out)
+{
+	memcpy(out, BLOCK_MAGIC, 4);
+	put_le16(out + 4, h->type);
+	put_le16(out + 6, h->record_size);
+	put_le64(out + 8, h->seq);
+	put_le64(out + 16, h->first_point);
+	put_le32(out + 24, h->count);
+	put_le32(out + 28, h->payload_len);
+}
+
+bool block_header_decode(const uint8_t *in, struct block_header *h)
+{
+	if (memcmp(in, BLOCK_MAGIC, 4))
+		return false;
+	h->type = get_le16(in + 4);
+	h->record_size = get_le16(in + 6);
+	h->seq = get_le64(in + 8);
+	h->first_point = get_le64(in + 16);
+	h->count = get_le32(in + 24);
+	h->payload_len = get_le32(in + 28);
+	return true;
+}
+
+size_t block_seal(uint8_t *block, const struct block_header *h)
+{
+	size_t len = BLOCK_HEADER_SIZE + (size_t)h->payload_len;
+
+	block_header_encode(h, block);
+	put_le32(block + len, crc32c(0, block, len));
+	return len + BLOCK_CRC_SIZE;
+}
+
+void scanfile_format_time(int64_t ns, char *buf, size_t size)
+{
+	time_t sec = (time_t)(ns / 1000000000);
+	long frac = (long)(ns % 1000000000);
+	struct tm tm;
+	char day[32];
+
+	if (frac < 0) {
+		frac += 1000000000;
+		sec--;
+	}
+	if (!gmtime_r(&sec, &tm) ||
+	    !strftime(day, sizeof(day), "%Y-%m-%dT%H:%M:%S", &tm)) {
+		snprintf(buf, size, "@%lld", (long long)ns);
+		return;
+	}
+	snprintf(buf, size, "%s.%09ldZ", day, frac);
+}
+
+int64_t scanfile_realtime_ns(void)
+{
+	struct timespec ts;
+
+	clock_gettime(CLOCK_REALTIME, &ts);
+	return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
+}
+
+int64_t scanfile_source_read(const struct scanfile_source *src, uint64_t off,
+			     void *buf, size_t n)
+{
+	size_t done = 0;
+
+	if (src->fd < 0) {
+		if (off >= src->mem_len)
+			return 0;
+		done = src->mem_len - off < n ? src->mem_len - off : n;
+		memcpy(buf, src->mem + off, done);
+		return (int64_t)done;
+	}
+	while (done < n) {
+		ssize_t r = pread(src->fd, (uint8_t *)buf + done, n - done,
+				  (off_t)(off + done));
+		if (r < 0 && errno == EINTR)
+			continue;
+		if (r < 0)
+			return -errno;
+		if (r == 0)
+			break;
+		done += (size_t)r;
+	}
+	return (int64_t)done;
+}
+
+int scanfile_source_size(const struct scanfile_source *src, uint64_t *size)
+{
+	struct stat st;
+
+	if (src->fd < 0) {
+		*size = src->mem_len;
+		return 0;
+	}
+	if (fstat(src->fd, &st) < 0)
+		return -errno;
+	*size = (uint64_t)st.st_size;
+	return 0;
+}
+
+static bool point_kept(const struct asph_scanfile_point *pt, uint32_t exclude)
+{
+	return !(pt->flags & (exclude | ASPH_SCANFILE_POINT_OUT_OF_RANGE));
+}
+
+int asph_scanfile_to_points(const struct asph_scanfile *s,
+			    uint32_t exclude_flags, struct asph_points **out,
+			    struct asph_error *err)
+{
+	size_t n = 0, k = 0;
+
+	for (size_t i = 0; i < s->n; i++) {
+		const struct asph_scanfile_point *pt = &s->points[i];
+		if (!point_kept(pt, exclude_flags))
+			continue;
+		if (!isfinite(pt->x) || !isfinite(pt->y) || !isfinite(pt->z))
+			return asph_error_set(err, -EBADMSG,
+					      "point %zu (plan index %llu) has non-finite coordinates "
+					      "but is not flagged out of range",
+					      i, (unsigned long long)pt->plan_index);
+		n++;
+	}
+	_cleanup_(asph_points_freep) struct asph_points *p = asph_points_alloc(n);
+	if (!p)
+		return asph_error_set(err, -ENOMEM, "cannot allocate %zu points", n);
+	for (size_t i = 0; i < s->n; i++) {
+		const struct asph_scanfile_point *pt = &s->points[i];
+		if (!point_kept(pt, exclude_flags))
+			continue;
+		p->xyz[3 * k + 0] = pt->x;
+		p->xyz[3 * k + 1] = pt->y;
+		p->xyz[3 * k + 2] = pt->z;
+		k++;
+	}
+	*out = steal_ptr(p);
+	return 0;
+}
+
+int asph_scanfile_export(const char *scan_path, const char *out_path,
+			 uint32_t exclude_flags,
+			 struct asph_scanfile_report *report,
+			 struct asph_error *err)
+{
+	_cleanup_(asph_scanfile_freep) struct asph_scanfile *s = NULL;
+	_cleanup_(asph_points_freep) struct asph_points *p = NULL;
+	/* precision 0: 17 significant digits, which read back bit for bit */
+	const struct asph_points_write_options wopts = { 0 };
+	int r;
+
+	r = asph_scanfile_read(scan_path, &s, err);
+	if (r < 0)
+		return r;
+	if (report) {
+		*report = s->report;
+		report->reason = NULL;
+	}
+	r = asph_scanfile_to_points(s, exclude_flags, &p, err);
+	if (r < 0) {
+		asph_error_locate(err, scan_path, 0, 0, NULL);
+		return r;
+	}
+	return asph_points_write(out_path, p, &wopts, err);
+}

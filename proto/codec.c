@@ -1,0 +1,466 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "asph-proto.h"
+#include "util-mem.h"
+
+static const struct {
+	int code;
+	const char *message;
+} error_messages[] = {
+	{ PROTO_PARSE_ERROR, "Parse error" },
+	{ PROTO_INVALID_REQUEST, "Invalid Request" },
+	{ PROTO_METHOD_NOT_FOUND, "Method not found" },
+	{ PROTO_INVALID_PARAMS, "Invalid params" },
+	{ PROTO_INTERNAL_ERROR, "Internal error" },
+	{ PROTO_REQUEST_TOO_LARGE, "Request too large" },
+	{ PROTO_SHUTTING_DOWN, "Server shutting down" },
+	{ PROTO_TOO_MANY_CLIENTS, "Too many clients" },
+	{ PROTO_REQUEST_TIMEOUT, "Request timed out" },
+	{ PROTO_PERMISSION_DENIED, "Permission denied" },
+	{ PROTO_NO_SUCH_JOB, "No such job" },
+	{ PROTO_NO_SUCH_INSTRUMENT, "No such instrument" },
+	{ PROTO_INVALID_STATE, "Invalid job state" },
+	{ PROTO_LIMIT_REACHED, "Limit reached" },
+	{ PROTO_INVALID_LENS, "Invalid lens" },
+	{ PROTO_INVALID_PLAN, "Invalid plan" },
+	{ PROTO_NO_RESULT, "No result" },
+	{ PROTO_STORAGE_ERROR, "Storage error" },
+	{ PROTO_INVALID_PATH, "Invalid path" },
+};
+
+const char *proto_error_message(int code)
+{
+	for (size_t i = 0; i < ARRAY_SIZE(error_messages); i++)
+		if (error_messages[i].code == code)
+			return error_messages[i].message;
+	return "Error";
+}
+
+/* ------------------------------------------------------------ framing */
+
+void proto_lines_init(struct proto_lines *l, size_t max_line)
+{
+	memset(l, 0, sizeof(*l));
+	l->max = max_line ? max_line : PROTO_DEFAULT_MAX_LINE;
+}
+
+void proto_lines_release(struct proto_lines *l)
+{
+	free(l->buf);
+	memset(l, 0, sizeof(*l));
+}
+
+int proto_lines_reserve(struct proto_lines *l, size_t want, char **dst)
+{
+	if (l->start > 0 && l->start + l->len + want > l->cap) {
+		memmove(l->buf, l->buf + l->start, l->len);
+		l->start = 0;
+	}
+	if (l->len + want + 1 > l->cap) {
+		size_t cap = l->cap ? l->cap : 4096;
+		while (cap < l->len + want + 1)
+			cap *= 2;
+		char *b = realloc(l->buf, cap);
+		if (!b)
+			return -ENOMEM;
+		l->buf = b;
+		l->cap = cap;
+	}
+	*dst = l->buf + l->start + l->len;
+	return 0;
+}
+
+void proto_lines_commit(struct proto_lines *l, size_t n)
+{
+	l->len += n;
+}
+
+static void lines_drop(struct proto_lines *l, size_t n)
+{
+	l->start += n;
+	l->len -= n;
+	l->scanned = 0;
+	if (l->len == 0)
+		l->start = 0;
+}
+
+int proto_lines_next(struct proto_lines *l, char **line, size_t *len)
+{
+	for (;;) {
+		char *p = l->buf + l->start;
+		char *nl = l->len > l->scanned
+			? memchr(p + l->scanned, '\n', l->len - l->scanned)
+			: NULL;
+
+		if (!nl) {
+			l->scanned = l->len;
+			if (!l->discarding && l->len <= l->max)
+				return 0;
+			/* Over the limit: forget what came so far, keep
+			 * dropping until the newline. */
+			bool first = !l->discarding;
+			l->discarding = true;
+			lines_drop(l, l->len);
+			return first ? -EMSGSIZE : 0;
+		}
+		size_t n = (size_t)(nl - p);
+		if (l->discarding) {
+			l->discarding = false;
+			lines_drop(l, n + 1);
+			continue;
+		}
+		if (n > l->max) {
+			lines_drop(l, n + 1);
+			return -EMSGSIZE;
+		}
+		*nl = '\0';
+		if (n > 0 && p[n - 1] == '\r')
+			p[--n] = '\0';
+		*line = p;
+		*len = n;
+		lines_drop(l, (size_t)(nl - p) + 1);
+		return 1;
+	}
+}
+
+size_t proto_lines_pending(const struct proto_lines *l)
+{
+	return l->discarding ? 0 : l->len;
+}
+
+/* ------------------------------------------------------------ messages */
+
+json_t *proto_parse(const char *text, size_t len, char *why, size_t why_size)
+{
+	json_error_t e;
+	json_t *j = json_loadb(text, len, JSON_REJECT_DUPLICATES | JSON_ALLOW_NUL | JSON_DECODE_ANY, &e);
+
+	if (!j && why)
+		snprintf(why, why_size, "column %d: %s", e.column, e.text);
+	return j;
+}
+
+static bool valid_id(const json_t *id)
+{
+	return json_is_string(id) || json_is_integer(id) || json_is_null(id) ||
+	       (json_is_real(id) && isfinite(json_real_value(id)));
+}
+
+int proto_check_request(json_t *msg, struct proto_message *out,
+			const char **why)
+{
+	json_t *v, *id, *method, *params;
+	const char *key;
+
+	memset(out, 0, sizeof(*out));
+	if (!json_is_object(msg)) {
+		*why = "a request must be an object";
+		return PROTO_INVALID_REQUEST;
+	}
+	id = json_object_get(msg, "id");
+	if (id && valid_id(id))
+		out->id = id;
+	v = json_object_get(msg, "jsonrpc");
+	if (!json_is_string(v) || strcmp(json_string_value(v), "2.0")) {
+		*why = "\"jsonrpc\" must be \"2.0\"";
+		return PROTO_INVALID_REQUEST;
+	}
+	if (id && !valid_id(id)) {
+		*why = "\"id\" must be a string, a number or null";
+		return PROTO_INVALID_REQUEST;
+	}
+	method = json_object_get(msg, "method");
+	if (!json_is_string(method)) {
+		*why = "\"method\" must be a string";
+		return PROTO_INVALID_REQUEST;
+	}
+	params = json_object_get(msg, "params");
+	if (params && !json_is_object(params) && !json_is_array(params)) {
+		*why = "\"params\" must be an object or an array";
+		return PROTO_INVALID_REQUEST;
+	}
+	json_object_foreach(msg, key, v) {
+		if (strcmp(key, "jsonrpc") && strcmp(key, "id") &&
+		    strcmp(key, "method") && strcmp(key, "params")) {
+			*why = "unknown member in request";
+			return PROTO_INVALID_REQUEST;
+		}
+	}
+	out->kind = id ? PROTO_KIND_REQUEST : PROTO_KIND_NOTIFICATION;
+	out->method = json_string_value(method);
+	out->params = params;
+	return 0;
+}
+
+int proto_check_incoming(json_t *msg, struct proto_message *out,
+			 const char **why)
+{
+	json_t *v, *method;
+
+	memset(out, 0, sizeof(*out));
+	if (!json_is_object(msg)) {
+		*why = "a message must be an object";
+		return PROTO_INVALID_REQUEST;
+	}
+	v = json_object_get(msg, "jsonrpc");
+	if (!json_is_string(v) || strcmp(json_string_value(v), "2.0")) {
+		*why = "\"jsonrpc\" must be \"2.0\"";
+		return PROTO_INVALID_REQUEST;
+	}
+	method = json_object_get(msg, "method");
+	if (method) {
+		if (!json_is_string(method)) {
+			*why = "\"method\" must be a string";
+			return PROTO_INVALID_REQUEST;
+		}
+		out->kind = PROTO_KIND_NOTIFICATION;
+		out->method = json_string_value(method);
+		out->params = json_object_get(msg, "params");
+		return 0;
+	}
+	out->kind = PROTO_KIND_RESPONSE;
+	out->id = json_object_get(msg, "id");
+	out->result = json_object_get(msg, "result");
+	out->error = json_object_get(msg, "error");
+	if (!out->id || !!out->result == !!out->error) {
+		*why = "a response needs an id and exactly one of result and error";
+		return PROTO_INVALID_REQUEST;
+	}
+	if (out->error) {
+		json_t *c = json_object_get(out->error, "code");
+		json_t *m = json_object_get(out->error, "message");
+		if (!json_is_integer(c) || !json_is_string(m)) {
+			*why = "an error needs an integer code and a message";
+			return PROTO_INVALID_REQUEST;
+		}
+		out->error_code = (int)json_integer_value(c);
+		out->error_message = json_string_value(m);
+	}
+	return 0;
+}
+
+json_t *proto_make_request(json_int_t id, const char *method, json_t *params)
+{
+	json_t *m = json_pack("{s:s, s:I, s:s}", "jsonrpc", "2.0", "id", id,
+			      "method", method);
+	if (m && params)
+		json_object_set_new(m, "params", params);
+	else
+		json_decref(params);
+	return m;
+}
+
+json_t *proto_make_notification(const char *method, json_t *params)
+{
+	json_t *m = json_pack("{s:s, s:s}", "jsonrpc", "2.0", "method", method);
+	if (m && params)
+		json_object_set_new(m, "params", params);
+	else
+		json_decref(params);
+	return m;
+}
+
+json_t *proto_make_result(json_t *id, json_t *result)
+{
+	return json_pack("{s:s, s:O?, s:o}", "jsonrpc", "2.0", "id", id,
+			 "result", result ? result : json_null());
+}
+
+json_t *proto_make_error(json_t *id, int code, const char *message,
+			 json_t *data)
+{
+	json_t *e = json_pack("{s:i, s:s}", "code", code, "message",
+			      message ? message : proto_error_message(code));
+	if (e && data)
+		json_object_set_new(e, "data", data);
+	else
+		json_decref(data);
+	return json_pack("{s:s, s:O?, s:o}", "jsonrpc", "2.0", "id", id,
+			 "error", e);
+}
+
+char *proto_dump(const json_t *msg, size_t *len)
+{
+	size_t n = json_dumpb(msg, NULL, 0, JSON_COMPACT);
+	char *s;
+
+	if (n == 0)
+		return NULL;
+	s = malloc(n + 2);
+	if (!s)
+		return NULL;
+	json_dumpb(msg, s, n, JSON_COMPACT);
+	s[n] = '\n';
+	s[n + 1] = '\0';
+	if (len)
+		*len = n + 1;
+	return s;
+}
+
+/* ---------------------------------------------------------- parameters */
+
+static int why_set(struct proto_why *why, const char *fmt, ...)
+	__attribute__((format(printf, 2, 3)));
+
+static int why_set(struct proto_why *why, const char *fmt, ...)
+{
+	va_list ap;
+
+	if (why) {
+		va_start(ap, fmt);
+		vsnprintf(why->text, sizeof(why->text), fmt, ap);
+		va_end(ap);
+	}
+	return -EINVAL;
+}
+
+static int param_get(json_t *params, const char *name, bool required,
+		     json_t **v, struct proto_why *why)
+{
+	*v = json_is_object(params) ? json_object_get(params, name) : NULL;
+	if (!*v || json_is_null(*v)) {
+		*v = NULL;
+		return required ? why_set(why, "missing parameter \"%s\"", name)
+				: -ENOENT;
+	}
+	return 0;
+}
+
+int proto_params_only(json_t *params, const char *const *names,
+		      struct proto_why *why)
+{
+	const char *key;
+	json_t *v;
+
+	if (!params)
+		return 0;
+	if (!json_is_object(params))
+		return why_set(why, "params must be an object");
+	json_object_foreach(params, key, v) {
+		size_t i;
+		for (i = 0; names[i]; i++)
+			if (!strcmp(names[i], key))
+				break;
+		if (!names[i])
+			return why_set(why, "unknown parameter \"%.64s\"", key);
+	}
+	return 0;
+}
+
+int proto_param_int(json_t *params, const char *name, bool required,
+		    int64_t min, int64_t max, int64_t *out,
+		    struct proto_why *why)
+{
+	json_t *v;
+	int r = param_get(params, name, required, &v, why);
+
+	if (r < 0)
+		return r;
+	if (!json_is_integer(v))
+		return why_set(why, "\"%s\" must be an integer", name);
+	json_int_t x = json_integer_value(v);
+	if (x < min || x > max)
+		return why_set(why, "\"%s\" must be in [%lld, %lld]", name,
+			       (long long)min, (long long)max);
+	*out = x;
+	return 0;
+}
+
+int proto_param_number(json_t *params, const char *name, bool required,
+		       double min, double max, double *out,
+		       struct proto_why *why)
+{
+	json_t *v;
+	int r = param_get(params, name, required, &v, why);
+
+	if (r < 0)
+		return r;
+	if (!json_is_number(v))
+		return why_set(why, "\"%s\" must be a number", name);
+	double x = json_number_value(v);
+	if (!isfinite(x) || x < min || x > max)
+		return why_set(why, "\"%s\" must be in [%g, %g]", name, min, max);
+	*out = x;
+	return 0;
+}
+
+int proto_param_bool(json_t *params, const char *name, bool required,
+		     bool *out, struct proto_why *why)
+{
+	json_t *v;
+	int r = param_get(params, name, required, &v, why);
+
+	if (r < 0)
+		return r;
+	if (!json_is_boolean(v))
+		return why_set(why, "\"%s\" must be true or false", name);
+	*out = json_is_true(v);
+	return 0;
+}
+
+int proto_param_string(json_t *params, const char *name, bool required,
+		       size_t max_len, const char **out,
+		       struct proto_why *why)
+{
+	json_t *v;
+	int r = param_get(params, name, required, &v, why);
+
+	if (r < 0)
+		return r;
+	if (!json_is_string(v))
+		return why_set(why, "\"%s\" must be a string", name);
+	if (json_string_length(v) > max_len)
+		return why_set(why, "\"%s\" is longer than %zu bytes", name, max_len);
+	if (strlen(json_string_value(v)) != json_string_length(v))
+		return why_set(why, "\"%s\" contains a NUL character", name);
+	*out = json_string_value(v);
+	return 0;
+}
+
+int proto_param_object(json_t *params, const char *name, bool required,
+		       json_t **out, struct proto_why *why)
+{
+	json_t *v;
+	int r = param_get(params, name, required, &v, why);
+
+	if (r < 0)
+		return r;
+	if (!json_is_object(v))
+		return why_set(why, "\"%s\" must be an object", name);
+	*out = v;
+	return 0;
+}
+
+int proto_param_flags(json_t *params, const char *name, bool required,
+		      const char *const *allowed, unsigned *mask,
+		      struct proto_why *why)
+{
+	json_t *v, *e;
+	size_t i;
+	int r = param_get(params, name, required, &v, why);
+
+	if (r < 0)
+		return r;
+	if (!json_is_array(v))
+		return why_set(why, "\"%s\" must be an array of strings", name);
+	*mask = 0;
+	json_array_foreach(v, i, e) {
+		size_t k;
+		if (!json_is_string(e))
+			return why_set(why, "\"%s\"[%zu] must be a string", name, i);
+		for (k = 0; allowed[k]; k++)
+			if (!strcmp(allowed[k], json_string_value(e)))
+				break;
+		if (!allowed[k])
+			return why_set(why, "\"%s\"[%zu]: unknown value \"%.64s\"",
+				       name, i, json_string_value(e));
+		*mask |= 1u << k;
+	}
+	return 0;
+}

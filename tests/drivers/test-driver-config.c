@@ -1,0 +1,367 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* The registry, option values, specs, configuration files and plugins. */
+#include <errno.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+
+#include "asph/instrument.h"
+
+struct fixture {
+	struct asph_registry *reg;
+};
+
+static int setup(void **state)
+{
+	struct fixture *f = calloc(1, sizeof(*f));
+	assert_non_null(f);
+	assert_int_equal(asph_registry_new(&f->reg, NULL), 0);
+	*state = f;
+	return 0;
+}
+
+static int teardown(void **state)
+{
+	struct fixture *f = *state;
+	asph_registry_free(f->reg);
+	free(f);
+	return 0;
+}
+
+static void test_builtin(void **state)
+{
+	struct fixture *f = *state;
+	const struct asph_driver *mock = asph_registry_find(f->reg, "mock");
+
+	assert_non_null(mock);
+	assert_non_null(asph_registry_find(f->reg, "replay"));
+	assert_null(asph_registry_find(f->reg, "nosuch"));
+	assert_true(asph_registry_count(f->reg) >= 2);
+	assert_int_equal(mock->roles, ASPH_ROLE_STAGE | ASPH_ROLE_PROBE);
+	assert_string_equal(asph_registry_origin(f->reg, 0), "built-in");
+	for (size_t i = 0; i < asph_registry_count(f->reg); i++)
+		assert_int_equal(asph_driver_validate(asph_registry_get(f->reg, i), NULL), 0);
+}
+
+static const struct asph_probe_ops dummy_probe;
+
+static void test_validate_refuses(void **state)
+{
+	static const struct asph_option_desc bad_default[] = {
+		{ "speed", ASPH_OPTION_DOUBLE, "fast", .help = "h" },
+	};
+	static const struct asph_option_desc out_of_range[] = {
+		{ "n", ASPH_OPTION_INT, "17", .ranged = true, .min = 1, .max = 10, .help = "h" },
+	};
+	struct asph_driver d = { .abi_version = ASPH_DRIVER_ABI_VERSION, .name = "x",
+				 .roles = ASPH_ROLE_PROBE, .probe = &dummy_probe };
+	struct asph_error err;
+
+	/* missing operations */
+	assert_int_equal(asph_driver_validate(&d, &err), -EINVAL);
+	assert_non_null(strstr(err.message, "probe operations"));
+	d.abi_version = 7;
+	assert_int_equal(asph_driver_validate(&d, &err), -EPROTO);
+	d = *asph_registry_find(((struct fixture *)*state)->reg, "mock");
+	d.name = "Bad Name";
+	assert_int_equal(asph_driver_validate(&d, &err), -EINVAL);
+	d.name = "ok";
+	d.options = bad_default;
+	d.n_options = 1;
+	assert_int_equal(asph_driver_validate(&d, &err), -EINVAL);
+	assert_non_null(strstr(err.message, "speed"));
+	d.options = out_of_range;
+	assert_int_equal(asph_driver_validate(&d, &err), -ERANGE);
+}
+
+static void test_options(void **state)
+{
+	struct fixture *f = *state;
+	const struct asph_driver *mock = asph_registry_find(f->reg, "mock");
+	struct asph_options *o;
+	struct asph_error err;
+	char buf[64];
+
+	assert_int_equal(asph_options_new(mock, &o, NULL), 0);
+	const struct asph_option_value *v = asph_options_values(o);
+	size_t rate = 0, probe = 0, stream = 0, seed = 0;
+	for (size_t i = 0; i < mock->n_options; i++) {
+		if (!strcmp(mock->options[i].name, "rate")) rate = i;
+		if (!strcmp(mock->options[i].name, "probe")) probe = i;
+		if (!strcmp(mock->options[i].name, "stream")) stream = i;
+		if (!strcmp(mock->options[i].name, "seed")) seed = i;
+	}
+	assert_false(v[rate].set);
+	assert_int_equal(asph_options_set(o, "rate", "23456.5", &err), 0);
+	assert_true(v[rate].set);
+	assert_true(v[rate].d == 23456.5);
+	assert_int_equal(asph_options_set(o, "probe", "tactile", &err), 0);
+	assert_int_equal(v[probe].i, 1);
+	assert_string_equal(v[probe].s, "tactile");
+	assert_int_equal(asph_options_set(o, "stream", "off", &err), 0);
+	assert_false(v[stream].b);
+	assert_int_equal(asph_options_set(o, "seed", "91733", &err), 0);
+	assert_int_equal(v[seed].i, 91733);
+	assert_string_equal(asph_option_value_format(&v[seed], buf, sizeof(buf)), "91733");
+
+	assert_int_equal(asph_options_set(o, "rates", "1", &err), -ENOENT);
+	assert_string_equal(err.field, "rates");
+	assert_int_equal(asph_options_set(o, "rate", "fast", &err), -EINVAL);
+	assert_string_equal(err.field, "rate");
+	assert_int_equal(asph_options_set(o, "rate", "1e999", &err), -EINVAL);
+	assert_int_equal(asph_options_set(o, "rate", "-3", &err), -ERANGE);
+	assert_non_null(strstr(err.message, "outside"));
+	assert_int_equal(asph_options_set(o, "seed", "12.5", &err), -EINVAL);
+	assert_int_equal(asph_options_set(o, "probe", "laser", &err), -ERANGE);
+	assert_non_null(strstr(err.message, "optical, tactile"));
+	assert_int_equal(asph_options_set(o, "stream", "maybe", &err), -EINVAL);
+	/* a refused value leaves the previous one */
+	assert_true(v[rate].d == 23456.5);
+	asph_options_free(o);
+}
+
+static const struct asph_option_value *spec_value(const struct asph_config *c,
+						  const char *name)
+{
+	const struct asph_driver *d = c->instruments[0].probe_driver;
+	for (size_t i = 0; i < d->n_options; i++)
+		if (!strcmp(d->options[i].name, name))
+			return &asph_options_values(c->instruments[0].probe_options)[i];
+	fail_msg("no option %s", name);
+	return NULL;
+}
+
+static void test_spec(void **state)
+{
+	struct fixture *f = *state;
+	struct asph_config *c;
+	struct asph_error err;
+
+	assert_int_equal(asph_instrument_spec_parse(f->reg, "mock", &c, &err), 0);
+	assert_int_equal(c->n, 1);
+	assert_string_equal(c->instruments[0].name, "mock");
+	assert_false(spec_value(c, "rate")->set);
+	asph_config_free(c);
+
+	assert_int_equal(asph_instrument_spec_parse(f->reg, "mock:rate=20000", &c, &err), 0);
+	assert_true(spec_value(c, "rate")->d == 20000);
+	asph_config_free(c);
+
+	assert_int_equal(asph_instrument_spec_parse(f->reg, "mock:fail_after=500,form=4:30;9:-12", &c,
+						    &err), 0);
+	assert_int_equal(spec_value(c, "fail_after")->i, 500);
+	assert_string_equal(spec_value(c, "form")->s, "4:30;9:-12");
+	asph_config_free(c);
+
+	assert_int_equal(asph_instrument_spec_parse(f->reg, "nosuch:x=1", &c, &err), -ENOENT);
+	assert_non_null(strstr(err.message, "nosuch"));
+	assert_int_equal(asph_instrument_spec_parse(f->reg, "mock:rate", &c, &err), -EINVAL);
+	assert_int_equal(asph_instrument_spec_parse(f->reg, "mock:bogus=1", &c, &err), -ENOENT);
+	assert_string_equal(err.field, "bogus");
+	assert_int_equal(asph_instrument_spec_parse(f->reg, "mock:rate=0", &c, &err), -ERANGE);
+	assert_string_equal(err.field, "rate");
+	assert_string_equal(err.source, "mock:rate=0");
+}
+
+static const char good_json[] =
+	"{\n"
+	"  \"instruments\": [\n"
+	"    { \"name\": \"bench\",\n"
+	"      \"stage\": { \"driver\": \"mock\", \"options\": { \"speed\": 35.5, \"kinematics\": \"r-theta-z\" } },\n"
+	"      \"probe\": { \"driver\": \"mock\", \"options\": { \"rate\": 20000, \"stream\": false } } },\n"
+	"    { \"stage\": { \"driver\": \"mock\" }, \"probe\": { \"driver\": \"replay\",\n"
+	"        \"options\": { \"file\": \"x.asph\" } } }\n"
+	"  ]\n"
+	"}\n";
+
+static void test_config_file(void **state)
+{
+	struct fixture *f = *state;
+	struct asph_config *c;
+	struct asph_error err;
+	char *json;
+
+	assert_int_equal(asph_config_parse(f->reg, good_json, strlen(good_json), "a.json", &c, &err), 0);
+	assert_int_equal(c->n, 2);
+	assert_string_equal(c->instruments[0].name, "bench");
+	assert_string_equal(c->instruments[1].name, "instrument2");
+	assert_string_equal(c->instruments[1].probe_driver->name, "replay");
+	assert_int_equal(asph_instrument_config_to_json(&c->instruments[0], &json), 0);
+	assert_non_null(strstr(json, "\"speed\":35.5"));
+	assert_non_null(strstr(json, "\"kinematics\":\"r-theta-z\""));
+	/* stage-only options stay out of the probe's part */
+	assert_null(strstr(strstr(json, "\"probe\""), "kinematics"));
+	free(json);
+	asph_config_free(c);
+}
+
+struct bad_case {
+	const char *text;
+	int code, line, column;
+	const char *field;
+	const char *words;
+};
+
+static void test_config_refusals(void **state)
+{
+	static const struct bad_case cases[] = {
+		{ "{\"instruments\": [\n {\"stage\": {\"driver\": \"mock\"},\n  \"probe\": {\"driver\": \"mock\", \"options\": {\"rat\": 5}}}]}",
+		  -ENOENT, 3, 43, "instruments.[0].probe.options.rat", "no option 'rat'" },
+		{ "{\"instruments\": [\n {\"stage\": {\"driver\": \"mock\"},\n  \"probe\": {\"driver\": \"mock\", \"options\": {\"rate\": \"fast\"}}}]}",
+		  -EINVAL, 3, 43, "instruments.[0].probe.options.rate", "expects a number" },
+		{ "{\"instruments\": [\n {\"stage\": {\"driver\": \"mock\", \"options\": {\"speed\": -2}},\n  \"probe\": {\"driver\": \"mock\"}}]}",
+		  -ERANGE, 2, 43, "instruments.[0].stage.options.speed", "outside" },
+		{ "{\"instruments\": [\n {\"stage\": {\"driver\": \"nosuch\"},\n  \"probe\": {\"driver\": \"mock\"}}]}",
+		  -ENOENT, 2, 13, "instruments.[0].stage.driver", "no driver 'nosuch'" },
+		{ "{\"instruments\": [\n {\"stage\": {\"driver\": \"mock\"}}]}",
+		  -EINVAL, 2, 2, "instruments.[0].probe", "missing" },
+		{ "{\"instruments\": [\n {\"stage\": {\"driver\": \"mock\"}, \"probe\": {\"driver\": \"mock\"},\n  \"colour\": 1}]}",
+		  -EINVAL, 3, 3, "instruments.[0].colour", "unknown member" },
+		{ "{\"instruments\": [\n {\"stage\": {\"driver\": \"mock\" \"probe\": 1}]}",
+		  -EINVAL, 2, 36, "", "expected" },
+		{ "{\"instruments\": [\n {\"stage\": {\"driver\": \"mock\", \"options\": {\"stream\": 1}}, \"probe\": {\"driver\": \"mock\"}}]}",
+		  -EINVAL, 2, 43, "instruments.[0].stage.options.stream", "true or false" },
+	};
+	struct fixture *f = *state;
+
+	for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
+		struct asph_config *c = NULL;
+		struct asph_error err;
+		const struct bad_case *b = &cases[i];
+
+		asph_error_clear(&err);
+		int r = asph_config_parse(f->reg, b->text, strlen(b->text), "conf.json", &c, &err);
+		if (r != b->code || err.line != b->line || err.column != b->column ||
+		    strcmp(err.field, b->field) || !strstr(err.message, b->words))
+			fail_msg("case %zu: %d at %d:%d field '%s': %s", i, r, err.line, err.column,
+				 err.field, err.message);
+		assert_string_equal(err.source, "conf.json");
+		assert_null(c);
+	}
+}
+
+static void test_resolve(void **state)
+{
+	struct fixture *f = *state;
+	char path[] = "/tmp/asph-test-config-XXXXXX";
+	int fd = mkstemp(path);
+	struct asph_config *c;
+	size_t idx;
+	char arg[64];
+
+	assert_true(fd >= 0);
+	assert_int_equal(write(fd, good_json, strlen(good_json)), (ssize_t)strlen(good_json));
+	close(fd);
+	assert_int_equal(asph_config_resolve(f->reg, path, &c, &idx, NULL), 0);
+	assert_int_equal(idx, 0);
+	asph_config_free(c);
+	snprintf(arg, sizeof(arg), "%s#instrument2", path);
+	assert_int_equal(asph_config_resolve(f->reg, arg, &c, &idx, NULL), 0);
+	assert_int_equal(idx, 1);
+	asph_config_free(c);
+	snprintf(arg, sizeof(arg), "%s#nosuch", path);
+	assert_int_equal(asph_config_resolve(f->reg, arg, &c, &idx, NULL), -ENOENT);
+	assert_int_equal(asph_config_resolve(f->reg, "mock:rate=5", &c, &idx, NULL), 0);
+	asph_config_free(c);
+	unlink(path);
+}
+
+static void test_plugins(void **state)
+{
+	const char *good = getenv("ASPH_TEST_PLUGIN_GOOD");
+	const char *bad = getenv("ASPH_TEST_PLUGIN_BAD_ABI");
+	struct asph_registry *reg;
+	struct asph_error err;
+	struct asph_config *c;
+
+	if (!good || !bad)
+		skip();
+	assert_int_equal(asph_registry_new(&reg, NULL), 0);
+	size_t n0 = asph_registry_count(reg);
+	assert_int_equal(asph_registry_load_plugin(reg, bad, &err), -EPROTO);
+	assert_non_null(strstr(err.message, "ABI 999"));
+	assert_string_equal(err.source, bad);
+	assert_int_equal(asph_registry_count(reg), n0);
+	assert_int_equal(asph_registry_load_plugin(reg, "/nonexistent/x.so", &err), -ENOEXEC);
+	assert_int_equal(asph_registry_load_plugin(reg, good, &err), 0);
+	assert_int_equal(asph_registry_count(reg), n0 + 1);
+	assert_string_equal(asph_registry_origin(reg, n0), good);
+	const struct asph_driver *echo = asph_registry_find(reg, "echo");
+	assert_non_null(echo);
+	assert_int_equal(echo->roles, ASPH_ROLE_PROBE);
+	/* the same plugin twice: a name clash */
+	assert_int_equal(asph_registry_load_plugin(reg, good, &err), -EEXIST);
+
+	/* a probe-only driver can be a probe, not a stage */
+	static const char conf[] =
+		"{\"instruments\": [{\"stage\": {\"driver\": \"mock\"},"
+		" \"probe\": {\"driver\": \"echo\", \"options\": {\"height\": 0.125}}}]}";
+	assert_int_equal(asph_config_parse(reg, conf, strlen(conf), "p.json", &c, &err), 0);
+	struct asph_instrument *inst;
+	assert_int_equal(asph_instrument_open(&c->instruments[0], 1000, &inst, &err), 0);
+	struct asph_reading rd;
+	struct asph_probe_context ctx = { 0 };
+	assert_int_equal(inst->probe_driver->probe->read(inst->probe, &ctx, &rd, 100, &err), 0);
+	assert_true(rd.value == 0.125);
+	asph_instrument_close(inst);
+	asph_config_free(c);
+	assert_int_equal(asph_instrument_spec_parse(reg, "echo", &c, &err), -EINVAL);
+	assert_non_null(strstr(err.message, "cannot be a stage"));
+	asph_registry_free(reg);
+}
+
+static int warnings;
+
+static void count_warning(const struct asph_error *err, void *data)
+{
+	warnings++;
+	assert_int_equal(err->code, -EPROTO);
+}
+
+static void test_plugin_dir(void **state)
+{
+	const char *good = getenv("ASPH_TEST_PLUGIN_GOOD");
+	const char *bad = getenv("ASPH_TEST_PLUGIN_BAD_ABI");
+	char dir[] = "/tmp/asph-test-plugins-XXXXXX", a[128], b[128];
+	struct asph_registry *reg;
+
+	if (!good || !bad)
+		skip();
+	assert_non_null(mkdtemp(dir));
+	snprintf(a, sizeof(a), "%s/echo.so", dir);
+	snprintf(b, sizeof(b), "%s/old.so", dir);
+	assert_int_equal(symlink(good, a), 0);
+	assert_int_equal(symlink(bad, b), 0);
+	assert_int_equal(asph_registry_new(&reg, NULL), 0);
+	warnings = 0;
+	assert_int_equal(asph_registry_load_dir(reg, dir, count_warning, NULL, NULL), 1);
+	assert_int_equal(warnings, 1);
+	assert_non_null(asph_registry_find(reg, "echo"));
+	assert_int_equal(asph_registry_load_dir(reg, "/nonexistent-dir", NULL, NULL, NULL), 0);
+	asph_registry_free(reg);
+	unlink(a);
+	unlink(b);
+	rmdir(dir);
+}
+
+int main(void)
+{
+	const struct CMUnitTest tests[] = {
+		cmocka_unit_test_setup_teardown(test_builtin, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_validate_refuses, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_options, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_spec, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_config_file, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_config_refusals, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_resolve, setup, teardown),
+		cmocka_unit_test(test_plugins),
+		cmocka_unit_test(test_plugin_dir),
+	};
+	return cmocka_run_group_tests(tests, NULL, NULL);
+}

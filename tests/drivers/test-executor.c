@@ -1,0 +1,555 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* The executor with the mock and replay instruments: faults, limits,
+ * pause/resume/abort from another thread, characterization of what the
+ * mock measured, resumption and bit-identical replay. */
+#include <errno.h>
+#include <math.h>
+#include <pthread.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stdatomic.h>
+#include <stddef.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+
+#include "asph/executor.h"
+#include "asph/fit.h"
+#include "asph/plan.h"
+#include "asph/prescription.h"
+
+struct env {
+	struct asph_registry *reg;
+	struct asph_surface *s;
+	struct asph_plan *plan;
+	char dir[64];
+	int n_files;
+};
+
+static int setup(void **state)
+{
+	struct env *e = calloc(1, sizeof(*e));
+	struct asph_prescription p;
+
+	assert_non_null(e);
+	assert_int_equal(asph_registry_new(&e->reg, NULL), 0);
+	assert_int_equal(asph_prescription_preset("strong", &p), 0);
+	assert_int_equal(asph_surface_alloc(&p, &e->s, NULL), 0);
+	struct asph_plan_density d = { ASPH_DENSITY_POINTS, 700 };
+	struct asph_plan_options po = { .flags = ASPH_PLAN_NO_MESH };
+	assert_int_equal(asph_plan_compute_opts(e->s, ASPH_PLAN_FERMAT, d, &po, &e->plan, NULL), 0);
+	snprintf(e->dir, sizeof(e->dir), "/tmp/asph-test-executor-XXXXXX");
+	assert_non_null(mkdtemp(e->dir));
+	*state = e;
+	return 0;
+}
+
+static int teardown(void **state)
+{
+	struct env *e = *state;
+	char path[128];
+
+	for (int i = 0; i < e->n_files; i++) {
+		snprintf(path, sizeof(path), "%s/scan%d.asph", e->dir, i);
+		unlink(path);
+	}
+	rmdir(e->dir);
+	asph_plan_free(e->plan);
+	asph_surface_free(e->s);
+	asph_registry_free(e->reg);
+	free(e);
+	return 0;
+}
+
+static const char *new_path(struct env *e, char *buf, size_t size)
+{
+	snprintf(buf, size, "%s/scan%d.asph", e->dir, e->n_files++);
+	return buf;
+}
+
+static struct asph_scanfile_writer *new_writer(const char *path)
+{
+	struct asph_scanfile_header_info info = { "{\"name\":\"strong\"}", "{\"method\":\"fermat\"}",
+						  "{\"name\":\"mock\"}", NULL };
+	struct asph_scanfile_writer *w;
+	assert_int_equal(asph_scanfile_writer_create(path, &info, NULL, &w, NULL), 0);
+	return w;
+}
+
+/* Runs the whole plan (from start) with the instrument of spec into path. */
+static int scan_with(struct env *e, const struct asph_registry *reg, const char *spec,
+		     const char *path, const struct asph_scan_options *so,
+		     struct asph_error *err)
+{
+	struct asph_config *c;
+	struct asph_instrument *inst;
+	struct asph_scan *sc;
+	struct asph_error oerr;
+
+	if (asph_instrument_spec_parse(reg, spec, &c, &oerr) < 0)
+		fail_msg("%s: %s", spec, oerr.message);
+	if (asph_instrument_open(&c->instruments[0], 1000, &inst, &oerr) < 0)
+		fail_msg("%s: %s", spec, oerr.message);
+	assert_int_equal(asph_scan_new(inst, e->s, e->plan->xyz, e->plan->n, so, &sc, NULL), 0);
+	int r = asph_scan_run(sc, new_writer(path), err);
+	asph_scan_free(sc);
+	asph_instrument_close(inst);
+	asph_config_free(c);
+	return r;
+}
+
+static struct asph_scanfile *read_scan(const char *path)
+{
+	struct asph_scanfile *s;
+	struct asph_error err;
+
+	if (asph_scanfile_read(path, &s, &err) < 0)
+		fail_msg("%s: %s", path, err.message);
+	return s;
+}
+
+/* ------------------------------------------------------------ faults */
+
+struct fault_case {
+	const char *spec;
+	int code;
+	size_t n_points;        /* recorded */
+	const char *words;
+};
+
+static void test_faults(void **state)
+{
+	static const struct fault_case cases[] = {
+		{ "mock:time_factor=0,fail_after=233", -ENODEV, 233, "disconnected after 233" },
+		{ "mock:time_factor=0,timeout_at=171", -ETIMEDOUT, 170, "did not answer reading 171" },
+		{ "mock:time_factor=0,out_of_range_at=97", -ERANGE, 97, "out of range" },
+		{ "mock:time_factor=0,fail_after=233,stream=false", -ENODEV, 233, "plan point 233: probe" },
+		{ "mock:time_factor=0,timeout_at=171,probe=tactile", -ETIMEDOUT, 170, "plan point 170" },
+	};
+	struct env *e = *state;
+	char path[128];
+
+	for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
+		struct asph_scan_options so = { .flags = ASPH_SCAN_STREAM };
+		struct asph_error err;
+		const struct fault_case *fc = &cases[i];
+
+		asph_error_clear(&err);
+		int r = scan_with(e, e->reg, fc->spec, new_path(e, path, sizeof(path)), &so, &err);
+		if (r != fc->code || !strstr(err.message, fc->words))
+			fail_msg("%s: %d %s", fc->spec, r, err.message);
+		struct asph_scanfile *s = read_scan(path);
+		assert_int_equal(s->n, fc->n_points);
+		assert_true(s->report.ended);
+		assert_int_equal(s->report.outcome, ASPH_SCANFILE_FAILED);
+		assert_non_null(strstr(s->report.reason, fc->words));
+		for (size_t k = 0; k < s->n; k++)
+			assert_int_equal(s->points[k].plan_index, k);
+		if (fc->code == -ERANGE)
+			assert_true(s->points[s->n - 1].flags & ASPH_SCANFILE_POINT_OUT_OF_RANGE);
+		asph_scanfile_free(s);
+	}
+}
+
+static void test_skip_out_of_range(void **state)
+{
+	struct env *e = *state;
+	struct asph_scan_options so = { .flags = ASPH_SCAN_SKIP_OUT_OF_RANGE };
+	char path[128];
+
+	assert_int_equal(scan_with(e, e->reg, "mock:time_factor=0,out_of_range_at=55",
+				   new_path(e, path, sizeof(path)), &so, NULL), 0);
+	struct asph_scanfile *s = read_scan(path);
+	assert_int_equal(s->n, e->plan->n);
+	assert_int_equal(s->report.outcome, ASPH_SCANFILE_COMPLETED);
+	assert_true(s->points[54].flags & ASPH_SCANFILE_POINT_OUT_OF_RANGE);
+	assert_false(s->points[55].flags & ASPH_SCANFILE_POINT_OUT_OF_RANGE);
+	asph_scanfile_free(s);
+}
+
+/* ------------------------------------------------ limits, no motion */
+
+/* A stage that counts motion and passes everything to the mock's. */
+static atomic_int n_motions;
+static const struct asph_stage_ops *mock_stage;
+
+static int spy_home(struct asph_device *d, unsigned t, struct asph_error *err)
+{
+	atomic_fetch_add(&n_motions, 1);
+	return mock_stage->home(d, t, err);
+}
+
+static int spy_move(struct asph_device *d, const double *p, unsigned t, struct asph_error *err)
+{
+	atomic_fetch_add(&n_motions, 1);
+	return mock_stage->move_to(d, p, t, err);
+}
+
+static int spy_sweep(struct asph_device *d, const double *p, size_t n, unsigned t,
+		     struct asph_error *err)
+{
+	atomic_fetch_add(&n_motions, 1);
+	return mock_stage->sweep(d, p, n, t, err);
+}
+
+static void test_limits_before_motion(void **state)
+{
+	struct env *e = *state;
+	const struct asph_driver *mock = asph_registry_find(e->reg, "mock");
+	static struct asph_stage_ops spy_ops;
+	static struct asph_driver spy;
+	struct asph_config *c;
+	struct asph_instrument *inst;
+	struct asph_scan *sc;
+	struct asph_error err;
+	char path[128];
+	static const char *const specs[] = {
+		"mock:time_factor=0,travel_xy=12",         /* the strong lens is 40 mm across */
+		"mock:time_factor=0,travel_z=4",           /* its sag at the edge is > 5 mm */
+		"mock:time_factor=0,max_slope=20",         /* steeper than 20 deg near the edge */
+		"mock:time_factor=0,kinematics=r-theta-z,travel_xy=15", /* r up to 20 mm */
+	};
+
+	mock_stage = mock->stage;
+	spy_ops = *mock->stage;
+	spy_ops.home = spy_home;
+	spy_ops.move_to = spy_move;
+	spy_ops.sweep = spy_sweep;
+	spy = *mock;
+	spy.stage = &spy_ops;
+	for (size_t i = 0; i < sizeof(specs) / sizeof(specs[0]); i++) {
+		assert_int_equal(asph_instrument_spec_parse(e->reg, specs[i], &c, NULL), 0);
+		c->instruments[0].stage_driver = &spy;
+		assert_int_equal(asph_instrument_open(&c->instruments[0], 1000, &inst, NULL), 0);
+		assert_int_equal(asph_scan_new(inst, e->s, e->plan->xyz, e->plan->n, NULL, &sc, NULL), 0);
+		atomic_store(&n_motions, 0);
+		asph_error_clear(&err);
+		int r = asph_scan_run(sc, new_writer(new_path(e, path, sizeof(path))), &err);
+		if (r != -ERANGE)
+			fail_msg("%s: %d %s", specs[i], r, err.message);
+		assert_int_equal(atomic_load(&n_motions), 0);
+		assert_non_null(strstr(err.message, "plan point"));
+		struct asph_scanfile *s = read_scan(path);
+		assert_int_equal(s->n, 0);
+		assert_int_equal(s->report.outcome, ASPH_SCANFILE_FAILED);
+		asph_scanfile_free(s);
+		asph_scan_free(sc);
+		asph_instrument_close(inst);
+		asph_config_free(c);
+	}
+}
+
+/* ------------------------------------------ pause, resume, abort */
+
+struct controller {
+	struct asph_scan *sc;
+	uint64_t paused_at, after_pause;
+	enum asph_scan_state paused_state;
+};
+
+static void sleep_ms(int ms)
+{
+	struct timespec ts = { ms / 1000, (long)(ms % 1000) * 1000000L };
+	nanosleep(&ts, NULL);
+}
+
+static uint64_t wait_done(struct asph_scan *sc, uint64_t at_least)
+{
+	struct asph_scan_progress p;
+	for (;;) {
+		asph_scan_get_progress(sc, &p);
+		if (p.done >= at_least || p.state >= ASPH_SCAN_COMPLETED)
+			return p.done;
+		sleep_ms(2);
+	}
+}
+
+static void *control(void *data)
+{
+	struct controller *c = data;
+	struct asph_scan_progress p;
+
+	wait_done(c->sc, 40);
+	asph_scan_pause(c->sc);
+	do {
+		sleep_ms(5);
+		asph_scan_get_progress(c->sc, &p);
+	} while (p.state != ASPH_SCAN_PAUSED);
+	c->paused_at = p.done;
+	c->paused_state = p.state;
+	sleep_ms(150);
+	asph_scan_get_progress(c->sc, &p);
+	c->after_pause = p.done;
+	asph_scan_resume(c->sc);
+	wait_done(c->sc, c->paused_at + 40);
+	asph_scan_abort(c->sc);
+	return NULL;
+}
+
+static void test_pause_resume_abort(void **state)
+{
+	struct env *e = *state;
+	struct asph_config *c;
+	struct asph_instrument *inst;
+	struct asph_scan *sc;
+	struct asph_error err;
+	struct controller ctl = { 0 };
+	pthread_t th;
+	char path[128];
+	/* real time: 2 ms a reading, fast moves; point by point */
+	struct asph_scan_options so = { .progress_interval_ns = 1000000 };
+
+	assert_int_equal(asph_instrument_spec_parse(e->reg, "mock:rate=500,speed=5000", &c, NULL), 0);
+	assert_int_equal(asph_instrument_open(&c->instruments[0], 1000, &inst, NULL), 0);
+	assert_int_equal(asph_scan_new(inst, e->s, e->plan->xyz, e->plan->n, &so, &sc, NULL), 0);
+	ctl.sc = sc;
+	assert_int_equal(pthread_create(&th, NULL, control, &ctl), 0);
+	int r = asph_scan_run(sc, new_writer(new_path(e, path, sizeof(path))), &err);
+	pthread_join(th, NULL);
+	assert_int_equal(r, -ECANCELED);
+	assert_int_equal(ctl.paused_state, ASPH_SCAN_PAUSED);
+	assert_int_equal(ctl.after_pause, ctl.paused_at);
+	struct asph_scan_progress p;
+	asph_scan_get_progress(sc, &p);
+	assert_int_equal(p.state, ASPH_SCAN_ABORTED);
+	assert_true(p.done >= ctl.paused_at + 40 && p.done < e->plan->n);
+	struct asph_scanfile *s = read_scan(path);
+	assert_int_equal(s->report.outcome, ASPH_SCANFILE_ABORTED);
+	/* everything measured is kept: the point in flight when the abort
+	 * came is either complete or not there */
+	assert_true(s->n == p.done || s->n + 1 == p.done);
+	asph_scanfile_free(s);
+	asph_scan_free(sc);
+	asph_instrument_close(inst);
+	asph_config_free(c);
+}
+
+/* -------------------------------------------------- characterization */
+
+static void fit_scan(const struct asph_surface *surf, const char *path,
+		     struct asph_fit_result *res)
+{
+	struct asph_scanfile *s = read_scan(path);
+	struct asph_points *pts;
+	struct asph_fit *w;
+	struct asph_error err;
+	struct asph_fit_options fo = { .dof = ASPH_FIT_DOF_RIGID };
+
+	assert_int_equal(asph_scanfile_to_points(s, 0, &pts, NULL), 0);
+	assert_int_equal(asph_fit_alloc(surf, pts->n, &fo, &w, NULL), 0);
+	if (asph_fit_run(w, pts->xyz, pts->n, res, &err) < 0)
+		fail_msg("fit: %s", err.message);
+	asph_fit_free(w);
+	asph_points_free(pts);
+	asph_scanfile_free(s);
+}
+
+struct recovery_case {
+	const char *spec;
+	unsigned flags;
+	double tol_mm, tol_rad, tol_nm;
+};
+
+static void test_recovery(void **state)
+{
+	/*
+	 * Noise-free misalignment alone: the pose within 1e-9 (the bound of
+	 * characterization); tactile within 1e-7: the tip is compensated along
+	 * the nominal normal, which puts a point off the surface by about
+	 * tip * d^2 / 2, d the angle between the nominal normal and the part's
+	 * (from tilt and, through the curvature, decentring): about 3e-4 rad
+	 * here, 3.4e-8 mm (docs/scanning.md). With a form error the
+	 * rigid fit also sees the form error's projection on the pose (the
+	 * plan's points are not exactly orthogonal to it): the Zernike terms
+	 * within 0.01 nm, and within 1 nm with 2 nm noise.
+	 */
+	static const struct recovery_case cases[] = {
+		{ "mock:time_factor=0,shift_x=0.0371,shift_y=-0.0213,shift_z=0.0119,"
+		  "tilt_x=231.7,tilt_y=-148.3", ASPH_SCAN_STREAM, 1e-9, 1e-9, 0.01 },
+		{ "mock:time_factor=0,probe=tactile,tip_radius=0.75,kinematics=r-theta-z,"
+		  "shift_x=-0.00291,shift_y=0.00407,shift_z=-0.0087,tilt_x=-57.9,tilt_y=36.1",
+		  0, 1e-7, 1e-7, 0.05 },
+		{ "mock:time_factor=0,shift_x=0.0371,shift_y=-0.0213,shift_z=0.0119,"
+		  "tilt_x=231.7,tilt_y=-148.3,form=5:41.3;9:-23.7;12:17.9",
+		  ASPH_SCAN_STREAM, 2e-5, 2e-6, 0.01 },
+		{ "mock:time_factor=0,probe=tactile,tip_radius=0.75,kinematics=r-theta-z,"
+		  "shift_x=-0.00291,shift_y=0.00407,shift_z=-0.0087,tilt_x=-57.9,tilt_y=36.1,"
+		  "form=5:41.3;9:-23.7;12:17.9", 0, 2e-5, 2e-6, 0.05 },
+		{ "mock:time_factor=0,shift_x=0.0371,tilt_y=-148.3,form=6:-63.1;10:12.2,noise=2,seed=4242",
+		  ASPH_SCAN_STREAM, 2e-5, 2e-6, 1.0 },
+	};
+	static const double shift[][3] = {
+		{ 0.0371, -0.0213, 0.0119 }, { -0.00291, 0.00407, -0.0087 },
+		{ 0.0371, -0.0213, 0.0119 }, { -0.00291, 0.00407, -0.0087 }, { 0.0371, 0, 0 } };
+	static const double tilt[][2] = {
+		{ 231.7, -148.3 }, { -57.9, 36.1 }, { 231.7, -148.3 }, { -57.9, 36.1 }, { 0, -148.3 } };
+	static const struct { int j; double nm; } form[][3] = {
+		{ { 0, 0 } }, { { 0, 0 } },
+		{ { 5, 41.3 }, { 9, -23.7 }, { 12, 17.9 } },
+		{ { 5, 41.3 }, { 9, -23.7 }, { 12, 17.9 } },
+		{ { 6, -63.1 }, { 10, 12.2 }, { 0, 0 } },
+	};
+	struct env *e = *state;
+	char path[128];
+
+	for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
+		struct asph_scan_options so = { .flags = cases[i].flags };
+		struct asph_fit_result res;
+		struct asph_error err;
+
+		if (scan_with(e, e->reg, cases[i].spec, new_path(e, path, sizeof(path)), &so, &err) < 0)
+			fail_msg("%s: %s", cases[i].spec, err.message);
+		fit_scan(e->s, path, &res);
+		for (int k = 0; k < 3; k++)
+			if (fabs(res.value[ASPH_FIT_TX + k] - shift[i][k]) > cases[i].tol_mm)
+				fail_msg("case %zu: t%d %.12g vs %.12g", i, k, res.value[ASPH_FIT_TX + k],
+					 shift[i][k]);
+		for (int k = 0; k < 2; k++)
+			if (fabs(res.value[ASPH_FIT_RX + k] - tilt[i][k] * 1e-6) > cases[i].tol_rad)
+				fail_msg("case %zu: r%d %.12g vs %.12g", i, k, res.value[ASPH_FIT_RX + k],
+					 tilt[i][k] * 1e-6);
+		for (int k = 0; k < 3 && form[i][k].j; k++) {
+			double got = res.zernike[form[i][k].j - 1].v;
+			if (fabs(got - form[i][k].nm) > cases[i].tol_nm)
+				fail_msg("case %zu: Z%d %.6f nm vs %.6f nm", i, form[i][k].j, got,
+					 form[i][k].nm);
+		}
+		if (!form[i][0].j && !(res.rms.v < 0.01))
+			fail_msg("case %zu: residual RMS %.6f nm", i, res.rms.v);
+	}
+}
+
+/* ------------------------------------------------ resume and replay */
+
+static void assert_same_points(const struct asph_scanfile *a, const struct asph_scanfile *b)
+{
+	assert_int_equal(a->n, b->n);
+	for (size_t i = 0; i < a->n; i++) {
+		const struct asph_scanfile_point *p = &a->points[i], *q = &b->points[i];
+		assert_int_equal(p->plan_index, q->plan_index);
+		assert_int_equal(p->flags, q->flags);
+		assert_memory_equal(&p->x, &q->x, sizeof(double));
+		assert_memory_equal(&p->y, &q->y, sizeof(double));
+		assert_memory_equal(&p->z, &q->z, sizeof(double));
+		assert_memory_equal(&p->raw, &q->raw, sizeof(double));
+	}
+}
+
+static void test_resume(void **state)
+{
+	struct env *e = *state;
+	char whole[128], cut[128];
+	struct asph_scan_options so = { .flags = ASPH_SCAN_STREAM, .stream_batch = 64 };
+	const char *base = "mock:time_factor=0,tilt_x=77.7,form=8:-19.5,noise=1.5,seed=909";
+	char faulty[160];
+
+	assert_int_equal(scan_with(e, e->reg, base, new_path(e, whole, sizeof(whole)), &so, NULL), 0);
+	snprintf(faulty, sizeof(faulty), "%s,fail_after=301", base);
+	assert_int_equal(scan_with(e, e->reg, faulty, new_path(e, cut, sizeof(cut)), &so, NULL),
+			 -ENODEV);
+
+	/* continue from the last recorded point with a fresh instrument: the
+	 * noise of a point depends on its plan index, not on the readings
+	 * taken before, so the result equals the uninterrupted scan */
+	struct asph_scanfile_writer_options wo = { .flags = ASPH_SCANFILE_REOPEN_ENDED };
+	struct asph_scanfile *rec;
+	struct asph_scanfile_writer *w;
+	assert_int_equal(asph_scanfile_writer_resume(cut, &wo, &rec, &w, NULL), 0);
+	uint64_t start = rec->points[rec->n - 1].plan_index + 1;
+	assert_int_equal(start, 301);
+	asph_scanfile_free(rec);
+	struct asph_config *c;
+	struct asph_instrument *inst;
+	struct asph_scan *sc;
+	assert_int_equal(asph_instrument_spec_parse(e->reg, base, &c, NULL), 0);
+	assert_int_equal(asph_instrument_open(&c->instruments[0], 1000, &inst, NULL), 0);
+	so.start_index = start;
+	assert_int_equal(asph_scan_new(inst, e->s, e->plan->xyz, e->plan->n, &so, &sc, NULL), 0);
+	assert_int_equal(asph_scan_run(sc, w, NULL), 0);
+	asph_scan_free(sc);
+	asph_instrument_close(inst);
+	asph_config_free(c);
+
+	struct asph_scanfile *a = read_scan(whole), *b = read_scan(cut);
+	assert_int_equal(b->report.outcome, ASPH_SCANFILE_COMPLETED);
+	assert_int_equal(b->report.n_resumes, 1);
+	assert_same_points(a, b);
+	asph_scanfile_free(a);
+	asph_scanfile_free(b);
+}
+
+static void test_replay_identical(void **state)
+{
+	struct env *e = *state;
+	char orig[128], again[128], again2[128], spec[200];
+	struct asph_scan_options stream = { .flags = ASPH_SCAN_STREAM };
+	struct asph_scan_options points = { 0 };
+
+	assert_int_equal(scan_with(e, e->reg,
+				   "mock:time_factor=0,probe=tactile,tip_radius=1.25,tilt_y=311,noise=3,seed=77",
+				   new_path(e, orig, sizeof(orig)), &points, NULL), 0);
+	snprintf(spec, sizeof(spec), "replay:file=%s", orig);
+	assert_int_equal(scan_with(e, e->reg, spec, new_path(e, again, sizeof(again)), &stream, NULL), 0);
+	assert_int_equal(scan_with(e, e->reg, spec, new_path(e, again2, sizeof(again2)), &points, NULL), 0);
+	struct asph_scanfile *a = read_scan(orig), *b = read_scan(again), *c = read_scan(again2);
+	assert_true(a->points[0].flags & ASPH_SCANFILE_POINT_TIP_COMPENSATED);
+	assert_same_points(a, b);
+	assert_same_points(a, c);
+	asph_scanfile_free(a);
+	asph_scanfile_free(b);
+	asph_scanfile_free(c);
+
+	/* a plan the recording does not cover */
+	struct asph_error err;
+	struct asph_plan *bigger;
+	struct asph_plan_density d = { ASPH_DENSITY_POINTS, 900 };
+	assert_int_equal(asph_plan_compute(e->s, ASPH_PLAN_FERMAT, d, 0, &bigger, NULL), 0);
+	struct asph_plan *keep = e->plan;
+	e->plan = bigger;
+	assert_int_equal(scan_with(e, e->reg, spec, new_path(e, again, sizeof(again)), &points, &err),
+			 -ENODATA);
+	assert_non_null(strstr(err.message, "no point for plan point"));
+	e->plan = keep;
+	asph_plan_free(bigger);
+}
+
+static void test_tip_on_surface(void **state)
+{
+	struct env *e = *state;
+	char path[128];
+
+	/* nominal part, tactile, rotary: compensated points lie on the surface */
+	assert_int_equal(scan_with(e, e->reg,
+				   "mock:time_factor=0,probe=tactile,tip_radius=2.5,kinematics=r-theta-z",
+				   new_path(e, path, sizeof(path)), NULL, NULL), 0);
+	struct asph_scanfile *s = read_scan(path);
+	assert_int_equal(s->n, e->plan->n);
+	for (size_t i = 0; i < s->n; i++) {
+		const struct asph_scanfile_point *p = &s->points[i];
+		double z = asph_surface_sag(e->s, hypot(p->x, p->y));
+		if (fabs(p->z - z) > 1e-9 || !(p->flags & ASPH_SCANFILE_POINT_TIP_COMPENSATED))
+			fail_msg("point %zu: z %.12f, surface %.12f", i, p->z, z);
+		/* and where the plan wanted them */
+		assert_true(fabs(p->x - e->plan->xyz[3 * p->plan_index]) < 1e-9);
+	}
+	asph_scanfile_free(s);
+}
+
+int main(void)
+{
+	const struct CMUnitTest tests[] = {
+		cmocka_unit_test(test_faults),
+		cmocka_unit_test(test_skip_out_of_range),
+		cmocka_unit_test(test_limits_before_motion),
+		cmocka_unit_test(test_pause_resume_abort),
+		cmocka_unit_test(test_recovery),
+		cmocka_unit_test(test_tip_on_surface),
+		cmocka_unit_test(test_resume),
+		cmocka_unit_test(test_replay_identical),
+	};
+	return cmocka_run_group_tests(tests, setup, teardown);
+}

@@ -1,0 +1,215 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Runs the real asphd on a temporary socket and state directory, with a
+raw JSON-RPC client and asphctl (python3 stdlib only)."""
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+
+ASPHD = os.environ.get("ASPHD_BIN", "asphd")
+ASPHCTL = os.environ.get("ASPHCTL_BIN", "asphctl")
+
+failures = 0
+
+
+def expect(cond, what):
+    global failures
+    if cond:
+        print(f"ok - {what}")
+    else:
+        failures += 1
+        print(f"not ok - {what}")
+    sys.stdout.flush()
+
+
+def finish():
+    print(f"{'FAIL' if failures else 'PASS'}: {failures} failure(s)")
+    sys.exit(1 if failures else 0)
+
+
+def mock_instrument(name="mock", time_factor=0.02, **probe):
+    """An instrument entry for the configuration: the mock with its time
+    scaled (time_factor 0.02 measures about a thousand points a second)."""
+    stage = {"time_factor": time_factor}
+    probe = dict({"time_factor": time_factor}, **probe)
+    return {"name": name, "stage": {"driver": "mock", "options": stage},
+            "probe": {"driver": "mock", "options": probe}}
+
+
+class Daemon:
+    """asphd with its own directory; stop() or kill() it, start() again."""
+
+    def __init__(self, instruments=None, extra=None, top=None):
+        self.top = top or tempfile.mkdtemp(prefix="asphd-test-")
+        os.chmod(self.top, 0o755)
+        self.socket = os.path.join(self.top, "run", "asphd.sock")
+        self.state = os.path.join(self.top, "state")
+        self.config = os.path.join(self.top, "asphd.conf")
+        self.log = os.path.join(self.top, "asphd.log")
+        os.makedirs(os.path.dirname(self.socket), exist_ok=True)
+        os.chmod(os.path.dirname(self.socket), 0o755)
+        cfg = {"instruments": instruments or [mock_instrument()]}
+        cfg.update(extra or {})
+        with open(self.config, "w") as f:
+            json.dump(cfg, f, indent=1)
+        self.proc = None
+
+    def start(self, wait=True):
+        logf = open(self.log, "a")
+        self.proc = subprocess.Popen([ASPHD, "--config", self.config, "--socket", self.socket,
+                                      "--state-dir", self.state],
+                                     stdout=logf, stderr=logf, stdin=subprocess.DEVNULL)
+        logf.close()
+        if wait:
+            deadline = time.time() + 20
+            while time.time() < deadline:
+                if self.proc.poll() is not None:
+                    raise RuntimeError(f"asphd exited with {self.proc.returncode}:\n{self.log_text()}")
+                try:
+                    Client(self.socket).close()
+                    return self
+                except OSError:
+                    time.sleep(0.02)
+            raise RuntimeError("asphd did not start listening")
+        return self
+
+    def stop(self):
+        if self.proc and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        rc = self.proc.returncode if self.proc else None
+        self.proc = None
+        return rc
+
+    def kill(self):
+        self.proc.send_signal(signal.SIGKILL)
+        self.proc.wait()
+        self.proc = None
+
+    def log_text(self):
+        try:
+            with open(self.log) as f:
+                return f.read()
+        except OSError:
+            return ""
+
+    def cleanup(self):
+        if self.proc:
+            self.stop()
+        shutil.rmtree(self.top, ignore_errors=True)
+
+    def ctl(self, *args, check=None, timeout=120, user=None):
+        """Runs asphctl; returns (exit code, stdout, stderr)."""
+        p = subprocess.run([ASPHCTL, "--socket", self.socket, *map(str, args)],
+                           capture_output=True, text=True, timeout=timeout)
+        if check is not None and p.returncode != check:
+            raise AssertionError(f"asphctl {' '.join(map(str, args))}: exit {p.returncode}, "
+                                 f"wanted {check}\n{p.stdout}\n{p.stderr}")
+        return p.returncode, p.stdout, p.stderr
+
+    def ctl_json(self, *args):
+        _, out, _ = self.ctl("--json", *args, check=0)
+        return json.loads(out)
+
+
+class RpcError(Exception):
+    def __init__(self, error):
+        super().__init__(f"{error.get('code')}: {error.get('message')} {error.get('data')}")
+        self.code = error.get("code")
+        self.error = error
+
+
+class Client:
+    """A raw JSON-RPC client: one JSON text per line."""
+
+    def __init__(self, path, timeout=60):
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.sock.settimeout(timeout)
+        self.sock.connect(path)
+        self.buf = b""
+        self.next_id = 0
+        self.events = []
+
+    def close(self):
+        self.sock.close()
+
+    def send_raw(self, data):
+        self.sock.sendall(data)
+
+    def read_message(self):
+        while b"\n" not in self.buf:
+            chunk = self.sock.recv(65536)
+            if not chunk:
+                raise EOFError("the daemon closed the connection")
+            self.buf += chunk
+        line, self.buf = self.buf.split(b"\n", 1)
+        return json.loads(line)
+
+    def request(self, method, params=None):
+        self.next_id += 1
+        msg = {"jsonrpc": "2.0", "id": self.next_id, "method": method}
+        if params is not None:
+            msg["params"] = params
+        self.send_raw(json.dumps(msg).encode() + b"\n")
+        return self.next_id
+
+    def response(self, rid):
+        while True:
+            m = self.read_message()
+            if "method" in m:
+                self.events.append(m)
+                continue
+            if m.get("id") == rid:
+                return m
+
+    def call(self, method, params=None):
+        m = self.response(self.request(method, params))
+        if "error" in m:
+            raise RpcError(m["error"])
+        return m["result"]
+
+    def call_error(self, method, params=None):
+        """The error code of a call that must fail."""
+        m = self.response(self.request(method, params))
+        return m.get("error", {}).get("code")
+
+    def next_event(self):
+        if self.events:
+            return self.events.pop(0)
+        while True:
+            m = self.read_message()
+            if "method" in m:
+                return m
+
+    def wait_state(self, job, states, timeout=120):
+        """Waits for a job.state event of job into one of states (a
+        subscription to job events must be active)."""
+        deadline = time.time() + timeout
+        st = self.call("job.get", {"id": job})["state"]
+        if st in states:
+            return st
+        while time.time() < deadline:
+            ev = self.next_event()
+            p = ev.get("params", {})
+            if ev["method"] == "job.state" and p.get("job") == job and p["state"] in states:
+                return p["state"]
+        raise TimeoutError(f"job {job} did not reach {states}")
+
+
+def poll_state(client, job, states, timeout=120):
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        j = client.call("job.get", {"id": job})
+        if j["state"] in states:
+            return j
+        time.sleep(0.05)
+    raise TimeoutError(f"job {job} did not reach {states}")

@@ -1,0 +1,112 @@
+#!/usr/bin/env python3
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""A daemon killed with SIGKILL during a scan comes back with the job
+interrupted; resumed, the job's result equals an uninterrupted run's. The
+same after SIGTERM (a clean stop at a safe point), and a restart of an
+interrupted job records a new scan and keeps the old one."""
+import os
+import time
+
+from daemontest import Client, Daemon, expect, finish, mock_instrument, poll_state
+
+# A shifted part with astigmatism (orthogonal to the shift: coma would
+# trade off against it) and no noise, so that every run
+# measures the same numbers.
+PART = {"shift_x": 0.009, "shift_y": -0.004, "form": "5:35;6:-20"}
+SPEC = {"lens": "strong", "plan": {"method": "ci", "h": 0.03}}
+
+
+def wait_points(c, job, fraction):
+    deadline = time.time() + 60
+    while time.time() < deadline:
+        p = c.call("job.get", {"id": job})["progress"]
+        if p["total"] and p["done"] >= fraction * p["total"]:
+            return p["done"]
+        time.sleep(0.02)
+    raise TimeoutError("the scan did not progress")
+
+
+def same_summary(a, b):
+    for k in ("n_points", "n_used"):
+        if a[k] != b[k]:
+            return f"{k}: {a[k]} != {b[k]}"
+    for dof, x in a["dof"].items():
+        y = b["dof"][dof]
+        if abs(x - y) > 1e-12 + 1e-9 * abs(x):
+            return f"{dof}: {x} != {y}"
+    for k in ("rms_nm", "pv_nm"):
+        if abs(a[k] - b[k]) > 1e-9 * abs(a[k]):
+            return f"{k}: {a[k]} != {b[k]}"
+    return None
+
+
+d = Daemon(instruments=[mock_instrument(**PART)])
+try:
+    d.start()
+    c = Client(d.socket)
+    ref = c.call("job.submit", SPEC)["id"]
+    poll_state(c, ref, ["completed", "failed"])
+    ref_res = c.call("job.result", {"id": ref})
+    tx = ref_res["summary"]["dof"]["tx"]
+    expect(abs(tx - 0.009) < 1e-5, f"the reference run finds the shift ({tx})")
+
+    # --- SIGKILL in the middle of a scan
+    job = c.call("job.submit", SPEC)["id"]
+    wait_points(c, job, 0.4)
+    c.close()
+    d.kill()
+    d.start()
+    c = Client(d.socket)
+    j = c.call("job.get", {"id": job})
+    expect(j["state"] == "interrupted" and j["resumable"], "after SIGKILL the job is interrupted and resumable")
+    expect("stopped" in (j["reason"] or ""), f"with a reason ({j['reason']})")
+    expect(c.call("daemon.status")["jobs"]["interrupted"] == 1, "daemon.status counts it")
+    r = c.call("job.resume", {"id": job})
+    expect(r["state"] == "queued", "job.resume queues an interrupted job")
+    j = poll_state(c, job, ["completed", "failed"])
+    expect(j["state"] == "completed", "the resumed job completes")
+    res = c.call("job.result", {"id": job})
+    diff = same_summary(ref_res["summary"], res["summary"])
+    expect(diff is None, f"the resumed result equals the uninterrupted one ({diff})")
+    expect(res["provenance"]["scan"]["resumes"] == 1, "the scan records one resumption")
+    expect(res["provenance"]["scan"]["points"] == ref_res["provenance"]["scan"]["points"],
+           "no point measured twice or lost")
+
+    # --- SIGTERM: the scan stops at a safe point, the daemon exits 0
+    job2 = c.call("job.submit", SPEC)["id"]
+    wait_points(c, job2, 0.3)
+    c.close()
+    expect(d.stop() == 0, "SIGTERM during a scan: exit 0")
+    expect("stopping the scan for shutdown" in d.log_text(), "the log says the scan was stopped")
+    d.start()
+    c = Client(d.socket)
+    expect(c.call("job.get", {"id": job2})["state"] == "interrupted", "after SIGTERM: interrupted")
+    c.call("job.resume", {"id": job2})
+    poll_state(c, job2, ["completed", "failed"])
+    diff = same_summary(ref_res["summary"], c.call("job.result", {"id": job2})["summary"])
+    expect(diff is None, f"resumed after SIGTERM: equal result ({diff})")
+
+    # --- restart instead of resume
+    job3 = c.call("job.submit", SPEC)["id"]
+    wait_points(c, job3, 0.2)
+    c.close()
+    d.kill()
+    d.start()
+    c = Client(d.socket)
+    r = c.call("job.requeue", {"id": job3, "restart": True})
+    expect(r["state"] == "queued" and not r["resumable"], "job.requeue restart: a new scan")
+    poll_state(c, job3, ["completed", "failed"])
+    res3 = c.call("job.result", {"id": job3})
+    expect(res3["provenance"]["scan"]["resumes"] == 0, "the restarted scan was not resumed")
+    expect(os.path.exists(os.path.join(res3["dir"], "scan-attempt1.asphscan")),
+           "the interrupted attempt's recording is kept")
+    diff = same_summary(ref_res["summary"], res3["summary"])
+    expect(diff is None, f"restarted: equal result ({diff})")
+    c.close()
+    expect(d.stop() == 0, "clean stop")
+except Exception:
+    print(d.log_text())
+    raise
+finally:
+    d.cleanup()
+finish()

@@ -1,0 +1,103 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* asph drivers: every instrument driver with its roles and options. */
+#include <getopt.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "acquire-tool.h"
+#include "asph-tool.h"
+#include "util-mem.h"
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_registry *, asph_registry_free)
+
+static int print_json(const struct asph_registry *reg)
+{
+	_cleanup_free_ char *text = NULL;
+
+	if (asph_registry_to_json(reg, true, &text) < 0) {
+		fprintf(stderr, "asph drivers: out of memory\n");
+		return EXIT_FAILURE_RUN;
+	}
+	printf("%s\n", text);
+	return EXIT_OK;
+}
+
+static void print_option(const struct asph_option_desc *o)
+{
+	char range[96] = "", dflt[80];
+
+	if (o->ranged)
+		snprintf(range, sizeof(range), " [%.10g .. %.10g]", o->min, o->max);
+	if (o->choices) {
+		size_t used = snprintf(range, sizeof(range), " {");
+		for (size_t i = 0; o->choices[i] && used < sizeof(range); i++)
+			used += snprintf(range + used, sizeof(range) - used, "%s%s", i ? "|" : "",
+					 o->choices[i]);
+		if (used < sizeof(range))
+			snprintf(range + used, sizeof(range) - used, "}");
+	}
+	snprintf(dflt, sizeof(dflt), "%s%s%s", *o->default_value ? o->default_value : "\"\"",
+		 o->unit ? " " : "", o->unit ? o->unit : "");
+	printf("    %-16s %-7s default %s%s\n", o->name, asph_option_type_name(o->type), dflt, range);
+	printf("    %-16s %s\n", "", o->help);
+}
+
+static void print_text(const struct asph_registry *reg)
+{
+	printf("Driver ABI %d\n", ASPH_DRIVER_ABI_VERSION);
+	for (size_t i = 0; i < asph_registry_count(reg); i++) {
+		const struct asph_driver *d = asph_registry_get(reg, i);
+		printf("\n%s %s (%s%s%s), %s\n", d->name, d->version ? d->version : "",
+		       d->roles & ASPH_ROLE_STAGE ? "stage" : "",
+		       (d->roles & ASPH_ROLE_STAGE) && (d->roles & ASPH_ROLE_PROBE) ? ", " : "",
+		       d->roles & ASPH_ROLE_PROBE ? "probe" : "", asph_registry_origin(reg, i));
+		if (d->description)
+			printf("  %s\n", d->description);
+		if (d->n_options)
+			printf("  Options:\n");
+		for (size_t k = 0; k < d->n_options; k++)
+			print_option(&d->options[k]);
+	}
+}
+
+static void usage(FILE *out)
+{
+	fprintf(out, "Usage: asph drivers [--json] [--plugin-dir DIR]\n\n"
+		     "Lists the instrument drivers (built in and plugins) with their roles and options.\n"
+		     "  --json             one JSON object\n"
+		     "  --plugin-dir DIR   load plugins from DIR instead of $ASPH_DRIVER_PATH or the\n"
+		     "                     installed plugin directory\n");
+}
+
+int cmd_drivers(int argc, char **argv)
+{
+	static const struct option long_opts[] = {
+		{ "json", no_argument, NULL, 'j' },
+		{ "plugin-dir", required_argument, NULL, 'P' },
+		{ "help", no_argument, NULL, 'h' },
+		{ NULL, 0, NULL, 0 },
+	};
+	_cleanup_(asph_registry_freep) struct asph_registry *reg = NULL;
+	const char *plugin_dir = NULL;
+	bool json = false;
+	int c;
+
+	while ((c = getopt_long(argc, argv, "h", long_opts, NULL)) != -1) {
+		switch (c) {
+		case 'j': json = true; break;
+		case 'P': plugin_dir = optarg; break;
+		case 'h': usage(stdout); return EXIT_OK;
+		default: usage(stderr); return EXIT_USAGE;
+		}
+	}
+	if (optind != argc) {
+		fprintf(stderr, "asph drivers: unexpected argument '%s'\n", argv[optind]);
+		return EXIT_USAGE;
+	}
+	if (tool_registry_new(plugin_dir, &reg) < 0)
+		return EXIT_FAILURE_RUN;
+	if (json)
+		return print_json(reg);
+	print_text(reg);
+	return EXIT_OK;
+}

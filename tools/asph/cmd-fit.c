@@ -1,0 +1,294 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* asph fit: best fit of measured points to the nominal surface. */
+#include <errno.h>
+#include <getopt.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <jansson.h>
+
+#include "asph/fit.h"
+#include "asph/plot.h"
+#include "asph/points.h"
+#include "asph-tool.h"
+#include "fit-json.h"
+#include "util-mem.h"
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_surface *, asph_surface_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_fit *, asph_fit_free)
+
+enum {
+	OPT_DOF = 0x100,
+	OPT_RESIDUAL,
+	OPT_ROBUST,
+	OPT_JSON,
+	OPT_RESIDUALS,
+	OPT_MAP,
+	OPT_ZERNIKE,
+};
+
+struct fit_cli {
+	const char *lens, *points, *residuals_out, *map_out;
+	struct asph_fit_options opts;
+	int json;
+};
+
+static void usage(FILE *out)
+{
+	fprintf(out,
+		"Usage: asph fit LENS POINTS_FILE [OPTIONS]\n\n"
+		"Best fit of measured points (mm, machine frame) to the nominal surface of LENS:\n"
+		"Levenberg-Marquardt on the residuals over the chosen degrees of freedom, then\n"
+		"the form error that remains (RMS, PV, PVr, slope, Zernike terms).\n"
+		"docs/characterization.md states the conventions.\n\n"
+		"LENS is a preset (weak, strong, turning-point) or a prescription file.\n"
+		"POINTS_FILE is .csv (header x,y,z), .ply or .json; '-' reads CSV from stdin.\n\n"
+		"  --dof LIST          degrees of freedom, from tx,ty,tz (mm), rx,ry (rad), R (mm),\n"
+		"                      k (default tx,ty,tz,rx,ry)\n"
+		"  --residual KIND     normal (default: distance along the surface normal) or sag\n"
+		"                      (z minus the sag)\n"
+		"  --robust            down-weight outliers (Tukey biweight) and leave them out\n"
+		"  --zernike N         Zernike terms of the decomposition (default 36, max %d)\n"
+		"  --residuals OUT     write x,y,z,residual_nm of the points fitted (.csv or .ply,\n"
+		"                      PLY coloured by residual)\n"
+		"  --map OUT.png       residual map with a colour bar in nm\n"
+		"  --json              one JSON object (n_points, dof, uncertainty, iterations,\n"
+		"                      converged, rms_nm, pv_nm, pvr_nm, slope_rms_urad, zernike_nm...)\n"
+		"  -h, --help          this text\n",
+		ASPH_FIT_MAX_ZERNIKE);
+}
+
+static int parse_int(const char *arg, const char *name, int lo, int hi, int *out)
+{
+	char *end;
+	long v;
+
+	errno = 0;
+	v = strtol(arg, &end, 10);
+	if (errno || end == arg || *end || v < lo || v > hi) {
+		fprintf(stderr, "asph fit: --%s: '%s' is not a whole number in %d..%d\n",
+			name, arg, lo, hi);
+		return -1;
+	}
+	*out = (int)v;
+	return 0;
+}
+
+/* 0 taken, -1 bad value (message printed). */
+static int take_option(struct fit_cli *c, int opt, const char *arg)
+{
+	struct asph_error err;
+
+	switch (opt) {
+	case OPT_DOF:
+		asph_error_clear(&err);
+		if (asph_fit_dof_parse(arg, &c->opts.dof, &err) < 0) {
+			tool_print_error("fit: --dof", &err);
+			return -1;
+		}
+		return 0;
+	case OPT_RESIDUAL:
+		if (asph_fit_residual_from_name(arg, &c->opts.residual) < 0) {
+			fprintf(stderr, "asph fit: --residual: '%s' is not normal or sag\n", arg);
+			return -1;
+		}
+		return 0;
+	case OPT_ROBUST:
+		c->opts.robust = 1;
+		return 0;
+	case OPT_JSON:
+		c->json = 1;
+		return 0;
+	case OPT_RESIDUALS:
+		c->residuals_out = arg;
+		return 0;
+	case OPT_MAP:
+		c->map_out = arg;
+		return 0;
+	case OPT_ZERNIKE:
+		return parse_int(arg, "zernike", 1, ASPH_FIT_MAX_ZERNIKE, &c->opts.n_zernike);
+	default:
+		return -1;
+	}
+}
+
+/* EXIT_OK, or the exit code to leave with; -1 for --help. */
+static int parse_args(struct fit_cli *c, int argc, char **argv)
+{
+	static const struct option longopts[] = {
+		{ "dof", required_argument, NULL, OPT_DOF },
+		{ "residual", required_argument, NULL, OPT_RESIDUAL },
+		{ "robust", no_argument, NULL, OPT_ROBUST },
+		{ "json", no_argument, NULL, OPT_JSON },
+		{ "residuals", required_argument, NULL, OPT_RESIDUALS },
+		{ "map", required_argument, NULL, OPT_MAP },
+		{ "zernike", required_argument, NULL, OPT_ZERNIKE },
+		{ "help", no_argument, NULL, 'h' },
+		{ NULL, 0, NULL, 0 },
+	};
+	int opt;
+
+	/* getopt permutes: options may also follow LENS and POINTS_FILE. */
+	optind = 0;
+	while ((opt = getopt_long(argc, argv, "h", longopts, NULL)) != -1) {
+		if (opt == 'h') {
+			usage(stdout);
+			return -1;
+		}
+		if (opt == '?' || take_option(c, opt, optarg) < 0)
+			return EXIT_USAGE;
+	}
+	if (argc - optind != 2) {
+		fprintf(stderr, "asph fit: need LENS and POINTS_FILE (see --help)\n");
+		return EXIT_USAGE;
+	}
+	c->lens = argv[optind];
+	c->points = argv[optind + 1];
+	return EXIT_OK;
+}
+
+static int show_json(const struct fit_cli *c, const struct asph_surface *s,
+		     const struct asph_fit_result *r)
+{
+	_cleanup_(json_decrefp) json_t *root =
+		fit_result_json(r, asph_surface_prescription(s)->name, c->opts.robust);
+
+	if (!root) {
+		fprintf(stderr, "asph fit: out of memory\n");
+		return EXIT_FAILURE_RUN;
+	}
+	json_dumpf(root, stdout, JSON_INDENT(2) | JSON_PRESERVE_ORDER | JSON_REAL_PRECISION(17));
+	fputc('\n', stdout);
+	return EXIT_OK;
+}
+
+static void show_text(const struct fit_cli *c, const struct asph_surface *s,
+		      const struct asph_fit_result *r)
+{
+	printf("Fit of %zu points to %s (%s residual%s)\n", r->n_points,
+	       asph_surface_prescription(s)->name, asph_fit_residual_name(r->residual),
+	       c->opts.robust ? ", robust" : "");
+	for (int d = 0; d < ASPH_FIT_N_DOF; d++) {
+		const char *unit = d < ASPH_FIT_RX || d == ASPH_FIT_R ? "mm " : d == ASPH_FIT_K ? "   " : "rad";
+		if (r->dof & ASPH_FIT_DOF_BIT(d))
+			printf("  %-3s %+.12f %s  +- %.3g\n", asph_fit_dof_name((enum asph_fit_dof)d),
+			       r->value[d], unit, r->uncertainty[d]);
+	}
+	printf("%s after %d iterations in %d pass%s: %s\n",
+	       r->converged ? "Converged" : "NOT converged", r->iterations, r->passes,
+	       r->passes == 1 ? "" : "es", r->reason);
+	printf("Points used %zu, outside the aperture %zu, outliers %zu\n", r->n_used,
+	       r->n_outside_aperture, r->n_outliers);
+	printf("Residual RMS %.4f nm, PV %.4f nm, PVr %.4f nm, slope RMS %.4f urad\n",
+	       r->rms.v, r->pv.v, r->pvr.v, r->slope_rms.v);
+	if (r->n_zernike == 0) {
+		printf("Too few points for the Zernike decomposition (PVr and slope need it)\n");
+		return;
+	}
+	printf("Zernike terms of the residual (Noll, nm; Z1-Z3 are taken by the rigid DOF):\n");
+	for (int j = 0; j < r->n_zernike; j++)
+		printf("  Z%-2d %+10.4f%s", j + 1, r->zernike[j].v, (j + 1) % 4 == 0 ? "\n" : "");
+	if (r->n_zernike % 4)
+		printf("\n");
+}
+
+/* The points fitted (outliers included, points outside the aperture not)
+ * with their residual in nm. */
+static int residual_points(const struct asph_points *pts, const struct asph_fit *w,
+			   int with_outliers, struct asph_points **out)
+{
+	const uint8_t *st = asph_fit_point_status(w);
+	const double *res = asph_fit_residuals(w);
+	struct asph_points *p;
+	size_t m = 0;
+
+	for (size_t i = 0; i < pts->n; i++)
+		m += st[i] == ASPH_FIT_POINT_USED || (with_outliers && st[i] == ASPH_FIT_POINT_OUTLIER);
+	p = asph_points_alloc(m);
+	if (!p || asph_points_add_value(p, "residual_nm") < 0) {
+		asph_points_free(p);
+		return -ENOMEM;
+	}
+	m = 0;
+	for (size_t i = 0; i < pts->n; i++) {
+		if (!(st[i] == ASPH_FIT_POINT_USED || (with_outliers && st[i] == ASPH_FIT_POINT_OUTLIER)))
+			continue;
+		memcpy(p->xyz + 3 * m, pts->xyz + 3 * i, 3 * sizeof(double));
+		p->value[m++] = asph_nm_from_mm(res[i]).v;
+	}
+	*out = p;
+	return 0;
+}
+
+static int write_outputs(const struct fit_cli *c, const struct asph_surface *s,
+			 const struct asph_points *pts, const struct asph_fit *w)
+{
+	_cleanup_(asph_points_freep) struct asph_points *all = NULL;
+	_cleanup_(asph_points_freep) struct asph_points *used = NULL;
+	struct asph_error err;
+	char title[160];
+
+	asph_error_clear(&err);
+	if (c->residuals_out) {
+		if (residual_points(pts, w, 1, &all) < 0 ||
+		    asph_points_write(c->residuals_out, all, NULL, &err) < 0) {
+			tool_print_error("fit: --residuals", &err);
+			return EXIT_FAILURE_RUN;
+		}
+	}
+	if (c->map_out) {
+		struct asph_plot_options po = {
+			.title = title, .colour_label = "residual (nm)", .diverging = 1,
+		};
+		snprintf(title, sizeof(title), "%s: %s residual after the best fit",
+			 asph_surface_prescription(s)->name, asph_fit_residual_name(c->opts.residual));
+		if (residual_points(pts, w, 0, &used) < 0 ||
+		    asph_plot_points_png(c->map_out, used->xyz, used->value, used->n, &po, &err) < 0) {
+			tool_print_error("fit: --map", &err);
+			return EXIT_FAILURE_RUN;
+		}
+	}
+	return EXIT_OK;
+}
+
+int cmd_fit(int argc, char **argv)
+{
+	_cleanup_(asph_surface_freep) struct asph_surface *s = NULL;
+	_cleanup_(asph_points_freep) struct asph_points *pts = NULL;
+	_cleanup_(asph_fit_freep) struct asph_fit *w = NULL;
+	struct fit_cli c = { 0 };
+	struct asph_fit_result res;
+	struct asph_error err;
+	int r = parse_args(&c, argc, argv);
+
+	if (r != EXIT_OK)
+		return r < 0 ? EXIT_OK : r;
+	if (tool_load_surface(c.lens, &s) < 0)
+		return EXIT_FAILURE_RUN;
+	asph_error_clear(&err);
+	if (asph_points_read(c.points, &pts, &err) < 0) {
+		tool_print_error(NULL, &err);
+		return EXIT_FAILURE_RUN;
+	}
+	if (asph_fit_alloc(s, pts->n, &c.opts, &w, &err) < 0 ||
+	    asph_fit_run(w, pts->xyz, pts->n, &res, &err) < 0) {
+		tool_print_error(c.points, &err);
+		return EXIT_FAILURE_RUN;
+	}
+	if (c.json) {
+		r = show_json(&c, s, &res);
+		if (r != EXIT_OK)
+			return r;
+	} else {
+		show_text(&c, s, &res);
+	}
+	r = write_outputs(&c, s, pts, w);
+	if (r == EXIT_OK && !res.converged) {
+		fprintf(stderr, "asph fit: the fit did not converge: %s\n", res.reason);
+		r = EXIT_FAILURE_RUN;
+	}
+	return r;
+}

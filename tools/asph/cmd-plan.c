@@ -1,0 +1,182 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <errno.h>
+#include <getopt.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "asph/plan.h"
+#include "asph/points.h"
+#include "asph-tool.h"
+#include "plan-source.h"
+#include "util-mem.h"
+
+/* Guards against a density typo that would ask for billions of points;
+ * --max-points raises it. */
+#define PLAN_DEFAULT_MAX_POINTS 50000000
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_surface *, asph_surface_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_plan *, asph_plan_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
+
+enum {
+	OPT_MAX_POINTS = 0x2000,
+	OPT_NO_MESH,
+};
+
+static void usage(FILE *out)
+{
+	fprintf(out,
+		"Usage: asph plan LENS --method M (--h H | --spacing MM | --points N) [-o FILE]\n\n"
+		"Computes a sampling plan on LENS (a preset: weak, strong, turning-point, or a\n"
+		"prescription file) and writes its points in scan order.\n\n"
+		"  --method M          op, ot, lb, ci, raster, concentric, spiral, fermat\n"
+		"  --h H               mean edge length / aperture radius (the paper's h)\n"
+		"  --spacing MM        mean point spacing on the surface, mm\n"
+		"  --points N          approximate number of points\n"
+		"  -o, --output FILE   .csv (x,y,z), .ply (with faces for op, ot, lb) or .json;\n"
+		"                      default: CSV on standard output\n"
+		"  --no-mesh           leave the mesh of op, ot, lb out\n"
+		"  --max-points N      refuse plans with more points (default %d)\n"
+		"  -q, --quiet         no summary line on standard error\n"
+		"  -h, --help          this help\n\n"
+		"Exactly one of --h, --spacing, --points. docs/sampling-plans.md explains the\n"
+		"methods, the density relations and the scan orders.\n",
+		PLAN_DEFAULT_MAX_POINTS);
+}
+
+struct plan_args {
+	struct plan_source src;
+	const char *lens, *output;
+	struct asph_plan_options opts;
+	int quiet;
+};
+
+static int parse_count(const char *arg, size_t *out)
+{
+	char *end;
+	unsigned long long v;
+
+	errno = 0;
+	v = strtoull(arg, &end, 10);
+	if (errno || end == arg || *end || arg[0] == '-' || v == 0) {
+		fprintf(stderr, "asph: --max-points: '%s' is not a positive whole number\n", arg);
+		return -1;
+	}
+	*out = (size_t)v;
+	return 0;
+}
+
+/* 0: parsed; EXIT_OK + 1000 for --help; EXIT_USAGE on error. */
+static int parse_args(int argc, char **argv, struct plan_args *a)
+{
+	static const struct option longopts[] = {
+		PLAN_SOURCE_LONG_OPTIONS,
+		{ "output", required_argument, NULL, 'o' },
+		{ "max-points", required_argument, NULL, OPT_MAX_POINTS },
+		{ "no-mesh", no_argument, NULL, OPT_NO_MESH },
+		{ "quiet", no_argument, NULL, 'q' },
+		{ "help", no_argument, NULL, 'h' },
+		{ NULL, 0, NULL, 0 },
+	};
+	int c;
+
+	a->opts.max_points = PLAN_DEFAULT_MAX_POINTS;
+	optind = 1;
+	opterr = 0;
+	while ((c = getopt_long(argc, argv, ":ho:q", longopts, NULL)) != -1) {
+		int r = plan_source_option(&a->src, c, optarg);
+		if (r < 0)
+			return EXIT_USAGE;
+		if (r == 0)
+			continue;
+		switch (c) {
+		case 'h':
+			usage(stdout);
+			return EXIT_OK + 1000;
+		case 'o':
+			a->output = optarg;
+			break;
+		case 'q':
+			a->quiet = 1;
+			break;
+		case OPT_MAX_POINTS:
+			if (parse_count(optarg, &a->opts.max_points) < 0)
+				return EXIT_USAGE;
+			break;
+		case OPT_NO_MESH:
+			a->opts.flags |= ASPH_PLAN_NO_MESH;
+			break;
+		case ':':
+			fprintf(stderr, "asph: plan: %s needs a value\n", argv[optind - 1]);
+			return EXIT_USAGE;
+		default:
+			fprintf(stderr, "asph: plan: unknown option '%s'\n", argv[optind - 1]);
+			usage(stderr);
+			return EXIT_USAGE;
+		}
+	}
+	if (optind != argc - 1) {
+		fprintf(stderr, optind >= argc ? "asph: plan: missing LENS\n"
+					       : "asph: plan: one LENS only\n");
+		usage(stderr);
+		return EXIT_USAGE;
+	}
+	a->lens = argv[optind];
+	if (!a->src.have_method) {
+		fprintf(stderr, "asph: plan: --method is required\n");
+		return EXIT_USAGE;
+	}
+	if (a->src.n_density != 1) {
+		fprintf(stderr, "asph: plan: give exactly one of --h, --spacing, --points\n");
+		return EXIT_USAGE;
+	}
+	return 0;
+}
+
+static void summary(const struct plan_args *a, const struct asph_plan *p)
+{
+	char label[128];
+
+	plan_source_label(&a->src, label, sizeof(label));
+	fprintf(stderr, "asph: plan %s: %zu points, spacing %.6g mm", label,
+		p->n, p->spacing_mm);
+	if (p->n_triangles)
+		fprintf(stderr, ", %zu triangles", p->n_triangles);
+	fprintf(stderr, " -> %s\n", a->output ? a->output : "stdout");
+}
+
+int cmd_plan(int argc, char **argv)
+{
+	struct plan_args a = { 0 };
+	_cleanup_(asph_surface_freep) struct asph_surface *s = NULL;
+	_cleanup_(asph_plan_freep) struct asph_plan *plan = NULL;
+	_cleanup_(asph_points_freep) struct asph_points *pts = NULL;
+	struct asph_points_write_options wo = { 0 };
+	struct asph_error err;
+	int r = parse_args(argc, argv, &a);
+
+	if (r)
+		return r == EXIT_OK + 1000 ? EXIT_OK : r;
+	if (tool_load_surface(a.lens, &s) < 0)
+		return EXIT_FAILURE_RUN;
+	asph_error_clear(&err);
+	r = asph_plan_compute_opts(s, a.src.method, a.src.density, &a.opts,
+				   &plan, &err);
+	if (r < 0) {
+		tool_print_error("plan", &err);
+		return EXIT_FAILURE_RUN;
+	}
+	if (asph_plan_to_points(plan, &pts) < 0) {
+		fprintf(stderr, "asph: plan: out of memory\n");
+		return EXIT_FAILURE_RUN;
+	}
+	r = asph_points_write(a.output ? a.output : "-", pts, &wo, &err);
+	if (r < 0) {
+		tool_print_error("plan", &err);
+		return EXIT_FAILURE_RUN;
+	}
+	if (!a.quiet)
+		summary(&a, plan);
+	return EXIT_OK;
+}

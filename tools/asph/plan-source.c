@@ -1,0 +1,186 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <errno.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "asph-tool.h"
+#include "plan-source.h"
+#include "util-mem.h"
+
+/* Guards against a density typo that would ask for billions of points. */
+#define PLAN_MAX_POINTS 50000000
+
+static int parse_positive(const char *arg, const char *name, double *out)
+{
+	char *end;
+	double v;
+
+	errno = 0;
+	v = strtod(arg, &end);
+	if (errno || end == arg || *end || !isfinite(v) || v <= 0) {
+		fprintf(stderr, "asph: --%s: '%s' is not a positive number\n", name, arg);
+		return -1;
+	}
+	*out = v;
+	return 0;
+}
+
+static int set_density(struct plan_source *ps, enum asph_plan_density_kind kind,
+		       const char *arg, const char *name)
+{
+	double v;
+
+	if (parse_positive(arg, name, &v) < 0)
+		return -1;
+	if (kind == ASPH_DENSITY_POINTS && v != floor(v)) {
+		fprintf(stderr, "asph: --points: '%s' is not a whole number\n", arg);
+		return -1;
+	}
+	ps->n_density++;
+	ps->density = (struct asph_plan_density){ .kind = kind, .value = v };
+	return 0;
+}
+
+int plan_source_option(struct plan_source *ps, int opt, const char *arg)
+{
+	switch (opt) {
+	case PLAN_OPT_METHOD:
+		if (asph_plan_method_from_name(arg, &ps->method) < 0) {
+			fprintf(stderr, "asph: --method: unknown method '%s' (op, ot, lb, ci, raster, "
+					"concentric, spiral, fermat)\n", arg);
+			return -1;
+		}
+		ps->have_method = 1;
+		return 0;
+	case PLAN_OPT_H:
+		return set_density(ps, ASPH_DENSITY_H, arg, "h");
+	case PLAN_OPT_SPACING:
+		return set_density(ps, ASPH_DENSITY_SPACING, arg, "spacing");
+	case PLAN_OPT_POINTS:
+		return set_density(ps, ASPH_DENSITY_POINTS, arg, "points");
+	default:
+		return 1;
+	}
+}
+
+int plan_source_finish(struct plan_source *ps, const char *plan_file)
+{
+	ps->plan_file = plan_file;
+	if (plan_file && (ps->have_method || ps->n_density)) {
+		fprintf(stderr, "asph: give either PLAN_FILE or --method with a density, not both\n");
+		return -1;
+	}
+	if (!plan_file && !ps->have_method) {
+		fprintf(stderr, "asph: give PLAN_FILE or --method M with --h, --spacing or --points\n");
+		return -1;
+	}
+	if (ps->have_method && ps->n_density != 1) {
+		fprintf(stderr, "asph: --method needs exactly one of --h, --spacing, --points\n");
+		return -1;
+	}
+	return 0;
+}
+
+static int plan_to_points(const struct asph_plan *plan, struct asph_points **out)
+{
+	struct asph_points *p = asph_points_alloc(plan->n);
+
+	if (!p)
+		return -ENOMEM;
+	memcpy(p->xyz, plan->xyz, 3 * plan->n * sizeof(double));
+	if (plan->n_triangles) {
+		p->triangles = malloc(3 * plan->n_triangles * sizeof(uint32_t));
+		if (!p->triangles) {
+			asph_points_free(p);
+			return -ENOMEM;
+		}
+		memcpy(p->triangles, plan->triangles, 3 * plan->n_triangles * sizeof(uint32_t));
+		p->n_triangles = plan->n_triangles;
+	}
+	*out = p;
+	return 0;
+}
+
+int plan_source_load(const struct plan_source *ps, const struct asph_surface *s,
+		     struct asph_points **out)
+{
+	struct asph_plan *plan = NULL;
+	struct asph_error err;
+	int r;
+
+	asph_error_clear(&err);
+	if (ps->plan_file) {
+		r = asph_points_read(ps->plan_file, out, &err);
+		if (r < 0)
+			tool_print_error(NULL, &err);
+		return r;
+	}
+	r = asph_plan_compute(s, ps->method, ps->density, PLAN_MAX_POINTS, &plan, &err);
+	if (r < 0) {
+		tool_print_error("plan", &err);
+		return r;
+	}
+	r = plan_to_points(plan, out);
+	asph_plan_free(plan);
+	if (r < 0)
+		fprintf(stderr, "asph: out of memory copying the plan\n");
+	return r;
+}
+
+void plan_quality_clear(struct plan_quality *pq)
+{
+	asph_quality_free(pq->q);
+	asph_points_free(pq->pts);
+	asph_surface_free(pq->s);
+	*pq = (struct plan_quality){ 0 };
+}
+
+int plan_quality_option(struct plan_quality *pq, int opt, const char *arg)
+{
+	if (opt != PLAN_OPT_CHART)
+		return plan_source_option(&pq->src, opt, arg);
+	if (asph_quality_chart_from_name(arg, &pq->opts.chart) == 0)
+		return 0;
+	fprintf(stderr, "asph: --chart: '%s' is not conformal, xy or plan-mesh\n", arg);
+	return -1;
+}
+
+int plan_quality_run(struct plan_quality *pq, const char *cmd, int argc,
+		     char **argv, int first)
+{
+	struct asph_error err;
+
+	if (argc - first < 1 || argc - first > 2) {
+		fprintf(stderr, "asph: %s: expected LENS and optionally PLAN_FILE\n", cmd);
+		return EXIT_USAGE;
+	}
+	if (plan_source_finish(&pq->src, argc - first == 2 ? argv[first + 1] : NULL) < 0)
+		return EXIT_USAGE;
+	if (tool_load_surface(argv[first], &pq->s) < 0 ||
+	    plan_source_load(&pq->src, pq->s, &pq->pts) < 0)
+		return EXIT_FAILURE_RUN;
+	asph_error_clear(&err);
+	if (asph_quality_compute(pq->s, pq->pts->xyz, pq->pts->n, pq->pts->triangles,
+				 pq->pts->n_triangles, &pq->opts, &pq->q, &err) < 0) {
+		tool_print_error("quality", &err);
+		return EXIT_FAILURE_RUN;
+	}
+	return EXIT_OK;
+}
+
+void plan_source_label(const struct plan_source *ps, char *buf, size_t size)
+{
+	const char *name = ps->have_method ? asph_plan_method_name(ps->method) : "";
+
+	if (ps->plan_file) {
+		const char *slash = strrchr(ps->plan_file, '/');
+		snprintf(buf, size, "%s", slash ? slash + 1 : ps->plan_file);
+	} else if (ps->density.kind == ASPH_DENSITY_H) {
+		snprintf(buf, size, "%s h=%g", name, ps->density.value);
+	} else if (ps->density.kind == ASPH_DENSITY_SPACING) {
+		snprintf(buf, size, "%s spacing %g mm", name, ps->density.value);
+	} else {
+		snprintf(buf, size, "%s %.0f points", name, ps->density.value);
+	}
+}

@@ -1,0 +1,81 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* asphctl: the client of asphd. One file per group of commands. */
+#ifndef ASPHCTL_H
+#define ASPHCTL_H
+
+#include <stdbool.h>
+#include <stdint.h>
+
+#include <jansson.h>
+
+#include "asph-proto.h"
+
+/* Exit codes, documented in docs/asphctl.1.md. */
+enum {
+	CTL_EXIT_OK = 0,
+	CTL_EXIT_ERROR = 1,        /* the daemon refused or reported an error */
+	CTL_EXIT_USAGE = 2,
+	CTL_EXIT_UNREACHABLE = 3,  /* no daemon at the socket, or it broke off */
+	CTL_EXIT_DENIED = 4,       /* not allowed (not an operator) */
+	CTL_EXIT_JOB_FAILED = 5,   /* the job ended failed, cancelled or interrupted */
+};
+
+/* A connection to the daemon. */
+struct conn;
+
+struct ctl_error {
+	int code;               /* protocol error code, 0 for I/O */
+	char message[128];
+	char detail[512];
+};
+
+int conn_open(const char *path, struct conn **out, struct ctl_error *e);
+void conn_close(struct conn *c);
+/*
+ * Calls method with params (stolen, may be NULL) and waits for its
+ * response; notifications that arrive meanwhile are kept for
+ * conn_next_event(). Returns 0 with *result (caller owns), -EPROTO for an
+ * error response (e filled), or -errno when the connection failed.
+ */
+int conn_call(struct conn *c, const char *method, json_t *params,
+	      json_t **result, struct ctl_error *e);
+/* Next notification: 1 with *msg, 0 on timeout (ms, -1 = none), or -errno. */
+int conn_next_event(struct conn *c, int timeout_ms, json_t **msg);
+
+/* Global options. */
+struct ctl {
+	const char *socket;
+	bool json;
+	struct conn *conn;
+};
+
+/* Prints e as "asphctl: ..." and returns the exit code it means. */
+int ctl_fail(const struct ctl_error *e);
+/* Connects (once) and calls; on failure prints and returns the exit code
+ * (> 0), else 0 with *result. */
+int ctl_call(struct ctl *ctl, const char *method, json_t *params,
+	     json_t **result);
+/* Prints JSON (pretty) to stdout. */
+void ctl_print_json(const json_t *j);
+/* Parses a job id argument; -1 (after printing) when it is not one. */
+int64_t ctl_job_id(const char *arg);
+
+int cmd_submit(struct ctl *ctl, int argc, char **argv);
+int cmd_status(struct ctl *ctl, int argc, char **argv);
+int cmd_watch(struct ctl *ctl, int argc, char **argv);
+int cmd_cancel(struct ctl *ctl, int argc, char **argv);
+int cmd_pause(struct ctl *ctl, int argc, char **argv);
+int cmd_resume(struct ctl *ctl, int argc, char **argv);
+int cmd_requeue(struct ctl *ctl, int argc, char **argv);
+int cmd_list(struct ctl *ctl, int argc, char **argv);
+int cmd_result(struct ctl *ctl, int argc, char **argv);
+int cmd_queue(struct ctl *ctl, int argc, char **argv);
+int cmd_instruments(struct ctl *ctl, int argc, char **argv);
+int cmd_drivers(struct ctl *ctl, int argc, char **argv);
+
+/* Watches job until it ends (used by watch and submit --wait). */
+int ctl_watch_job(struct ctl *ctl, int64_t id, bool quiet);
+/* One line per job for list and queue. */
+void ctl_print_job_line(const json_t *job);
+
+#endif

@@ -1,0 +1,494 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* submit, status, cancel, pause, resume, requeue, list, result. */
+#include <errno.h>
+#include <fcntl.h>
+#include <getopt.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "asphctl.h"
+#include "util-mem.h"
+
+#define JSON_OPTION { "json", no_argument, NULL, 'j' }
+#define HELP_OPTION { "help", no_argument, NULL, 'h' }
+
+static int usage_error(const char *usage)
+{
+	fprintf(stderr, "Usage: asphctl %s\n", usage);
+	return CTL_EXIT_USAGE;
+}
+
+static const char *str(const json_t *o, const char *key)
+{
+	const char *s = json_string_value(json_object_get(o, key));
+
+	return s ? s : "-";
+}
+
+void ctl_print_job_line(const json_t *job)
+{
+	json_t *p = json_object_get(job, "progress");
+	json_int_t done = json_integer_value(json_object_get(p, "done"));
+	json_int_t total = json_integer_value(json_object_get(p, "total"));
+	json_t *plan = json_object_get(job, "plan");
+	char density[64];
+
+	snprintf(density, sizeof(density), "%s %s=%g", str(plan, "method"), str(plan, "density"),
+		 json_number_value(json_object_get(plan, "value")));
+	printf("%6lld  %-11s %-10s %-14s %-20s %4lld  %7lld/%-7lld %s\n",
+	       (long long)json_integer_value(json_object_get(job, "id")), str(job, "state"),
+	       str(job, "instrument"), str(job, "lens"), density,
+	       (long long)json_integer_value(json_object_get(job, "priority")),
+	       (long long)done, (long long)total,
+	       json_is_string(json_object_get(job, "label")) ? str(job, "label") : "");
+}
+
+static void print_job_header(void)
+{
+	printf("%6s  %-11s %-10s %-14s %-20s %4s  %15s %s\n", "ID", "STATE", "INSTRUMENT",
+	       "LENS", "PLAN", "PRIO", "POINTS", "LABEL");
+}
+
+static void print_job(const json_t *job)
+{
+	json_t *p = json_object_get(job, "progress");
+	json_t *sub = json_object_get(job, "submitter");
+
+	printf("job %lld: %s\n", (long long)json_integer_value(json_object_get(job, "id")),
+	       str(job, "state"));
+	printf("  instrument  %s\n", str(job, "instrument"));
+	printf("  lens        %s\n", str(job, "lens"));
+	printf("  plan        %s, %s = %g\n", str(json_object_get(job, "plan"), "method"),
+	       str(json_object_get(job, "plan"), "density"),
+	       json_number_value(json_object_get(json_object_get(job, "plan"), "value")));
+	printf("  points      %lld of %lld\n",
+	       (long long)json_integer_value(json_object_get(p, "done")),
+	       (long long)json_integer_value(json_object_get(p, "total")));
+	printf("  submitted   %s by %s\n", str(job, "submitted"), str(sub, "name"));
+	printf("  started     %s\n", str(job, "started"));
+	printf("  finished    %s\n", str(job, "finished"));
+	if (json_is_string(json_object_get(job, "label")))
+		printf("  label       %s\n", str(job, "label"));
+	if (json_is_string(json_object_get(job, "reason")))
+		printf("  reason      %s\n", str(job, "reason"));
+}
+
+/* LENS: a file the client reads (sent as the prescription), else a
+ * preset name. */
+static json_t *lens_param(const char *lens)
+{
+	struct stat st;
+	json_error_t e;
+	json_t *j;
+
+	if (stat(lens, &st) != 0 || !S_ISREG(st.st_mode))
+		return json_string(lens);
+	j = json_load_file(lens, JSON_REJECT_DUPLICATES, &e);
+	if (!j)
+		fprintf(stderr, "asphctl: %s:%d:%d: %s\n", lens, e.line, e.column, e.text);
+	return j;
+}
+
+static const char submit_usage[] =
+	"submit LENS --method M (--h H | --spacing MM | --points N)\n"
+	"       [--instrument NAME] [--priority P] [--label TEXT] [--dof LIST]\n"
+	"       [--residual normal|sag] [--robust] [--zernike N] [--wait] [--json]";
+
+int cmd_submit(struct ctl *ctl, int argc, char **argv)
+{
+	static const struct option opts[] = {
+		{ "method", required_argument, NULL, 'm' },
+		{ "h", required_argument, NULL, 'H' },
+		{ "spacing", required_argument, NULL, 'S' },
+		{ "points", required_argument, NULL, 'P' },
+		{ "instrument", required_argument, NULL, 'i' },
+		{ "priority", required_argument, NULL, 'p' },
+		{ "label", required_argument, NULL, 'l' },
+		{ "dof", required_argument, NULL, 'd' },
+		{ "residual", required_argument, NULL, 'r' },
+		{ "robust", no_argument, NULL, 'R' },
+		{ "zernike", required_argument, NULL, 'z' },
+		{ "wait", no_argument, NULL, 'w' },
+		JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 },
+	};
+	_cleanup_(json_decrefp) json_t *params = json_object();
+	_cleanup_(json_decrefp) json_t *result = NULL;
+	json_t *plan = json_object(), *fit = json_object();
+	bool wait = false;
+	int c, r;
+
+	json_object_set_new(params, "plan", plan);
+	while ((c = getopt_long(argc, argv, "m:i:p:l:jh", opts, NULL)) != -1) {
+		char *end = NULL;
+		switch (c) {
+		case 'm': json_object_set_new(plan, "method", json_string(optarg)); break;
+		case 'H': json_object_set_new(plan, "h", json_real(strtod(optarg, &end))); break;
+		case 'S': json_object_set_new(plan, "spacing", json_real(strtod(optarg, &end))); break;
+		case 'P': json_object_set_new(plan, "points", json_real(strtod(optarg, &end))); break;
+		case 'i': json_object_set_new(params, "instrument", json_string(optarg)); break;
+		case 'p': json_object_set_new(params, "priority", json_integer(strtoll(optarg, &end, 10))); break;
+		case 'l': json_object_set_new(params, "label", json_string(optarg)); break;
+		case 'd': json_object_set_new(fit, "dof", json_string(optarg)); break;
+		case 'r': json_object_set_new(fit, "residual", json_string(optarg)); break;
+		case 'R': json_object_set_new(fit, "robust", json_true()); break;
+		case 'z': json_object_set_new(fit, "zernike", json_integer(strtoll(optarg, &end, 10))); break;
+		case 'w': wait = true; break;
+		case 'j': ctl->json = true; break;
+		case 'h': printf("Usage: asphctl %s\n", submit_usage); json_decref(fit); return CTL_EXIT_OK;
+		default: json_decref(fit); return usage_error(submit_usage);
+		}
+		if (end && *end) {
+			fprintf(stderr, "asphctl: '%s' is not a number\n", optarg);
+			json_decref(fit);
+			return CTL_EXIT_USAGE;
+		}
+	}
+	if (optind + 1 != argc) {
+		json_decref(fit);
+		return usage_error(submit_usage);
+	}
+	if (json_object_size(fit))
+		json_object_set_new(params, "fit", fit);
+	else
+		json_decref(fit);
+	json_t *lens = lens_param(argv[optind]);
+	if (!lens)
+		return CTL_EXIT_ERROR;
+	json_object_set_new(params, "lens", lens);
+	r = ctl_call(ctl, "job.submit", json_incref(params), &result);
+	if (r)
+		return r;
+	json_int_t id = json_integer_value(json_object_get(result, "id"));
+	if (ctl->json && !wait)
+		ctl_print_json(result);
+	else if (!ctl->json)
+		printf("job %lld queued (%lld points)\n", (long long)id,
+		       (long long)json_integer_value(json_object_get(json_object_get(result, "progress"),
+								     "total")));
+	fflush(stdout);
+	return wait ? ctl_watch_job(ctl, id, ctl->json) : CTL_EXIT_OK;
+}
+
+/* Commands that take JOB and [--json] and call one method. */
+static int simple_job_command(struct ctl *ctl, int argc, char **argv, const char *method,
+			      const char *usage, const char *done)
+{
+	static const struct option opts[] = { JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 } };
+	_cleanup_(json_decrefp) json_t *result = NULL;
+	int64_t id;
+	int c, r;
+
+	while ((c = getopt_long(argc, argv, "jh", opts, NULL)) != -1) {
+		switch (c) {
+		case 'j': ctl->json = true; break;
+		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
+		default: return usage_error(usage);
+		}
+	}
+	if (optind + 1 != argc)
+		return usage_error(usage);
+	id = ctl_job_id(argv[optind]);
+	if (id < 0)
+		return CTL_EXIT_USAGE;
+	r = ctl_call(ctl, method, json_pack("{s:I}", "id", (json_int_t)id), &result);
+	if (r)
+		return r;
+	if (ctl->json)
+		ctl_print_json(result);
+	else
+		printf("job %lld %s (%s)\n", (long long)id, done, str(result, "state"));
+	return CTL_EXIT_OK;
+}
+
+int cmd_cancel(struct ctl *ctl, int argc, char **argv)
+{
+	return simple_job_command(ctl, argc, argv, "job.cancel", "cancel JOB [--json]",
+				  "cancel requested");
+}
+
+int cmd_pause(struct ctl *ctl, int argc, char **argv)
+{
+	return simple_job_command(ctl, argc, argv, "job.pause", "pause JOB [--json]", "pausing");
+}
+
+int cmd_resume(struct ctl *ctl, int argc, char **argv)
+{
+	return simple_job_command(ctl, argc, argv, "job.resume", "resume JOB [--json]", "resumed");
+}
+
+int cmd_requeue(struct ctl *ctl, int argc, char **argv)
+{
+	static const struct option opts[] = {
+		{ "restart", no_argument, NULL, 'r' }, JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 },
+	};
+	static const char usage[] = "requeue JOB [--restart] [--json]";
+	_cleanup_(json_decrefp) json_t *result = NULL;
+	bool restart = false;
+	int64_t id;
+	int c, r;
+
+	while ((c = getopt_long(argc, argv, "rjh", opts, NULL)) != -1) {
+		switch (c) {
+		case 'r': restart = true; break;
+		case 'j': ctl->json = true; break;
+		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
+		default: return usage_error(usage);
+		}
+	}
+	if (optind + 1 != argc)
+		return usage_error(usage);
+	if ((id = ctl_job_id(argv[optind])) < 0)
+		return CTL_EXIT_USAGE;
+	r = ctl_call(ctl, "job.requeue",
+		     json_pack("{s:I, s:b}", "id", (json_int_t)id, "restart", restart), &result);
+	if (r)
+		return r;
+	if (ctl->json)
+		ctl_print_json(result);
+	else
+		printf("job %lld queued again%s\n", (long long)id,
+		       restart ? " (new scan)" : json_is_true(json_object_get(result, "resumable"))
+						 ? " (continues its scan)" : "");
+	return CTL_EXIT_OK;
+}
+
+int cmd_status(struct ctl *ctl, int argc, char **argv)
+{
+	static const struct option opts[] = {
+		{ "history", no_argument, NULL, 'H' }, JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 },
+	};
+	static const char usage[] = "status [JOB [--history]] [--json]";
+	_cleanup_(json_decrefp) json_t *result = NULL;
+	bool history = false;
+	int c, r;
+
+	while ((c = getopt_long(argc, argv, "jh", opts, NULL)) != -1) {
+		switch (c) {
+		case 'H': history = true; break;
+		case 'j': ctl->json = true; break;
+		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
+		default: return usage_error(usage);
+		}
+	}
+	if (optind + 1 == argc) {
+		int64_t id = ctl_job_id(argv[optind]);
+		if (id < 0)
+			return CTL_EXIT_USAGE;
+		r = ctl_call(ctl, "job.get", json_pack("{s:I, s:b}", "id", (json_int_t)id,
+						       "history", history), &result);
+		if (r)
+			return r;
+		if (ctl->json) {
+			ctl_print_json(result);
+			return CTL_EXIT_OK;
+		}
+		print_job(result);
+		size_t i;
+		json_t *h;
+		json_array_foreach(json_object_get(result, "history"), i, h)
+			printf("  %s  %-11s %s\n", str(h, "time"), str(h, "state"),
+			       json_is_string(json_object_get(h, "reason")) ? str(h, "reason") : "");
+		return CTL_EXIT_OK;
+	}
+	if (optind != argc)
+		return usage_error(usage);
+	r = ctl_call(ctl, "daemon.status", NULL, &result);
+	if (r)
+		return r;
+	if (ctl->json) {
+		ctl_print_json(result);
+		return CTL_EXIT_OK;
+	}
+	json_t *jobs = json_object_get(result, "jobs"), *in;
+	size_t i;
+	printf("asphd %s (pid %lld), up %.0f s: %s\n", str(result, "version"),
+	       (long long)json_integer_value(json_object_get(result, "pid")),
+	       json_number_value(json_object_get(result, "uptime_s")), str(result, "status"));
+	printf("queue %s; jobs: %lld queued, %lld running, %lld paused, %lld interrupted, "
+	       "%lld completed, %lld failed, %lld cancelled\n",
+	       json_is_true(json_object_get(json_object_get(result, "queue"), "running"))
+		       ? "running" : "stopped",
+	       (long long)json_integer_value(json_object_get(jobs, "queued")),
+	       (long long)json_integer_value(json_object_get(jobs, "running")),
+	       (long long)json_integer_value(json_object_get(jobs, "paused")),
+	       (long long)json_integer_value(json_object_get(jobs, "interrupted")),
+	       (long long)json_integer_value(json_object_get(jobs, "completed")),
+	       (long long)json_integer_value(json_object_get(jobs, "failed")),
+	       (long long)json_integer_value(json_object_get(jobs, "cancelled")));
+	json_array_foreach(json_object_get(result, "instruments"), i, in) {
+		printf("instrument %s: %s", str(in, "name"), str(in, "state"));
+		if (json_is_integer(json_object_get(in, "job")))
+			printf(" (job %lld)", (long long)json_integer_value(json_object_get(in, "job")));
+		printf("\n");
+	}
+	return CTL_EXIT_OK;
+}
+
+int cmd_list(struct ctl *ctl, int argc, char **argv)
+{
+	static const struct option opts[] = {
+		{ "state", required_argument, NULL, 's' },
+		{ "instrument", required_argument, NULL, 'i' },
+		{ "label", required_argument, NULL, 'l' },
+		{ "mine", no_argument, NULL, 'm' },
+		{ "limit", required_argument, NULL, 'n' },
+		{ "offset", required_argument, NULL, 'o' },
+		JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 },
+	};
+	static const char usage[] = "list [--state S[,S...]] [--instrument NAME] [--label TEXT]\n"
+				    "       [--mine] [--limit N] [--offset N] [--json]";
+	_cleanup_(json_decrefp) json_t *params = json_object();
+	_cleanup_(json_decrefp) json_t *result = NULL;
+	int c, r;
+
+	while ((c = getopt_long(argc, argv, "s:i:l:mn:o:jh", opts, NULL)) != -1) {
+		switch (c) {
+		case 's': {
+			json_t *states = json_array();
+			_cleanup_free_ char *copy = strdup(optarg);
+			char *save = NULL;
+			for (char *t = strtok_r(copy, ",", &save); t; t = strtok_r(NULL, ",", &save))
+				json_array_append_new(states, json_string(t));
+			json_object_set_new(params, "states", states);
+			break;
+		}
+		case 'i': json_object_set_new(params, "instrument", json_string(optarg)); break;
+		case 'l': json_object_set_new(params, "label", json_string(optarg)); break;
+		case 'm': json_object_set_new(params, "mine", json_true()); break;
+		case 'n': json_object_set_new(params, "limit", json_integer(atoll(optarg))); break;
+		case 'o': json_object_set_new(params, "offset", json_integer(atoll(optarg))); break;
+		case 'j': ctl->json = true; break;
+		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
+		default: return usage_error(usage);
+		}
+	}
+	if (optind != argc)
+		return usage_error(usage);
+	r = ctl_call(ctl, "job.list", json_incref(params), &result);
+	if (r)
+		return r;
+	if (ctl->json) {
+		ctl_print_json(result);
+		return CTL_EXIT_OK;
+	}
+	size_t i;
+	json_t *job;
+	print_job_header();
+	json_array_foreach(json_object_get(result, "jobs"), i, job)
+		ctl_print_job_line(job);
+	printf("(%zu of %lld)\n", json_array_size(json_object_get(result, "jobs")),
+	       (long long)json_integer_value(json_object_get(result, "total")));
+	return CTL_EXIT_OK;
+}
+
+/* Copies dir/name to out/name; names come from the daemon, so only plain
+ * file names are accepted. */
+static int copy_file(const char *dir, const char *name, const char *out)
+{
+	_cleanup_free_ char *src = NULL, *dst = NULL;
+	_cleanup_close_ int in = -1, fd = -1;
+	char buf[65536];
+	ssize_t n;
+
+	if (!name[0] || strchr(name, '/') || !strcmp(name, ".") || !strcmp(name, "..")) {
+		fprintf(stderr, "asphctl: refusing the file name '%s'\n", name);
+		return -EINVAL;
+	}
+	if (asprintf(&src, "%s/%s", dir, name) < 0 || asprintf(&dst, "%s/%s", out, name) < 0)
+		return -ENOMEM;
+	in = open(src, O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
+	if (in < 0) {
+		fprintf(stderr, "asphctl: %s: %s\n", src, strerror(errno));
+		return -errno;
+	}
+	fd = open(dst, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+	if (fd < 0) {
+		fprintf(stderr, "asphctl: %s: %s\n", dst, strerror(errno));
+		return -errno;
+	}
+	while ((n = read(in, buf, sizeof(buf))) > 0)
+		if (write(fd, buf, (size_t)n) != n) {
+			fprintf(stderr, "asphctl: %s: %s\n", dst, strerror(errno));
+			return -EIO;
+		}
+	return n < 0 ? -errno : 0;
+}
+
+static void print_summary(const json_t *res)
+{
+	json_t *s = json_object_get(res, "summary"), *dof, *unc, *v;
+	json_t *prov = json_object_get(res, "provenance");
+	const char *key;
+
+	printf("job %lld: %lld points, %lld used\n",
+	       (long long)json_integer_value(json_object_get(res, "job")),
+	       (long long)json_integer_value(json_object_get(s, "n_points")),
+	       (long long)json_integer_value(json_object_get(s, "n_used")));
+	printf("  form error  RMS %.2f nm, PV %.2f nm, PVr %.2f nm\n",
+	       json_number_value(json_object_get(s, "rms_nm")),
+	       json_number_value(json_object_get(s, "pv_nm")),
+	       json_number_value(json_object_get(s, "pvr_nm")));
+	dof = json_object_get(s, "dof");
+	unc = json_object_get(s, "uncertainty");
+	json_object_foreach(dof, key, v) {
+		/* mm and rad inside; um and urad for people. R and k as they are. */
+		bool angle = key[0] == 'r' && key[1] && !key[2];
+		bool shift = key[0] == 't' && key[1] && !key[2];
+		double scale = angle || shift ? (angle ? 1e6 : 1e3) : 1;
+		printf("  %-3s %14.4f +- %.4f %s\n", key, json_number_value(v) * scale,
+		       json_number_value(json_object_get(unc, key)) * scale,
+		       angle ? "urad" : shift ? "um" : key[0] == 'R' ? "mm" : "");
+	}
+	printf("  scan sha256 %s\n", str(json_object_get(prov, "scan"), "sha256"));
+	printf("  files in %s\n", str(res, "dir"));
+}
+
+int cmd_result(struct ctl *ctl, int argc, char **argv)
+{
+	static const struct option opts[] = {
+		{ "out", required_argument, NULL, 'o' }, JSON_OPTION, HELP_OPTION,
+		{ NULL, 0, NULL, 0 },
+	};
+	static const char usage[] = "result JOB [--out DIR] [--json]";
+	_cleanup_(json_decrefp) json_t *result = NULL;
+	const char *out = NULL;
+	int64_t id;
+	int c, r;
+
+	while ((c = getopt_long(argc, argv, "o:jh", opts, NULL)) != -1) {
+		switch (c) {
+		case 'o': out = optarg; break;
+		case 'j': ctl->json = true; break;
+		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
+		default: return usage_error(usage);
+		}
+	}
+	if (optind + 1 != argc)
+		return usage_error(usage);
+	if ((id = ctl_job_id(argv[optind])) < 0)
+		return CTL_EXIT_USAGE;
+	r = ctl_call(ctl, "job.result", json_pack("{s:I}", "id", (json_int_t)id), &result);
+	if (r)
+		return r;
+	if (out) {
+		const char *dir = str(result, "dir"), *key;
+		json_t *f;
+		if (mkdir(out, 0755) < 0 && errno != EEXIST) {
+			fprintf(stderr, "asphctl: %s: %s\n", out, strerror(errno));
+			return CTL_EXIT_ERROR;
+		}
+		json_object_foreach(json_object_get(result, "files"), key, f)
+			if (!json_is_string(f) || copy_file(dir, json_string_value(f), out) < 0)
+				return CTL_EXIT_ERROR;
+	}
+	if (ctl->json)
+		ctl_print_json(result);
+	else
+		print_summary(result);
+	if (out && !ctl->json)
+		printf("  copied to %s\n", out);
+	return CTL_EXIT_OK;
+}

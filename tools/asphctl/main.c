@@ -1,0 +1,137 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <errno.h>
+#include <getopt.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "asphctl.h"
+#include "config.h"
+#include "util-mem.h"
+
+static const struct {
+	const char *name;
+	const char *summary;
+	int (*run)(struct ctl *ctl, int argc, char **argv);
+} commands[] = {
+	{ "submit", "submit a measurement job", cmd_submit },
+	{ "status", "the daemon's status, or a job's", cmd_status },
+	{ "watch", "follow a job until it ends", cmd_watch },
+	{ "cancel", "cancel a job", cmd_cancel },
+	{ "pause", "pause a running scan", cmd_pause },
+	{ "resume", "resume a paused scan, or an interrupted job", cmd_resume },
+	{ "requeue", "queue a failed, interrupted or cancelled job again", cmd_requeue },
+	{ "list", "list jobs", cmd_list },
+	{ "result", "a job's result; --out DIR copies its files", cmd_result },
+	{ "queue", "show the queue; move a job; start or stop the queue", cmd_queue },
+	{ "instruments", "the instruments and their state", cmd_instruments },
+	{ "drivers", "the drivers the daemon has", cmd_drivers },
+};
+
+int ctl_fail(const struct ctl_error *e)
+{
+	if (e->detail[0])
+		fprintf(stderr, "asphctl: %s: %s\n", e->message, e->detail);
+	else
+		fprintf(stderr, "asphctl: %s\n", e->message);
+	if (e->code == 0)
+		return CTL_EXIT_UNREACHABLE;
+	if (e->code == PROTO_PERMISSION_DENIED)
+		return CTL_EXIT_DENIED;
+	return CTL_EXIT_ERROR;
+}
+
+int ctl_call(struct ctl *ctl, const char *method, json_t *params, json_t **result)
+{
+	struct ctl_error e = { 0 };
+	int r;
+
+	if (!ctl->conn && conn_open(ctl->socket, &ctl->conn, &e) < 0) {
+		json_decref(params);
+		return ctl_fail(&e);
+	}
+	r = conn_call(ctl->conn, method, params, result, &e);
+	return r < 0 ? ctl_fail(&e) : 0;
+}
+
+void ctl_print_json(const json_t *j)
+{
+	char *s = json_dumps(j, JSON_INDENT(2) | JSON_REAL_PRECISION(10));
+
+	if (s) {
+		puts(s);
+		free(s);
+	}
+}
+
+int64_t ctl_job_id(const char *arg)
+{
+	char *end;
+	long long v;
+
+	errno = 0;
+	v = strtoll(arg, &end, 10);
+	if (errno || *end || v <= 0 || end == arg) {
+		fprintf(stderr, "asphctl: '%s' is not a job id\n", arg);
+		return -1;
+	}
+	return v;
+}
+
+static void usage(FILE *f)
+{
+	fprintf(f, "Usage: asphctl [--socket PATH] [--json] COMMAND [ARGS...]\n\n"
+		   "Client of the asphd measurement daemon.\n\n"
+		   "  -s, --socket PATH   the daemon's socket (default $ASPHD_SOCKET or %s)\n"
+		   "  -j, --json          print results as JSON\n"
+		   "      --version       print the version\n\n"
+		   "Commands:\n", PROTO_DEFAULT_SOCKET);
+	for (size_t i = 0; i < ARRAY_SIZE(commands); i++)
+		fprintf(f, "  %-12s %s\n", commands[i].name, commands[i].summary);
+	fprintf(f, "\nRun 'asphctl COMMAND --help' for a command's options.\n"
+		   "Exit codes: 0 ok, 1 error from the daemon, 2 usage, 3 daemon unreachable,\n"
+		   "4 permission denied, 5 the job ended without a result.\n");
+}
+
+int main(int argc, char **argv)
+{
+	static const struct option opts[] = {
+		{ "socket", required_argument, NULL, 's' },
+		{ "json", no_argument, NULL, 'j' },
+		{ "version", no_argument, NULL, 'V' },
+		{ "help", no_argument, NULL, 'h' },
+		{ NULL, 0, NULL, 0 },
+	};
+	struct ctl ctl = { .socket = getenv("ASPHD_SOCKET") };
+	int c, r;
+
+	if (!ctl.socket || !*ctl.socket)
+		ctl.socket = PROTO_DEFAULT_SOCKET;
+	/* Options before the command only; the command parses the rest. */
+	while ((c = getopt_long(argc, argv, "+s:jh", opts, NULL)) != -1) {
+		switch (c) {
+		case 's': ctl.socket = optarg; break;
+		case 'j': ctl.json = true; break;
+		case 'V': printf("asphctl %s\n", ASPH_VERSION); return CTL_EXIT_OK;
+		case 'h': usage(stdout); return CTL_EXIT_OK;
+		default: usage(stderr); return CTL_EXIT_USAGE;
+		}
+	}
+	if (optind >= argc) {
+		usage(stderr);
+		return CTL_EXIT_USAGE;
+	}
+	for (size_t i = 0; i < ARRAY_SIZE(commands); i++) {
+		if (strcmp(argv[optind], commands[i].name))
+			continue;
+		char **sub = argv + optind;
+		int n = argc - optind;
+		optind = 0;   /* reset getopt for the command */
+		r = commands[i].run(&ctl, n, sub);
+		conn_close(ctl.conn);
+		return r;
+	}
+	fprintf(stderr, "asphctl: unknown command '%s'\n", argv[optind]);
+	usage(stderr);
+	return CTL_EXIT_USAGE;
+}
