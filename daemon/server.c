@@ -141,25 +141,8 @@ static int flush_output(struct client *c)
 	return 0;
 }
 
-int client_send(struct client *c, const json_t *msg)
+static int out_reserve(struct client *c, size_t n)
 {
-	struct daemon *d = c->d;
-	size_t n;
-	_cleanup_free_ char *text = NULL;
-
-	if (client_dead(c))
-		return -ECONNRESET;
-	text = proto_dump(msg, &n);
-	if (!text) {
-		client_drop(c, "out of memory");
-		return -ECONNRESET;
-	}
-	if (c->out_len - c->out_off + n > d->config->limits.max_output_bytes) {
-		log_info("client %" PRIu64 " (%s) does not read its output: dropped",
-			 c->serial, c->name);
-		client_drop(c, "output buffer full");
-		return -ECONNRESET;
-	}
 	if (c->out_off > 0 && c->out_len + n > c->out_cap) {
 		memmove(c->out, c->out + c->out_off, c->out_len - c->out_off);
 		c->out_len -= c->out_off;
@@ -170,15 +153,45 @@ int client_send(struct client *c, const json_t *msg)
 		while (cap < c->out_len + n)
 			cap *= 2;
 		char *b = realloc(c->out, cap);
-		if (!b) {
-			client_drop(c, "out of memory");
-			return -ECONNRESET;
-		}
+		if (!b)
+			return -ENOMEM;
 		c->out = b;
 		c->out_cap = cap;
 	}
-	memcpy(c->out + c->out_len, text, n);
+	return 0;
+}
+
+/* jansson writes the text straight into the output buffer. */
+static int out_append(const char *buf, size_t n, void *data)
+{
+	struct client *c = data;
+
+	if (c->out_len - c->out_off + n > c->d->config->limits.max_output_bytes)
+		return -1;
+	if (out_reserve(c, n) < 0)
+		return -1;
+	memcpy(c->out + c->out_len, buf, n);
 	c->out_len += n;
+	return 0;
+}
+
+int client_send(struct client *c, const json_t *msg)
+{
+	size_t start;
+
+	if (client_dead(c))
+		return -ECONNRESET;
+	start = c->out_len;
+	if (json_dump_callback(msg, out_append, c, JSON_COMPACT) < 0 ||
+	    out_append("\n", 1, c) < 0) {
+		/* Either the limit or memory: the client goes. */
+		if (c->out_len - c->out_off > c->d->config->limits.max_output_bytes / 2)
+			log_info("client %" PRIu64 " (%s) does not read its output: dropped",
+				 c->serial, c->name);
+		c->out_len = start < c->out_off ? c->out_off : start;
+		client_drop(c, "output buffer full");
+		return -ECONNRESET;
+	}
 	return flush_output(c);
 }
 
@@ -285,6 +298,10 @@ static void read_input(struct client *c)
 		}
 		budget -= (size_t)n < budget ? (size_t)n : budget;
 		proto_lines_commit(&c->in, (size_t)n);
+		/* A short read drained the socket: no second recv() just to
+		 * hear EAGAIN (the loop calls again when more arrives). */
+		if ((size_t)n < READ_CHUNK)
+			budget = 0;
 		while (!client_dead(c) && (r = proto_lines_next(&c->in, &line, &len)) != 0) {
 			if (r == -EMSGSIZE) {
 				char why[96];

@@ -351,13 +351,20 @@ int store_set_progress(struct store *s, int64_t id, int64_t done, int64_t total)
 {
 	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
 		"UPDATE jobs SET points_done = ?, points_total = ? WHERE id = ?");
+	int r;
 
 	if (!st)
 		return -EIO;
 	sqlite3_bind_int64(st, 1, done);
 	sqlite3_bind_int64(st, 2, total);
 	sqlite3_bind_int64(st, 3, id);
-	return step_done(st);
+	/* Progress is a hint (a resumed scan starts from its file), so its
+	 * commit skips the fsync that would stall the event loop; the next
+	 * state change's commit makes it durable with everything else. */
+	exec(s, "PRAGMA synchronous=NORMAL");
+	r = step_done(st);
+	exec(s, "PRAGMA synchronous=FULL");
+	return r;
 }
 
 /* Builds the WHERE clause; binds follow the same order. */

@@ -2,6 +2,7 @@
 /* The scan executor: a plan measured point by point (or swept and
  * streamed), every point recorded, faults ending the file with a reason. */
 #include <errno.h>
+#include <limits.h>
 #include <math.h>
 #include <pthread.h>
 #include <stdatomic.h>
@@ -14,6 +15,9 @@
 #include "util-mem.h"
 
 #define RECORD_BATCH 4096
+/* A sweep lasts at most this long (s), so that pause, abort and progress
+ * stay prompt at any speed. */
+#define SWEEP_SECONDS 0.25
 
 struct asph_scan {
 	struct asph_instrument *inst;
@@ -34,6 +38,9 @@ struct asph_scan {
 	double rate;
 	uint64_t measure_done0;
 	double theta_prev;
+	double pos[3];          /* where the last motion ended, stage axes */
+	double z_safe;          /* travel height over the whole part (machine z) */
+	double curvature;       /* bound of the surface's curvature, 1/mm */
 	struct asph_scanfile_writer *w;
 	struct asph_scanfile_point rec[RECORD_BATCH];
 	size_t n_rec;
@@ -66,6 +73,22 @@ const char *asph_scan_state_name(enum asph_scan_state s)
 		"completed", "aborted", "failed",
 	};
 	return (unsigned)s < ARRAY_SIZE(names) ? names[s] : "unknown";
+}
+
+/* max over the aperture of the surface's principal curvatures' bound,
+ * max(|Z''|, |Z'/r|), with a margin for the sampling. */
+static double curvature_bound(const struct asph_surface *s)
+{
+	double a = asph_surface_aperture_radius(s), k = 0, d[3];
+
+	for (int j = 0; j <= 2000; j++) {
+		double r = a * j / 2000.0;
+		asph_surface_sag_derivs(s, r, d);
+		k = fmax(k, fabs(d[2]));
+		if (r > 0)
+			k = fmax(k, fabs(d[1] / r));
+	}
+	return 1.25 * k;
 }
 
 int asph_scan_new(struct asph_instrument *inst, const struct asph_surface *s,
@@ -111,6 +134,7 @@ int asph_scan_new(struct asph_instrument *inst, const struct asph_surface *s,
 	atomic_init(&sc->aborted, false);
 	pthread_mutex_init(&sc->lock, NULL);
 	pthread_cond_init(&sc->wake, NULL);
+	sc->curvature = curvature_bound(s);
 	sc->progress.total = n;
 	sc->progress.done = sc->o.start_index;
 	sc->progress.eta_s = -1;
@@ -179,6 +203,74 @@ static void target_of(struct asph_scan *sc, size_t i, bool need_normal, struct t
 	t->approach[2] = t->machine[2] - sc->o.clearance;
 }
 
+/* ------------------------------------------------------- clearance */
+
+/* How far the probe at cartesian c is from where it measures: the gap
+ * along the probe axis between its reference point and the nominal
+ * surface, less the standoff and the tip (0 on a measuring position,
+ * clearance above it). Nothing below: +infinity. */
+static double gap_at(const struct asph_scan *sc, const double c[3])
+{
+	double d[3];
+
+	asph_surface_sag_derivs(sc->surface, sqrt(c[0] * c[0] + c[1] * c[1]), d);
+	if (!isfinite(d[0]))
+		return INFINITY;
+	return d[0] - c[2] - sc->inst->probe_info.standoff - sc->tip * sqrt(1 + d[1] * d[1]);
+}
+
+/* Whether the stage's straight move (in its axes) from a to b keeps the
+ * gap at least min_gap all along; ga, gb are the gaps at the ends when
+ * known, else NAN. */
+static bool path_clear_g(const struct asph_scan *sc, const double *a, double ga,
+			 const double *b, double gb, double min_gap)
+{
+	double ca[3], cb[3], c[3], m[3];
+
+	to_cartesian(sc, a, ca);
+	to_cartesian(sc, b, cb);
+	double g = fmin(isnan(ga) ? gap_at(sc, ca) : ga, isnan(gb) ? gap_at(sc, cb) : gb);
+	if (g < min_gap)
+		return false;
+	double dx = cb[0] - ca[0], dy = cb[1] - ca[1], len = sqrt(dx * dx + dy * dy);
+	bool rtz = sc->inst->stage_info.kinematics == ASPH_KINEMATICS_RTZ;
+	/* a straight line dips below its chord by at most curvature len^2 / 8 */
+	if (!rtz && sc->tip == 0 && g - sc->curvature * len * len / 8 >= min_gap)
+		return true;
+	if (rtz)
+		len = fabs(b[0] - a[0]) + fmax(a[0], b[0]) * fabs(b[1] - a[1]);
+	int steps = 4 + (int)fmin(len / 0.1, 4000);
+	for (int k = 1; k < steps; k++) {
+		double t = (double)k / steps;
+		for (int j = 0; j < 3; j++)
+			m[j] = a[j] + t * (b[j] - a[j]);
+		to_cartesian(sc, m, c);
+		if (gap_at(sc, c) < min_gap)
+			return false;
+	}
+	return true;
+}
+
+static bool path_clear(const struct asph_scan *sc, const double *a, const double *b,
+		       double min_gap)
+{
+	return path_clear_g(sc, a, NAN, b, NAN, min_gap);
+}
+
+/* The travel height: clearance above the whole part and every approach. */
+static double safe_height(struct asph_scan *sc, double min_approach_z)
+{
+	const struct asph_surface *s = sc->surface;
+	double a = asph_surface_aperture_radius(s), z = min_approach_z, d[3];
+
+	for (int j = 0; j <= 2000; j++) {
+		asph_surface_sag_derivs(s, a * j / 2000.0, d);
+		z = fmin(z, d[0] - sc->inst->probe_info.standoff -
+			       sc->tip * sqrt(1 + d[1] * d[1]) - sc->o.clearance);
+	}
+	return z;
+}
+
 /* ------------------------------------------------------------ check */
 
 static int refuse_axis(const struct asph_scan *sc, size_t i, const double *m,
@@ -207,7 +299,7 @@ static inline bool inside(const double *m, const double *lo, const double *hi)
 }
 
 static int check_point(struct asph_scan *sc, size_t i, const double *lo, const double *hi,
-		       struct asph_error *err)
+		       double *min_z, struct asph_error *err)
 {
 	const struct asph_probe_info *pi = &sc->inst->probe_info;
 	const double *p = sc->xyz + 3 * i;
@@ -225,6 +317,7 @@ static int check_point(struct asph_scan *sc, size_t i, const double *lo, const d
 		return refuse_axis(sc, i, t.machine, "measuring position", err);
 	if (!inside(t.approach, lo, hi))
 		return refuse_axis(sc, i, t.approach, "approach", err);
+	*min_z = fmin(*min_z, t.approach[2]);
 	return 0;
 }
 
@@ -253,11 +346,19 @@ int asph_scan_check(struct asph_scan *sc, struct asph_error *err)
 		lo[k] = si->axes[k].min;
 		hi[k] = si->axes[k].max;
 	}
+	double min_z = INFINITY;
 	sc->theta_prev = 0;
 	for (size_t i = sc->o.start_index; r == 0 && i < sc->n; i++)
-		r = check_point(sc, i, lo, hi, err);
+		r = check_point(sc, i, lo, hi, &min_z, err);
 	sc->theta_prev = 0;
-	return r;
+	if (r < 0)
+		return r;
+	sc->z_safe = safe_height(sc, min_z);
+	if (!(sc->z_safe >= lo[2]))
+		return asph_error_set(err, -ERANGE,
+				      "the travel height over the part, %.6f mm, is outside the z travel %.6g .. %.6g",
+				      sc->z_safe, lo[2], hi[2]);
+	return 0;
 }
 
 /* --------------------------------------------------------- progress */
@@ -421,11 +522,53 @@ static int prefixed(int r, const char *who, size_t i, struct asph_error *err)
 	return asph_error_set(err, r, "plan point %zu: %s: %s", i, who, msg);
 }
 
+/* Seconds the stage needs from a to b at its axes' speeds (0: unknown). */
+static double motion_s(const struct asph_scan *sc, const double *a, const double *b)
+{
+	double t = 0;
+
+	for (unsigned k = 0; k < 3; k++) {
+		double v = sc->inst->stage_info.axes[k].max_speed;
+		if (v > 0)
+			t = fmax(t, fabs(b[k] - a[k]) / v);
+	}
+	return t;
+}
+
+/* The base timeout plus twice what the operation should take. */
+static unsigned scaled_timeout(unsigned base_ms, double expected_s)
+{
+	double ms = base_ms + 2000.0 * expected_s;
+	return ms >= (double)UINT_MAX ? UINT_MAX : (unsigned)ms;
+}
+
 static int stage_move(struct asph_scan *sc, const double *m, size_t i, struct asph_error *err)
 {
 	struct asph_instrument *in = sc->inst;
-	return prefixed(in->stage_driver->stage->move_to(in->stage, m, sc->o.move_timeout_ms, err),
-			"stage", i, err);
+	unsigned timeout = scaled_timeout(sc->o.move_timeout_ms, motion_s(sc, sc->pos, m));
+	int r = in->stage_driver->stage->move_to(in->stage, m, timeout, err);
+
+	if (r == 0)
+		memcpy(sc->pos, m, sizeof(sc->pos));
+	return prefixed(r, "stage", i, err);
+}
+
+/* Moves to m straight when that keeps min_gap all the way, else up to the
+ * travel height, across, and down. Moving up (-z) is always away from the
+ * part. */
+static int move_clear(struct asph_scan *sc, const double *m, double min_gap, size_t i,
+		      struct asph_error *err)
+{
+	if (path_clear(sc, sc->pos, m, min_gap))
+		return stage_move(sc, m, i, err);
+	double up[3] = { sc->pos[0], sc->pos[1], fmin(sc->z_safe, sc->pos[2]) };
+	double over[3] = { m[0], m[1], up[2] };
+	int r = stage_move(sc, up, i, err);
+	if (r == 0)
+		r = stage_move(sc, over, i, err);
+	if (r == 0)
+		r = stage_move(sc, m, i, err);
+	return r;
 }
 
 /* Waits while paused, keeping the file's flush policy. */
@@ -474,7 +617,7 @@ static int measure_point(struct asph_scan *sc, size_t i, struct asph_error *err)
 	double cart[3];
 
 	target_of(sc, i, false, &t);
-	int r = stage_move(sc, t.approach, i, err);
+	int r = move_clear(sc, t.approach, sc->o.clearance / 2, i, err);
 	if (r == 0)
 		r = stage_move(sc, t.machine, i, err);
 	if (r == 0)
@@ -485,7 +628,10 @@ static int measure_point(struct asph_scan *sc, size_t i, struct asph_error *err)
 		return r;
 	to_cartesian(sc, ctx.machine, ctx.xyz);
 	memcpy(cart, ctx.xyz, sizeof(cart));
-	r = prefixed(in->probe_driver->probe->read(in->probe, &ctx, &rd, sc->o.read_timeout_ms, err),
+	double rate = in->probe_info.rate;
+	r = prefixed(in->probe_driver->probe->read(in->probe, &ctx, &rd,
+						   scaled_timeout(sc->o.read_timeout_ms,
+								  rate > 0 ? 1 / rate : 0), err),
 		     "probe", i, err);
 	struct stamp st = stamp_now(sc);
 	if (r == 0)
@@ -504,23 +650,51 @@ static int measure_point(struct asph_scan *sc, size_t i, struct asph_error *err)
 static int measure_sweep(struct asph_scan *sc, size_t i, size_t *done, struct asph_error *err)
 {
 	struct asph_instrument *in = sc->inst;
-	size_t n = sc->n - i < sc->o.stream_batch ? sc->n - i : sc->o.stream_batch, got = 0;
+	size_t max = sc->n - i < sc->o.stream_batch ? sc->n - i : sc->o.stream_batch, n = 0, got = 0;
+	double rate = in->probe_info.rate, motion = 0, reading = 0;
+	const double *prev = sc->pos;
 	struct target t;
 
+	/* along a sweep the probe may come closer than on the measuring
+	 * positions by half its standoff or half the clearance */
+	double sweep_gap = -fmax(in->probe_info.standoff, sc->o.clearance) / 2;
+	int r;
+
 	*done = 0;
-	for (size_t k = 0; k < n; k++) {
-		target_of(sc, i + k, false, &t);
-		memcpy(sc->path + 3 * k, t.machine, sizeof(t.machine));
-		memcpy(sc->ctx[k].machine, t.machine, sizeof(t.machine));
-		memcpy(sc->ctx[k].xyz, t.cart, sizeof(t.cart));
-		sc->ctx[k].plan_index = i + k;
+	target_of(sc, i, false, &t);
+	if (!path_clear(sc, sc->pos, t.machine, sweep_gap)) {
+		r = move_clear(sc, t.approach, sc->o.clearance / 2, i, err);
+		if (r == 0)
+			r = stage_move(sc, t.machine, i, err);
+		if (r < 0)
+			return r;
 	}
-	int r = prefixed(in->stage_driver->stage->sweep(in->stage, sc->path, n,
-						       sc->o.move_timeout_ms, err),
-			 "stage", i, err);
-	if (r == 0)
-		r = in->probe_driver->probe->stream(in->probe, sc->ctx, n, sc->readings, &got,
-						    sc->o.read_timeout_ms, err);
+	double g_prev = NAN;
+	while (n < max && (n == 0 || fmax(motion, reading) < SWEEP_SECONDS)) {
+		if (n > 0) {
+			target_of(sc, i + n, false, &t);
+			/* a segment too close to the part ends the sweep; the next
+			 * one starts over the part */
+			double g = gap_at(sc, t.cart);
+			if (!path_clear_g(sc, prev, g_prev, t.machine, g, sweep_gap))
+				break;
+			g_prev = g;
+		}
+		motion += motion_s(sc, prev, t.machine);
+		reading += rate > 0 ? 1 / rate : 0;
+		memcpy(sc->path + 3 * n, t.machine, sizeof(t.machine));
+		memcpy(sc->ctx[n].machine, t.machine, sizeof(t.machine));
+		memcpy(sc->ctx[n].xyz, t.cart, sizeof(t.cart));
+		sc->ctx[n].plan_index = i + n;
+		prev = sc->path + 3 * n++;
+	}
+	r = in->stage_driver->stage->sweep(in->stage, sc->path, n,
+					       scaled_timeout(sc->o.move_timeout_ms, motion), err);
+	if (r < 0)
+		return prefixed(r, "stage", i, err);
+	memcpy(sc->pos, sc->path + 3 * (n - 1), sizeof(sc->pos));
+	r = in->probe_driver->probe->stream(in->probe, sc->ctx, n, sc->readings, &got,
+					    scaled_timeout(sc->o.read_timeout_ms, reading), err);
 	if (r < 0)
 		r = prefixed(r, "probe", i + got, err);
 	struct stamp st = stamp_now(sc);
@@ -546,12 +720,6 @@ static int scan_loop(struct asph_scan *sc, struct asph_error *err)
 
 	sc->measure_t0_ns = now_ns();
 	sc->measure_done0 = i;
-	if (sc->stream && i < sc->n) {
-		struct target t;
-		target_of(sc, i, false, &t);
-		sc->theta_prev = 0;
-		r = stage_move(sc, t.approach, i, err);
-	}
 	while (r == 0 && i < sc->n) {
 		r = wait_paused(sc, i, measured, err);
 		if (r == 0)
@@ -640,6 +808,10 @@ int asph_scan_run(struct asph_scan *sc, struct asph_scanfile_writer *w,
 		r = in->stage_driver->stage->home(in->stage, sc->o.home_timeout_ms, err);
 		r = prefixed(r, "stage", sc->o.start_index, err);
 	}
+	if (r == 0)
+		r = prefixed(in->stage_driver->stage->position(in->stage, sc->pos,
+							       sc->o.move_timeout_ms, err),
+			     "stage", sc->o.start_index, err);
 	if (r == 0)
 		r = aborted(sc, err);
 	if (r == 0)

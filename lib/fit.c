@@ -483,7 +483,6 @@ static int whiten(struct asph_fit *w, struct asph_error *err)
 	gsl_vector_view wv = gsl_vector_view_array(work, 3 * (size_t)p);
 	if (gsl_linalg_cholesky_decomp1(&L.matrix) != 0 ||
 	    gsl_linalg_cholesky_rcond(&L.matrix, &rcond, &wv.vector) != 0 ||
-	    getenv("RC") && fprintf(stderr, "rcond %g\n", rcond) < 0 ||
 	    !(rcond > MIN_RCOND))
 		return asph_error_set(err, -EDOM,
 				      "the points cannot tell the degrees of freedom apart (reciprocal condition number %.2g)",

@@ -94,6 +94,7 @@ struct asph_device {
 	/* probe */
 	struct mock_part *part;
 	struct asph_probe_info pinfo;
+	double rate;            /* readings per simulated second */
 	uint64_t n_readings, fail_after, timeout_at, out_of_range_at;
 };
 
@@ -149,15 +150,18 @@ static int stage_info(struct asph_device *d, struct asph_stage_info *out,
 	memset(out, 0, sizeof(*out));
 	out->kinematics = d->kin;
 	out->n_axes = 3;
+	/* the speed as the executor sees it: scaled by the time factor
+	 * (0: no limit) */
+	double v = d->time_factor > 0 ? d->speed / d->time_factor : 0;
 	if (d->kin == ASPH_KINEMATICS_RTZ) {
-		axis(&out->axes[0], "r", "mm", 0, d->travel_xy, d->speed);
+		axis(&out->axes[0], "r", "mm", 0, d->travel_xy, v);
 		/* an endless rotary table, limited only to keep angles exact */
-		axis(&out->axes[1], "theta", "rad", -1e6, 1e6, d->speed);
+		axis(&out->axes[1], "theta", "rad", -1e6, 1e6, v);
 	} else {
-		axis(&out->axes[0], "x", "mm", -d->travel_xy, d->travel_xy, d->speed);
-		axis(&out->axes[1], "y", "mm", -d->travel_xy, d->travel_xy, d->speed);
+		axis(&out->axes[0], "x", "mm", -d->travel_xy, d->travel_xy, v);
+		axis(&out->axes[1], "y", "mm", -d->travel_xy, d->travel_xy, v);
 	}
-	axis(&out->axes[2], "z", "mm", -d->travel_z, d->travel_z, d->speed);
+	axis(&out->axes[2], "z", "mm", -d->travel_z, d->travel_z, v);
 	snprintf(out->model, sizeof(out->model), "mock stage");
 	snprintf(out->serial, sizeof(out->serial), "MOCK-0001");
 	return 0;
@@ -301,7 +305,8 @@ static int probe_open(const struct asph_driver *drv, const struct asph_option_va
 	pi->range_min = pi->standoff - o[OPT_RANGE].d / 2;
 	pi->range_max = pi->standoff + o[OPT_RANGE].d / 2;
 	pi->max_slope = o[OPT_MAX_SLOPE].d * M_PI / 180;
-	pi->rate = o[OPT_RATE].d;
+	d->rate = o[OPT_RATE].d;
+	pi->rate = d->time_factor > 0 ? d->rate / d->time_factor : 0;
 	pi->can_stream = !tactile && o[OPT_STREAM].b;
 	snprintf(pi->model, sizeof(pi->model), "mock %s probe", tactile ? "tactile" : "optical");
 	snprintf(pi->serial, sizeof(pi->serial), "MOCK-0002");
@@ -364,7 +369,7 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 		      struct asph_reading *out, unsigned timeout_ms, struct asph_error *err)
 {
 	if (d->time_factor > 0) {
-		int r = mock_wait(&d->stop, d->time_factor / d->pinfo.rate, timeout_ms);
+		int r = mock_wait(&d->stop, d->time_factor / d->rate, timeout_ms);
 		if (r < 0)
 			return asph_error_set(err, r, r == -ECANCELED ? "reading stopped"
 								   : "reading took longer than the timeout");
@@ -382,7 +387,7 @@ static int probe_stream(struct asph_device *d, const struct asph_probe_context *
 	if (!d->pinfo.can_stream)
 		return asph_error_set(err, -ENOTSUP, "this probe does not stream");
 	if (d->time_factor > 0) {
-		int r = mock_wait(&d->stop, d->time_factor * (double)n / d->pinfo.rate, timeout_ms);
+		int r = mock_wait(&d->stop, d->time_factor * (double)n / d->rate, timeout_ms);
 		if (r < 0)
 			return asph_error_set(err, r, r == -ECANCELED ? "streaming stopped"
 								   : "stream took longer than the timeout");
@@ -391,7 +396,7 @@ static int probe_stream(struct asph_device *d, const struct asph_probe_context *
 	}
 	/* the readings of a sweep are spread over it at the probe's rate */
 	uint64_t t0 = now_ns();
-	double dt = d->time_factor * 1e9 / d->pinfo.rate;
+	double dt = d->time_factor * 1e9 / d->rate;
 	uint64_t t_end = t0 - (uint64_t)((double)n * dt);
 	for (size_t i = 0; i < n; i++) {
 		int r = measure(d, ctx + i, out + i, t_end + (uint64_t)((double)(i + 1) * dt),

@@ -169,7 +169,9 @@ void asph_fit_free(struct asph_fit *w);
  * valid until the fit is done.
  *
  * init refuses (-EINVAL) n > n_max, a non-finite coordinate, fewer points
- * than DOF + 1, points that all lie on one line (or at one place) in x-y.
+ * than DOF + 1, points that all lie on one line (or at one place) in x-y,
+ * and (-EDOM) points that cannot tell the DOF apart (e.g. all at one
+ * radius, where a decentre and a tilt look the same).
  * iterate runs one Levenberg-Marquardt step; when a pass has converged it
  * starts the next (points whose foot left the aperture excluded, robust
  * weights updated). It returns -EDOM when too many points have no foot inside

@@ -38,8 +38,9 @@ int asph_quality_chart_from_name(const char *name,
 /*
  * The conformal chart of a surface of revolution: rho(r) = r exp(I(r)),
  * I(r) = int_0^r (w(t) - 1) / t dt, w = sqrt(1 + Z'^2). I is tabulated at
- * alloc time; each evaluation adds one short Gauss-Legendre panel, so it
- * costs O(1) and is accurate to a few ulp of rho. The chart keeps a
+ * alloc time; each evaluation adds one short Gauss-Legendre panel (bisected
+ * only next to a slope singularity), so it costs O(1) and is accurate to a
+ * few ulp of rho. The chart keeps a
  * pointer to s, which must outlive it.
  */
 struct asph_conformal_chart;

@@ -243,6 +243,148 @@ static void test_limits_before_motion(void **state)
 	}
 }
 
+/* -------------------------------------------- clearance of motion */
+
+/* Every position the stage is sent to, in order (the stage's axes). */
+static double *trail;
+static size_t n_trail, cap_trail;
+
+static void trail_add(const double *p)
+{
+	if (n_trail == cap_trail) {
+		cap_trail = cap_trail ? 2 * cap_trail : 1024;
+		trail = realloc(trail, cap_trail * 3 * sizeof(double));
+		assert_non_null(trail);
+	}
+	memcpy(trail + 3 * n_trail++, p, 3 * sizeof(double));
+}
+
+static int trail_home(struct asph_device *d, unsigned t, struct asph_error *err)
+{
+	static const double zero[3];
+	trail_add(zero);
+	return mock_stage->home(d, t, err);
+}
+
+static int trail_move(struct asph_device *d, const double *p, unsigned t, struct asph_error *err)
+{
+	trail_add(p);
+	return mock_stage->move_to(d, p, t, err);
+}
+
+static int trail_sweep(struct asph_device *d, const double *p, size_t n, unsigned t,
+		       struct asph_error *err)
+{
+	for (size_t i = 0; i < n; i++)
+		trail_add(p + 3 * i);
+	return mock_stage->sweep(d, p, n, t, err);
+}
+
+/* The gap of the probe at cartesian c, computed here from the sag alone. */
+static double gap(const struct asph_surface *s, const double *c, double standoff, double tip)
+{
+	double d[3];
+	asph_surface_sag_derivs(s, hypot(c[0], c[1]), d);
+	return d[0] - c[2] - standoff - tip * sqrt(1 + d[1] * d[1]);
+}
+
+/* Every lateral segment of the trail keeps min_gap (dense samples). */
+static void check_trail(const struct asph_surface *s, bool rtz, double standoff, double tip,
+			double min_gap, size_t *n_lateral)
+{
+	*n_lateral = 0;
+	for (size_t i = 1; i < n_trail; i++) {
+		const double *a = trail + 3 * (i - 1), *b = trail + 3 * i;
+		if (fabs(a[0] - b[0]) < 1e-12 && fabs(a[1] - b[1]) < 1e-12)
+			continue;   /* straight up or down */
+		(*n_lateral)++;
+		for (int k = 0; k <= 200; k++) {
+			double m[3], c[3], t = k / 200.0;
+			for (int j = 0; j < 3; j++)
+				m[j] = a[j] + t * (b[j] - a[j]);
+			c[0] = rtz ? m[0] * cos(m[1]) : m[0];
+			c[1] = rtz ? m[0] * sin(m[1]) : m[1];
+			c[2] = m[2];
+			double g = gap(s, c, standoff, tip);
+			if (g < min_gap - 1e-9)
+				fail_msg("segment %zu (%.4f %.4f %.4f) -> (%.4f %.4f %.4f): gap %.6f mm < %.6f",
+					 i, a[0], a[1], a[2], b[0], b[1], b[2], g, min_gap);
+		}
+	}
+}
+
+struct clearance_case {
+	const char *spec;
+	unsigned flags;
+	bool shuffle, rtz;
+	double standoff, tip, min_gap;
+};
+
+static void test_clearance(void **state)
+{
+	static const struct clearance_case cases[] = {
+		/* optical sweeps: at most half the standoff closer than measuring */
+		{ "mock:time_factor=0", ASPH_SCAN_STREAM, false, false, 2, 0, -1 },
+		{ "mock:time_factor=0", ASPH_SCAN_STREAM, true, false, 2, 0, -1 },
+		/* point by point: lateral moves keep half the clearance */
+		{ "mock:time_factor=0,probe=tactile,tip_radius=0.7", 0, true, false, 0, 0.7, 0.25 },
+		{ "mock:time_factor=0,probe=tactile,tip_radius=0.7,kinematics=r-theta-z", 0, true, true,
+		  0, 0.7, 0.25 },
+		{ "mock:time_factor=0,stream=false", 0, false, false, 2, 0, 0.25 },
+	};
+	struct env *e = *state;
+	const struct asph_driver *mock = asph_registry_find(e->reg, "mock");
+	static struct asph_stage_ops ops;
+	static struct asph_driver spy;
+	size_t n = 300;
+	double *xyz = malloc(3 * n * sizeof(double));
+	char path[128];
+
+	assert_non_null(xyz);
+	mock_stage = mock->stage;
+	ops = *mock->stage;
+	ops.home = trail_home;
+	ops.move_to = trail_move;
+	ops.sweep = trail_sweep;
+	spy = *mock;
+	spy.stage = &ops;
+	for (size_t c = 0; c < sizeof(cases) / sizeof(cases[0]); c++) {
+		const struct clearance_case *cc = &cases[c];
+		struct asph_config *cfg;
+		struct asph_instrument *inst;
+		struct asph_scan *sc;
+		struct asph_scan_options so = { .flags = cc->flags };
+		struct asph_error err;
+
+		/* the first 300 plan points, or a fixed scramble of them: long
+		 * jumps across the part */
+		for (size_t i = 0; i < n; i++) {
+			size_t j = cc->shuffle ? (i * 181 + 37) % e->plan->n : i;
+			memcpy(xyz + 3 * i, e->plan->xyz + 3 * j, 3 * sizeof(double));
+		}
+		assert_int_equal(asph_instrument_spec_parse(e->reg, cc->spec, &cfg, NULL), 0);
+		cfg->instruments[0].stage_driver = &spy;
+		assert_int_equal(asph_instrument_open(&cfg->instruments[0], 1000, &inst, NULL), 0);
+		assert_int_equal(asph_scan_new(inst, e->s, xyz, n, &so, &sc, NULL), 0);
+		n_trail = 0;
+		if (asph_scan_run(sc, new_writer(new_path(e, path, sizeof(path))), &err) < 0)
+			fail_msg("%s: %s", cc->spec, err.message);
+		size_t lateral;
+		check_trail(e->s, cc->rtz, cc->standoff, cc->tip, cc->min_gap, &lateral);
+		assert_true(lateral >= n / 2);
+		struct asph_scanfile *f = read_scan(path);
+		assert_int_equal(f->n, n);
+		asph_scanfile_free(f);
+		asph_scan_free(sc);
+		asph_instrument_close(inst);
+		asph_config_free(cfg);
+	}
+	free(xyz);
+	free(trail);
+	trail = NULL;
+	n_trail = cap_trail = 0;
+}
+
 /* ------------------------------------------ pause, resume, abort */
 
 struct controller {
@@ -545,6 +687,7 @@ int main(void)
 		cmocka_unit_test(test_faults),
 		cmocka_unit_test(test_skip_out_of_range),
 		cmocka_unit_test(test_limits_before_motion),
+		cmocka_unit_test(test_clearance),
 		cmocka_unit_test(test_pause_resume_abort),
 		cmocka_unit_test(test_recovery),
 		cmocka_unit_test(test_tip_on_surface),

@@ -437,6 +437,15 @@ static void test_bad_input(void **state)
 	assert_int_equal(asph_fit_init(w, xyz, n, &err), -EINVAL);
 	assert_non_null(strstr(err.message, "line"));
 	assert_int_equal(asph_fit_iterate(w, &err), -EINVAL);
+	/* All at one radius: a decentre and a tilt do the same there. */
+	for (size_t i = 0; i < n; i++) {
+		double t = 0.37 + 2 * M_PI * i / n, r = 11.3;
+		xyz[3 * i] = r * cos(t);
+		xyz[3 * i + 1] = r * sin(t);
+		xyz[3 * i + 2] = asph_surface_sag(s, r);
+	}
+	assert_int_equal(asph_fit_init(w, xyz, n, &err), -EDOM);
+	assert_non_null(strstr(err.message, "tell the degrees of freedom apart"));
 	asph_fit_free(w);
 
 	struct asph_fit_options bad = { .n_zernike = 500 };

@@ -61,7 +61,7 @@ static int export_points(const char *scan, const char *path)
 		return -1;
 	}
 	if (!rep.ended || rep.outcome != ASPH_SCANFILE_COMPLETED)
-		fprintf(stderr, "asph replay: note: the scan is %s; characterizing the %llu points it kept\n",
+		fprintf(stderr, "asph replay: note: the scan did not complete (%s); characterizing the %llu points it kept\n",
 			asph_scanfile_outcome_name(rep.ended ? rep.outcome : ASPH_SCANFILE_UNFINISHED),
 			(unsigned long long)rep.n_points);
 	return 0;
