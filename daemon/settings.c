@@ -232,6 +232,7 @@ int config_load(const char *path, struct daemon_config **out,
 		if (!f) {
 			r = -errno;
 			struct asph_error e;
+			asph_error_clear(&e);
 			asph_error_set(&e, r, "cannot open: %s", strerror(-r));
 			asph_error_locate(&e, path, 0, 0, NULL);
 			if (report)
@@ -252,6 +253,7 @@ int config_load(const char *path, struct daemon_config **out,
 	root = json_loadb(text, len, JSON_REJECT_DUPLICATES, &je);
 	if (!root) {
 		struct asph_error e;
+		asph_error_clear(&e);
 		asph_error_set(&e, -EINVAL, "%s", je.text);
 		asph_error_locate(&e, path, je.line, je.column, NULL);
 		if (report)

@@ -11,53 +11,8 @@
 #include <string.h>
 #include <time.h>
 
-#include "asph/executor.h"
+#include "executor-internal.h"
 #include "util-mem.h"
-
-#define RECORD_BATCH 4096
-/* A sweep lasts at most this long (s), so that pause, abort and progress
- * stay prompt at any speed. */
-#define SWEEP_SECONDS 0.25
-
-struct asph_scan {
-	struct asph_instrument *inst;
-	const struct asph_surface *surface;
-	const double *xyz;
-	size_t n;
-	struct asph_scan_options o;
-	bool tactile, stream;
-	double tip;
-
-	atomic_bool paused, aborted;
-	pthread_mutex_t lock;           /* progress, pause condition */
-	pthread_cond_t wake;
-	struct asph_scan_progress progress;
-
-	/* run state, run thread only */
-	uint64_t t0_ns, last_report_ns, rate_t_ns, rate_done, measure_t0_ns;
-	double rate;
-	uint64_t measure_done0;
-	double theta_prev;
-	double pos[3];          /* where the last motion ended, stage axes */
-	double z_safe;          /* travel height over the whole part (machine z) */
-	double curvature;       /* bound of the surface's curvature, 1/mm */
-	struct asph_scanfile_writer *w;
-	struct asph_scanfile_point rec[RECORD_BATCH];
-	size_t n_rec;
-	double path[3 * RECORD_BATCH];
-	double cart[3 * RECORD_BATCH];
-	double normal[3 * RECORD_BATCH];
-	struct asph_probe_context ctx[RECORD_BATCH];
-	struct asph_reading readings[RECORD_BATCH];
-};
-
-/* Where the stage goes for one plan point. */
-struct target {
-	double cart[3];         /* probe reference point, cartesian, mm */
-	double machine[3];      /* the same in the stage's axes */
-	double approach[3];     /* clearance above, stage's axes */
-	double normal[3];       /* nominal surface normal at the point */
-};
 
 static uint64_t now_ns(void)
 {
@@ -73,22 +28,6 @@ const char *asph_scan_state_name(enum asph_scan_state s)
 		"completed", "aborted", "failed",
 	};
 	return (unsigned)s < ARRAY_SIZE(names) ? names[s] : "unknown";
-}
-
-/* max over the aperture of the surface's principal curvatures' bound,
- * max(|Z''|, |Z'/r|), with a margin for the sampling. */
-static double curvature_bound(const struct asph_surface *s)
-{
-	double a = asph_surface_aperture_radius(s), k = 0, d[3];
-
-	for (int j = 0; j <= 2000; j++) {
-		double r = a * j / 2000.0;
-		asph_surface_sag_derivs(s, r, d);
-		k = fmax(k, fabs(d[2]));
-		if (r > 0)
-			k = fmax(k, fabs(d[1] / r));
-	}
-	return 1.25 * k;
 }
 
 int asph_scan_new(struct asph_instrument *inst, const struct asph_surface *s,
@@ -134,7 +73,7 @@ int asph_scan_new(struct asph_instrument *inst, const struct asph_surface *s,
 	atomic_init(&sc->aborted, false);
 	pthread_mutex_init(&sc->lock, NULL);
 	pthread_cond_init(&sc->wake, NULL);
-	sc->curvature = curvature_bound(s);
+	sc->curvature = scan_curvature_bound(s);
 	sc->progress.total = n;
 	sc->progress.done = sc->o.start_index;
 	sc->progress.eta_s = -1;
@@ -149,216 +88,6 @@ void asph_scan_free(struct asph_scan *sc)
 	pthread_mutex_destroy(&sc->lock);
 	pthread_cond_destroy(&sc->wake);
 	free(sc);
-}
-
-/* ------------------------------------------------------ kinematics */
-
-static void to_machine(struct asph_scan *sc, const double c[3], double m[3])
-{
-	if (sc->inst->stage_info.kinematics != ASPH_KINEMATICS_RTZ) {
-		memcpy(m, c, 3 * sizeof(double));
-		return;
-	}
-	double r = hypot(c[0], c[1]), th = sc->theta_prev;
-	if (r > 1e-12) {
-		/* the rotary axis takes the short way from where it is */
-		double d = remainder(atan2(c[1], c[0]) - sc->theta_prev, 2 * M_PI);
-		th = sc->theta_prev + d;
-	}
-	sc->theta_prev = th;
-	m[0] = r;
-	m[1] = th;
-	m[2] = c[2];
-}
-
-static void to_cartesian(const struct asph_scan *sc, const double m[3], double c[3])
-{
-	if (sc->inst->stage_info.kinematics != ASPH_KINEMATICS_RTZ) {
-		memcpy(c, m, 3 * sizeof(double));
-		return;
-	}
-	c[0] = m[0] * cos(m[1]);
-	c[1] = m[0] * sin(m[1]);
-	c[2] = m[2];
-}
-
-/* The stage position measuring plan point i: the tip centre (tactile) on
- * the point's normal, the probe reference a standoff before it. The probe
- * looks along +z, so "before" and "above" are -z. */
-static void target_of(struct asph_scan *sc, size_t i, bool need_normal, struct target *t)
-{
-	const double *p = sc->xyz + 3 * i;
-
-	/* the normal costs as much as the rest: only when it is used */
-	if (need_normal || sc->tip > 0)
-		asph_surface_normal(sc->surface, p[0], p[1], t->normal);
-	else
-		t->normal[0] = t->normal[1] = 0, t->normal[2] = 1;
-	for (int k = 0; k < 3; k++)
-		t->cart[k] = p[k] - sc->tip * t->normal[k];
-	t->cart[2] -= sc->inst->probe_info.standoff;
-	to_machine(sc, t->cart, t->machine);
-	t->approach[0] = t->machine[0];
-	t->approach[1] = t->machine[1];
-	t->approach[2] = t->machine[2] - sc->o.clearance;
-}
-
-/* ------------------------------------------------------- clearance */
-
-/* How far the probe at cartesian c is from where it measures: the gap
- * along the probe axis between its reference point and the nominal
- * surface, less the standoff and the tip (0 on a measuring position,
- * clearance above it). Nothing below: +infinity. */
-static double gap_at(const struct asph_scan *sc, const double c[3])
-{
-	double d[3];
-
-	asph_surface_sag_derivs(sc->surface, sqrt(c[0] * c[0] + c[1] * c[1]), d);
-	if (!isfinite(d[0]))
-		return INFINITY;
-	return d[0] - c[2] - sc->inst->probe_info.standoff - sc->tip * sqrt(1 + d[1] * d[1]);
-}
-
-/* Whether the stage's straight move (in its axes) from a to b keeps the
- * gap at least min_gap all along; ga, gb are the gaps at the ends when
- * known, else NAN. */
-static bool path_clear_g(const struct asph_scan *sc, const double *a, double ga,
-			 const double *b, double gb, double min_gap)
-{
-	double ca[3], cb[3], c[3], m[3];
-
-	to_cartesian(sc, a, ca);
-	to_cartesian(sc, b, cb);
-	double g = fmin(isnan(ga) ? gap_at(sc, ca) : ga, isnan(gb) ? gap_at(sc, cb) : gb);
-	if (g < min_gap)
-		return false;
-	double dx = cb[0] - ca[0], dy = cb[1] - ca[1], len = sqrt(dx * dx + dy * dy);
-	bool rtz = sc->inst->stage_info.kinematics == ASPH_KINEMATICS_RTZ;
-	/* a straight line dips below its chord by at most curvature len^2 / 8 */
-	if (!rtz && sc->tip == 0 && g - sc->curvature * len * len / 8 >= min_gap)
-		return true;
-	if (rtz)
-		len = fabs(b[0] - a[0]) + fmax(a[0], b[0]) * fabs(b[1] - a[1]);
-	int steps = 4 + (int)fmin(len / 0.1, 4000);
-	for (int k = 1; k < steps; k++) {
-		double t = (double)k / steps;
-		for (int j = 0; j < 3; j++)
-			m[j] = a[j] + t * (b[j] - a[j]);
-		to_cartesian(sc, m, c);
-		if (gap_at(sc, c) < min_gap)
-			return false;
-	}
-	return true;
-}
-
-static bool path_clear(const struct asph_scan *sc, const double *a, const double *b,
-		       double min_gap)
-{
-	return path_clear_g(sc, a, NAN, b, NAN, min_gap);
-}
-
-/* The travel height: clearance above the whole part and every approach. */
-static double safe_height(struct asph_scan *sc, double min_approach_z)
-{
-	const struct asph_surface *s = sc->surface;
-	double a = asph_surface_aperture_radius(s), z = min_approach_z, d[3];
-
-	for (int j = 0; j <= 2000; j++) {
-		asph_surface_sag_derivs(s, a * j / 2000.0, d);
-		z = fmin(z, d[0] - sc->inst->probe_info.standoff -
-			       sc->tip * sqrt(1 + d[1] * d[1]) - sc->o.clearance);
-	}
-	return z;
-}
-
-/* ------------------------------------------------------------ check */
-
-static int refuse_axis(const struct asph_scan *sc, size_t i, const double *m,
-		       const char *what, struct asph_error *err)
-{
-	const struct asph_stage_info *si = &sc->inst->stage_info;
-
-	for (unsigned k = 0; k < si->n_axes; k++) {
-		const struct asph_axis_info *a = &si->axes[k];
-		if (m[k] >= a->min && m[k] <= a->max)
-			continue;
-		asph_error_set(err, -ERANGE,
-			       "plan point %zu (%.6f, %.6f, %.6f): the %s needs axis %s at %.6f %s, outside its travel %.6g .. %.6g",
-			       i, sc->xyz[3 * i], sc->xyz[3 * i + 1], sc->xyz[3 * i + 2], what,
-			       a->name, m[k], a->unit, a->min, a->max);
-		asph_error_locate(err, NULL, 0, 0, a->name);
-		return -ERANGE;
-	}
-	return 0;
-}
-
-static inline bool inside(const double *m, const double *lo, const double *hi)
-{
-	return m[0] >= lo[0] && m[0] <= hi[0] && m[1] >= lo[1] && m[1] <= hi[1] &&
-	       m[2] >= lo[2] && m[2] <= hi[2];
-}
-
-static int check_point(struct asph_scan *sc, size_t i, const double *lo, const double *hi,
-		       double *min_z, struct asph_error *err)
-{
-	const struct asph_probe_info *pi = &sc->inst->probe_info;
-	const double *p = sc->xyz + 3 * i;
-	struct target t;
-
-	if (!isfinite(p[0]) || !isfinite(p[1]) || !isfinite(p[2]))
-		return asph_error_set(err, -EINVAL, "plan point %zu is not finite", i);
-	target_of(sc, i, pi->max_slope > 0, &t);
-	if (pi->max_slope > 0 && acos(fmin(1.0, t.normal[2])) > pi->max_slope)
-		return asph_error_set(err, -ERANGE,
-				      "plan point %zu (%.6f, %.6f, %.6f): surface slope %.3f deg is steeper than the probe reads (%.3f deg)",
-				      i, p[0], p[1], p[2], acos(fmin(1.0, t.normal[2])) * 180 / M_PI,
-				      pi->max_slope * 180 / M_PI);
-	if (!inside(t.machine, lo, hi))
-		return refuse_axis(sc, i, t.machine, "measuring position", err);
-	if (!inside(t.approach, lo, hi))
-		return refuse_axis(sc, i, t.approach, "approach", err);
-	*min_z = fmin(*min_z, t.approach[2]);
-	return 0;
-}
-
-static int check_probe(const struct asph_scan *sc, struct asph_error *err)
-{
-	const struct asph_probe_info *pi = &sc->inst->probe_info;
-
-	if (!(pi->standoff >= pi->range_min && pi->standoff <= pi->range_max))
-		return asph_error_set(err, -ERANGE,
-				      "the probe's standoff %.6g mm is outside its range %.6g .. %.6g mm",
-				      pi->standoff, pi->range_min, pi->range_max);
-	if (sc->tactile && !(pi->tip_radius > 0))
-		return asph_error_set(err, -ERANGE, "tactile probe without a tip radius");
-	return 0;
-}
-
-int asph_scan_check(struct asph_scan *sc, struct asph_error *err)
-{
-	const struct asph_stage_info *si = &sc->inst->stage_info;
-	double lo[3], hi[3];
-	int r = check_probe(sc, err);
-
-	if (r < 0)
-		return r;
-	for (int k = 0; k < 3; k++) {
-		lo[k] = si->axes[k].min;
-		hi[k] = si->axes[k].max;
-	}
-	double min_z = INFINITY;
-	sc->theta_prev = 0;
-	for (size_t i = sc->o.start_index; r == 0 && i < sc->n; i++)
-		r = check_point(sc, i, lo, hi, &min_z, err);
-	sc->theta_prev = 0;
-	if (r < 0)
-		return r;
-	sc->z_safe = safe_height(sc, min_z);
-	if (!(sc->z_safe >= lo[2]))
-		return asph_error_set(err, -ERANGE,
-				      "the travel height over the part, %.6f mm, is outside the z travel %.6g .. %.6g",
-				      sc->z_safe, lo[2], hi[2]);
-	return 0;
 }
 
 /* --------------------------------------------------------- progress */
@@ -559,7 +288,7 @@ static int stage_move(struct asph_scan *sc, const double *m, size_t i, struct as
 static int move_clear(struct asph_scan *sc, const double *m, double min_gap, size_t i,
 		      struct asph_error *err)
 {
-	if (path_clear(sc, sc->pos, m, min_gap))
+	if (scan_path_clear(sc, sc->pos, m, min_gap))
 		return stage_move(sc, m, i, err);
 	double up[3] = { sc->pos[0], sc->pos[1], fmin(sc->z_safe, sc->pos[2]) };
 	double over[3] = { m[0], m[1], up[2] };
@@ -616,7 +345,7 @@ static int measure_point(struct asph_scan *sc, size_t i, struct asph_error *err)
 	struct target t;
 	double cart[3];
 
-	target_of(sc, i, false, &t);
+	scan_target(sc, i, false, &t);
 	int r = move_clear(sc, t.approach, sc->o.clearance / 2, i, err);
 	if (r == 0)
 		r = stage_move(sc, t.machine, i, err);
@@ -626,7 +355,7 @@ static int measure_point(struct asph_scan *sc, size_t i, struct asph_error *err)
 			     "stage", i, err);
 	if (r < 0)
 		return r;
-	to_cartesian(sc, ctx.machine, ctx.xyz);
+	scan_to_cartesian(sc, ctx.machine, ctx.xyz);
 	memcpy(cart, ctx.xyz, sizeof(cart));
 	double rate = in->probe_info.rate;
 	r = prefixed(in->probe_driver->probe->read(in->probe, &ctx, &rd,
@@ -661,8 +390,8 @@ static int measure_sweep(struct asph_scan *sc, size_t i, size_t *done, struct as
 	int r;
 
 	*done = 0;
-	target_of(sc, i, false, &t);
-	if (!path_clear(sc, sc->pos, t.machine, sweep_gap)) {
+	scan_target(sc, i, false, &t);
+	if (!scan_path_clear(sc, sc->pos, t.machine, sweep_gap)) {
 		r = move_clear(sc, t.approach, sc->o.clearance / 2, i, err);
 		if (r == 0)
 			r = stage_move(sc, t.machine, i, err);
@@ -672,11 +401,11 @@ static int measure_sweep(struct asph_scan *sc, size_t i, size_t *done, struct as
 	double g_prev = NAN;
 	while (n < max && (n == 0 || fmax(motion, reading) < SWEEP_SECONDS)) {
 		if (n > 0) {
-			target_of(sc, i + n, false, &t);
+			scan_target(sc, i + n, false, &t);
 			/* a segment too close to the part ends the sweep; the next
 			 * one starts over the part */
-			double g = gap_at(sc, t.cart);
-			if (!path_clear_g(sc, prev, g_prev, t.machine, g, sweep_gap))
+			double g = scan_gap(sc, t.cart);
+			if (!scan_path_clear_g(sc, prev, g_prev, t.machine, g, sweep_gap))
 				break;
 			g_prev = g;
 		}

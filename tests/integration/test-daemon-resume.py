@@ -86,6 +86,23 @@ try:
     diff = same_summary(ref_res["summary"], c.call("job.result", {"id": job2})["summary"])
     expect(diff is None, f"resumed after SIGTERM: equal result ({diff})")
 
+    # --- queue stop with abort: the running scan is interrupted, resumable
+    job4 = c.call("job.submit", SPEC)["id"]
+    wait_points(c, job4, 0.3)
+    q = c.call("queue.stop", {"abort": True})
+    expect(not q["running"], "queue.stop abort stops the queue")
+    j = poll_state(c, job4, ["interrupted", "completed"])
+    expect(j["state"] == "interrupted" and "queue" in (j["reason"] or ""),
+           f"the running scan is interrupted ({j['state']}, {j['reason']})")
+    c.call("queue.start")
+    time.sleep(0.3)
+    expect(c.call("job.get", {"id": job4})["state"] == "interrupted",
+           "starting the queue does not resume an interrupted job by itself")
+    c.call("job.resume", {"id": job4})
+    poll_state(c, job4, ["completed", "failed"])
+    diff = same_summary(ref_res["summary"], c.call("job.result", {"id": job4})["summary"])
+    expect(diff is None, f"resumed after queue stop: equal result ({diff})")
+
     # --- restart instead of resume
     job3 = c.call("job.submit", SPEC)["id"]
     wait_points(c, job3, 0.2)
