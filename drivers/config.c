@@ -11,6 +11,7 @@
 #include "asph/instrument.h"
 #include "jsonpos.h"
 #include "options-internal.h"
+#include "fileio.h"
 #include "util-mem.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_config *, asph_config_free)
@@ -362,29 +363,11 @@ int asph_config_parse(const struct asph_registry *reg, const char *text,
 int asph_config_load(const struct asph_registry *reg, const char *path,
 		     struct asph_config **out, struct asph_error *err)
 {
-	_cleanup_fclose_ FILE *f = fopen(path, "re");
 	_cleanup_free_ char *text = NULL;
 	size_t len = 0;
-
-	if (!f) {
-		int e = -errno;
-		asph_error_set(err, e, "cannot open: %s", strerror(-e));
-		asph_error_locate(err, path, 0, 0, NULL);
-		return e;
-	}
-	FILE *mem = open_memstream(&text, &len);
-	if (!mem)
-		return asph_error_set(err, -ENOMEM, "out of memory");
-	char buf[8192];
-	size_t got;
-	while ((got = fread(buf, 1, sizeof(buf), f)) > 0 && len + got < (16u << 20))
-		fwrite(buf, 1, got, mem);
-	fclose(mem);
-	if (ferror(f)) {
-		asph_error_set(err, -EIO, "read error");
-		asph_error_locate(err, path, 0, 0, NULL);
-		return -EIO;
-	}
+	int r = file_read_all(path, 16u << 20, &text, &len, err);
+	if (r < 0)
+		return r;
 	return asph_config_parse(reg, text, len, path, out, err);
 }
 

@@ -11,6 +11,7 @@
 
 #include "asph/points.h"
 #include "colormap.h"
+#include "fileio.h"
 #include "util-mem.h"
 
 
@@ -85,44 +86,6 @@ static enum format format_of(const char *path)
 	if (dot && !strcasecmp(dot, ".json"))
 		return FMT_JSON;
 	return FMT_CSV;
-}
-
-static int slurp(FILE *f, const char *source, char **out, size_t *out_len,
-		 struct asph_error *err)
-{
-	size_t len = 0, cap = 1 << 16;
-	char *buf = malloc(cap + 1);
-
-	if (!buf)
-		return asph_error_set(err, -ENOMEM, "out of memory");
-	for (;;) {
-		if (len == cap) {
-			if (cap >= POINTS_FILE_LIMIT) {
-				free(buf);
-				return fail(err, source, 0, 0, NULL, -EFBIG,
-					    "larger than %zu bytes", POINTS_FILE_LIMIT);
-			}
-			cap *= 2;
-			char *grown = realloc(buf, cap + 1);
-			if (!grown) {
-				free(buf);
-				return asph_error_set(err, -ENOMEM, "out of memory");
-			}
-			buf = grown;
-		}
-		size_t got = fread(buf + len, 1, cap - len, f);
-		len += got;
-		if (got == 0)
-			break;
-	}
-	if (ferror(f)) {
-		free(buf);
-		return fail(err, source, 0, 0, NULL, -EIO, "read error");
-	}
-	buf[len] = '\0';
-	*out = buf;
-	*out_len = len;
-	return 0;
 }
 
 /* ---- CSV ---- */
@@ -671,15 +634,10 @@ int asph_points_read(const char *path, struct asph_points **out,
 {
 	int is_stdin = !strcmp(path, "-");
 	const char *source = is_stdin ? "<stdin>" : path;
-	_cleanup_fclose_ FILE *f = is_stdin ? NULL : fopen(path, "re");
 	_cleanup_free_ char *text = NULL;
 	size_t len = 0;
 
-	if (!is_stdin && !f) {
-		int e = -errno;
-		return fail(err, source, 0, 0, NULL, e, "cannot open: %s", strerror(-e));
-	}
-	int r = slurp(is_stdin ? stdin : f, source, &text, &len, err);
+	int r = file_read_all(path, POINTS_FILE_LIMIT, &text, &len, err);
 	if (r < 0)
 		return r;
 	switch (is_stdin ? FMT_CSV : format_of(path)) {

@@ -9,6 +9,7 @@
 #include <jansson.h>
 
 #include "asph/prescription.h"
+#include "fileio.h"
 #include "jsonpos.h"
 #include "util-mem.h"
 
@@ -218,40 +219,13 @@ int asph_prescription_load_file(const char *path,
 				struct asph_prescription *out,
 				struct asph_error *err)
 {
-	_cleanup_fclose_ FILE *f = fopen(path, "re");
 	_cleanup_free_ char *buf = NULL;
-	size_t len = 0, cap = 0;
+	size_t len = 0;
 	/* A prescription is small; anything this large is not one. */
-	const size_t limit = 1 << 20;
-
-	if (!f) {
-		int e = -errno;
-		asph_error_locate(err, path, 0, 0, NULL);
-		return asph_error_set(err, e, "cannot open: %s", strerror(-e));
-	}
-	for (;;) {
-		if (len == cap) {
-			cap = cap ? cap * 2 : 4096;
-			char *grown = realloc(buf, cap);
-			if (!grown)
-				return asph_error_set(err, -ENOMEM, "out of memory");
-			buf = grown;
-		}
-		size_t got = fread(buf + len, 1, cap - len, f);
-		len += got;
-		if (got == 0)
-			break;
-		if (len > limit) {
-			asph_error_locate(err, path, 0, 0, NULL);
-			return asph_error_set(err, -EFBIG,
-					      "larger than %zu bytes: not a prescription", limit);
-		}
-	}
-	if (ferror(f)) {
-		asph_error_locate(err, path, 0, 0, NULL);
-		return asph_error_set(err, -EIO, "read error");
-	}
-	int r = asph_prescription_parse(buf, len, path, out, err);
+	int r = file_read_all(path, 1 << 20, &buf, &len, err);
+	if (r < 0)
+		return r;
+	r = asph_prescription_parse(buf, len, path, out, err);
 	if (r == 0 && out->name[0] == '\0') {
 		const char *base = strrchr(path, '/');
 		base = base ? base + 1 : path;

@@ -1,0 +1,63 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fileio.h"
+#include "util-mem.h"
+
+static int fail(struct asph_error *err, const char *source, int code,
+		const char *what)
+{
+	asph_error_set(err, code, "%s", what);
+	asph_error_locate(err, source, 0, 0, NULL);
+	return code;
+}
+
+int file_read_all(const char *path, size_t limit, char **out, size_t *len,
+		  struct asph_error *err)
+{
+	int is_stdin = !strcmp(path, "-");
+	const char *source = is_stdin ? "<stdin>" : path;
+	_cleanup_fclose_ FILE *owned = is_stdin ? NULL : fopen(path, "re");
+	FILE *f = is_stdin ? stdin : owned;
+	_cleanup_free_ char *buf = NULL;
+	size_t n = 0, cap = 0;
+
+	if (!f) {
+		int e = -errno;
+		asph_error_set(err, e, "cannot open: %s", strerror(-e));
+		asph_error_locate(err, source, 0, 0, NULL);
+		return e;
+	}
+	for (;;) {
+		if (n == cap) {
+			if (cap > limit)
+				return fail(err, source, -EFBIG, "file too large");
+			cap = cap ? 2 * cap : 1 << 14;
+			/* one byte past the limit tells "exactly limit" from "more" */
+			if (cap > limit + 1)
+				cap = limit + 1;
+			char *grown = realloc(buf, cap + 1);
+			if (!grown)
+				return fail(err, source, -ENOMEM, "out of memory");
+			buf = grown;
+		}
+		size_t got = fread(buf + n, 1, cap - n, f);
+		n += got;
+		if (n > limit) {
+			char msg[96];
+			snprintf(msg, sizeof(msg), "larger than the limit of %zu bytes", limit);
+			return fail(err, source, -EFBIG, msg);
+		}
+		if (got == 0)
+			break;
+	}
+	if (ferror(f))
+		return fail(err, source, -EIO, "read error");
+	buf[n] = '\0';
+	*out = steal_ptr(buf);
+	*len = n;
+	return 0;
+}

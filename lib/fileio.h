@@ -1,0 +1,19 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* Reading a whole text file into memory, the one way the tree does it.
+ * Internal. */
+#ifndef ASPH_FILEIO_H
+#define ASPH_FILEIO_H
+
+#include <stddef.h>
+
+#include "asph/error.h"
+
+/*
+ * Reads all of path ("-" for stdin) into a malloc'd, NUL-terminated buffer.
+ * A file longer than limit bytes is refused with -EFBIG (never cut short).
+ * Errors name the file (or "<stdin>").
+ */
+int file_read_all(const char *path, size_t limit, char **out, size_t *len,
+		  struct asph_error *err);
+
+#endif
