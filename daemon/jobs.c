@@ -122,15 +122,17 @@ int jobs_set_state(struct daemon *d, struct job_record *j, enum job_state s,
 	return 0;
 }
 
+/* Results are readable by whoever may read the socket's answers: asphctl
+ * result --out copies them as the calling user. */
 static int make_dirs(struct daemon *d, const char *dir)
 {
 	_cleanup_free_ char *jobs = NULL;
 
 	if (asprintf(&jobs, "%s/jobs", d->state_dir) < 0)
 		return -ENOMEM;
-	if (mkdir(jobs, 0750) < 0 && errno != EEXIST)
+	if (mkdir(jobs, 0755) < 0 && errno != EEXIST)
 		return -errno;
-	if (mkdir(dir, 0750) < 0 && errno != EEXIST)
+	if (mkdir(dir, 0755) < 0 && errno != EEXIST)
 		return -errno;
 	return 0;
 }

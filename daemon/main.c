@@ -164,7 +164,7 @@ static int make_state_dir(const char *dir)
 {
 	struct stat st;
 
-	if (mkdir(dir, 0750) < 0 && errno != EEXIST) {
+	if (mkdir(dir, 0755) < 0 && errno != EEXIST) {
 		log_error("cannot create the state directory %s: %s", dir, strerror(errno));
 		return -errno;
 	}

@@ -132,21 +132,23 @@ struct run {
 	struct job_plan jp;             /* parsed spec, surface, plan */
 	struct asph_instrument *inst;
 	struct asph_error err;
-	int64_t started_ns;
+	struct runner_report *final;
 };
 
+/* The final report is posted by the worker once the runner is idle again,
+ * so that the loop may start the next job as soon as it reads it. */
 static void done(struct run *run, enum runner_outcome outcome, char *result)
 {
-	struct runner_report rep = {
+	struct runner_report *rep = run->final;
+
+	*rep = (struct runner_report){
 		.kind = RUNNER_DONE,
 		.job = run->job->id,
 		.outcome = outcome,
 		.result = result,
 	};
-
 	if (outcome == RUNNER_FAILED)
-		asph_error_format(&run->err, rep.reason, sizeof(rep.reason));
-	post(run->r, &rep);
+		asph_error_format(&run->err, rep->reason, sizeof(rep->reason));
 }
 
 static int open_writer(struct run *run, uint64_t *start,
@@ -231,9 +233,9 @@ static int measure(struct run *run)
 	return rc;
 }
 
-static void run_job(struct runner *r, struct runner_job *job)
+static void run_job(struct runner *r, struct runner_job *job, struct runner_report *final)
 {
-	struct run run = { .r = r, .job = job };
+	struct run run = { .r = r, .job = job, .final = final };
 	struct runner_report rep = { .kind = RUNNER_STARTED, .job = job->id, .eta_s = -1 };
 	bool stop;
 	int rc;
@@ -278,7 +280,8 @@ static void *worker(void *data)
 		r->running = true;
 		pthread_mutex_unlock(&r->lock);
 
-		run_job(r, job);
+		struct runner_report final;
+		run_job(r, job, &final);
 
 		pthread_mutex_lock(&r->lock);
 		r->job = NULL;
@@ -286,6 +289,9 @@ static void *worker(void *data)
 		r->want_pause = r->want_abort = r->want_stop = false;
 		runner_job_free(job);
 		pthread_cond_broadcast(&r->cond);
+		pthread_mutex_unlock(&r->lock);
+		post(r, &final);
+		pthread_mutex_lock(&r->lock);
 	}
 	pthread_mutex_unlock(&r->lock);
 	return NULL;

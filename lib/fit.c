@@ -344,6 +344,13 @@ int asph_fit_alloc(const struct asph_surface *s, size_t n_max,
 	r = options_resolve(&w->opt, err);
 	if (r < 0)
 		return r;
+	/* R is the base sphere's or conic's radius for every type; a surface
+	 * without a conic constant has no k to fit. */
+	enum asph_surface_type type = asph_surface_prescription(s)->type;
+	if ((w->opt.dof & ASPH_FIT_DOF_BIT(ASPH_FIT_K)) && !asph_surface_type_has_conic(type))
+		return asph_error_set(err, -EINVAL,
+				      "a %s surface has no conic constant: k cannot be fitted (R can)",
+				      asph_surface_type_name(type));
 	fit_model_init(&w->model, s);
 	for (int d = 0; d < ASPH_FIT_N_DOF; d++)
 		if (w->opt.dof & ASPH_FIT_DOF_BIT(d))

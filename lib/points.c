@@ -379,7 +379,9 @@ static int ply_parse_header(const char *text, size_t len, const char *source,
 					return fail(err, source, lineno, 15, NULL, -EINVAL, "bad face list types");
 			}
 		} else if (!strcmp(w1, "end_header")) {
-			h->data_offset = pos;
+			/* A header ending without a newline leaves pos past
+			 * the text. */
+			h->data_offset = pos < len ? pos : len;
 			h->data_line = lineno + 1;
 			break;
 		} else {
@@ -417,7 +419,7 @@ struct ply_cursor {
 	size_t line_start;
 };
 
-static int ply_next(struct ply_cursor *c, double *v)
+static void ply_skip_space(struct ply_cursor *c)
 {
 	while (c->pos < c->len && (c->text[c->pos] == ' ' || c->text[c->pos] == '\t' ||
 				   c->text[c->pos] == '\r' || c->text[c->pos] == '\n')) {
@@ -427,13 +429,19 @@ static int ply_next(struct ply_cursor *c, double *v)
 		}
 		c->pos++;
 	}
+}
+
+static int ply_next(struct ply_cursor *c, double *v)
+{
+	ply_skip_space(c);
 	if (c->pos >= c->len)
 		return -ENODATA;
 	char tmp[64], *stop;
 	size_t e = c->pos;
 	while (e < c->len && !strchr(" \t\r\n", c->text[e]))
 		e++;
-	if (e - c->pos >= sizeof(tmp))
+	/* strchr() finds the NUL too: a NUL byte is an empty token here. */
+	if (e == c->pos || e - c->pos >= sizeof(tmp))
 		return -EINVAL;
 	memcpy(tmp, c->text + c->pos, e - c->pos);
 	tmp[e - c->pos] = '\0';
@@ -442,6 +450,26 @@ static int ply_next(struct ply_cursor *c, double *v)
 		return -EINVAL;
 	c->pos = e;
 	return 0;
+}
+
+/* Data past the elements the header announces means the counts are wrong:
+ * refused rather than dropped. */
+static int ply_check_end(const struct ply_header *h, struct ply_cursor *c,
+			 size_t avail, const char *source, struct asph_error *err)
+{
+	if (h->binary) {
+		if (avail == 0)
+			return 0;
+		return fail(err, source, 0, 0, "element", -EINVAL,
+			    "%zu bytes after the %zu vertices and %zu faces the header announces",
+			    avail, h->n_vertex, h->n_face);
+	}
+	ply_skip_space(c);
+	if (c->pos >= c->len)
+		return 0;
+	return fail(err, source, c->line, (int)(c->pos - c->line_start) + 1, "element", -EINVAL,
+		    "data after the %zu vertices and %zu faces the header announces",
+		    h->n_vertex, h->n_face);
 }
 
 static int ply_read_body(const char *text, size_t len, const char *source,
@@ -499,7 +527,7 @@ static int ply_read_body(const char *text, size_t len, const char *source,
 			p->value[i] = prop[iv];
 	}
 	if (h->n_face == 0)
-		return 0;
+		return ply_check_end(h, &c, avail, source, err);
 	p->triangles = malloc(3 * h->n_face * sizeof(uint32_t));
 	if (!p->triangles)
 		return asph_error_set(err, -ENOMEM, "out of memory");
@@ -539,7 +567,7 @@ static int ply_read_body(const char *text, size_t len, const char *source,
 		}
 	}
 	p->n_triangles = h->n_face;
-	return 0;
+	return ply_check_end(h, &c, avail, source, err);
 }
 
 static int read_ply(const char *text, size_t len, const char *source,
@@ -549,6 +577,15 @@ static int read_ply(const char *text, size_t len, const char *source,
 	int r = ply_parse_header(text, len, source, &h, err);
 	if (r < 0)
 		return r;
+	/* Every vertex property and face entry takes at least one byte, so
+	 * counts the data cannot hold are refused before they are allocated. */
+	size_t avail = len - h.data_offset;
+	size_t per_vertex = h.n_props > 0 ? (size_t)h.n_props : 1;
+	if (h.n_vertex > avail / per_vertex ||
+	    h.n_face > (avail - h.n_vertex * per_vertex) / 4)
+		return fail(err, source, h.data_line, 1, "element", -EINVAL,
+			    "PLY header announces %zu vertices and %zu faces, more than the %zu bytes of data hold",
+			    h.n_vertex, h.n_face, avail);
 	_cleanup_(asph_points_freep) struct asph_points *p = asph_points_alloc(h.n_vertex);
 	if (!p)
 		return asph_error_set(err, -ENOMEM, "out of memory");
@@ -627,6 +664,22 @@ static int read_json(const char *text, size_t len, const char *source,
 	}
 	*out = steal_ptr(p);
 	return 0;
+}
+
+int asph_points_read_memory(const void *data, size_t len, const char *source,
+			    struct asph_points **out, struct asph_error *err)
+{
+	const char *text = data;
+
+	switch (format_of(source)) {
+	case FMT_PLY:
+		return read_ply(text, len, source, out, err);
+	case FMT_JSON:
+		return read_json(text, len, source, out, err);
+	case FMT_CSV:
+		break;
+	}
+	return asph_points_read_csv_text(text, len, source, out, err);
 }
 
 int asph_points_read(const char *path, struct asph_points **out,

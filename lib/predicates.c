@@ -259,6 +259,8 @@ double incircle_exact(const double *a, const double *b, const double *c,
 	const double *pts[3] = { a, b, c };
 
 	for (int i = 0; i < 3; i++) {
+		/* df.v[k] is where difference() writes: not read uninitialized. */
+		// cppcheck-suppress uninitvar
 		df.n[2 * i] = difference(pts[i][0], d[0], df.v[2 * i]);
 		df.n[2 * i + 1] = difference(pts[i][1], d[1], df.v[2 * i + 1]);
 	}

@@ -100,6 +100,7 @@ static int get_number(const struct parse_ctx *c, json_t *v, const char *field,
 static int parse_coefficients(const struct parse_ctx *c, json_t *obj,
 			      struct asph_prescription *out)
 {
+	const int odd = out->type == ASPH_SURFACE_ODD_ASPHERE;
 	const char *key;
 	json_t *v;
 
@@ -114,7 +115,11 @@ static int parse_coefficients(const struct parse_ctx *c, json_t *obj,
 		if (*key == '\0' || *end != '\0' || errno)
 			return fail_at(c, field, -EINVAL,
 				       "coefficient key '%s' is not a power of r", key);
-		if (power < 2 || power > ASPH_SURFACE_MAX_POWER || power % 2)
+		if (odd && (power < 1 || power > ASPH_SURFACE_MAX_POWER))
+			return fail_at(c, field, -EINVAL,
+				       "an odd asphere has coefficients for powers 1, 2, ..., %d; got %ld",
+				       ASPH_SURFACE_MAX_POWER, power);
+		if (!odd && (power < 2 || power > ASPH_SURFACE_MAX_POWER || power % 2))
 			return fail_at(c, field, -EINVAL,
 				       "an even asphere has coefficients for powers 2, 4, ..., %d; got %ld",
 				       ASPH_SURFACE_MAX_POWER, power);
@@ -125,35 +130,97 @@ static int parse_coefficients(const struct parse_ctx *c, json_t *obj,
 	return 0;
 }
 
-static int parse_members(const struct parse_ctx *c, json_t *root,
-			 struct asph_prescription *out)
+/* "a": [a0, a1, ...], the Q coefficients in mm. */
+static int parse_q_coefficients(const struct parse_ctx *c, json_t *arr,
+				struct asph_prescription *out)
 {
-	static const char *const known[] = { "type", "name", "R", "k", "A",
-					     "aperture_diameter" };
-	const char *key;
+	size_t i;
 	json_t *v;
-	int r;
 
-	json_object_foreach(root, key, v) {
-		size_t i;
-		for (i = 0; i < ARRAY_SIZE(known); i++)
-			if (!strcmp(key, known[i]))
-				break;
-		if (i == ARRAY_SIZE(known))
-			return fail_at(c, key, -EINVAL,
-				       "unknown member '%s' (expected type, name, R, k, A, aperture_diameter)",
-				       key);
+	if (!json_is_array(arr))
+		return fail_at(c, "a", -EINVAL,
+			       "expected an array of Q coefficients [a0, a1, ...] in mm");
+	if (json_array_size(arr) > ASPH_SURFACE_MAX_Q + 1)
+		return fail_at(c, "a", -EINVAL, "%zu Q coefficients; at most %d (a0..a%d)",
+			       json_array_size(arr), ASPH_SURFACE_MAX_Q + 1,
+			       ASPH_SURFACE_MAX_Q);
+	json_array_foreach(arr, i, v) {
+		char field[32];
+		snprintf(field, sizeof(field), "a.[%zu]", i);
+		int r = get_number(c, v, field, &out->Q[i]);
+		if (r < 0)
+			return r;
 	}
+	return 0;
+}
 
-	v = json_object_get(root, "type");
+/* The members each type takes, as a comma-separated list for messages. */
+static const char *type_members(enum asph_surface_type t)
+{
+	switch (t) {
+	case ASPH_SURFACE_QBFS:
+		return "type, name, R, norm_radius, a, aperture_diameter";
+	case ASPH_SURFACE_QCON:
+		return "type, name, R, k, norm_radius, a, aperture_diameter";
+	case ASPH_SURFACE_EVEN_ASPHERE:
+	case ASPH_SURFACE_ODD_ASPHERE:
+		break;
+	}
+	return "type, name, R, k, A, aperture_diameter";
+}
+
+static int is_member_of(const char *key, const char *list)
+{
+	size_t n = strlen(key);
+
+	/* An empty key would match everywhere without advancing. */
+	if (n == 0)
+		return 0;
+	for (const char *p = list; (p = strstr(p, key)); p += n)
+		if ((p == list || p[-1] == ' ') && (p[n] == ',' || p[n] == '\0'))
+			return 1;
+	return 0;
+}
+
+static int parse_type(const struct parse_ctx *c, json_t *root,
+		      struct asph_prescription *out)
+{
+	json_t *v = json_object_get(root, "type");
+
 	if (!v)
 		return fail_at(c, NULL, -EINVAL, "missing member \"type\" (e.g. \"even_asphere\")");
 	if (!json_is_string(v))
 		return fail_at(c, "type", -EINVAL, "expected a string");
-	if (strcmp(json_string_value(v), "even_asphere"))
-		return fail_at(c, "type", -EINVAL, "unknown surface type '%s' (known: even_asphere)",
+	if (asph_surface_type_from_name(json_string_value(v), &out->type) < 0)
+		return fail_at(c, "type", -EINVAL,
+			       "unknown surface type '%s' (known: even_asphere, odd_asphere, qbfs, qcon)",
 			       json_string_value(v));
-	out->type = ASPH_SURFACE_EVEN_ASPHERE;
+	return 0;
+}
+
+static int parse_optional_number(const struct parse_ctx *c, json_t *root,
+				 const char *key, double *out)
+{
+	json_t *v = json_object_get(root, key);
+	return v ? get_number(c, v, key, out) : 0;
+}
+
+static int parse_members(const struct parse_ctx *c, json_t *root,
+			 struct asph_prescription *out)
+{
+	const char *key, *members;
+	json_t *v;
+	int r;
+
+	if ((r = parse_type(c, root, out)) < 0)
+		return r;
+	members = type_members(out->type);
+	json_object_foreach(root, key, v) {
+		if (!is_member_of(key, members))
+			return fail_at(c, key, -EINVAL,
+				       "unknown member '%s' for type %s (expected %s)",
+				       key, asph_surface_type_name(out->type), members);
+	}
 
 	v = json_object_get(root, "name");
 	if (v) {
@@ -167,13 +234,22 @@ static int parse_members(const struct parse_ctx *c, json_t *root,
 		return fail_at(c, NULL, -EINVAL, "missing member \"R\" (vertex radius of curvature, mm)");
 	if ((r = get_number(c, v, "R", &out->R)) < 0)
 		return r;
-
-	v = json_object_get(root, "k");
-	if (v && (r = get_number(c, v, "k", &out->k)) < 0)
+	if ((r = parse_optional_number(c, root, "k", &out->k)) < 0)
 		return r;
 
 	v = json_object_get(root, "A");
 	if (v && (r = parse_coefficients(c, v, out)) < 0)
+		return r;
+
+	if (is_member_of("norm_radius", members)) {
+		if (!json_object_get(root, "norm_radius"))
+			return fail_at(c, NULL, -EINVAL,
+				       "missing member \"norm_radius\" (normalization radius, mm)");
+		if ((r = parse_optional_number(c, root, "norm_radius", &out->norm_radius)) < 0)
+			return r;
+	}
+	v = json_object_get(root, "a");
+	if (v && (r = parse_q_coefficients(c, v, out)) < 0)
 		return r;
 
 	v = json_object_get(root, "aperture_diameter");
@@ -251,10 +327,38 @@ int asph_prescription_load(const char *name_or_path,
 	return r;
 }
 
+static json_t *q_array(const struct asph_prescription *p)
+{
+	json_t *arr = json_array();
+	int n = 0;
+
+	for (int m = 0; m <= ASPH_SURFACE_MAX_Q; m++)
+		if (p->Q[m] != 0)
+			n = m + 1;
+	for (int m = 0; arr && m < n; m++)
+		json_array_append_new(arr, json_real(p->Q[m]));
+	return arr;
+}
+
+static json_t *power_object(const struct asph_prescription *p)
+{
+	json_t *coeffs = json_object();
+
+	for (int i = 1; coeffs && i <= ASPH_SURFACE_MAX_POWER; i++) {
+		if (p->A[i] == 0)
+			continue;
+		char key[8];
+		snprintf(key, sizeof(key), "%d", i);
+		json_object_set_new(coeffs, key, json_real(p->A[i]));
+	}
+	return coeffs;
+}
+
 int asph_prescription_to_json(const struct asph_prescription *p, char **out)
 {
+	const int q = p->type == ASPH_SURFACE_QBFS || p->type == ASPH_SURFACE_QCON;
 	_cleanup_(json_decrefp) json_t *root = json_object();
-	json_t *coeffs = json_object();
+	json_t *coeffs = q ? q_array(p) : power_object(p);
 
 	if (!root || !coeffs) {
 		json_decref(coeffs);
@@ -264,15 +368,11 @@ int asph_prescription_to_json(const struct asph_prescription *p, char **out)
 	if (p->name[0])
 		json_object_set_new(root, "name", json_string(p->name));
 	json_object_set_new(root, "R", json_real(p->R));
-	json_object_set_new(root, "k", json_real(p->k));
-	for (int i = 1; i <= ASPH_SURFACE_MAX_POWER; i++) {
-		if (p->A[i] == 0)
-			continue;
-		char key[8];
-		snprintf(key, sizeof(key), "%d", i);
-		json_object_set_new(coeffs, key, json_real(p->A[i]));
-	}
-	json_object_set_new(root, "A", coeffs);
+	if (asph_surface_type_has_conic(p->type))
+		json_object_set_new(root, "k", json_real(p->k));
+	if (q)
+		json_object_set_new(root, "norm_radius", json_real(p->norm_radius));
+	json_object_set_new(root, q ? "a" : "A", coeffs);
 	json_object_set_new(root, "aperture_diameter", json_real(p->aperture_diameter));
 	*out = json_dumps(root, JSON_REAL_PRECISION(17) | JSON_PRESERVE_ORDER);
 	return *out ? 0 : -ENOMEM;

@@ -1,6 +1,8 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 #include <errno.h>
 #include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -8,6 +10,7 @@
 
 #include "asph/surface.h"
 #include "chebyshev.h"
+#include "qpoly.h"
 #include "util-mem.h"
 
 /*
@@ -31,6 +34,9 @@ struct asph_surface {
 	double a;                 /* aperture radius */
 	double c;                 /* vertex curvature 1/R */
 	int max_power;            /* highest i with A[i] != 0 */
+	int n_q;                  /* Q types: 1 + highest m with a_m != 0 */
+	double inv_rho2;          /* Q types: 1 / norm_radius^2 */
+	struct qbfs_coef qbfs;    /* Qbfs recurrence coefficients */
 	gsl_integration_glfixed_table *gl;
 	size_t quad_panels;       /* panels over [0, a] for exact integrals */
 	double *prefix_arc;       /* integrals up to each panel boundary */
@@ -43,41 +49,120 @@ struct asph_surface {
 	double max_slope, r_max_slope;
 };
 
+static const char *const type_names[] = {
+	[ASPH_SURFACE_EVEN_ASPHERE] = "even_asphere",
+	[ASPH_SURFACE_QBFS] = "qbfs",
+	[ASPH_SURFACE_QCON] = "qcon",
+	[ASPH_SURFACE_ODD_ASPHERE] = "odd_asphere",
+};
+
 const char *asph_surface_type_name(enum asph_surface_type type)
 {
-	switch (type) {
-	case ASPH_SURFACE_EVEN_ASPHERE:
-		return "even_asphere";
-	}
+	if ((unsigned)type < ARRAY_SIZE(type_names))
+		return type_names[type];
 	return "unknown";
 }
 
-void asph_surface_sag_derivs(const struct asph_surface *s, double r,
-			     double d[3])
+int asph_surface_type_from_name(const char *name, enum asph_surface_type *out)
 {
-	const double c = s->c, k = s->p.k;
-	r = fabs(r);
-	double u = 1.0 - (1.0 + k) * c * c * r * r;
-	double root = sqrt(u);
-	/* c r^2 / (1 + root) has no cancellation for any sign of 1 + k. */
-	double z = c * r * r / (1.0 + root);
-	double dz = c * r / root;
-	double d2z = c / (u * root);
+	for (size_t i = 0; i < ARRAY_SIZE(type_names); i++) {
+		if (strcmp(name, type_names[i]))
+			continue;
+		*out = (enum asph_surface_type)i;
+		return 0;
+	}
+	return -EINVAL;
+}
 
-	/* Horner for sum A_i r^i and its first two derivatives. */
+int asph_surface_type_has_conic(enum asph_surface_type type)
+{
+	return type != ASPH_SURFACE_QBFS;
+}
+
+static int is_q_type(enum asph_surface_type type)
+{
+	return type == ASPH_SURFACE_QBFS || type == ASPH_SURFACE_QCON;
+}
+
+/* The conic c r^2 / (1 + sqrt(1 - K c^2 r^2)), K = 1 + k, and its first two
+ * derivatives; it has no cancellation for any sign of K. */
+static void conic_derivs(double c, double K, double r, double d[3])
+{
+	double u = 1.0 - K * c * c * r * r;
+	double root = sqrt(u);
+
+	d[0] = c * r * r / (1.0 + root);
+	d[1] = c * r / root;
+	d[2] = c / (u * root);
+}
+
+/* Horner for sum A_i r^i and its first two derivatives. */
+static void power_series(const struct asph_surface *s, double r, double d[3])
+{
 	double p0 = 0, p1 = 0, p2 = 0;
+
 	for (int i = s->max_power; i >= 1; i--) {
 		p2 = p2 * r + 2.0 * p1;
 		p1 = p1 * r + p0;
 		p0 = p0 * r + s->p.A[i];
 	}
 	/* p0 now holds sum A_i r^(i-1); one more step multiplies by r. */
-	p2 = p2 * r + 2.0 * p1;
-	p1 = p1 * r + p0;
-	p0 = p0 * r;
-	d[0] = z + p0;
-	d[1] = dz + p1;
-	d[2] = d2z + p2;
+	d[2] = p2 * r + 2.0 * p1;
+	d[1] = p1 * r + p0;
+	d[0] = p0 * r;
+}
+
+/*
+ * The Q departures as functions of r: T(x) with x = r^2 / rho^2, where
+ * T = x (1 - x) S(x) for Qbfs and x^2 S(x) for Qcon, S = sum a_m Q_m.
+ * Qbfs then divides by sqrt(1 - c^2 r^2).
+ */
+static void q_departure(const struct asph_surface *s, double r, double d[3])
+{
+	double x = r * r * s->inv_rho2, sum[3], t[3];
+
+	if (s->p.type == ASPH_SURFACE_QBFS) {
+		qbfs_sum(&s->qbfs, s->p.Q, s->n_q, x, sum);
+		t[0] = x * (1.0 - x) * sum[0];
+		t[1] = (1.0 - 2.0 * x) * sum[0] + x * (1.0 - x) * sum[1];
+		t[2] = -2.0 * sum[0] + 2.0 * (1.0 - 2.0 * x) * sum[1] +
+		       x * (1.0 - x) * sum[2];
+	} else {
+		qcon_sum(s->p.Q, s->n_q, x, sum);
+		t[0] = x * x * sum[0];
+		t[1] = 2.0 * x * sum[0] + x * x * sum[1];
+		t[2] = 2.0 * sum[0] + 4.0 * x * sum[1] + x * x * sum[2];
+	}
+	double dx = 2.0 * r * s->inv_rho2;
+	d[0] = t[0];
+	d[1] = t[1] * dx;
+	d[2] = t[2] * dx * dx + t[1] * 2.0 * s->inv_rho2;
+	if (s->p.type != ASPH_SURFACE_QBFS)
+		return;
+	double c2 = s->c * s->c, g = 1.0 / sqrt(1.0 - c2 * r * r);
+	double g1 = c2 * r * g * g * g;
+	double g2 = c2 * g * g * g * (1.0 + 3.0 * c2 * r * r * g * g);
+	double d0 = d[0], d1 = d[1];
+	d[0] = g * d0;
+	d[1] = g1 * d0 + g * d1;
+	d[2] = g2 * d0 + 2.0 * g1 * d1 + g * d[2];
+}
+
+void asph_surface_sag_derivs(const struct asph_surface *s, double r,
+			     double d[3])
+{
+	double dep[3] = { 0, 0, 0 };
+
+	r = fabs(r);
+	conic_derivs(s->c, 1.0 + s->p.k, r, d);
+	if (is_q_type(s->p.type)) {
+		if (s->n_q > 0)
+			q_departure(s, r, dep);
+	} else {
+		power_series(s, r, dep);
+	}
+	for (int i = 0; i < 3; i++)
+		d[i] += dep[i];
 }
 
 double asph_surface_sag(const struct asph_surface *s, double r)
@@ -315,60 +400,101 @@ static void find_max_slope(struct asph_surface *s)
 	s->r_max_slope = best_r;
 }
 
+static int refuse(struct asph_error *err, const char *field, const char *fmt,
+		  ...) __attribute__((format(printf, 3, 4)));
+
+static int refuse(struct asph_error *err, const char *field, const char *fmt,
+		  ...)
+{
+	char msg[400];
+	va_list ap;
+
+	va_start(ap, fmt);
+	vsnprintf(msg, sizeof(msg), fmt, ap);
+	va_end(ap);
+	asph_error_locate(err, NULL, 0, 0, field);
+	return asph_error_set(err, -EINVAL, "%s", msg);
+}
+
+/* The power coefficients a type allows: none (Q types), A2..A20 even
+ * (even asphere), A1..A20 (odd asphere). A0 would move the vertex. */
+static int check_powers(const struct asph_prescription *p,
+			struct asph_error *err)
+{
+	const char *name = asph_surface_type_name(p->type);
+	char field[16];
+
+	for (int i = 0; i <= ASPH_SURFACE_MAX_POWER; i++) {
+		snprintf(field, sizeof(field), "A.%d", i);
+		if (!isfinite(p->A[i]))
+			return refuse(err, field, "coefficient A%d is not finite", i);
+		if (p->A[i] == 0)
+			continue;
+		if (is_q_type(p->type))
+			return refuse(err, field,
+				      "a %s surface has Q coefficients \"a\", not powers of r (A%d given)",
+				      name, i);
+		if (i == 0 || (i == 1 && p->type == ASPH_SURFACE_EVEN_ASPHERE))
+			return refuse(err, field, "an %s asphere has coefficients A%d..A20 only",
+				      p->type == ASPH_SURFACE_EVEN_ASPHERE ? "even" : "odd",
+				      p->type == ASPH_SURFACE_EVEN_ASPHERE ? 2 : 1);
+		if (p->type == ASPH_SURFACE_EVEN_ASPHERE && i % 2)
+			return refuse(err, field,
+				      "an even asphere has even powers only (A%d given)", i);
+	}
+	return 0;
+}
+
+static int check_q(const struct asph_prescription *p, struct asph_error *err)
+{
+	char field[16];
+
+	for (int m = 0; m <= ASPH_SURFACE_MAX_Q; m++) {
+		snprintf(field, sizeof(field), "a.[%d]", m);
+		if (!isfinite(p->Q[m]))
+			return refuse(err, field, "coefficient a%d is not finite", m);
+		if (p->Q[m] != 0 && !is_q_type(p->type))
+			return refuse(err, field,
+				      "only the qbfs and qcon types have Q coefficients (a%d given)", m);
+	}
+	if (!is_q_type(p->type)) {
+		if (p->norm_radius != 0)
+			return refuse(err, "norm_radius",
+				      "only the qbfs and qcon types have a normalization radius");
+		return 0;
+	}
+	if (!(p->norm_radius > 0) || !isfinite(p->norm_radius))
+		return refuse(err, "norm_radius",
+			      "norm_radius must be a positive number of mm");
+	if (p->type == ASPH_SURFACE_QBFS && p->k != 0)
+		return refuse(err, "k",
+			      "a qbfs surface has no conic constant (its base is a sphere)");
+	return 0;
+}
+
 int asph_prescription_check(const struct asph_prescription *p,
 			    struct asph_error *err)
 {
-	if (p->type != ASPH_SURFACE_EVEN_ASPHERE) {
-		asph_error_locate(err, NULL, 0, 0, "type");
-		return asph_error_set(err, -EINVAL, "unknown surface type %d",
-				      (int)p->type);
-	}
-	if (!isfinite(p->R)) {
-		asph_error_locate(err, NULL, 0, 0, "R");
-		return asph_error_set(err, -EINVAL, "R must be a finite number");
-	}
-	if (p->R == 0) {
-		asph_error_locate(err, NULL, 0, 0, "R");
-		return asph_error_set(err, -EINVAL,
-				      "R = 0 is not a radius of curvature");
-	}
-	if (!isfinite(p->k)) {
-		asph_error_locate(err, NULL, 0, 0, "k");
-		return asph_error_set(err, -EINVAL, "k must be a finite number");
-	}
-	for (int i = 0; i <= ASPH_SURFACE_MAX_POWER; i++) {
-		if (isfinite(p->A[i]))
-			continue;
-		char field[16];
-		snprintf(field, sizeof(field), "A.%d", i);
-		asph_error_locate(err, NULL, 0, 0, field);
-		return asph_error_set(err, -EINVAL, "coefficient A%d is not finite", i);
-	}
-	if (p->A[0] != 0 || p->A[1] != 0) {
-		asph_error_locate(err, NULL, 0, 0, p->A[0] != 0 ? "A.0" : "A.1");
-		return asph_error_set(err, -EINVAL,
-				      "an even asphere has coefficients A2..A20 only");
-	}
-	for (int i = 3; i <= ASPH_SURFACE_MAX_POWER; i += 2) {
-		if (p->A[i] == 0)
-			continue;
-		char field[16];
-		snprintf(field, sizeof(field), "A.%d", i);
-		asph_error_locate(err, NULL, 0, 0, field);
-		return asph_error_set(err, -EINVAL,
-				      "an even asphere has even powers only (A%d given)", i);
-	}
-	if (!(p->aperture_diameter > 0) || !isfinite(p->aperture_diameter)) {
-		asph_error_locate(err, NULL, 0, 0, "aperture_diameter");
-		return asph_error_set(err, -EINVAL,
-				      "aperture_diameter must be a positive number of mm");
-	}
+	int r;
+
+	if ((unsigned)p->type >= ARRAY_SIZE(type_names))
+		return refuse(err, "type", "unknown surface type %d", (int)p->type);
+	if (!isfinite(p->R))
+		return refuse(err, "R", "R must be a finite number");
+	if (p->R == 0)
+		return refuse(err, "R", "R = 0 is not a radius of curvature");
+	if (!isfinite(p->k))
+		return refuse(err, "k", "k must be a finite number");
+	if ((r = check_powers(p, err)) < 0 || (r = check_q(p, err)) < 0)
+		return r;
+	if (!(p->aperture_diameter > 0) || !isfinite(p->aperture_diameter))
+		return refuse(err, "aperture_diameter",
+			      "aperture_diameter must be a positive number of mm");
 	double a = 0.5 * p->aperture_diameter;
 	double c = 1.0 / p->R;
 	if ((1.0 + p->k) * c * c * a * a >= 1.0) {
 		double r_fail = fabs(p->R) / sqrt(1.0 + p->k);
-		asph_error_locate(err, NULL, 0, 0, "k");
-		return asph_error_set(err, -EINVAL,
+		return refuse(err, "k",
 			"the conic square root 1 - (1+k) r^2/R^2 reaches zero at r = %.6g mm, "
 			"inside the aperture radius %.6g mm (R = %g, k = %g)",
 			r_fail, a, p->R, p->k);
@@ -422,6 +548,13 @@ int asph_surface_alloc(const struct asph_prescription *p,
 	for (int i = 1; i <= ASPH_SURFACE_MAX_POWER; i++)
 		if (p->A[i] != 0)
 			s->max_power = i;
+	for (int m = 0; m <= ASPH_SURFACE_MAX_Q; m++)
+		if (p->Q[m] != 0)
+			s->n_q = m + 1;
+	if (is_q_type(p->type)) {
+		s->inv_rho2 = 1.0 / (p->norm_radius * p->norm_radius);
+		qbfs_coef_init(&s->qbfs);
+	}
 	s->gl = gsl_integration_glfixed_table_alloc(GL_ORDER);
 	if (!s->gl) {
 		asph_surface_free(s);

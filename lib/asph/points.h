@@ -45,6 +45,11 @@ int asph_points_read(const char *path, struct asph_points **out,
 int asph_points_read_csv_text(const char *text, size_t len,
 			      const char *source, struct asph_points **out,
 			      struct asph_error *err);
+/* Bytes in memory (len bytes, need not be NUL-terminated), in the format
+ * source's extension names, as asph_points_read() picks it for a path:
+ * .ply (ASCII or binary), .json, else CSV. */
+int asph_points_read_memory(const void *data, size_t len, const char *source,
+			    struct asph_points **out, struct asph_error *err);
 
 /* PLY colours map value linearly over [lo, hi] (a diverging map centred on
  * zero when lo = -hi); lo = hi = 0 picks the symmetric range of the data. */

@@ -15,8 +15,11 @@ extern "C" {
  * Prescriptions in JSON:
  *   {"type": "even_asphere", "R": 20.097, "k": -1,
  *    "A": {"4": -2.0868e-5, "6": ...}, "aperture_diameter": 40}
+ *   {"type": "odd_asphere", ... "A": {"1": ..., "3": ...}, ...}
+ *   {"type": "qbfs", "R": .., "norm_radius": .., "a": [a0, a1, ...], "aperture_diameter": ..}
+ *   {"type": "qcon", "R": .., "k": .., "norm_radius": .., "a": [...], "aperture_diameter": ..}
  * Optional: "name" (string). Unknown members are refused, so a misspelt key
- * never silently drops a term.
+ * never silently drops a term. docs/prescriptions.md has the formulas.
  *
  * Errors carry the source (file name), line, column and field.
  */

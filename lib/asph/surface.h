@@ -23,19 +23,35 @@ extern "C" {
 
 enum asph_surface_type {
 	ASPH_SURFACE_EVEN_ASPHERE = 0,
+	ASPH_SURFACE_QBFS,          /* Forbes best-fit-sphere Q polynomials */
+	ASPH_SURFACE_QCON,          /* conic plus Forbes Q^con polynomials */
+	ASPH_SURFACE_ODD_ASPHERE,   /* conic plus all powers r^1 .. r^20 */
 };
 
 #define ASPH_SURFACE_MAX_POWER 20
+/* Highest Q polynomial order m (a_0 .. a_30). */
+#define ASPH_SURFACE_MAX_Q 30
 
-/* A prescription as the user wrote it; validated by asph_surface_alloc(). */
+/*
+ * A prescription as the user wrote it; validated by asph_surface_alloc().
+ * docs/prescriptions.md gives each type's formula and sign conventions:
+ *   even/odd asphere: conic(R, k) + sum A_i r^i
+ *   Qbfs: sphere(R) + u^2 (1 - u^2) / sqrt(1 - r^2/R^2) sum a_m Q_m^bfs(u^2)
+ *   Qcon: conic(R, k) + u^4 sum a_m Q_m^con(u^2),   u = r / norm_radius
+ */
 struct asph_prescription {
 	enum asph_surface_type type;
 	char name[64];          /* preset name or file stem, for display */
 	double R;               /* vertex radius of curvature, mm; != 0 */
 	double k;               /* conic constant */
-	/* A[i] multiplies r^i (mm^(1-i)); the even asphere uses i = 2,4,..,20. */
+	/* A[i] multiplies r^i (mm^(1-i)); the even asphere uses i = 2,4,..,20,
+	 * the odd asphere i = 1..20; 0 for the Q types. */
 	double A[ASPH_SURFACE_MAX_POWER + 1];
 	double aperture_diameter; /* mm, > 0 */
+	/* Q types only (0 otherwise): the normalization radius rho_max (mm,
+	 * > 0) and the coefficients a_m (mm) of Q_m, m = 0..ASPH_SURFACE_MAX_Q. */
+	double norm_radius;
+	double Q[ASPH_SURFACE_MAX_Q + 1];
 };
 
 struct asph_surface;
@@ -57,6 +73,14 @@ void asph_surface_free(struct asph_surface *s);
 const struct asph_prescription *
 asph_surface_prescription(const struct asph_surface *s);
 const char *asph_surface_type_name(enum asph_surface_type type);
+
+/* Parses a type name ("even_asphere", "qbfs", "qcon", "odd_asphere");
+ * -EINVAL if unknown. */
+int asph_surface_type_from_name(const char *name, enum asph_surface_type *out);
+
+/* Whether the type has a free conic constant k (all but Qbfs, whose base
+ * is a sphere). */
+int asph_surface_type_has_conic(enum asph_surface_type type);
 
 /* Radius of the clear aperture a = aperture_diameter / 2. */
 double asph_surface_aperture_radius(const struct asph_surface *s);

@@ -101,6 +101,12 @@ try:
     root.call("queue.start")
     expect(poll_state(root, job, ["completed", "failed"])["state"] == "completed", "the operator's job runs")
     expect("refused job.submit" in d.log_text(), "refusals are logged")
+    out = os.path.join(d.top, "reader-copy")
+    os.mkdir(out)
+    os.chown(out, NOBODY, NOGROUP)
+    rc, text, err = ctl_as_user(d, [], "result", job, "--out", out)
+    expect(rc == 0 and os.path.exists(os.path.join(out, "result.json")),
+           f"a reader reads a result and copies its files ({err.strip()})")
     root.close()
     expect(d.stop() == 0, "clean stop")
 except Exception:

@@ -10,7 +10,7 @@ import socket
 import subprocess
 import time
 
-from daemontest import ASPHD, Client, Daemon, expect, finish, mock_instrument
+from daemontest import ASPHD, Client, Daemon, expect, finish, mock_instrument, poll_state
 
 
 def check(path):
@@ -157,6 +157,32 @@ try:
     logf.close()
     notify.close()
     listener.close()
+
+    # --- two instruments measure at once, each one job at a time
+    json.dump({"instruments": [mock_instrument("m1"), mock_instrument("m2")]}, open(d.config, "w"))
+    d.start()
+    c = Client(d.socket)
+    c.call("queue.start")   # stopped above; the setting outlives restarts
+    spec = {"lens": "strong", "plan": {"method": "ci", "h": 0.04}}
+    a = c.call("job.submit", dict(spec, instrument="m1"))["id"]
+    b = c.call("job.submit", dict(spec, instrument="m1"))["id"]
+    m = c.call("job.submit", dict(spec, instrument="m2"))["id"]
+    both = False
+    deadline = time.time() + 60
+    while time.time() < deadline and not both:
+        st = {i: c.call("job.get", {"id": i})["state"] for i in (a, b, m)}
+        both = st[a] == "running" and st[m] == "running"
+        if both:
+            expect(st[b] == "queued", "one job at a time on m1: the second waits")
+        time.sleep(0.02)
+    expect(both, "m1 and m2 measure at the same time")
+    expect(all(poll_state(c, i, ["completed", "failed"])["state"] == "completed" for i in (a, b, m)),
+           "all three jobs complete")
+    names = {x["name"]: x for x in c.call("instrument.list")["instruments"]}
+    expect(set(names) == {"m1", "m2"} and all(x["state"] == "idle" for x in names.values()),
+           "both instruments are idle again")
+    c.close()
+    expect(d.stop() == 0, "clean stop")
 
     # --- a state directory anyone may write is refused
     os.chmod(d.state, 0o777)

@@ -210,6 +210,136 @@ static void test_missing_file(void **state)
 	asph_points_free(q);
 }
 
+/* The same bytes read from memory and from a file give the same points;
+ * the format follows the source's extension. */
+static void test_read_memory(void **state)
+{
+	static const char ply[] =
+		"ply\nformat ascii 1.0\nelement vertex 3\nproperty double x\nproperty double y\n"
+		"property double z\nproperty double residual_nm\nelement face 1\n"
+		"property list uchar int vertex_indices\nend_header\n"
+		"0.731 -1.29 0.0417 3.5\n2.6 0.37 -0.112 -1.25\n-1.9 2.03 0.2283 0.75\n3 2 0 1\n";
+	static const char json[] = "{\"points\": [[0.731, -1.29, 0.0417], [2.6, 0.37, -0.112]],"
+				   " \"triangles\": []}";
+	static const char csv[] = "x,y,z\n0.731,-1.29,0.0417\n";
+	char path[256];
+	struct asph_points *m = NULL, *f = NULL;
+	struct asph_error err;
+
+	snprintf(path, sizeof(path), "%s/mem.ply", dir);
+	FILE *fp = fopen(path, "w");
+	assert_non_null(fp);
+	fputs(ply, fp);
+	fclose(fp);
+	assert_int_equal(asph_points_read(path, &f, &err), 0);
+	assert_int_equal(asph_points_read_memory(ply, strlen(ply), "scan.PLY", &m, &err), 0);
+	assert_int_equal(m->n, 3);
+	assert_memory_equal(m->xyz, f->xyz, 9 * sizeof(double));
+	assert_memory_equal(m->value, f->value, 3 * sizeof(double));
+	assert_string_equal(m->value_name, "residual_nm");
+	assert_int_equal(m->n_triangles, 1);
+	assert_true(m->triangles[0] == 2 && m->triangles[1] == 0 && m->triangles[2] == 1);
+	asph_points_free(m);
+	asph_points_free(f);
+
+	assert_int_equal(asph_points_read_memory(json, strlen(json), "p.json", &m, &err), 0);
+	assert_int_equal(m->n, 2);
+	assert_true(m->xyz[3] == 2.6 && m->xyz[5] == -0.112 && !m->triangles);
+	asph_points_free(m);
+	/* No extension: CSV; the bytes need no terminating NUL (the last two
+	 * are left out). */
+	assert_int_equal(asph_points_read_memory(csv, sizeof(csv) - 3, "<memory>", &m, &err), 0);
+	assert_int_equal(m->n, 1);
+	assert_true(m->xyz[0] == 0.731 && m->xyz[2] == 0.041);
+	asph_points_free(m);
+	/* A PLY in a CSV's name is read as CSV, and refused as such. */
+	assert_int_equal(asph_points_read_memory(ply, strlen(ply), "p.csv", &m, &err), -EINVAL);
+	assert_int_equal(err.line, 1);
+	assert_string_equal(err.source, "p.csv");
+}
+
+/* Headers whose counts the data cannot hold are refused before anything of
+ * that size is allocated (a 120-byte file once asked for 6 GiB), and a
+ * binary header ending without a newline reads no byte past the end. */
+static void test_ply_counts_beyond_data(void **state)
+{
+	static const char *const cases[][2] = {
+		{ "ply\nformat ascii 1.0\nelement vertex 268435456\nproperty double x\n"
+		  "property double y\nproperty double z\nend_header\n1 2 3\n", "announces" },
+		{ "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty double x\n"
+		  "property double y\nproperty double z\nelement face 200000000\n"
+		  "property list uchar int vertex_indices\nend_header\n0123456789abcdefghijklmn", "announces" },
+		{ "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty uchar x\n"
+		  "property uchar y\nproperty uchar z\nend_header", "announces" },
+	};
+	for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
+		struct asph_points *p = NULL;
+		struct asph_error err;
+		asph_error_clear(&err);
+		/* Exactly len bytes on the heap, so a read past them is seen by
+		 * ASan and valgrind. */
+		size_t len = strlen(cases[i][0]);
+		char *copy = malloc(len);
+		assert_non_null(copy);
+		memcpy(copy, cases[i][0], len);
+		assert_int_equal(asph_points_read_memory(copy, len, "c.ply", &p, &err), -EINVAL);
+		free(copy);
+		assert_null(p);
+		assert_string_equal(err.field, "element");
+		if (!strstr(err.message, cases[i][1])) {
+			print_error("case %zu: '%s'\n", i, err.message);
+			fail();
+		}
+	}
+}
+
+/* Vertices or faces beyond the header's counts are refused, not dropped,
+ * and a NUL byte in an ASCII body is not read as a zero. */
+static void test_ply_data_beyond_counts(void **state)
+{
+	static const char head[] =
+		"ply\nformat ascii 1.0\nelement vertex 2\nproperty double x\nproperty double y\n"
+		"property double z\nend_header\n";
+	static const char body[] = "0.731 -1.29 0.0417\n2.6 0.37 -0.112\n";
+	char text[512];
+	struct asph_points *p = NULL;
+	struct asph_error err;
+
+	snprintf(text, sizeof(text), "%s%s-1.9 2.03 0.2283\n", head, body);
+	assert_int_equal(asph_points_read_memory(text, strlen(text), "a.ply", &p, &err), -EINVAL);
+	assert_null(p);
+	assert_int_equal(err.line, 10);
+	assert_int_equal(err.column, 1);
+	assert_non_null(strstr(err.message, "data after the 2 vertices"));
+
+	/* Trailing blank lines are fine. */
+	snprintf(text, sizeof(text), "%s%s\n \r\n", head, body);
+	assert_int_equal(asph_points_read_memory(text, strlen(text), "a.ply", &p, &err), 0);
+	assert_int_equal(p->n, 2);
+	asph_points_free(p);
+
+	/* "0.37" with its 7 replaced by a NUL byte: y reads 0.3, and z meets
+	 * the NUL. */
+	size_t n = (size_t)snprintf(text, sizeof(text), "%s%s", head, body);
+	char *nul = strstr(text, "0.37");
+	nul[3] = '\0';
+	assert_int_equal(asph_points_read_memory(text, n, "a.ply", &p, &err), -EINVAL);
+	assert_string_equal(err.field, "z");
+
+	static const char bin_head[] =
+		"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty double x\n"
+		"property double y\nproperty double z\nend_header\n";
+	const double xyz[4] = { 0.731, -1.29, 0.0417, 2.6 };
+	n = strlen(bin_head);
+	memcpy(text, bin_head, n);
+	memcpy(text + n, xyz, sizeof(xyz));
+	assert_int_equal(asph_points_read_memory(text, n + 3 * sizeof(double), "b.ply", &p, &err), 0);
+	assert_true(p->n == 1 && p->xyz[2] == 0.0417);
+	asph_points_free(p);
+	assert_int_equal(asph_points_read_memory(text, n + sizeof(xyz), "b.ply", &p, &err), -EINVAL);
+	assert_non_null(strstr(err.message, "8 bytes after the 1 vertices"));
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -219,6 +349,9 @@ int main(void)
 		cmocka_unit_test(test_csv_tolerant),
 		cmocka_unit_test(test_ply_errors),
 		cmocka_unit_test(test_missing_file),
+		cmocka_unit_test(test_read_memory),
+		cmocka_unit_test(test_ply_counts_beyond_data),
+		cmocka_unit_test(test_ply_data_beyond_counts),
 	};
 	return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -98,6 +98,8 @@ struct bad_case {
 };
 
 #define HEAD "{\"type\": \"even_asphere\", "
+#define QBFS "{\"type\": \"qbfs\", \"R\": 31.7, \"norm_radius\": 5, "
+#define ODD "{\"type\": \"odd_asphere\", \"R\": 31.7, "
 static const struct bad_case bad[] = {
 	{ "", 1, NULL, "", "" },
 	{ "{\"type\": \"even_asphere\", \"R\": 20", 1, NULL, "", "" },
@@ -117,12 +119,25 @@ static const struct bad_case bad[] = {
 	{ HEAD "\"R\": 20}", 0, NULL, "", "missing member \"aperture_diameter\"" },
 	{ HEAD "\"R\": 20, \"aperture_diameter\": -3}", 1, "\"aperture_diameter\"", "aperture_diameter", "positive" },
 	{ HEAD "\"R\": 20,\n \"aperture_diamter\": 10}", 2, "\"aperture_diamter\"", "aperture_diamter", "unknown member" },
+	/* An empty key once hung the member check (found by fuzzing). */
+	{ HEAD "\"\": 60, \"R\": 20, \"aperture_diameter\": 10}", 1, NULL, "", "unknown member ''" },
 	{ HEAD "\"R\": 20, \"R\": 21, \"aperture_diameter\": 10}", 1, NULL, "", "duplicate" },
 	{ HEAD "\"R\": 10,\n\"k\": 0, \"aperture_diameter\": 30}", 2, "\"k\"", "k", "r = 10 mm" },
 	{ HEAD "\"R\": 1e400, \"aperture_diameter\": 10}", 1, NULL, "", "overflow" },
 	{ HEAD "\"name\": 5, \"R\": 20, \"aperture_diameter\": 10}", 1, "\"name\"", "name", "expected a string" },
 	{ HEAD "\"R\": 20, \"aperture_diameter\": 10} trailing", 1, NULL, "", "end of file expected" },
 	{ "{\"type\": \"even_asphere\", \"R\": 20, \"aperture_diameter\": 10, \"A\": {\"6\": 1e-7, \"6\": 2e-7}}", 1, NULL, "", "duplicate" },
+	/* The Q types and the odd asphere. */
+	{ QBFS "\"k\": -1, \"a\": [1e-3], \"aperture_diameter\": 10}", 1, "\"k\"", "k", "unknown member 'k' for type qbfs" },
+	{ QBFS "\"A\": {\"4\": 1e-5}, \"aperture_diameter\": 10}", 1, "\"A\"", "A", "unknown member 'A'" },
+	{ QBFS "\"a\": {\"0\": 1e-3}, \"aperture_diameter\": 10}", 1, "\"a\"", "a", "expected an array" },
+	{ QBFS "\"a\": [1e-3, -2e-4,\n \"x\"], \"aperture_diameter\": 10}", 2, "\"x\"", "a.[2]", "expected a number" },
+	{ "{\"type\": \"qcon\", \"R\": 31.7, \"a\": [1e-3], \"aperture_diameter\": 10}", 0, NULL, "", "missing member \"norm_radius\"" },
+	{ "{\"type\": \"qcon\", \"R\": 31.7, \"norm_radius\": -5, \"aperture_diameter\": 10}", 1, "\"norm_radius\"", "norm_radius", "positive" },
+	{ "{\"type\": \"qcon\", \"R\": 31.7, \"norm_radius\": 5, \"a\": [0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,1], \"aperture_diameter\": 10}", 1, "\"a\"", "a", "at most 31" },
+	{ HEAD "\"R\": 20, \"norm_radius\": 5, \"aperture_diameter\": 10}", 1, "\"norm_radius\"", "norm_radius", "unknown member" },
+	{ ODD "\"A\": {\"0\": 1e-5}, \"aperture_diameter\": 10}", 1, "\"0\"", "A.0", "powers 1, 2" },
+	{ ODD "\"A\": {\"21\": 1e-5}, \"aperture_diameter\": 10}", 1, "\"21\"", "A.21", "got 21" },
 };
 
 /* Whether err's line and column are those of the first occurrence of at,
@@ -164,6 +179,39 @@ static void test_refusals(void **state)
 	}
 }
 
+/* The Q types and the odd asphere parse, and survive a round trip. */
+static const char *const other_types[] = {
+	"{\"type\": \"qbfs\", \"name\": \"q1\", \"R\": 31.7, \"norm_radius\": 10.25,\n"
+	" \"a\": [0.0213, -0.0071, 0.0032], \"aperture_diameter\": 20}",
+	"{\"type\": \"qcon\", \"R\": -42.3, \"k\": -0.73, \"norm_radius\": 10.5,\n"
+	" \"a\": [0.0371, -0.0128, 0, 6.1e-4], \"aperture_diameter\": 20}",
+	"{\"type\": \"odd_asphere\", \"R\": 27.9, \"k\": -0.41,\n"
+	" \"A\": {\"1\": 1.3e-3, \"3\": -2.7e-6, \"4\": 3.1e-6, \"7\": 1.9e-11}, \"aperture_diameter\": 16}",
+};
+
+static void test_other_types(void **state)
+{
+	struct asph_prescription p[3], q;
+	struct asph_error err;
+
+	for (int i = 0; i < 3; i++) {
+		const char *t = other_types[i];
+		char *json = NULL;
+		if (asph_prescription_parse(t, strlen(t), "t.json", &p[i], &err) != 0)
+			fail_msg("case %d: %s", i, err.message);
+		assert_int_equal(asph_prescription_to_json(&p[i], &json), 0);
+		assert_int_equal(asph_prescription_parse(json, strlen(json), "rt", &q, &err), 0);
+		assert_memory_equal(&p[i], &q, sizeof(q));
+		free(json);
+	}
+	assert_int_equal(p[0].type, ASPH_SURFACE_QBFS);
+	assert_true(p[0].norm_radius == 10.25 && p[0].Q[1] == -0.0071 && p[0].Q[3] == 0 && p[0].k == 0);
+	assert_int_equal(p[1].type, ASPH_SURFACE_QCON);
+	assert_true(p[1].k == -0.73 && p[1].Q[3] == 6.1e-4 && p[1].Q[2] == 0);
+	assert_int_equal(p[2].type, ASPH_SURFACE_ODD_ASPHERE);
+	assert_true(p[2].A[1] == 1.3e-3 && p[2].A[3] == -2.7e-6 && p[2].A[7] == 1.9e-11);
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -172,6 +220,7 @@ int main(void)
 		cmocka_unit_test(test_json_round_trip),
 		cmocka_unit_test(test_load_file_and_preset),
 		cmocka_unit_test(test_refusals),
+		cmocka_unit_test(test_other_types),
 	};
 	return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -25,6 +25,7 @@ int cmd_drivers(int argc, char **argv);
 int cmd_export(int argc, char **argv);
 int cmd_fit(int argc, char **argv);
 int cmd_lens(int argc, char **argv);
+int cmd_lens_import(int argc, char **argv);   /* argv[0] is "import" */
 int cmd_plan(int argc, char **argv);
 int cmd_plot(int argc, char **argv);
 int cmd_quality(int argc, char **argv);

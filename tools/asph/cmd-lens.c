@@ -58,10 +58,16 @@ static void show_text(const struct asph_surface *s, const struct lens_facts *f)
 	printf("Lens %s (%s)\n", p->name[0] ? p->name : "(unnamed)",
 	       asph_surface_type_name(p->type));
 	printf("  R                   %.10g mm\n", p->R);
-	printf("  k                   %.10g\n", p->k);
+	if (asph_surface_type_has_conic(p->type))
+		printf("  k                   %.10g\n", p->k);
 	for (int i = 1; i <= ASPH_SURFACE_MAX_POWER; i++)
 		if (p->A[i] != 0)
 			printf("  A%-2d                 %.10g mm^%d\n", i, p->A[i], 1 - i);
+	if (p->norm_radius > 0)
+		printf("  norm radius         %.10g mm\n", p->norm_radius);
+	for (int m = 0; m <= ASPH_SURFACE_MAX_Q; m++)
+		if (p->Q[m] != 0)
+			printf("  a%-2d                 %.10g mm\n", m, p->Q[m]);
 	printf("  aperture diameter   %.10g mm\n", p->aperture_diameter);
 	printf("Sag at the edge       %.9f mm\n", f->sag_edge);
 	printf("Slope at the edge     %.6f (%.3f deg)\n", f->slope_edge,
@@ -75,7 +81,8 @@ static void show_text(const struct asph_surface *s, const struct lens_facts *f)
 static void usage(FILE *out)
 {
 	fprintf(out, "Usage: asph lens show LENS [--json]\n"
-		     "       asph lens presets\n\n"
+		     "       asph lens presets\n"
+		     "       asph lens import FILE [--surface N] [-o OUT.json]\n\n"
 		     "LENS is a preset (weak, strong, turning-point) or a prescription file (JSON).\n"
 		     "  --json   print one JSON object (sag_edge_mm, max_slope, area_mm2, gamma, ...)\n");
 }
@@ -89,6 +96,8 @@ int cmd_lens(int argc, char **argv)
 	};
 	int json = 0, c;
 
+	if (argc >= 2 && !strcmp(argv[1], "import"))
+		return cmd_lens_import(argc - 1, argv + 1);
 	optind = 1;
 	while ((c = getopt_long(argc, argv, "h", options, NULL)) != -1) {
 		switch (c) {

@@ -1,0 +1,427 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* Modbus frames, register words and the libmodbus bus with the driver
+ * ABI's timeouts and reasons. */
+#include <errno.h>
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <modbus.h>
+
+#include "protocol.h"
+#include "transport.h"
+
+/* ------------------------------------------------------------ frames */
+
+uint16_t mb_crc16(const uint8_t *buf, size_t len)
+{
+	uint16_t crc = 0xffff;
+
+	for (size_t i = 0; i < len; i++) {
+		crc ^= buf[i];
+		for (int b = 0; b < 8; b++)
+			crc = (crc & 1) ? (uint16_t)((crc >> 1) ^ 0xa001) : (uint16_t)(crc >> 1);
+	}
+	return crc;
+}
+
+const char *mb_exception_text(unsigned code)
+{
+	static const char *const text[] = {
+		[1] = "illegal function",
+		[2] = "illegal data address",
+		[3] = "illegal data value",
+		[4] = "server device failure",
+		[5] = "acknowledge (request accepted, still processing)",
+		[6] = "server device busy",
+		[7] = "negative acknowledge",
+		[8] = "memory parity error",
+		[10] = "gateway path unavailable",
+		[11] = "gateway target device failed to respond",
+	};
+	if (code < sizeof(text) / sizeof(text[0]) && text[code])
+		return text[code];
+	return "unknown exception";
+}
+
+/* Checks the PDU (function code onwards) of a response. */
+static int decode_pdu(const uint8_t *pdu, size_t n, struct mb_frame *f)
+{
+	if (n < 2)
+		return -EBADMSG;
+	f->function = pdu[0] & 0x7f;
+	if (pdu[0] & 0x80) {
+		if (n != 2 || pdu[1] == 0)
+			return -EPROTO;
+		f->exception = pdu[1];
+		f->data = pdu + 1;
+		f->len = 1;
+		return 0;
+	}
+	switch (f->function) {
+	case 1: case 2: case 3: case 4: case 23:
+		/* byte count, then that many bytes (whole registers for 3, 4, 23) */
+		if (pdu[1] + 2u != n || pdu[1] == 0 ||
+		    (f->function >= 3 && pdu[1] % 2))
+			return -EPROTO;
+		f->data = pdu + 2;
+		f->len = pdu[1];
+		return 0;
+	case 5: case 6: case 15: case 16:
+		/* the echoed address and value (or quantity) */
+		if (n != 5)
+			return -EPROTO;
+		f->data = pdu + 1;
+		f->len = 4;
+		return 0;
+	default:
+		return -ENOTSUP;
+	}
+}
+
+int mb_frame_decode(const uint8_t *buf, size_t len, enum mb_framing framing,
+		    struct mb_frame *out)
+{
+	struct mb_frame f = { 0 };
+	int r;
+
+	memset(out, 0, sizeof(*out));
+	if (!buf)
+		return -EBADMSG;
+	if (framing == MB_FRAMING_RTU) {
+		if (len < 5 || len > 256)
+			return -EBADMSG;
+		uint16_t crc = (uint16_t)(buf[len - 2] | buf[len - 1] << 8);
+		if (mb_crc16(buf, len - 2) != crc)
+			return -EBADMSG;
+		f.unit = buf[0];
+		f.size = len;
+		r = decode_pdu(buf + 1, len - 3, &f);
+	} else {
+		if (len < 9)
+			return -EBADMSG;
+		size_t follow = (size_t)(buf[4] << 8 | buf[5]);
+		/* protocol id 0; the length counts the unit and the PDU */
+		if ((buf[2] | buf[3]) != 0 || follow < 3 || follow > 254 || 6 + follow > len)
+			return -EBADMSG;
+		f.transaction = (uint16_t)(buf[0] << 8 | buf[1]);
+		f.unit = buf[6];
+		f.size = 6 + follow;
+		r = decode_pdu(buf + 7, follow - 1, &f);
+	}
+	if (r == 0)
+		*out = f;
+	return r;
+}
+
+/* ------------------------------------------------------------- words */
+
+uint32_t mb_get32(const uint16_t *w, enum mb_word_order order)
+{
+	if (order == MB_HIGH_WORD_FIRST)
+		return (uint32_t)w[0] << 16 | w[1];
+	return (uint32_t)w[1] << 16 | w[0];
+}
+
+void mb_put32(uint16_t *w, uint32_t v, enum mb_word_order order)
+{
+	uint16_t hi = (uint16_t)(v >> 16), lo = (uint16_t)v;
+
+	w[0] = order == MB_HIGH_WORD_FIRST ? hi : lo;
+	w[1] = order == MB_HIGH_WORD_FIRST ? lo : hi;
+}
+
+/* -------------------------------------------------------------- bus */
+
+/*
+ * A connection. A serial line is shared by everything on it in this
+ * process (a stage's drives and a sensor on one RS-485 line): one open
+ * port, one transaction at a time. TCP users each have their own.
+ */
+struct mb_link {
+	modbus_t *ctx;
+	pthread_mutex_t lock;
+	unsigned refs;
+	struct mb_bus_params p;         /* strings point into device, host */
+	char device[256], host[256];
+	char name[300];                 /* prefixes reasons */
+	struct mb_link *next;
+};
+
+/* Per user: the link and the user's own timeouts. */
+struct mb_bus {
+	struct mb_link *link;
+	unsigned timeout_ms, retries;
+};
+
+static pthread_mutex_t serial_lock = PTHREAD_MUTEX_INITIALIZER;
+static struct mb_link *serial_links;
+
+static int connect_error(struct mb_link *l, int e, struct asph_error *err)
+{
+	if (l->p.framing == MB_FRAMING_RTU && (e == EACCES || e == EPERM))
+		return asph_error_set(err, -ENODEV,
+				      "%s: permission denied (the user needs the serial group, "
+				      "usually dialout: see docs/driver-modbus.md)", l->name);
+	if (l->p.framing == MB_FRAMING_RTU && e == ENOENT)
+		return asph_error_set(err, -ENODEV, "%s: no such serial port", l->name);
+	return asph_error_set(err, -ENODEV, "%s: cannot connect: %s", l->name,
+			      modbus_strerror(e));
+}
+
+static int link_new(const struct mb_bus_params *p, struct mb_link **out,
+		    struct asph_error *err)
+{
+	struct mb_link *l = calloc(1, sizeof(*l));
+	char port[16];
+
+	if (!l)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	l->p = *p;
+	snprintf(l->device, sizeof(l->device), "%s", p->device ? p->device : "");
+	snprintf(l->host, sizeof(l->host), "%s", p->host ? p->host : "");
+	l->p.device = l->device;
+	l->p.host = l->host;
+	l->refs = 1;
+	pthread_mutex_init(&l->lock, NULL);
+	snprintf(port, sizeof(port), "%d", p->port);
+	if (p->framing == MB_FRAMING_RTU) {
+		snprintf(l->name, sizeof(l->name), "%s", l->device);
+		l->ctx = modbus_new_rtu(l->device, p->baud, p->parity, p->data_bits, p->stop_bits);
+	} else {
+		snprintf(l->name, sizeof(l->name), "%s:%d", l->host, p->port);
+		l->ctx = modbus_new_tcp_pi(l->host, port);
+	}
+	int r = 0;
+	if (!l->ctx) {
+		r = asph_error_set(err, -EINVAL, "%s: cannot set up the connection: %s",
+				   l->name, modbus_strerror(errno));
+	} else {
+		/* retries and reconnects are ours, bounded by the timeouts */
+		modbus_set_error_recovery(l->ctx, MODBUS_ERROR_RECOVERY_NONE);
+		if (modbus_connect(l->ctx) < 0)
+			r = connect_error(l, errno, err);
+	}
+	if (r < 0) {
+		if (l->ctx)
+			modbus_free(l->ctx);
+		pthread_mutex_destroy(&l->lock);
+		free(l);
+		return r;
+	}
+	*out = l;
+	return 0;
+}
+
+static void link_free(struct mb_link *l)
+{
+	modbus_close(l->ctx);
+	modbus_free(l->ctx);
+	pthread_mutex_destroy(&l->lock);
+	free(l);
+}
+
+static bool same_line(const struct mb_bus_params *a, const struct mb_bus_params *b)
+{
+	return a->baud == b->baud && a->parity == b->parity && a->data_bits == b->data_bits &&
+	       a->stop_bits == b->stop_bits;
+}
+
+static int serial_link(const struct mb_bus_params *p, struct mb_link **out,
+		       struct asph_error *err)
+{
+	int r = 0;
+
+	pthread_mutex_lock(&serial_lock);
+	struct mb_link *l = serial_links;
+	while (l && strcmp(l->device, p->device) != 0)
+		l = l->next;
+	if (l && !same_line(&l->p, p)) {
+		r = asph_error_set(err, -EINVAL, "%s: already open at %d baud, parity %c, %d data "
+				   "and %d stop bits: every device on a line needs the same settings",
+				   l->name, l->p.baud, l->p.parity, l->p.data_bits, l->p.stop_bits);
+	} else if (l) {
+		l->refs++;
+	} else {
+		struct mb_link *fresh = NULL;
+		r = link_new(p, &fresh, err);
+		if (r == 0 && fresh) {
+			fresh->next = serial_links;
+			serial_links = l = fresh;
+		}
+	}
+	pthread_mutex_unlock(&serial_lock);
+	if (r == 0)
+		*out = l;
+	return r;
+}
+
+static void serial_unlink(struct mb_link *l)
+{
+	pthread_mutex_lock(&serial_lock);
+	bool last = --l->refs == 0;
+	for (struct mb_link **pp = &serial_links; last && *pp; pp = &(*pp)->next)
+		if (*pp == l) {
+			*pp = l->next;
+			break;
+		}
+	pthread_mutex_unlock(&serial_lock);
+	if (last)
+		link_free(l);
+}
+
+int mb_bus_open(const struct mb_bus_params *p, struct mb_bus **out,
+		struct asph_error *err)
+{
+	struct mb_bus *b = calloc(1, sizeof(*b));
+
+	if (!b)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	b->timeout_ms = p->timeout_ms;
+	b->retries = p->retries;
+	int r = p->framing == MB_FRAMING_RTU ? serial_link(p, &b->link, err)
+					     : link_new(p, &b->link, err);
+	if (r < 0) {
+		free(b);
+		return r;
+	}
+	*out = b;
+	return 0;
+}
+
+void mb_bus_free(struct mb_bus *b)
+{
+	if (!b)
+		return;
+	if (b->link->p.framing == MB_FRAMING_RTU)
+		serial_unlink(b->link);
+	else
+		link_free(b->link);
+	free(b);
+}
+
+static void set_timeouts(modbus_t *ctx, unsigned ms)
+{
+	if (ms == 0)
+		ms = 1;
+	modbus_set_response_timeout(ctx, ms / 1000, (ms % 1000) * 1000);
+	modbus_set_byte_timeout(ctx, ms / 1000, (ms % 1000) * 1000);
+}
+
+static bool worth_retrying(int e)
+{
+	return e == ETIMEDOUT || e == EMBBADCRC || e == EMBBADDATA || e == EMBBADSLAVE ||
+	       e == EMBMDATA || e == EMBBADEXC || e == EINTR;
+}
+
+static bool link_lost(int e)
+{
+	return e == ECONNRESET || e == EPIPE || e == EBADF || e == ENOTCONN ||
+	       e == ECONNREFUSED || e == EIO || e == ENXIO || e == ENODEV;
+}
+
+/* The reason of a failed transaction, errno e, after tries attempts. */
+/* op_ms: the operation's timeout when it, not the response timeout, cut
+ * the tries short. */
+static int fail(const struct mb_link *l, int unit, const char *what, int addr, int e,
+		unsigned tries, unsigned attempt_ms, unsigned op_ms, struct asph_error *err)
+{
+	const char *n = l->name;
+
+	if (e > MODBUS_ENOBASE && e <= EMBXGTAR) {
+		unsigned code = (unsigned)(e - MODBUS_ENOBASE);
+		return asph_error_set(err, -EPROTO, "%s: unit %d refused %s register %d (0x%04x): "
+				      "exception %u, %s", n, unit, what, addr, (unsigned)addr,
+				      code, mb_exception_text(code));
+	}
+	if (e == ETIMEDOUT && op_ms)
+		return asph_error_set(err, -ETIMEDOUT, "%s: unit %d did not answer (%s register %d, "
+				      "%u %s within the operation's %u ms)", n, unit, what, addr,
+				      tries, tries == 1 ? "try" : "tries", op_ms);
+	if (e == ETIMEDOUT)
+		return asph_error_set(err, -ETIMEDOUT, "%s: unit %d did not answer (%s register %d, "
+				      "%u %s of %u ms)", n, unit, what, addr, tries,
+				      tries == 1 ? "try" : "tries", attempt_ms);
+	if (e == EMBBADCRC)
+		return asph_error_set(err, -EIO, "%s: unit %d: answers with a bad CRC (%u %s): "
+				      "check the wiring, termination and baud rate", n, unit, tries,
+				      tries == 1 ? "try" : "tries");
+	if (e == EMBBADDATA || e == EMBBADSLAVE || e == EMBMDATA || e == EMBBADEXC)
+		return asph_error_set(err, -EPROTO, "%s: unit %d: answer does not fit the request "
+				      "(%s register %d): %s", n, unit, what, addr, modbus_strerror(e));
+	if (link_lost(e))
+		return asph_error_set(err, -ENODEV, "%s: connection lost: %s", n, modbus_strerror(e));
+	return asph_error_set(err, -EIO, "%s: unit %d: %s", n, unit, modbus_strerror(e));
+}
+
+enum op { OP_READ_HOLDING, OP_READ_INPUT, OP_WRITE };
+
+static int attempts(struct mb_bus *b, enum op op, int unit, int addr, int n, uint16_t *regs,
+		    unsigned timeout_ms, struct asph_error *err)
+{
+	struct mb_link *l = b->link;
+	const char *what = op == OP_WRITE ? "writing" : "reading";
+	uint64_t deadline = transport_deadline(timeout_ms ? timeout_ms : b->timeout_ms);
+	unsigned tries = 0, attempt_ms = b->timeout_ms;
+	int e = ETIMEDOUT;
+
+	if (modbus_set_slave(l->ctx, unit) < 0)
+		return asph_error_set(err, -EINVAL, "%s: unit %d is not valid", l->name, unit);
+	while (tries <= b->retries) {
+		unsigned left = transport_ms_left(deadline);
+		if (tries > 0 && left == 0)
+			break;
+		attempt_ms = tries == 0 && left == 0 ? b->timeout_ms
+			     : left < b->timeout_ms ? left : b->timeout_ms;
+		set_timeouts(l->ctx, attempt_ms);
+		tries++;
+		int rc = op == OP_WRITE ? modbus_write_registers(l->ctx, addr, n, regs)
+			 : op == OP_READ_INPUT ? modbus_read_input_registers(l->ctx, addr, n, regs)
+			 : modbus_read_registers(l->ctx, addr, n, regs);
+		if (rc == n)
+			return 0;
+		e = rc < 0 ? errno : EMBMDATA;
+		if (link_lost(e) && l->p.framing == MB_FRAMING_TCP) {
+			/* a gateway that dropped the connection: one reconnect */
+			modbus_close(l->ctx);
+			if (modbus_connect(l->ctx) < 0)
+				return fail(l, unit, what, addr, e, tries, attempt_ms, 0, err);
+			continue;
+		}
+		if (!worth_retrying(e))
+			break;
+		/* drop the rest of a garbled answer before the next try */
+		modbus_flush(l->ctx);
+	}
+	return fail(l, unit, what, addr, e, tries, attempt_ms,
+		    attempt_ms < b->timeout_ms || tries <= b->retries ? timeout_ms : 0, err);
+}
+
+static int transact(struct mb_bus *b, enum op op, int unit, int addr, int n, uint16_t *regs,
+		    unsigned timeout_ms, struct asph_error *err)
+{
+	pthread_mutex_lock(&b->link->lock);
+	int r = attempts(b, op, unit, addr, n, regs, timeout_ms, err);
+	pthread_mutex_unlock(&b->link->lock);
+	return r;
+}
+
+int mb_read_registers(struct mb_bus *b, int unit, bool input, int addr, int n,
+		      uint16_t *dst, unsigned timeout_ms, struct asph_error *err)
+{
+	return transact(b, input ? OP_READ_INPUT : OP_READ_HOLDING, unit, addr, n, dst,
+			timeout_ms, err);
+}
+
+int mb_write_registers(struct mb_bus *b, int unit, int addr, int n, const uint16_t *src,
+		       unsigned timeout_ms, struct asph_error *err)
+{
+	uint16_t copy[MODBUS_MAX_WRITE_REGISTERS];
+
+	if (n <= 0 || n > MODBUS_MAX_WRITE_REGISTERS)
+		return asph_error_set(err, -EINVAL, "%s: %d registers cannot be written at once",
+				      b->link->name, n);
+	memcpy(copy, src, (size_t)n * sizeof(*src));
+	return transact(b, OP_WRITE, unit, addr, n, copy, timeout_ms, err);
+}

@@ -1,0 +1,448 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""The bad-input corpus: malformed prescriptions, points files (CSV, PLY,
+JSON), instrument and daemon configurations and recorded scans, generated
+from a valid template of each by mutations (truncation, wrong types, huge
+numbers, deep nesting, invalid UTF-8, very long lines, unknown members, NaN
+coordinates, flipped bytes) plus cases that break one rule of the format.
+
+Each case is a Case(kind, name, data, field): data is the file's bytes (or a
+function making them, for the large ones); field, when set, is the field the
+error must name. What a kind is fed to and what it must answer is in
+test-badinput.py. Everything is deterministic: the same cases every run.
+"""
+import json
+import os
+import random
+import struct
+from collections import namedtuple
+
+Case = namedtuple("Case", "kind name data field")
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+SCAN_TEMPLATE = os.path.join(HERE, "..", "fuzz", "corpus", "scanfile", "strong-ci.scan")
+
+PRESCRIPTION = {
+    "type": "even_asphere", "name": "strong", "R": 20.097, "k": -1,
+    "A": {"4": -2.0868e-5, "6": -3.9031e-9, "8": 3.4102e-11}, "aperture_diameter": 40,
+}
+INSTRUMENTS = {"instruments": [{
+    "name": "bench",
+    "stage": {"driver": "mock", "options": {"speed": 35, "kinematics": "r-theta-z"}},
+    "probe": {"driver": "mock", "options": {"probe": "tactile", "tip_radius": 1.0}},
+}]}
+DAEMON = {
+    "socket_mode": "0660",
+    "limits": {"max_clients": 64, "max_queue": 100},
+    "instruments": INSTRUMENTS["instruments"],
+}
+POINTS_JSON = {
+    "points": [[0.731, -1.29, 0.0417], [2.6, 0.37, -0.112], [-1.9, 2.03, 0.2283]],
+    "triangles": [[2, 0, 1]],
+}
+
+
+def dumps(doc, indent=1):
+    return json.dumps(doc, indent=indent).encode()
+
+
+# ------------------------------------------------------------ JSON mutations
+
+def _set(doc, path, value):
+    """A deep copy of doc with the member at path (a list of keys and
+    indices) replaced by value."""
+    doc = json.loads(json.dumps(doc))
+    node = doc
+    for key in path[:-1]:
+        node = node[key]
+    node[path[-1]] = value
+    return doc
+
+
+def _field(path):
+    return ".".join(str(k) for k in path)
+
+
+def _with_raw(doc, path, raw):
+    """doc as text with the value at path replaced by raw JSON text (which
+    may be invalid JSON: NaN, 1e400, ...)."""
+    marker = "@@RAW@@"
+    text = json.dumps(_set(doc, path, marker), indent=1)
+    return text.replace('"' + marker + '"', raw).encode("utf-8", "surrogateescape")
+
+
+def json_syntax_cases(kind, doc, string_path):
+    """Mutations any JSON reader must refuse: the text is not JSON, or not
+    the object the format wants. string_path names a string member (for
+    invalid UTF-8 and very long strings)."""
+    text = dumps(doc)
+    cases = [
+        Case(kind, "empty", b"", None),
+        Case(kind, "blank", b" \n\t\n", None),
+        Case(kind, "not-an-object-array", b"[]", None),
+        Case(kind, "not-an-object-number", b"42\n", None),
+        Case(kind, "not-an-object-string", b'"text"', None),
+        Case(kind, "not-an-object-null", b"null", None),
+        Case(kind, "trailing-garbage", text + b"x", None),
+        Case(kind, "second-object", text + text, None),
+        Case(kind, "byte-order-mark", b"\xef\xbb\xbf" + text, None),
+        Case(kind, "nul-byte", text[:len(text) // 2] + b"\0" + text[len(text) // 2:], None),
+        Case(kind, "comment", b"// a comment\n" + text, None),
+        Case(kind, "single-quotes", text.replace(b'"', b"'"), None),
+        Case(kind, "latin1-file", text.replace(b"{", b"{\"\xe9t\xe9\": 1, ", 1), None),
+        Case(kind, "utf16", text.decode().encode("utf-16"), None),
+        Case(kind, "deep-array-nesting", b"[" * 100000 + b"]" * 100000, None),
+        Case(kind, "deep-object-nesting", b'{"a":' * 5000 + b"1" + b"}" * 5000, None),
+        Case(kind, "unterminated-string", text[:text.index(b'"') + 3], None),
+        Case(kind, "control-char-in-string", _with_raw(doc, string_path, '"a\x01b"'), None),
+        Case(kind, "invalid-utf8-value", _with_raw(doc, string_path, '"ab\udcffcd"'), None),
+        Case(kind, "overlong-utf8", dumps(doc).replace(b'"', b'"\xc0\xaf', 1), None),
+        Case(kind, "utf8-surrogate", dumps(doc).replace(b'"', b'"\xed\xa0\x80', 1), None),
+        Case(kind, "truncated-utf8", dumps(doc).replace(b'"', b'"\xe2\x82', 1), None),
+        Case(kind, "invalid-escape", _with_raw(doc, string_path, '"a\\qb"'), None),
+        Case(kind, "lone-surrogate-escape", _with_raw(doc, string_path, '"\\udc00"'), None),
+        Case(kind, "very-long-line",
+             lambda: b"{" + b" " * (8 << 20) + b'"x": [' + b"1," * (1 << 20) + b"]", None),
+        Case(kind, "huge-unterminated-string", lambda: b'{"' + b"a" * (16 << 20), None),
+    ]
+    for i in range(1, 10):
+        cut = len(text) * i // 10
+        cases.append(Case(kind, "truncated-%d0pct" % i, text[:cut], None))
+    return cases
+
+
+def json_value_cases(kind, doc, number_paths, strict, unknown_paths=()):
+    """Wrong types and impossible numbers in each numeric member; unknown
+    and duplicate members where the format refuses them (strict)."""
+    cases = []
+    for path in number_paths:
+        f = _field(path)
+        for name, raw in [("nan", "NaN"), ("infinity", "Infinity"), ("minus-infinity", "-Infinity"),
+                          ("overflow", "1e400"), ("minus-overflow", "-1e400"),
+                          ("integer-overflow", "184467440737095516160"),
+                          ("hex", "0x10"), ("leading-plus", "+1"), ("bare-dot", ".5")]:
+            cases.append(Case(kind, "%s-%s" % (f, name), _with_raw(doc, path, raw), None))
+        for name, value in [("string", "12.5"), ("array", [1.5]), ("object", {"v": 1.5}),
+                            ("null", None), ("bool", True)]:
+            cases.append(Case(kind, "%s-%s" % (f, name), dumps(_set(doc, path, value)), f))
+    if strict:
+        for path in unknown_paths:
+            parent = path[:-1]
+            node = json.loads(json.dumps(doc))
+            for key in parent:
+                node = node[key]
+            node[path[-1]] = 1
+            cases.append(Case(kind, "unknown-member-" + _field(path),
+                              dumps(_set(doc, parent, node) if parent else node), None))
+        first = next(iter(doc))
+        text = dumps(doc, indent=None)
+        dup = text.replace(b"{", b'{"%s": %s, ' % (first.encode(), json.dumps(doc[first]).encode()), 1)
+        cases.append(Case(kind, "duplicate-member", dup, None))
+    return cases
+
+
+# ------------------------------------------------------------ prescriptions
+
+def prescription_cases():
+    k = "prescription"
+    p = PRESCRIPTION
+    cases = json_syntax_cases(k, p, ["name"])
+    cases += json_value_cases(k, p, [["R"], ["k"], ["aperture_diameter"], ["A", "4"], ["A", "8"]],
+                              True, [["radius"], ["A", "4x"], ["Aperture_diameter"], [""]])
+
+    def without(*keys):
+        return dumps({m: v for m, v in p.items() if m not in keys})
+
+    cases += [
+        Case(k, "type-unknown", dumps(_set(p, ["type"], "toroid")), "type"),
+        Case(k, "type-number", dumps(_set(p, ["type"], 3)), "type"),
+        Case(k, "name-number", dumps(_set(p, ["name"], 5)), "name"),
+        Case(k, "R-zero", dumps(_set(p, ["R"], 0)), "R"),
+        Case(k, "aperture-zero", dumps(_set(p, ["aperture_diameter"], 0)), "aperture_diameter"),
+        Case(k, "aperture-negative", dumps(_set(p, ["aperture_diameter"], -40)), "aperture_diameter"),
+        Case(k, "aperture-tiny-negative", dumps(_set(p, ["aperture_diameter"], -5e-324)), "aperture_diameter"),
+        Case(k, "A-odd-power", dumps(_set(p, ["A", "3"], 1e-5)), "A.3"),
+        Case(k, "A-power-22", dumps(_set(p, ["A", "22"], 1e-5)), "A.22"),
+        Case(k, "A-power-0", dumps(_set(p, ["A", "0"], 1e-5)), "A.0"),
+        Case(k, "A-power-negative", dumps(_set(p, ["A", "-2"], 1e-5)), "A.-2"),
+        Case(k, "A-power-word", dumps(_set(p, ["A", "four"], 1e-5)), "A.four"),
+        Case(k, "A-power-huge", dumps(_set(p, ["A", "99999999999999999999"], 1e-5)), None),
+        Case(k, "A-array", dumps(_set(p, ["A"], [1e-5, 2e-7])), "A"),
+        Case(k, "missing-type", without("type"), None),
+        Case(k, "missing-R", without("R"), None),
+        Case(k, "missing-aperture", without("aperture_diameter"), None),
+        Case(k, "only-type", dumps({"type": "even_asphere"}), None),
+        Case(k, "empty-object", b"{}", None),
+        # The conic's square root goes negative inside the aperture.
+        Case(k, "sag-undefined", dumps({"type": "even_asphere", "R": 10, "k": 0,
+                                        "aperture_diameter": 30}), "k"),
+        Case(k, "sag-undefined-hyperbola", dumps({"type": "even_asphere", "R": 5, "k": 3,
+                                                  "aperture_diameter": 8}), "k"),
+        Case(k, "very-large-file", lambda: dumps(_set(p, ["name"], "n" * (3 << 20))), None),
+    ]
+    return cases
+
+
+# ------------------------------------------------------------ points
+
+def csv_cases():
+    k = "points-csv"
+    good = b"x,y,z\n0.731,-1.29,0.0417\n2.6,0.37,-0.112\n-1.9,2.03,0.2283\n"
+    rows = [
+        ("nan-x", b"nan,-1.29,0.0417", "x"), ("nan-y", b"0.731,NaN,0.0417", "y"),
+        ("nan-z", b"0.731,-1.29,-nan", "z"), ("inf-x", b"inf,-1.29,0.0417", "x"),
+        ("infinity-y", b"0.731,Infinity,0.0417", "y"), ("minus-inf-z", b"0.731,-1.29,-inf", "z"),
+        ("overflow-x", b"1e999,-1.29,0.0417", "x"), ("overflow-z", b"0.731,-1.29,-1e400", "z"),
+        ("word", b"0.731,abc,0.0417", "y"), ("empty-field", b"0.731,,0.0417", "y"),
+        ("blank-field", b"0.731,   ,0.0417", "y"), ("two-numbers", b"0.731,1 2,0.0417", "y"),
+        ("comma-decimal", b"0,731,-1.29,0.0417", None), ("short-row", b"0.731,-1.29", None),
+        ("long-row", b"0.731,-1.29,0.0417,5", None), ("one-field", b"0.731", None),
+        ("semicolons", b"0.731;-1.29;0.0417", None), ("tabs", b"0.731\t-1.29\t0.0417", None),
+        ("quoted", b'"0.731",-1.29,0.0417', "x"), ("unicode-minus", "\u22121.29,0.5,0.25".encode(), "x"),
+        ("invalid-utf8", b"0.731,\xff\xfe,0.0417", "y"), ("nul-in-row", b"0.731,-1.\x0029,0.0417", None),
+        ("value-too-long", b"0.731," + b"1" * 200 + b",0.0417", "y"),
+        ("trailing-comma", b"0.731,-1.29,0.0417,", None), ("units", b"0.731mm,-1.29,0.0417", "x"),
+        ("percent", b"0.731,-1.29,5%", "z"), ("binary", bytes(range(1, 32)) + b",1,2", None),
+    ]
+    cases = []
+    for name, row, field in rows:
+        cases.append(Case(k, name, good + row + b"\n", field))
+        cases.append(Case(k, name + "-first-row", b"x,y,z\n" + row + b"\n", field))
+    cases += [
+        Case(k, "empty", b"", None),
+        Case(k, "comments-only", b"# nothing\n\n# here\n", None),
+        Case(k, "no-header", good.split(b"\n", 1)[1], None),
+        Case(k, "header-without-z", b"x,y\n0.731,-1.29\n", None),
+        Case(k, "header-uppercase", good.replace(b"x,y,z", b"X,Y,Z"), None),
+        Case(k, "header-semicolons", good.replace(b"x,y,z", b"x;y;z"), None),
+        Case(k, "header-invalid-utf8", b"x,\xc3,z\n1,2,3\n", None),
+        Case(k, "header-nul", b"x,y\0,z\n1,2,3\n", None),
+        Case(k, "ply-as-csv", b"ply\nformat ascii 1.0\nend_header\n", None),
+        Case(k, "json-as-csv", dumps(POINTS_JSON), None),
+        Case(k, "very-long-line", lambda: good + b"1" * (12 << 20) + b",2,3\n", None),
+        Case(k, "very-long-header", lambda: b"x,y,z," + b"w" * (12 << 20) + b"\n1,2,3\n", None),
+        Case(k, "many-columns", lambda: b"x,y,z\n" + b"1," * (1 << 20) + b"1\n", None),
+        Case(k, "nan-after-many-rows",
+             lambda: b"x,y,z\n" + b"0.5,0.25,0.125\n" * 200000 + b"1,2,nan\n", "z"),
+    ]
+    return cases
+
+
+PLY_HEAD = (b"ply\nformat ascii 1.0\nelement vertex 3\nproperty double x\nproperty double y\n"
+            b"property double z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n")
+PLY_BODY = b"0.731 -1.29 0.0417\n2.6 0.37 -0.112\n-1.9 2.03 0.2283\n3 2 0 1\n"
+
+
+def _binary_ply(count=3, verts=None, face=(3, 2, 0, 1), header_extra=b""):
+    head = (b"ply\nformat binary_little_endian 1.0\nelement vertex %d\nproperty double x\n"
+            b"property double y\nproperty double z\nelement face 1\n"
+            b"property list uchar int vertex_indices\n" % count) + header_extra + b"end_header\n"
+    verts = verts if verts is not None else [(0.731, -1.29, 0.0417), (2.6, 0.37, -0.112),
+                                             (-1.9, 2.03, 0.2283)]
+    body = b"".join(struct.pack("<3d", *v) for v in verts)
+    return head + body + struct.pack("<B3i", *face)
+
+
+def ply_cases():
+    k = "points-ply"
+    good = PLY_HEAD + PLY_BODY
+    nan = float("nan")
+    cases = [
+        Case(k, "empty", b"", None),
+        Case(k, "no-magic", good[4:], None),
+        Case(k, "magic-uppercase", b"PLY" + good[3:], None),
+        Case(k, "csv-as-ply", b"x,y,z\n1,2,3\n", None),
+        Case(k, "no-end-header", PLY_HEAD.replace(b"end_header\n", b""), None),
+        Case(k, "no-end-header-with-body", PLY_HEAD.replace(b"end_header\n", b"") + PLY_BODY, None),
+        Case(k, "format-big-endian", good.replace(b"ascii", b"binary_big_endian"), "format"),
+        Case(k, "format-unknown", good.replace(b"ascii", b"utf8"), "format"),
+        Case(k, "count-negative", good.replace(b"vertex 3", b"vertex -3"), "element"),
+        Case(k, "count-word", good.replace(b"vertex 3", b"vertex three"), "element"),
+        Case(k, "count-missing", good.replace(b"vertex 3", b"vertex"), "element"),
+        Case(k, "count-huge", good.replace(b"vertex 3", b"vertex 99999999999999999999"), "element"),
+        Case(k, "count-over-limit", good.replace(b"vertex 3", b"vertex 268435457"), "element"),
+        Case(k, "count-beyond-data", good.replace(b"vertex 3", b"vertex 200000000"), "element"),
+        Case(k, "faces-beyond-data", good.replace(b"face 1", b"face 100000000"), "element"),
+        Case(k, "element-unknown", good.replace(b"end_header", b"element edge 2\nend_header"), "edge"),
+        Case(k, "property-type-unknown", good.replace(b"double y", b"quad y"), "y"),
+        Case(k, "property-incomplete", good.replace(b"double y", b"double"), None),
+        Case(k, "too-many-properties",
+             good.replace(b"element face", b"property float w\n" * 40 + b"element face"), None),
+        Case(k, "no-z", good.replace(b"property double z\n", b""), None),
+        Case(k, "face-not-a-list", good.replace(b"list uchar int vertex_indices", b"int vertex_indices"), None),
+        Case(k, "face-list-type-unknown", good.replace(b"list uchar int", b"list byte int"), None),
+        Case(k, "faces-before-vertices",
+             b"ply\nformat ascii 1.0\nelement face 1\nproperty list uchar int vertex_indices\n"
+             b"element vertex 3\nproperty double x\nproperty double y\nproperty double z\nend_header\n"
+             b"3 2 0 1\n" + PLY_BODY[:-8], None),
+        Case(k, "header-line-too-long", good.replace(b"comment", b"comment") .replace(
+            b"end_header", b"comment " + b"c" * 400 + b"\nend_header"), None),
+        Case(k, "header-unknown-keyword", good.replace(b"end_header", b"vertex_data 3\nend_header"), None),
+        Case(k, "header-invalid-utf8", good.replace(b"end_header", b"\xff\xfe\nend_header"), None),
+        Case(k, "body-short", PLY_HEAD + PLY_BODY[:30], None),
+        Case(k, "body-missing-face", PLY_HEAD + PLY_BODY[:-8], None),
+        Case(k, "body-nan", PLY_HEAD + PLY_BODY.replace(b"0.37", b"nan"), "y"),
+        Case(k, "body-inf", PLY_HEAD + PLY_BODY.replace(b"-0.112", b"-inf"), "z"),
+        Case(k, "body-overflow", PLY_HEAD + PLY_BODY.replace(b"2.6", b"1e400"), "x"),
+        Case(k, "body-word", PLY_HEAD + PLY_BODY.replace(b"2.6", b"two"), "x"),
+        Case(k, "body-long-number", PLY_HEAD + PLY_BODY.replace(b"2.6", b"2." + b"6" * 100), "x"),
+        Case(k, "body-invalid-utf8", PLY_HEAD + PLY_BODY.replace(b"2.6", b"\xc3\x28"), "x"),
+        Case(k, "body-nul", PLY_HEAD + PLY_BODY.replace(b"0.37", b"0.3\0"), None),
+        Case(k, "body-extra-vertex", PLY_HEAD.replace(b"element face 1\nproperty list uchar int vertex_indices\n", b"")
+             .replace(b"vertex 3", b"vertex 2") + PLY_BODY[:-8], "element"),
+        Case(k, "body-extra-face", PLY_HEAD + PLY_BODY + b"3 0 1 2\n", "element"),
+        Case(k, "binary-trailing-bytes", _binary_ply() + b"\0\0\0\0", "element"),
+        Case(k, "face-quad", PLY_HEAD + PLY_BODY.replace(b"3 2 0 1", b"4 2 0 1 1"), None),
+        Case(k, "face-index-out-of-range", PLY_HEAD + PLY_BODY.replace(b"3 2 0 1", b"3 2 0 3"), None),
+        Case(k, "face-index-negative", PLY_HEAD + PLY_BODY.replace(b"3 2 0 1", b"3 2 -1 1"), None),
+        Case(k, "face-index-fraction", PLY_HEAD + PLY_BODY.replace(b"3 2 0 1", b"3 2 0.5 1"), None),
+        Case(k, "face-index-nan", PLY_HEAD + PLY_BODY.replace(b"3 2 0 1", b"3 2 nan 1"), None),
+        Case(k, "binary-end-header-at-eof", _binary_ply().split(b"end_header\n")[0] + b"end_header", None),
+        Case(k, "binary-truncated-vertex", _binary_ply()[:-40], None),
+        Case(k, "binary-truncated-face", _binary_ply()[:-5], None),
+        Case(k, "binary-nan", _binary_ply(verts=[(0.5, nan, 0.25), (1, 2, 3), (4, 5, 6)]), "y"),
+        Case(k, "binary-inf", _binary_ply(verts=[(0.5, 1, 0.25), (float("inf"), 2, 3), (4, 5, 6)]), "x"),
+        Case(k, "binary-face-index-out-of-range", _binary_ply(face=(3, 2, 0, 7)), None),
+        Case(k, "binary-face-index-negative", _binary_ply(face=(3, 2, -1, 1)), None),
+        Case(k, "binary-face-quad", _binary_ply(face=(4, 2, 0, 1)), None),
+        Case(k, "binary-count-beyond-data", _binary_ply(count=1 << 27), "element"),
+        Case(k, "very-long-body-line", lambda: PLY_HEAD + b" " * (12 << 20) + PLY_BODY + b"x", None),
+    ]
+    return cases
+
+
+def points_json_cases():
+    k = "points-json"
+    p = POINTS_JSON
+    cases = json_syntax_cases(k, p, ["points", 0])
+    cases += [
+        Case(k, "points-missing", dumps({"triangles": []}), "points"),
+        Case(k, "points-object", dumps(_set(p, ["points"], {"0": [1, 2, 3]})), "points"),
+        Case(k, "points-string", dumps(_set(p, ["points"], "1,2,3")), "points"),
+        Case(k, "point-two-coordinates", dumps(_set(p, ["points", 1], [2.6, 0.37])), "points[1]"),
+        Case(k, "point-four-coordinates", dumps(_set(p, ["points", 1], [2.6, 0.37, 1, 2])), "points[1]"),
+        Case(k, "point-number", dumps(_set(p, ["points", 2], 1.5)), "points[2]"),
+        Case(k, "point-object", dumps(_set(p, ["points", 0], {"x": 1, "y": 2, "z": 3})), "points[0]"),
+        Case(k, "coordinate-string", dumps(_set(p, ["points", 1, 2], "-0.112")), "points[1]"),
+        Case(k, "coordinate-null", dumps(_set(p, ["points", 0, 0], None)), "points[0]"),
+        Case(k, "coordinate-bool", dumps(_set(p, ["points", 2, 1], False)), "points[2]"),
+        Case(k, "coordinate-nan", _with_raw(p, ["points", 1, 0], "NaN"), None),
+        Case(k, "coordinate-infinity", _with_raw(p, ["points", 1, 0], "Infinity"), None),
+        Case(k, "coordinate-overflow", _with_raw(p, ["points", 1, 0], "1e400"), None),
+        Case(k, "coordinate-int-overflow", _with_raw(p, ["points", 1, 0], "99999999999999999999999"), None),
+        Case(k, "triangle-index-out-of-range", dumps(_set(p, ["triangles", 0, 1], 3)), "triangles[0]"),
+        Case(k, "triangle-index-negative", dumps(_set(p, ["triangles", 0, 1], -1)), "triangles[0]"),
+        Case(k, "triangle-index-real", dumps(_set(p, ["triangles", 0, 1], 1.0)), "triangles[0]"),
+        Case(k, "triangle-index-huge", dumps(_set(p, ["triangles", 0, 1], 4294967296)), "triangles[0]"),
+        Case(k, "triangle-two-indices", dumps(_set(p, ["triangles", 0], [0, 1])), "triangles[0]"),
+        Case(k, "values-short", dumps(dict(p, values=[1.5, 2.5])), "values"),
+        Case(k, "values-string", dumps(dict(p, values=[1.5, "2.5", 3.5])), "values"),
+        Case(k, "very-many-points-last-bad",
+             lambda: dumps({"points": [[0.5, 0.25, 0.125]] * 300000 + [[1, 2]]}, indent=None),
+             "points[300000]"),
+    ]
+    return cases
+
+
+# ------------------------------------------------------------ configurations
+
+def instrument_cases():
+    k = "instrument"
+    c = INSTRUMENTS
+    cases = json_syntax_cases(k, c, ["instruments", 0, "name"])
+    cases += json_value_cases(k, c, [["instruments", 0, "stage", "options", "speed"],
+                                     ["instruments", 0, "probe", "options", "tip_radius"]],
+                              True, [["instrument"], ["instruments", 0, "stages"],
+                                     ["instruments", 0, "stage", "option"]])
+    inst = c["instruments"][0]
+    cases += [
+        Case(k, "instruments-empty", dumps({"instruments": []}), "instruments"),
+        Case(k, "instruments-object", dumps({"instruments": inst}), "instruments"),
+        Case(k, "instruments-missing", b"{}", "instruments"),
+        Case(k, "instrument-string", dumps({"instruments": ["mock"]}), None),
+        Case(k, "stage-missing", dumps({"instruments": [{"probe": inst["probe"]}]}), None),
+        Case(k, "probe-missing", dumps({"instruments": [{"stage": inst["stage"]}]}), None),
+        Case(k, "driver-unknown", dumps(_set(c, ["instruments", 0, "stage", "driver"], "nosuch")), None),
+        Case(k, "driver-number", dumps(_set(c, ["instruments", 0, "probe", "driver"], 7)), None),
+        Case(k, "driver-path", dumps(_set(c, ["instruments", 0, "probe", "driver"], "../../tmp/x")), None),
+        Case(k, "driver-missing", dumps(_set(c, ["instruments", 0, "stage"], {"options": {}})), None),
+        Case(k, "options-array", dumps(_set(c, ["instruments", 0, "stage", "options"], [1])), None),
+        Case(k, "option-unknown", dumps(_set(c, ["instruments", 0, "probe", "options", "sped"], 3)), None),
+        Case(k, "option-negative-speed", dumps(_set(c, ["instruments", 0, "stage", "options", "speed"], -35)), None),
+        Case(k, "option-zero-speed", dumps(_set(c, ["instruments", 0, "stage", "options", "speed"], 0)), None),
+        Case(k, "option-bad-choice", dumps(_set(c, ["instruments", 0, "stage", "options", "kinematics"], "hexapod")), None),
+        Case(k, "option-bad-probe", dumps(_set(c, ["instruments", 0, "probe", "options", "probe"], "laser")), None),
+        Case(k, "option-bool-as-string", dumps(_set(c, ["instruments", 0, "stage", "options", "stream"], "yes")), None),
+        Case(k, "option-int-fraction", dumps(_set(c, ["instruments", 0, "probe", "options", "seed"], 1.5)), None),
+        Case(k, "option-int-negative", dumps(_set(c, ["instruments", 0, "probe", "options", "fail_after"], -1)), None),
+        Case(k, "option-rate-string", dumps(_set(c, ["instruments", 0, "probe", "options", "rate"], "fast")), None),
+        Case(k, "name-duplicate", dumps({"instruments": [inst, inst]}), None),
+        Case(k, "name-number", dumps(_set(c, ["instruments", 0, "name"], 12)), None),
+        Case(k, "name-too-long", dumps(_set(c, ["instruments", 0, "name"], "n" * 300)), None),
+    ]
+    return cases
+
+
+def daemon_cases():
+    k = "daemon"
+    d = DAEMON
+    cases = json_syntax_cases(k, d, ["socket_mode"])
+    cases += json_value_cases(k, d, [["limits", "max_clients"], ["limits", "max_queue"]],
+                              True, [["limitz"], ["limits", "max_client"], ["instruments", 0, "extra"]])
+    cases += [
+        Case(k, "socket-mode-world-writable", dumps(_set(d, ["socket_mode"], "0666")), None),
+        Case(k, "socket-mode-word", dumps(_set(d, ["socket_mode"], "rw-rw----")), None),
+        Case(k, "socket-mode-number", dumps(_set(d, ["socket_mode"], 660)), None),
+        Case(k, "max-clients-zero", dumps(_set(d, ["limits", "max_clients"], 0)), None),
+        Case(k, "max-clients-negative", dumps(_set(d, ["limits", "max_clients"], -1)), None),
+        Case(k, "max-clients-huge", dumps(_set(d, ["limits", "max_clients"], 1 << 40)), None),
+        Case(k, "limits-array", dumps(_set(d, ["limits"], [64])), None),
+        Case(k, "instrument-driver-unknown",
+             dumps(_set(d, ["instruments", 0, "stage", "driver"], "nosuch")), None),
+        Case(k, "instrument-option-range",
+             dumps(_set(d, ["instruments", 0, "stage", "options", "speed"], -3)), None),
+        Case(k, "operator-group-missing", dumps(dict(d, operator_group="no-such-group-asph")), None),
+    ]
+    return cases
+
+
+# ------------------------------------------------------------ recorded scans
+
+def scan_cases():
+    """Damaged copies of a real recording. Every byte of a scan is under a
+    checksum, so each change must be found: the header refused, or the
+    reading stopped at the damaged block with a report."""
+    k = "scan"
+    with open(SCAN_TEMPLATE, "rb") as f:
+        good = f.read()
+    hlen = struct.unpack_from("<I", good, 12)[0]
+    body = 20 + hlen
+    cases = [Case(k, "empty", b"", None), Case(k, "zeros", bytes(4096), None),
+             Case(k, "text", b"ASPHSCAN is what this is not\n", None),
+             Case(k, "magic-only", good[:8], None),
+             Case(k, "bad-magic", b"ASPHSCAM" + good[8:], None),
+             Case(k, "major-version-99", good[:8] + struct.pack("<H", 99) + good[10:], None),
+             Case(k, "header-length-zero", good[:12] + struct.pack("<I", 0) + good[16:], None),
+             Case(k, "header-length-huge", good[:12] + struct.pack("<I", 0xFFFFFFFF) + good[16:], None),
+             Case(k, "header-length-over-limit", good[:12] + struct.pack("<I", (1 << 20) + 1) + good[16:], None),
+             Case(k, "header-length-beyond-file", good[:12] + struct.pack("<I", len(good)) + good[16:], None),
+             Case(k, "garbage-after-end", good + b"\0" * 3 + b"garbage", None),
+             Case(k, "two-scans", good + good, None),
+             Case(k, "points-csv", b"x,y,z\n1,2,3\n", None)]
+    rng = random.Random(9)
+    cases.append(Case(k, "random-bytes", bytes(rng.randrange(256) for _ in range(3000)), None))
+    cases.append(Case(k, "random-after-header", good[:body] + bytes(rng.randrange(256) for _ in range(900)), None))
+    # Truncations: inside the file header, inside the header JSON, inside
+    # each block.
+    for cut in [1, 7, 11, 15, 19, 20, 21, body // 2, body - 1] + list(range(body + 1, len(good), 29)):
+        cases.append(Case(k, "truncated-at-%d" % cut, good[:cut], None))
+    # One flipped bit at offsets spread over the whole file.
+    for off in [0, 9, 13, 17, 25, body // 3, body - 2] + list(range(body, len(good), 23)):
+        bad = bytearray(good)
+        bad[off] ^= 1 << (off % 8)
+        cases.append(Case(k, "bit-flip-at-%d" % off, bytes(bad), None))
+    return cases
+
+
+def all_cases():
+    return (prescription_cases() + csv_cases() + ply_cases() + points_json_cases() +
+            instrument_cases() + daemon_cases() + scan_cases())

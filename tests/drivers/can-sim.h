@@ -1,0 +1,79 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/*
+ * Simulated CiA 402 drives (and a CiA 404 sensor) on the far end of a
+ * descriptor carrying one struct can_frame per message: each node has its
+ * NMT state and heartbeat producer, an expedited SDO server with the CiA 301
+ * abort codes, the CiA 402 state machine, profile position motion following
+ * the set-point handshake (bits 4 and 12, target reached on bit 10) and
+ * homing, with faults to inject. can_sim_feed() handles one frame without a
+ * thread (for fuzzing); can_sim_run() serves the descriptor on a thread.
+ */
+#ifndef ASPH_TEST_CAN_SIM_H
+#define ASPH_TEST_CAN_SIM_H
+
+#include <stdbool.h>
+#include <stdint.h>
+
+#include "can/protocol.h"
+
+#define CAN_SIM_MAX_NODES 4
+
+struct can_sim;
+
+struct can_sim_config {
+	unsigned n_nodes;
+	uint8_t nodes[CAN_SIM_MAX_NODES];
+	uint32_t device_type[CAN_SIM_MAX_NODES];        /* 0: a CiA 402 drive */
+	unsigned heartbeat_ms;          /* 0x1017 after a reset */
+	/* motion runs at the profile velocity times this; 0: a set point is
+	 * reached the moment it is accepted */
+	double speed_factor;
+	int32_t home_switch[CAN_SIM_MAX_NODES];         /* counts, for methods != 35/37 */
+};
+
+/* The sim owns fd. */
+int can_sim_new(int fd, const struct can_sim_config *c, struct can_sim **out);
+/* Serves fd on a thread until can_sim_free(). */
+int can_sim_run(struct can_sim *s);
+void can_sim_free(struct can_sim *s);
+/* Handles one frame from the client (answers are written to fd). */
+void can_sim_feed(struct can_sim *s, const struct can_frame *f);
+
+/* ---- faults, from any thread */
+/* The drive goes to fault with code (0x603F, and an EMCY); persistent: a
+ * fault reset does not clear it. */
+void can_sim_fault(struct can_sim *s, uint8_t node, uint16_t code, bool persistent);
+/* The drive faults with code shortly after accepting its next set point. */
+void can_sim_fault_on_move(struct can_sim *s, uint8_t node, uint16_t code);
+/* No answers and no heartbeat at all. */
+void can_sim_silence(struct can_sim *s, uint8_t node, bool silent);
+void can_sim_heartbeat(struct can_sim *s, uint8_t node, bool on);
+/* Every access to index:sub answers this abort code (0: normal again). */
+void can_sim_abort(struct can_sim *s, uint8_t node, uint16_t index, uint8_t sub, uint32_t code);
+enum can_sim_garble { CAN_SIM_GARBLE_NONE, CAN_SIM_SHORT, CAN_SIM_SEGMENTED, CAN_SIM_OTHER_INDEX };
+/* The next SDO answer of node is malformed so. */
+void can_sim_garble(struct can_sim *s, uint8_t node, enum can_sim_garble g);
+/* The drive restarts by itself (power glitch, watchdog): boot-up message,
+ * pre-operational, switch on disabled, home lost. */
+void can_sim_reboot(struct can_sim *s, uint8_t node);
+void can_sim_homing_error(struct can_sim *s, uint8_t node, bool on);
+/* Sends an error frame (CAN_ERR_* class, data[1] controller status). */
+void can_sim_error_frame(struct can_sim *s, uint32_t class, uint8_t ctrl);
+/* The value of the probe object 0x7130:01. */
+void can_sim_set_probe(struct can_sim *s, uint8_t node, int16_t value);
+
+struct can_sim_node {
+	enum cia402_state state;
+	uint8_t nmt;
+	int8_t mode;
+	uint16_t controlword;
+	int32_t position, target;
+	uint32_t velocity;
+	int8_t homing_method;
+	unsigned quick_stops, fault_resets, set_points, homings, resets;
+	bool homed;
+};
+/* A snapshot of node. */
+void can_sim_get(struct can_sim *s, uint8_t node, struct can_sim_node *out);
+
+#endif

@@ -1,0 +1,886 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/*
+ * The CAN driver against simulated CiA 402 drives on a socketpair: the
+ * frame codec, enable / home / move / fault reset, every SDO abort path,
+ * malformed answers, heartbeat loss, a drive that never answers, bus-off
+ * and error passive, stop from another thread, the probe, a real
+ * interface on a kernel without CAN, and a whole scan through the
+ * executor compared with the mock instrument's.
+ */
+#include <errno.h>
+#include <math.h>
+#include <pthread.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+#include <linux/can/error.h>
+
+#include "asph/executor.h"
+#include "asph/fit.h"
+#include "asph/instrument.h"
+#include "asph/plan.h"
+#include "asph/prescription.h"
+#include "can-sim.h"
+
+extern const struct asph_driver can_driver;
+
+/* node ids and scales without symmetry */
+static const uint8_t node_id[3] = { 5, 9, 12 };
+static const double cpm[3] = { 8192.0, 12500.0, 20480.0 };
+
+struct rig {
+	struct can_sim *sim;
+	struct asph_options *opts;
+	struct asph_device *dev;
+	int fd;
+};
+
+static double ms_since(const struct timespec *a)
+{
+	struct timespec b;
+	clock_gettime(CLOCK_MONOTONIC, &b);
+	return (double)(b.tv_sec - a->tv_sec) * 1e3 + (double)(b.tv_nsec - a->tv_nsec) / 1e6;
+}
+
+static void sim_config(struct can_sim_config *c, double speed_factor)
+{
+	memset(c, 0, sizeof(*c));
+	c->n_nodes = 3;
+	memcpy(c->nodes, node_id, 3);
+	c->heartbeat_ms = 20;
+	c->speed_factor = speed_factor;
+	c->home_switch[0] = -3771;
+	c->home_switch[1] = 2293;
+	c->home_switch[2] = -911;
+}
+
+static void set_options(struct asph_options *o, const char *list)
+{
+	char buf[512], *save = NULL;
+	struct asph_error err;
+
+	snprintf(buf, sizeof(buf), "%s", list);
+	for (char *kv = strtok_r(buf, ",", &save); kv; kv = strtok_r(NULL, ",", &save)) {
+		char *eq = strchr(kv, '=');
+		assert_non_null(eq);
+		*eq = 0;
+		if (asph_options_set(o, kv, eq + 1, &err) < 0)
+			fail_msg("%s: %s", kv, err.message);
+	}
+}
+
+/* The sim on one end of a socketpair, the options for the other. */
+static void rig_start(struct rig *r, const struct can_sim_config *sc, const char *options)
+{
+	int sv[2];
+	char base[256];
+
+	memset(r, 0, sizeof(*r));
+	assert_int_equal(socketpair(AF_UNIX, SOCK_SEQPACKET | SOCK_CLOEXEC, 0, sv), 0);
+	r->fd = sv[0];
+	assert_int_equal(can_sim_new(sv[1], sc, &r->sim), 0);
+	assert_int_equal(can_sim_run(r->sim), 0);
+	assert_int_equal(asph_options_new(&can_driver, &r->opts, NULL), 0);
+	snprintf(base, sizeof(base),
+		 "interface=fd:%d,x_node=%u,y_node=%u,z_node=%u,x_counts_per_mm=%g,"
+		 "y_counts_per_mm=%g,z_counts_per_mm=%g,heartbeat=20,heartbeat_timeout=400,"
+		 "sdo_timeout=60,speed=40", r->fd, node_id[0], node_id[1], node_id[2], cpm[0], cpm[1],
+		 cpm[2]);
+	set_options(r->opts, base);
+	if (options)
+		set_options(r->opts, options);
+}
+
+static int rig_open(struct rig *r, unsigned timeout_ms, struct asph_error *err)
+{
+	return can_driver.stage->open(&can_driver, asph_options_values(r->opts), timeout_ms,
+				      &r->dev, err);
+}
+
+static void rig_stop(struct rig *r)
+{
+	if (r->dev)
+		can_driver.stage->close(r->dev);
+	can_sim_free(r->sim);
+	close(r->fd);
+	asph_options_free(r->opts);
+}
+
+/* A rig with the stage open and homed. */
+static void rig_ready(struct rig *r, double speed_factor, const char *options)
+{
+	struct can_sim_config sc;
+	struct asph_error err;
+
+	sim_config(&sc, speed_factor);
+	rig_start(r, &sc, options);
+	if (rig_open(r, 2000, &err) < 0 || can_driver.stage->home(r->dev, 5000, &err) < 0)
+		fail_msg("%s", err.message);
+}
+
+static void expect_error(int r, int code, const struct asph_error *err, const char *words)
+{
+	if (r != code || !strstr(err->message, words))
+		fail_msg("expected %d with '%s', got %d: %s", code, words, r, err->message);
+}
+
+/* Waits (bounded) until the sim has seen n quick stops on node. */
+static unsigned quick_stops(struct can_sim *sim, uint8_t node, unsigned n)
+{
+	struct can_sim_node sn;
+	for (int i = 0; i < 2000; i++) {
+		can_sim_get(sim, node, &sn);
+		if (sn.quick_stops >= n)
+			break;
+		usleep(1000);
+	}
+	return sn.quick_stops;
+}
+
+/* ------------------------------------------------------------ codec */
+
+static void test_codec(void **state)
+{
+	struct can_frame f;
+	struct can_event ev;
+
+	for (uint8_t size = 1; size <= 4; size++) {
+		canopen_sdo_frame(&f, 97, true, SDO_DOWNLOAD, 0x607a, 0x03, 0xa1b2c3d4u, size);
+		assert_int_equal(f.can_id, 0x600 + 97);
+		assert_int_equal(canopen_decode(&f, &ev), 0);
+		assert_int_equal(ev.type, CAN_EV_SDO_REQUEST);
+		assert_int_equal(ev.node, 97);
+		assert_int_equal(ev.u.sdo.kind, SDO_DOWNLOAD);
+		assert_int_equal(ev.u.sdo.index, 0x607a);
+		assert_int_equal(ev.u.sdo.subindex, 3);
+		assert_int_equal(ev.u.sdo.size, size);
+		assert_int_equal(ev.u.sdo.value, 0xa1b2c3d4u & (size < 4 ? (1u << 8 * size) - 1 : ~0u));
+		canopen_sdo_frame(&f, 33, false, SDO_UPLOAD, 0x6064, 0, 0x89abcdefu, size);
+		assert_int_equal(canopen_decode(&f, &ev), 0);
+		assert_int_equal(ev.type, CAN_EV_SDO_RESPONSE);
+		assert_int_equal(ev.u.sdo.kind, SDO_UPLOAD);
+		assert_int_equal(ev.u.sdo.size, size);
+	}
+	/* the bytes of CiA 301's examples */
+	canopen_sdo_frame(&f, 5, true, SDO_UPLOAD, 0x6041, 0, 0, 0);
+	assert_int_equal(f.data[0], 0x40);
+	canopen_sdo_frame(&f, 5, true, SDO_DOWNLOAD, 0x6040, 0, 0x0f, 2);
+	assert_int_equal(f.data[0], 0x2b);
+	canopen_sdo_frame(&f, 5, false, SDO_DOWNLOAD, 0x6040, 0, 0, 0);
+	assert_int_equal(f.data[0], 0x60);
+	canopen_sdo_abort_frame(&f, 5, false, 0x6098, 0, 0x06090030);
+	assert_int_equal(canopen_decode(&f, &ev), 0);
+	assert_int_equal(ev.u.sdo.kind, SDO_ABORT);
+	assert_int_equal(ev.u.sdo.abort_code, 0x06090030);
+	/* segmented upload response: recognised, not taken for a value */
+	f.data[0] = 0x41;
+	assert_int_equal(canopen_decode(&f, &ev), 0);
+	assert_int_equal(ev.u.sdo.kind, SDO_UNSUPPORTED);
+	f.data[0] = 0xe0;       /* command specifier 7 does not exist */
+	assert_int_equal(canopen_decode(&f, &ev), -EPROTO);
+	f.can_dlc = 5;
+	assert_int_equal(canopen_decode(&f, &ev), -EPROTO);
+	f.can_dlc = 9;
+	assert_int_equal(canopen_decode(&f, &ev), -EPROTO);
+
+	canopen_nmt_frame(&f, CANOPEN_NMT_RESET_COMMUNICATION, 12);
+	assert_int_equal(canopen_decode(&f, &ev), 0);
+	assert_int_equal(ev.type, CAN_EV_NMT);
+	assert_int_equal(ev.u.nmt.command, 0x82);
+	assert_int_equal(ev.u.nmt.node, 12);
+	canopen_heartbeat_frame(&f, 12, CANOPEN_STATE_OPERATIONAL);
+	assert_int_equal(canopen_decode(&f, &ev), 0);
+	assert_int_equal(ev.type, CAN_EV_HEARTBEAT);
+	assert_int_equal(ev.u.state, 5);
+	canopen_emcy_frame(&f, 12, 0x8611, 0x21);
+	assert_int_equal(canopen_decode(&f, &ev), 0);
+	assert_int_equal(ev.type, CAN_EV_EMCY);
+	assert_int_equal(ev.u.emcy.code, 0x8611);
+	assert_int_equal(ev.u.emcy.reg, 0x21);
+
+	bool fatal;
+	char text[160];
+	memset(&f, 0, sizeof(f));
+	f.can_id = CAN_ERR_FLAG | CAN_ERR_BUSOFF;
+	f.can_dlc = 8;
+	assert_int_equal(canopen_decode(&f, &ev), 0);
+	assert_int_equal(ev.type, CAN_EV_BUS_ERROR);
+	assert_non_null(strstr(canopen_bus_error_text(&ev, &fatal, text, sizeof(text)), "bus-off"));
+	assert_true(fatal);
+	f.can_id = CAN_ERR_FLAG | CAN_ERR_CRTL;
+	f.data[1] = CAN_ERR_CRTL_TX_PASSIVE;
+	canopen_decode(&f, &ev);
+	assert_non_null(strstr(canopen_bus_error_text(&ev, &fatal, text, sizeof(text)), "error passive"));
+	assert_true(fatal);
+	f.data[1] = CAN_ERR_CRTL_RX_WARNING;
+	canopen_decode(&f, &ev);
+	canopen_bus_error_text(&ev, &fatal, text, sizeof(text));
+	assert_false(fatal);
+
+	assert_string_equal(canopen_abort_text(0x06020000),
+			    "object does not exist in the object dictionary");
+	assert_null(canopen_abort_text(0x06020001));
+	assert_string_equal(canopen_error_text(0x8611), "following error");
+	assert_string_equal(canopen_error_text(0x3333), "voltage");
+	assert_string_equal(canopen_error_text(0xff42), "device specific");
+}
+
+static void test_statusword(void **state)
+{
+	/* statuswords as drives send them (remote, target reached, ...) */
+	static const struct { uint16_t sw; enum cia402_state s; } cases[] = {
+		{ 0x0200, CIA402_NOT_READY_TO_SWITCH_ON }, { 0x0250, CIA402_SWITCH_ON_DISABLED },
+		{ 0x0231, CIA402_READY_TO_SWITCH_ON }, { 0x0233, CIA402_SWITCHED_ON },
+		{ 0x1637, CIA402_OPERATION_ENABLED }, { 0x0617, CIA402_QUICK_STOP_ACTIVE },
+		{ 0x021f, CIA402_FAULT_REACTION_ACTIVE }, { 0x0218, CIA402_FAULT },
+		{ 0x0208, CIA402_FAULT }, { 0x0225, CIA402_UNKNOWN },
+	};
+	for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++)
+		assert_int_equal(cia402_decode_statusword(cases[i].sw), cases[i].s);
+	for (int s = 0; s < CIA402_UNKNOWN; s++)
+		assert_int_equal(cia402_decode_statusword(cia402_statusword_bits(s) | 0x1600), s);
+	/* the enable path and a fault reset on the rising edge only */
+	enum cia402_state s = CIA402_SWITCH_ON_DISABLED;
+	s = cia402_next_state(s, 0, CIA402_CW_SHUTDOWN, true);
+	s = cia402_next_state(s, 6, CIA402_CW_SWITCH_ON, true);
+	s = cia402_next_state(s, 7, CIA402_CW_ENABLE_OPERATION, true);
+	assert_int_equal(s, CIA402_OPERATION_ENABLED);
+	assert_int_equal(cia402_next_state(s, 0x0f, CIA402_CW_QUICK_STOP, true),
+			 CIA402_QUICK_STOP_ACTIVE);
+	assert_int_equal(cia402_next_state(CIA402_FAULT, 0x80, 0x80, true), CIA402_FAULT);
+	assert_int_equal(cia402_next_state(CIA402_FAULT, 0, 0x80, false), CIA402_FAULT);
+	assert_int_equal(cia402_next_state(CIA402_FAULT, 0, 0x80, true), CIA402_SWITCH_ON_DISABLED);
+}
+
+/* ------------------------------------------- enable, home, move */
+
+static void test_enable_home_move(void **state)
+{
+	struct rig r;
+	struct asph_error err;
+	struct can_sim_node sn;
+	double pos[3];
+	const double target[3] = { 3.1416, -2.7183, 1.4142 };
+	struct asph_stage_info info;
+	struct asph_stage_status st;
+
+	/* homing on the switches at 60 % of the profile speed */
+	rig_ready(&r, 0.6, "homing_method=17,homing_speed=30");
+	for (int k = 0; k < 3; k++) {
+		can_sim_get(r.sim, node_id[k], &sn);
+		assert_int_equal(sn.state, CIA402_OPERATION_ENABLED);
+		assert_int_equal(sn.nmt, CANOPEN_STATE_OPERATIONAL);
+		assert_int_equal(sn.homing_method, 17);
+		assert_true(sn.homed);
+		assert_int_equal(sn.position, 0);
+		assert_int_equal(sn.resets, 1);         /* NMT reset communication on open */
+	}
+	assert_int_equal(can_driver.stage->info(r.dev, &info, NULL), 0);
+	assert_int_equal(info.n_axes, 3);
+	assert_true(info.axes[0].max_speed == 40);
+
+	struct timespec t0;
+	clock_gettime(CLOCK_MONOTONIC, &t0);
+	if (can_driver.stage->move_to(r.dev, target, 5000, &err) < 0)
+		fail_msg("%s", err.message);
+	/* the longest axis, 3.1416 mm at 0.6 * 40 mm/s, takes 131 ms */
+	assert_true(ms_since(&t0) >= 125);
+	assert_int_equal(can_driver.stage->position(r.dev, pos, 1000, NULL), 0);
+	for (int k = 0; k < 3; k++) {
+		can_sim_get(r.sim, node_id[k], &sn);
+		assert_int_equal(sn.target, lround(target[k] * cpm[k]));
+		assert_int_equal(sn.position, sn.target);
+		assert_int_equal(sn.set_points, 1);
+		assert_int_equal(sn.velocity, lround(40 * cpm[k]));
+		assert_int_equal(sn.mode, CIA402_MODE_PROFILE_POSITION);
+		/* the handshake ended with bit 4 down */
+		assert_int_equal(sn.controlword, CIA402_CW_ENABLE_OPERATION);
+		assert_true(fabs(pos[k] - target[k]) <= 0.5 / cpm[k]);
+	}
+	/* only the axes that change move */
+	const double t2[3] = { target[0], target[1], -0.5772 };
+	assert_int_equal(can_driver.stage->move_to(r.dev, t2, 5000, NULL), 0);
+	can_sim_get(r.sim, node_id[0], &sn);
+	assert_int_equal(sn.set_points, 1);
+	can_sim_get(r.sim, node_id[2], &sn);
+	assert_int_equal(sn.set_points, 2);
+	assert_int_equal(sn.position, lround(-0.5772 * cpm[2]));
+
+	assert_int_equal(can_driver.stage->status(r.dev, &st, 1000, NULL), 0);
+	assert_int_equal(st.state, ASPH_STAGE_IDLE);
+	assert_true(st.homed);
+	assert_true(fabs(st.position[2] + 0.5772) < 1e-4);
+
+	/* outside the travel: refused before anything moves */
+	const double far[3] = { 50.25, 0, 0 };
+	expect_error(can_driver.stage->move_to(r.dev, far, 1000, &err), -ERANGE, &err, "outside");
+	rig_stop(&r);
+}
+
+static void test_not_homed_and_absent_axis(void **state)
+{
+	struct rig r;
+	struct can_sim_config sc;
+	struct asph_error err;
+	struct asph_stage_info info;
+	const double t[3] = { 1.25, 0, -0.75 };
+	const double ty[3] = { 1.25, 0.5, -0.75 };
+
+	sim_config(&sc, 0);
+	rig_start(&r, &sc, "y_node=0");
+	assert_int_equal(rig_open(&r, 2000, NULL), 0);
+	expect_error(can_driver.stage->move_to(r.dev, t, 1000, &err), -EPROTO, &err, "not homed");
+	assert_int_equal(can_driver.stage->home(r.dev, 2000, NULL), 0);
+	assert_int_equal(can_driver.stage->info(r.dev, &info, NULL), 0);
+	assert_true(info.axes[1].min == 0 && info.axes[1].max == 0);
+	assert_int_equal(can_driver.stage->move_to(r.dev, t, 1000, NULL), 0);
+	expect_error(can_driver.stage->move_to(r.dev, ty, 1000, &err), -ERANGE, &err, "y_node=0");
+	struct can_sim_node sn;
+	can_sim_get(r.sim, node_id[1], &sn);
+	assert_int_equal(sn.nmt, CANOPEN_STATE_PRE_OPERATIONAL);       /* never touched */
+	rig_stop(&r);
+
+	rig_start(&r, &sc, "y_node=5");
+	expect_error(rig_open(&r, 500, &err), -EINVAL, &err, "drives two axes");
+	rig_stop(&r);
+}
+
+/* ------------------------------------------------------ faults */
+
+static void test_fault_reset(void **state)
+{
+	struct rig r;
+	struct asph_error err;
+	struct can_sim_node sn;
+	const double t[3] = { 0.61, 0.37, -1.13 };
+
+	rig_ready(&r, 0, NULL);
+	can_sim_fault(r.sim, node_id[1], 0x7121, false);
+	expect_error(can_driver.stage->move_to(r.dev, t, 1000, &err), -EPROTO, &err,
+		     "y (node 9): drive fault, error code 0x7121 (motor blocked)");
+	/* the other axes got a quick stop */
+	assert_true(quick_stops(r.sim, node_id[0], 1) >= 1);
+	assert_true(quick_stops(r.sim, node_id[2], 1) >= 1);
+	struct asph_stage_status st;
+	assert_int_equal(can_driver.stage->status(r.dev, &st, 1000, NULL), 0);
+	assert_int_equal(st.state, ASPH_STAGE_FAULT);
+	assert_non_null(strstr(st.detail, "0x7121"));
+	/* homing resets the fault and enables again */
+	if (can_driver.stage->home(r.dev, 2000, &err) < 0)
+		fail_msg("%s", err.message);
+	can_sim_get(r.sim, node_id[1], &sn);
+	assert_int_equal(sn.fault_resets, 1);
+	assert_int_equal(sn.state, CIA402_OPERATION_ENABLED);
+	assert_int_equal(can_driver.stage->move_to(r.dev, t, 1000, NULL), 0);
+
+	/* a fault that stays */
+	can_sim_fault(r.sim, node_id[2], 0x3210, true);
+	expect_error(can_driver.stage->home(r.dev, 2000, &err), -EPROTO, &err,
+		     "0x3210 (DC link over-voltage); a fault reset did not clear it");
+	rig_stop(&r);
+
+	rig_ready(&r, 0, "fault_reset=false");
+	can_sim_fault(r.sim, node_id[0], 0x4310, false);
+	expect_error(can_driver.stage->home(r.dev, 2000, &err), -EPROTO, &err, "fault_reset is off");
+	can_sim_get(r.sim, node_id[0], &sn);
+	assert_int_equal(sn.fault_resets, 0);
+	rig_stop(&r);
+}
+
+static void test_quick_stop_on_fault(void **state)
+{
+	struct rig r;
+	struct asph_error err;
+	struct can_sim_node sn;
+	const double t[3] = { 4.5, -3.25, 2.75 };
+
+	rig_ready(&r, 1, NULL);
+	can_sim_fault_on_move(r.sim, node_id[0], 0x8611);
+	expect_error(can_driver.stage->move_to(r.dev, t, 3000, &err), -EPROTO, &err,
+		     "x (node 5): drive fault, error code 0x8611 (following error)");
+	for (int k = 1; k < 3; k++) {
+		assert_true(quick_stops(r.sim, node_id[k], 1) >= 1);
+		can_sim_get(r.sim, node_id[k], &sn);
+		assert_int_equal(sn.state, CIA402_QUICK_STOP_ACTIVE);
+		/* stopped on the way, short of the target */
+		assert_true(fabs((double)sn.position) < fabs(t[k] * cpm[k]) - 1);
+	}
+	/* homing recovers from the quick stop and the fault */
+	if (can_driver.stage->home(r.dev, 3000, &err) < 0)
+		fail_msg("%s", err.message);
+	assert_int_equal(can_driver.stage->move_to(r.dev, t, 3000, NULL), 0);
+	rig_stop(&r);
+}
+
+static void test_homing_error(void **state)
+{
+	struct rig r;
+	struct can_sim_config sc;
+	struct asph_error err;
+
+	sim_config(&sc, 0);
+	rig_start(&r, &sc, NULL);
+	assert_int_equal(rig_open(&r, 2000, NULL), 0);
+	can_sim_homing_error(r.sim, node_id[2], true);
+	expect_error(can_driver.stage->home(r.dev, 2000, &err), -EPROTO, &err,
+		     "z (node 12): homing error (method 37)");
+	rig_stop(&r);
+}
+
+/* ------------------------------------------------------ SDO aborts */
+
+struct abort_case {
+	uint8_t axis;
+	uint16_t index;
+	uint8_t sub;
+	uint32_t code;
+	const char *text;
+};
+
+static void test_sdo_aborts(void **state)
+{
+	/* every abort code of CiA 301 through the bus, on a read */
+	static const uint32_t codes[] = {
+		0x05030000, 0x05040000, 0x05040001, 0x05040002, 0x05040003, 0x05040004, 0x05040005,
+		0x06010000, 0x06010001, 0x06010002, 0x06020000, 0x06040041, 0x06040042, 0x06040043,
+		0x06040047, 0x06060000, 0x06070010, 0x06070012, 0x06070013, 0x06090011, 0x06090030,
+		0x06090031, 0x06090032, 0x06090036, 0x060a0023, 0x08000000, 0x08000020, 0x08000021,
+		0x08000022, 0x08000023, 0x08000024,
+	};
+	struct rig r;
+	struct asph_error err;
+	double pos[3];
+	char want[64];
+
+	rig_ready(&r, 0, NULL);
+	for (size_t i = 0; i < sizeof(codes) / sizeof(codes[0]); i++) {
+		can_sim_abort(r.sim, node_id[1], CIA402_POSITION_ACTUAL, 0, codes[i]);
+		expect_error(can_driver.stage->position(r.dev, pos, 1000, &err), -EPROTO, &err,
+			     canopen_abort_text(codes[i]));
+		snprintf(want, sizeof(want), "read of 0x6064:00: SDO abort 0x%08x", codes[i]);
+		expect_error(-EPROTO, -EPROTO, &err, want);
+	}
+	can_sim_abort(r.sim, node_id[1], CIA402_POSITION_ACTUAL, 0, 0x0badc0de);
+	expect_error(can_driver.stage->position(r.dev, pos, 1000, &err), -EPROTO, &err,
+		     "0x0badc0de (a code CiA 301 does not define)");
+	can_sim_abort(r.sim, node_id[1], 0, 0, 0);
+	assert_int_equal(can_driver.stage->position(r.dev, pos, 1000, NULL), 0);
+
+	/* writes refused during a move: a fault, the others stopped */
+	const double t[3] = { 1.5, 2.5, -3.5 };
+	can_sim_abort(r.sim, node_id[2], CIA402_TARGET_POSITION, 0, 0x06090031);
+	expect_error(can_driver.stage->move_to(r.dev, t, 1000, &err), -EPROTO, &err,
+		     "z (node 12) refused the write of 0x607a:00: SDO abort 0x06090031 (value of "
+		     "parameter written too high)");
+	assert_true(quick_stops(r.sim, node_id[0], 1) >= 1);
+	rig_stop(&r);
+
+	/* the drive's own refusals: a homing method it does not have */
+	rig_ready(&r, 0, NULL);
+	rig_stop(&r);
+	struct can_sim_config sc;
+	sim_config(&sc, 0);
+	rig_start(&r, &sc, "homing_method=21");
+	assert_int_equal(rig_open(&r, 2000, NULL), 0);
+	expect_error(can_driver.stage->home(r.dev, 2000, &err), -EPROTO, &err,
+		     "refused the write of 0x6098:00: SDO abort 0x06090030 (invalid value for parameter)");
+	rig_stop(&r);
+
+	/* on open: not a drive, and a heartbeat it cannot produce */
+	static const struct abort_case open_cases[] = {
+		{ 0, CANOPEN_DEVICE_TYPE, 0, 0x06060000, "access failed due to a hardware error" },
+		{ 2, CANOPEN_HEARTBEAT_TIME, 0, 0x06010002, "attempt to write a read-only object" },
+	};
+	for (size_t i = 0; i < 2; i++) {
+		const struct abort_case *c = &open_cases[i];
+		rig_start(&r, &sc, NULL);
+		can_sim_abort(r.sim, node_id[c->axis], c->index, c->sub, c->code);
+		expect_error(rig_open(&r, 2000, &err), -EPROTO, &err, c->text);
+		rig_stop(&r);
+	}
+	sc.device_type[1] = 0x00000194;         /* a CiA 404 device */
+	rig_start(&r, &sc, NULL);
+	expect_error(rig_open(&r, 2000, &err), -EPROTO, &err,
+		     "y (node 9) is not a CiA 402 drive (device type 0x00000194: profile 404)");
+	rig_stop(&r);
+}
+
+static void test_malformed_answers(void **state)
+{
+	struct rig r;
+	struct asph_error err;
+	double pos[3];
+
+	rig_ready(&r, 0, NULL);
+	can_sim_garble(r.sim, node_id[0], CAN_SIM_SHORT);
+	expect_error(can_driver.stage->position(r.dev, pos, 1000, &err), -EPROTO, &err,
+		     "malformed SDO response (length 5)");
+	can_sim_garble(r.sim, node_id[0], CAN_SIM_SEGMENTED);
+	expect_error(can_driver.stage->position(r.dev, pos, 1000, &err), -EPROTO, &err,
+		     "with a segmented or block transfer");
+	can_sim_garble(r.sim, node_id[0], CAN_SIM_OTHER_INDEX);
+	expect_error(can_driver.stage->position(r.dev, pos, 1000, &err), -ETIMEDOUT, &err,
+		     "it answered about another object");
+	assert_int_equal(can_driver.stage->position(r.dev, pos, 1000, NULL), 0);
+	rig_stop(&r);
+}
+
+/* ---------------------------------------------- lost and silent */
+
+static void test_heartbeat_lost(void **state)
+{
+	struct rig r;
+	struct asph_error err;
+	struct timespec t0;
+	const double t[3] = { 9.75, -8.5, 6.25 };
+
+	/* a slow move, during which y's heartbeat stops */
+	rig_ready(&r, 0.25, "heartbeat_timeout=150");
+	can_sim_heartbeat(r.sim, node_id[1], false);
+	clock_gettime(CLOCK_MONOTONIC, &t0);
+	expect_error(can_driver.stage->move_to(r.dev, t, 10000, &err), -ENODEV, &err,
+		     "y (node 9): heartbeat lost (none for 150 ms)");
+	assert_true(ms_since(&t0) < 900);       /* the move would take 975 ms */
+	assert_true(quick_stops(r.sim, node_id[0], 1) >= 1);
+	assert_true(quick_stops(r.sim, node_id[2], 1) >= 1);
+	struct can_sim_node sn;
+	can_sim_get(r.sim, node_id[1], &sn);
+	assert_int_equal(sn.quick_stops, 0);    /* not answering: not asked */
+	rig_stop(&r);
+
+	/* a drive that restarts on its own has lost its state and home */
+	rig_ready(&r, 0, "nmt_reset=node");
+	can_sim_reboot(r.sim, node_id[2]);
+	for (int i = 0; i < 200; i++) {
+		can_sim_get(r.sim, node_id[2], &sn);
+		if (sn.resets == 2)
+			break;
+		usleep(1000);
+	}
+	assert_int_equal(sn.resets, 2);
+	double pos[3];
+	expect_error(can_driver.stage->position(r.dev, pos, 1000, &err), -EPROTO, &err,
+		     "z (node 12) restarted (boot-up message)");
+	rig_stop(&r);
+}
+
+static void test_silent_drive(void **state)
+{
+	struct rig r;
+	struct can_sim_config sc;
+	struct asph_error err;
+	struct timespec t0;
+	double pos[3];
+
+	sim_config(&sc, 0);
+	rig_start(&r, &sc, NULL);
+	can_sim_silence(r.sim, node_id[2], true);
+	clock_gettime(CLOCK_MONOTONIC, &t0);
+	expect_error(rig_open(&r, 300, &err), -ETIMEDOUT, &err,
+		     "z (node 12) sent no boot-up message within 300 ms");
+	assert_true(ms_since(&t0) < 1000);
+	rig_stop(&r);
+
+	rig_start(&r, &sc, "nmt_reset=none");
+	can_sim_silence(r.sim, node_id[0], true);
+	expect_error(rig_open(&r, 300, &err), -ETIMEDOUT, &err,
+		     "x (node 5): no answer to the SDO upload (read) of 0x1000:00 within 60 ms");
+	rig_stop(&r);
+
+	/* goes quiet after homing: every call ends in its time */
+	rig_ready(&r, 0, NULL);
+	can_sim_silence(r.sim, node_id[1], true);
+	clock_gettime(CLOCK_MONOTONIC, &t0);
+	expect_error(can_driver.stage->position(r.dev, pos, 1000, &err), -ETIMEDOUT, &err,
+		     "y (node 9): no answer");
+	struct asph_stage_status st;
+	assert_int_equal(can_driver.stage->status(r.dev, &st, 1000, NULL), 0);
+	assert_int_equal(st.state, ASPH_STAGE_DISCONNECTED);
+	const double t[3] = { 1, 2, 3 };
+	int rc = can_driver.stage->move_to(r.dev, t, 1000, &err);
+	assert_true(rc == -ETIMEDOUT || rc == -ENODEV);
+	assert_true(ms_since(&t0) < 2500);
+	/* a timeout of 0 polls once and returns */
+	clock_gettime(CLOCK_MONOTONIC, &t0);
+	rc = can_driver.stage->position(r.dev, pos, 0, &err);
+	assert_true(rc == -ETIMEDOUT || rc == -ENODEV);
+	assert_true(ms_since(&t0) < 200);
+	rig_stop(&r);
+}
+
+static void test_bus_errors(void **state)
+{
+	struct rig r;
+	struct asph_error err;
+	const double t[3] = { 7.25, 6.5, -5.75 };
+
+	rig_ready(&r, 0.25, NULL);
+	can_sim_error_frame(r.sim, CAN_ERR_BUSOFF, 0);
+	expect_error(can_driver.stage->move_to(r.dev, t, 5000, &err), -EIO, &err, "bus-off");
+	expect_error(can_driver.stage->move_to(r.dev, t, 5000, &err), -EIO, &err, "fd:");
+	rig_stop(&r);
+
+	rig_ready(&r, 0.25, NULL);
+	can_sim_error_frame(r.sim, CAN_ERR_CRTL, CAN_ERR_CRTL_RX_PASSIVE);
+	expect_error(can_driver.stage->move_to(r.dev, t, 5000, &err), -EIO, &err, "error passive");
+	assert_true(quick_stops(r.sim, node_id[0], 1) >= 1);
+	rig_stop(&r);
+
+	/* a warning is no fault, but explains a silence */
+	rig_ready(&r, 0, NULL);
+	can_sim_error_frame(r.sim, CAN_ERR_ACK, 0);
+	assert_int_equal(can_driver.stage->move_to(r.dev, t, 5000, NULL), 0);
+	can_sim_silence(r.sim, node_id[0], true);
+	double pos[3];
+	expect_error(can_driver.stage->position(r.dev, pos, 1000, &err), -ETIMEDOUT, &err,
+		     "no node acknowledges");
+	rig_stop(&r);
+}
+
+struct stopper {
+	struct asph_device *dev;
+	unsigned delay_ms;
+};
+
+static void *stop_later(void *data)
+{
+	struct stopper *s = data;
+	usleep(s->delay_ms * 1000);
+	can_driver.stage->stop(s->dev, NULL);
+	return NULL;
+}
+
+static void test_stop(void **state)
+{
+	struct rig r;
+	struct asph_error err;
+	struct timespec t0;
+	pthread_t th;
+	const double t[3] = { 12.5, -11.25, 10.75 };
+
+	rig_ready(&r, 0.25, NULL);
+	struct stopper s = { r.dev, 60 };
+	assert_int_equal(pthread_create(&th, NULL, stop_later, &s), 0);
+	clock_gettime(CLOCK_MONOTONIC, &t0);
+	expect_error(can_driver.stage->move_to(r.dev, t, 10000, &err), -ECANCELED, &err, "stopped");
+	assert_true(ms_since(&t0) < 800);
+	pthread_join(th, NULL);
+	for (int k = 0; k < 3; k++) {
+		struct can_sim_node sn;
+		assert_true(quick_stops(r.sim, node_id[k], 1) >= 1);
+		can_sim_get(r.sim, node_id[k], &sn);
+		assert_int_equal(sn.state, CIA402_QUICK_STOP_ACTIVE);
+	}
+	expect_error(can_driver.stage->move_to(r.dev, t, 1000, &err), -ECANCELED, &err, "reopen");
+	rig_stop(&r);
+}
+
+/* ------------------------------------------------------ probe, kernel */
+
+static void test_probe(void **state)
+{
+	struct can_sim_config sc = { .n_nodes = 1, .nodes = { 23 }, .device_type = { 0x00010194 },
+				     .heartbeat_ms = 20 };
+	struct asph_options *o;
+	struct can_sim *sim;
+	struct asph_device *dev;
+	struct asph_probe_info pi;
+	struct asph_reading rd;
+	struct asph_probe_context ctx = { 0 };
+	struct asph_error err;
+	int sv[2];
+	char opt[160];
+
+	assert_int_equal(socketpair(AF_UNIX, SOCK_SEQPACKET | SOCK_CLOEXEC, 0, sv), 0);
+	assert_int_equal(can_sim_new(sv[1], &sc, &sim), 0);
+	assert_int_equal(can_sim_run(sim), 0);
+	assert_int_equal(asph_options_new(&can_driver, &o, NULL), 0);
+	snprintf(opt, sizeof(opt), "interface=fd:%d,probe_node=23,probe_scale=0.00025,"
+		 "probe_offset=1.75,probe_standoff=2.5,probe_range=4", sv[0]);
+	set_options(o, opt);
+	if (can_driver.probe->open(&can_driver, asph_options_values(o), 1000, &dev, &err) < 0)
+		fail_msg("%s", err.message);
+	assert_int_equal(can_driver.probe->info(dev, &pi, NULL), 0);
+	assert_true(pi.range_min == 0.5 && pi.range_max == 4.5);
+	can_sim_set_probe(sim, 23, -1234);
+	assert_int_equal(can_driver.probe->read(dev, &ctx, &rd, 500, NULL), 0);
+	assert_true(rd.raw == -1234);
+	assert_true(fabs(rd.value - (1.75 - 1234 * 0.00025)) < 1e-12);
+	assert_false(rd.flags & ASPH_READING_OUT_OF_RANGE);
+	can_sim_set_probe(sim, 23, 31111);
+	assert_int_equal(can_driver.probe->read(dev, &ctx, &rd, 500, NULL), 0);
+	assert_true(rd.flags & ASPH_READING_OUT_OF_RANGE);
+	can_sim_abort(sim, 23, 0x7130, 1, 0x08000024);
+	expect_error(can_driver.probe->read(dev, &ctx, &rd, 500, &err), -EPROTO, &err,
+		     "probe (node 23) refused the read of 0x7130:01: SDO abort 0x08000024 (no data available)");
+	can_driver.probe->close(dev);
+	asph_options_free(o);
+	can_sim_free(sim);
+	close(sv[0]);
+}
+
+static void test_real_interface(void **state)
+{
+	struct asph_options *o;
+	struct asph_device *dev = NULL;
+	struct asph_error err;
+
+	assert_int_equal(asph_options_new(&can_driver, &o, NULL), 0);
+	int r = can_driver.stage->open(&can_driver, asph_options_values(o), 200, &dev, &err);
+	assert_int_equal(r, -ENODEV);
+	/* this kernel has no CAN, or has it and no can0 */
+	if (!strstr(err.message, "CAN is not supported by this kernel"))
+		assert_non_null(strstr(err.message, "can0"));
+	set_options(o, "interface=fd:xyz");
+	expect_error(can_driver.stage->open(&can_driver, asph_options_values(o), 200, &dev, &err),
+		     -EINVAL, &err, "expected fd:N");
+	asph_options_free(o);
+}
+
+/* ------------------------------------------------- end to end */
+
+struct scan_env {
+	struct asph_registry *reg;
+	struct asph_surface *s;
+	struct asph_plan *plan;
+	char dir[64];
+};
+
+static void fit_file(struct scan_env *e, const char *path, struct asph_fit_result *res)
+{
+	struct asph_scanfile *sf;
+	struct asph_points *pts;
+	struct asph_fit *w;
+	struct asph_error err;
+	struct asph_fit_options fo = { .dof = ASPH_FIT_DOF_RIGID };
+
+	if (asph_scanfile_read(path, &sf, &err) < 0)
+		fail_msg("%s: %s", path, err.message);
+	assert_int_equal(sf->n, e->plan->n);
+	assert_int_equal(asph_scanfile_to_points(sf, 0, &pts, NULL), 0);
+	assert_int_equal(asph_fit_alloc(e->s, pts->n, &fo, &w, NULL), 0);
+	if (asph_fit_run(w, pts->xyz, pts->n, res, &err) < 0)
+		fail_msg("fit: %s", err.message);
+	asph_fit_free(w);
+	asph_points_free(pts);
+	asph_scanfile_free(sf);
+}
+
+static void scan_config(struct scan_env *e, const char *json, const char *path)
+{
+	struct asph_config *c = NULL;
+	struct asph_instrument *inst = NULL;
+	struct asph_scan *sc;
+	struct asph_scanfile_writer *w;
+	struct asph_error err;
+	struct asph_scanfile_header_info hi = { "{\"name\":\"strong\"}", "{\"method\":\"fermat\"}",
+						"{\"name\":\"can\"}", NULL };
+
+	if (asph_config_parse(e->reg, json, strlen(json), "<test>", &c, &err) < 0 ||
+	    asph_instrument_open(&c->instruments[0], 2000, &inst, &err) < 0)
+		fail_msg("%s", err.message);
+	assert_int_equal(asph_scan_new(inst, e->s, e->plan->xyz, e->plan->n, NULL, &sc, NULL), 0);
+	assert_int_equal(asph_scanfile_writer_create(path, &hi, NULL, &w, NULL), 0);
+	if (asph_scan_run(sc, w, &err) < 0)
+		fail_msg("scan: %s", err.message);
+	asph_scan_free(sc);
+	asph_instrument_close(inst);
+	asph_config_free(c);
+}
+
+static void test_scan_end_to_end(void **state)
+{
+	static const char probe[] =
+		"\"probe\": {\"driver\": \"mock\", \"options\": {\"time_factor\": 0, "
+		"\"shift_x\": 0.0371, \"shift_y\": -0.0213, \"shift_z\": 0.0119, "
+		"\"tilt_x\": 231.7, \"tilt_y\": -148.3, \"form\": \"5:41.3;9:-23.7\"}}";
+	struct scan_env e = { 0 };
+	struct asph_prescription p;
+	struct can_sim_config sc;
+	struct can_sim *sim;
+	char json[1024], can_path[128], mock_path[128];
+	int sv[2];
+
+	assert_int_equal(asph_registry_new(&e.reg, NULL), 0);
+	assert_int_equal(asph_prescription_preset("strong", &p), 0);
+	assert_int_equal(asph_surface_alloc(&p, &e.s, NULL), 0);
+	struct asph_plan_density d = { ASPH_DENSITY_POINTS, 300 };
+	struct asph_plan_options po = { .flags = ASPH_PLAN_NO_MESH };
+	assert_int_equal(asph_plan_compute_opts(e.s, ASPH_PLAN_FERMAT, d, &po, &e.plan, NULL), 0);
+	snprintf(e.dir, sizeof(e.dir), "/tmp/asph-test-can-XXXXXX");
+	assert_non_null(mkdtemp(e.dir));
+	snprintf(can_path, sizeof(can_path), "%s/can.asph", e.dir);
+	snprintf(mock_path, sizeof(mock_path), "%s/mock.asph", e.dir);
+
+	sim_config(&sc, 0);
+	assert_int_equal(socketpair(AF_UNIX, SOCK_SEQPACKET | SOCK_CLOEXEC, 0, sv), 0);
+	assert_int_equal(can_sim_new(sv[1], &sc, &sim), 0);
+	assert_int_equal(can_sim_run(sim), 0);
+	snprintf(json, sizeof(json),
+		 "{\"instruments\": [{\"stage\": {\"driver\": \"can\", \"options\": {"
+		 "\"interface\": \"fd:%d\", \"x_node\": 5, \"y_node\": 9, \"z_node\": 12, "
+		 "\"x_counts_per_mm\": 8192, \"y_counts_per_mm\": 12500, \"z_counts_per_mm\": 20480, "
+		 "\"heartbeat\": 20, \"heartbeat_timeout\": 2000, \"sdo_timeout\": 500}}, %s}]}",
+		 sv[0], probe);
+	scan_config(&e, json, can_path);
+	can_sim_free(sim);
+	close(sv[0]);
+	snprintf(json, sizeof(json),
+		 "{\"instruments\": [{\"stage\": {\"driver\": \"mock\", \"options\": "
+		 "{\"time_factor\": 0}}, %s}]}", probe);
+	scan_config(&e, json, mock_path);
+
+	/* every point is on the part either way (the probe measures from the
+	 * position the stage reports, which the drives' counts quantize): the
+	 * same pose and form error */
+	struct asph_fit_result a, b;
+	fit_file(&e, can_path, &a);
+	fit_file(&e, mock_path, &b);
+	for (int k = 0; k < 3; k++)
+		if (fabs(a.value[ASPH_FIT_TX + k] - b.value[ASPH_FIT_TX + k]) > 1e-9)
+			fail_msg("t%d: %.12g vs %.12g", k, a.value[ASPH_FIT_TX + k], b.value[ASPH_FIT_TX + k]);
+	for (int k = 0; k < 2; k++)
+		assert_true(fabs(a.value[ASPH_FIT_RX + k] - b.value[ASPH_FIT_RX + k]) < 1e-9);
+	assert_true(fabs(a.value[ASPH_FIT_TX] - 0.0371) < 2e-5);
+	assert_true(fabs(a.zernike[4].v - b.zernike[4].v) < 0.01);
+	assert_true(fabs(a.zernike[8].v - b.zernike[8].v) < 0.01);
+	assert_true(fabs(a.rms.v - b.rms.v) < 0.01);
+
+	unlink(can_path);
+	unlink(mock_path);
+	rmdir(e.dir);
+	asph_plan_free(e.plan);
+	asph_surface_free(e.s);
+	asph_registry_free(e.reg);
+}
+
+int main(void)
+{
+	const struct CMUnitTest tests[] = {
+		cmocka_unit_test(test_codec),
+		cmocka_unit_test(test_statusword),
+		cmocka_unit_test(test_enable_home_move),
+		cmocka_unit_test(test_not_homed_and_absent_axis),
+		cmocka_unit_test(test_fault_reset),
+		cmocka_unit_test(test_quick_stop_on_fault),
+		cmocka_unit_test(test_homing_error),
+		cmocka_unit_test(test_sdo_aborts),
+		cmocka_unit_test(test_malformed_answers),
+		cmocka_unit_test(test_heartbeat_lost),
+		cmocka_unit_test(test_silent_drive),
+		cmocka_unit_test(test_bus_errors),
+		cmocka_unit_test(test_stop),
+		cmocka_unit_test(test_probe),
+		cmocka_unit_test(test_real_interface),
+		cmocka_unit_test(test_scan_end_to_end),
+	};
+	return cmocka_run_group_tests(tests, NULL, NULL);
+}

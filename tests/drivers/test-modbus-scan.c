@@ -1,0 +1,265 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* A whole measurement of the strong preset through the executor with the
+ * Modbus stage and probe against simulated AZ drives and a displacement
+ * sensor that measures the mock instrument's part: the characterization
+ * equals the mock instrument's. And a drive alarm in the middle of a scan
+ * ends the file with the reason. */
+#include <errno.h>
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+
+#include "asph/executor.h"
+#include "asph/fit.h"
+#include "asph/plan.h"
+#include "asph/prescription.h"
+#include "mock/protocol.h"
+#include "modbus-sim.h"
+
+/* The part: misaligned, with a form error (mock's options, and the same
+ * as parameters of mock_part_new for the simulated sensor). */
+#define MISALIGNMENT "shift_x=0.0371,shift_y=-0.0213,shift_z=0.0119,tilt_x=231.7,tilt_y=-148.3," \
+	"form=5:41.3;9:-23.7;12:17.9"
+
+static const struct mock_part_params part_params = {
+	.lens = "strong",
+	.pose = { .t = { 0.0371, -0.0213, 0.0119 }, .rx = 231.7e-6, .ry = -148.3e-6 },
+	.form = "5:41.3;9:-23.7;12:17.9",
+	.seed = 1,
+};
+
+/* mm per count of the sensor, counts per mm of the drives */
+#define SENSOR_SCALE 1e-8
+#define COUNTS_PER_MM 1e5
+
+struct env {
+	struct asph_registry *reg;
+	struct asph_surface *s;
+	struct asph_plan *plan;
+	struct mock_part *part;
+	char dir[64];
+	int n_files;
+};
+
+/* The sensor looks along +z from the stage's position at the part. */
+static int32_t sense(void *data, const double *pos, bool *valid)
+{
+	struct env *e = data;
+	double z;
+
+	*valid = mock_part_probe_z(e->part, pos[0], pos[1], 0, &z) == 0;
+	return *valid ? (int32_t)llround((z - pos[2]) / SENSOR_SCALE) : 0;
+}
+
+static int setup(void **state)
+{
+	struct env *e = calloc(1, sizeof(*e));
+	struct asph_prescription p;
+
+	assert_non_null(e);
+	assert_int_equal(asph_registry_new(&e->reg, NULL), 0);
+	assert_int_equal(asph_prescription_preset("strong", &p), 0);
+	assert_int_equal(asph_surface_alloc(&p, &e->s, NULL), 0);
+	struct asph_plan_density d = { ASPH_DENSITY_POINTS, 150 };
+	struct asph_plan_options po = { .flags = ASPH_PLAN_NO_MESH };
+	assert_int_equal(asph_plan_compute_opts(e->s, ASPH_PLAN_FERMAT, d, &po, &e->plan, NULL), 0);
+	assert_int_equal(mock_part_new(&part_params, &e->part, NULL), 0);
+	snprintf(e->dir, sizeof(e->dir), "/tmp/asph-test-modbus-XXXXXX");
+	assert_non_null(mkdtemp(e->dir));
+	*state = e;
+	return 0;
+}
+
+static int teardown(void **state)
+{
+	struct env *e = *state;
+	char path[128];
+
+	for (int i = 0; i < e->n_files; i++) {
+		snprintf(path, sizeof(path), "%s/scan%d.asph", e->dir, i);
+		unlink(path);
+	}
+	rmdir(e->dir);
+	mock_part_free(e->part);
+	asph_plan_free(e->plan);
+	asph_surface_free(e->s);
+	asph_registry_free(e->reg);
+	free(e);
+	return 0;
+}
+
+static const char *new_path(struct env *e, char *buf, size_t size)
+{
+	snprintf(buf, size, "%s/scan%d.asph", e->dir, e->n_files++);
+	return buf;
+}
+
+/* Measures the plan with the first instrument of c into path. */
+static int scan(struct env *e, struct asph_config *c, const char *path, struct asph_error *err)
+{
+	struct asph_scanfile_header_info info = { "{\"name\":\"strong\"}", "{\"method\":\"fermat\"}",
+						  "{\"name\":\"bench\"}", NULL };
+	struct asph_scanfile_writer *w;
+	struct asph_instrument *inst;
+	struct asph_scan *sc;
+	struct asph_error oerr;
+
+	if (asph_instrument_open(&c->instruments[0], 2000, &inst, &oerr) < 0)
+		fail_msg("open: %s", oerr.message);
+	assert_int_equal(asph_scan_new(inst, e->s, e->plan->xyz, e->plan->n, NULL, &sc, NULL), 0);
+	assert_int_equal(asph_scanfile_writer_create(path, &info, NULL, &w, NULL), 0);
+	int r = asph_scan_run(sc, w, err);
+	asph_scan_free(sc);
+	asph_instrument_close(inst);
+	return r;
+}
+
+static struct asph_scanfile *read_scan(const char *path)
+{
+	struct asph_scanfile *s;
+	struct asph_error err;
+
+	if (asph_scanfile_read(path, &s, &err) < 0)
+		fail_msg("%s: %s", path, err.message);
+	return s;
+}
+
+static void fit(struct env *e, const char *path, struct asph_fit_result *res)
+{
+	struct asph_scanfile *s = read_scan(path);
+	struct asph_points *pts;
+	struct asph_fit *w;
+	struct asph_error err;
+	struct asph_fit_options fo = { .dof = ASPH_FIT_DOF_RIGID };
+
+	assert_int_equal(s->report.outcome, ASPH_SCANFILE_COMPLETED);
+	assert_int_equal(s->n, e->plan->n);
+	assert_int_equal(asph_scanfile_to_points(s, 0, &pts, NULL), 0);
+	assert_int_equal(asph_fit_alloc(e->s, pts->n, &fo, &w, NULL), 0);
+	if (asph_fit_run(w, pts->xyz, pts->n, res, &err) < 0)
+		fail_msg("fit: %s", err.message);
+	asph_fit_free(w);
+	asph_points_free(pts);
+	asph_scanfile_free(s);
+}
+
+static struct asph_config *bench(struct env *e, const char *port, const char *extra)
+{
+	char text[1024];
+	struct asph_config *c;
+	struct asph_error err;
+
+	snprintf(text, sizeof(text),
+		 "{ \"instruments\": [ { \"name\": \"bench\",\n"
+		 "  \"stage\": { \"driver\": \"modbus\", \"options\": { \"port\": %s,\n"
+		 "    \"counts_per_mm\": %g, \"speed\": 20, \"timeout\": 100 %s} },\n"
+		 "  \"probe\": { \"driver\": \"modbus\", \"options\": { \"port\": %s, \"slave\": 9,\n"
+		 "    \"scale\": %g, \"standoff\": 2, \"range\": 1, \"valid_register\": 2 } } } ] }\n",
+		 port, COUNTS_PER_MM, extra, port, SENSOR_SCALE);
+	if (asph_config_parse(e->reg, text, strlen(text), "bench.json", &c, &err) < 0)
+		fail_msg("%s", err.message);
+	return c;
+}
+
+static struct mbsim *sim_start(struct env *e, char *port, size_t size)
+{
+	struct mbsim_config sc = {
+		.map = stage_profiles[0], .drive_units = { 1, 2, 3 },
+		.counts_per_unit = { COUNTS_PER_MM, COUNTS_PER_MM, COUNTS_PER_MM },
+		.sensor_unit = 9, .sense = sense, .sense_data = e, .time_scale = 1e-4,
+	};
+	struct mbsim *sim;
+
+	assert_int_equal(mbsim_start(&sc, &sim, port, size), 0);
+	return sim;
+}
+
+static void test_same_as_mock(void **state)
+{
+	struct env *e = *state;
+	struct asph_fit_result mock, bus;
+	struct asph_config *c;
+	struct asph_error err;
+	char path[128], port[16];
+
+	assert_int_equal(asph_instrument_spec_parse(e->reg, "mock:time_factor=0," MISALIGNMENT,
+						    &c, NULL), 0);
+	if (scan(e, c, new_path(e, path, sizeof(path)), &err) < 0)
+		fail_msg("mock: %s", err.message);
+	asph_config_free(c);
+	fit(e, path, &mock);
+
+	struct mbsim *sim = sim_start(e, port, sizeof(port));
+	c = bench(e, port, "");
+	if (scan(e, c, new_path(e, path, sizeof(path)), &err) < 0)
+		fail_msg("modbus: %s", err.message);
+	asph_config_free(c);
+	mbsim_stop(sim);
+	fit(e, path, &bus);
+
+	/*
+	 * Both measure the same part without noise; the Modbus sensor rounds
+	 * each reading to 1e-8 mm (at most 5e-9 mm off) and measures where
+	 * the drives are (10 nm counts), which is on the same surface. So the
+	 * pose agrees far below the tolerances of characterization, and each
+	 * Zernike term within a few thousandths of a nm.
+	 */
+	for (int k = 0; k < 3; k++)
+		if (fabs(bus.value[ASPH_FIT_TX + k] - mock.value[ASPH_FIT_TX + k]) > 1e-8)
+			fail_msg("t%d: modbus %.12g, mock %.12g", k, bus.value[ASPH_FIT_TX + k],
+				 mock.value[ASPH_FIT_TX + k]);
+	for (int k = 0; k < 2; k++)
+		if (fabs(bus.value[ASPH_FIT_RX + k] - mock.value[ASPH_FIT_RX + k]) > 1e-9)
+			fail_msg("r%d: modbus %.12g, mock %.12g", k, bus.value[ASPH_FIT_RX + k],
+				 mock.value[ASPH_FIT_RX + k]);
+	static const int terms[] = { 5, 9, 12 };
+	for (size_t k = 0; k < 3; k++) {
+		double a = bus.zernike[terms[k] - 1].v, b = mock.zernike[terms[k] - 1].v;
+		if (fabs(a - b) > 0.005)
+			fail_msg("Z%d: modbus %.6f nm, mock %.6f nm", terms[k], a, b);
+	}
+	assert_true(fabs(bus.rms.v - mock.rms.v) < 0.005);
+}
+
+static void test_alarm_ends_scan(void **state)
+{
+	struct env *e = *state;
+	struct asph_config *c;
+	struct asph_error err;
+	char path[128], port[16];
+
+	struct mbsim *sim = sim_start(e, port, sizeof(port));
+	/* the y drive fails at its 40th move */
+	mbsim_inject(sim, 2, MBSIM_ALARM, 0x42, 40, -1);
+	c = bench(e, port, "");
+	int r = scan(e, c, new_path(e, path, sizeof(path)), &err);
+	if (r != -EPROTO || !strstr(err.message, "axis y (unit 2): drive alarm, code 0x42"))
+		fail_msg("%d %s", r, err.message);
+	struct mbsim_stats ss;
+	mbsim_stats(sim, &ss);
+	mbsim_stop(sim);
+	asph_config_free(c);
+	for (int k = 0; k < 3; k++)
+		assert_true(ss.stops[k] >= 1);
+	struct asph_scanfile *s = read_scan(path);
+	assert_int_equal(s->report.outcome, ASPH_SCANFILE_FAILED);
+	assert_non_null(strstr(s->report.reason, "code 0x42"));
+	assert_true(s->n > 0 && s->n < e->plan->n);
+	asph_scanfile_free(s);
+}
+
+int main(void)
+{
+	const struct CMUnitTest tests[] = {
+		cmocka_unit_test(test_same_as_mock),
+		cmocka_unit_test(test_alarm_ends_scan),
+	};
+	return cmocka_run_group_tests(tests, setup, teardown);
+}

@@ -1,0 +1,141 @@
+#!/usr/bin/env python3
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""asph lens import: OpticStudio .zmx (UTF-8, UTF-16 LE and BE) and CSV to JSON prescriptions."""
+import json
+import math
+import os
+import sys
+import tempfile
+
+sys.path.insert(0, os.path.dirname(__file__))
+from asphtest import DATA, run, expect, finish  # noqa: E402
+
+ZMX = os.path.join(DATA, "lens-doublet.zmx")
+ZMX16 = os.path.join(DATA, "lens-doublet-utf16.zmx")
+
+
+def imported(path, surface):
+    code, out, err = run("lens", "import", path, "--surface", surface)
+    expect(code == 0, f"{os.path.basename(path)} surface {surface} imports ({err.strip()})")
+    return json.loads(out) if code == 0 else {}
+
+
+# The surface list: number, type, radius (1/CURV), semi-diameter.
+code, out, err = run("lens", "import", ZMX)
+rows = [line.split() for line in out.splitlines()[1:]]
+expect(code == 0 and len(rows) == 7 and "--surface" in err, "several surfaces are listed")
+expect([r[1] for r in rows] == ["STANDARD", "EVENASPH", "STANDARD", "ODDASPH", "QTYPEASPH", "QTYPEASPH", "STANDARD"],
+       "list: types in file order")
+expect(rows[0][2] == "inf" and abs(float(rows[2][2]) + 60.9) < 1e-9 and float(rows[2][3]) == 19.5,
+       "list: radius and semi-diameter")
+
+for path in (ZMX, ZMX16):
+    name = os.path.basename(path)
+    p = imported(path, 1)
+    expect(p.get("type") == "even_asphere" and abs(p["R"] - 1 / 4.975866e-2) < 1e-12 and p["k"] == -1,
+           f"{name}: EVENASPH radius from CURV, conic from CONI")
+    expect(p.get("A") == {"4": -2.0868e-5, "6": -3.9031e-9, "8": 3.4102e-11, "10": -3.2381e-14},
+           f"{name}: PARM i is the coefficient of r^(2i)")
+    expect(p.get("aperture_diameter") == 40, f"{name}: aperture is twice DIAM")
+    p = imported(path, 3)
+    expect(p.get("type") == "odd_asphere" and p["A"] == {"1": 1.3e-3, "2": 2.1e-4, "3": -2.7e-6, "4": 3.1e-6, "5": 4.3e-9},
+           f"{name}: ODDASPH, PARM i is the coefficient of r^i")
+    p = imported(path, 4)
+    expect(p.get("type") == "qcon" and p["norm_radius"] == 10.5 and p["k"] == -0.73 and
+           p["a"] == [0.0371, -0.0128, 0.0049, -0.0017, 6.1e-4], f"{name}: Q-type Qcon")
+    p = imported(path, 5)
+    expect(p.get("type") == "qbfs" and p["norm_radius"] == 10 and "k" not in p and
+           p["a"] == [0.0213, -0.0071, 0.0032], f"{name}: Q-type Qbfs")
+    p = imported(path, 2)
+    expect(p.get("type") == "even_asphere" and abs(p["R"] + 60.9) < 1e-12 and p["k"] == 0.37 and p["A"] == {},
+           f"{name}: STANDARD")
+
+with tempfile.TemporaryDirectory() as d:
+    # UTF-16 big-endian, written here from the UTF-8 file.
+    be = os.path.join(d, "be.zmx")
+    with open(ZMX, encoding="utf-8") as f, open(be, "wb") as g:
+        g.write(b"\xfe\xff" + f.read().encode("utf-16-be"))
+    p = imported(be, 4)
+    expect(p.get("type") == "qcon" and p["a"][4] == 6.1e-4, "UTF-16 BE with a byte-order mark")
+
+    # -o writes a file that asph lens show reads; the geometry is the sag the
+    # Qcon formula gives at the rim, computed here independently.
+    out = os.path.join(d, "s4.json")
+    code, _, err = run("lens", "import", ZMX, "--surface", "4", "-o", out)
+    expect(code == 0 and os.path.exists(out), f"-o writes the prescription ({err.strip()})")
+    code, show, err = run("lens", "show", out, "--json")
+    expect(code == 0, f"the imported Qcon lens builds ({err.strip()})")
+    if code == 0:
+        j = json.loads(show)
+        R, k, a, rho = -42.3, -0.73, 10.0, 10.5
+        c, x = 1 / R, (a / rho) ** 2
+        q = [1, 6 * x - 5, 15 - 14 * x * (3 - 2 * x), -35 + x * (168 - x * (252 - 120 * x))]
+        # Q4 from the Jacobi recurrence written out for m = 4 (s = 12).
+        q.append(((11 * (12 * 10 * (2 * x - 1) - 16)) * q[3] - 2 * 3 * 7 * 12 * q[2]) / (2 * 4 * 8 * 10))
+        coef = [0.0371, -0.0128, 0.0049, -0.0017, 6.1e-4]
+        sag = c * a * a / (1 + math.sqrt(1 - (1 + k) * c * c * a * a)) + x * x * sum(m * v for m, v in zip(coef, q))
+        expect(abs(j["sag_edge_mm"] - sag) < 1e-12, f"Qcon sag at the rim {j['sag_edge_mm']:.15f} = {sag:.15f}")
+
+    # The imported Q lenses through the pipeline: a plan measured with a
+    # misalignment (asph synth), then fitted (asph fit) back.
+    for surf in ("4", "5"):
+        lens = os.path.join(d, f"q{surf}.json")
+        pts = os.path.join(d, f"q{surf}.csv")
+        run("lens", "import", ZMX, "--surface", surf, "-o", lens, check=0)
+        run("synth", lens, "--method", "ot", "--h", "0.05", "--shift", "0.031,-0.017,0.0093",
+            "--tilt", "0.00041,-0.00023", "-o", pts, check=0)
+        code, out, err = run("fit", lens, pts, "--json")
+        dof = json.loads(out)["dof"] if code == 0 else {}
+        want = {"tx": 0.031, "ty": -0.017, "tz": 0.0093, "rx": 0.00041, "ry": -0.00023}
+        expect(code == 0 and all(abs(dof[k] - v) < 1e-9 for k, v in want.items()),
+               f"surface {surf}: the misalignment is recovered ({err.strip()[:200]})")
+
+    # Refusals, each with file:line:column.
+    cases = {
+        "unknown": (os.path.join(DATA, "lens-toroidal.zmx"), "1", ":9:8: TYPE: surface 1 has type TOROIDAL"),
+        "truncated": (os.path.join(DATA, "lens-truncated.zmx"), None, "truncated"),
+        "flat": (ZMX, "6", "flat"),
+        "missing": (ZMX, "9", "no surface 9"),
+    }
+    for what, (path, surf, needle) in cases.items():
+        args = ["lens", "import", path] + (["--surface", surf] if surf else [])
+        code, _, err = run(*args)
+        expect(code == 1 and needle in err and path in err, f"{what} refused ({err.strip()})")
+    code, _, err = run("lens", "import", os.path.join(DATA, "lens-truncated.zmx"), "--surface", "1")
+    expect(code == 1 and ":59:" in err, "a truncated file is refused even for an earlier surface, at its last line")
+
+    units = os.path.join(d, "inch.zmx")
+    with open(units, "w") as f:
+        f.write("UNIT IN X W X CM MR CPMM\nSURF 1\n  TYPE STANDARD\n  CURV 0.05\n  DIAM 3\n")
+    code, _, err = run("lens", "import", units)
+    expect(code == 1 and "inch.zmx:1:6: UNIT" in err, f"non-mm units refused ({err.strip()})")
+    bad = os.path.join(d, "bad.zmx")
+    with open(bad, "w") as f:
+        f.write("SURF 1\n  TYPE EVENASPH\n  CURV 0.05\n  PARM 2 -2.1e-5q\n  DIAM 3\n")
+    code, _, err = run("lens", "import", bad)
+    expect(code == 1 and "bad.zmx:4:10: PARM" in err, f"a bad number names line and column ({err.strip()})")
+    single = os.path.join(d, "single.zmx")
+    with open(single, "w") as f:
+        f.write("SURF 1\n  TYPE EVENASPH\n  CURV 0.05\n  PARM 2 -2.1e-5\n  DIAM 3\n")
+    code, out, err = run("lens", "import", single)
+    expect(code == 0 and json.loads(out)["A"] == {"4": -2.1e-5}, "one surface needs no --surface")
+
+# CSV
+code, out, err = run("lens", "import", os.path.join(DATA, "lenses.csv"))
+expect(code == 0 and len(out.splitlines()) == 3, "CSV rows are listed")
+code, out, err = run("lens", "import", os.path.join(DATA, "lenses.csv"), "--surface", "2")
+p = json.loads(out) if code == 0 else {}
+expect(p.get("R") == 40.6193 and p.get("A", {}).get("10") == -6.2324e-17 and p.get("aperture_diameter") == 39,
+       "CSV row 2")
+code, out, err = run("lens", "import", os.path.join(DATA, "lens-one.csv"))
+expect(code == 0 and json.loads(out)["A"] == {"4": 1.7e-6}, "a one-row CSV")
+with tempfile.TemporaryDirectory() as d:
+    bad = os.path.join(d, "bad.csv")
+    with open(bad, "w") as f:
+        f.write("R,k,A4,aperture_diameter\n31.7,-0.5,x1,22\n")
+    code, _, err = run("lens", "import", bad)
+    expect(code == 1 and "bad.csv:2:11:" in err, f"CSV: a bad number at line and column ({err.strip()})")
+
+code, _, _ = run("lens", "import")
+expect(code == 2, "usage error exits 2")
+finish()
