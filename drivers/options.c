@@ -84,7 +84,10 @@ int option_parse(const struct asph_option_desc *d, const char *text,
 		return 0;
 	case ASPH_OPTION_INT:
 		errno = 0;
-		v->i = strtoll(text, &end, 10);
+		/* 0x... for USB and HID ids as datasheets print them; no octal,
+		 * so a leading zero never changes a decimal value. */
+		v->i = strtoll(text, &end,
+			       text[0] == '0' && (text[1] == 'x' || text[1] == 'X') ? 16 : 10);
 		if (!*text || *end || errno)
 			return refuse(d, -EINVAL, err, "expects an integer, not", text);
 		v->d = (double)v->i;

@@ -130,8 +130,10 @@ static double log_scale(const struct asph_conformal_chart *c, double r)
 		k = CHART_PANELS;
 	I = c->I[k];
 	lo = (double)k * c->h;
-	/* Past the aperture, whole panels first, then the remainder. */
-	for (; r - lo > c->h; lo += c->h)
+	/* Past the aperture, whole panels first, then the remainder. Rounding
+	 * in lo only moves where the last panel starts: [lo, r] still closes
+	 * the range. */
+	for (; r - lo > c->h; lo += c->h) // NOLINT(cert-flp30-c)
 		I += gl_panel(c->s, lo, lo + c->h, c->a);
 	return I + gl_panel(c->s, lo, r, c->a);
 }

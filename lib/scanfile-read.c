@@ -602,6 +602,10 @@ void asph_scanfile_reader_free(struct asph_scanfile_reader *r)
 static int append_points(struct asph_scanfile *s, size_t *cap,
 			 const struct asph_scanfile_point *pts, size_t n)
 {
+	/* Nothing to copy, and s->points may still be NULL (memcpy's
+	 * arguments must not be, even for 0 bytes). */
+	if (n == 0)
+		return 0;
 	if (s->n + n > *cap) {
 		size_t nc = *cap ? *cap : 1024;
 		while (nc < s->n + n)

@@ -209,7 +209,8 @@ static int write_json_block(struct asph_scanfile_writer *w, enum block_type type
 	_cleanup_free_ uint8_t *block = malloc(BLOCK_OVERHEAD + len);
 	if (!block)
 		return -ENOMEM;
-	memcpy(block + BLOCK_HEADER_SIZE, text, len);
+	/* File bytes, not a C string. */
+	memcpy(block + BLOCK_HEADER_SIZE, text, len); // NOLINT(bugprone-not-null-terminated-result)
 	struct block_header h = {
 		.type = (uint16_t)type,
 		.seq = w->seq,
@@ -402,11 +403,12 @@ static int write_header(struct asph_scanfile_writer *w, const char *json,
 
 	if (!b)
 		return -ENOMEM;
-	memcpy(b, SCANFILE_MAGIC, SCANFILE_MAGIC_SIZE);
+	/* File bytes, not C strings: the magic and the JSON go unterminated. */
+	memcpy(b, SCANFILE_MAGIC, SCANFILE_MAGIC_SIZE); // NOLINT(bugprone-not-null-terminated-result)
 	put_le16(b + 8, ASPH_SCANFILE_VERSION_MAJOR);
 	put_le16(b + 10, ASPH_SCANFILE_VERSION_MINOR);
 	put_le32(b + 12, (uint32_t)len);
-	memcpy(b + SCANFILE_PREFIX_SIZE, json, len);
+	memcpy(b + SCANFILE_PREFIX_SIZE, json, len); // NOLINT(bugprone-not-null-terminated-result)
 	put_le32(b + SCANFILE_PREFIX_CRC_OFFSET,
 		 crc32c(crc32c(0, b, SCANFILE_PREFIX_CRC_OFFSET), json, len));
 	int r = write_all(w->fd, b, SCANFILE_PREFIX_SIZE + len);

@@ -116,7 +116,7 @@ void scanfile_point_decode(const uint8_t *in, struct asph_scanfile_point *pt)
 
 void block_header_encode(const struct block_header *h, uint8_t *out)
 {
-	memcpy(out, BLOCK_MAGIC, 4);
+	memcpy(out, BLOCK_MAGIC, 4); // NOLINT(bugprone-not-null-terminated-result): file bytes
 	put_le16(out + 4, h->type);
 	put_le16(out + 6, h->record_size);
 	put_le64(out + 8, h->seq);

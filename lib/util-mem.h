@@ -33,7 +33,8 @@ static inline void closep(int *fd)
 /* Defines fn##p() that calls fn on a non-NULL pointer, for _cleanup_().
  * (jansson already provides json_decrefp for json_t *.) */
 #define DEFINE_TRIVIAL_CLEANUP_FUNC(type, fn)         \
-	static inline void fn##p(type *p)             \
+	/* type is a type name: no parentheses */  \
+	static inline void fn##p(type *p) /* NOLINT(bugprone-macro-parentheses) */ \
 	{                                             \
 		if (*p)                               \
 			fn(*p);                       \

@@ -111,7 +111,8 @@ static struct link *links;
 struct asph_device {
 	atomic_bool stop;
 	struct link *link;
-	const struct asph_option_value *o;
+	/* a copy: the ABI keeps only the strings alive until close */
+	struct asph_option_value o[N_OPTIONS];
 	bool stage;
 	struct asph_probe_info pinfo;
 	double scale;
@@ -216,7 +217,7 @@ static int dev_open(const struct asph_option_value *o, bool stage, unsigned time
 	if (!d)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	atomic_init(&d->stop, false);
-	d->o = o;
+	memcpy(d->o, o, sizeof(d->o));
 	d->stage = stage;
 	for (size_t i = 0; i < sizeof(templates) / sizeof(templates[0]); i++)
 		if (stage && scpi_check_template(o[templates[i]].s, 3) < 0) {

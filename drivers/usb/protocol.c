@@ -139,6 +139,9 @@ static int run(struct usbtmc *t, struct libusb_transfer *x, atomic_bool *stop,
 	bool cancelled = false;
 
 	*actual = 0;
+	/* run() waits for the completion, or hands x to transfer_orphaned
+	 * and clears this before returning */
+	// cppcheck-suppress autoVariables
 	x->user_data = &completed;
 	x->callback = transfer_done;
 	x->timeout = 0;
@@ -164,6 +167,7 @@ static int run(struct usbtmc *t, struct libusb_transfer *x, atomic_bool *stop,
 				why = -ENODEV;
 		} else if (cancelled && transport_ms_left(deadline) == 0) {
 			x->callback = transfer_orphaned;
+			x->user_data = NULL;
 			return ORPHANED;
 		}
 	}
@@ -273,9 +277,8 @@ static int drain_in(struct usbtmc *t, atomic_bool *stop, uint64_t deadline)
 		int r = bulk(t, t->ep_in, t->in, t->in_size, stop, deadline, &got);
 		if (r < 0)
 			return r;
-		if ((size_t)got < t->in_size && got % t->packet_in != 0)
-			return 0;
-		if (got == 0)
+		/* a short (or zero-length) packet ended the device's transfer */
+		if ((size_t)got < t->in_size)
 			return 0;
 	}
 	return -EPROTO;
@@ -291,7 +294,7 @@ static int clear_halt(struct usbtmc *t, uint8_t ep)
 static int poll_status(struct usbtmc *t, uint8_t type, uint8_t request, uint16_t index,
 		       uint16_t len, bool drain, atomic_bool *stop, uint64_t deadline)
 {
-	uint8_t st[8];
+	uint8_t st[8] = { 0 };
 
 	for (int i = 0; i < MAX_POLLS; i++) {
 		int got = 0;
@@ -320,7 +323,7 @@ static int poll_status(struct usbtmc *t, uint8_t type, uint8_t request, uint16_t
 
 static int abort_in(struct usbtmc *t, uint8_t tag, atomic_bool *stop, uint64_t deadline)
 {
-	uint8_t st[2];
+	uint8_t st[2] = { 0 };
 	int got = 0;
 	int r = control(t, REQ_EP, USBTMC_INITIATE_ABORT_BULK_IN, tag, t->ep_in, st, 2,
 			stop, deadline, &got);
@@ -342,7 +345,7 @@ static int abort_in(struct usbtmc *t, uint8_t tag, atomic_bool *stop, uint64_t d
 
 static int abort_out(struct usbtmc *t, uint8_t tag, atomic_bool *stop, uint64_t deadline)
 {
-	uint8_t st[2];
+	uint8_t st[2] = { 0 };
 	int got = 0;
 	int r = control(t, REQ_EP, USBTMC_INITIATE_ABORT_BULK_OUT, tag, t->ep_out, st, 2,
 			stop, deadline, &got);
@@ -361,7 +364,7 @@ static int abort_out(struct usbtmc *t, uint8_t tag, atomic_bool *stop, uint64_t 
 
 static int clear_at(struct usbtmc *t, atomic_bool *stop, uint64_t deadline)
 {
-	uint8_t st[1];
+	uint8_t st[1] = { 0 };
 	int got = 0;
 	int r = control(t, REQ_IFACE, USBTMC_INITIATE_CLEAR, 0, (uint16_t)t->iface, st, 1,
 			stop, deadline, &got);
@@ -596,7 +599,7 @@ static bool find_interface(libusb_device *dev, struct found *f)
 static int read_string(struct usbtmc *t, uint8_t index, char *out, size_t size,
 		       atomic_bool *stop, uint64_t deadline)
 {
-	uint8_t d[255];
+	uint8_t d[255] = { 0 };
 	int got = 0;
 	uint8_t type = LIBUSB_ENDPOINT_IN | LIBUSB_REQUEST_TYPE_STANDARD | LIBUSB_RECIPIENT_DEVICE;
 	int r = control(t, type, LIBUSB_REQUEST_GET_DESCRIPTOR, LIBUSB_DT_STRING << 8, 0, d,

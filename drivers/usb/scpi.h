@@ -43,7 +43,7 @@ int scpi_parse_numbers(const char *reply, double *v, int n);
 /* Fills a template: {K} is v[K] (K < n) printed exactly; "{{" is "{". */
 int scpi_format(const char *tmpl, const double *v, int n, char *out, size_t size);
 
-/* Checks a template has placeholders only below n. */
+/* Checks that a template substitutes only arguments below n. */
 int scpi_check_template(const char *tmpl, int n);
 
 #endif

@@ -31,6 +31,12 @@ void asph_error_clear(struct asph_error *err);
 int asph_error_set(struct asph_error *err, int code, const char *fmt, ...)
 	__attribute__((format(printf, 3, 4)));
 
+/* Static analyzers see one file at a time: tell them that the result is
+ * code, so `return asph_error_set(err, -EINVAL, ...)` is known to fail. */
+#ifdef __clang_analyzer__
+#define asph_error_set(err, code, ...) (asph_error_set(err, code, __VA_ARGS__), (code))
+#endif
+
 /* Sets the location parts; any may be NULL/0 to leave them as they are. */
 void asph_error_locate(struct asph_error *err, const char *source, int line,
 		       int column, const char *field);

@@ -118,6 +118,13 @@ static void test_options(void **state)
 	assert_int_equal(asph_options_set(o, "rate", "-3", &err), -ERANGE);
 	assert_non_null(strstr(err.message, "outside"));
 	assert_int_equal(asph_options_set(o, "seed", "12.5", &err), -EINVAL);
+	/* ids as datasheets print them; a leading zero is still decimal */
+	assert_int_equal(asph_options_set(o, "seed", "0x1A2b", &err), 0);
+	assert_string_equal(asph_option_value_format(&v[seed], buf, sizeof(buf)), "6699");
+	assert_int_equal(asph_options_set(o, "seed", "0017", &err), 0);
+	assert_string_equal(asph_option_value_format(&v[seed], buf, sizeof(buf)), "17");
+	assert_int_equal(asph_options_set(o, "seed", "0x", &err), -EINVAL);
+	assert_int_equal(asph_options_set(o, "seed", "0x1g", &err), -EINVAL);
 	assert_int_equal(asph_options_set(o, "probe", "laser", &err), -ERANGE);
 	assert_non_null(strstr(err.message, "optical, tactile"));
 	assert_int_equal(asph_options_set(o, "stream", "maybe", &err), -EINVAL);

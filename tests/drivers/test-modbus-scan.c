@@ -1,9 +1,10 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /* A whole measurement of the strong preset through the executor with the
  * Modbus stage and probe against simulated AZ drives and a displacement
- * sensor that measures the mock instrument's part: the characterization
- * equals the mock instrument's. And a drive alarm in the middle of a scan
- * ends the file with the reason. */
+ * sensor that measures the mock instrument's part, over TCP and over RTU
+ * (drives and sensor on one line): the characterization equals the mock
+ * instrument's. And a drive alarm in the middle of a scan ends the file
+ * with the reason. */
 #include <errno.h>
 #include <math.h>
 #include <setjmp.h>
@@ -150,60 +151,59 @@ static void fit(struct env *e, const char *path, struct asph_fit_result *res)
 	asph_scanfile_free(s);
 }
 
-static struct asph_config *bench(struct env *e, const char *port, const char *extra)
+/* The Modbus bench: address is the simulator's TCP port or pty. */
+static struct asph_config *bench(struct env *e, bool rtu, const char *address)
 {
-	char text[1024];
+	char text[1024], conn[300];
 	struct asph_config *c;
 	struct asph_error err;
 
+	if (rtu)
+		snprintf(conn, sizeof(conn), "\"transport\": \"rtu\", \"device\": \"%s\"", address);
+	else
+		snprintf(conn, sizeof(conn), "\"port\": %s", address);
 	snprintf(text, sizeof(text),
 		 "{ \"instruments\": [ { \"name\": \"bench\",\n"
-		 "  \"stage\": { \"driver\": \"modbus\", \"options\": { \"port\": %s,\n"
-		 "    \"counts_per_mm\": %g, \"speed\": 20, \"timeout\": 100 %s} },\n"
-		 "  \"probe\": { \"driver\": \"modbus\", \"options\": { \"port\": %s, \"slave\": 9,\n"
+		 "  \"stage\": { \"driver\": \"modbus\", \"options\": { %s,\n"
+		 "    \"counts_per_mm\": %g, \"speed\": 20, \"timeout\": 100 } },\n"
+		 "  \"probe\": { \"driver\": \"modbus\", \"options\": { %s, \"slave\": 9,\n"
 		 "    \"scale\": %g, \"standoff\": 2, \"range\": 1, \"valid_register\": 2 } } } ] }\n",
-		 port, COUNTS_PER_MM, extra, port, SENSOR_SCALE);
+		 conn, COUNTS_PER_MM, conn, SENSOR_SCALE);
 	if (asph_config_parse(e->reg, text, strlen(text), "bench.json", &c, &err) < 0)
 		fail_msg("%s", err.message);
 	return c;
 }
 
-static struct mbsim *sim_start(struct env *e, char *port, size_t size)
+static struct mbsim *sim_start(struct env *e, bool rtu, char *address, size_t size)
 {
 	struct mbsim_config sc = {
-		.map = stage_profiles[0], .drive_units = { 1, 2, 3 },
+		.rtu = rtu, .map = stage_profiles[0], .drive_units = { 1, 2, 3 },
 		.counts_per_unit = { COUNTS_PER_MM, COUNTS_PER_MM, COUNTS_PER_MM },
 		.sensor_unit = 9, .sense = sense, .sense_data = e, .time_scale = 1e-4,
 	};
 	struct mbsim *sim;
 
-	assert_int_equal(mbsim_start(&sc, &sim, port, size), 0);
+	assert_int_equal(mbsim_start(&sc, &sim, address, size), 0);
 	return sim;
 }
 
-static void test_same_as_mock(void **state)
+/* Measures the plan with the Modbus bench on the simulators; the fit. */
+static void measure_modbus(struct env *e, bool rtu, struct asph_fit_result *res)
 {
-	struct env *e = *state;
-	struct asph_fit_result mock, bus;
-	struct asph_config *c;
 	struct asph_error err;
-	char path[128], port[16];
+	char path[128], address[128];
 
-	assert_int_equal(asph_instrument_spec_parse(e->reg, "mock:time_factor=0," MISALIGNMENT,
-						    &c, NULL), 0);
+	struct mbsim *sim = sim_start(e, rtu, address, sizeof(address));
+	struct asph_config *c = bench(e, rtu, address);
 	if (scan(e, c, new_path(e, path, sizeof(path)), &err) < 0)
-		fail_msg("mock: %s", err.message);
-	asph_config_free(c);
-	fit(e, path, &mock);
-
-	struct mbsim *sim = sim_start(e, port, sizeof(port));
-	c = bench(e, port, "");
-	if (scan(e, c, new_path(e, path, sizeof(path)), &err) < 0)
-		fail_msg("modbus: %s", err.message);
+		fail_msg("modbus %s: %s", rtu ? "rtu" : "tcp", err.message);
 	asph_config_free(c);
 	mbsim_stop(sim);
-	fit(e, path, &bus);
+	fit(e, path, res);
+}
 
+static void assert_same_fit(const struct asph_fit_result *bus, const struct asph_fit_result *mock)
+{
 	/*
 	 * Both measure the same part without noise; the Modbus sensor rounds
 	 * each reading to 1e-8 mm (at most 5e-9 mm off) and measures where
@@ -212,20 +212,41 @@ static void test_same_as_mock(void **state)
 	 * Zernike term within a few thousandths of a nm.
 	 */
 	for (int k = 0; k < 3; k++)
-		if (fabs(bus.value[ASPH_FIT_TX + k] - mock.value[ASPH_FIT_TX + k]) > 1e-8)
-			fail_msg("t%d: modbus %.12g, mock %.12g", k, bus.value[ASPH_FIT_TX + k],
-				 mock.value[ASPH_FIT_TX + k]);
+		if (fabs(bus->value[ASPH_FIT_TX + k] - mock->value[ASPH_FIT_TX + k]) > 1e-8)
+			fail_msg("t%d: modbus %.12g, mock %.12g", k, bus->value[ASPH_FIT_TX + k],
+				 mock->value[ASPH_FIT_TX + k]);
 	for (int k = 0; k < 2; k++)
-		if (fabs(bus.value[ASPH_FIT_RX + k] - mock.value[ASPH_FIT_RX + k]) > 1e-9)
-			fail_msg("r%d: modbus %.12g, mock %.12g", k, bus.value[ASPH_FIT_RX + k],
-				 mock.value[ASPH_FIT_RX + k]);
+		if (fabs(bus->value[ASPH_FIT_RX + k] - mock->value[ASPH_FIT_RX + k]) > 1e-9)
+			fail_msg("r%d: modbus %.12g, mock %.12g", k, bus->value[ASPH_FIT_RX + k],
+				 mock->value[ASPH_FIT_RX + k]);
 	static const int terms[] = { 5, 9, 12 };
 	for (size_t k = 0; k < 3; k++) {
-		double a = bus.zernike[terms[k] - 1].v, b = mock.zernike[terms[k] - 1].v;
+		double a = bus->zernike[terms[k] - 1].v, b = mock->zernike[terms[k] - 1].v;
 		if (fabs(a - b) > 0.005)
 			fail_msg("Z%d: modbus %.6f nm, mock %.6f nm", terms[k], a, b);
 	}
-	assert_true(fabs(bus.rms.v - mock.rms.v) < 0.005);
+	assert_true(fabs(bus->rms.v - mock->rms.v) < 0.005);
+}
+
+/* Over TCP, and over RTU with the drives and the sensor on one line. */
+static void test_same_as_mock(void **state)
+{
+	struct env *e = *state;
+	struct asph_fit_result mock, bus;
+	struct asph_config *c;
+	struct asph_error err;
+	char path[128];
+
+	assert_int_equal(asph_instrument_spec_parse(e->reg, "mock:time_factor=0," MISALIGNMENT,
+						    &c, NULL), 0);
+	if (scan(e, c, new_path(e, path, sizeof(path)), &err) < 0)
+		fail_msg("mock: %s", err.message);
+	asph_config_free(c);
+	fit(e, path, &mock);
+	for (int rtu = 0; rtu < 2; rtu++) {
+		measure_modbus(e, rtu, &bus);
+		assert_same_fit(&bus, &mock);
+	}
 }
 
 static void test_alarm_ends_scan(void **state)
@@ -235,10 +256,10 @@ static void test_alarm_ends_scan(void **state)
 	struct asph_error err;
 	char path[128], port[16];
 
-	struct mbsim *sim = sim_start(e, port, sizeof(port));
+	struct mbsim *sim = sim_start(e, false, port, sizeof(port));
 	/* the y drive fails at its 40th move */
 	mbsim_inject(sim, 2, MBSIM_ALARM, 0x42, 40, -1);
-	c = bench(e, port, "");
+	c = bench(e, false, port);
 	int r = scan(e, c, new_path(e, path, sizeof(path)), &err);
 	if (r != -EPROTO || !strstr(err.message, "axis y (unit 2): drive alarm, code 0x42"))
 		fail_msg("%d %s", r, err.message);

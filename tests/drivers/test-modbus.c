@@ -253,6 +253,14 @@ static void assert_at(struct env *e, struct dev *st, const double *t)
 	}
 }
 
+static void homed_stage(struct env *e, const char *opts, struct dev *st)
+{
+	struct asph_error err;
+
+	must(dev_open(e, true, opts, st, &err), &err);
+	must(e->drv->stage->home(st->d, 2000, &err), &err);
+}
+
 /* Home, a few moves, status and limits. */
 static void exercise_stage(struct env *e, const char *opts)
 {
@@ -308,6 +316,37 @@ static void test_stage_tcp(void **state)
 	sim_stop(e);
 }
 
+/* A rotary table: theta in rad through counts_per_rad. */
+static void test_stage_rtheta(void **state)
+{
+	struct env *e = *state;
+	struct asph_stage_info info;
+	struct asph_error err;
+	struct dev st;
+	double t[3] = { 12.5123, -0.785398, 3.0071 }, pos[3];
+
+	e->cfg = (struct mbsim_config){
+		.map = stage_profiles[0], .drive_units = { 1, 2, 3 },
+		.counts_per_unit = { 1000, 20000, 1000 }, .time_scale = 1e-3,
+	};
+	assert_int_equal(mbsim_start(&e->cfg, &e->sim, e->address, sizeof(e->address)), 0);
+	homed_stage(e, "kinematics=r-theta-z,counts_per_rad=20000,travel_xy=30", &st);
+	must(e->drv->stage->info(st.d, &info, &err), &err);
+	assert_int_equal(info.kinematics, ASPH_KINEMATICS_RTZ);
+	assert_string_equal(info.axes[1].name, "theta");
+	assert_string_equal(info.axes[1].unit, "rad");
+	assert_true(info.axes[0].min == 0 && info.axes[0].max == 30);
+	must(e->drv->stage->move_to(st.d, t, 2000, &err), &err);
+	must(e->drv->stage->position(st.d, pos, 1000, &err), &err);
+	assert_true(fabs(pos[0] - 12.512) < 1e-12);
+	assert_true(fabs(pos[1] - round(-0.785398 * 20000) / 20000) < 1e-12);
+	assert_true(fabs(pos[2] - 3.007) < 1e-12);
+	t[0] = -0.5;
+	expect(e->drv->stage->move_to(st.d, t, 2000, &err), -ERANGE, &err, "axis r");
+	dev_close(e, &st);
+	sim_stop(e);
+}
+
 /* A map of 16-bit values, low word first, other addresses and bits. */
 static void test_stage_custom_map(void **state)
 {
@@ -338,14 +377,6 @@ static void test_stage_rtu(void **state)
 }
 
 /* ------------------------------------------------------------ faults */
-
-static void homed_stage(struct env *e, const char *opts, struct dev *st)
-{
-	struct asph_error err;
-
-	must(dev_open(e, true, opts, st, &err), &err);
-	must(e->drv->stage->home(st->d, 2000, &err), &err);
-}
 
 static void test_exceptions(void **state)
 {
@@ -700,6 +731,7 @@ int main(void)
 		cmocka_unit_test(test_words),
 		cmocka_unit_test(test_listed),
 		cmocka_unit_test(test_stage_tcp),
+		cmocka_unit_test(test_stage_rtheta),
 		cmocka_unit_test(test_stage_custom_map),
 		cmocka_unit_test(test_stage_rtu),
 		cmocka_unit_test(test_exceptions),

@@ -310,6 +310,7 @@ static void test_faults(void **state)
 		{ SIM_FAULT_SHORT_READ, -EPROTO, "short read" },
 		{ SIM_FAULT_WRONG_TAG, -EPROTO, "bTag" },
 		{ SIM_FAULT_SILENT, -ETIMEDOUT, "no answer" },
+		{ SIM_FAULT_STUCK_OUT, -ETIMEDOUT, "sending a message: no answer" },
 	};
 	struct env *e = *state;
 	double x = 4.17, y = -6.93, z = mock_reading(4.17, -6.93, 0) - 1.83;
@@ -321,7 +322,7 @@ static void test_faults(void **state)
 		struct asph_error err;
 		struct usbtmc_sim *s = sim_lock(e);
 		usbtmc_sim_fault(s, cases[i].fault, 1);
-		unsigned clears = s->n_clear, aborts = s->n_abort_in;
+		unsigned clears = s->n_clear, aborts = s->n_abort_in, aborts_out = s->n_abort_out;
 		sim_unlock(e);
 		double t0 = now_s();
 		int r = probe(e, x, y, z, &rd, 400, &err);
@@ -332,13 +333,16 @@ static void test_faults(void **state)
 		assert_true(probe(e, x, y, z, &rd, 2000, &err) == 0 && rd.value == mock_reading(x, y, z));
 		s = sim_lock(e);
 		bool recovered = cases[i].fault == SIM_FAULT_SILENT ? s->n_abort_in > aborts
-								     : s->n_clear > clears;
+				 : cases[i].fault == SIM_FAULT_STUCK_OUT ? s->n_abort_out > aborts_out
+				 : s->n_clear > clears;
 		sim_unlock(e);
 		assert_true(recovered);
 	}
 	struct umu_usb_counts c;
 	umu_usb_counts(e->sim.usb, &c);
 	assert_true(c.halts_cleared[1 | 16] >= 1);       /* 0x81 after its stall */
+	assert_true(c.halts_cleared[2] >= 1);            /* 0x02 after the abort */
+	assert_int_equal(c.discarded, 2);                /* the silent and the stuck */
 	assert_clean_protocol(e);
 }
 
@@ -461,29 +465,39 @@ static struct asph_plan *plan_for(const struct asph_surface *s)
 	return p;
 }
 
-static void scan_and_fit(struct asph_config *c, const struct asph_surface *s,
-			 const struct asph_plan *plan, const char *path,
-			 struct asph_fit_result *res)
+/* Scans the first n points of the plan with the instrument of c into path. */
+static int scan_file(struct asph_config *c, const struct asph_surface *s,
+		     const struct asph_plan *plan, size_t n, const char *path,
+		     struct asph_error *err)
 {
 	struct asph_scanfile_header_info info = { "{\"name\":\"strong\"}", "{\"method\":\"fermat\"}",
 						  "{\"name\":\"usb\"}", NULL };
 	struct asph_instrument *inst;
 	struct asph_scanfile_writer *w;
 	struct asph_scan *sc;
+
+	if (asph_instrument_open(&c->instruments[0], 2000, &inst, err) < 0)
+		fail_msg("open: %s", err->message);
+	assert_int_equal(asph_scan_new(inst, s, plan->xyz, n, NULL, &sc, NULL), 0);
+	assert_int_equal(asph_scanfile_writer_create(path, &info, NULL, &w, NULL), 0);
+	int r = asph_scan_run(sc, w, err);
+	asph_scan_free(sc);
+	asph_instrument_close(inst);
+	return r;
+}
+
+static void scan_and_fit(struct asph_config *c, const struct asph_surface *s,
+			 const struct asph_plan *plan, const char *path,
+			 struct asph_fit_result *res)
+{
 	struct asph_scanfile *f;
 	struct asph_points *pts;
 	struct asph_fit *fit;
 	struct asph_fit_options fo = { .dof = ASPH_FIT_DOF_RIGID };
 	struct asph_error err;
 
-	if (asph_instrument_open(&c->instruments[0], 2000, &inst, &err) < 0)
-		fail_msg("open: %s", err.message);
-	assert_int_equal(asph_scan_new(inst, s, plan->xyz, plan->n, NULL, &sc, NULL), 0);
-	assert_int_equal(asph_scanfile_writer_create(path, &info, NULL, &w, NULL), 0);
-	if (asph_scan_run(sc, w, &err) < 0)
+	if (scan_file(c, s, plan, plan->n, path, &err) < 0)
 		fail_msg("scan: %s", err.message);
-	asph_scan_free(sc);
-	asph_instrument_close(inst);
 	assert_int_equal(asph_scanfile_read(path, &f, NULL), 0);
 	assert_int_equal(f->n, plan->n);
 	assert_int_equal(asph_scanfile_to_points(f, 0, &pts, NULL), 0);
@@ -494,6 +508,32 @@ static void scan_and_fit(struct asph_config *c, const struct asph_surface *s,
 	asph_points_free(pts);
 	asph_scanfile_free(f);
 	unlink(path);
+}
+
+/* The measured points of the first n plan points with the instrument of
+ * spec (malloc'd, 3 n). */
+static double *scan_points(struct env *e, const char *spec, const struct asph_surface *s,
+			   const struct asph_plan *plan, size_t n, const char *path)
+{
+	struct asph_config *c;
+	struct asph_scanfile *f;
+	struct asph_points *pts;
+	struct asph_error err;
+
+	assert_int_equal(asph_instrument_spec_parse(e->reg, spec, &c, NULL), 0);
+	if (scan_file(c, s, plan, n, path, &err) < 0)
+		fail_msg("%s: %s", spec, err.message);
+	asph_config_free(c);
+	assert_int_equal(asph_scanfile_read(path, &f, NULL), 0);
+	assert_int_equal(asph_scanfile_to_points(f, 0, &pts, NULL), 0);
+	assert_int_equal(pts->n, n);
+	double *xyz = malloc(3 * n * sizeof(double));
+	assert_non_null(xyz);
+	memcpy(xyz, pts->xyz, 3 * n * sizeof(double));
+	asph_points_free(pts);
+	asph_scanfile_free(f);
+	unlink(path);
+	return xyz;
 }
 
 static void assert_same_fit(const struct asph_fit_result *a, const struct asph_fit_result *b)
@@ -521,7 +561,7 @@ static void test_end_to_end(void **state)
 	struct asph_prescription pr;
 	struct asph_surface *s;
 	struct asph_config *c;
-	struct asph_fit_result ref, via_usb, all_usb;
+	struct asph_fit_result ref, via_usb;
 	struct asph_error err;
 	char dir[] = "/tmp/asph-test-usb-XXXXXX", path[64];
 
@@ -557,20 +597,65 @@ static void test_end_to_end(void **state)
 	asph_config_free(c);
 	assert_same_fit(&ref, &via_usb);
 
-	/* the USB instrument's own stage and probe */
+	/* the USB instrument's own stage and probe measure the same points
+	 * (a part of the plan: its stage is polled, which takes longer) */
 	sim = sim_lock(e);
 	sim->world_xyz = NULL;
 	sim_unlock(e);
-	assert_int_equal(asph_instrument_spec_parse(e->reg, SPEC, &c, NULL), 0);
-	scan_and_fit(c, s, plan, path, &all_usb);
-	asph_config_free(c);
-	assert_same_fit(&ref, &all_usb);
+	double *mock_pts = scan_points(e, MOCK_SPEC, s, plan, 30, path);
+	double *usb_pts = scan_points(e, SPEC, s, plan, 30, path);
+	for (size_t i = 0; i < 3 * 30; i++)
+		if (mock_pts[i] != usb_pts[i])
+			fail_msg("point %zu: %.17g vs %.17g", i / 3, mock_pts[i], usb_pts[i]);
+	free(mock_pts);
+	free(usb_pts);
 	assert_true(fabs(ref.value[ASPH_FIT_TX] - 0.0271) < 1e-4);
 	assert_clean_protocol(e);
 
 	asph_plan_free(plan);
 	asph_surface_free(s);
 	rmdir(dir);
+}
+
+/* Unplugged in the middle of a scan: the scan ends with the reason and
+ * keeps what it measured; the next job finds the device once it is back. */
+static void test_scan_unplug(void **state)
+{
+	struct env *e = *state;
+	struct asph_prescription pr;
+	struct asph_surface *s;
+	struct asph_config *c;
+	struct asph_scanfile *f;
+	struct asph_error err;
+	char dir[] = "/tmp/asph-test-usb-XXXXXX", path[64];
+
+	assert_non_null(mkdtemp(dir));
+	snprintf(path, sizeof(path), "%s/scan.asph", dir);
+	assert_int_equal(asph_prescription_preset("strong", &pr), 0);
+	assert_int_equal(asph_surface_alloc(&pr, &s, NULL), 0);
+	struct asph_plan *plan = plan_for(s);
+	assert_int_equal(asph_instrument_spec_parse(e->reg, SPEC, &c, NULL), 0);
+
+	struct usbtmc_sim *sim = sim_lock(e);
+	usbtmc_sim_fault(sim, SIM_FAULT_UNPLUG, 160);   /* replies, open included */
+	sim_unlock(e);
+	assert_int_equal(scan_file(c, s, plan, 24, path, &err), -ENODEV);
+	assert_non_null(strstr(err.message, "unplugged"));
+	assert_int_equal(asph_scanfile_read(path, &f, NULL), 0);
+	assert_int_equal(f->report.outcome, ASPH_SCANFILE_FAILED);
+	assert_true(f->n > 0 && f->n < 24);
+	assert_non_null(strstr(f->report.reason, "unplugged"));
+	asph_scanfile_free(f);
+	unlink(path);
+
+	umu_usb_plug(e->sim.usb);
+	if (scan_file(c, s, plan, 24, path, &err) < 0)
+		fail_msg("after replugging: %s", err.message);
+	unlink(path);
+	rmdir(dir);
+	asph_config_free(c);
+	asph_plan_free(plan);
+	asph_surface_free(s);
 }
 
 int main(void)
@@ -586,6 +671,7 @@ int main(void)
 		cmocka_unit_test_setup_teardown(test_unplug, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_kernel_driver, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_end_to_end, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_scan_unplug, setup, teardown),
 	};
 
 	testbed = umt_testbed_new();

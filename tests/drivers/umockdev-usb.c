@@ -28,6 +28,7 @@ struct umu_usb {
 	void *model;
 	GQueue urbs;                    /* struct urb *, in submit order */
 	bool plugged;
+	bool remove;                    /* unplugged by a callback: leave sysfs */
 	char driver[64];                /* bound kernel driver, "" none */
 	struct umu_usb_counts counts;
 	FILE *record;
@@ -155,6 +156,20 @@ static int control(struct umu_usb *u, uint8_t *buf, size_t len)
 	return u->ops->control ? u->ops->control(u->model, buf, buf + 8, n) : -EPIPE;
 }
 
+/* The device is gone: what is in flight completes with -ENODEV. Lock held. */
+static void pull(struct umu_usb *u)
+{
+	u->plugged = false;
+	for (GList *l = u->urbs.head; l; l = l->next) {
+		struct urb *x = l->data;
+		if (!x->done) {
+			x->status = -ENODEV;
+			x->actual = 0;
+			x->done = true;
+		}
+	}
+}
+
 /* Runs the URB on the model; false while the model has no answer yet. */
 static bool attempt(struct umu_usb *u, struct urb *x)
 {
@@ -178,6 +193,11 @@ static bool attempt(struct umu_usb *u, struct urb *x)
 	}
 	if (r == UMU_PENDING)
 		return false;
+	if (r == UMU_UNPLUGGED) {
+		pull(u);
+		u->remove = true;
+		r = -ENODEV;
+	}
 	x->status = r < 0 ? r : 0;
 	x->actual = r < 0 ? 0 : r;
 	x->done = true;
@@ -190,17 +210,17 @@ static void write_hex(FILE *f, const uint8_t *b, size_t n)
 		fprintf(f, "%02X", b[i]);
 }
 
-/* umockdev's record format of a reaped URB: IN transfers are children of
- * the OUT transfer before them. */
-static void record(struct umu_usb *u, struct urb *x)
+/* umockdev's record format of a reaped URB, under the request that reaped
+ * it: IN transfers are children of the OUT transfer before them. */
+static void record(struct umu_usb *u, struct urb *x, bool ndelay)
 {
 	struct usbdevfs_urb *s = urb_struct(x);
 	bool in = s->endpoint & 0x80;
 
 	if (!u->record)
 		return;
-	fprintf(u->record, "%sUSBDEVFS_REAPURB 0 %u %u %d %u %d %d 0 ", in ? " " : "",
-		s->type, s->endpoint, x->status, s->flags, s->buffer_length, x->actual);
+	fprintf(u->record, "%sUSBDEVFS_REAPURB%s 0 %u %u %d %u %d %d 0 ", in ? " " : "",
+		ndelay ? "NDELAY" : "", s->type, s->endpoint, x->status, s->flags, s->buffer_length, x->actual);
 	write_hex(u->record, x->buf ? x->buf->data : NULL, in ? (size_t)x->actual
 				 : (size_t)s->buffer_length);
 	fputc('\n', u->record);
@@ -234,7 +254,7 @@ static void submit(struct umu_usb *u, UMockdevIoctlClient *c)
 }
 
 /* Hands the first finished URB back, as the kernel's reap does. */
-static void reap(struct umu_usb *u, UMockdevIoctlClient *c)
+static void reap(struct umu_usb *u, UMockdevIoctlClient *c, bool ndelay)
 {
 	struct urb *x = NULL;
 
@@ -264,7 +284,7 @@ static void reap(struct umu_usb *u, UMockdevIoctlClient *c)
 		umockdev_ioctl_data_update(x->buf, 0, copy, x->buf->data_len);
 		g_free(copy);
 	}
-	record(u, x);
+	record(u, x, ndelay);
 	UMockdevIoctlData *ptr = umt_arg_resolve(c, 0, sizeof(void *));
 	umockdev_ioctl_data_set_ptr(ptr, 0, x->data);
 	umockdev_ioctl_data_unref(ptr);
@@ -364,13 +384,11 @@ static gboolean handle_ioctl(UMockdevIoctlBase *h, UMockdevIoctlClient *c, struc
 	gulong request = umockdev_ioctl_client_get_request(c);
 
 	(void)h;
-	if (getenv("UMU_DEBUG"))
-		fprintf(stderr, "ioctl %lx\n", request);
 	g_mutex_lock(&u->lock);
 	if (request == USBDEVFS_SUBMITURB)
 		submit(u, c);
 	else if (request == USBDEVFS_REAPURB || request == USBDEVFS_REAPURBNDELAY)
-		reap(u, c);
+		reap(u, c, request == USBDEVFS_REAPURBNDELAY);
 	else if (!u->plugged)
 		complete_errno(c, ENODEV);
 	else if (request == USBDEVFS_DISCARDURB)
@@ -394,7 +412,11 @@ static gboolean handle_ioctl(UMockdevIoctlBase *h, UMockdevIoctlClient *c, struc
 	} else {
 		complete_errno(c, request == USBDEVFS_RESET || request == USBDEVFS_RESETEP ? 0 : ENOTTY);
 	}
+	bool remove = u->remove;
+	u->remove = false;
 	g_mutex_unlock(&u->lock);
+	if (remove)
+		umockdev_testbed_remove_device(u->tb, u->syspath);
 	return TRUE;
 }
 
@@ -431,21 +453,11 @@ struct umu_usb *umu_usb_new(UMockdevTestbed *tb, const struct umu_usb_desc *d,
 void umu_usb_unplug(struct umu_usb *u)
 {
 	g_mutex_lock(&u->lock);
-	if (!u->plugged) {
-		g_mutex_unlock(&u->lock);
-		return;
-	}
-	u->plugged = false;
-	for (GList *l = u->urbs.head; l; l = l->next) {
-		struct urb *x = l->data;
-		if (!x->done) {
-			x->status = -ENODEV;
-			x->actual = 0;
-			x->done = true;
-		}
-	}
+	bool was = u->plugged;
+	pull(u);
 	g_mutex_unlock(&u->lock);
-	umockdev_testbed_remove_device(u->tb, u->syspath);
+	if (was)
+		umockdev_testbed_remove_device(u->tb, u->syspath);
 }
 
 void umu_usb_plug(struct umu_usb *u)

@@ -34,16 +34,19 @@ struct umu_usb_desc {
 /* A callback's answer when the transfer cannot complete yet: the URB
  * stays in flight (retried at each reap) until it can or is discarded. */
 #define UMU_PENDING INT_MIN
+/* A callback's answer when the device is pulled out during the transfer:
+ * as umu_usb_unplug(). */
+#define UMU_UNPLUGGED (INT_MIN + 1)
 
 struct umu_usb_ops {
 	/* setup is the 8-byte SETUP packet; data holds the OUT stage, or
 	 * receives up to wLength bytes of the IN stage. Returns the bytes of
 	 * the data stage, or a negative URB status (-EPIPE: stall). */
 	int (*control)(void *model, const uint8_t *setup, uint8_t *data, size_t len);
-	/* Returns 0, UMU_PENDING, or a negative URB status. */
+	/* Returns 0, UMU_PENDING, UMU_UNPLUGGED or a negative URB status. */
 	int (*bulk_out)(void *model, uint8_t ep, const uint8_t *buf, size_t len);
-	/* Fills at most len bytes; returns their number, UMU_PENDING, or a
-	 * negative URB status. */
+	/* Fills at most len bytes; returns their number, UMU_PENDING,
+	 * UMU_UNPLUGGED or a negative URB status. */
 	int (*bulk_in)(void *model, uint8_t ep, uint8_t *buf, size_t len);
 	/* Optional: a program claimed the interface (a new session). */
 	void (*claimed)(void *model);

@@ -149,6 +149,16 @@ static int bulk_out(void *model, uint8_t ep, const uint8_t *buf, size_t len)
 	(void)ep;
 	if (len < USBTMC_HEADER_SIZE || len % 4)
 		return s->n_align_errors++, -EPIPE;
+	/* retried at every reap while it hangs: decide once */
+	if (s->out_stuck)
+		return UMU_PENDING;
+	if (s->fault == SIM_FAULT_STUCK_OUT && s->fault_at && !--s->fault_at) {
+		s->fault = SIM_FAULT_NONE;
+		s->out_stuck = true;
+		s->out_stuck_tag = buf[1];
+		check_tag(s, buf);
+		return UMU_PENDING;
+	}
 	check_tag(s, buf);
 	uint32_t n = le32(buf + 4);
 	if (buf[0] == USBTMC_DEV_DEP_MSG_OUT) {
@@ -202,12 +212,8 @@ static int bulk_in(void *model, uint8_t ep, uint8_t *buf, size_t len)
 		return UMU_PENDING;
 	if (f == SIM_FAULT_STALL_IN)
 		return -EPIPE;
-	if (f == SIM_FAULT_UNPLUG) {
-		umu_usb_unlock(s->usb);
-		umu_usb_unplug(s->usb);
-		umu_usb_lock(s->usb);
-		return -ENODEV;
-	}
+	if (f == SIM_FAULT_UNPLUG)
+		return UMU_UNPLUGGED;
 	size_t n = s->reply_len - s->reply_sent;
 	size_t room = (len - USBTMC_HEADER_SIZE) & ~(size_t)3;
 	if (n > s->request_size)
@@ -270,9 +276,13 @@ static int control(void *model, const uint8_t *setup, uint8_t *data, size_t len)
 		return status_reply(data, len, 8);
 	if (setup[0] == 0xa2 && setup[1] == USBTMC_INITIATE_ABORT_BULK_OUT) {
 		s->n_abort_out++;
+		bool running = s->out_stuck && s->out_stuck_tag == (uint8_t)value;
+		s->out_stuck = false;
 		s->msg_len = 0;
 		int n = status_reply(data, len, 2);
-		data[0] = USBTMC_STATUS_FAILED;
+		data[0] = running ? USBTMC_STATUS_SUCCESS : USBTMC_STATUS_FAILED;
+		if (len > 1)
+			data[1] = (uint8_t)value;
 		return n;
 	}
 	if (setup[0] == 0xa2 && setup[1] == USBTMC_CHECK_ABORT_BULK_OUT_STATUS)

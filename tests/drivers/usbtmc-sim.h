@@ -26,6 +26,7 @@ enum usbtmc_sim_fault {
 	SIM_FAULT_WRONG_TAG,    /* the reply carries another bTag */
 	SIM_FAULT_UNPLUG,       /* the device is unplugged while the reply is read */
 	SIM_FAULT_SILENT,       /* the reply never comes */
+	SIM_FAULT_STUCK_OUT,    /* the n-th bulk-OUT transfer never completes */
 };
 
 struct usbtmc_sim {
@@ -48,6 +49,8 @@ struct usbtmc_sim {
 	uint8_t request_tag;
 	uint32_t request_size;
 	bool zlp;                       /* a short packet ends an abort */
+	bool out_stuck;                 /* a bulk-OUT transfer hangs */
+	uint8_t out_stuck_tag;
 	int errors[8];
 	unsigned n_errors;
 	double pos[3];

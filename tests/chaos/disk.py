@@ -1,0 +1,218 @@
+#!/usr/bin/env python3
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Full and read-only state directories. The state directory is a small
+tmpfs (disk full) or a bind mount remounted read-only under the running
+daemon (root ignores permission bits, a read-only mount it cannot). In
+each case a job that needs the disk fails with the reason, what was
+recorded before stays readable and unchanged (results, scans, the store),
+the daemon keeps answering, and once there is room again it measures.
+Needs root (mount); exits 77 otherwise.
+
+  disk.py [full] [read-only]"""
+import hashlib
+import os
+import subprocess
+import sys
+import time
+
+from chaoslib import scan_info, store_check
+from daemontest import Client, Daemon, RpcError, expect, finish, mock_instrument
+
+if os.geteuid() != 0:
+    print("SKIP: needs root to mount a tmpfs and a read-only bind mount")
+    sys.exit(77)
+
+SMALL = {"lens": "strong", "plan": {"method": "fermat", "points": 400}}
+BIG = {"lens": "strong", "plan": {"method": "fermat", "points": 60000}}
+
+
+def mount(*args):
+    p = subprocess.run(["mount", *args], capture_output=True, text=True)
+    return p.returncode == 0, p.stderr.strip()
+
+
+def umount(path):
+    subprocess.run(["umount", "-l", path], capture_output=True)
+
+
+def digest(path):
+    with open(path, "rb") as f:
+        return hashlib.sha256(f.read()).hexdigest()
+
+
+def wait_final(c, job, timeout=120):
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        j = c.call("job.get", {"id": job})
+        if j["state"] not in ("queued", "running"):
+            return j
+        time.sleep(0.05)
+    raise TimeoutError(f"job {job} did not end")
+
+
+def recorded(c, d, job):
+    """The files of a completed job and their digests."""
+    res = c.call("job.result", {"id": job})
+    return {f: digest(os.path.join(res["dir"], f)) for f in sorted(os.listdir(res["dir"]))}
+
+
+def free_bytes(path):
+    st = os.statvfs(path)
+    return st.f_bavail * st.f_frsize
+
+
+def fill(path, leave):
+    """Fills the file system of path up to leave bytes free."""
+    filler = os.path.join(path, "filler")
+    with open(filler, "ab") as f:
+        chunk = b"\0" * 65536
+        while free_bytes(path) > leave + len(chunk):
+            f.write(chunk)
+            f.flush()
+        while free_bytes(path) > leave:
+            try:
+                f.write(b"\0" * 4096)
+                f.flush()
+            except OSError:
+                break
+    return filler
+
+
+def disk_full():
+    d = Daemon(instruments=[mock_instrument(time_factor=0)])
+    os.makedirs(d.state)
+    ok, why = mount("-t", "tmpfs", "-o", "size=4m,mode=0755", "tmpfs", d.state)
+    if not ok:
+        print(f"SKIP: cannot mount a tmpfs: {why}")
+        d.cleanup()
+        sys.exit(77)
+    try:
+        d.start()
+        c = Client(d.socket)
+        first = c.call("job.submit", SMALL)["id"]
+        expect(wait_final(c, first)["state"] == "completed", "disk full: a job completes before")
+        before = recorded(c, d, first)
+
+        # Leave 48 kB: the big job's scan (about 1.5 MB) cannot fit.
+        filler = fill(d.state, 48 * 1024)
+        big = c.call("job.submit", BIG)["id"]
+        j = wait_final(c, big)
+        expect(j["state"] == "failed" and "No space left on device" in (j["reason"] or ""),
+               f"disk full: the job fails with the reason ({j['state']}: {j['reason']})")
+        expect(c.call("daemon.status")["jobs"]["failed"] == 1, "disk full: the daemon answers and counts it")
+        expect(recorded(c, d, first) == before, "disk full: the earlier job's files are unchanged")
+        scan = os.path.join(d.state, "jobs", str(big), "scan.asphscan")
+        if os.path.exists(scan):
+            info = scan_info(scan)
+            expect(info is not None and info["points"] <= j["progress"]["done"],
+                   f"disk full: the failed scan reads back ({info and info['points']} points of "
+                   f"{j['progress']['done']} measured)")
+
+        # No room for anything: a submission is refused with a clear error or
+        # fails with the reason; the daemon keeps answering.
+        fill(d.state, 0)
+        try:
+            r = c.call("job.submit", SMALL)
+            j = wait_final(c, r["id"])
+            expect(j["state"] == "failed" and "No space left" in (j["reason"] or ""),
+                   f"disk completely full: the job fails with the reason ({j['state']}: {j['reason']})")
+        except RpcError as e:
+            expect(e.code == 108 and "space" in str(e), f"disk completely full: submit refused ({e})")
+        expect(c.call("daemon.status")["pid"] == d.proc.pid, "disk completely full: the daemon answers")
+
+        os.unlink(filler)
+        again = c.call("job.submit", SMALL)["id"]
+        expect(wait_final(c, again)["state"] == "completed", "with room again the daemon measures")
+        c.call("job.requeue", {"id": big})
+        j = wait_final(c, big)
+        expect(j["state"] == "completed", f"the failed job, re-queued, completes ({j['state']}: {j['reason']})")
+        c.close()
+        expect(d.stop() == 0, "disk full: clean stop")
+        answer, _ = store_check(d.state)
+        expect(answer == "ok", f"disk full: the store passes integrity_check ({answer})")
+    except Exception:
+        print(d.log_text()[-6000:])
+        raise
+    finally:
+        if d.proc:
+            d.stop()
+        umount(d.state)
+        d.cleanup()
+
+
+def read_only():
+    """A mount with files open for writing cannot be remounted read-only,
+    so the running daemon loses its jobs/ folder (a read-only bind mount
+    over it, as after a file system error), and is then started on a
+    read-only state directory."""
+    d = Daemon(instruments=[mock_instrument(time_factor=0)])
+    jobs = os.path.join(d.state, "jobs")
+    mounted = []
+    try:
+        d.start()
+        c = Client(d.socket)
+        first = c.call("job.submit", SMALL)["id"]
+        expect(wait_final(c, first)["state"] == "completed", "read-only: a job completes before")
+        before = recorded(c, d, first)
+        ok, why = mount("--bind", jobs, jobs)
+        if not ok:
+            print(f"SKIP: cannot bind-mount the jobs folder: {why}")
+            sys.exit(77)
+        mounted.append(jobs)
+        ok, why = mount("-o", "remount,bind,ro", jobs)
+        expect(ok, f"the jobs folder is remounted read-only ({why})")
+        failed = None
+        try:
+            failed = c.call("job.submit", SMALL)["id"]
+            j = wait_final(c, failed)
+            expect(j["state"] == "failed" and "Read-only file system" in (j["reason"] or ""),
+                   f"read-only: the job fails with the reason ({j['state']}: {j['reason']})")
+        except RpcError as e:
+            expect(e.code == 108 and "read-only" in str(e).lower(),
+                   f"read-only: the submission is refused with the reason ({e})")
+        expect(c.call("daemon.status")["pid"] == d.proc.pid, "read-only: the daemon answers")
+        expect(c.call("job.get", {"id": first})["state"] == "completed", "read-only: earlier jobs read back")
+        expect(recorded(c, d, first) == before, "read-only: the earlier job's files are unchanged")
+        umount(jobs)
+        mounted.remove(jobs)
+        again = c.call("job.submit", SMALL)["id"]
+        expect(wait_final(c, again)["state"] == "completed", "writable again: the daemon measures")
+        if failed:
+            c.call("job.requeue", {"id": failed})
+            j = wait_final(c, failed)
+            expect(j["state"] == "completed", f"the failed job, re-queued, completes ({j['state']})")
+        c.close()
+        expect(d.stop() == 0, "read-only: clean stop")
+
+        answer, _ = store_check(d.state)
+        expect(answer == "ok", f"read-only: the store passes integrity_check ({answer})")
+
+        # Started on a read-only state directory, the daemon refuses to run
+        # and says why.
+        ok, why = mount("--bind", d.state, d.state)
+        expect(ok, f"bind mount of the state directory ({why})")
+        mounted.append(d.state)
+        ok, why = mount("-o", "remount,bind,ro", d.state)
+        expect(ok, f"the state directory is remounted read-only ({why})")
+        p = subprocess.run([os.environ.get("ASPHD_BIN", "asphd"), "--config", d.config, "--socket",
+                            d.socket, "--state-dir", d.state], capture_output=True, text=True, timeout=60)
+        expect(p.returncode == 1 and "read-only" in p.stderr.lower(),
+               f"asphd on a read-only state directory: exit 1 with the reason ({p.returncode}: "
+               f"{p.stderr.strip()[-300:]})")
+    except Exception:
+        print(d.log_text()[-6000:])
+        raise
+    finally:
+        if d.proc:
+            d.stop()
+        for m in reversed(mounted):
+            umount(m)
+        d.cleanup()
+
+
+which = sys.argv[1:] or ["full", "read-only"]
+if "full" in which:
+    disk_full()
+if "read-only" in which:
+    read_only()
+finish()

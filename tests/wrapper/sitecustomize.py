@@ -1,0 +1,64 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""ASPH_WRAPPER for the Python tests: the test setup 'valgrindpy'
+(tests/meson.build) puts this folder on PYTHONPATH, so that python loads
+it at start-up in every test script. Every asph, asphd and asphctl the
+script launches through subprocess then runs as ASPH_WRAPPER (split like a
+shell command line) followed by the original command.
+
+When the wrapper is valgrind, each wrapped process writes its report to
+its own log file (--log-file=DIR/PID.log, with --quiet: empty when
+clean); at exit the script prints every non-empty report and exits 1, so
+that an error or a leak in a process whose exit code the test does not
+look at (a daemon killed on purpose, a client expected to fail) still
+fails the test."""
+import atexit
+import glob
+import os
+import shlex
+import shutil
+import subprocess
+import sys
+import tempfile
+
+_ARGS = shlex.split(os.environ.get("ASPH_WRAPPER", ""))
+_NAMES = {"asph", "asphd", "asphctl"}
+_PATHS = {os.path.realpath(os.environ[v]) for v in ("ASPH_BIN", "ASPHD_BIN", "ASPHCTL_BIN")
+          if os.environ.get(v)}
+_LOGDIR = None
+
+
+def _ours(program):
+    program = os.fspath(program)
+    return os.path.basename(program) in _NAMES or os.path.realpath(program) in _PATHS
+
+
+def _report():
+    bad = []
+    for log in sorted(glob.glob(os.path.join(_LOGDIR, "*.log"))):
+        with open(log, errors="replace") as f:
+            text = f.read()
+        if text.strip():
+            bad.append(text)
+    shutil.rmtree(_LOGDIR, ignore_errors=True)
+    if bad:
+        sys.stdout.flush()
+        print(f"not ok - {len(bad)} wrapped process(es) reported errors:", flush=True)
+        for text in bad:
+            print(text, flush=True)
+        os._exit(1)
+
+
+if _ARGS:
+    if os.path.basename(_ARGS[0]) == "valgrind":
+        _LOGDIR = tempfile.mkdtemp(prefix="asph-wrapper-")
+        os.chmod(_LOGDIR, 0o1777)  # clients run under other uids too
+        _ARGS.append(f"--log-file={_LOGDIR}/%p.log")
+        atexit.register(_report)
+    _popen_init = subprocess.Popen.__init__
+
+    def _wrapped_init(self, args, *rest, **kw):
+        if isinstance(args, (list, tuple)) and args and _ours(args[0]):
+            args = [*_ARGS, *args]
+        return _popen_init(self, args, *rest, **kw)
+
+    subprocess.Popen.__init__ = _wrapped_init
