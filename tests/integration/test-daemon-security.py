@@ -1,0 +1,275 @@
+#!/usr/bin/env python3
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Access control and limits of asphd (docs/reliability.md, "Security"):
+the socket's mode and group; refusal of a socket directory or state
+directory that another user can write; SO_PEERCRED authorization of every
+method the protocol marks **Operator.** (taken from proto/README.md, so a
+new mutating method is covered as soon as it is documented) for a reader,
+an operator and root; no TCP listener unless configured, and then the
+token; client strings never used as paths (labels, lens names, instrument
+names with ../, absolute paths, a symlink planted in the jobs folder); and
+every limit answered with its documented error naming the limit. Needs
+root (clients run under other uids); exits 77 otherwise."""
+import grp
+import json
+import os
+import re
+import socket
+import stat
+import subprocess
+import sys
+
+from daemontest import Client, Daemon, RpcError, expect, finish, mock_instrument, poll_state
+
+if os.geteuid() != 0:
+    print("SKIP: needs root to run clients under other uids and to own files as others")
+    sys.exit(77)
+
+NOBODY = 65534
+try:
+    NOGROUP = grp.getgrnam("nogroup").gr_gid
+except KeyError:
+    NOGROUP = NOBODY
+candidates = [g for g in grp.getgrall() if g.gr_gid not in (0, NOBODY, NOGROUP) and not g.gr_mem]
+if not candidates:
+    print("SKIP: no group to use as the operator group")
+    sys.exit(77)
+OPERATORS = candidates[0]
+PYTHON = next((p for p in ("/usr/bin/python3", "/usr/local/bin/python3", sys.executable)
+               if os.path.exists(p) and os.stat(p).st_mode & 0o001), None)
+if not PYTHON:
+    print("SKIP: no python3 that an unprivileged user may run")
+    sys.exit(77)
+ROOT = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(os.path.dirname(__file__), "..", ".."))
+SPEC = {"lens": "strong", "plan": {"method": "fermat", "points": 300}}
+
+CLIENT = r'''
+import json, socket, sys
+s = socket.socket(socket.AF_UNIX); s.connect(sys.argv[1]); f = s.makefile("rw")
+out = []
+for i, (m, p) in enumerate(json.load(sys.stdin)):
+    f.write(json.dumps({"jsonrpc": "2.0", "id": i, "method": m, "params": p}) + "\n"); f.flush()
+    while True:
+        r = json.loads(f.readline())
+        if r.get("id") == i:
+            break
+    out.append(r["error"]["code"] if "error" in r else "ok")
+print(json.dumps(out))
+'''
+
+
+def as_user(path, calls, groups):
+    p = subprocess.run([PYTHON, "-c", CLIENT, path], input=json.dumps(calls), capture_output=True,
+                       text=True, timeout=60, user=NOBODY, group=NOGROUP, extra_groups=groups, cwd="/")
+    if p.returncode != 0:
+        raise RuntimeError(p.stderr)
+    return json.loads(p.stdout)
+
+
+def documented_methods():
+    """{method: operator?} from proto/README.md."""
+    with open(os.path.join(ROOT, "proto", "README.md")) as f:
+        text = f.read()
+    methods = {}
+    for m in re.finditer(r"^### `([a-z.]+)`\n\n(.*?)(?=^### |^## )", text, re.M | re.S):
+        methods[m.group(1)] = m.group(2).lstrip().startswith("**Operator.**")
+    return methods
+
+
+def params_for(method, job):
+    """Valid parameters, so that a refusal can only be the permission."""
+    return {"job.submit": SPEC, "job.get": {"id": job}, "job.cancel": {"id": job},
+            "job.pause": {"id": job}, "job.resume": {"id": job}, "job.requeue": {"id": job},
+            "job.result": {"id": job}, "queue.move": {"id": job, "position": 0},
+            "instrument.status": {"name": "mock"}, "queue.stop": {}}.get(method, {})
+
+
+def inet_sockets(pid):
+    """The daemon's TCP sockets (inodes found in /proc/net/tcp*)."""
+    inodes = set()
+    for fd in os.listdir(f"/proc/{pid}/fd"):
+        try:
+            link = os.readlink(f"/proc/{pid}/fd/{fd}")
+        except OSError:
+            continue
+        if link.startswith("socket:["):
+            inodes.add(link[8:-1])
+    found = []
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        try:
+            with open(table) as f:
+                for line in f.readlines()[1:]:
+                    if line.split()[9] in inodes:
+                        found.append(line.split()[1])
+        except OSError:
+            pass
+    return found
+
+
+def refuses_to_start(d, what, needle):
+    d.start(wait=False)
+    rc = d.proc.wait(timeout=60)
+    d.proc = None
+    expect(rc == 1 and needle in d.log_text(), f"{what}: asphd refuses to start (exit {rc})")
+
+
+d = Daemon(extra={"operator_group": OPERATORS.gr_name,
+                  "socket_group": grp.getgrgid(NOGROUP).gr_name})
+try:
+    # --- the socket
+    d.start()
+    st = os.stat(d.socket)
+    expect(stat.S_ISSOCK(st.st_mode) and stat.S_IMODE(st.st_mode) == 0o660,
+           f"the socket is created 0660 ({oct(stat.S_IMODE(st.st_mode))})")
+    expect(st.st_gid == NOGROUP, f"with the configured group ({st.st_gid})")
+    expect(inet_sockets(d.proc.pid) == [], "no TCP listener unless configured")
+
+    # --- every documented operator method, for a reader, an operator, root
+    methods = documented_methods()
+    expect(len(methods) >= 19 and sum(methods.values()) >= 8,
+           f"proto/README.md documents {len(methods)} methods, {sum(methods.values())} for operators")
+    root = Client(d.socket)
+    root.call("queue.stop")
+    job = root.call("job.submit", SPEC)["id"]
+    calls = [[m, params_for(m, job)] for m in sorted(methods)]
+    reader = as_user(d.socket, calls, [])
+    refused = {m for (m, _), r in zip(calls, reader) if r == 100}
+    expect(refused == {m for m, op in methods.items() if op},
+           f"a reader is refused exactly the operator methods ({sorted(refused)})")
+    expect(root.call("job.get", {"id": job})["state"] == "queued", "the reader changed nothing")
+    for m in sorted(m for m, op in methods.items() if op):
+        r = as_user(d.socket, [[m, params_for(m, job)]], [OPERATORS.gr_gid])[0]
+        expect(r != 100, f"an operator may call {m} ({r})")
+        try:
+            root.call(m, params_for(m, job))
+            rr = "ok"
+        except RpcError as e:
+            rr = e.code
+        expect(rr != 100, f"root may call {m} ({rr})")
+    root.call("queue.start")
+    root.close()
+    expect(d.stop() == 0, "clean stop")
+
+    # --- directories another user can write are refused
+    run = os.path.dirname(d.socket)
+    for mode, owner, what in ((0o777, 0, "a world-writable socket directory"),
+                              (0o775, 0, "a socket directory its group (nogroup) can write"),
+                              (0o755, NOBODY, "a socket directory owned by another user")):
+        os.chown(run, owner, NOGROUP)
+        os.chmod(run, mode)
+        refuses_to_start(d, what, "refusing")
+    os.chown(run, 0, 0)
+    os.chmod(run, 0o755)
+    for mode, owner, what in ((0o777, 0, "a world-writable state directory"),
+                              (0o775, 0, "a state directory its group (nogroup) can write"),
+                              (0o755, NOBODY, "a state directory owned by another user")):
+        os.chown(d.state, owner, NOGROUP)
+        os.chmod(d.state, mode)
+        refuses_to_start(d, what, "refusing")
+    os.chown(d.state, 0, 0)
+    os.chmod(d.state, 0o755)
+
+    # --- a socket mode that lets others write is refused by the configuration
+    cfg = json.load(open(d.config))
+    json.dump(dict(cfg, socket_mode="0666"), open(d.config, "w"))
+    p = subprocess.run([os.environ.get("ASPHD_BIN", "asphd"), "--check-config", "--config", d.config],
+                       capture_output=True, text=True, timeout=60)
+    expect(p.returncode == 3 and "socket_mode" in p.stderr, f"socket_mode 0666 is refused ({p.stderr.strip()})")
+
+    # --- a token file must belong to the daemon's user and be private
+    token = os.path.join(d.top, "token")
+    with open(token, "w") as f:
+        f.write("0123456789abcdef-token\n")
+    os.chmod(token, 0o600)
+    os.chown(token, NOBODY, NOGROUP)
+    json.dump(dict(cfg, tcp_listen="127.0.0.1:0", token_file=token), open(d.config, "w"))
+    refuses_to_start(d, "a token file owned by another user", "token")
+    os.chown(token, 0, 0)
+
+    # --- limits, each with its documented error naming the limit
+    limits = {"max_clients": 6, "max_queue": 3, "max_plan_points": 5000, "max_subscriptions": 2,
+              "max_label_bytes": 16, "max_request_bytes": 4096}
+    json.dump(dict(cfg, limits=limits), open(d.config, "w"))
+    d.start()
+    c = Client(d.socket)
+    c.call("queue.stop")
+
+    def err(method, params):
+        m = c.response(c.request(method, params))
+        e = m.get("error", {})
+        return e.get("code"), json.dumps(e)
+
+    ids = [c.call("job.submit", SPEC)["id"] for _ in range(3)]
+    code, text = err("job.submit", SPEC)
+    expect(code == 104 and "queue" in text, f"queue limit: 104 ({text})")
+    code, text = err("job.submit", {"lens": "strong", "plan": {"method": "fermat", "points": 5001}})
+    expect(code == 104 and "5000" in text, f"plan points limit: 104 naming the limit ({text})")
+    code, text = err("job.submit", dict(SPEC, label="x" * 17))
+    expect(code == -32602 and "label" in text, f"label limit: -32602 ({text})")
+    c.send_raw(b'{"jsonrpc":"2.0","id":77,"method":"hello","params":{"client":"' + b"y" * 5000 + b'"}}\n')
+    m = c.read_message()
+    expect(m.get("error", {}).get("code") == -32000, f"request size limit: -32000 ({m.get('error')})")
+    subs = [Client(d.socket) for _ in range(2)]
+    for s in subs:
+        s.call("events.subscribe", {})
+    extra = Client(d.socket)
+    code = extra.call_error("events.subscribe", {})
+    expect(code == 104, f"subscription limit: 104 ({code})")
+    # c, two subscribers and extra make 4 clients; two more fill max_clients.
+    more = [Client(d.socket) for _ in range(2)]
+    for x in more:
+        x.call("version")
+    over = Client(d.socket, timeout=10)
+    try:
+        m = over.read_message()
+        code = m.get("error", {}).get("code")
+    except (EOFError, OSError):
+        code = None
+    expect(code == -32002, f"client limit: -32002, then closed ({code})")
+    over.close()
+    for x in subs + more + [extra]:
+        x.close()
+    for i in ids:
+        c.call("job.cancel", {"id": i})
+    expect(c.call("version")["server"] == "asphd", "the daemon serves after every limit")
+
+    # --- client strings are never paths
+    c.call("queue.start")
+    outside = os.path.join(d.top, "outside")
+    os.mkdir(outside)
+    labels = ["../../outside/label", "/etc/passwd", "..", "jobs/../../x"]
+    jobs = []
+    for label in labels[:3]:
+        j = c.call("job.submit", dict(SPEC, label=label))
+        expect(j["label"] == label, f"the label {label!r} is kept as text")
+        jobs.append(j["id"])
+    for lens in ("/etc/passwd", "../../etc/passwd", "./strong", "strong/../strong"):
+        code, text = err("job.submit", dict(SPEC, lens=lens))
+        expect(code == 105, f"the lens {lens!r} is a preset name only, not read as a file ({code})")
+    for inst in ("../mock", "/mock"):
+        code, text = err("job.submit", dict(SPEC, instrument=inst))
+        expect(code == 102, f"the instrument {inst!r} is a name only ({code})")
+    # A symlink where the next job's folder goes (defence in depth: only
+    # the daemon's user can write the state directory).
+    nxt = max(jobs) + 1
+    os.symlink(outside, os.path.join(d.state, "jobs", str(nxt)))
+    j = c.call("job.submit", SPEC)
+    expect(j["id"] == nxt, "the next job gets the planted id")
+    jobs.append(nxt)
+    for i in jobs:
+        poll_state(c, i, ["completed", "failed"])
+    expect(os.listdir(outside) == [], f"nothing is written through a symlink ({os.listdir(outside)})")
+    st = c.call("job.get", {"id": nxt})
+    expect(st["state"] == "failed" and st["reason"], f"that job fails with a reason ({st['reason']})")
+    for dirpath, dirnames, files in os.walk(d.state):
+        rel = os.path.relpath(dirpath, d.state)
+        ok = rel == "." or rel == "jobs" or re.fullmatch(r"jobs/\d+", rel)
+        expect(ok, f"only job folders in the state directory ({rel})")
+    c.close()
+    expect(d.stop() == 0, "clean stop")
+except Exception:
+    print(d.log_text()[-6000:])
+    raise
+finally:
+    d.cleanup()
+finish()
