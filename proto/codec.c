@@ -180,6 +180,12 @@ int proto_check_request(json_t *msg, struct proto_message *out,
 		*why = "\"method\" must be a string";
 		return PROTO_INVALID_REQUEST;
 	}
+	/* Lines may hold \u0000 (JSON_ALLOW_NUL): "hello\u0000x" must not
+	 * dispatch as "hello". */
+	if (strlen(json_string_value(method)) != json_string_length(method)) {
+		*why = "\"method\" contains a NUL character";
+		return PROTO_INVALID_REQUEST;
+	}
 	params = json_object_get(msg, "params");
 	if (params && !json_is_object(params) && !json_is_array(params)) {
 		*why = "\"params\" must be an object or an array";

@@ -18,6 +18,7 @@ import socket
 import stat
 import subprocess
 import sys
+import time
 
 from daemontest import Client, Daemon, RpcError, expect, finish, mock_instrument, poll_state
 
@@ -107,10 +108,25 @@ def inet_sockets(pid):
 
 
 def refuses_to_start(d, what, needle):
+    """The daemon must exit 1 with needle in its log; one that starts
+    serving instead is stopped again."""
+    mark = len(d.log_text())
     d.start(wait=False)
-    rc = d.proc.wait(timeout=60)
+    deadline = time.time() + 60
+    rc = None
+    while time.time() < deadline and rc is None:
+        rc = d.proc.poll()
+        if rc is None:
+            try:
+                Client(d.socket, timeout=5).close()
+                break
+            except OSError:
+                time.sleep(0.05)
+    if rc is None:
+        d.stop()
     d.proc = None
-    expect(rc == 1 and needle in d.log_text(), f"{what}: asphd refuses to start (exit {rc})")
+    said = d.log_text()[mark:]
+    expect(rc == 1 and needle in said, f"{what}: asphd refuses to start (exit {rc}: {said.strip()[-200:]})")
 
 
 d = Daemon(extra={"operator_group": OPERATORS.gr_name,
@@ -193,19 +209,22 @@ try:
     d.start()
     c = Client(d.socket)
     c.call("queue.stop")
+    for j in c.call("job.list", {"states": ["queued", "interrupted", "running", "paused"]})["jobs"]:
+        c.call("job.cancel", {"id": j["id"]})
+        poll_state(c, j["id"], ["cancelled", "completed", "failed"])
 
     def err(method, params):
         m = c.response(c.request(method, params))
         e = m.get("error", {})
         return e.get("code"), json.dumps(e)
 
-    ids = [c.call("job.submit", SPEC)["id"] for _ in range(3)]
-    code, text = err("job.submit", SPEC)
-    expect(code == 104 and "queue" in text, f"queue limit: 104 ({text})")
     code, text = err("job.submit", {"lens": "strong", "plan": {"method": "fermat", "points": 5001}})
     expect(code == 104 and "5000" in text, f"plan points limit: 104 naming the limit ({text})")
     code, text = err("job.submit", dict(SPEC, label="x" * 17))
     expect(code == -32602 and "label" in text, f"label limit: -32602 ({text})")
+    ids = [c.call("job.submit", SPEC)["id"] for _ in range(3)]
+    code, text = err("job.submit", SPEC)
+    expect(code == 104 and "queue" in text, f"queue limit: 104 ({text})")
     c.send_raw(b'{"jsonrpc":"2.0","id":77,"method":"hello","params":{"client":"' + b"y" * 5000 + b'"}}\n')
     m = c.read_message()
     expect(m.get("error", {}).get("code") == -32000, f"request size limit: -32000 ({m.get('error')})")
@@ -233,11 +252,23 @@ try:
         c.call("job.cancel", {"id": i})
     expect(c.call("version")["server"] == "asphd", "the daemon serves after every limit")
 
+    c.close()
+    expect(d.stop() == 0, "clean stop")
+
     # --- client strings are never paths
+    json.dump(cfg, open(d.config, "w"))
+    d.start()
+    c = Client(d.socket)
     c.call("queue.start")
+
+    def err(method, params):
+        m = c.response(c.request(method, params))
+        e = m.get("error", {})
+        return e.get("code"), json.dumps(e)
+
     outside = os.path.join(d.top, "outside")
     os.mkdir(outside)
-    labels = ["../../outside/label", "/etc/passwd", "..", "jobs/../../x"]
+    labels = ["../../outside/l", "/etc/passwd", "..", "jobs/../../x"]
     jobs = []
     for label in labels[:3]:
         j = c.call("job.submit", dict(SPEC, label=label))

@@ -108,6 +108,11 @@ static void test_requests(void **state)
 	assert_int_equal(check("{\"jsonrpc\":\"2.0\",\"id\":2,\"method\":\"x\",\"params\":5}", &m, &why),
 			 PROTO_INVALID_REQUEST);
 	assert_int_equal(check("[1]", &m, &why), PROTO_INVALID_REQUEST);
+	/* A NUL inside the method name does not cut it to a known one. */
+	assert_int_equal(check("{\"jsonrpc\":\"2.0\",\"id\":3,\"method\":\"hello\\u0000x\"}", &m, &why),
+			 PROTO_INVALID_REQUEST);
+	assert_non_null(strstr(why, "NUL"));
+	assert_non_null(m.id);
 
 	char buf[128];
 	assert_null(proto_parse("{\"a\":1,\"a\":2}", 13, buf, sizeof(buf)));
