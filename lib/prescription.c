@@ -112,9 +112,13 @@ static int parse_coefficients(const struct parse_ctx *c, json_t *obj,
 		snprintf(field, sizeof(field), "A.%s", key);
 		errno = 0;
 		long power = strtol(key, &end, 10);
-		if (*key == '\0' || *end != '\0' || errno)
+		/* Only the plain decimal spelling: "04" beside "4" would
+		 * otherwise name the same term twice, the later one winning. */
+		int plain = (key[0] >= '1' && key[0] <= '9') || !strcmp(key, "0");
+		if (!plain || *end != '\0' || errno)
 			return fail_at(c, field, -EINVAL,
-				       "coefficient key '%s' is not a power of r", key);
+				       "coefficient key '%s' is not a power of r written as a plain number (e.g. \"4\")",
+				       key);
 		if (odd && (power < 1 || power > ASPH_SURFACE_MAX_POWER))
 			return fail_at(c, field, -EINVAL,
 				       "an odd asphere has coefficients for powers 1, 2, ..., %d; got %ld",

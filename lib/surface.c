@@ -483,6 +483,8 @@ int asph_prescription_check(const struct asph_prescription *p,
 		return refuse(err, "R", "R must be a finite number");
 	if (p->R == 0)
 		return refuse(err, "R", "R = 0 is not a radius of curvature");
+	if (!isfinite(1.0 / p->R))
+		return refuse(err, "R", "R = %g mm is too small: its curvature 1/R overflows", p->R);
 	if (!isfinite(p->k))
 		return refuse(err, "k", "k must be a finite number");
 	if ((r = check_powers(p, err)) < 0 || (r = check_q(p, err)) < 0)

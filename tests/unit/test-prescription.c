@@ -115,6 +115,8 @@ static const struct bad_case bad[] = {
 	{ HEAD "\"R\": 20, \"A\": {\"five\": 1e-5}, \"aperture_diameter\": 10}", 1, "\"five\"", "A.five", "not a power" },
 	{ HEAD "\"R\": 20, \"A\": {\"3\": 1e-5}, \"aperture_diameter\": 10}", 1, "\"3\"", "A.3", "powers 2, 4" },
 	{ HEAD "\"R\": 20, \"A\": {\"22\": 1e-5}, \"aperture_diameter\": 10}", 1, "\"22\"", "A.22", "got 22" },
+	{ HEAD "\"R\": 20, \"A\": {\"4\": 1e-5, \"04\": 2e-5}, \"aperture_diameter\": 10}", 1, "\"04\"", "A.04", "plain number" },
+	{ HEAD "\"R\": 5e-324, \"aperture_diameter\": 10}", 1, "\"R\"", "R", "too small" },
 	{ HEAD "\"R\": 20, \"A\": {\"4\": \"1e-5\"}, \"aperture_diameter\": 10}", 1, "\"4\"", "A.4", "expected a number" },
 	{ HEAD "\"R\": 20}", 0, NULL, "", "missing member \"aperture_diameter\"" },
 	{ HEAD "\"R\": 20, \"aperture_diameter\": -3}", 1, "\"aperture_diameter\"", "aperture_diameter", "positive" },
