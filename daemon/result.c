@@ -54,7 +54,7 @@ static int spec_lens(json_t *params, json_t *spec, struct asph_prescription *p,
 	} else {
 		snprintf(why->text, sizeof(why->text),
 			 "\"lens\" must be a preset name or a prescription object");
-		return lens ? PROTO_INVALID_PARAMS : PROTO_INVALID_PARAMS;
+		return PROTO_INVALID_PARAMS;
 	}
 	if (asph_prescription_check(p, &err) < 0) {
 		snprintf(why->text, sizeof(why->text), "\"lens\": %.200s", err.message);

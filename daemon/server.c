@@ -571,9 +571,10 @@ static int read_token(struct daemon *d)
 	struct stat st;
 
 	if (!f) {
+		int e = errno;
 		log_error("cannot read the token file %s: %s", d->config->token_file,
-			  strerror(errno));
-		return -errno;
+			  strerror(e));
+		return -e;
 	}
 	if (fstat(fileno(f), &st) < 0 || (st.st_mode & 0077)) {
 		log_error("the token file %s must be readable by its owner only",

@@ -358,8 +358,18 @@ int cmd_list(struct ctl *ctl, int argc, char **argv)
 		case 'i': json_object_set_new(params, "instrument", json_string(optarg)); break;
 		case 'l': json_object_set_new(params, "label", json_string(optarg)); break;
 		case 'm': json_object_set_new(params, "mine", json_true()); break;
-		case 'n': json_object_set_new(params, "limit", json_integer(atoll(optarg))); break;
-		case 'o': json_object_set_new(params, "offset", json_integer(atoll(optarg))); break;
+		case 'n':
+		case 'o': {
+			char *end;
+			errno = 0;
+			long long v = strtoll(optarg, &end, 10);
+			if (errno || end == optarg || *end || v < 0) {
+				fprintf(stderr, "asphctl: '%s' is not a count\n", optarg);
+				return CTL_EXIT_USAGE;
+			}
+			json_object_set_new(params, c == 'n' ? "limit" : "offset", json_integer(v));
+			break;
+		}
 		case 'j': ctl->json = true; break;
 		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
 		default: return usage_error(usage);
