@@ -9,6 +9,7 @@ if ! command -v redis-server >/dev/null || ! command -v redis-benchmark >/dev/nu
 	[[ $(id -u) -ne 0 ]] && sudo="sudo"
 	echo "installing redis-server redis-tools for the baseline" >&2
 	export DEBIAN_FRONTEND=noninteractive
+	$sudo apt-get update -qq >&2
 	$sudo apt-get install -y -qq --no-install-recommends redis-server redis-tools >&2
 fi
 exec "$@"
