@@ -102,8 +102,9 @@ void mesh_init(struct asph_delaunay *w, int star)
 static void push(struct asph_delaunay *w, size_t *top, uint32_t h)
 {
 	if (*top == w->stack_cap) {
+		/* stack_cap starts at 32 (asph_delaunay_alloc), so cap > 0. */
 		size_t cap = 2 * w->stack_cap;
-		uint32_t *st = realloc(w->stack, cap * sizeof(*st));
+		uint32_t *st = realloc(w->stack, cap * sizeof(*st)); // NOLINT(clang-analyzer-optin.portability.UnixAPI)
 		if (!st) {
 			w->stack_failed = -ENOMEM;
 			return;

@@ -339,8 +339,10 @@ static void sort_by_turn(const double *key, uint32_t *order, size_t *count,
 		count[b + 1] += count[b];
 	for (size_t q = 0; q < m; q++)
 		tmp[count[(size_t)(key[q] * (double)m)]++] = (uint32_t)q;
+	/* The bucket pass wrote each of tmp[0, m) once (count holds the
+	 * prefix sums), so the insertion sort reads no unset entry. */
 	for (size_t q = 1; q < m; q++) {
-		uint32_t v = tmp[q];
+		uint32_t v = tmp[q]; // NOLINT(clang-analyzer-core.uninitialized.Assign)
 		size_t z = q;
 		while (z > 0 && key[tmp[z - 1]] > key[v]) {
 			tmp[z] = tmp[z - 1];
@@ -349,7 +351,7 @@ static void sort_by_turn(const double *key, uint32_t *order, size_t *count,
 		tmp[z] = v;
 	}
 	for (size_t q = 0; q < m; q++)
-		order[q] = tmp[q];
+		order[q] = tmp[q]; // NOLINT(clang-analyzer-core.uninitialized.Assign): see above
 }
 
 struct fermat_work {
@@ -404,7 +406,8 @@ int plan_fermat_fill(double a, double p, double *xyr)
 		if (m > max_m)
 			max_m = m;
 	}
-	w.key = malloc(max_m * sizeof(*w.key));
+	/* max_m >= 1: the bands split n >= 1 points. */
+	w.key = malloc(max_m * sizeof(*w.key)); // NOLINT(clang-analyzer-optin.portability.UnixAPI)
 	w.order = malloc(max_m * sizeof(*w.order));
 	w.tmp = malloc(max_m * sizeof(*w.tmp));
 	w.count = malloc((max_m + 1) * sizeof(*w.count));

@@ -170,7 +170,8 @@ static size_t peel_rim(const double *xyz, const uint32_t *tri,
 	for (size_t t = 0; t < m; t++) {
 		alive[t] = 1;
 		for (int e = 0; e < 3; e++)
-			if (nb[3 * t + (size_t)e] == UINT32_MAX) {
+			/* nb is set: asph_delaunay_neighbors() returned 0. */
+			if (nb[3 * t + (size_t)e] == UINT32_MAX) { // NOLINT(clang-analyzer-core.NullDereference)
 				queue[tail++] = (uint32_t)t;
 				break;
 			}

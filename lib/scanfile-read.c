@@ -55,6 +55,12 @@ static int fail(const struct asph_scanfile_reader *r, struct asph_error *err,
 	return code;
 }
 
+/* The clang analyzer does not follow variadic functions: tell it that
+ * fail() returns code. */
+#ifdef __clang_analyzer__
+#define fail(r, err, code, ...) (fail(r, err, code, __VA_ARGS__), (code))
+#endif
+
 static void header_clear(struct asph_scanfile_header *h)
 {
 	free(h->json);

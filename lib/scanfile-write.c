@@ -78,10 +78,17 @@ static int fail(const char *path, struct asph_error *err, int code,
 	return code;
 }
 
+/* The clang analyzer does not follow variadic functions: tell it that
+ * fail() returns code. */
+#ifdef __clang_analyzer__
+#define fail(path, err, code, ...) (fail(path, err, code, __VA_ARGS__), (code))
+#endif
+
 /* fail() with the reason from errno, which must still be the call's. */
 static int fail_errno(const char *path, struct asph_error *err, const char *what)
 {
-	int code = -errno;
+	/* Never 0, so a caller cannot take the failure for success. */
+	int code = errno > 0 ? -errno : -EIO;
 
 	return fail(path, err, code, NULL, "%s: %s", what, strerror(-code));
 }
@@ -588,7 +595,8 @@ int asph_scanfile_writer_resume(const char *path,
 	    (ret = check_damage(r, &s->report, path, err)) < 0)
 		return ret;
 
-	uint64_t cut = s->report.file_size - r->resume_offset;
+	/* r is set: open_existing() returned 0. */
+	uint64_t cut = s->report.file_size - r->resume_offset; // NOLINT(clang-analyzer-core.NullDereference)
 	if (cut && ftruncate(w->fd, (off_t)r->resume_offset) < 0)
 		return fail_errno(path, err, "cannot cut the damaged tail");
 	w->offset = r->resume_offset;

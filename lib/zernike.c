@@ -116,7 +116,8 @@ static double term_eval(const struct term *t, const struct point *p,
 
 	for (int s = 0; s < t->ns; s++) {
 		int e = t->n - 2 * s;
-		r += t->c[s] * p->pw[e];
+		/* e >= |m| >= 0: term_init sets ns = (n - |m|) / 2 + 1. */
+		r += t->c[s] * p->pw[e]; // NOLINT(clang-analyzer-core.UndefinedBinaryOperatorResult)
 		if (gu && e >= 1) {
 			dr += t->c[s] * (double)e * p->pw[e - 1];
 			ro += t->c[s] * p->pw[e - 1];

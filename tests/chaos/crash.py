@@ -87,6 +87,8 @@ def main():
             phase = history[-1][1] if history else "submitted"
             if phase == "running" and history[-1][2] == 0:
                 phase = "running, no point yet"
+            elif phase == "running" and history[-1][2] >= 1500:
+                phase = "running, every point measured"
             fig["kills_by_phase"][phase] = fig["kills_by_phase"].get(phase, 0) + 1
 
             answer, rows = store_check(d.state)

@@ -15,7 +15,7 @@ import subprocess
 import sys
 import time
 
-from chaoslib import scan_info, store_check
+from chaoslib import scan_info, scan_points, store_check
 from daemontest import Client, Daemon, RpcError, expect, finish, mock_instrument
 
 if os.geteuid() != 0:
@@ -79,9 +79,11 @@ def fill(path, leave):
 
 
 def disk_full():
-    d = Daemon(instruments=[mock_instrument(time_factor=0)])
+    # "paced" measures at about 5,000 points a second, so that its scan
+    # writes a block every second: some reach the disk before it is full.
+    d = Daemon(instruments=[mock_instrument(time_factor=0), mock_instrument("paced", time_factor=0.004)])
     os.makedirs(d.state)
-    ok, why = mount("-t", "tmpfs", "-o", "size=4m,mode=0755", "tmpfs", d.state)
+    ok, why = mount("-t", "tmpfs", "-o", "size=24m,mode=0755", "tmpfs", d.state)
     if not ok:
         print(f"SKIP: cannot mount a tmpfs: {why}")
         d.cleanup()
@@ -93,20 +95,20 @@ def disk_full():
         expect(wait_final(c, first)["state"] == "completed", "disk full: a job completes before")
         before = recorded(c, d, first)
 
-        # Leave 48 kB: the big job's scan (about 1.5 MB) cannot fit.
-        filler = fill(d.state, 48 * 1024)
-        big = c.call("job.submit", BIG)["id"]
+        # Leave 640 kB: the big job's scan (about 3 MB) cannot fit.
+        filler = fill(d.state, 640 * 1024)
+        big = c.call("job.submit", dict(BIG, instrument="paced"))["id"]
         j = wait_final(c, big)
         expect(j["state"] == "failed" and "No space left on device" in (j["reason"] or ""),
                f"disk full: the job fails with the reason ({j['state']}: {j['reason']})")
         expect(c.call("daemon.status")["jobs"]["failed"] == 1, "disk full: the daemon answers and counts it")
         expect(recorded(c, d, first) == before, "disk full: the earlier job's files are unchanged")
         scan = os.path.join(d.state, "jobs", str(big), "scan.asphscan")
-        if os.path.exists(scan):
-            info = scan_info(scan)
-            expect(info is not None and info["points"] <= j["progress"]["done"],
-                   f"disk full: the failed scan reads back ({info and info['points']} points of "
-                   f"{j['progress']['done']} measured)")
+        info = scan_info(scan)
+        expect(info is not None and 0 < info["points"] <= j["progress"]["done"],
+               f"disk full: the blocks written before read back ({info and info['points']} points of "
+               f"{j['progress']['done']} measured)")
+        kept = scan_points(scan, os.path.join(d.top, "kept.csv"))
 
         # No room for anything: a submission is refused with a clear error or
         # fails with the reason; the daemon keeps answering.
@@ -125,7 +127,10 @@ def disk_full():
         expect(wait_final(c, again)["state"] == "completed", "with room again the daemon measures")
         c.call("job.requeue", {"id": big})
         j = wait_final(c, big)
-        expect(j["state"] == "completed", f"the failed job, re-queued, completes ({j['state']}: {j['reason']})")
+        expect(j["state"] == "completed", f"the failed job, re-queued, completes ({j['state']})")
+        done = scan_points(scan, os.path.join(d.top, "done.csv"))
+        expect(len(done) == BIG["plan"]["points"] and done[:len(kept)] == kept,
+               f"it continued the recorded scan: the {len(kept)} points kept come first, unchanged")
         c.close()
         expect(d.stop() == 0, "disk full: clean stop")
         answer, _ = store_check(d.state)

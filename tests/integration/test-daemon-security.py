@@ -108,19 +108,21 @@ def inet_sockets(pid):
 
 
 def refuses_to_start(d, what, needle):
-    """The daemon must exit 1 with needle in its log; one that starts
-    serving instead is stopped again."""
+    """The daemon must exit 1 with needle in its log; one that answers a
+    request instead is stopped again."""
     mark = len(d.log_text())
     d.start(wait=False)
-    deadline = time.time() + 60
+    deadline = time.time() + 120
     rc = None
     while time.time() < deadline and rc is None:
         rc = d.proc.poll()
         if rc is None:
             try:
-                Client(d.socket, timeout=5).close()
+                c = Client(d.socket, timeout=2)
+                c.call("version")
+                c.close()
                 break
-            except OSError:
+            except (OSError, EOFError):
                 time.sleep(0.05)
     if rc is None:
         d.stop()
