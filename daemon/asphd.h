@@ -113,6 +113,12 @@ void daemon_update_status(struct daemon *d);
 
 /* ---- server.c: listeners and clients */
 int server_listen(struct daemon *d);
+/* Refuses (logging why, -EPERM) a directory that a user other than the
+ * daemon's (and root) can write: another owner, a group other than the
+ * daemon's, everyone (a sticky directory is accepted with sticky_ok). */
+struct stat;
+int check_private_dir(const char *dir, const struct stat *st, bool sticky_ok,
+		      const char *what);
 void server_close(struct daemon *d);
 void client_free(struct client *c);
 /* Queues a message to one client; drops the client when its output

@@ -101,8 +101,14 @@ int jobs_set_state(struct daemon *d, struct job_record *j, enum job_state s,
 	enum job_state old = j->state;
 	int r = store_set_state(d->store, j->id, s, reason, actor, now_realtime_ns());
 
+	if (r == -ENOSPC && store_release_reserve(d->store) == 0) {
+		log_job(LOG_WARNING, j->id, "the state directory is full: using the store's reserve "
+			"to record the state %s", job_state_name(s));
+		r = store_set_state(d->store, j->id, s, reason, actor, now_realtime_ns());
+	}
 	if (r < 0) {
-		log_job(LOG_ERR, j->id, "cannot record the state %s", job_state_name(s));
+		log_job(LOG_ERR, j->id, "cannot record the state %s: %s", job_state_name(s),
+			strerror(-r));
 		return r;
 	}
 	d->counts[old]--;
@@ -124,6 +130,13 @@ int jobs_set_state(struct daemon *d, struct job_record *j, enum job_state s,
 
 /* Results are readable by whoever may read the socket's answers: asphctl
  * result --out copies them as the calling user. */
+static bool real_dir(const char *path)
+{
+	struct stat st;
+
+	return lstat(path, &st) == 0 && S_ISDIR(st.st_mode);
+}
+
 static int make_dirs(struct daemon *d, const char *dir)
 {
 	_cleanup_free_ char *jobs = NULL;
@@ -134,6 +147,9 @@ static int make_dirs(struct daemon *d, const char *dir)
 		return -errno;
 	if (mkdir(dir, 0755) < 0 && errno != EEXIST)
 		return -errno;
+	/* Never write through a symlink put in place of a folder. */
+	if (!real_dir(jobs) || !real_dir(dir))
+		return -ENOTDIR;
 	return 0;
 }
 
@@ -177,11 +193,16 @@ static int start_job(struct daemon *d, struct instrument *in, struct job_record 
 
 	if (!dir)
 		return -ENOMEM;
+	/* Room to record how this job ends, even if it fills the disk. */
+	store_renew_reserve(d->store);
 	r = make_dirs(d, dir);
 	if (r < 0) {
-		log_job(LOG_ERR, j->id, "cannot create %s: %s", dir, strerror(-r));
+		char reason[512];
+		snprintf(reason, sizeof(reason), "cannot create the job directory %s: %s", dir,
+			 strerror(-r));
+		log_job(LOG_ERR, j->id, "%s", reason);
 		j->finished_ns = now_realtime_ns();
-		return jobs_set_state(d, j, JOB_FAILED, "cannot create the job directory", 0);
+		return jobs_set_state(d, j, JOB_FAILED, reason, 0);
 	}
 	rj = calloc(1, sizeof(*rj));
 	if (!rj)
@@ -319,8 +340,14 @@ static void job_done(struct instrument *in, const struct runner_report *rep)
 					  : "the queue was stopped";
 		break;
 	}
-	if (store_update(d->store, &j) < 0)
-		log_job(LOG_ERR, j.id, "cannot record the result");
+	int r = store_update(d->store, &j);
+	if (r == -ENOSPC && store_release_reserve(d->store) == 0) {
+		log_job(LOG_WARNING, j.id, "the state directory is full: using the store's reserve "
+			"to record how the job ended");
+		r = store_update(d->store, &j);
+	}
+	if (r < 0)
+		log_job(LOG_ERR, j.id, "cannot record the result: %s", strerror(-r));
 	jobs_set_state(d, &j, next, reason, 0);
 	job_record_clear(&j);
 	if (d->shutting_down) {

@@ -8,6 +8,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <sys/statvfs.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -145,10 +146,13 @@ static int on_reload(sd_event_source *s, const struct signalfd_siginfo *si, void
 		log_warning("reload: instrument changes take effect at the next start");
 	/* What a running daemon can change: limits, groups, the mode of
 	 * new sockets. Listener and state paths stay. */
+	/* d->socket_path and d->state_dir point at these strings: move them. */
 	free(cfg->socket_path);
-	cfg->socket_path = strdup(d->config->socket_path);
+	cfg->socket_path = d->config->socket_path;
+	d->config->socket_path = NULL;
 	free(cfg->state_dir);
-	cfg->state_dir = strdup(d->config->state_dir);
+	cfg->state_dir = d->config->state_dir;
+	d->config->state_dir = NULL;
 	free(cfg->instruments_json);
 	cfg->instruments_json = d->config->instruments_json;
 	d->config->instruments_json = NULL;
@@ -162,6 +166,7 @@ static int on_reload(sd_event_source *s, const struct signalfd_siginfo *si, void
 
 static int make_state_dir(const char *dir)
 {
+	struct statvfs vfs;
 	struct stat st;
 
 	if (mkdir(dir, 0755) < 0 && errno != EEXIST) {
@@ -172,9 +177,11 @@ static int make_state_dir(const char *dir)
 		log_error("%s is not a directory", dir);
 		return -ENOTDIR;
 	}
-	if (st.st_mode & S_IWOTH) {
-		log_error("the state directory %s is writable by every user: refusing it", dir);
+	if (check_private_dir(dir, &st, false, "it as the state directory") < 0)
 		return -EPERM;
+	if (statvfs(dir, &vfs) == 0 && (vfs.f_flag & ST_RDONLY)) {
+		log_error("the state directory %s is on a read-only file system", dir);
+		return -EROFS;
 	}
 	return 0;
 }

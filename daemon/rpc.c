@@ -214,9 +214,10 @@ static int m_job_submit(struct call *c, json_t *params, json_t **result)
 	json_decref(spec);
 	if (!j.spec)
 		return PROTO_INTERNAL_ERROR;
-	if (store_insert(d->store, &j, now_realtime_ns()) < 0) {
+	int r = store_insert(d->store, &j, now_realtime_ns());
+	if (r < 0) {
 		free(j.spec);
-		return fail(c, PROTO_STORAGE_ERROR, "cannot store the job");
+		return fail(c, PROTO_STORAGE_ERROR, "cannot store the job: %s", strerror(-r));
 	}
 	d->counts[JOB_QUEUED]++;
 	log_job(LOG_INFO, j.id, "submitted by %s (uid %d) for %s", c->client->name,

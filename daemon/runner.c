@@ -208,6 +208,13 @@ static int measure(struct run *run)
 	if (rc < 0)
 		return rc;
 	rc = open_writer(run, &so.start_index, &w);
+	if (rc == -EALREADY && run->job->resume) {
+		/* The daemon stopped after the scan's last point and before its
+		 * result: there is nothing left to measure. */
+		log_job(LOG_INFO, run->job->id, "the recorded scan is complete: characterizing it");
+		asph_error_clear(&run->err);
+		return 0;
+	}
 	if (rc < 0)
 		return rc;
 	rc = asph_scan_new(run->inst, run->jp.surface, run->jp.plan->xyz, run->jp.plan->n,

@@ -446,6 +446,29 @@ void server_broadcast(struct daemon *d, unsigned class, int64_t job,
 
 /* -------------------------------------------------------------- listen */
 
+int check_private_dir(const char *dir, const struct stat *st, bool sticky_ok,
+		      const char *what)
+{
+	if (st->st_uid != 0 && st->st_uid != geteuid()) {
+		struct passwd *pw = getpwuid(st->st_uid);
+		log_error("%s belongs to %s (uid %u), another user: refusing %s", dir,
+			  pw ? pw->pw_name : "nobody known", (unsigned)st->st_uid, what);
+		return -EPERM;
+	}
+	if ((st->st_mode & S_IWOTH) && !(sticky_ok && (st->st_mode & S_ISVTX))) {
+		log_error("%s is writable by every user: refusing %s", dir, what);
+		return -EPERM;
+	}
+	if ((st->st_mode & S_IWGRP) && st->st_gid != getegid() &&
+	    !(sticky_ok && (st->st_mode & S_ISVTX))) {
+		struct group *g = getgrgid(st->st_gid);
+		log_error("%s is writable by the group %s (gid %u): refusing %s", dir,
+			  g ? g->gr_name : "unknown", (unsigned)st->st_gid, what);
+		return -EPERM;
+	}
+	return 0;
+}
+
 /* The directory of the socket must not be writable by other users, or
  * anyone could replace the socket. */
 static int check_socket_dir(const char *path)
@@ -467,11 +490,7 @@ static int check_socket_dir(const char *path)
 			return -errno;
 		return 0;
 	}
-	if ((st.st_mode & S_IWOTH) && !(st.st_mode & S_ISVTX)) {
-		log_error("%s is writable by every user: refusing to put the socket there", dir);
-		return -EPERM;
-	}
-	return 0;
+	return check_private_dir(dir, &st, true, "to put the socket there");
 }
 
 static int bind_unix(struct daemon *d)
@@ -576,9 +595,9 @@ static int read_token(struct daemon *d)
 			  strerror(e));
 		return -e;
 	}
-	if (fstat(fileno(f), &st) < 0 || (st.st_mode & 0077)) {
-		log_error("the token file %s must be readable by its owner only",
-			  d->config->token_file);
+	if (fstat(fileno(f), &st) < 0 || (st.st_mode & 0077) || st.st_uid != geteuid()) {
+		log_error("the token file %s must belong to the daemon's user (uid %u) and be "
+			  "readable by its owner only", d->config->token_file, (unsigned)geteuid());
 		return -EPERM;
 	}
 	if (!fgets(buf, sizeof(buf), f))
@@ -613,11 +632,8 @@ int server_listen(struct daemon *d)
 		}
 		fcntl(fd, F_SETFL, fcntl(fd, F_GETFL) | O_NONBLOCK);
 	}
-	if (d->unix_fd < 0) {
-		r = bind_unix(d);
-		if (r < 0)
-			return r;
-	}
+	/* The unix socket last: once it answers, everything listens, and a
+	 * bad TCP setting leaves no socket behind. */
 	if (d->config->tcp_listen && d->tcp_fd < 0) {
 		if (!d->config->token_file) {
 			log_error("tcp_listen needs a token_file");
@@ -629,6 +645,11 @@ int server_listen(struct daemon *d)
 	}
 	if (d->tcp_fd >= 0 && (r = read_token(d)) < 0)
 		return r;
+	if (d->unix_fd < 0) {
+		r = bind_unix(d);
+		if (r < 0)
+			return r;
+	}
 	r = sd_event_add_defer(d->event, &d->reaper, reap, d);
 	if (r < 0)
 		return r;

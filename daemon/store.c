@@ -1,8 +1,11 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 #include <errno.h>
+#include <fcntl.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include <sqlite3.h>
 
@@ -55,7 +58,12 @@ void job_record_clear(struct job_record *j)
 
 struct store {
 	sqlite3 *db;
+	char *reserve;          /* "<store>.reserve", see store_renew_reserve() */
 };
+
+/* Room for the job store to record the end of the jobs that a full disk
+ * stops: a few transactions of a few pages each. */
+#define RESERVE_BYTES (1 << 20)
 
 static const char schema[] =
 	"CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);"
@@ -78,9 +86,24 @@ static int sql_error(struct store *s, struct asph_error *err, const char *what)
 	return asph_error_set(err, -EIO, "%s: %s", what, sqlite3_errmsg(s->db));
 }
 
+/* A full or read-only disk is told apart: the daemon acts on it. */
+static int sql_errno(int rc)
+{
+	switch (rc & 0xff) {
+	case SQLITE_FULL:
+		return -ENOSPC;
+	case SQLITE_READONLY:
+		return -EROFS;
+	default:
+		return -EIO;
+	}
+}
+
 static int exec(struct store *s, const char *sql)
 {
-	return sqlite3_exec(s->db, sql, NULL, NULL, NULL) == SQLITE_OK ? 0 : -EIO;
+	int rc = sqlite3_exec(s->db, sql, NULL, NULL, NULL);
+
+	return rc == SQLITE_OK ? 0 : sql_errno(rc);
 }
 
 static int check_version(struct store *s, struct asph_error *err)
@@ -132,6 +155,12 @@ int store_open(const char *path, struct store **out, struct asph_error *err)
 		store_close(s);
 		return r;
 	}
+	if (asprintf(&s->reserve, "%s.reserve", path) < 0) {
+		s->reserve = NULL;
+		store_close(s);
+		return -ENOMEM;
+	}
+	store_renew_reserve(s);
 	*out = s;
 	return 0;
 }
@@ -141,7 +170,34 @@ void store_close(struct store *s)
 	if (!s)
 		return;
 	sqlite3_close(s->db);
+	free(s->reserve);
 	free(s);
+}
+
+int store_renew_reserve(struct store *s)
+{
+	struct stat st;
+	int fd, r;
+
+	if (!s->reserve)
+		return -ENOMEM;
+	if (lstat(s->reserve, &st) == 0 && S_ISREG(st.st_mode) && st.st_size >= RESERVE_BYTES)
+		return 0;
+	fd = open(s->reserve, O_WRONLY | O_CREAT | O_CLOEXEC | O_NOFOLLOW, 0600);
+	if (fd < 0)
+		return -errno;
+	r = -posix_fallocate(fd, 0, RESERVE_BYTES);
+	close(fd);
+	if (r < 0)
+		unlink(s->reserve);
+	return r;
+}
+
+int store_release_reserve(struct store *s)
+{
+	if (!s->reserve)
+		return -ENOENT;
+	return unlink(s->reserve) < 0 ? -errno : 0;
 }
 
 static void finalizep(sqlite3_stmt **st)
@@ -162,7 +218,9 @@ static sqlite3_stmt *prepare(struct store *s, const char *sql)
 
 static int step_done(sqlite3_stmt *st)
 {
-	return sqlite3_step(st) == SQLITE_DONE ? 0 : -EIO;
+	int rc = sqlite3_step(st);
+
+	return rc == SQLITE_DONE ? 0 : sql_errno(rc);
 }
 
 static void bind_text(sqlite3_stmt *st, int i, const char *v)
@@ -255,9 +313,10 @@ int store_insert(struct store *s, struct job_record *j, int64_t now_ns)
 	sqlite3_bind_int64(st, 8, now_ns);
 	sqlite3_bind_int64(st, 9, j->points_total);
 	bind_text(st, 10, j->scan_path);
-	if (step_done(st) < 0) {
+	r = step_done(st);
+	if (r < 0) {
 		store_rollback(s);
-		return -EIO;
+		return r;
 	}
 	j->id = sqlite3_last_insert_rowid(s->db);
 	j->submitted_ns = now_ns;
@@ -267,8 +326,10 @@ int store_insert(struct store *s, struct job_record *j, int64_t now_ns)
 		return r;
 	}
 	r = store_commit(s);
-	if (r < 0)
+	if (r < 0) {
+		store_rollback(s);
 		return r;
+	}
 	{
 		_cleanup_stmt_ sqlite3_stmt *q = prepare(s, "SELECT seq FROM jobs WHERE id = ?");
 		if (q) {
@@ -315,11 +376,11 @@ int store_set_state(struct store *s, int64_t id, enum job_state state,
 	r = step_done(st);
 	if (r == 0)
 		r = add_history(s, id, state, reason, actor_uid, now_ns);
-	if (r < 0) {
+	if (r == 0)
+		r = store_commit(s);
+	if (r < 0)
 		store_rollback(s);
-		return r;
-	}
-	return store_commit(s);
+	return r;
 }
 
 int store_update(struct store *s, const struct job_record *j)

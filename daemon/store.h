@@ -111,6 +111,16 @@ int store_count(struct store *s, int64_t counts[JOB_N_STATES]);
 int store_meta_get(struct store *s, const char *key, char **value);
 int store_meta_set(struct store *s, const char *key, const char *value);
 
+/*
+ * A file of 1 MiB next to the store, kept so that the end of a job stopped
+ * by a full disk can still be recorded: store_release_reserve() deletes it
+ * (0, or -errno), store_renew_reserve() creates it again when there is
+ * room (0, or -errno). Store writes on a full disk fail with -ENOSPC, on a
+ * read-only one with -EROFS.
+ */
+int store_renew_reserve(struct store *s);
+int store_release_reserve(struct store *s);
+
 /* Runs several changes in one transaction. */
 int store_begin(struct store *s);
 int store_commit(struct store *s);
