@@ -365,7 +365,13 @@ int store_set_state(struct store *s, int64_t id, enum job_state state,
 
 	if (r < 0)
 		return r;
-	st = prepare(s, "UPDATE jobs SET state = ?, reason = IFNULL(?, reason) WHERE id = ?");
+	/* A state change without a reason keeps the last one (a pause does
+	 * not explain away a fault), except a return to the queue: a re-queued
+	 * job starts afresh, so a failure it later recovers from is not shown
+	 * as its reason once it completes. The history keeps every reason. */
+	st = prepare(s, state == JOB_QUEUED
+			? "UPDATE jobs SET state = ?, reason = ? WHERE id = ?"
+			: "UPDATE jobs SET state = ?, reason = IFNULL(?, reason) WHERE id = ?");
 	if (!st) {
 		store_rollback(s);
 		return -EIO;

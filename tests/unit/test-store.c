@@ -170,6 +170,18 @@ static void test_list(void **state)
 	flt = (struct store_filter){ .uid = 4242 };
 	assert_int_equal(store_list(f->s, &flt, collect, got, &total), 0);
 	assert_int_equal(total, 0);
+
+	/* a pause keeps the reason of a fault; a re-queue starts afresh */
+	struct job_record j;
+	assert_int_equal(store_set_state(f->s, id[4], JOB_PAUSED, NULL, 0, 10), 0);
+	assert_int_equal(store_get(f->s, id[4], &j), 0);
+	assert_string_equal(j.reason, "stage fault");
+	job_record_clear(&j);
+	assert_int_equal(store_set_state(f->s, id[4], JOB_QUEUED, NULL, 0, 11), 0);
+	assert_int_equal(store_set_state(f->s, id[4], JOB_COMPLETED, NULL, 0, 12), 0);
+	assert_int_equal(store_get(f->s, id[4], &j), 0);
+	assert_null(j.reason);
+	job_record_clear(&j);
 }
 
 static void test_meta_and_schema(void **state)
