@@ -1,4 +1,5 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <errno.h>
 #include <stdarg.h>
 #include <stdbool.h>
 #include <stdio.h>
@@ -12,6 +13,27 @@
 static int max_level = LOG_INFO;
 static bool to_journal;
 
+/* A decimal number (digits only, no sign or blanks) ending at *end. */
+static int parse_ull(const char *s, char **end, unsigned long long *out)
+{
+	if (*s < '0' || *s > '9')
+		return -EINVAL;
+	errno = 0;
+	*out = strtoull(s, end, 10);
+	return errno ? -errno : 0;
+}
+
+/* JOURNAL_STREAM is "DEVICE:INODE", both decimal (systemd.exec(5)). */
+static int parse_journal_stream(const char *e, unsigned long long *dev, unsigned long long *ino)
+{
+	char *end;
+
+	if (parse_ull(e, &end, dev) < 0 || *end != ':' ||
+	    parse_ull(end + 1, &end, ino) < 0 || *end)
+		return -EINVAL;
+	return 0;
+}
+
 /* True when stderr is the journal stream systemd set up for us. */
 static bool stderr_is_journal(void)
 {
@@ -19,8 +41,13 @@ static bool stderr_is_journal(void)
 	unsigned long long dev, ino;
 	struct stat st;
 
-	if (!e || sscanf(e, "%llu:%llu", &dev, &ino) != 2)
+	if (!e)
 		return false;
+	if (parse_journal_stream(e, &dev, &ino) < 0) {
+		fprintf(stderr, "asphd: JOURNAL_STREAM=\"%.64s\" is not DEVICE:INODE; "
+			"logging to stderr as text\n", e);
+		return false;
+	}
 	if (fstat(2, &st) < 0)
 		return false;
 	return st.st_dev == dev && st.st_ino == ino;

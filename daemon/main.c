@@ -2,7 +2,6 @@
 /* asphd: the measurement daemon. docs/asphd.8.md describes its use. */
 #include <errno.h>
 #include <getopt.h>
-#include <grp.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -15,6 +14,7 @@
 #include <gsl/gsl_errno.h>
 #include <systemd/sd-daemon.h>
 
+#include "account.h"
 #include "asph/instrument.h"
 #include "asphd.h"
 #include "config.h"
@@ -77,12 +77,12 @@ static int resolve_groups(struct daemon *d)
 	d->have_operator_group = false;
 	if (!d->config->operator_group)
 		return 0;
-	struct group *g = getgrnam(d->config->operator_group);
-	if (!g) {
-		log_error("operator_group \"%s\" does not exist", d->config->operator_group);
-		return -ENOENT;
+	int r = account_group_id(d->config->operator_group, &d->operator_gid);
+	if (r < 0) {
+		log_error("operator_group: group \"%s\": %s", d->config->operator_group,
+			  r == -ENOENT ? "does not exist" : strerror(-r));
+		return r;
 	}
-	d->operator_gid = g->gr_gid;
 	d->have_operator_group = true;
 	return 0;
 }
@@ -101,9 +101,13 @@ static int check_config(const char *path)
 		r = instruments_load(cfg, &reg, &ic, &err);
 		if (r < 0)
 			report_config_error(&err, &n_errors);
-		if (r == 0 && cfg->operator_group && !getgrnam(cfg->operator_group)) {
-			fprintf(stderr, "asphd: %s: operator_group: no group \"%s\"\n", path,
-				cfg->operator_group);
+		gid_t gid;
+		int g = 0;
+		if (r == 0 && cfg->operator_group)
+			g = account_group_id(cfg->operator_group, &gid);
+		if (g < 0) {
+			fprintf(stderr, "asphd: %s: operator_group: group \"%s\": %s\n", path,
+				cfg->operator_group, g == -ENOENT ? "does not exist" : strerror(-g));
 			n_errors++;
 		}
 	}

@@ -35,6 +35,11 @@ static int spec_lens(json_t *params, json_t *spec, struct asph_prescription *p,
 	asph_error_clear(&err);
 	if (json_is_string(lens)) {
 		/* A name only: files are never read on a client's behalf. */
+		if (strlen(json_string_value(lens)) != json_string_length(lens)) {
+			snprintf(why->text, sizeof(why->text),
+				 "\"lens\" contains a NUL character");
+			return PROTO_INVALID_PARAMS;
+		}
 		if (asph_prescription_preset(json_string_value(lens), p) < 0) {
 			snprintf(why->text, sizeof(why->text),
 				 "\"lens\": no preset named \"%.64s\" (send the prescription "
@@ -68,18 +73,31 @@ static int spec_lens(json_t *params, json_t *spec, struct asph_prescription *p,
 	return 0;
 }
 
+/* How many points the plan of this lens would have. */
+static int plan_size(const struct asph_prescription *p, enum asph_plan_method m,
+		     struct asph_plan_density density, size_t *n, struct asph_error *err)
+{
+	struct asph_surface *s = NULL;
+	double spacing;
+	int r = asph_surface_alloc(p, &s, err);
+
+	if (r < 0)
+		return r;
+	r = asph_plan_resolve(s, m, density, &spacing, n, err);
+	asph_surface_free(s);
+	return r;
+}
+
 static int spec_plan(json_t *params, json_t *spec, const struct asph_prescription *p,
 		     uint64_t max_points, uint64_t *points, struct proto_why *why)
 {
 	static const char *const names[] = { "method", "h", "spacing", "points", NULL };
 	struct asph_plan_density density = { 0 };
 	enum asph_plan_method m;
-	struct asph_surface *s = NULL;
 	struct asph_error err;
 	json_t *plan;
 	const char *method;
 	int n_density = 0, r;
-	double spacing;
 	size_t n;
 
 	if (proto_param_object(params, "plan", true, &plan, why) < 0)
@@ -109,10 +127,7 @@ static int spec_plan(json_t *params, json_t *spec, const struct asph_prescriptio
 		return PROTO_INVALID_PARAMS;
 	}
 	asph_error_clear(&err);
-	r = asph_surface_alloc(p, &s, &err);
-	if (r == 0)
-		r = asph_plan_resolve(s, m, density, &spacing, &n, &err);
-	asph_surface_free(s);
+	r = plan_size(p, m, density, &n, &err);
 	if (r < 0) {
 		snprintf(why->text, sizeof(why->text), "\"plan\": %.200s", err.message);
 		return PROTO_INVALID_PLAN;

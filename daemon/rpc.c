@@ -781,8 +781,14 @@ json_t *rpc_handle(struct client *cl, json_t *msg)
 	int code;
 
 	code = proto_check_request(msg, &m, &why);
-	if (code)
-		return proto_make_error(m.id, code, NULL, json_pack("{s:s}", "detail", why));
+	if (code && m.unknown)
+		fail(&c, code, "unknown member \"%.64s\" in request", m.unknown);
+	else if (code)
+		fail(&c, code, "%s", why);
+	if (code) {
+		proto_utf8_clean(c.why.text);
+		return proto_make_error(m.id, code, NULL, json_pack("{s:s}", "detail", c.why.text));
+	}
 	params = m.params;
 	meth = find_method(m.method);
 	if (!meth) {
@@ -811,6 +817,8 @@ json_t *rpc_handle(struct client *cl, json_t *msg)
 	if (code) {
 		json_decref(result);
 		json_t *data = c.data ? c.data : json_object();
+		/* A name cut at 64 bytes may end inside a character. */
+		proto_utf8_clean(c.why.text);
 		if (c.why.text[0])
 			json_object_set_new(data, "detail", json_string(c.why.text));
 		return proto_make_error(m.id, code, NULL, data);

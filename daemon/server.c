@@ -7,9 +7,7 @@
 #include <arpa/inet.h>
 #include <errno.h>
 #include <fcntl.h>
-#include <grp.h>
 #include <netdb.h>
-#include <pwd.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -20,6 +18,7 @@
 
 #include <systemd/sd-daemon.h>
 
+#include "account.h"
 #include "asphd.h"
 #include "log.h"
 #include "util-mem.h"
@@ -221,6 +220,11 @@ static void handle_line(struct client *c, const char *line, size_t len)
 	} else if (json_array_size(msg) == 0) {
 		send_error(c, PROTO_INVALID_REQUEST, "an empty batch");
 		return;
+	} else if (json_array_size(msg) > PROTO_MAX_BATCH) {
+		snprintf(why, sizeof(why), "a batch of %zu requests, more than %d",
+			 json_array_size(msg), PROTO_MAX_BATCH);
+		send_error(c, PROTO_INVALID_REQUEST, why);
+		return;
 	} else {
 		size_t i;
 		json_t *e;
@@ -337,12 +341,31 @@ static int client_io(sd_event_source *s, int fd, uint32_t revents, void *data)
 	return 0;
 }
 
+/* The peer's supplementary groups as the kernel has them for the
+ * connecting process, not as /etc/group says: room for 32 first, then
+ * the size the kernel says it needs (ERANGE). None when it cannot tell. */
+static void peer_groups(struct client *c)
+{
+	socklen_t len = 32 * sizeof(gid_t);
+
+	for (int tries = 0; tries < 2; tries++) {
+		gid_t *g = realloc(c->groups, len > 0 ? len : 1);
+		if (!g)
+			return;
+		c->groups = g;
+		if (getsockopt(c->fd, SOL_SOCKET, SO_PEERGROUPS, g, &len) == 0) {
+			c->n_groups = (int)(len / sizeof(gid_t));
+			return;
+		}
+		if (errno != ERANGE)
+			return;
+	}
+}
+
 static void peer_identity(struct client *c)
 {
 	struct ucred cred;
 	socklen_t len = sizeof(cred);
-	struct passwd pw, *res = NULL;
-	char buf[4096];
 
 	if (getsockopt(c->fd, SOL_SOCKET, SO_PEERCRED, &cred, &len) < 0) {
 		c->uid = (uid_t)-1;
@@ -353,19 +376,8 @@ static void peer_identity(struct client *c)
 	c->uid = cred.uid;
 	c->gid = cred.gid;
 	c->pid = cred.pid;
-	/* The peer's supplementary groups as the kernel has them for the
-	 * connecting process, not as /etc/group says. */
-	len = 0;
-	if (getsockopt(c->fd, SOL_SOCKET, SO_PEERGROUPS, NULL, &len) < 0 &&
-	    errno == ERANGE && len > 0) {
-		c->groups = malloc(len);
-		if (c->groups &&
-		    getsockopt(c->fd, SOL_SOCKET, SO_PEERGROUPS, c->groups, &len) == 0)
-			c->n_groups = (int)(len / sizeof(gid_t));
-	}
-	if (getpwuid_r(cred.uid, &pw, buf, sizeof(buf), &res) == 0 && res)
-		snprintf(c->name, sizeof(c->name), "%s", pw.pw_name);
-	else
+	peer_groups(c);
+	if (account_user_name(cred.uid, c->name, sizeof(c->name)) < 0)
 		snprintf(c->name, sizeof(c->name), "uid %u", (unsigned)cred.uid);
 }
 
@@ -449,10 +461,13 @@ void server_broadcast(struct daemon *d, unsigned class, int64_t job,
 int check_private_dir(const char *dir, const struct stat *st, bool sticky_ok,
 		      const char *what)
 {
+	char name[64];
+
 	if (st->st_uid != 0 && st->st_uid != geteuid()) {
-		struct passwd *pw = getpwuid(st->st_uid);
+		if (account_user_name(st->st_uid, name, sizeof(name)) < 0)
+			snprintf(name, sizeof(name), "nobody known");
 		log_error("%s belongs to %s (uid %u), another user: refusing %s", dir,
-			  pw ? pw->pw_name : "nobody known", (unsigned)st->st_uid, what);
+			  name, (unsigned)st->st_uid, what);
 		return -EPERM;
 	}
 	if ((st->st_mode & S_IWOTH) && !(sticky_ok && (st->st_mode & S_ISVTX))) {
@@ -461,9 +476,10 @@ int check_private_dir(const char *dir, const struct stat *st, bool sticky_ok,
 	}
 	if ((st->st_mode & S_IWGRP) && st->st_gid != getegid() &&
 	    !(sticky_ok && (st->st_mode & S_ISVTX))) {
-		struct group *g = getgrgid(st->st_gid);
+		if (account_group_name(st->st_gid, name, sizeof(name)) < 0)
+			snprintf(name, sizeof(name), "unknown");
 		log_error("%s is writable by the group %s (gid %u): refusing %s", dir,
-			  g ? g->gr_name : "unknown", (unsigned)st->st_gid, what);
+			  name, (unsigned)st->st_gid, what);
 		return -EPERM;
 	}
 	return 0;
@@ -530,9 +546,13 @@ static int bind_unix(struct daemon *d)
 		return r;
 	}
 	if (d->config->socket_group) {
-		struct group *g = getgrnam(d->config->socket_group);
-		if (!g || chown(path, (uid_t)-1, g->gr_gid) < 0)
-			log_warning("cannot give %s to group %s", path, d->config->socket_group);
+		gid_t gid;
+		r = account_group_id(d->config->socket_group, &gid);
+		if (r == 0 && chown(path, (uid_t)-1, gid) < 0)
+			r = -errno;
+		if (r < 0)
+			log_warning("cannot give %s to group %s: %s", path, d->config->socket_group,
+				    r == -ENOENT ? "no such group" : strerror(-r));
 	}
 	if (chmod(path, d->config->socket_mode) < 0)
 		log_warning("chmod %s: %s", path, strerror(errno));

@@ -118,10 +118,18 @@ static int check_version(struct store *s, struct asph_error *err)
 	}
 	if (r < 0)
 		return sql_error(s, err, "reading the schema version");
-	if (atoi(v) > SCHEMA_VERSION)
+	/* only digits: strtol alone would take " 1", "+1" or "1x" */
+	char *end;
+	errno = 0;
+	long version = strtol(v, &end, 10);
+	if (v[0] < '0' || v[0] > '9' || *end || errno || version < 1)
 		return asph_error_set(err, -EPROTO,
-				      "the job store has schema %s, newer than %d",
-				      v, SCHEMA_VERSION);
+				      "the job store's schema version \"%.32s\" is not a number "
+				      "from 1 on: the store is damaged or not asphd's", v);
+	if (version > SCHEMA_VERSION)
+		return asph_error_set(err, -EPROTO,
+				      "the job store has schema %ld, newer than %d",
+				      version, SCHEMA_VERSION);
 	return 0;
 }
 

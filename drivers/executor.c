@@ -187,7 +187,9 @@ static uint64_t reading_time(const struct stamp *st, uint64_t t_ns)
 }
 
 /* The measured point of a reading: the stage's cartesian position plus
- * the reading along +z, then the tip radius back along the normal. */
+ * the reading along +z, then the tip radius back along the normal. A
+ * sweep has no normals (NULL): streaming is for optical probes only
+ * (asph_scan_alloc), which have no tip. */
 static int record(struct asph_scan *sc, size_t i, const double cart[3],
 		  const double normal[3], const struct asph_reading *rd,
 		  const struct stamp *st, struct asph_error *err)
@@ -216,7 +218,7 @@ static int record(struct asph_scan *sc, size_t i, const double cart[3],
 	pt->x = cart[0];
 	pt->y = cart[1];
 	pt->z = cart[2] + rd->value;
-	if (sc->tip > 0) {
+	if (sc->tip > 0 && normal) {
 		pt->x += sc->tip * normal[0];
 		pt->y += sc->tip * normal[1];
 		pt->z += sc->tip * normal[2];
@@ -337,7 +339,9 @@ static int aborted(struct asph_scan *sc, struct asph_error *err)
 	return asph_error_set(err, -ECANCELED, "aborted");
 }
 
-static int measure_point(struct asph_scan *sc, size_t i, struct asph_error *err)
+/* *recorded: the point is in the file, even when the move away after it
+ * failed. */
+static int measure_point(struct asph_scan *sc, size_t i, bool *recorded, struct asph_error *err)
 {
 	struct asph_instrument *in = sc->inst;
 	struct asph_probe_context ctx = { .plan_index = i };
@@ -367,6 +371,7 @@ static int measure_point(struct asph_scan *sc, size_t i, struct asph_error *err)
 		r = record(sc, i, cart, t.normal, &rd, &st, err);
 	if (r == 0)
 		r = flush_records(sc, err);
+	*recorded = r == 0;
 	if (r == 0)
 		r = check_reading(sc, i, &rd, err);
 	if (r == 0)
@@ -461,8 +466,9 @@ static int scan_loop(struct asph_scan *sc, struct asph_error *err)
 			i += done;
 			measured += done;
 		} else {
-			r = measure_point(sc, i, err);
-			if (r == 0 || r == -ERANGE)
+			bool recorded = false;
+			r = measure_point(sc, i, &recorded, err);
+			if (recorded)
 				i++, measured++;
 		}
 		publish(sc, ASPH_SCAN_MEASURING, i, measured, false);

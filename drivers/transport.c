@@ -17,7 +17,7 @@ struct transport {
 	int fd;
 	bool own;
 	int cancel_fd;          /* eventfd: readable once cancelled */
-	char name[64];
+	char name[128];         /* room for a unix socket path */
 };
 
 uint64_t transport_deadline(unsigned timeout_ms)

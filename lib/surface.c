@@ -514,6 +514,10 @@ static int build_tables(struct asph_surface *s)
 		return r;
 	s->arc_a = arc_exact(s, s->a);
 	s->area_a = area_exact(s, s->a);
+	/* A slope whose square overflows makes the integrals infinite; the
+	 * tables below would grow to their largest size in vain (seconds). */
+	if (!isfinite(s->arc_a) || !isfinite(s->area_a))
+		return -EDOM;
 	/* -ERANGE only means the last bits were not reached; keep going. */
 	r = cheb_table_build(&s->arc_ratio, 0, s->a, arc_ratio_fn, s,
 			     INTERP_TOL, INTERP_MAX_PANELS);
@@ -563,6 +567,11 @@ int asph_surface_alloc(const struct asph_prescription *p,
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	}
 	r = build_tables(s);
+	if (r == -EDOM) {
+		asph_surface_free(s);
+		return asph_error_set(err, -EINVAL, "the surface is too steep to sample: its "
+				      "area over the aperture overflows");
+	}
 	if (r < 0) {
 		asph_surface_free(s);
 		return asph_error_set(err, r, "out of memory");

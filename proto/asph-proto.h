@@ -21,6 +21,9 @@
 
 #define PROTO_DEFAULT_SOCKET "/run/asphd/asphd.sock"
 #define PROTO_DEFAULT_MAX_LINE (1u << 20)
+/* Requests in one batch: each answer costs far more memory than the
+ * two bytes "1," it may come from. */
+#define PROTO_MAX_BATCH 1000
 
 /* Error codes, with the messages of proto_error_message(). */
 enum proto_error_code {
@@ -101,6 +104,7 @@ struct proto_message {
 	json_t *error;
 	int error_code;           /* of a response with error */
 	const char *error_message;
+	const char *unknown;      /* the member that made a request invalid */
 };
 
 /* Parses one line; NULL with a message in why on a syntax error. Duplicate
@@ -128,6 +132,11 @@ json_t *proto_make_error(json_t *id, int code, const char *message,
 
 /* Compact text with "\n" appended (malloc'd, caller frees), or NULL. */
 char *proto_dump(const json_t *msg, size_t *len);
+
+/* Drops the bytes of text that are not valid UTF-8 (a message cut with
+ * "%.64s" may end inside a character, and JSON strings must be valid);
+ * returns the new length. */
+size_t proto_utf8_clean(char *text);
 
 /* ---------------------------------------------------------- parameters */
 

@@ -136,13 +136,66 @@ size_t proto_lines_pending(const struct proto_lines *l)
 
 /* ------------------------------------------------------------ messages */
 
+/* Length of the valid UTF-8 sequence at s (RFC 3629: no overlong forms, no
+ * surrogates, nothing past U+10FFFF), or 0. */
+static size_t utf8_sequence(const unsigned char *s)
+{
+	unsigned n, min, cp;
+
+	if (s[0] < 0x80)
+		return 1;
+	if (s[0] >= 0xc2 && s[0] <= 0xdf) {
+		n = 2;
+		min = 0x80;
+	} else if (s[0] >= 0xe0 && s[0] <= 0xef) {
+		n = 3;
+		min = 0x800;
+	} else if (s[0] >= 0xf0 && s[0] <= 0xf4) {
+		n = 4;
+		min = 0x10000;
+	} else {
+		return 0;
+	}
+	cp = s[0] & (0x7fu >> n);
+	for (unsigned i = 1; i < n; i++) {
+		if ((s[i] & 0xc0) != 0x80)
+			return 0;
+		cp = cp << 6 | (s[i] & 0x3fu);
+	}
+	if (cp < min || cp > 0x10ffff || (cp >= 0xd800 && cp <= 0xdfff))
+		return 0;
+	return n;
+}
+
+size_t proto_utf8_clean(char *text)
+{
+	unsigned char *s = (unsigned char *)text, *out = s;
+
+	while (*s) {
+		size_t n = utf8_sequence(s);
+		if (n == 0) {
+			s++;
+			continue;
+		}
+		memmove(out, s, n);
+		out += n;
+		s += n;
+	}
+	*out = '\0';
+	return (size_t)(out - (unsigned char *)text);
+}
+
 json_t *proto_parse(const char *text, size_t len, char *why, size_t why_size)
 {
 	json_error_t e;
 	json_t *j = json_loadb(text, len, JSON_REJECT_DUPLICATES | JSON_ALLOW_NUL | JSON_DECODE_ANY, &e);
 
-	if (!j && why)
+	if (!j && why && why_size > 0) {
+		/* jansson quotes the text near the error, which a cut may
+		 * leave in the middle of a character. */
 		snprintf(why, why_size, "column %d: %s", e.column, e.text);
+		proto_utf8_clean(why);
+	}
 	return j;
 }
 
@@ -167,7 +220,8 @@ int proto_check_request(json_t *msg, struct proto_message *out,
 	if (id && valid_id(id))
 		out->id = id;
 	v = json_object_get(msg, "jsonrpc");
-	if (!json_is_string(v) || strcmp(json_string_value(v), "2.0")) {
+	if (!json_is_string(v) || json_string_length(v) != 3 ||
+	    strcmp(json_string_value(v), "2.0")) {
 		*why = "\"jsonrpc\" must be \"2.0\"";
 		return PROTO_INVALID_REQUEST;
 	}
@@ -195,6 +249,7 @@ int proto_check_request(json_t *msg, struct proto_message *out,
 		if (strcmp(key, "jsonrpc") && strcmp(key, "id") &&
 		    strcmp(key, "method") && strcmp(key, "params")) {
 			*why = "unknown member in request";
+			out->unknown = key;
 			return PROTO_INVALID_REQUEST;
 		}
 	}
@@ -322,6 +377,7 @@ static int why_set(struct proto_why *why, const char *fmt, ...)
 		va_start(ap, fmt);
 		vsnprintf(why->text, sizeof(why->text), fmt, ap);
 		va_end(ap);
+		proto_utf8_clean(why->text);
 	}
 	return -EINVAL;
 }
@@ -329,12 +385,11 @@ static int why_set(struct proto_why *why, const char *fmt, ...)
 static int param_get(json_t *params, const char *name, bool required,
 		     json_t **v, struct proto_why *why)
 {
+	/* null is a value of the wrong type, not an absent member. */
 	*v = json_is_object(params) ? json_object_get(params, name) : NULL;
-	if (!*v || json_is_null(*v)) {
-		*v = NULL;
+	if (!*v)
 		return required ? why_set(why, "missing parameter \"%s\"", name)
 				: -ENOENT;
-	}
 	return 0;
 }
 
@@ -460,6 +515,8 @@ int proto_param_flags(json_t *params, const char *name, bool required,
 		size_t k;
 		if (!json_is_string(e))
 			return why_set(why, "\"%s\"[%zu] must be a string", name, i);
+		if (strlen(json_string_value(e)) != json_string_length(e))
+			return why_set(why, "\"%s\"[%zu] contains a NUL character", name, i);
 		for (k = 0; allowed[k]; k++)
 			if (!strcmp(allowed[k], json_string_value(e)))
 				break;

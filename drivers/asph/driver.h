@@ -57,7 +57,9 @@ enum asph_option_type {
 	ASPH_OPTION_ENUM,       /* one of choices */
 };
 
-struct asph_option_desc {
+/* In reading order, not packed: descriptors are a few static tables, and
+ * the layout is part of driver ABI version 1. */
+struct asph_option_desc { /* NOLINT(clang-analyzer-optin.performance.Padding) */
 	const char *name;               /* [a-z0-9_]+ */
 	enum asph_option_type type;
 	const char *default_value;      /* text, parsed as a user's value */

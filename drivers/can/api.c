@@ -1,9 +1,9 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
- * CANopen CiA 402 drives on SocketCAN: a stage of up to three linear axes,
- * one drive (node) per axis, in profile position mode; and a probe reading
- * one object of a node over SDO. docs/driver-can.md has the options, the
- * bench setup and the faults.
+ * CANopen CiA 402 drives on SocketCAN (or a gateway's unix socket): a
+ * stage of up to three linear axes, one drive (node) per axis, in profile
+ * position mode; and a probe reading one object of a node over SDO.
+ * docs/driver-can.md has the options, the bench setup and the faults.
  */
 #include <errno.h>
 #include <math.h>
@@ -45,8 +45,9 @@ static const char *const kinds[] = { "optical", "tactile", NULL };
 
 static const struct asph_option_desc can_options[N_OPTIONS] = {
 	[OPT_INTERFACE] = { "interface", ASPH_OPTION_STRING, "can0",
-			    .help = "SocketCAN interface (can0), or fd:N for a descriptor carrying "
-				    "struct can_frame messages (a simulated bus)" },
+			    .help = "SocketCAN interface (can0); unix:PATH, a SOCK_SEQPACKET unix "
+				    "socket of a CAN gateway or simulator carrying one struct can_frame "
+				    "per datagram; or fd:N, a descriptor already open carrying them" },
 	[OPT_X_NODE] = NODE("x", "1"),
 	[OPT_Y_NODE] = NODE("y", "2"),
 	[OPT_Z_NODE] = NODE("z", "3"),
@@ -129,7 +130,7 @@ struct axis {
 struct asph_device {
 	struct can_bus *bus;
 	atomic_bool stopped;
-	char iface[64];
+	char *iface;            /* whole: a unix socket path must not be cut */
 	uint8_t nodes[3];
 	unsigned n_nodes;
 	unsigned hb_ms, hb_timeout_ms, sdo_ms;
@@ -267,8 +268,12 @@ static struct asph_device *dev_new(const struct asph_option_value *o)
 
 	if (!d)
 		return NULL;
+	d->iface = strdup(o[OPT_INTERFACE].s);
+	if (!d->iface) {
+		free(d);
+		return NULL;
+	}
 	atomic_init(&d->stopped, false);
-	snprintf(d->iface, sizeof(d->iface), "%s", o[OPT_INTERFACE].s);
 	d->hb_ms = (unsigned)o[OPT_HEARTBEAT].i;
 	d->hb_timeout_ms = o[OPT_HEARTBEAT_TIMEOUT].i ? (unsigned)o[OPT_HEARTBEAT_TIMEOUT].i
 						      : 3 * d->hb_ms;
@@ -282,6 +287,7 @@ static void dev_close(struct asph_device *d)
 	if (!d)
 		return;
 	can_bus_free(d->bus);
+	free(d->iface);
 	free(d);
 }
 
@@ -560,9 +566,10 @@ static int send_set_point(struct asph_device *d, struct axis *a, int32_t target,
 		r = write_obj(d, a->node, CIA402_TARGET_POSITION, 0, (uint32_t)target, 4, deadline, err);
 	if (r == 0)
 		r = write_cw(d, a, CIA402_CW_ENABLE_OPERATION | CIA402_CW_NEW_SET_POINT, deadline, err);
+	if (r < 0)
+		return r;
 	for (;;) {
-		if (r == 0)
-			r = enabled_sw(d, a, &sw, deadline, err);
+		r = enabled_sw(d, a, &sw, deadline, err);
 		if (r < 0)
 			return r;
 		if (sw & CIA402_SW_BIT12)
@@ -571,6 +578,8 @@ static int send_set_point(struct asph_device *d, struct axis *a, int32_t target,
 			return asph_error_set(err, -ETIMEDOUT, "%s did not acknowledge the new set point "
 					      "in time", name(d, a));
 		r = can_bus_idle(d->bus, 1, err);
+		if (r < 0)
+			return r;
 	}
 	a->target = target;
 	a->target_valid = true;

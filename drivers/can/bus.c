@@ -1,5 +1,6 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
-/* A CANopen client over SocketCAN (or a descriptor standing in for it). */
+/* A CANopen client over SocketCAN (or a descriptor or a unix socket
+ * standing in for it). */
 #include <errno.h>
 #include <fcntl.h>
 #include <net/if.h>
@@ -8,6 +9,7 @@
 #include <string.h>
 #include <sys/ioctl.h>
 #include <sys/socket.h>
+#include <sys/un.h>
 #include <unistd.h>
 
 #include <linux/can.h>
@@ -31,9 +33,12 @@ struct node {
 	char name[40];
 };
 
+/* "unix:" and the longest socket path: every name open_*() accepts fits */
+#define IFACE_MAX (5 + sizeof(((struct sockaddr_un *)0)->sun_path))
+
 struct can_bus {
 	struct transport *t;
-	char iface[32];
+	char iface[IFACE_MAX];
 	bool bus_fault;
 	char fault[200];
 	char warning[160];      /* the last harmless error frame, for hints */
@@ -97,7 +102,7 @@ static int open_fd(const char *iface, int *out, struct asph_error *err)
 	char *end;
 	long n = strtol(iface + 3, &end, 10);
 
-	if (end == iface + 3 || *end || n < 0 || n > 1000000)
+	if (end == iface + 3 || *end || n < 0 || n > 1000000 || strlen(iface) >= IFACE_MAX)
 		return asph_error_set(err, -EINVAL, "%s: expected fd:N with a descriptor number", iface);
 	int fd = fcntl((int)n, F_DUPFD_CLOEXEC, 0);
 	if (fd < 0)
@@ -105,6 +110,43 @@ static int open_fd(const char *iface, int *out, struct asph_error *err)
 				      strerror(errno));
 	*out = fd;
 	return 0;
+}
+
+/* A gateway or simulator listening on a SOCK_SEQPACKET unix socket, one
+ * struct can_frame per datagram. Nothing filters what it sends: frames of
+ * other nodes are ignored here as on an unfiltered bus. */
+static int open_unix(const char *iface, int *out, struct asph_error *err)
+{
+	struct sockaddr_un addr = { .sun_family = AF_UNIX };
+	const char *path = iface + 5;
+	size_t len = strlen(path);
+
+	if (len == 0 || len >= sizeof(addr.sun_path))
+		return asph_error_set(err, -EINVAL, "%s: expected unix:PATH with a socket path of 1 to "
+				      "%zu bytes", iface, sizeof(addr.sun_path) - 1);
+	memcpy(addr.sun_path, path, len);
+	/* non-blocking: a listener whose queue is full must not hold up open */
+	int fd = socket(AF_UNIX, SOCK_SEQPACKET | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
+	if (fd < 0)
+		return asph_error_set(err, -EIO, "%s: cannot create a socket: %s", iface,
+				      strerror(errno));
+	if (connect(fd, (struct sockaddr *)&addr, sizeof(addr)) == 0) {
+		*out = fd;
+		return 0;
+	}
+	int e = errno, r;
+	if (e == ENOENT || e == ECONNREFUSED || e == ENOTDIR)
+		r = asph_error_set(err, -ENODEV, "%s: no CAN gateway listens there (%s): is the "
+				   "gateway or simulator running?", iface, strerror(e));
+	else if (e == EPROTOTYPE)
+		r = asph_error_set(err, -ENODEV, "%s: not a SOCK_SEQPACKET socket: the gateway must "
+				   "carry one struct can_frame per datagram", iface);
+	else if (e == EAGAIN)
+		r = asph_error_set(err, -EIO, "%s: the gateway accepts no more connections", iface);
+	else
+		r = asph_error_set(err, -EIO, "%s: cannot connect: %s", iface, strerror(e));
+	close(fd);
+	return r;
 }
 
 int can_bus_open(const char *iface, const uint8_t *nodes, unsigned n, struct can_bus **out,
@@ -116,6 +158,8 @@ int can_bus_open(const char *iface, const uint8_t *nodes, unsigned n, struct can
 		return asph_error_set(err, -EINVAL, "too many nodes");
 	if (strncmp(iface, "fd:", 3) == 0)
 		r = open_fd(iface, &fd, err);
+	else if (strncmp(iface, "unix:", 5) == 0)
+		r = open_unix(iface, &fd, err);
 	else
 		r = open_socketcan(iface, nodes, n, &fd, err);
 	if (r < 0)
@@ -177,10 +221,9 @@ static uint64_t now_ns(void)
 	return transport_deadline(0);
 }
 
-int can_bus_check(struct can_bus *b, struct asph_error *err)
+/* The faults seen so far; they stay. */
+static int check_faults(struct can_bus *b, struct asph_error *err)
 {
-	uint64_t now = now_ns();
-
 	if (b->bus_fault)
 		return asph_error_set(err, -EIO, "%s: %s", b->iface, b->fault);
 	for (unsigned i = 1; i <= CANOPEN_NODE_MAX; i++) {
@@ -189,14 +232,26 @@ int can_bus_check(struct can_bus *b, struct asph_error *err)
 			return asph_error_set(err, -EPROTO,
 					      "%s restarted (boot-up message): it lost its state and "
 					      "its home", n->name);
-		if (n->hb_timeout_ms && now > n->last_hb_ns + n->hb_timeout_ms * 1000000ull)
-			n->lost = true;
 		if (n->lost)
 			return asph_error_set(err, -ENODEV,
 					      "%s: heartbeat lost (none for %u ms): the drive is off, "
 					      "disconnected or reset", n->name, n->hb_timeout_ms);
 	}
 	return 0;
+}
+
+/* Marks the nodes whose heartbeat is overdue as lost. Call it with nothing
+ * left to read: heartbeats waiting for a client that was busy elsewhere
+ * (a slow probe) are no silence. */
+static void heartbeat_timeouts(struct can_bus *b)
+{
+	uint64_t now = now_ns();
+
+	for (unsigned i = 1; i <= CANOPEN_NODE_MAX; i++) {
+		struct node *n = &b->nodes[i];
+		if (n->hb_timeout_ms && now > n->last_hb_ns + n->hb_timeout_ms * 1000000ull)
+			n->lost = true;
+	}
 }
 
 /* ms until the first watched heartbeat is due (UINT32_MAX: none). */
@@ -251,7 +306,59 @@ static int handle(struct can_bus *b, const struct can_frame *f, struct asph_erro
 	default:
 		break;
 	}
-	return can_bus_check(b, err);
+	return check_faults(b, err);
+}
+
+/* One message; *is_frame says whether it is a classic frame. A byte more
+ * than a frame is read: a datagram socket cuts a longer message (CAN FD,
+ * a gateway's garbage) to the size asked for, which would pass it off as
+ * a frame. */
+static int recv_message(struct can_bus *b, struct can_frame *f, bool *is_frame,
+			unsigned timeout_ms, struct asph_error *err)
+{
+	union {
+		struct can_frame f;
+		unsigned char bytes[sizeof(struct can_frame) + 1];
+	} m;
+	size_t got;
+	int r = transport_recv(b->t, m.bytes, sizeof(m.bytes), &got, timeout_ms, err);
+
+	*is_frame = r == 0 && got == sizeof(*f) && m.f.can_dlc <= 8;
+	if (*is_frame)
+		*f = m.f;
+	return r;
+}
+
+/* Handles what already arrived, so that a late answer to an earlier
+ * request (SDO has no transaction id) cannot pass for the next one, and
+ * then looks for overdue heartbeats. */
+static int drain(struct can_bus *b, struct asph_error *err)
+{
+	struct can_frame f;
+	bool is_frame;
+
+	for (;;) {
+		int r = check_faults(b, err);
+		if (r < 0)
+			return r;
+		r = recv_message(b, &f, &is_frame, 0, err);
+		if (r == -ETIMEDOUT) {
+			heartbeat_timeouts(b);
+			return check_faults(b, err);
+		}
+		if (r < 0)
+			return r;
+		if (is_frame && (f.can_id & CAN_ERR_FLAG || f.can_id < CANOPEN_COB_SDO_TX ||
+				 f.can_id > CANOPEN_COB_SDO_TX + CANOPEN_NODE_MAX))
+			r = handle(b, &f, err);
+		if (r < 0)
+			return r;
+	}
+}
+
+int can_bus_check(struct can_bus *b, struct asph_error *err)
+{
+	return drain(b, err);
 }
 
 /* One frame, waiting at most until deadline, noticing a heartbeat that
@@ -261,19 +368,21 @@ static int recv_frame(struct can_bus *b, struct can_frame *f, uint64_t deadline,
 {
 	for (;;) {
 		unsigned left = transport_ms_left(deadline), hb = heartbeat_due_ms(b);
-		size_t got;
-		int r = transport_recv(b->t, f, sizeof(*f), &got, hb < left ? hb : left, err);
+		bool is_frame;
+		int r = recv_message(b, f, &is_frame, hb < left ? hb : left, err);
 		if (r == -ETIMEDOUT && hb < left) {
-			r = can_bus_check(b, err);
+			/* nothing came: the queue is empty */
+			heartbeat_timeouts(b);
+			r = check_faults(b, err);
 			if (r < 0)
 				return r;
 			continue;
 		}
 		if (r < 0)
 			return r;
-		if (got == sizeof(*f) && f->can_dlc <= 8)
+		if (is_frame)
 			return 0;
-		/* CAN FD or a short read: not a frame of ours */
+		/* CAN FD, a short or a long message: not a frame of ours */
 	}
 }
 
@@ -402,31 +511,6 @@ static int sdo_abort_error(struct can_bus *b, uint8_t node, const struct canopen
 			      b->nodes[node].name, kind == SDO_UPLOAD ? "read" : "write",
 			      s->index, s->subindex, s->abort_code,
 			      text ? text : "a code CiA 301 does not define");
-}
-
-/* Handles what already arrived, so that a late answer to an earlier
- * request (SDO has no transaction id) cannot pass for the next one. */
-static int drain(struct can_bus *b, struct asph_error *err)
-{
-	struct can_frame f;
-	size_t got;
-
-	for (;;) {
-		int r = can_bus_check(b, err);
-		if (r < 0)
-			return r;
-		r = transport_recv(b->t, &f, sizeof(f), &got, 0, err);
-		if (r == -ETIMEDOUT)
-			return 0;
-		if (r < 0)
-			return r;
-		if (got == sizeof(f) && f.can_dlc <= 8 && (f.can_id & CAN_ERR_FLAG ||
-							    f.can_id < CANOPEN_COB_SDO_TX ||
-							    f.can_id > CANOPEN_COB_SDO_TX + CANOPEN_NODE_MAX))
-			r = handle(b, &f, err);
-		if (r < 0)
-			return r;
-	}
 }
 
 /* Sends req and waits for the response of node about index:sub. */

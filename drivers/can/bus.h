@@ -2,10 +2,11 @@
 /*
  * A CANopen client on one bus: the raw SocketCAN socket (or any descriptor
  * carrying one struct can_frame per message, such as a socketpair with a
- * simulated drive on the other end) behind the drivers' transport, with
- * expedited SDO transfers, NMT, the heartbeat consumer and the bus's error
- * frames. Every call takes a timeout; faults come back as the driver ABI's
- * codes with a reason naming the node. Internal.
+ * simulated drive on the other end, or a unix socket to a gateway) behind
+ * the drivers' transport, with expedited SDO transfers, NMT, the heartbeat
+ * consumer and the bus's error frames. Every call takes a timeout; faults
+ * come back as the driver ABI's codes with a reason naming the node.
+ * Internal.
  */
 #ifndef ASPH_CAN_BUS_H
 #define ASPH_CAN_BUS_H
@@ -19,10 +20,14 @@
 struct can_bus;
 
 /*
- * iface is a network interface ("can0") or "fd:N", a descriptor already
- * open (duplicated; the caller keeps its own). The receive filter passes
- * the SDO responses, EMCY and heartbeats of nodes[0 .. n-1] and the error
- * frames. A kernel without CAN fails with -ENODEV saying so.
+ * iface is a network interface ("can0"), "fd:N", a descriptor already
+ * open (duplicated; the caller keeps its own), or "unix:PATH", a
+ * SOCK_SEQPACKET unix socket a gateway or simulator listens on, one
+ * struct can_frame per datagram (connected anew by every open). The
+ * interface's receive filter passes the SDO responses, EMCY and heartbeats
+ * of nodes[0 .. n-1] and the error frames; the others are unfiltered. A
+ * kernel without CAN fails with -ENODEV saying so, as does a path nothing
+ * listens on.
  */
 int can_bus_open(const char *iface, const uint8_t *nodes, unsigned n, struct can_bus **out,
 		 struct asph_error *err);
@@ -64,7 +69,9 @@ void can_bus_watch(struct can_bus *b, uint8_t node, unsigned timeout_ms);
 
 /* Handles what arrives for ms (heartbeats, EMCY, error frames) and
  * reports any fault seen: a lost heartbeat, a node that restarted,
- * bus-off or error passive. */
+ * bus-off or error passive. A heartbeat is overdue only once every frame
+ * that already arrived has been read. can_bus_check() does the same
+ * without waiting. */
 int can_bus_idle(struct can_bus *b, unsigned ms, struct asph_error *err);
 int can_bus_check(struct can_bus *b, struct asph_error *err);
 

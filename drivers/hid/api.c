@@ -11,6 +11,7 @@
 
 #include "asph/driver.h"
 #include "protocol.h"
+#include "util-mem.h"
 
 enum {
 	OPT_PATH, OPT_VENDOR_ID, OPT_PRODUCT_ID, OPT_SERIAL, OPT_PROFILE,
@@ -159,6 +160,8 @@ static void probe_close(struct asph_device *d)
 	free(d);
 }
 
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_device *, probe_close)
+
 static int probe_open(const struct asph_driver *drv, const struct asph_option_value *o,
 		      unsigned timeout_ms, struct asph_device **out, struct asph_error *err)
 {
@@ -168,24 +171,23 @@ static int probe_open(const struct asph_driver *drv, const struct asph_option_va
 	if (!*path && (o[OPT_VENDOR_ID].i == 0 || o[OPT_PRODUCT_ID].i == 0))
 		return asph_error_set(err, -EINVAL,
 				      "hid: set path, or vendor_id and product_id, of the device");
-	struct asph_device *d = calloc(1, sizeof(*d));
+	_cleanup_(probe_closep) struct asph_device *d = calloc(1, sizeof(*d));
 	if (!d)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	atomic_init(&d->stop, false);
 	int r = build_profile(o, &d->prof, err);
-	if (r == 0)
-		r = hid_link_open(path, (unsigned)o[OPT_VENDOR_ID].i, (unsigned)o[OPT_PRODUCT_ID].i,
-				  o[OPT_SERIAL].s, &d->stop, &d->link, &li, err);
-	if (r == 0 && o[OPT_ZERO_ON_OPEN].b)
-		r = hid_link_send(d->link, &d->prof.zero, err);
-	if (r < 0) {
-		probe_close(d);
+	if (r < 0)
 		return r;
-	}
+	r = hid_link_open(path, (unsigned)o[OPT_VENDOR_ID].i, (unsigned)o[OPT_PRODUCT_ID].i,
+			  o[OPT_SERIAL].s, &d->stop, &d->link, &li, err);
+	if (r < 0)
+		return r;
+	if (o[OPT_ZERO_ON_OPEN].b && (r = hid_link_send(d->link, &d->prof.zero, err)) < 0)
+		return r;
 	d->hold = o[OPT_HOLD].b;
 	d->offset = o[OPT_OFFSET].d;
 	fill_info(d, o, &li);
-	*out = d;
+	*out = steal_ptr(d);
 	return 0;
 }
 

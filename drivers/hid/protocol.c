@@ -66,20 +66,18 @@ int hid_profile_check(const struct hid_profile *p, struct asph_error *err)
 	return 0;
 }
 
+/* The value of a checked profile: 1 to 4 bytes, the most significant
+ * first (big endian) or last. */
 static int64_t field(const struct hid_profile *p, const uint8_t *b)
 {
-	uint32_t u = 0;
 	unsigned n = p->value_size;
+	uint8_t msb = p->big_endian ? b[0] : b[n - 1];
+	/* a negative two's complement value: ones above its bytes */
+	int64_t v = p->value_signed && (msb & 0x80) ? -1 : 0;
 
-	for (unsigned k = 0; k < n; k++) {
-		unsigned byte = p->big_endian ? k : n - 1 - k;
-		u = (u << 8) | b[byte];
-	}
-	if (p->value_signed && n < 4 && (u >> (8 * n - 1)) & 1)
-		return (int64_t)u - ((int64_t)1 << (8 * n));
-	if (p->value_signed && n == 4)
-		return (int64_t)(int32_t)u;
-	return (int64_t)u;
+	for (unsigned k = 0; k < n; k++)
+		v = v * 256 + b[p->big_endian ? k : n - 1 - k];
+	return v;
 }
 
 int hid_decode_report(const struct hid_profile *p, const uint8_t *buf, size_t n,
@@ -88,6 +86,11 @@ int hid_decode_report(const struct hid_profile *p, const uint8_t *buf, size_t n,
 	size_t need = report_needs(p);
 
 	memset(out, 0, sizeof(*out));
+	/* a profile that is not checked could read outside the report or
+	 * shift by more than a value's width */
+	int r = hid_profile_check(p, err);
+	if (r < 0)
+		return r;
 	if (n == 0)
 		return asph_error_set(err, -EPROTO, "empty input report");
 	if (p->report_id && buf[0] != p->report_id)

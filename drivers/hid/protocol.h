@@ -68,11 +68,11 @@ struct hid_sample {
 };
 
 /*
- * Decodes one input report of n bytes with profile p. -EPROTO with a
- * reason for a report of another id, a report too short for the profile,
- * a reading the device marks invalid or a device in fault; an
- * out-of-range reading decodes (status HID_STATUS_OUT_OF_RANGE). Pure:
- * no I/O, any bytes in.
+ * Decodes one input report of n bytes with profile p. -EINVAL for a
+ * profile hid_profile_check() refuses; -EPROTO with a reason for a report
+ * of another id, a report too short for the profile, a reading the device
+ * marks invalid or a device in fault; an out-of-range reading decodes
+ * (status HID_STATUS_OUT_OF_RANGE). Pure: no I/O, any bytes in.
  */
 int hid_decode_report(const struct hid_profile *p, const uint8_t *buf, size_t n,
 		      struct hid_sample *out, struct asph_error *err);

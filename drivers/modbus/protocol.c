@@ -2,10 +2,12 @@
 /* Modbus frames, register words and the libmodbus bus with the driver
  * ABI's timeouts and reasons. */
 #include <errno.h>
+#include <poll.h>
 #include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include <modbus.h>
 
@@ -146,6 +148,12 @@ struct mb_link {
 	struct mb_bus_params p;         /* strings point into device, host */
 	char device[256], host[256];
 	char name[300];                 /* prefixes reasons */
+	/* A try went without a fitting answer, so one may still be on its
+	 * way: TCP has closed the connection and connects again before the
+	 * next request; a serial line is drained before it, waiting for a
+	 * late answer to start until late_until (CLOCK_MONOTONIC ns). */
+	bool unsettled;
+	uint64_t late_until;
 	struct mb_link *next;
 };
 
@@ -315,6 +323,13 @@ static bool worth_retrying(int e)
 	       e == EMBMDATA || e == EMBBADEXC || e == EINTR;
 }
 
+/* An answer that belongs to another request, e.g. a late one to an
+ * earlier try. */
+static bool out_of_step(int e)
+{
+	return e == EMBBADDATA || e == EMBBADSLAVE || e == EMBMDATA;
+}
+
 static bool link_lost(int e)
 {
 	return e == ECONNRESET || e == EPIPE || e == EBADF || e == ENOTCONN ||
@@ -355,7 +370,111 @@ static int fail(const struct mb_link *l, int unit, const char *what, int addr, i
 	return asph_error_set(err, -EIO, "%s: unit %d: %s", n, unit, modbus_strerror(e));
 }
 
+/* The connection could not be made again after a try without a fitting
+ * answer (e, 0 when that was in an earlier transaction). */
+static int reconnect_failed(const struct mb_link *l, int unit, const char *what, int addr, int e,
+			    int ce, struct asph_error *err)
+{
+	if (!e)
+		return asph_error_set(err, -ENODEV, "%s: connection lost: cannot connect again: %s",
+				      l->name, modbus_strerror(ce));
+	return asph_error_set(err, -ENODEV, "%s: connection lost: unit %d %s (%s register %d), "
+			      "then connecting again failed: %s", l->name, unit,
+			      e == ETIMEDOUT ? "did not answer" : "answered out of step", what, addr,
+			      modbus_strerror(ce));
+}
+
+/* Silence that ends a frame on a serial line. USB adapters hand on what
+ * they received in chunks (an FTDI chip every 16 ms by default), so one
+ * frame can pause that long. */
+enum { RTU_QUIET_MS = 20 };
+
+/* A serial line after a try without a fitting answer: the device may still
+ * send one (late, or the rest of a garbled frame), which the next request
+ * would take for its own (RTU has no transaction ids). Waits until
+ * late_until for it to start, then until the line has been quiet for
+ * RTU_QUIET_MS, all before `until`, and drops it. */
+static void rtu_drain(struct mb_link *l, uint64_t until)
+{
+	struct pollfd p = { .fd = modbus_get_socket(l->ctx), .events = POLLIN };
+	unsigned wait = transport_ms_left(l->late_until);
+	uint8_t sink[MODBUS_RTU_MAX_ADU_LENGTH];
+
+	for (;;) {
+		unsigned left = transport_ms_left(until);
+		if (wait > left)
+			wait = left;
+		if (wait == 0 || poll(&p, 1, (int)wait) <= 0 || read(p.fd, sink, sizeof(sink)) <= 0)
+			break;
+		wait = RTU_QUIET_MS;
+	}
+	modbus_flush(l->ctx);
+}
+
+/* Before a request: an unsettled link gets a new connection (TCP; an
+ * answer still on its way to the old one cannot arrive on it) or is
+ * drained, until `until` at most (a serial line, which stays unsettled
+ * until a first try gets its answer). 0, or the errno of the connect. */
+static int settle(struct mb_link *l, uint64_t until)
+{
+	if (!l->unsettled)
+		return 0;
+	if (l->p.framing == MB_FRAMING_RTU) {
+		rtu_drain(l, until);
+		return 0;
+	}
+	modbus_close(l->ctx);
+	errno = 0;
+	if (modbus_connect(l->ctx) < 0)
+		return errno ? errno : ETIMEDOUT;   /* libmodbus's connect timeout sets none */
+	l->unsettled = false;
+	return 0;
+}
+
+/* After a try without a fitting answer (errno e). A late answer may
+ * start within one more response timeout; the rest of a garbled one at
+ * once. */
+static void unsettle(struct mb_link *l, int e, unsigned timeout_ms)
+{
+	l->unsettled = true;
+	if (l->p.framing == MB_FRAMING_TCP)
+		modbus_close(l->ctx);
+	else
+		l->late_until = transport_deadline(e == EMBBADCRC && timeout_ms > RTU_QUIET_MS
+						   ? RTU_QUIET_MS : timeout_ms);
+}
+
+/* Until when getting in step may last before a try: an operation's first
+ * try keeps its own response time (ms). */
+static uint64_t settle_until(uint64_t deadline, unsigned tries, unsigned ms)
+{
+	uint64_t keep = tries ? 0 : (uint64_t)ms * 1000000u;
+
+	return deadline > keep ? deadline - keep : 0;
+}
+
+/* The response timeout of the next try: the option's, cut to what is left
+ * of the operation; 0 when nothing is left after the first. */
+static unsigned slice(const struct mb_bus *b, unsigned tries, uint64_t deadline)
+{
+	unsigned left = transport_ms_left(deadline);
+
+	if (tries == 0 && left == 0)
+		return b->timeout_ms;
+	return left < b->timeout_ms ? left : b->timeout_ms;
+}
+
 enum op { OP_READ_HOLDING, OP_READ_INPUT, OP_WRITE };
+
+/* One try: 0 or the errno. */
+static int request(modbus_t *ctx, enum op op, int addr, int n, uint16_t *regs)
+{
+	int rc = op == OP_WRITE ? modbus_write_registers(ctx, addr, n, regs)
+		 : op == OP_READ_INPUT ? modbus_read_input_registers(ctx, addr, n, regs)
+		 : modbus_read_registers(ctx, addr, n, regs);
+
+	return rc == n ? 0 : rc < 0 ? errno : EMBMDATA;
+}
 
 static int attempts(struct mb_bus *b, enum op op, int unit, int addr, int n, uint16_t *regs,
 		    unsigned timeout_ms, struct asph_error *err)
@@ -364,37 +483,51 @@ static int attempts(struct mb_bus *b, enum op op, int unit, int addr, int n, uin
 	const char *what = op == OP_WRITE ? "writing" : "reading";
 	uint64_t deadline = transport_deadline(timeout_ms ? timeout_ms : b->timeout_ms);
 	unsigned tries = 0, attempt_ms = b->timeout_ms;
-	int e = ETIMEDOUT;
+	bool timed_out = false;
+	int e = 0;
 
 	if (modbus_set_slave(l->ctx, unit) < 0)
 		return asph_error_set(err, -EINVAL, "%s: unit %d is not valid", l->name, unit);
 	while (tries <= b->retries) {
-		unsigned left = transport_ms_left(deadline);
-		if (tries > 0 && left == 0)
+		unsigned ms = slice(b, tries, deadline);
+		if (ms == 0)
 			break;
-		attempt_ms = tries == 0 && left == 0 ? b->timeout_ms
-			     : left < b->timeout_ms ? left : b->timeout_ms;
+		set_timeouts(l->ctx, ms);
+		int ce = settle(l, settle_until(deadline, tries, ms));
+		if (ce)
+			return reconnect_failed(l, unit, what, addr, e, ce, err);
+		/* getting in step took its time */
+		if ((ms = slice(b, tries, deadline)) == 0)
+			break;
+		attempt_ms = ms;
 		set_timeouts(l->ctx, attempt_ms);
 		tries++;
-		int rc = op == OP_WRITE ? modbus_write_registers(l->ctx, addr, n, regs)
-			 : op == OP_READ_INPUT ? modbus_read_input_registers(l->ctx, addr, n, regs)
-			 : modbus_read_registers(l->ctx, addr, n, regs);
-		if (rc == n)
+		e = request(l->ctx, op, addr, n, regs);
+		if (e == 0) {
+			/* after a retry on a serial line, the answer to an
+			 * earlier try may still come */
+			l->unsettled = tries > 1 && l->p.framing == MB_FRAMING_RTU;
 			return 0;
-		e = rc < 0 ? errno : EMBMDATA;
+		}
+		timed_out = timed_out || e == ETIMEDOUT;
 		if (link_lost(e) && l->p.framing == MB_FRAMING_TCP) {
 			/* a gateway that dropped the connection: one reconnect */
 			modbus_close(l->ctx);
-			if (modbus_connect(l->ctx) < 0)
+			if (modbus_connect(l->ctx) < 0) {
+				/* the next transaction tries once more */
+				l->unsettled = true;
 				return fail(l, unit, what, addr, e, tries, attempt_ms, 0, err);
+			}
 			continue;
 		}
 		if (!worth_retrying(e))
 			break;
-		/* drop the rest of a garbled answer before the next try */
-		modbus_flush(l->ctx);
+		unsettle(l, e, b->timeout_ms);
 	}
-	return fail(l, unit, what, addr, e, tries, attempt_ms,
+	/* a device that was only slow: what answered out of step was late */
+	if (timed_out && out_of_step(e))
+		e = ETIMEDOUT;
+	return fail(l, unit, what, addr, e ? e : ETIMEDOUT, tries, attempt_ms,
 		    attempt_ms < b->timeout_ms || tries <= b->retries ? timeout_ms : 0, err);
 }
 

@@ -70,7 +70,9 @@ struct mb_bus_params {
 	int port;
 	unsigned timeout_ms;    /* response timeout of one attempt */
 	unsigned retries;       /* further attempts after a timeout or a
-				 * garbled answer; never after an exception */
+				 * garbled answer; never after an exception.
+				 * Before each, a late answer to the last is
+				 * kept out: TCP connects again, RTU drains */
 };
 
 struct mb_bus;
@@ -88,9 +90,11 @@ void mb_bus_free(struct mb_bus *b);
 /*
  * One transaction with unit. No call waits longer than timeout_ms in all
  * (0: one attempt with the response timeout). Errors: -ETIMEDOUT (no
- * answer), -EPROTO (an exception response, decoded, or an answer that does
- * not fit the request), -EIO (bad CRC or another transport error),
- * -ENODEV (the connection or the port went away).
+ * answer in time, also when answers came late), -EPROTO (an exception
+ * response, decoded, or an answer that does not fit the request), -EIO
+ * (bad CRC or another transport error), -ENODEV (the connection or the
+ * port went away, or TCP could not connect again after a try without an
+ * answer).
  */
 int mb_read_registers(struct mb_bus *b, int unit, bool input, int addr,
 		      int n, uint16_t *dst, unsigned timeout_ms,

@@ -6,6 +6,7 @@ import os
 import sqlite3
 import subprocess
 import sys
+import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "integration"))
 import daemontest  # noqa: E402,F401  (re-exported for the scripts)
@@ -152,3 +153,65 @@ class ModbusSensor:
                 else:  # an exception: illegal function
                     data = struct.pack(">BB", func | 0x80, 1)
                 conn.sendall(struct.pack(">HHHB", tid, 0, len(data) + 1, unit) + data)
+
+
+class CanSim:
+    """Simulated CiA 402 drives as a process (tests/drivers/can-sim-server)
+    on a unix socket, which the can driver reaches as interface
+    unix:PATH. fault (disconnect, stall, garbage, drive-fault) starts at
+    the at-th frame the clients send; status() says what the drives
+    received and whether they move; heal() ends the fault."""
+
+    def __init__(self, binary, path, log, fault=None, at=0, node=1, code=0x7121,
+                 garbage="mixed", seed=1):
+        args = [binary, "--socket", path, "--log", log, "--seed", str(seed), "--heartbeat", "20"]
+        if fault:
+            args += ["--fault", fault, "--at", str(at), "--node", str(node), "--code", f"{code:x}",
+                     "--garbage", garbage]
+        self.path = path
+        self.proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        self.buf = b""
+        ready = self._line()
+        if not ready.get("ready"):
+            raise RuntimeError(f"can-sim-server did not start: {ready}")
+
+    def _line(self, timeout=20):
+        import select
+        fd = self.proc.stdout.fileno()
+        deadline = time.time() + timeout
+        while b"\n" not in self.buf:
+            left = deadline - time.time()
+            if left <= 0 or not select.select([fd], [], [], left)[0]:
+                raise TimeoutError("can-sim-server did not answer")
+            chunk = os.read(fd, 65536)
+            if not chunk:
+                raise EOFError("can-sim-server exited")
+            self.buf += chunk
+        line, self.buf = self.buf.split(b"\n", 1)
+        return json.loads(line)
+
+    def command(self, line):
+        self.proc.stdin.write(line.encode() + b"\n")
+        self.proc.stdin.flush()
+        return self._line()
+
+    def status(self):
+        return self.command("status")
+
+    def heal(self):
+        return self.command("heal")
+
+    def close(self):
+        """Ends the process; its exit code (a sanitizer's report fails it)."""
+        try:
+            self.command("quit")
+        except (OSError, ValueError, EOFError, TimeoutError):
+            pass
+        try:
+            self.proc.stdin.close()
+            self.proc.wait(timeout=10)
+        except Exception:
+            self.proc.kill()
+            self.proc.wait()
+        self.proc.stdout.close()
+        return self.proc.returncode

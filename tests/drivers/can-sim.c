@@ -52,7 +52,7 @@ struct sim_node {
 	uint32_t abort_code;
 	enum can_sim_garble garble;
 	/* counters */
-	unsigned quick_stops, fault_resets, set_points, homings, resets;
+	unsigned quick_stops, fault_resets, set_points, homings, resets, disable_ops, link_stops;
 	bool homed;
 };
 
@@ -86,14 +86,19 @@ static struct sim_node *find(struct can_sim *s, uint8_t id)
 
 /* Answers wait for room (the client drains while it waits); heartbeats
  * are dropped when the client does not read, as a full CAN queue does. */
-static void send_frame(struct can_sim *s, const struct can_frame *f, bool answer)
+static void send_bytes(struct can_sim *s, const void *buf, size_t len, bool answer)
 {
 	struct pollfd p = { s->fd, POLLOUT, 0 };
 
 	if (answer && poll(&p, 1, 500) <= 0)
 		return;
-	ssize_t w = send(s->fd, f, sizeof(*f), MSG_DONTWAIT | MSG_NOSIGNAL);
+	ssize_t w = send(s->fd, buf, len, MSG_DONTWAIT | MSG_NOSIGNAL);
 	(void)w;
+}
+
+static void send_frame(struct can_sim *s, const struct can_frame *f, bool answer)
+{
+	send_bytes(s, f, sizeof(*f), answer);
 }
 
 static void enter_fault(struct can_sim *s, struct sim_node *n, uint16_t code)
@@ -160,6 +165,8 @@ static void controlword(struct can_sim *s, struct sim_node *n, uint16_t cw)
 	n->cw = cw;
 	if ((cw & 0x06) == 0x02)
 		n->quick_stops++;
+	if ((cw & 0x0f) == 0x07 && was == CIA402_OPERATION_ENABLED)
+		n->disable_ops++;
 	if (n->state == CIA402_FAULT && (cw & 0x80) && !(prev & 0x80)) {
 		n->fault_resets++;
 		if (!n->fault_persistent) {
@@ -382,13 +389,21 @@ static void answer(struct can_sim *s, struct sim_node *n, const struct canopen_s
 		canopen_sdo_abort_frame(&f, n->id, false, q->index, q->subindex, code);
 	else
 		canopen_sdo_frame(&f, n->id, false, q->kind, q->index, q->subindex, v, size);
-	switch (n->garble) {
+	unsigned char longer[sizeof(f) + 8];
+	enum can_sim_garble g = n->garble;
+
+	n->garble = CAN_SIM_GARBLE_NONE;
+	switch (g) {
 	case CAN_SIM_SHORT: f.can_dlc = 5; break;
 	case CAN_SIM_SEGMENTED: f.data[0] = 0x41; break;       /* a segmented upload follows */
 	case CAN_SIM_OTHER_INDEX: f.data[1] ^= 0x01; break;
+	case CAN_SIM_LONG:
+		memcpy(longer, &f, sizeof(f));
+		memset(longer + sizeof(f), 0x5a, sizeof(longer) - sizeof(f));
+		send_bytes(s, longer, sizeof(longer), true);
+		return;
 	default: break;
 	}
-	n->garble = CAN_SIM_GARBLE_NONE;
 	send_frame(s, &f, true);
 }
 
@@ -587,6 +602,38 @@ void can_sim_set_probe(struct can_sim *s, uint8_t node, int16_t value)
 	WITH_NODE(s, node, n->probe = value);
 }
 
+void can_sim_link_lost(struct can_sim *s)
+{
+	pthread_mutex_lock(&s->lock);
+	for (unsigned i = 0; i < s->cfg.n_nodes; i++) {
+		struct sim_node *n = &s->nodes[i];
+		if (n->state != CIA402_OPERATION_ENABLED)
+			continue;
+		n->state = CIA402_QUICK_STOP_ACTIVE;
+		n->moving = n->homing = n->ack = false;
+		n->reached = true;
+		n->link_stops++;
+	}
+	pthread_mutex_unlock(&s->lock);
+	wake(s);
+}
+
+void can_sim_heal(struct can_sim *s)
+{
+	pthread_mutex_lock(&s->lock);
+	for (unsigned i = 0; i < s->cfg.n_nodes; i++) {
+		struct sim_node *n = &s->nodes[i];
+		n->fault_persistent = n->silent = n->homing_error = false;
+		n->heartbeat_on = true;
+		n->abort_code = 0;
+		n->garble = CAN_SIM_GARBLE_NONE;
+		n->fault_on_move = 0;
+		n->fault_at_ns = 0;
+	}
+	pthread_mutex_unlock(&s->lock);
+	wake(s);
+}
+
 void can_sim_error_frame(struct can_sim *s, uint32_t class, uint8_t ctrl)
 {
 	pthread_mutex_lock(&s->lock);
@@ -610,5 +657,7 @@ void can_sim_get(struct can_sim *s, uint8_t node, struct can_sim_node *out)
 		  out->target = n->target; out->velocity = n->velocity;
 		  out->homing_method = n->method; out->quick_stops = n->quick_stops;
 		  out->fault_resets = n->fault_resets; out->set_points = n->set_points;
-		  out->homings = n->homings; out->resets = n->resets; out->homed = n->homed);
+		  out->homings = n->homings; out->resets = n->resets; out->homed = n->homed;
+		  out->disable_ops = n->disable_ops; out->link_stops = n->link_stops;
+		  out->moving = n->moving || n->homing);
 }

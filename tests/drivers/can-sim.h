@@ -50,7 +50,10 @@ void can_sim_silence(struct can_sim *s, uint8_t node, bool silent);
 void can_sim_heartbeat(struct can_sim *s, uint8_t node, bool on);
 /* Every access to index:sub answers this abort code (0: normal again). */
 void can_sim_abort(struct can_sim *s, uint8_t node, uint16_t index, uint8_t sub, uint32_t code);
-enum can_sim_garble { CAN_SIM_GARBLE_NONE, CAN_SIM_SHORT, CAN_SIM_SEGMENTED, CAN_SIM_OTHER_INDEX };
+enum can_sim_garble {
+	CAN_SIM_GARBLE_NONE, CAN_SIM_SHORT, CAN_SIM_SEGMENTED, CAN_SIM_OTHER_INDEX,
+	CAN_SIM_LONG,           /* the answer with 8 bytes more in its datagram */
+};
 /* The next SDO answer of node is malformed so. */
 void can_sim_garble(struct can_sim *s, uint8_t node, enum can_sim_garble g);
 /* The drive restarts by itself (power glitch, watchdog): boot-up message,
@@ -61,6 +64,12 @@ void can_sim_homing_error(struct can_sim *s, uint8_t node, bool on);
 void can_sim_error_frame(struct can_sim *s, uint32_t class, uint8_t ctrl);
 /* The value of the probe object 0x7130:01. */
 void can_sim_set_probe(struct can_sim *s, uint8_t node, int16_t value);
+/* The link to the client is gone: each drive in operation enabled reacts as
+ * to a lost master (abort connection option 0x6007 = quick stop). */
+void can_sim_link_lost(struct can_sim *s);
+/* Ends the injected faults: a drive in fault can be reset again, silent
+ * nodes answer, no aborts, garbling, homing errors or pending faults. */
+void can_sim_heal(struct can_sim *s);
 
 struct can_sim_node {
 	enum cia402_state state;
@@ -71,7 +80,10 @@ struct can_sim_node {
 	uint32_t velocity;
 	int8_t homing_method;
 	unsigned quick_stops, fault_resets, set_points, homings, resets;
+	unsigned disable_ops;   /* disable operation (0x07) while enabled */
+	unsigned link_stops;    /* quick stops of can_sim_link_lost() */
 	bool homed;
+	bool moving;            /* a motion or homing under way */
 };
 /* A snapshot of node. */
 void can_sim_get(struct can_sim *s, uint8_t node, struct can_sim_node *out);

@@ -299,6 +299,15 @@ static void handle(struct mbsim *s, const uint8_t *req, int len)
 	if (fn == 6)
 		n = 1;
 	struct fault *f = fault_for(s, unit, addr, n);
+	if (f && f->kind == MBSIM_DELAY) {
+		struct timespec late = { f->code / 1000, (long)(f->code % 1000) * 1000000 };
+		/* the answer says what the device holds when it is sent */
+		pthread_mutex_unlock(&s->lock);
+		nanosleep(&late, NULL);
+		pthread_mutex_lock(&s->lock);
+		t = now_ns();
+		f = NULL;
+	}
 	for (int i = 0; i < 3; i++)
 		if (s->drives[i].map)
 			drive_publish(s, &s->drives[i], t);
@@ -347,6 +356,11 @@ static void serve_tcp(struct mbsim *s)
 			return;
 		if (p[0].revents)
 			return;
+		/* connections the master closed free their slots first: a
+		 * master that reconnects must find one */
+		for (int i = 0; i < N_CLIENTS; i++)
+			if (s->clients[i] >= 0 && p[2 + i].revents)
+				serve_client(s, i);
 		if (p[1].revents & POLLIN) {
 			int fd = accept(s->listen_fd, NULL, NULL);
 			for (int i = 0; fd >= 0 && i < N_CLIENTS; i++)
@@ -357,9 +371,6 @@ static void serve_tcp(struct mbsim *s)
 			if (fd >= 0)
 				close(fd);
 		}
-		for (int i = 0; i < N_CLIENTS; i++)
-			if (s->clients[i] >= 0 && p[2 + i].revents)
-				serve_client(s, i);
 	}
 }
 

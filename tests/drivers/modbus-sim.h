@@ -42,6 +42,8 @@ enum mbsim_fault {
 	MBSIM_GARBLE,           /* RTU: the answer with a bad CRC */
 	MBSIM_ALARM,            /* the drive raises alarm `code`: at once, or
 				 * with count > 0 at its count-th start */
+	MBSIM_DELAY,            /* answers `code` ms late, busy meanwhile (a
+				 * slow device: later requests wait their turn) */
 };
 
 struct mbsim;

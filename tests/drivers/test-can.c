@@ -2,10 +2,11 @@
 /*
  * The CAN driver against simulated CiA 402 drives on a socketpair: the
  * frame codec, enable / home / move / fault reset, every SDO abort path,
- * malformed answers, heartbeat loss, a drive that never answers, bus-off
- * and error passive, stop from another thread, the probe, a real
- * interface on a kernel without CAN, and a whole scan through the
- * executor compared with the mock instrument's.
+ * malformed answers, heartbeat loss (and heartbeats waiting for a busy
+ * client), a drive that never answers, bus-off and error passive, stop
+ * from another thread, the probe, a real interface on a kernel without
+ * CAN, a gateway on a unix socket, and a whole scan through the executor
+ * compared with the mock instrument's.
  */
 #include <errno.h>
 #include <math.h>
@@ -17,6 +18,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
+#include <sys/un.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -529,6 +531,11 @@ static void test_malformed_answers(void **state)
 	can_sim_garble(r.sim, node_id[0], CAN_SIM_OTHER_INDEX);
 	expect_error(can_driver.stage->position(r.dev, pos, 1000, &err), -ETIMEDOUT, &err,
 		     "it answered about another object");
+	/* a datagram longer than a frame is no frame, even with the answer in
+	 * its first 16 bytes (a datagram socket would cut it to fit) */
+	can_sim_garble(r.sim, node_id[0], CAN_SIM_LONG);
+	expect_error(can_driver.stage->position(r.dev, pos, 1000, &err), -ETIMEDOUT, &err,
+		     "x (node 5): no answer to the SDO upload (read) of 0x6064:00");
 	assert_int_equal(can_driver.stage->position(r.dev, pos, 1000, NULL), 0);
 	rig_stop(&r);
 }
@@ -569,6 +576,30 @@ static void test_heartbeat_lost(void **state)
 	double pos[3];
 	expect_error(can_driver.stage->position(r.dev, pos, 1000, &err), -EPROTO, &err,
 		     "z (node 12) restarted (boot-up message)");
+	rig_stop(&r);
+}
+
+/* A client busy elsewhere (a slow probe) for longer than the heartbeat
+ * timeout finds the heartbeats that came meanwhile waiting: not a loss. */
+static void test_busy_client(void **state)
+{
+	struct rig r;
+	struct asph_error err;
+	double pos[3];
+	const double t[3] = { 1.375, -2.125, 0.625 };
+
+	rig_ready(&r, 0, "heartbeat_timeout=150");
+	for (int i = 0; i < 3; i++) {
+		usleep(400000);
+		if ((i == 1 ? can_driver.stage->move_to(r.dev, t, 2000, &err)
+			    : can_driver.stage->position(r.dev, pos, 1000, &err)) < 0)
+			fail_msg("after 400 ms away: %s", err.message);
+	}
+	/* a heartbeat that stops is still noticed */
+	can_sim_heartbeat(r.sim, node_id[2], false);
+	usleep(400000);
+	expect_error(can_driver.stage->position(r.dev, pos, 1000, &err), -ENODEV, &err,
+		     "z (node 12): heartbeat lost (none for 150 ms)");
 	rig_stop(&r);
 }
 
@@ -745,6 +776,109 @@ static void test_real_interface(void **state)
 	asph_options_free(o);
 }
 
+/* ------------------------------------------- a unix socket gateway */
+
+/* Hands the next connection to a new sim. */
+struct gateway {
+	int listen_fd;
+	struct can_sim *sim;
+	pthread_t thread;
+};
+
+static void *gateway_accept(void *data)
+{
+	struct gateway *g = data;
+	struct can_sim_config sc;
+	int fd = accept4(g->listen_fd, NULL, NULL, SOCK_CLOEXEC);
+
+	g->sim = NULL;
+	sim_config(&sc, 0);
+	if (fd >= 0 && can_sim_new(fd, &sc, &g->sim) == 0)
+		can_sim_run(g->sim);
+	else if (fd >= 0)
+		close(fd);
+	return NULL;
+}
+
+static int listen_unix(const char *path, int type)
+{
+	struct sockaddr_un addr = { .sun_family = AF_UNIX };
+	int fd = socket(AF_UNIX, type | SOCK_CLOEXEC, 0);
+
+	assert_true(fd >= 0 && strlen(path) < sizeof(addr.sun_path));
+	memcpy(addr.sun_path, path, strlen(path));
+	assert_int_equal(bind(fd, (struct sockaddr *)&addr, sizeof(addr)), 0);
+	assert_int_equal(listen(fd, 4), 0);
+	return fd;
+}
+
+/* Opens the stage through the gateway's next connection. */
+static int gateway_open(struct gateway *g, struct asph_options *o, struct asph_device **dev,
+			struct asph_error *err)
+{
+	assert_int_equal(pthread_create(&g->thread, NULL, gateway_accept, g), 0);
+	int r = can_driver.stage->open(&can_driver, asph_options_values(o), 2000, dev, err);
+	if (r < 0)
+		shutdown(g->listen_fd, SHUT_RD);        /* no connection comes: end the accept */
+	pthread_join(g->thread, NULL);
+	return r;
+}
+
+static void test_unix_gateway(void **state)
+{
+	char dir[] = "/tmp/asph-test-can-XXXXXX", path[64], opt[320];
+	const double t[3] = { 2.375, -1.625, 0.875 };
+	struct gateway g = { 0 };
+	struct asph_options *o;
+	struct asph_device *dev = NULL;
+	struct asph_error err;
+	struct can_sim_node sn;
+
+	assert_non_null(mkdtemp(dir));
+	snprintf(path, sizeof(path), "%s/can0.sock", dir);
+	assert_int_equal(asph_options_new(&can_driver, &o, NULL), 0);
+	snprintf(opt, sizeof(opt), "interface=unix:%s,x_node=%u,y_node=%u,z_node=%u,heartbeat=20,"
+		 "sdo_timeout=200", path, node_id[0], node_id[1], node_id[2]);
+	set_options(o, opt);
+	expect_error(can_driver.stage->open(&can_driver, asph_options_values(o), 500, &dev, &err),
+		     -ENODEV, &err, "no CAN gateway listens there");
+	assert_non_null(strstr(err.message, path));
+	int stream = listen_unix(path, SOCK_STREAM);
+	expect_error(can_driver.stage->open(&can_driver, asph_options_values(o), 500, &dev, &err),
+		     -ENODEV, &err, "not a SOCK_SEQPACKET socket");
+	close(stream);
+	unlink(path);
+
+	/* every open connects anew; the drives move */
+	g.listen_fd = listen_unix(path, SOCK_SEQPACKET);
+	for (int k = 0; k < 2; k++) {
+		if (gateway_open(&g, o, &dev, &err) < 0 || can_driver.stage->home(dev, 2000, &err) < 0 ||
+		    can_driver.stage->move_to(dev, t, 2000, &err) < 0)
+			fail_msg("open %d: %s", k, err.message);
+		can_sim_get(g.sim, node_id[1], &sn);
+		assert_int_equal(sn.position, -16250);  /* 10000 counts/mm by default */
+		can_driver.stage->close(dev);
+		can_sim_free(g.sim);
+	}
+	/* the gateway goes away during a job */
+	if (gateway_open(&g, o, &dev, &err) < 0 || can_driver.stage->home(dev, 2000, &err) < 0)
+		fail_msg("%s", err.message);
+	can_sim_free(g.sim);
+	expect_error(can_driver.stage->move_to(dev, t, 2000, &err), -ENODEV, &err,
+		     "the device closed the connection");
+	assert_non_null(strstr(err.message, path));
+	can_driver.stage->close(dev);
+	close(g.listen_fd);
+	unlink(path);
+	rmdir(dir);
+
+	snprintf(opt, sizeof(opt), "interface=unix:/tmp/%0120d", 7);
+	set_options(o, opt);
+	expect_error(can_driver.stage->open(&can_driver, asph_options_values(o), 500, &dev, &err),
+		     -EINVAL, &err, "a socket path of 1 to 107 bytes");
+	asph_options_free(o);
+}
+
 /* ------------------------------------------------- end to end */
 
 struct scan_env {
@@ -875,11 +1009,13 @@ int main(void)
 		cmocka_unit_test(test_sdo_aborts),
 		cmocka_unit_test(test_malformed_answers),
 		cmocka_unit_test(test_heartbeat_lost),
+		cmocka_unit_test(test_busy_client),
 		cmocka_unit_test(test_silent_drive),
 		cmocka_unit_test(test_bus_errors),
 		cmocka_unit_test(test_stop),
 		cmocka_unit_test(test_probe),
 		cmocka_unit_test(test_real_interface),
+		cmocka_unit_test(test_unix_gateway),
 		cmocka_unit_test(test_scan_end_to_end),
 	};
 	return cmocka_run_group_tests(tests, NULL, NULL);

@@ -21,54 +21,23 @@
 #include "asph/fit.h"
 #include "asph/plan.h"
 #include "asph/prescription.h"
-
-struct env {
-	struct asph_registry *reg;
-	struct asph_surface *s;
-	struct asph_plan *plan;
-	char dir[64];
-	int n_files;
-};
+#include "scan-fixture.h"
 
 static int setup(void **state)
 {
-	struct env *e = calloc(1, sizeof(*e));
-	struct asph_prescription p;
+	struct scan_fixture *e = calloc(1, sizeof(*e));
 
 	assert_non_null(e);
-	assert_int_equal(asph_registry_new(&e->reg, NULL), 0);
-	assert_int_equal(asph_prescription_preset("strong", &p), 0);
-	assert_int_equal(asph_surface_alloc(&p, &e->s, NULL), 0);
-	struct asph_plan_density d = { ASPH_DENSITY_POINTS, 700 };
-	struct asph_plan_options po = { .flags = ASPH_PLAN_NO_MESH };
-	assert_int_equal(asph_plan_compute_opts(e->s, ASPH_PLAN_FERMAT, d, &po, &e->plan, NULL), 0);
-	snprintf(e->dir, sizeof(e->dir), "/tmp/asph-test-executor-XXXXXX");
-	assert_non_null(mkdtemp(e->dir));
+	scan_fixture_init(e, 700, "executor");
 	*state = e;
 	return 0;
 }
 
 static int teardown(void **state)
 {
-	struct env *e = *state;
-	char path[128];
-
-	for (int i = 0; i < e->n_files; i++) {
-		snprintf(path, sizeof(path), "%s/scan%d.asph", e->dir, i);
-		unlink(path);
-	}
-	rmdir(e->dir);
-	asph_plan_free(e->plan);
-	asph_surface_free(e->s);
-	asph_registry_free(e->reg);
-	free(e);
+	scan_fixture_fini(*state);
+	free(*state);
 	return 0;
-}
-
-static const char *new_path(struct env *e, char *buf, size_t size)
-{
-	snprintf(buf, size, "%s/scan%d.asph", e->dir, e->n_files++);
-	return buf;
 }
 
 static struct asph_scanfile_writer *new_writer(const char *path)
@@ -81,7 +50,7 @@ static struct asph_scanfile_writer *new_writer(const char *path)
 }
 
 /* Runs the whole plan (from start) with the instrument of spec into path. */
-static int scan_with(struct env *e, const struct asph_registry *reg, const char *spec,
+static int scan_with(struct scan_fixture *e, const struct asph_registry *reg, const char *spec,
 		     const char *path, const struct asph_scan_options *so,
 		     struct asph_error *err)
 {
@@ -102,16 +71,6 @@ static int scan_with(struct env *e, const struct asph_registry *reg, const char 
 	return r;
 }
 
-static struct asph_scanfile *read_scan(const char *path)
-{
-	struct asph_scanfile *s;
-	struct asph_error err;
-
-	if (asph_scanfile_read(path, &s, &err) < 0)
-		fail_msg("%s: %s", path, err.message);
-	return s;
-}
-
 /* ------------------------------------------------------------ faults */
 
 struct fault_case {
@@ -130,7 +89,7 @@ static void test_faults(void **state)
 		{ "mock:time_factor=0,fail_after=233,stream=false", -ENODEV, 233, "plan point 233: probe" },
 		{ "mock:time_factor=0,timeout_at=171,probe=tactile", -ETIMEDOUT, 170, "plan point 170" },
 	};
-	struct env *e = *state;
+	struct scan_fixture *e = *state;
 	char path[128];
 
 	for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
@@ -157,7 +116,7 @@ static void test_faults(void **state)
 
 static void test_skip_out_of_range(void **state)
 {
-	struct env *e = *state;
+	struct scan_fixture *e = *state;
 	struct asph_scan_options so = { .flags = ASPH_SCAN_SKIP_OUT_OF_RANGE };
 	char path[128];
 
@@ -169,6 +128,83 @@ static void test_skip_out_of_range(void **state)
 	assert_true(s->points[54].flags & ASPH_SCANFILE_POINT_OUT_OF_RANGE);
 	assert_false(s->points[55].flags & ASPH_SCANFILE_POINT_OUT_OF_RANGE);
 	asph_scanfile_free(s);
+}
+
+/* A stage whose move away from the part after the 37th reading fails:
+ * that point is in the file, and counted done. */
+static const struct asph_probe_ops *mock_probe;
+static const struct asph_stage_ops *retreat_stage;
+static atomic_int n_readings, fail_at_reading;
+
+static int counting_read(struct asph_device *d, const struct asph_probe_context *ctx,
+			 struct asph_reading *out, unsigned t, struct asph_error *err)
+{
+	int r = mock_probe->read(d, ctx, out, t, err);
+	if (r == 0)
+		atomic_fetch_add(&n_readings, 1);
+	return r;
+}
+
+static int failing_retreat(struct asph_device *d, const double *p, unsigned t,
+			   struct asph_error *err)
+{
+	if (atomic_load(&n_readings) == atomic_load(&fail_at_reading)) {
+		atomic_store(&fail_at_reading, -1);
+		return asph_error_set(err, -EIO, "the drive bus failed");
+	}
+	return retreat_stage->move_to(d, p, t, err);
+}
+
+static void last_progress(const struct asph_scan_progress *p, void *data)
+{
+	*(struct asph_scan_progress *)data = *p;
+}
+
+static void test_failed_retreat(void **state)
+{
+	struct scan_fixture *e = *state;
+	const struct asph_driver *mock = asph_registry_find(e->reg, "mock");
+	static struct asph_stage_ops stage_ops;
+	static struct asph_probe_ops probe_ops;
+	static struct asph_driver spy;
+	struct asph_scan_progress last = { 0 };
+	struct asph_scan_options so = { .progress = last_progress, .progress_data = &last };
+	struct asph_config *c;
+	struct asph_instrument *inst;
+	struct asph_scan *sc;
+	struct asph_error err;
+	char path[128];
+
+	retreat_stage = mock->stage;
+	mock_probe = mock->probe;
+	stage_ops = *mock->stage;
+	stage_ops.move_to = failing_retreat;
+	probe_ops = *mock->probe;
+	probe_ops.read = counting_read;
+	spy = *mock;
+	spy.stage = &stage_ops;
+	spy.probe = &probe_ops;
+	atomic_store(&n_readings, 0);
+	atomic_store(&fail_at_reading, 37);
+	assert_int_equal(asph_instrument_spec_parse(e->reg, "mock:time_factor=0,stream=false", &c,
+						    NULL), 0);
+	c->instruments[0].stage_driver = &spy;
+	c->instruments[0].probe_driver = &spy;
+	assert_int_equal(asph_instrument_open(&c->instruments[0], 1000, &inst, NULL), 0);
+	assert_int_equal(asph_scan_new(inst, e->s, e->plan->xyz, e->plan->n, &so, &sc, NULL), 0);
+	int r = asph_scan_run(sc, new_writer(new_path(e, path, sizeof(path))), &err);
+	if (r != -EIO || !strstr(err.message, "plan point 36: stage: the drive bus failed"))
+		fail_msg("%d %s", r, err.message);
+	assert_int_equal(last.state, ASPH_SCAN_FAILED);
+	assert_int_equal(last.done, 37);
+	assert_int_equal(last.measured, 37);
+	struct asph_scanfile *s = read_scan(path);
+	assert_int_equal(s->n, 37);
+	assert_int_equal(s->points[36].plan_index, 36);
+	asph_scanfile_free(s);
+	asph_scan_free(sc);
+	asph_instrument_close(inst);
+	asph_config_free(c);
 }
 
 /* ------------------------------------------------ limits, no motion */
@@ -198,7 +234,7 @@ static int spy_sweep(struct asph_device *d, const double *p, size_t n, unsigned 
 
 static void test_limits_before_motion(void **state)
 {
-	struct env *e = *state;
+	struct scan_fixture *e = *state;
 	const struct asph_driver *mock = asph_registry_find(e->reg, "mock");
 	static struct asph_stage_ops spy_ops;
 	static struct asph_driver spy;
@@ -332,7 +368,7 @@ static void test_clearance(void **state)
 		  0, 0.7, 0.25 },
 		{ "mock:time_factor=0,stream=false", 0, false, false, 2, 0, 0.25 },
 	};
-	struct env *e = *state;
+	struct scan_fixture *e = *state;
 	const struct asph_driver *mock = asph_registry_find(e->reg, "mock");
 	static struct asph_stage_ops ops;
 	static struct asph_driver spy;
@@ -434,7 +470,7 @@ static void *control(void *data)
 
 static void test_pause_resume_abort(void **state)
 {
-	struct env *e = *state;
+	struct scan_fixture *e = *state;
 	struct asph_config *c;
 	struct asph_instrument *inst;
 	struct asph_scan *sc;
@@ -535,7 +571,7 @@ static void test_recovery(void **state)
 		{ { 5, 41.3 }, { 9, -23.7 }, { 12, 17.9 } },
 		{ { 6, -63.1 }, { 10, 12.2 }, { 0, 0 } },
 	};
-	struct env *e = *state;
+	struct scan_fixture *e = *state;
 	char path[128];
 
 	for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
@@ -583,7 +619,7 @@ static void assert_same_points(const struct asph_scanfile *a, const struct asph_
 
 static void test_resume(void **state)
 {
-	struct env *e = *state;
+	struct scan_fixture *e = *state;
 	char whole[128], cut[128];
 	struct asph_scan_options so = { .flags = ASPH_SCAN_STREAM, .stream_batch = 64 };
 	const char *base = "mock:time_factor=0,tilt_x=77.7,form=8:-19.5,noise=1.5,seed=909";
@@ -626,7 +662,7 @@ static void test_resume(void **state)
 
 static void test_replay_identical(void **state)
 {
-	struct env *e = *state;
+	struct scan_fixture *e = *state;
 	char orig[128], again[128], again2[128], spec[200];
 	struct asph_scan_options stream = { .flags = ASPH_SCAN_STREAM };
 	struct asph_scan_options points = { 0 };
@@ -661,7 +697,7 @@ static void test_replay_identical(void **state)
 
 static void test_tip_on_surface(void **state)
 {
-	struct env *e = *state;
+	struct scan_fixture *e = *state;
 	char path[128];
 
 	/* nominal part, tactile, rotary: compensated points lie on the surface */
@@ -686,6 +722,7 @@ int main(void)
 	const struct CMUnitTest tests[] = {
 		cmocka_unit_test(test_faults),
 		cmocka_unit_test(test_skip_out_of_range),
+		cmocka_unit_test(test_failed_retreat),
 		cmocka_unit_test(test_limits_before_motion),
 		cmocka_unit_test(test_clearance),
 		cmocka_unit_test(test_pause_resume_abort),

@@ -430,6 +430,50 @@ static void test_decode_errors(void **state)
 	assert_int_equal(hid_profile_check(&hid_default_profile, &err), 0);
 }
 
+/* The decoder checks the profile itself: a zero-width value once shifted
+ * by 2^32 - 1 bits, a 5-byte one overflowed 32 bits. */
+static void test_decode_profile_widths(void **state)
+{
+	struct hid_profile q = hid_default_profile;
+	uint8_t raw[8] = { 0x80, 0x00, 0x00, 0x00, 0x7f, 0xff, 0xff, 0xfe };
+	struct hid_sample s;
+	struct asph_error err;
+
+	q.report_id = 0;
+	q.value_offset = 0;
+	q.status_offset = -1;
+	q.value_signed = true;
+	q.big_endian = true;
+	for (unsigned size = 0; size <= 5; size += 5) {
+		q.value_size = size;
+		asph_error_clear(&err);
+		assert_int_equal(hid_decode_report(&q, raw, sizeof(raw), &s, &err), -EINVAL);
+		assert_non_null(strstr(err.message, "a reading is 1 to 4 bytes"));
+	}
+	/* the 32-bit extremes, signed and not, both byte orders */
+	q.value_size = 4;
+	assert_int_equal(hid_decode_report(&q, raw, sizeof(raw), &s, &err), 0);
+	assert_true(s.counts == -2147483648LL);
+	q.value_offset = 4;
+	assert_int_equal(hid_decode_report(&q, raw, sizeof(raw), &s, &err), 0);
+	assert_true(s.counts == 2147483646LL);
+	q.big_endian = false;
+	assert_int_equal(hid_decode_report(&q, raw, sizeof(raw), &s, &err), 0);
+	assert_true(s.counts == 0xfeffff7fLL - 0x100000000LL);
+	q.value_signed = false;
+	assert_int_equal(hid_decode_report(&q, raw, sizeof(raw), &s, &err), 0);
+	assert_true(s.counts == 0xfeffff7fLL);
+	/* a 1-byte signed value at both ends of its range */
+	q.value_signed = true;
+	q.value_size = 1;
+	q.value_offset = 0;
+	assert_int_equal(hid_decode_report(&q, raw, sizeof(raw), &s, &err), 0);
+	assert_true(s.counts == -128);
+	q.value_offset = 4;
+	assert_int_equal(hid_decode_report(&q, raw, sizeof(raw), &s, &err), 0);
+	assert_true(s.counts == 127);
+}
+
 static void test_command_parse(void **state)
 {
 	struct hid_command c;
@@ -801,6 +845,7 @@ int main(void)
 	const struct CMUnitTest tests[] = {
 		cmocka_unit_test(test_decode),
 		cmocka_unit_test(test_decode_errors),
+		cmocka_unit_test(test_decode_profile_widths),
 		cmocka_unit_test(test_command_parse),
 		cmocka_unit_test_setup_teardown(test_open, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_readings, setup, teardown),

@@ -23,6 +23,7 @@
 #include "asph/prescription.h"
 #include "mock/protocol.h"
 #include "modbus-sim.h"
+#include "scan-fixture.h"
 
 /* The part: misaligned, with a form error (mock's options, and the same
  * as parameters of mock_part_new for the simulated sensor). */
@@ -41,12 +42,8 @@ static const struct mock_part_params part_params = {
 #define COUNTS_PER_MM 1e5
 
 struct env {
-	struct asph_registry *reg;
-	struct asph_surface *s;
-	struct asph_plan *plan;
+	struct scan_fixture fx;
 	struct mock_part *part;
-	char dir[64];
-	int n_files;
 };
 
 /* The sensor looks along +z from the stage's position at the part. */
@@ -62,18 +59,10 @@ static int32_t sense(void *data, const double *pos, bool *valid)
 static int setup(void **state)
 {
 	struct env *e = calloc(1, sizeof(*e));
-	struct asph_prescription p;
 
 	assert_non_null(e);
-	assert_int_equal(asph_registry_new(&e->reg, NULL), 0);
-	assert_int_equal(asph_prescription_preset("strong", &p), 0);
-	assert_int_equal(asph_surface_alloc(&p, &e->s, NULL), 0);
-	struct asph_plan_density d = { ASPH_DENSITY_POINTS, 150 };
-	struct asph_plan_options po = { .flags = ASPH_PLAN_NO_MESH };
-	assert_int_equal(asph_plan_compute_opts(e->s, ASPH_PLAN_FERMAT, d, &po, &e->plan, NULL), 0);
+	scan_fixture_init(&e->fx, 150, "modbus");
 	assert_int_equal(mock_part_new(&part_params, &e->part, NULL), 0);
-	snprintf(e->dir, sizeof(e->dir), "/tmp/asph-test-modbus-XXXXXX");
-	assert_non_null(mkdtemp(e->dir));
 	*state = e;
 	return 0;
 }
@@ -81,25 +70,11 @@ static int setup(void **state)
 static int teardown(void **state)
 {
 	struct env *e = *state;
-	char path[128];
 
-	for (int i = 0; i < e->n_files; i++) {
-		snprintf(path, sizeof(path), "%s/scan%d.asph", e->dir, i);
-		unlink(path);
-	}
-	rmdir(e->dir);
 	mock_part_free(e->part);
-	asph_plan_free(e->plan);
-	asph_surface_free(e->s);
-	asph_registry_free(e->reg);
+	scan_fixture_fini(&e->fx);
 	free(e);
 	return 0;
-}
-
-static const char *new_path(struct env *e, char *buf, size_t size)
-{
-	snprintf(buf, size, "%s/scan%d.asph", e->dir, e->n_files++);
-	return buf;
 }
 
 /* Measures the plan with the first instrument of c into path. */
@@ -114,22 +89,13 @@ static int scan(struct env *e, struct asph_config *c, const char *path, struct a
 
 	if (asph_instrument_open(&c->instruments[0], 2000, &inst, &oerr) < 0)
 		fail_msg("open: %s", oerr.message);
-	assert_int_equal(asph_scan_new(inst, e->s, e->plan->xyz, e->plan->n, NULL, &sc, NULL), 0);
+	assert_int_equal(asph_scan_new(inst, e->fx.s, e->fx.plan->xyz, e->fx.plan->n, NULL, &sc,
+				       NULL), 0);
 	assert_int_equal(asph_scanfile_writer_create(path, &info, NULL, &w, NULL), 0);
 	int r = asph_scan_run(sc, w, err);
 	asph_scan_free(sc);
 	asph_instrument_close(inst);
 	return r;
-}
-
-static struct asph_scanfile *read_scan(const char *path)
-{
-	struct asph_scanfile *s;
-	struct asph_error err;
-
-	if (asph_scanfile_read(path, &s, &err) < 0)
-		fail_msg("%s: %s", path, err.message);
-	return s;
 }
 
 static void fit(struct env *e, const char *path, struct asph_fit_result *res)
@@ -141,9 +107,9 @@ static void fit(struct env *e, const char *path, struct asph_fit_result *res)
 	struct asph_fit_options fo = { .dof = ASPH_FIT_DOF_RIGID };
 
 	assert_int_equal(s->report.outcome, ASPH_SCANFILE_COMPLETED);
-	assert_int_equal(s->n, e->plan->n);
+	assert_int_equal(s->n, e->fx.plan->n);
 	assert_int_equal(asph_scanfile_to_points(s, 0, &pts, NULL), 0);
-	assert_int_equal(asph_fit_alloc(e->s, pts->n, &fo, &w, NULL), 0);
+	assert_int_equal(asph_fit_alloc(e->fx.s, pts->n, &fo, &w, NULL), 0);
 	if (asph_fit_run(w, pts->xyz, pts->n, res, &err) < 0)
 		fail_msg("fit: %s", err.message);
 	asph_fit_free(w);
@@ -169,7 +135,7 @@ static struct asph_config *bench(struct env *e, bool rtu, const char *address)
 		 "  \"probe\": { \"driver\": \"modbus\", \"options\": { %s, \"slave\": 9,\n"
 		 "    \"scale\": %g, \"standoff\": 2, \"range\": 1, \"valid_register\": 2 } } } ] }\n",
 		 conn, COUNTS_PER_MM, conn, SENSOR_SCALE);
-	if (asph_config_parse(e->reg, text, strlen(text), "bench.json", &c, &err) < 0)
+	if (asph_config_parse(e->fx.reg, text, strlen(text), "bench.json", &c, &err) < 0)
 		fail_msg("%s", err.message);
 	return c;
 }
@@ -195,7 +161,7 @@ static void measure_modbus(struct env *e, bool rtu, struct asph_fit_result *res)
 
 	struct mbsim *sim = sim_start(e, rtu, address, sizeof(address));
 	struct asph_config *c = bench(e, rtu, address);
-	if (scan(e, c, new_path(e, path, sizeof(path)), &err) < 0)
+	if (scan(e, c, new_path(&e->fx, path, sizeof(path)), &err) < 0)
 		fail_msg("modbus %s: %s", rtu ? "rtu" : "tcp", err.message);
 	asph_config_free(c);
 	mbsim_stop(sim);
@@ -237,9 +203,9 @@ static void test_same_as_mock(void **state)
 	struct asph_error err;
 	char path[128];
 
-	assert_int_equal(asph_instrument_spec_parse(e->reg, "mock:time_factor=0," MISALIGNMENT,
+	assert_int_equal(asph_instrument_spec_parse(e->fx.reg, "mock:time_factor=0," MISALIGNMENT,
 						    &c, NULL), 0);
-	if (scan(e, c, new_path(e, path, sizeof(path)), &err) < 0)
+	if (scan(e, c, new_path(&e->fx, path, sizeof(path)), &err) < 0)
 		fail_msg("mock: %s", err.message);
 	asph_config_free(c);
 	fit(e, path, &mock);
@@ -260,7 +226,7 @@ static void test_alarm_ends_scan(void **state)
 	/* the y drive fails at its 40th move */
 	mbsim_inject(sim, 2, MBSIM_ALARM, 0x42, 40, -1);
 	c = bench(e, false, port);
-	int r = scan(e, c, new_path(e, path, sizeof(path)), &err);
+	int r = scan(e, c, new_path(&e->fx, path, sizeof(path)), &err);
 	if (r != -EPROTO || !strstr(err.message, "axis y (unit 2): drive alarm, code 0x42"))
 		fail_msg("%d %s", r, err.message);
 	struct mbsim_stats ss;
@@ -272,7 +238,7 @@ static void test_alarm_ends_scan(void **state)
 	struct asph_scanfile *s = read_scan(path);
 	assert_int_equal(s->report.outcome, ASPH_SCANFILE_FAILED);
 	assert_non_null(strstr(s->report.reason, "code 0x42"));
-	assert_true(s->n > 0 && s->n < e->plan->n);
+	assert_true(s->n > 0 && s->n < e->fx.plan->n);
 	asph_scanfile_free(s);
 }
 

@@ -2,7 +2,8 @@
 /* The Modbus driver against simulated drives and a sensor: the frame
  * decoder, moves and homing over TCP and RTU, register maps, the probe's
  * value formats, and every fault path (exceptions, a silent slave, bad
- * CRCs, a drive alarm, stop from another thread, no device). */
+ * CRCs, late answers, a drive alarm, stop from another thread, no
+ * device). */
 #include <errno.h>
 #include <math.h>
 #include <pthread.h>
@@ -185,6 +186,15 @@ struct dev {
 	bool stage;
 };
 
+/* The time a device gets to answer. The simulator answers from a thread of
+ * this process; under valgrind (ASPH_UNDER_VALGRIND), which runs one thread
+ * at a time, an answer can take longer than the 40 ms used otherwise. */
+static unsigned answer_timeout_ms(void)
+{
+	const char *v = getenv("ASPH_UNDER_VALGRIND");
+	return v && *v && strcmp(v, "0") != 0 ? 400 : 40;
+}
+
 /* Opens the stage or the probe on the simulator with "k=v,k=v" options. */
 static int dev_open(struct env *e, bool stage, const char *opts, struct dev *dv,
 		    struct asph_error *err)
@@ -194,9 +204,11 @@ static int dev_open(struct env *e, bool stage, const char *opts, struct dev *dv,
 	dv->stage = stage;
 	assert_int_equal(asph_options_new(e->drv, &dv->o, NULL), 0);
 	if (e->cfg.rtu)
-		snprintf(conn, sizeof(conn), "transport=rtu,device=%s,timeout=40,retries=1", e->address);
+		snprintf(conn, sizeof(conn), "transport=rtu,device=%s,timeout=%u,retries=1", e->address,
+			 answer_timeout_ms());
 	else
-		snprintf(conn, sizeof(conn), "port=%s,timeout=40,retries=1", e->address);
+		snprintf(conn, sizeof(conn), "port=%s,timeout=%u,retries=1", e->address,
+			 answer_timeout_ms());
 	snprintf(buf, sizeof(buf), "%s%s%s", conn, *opts ? "," : "", opts);
 	for (char *save, *kv = strtok_r(buf, ",", &save); kv; kv = strtok_r(NULL, ",", &save)) {
 		char *eq = strchr(kv, '=');
@@ -435,7 +447,9 @@ static void test_silent(void **state)
 		t[2] = 2.5;
 		expect(e->drv->stage->move_to(st.d, t, 2000, &err), -ETIMEDOUT, &err,
 		       "unit 3 did not answer");
-		assert_non_null(strstr(err.message, "2 tries of 40 ms"));
+		char tries[32];
+		snprintf(tries, sizeof(tries), "2 tries of %u ms", answer_timeout_ms());
+		assert_non_null(strstr(err.message, tries));
 		mbsim_clear_faults(e->sim);
 		/* an operation never outlasts its own timeout */
 		mbsim_inject(e->sim, 2, MBSIM_SILENT, 0, -1, -1);
@@ -484,6 +498,117 @@ static void test_garbled(void **state)
 	mbsim_clear_faults(e->sim);
 	dev_close(e, &pr);
 	dev_close(e, &st);
+	sim_stop(e);
+}
+
+/* ------------------------------------------------------ late answers */
+
+enum { LATE_TIMEOUT = 100 };    /* ms; the late answers come 150 ms late */
+
+/* Sensor registers 4..6 and 7..9 hold blocks of one size: an answer left
+ * over from reading one would pass for the other's. */
+static const uint16_t block_a[3] = { 0x3a7c, 0xe519, 0x0b62 };
+static const uint16_t block_b[3] = { 0x91d4, 0x2f0e, 0xc683 };
+
+/* The bus itself on the simulator with the blocks written: one retry,
+ * LATE_TIMEOUT per try. */
+static struct mb_bus *late_bus(struct env *e, bool rtu)
+{
+	struct mb_bus_params p = { .timeout_ms = LATE_TIMEOUT, .retries = 1, .baud = 115200,
+				   .parity = 'E', .data_bits = 8, .stop_bits = 1 };
+	struct mb_bus *b = NULL;
+	struct asph_error err;
+
+	sim_start(e, rtu, NULL, 1e-3);
+	p.framing = rtu ? MB_FRAMING_RTU : MB_FRAMING_TCP;
+	p.device = e->address;
+	p.host = "127.0.0.1";
+	p.port = rtu ? 0 : atoi(e->address);
+	must(mb_bus_open(&p, &b, &err), &err);
+	must(mb_write_registers(b, 9, 4, 3, block_a, 1000, &err), &err);
+	must(mb_write_registers(b, 9, 7, 3, block_b, 1000, &err), &err);
+	return b;
+}
+
+static void read_block(struct mb_bus *b, int addr, const uint16_t *want)
+{
+	struct asph_error err;
+	uint16_t w[3];
+
+	must(mb_read_registers(b, 9, false, addr, 3, w, 2000, &err), &err);
+	if (memcmp(w, want, sizeof(w)) != 0)
+		fail_msg("registers %d..%d: %04x %04x %04x, wanted %04x %04x %04x", addr, addr + 2,
+			 w[0], w[1], w[2], want[0], want[1], want[2]);
+}
+
+/* The answer to the first try comes after its time: the retry gets the
+ * value, and no answer is left over for the next request. */
+static void late_once(struct env *e, bool rtu)
+{
+	struct mbsim_stats before, after;
+	struct mb_bus *b = late_bus(e, rtu);
+
+	mbsim_stats(e->sim, &before);
+	mbsim_inject(e->sim, 9, MBSIM_DELAY, LATE_TIMEOUT * 3 / 2, 1, -1);
+	read_block(b, 4, block_a);
+	mbsim_stats(e->sim, &after);
+	assert_int_equal(after.requests, before.requests + 2);
+	read_block(b, 7, block_b);
+	read_block(b, 4, block_a);
+	mb_bus_free(b);
+	sim_stop(e);
+}
+
+static void test_late_tcp(void **state)
+{
+	late_once(*state, false);
+}
+
+static void test_late_rtu(void **state)
+{
+	late_once(*state, true);
+}
+
+/* A device that answers every request late did not answer: the answer to
+ * one try must not make the next one's reason "does not fit", nor pass for
+ * the answer to the next request. */
+static struct mb_bus *late_always(struct env *e, bool rtu)
+{
+	struct asph_error err;
+	uint16_t w[3];
+	struct mb_bus *b = late_bus(e, rtu);
+
+	mbsim_inject(e->sim, 9, MBSIM_DELAY, LATE_TIMEOUT * 3 / 2, -1, -1);
+	expect(mb_read_registers(b, 9, false, 4, 3, w, 2000, &err), -ETIMEDOUT, &err,
+	       "unit 9 did not answer (reading register 4, 2 tries of 100 ms)");
+	mbsim_clear_faults(e->sim);
+	/* the simulator still sends the last try's answer */
+	read_block(b, 7, block_b);
+	return b;
+}
+
+static void test_late_tcp_always(void **state)
+{
+	struct env *e = *state;
+	struct asph_error err;
+	uint16_t w[3];
+	struct mb_bus *b = late_always(e, false);
+
+	/* a device gone for good after a timeout: the link is lost */
+	mbsim_inject(e->sim, 9, MBSIM_DELAY, LATE_TIMEOUT * 3 / 2, -1, -1);
+	expect(mb_read_registers(b, 9, false, 4, 3, w, 2000, &err), -ETIMEDOUT, &err,
+	       "did not answer");
+	sim_stop(e);
+	expect(mb_read_registers(b, 9, false, 4, 3, w, 2000, &err), -ENODEV, &err,
+	       "connection lost: cannot connect again: Connection refused");
+	mb_bus_free(b);
+}
+
+static void test_late_rtu_always(void **state)
+{
+	struct env *e = *state;
+
+	mb_bus_free(late_always(e, true));
 	sim_stop(e);
 }
 
@@ -737,6 +862,10 @@ int main(void)
 		cmocka_unit_test(test_exceptions),
 		cmocka_unit_test(test_silent),
 		cmocka_unit_test(test_garbled),
+		cmocka_unit_test(test_late_tcp),
+		cmocka_unit_test(test_late_tcp_always),
+		cmocka_unit_test(test_late_rtu),
+		cmocka_unit_test(test_late_rtu_always),
 		cmocka_unit_test(test_alarm),
 		cmocka_unit_test(test_stop),
 		cmocka_unit_test(test_no_device),

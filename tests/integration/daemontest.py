@@ -1,6 +1,7 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """Runs the real asphd on a temporary socket and state directory, with a
 raw JSON-RPC client and asphctl (python3 stdlib only)."""
+import grp
 import json
 import os
 import shutil
@@ -9,6 +10,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 ASPHD = os.environ.get("ASPHD_BIN", "asphd")
@@ -66,7 +68,8 @@ class Daemon:
                                      stdout=logf, stderr=logf, stdin=subprocess.DEVNULL)
         logf.close()
         if wait:
-            deadline = time.time() + 20
+            # valgrind (ASPH_UNDER_VALGRIND) makes the start take seconds
+            deadline = time.time() + (100 if os.environ.get("ASPH_UNDER_VALGRIND") else 20)
             while time.time() < deadline:
                 if self.proc.poll() is not None:
                     raise RuntimeError(f"asphd exited with {self.proc.returncode}:\n{self.log_text()}")
@@ -119,6 +122,71 @@ class Daemon:
     def ctl_json(self, *args):
         _, out, _ = self.ctl("--json", *args, check=0)
         return json.loads(out)
+
+    def relay(self, method):
+        """A Relay to this daemon that holds the request for method."""
+        self.relays = getattr(self, "relays", 0) + 1
+        return Relay(self.socket, os.path.join(self.top, f"relay-{self.relays}.sock"), method)
+
+
+class Relay:
+    """A socket between one client (asphctl) and the daemon that passes
+    everything but holds the client's request for one method until
+    release(); `arrived` is set once that request is held. The client pays
+    its start-up before the moment the test picks (valgrind makes that
+    seconds), so a request that races a running scan reaches the daemon
+    when a condition holds, at any speed: start the client on .path, wait
+    for arrived, bring the job to the state wanted, release()."""
+
+    def __init__(self, daemon_socket, path, method):
+        self.daemon_socket, self.path, self.method = daemon_socket, path, method
+        self.arrived = threading.Event()
+        self._gate = threading.Event()
+        self._listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self._listener.bind(path)
+        self._listener.listen(1)
+        threading.Thread(target=self._serve, daemon=True).start()
+
+    def wait_arrived(self, timeout=300):
+        if not self.arrived.wait(timeout):
+            raise TimeoutError(f"no {self.method} request reached the relay")
+
+    def release(self):
+        self._gate.set()
+
+    def _serve(self):
+        client, _ = self._listener.accept()
+        self._listener.close()
+        up = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        up.connect(self.daemon_socket)
+        threading.Thread(target=self._copy, args=(up, client), daemon=True).start()
+        buf = b""
+        try:
+            while chunk := client.recv(65536):
+                buf += chunk
+                while b"\n" in buf:
+                    line, buf = buf.split(b"\n", 1)
+                    try:
+                        held = json.loads(line).get("method") == self.method
+                    except ValueError:
+                        held = False
+                    if held:
+                        self.arrived.set()
+                        self._gate.wait()
+                    up.sendall(line + b"\n")
+            up.shutdown(socket.SHUT_WR)
+        except OSError:
+            pass  # one side went away: the copy in the other direction ends too
+
+    @staticmethod
+    def _copy(src, dst):
+        try:
+            while chunk := src.recv(65536):
+                dst.sendall(chunk)
+        except OSError:
+            pass
+        dst.close()
+        src.close()
 
 
 class RpcError(Exception):
@@ -213,3 +281,66 @@ def poll_state(client, job, states, timeout=120):
             return j
         time.sleep(0.05)
     raise TimeoutError(f"job {job} did not reach {states}")
+
+
+# One connection, the calls in order; per call {"error": code} or
+# {"result": ...}. Run by Unprivileged.calls() under another uid.
+_CLIENT = r'''
+import json, socket, sys
+s = socket.socket(socket.AF_UNIX); s.connect(sys.argv[1]); f = s.makefile("rw")
+out = []
+for i, (m, p) in enumerate(json.load(sys.stdin)):
+    f.write(json.dumps({"jsonrpc": "2.0", "id": i, "method": m, "params": p}) + "\n"); f.flush()
+    while True:
+        r = json.loads(f.readline())
+        if r.get("id") == i:
+            break
+    out.append({"error": r["error"].get("code", 0)} if "error" in r else {"result": r["result"]})
+print(json.dumps(out))
+'''
+
+
+class Unprivileged:
+    """The access tests' other identity: programs run as the unprivileged
+    uid nobody and group nogroup, with the supplementary groups a test
+    picks; and a group to make the operator group, one that neither root
+    nor nobody is a member of. Needs root: without it, such a group or a
+    python3 that nobody may run, the test is skipped (exit 77) saying why."""
+
+    uid = 65534
+
+    def __init__(self, root_for):
+        if os.geteuid() != 0:
+            self._skip(f"needs root {root_for}")
+        try:
+            self.gid = grp.getgrnam("nogroup").gr_gid
+        except KeyError:
+            self.gid = self.uid
+        candidates = [g for g in grp.getgrall()
+                      if g.gr_gid not in (0, self.uid, self.gid) and not g.gr_mem]
+        if not candidates:
+            self._skip("no group to use as the operator group")
+        self.operators = candidates[0]
+        # not one under /root, which nobody cannot enter
+        self.python = next((p for p in ("/usr/bin/python3", "/usr/local/bin/python3", sys.executable)
+                            if os.path.exists(p) and os.stat(p).st_mode & 0o001), None)
+        if not self.python:
+            self._skip("no python3 that an unprivileged user may run")
+
+    @staticmethod
+    def _skip(why):
+        print(f"SKIP: {why}")
+        sys.exit(77)
+
+    def run(self, argv, groups=(), stdin=None):
+        """argv run as nobody in /, its output captured as text."""
+        return subprocess.run(argv, input=stdin, capture_output=True, text=True, timeout=60,
+                              user=self.uid, group=self.gid, extra_groups=list(groups), cwd="/")
+
+    def calls(self, path, calls, groups=()):
+        """Makes calls ([method, params], ...) in order on one connection to
+        the socket at path; per call {"error": code} or {"result": ...}."""
+        p = self.run([self.python, "-c", _CLIENT, path], groups, stdin=json.dumps(calls))
+        if p.returncode != 0:
+            raise RuntimeError(p.stderr)
+        return json.loads(p.stdout)

@@ -136,6 +136,43 @@ with tempfile.TemporaryDirectory() as d:
     code, _, err = run("lens", "import", bad)
     expect(code == 1 and "bad.csv:2:11:" in err, f"CSV: a bad number at line and column ({err.strip()})")
 
+# Edge cases: empty and marker-only files, broken UTF-16, keywords without
+# their value; each refused with the file named, never a crash.
+with tempfile.TemporaryDirectory() as d:
+    cases = {
+        "empty.zmx": (b"", "no SURF block"),
+        "empty.csv": (b"", "empty file"),
+        "bom-only.zmx": (b"\xff\xfe", "no SURF block"),
+        "utf8-bom-only.zmx": (b"\xef\xbb\xbf", "no SURF block"),
+        "odd.zmx": (b"\xff\xfeS\x00U", "odd number of bytes"),
+        "nul-unit.zmx": (b"\xfe\xff\x00S\x00\x00", "invalid UTF-16 code unit 0x0000"),
+        "lone-surrogate.zmx": (b"\xff\xfe\x00\xd8S\x00", "invalid UTF-16 code unit 0xd800"),
+        "nul.zmx": (b"SURF 1\n\x00\n", "contains NUL bytes"),
+        "header-only.csv": (b"R,k,aperture_diameter\n", "a header and no data row"),
+        "surf-no-number.zmx": (b"SURF\n  TYPE STANDARD\n", ":1:5: SURF: SURF without a value"),
+        "parm-no-index.zmx": (b"SURF 1\n  TYPE EVENASPH\n  PARM\n", ":3:7: PARM: PARM without a value"),
+        "parm-no-value.zmx": (b"SURF 1\n  TYPE EVENASPH\n  PARM 2\n", ":3:9: PARM: PARM without a value"),
+        "parm-index.zmx": (b"SURF 1\n  TYPE EVENASPH\n  PARM 41 1\n", "parameter number 41 is not 0..40"),
+    }
+    for name, (data, needle) in cases.items():
+        path = os.path.join(d, name)
+        with open(path, "wb") as f:
+            f.write(data)
+        code, out, err = run("lens", "import", path)
+        expect(code == 1 and not out and path in err and needle in err, f"{name} refused ({err.strip()})")
+
+    missing = os.path.join(d, "missing.zmx")
+    code, out, err = run("lens", "import", missing)
+    expect(code == 1 and not out and f"{missing}: cannot open: No such file" in err,
+           f"a missing file is refused with the reason ({err.strip()})")
+
+# --surface takes a number from 0 to INT_MAX: 2^32 + 1 once wrapped to surface 1.
+for arg in ("4294967297", "2147483648", "-1", "+1", " 1", "1x", ""):
+    code, out, err = run("lens", "import", ZMX, "--surface", arg)
+    expect(code == 2 and not out and "--surface wants a number" in err, f"--surface {arg!r} is a usage error")
+code, _, err = run("lens", "import", ZMX, "--surface", "2147483647")
+expect(code == 1 and "no surface 2147483647" in err, "--surface INT_MAX is a surface the file lacks")
+
 code, _, _ = run("lens", "import")
 expect(code == 2, "usage error exits 2")
 finish()

@@ -5,6 +5,7 @@ limits, a SIGKILL half-way) and asph replay."""
 import json
 import os
 import signal
+import struct
 import subprocess
 import sys
 import tempfile
@@ -94,11 +95,30 @@ expect(rc == 1 and "outside its travel" in err and info["points"] == 0,
        "a plan outside the travel is refused before anything moves")
 
 # --- SIGKILL half-way: the reader recovers what was flushed -----------------
+def first_block_written(scan):
+    """Whether the scan file holds a block after its header
+    (docs/scan-format.md: a 20-byte prefix with the header's length at
+    offset 12, the header, then blocks that start with "ASPB")."""
+    try:
+        with open(scan, "rb") as f:
+            prefix = f.read(20)
+            if len(prefix) < 20:
+                return False
+            f.seek(20 + struct.unpack_from("<I", prefix, 12)[0])
+            return f.read(4) == b"ASPB"
+    except OSError:
+        return False
+
+
+# The kill comes once the first block of points is on disk: the mock paces
+# its 150,000 readings in real time (3.75 s at 40 kHz), so the scan is then
+# still running at any speed of the machine (under valgrind too).
 killed = path("killed.asph")
 p = subprocess.Popen([ASPH, "scan", "strong", "--method", "fermat", "--points", "150000",
                       "--instrument", "mock:rate=40000,speed=10000", "-o", killed, "--quiet"],
                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-time.sleep(2.0)
+while not first_block_written(killed) and p.poll() is None:
+    time.sleep(0.01)
 p.send_signal(signal.SIGKILL)
 p.wait()
 info = scaninfo(killed)

@@ -4,64 +4,21 @@
 uid, with and without the operator group among their supplementary groups,
 and as root. Readers may read and are refused every mutating method."""
 import grp
-import json
 import os
-import subprocess
-import sys
 
-from daemontest import ASPHCTL, Client, Daemon, expect, finish, poll_state
+from daemontest import ASPHCTL, Client, Daemon, Unprivileged, expect, finish, poll_state
 
-if os.geteuid() != 0:
-    print("SKIP: needs root to run clients under other uids")
-    sys.exit(77)
-
-NOBODY = 65534
-try:
-    NOGROUP = grp.getgrnam("nogroup").gr_gid
-except KeyError:
-    NOGROUP = NOBODY
-# The operator group: one that root is not a member of and nobody is not.
-candidates = [g for g in grp.getgrall() if g.gr_gid not in (0, NOBODY, NOGROUP) and not g.gr_mem]
-if not candidates:
-    print("SKIP: no group to use as the operator group")
-    sys.exit(77)
-OPERATORS = candidates[0]
-# An interpreter the unprivileged uid can run (not one under /root).
-PYTHON = next((p for p in ("/usr/bin/python3", "/usr/local/bin/python3", sys.executable)
-               if os.path.exists(p) and os.stat(p).st_mode & 0o001), None)
-if not PYTHON:
-    print("SKIP: no python3 that an unprivileged user may run")
-    sys.exit(77)
-
-# A client run under another identity: it reads calls as JSON on stdin
-# and answers each with its result or error code on stdout.
-CLIENT = r'''
-import json, socket, sys
-s = socket.socket(socket.AF_UNIX); s.connect(sys.argv[1]); f = s.makefile("rw")
-out = []
-for i, (m, p) in enumerate(json.load(sys.stdin)):
-    f.write(json.dumps({"jsonrpc": "2.0", "id": i, "method": m, "params": p}) + "\n"); f.flush()
-    while True:
-        r = json.loads(f.readline())
-        if r.get("id") == i:
-            break
-    out.append(r.get("error", {}).get("code", 0) if "error" in r else r["result"])
-print(json.dumps(out))
-'''
+U = Unprivileged("to run clients under other uids")
+NOBODY, NOGROUP, OPERATORS = U.uid, U.gid, U.operators
 
 
 def as_user(path, calls, groups):
-    p = subprocess.run([PYTHON, "-c", CLIENT, path], input=json.dumps(calls),
-                       capture_output=True, text=True, timeout=60, user=NOBODY, group=NOGROUP,
-                       extra_groups=groups, cwd="/")
-    if p.returncode != 0:
-        raise RuntimeError(p.stderr)
-    return json.loads(p.stdout)
+    """Each call's error code, or its result."""
+    return [a["error"] if "error" in a else a["result"] for a in U.calls(path, calls, groups)]
 
 
 def ctl_as_user(d, groups, *args):
-    p = subprocess.run([ASPHCTL, "--socket", d.socket, *map(str, args)], capture_output=True,
-                       text=True, timeout=60, user=NOBODY, group=NOGROUP, extra_groups=groups, cwd="/")
+    p = U.run([ASPHCTL, "--socket", d.socket, *map(str, args)], groups)
     return p.returncode, p.stdout, p.stderr
 
 
@@ -89,6 +46,14 @@ try:
     rc, _, err = ctl_as_user(d, [], "submit", "strong", "--method", "fermat", "--points", "300")
     expect(rc == 4 and "Permission denied" in err, "asphctl as a reader: exit 4, permission denied")
     expect(ctl_as_user(d, [], "status")[0] == 0, "asphctl status works for a reader")
+
+    # More supplementary groups than the first guess of the daemon's
+    # SO_PEERGROUPS buffer (32): the operator group comes last.
+    many = [70001 + 7 * k for k in range(45)] + [OPERATORS.gr_gid]
+    out = as_user(d.socket, [["hello", {}]], many)
+    expect(out[0]["peer"]["operator"], "the operator group found among 46 supplementary groups")
+    out = as_user(d.socket, [["hello", {}]], many[:-1])
+    expect(not out[0]["peer"]["operator"], "45 other groups make no operator")
 
     out = as_user(d.socket, [["hello", {}], submit, ["job.cancel", {"id": queued}]], [OPERATORS.gr_gid])
     expect(out[0]["peer"]["operator"], "a member of the operator group is an operator")

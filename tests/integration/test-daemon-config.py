@@ -49,6 +49,20 @@ try:
     rc, _, err = check(bad)
     expect(rc == 3 and "nosuch" in err, "an unknown driver is named")
 
+    # A JOURNAL_STREAM that is not DEVICE:INODE (decimal) is said; the log
+    # stays text on stderr. The configuration error stops asphd right after.
+    broken = os.path.join(d.top, "broken.conf")
+    with open(broken, "w") as f:
+        f.write('{"colour": 1}\n')
+    for stream, said in (("12:x", True), ("12", True), (":34", True), ("-1:5", True),
+                         ("12: 34", True), ("12:34 ", True), ("99999999999999999999999:1", True),
+                         ("1:2", False)):
+        p = subprocess.run([ASPHD, "--config", broken], env=dict(os.environ, JOURNAL_STREAM=stream),
+                           capture_output=True, text=True)
+        expect(p.returncode == 3 and "colour" in p.stderr and
+               ("is not DEVICE:INODE" in p.stderr) == said,
+               f"JOURNAL_STREAM={stream!r}: {'refused' if said else 'taken'} ({p.stderr.strip()})")
+
     # --- reload
     d.start()
     c = Client(d.socket)

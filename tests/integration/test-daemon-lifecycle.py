@@ -26,15 +26,24 @@ try:
     inst = c.call("instrument.list")["instruments"]
     expect(inst[0]["configuration"]["probe"]["driver"] == "mock", "instrument.list describes the drivers")
 
-    # --- one job, watched by three clients at once
+    # --- one job, watched by three clients at once. The queue waits until
+    # both asphctl watchers have subscribed (their job.get follows the
+    # subscription), so that they see the job's progress however long
+    # they take to start.
     c.call("events.subscribe", {"events": ["job", "progress"]})
+    c.call("queue.stop")
     job = c.call("job.submit", {"lens": "strong", "plan": {"method": "ci", "h": 0.04},
                                 "label": "first", "priority": 1})
     jid = job["id"]
     expect(job["state"] == "queued" and job["progress"]["total"] > 1000, "job.submit queues a job with its plan size")
-    watchers = [subprocess.Popen([ASPHCTL, "--socket", d.socket, "watch", str(jid)],
+    relays = [d.relay("job.get") for _ in range(2)]
+    watchers = [subprocess.Popen([ASPHCTL, "--socket", r.path, "watch", str(jid)],
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-                for _ in range(2)]
+                for r in relays]
+    for r in relays:
+        r.wait_arrived()
+        r.release()
+    c.call("queue.start")
     progress, states = [], []
     while True:
         ev = c.next_event()
@@ -83,12 +92,25 @@ try:
     expect(rc == 0 and "form error" in text, "asphctl result prints the summary")
     expect({"result.json", "scan.asphscan", "residuals.csv"} <= set(os.listdir(out)), "asphctl result --out copies the files")
 
-    # --- pause, resume, cancel, re-queue
+    # --- pause, resume, cancel, re-queue. asphctl pause and cancel are
+    # started before the job and reach the daemon through relays, released
+    # when the scan has measured its first point and when it runs again
+    # after the resume: each lands while the scan runs, whatever the speed.
+    c.call("queue.stop")
     job2 = c.call("job.submit", {"lens": "strong", "plan": {"method": "ci", "h": 0.03}})["id"]
+    pause, cancel = d.relay("job.pause"), d.relay("job.cancel")
+    ctls = {r: subprocess.Popen([ASPHCTL, "--socket", r.path, verb, str(job2)], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+            for r, verb in ((pause, "pause"), (cancel, "cancel"))}
+    pause.wait_arrived()
+    cancel.wait_arrived()
+    c.call("queue.start")
     c.wait_state(job2, ["running"])
     while c.call("job.get", {"id": job2})["progress"]["done"] == 0:
-        time.sleep(0.05)
-    expect(d.ctl("pause", job2)[0] == 0, "asphctl pause")
+        time.sleep(0.01)
+    pause.release()
+    ctls[pause].communicate(timeout=120)
+    expect(ctls[pause].returncode == 0, "asphctl pause")
     expect(c.call("job.get", {"id": job2})["state"] == "paused", "the job is paused")
     time.sleep(0.4)
     a = c.call("job.get", {"id": job2})["progress"]["done"]
@@ -96,9 +118,15 @@ try:
     b = c.call("job.get", {"id": job2})["progress"]["done"]
     expect(a == b, f"no progress while paused ({a} -> {b})")
     expect(c.call_error("job.pause", {"id": job2}) == 103, "pausing a paused job: invalid state (103)")
-    expect(d.ctl("resume", job2)[0] == 0, "asphctl resume")
-    expect(c.call("job.get", {"id": job2})["state"] == "running", "running again")
-    expect(d.ctl("cancel", job2)[0] == 0, "asphctl cancel")
+    c.events.clear()  # every event so far came before that answer
+    resume = subprocess.Popen([ASPHCTL, "--socket", d.socket, "resume", str(job2)],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    expect(c.wait_state(job2, ["running", "completed"]) == "running", "running again")
+    cancel.release()
+    resume.communicate(timeout=120)
+    ctls[cancel].communicate(timeout=120)
+    expect(resume.returncode == 0, "asphctl resume")
+    expect(ctls[cancel].returncode == 0, "asphctl cancel")
     expect(c.wait_state(job2, ["cancelled"]) == "cancelled", "the job is cancelled")
     expect(c.call_error("job.result", {"id": job2}) == 107, "no result for a cancelled job (107)")
     rq = c.call("job.requeue", {"id": job2})
@@ -142,6 +170,19 @@ try:
     expect(d.ctl_json("list", "--limit", "2")["jobs"].__len__() == 2, "list pages")
     expect(d.ctl("status", "99999")[0] == 1, "an unknown job: exit 1")
     expect(d.ctl("submit")[0] == 2, "usage error: exit 2")
+    # Numbers that are not numbers are refused before anything is sent: none
+    # may reach the daemon as 0 or clipped.
+    queued = c.call("job.list", {})["total"]
+    for opt, bad in (("--priority", ""), ("--priority", "5x"), ("--priority", "99999999999999999999"),
+                     ("--zernike", ""), ("--zernike", "0x10"), ("--h", "nan"), ("--h", "inf"),
+                     ("--spacing", ""), ("--points", "1e999"), ("--points", "12 ")):
+        rc, _, err = d.ctl("submit", "strong", "--method", "op", opt, bad)
+        expect(rc == 2 and opt in err and repr(bad) in err.replace('"', "'"),
+               f"asphctl submit {opt} {bad!r}: exit 2 naming the option ({rc}: {err.strip()})")
+    for args in (["list", "--limit", ""], ["list", "--offset", "-1"], ["queue", "move", "1", ""],
+                 ["queue", "move", "1", "2x"], ["status", "0"], ["status", ""]):
+        expect(d.ctl(*args)[0] == 2, f"asphctl {' '.join(args)}: exit 2")
+    expect(c.call("job.list", {})["total"] == queued, "no refused command queued a job")
     p = subprocess.run([ASPHCTL, "--socket", os.path.join(d.top, "nothing.sock"), "status"],
                        capture_output=True, text=True)
     expect(p.returncode == 3, "no daemon: exit 3")

@@ -14,57 +14,21 @@ import grp
 import json
 import os
 import re
-import socket
 import stat
 import subprocess
-import sys
 import time
 
-from daemontest import Client, Daemon, RpcError, expect, finish, mock_instrument, poll_state
+from daemontest import Client, Daemon, RpcError, Unprivileged, expect, finish, poll_state
 
-if os.geteuid() != 0:
-    print("SKIP: needs root to run clients under other uids and to own files as others")
-    sys.exit(77)
-
-NOBODY = 65534
-try:
-    NOGROUP = grp.getgrnam("nogroup").gr_gid
-except KeyError:
-    NOGROUP = NOBODY
-candidates = [g for g in grp.getgrall() if g.gr_gid not in (0, NOBODY, NOGROUP) and not g.gr_mem]
-if not candidates:
-    print("SKIP: no group to use as the operator group")
-    sys.exit(77)
-OPERATORS = candidates[0]
-PYTHON = next((p for p in ("/usr/bin/python3", "/usr/local/bin/python3", sys.executable)
-               if os.path.exists(p) and os.stat(p).st_mode & 0o001), None)
-if not PYTHON:
-    print("SKIP: no python3 that an unprivileged user may run")
-    sys.exit(77)
+U = Unprivileged("to run clients under other uids and to own files as others")
+NOBODY, NOGROUP, OPERATORS = U.uid, U.gid, U.operators
 ROOT = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(os.path.dirname(__file__), "..", ".."))
 SPEC = {"lens": "strong", "plan": {"method": "fermat", "points": 300}}
 
-CLIENT = r'''
-import json, socket, sys
-s = socket.socket(socket.AF_UNIX); s.connect(sys.argv[1]); f = s.makefile("rw")
-out = []
-for i, (m, p) in enumerate(json.load(sys.stdin)):
-    f.write(json.dumps({"jsonrpc": "2.0", "id": i, "method": m, "params": p}) + "\n"); f.flush()
-    while True:
-        r = json.loads(f.readline())
-        if r.get("id") == i:
-            break
-    out.append(r["error"]["code"] if "error" in r else "ok")
-print(json.dumps(out))
-'''
-
 
 def as_user(path, calls, groups):
-    p = subprocess.run([PYTHON, "-c", CLIENT, path], input=json.dumps(calls), capture_output=True,
-                       text=True, timeout=60, user=NOBODY, group=NOGROUP, extra_groups=groups, cwd="/")
-    if p.returncode != 0:
-        raise RuntimeError(p.stderr)
-    return json.loads(p.stdout)
+    """Each call's error code, or "ok"."""
+    return [a["error"] if "error" in a else "ok" for a in U.calls(path, calls, groups)]
 
 
 def documented_methods():

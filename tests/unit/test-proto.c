@@ -114,10 +114,42 @@ static void test_requests(void **state)
 	assert_non_null(strstr(why, "NUL"));
 	assert_non_null(m.id);
 
+	/* The unknown member is named (borrowed from the message). */
+	json_t *j = json_pack("{s:s, s:i, s:s, s:{}}", "jsonrpc", "2.0", "id", 4, "method", "x",
+			      "Params");
+	assert_int_equal(proto_check_request(j, &m, &why), PROTO_INVALID_REQUEST);
+	assert_non_null(m.unknown);
+	assert_string_equal(m.unknown, "Params");
+	json_decref(j);
+
 	char buf[128];
 	assert_null(proto_parse("{\"a\":1,\"a\":2}", 13, buf, sizeof(buf)));
 	assert_null(proto_parse("{\"a\":", 5, buf, sizeof(buf)));
 	assert_non_null(strstr(buf, "column"));
+	/* jansson quotes the text near the error; cut by the buffer inside
+	 * a character, the message stays valid UTF-8. */
+	const char *bad = "{\"a\": x\xc3\xa9\xc3\xa9\xc3\xa9\xc3\xa9}";
+	char small[36];
+	assert_null(proto_parse(bad, strlen(bad), small, sizeof(small)));
+	json_t *str = json_string(small);
+	assert_non_null(str);
+	json_decref(str);
+}
+
+static void test_utf8_clean(void **state)
+{
+	char cut[] = "no method \"\xc3\xa9\xc3\"";
+	char bad[] = "a" "\xc0\xaf" "b" "\xed\xa0\x80" "c" "\xf4\x90\x80\x80" "d" "\x80" "e"
+		     "\xe2\x82";
+	char good[] = "\xc3\xa9\xe2\x82\xac\xf0\x9f\x98\x80 ok";
+
+	assert_int_equal(proto_utf8_clean(cut), strlen("no method \"\xc3\xa9\""));
+	assert_string_equal(cut, "no method \"\xc3\xa9\"");
+	/* Overlong form, surrogate, past U+10FFFF, lone continuation byte,
+	 * truncated sequence: each dropped. */
+	proto_utf8_clean(bad);
+	assert_string_equal(bad, "abcde");
+	assert_int_equal(proto_utf8_clean(good), strlen("\xc3\xa9\xe2\x82\xac\xf0\x9f\x98\x80 ok"));
 }
 
 static void test_builders(void **state)
@@ -185,6 +217,18 @@ static void test_params(void **state)
 	assert_non_null(strstr(why.text, "nul"));
 	json_decref(p);
 	assert_int_equal(proto_param_int(NULL, "n", false, 0, 1, &n, &why), -ENOENT);
+
+	/* null is a wrong type, not an absent member; a NUL inside a flag
+	 * does not cut it to a known one. */
+	p = json_pack("{s:n, s:[s]}", "opt", "ev", "job\0x");
+	json_array_set_new(json_object_get(p, "ev"), 0, json_stringn("job\0x", 5));
+	assert_int_equal(proto_param_bool(p, "opt", false, &b, &why), -EINVAL);
+	assert_non_null(strstr(why.text, "\"opt\""));
+	assert_int_equal(proto_param_int(p, "opt", true, 0, 1, &n, &why), -EINVAL);
+	assert_non_null(strstr(why.text, "must be an integer"));
+	assert_int_equal(proto_param_flags(p, "ev", true, ev, &mask, &why), -EINVAL);
+	assert_non_null(strstr(why.text, "NUL"));
+	json_decref(p);
 }
 
 int main(void)
@@ -193,6 +237,7 @@ int main(void)
 		cmocka_unit_test(test_lines_split),
 		cmocka_unit_test(test_lines_oversized),
 		cmocka_unit_test(test_requests),
+		cmocka_unit_test(test_utf8_clean),
 		cmocka_unit_test(test_builders),
 		cmocka_unit_test(test_params),
 	};

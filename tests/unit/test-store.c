@@ -207,6 +207,35 @@ static void test_meta_and_schema(void **state)
 	assert_false(job_state_final(JOB_INTERRUPTED));
 }
 
+/* A schema version that is not a plain decimal number from 1 on is a
+ * damaged store: refused, never read as 0 (atoi) or clipped. */
+static void test_schema_corrupt(void **state)
+{
+	static const char *const bad[] = {
+		"", "x", "1x", " 1", "+1", "-3", "0", "0x1", "1.0",
+		"99999999999999999999999",
+	};
+	struct fixture *f = *state;
+	struct store *s2 = NULL;
+	struct asph_error err;
+
+	for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++) {
+		assert_int_equal(store_meta_set(f->s, "schema", bad[i]), 0);
+		asph_error_clear(&err);
+		assert_int_equal(store_open(f->path, &s2, &err), -EPROTO);
+		assert_null(s2);
+		assert_non_null(strstr(err.message, "is not a number from 1 on"));
+	}
+	/* the current version with leading zeros is still that version */
+	assert_int_equal(store_meta_set(f->s, "schema", "001"), 0);
+	assert_int_equal(store_open(f->path, &s2, &err), 0);
+	store_close(s2);
+	s2 = NULL;
+	assert_int_equal(store_meta_set(f->s, "schema", "2"), 0);
+	assert_int_equal(store_open(f->path, &s2, &err), -EPROTO);
+	assert_non_null(strstr(err.message, "schema 2, newer than 1"));
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -214,6 +243,7 @@ int main(void)
 		cmocka_unit_test_setup_teardown(test_recover, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_list, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_meta_and_schema, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_schema_corrupt, setup, teardown),
 	};
 	return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -267,6 +267,12 @@ static void test_refusals(void **state)
 	/* k = 3: the root vanishes at r = R / 2 = 5 */
 	p = ok; p.k = 3;
 	expect_refusal(p, "k", "r = 5 mm");
+	/* Finite coefficients whose slope squared overflows (|Z'| ~ 1e302 at
+	 * the edge): refused at once instead of building tables for seconds. */
+	p = ok; p.A[4] = 3.7e299;
+	expect_refusal(p, "", "too steep");
+	p = ok; p.A[20] = -2.9e281;
+	expect_refusal(p, "", "too steep");
 }
 
 int main(void)

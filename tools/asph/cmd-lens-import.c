@@ -7,6 +7,7 @@
 #include <ctype.h>
 #include <errno.h>
 #include <getopt.h>
+#include <limits.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -43,11 +44,11 @@ struct importer {
 	size_t n_surf;
 };
 
-static int fail(const struct importer *im, int line, int col, const char *field,
-		const char *fmt, ...) __attribute__((format(printf, 5, 6)));
+static void refuse(const struct importer *im, int line, int col, const char *field,
+		   const char *fmt, ...) __attribute__((format(printf, 5, 6)));
 
-static int fail(const struct importer *im, int line, int col, const char *field,
-		const char *fmt, ...)
+static void refuse(const struct importer *im, int line, int col, const char *field,
+		   const char *fmt, ...)
 {
 	char msg[400];
 	va_list ap;
@@ -57,8 +58,11 @@ static int fail(const struct importer *im, int line, int col, const char *field,
 	va_end(ap);
 	asph_error_set(im->err, -EINVAL, "%s", msg);
 	asph_error_locate(im->err, im->path, line, col, field);
-	return -EINVAL;
 }
+
+/* A refusal of the file's content, with where; always -EINVAL, which a
+ * macro lets every caller (and the static analyzer) see. */
+#define fail(im, line, col, field, ...) (refuse(im, line, col, field, __VA_ARGS__), -EINVAL)
 
 /* ---- reading and decoding ------------------------------------------------- */
 
@@ -70,6 +74,8 @@ static int read_all(struct importer *im, unsigned char **out, size_t *len)
 
 	if (!f) {
 		int e = -errno;
+		if (e >= 0)     /* never 0, which is success */
+			e = -EIO;
 		asph_error_locate(im->err, im->path, 0, 0, NULL);
 		return asph_error_set(im->err, e, "cannot open: %s", strerror(-e));
 	}
@@ -683,14 +689,17 @@ int cmd_lens_import(int argc, char **argv)
 	optind = 1;
 	while ((c = getopt_long(argc, argv, "o:h", options, NULL)) != -1) {
 		switch (c) {
-		case 's':
+		case 's': {
 			errno = 0;
-			want = (int)strtol(optarg, &end, 10);
-			if (!*optarg || *end || errno || want < 0) {
-				fprintf(stderr, "asph: lens import: --surface wants a number, not '%s'\n", optarg);
+			long v = strtol(optarg, &end, 10);
+			if (optarg[0] < '0' || optarg[0] > '9' || *end || errno || v > INT_MAX) {
+				fprintf(stderr, "asph: lens import: --surface wants a number from 0 to %d, "
+					"not '%s'\n", INT_MAX, optarg);
 				return EXIT_USAGE;
 			}
+			want = (int)v;
 			break;
+		}
 		case 'o':
 			out = optarg;
 			break;

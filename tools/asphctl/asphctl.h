@@ -58,6 +58,11 @@ int ctl_call(struct ctl *ctl, const char *method, json_t *params,
 /* Prints JSON (pretty) to stdout. */
 void ctl_print_json(const json_t *j);
 /* Parses a job id argument; -1 (after printing) when it is not one. */
+/* Whole-string conversions: 0, or -EINVAL for an empty string, trailing
+ * characters, a value out of [min, max] (or out of range of the type), or
+ * a real that is not finite. */
+int ctl_parse_integer(const char *arg, long long min, long long max, long long *v);
+int ctl_parse_real(const char *arg, double *v);
 int64_t ctl_job_id(const char *arg);
 
 int cmd_submit(struct ctl *ctl, int argc, char **argv);

@@ -3,6 +3,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <getopt.h>
+#include <limits.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -92,6 +93,32 @@ static json_t *lens_param(const char *lens)
 	return j;
 }
 
+/* The daemon checks ranges (and names the parameter); these only refuse
+ * what is not a number at all, so nothing is sent as 0 or clipped. */
+static bool set_integer(json_t *obj, const char *key, const char *arg)
+{
+	long long v;
+
+	if (ctl_parse_integer(arg, LLONG_MIN, LLONG_MAX, &v) < 0) {
+		fprintf(stderr, "asphctl: --%s: '%s' is not an integer\n", key, arg);
+		return false;
+	}
+	json_object_set_new(obj, key, json_integer(v));
+	return true;
+}
+
+static bool set_real(json_t *obj, const char *key, const char *arg)
+{
+	double v;
+
+	if (ctl_parse_real(arg, &v) < 0) {
+		fprintf(stderr, "asphctl: --%s: '%s' is not a finite number\n", key, arg);
+		return false;
+	}
+	json_object_set_new(obj, key, json_real(v));
+	return true;
+}
+
 static const char submit_usage[] =
 	"submit LENS --method M (--h H | --spacing MM | --points N)\n"
 	"       [--instrument NAME] [--priority P] [--label TEXT] [--dof LIST]\n"
@@ -122,26 +149,25 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 
 	json_object_set_new(params, "plan", plan);
 	while ((c = getopt_long(argc, argv, "m:i:p:l:jh", opts, NULL)) != -1) {
-		char *end = NULL;
+		bool ok = true;
 		switch (c) {
 		case 'm': json_object_set_new(plan, "method", json_string(optarg)); break;
-		case 'H': json_object_set_new(plan, "h", json_real(strtod(optarg, &end))); break;
-		case 'S': json_object_set_new(plan, "spacing", json_real(strtod(optarg, &end))); break;
-		case 'P': json_object_set_new(plan, "points", json_real(strtod(optarg, &end))); break;
+		case 'H': ok = set_real(plan, "h", optarg); break;
+		case 'S': ok = set_real(plan, "spacing", optarg); break;
+		case 'P': ok = set_real(plan, "points", optarg); break;
 		case 'i': json_object_set_new(params, "instrument", json_string(optarg)); break;
-		case 'p': json_object_set_new(params, "priority", json_integer(strtoll(optarg, &end, 10))); break;
+		case 'p': ok = set_integer(params, "priority", optarg); break;
 		case 'l': json_object_set_new(params, "label", json_string(optarg)); break;
 		case 'd': json_object_set_new(fit, "dof", json_string(optarg)); break;
 		case 'r': json_object_set_new(fit, "residual", json_string(optarg)); break;
 		case 'R': json_object_set_new(fit, "robust", json_true()); break;
-		case 'z': json_object_set_new(fit, "zernike", json_integer(strtoll(optarg, &end, 10))); break;
+		case 'z': ok = set_integer(fit, "zernike", optarg); break;
 		case 'w': wait = true; break;
 		case 'j': ctl->json = true; break;
 		case 'h': printf("Usage: asphctl %s\n", submit_usage); json_decref(fit); return CTL_EXIT_OK;
 		default: json_decref(fit); return usage_error(submit_usage);
 		}
-		if (end && *end) {
-			fprintf(stderr, "asphctl: '%s' is not a number\n", optarg);
+		if (!ok) {
 			json_decref(fit);
 			return CTL_EXIT_USAGE;
 		}
@@ -360,10 +386,8 @@ int cmd_list(struct ctl *ctl, int argc, char **argv)
 		case 'm': json_object_set_new(params, "mine", json_true()); break;
 		case 'n':
 		case 'o': {
-			char *end;
-			errno = 0;
-			long long v = strtoll(optarg, &end, 10);
-			if (errno || end == optarg || *end || v < 0) {
+			long long v;
+			if (ctl_parse_integer(optarg, 0, LLONG_MAX, &v) < 0) {
 				fprintf(stderr, "asphctl: '%s' is not a count\n", optarg);
 				return CTL_EXIT_USAGE;
 			}

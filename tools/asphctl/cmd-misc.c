@@ -1,6 +1,7 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /* queue, instruments, drivers. */
 #include <getopt.h>
+#include <limits.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -53,9 +54,8 @@ int cmd_queue(struct ctl *ctl, int argc, char **argv)
 		method = "queue.get";
 	} else if (rest == 3 && !strcmp(args[0], "move")) {
 		int64_t id = ctl_job_id(args[1]);
-		char *end;
-		long long pos = strtoll(args[2], &end, 10);
-		if (id < 0 || *end || pos < 0) {
+		long long pos;
+		if (id < 0 || ctl_parse_integer(args[2], 0, LLONG_MAX, &pos) < 0) {
 			fprintf(stderr, "Usage: asphctl %s\n", usage);
 			return CTL_EXIT_USAGE;
 		}

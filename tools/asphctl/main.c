@@ -1,6 +1,7 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 #include <errno.h>
 #include <getopt.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -64,14 +65,33 @@ void ctl_print_json(const json_t *j)
 	}
 }
 
-int64_t ctl_job_id(const char *arg)
+int ctl_parse_integer(const char *arg, long long min, long long max, long long *v)
 {
 	char *end;
-	long long v;
 
 	errno = 0;
-	v = strtoll(arg, &end, 10);
-	if (errno || *end || v <= 0 || end == arg) {
+	*v = strtoll(arg, &end, 10);
+	if (errno || end == arg || *end || *v < min || *v > max)
+		return -EINVAL;
+	return 0;
+}
+
+int ctl_parse_real(const char *arg, double *v)
+{
+	char *end;
+
+	errno = 0;
+	*v = strtod(arg, &end);
+	if (errno || end == arg || *end || !isfinite(*v))
+		return -EINVAL;
+	return 0;
+}
+
+int64_t ctl_job_id(const char *arg)
+{
+	long long v;
+
+	if (ctl_parse_integer(arg, 1, INT64_MAX, &v) < 0) {
 		fprintf(stderr, "asphctl: '%s' is not a job id\n", arg);
 		return -1;
 	}
