@@ -17,6 +17,7 @@
 #include "settings.h"
 #include "runner.h"
 #include "store.h"
+#include "util-time.h"
 
 struct asph_registry;
 struct asph_config;
@@ -108,7 +109,6 @@ struct daemon {
 };
 
 /* ---- main.c */
-int64_t now_realtime_ns(void);
 void daemon_update_status(struct daemon *d);
 
 /* ---- server.c: listeners and clients */

@@ -19,22 +19,13 @@
  * the scan file, not from this number). */
 #define PROGRESS_STORE_NS 5000000000ull
 
-static void iso_time(int64_t ns, char *buf, size_t size)
-{
-	time_t t = (time_t)(ns / 1000000000);
-	struct tm tm;
-
-	gmtime_r(&t, &tm);
-	strftime(buf, size, "%Y-%m-%dT%H:%M:%SZ", &tm);
-}
-
 static json_t *time_json(int64_t ns)
 {
-	char buf[32];
+	char buf[ISO8601_SIZE];
 
 	if (ns <= 0)
 		return json_null();
-	iso_time(ns, buf, sizeof(buf));
+	iso8601_utc(ns, 0, buf, sizeof(buf));
 	return json_string(buf);
 }
 
@@ -155,11 +146,11 @@ static int make_dirs(struct daemon *d, const char *dir)
 
 static char *job_metadata(const struct job_record *j)
 {
-	char submitted[32];
+	char submitted[ISO8601_SIZE];
 	json_t *m;
 	char *s;
 
-	iso_time(j->submitted_ns, submitted, sizeof(submitted));
+	iso8601_utc(j->submitted_ns, 0, submitted, sizeof(submitted));
 	m = json_pack("{s:I, s:s?, s:{s:I, s:s?}, s:s, s:I, s:I}", "job", (json_int_t)j->id,
 		      "label", j->label, "submitted_by", "uid", (json_int_t)j->uid,
 		      "name", j->user, "submitted", submitted,

@@ -31,14 +31,6 @@ enum {
 
 #define DEFAULT_CONFIG "/etc/asphd/asphd.conf"
 
-int64_t now_realtime_ns(void)
-{
-	struct timespec ts;
-
-	clock_gettime(CLOCK_REALTIME, &ts);
-	return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
-}
-
 void daemon_update_status(struct daemon *d)
 {
 	char text[128];

@@ -235,12 +235,9 @@ static int m_job_submit(struct call *c, json_t *params, json_t **result)
 static int history_entry(const struct store_event *e, void *data)
 {
 	json_t *list = data;
-	char buf[32];
-	time_t t = (time_t)(e->t_ns / 1000000000);
-	struct tm tm;
+	char buf[ISO8601_SIZE];
 
-	gmtime_r(&t, &tm);
-	strftime(buf, sizeof(buf), "%Y-%m-%dT%H:%M:%SZ", &tm);
+	iso8601_utc(e->t_ns, 0, buf, sizeof(buf));
 	return json_array_append_new(list, json_pack("{s:s, s:s, s:s?, s:I}", "time", buf,
 		"state", job_state_name(e->state), "reason", e->reason,
 		"actor_uid", (json_int_t)e->actor_uid)) < 0 ? -ENOMEM : 0;

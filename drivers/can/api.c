@@ -15,6 +15,7 @@
 #include "asph/driver.h"
 #include "bus.h"
 #include "transport.h"
+#include "util-time.h"
 
 enum {
 	OPT_INTERFACE, OPT_X_NODE, OPT_Y_NODE, OPT_Z_NODE,
@@ -765,7 +766,7 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 	memset(out, 0, sizeof(*out));
 	out->raw = probe_raw(d->p_format, v);
 	out->value = out->raw * d->p_scale + d->p_offset;
-	out->t_ns = transport_deadline(0);
+	out->t_ns = now_monotonic_ns();
 	if (!(out->value >= d->pinfo.range_min && out->value <= d->pinfo.range_max))
 		out->flags = ASPH_READING_OUT_OF_RANGE;
 	return 0;

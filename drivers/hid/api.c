@@ -12,6 +12,7 @@
 #include "asph/driver.h"
 #include "protocol.h"
 #include "util-mem.h"
+#include "util-time.h"
 
 enum {
 	OPT_PATH, OPT_VENDOR_ID, OPT_PRODUCT_ID, OPT_SERIAL, OPT_PROFILE,
@@ -198,13 +199,6 @@ static int probe_info(struct asph_device *d, struct asph_probe_info *out,
 	return 0;
 }
 
-static uint64_t now_ns(void)
-{
-	struct timespec ts;
-	clock_gettime(CLOCK_MONOTONIC, &ts);
-	return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
-
 static void to_reading(const struct asph_device *d, const struct hid_sample *s,
 		       struct asph_reading *out)
 {
@@ -239,7 +233,7 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 		r = hid_link_read(d->link, buf, sizeof(buf), timeout_ms, err);
 	if (r < 0)
 		return r;
-	out->t_ns = now_ns();
+	out->t_ns = now_monotonic_ns();
 	r = hid_decode_report(&d->prof, buf, (size_t)r, &s, err);
 	if (r < 0)
 		return r;

@@ -12,6 +12,7 @@
 #include "asph/driver.h"
 #include "asph/units.h"
 #include "protocol.h"
+#include "util-time.h"
 
 enum {
 	OPT_LENS, OPT_PROBE, OPT_KINEMATICS, OPT_TIP_RADIUS, OPT_STANDOFF,
@@ -324,13 +325,6 @@ static int probe_info(struct asph_device *d, struct asph_probe_info *out,
 	return 0;
 }
 
-static uint64_t now_ns(void)
-{
-	struct timespec ts;
-	clock_gettime(CLOCK_MONOTONIC, &ts);
-	return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
-
 /* One reading without pacing; faults by reading number. */
 static int measure(struct asph_device *d, const struct asph_probe_context *ctx,
 		   struct asph_reading *out, uint64_t t_ns, unsigned timeout_ms,
@@ -376,7 +370,7 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 	} else if (atomic_load_explicit(&d->stop, memory_order_relaxed)) {
 		return asph_error_set(err, -ECANCELED, "reading stopped");
 	}
-	return measure(d, ctx, out, now_ns(), timeout_ms, err);
+	return measure(d, ctx, out, now_monotonic_ns(), timeout_ms, err);
 }
 
 static int probe_stream(struct asph_device *d, const struct asph_probe_context *ctx,
@@ -395,7 +389,7 @@ static int probe_stream(struct asph_device *d, const struct asph_probe_context *
 		return asph_error_set(err, -ECANCELED, "streaming stopped");
 	}
 	/* the readings of a sweep are spread over it at the probe's rate */
-	uint64_t t0 = now_ns();
+	uint64_t t0 = now_monotonic_ns();
 	double dt = d->time_factor * 1e9 / d->rate;
 	uint64_t t_end = t0 - (uint64_t)((double)n * dt);
 	for (size_t i = 0; i < n; i++) {

@@ -13,6 +13,7 @@
 #include "asph/driver.h"
 #include "protocol.h"
 #include "stage.h"
+#include "util-time.h"
 
 enum {
 	/* the bus */
@@ -407,13 +408,6 @@ static double raw_value(const struct asph_device *d, const uint16_t *w)
 	return d->is_signed ? (double)(int16_t)w[0] : (double)w[0];
 }
 
-static uint64_t now_ns(void)
-{
-	struct timespec ts;
-	clock_gettime(CLOCK_MONOTONIC, &ts);
-	return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
-
 static int probe_read(struct asph_device *d, const struct asph_probe_context *ctx,
 		      struct asph_reading *out, unsigned timeout_ms, struct asph_error *err)
 {
@@ -429,7 +423,7 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 	if (r < 0)
 		return r;
 	memset(out, 0, sizeof(*out));
-	out->t_ns = now_ns();
+	out->t_ns = now_monotonic_ns();
 	out->raw = raw_value(d, w);
 	if (!(flag >> d->valid_bit & 1)) {
 		out->value = NAN;

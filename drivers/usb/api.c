@@ -17,6 +17,7 @@
 #include "protocol.h"
 #include "scpi.h"
 #include "transport.h"
+#include "util-time.h"
 
 enum {
 	OPT_VENDOR, OPT_PRODUCT, OPT_SERIAL, OPT_READ_CHUNK, OPT_CLEAR,
@@ -440,7 +441,6 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 		      struct asph_reading *out, unsigned timeout_ms, struct asph_error *err)
 {
 	char reply[SCPI_REPLY_MAX];
-	struct timespec ts;
 	double v;
 	int r = call(d, d->o[OPT_CMD_MEASURE].s, reply, sizeof(reply), timeout_ms, err);
 
@@ -449,9 +449,8 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 	if (scpi_parse_numbers(reply, &v, 1) < 0)
 		return asph_error_set(err, -EPROTO, "%s: '%s' answered '%s', not a number",
 				      usbtmc_name(d->link->t), d->o[OPT_CMD_MEASURE].s, reply);
-	clock_gettime(CLOCK_MONOTONIC, &ts);
 	memset(out, 0, sizeof(*out));
-	out->t_ns = (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+	out->t_ns = now_monotonic_ns();
 	out->raw = v;
 	out->value = v * d->scale;
 	if (!(out->value >= d->pinfo.range_min && out->value <= d->pinfo.range_max))

@@ -23,6 +23,7 @@
 #include "crc32c.h"
 #include "scanfile-format.h"
 #include "util-mem.h"
+#include "util-time.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile_reader *, asph_scanfile_reader_free)
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile *, asph_scanfile_free)
@@ -95,10 +96,7 @@ static int fail_errno(const char *path, struct asph_error *err, const char *what
 
 static uint64_t monotonic_ns(void *data)
 {
-	struct timespec ts;
-
-	clock_gettime(CLOCK_MONOTONIC, &ts);
-	return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+	return now_monotonic_ns();
 }
 
 static uint64_t now(const struct asph_scanfile_writer *w)
@@ -312,7 +310,7 @@ int asph_scanfile_writer_finish(struct asph_scanfile_writer *writer,
 				const char *reason, struct asph_error *err)
 {
 	_cleanup_(writer_freep) struct asph_scanfile_writer *w = writer;
-	char when[48];
+	char when[ISO8601_SIZE];
 	int r;
 
 	if (outcome == ASPH_SCANFILE_UNFINISHED ||
@@ -323,8 +321,8 @@ int asph_scanfile_writer_finish(struct asph_scanfile_writer *writer,
 	if ((r = write_pending(w, err)) < 0)
 		return r;
 
-	int64_t t = scanfile_realtime_ns();
-	scanfile_format_time(t, when, sizeof(when));
+	int64_t t = now_realtime_ns();
+	iso8601_utc(t, 9, when, sizeof(when));
 	_cleanup_(json_decrefp) json_t *end = json_pack("{s:s, s:s?, s:I, s:s, s:I, s:I}",
 		"outcome", asph_scanfile_outcome_name(outcome), "reason", reason,
 		"points", (json_int_t)w->n_points, "time", when, "time_ns", (json_int_t)t,
@@ -378,11 +376,11 @@ static int member(const char *path, json_t *hdr, const char *key, const char *te
 static int header_text(const char *path, const struct asph_scanfile_header_info *info,
 		       char **out, struct asph_error *err)
 {
-	char when[48];
-	int64_t t = scanfile_realtime_ns();
+	char when[ISO8601_SIZE];
+	int64_t t = now_realtime_ns();
 	int r;
 
-	scanfile_format_time(t, when, sizeof(when));
+	iso8601_utc(t, 9, when, sizeof(when));
 	_cleanup_(json_decrefp) json_t *hdr = json_pack("{s:s, s:{s:s, s:s}, s:s, s:I}",
 		"format", "asph-scan", "software", "name", "libasph", "version", ASPH_VERSION,
 		"created", when, "created_ns", (json_int_t)t);
@@ -538,10 +536,10 @@ static int write_resume_record(struct asph_scanfile_writer *w, const struct asph
 			       uint64_t cut, struct asph_error *err)
 {
 	const struct asph_scanfile_report *rep = &s->report;
-	char when[48];
-	int64_t t = scanfile_realtime_ns();
+	char when[ISO8601_SIZE];
+	int64_t t = now_realtime_ns();
 
-	scanfile_format_time(t, when, sizeof(when));
+	iso8601_utc(t, 9, when, sizeof(when));
 	_cleanup_(json_decrefp) json_t *ev = json_pack("{s:s, s:s, s:I, s:I, s:I, s:s, s:s}",
 		"event", "resume", "time", when, "time_ns", (json_int_t)t,
 		"points", (json_int_t)w->n_points, "discarded_bytes", (json_int_t)cut,
@@ -560,7 +558,7 @@ static int write_resume_record(struct asph_scanfile_writer *w, const struct asph
 /* Times continue from the later of the last point and the wall clock. */
 static uint64_t resumed_time_base(const struct asph_scanfile_reader *r)
 {
-	int64_t since = scanfile_realtime_ns() - r->header.created_ns;
+	int64_t since = now_realtime_ns() - r->header.created_ns;
 
 	return since > 0 && (uint64_t)since > r->last_t_ns ? (uint64_t)since : r->last_t_ns;
 }

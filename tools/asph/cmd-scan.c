@@ -18,6 +18,7 @@
 #include "asph/prescription.h"
 #include "plan-source.h"
 #include "util-mem.h"
+#include "util-time.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_registry *, asph_registry_free)
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_config *, asph_config_free)
@@ -47,12 +48,10 @@ struct bar {
 static void progress_cb(const struct asph_scan_progress *p, void *data)
 {
 	struct bar *b = data;
-	struct timespec ts;
 
 	if (b->quiet)
 		return;
-	clock_gettime(CLOCK_MONOTONIC, &ts);
-	uint64_t t = (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+	uint64_t t = now_monotonic_ns();
 	bool final = p->state >= ASPH_SCAN_COMPLETED;
 	double pct = p->total ? 100.0 * (double)p->done / (double)p->total : 100.0;
 	char eta[32] = "--";
