@@ -33,7 +33,7 @@ static int fail(struct call *c, int code, const char *fmt, ...)
 	va_list ap;
 
 	va_start(ap, fmt);
-	vsnprintf(c->why.text, sizeof(c->why.text), fmt, ap);
+	proto_why_vset(&c->why, fmt, ap);
 	va_end(ap);
 	return code;
 }
@@ -773,19 +773,14 @@ json_t *rpc_handle(struct client *cl, json_t *msg)
 	struct call c = { .d = cl->d, .client = cl };
 	struct proto_message m;
 	const struct method *meth;
-	const char *why = NULL;
 	json_t *result = NULL, *params;
 	int code;
 
-	code = proto_check_request(msg, &m, &why);
+	code = proto_check_request(msg, &m, &c.why);
 	if (code && m.unknown)
 		fail(&c, code, "unknown member \"%.64s\" in request", m.unknown);
-	else if (code)
-		fail(&c, code, "%s", why);
-	if (code) {
-		proto_utf8_clean(c.why.text);
+	if (code)
 		return proto_make_error(m.id, code, NULL, json_pack("{s:s}", "detail", c.why.text));
-	}
 	params = m.params;
 	meth = find_method(m.method);
 	if (!meth) {

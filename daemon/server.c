@@ -205,14 +205,14 @@ static void send_error(struct client *c, int code, const char *detail)
 
 static void handle_line(struct client *c, const char *line, size_t len)
 {
-	char why[160];
+	struct proto_why why;
 	_cleanup_(json_decrefp) json_t *msg = NULL;
 	_cleanup_(json_decrefp) json_t *reply = NULL;
 
 	c->d->requests++;
-	msg = proto_parse(line, len, why, sizeof(why));
+	msg = proto_parse(line, len, &why);
 	if (!msg) {
-		send_error(c, PROTO_PARSE_ERROR, why);
+		send_error(c, PROTO_PARSE_ERROR, why.text);
 		return;
 	}
 	if (!json_is_array(msg)) {
@@ -221,9 +221,9 @@ static void handle_line(struct client *c, const char *line, size_t len)
 		send_error(c, PROTO_INVALID_REQUEST, "an empty batch");
 		return;
 	} else if (json_array_size(msg) > PROTO_MAX_BATCH) {
-		snprintf(why, sizeof(why), "a batch of %zu requests, more than %d",
-			 json_array_size(msg), PROTO_MAX_BATCH);
-		send_error(c, PROTO_INVALID_REQUEST, why);
+		proto_why_set(&why, "a batch of %zu requests, more than %d",
+			      json_array_size(msg), PROTO_MAX_BATCH);
+		send_error(c, PROTO_INVALID_REQUEST, why.text);
 		return;
 	} else {
 		size_t i;

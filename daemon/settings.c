@@ -26,18 +26,15 @@ static void complain(struct loader *ld, const char *field, const char *fmt, ...)
 
 static void complain(struct loader *ld, const char *field, const char *fmt, ...)
 {
+	struct json_source src = { ld->text, ld->len, ld->source };
 	struct asph_error e;
 	va_list ap;
-	int line = 0, column = 0;
 
 	asph_error_clear(&e);
-	e.code = -EINVAL;
 	va_start(ap, fmt);
-	vsnprintf(e.message, sizeof(e.message), fmt, ap);
+	asph_error_vset_at(&e, -EINVAL, NULL, 0, 0, NULL, fmt, ap);
 	va_end(ap);
-	if (field && ld->text)
-		json_locate_dotted(ld->text, ld->len, field, &line, &column);
-	asph_error_locate(&e, ld->source, line, column, field);
+	json_error_locate(&e, -EINVAL, &src, field);
 	ld->n_errors++;
 	if (ld->report)
 		ld->report(&e, ld->data);
@@ -233,8 +230,7 @@ int config_load(const char *path, struct daemon_config **out,
 			r = -errno;
 			struct asph_error e;
 			asph_error_clear(&e);
-			asph_error_set(&e, r, "cannot open: %s", strerror(-r));
-			asph_error_locate(&e, path, 0, 0, NULL);
+			asph_error_set_at(&e, r, path, 0, 0, NULL, "cannot open: %s", strerror(-r));
 			if (report)
 				report(&e, data);
 			config_free(c);
@@ -254,8 +250,7 @@ int config_load(const char *path, struct daemon_config **out,
 	if (!root) {
 		struct asph_error e;
 		asph_error_clear(&e);
-		asph_error_set(&e, -EINVAL, "%s", je.text);
-		asph_error_locate(&e, path, je.line, je.column, NULL);
+		asph_error_set_at(&e, -EINVAL, path, je.line, je.column, NULL, "%s", je.text);
 		if (report)
 			report(&e, data);
 		config_free(c);

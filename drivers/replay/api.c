@@ -147,11 +147,9 @@ static int probe_open(const struct asph_driver *drv, const struct asph_option_va
 	struct asph_device *d = NULL;
 	int r;
 
-	if (!o[OPT_FILE].s || !*o[OPT_FILE].s) {
-		asph_error_set(err, -EINVAL, "option 'file' is required: the scan to play back");
-		asph_error_locate(err, NULL, 0, 0, "file");
-		return -EINVAL;
-	}
+	if (!o[OPT_FILE].s || !*o[OPT_FILE].s)
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "file",
+					 "option 'file' is required: the scan to play back");
 	r = stage_open(drv, o, timeout_ms, &d, err);
 	if (r < 0)
 		return r;

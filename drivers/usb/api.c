@@ -223,10 +223,10 @@ static int dev_open(const struct asph_option_value *o, bool stage, unsigned time
 	for (size_t i = 0; i < sizeof(templates) / sizeof(templates[0]); i++)
 		if (stage && scpi_check_template(o[templates[i]].s, 3) < 0) {
 			dev_close(d);
-			asph_error_set(err, -EINVAL, "option '%s': '%s' may use only {0}, {1}, {2}",
-				       usb_options[templates[i]].name, o[templates[i]].s);
-			asph_error_locate(err, NULL, 0, 0, usb_options[templates[i]].name);
-			return -EINVAL;
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0,
+						 usb_options[templates[i]].name,
+						 "option '%s': '%s' may use only {0}, {1}, {2}",
+						 usb_options[templates[i]].name, o[templates[i]].s);
 		}
 	int r = link_get(d, timeout_ms, err);
 	if (r < 0) {

@@ -170,16 +170,12 @@ static int resolve(const struct asph_surface *s, enum asph_plan_method m,
 	const char *field = density_field(d.kind);
 	double a = asph_surface_aperture_radius(s), ratio;
 
-	if ((unsigned)m >= ASPH_PLAN_N_METHODS) {
-		asph_error_locate(err, NULL, 0, 0, "method");
-		return asph_error_set(err, -EINVAL, "unknown method %d", m);
-	}
-	if (!isfinite(d.value) || d.value <= 0) {
-		asph_error_locate(err, NULL, 0, 0, field);
-		return asph_error_set(err, -EINVAL,
-				      "must be positive and finite (got %g)",
-				      d.value);
-	}
+	if ((unsigned)m >= ASPH_PLAN_N_METHODS)
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "method", "unknown method %d",
+					 m);
+	if (!isfinite(d.value) || d.value <= 0)
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+					 "must be positive and finite (got %g)", d.value);
 	ratio = pitch_per_spacing(s, m);
 	switch (d.kind) {
 	case ASPH_DENSITY_H:
@@ -195,24 +191,19 @@ static int resolve(const struct asph_surface *s, enum asph_plan_method m,
 		out->e = out->p / ratio;
 		break;
 	default:
-		asph_error_locate(err, NULL, 0, 0, "density");
-		return asph_error_set(err, -EINVAL, "unknown density kind %d",
-				      d.kind);
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "density",
+					 "unknown density kind %d", d.kind);
 	}
-	if (!(out->e <= a)) {
-		asph_error_locate(err, NULL, 0, 0, field);
-		return asph_error_set(err, -EINVAL,
-				      "%g is too coarse: it gives a spacing of %.6g mm, "
-				      "more than the aperture radius %.6g mm (h > 1)",
-				      d.value, out->e, a);
-	}
+	if (!(out->e <= a))
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+					 "%g is too coarse: it gives a spacing of %.6g mm, "
+					 "more than the aperture radius %.6g mm (h > 1)",
+					 d.value, out->e, a);
 	out->n = pattern_count(s, m, out->p);
-	if (out->n > PLAN_MAX_POINTS) {
-		asph_error_locate(err, NULL, 0, 0, field);
-		return asph_error_set(err, -EINVAL,
-				      "%g gives more than %zu points, the most a plan can hold",
-				      d.value, PLAN_MAX_POINTS);
-	}
+	if (out->n > PLAN_MAX_POINTS)
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+					 "%g gives more than %zu points, the most a plan can hold",
+					 d.value, PLAN_MAX_POINTS);
 	return 0;
 }
 
@@ -531,12 +522,10 @@ int asph_plan_compute_opts(const struct asph_surface *s,
 
 	if (r < 0)
 		return r;
-	if (max_points && sz.n > max_points) {
-		asph_error_locate(err, NULL, 0, 0, density_field(density.kind));
-		return asph_error_set(err, -EINVAL,
-				      "%g gives %zu points, more than the limit of %zu",
-				      density.value, sz.n, max_points);
-	}
+	if (max_points && sz.n > max_points)
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, density_field(density.kind),
+					 "%g gives %zu points, more than the limit of %zu",
+					 density.value, sz.n, max_points);
 	plan = calloc(1, sizeof(*plan));
 	if (!plan)
 		return asph_error_set(err, -ENOMEM, "out of memory");

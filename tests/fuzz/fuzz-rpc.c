@@ -105,7 +105,7 @@ static void as_user(uint8_t who)
 
 static void handle(const char *line, size_t len)
 {
-	json_t *msg = proto_parse(line, len, NULL, 0);
+	json_t *msg = proto_parse(line, len, NULL);
 
 	if (!msg)
 		return;
