@@ -21,7 +21,6 @@
 
 /* ------------------------------------------------------------ the spec */
 
-static const char *const density_names[] = { "h", "spacing", "points" };
 
 static int spec_lens(json_t *params, json_t *spec, struct asph_prescription *p,
 		     struct proto_why *why)
@@ -112,7 +111,8 @@ static int spec_plan(json_t *params, json_t *spec, const struct asph_prescriptio
 	}
 	for (int k = 0; k < 3; k++) {
 		double v;
-		r = proto_param_number(plan, density_names[k], false, 1e-9, 1e12, &v, why);
+		r = proto_param_number(plan, asph_plan_density_name(k), false, 1e-9, 1e12,
+				       &v, why);
 		if (r == -EINVAL)
 			return PROTO_INVALID_PARAMS;
 		if (r == 0) {
@@ -139,7 +139,7 @@ static int spec_plan(json_t *params, json_t *spec, const struct asph_prescriptio
 	}
 	*points = n;
 	json_object_set_new(spec, "plan", json_pack("{s:s, s:s, s:f}", "method", method,
-		"density", density_names[density.kind], "value", density.value));
+		"density", asph_plan_density_name(density.kind), "value", density.value));
 	return 0;
 }
 
@@ -210,7 +210,6 @@ int job_plan_build(const char *spec_text, uint64_t max_points, struct job_plan *
 	struct asph_plan_options po = { .max_points = max_points, .flags = ASPH_PLAN_NO_MESH };
 	enum asph_plan_method m;
 	_cleanup_free_ char *text = NULL;
-	const char *dname;
 	int r;
 
 	memset(jp, 0, sizeof(*jp));
@@ -232,22 +231,15 @@ int job_plan_build(const char *spec_text, uint64_t max_points, struct job_plan *
 		return r;
 	if (asph_plan_method_from_name(json_string_value(json_object_get(plan, "method")), &m) < 0)
 		return asph_error_set(err, -EINVAL, "the stored plan method is damaged");
-	dname = json_string_value(json_object_get(plan, "density"));
-	for (int k = 0; k < 3; k++)
-		if (dname && !strcmp(dname, density_names[k]))
-			density.kind = (enum asph_plan_density_kind)k;
+	if (asph_plan_density_from_name(json_string_value(json_object_get(plan, "density")),
+					&density.kind) < 0)
+		return asph_error_set(err, -EINVAL, "the stored plan density is damaged");
 	density.value = json_number_value(json_object_get(plan, "value"));
 	r = asph_plan_compute_opts(jp->surface, m, density, &po, &jp->plan, err);
 	if (r < 0)
 		return r;
-	json_t *pj = json_pack("{s:s, s:s, s:f, s:f, s:I}", "method", asph_plan_method_name(m),
-			       "density", density_names[density.kind], "value", density.value,
-			       "spacing_mm", jp->plan->spacing_mm,
-			       "points", (json_int_t)jp->plan->n);
-	jp->plan_json = json_dumps(pj, JSON_COMPACT);
-	json_decref(pj);
-	r = asph_prescription_to_json(&jp->prescription, &jp->prescription_json);
-	if (r < 0 || !jp->plan_json)
+	if (asph_plan_to_json(jp->plan, &jp->plan_json) < 0 ||
+	    asph_prescription_to_json(&jp->prescription, &jp->prescription_json) < 0)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	jp->fit_json = json_dumps(fit, JSON_COMPACT);
 	r = asph_fit_dof_parse(json_string_value(json_object_get(fit, "dof")), &jp->fit.dof, err);

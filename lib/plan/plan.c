@@ -54,17 +54,32 @@ static double pattern_area(const struct asph_surface *s,
 
 /* ---- density ------------------------------------------------------------- */
 
+static const char *const density_names[] = {
+	[ASPH_DENSITY_H] = "h",
+	[ASPH_DENSITY_SPACING] = "spacing",
+	[ASPH_DENSITY_POINTS] = "points",
+};
+
+const char *asph_plan_density_name(enum asph_plan_density_kind k)
+{
+	return (unsigned)k < ARRAY_SIZE(density_names) ? density_names[k] : "unknown";
+}
+
+int asph_plan_density_from_name(const char *name, enum asph_plan_density_kind *out)
+{
+	for (unsigned i = 0; name && i < ARRAY_SIZE(density_names); i++) {
+		if (!strcmp(name, density_names[i])) {
+			*out = (enum asph_plan_density_kind)i;
+			return 0;
+		}
+	}
+	return -EINVAL;
+}
+
+/* The option an error about the density names. */
 static const char *density_field(enum asph_plan_density_kind k)
 {
-	switch (k) {
-	case ASPH_DENSITY_H:
-		return "h";
-	case ASPH_DENSITY_SPACING:
-		return "spacing";
-	case ASPH_DENSITY_POINTS:
-		return "points";
-	}
-	return "density";
+	return (unsigned)k < ARRAY_SIZE(density_names) ? density_names[k] : "density";
 }
 
 /* What a density resolves to for one method on one surface. */

@@ -89,21 +89,6 @@ static void *sigwatch_run(void *data)
 	return NULL;
 }
 
-static int plan_json(const struct asph_plan *plan, char **out)
-{
-	static const char *const kinds[] = { "h", "spacing", "points" };
-	_cleanup_(json_decrefp) json_t *j = json_object();
-
-	json_object_set_new(j, "method", json_string(asph_plan_method_name(plan->method)));
-	json_object_set_new(j, "density", json_pack("{s:s,s:f}", "kind",
-						     kinds[plan->density.kind], "value",
-						     plan->density.value));
-	json_object_set_new(j, "spacing_mm", json_real(plan->spacing_mm));
-	json_object_set_new(j, "points", json_integer((json_int_t)plan->n));
-	*out = json_dumps(j, JSON_COMPACT | JSON_PRESERVE_ORDER | JSON_REAL_PRECISION(17));
-	return *out ? 0 : -ENOMEM;
-}
-
 static int open_writer(const struct scan_args *a, const struct asph_surface *s,
 		       const struct asph_plan *plan, const struct asph_instrument_config *ic,
 		       struct asph_scanfile_writer **w, uint64_t *start, struct asph_error *err)
@@ -123,7 +108,7 @@ static int open_writer(const struct scan_args *a, const struct asph_surface *s,
 		return 0;
 	}
 	if (asph_prescription_to_json(asph_surface_prescription(s), &pj) < 0 ||
-	    plan_json(plan, &plj) < 0 || asph_instrument_config_to_json(ic, &ij) < 0)
+	    asph_plan_to_json(plan, &plj) < 0 || asph_instrument_config_to_json(ic, &ij) < 0)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	struct asph_scanfile_header_info info = { pj, plj, ij, NULL };
 	return asph_scanfile_writer_create(a->output, &info, &wo, w, err);
