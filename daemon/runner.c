@@ -163,17 +163,10 @@ static int open_writer(struct run *run, uint64_t *start,
 
 	*start = 0;
 	if (job->resume && stat(job->scan_path, &st) == 0) {
-		struct asph_scanfile *rec = NULL;
 		wo.flags = ASPH_SCANFILE_REOPEN_ENDED;
-		r = asph_scanfile_writer_resume(job->scan_path, &wo, &rec, w, &run->err);
+		r = asph_scan_reopen(job->scan_path, run->jp.plan, &wo, w, start, &run->err);
 		if (r < 0)
 			return r;
-		/* The executor measures in plan order: go on after the last
-		 * point recorded. */
-		for (size_t i = 0; i < rec->n; i++)
-			if (rec->points[i].plan_index + 1 > *start)
-				*start = rec->points[i].plan_index + 1;
-		asph_scanfile_free(rec);
 		log_job(LOG_INFO, job->id, "resuming the scan at plan point %" PRIu64, *start);
 		return 0;
 	}

@@ -97,16 +97,8 @@ static int open_writer(const struct scan_args *a, const struct asph_surface *s,
 	struct asph_scanfile_writer_options wo = { .flags = a->force ? ASPH_SCANFILE_OVERWRITE : 0 };
 
 	*start = 0;
-	if (a->resume) {
-		_cleanup_(asph_scanfile_freep) struct asph_scanfile *rec = NULL;
-		int r = asph_scanfile_writer_resume(a->output, NULL, &rec, w, err);
-		if (r < 0)
-			return r;
-		for (size_t i = 0; i < rec->n; i++)
-			if (rec->points[i].plan_index + 1 > *start)
-				*start = rec->points[i].plan_index + 1;
-		return 0;
-	}
+	if (a->resume)
+		return asph_scan_reopen(a->output, plan, NULL, w, start, err);
 	if (asph_prescription_to_json(asph_surface_prescription(s), &pj) < 0 ||
 	    asph_plan_to_json(plan, &plj) < 0 || asph_instrument_config_to_json(ic, &ij) < 0)
 		return asph_error_set(err, -ENOMEM, "out of memory");
