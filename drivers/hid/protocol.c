@@ -341,7 +341,7 @@ int hid_link_read(struct hid_link *l, uint8_t *buf, size_t size, unsigned timeou
 		/* A read that came back empty before its time: the node is
 		 * always readable (not a hidraw node); do not spin. */
 		if (now_monotonic_ms() < t + (unsigned)wait)
-			usleep(1000);
+			msleep(1);
 	}
 }
 

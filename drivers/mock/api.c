@@ -12,6 +12,7 @@
 #include "asph/driver.h"
 #include "asph/units.h"
 #include "protocol.h"
+#include "std.h"
 #include "util-time.h"
 
 enum {
@@ -300,11 +301,7 @@ static int probe_open(const struct asph_driver *drv, const struct asph_option_va
 		return r;
 	}
 	struct asph_probe_info *pi = &d->pinfo;
-	pi->type = tactile ? ASPH_PROBE_TACTILE : ASPH_PROBE_OPTICAL;
-	pi->tip_radius = pp.tip_radius;
-	pi->standoff = o[OPT_STANDOFF].d;
-	pi->range_min = pi->standoff - o[OPT_RANGE].d / 2;
-	pi->range_max = pi->standoff + o[OPT_RANGE].d / 2;
+	std_probe_geometry(pi, tactile, pp.tip_radius, o[OPT_STANDOFF].d, o[OPT_RANGE].d);
 	pi->max_slope = o[OPT_MAX_SLOPE].d * M_PI / 180;
 	d->rate = o[OPT_RATE].d;
 	pi->rate = d->time_factor > 0 ? d->rate / d->time_factor : 0;
@@ -354,8 +351,7 @@ static int measure(struct asph_device *d, const struct asph_probe_context *ctx,
 	}
 	out->value = z - ctx->xyz[2];
 	out->raw = out->value;
-	if (!(out->value >= d->pinfo.range_min && out->value <= d->pinfo.range_max))
-		out->flags = ASPH_READING_OUT_OF_RANGE;
+	std_reading_check_range(out, &d->pinfo);
 	return 0;
 }
 

@@ -13,6 +13,7 @@
 #include "asph/driver.h"
 #include "protocol.h"
 #include "stage.h"
+#include "std.h"
 #include "util-time.h"
 
 enum {
@@ -364,11 +365,7 @@ static int probe_open(const struct asph_driver *drv, const struct asph_option_va
 		return r;
 	bool tactile = o[OPT_PROBE].i == 1;
 	struct asph_probe_info *pi = &d->pinfo;
-	pi->type = tactile ? ASPH_PROBE_TACTILE : ASPH_PROBE_OPTICAL;
-	pi->tip_radius = tactile ? o[OPT_TIP_RADIUS].d : 0;
-	pi->standoff = o[OPT_STANDOFF].d;
-	pi->range_min = pi->standoff - o[OPT_RANGE].d / 2;
-	pi->range_max = pi->standoff + o[OPT_RANGE].d / 2;
+	std_probe_geometry(pi, tactile, o[OPT_TIP_RADIUS].d, o[OPT_STANDOFF].d, o[OPT_RANGE].d);
 	pi->rate = o[OPT_RATE].d;
 	snprintf(pi->model, sizeof(pi->model), "Modbus displacement sensor");
 	snprintf(pi->serial, sizeof(pi->serial), "unit %lld", (long long)o[OPT_SLAVE].i);
@@ -431,8 +428,7 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 		return 0;
 	}
 	out->value = out->raw * d->scale + d->offset;
-	if (!(out->value >= d->pinfo.range_min && out->value <= d->pinfo.range_max))
-		out->flags = ASPH_READING_OUT_OF_RANGE;
+	std_reading_check_range(out, &d->pinfo);
 	return 0;
 }
 

@@ -152,8 +152,7 @@ static void nap(unsigned ms, uint64_t deadline)
 	unsigned left = ms_left(deadline);
 	if (ms > left)
 		ms = left;
-	struct timespec ts = { ms / 1000, (long)(ms % 1000) * 1000000 };
-	nanosleep(&ts, NULL);
+	msleep(ms);
 }
 
 /*

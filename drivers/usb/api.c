@@ -16,6 +16,7 @@
 #include "asph/driver.h"
 #include "protocol.h"
 #include "scpi.h"
+#include "std.h"
 #include "transport.h"
 #include "util-time.h"
 
@@ -312,12 +313,6 @@ static int query_status(struct asph_device *d, long *bits, unsigned timeout_ms,
 	return 0;
 }
 
-static void sleep_ms(unsigned ms)
-{
-	struct timespec ts = { ms / 1000, (long)(ms % 1000) * 1000000 };
-	nanosleep(&ts, NULL);
-}
-
 /* Polls the status until the stage stands (and is homed when homing). */
 static int settle(struct asph_device *d, bool homing, uint64_t deadline, unsigned timeout_ms,
 		  struct asph_error *err)
@@ -336,7 +331,7 @@ static int settle(struct asph_device *d, bool homing, uint64_t deadline, unsigne
 			return asph_error_set(err, -ETIMEDOUT, "%s: the stage did not %s within %u ms",
 					      usbtmc_name(d->link->t), homing ? "home" : "arrive",
 					      timeout_ms);
-		sleep_ms(d->poll_ms);
+		msleep(d->poll_ms);
 	}
 }
 
@@ -418,11 +413,7 @@ static int probe_open(const struct asph_driver *drv, const struct asph_option_va
 	struct asph_device *d = *out;
 	struct asph_probe_info *pi = &d->pinfo;
 	bool tactile = o[OPT_PROBE].i == 1;
-	pi->type = tactile ? ASPH_PROBE_TACTILE : ASPH_PROBE_OPTICAL;
-	pi->tip_radius = tactile ? o[OPT_TIP_RADIUS].d : 0;
-	pi->standoff = o[OPT_STANDOFF].d;
-	pi->range_min = pi->standoff - o[OPT_RANGE].d / 2;
-	pi->range_max = pi->standoff + o[OPT_RANGE].d / 2;
+	std_probe_geometry(pi, tactile, o[OPT_TIP_RADIUS].d, o[OPT_STANDOFF].d, o[OPT_RANGE].d);
 	pi->max_slope = o[OPT_MAX_SLOPE].d * M_PI / 180;
 	pi->rate = o[OPT_RATE].d;
 	identify(d, pi->model, sizeof(pi->model), pi->serial, sizeof(pi->serial));
@@ -453,8 +444,7 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 	out->t_ns = now_monotonic_ns();
 	out->raw = v;
 	out->value = v * d->scale;
-	if (!(out->value >= d->pinfo.range_min && out->value <= d->pinfo.range_max))
-		out->flags = ASPH_READING_OUT_OF_RANGE;
+	std_reading_check_range(out, &d->pinfo);
 	return 0;
 }
 

@@ -11,6 +11,7 @@
 #include "protocol.h"
 #include "transport.h"
 #include "util-mem.h"
+#include "util-time.h"
 
 #define USBTMC_CLASS 0xfe
 #define USBTMC_SUBCLASS 0x03
@@ -262,12 +263,6 @@ static int transfer_error(struct usbtmc *t, int r, const char *what, uint8_t ep,
 #define REQ_IFACE (LIBUSB_ENDPOINT_IN | LIBUSB_REQUEST_TYPE_CLASS | LIBUSB_RECIPIENT_INTERFACE)
 #define REQ_EP (LIBUSB_ENDPOINT_IN | LIBUSB_REQUEST_TYPE_CLASS | LIBUSB_RECIPIENT_ENDPOINT)
 
-static void sleep_ms(unsigned ms)
-{
-	struct timespec ts = { 0, (long)ms * 1000000 };
-	nanosleep(&ts, NULL);
-}
-
 /* Reads and drops what the device has queued on bulk-IN, up to a short
  * packet. */
 static int drain_in(struct usbtmc *t, atomic_bool *stop, uint64_t deadline)
@@ -313,7 +308,7 @@ static int poll_status(struct usbtmc *t, uint8_t type, uint8_t request, uint16_t
 			if (r < 0)
 				return r;
 		} else {
-			sleep_ms(1);
+			msleep(1);
 		}
 		if (transport_ms_left(deadline) == 0)
 			return -ETIMEDOUT;

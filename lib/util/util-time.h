@@ -52,6 +52,19 @@ static inline uint64_t now_monotonic_ms(void)
 	return now_monotonic_ns() / (uint64_t)NS_PER_MS;
 }
 
+/* Sleeps about ns (a signal may end it early). */
+static inline void sleep_ns(uint64_t ns)
+{
+	struct timespec ts = timespec_from_ns((int64_t)ns);
+
+	nanosleep(&ts, NULL);
+}
+
+static inline void msleep(unsigned ms)
+{
+	sleep_ns((uint64_t)ms * (uint64_t)NS_PER_MS);
+}
+
 /* Room for any ISO 8601 text below, nanoseconds and the widest year. */
 #define ISO8601_SIZE 48
 
