@@ -676,7 +676,7 @@ static int m_driver_list(struct call *c, json_t *params, json_t **result)
 
 	if (code)
 		return code;
-	*result = json_pack("{s:o}", "drivers", drivers_to_json(c->d));
+	*result = drivers_to_json(c->d);
 	return 0;
 }
 
