@@ -2,6 +2,7 @@
 #include <errno.h>
 #include <math.h>
 #include <stdarg.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -78,39 +79,87 @@ struct csv_columns {
 	char value_name[32];
 };
 
-static int csv_header(const char *line, size_t len, const char *source,
+static bool is_blank(char c)
+{
+	return c == ' ' || c == '\t' || c == '\r';
+}
+
+/* One field of a CSV line: its text at [b, e) without the blanks around it
+ * and without the double quotes of a quoted field (R and spreadsheets quote
+ * the header: "x","y","z"), and where the next field starts (past len after
+ * the last one). */
+struct csv_field {
+	size_t b, e, next;
+};
+
+static int csv_field(const char *line, size_t len, size_t pos, int lineno,
+		     const char *source, struct csv_field *f, struct asph_error *err)
+{
+	size_t p = pos, q;
+
+	while (p < len && is_blank(line[p]))
+		p++;
+	if (p < len && line[p] == '"') {
+		/* a quote inside is doubled ("") */
+		for (q = p + 1; q < len; q++) {
+			if (line[q] == '"' && q + 1 < len && line[q + 1] == '"')
+				q++;
+			else if (line[q] == '"')
+				break;
+		}
+		if (q >= len)
+			return asph_error_set_at(err, -EINVAL, source, lineno, (int)p + 1, NULL,
+						 "a quote that does not close");
+		f->b = p + 1;
+		f->e = q;
+		for (q++; q < len && is_blank(line[q]); q++)
+			;
+		if (q < len && line[q] != ',')
+			return asph_error_set_at(err, -EINVAL, source, lineno, (int)q + 1, NULL,
+						 "text after the closing quote");
+		f->next = q + 1;
+		return 0;
+	}
+	for (q = p; q < len && line[q] != ','; q++)
+		;
+	f->b = p;
+	f->e = q;
+	while (f->e > f->b && is_blank(line[f->e - 1]))
+		f->e--;
+	f->next = q + 1;
+	return 0;
+}
+
+/* The header: columns x, y and z (in any case, in any order, quoted or
+ * not), and the first other named column as the value. */
+static int csv_header(const char *line, size_t len, int lineno, const char *source,
 		      struct csv_columns *cols, struct asph_error *err)
 {
+	struct csv_field f = { .next = 0 };
 	int col = 0;
-	size_t start = 0;
 
 	cols->ix = cols->iy = cols->iz = cols->ivalue = -1;
-	for (size_t i = 0; i <= len; i++) {
-		if (i < len && line[i] != ',')
-			continue;
-		size_t b = start, e = i;
-		while (b < e && (line[b] == ' ' || line[b] == '\t'))
-			b++;
-		while (e > b && (line[e - 1] == ' ' || line[e - 1] == '\t' || line[e - 1] == '\r'))
-			e--;
+	while (f.next <= len) {
+		int r = csv_field(line, len, f.next, lineno, source, &f, err);
+		if (r < 0)
+			return r;
 		char name[64];
-		snprintf(name, sizeof(name), "%.*s", (int)(e - b), line + b);
-		if (!strcmp(name, "x"))
+		snprintf(name, sizeof(name), "%.*s", (int)(f.e - f.b), line + f.b);
+		if (!strcasecmp(name, "x"))
 			cols->ix = col;
-		else if (!strcmp(name, "y"))
+		else if (!strcasecmp(name, "y"))
 			cols->iy = col;
-		else if (!strcmp(name, "z"))
+		else if (!strcasecmp(name, "z"))
 			cols->iz = col;
 		else if (cols->ivalue < 0 && name[0]) {
 			cols->ivalue = col;
 			snprintf(cols->value_name, sizeof(cols->value_name), "%.31s", name);
 		}
 		col++;
-		start = i + 1;
 	}
 	cols->count = col;
 	if (cols->ix < 0 || cols->iy < 0 || cols->iz < 0)
-		return asph_error_set_at(err, -EINVAL, source, 1, 1, NULL,
+		return asph_error_set_at(err, -EINVAL, source, lineno, 1, NULL,
 					 "the first line must be a header naming the columns x,y,z (got '%.*s')",
 					 (int)(len > 80 ? 80 : len), line);
 	return 0;
@@ -120,49 +169,40 @@ static int csv_row(const char *line, size_t len, int lineno, const char *source,
 		   const struct csv_columns *cols, double *xyz, double *value,
 		   struct asph_error *err)
 {
-	static const char *const names[] = { "x", "y", "z" };
-	size_t pos = 0;
+	struct csv_field f = { .next = 0 };
 
 	for (int col = 0; col < cols->count; col++) {
-		if (pos > len || (col > 0 && line[pos - 1] != ','))
-			return asph_error_set_at(err, -EINVAL, source, lineno, (int)pos + 1, NULL,
+		if (f.next > len)
+			return asph_error_set_at(err, -EINVAL, source, lineno, (int)len + 1, NULL,
 						 "expected %d columns, found %d", cols->count, col);
+		int r = csv_field(line, len, f.next, lineno, source, &f, err);
+		if (r < 0)
+			return r;
 		const char *field = col == cols->ix ? "x" : col == cols->iy ? "y" :
 				    col == cols->iz ? "z" : col == cols->ivalue ? cols->value_name : NULL;
-		size_t end = pos;
-		while (end < len && line[end] != ',')
-			end++;
+		if (!field)
+			continue;
 		char tmp[128], *stop;
-		size_t b = pos, e = end;
-		while (b < e && (line[b] == ' ' || line[b] == '\t'))
-			b++;
-		while (e > b && (line[e - 1] == ' ' || line[e - 1] == '\t' || line[e - 1] == '\r'))
-			e--;
-		if (field) {
-			if (e - b == 0 || e - b >= sizeof(tmp))
-				return asph_error_set_at(err, -EINVAL, source, lineno, (int)b + 1,
-							 field,
-							 e == b ? "empty value" : "value too long");
-			memcpy(tmp, line + b, e - b);
-			tmp[e - b] = '\0';
-			double v = strtod(tmp, &stop);
-			if (*stop != '\0')
-				return asph_error_set_at(err, -EINVAL, source, lineno, (int)b + 1,
-							 field, "not a number: '%s'", tmp);
-			if (!isfinite(v))
-				return asph_error_set_at(err, -EINVAL, source, lineno, (int)b + 1,
-							 field, "not a finite number: '%s'", tmp);
-			if (col == cols->ivalue)
-				*value = v;
-			else
-				xyz[col == cols->ix ? 0 : col == cols->iy ? 1 : 2] = v;
-		}
-		pos = end + 1;
+		if (f.e == f.b || f.e - f.b >= sizeof(tmp))
+			return asph_error_set_at(err, -EINVAL, source, lineno, (int)f.b + 1, field,
+						 f.e == f.b ? "empty value" : "value too long");
+		memcpy(tmp, line + f.b, f.e - f.b);
+		tmp[f.e - f.b] = '\0';
+		double v = strtod(tmp, &stop);
+		if (*stop != '\0')
+			return asph_error_set_at(err, -EINVAL, source, lineno, (int)f.b + 1, field,
+						 "not a number: '%s'", tmp);
+		if (!isfinite(v))
+			return asph_error_set_at(err, -EINVAL, source, lineno, (int)f.b + 1, field,
+						 "not a finite number: '%s'", tmp);
+		if (col == cols->ivalue)
+			*value = v;
+		else
+			xyz[col == cols->ix ? 0 : col == cols->iy ? 1 : 2] = v;
 	}
-	if (pos <= len)
-		return asph_error_set_at(err, -EINVAL, source, lineno, (int)pos, NULL,
+	if (f.next <= len)
+		return asph_error_set_at(err, -EINVAL, source, lineno, (int)f.next, NULL,
 					 "expected %d columns, found more", cols->count);
-	(void)names;
 	return 0;
 }
 
@@ -178,6 +218,9 @@ int asph_points_read_csv_text(const char *text, size_t len,
 
 	if (!xyz || !val)
 		return asph_error_set(err, -ENOMEM, "out of memory");
+	/* spreadsheets' "CSV UTF-8" starts with a byte-order mark */
+	if (len >= 3 && !memcmp(text, "\xef\xbb\xbf", 3))
+		pos = 3;
 	while (pos < len) {
 		size_t end = pos;
 		while (end < len && text[end] != '\n')
@@ -195,11 +238,8 @@ int asph_points_read_csv_text(const char *text, size_t len,
 			return asph_error_set_at(err, -EINVAL, source, lineno, 1, NULL,
 						 "binary data in a CSV file");
 		if (!have_header) {
-			if ((r = csv_header(line, ll, source, &cols, err)) < 0) {
-				if (err)
-					err->line = lineno;
+			if ((r = csv_header(line, ll, lineno, source, &cols, err)) < 0)
 				return r;
-			}
 			have_header = 1;
 			continue;
 		}
