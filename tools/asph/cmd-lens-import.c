@@ -97,6 +97,31 @@ static int import(const char *path, int want, const char *out)
 	return write_out(&p, out);
 }
 
+struct import_args {
+	const char *out;
+	int want;               /* -1: the only surface */
+};
+
+static int take(int opt, const char *arg, void *data)
+{
+	struct import_args *a = data;
+	char *end;
+
+	if (opt == 'o') {
+		a->out = arg;
+		return 0;
+	}
+	errno = 0;
+	long v = strtol(arg, &end, 10);
+	if (arg[0] < '0' || arg[0] > '9' || *end || errno || v > INT_MAX) {
+		fprintf(stderr, "asph: lens import: --surface wants a number from 0 to %d, "
+			"not '%s'\n", INT_MAX, arg);
+		return -EINVAL;
+	}
+	a->want = (int)v;
+	return 0;
+}
+
 int cmd_lens_import(int argc, char **argv)
 {
 	static const struct option options[] = {
@@ -105,38 +130,14 @@ int cmd_lens_import(int argc, char **argv)
 		{ "help", no_argument, NULL, 'h' },
 		{ 0 }
 	};
-	const char *out = NULL;
-	int want = -1, c;
-	char *end;
+	struct import_args a = { .want = -1 };
+	int code = tool_getopt(argc, argv, "o:h", options, usage, take, &a);
 
-	optind = 1;
-	while ((c = getopt_long(argc, argv, "o:h", options, NULL)) != -1) {
-		switch (c) {
-		case 's': {
-			errno = 0;
-			long v = strtol(optarg, &end, 10);
-			if (optarg[0] < '0' || optarg[0] > '9' || *end || errno || v > INT_MAX) {
-				fprintf(stderr, "asph: lens import: --surface wants a number from 0 to %d, "
-					"not '%s'\n", INT_MAX, optarg);
-				return EXIT_USAGE;
-			}
-			want = (int)v;
-			break;
-		}
-		case 'o':
-			out = optarg;
-			break;
-		case 'h':
-			usage(stdout);
-			return EXIT_OK;
-		default:
-			usage(stderr);
-			return EXIT_USAGE;
-		}
-	}
+	if (code >= 0)
+		return code;
 	if (optind + 1 != argc) {
 		usage(stderr);
 		return EXIT_USAGE;
 	}
-	return import(argv[optind], want, out);
+	return import(argv[optind], a.want, a.out);
 }

@@ -214,6 +214,34 @@ static void usage(FILE *out)
 		"SIGINT or SIGTERM aborts the scan; the file keeps what was measured.\n");
 }
 
+static int take(int opt, const char *arg, void *data)
+{
+	struct scan_args *a = data;
+	int r = plan_source_option(&a->ps, opt, arg);
+	char *end;
+
+	if (r <= 0)
+		return r;
+	switch (opt) {
+	case OPT_INSTRUMENT: a->instrument = arg; break;
+	case 'o': a->output = arg; break;
+	case OPT_FORCE: a->force = true; break;
+	case OPT_RESUME: a->resume = true; break;
+	case OPT_NO_STREAM: a->no_stream = true; break;
+	case OPT_SKIP_OOR: a->skip_oor = true; break;
+	case OPT_PLUGIN_DIR: a->plugin_dir = arg; break;
+	case OPT_QUIET: a->quiet = true; break;
+	case OPT_CLEARANCE:
+		a->clearance = strtod(arg, &end);
+		if (*end || !(a->clearance > 0) || a->clearance > 1000) {
+			fprintf(stderr, "asph scan: --clearance must be a length in mm, > 0\n");
+			return -EINVAL;
+		}
+		break;
+	}
+	return 0;
+}
+
 static int parse(int argc, char **argv, struct scan_args *a)
 {
 	static const struct option long_opts[] = {
@@ -230,35 +258,10 @@ static int parse(int argc, char **argv, struct scan_args *a)
 		{ "help", no_argument, NULL, 'h' },
 		{ NULL, 0, NULL, 0 },
 	};
-	char *end;
-	int c;
+	int code = tool_getopt(argc, argv, "o:h", long_opts, usage, take, a);
 
-	while ((c = getopt_long(argc, argv, "o:h", long_opts, NULL)) != -1) {
-		int r = plan_source_option(&a->ps, c, optarg);
-		if (r < 0)
-			return EXIT_USAGE;
-		if (r == 0)
-			continue;
-		switch (c) {
-		case OPT_INSTRUMENT: a->instrument = optarg; break;
-		case 'o': a->output = optarg; break;
-		case OPT_FORCE: a->force = true; break;
-		case OPT_RESUME: a->resume = true; break;
-		case OPT_NO_STREAM: a->no_stream = true; break;
-		case OPT_SKIP_OOR: a->skip_oor = true; break;
-		case OPT_PLUGIN_DIR: a->plugin_dir = optarg; break;
-		case OPT_QUIET: a->quiet = true; break;
-		case OPT_CLEARANCE:
-			a->clearance = strtod(optarg, &end);
-			if (*end || !(a->clearance > 0) || a->clearance > 1000) {
-				fprintf(stderr, "asph scan: --clearance must be a length in mm, > 0\n");
-				return EXIT_USAGE;
-			}
-			break;
-		case 'h': usage(stdout); return EXIT_OK;
-		default: usage(stderr); return EXIT_USAGE;
-		}
-	}
+	if (code >= 0)
+		return code;
 	if (optind + 1 != argc || !a->instrument || !a->output) {
 		fprintf(stderr, "asph scan: give LENS, --instrument and -o SCAN (see --help)\n");
 		return EXIT_USAGE;
