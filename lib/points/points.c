@@ -646,6 +646,33 @@ static int read_ply(const char *text, size_t len, const char *source,
 
 /* ---- JSON ---- */
 
+/* Member i of the array list, three numbers: finite coordinates, or with
+ * indices, vertex indices below n_points. */
+static int json_triple(json_t *list, const char *name, size_t i, bool indices,
+		       size_t n_points, const char *source, double v[3],
+		       struct asph_error *err)
+{
+	json_t *e = json_array_get(list, i);
+	char field[48];
+
+	snprintf(field, sizeof(field), "%s[%zu]", name, i);
+	if (!json_is_array(e) || json_array_size(e) != 3)
+		return asph_error_set_at(err, -EINVAL, source, 0, 0, field, "expected %s",
+					 indices ? "[i, j, k]" : "[x, y, z]");
+	for (size_t k = 0; k < 3; k++) {
+		json_t *x = json_array_get(e, k);
+		if (!indices && !(json_is_number(x) && isfinite(json_number_value(x))))
+			return asph_error_set_at(err, -EINVAL, source, 0, 0, field,
+						 "coordinate %zu is not a finite number", k);
+		if (indices && (!json_is_integer(x) || json_integer_value(x) < 0 ||
+				 (json_int_t)n_points <= json_integer_value(x)))
+			return asph_error_set_at(err, -EINVAL, source, 0, 0, field,
+						 "vertex index out of range");
+		v[k] = json_number_value(x);
+	}
+	return 0;
+}
+
 static int read_json(const char *text, size_t len, const char *source,
 		     struct asph_points **out, struct asph_error *err)
 {
@@ -664,20 +691,9 @@ static int read_json(const char *text, size_t len, const char *source,
 	if (!p)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	for (size_t i = 0; i < n; i++) {
-		json_t *e = json_array_get(pts, i);
-		char field[48];
-		snprintf(field, sizeof(field), "points[%zu]", i);
-		if (!json_is_array(e) || json_array_size(e) != 3)
-			return asph_error_set_at(err, -EINVAL, source, 0, 0, field,
-						 "expected [x, y, z]");
-		for (size_t k = 0; k < 3; k++) {
-			json_t *v = json_array_get(e, k);
-			if (!json_is_number(v) || !isfinite(json_number_value(v)))
-				return asph_error_set_at(err, -EINVAL, source, 0, 0, field,
-							 "coordinate %zu is not a finite number",
-							 k);
-			p->xyz[3 * i + k] = json_number_value(v);
-		}
+		int r = json_triple(pts, "points", i, false, 0, source, p->xyz + 3 * i, err);
+		if (r < 0)
+			return r;
 	}
 	json_t *tris = json_object_get(root, "triangles");
 	if (json_is_array(tris) && json_array_size(tris) > 0) {
@@ -686,20 +702,12 @@ static int read_json(const char *text, size_t len, const char *source,
 		if (!p->triangles)
 			return asph_error_set(err, -ENOMEM, "out of memory");
 		for (size_t i = 0; i < nt; i++) {
-			json_t *e = json_array_get(tris, i);
-			char field[48];
-			snprintf(field, sizeof(field), "triangles[%zu]", i);
-			if (!json_is_array(e) || json_array_size(e) != 3)
-				return asph_error_set_at(err, -EINVAL, source, 0, 0, field,
-							 "expected [i, j, k]");
-			for (size_t k = 0; k < 3; k++) {
-				json_t *v = json_array_get(e, k);
-				if (!json_is_integer(v) || json_integer_value(v) < 0 ||
-				    (json_int_t)n <= json_integer_value(v))
-					return asph_error_set_at(err, -EINVAL, source, 0, 0, field,
-								 "vertex index out of range");
-				p->triangles[3 * i + k] = (uint32_t)json_integer_value(v);
-			}
+			double t[3];
+			int r = json_triple(tris, "triangles", i, true, n, source, t, err);
+			if (r < 0)
+				return r;
+			for (size_t k = 0; k < 3; k++)
+				p->triangles[3 * i + k] = (uint32_t)t[k];
 		}
 		p->n_triangles = nt;
 	}
@@ -750,15 +758,8 @@ int asph_points_read(const char *path, struct asph_points **out,
 	int r = file_read_all(path, POINTS_FILE_LIMIT, &text, &len, err);
 	if (r < 0)
 		return r;
-	switch (is_stdin ? FMT_CSV : format_of(path)) {
-	case FMT_PLY:
-		return read_ply(text, len, source, out, err);
-	case FMT_JSON:
-		return read_json(text, len, source, out, err);
-	case FMT_CSV:
-		break;
-	}
-	return asph_points_read_csv_text(text, len, source, out, err);
+	/* "<stdin>" has no extension: CSV */
+	return asph_points_read_memory(text, len, source, out, err);
 }
 
 /* ---- writing ---- */

@@ -10,6 +10,7 @@
 
 #include "asph/surface.h"
 #include "chebyshev.h"
+#include "numeric/newton.h"
 #include "qpoly.h"
 #include "util-mem.h"
 
@@ -310,13 +311,7 @@ static double invert_monotone(const struct asph_surface *s, double target,
 		double f = g(s, r) - target;
 		if (f == 0)
 			return r;
-		if (f > 0)
-			hi = r;
-		else
-			lo = r;
-		double next = r - f / dg(s, r);
-		if (!(next > lo && next < hi))
-			next = 0.5 * (lo + hi);
+		double next = newton_bracketed_step(r, f, dg(s, r), &lo, &hi);
 		if (fabs(next - r) <= 2e-16 * r)
 			return next;
 		r = next;

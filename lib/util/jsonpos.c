@@ -129,6 +129,19 @@ static int skip_value(struct cursor *c)
 	return 0;
 }
 
+/* Skips the value at the cursor and the comma after it: -ENOENT when the
+ * object or array ends there (or the text is malformed). */
+static int skip_item(struct cursor *c)
+{
+	if (skip_value(c) < 0)
+		return -ENOENT;
+	skip_space(c);
+	if (peek(c) != ',')
+		return -ENOENT;
+	advance(c);
+	return 0;
+}
+
 /* Moves the cursor to the value of member `name` of the object at the
  * cursor, leaving the key position in line and col. */
 static int find_member(struct cursor *c, const char *name, int *line, int *col)
@@ -156,12 +169,8 @@ static int find_member(struct cursor *c, const char *name, int *line, int *col)
 			*col = kc;
 			return 0;
 		}
-		if (skip_value(c) < 0)
+		if (skip_item(c) < 0)
 			return -ENOENT;
-		skip_space(c);
-		if (peek(c) != ',')
-			return -ENOENT;
-		advance(c);
 	}
 }
 
@@ -180,12 +189,8 @@ static int find_element(struct cursor *c, long index, int *line, int *col)
 			*col = c->col;
 			return 0;
 		}
-		if (skip_value(c) < 0)
+		if (skip_item(c) < 0)
 			return -ENOENT;
-		skip_space(c);
-		if (peek(c) != ',')
-			return -ENOENT;
-		advance(c);
 	}
 }
 
