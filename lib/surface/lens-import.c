@@ -7,6 +7,7 @@
  */
 #include <ctype.h>
 #include <errno.h>
+#include <limits.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -279,8 +280,13 @@ static int zmx_parse(struct asph_lens_import *im)
 			int r = number_arg(im, &p, ls, line, "SURF", &num);
 			if (r < 0)
 				return r;
-			if (num != floor(num) || num < 0 || im->n_surf == MAX_SURFACES)
-				return fail(im, line, col, "SURF", "bad surface number %g", num);
+			if (num != floor(num) || num < 0 || num > INT_MAX)
+				return fail(im, line, col, "SURF",
+					    "bad surface number %g (a whole number, 0 to %d)", num,
+					    INT_MAX);
+			if (im->n_surf == MAX_SURFACES)
+				return fail(im, line, col, "SURF", "more than %d surfaces",
+					    MAX_SURFACES);
 			cur = &im->surf[im->n_surf++];
 			cur->number = (int)num;
 			cur->line = line;

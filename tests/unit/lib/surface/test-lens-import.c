@@ -108,11 +108,15 @@ static void test_zmx_refusals(void **state)
 		{ "SURF 1\n  CURV 0.05\n", 1, 1, NULL, "no TYPE line" },
 		{ "NAME x\n", 1, 0, NULL, "no SURF block" },
 		{ "SURF 1\n\0\n", 0, 0, NULL, "NUL bytes" },
+		/* found by the lens-zmx fuzz target: a number past int */
+		{ "SURF 09999999999999999999\n  TYPE STANDARD\n", 1, 1, "SURF",
+		  "bad surface number" },
+		{ "SURF -1\n", 1, 1, "SURF", "bad surface number" },
 	};
 	for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
 		struct asph_lens_import *im = NULL;
 		struct asph_error err;
-		size_t len = i == 5 ? 9 : strlen(cases[i].text);
+		size_t len = !strcmp(cases[i].needle, "NUL bytes") ? 9 : strlen(cases[i].text);
 
 		asph_error_clear(&err);
 		assert_int_equal(asph_lens_import_parse(cases[i].text, len, "bad.zmx", &im, &err),
