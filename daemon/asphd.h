@@ -70,7 +70,7 @@ struct instrument {
 struct daemon {
 	sd_event *event;
 	const char *config_path;
-	struct daemon_config *config;
+	struct settings *config;
 	const char *socket_override;
 	const char *state_override;
 	char *state_dir;
@@ -151,7 +151,7 @@ char *job_dir(struct daemon *d, int64_t id);
 
 /* ---- instruments.c */
 /* The driver registry and the instruments of cfg (the mock when none). */
-int instruments_load(const struct daemon_config *cfg,
+int instruments_load(const struct settings *cfg,
 		     struct asph_registry **reg, struct asph_config **out,
 		     struct asph_error *err);
 int instruments_setup(struct daemon *d, struct asph_error *err);

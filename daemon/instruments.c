@@ -17,7 +17,7 @@ static void warn_plugin(const struct asph_error *err, void *data)
 	log_warning("driver plugin: %s", asph_error_format(err, buf, sizeof(buf)));
 }
 
-int instruments_load(const struct daemon_config *cfg, struct asph_registry **reg_out,
+int instruments_load(const struct settings *cfg, struct asph_registry **reg_out,
 		     struct asph_config **out, struct asph_error *err)
 {
 	struct asph_registry *reg = NULL;

@@ -89,13 +89,13 @@ static int resolve_groups(struct daemon *d)
 
 static int check_config(const char *path)
 {
-	struct daemon_config *cfg = NULL;
+	struct settings *cfg = NULL;
 	struct asph_registry *reg = NULL;
 	struct asph_config *ic = NULL;
 	struct asph_error err;
 	int n_errors = 0, r;
 
-	r = config_load(path, &cfg, report_config_error, &n_errors);
+	r = settings_load(path, &cfg, report_config_error, &n_errors);
 	if (r == 0) {
 		asph_error_clear(&err);
 		r = instruments_load(cfg, &reg, &ic, &err);
@@ -115,7 +115,7 @@ static int check_config(const char *path)
 		printf("%s: OK, %zu instrument(s)\n", path ? path : "(defaults)", ic->n);
 	asph_config_free(ic);
 	asph_registry_free(reg);
-	config_free(cfg);
+	settings_free(cfg);
 	return n_errors || r < 0 ? ASPHD_EXIT_CONFIG : ASPHD_EXIT_OK;
 }
 
@@ -135,11 +135,11 @@ static int on_terminate(sd_event_source *s, const struct signalfd_siginfo *si, v
 static int on_reload(sd_event_source *s, const struct signalfd_siginfo *si, void *data)
 {
 	struct daemon *d = data;
-	struct daemon_config *cfg = NULL;
+	struct settings *cfg = NULL;
 	int n_errors = 0;
 
 	sd_notify(0, "RELOADING=1");
-	if (config_load(d->config_path, &cfg, report_config_error, &n_errors) < 0) {
+	if (settings_load(d->config_path, &cfg, report_config_error, &n_errors) < 0) {
 		log_error("reload: the configuration has %d error(s); keeping the old one", n_errors);
 		sd_notify(0, "READY=1");
 		return 0;
@@ -160,7 +160,7 @@ static int on_reload(sd_event_source *s, const struct signalfd_siginfo *si, void
 	free(cfg->instruments_json);
 	cfg->instruments_json = d->config->instruments_json;
 	d->config->instruments_json = NULL;
-	config_free(d->config);
+	settings_free(d->config);
 	d->config = cfg;
 	resolve_groups(d);
 	log_info("configuration reloaded");
@@ -281,7 +281,7 @@ static void teardown(struct daemon *d)
 	asph_config_free(d->instrument_config);
 	asph_registry_free(d->registry);
 	store_close(d->store);
-	config_free(d->config);
+	settings_free(d->config);
 	sd_event_unref(d->event);
 }
 
@@ -336,7 +336,7 @@ int main(int argc, char **argv)
 	if (check)
 		return check_config(d.config_path);
 	log_setup(verbose ? LOG_DEBUG : LOG_INFO);
-	if (config_load(d.config_path, &d.config, report_config_error, &n_errors) < 0)
+	if (settings_load(d.config_path, &d.config, report_config_error, &n_errors) < 0)
 		return ASPHD_EXIT_CONFIG;
 	r = run(&d);
 	if (r < 0) {

@@ -16,7 +16,7 @@ struct loader {
 	const char *source;
 	const char *text;
 	size_t len;
-	config_error_fn report;
+	settings_error_fn report;
 	void *data;
 	int n_errors;
 };
@@ -43,7 +43,7 @@ static void complain(struct loader *ld, const char *field, const char *fmt, ...)
 		ld->report(&e, ld->data);
 }
 
-static const struct daemon_limits default_limits = {
+static const struct settings_limits default_limits = {
 	.max_clients = 256,
 	.max_request_bytes = 1u << 20,
 	.max_output_bytes = 8u << 20,
@@ -55,16 +55,16 @@ static const struct daemon_limits default_limits = {
 	.max_label_bytes = 256,
 };
 
-int config_defaults(struct daemon_config **out)
+int settings_defaults(struct settings **out)
 {
-	struct daemon_config *c = calloc(1, sizeof(*c));
+	struct settings *c = calloc(1, sizeof(*c));
 
 	if (!c)
 		return -ENOMEM;
 	c->socket_path = strdup(PROTO_DEFAULT_SOCKET);
 	c->state_dir = strdup("/var/lib/asphd");
 	if (!c->socket_path || !c->state_dir) {
-		config_free(c);
+		settings_free(c);
 		return -ENOMEM;
 	}
 	c->socket_mode = 0660;
@@ -73,7 +73,7 @@ int config_defaults(struct daemon_config **out)
 	return 0;
 }
 
-void config_free(struct daemon_config *c)
+void settings_free(struct settings *c)
 {
 	if (!c)
 		return;
@@ -130,7 +130,7 @@ static const struct {
 	size_t offset;
 	uint32_t min, max;
 } limit_fields[] = {
-#define LIMIT(n, lo, hi) { #n, offsetof(struct daemon_limits, n), lo, hi }
+#define LIMIT(n, lo, hi) { #n, offsetof(struct settings_limits, n), lo, hi }
 	LIMIT(max_clients, 1, 65536),
 	LIMIT(max_request_bytes, 1024, 64u << 20),
 	LIMIT(max_output_bytes, 65536, 1u << 30),
@@ -143,7 +143,7 @@ static const struct {
 #undef LIMIT
 };
 
-static void take_limits(struct loader *ld, json_t *obj, struct daemon_limits *l)
+static void take_limits(struct loader *ld, json_t *obj, struct settings_limits *l)
 {
 	const char *key;
 	json_t *v;
@@ -174,7 +174,7 @@ static void take_limits(struct loader *ld, json_t *obj, struct daemon_limits *l)
 	}
 }
 
-static void take_member(struct loader *ld, struct daemon_config *c,
+static void take_member(struct loader *ld, struct settings *c,
 			const char *key, json_t *v)
 {
 	if (!strcmp(key, "socket"))
@@ -207,11 +207,11 @@ static void take_member(struct loader *ld, struct daemon_config *c,
 		complain(ld, key, "unknown setting");
 }
 
-int config_load(const char *path, struct daemon_config **out,
-		config_error_fn report, void *data)
+int settings_load(const char *path, struct settings **out,
+		settings_error_fn report, void *data)
 {
 	struct loader ld = { .source = path, .report = report, .data = data };
-	struct daemon_config *c = NULL;
+	struct settings *c = NULL;
 	_cleanup_free_ char *text = NULL;
 	json_error_t je;
 	json_t *root, *v;
@@ -219,7 +219,7 @@ int config_load(const char *path, struct daemon_config **out,
 	size_t len;
 	int r;
 
-	r = config_defaults(&c);
+	r = settings_defaults(&c);
 	if (r < 0)
 		return r;
 	if (!path) {
@@ -237,14 +237,14 @@ int config_load(const char *path, struct daemon_config **out,
 			asph_error_locate(&e, path, 0, 0, NULL);
 			if (report)
 				report(&e, data);
-			config_free(c);
+			settings_free(c);
 			return r;
 		}
 		text = malloc(1u << 20);
 		len = text ? fread(text, 1, 1u << 20, f) : 0;
 		if (!text || len == 1u << 20 || ferror(f)) {
 			complain(&ld, NULL, "cannot read, or larger than 1 MiB");
-			config_free(c);
+			settings_free(c);
 			return -EINVAL;
 		}
 	}
@@ -258,7 +258,7 @@ int config_load(const char *path, struct daemon_config **out,
 		asph_error_locate(&e, path, je.line, je.column, NULL);
 		if (report)
 			report(&e, data);
-		config_free(c);
+		settings_free(c);
 		return -EINVAL;
 	}
 	if (!json_is_object(root))
@@ -268,7 +268,7 @@ int config_load(const char *path, struct daemon_config **out,
 			take_member(&ld, c, key, v);
 	json_decref(root);
 	if (ld.n_errors) {
-		config_free(c);
+		settings_free(c);
 		return -EINVAL;
 	}
 	c->text = steal_ptr(text);

@@ -47,7 +47,7 @@ static void teardown(void)
 	asph_config_free(d.instrument_config);
 	asph_registry_free(d.registry);
 	store_close(d.store);
-	config_free(d.config);
+	settings_free(d.config);
 	sd_event_unref(d.event);
 	free(cl.out);
 	snprintf(cmd, sizeof(cmd), "rm -rf '%s'", state_dir);
@@ -64,7 +64,7 @@ int LLVMFuzzerInitialize(int *argc, char ***argv)
 	log_setup(LOG_CRIT);
 	if (!mkdtemp(state_dir))
 		fuzz_die("no temporary directory");
-	if (config_defaults(&d.config) < 0 || sd_event_new(&d.event) < 0)
+	if (settings_defaults(&d.config) < 0 || sd_event_new(&d.event) < 0)
 		fuzz_die("no daemon");
 	/* Small limits keep each job.submit fast. */
 	d.config->limits.max_plan_points = 4000;
