@@ -108,17 +108,10 @@ struct daemon {
 };
 
 /* ---- main.c */
-int64_t now_realtime_ns(void);
 void daemon_update_status(struct daemon *d);
 
 /* ---- server.c: listeners and clients */
 int server_listen(struct daemon *d);
-/* Refuses (logging why, -EPERM) a directory that a user other than the
- * daemon's (and root) can write: another owner, a group other than the
- * daemon's, everyone (a sticky directory is accepted with sticky_ok). */
-struct stat;
-int check_private_dir(const char *dir, const struct stat *st, bool sticky_ok,
-		      const char *what);
 void server_close(struct daemon *d);
 void client_free(struct client *c);
 /* Queues a message to one client; drops the client when its output
@@ -147,7 +140,6 @@ int jobs_set_state(struct daemon *d, struct job_record *j, enum job_state s,
 		   const char *reason, int64_t actor);
 /* Stops every scan at a safe point and waits for the workers. */
 void jobs_shutdown(struct daemon *d);
-char *job_dir(struct daemon *d, int64_t id);
 
 /* ---- instruments.c */
 /* The driver registry and the instruments of cfg (the mock when none). */

@@ -9,24 +9,16 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
-#include <time.h>
 
 #include "asphd.h"
+#include "dirs.h"
 #include "log.h"
+#include "time-util.h"
 #include "util-mem.h"
 
 /* Progress reaches the store at most this often (a restart resumes from
  * the scan file, not from this number). */
 #define PROGRESS_STORE_NS 5000000000ull
-
-static void iso_time(int64_t ns, char *buf, size_t size)
-{
-	time_t t = (time_t)(ns / 1000000000);
-	struct tm tm;
-
-	gmtime_r(&t, &tm);
-	strftime(buf, size, "%Y-%m-%dT%H:%M:%SZ", &tm);
-}
 
 static json_t *time_json(int64_t ns)
 {
@@ -34,14 +26,14 @@ static json_t *time_json(int64_t ns)
 
 	if (ns <= 0)
 		return json_null();
-	iso_time(ns, buf, sizeof(buf));
+	iso8601_utc(ns, buf, sizeof(buf));
 	return json_string(buf);
 }
 
 int jobs_init(struct daemon *d)
 {
 	_cleanup_free_ char *v = NULL;
-	int n = store_recover(d->store, now_realtime_ns());
+	int n = store_recover(d->store, realtime_now_ns());
 
 	if (n < 0)
 		return n;
@@ -52,15 +44,6 @@ int jobs_init(struct daemon *d)
 	if (store_meta_get(d->store, "queue.running", &v) == 0)
 		d->queue_running = strcmp(v, "0") != 0;
 	return store_count(d->store, d->counts);
-}
-
-char *job_dir(struct daemon *d, int64_t id)
-{
-	char *p = NULL;
-
-	if (asprintf(&p, "%s/jobs/%" PRId64, d->state_dir, id) < 0)
-		return NULL;
-	return p;
 }
 
 json_t *job_to_json(struct daemon *d, const struct job_record *j)
@@ -99,12 +82,12 @@ int jobs_set_state(struct daemon *d, struct job_record *j, enum job_state s,
 		   const char *reason, int64_t actor)
 {
 	enum job_state old = j->state;
-	int r = store_set_state(d->store, j->id, s, reason, actor, now_realtime_ns());
+	int r = store_set_state(d->store, j->id, s, reason, actor, realtime_now_ns());
 
 	if (r == -ENOSPC && store_release_reserve(d->store) == 0) {
 		log_job(LOG_WARNING, j->id, "the state directory is full: using the store's reserve "
 			"to record the state %s", job_state_name(s));
-		r = store_set_state(d->store, j->id, s, reason, actor, now_realtime_ns());
+		r = store_set_state(d->store, j->id, s, reason, actor, realtime_now_ns());
 	}
 	if (r < 0) {
 		log_job(LOG_ERR, j->id, "cannot record the state %s: %s", job_state_name(s),
@@ -128,38 +111,13 @@ int jobs_set_state(struct daemon *d, struct job_record *j, enum job_state s,
 	return 0;
 }
 
-/* Results are readable by whoever may read the socket's answers: asphctl
- * result --out copies them as the calling user. */
-static bool real_dir(const char *path)
-{
-	struct stat st;
-
-	return lstat(path, &st) == 0 && S_ISDIR(st.st_mode);
-}
-
-static int make_dirs(struct daemon *d, const char *dir)
-{
-	_cleanup_free_ char *jobs = NULL;
-
-	if (asprintf(&jobs, "%s/jobs", d->state_dir) < 0)
-		return -ENOMEM;
-	if (mkdir(jobs, 0755) < 0 && errno != EEXIST)
-		return -errno;
-	if (mkdir(dir, 0755) < 0 && errno != EEXIST)
-		return -errno;
-	/* Never write through a symlink put in place of a folder. */
-	if (!real_dir(jobs) || !real_dir(dir))
-		return -ENOTDIR;
-	return 0;
-}
-
 static char *job_metadata(const struct job_record *j)
 {
 	char submitted[32];
 	json_t *m;
 	char *s;
 
-	iso_time(j->submitted_ns, submitted, sizeof(submitted));
+	iso8601_utc(j->submitted_ns, submitted, sizeof(submitted));
 	m = json_pack("{s:I, s:s?, s:{s:I, s:s?}, s:s, s:I, s:I}", "job", (json_int_t)j->id,
 		      "label", j->label, "submitted_by", "uid", (json_int_t)j->uid,
 		      "name", j->user, "submitted", submitted,
@@ -187,7 +145,7 @@ static void set_aside(const char *scan, int64_t attempt)
 
 static int start_job(struct daemon *d, struct instrument *in, struct job_record *j)
 {
-	_cleanup_free_ char *dir = job_dir(d, j->id);
+	_cleanup_free_ char *dir = dirs_job_path(d->state_dir, j->id);
 	struct runner_job *rj;
 	int r;
 
@@ -195,20 +153,20 @@ static int start_job(struct daemon *d, struct instrument *in, struct job_record 
 		return -ENOMEM;
 	/* Room to record how this job ends, even if it fills the disk. */
 	store_renew_reserve(d->store);
-	r = make_dirs(d, dir);
+	r = dirs_make_job(d->state_dir, j->id);
 	if (r < 0) {
 		char reason[512];
 		snprintf(reason, sizeof(reason), "cannot create the job directory %s: %s", dir,
 			 strerror(-r));
 		log_job(LOG_ERR, j->id, "%s", reason);
-		j->finished_ns = now_realtime_ns();
+		j->finished_ns = realtime_now_ns();
 		return jobs_set_state(d, j, JOB_FAILED, reason, 0);
 	}
 	rj = calloc(1, sizeof(*rj));
 	if (!rj)
 		return -ENOMEM;
 	if (!j->started_ns)
-		j->started_ns = now_realtime_ns();
+		j->started_ns = realtime_now_ns();
 	j->attempts++;
 	j->finished_ns = 0;
 	free(j->scan_path);
@@ -278,7 +236,7 @@ void jobs_schedule(struct daemon *d)
 static void job_progress(struct instrument *in, const struct runner_report *rep)
 {
 	struct daemon *d = in->d;
-	uint64_t now = (uint64_t)now_realtime_ns();
+	uint64_t now = (uint64_t)realtime_now_ns();
 
 	in->done = (int64_t)rep->done;
 	in->total = (int64_t)rep->total;
@@ -317,12 +275,12 @@ static void job_done(struct instrument *in, const struct runner_report *rep)
 		j.result = rep->result;
 		j.resume = false;
 		j.points_done = in->total;
-		j.finished_ns = now_realtime_ns();
+		j.finished_ns = realtime_now_ns();
 		break;
 	case RUNNER_FAILED:
 		next = JOB_FAILED;
 		reason = rep->reason;
-		j.finished_ns = now_realtime_ns();
+		j.finished_ns = realtime_now_ns();
 		free(in->fault);
 		in->fault = strdup(rep->reason);
 		server_broadcast(d, EVENT_INSTRUMENT, 0, "instrument.fault",
@@ -331,7 +289,7 @@ static void job_done(struct instrument *in, const struct runner_report *rep)
 		break;
 	case RUNNER_ABORTED:
 		next = JOB_CANCELLED;
-		j.finished_ns = now_realtime_ns();
+		j.finished_ns = realtime_now_ns();
 		break;
 	case RUNNER_STOPPED:
 	default:

@@ -7,8 +7,6 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
-#include <sys/statvfs.h>
-#include <time.h>
 #include <unistd.h>
 
 #include <gsl/gsl_errno.h>
@@ -18,6 +16,7 @@
 #include "asph/instrument.h"
 #include "asphd.h"
 #include "config.h"
+#include "dirs.h"
 #include "log.h"
 #include "util-mem.h"
 
@@ -30,14 +29,6 @@ enum {
 };
 
 #define DEFAULT_CONFIG "/etc/asphd/asphd.conf"
-
-int64_t now_realtime_ns(void)
-{
-	struct timespec ts;
-
-	clock_gettime(CLOCK_REALTIME, &ts);
-	return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
-}
 
 void daemon_update_status(struct daemon *d)
 {
@@ -168,28 +159,6 @@ static int on_reload(sd_event_source *s, const struct signalfd_siginfo *si, void
 	return 0;
 }
 
-static int make_state_dir(const char *dir)
-{
-	struct statvfs vfs;
-	struct stat st;
-
-	if (mkdir(dir, 0755) < 0 && errno != EEXIST) {
-		log_error("cannot create the state directory %s: %s", dir, strerror(errno));
-		return -errno;
-	}
-	if (stat(dir, &st) < 0 || !S_ISDIR(st.st_mode)) {
-		log_error("%s is not a directory", dir);
-		return -ENOTDIR;
-	}
-	if (check_private_dir(dir, &st, false, "it as the state directory") < 0)
-		return -EPERM;
-	if (statvfs(dir, &vfs) == 0 && (vfs.f_flag & ST_RDONLY)) {
-		log_error("the state directory %s is on a read-only file system", dir);
-		return -EROFS;
-	}
-	return 0;
-}
-
 static int setup(struct daemon *d)
 {
 	_cleanup_free_ char *db = NULL;
@@ -218,7 +187,7 @@ static int setup(struct daemon *d)
 		return -ENOMEM;
 	d->state_dir = d->config->state_dir;
 	d->socket_path = d->config->socket_path;
-	r = make_state_dir(d->state_dir);
+	r = dirs_make_state(d->state_dir);
 	if (r < 0)
 		return r;
 	if (asprintf(&db, "%s/jobs.sqlite", d->state_dir) < 0)

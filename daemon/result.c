@@ -5,7 +5,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 #include <unistd.h>
 
 #include "asph/instrument.h"
@@ -17,6 +16,7 @@
 #include "result.h"
 #include "runner.h"
 #include "sha256.h"
+#include "time-util.h"
 #include "util-mem.h"
 
 /* ------------------------------------------------------------ the spec */
@@ -275,23 +275,6 @@ void job_plan_release(struct job_plan *jp)
 
 /* ------------------------------------------------------------ result */
 
-static void iso_time(int64_t ns, char *buf, size_t size)
-{
-	time_t t = (time_t)(ns / 1000000000);
-	struct tm tm;
-
-	gmtime_r(&t, &tm);
-	strftime(buf, size, "%Y-%m-%dT%H:%M:%SZ", &tm);
-}
-
-static int64_t wall_ns(void)
-{
-	struct timespec ts;
-
-	clock_gettime(CLOCK_REALTIME, &ts);
-	return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
-}
-
 /* Writes text to dir/name through a temporary file, synced. */
 static int write_atomic(const char *dir, const char *name, const char *text,
 			struct asph_error *err)
@@ -395,8 +378,8 @@ static json_t *provenance(const struct runner_job *job, const struct job_plan *j
 	asph_instrument_config_to_json(ic, &inst);
 	json_int_t st = json_integer_value(json_object_get(meta, "started_ns"));
 	if (st > 0)
-		iso_time(st, started, sizeof(started));
-	iso_time(wall_ns(), finished, sizeof(finished));
+		iso8601_utc(st, started, sizeof(started));
+	iso8601_utc(realtime_now_ns(), finished, sizeof(finished));
 	p = json_pack("{s:s?, s:o, s:o, s:o, s:o?, s:{s:s, s:s, s:s}, s:O?, s:O?, s:O?,"
 		      " s:s?, s:s, s:{s:s, s:s, s:I, s:i, s:s}}",
 		"lens_name", jp->lens_name,

@@ -12,8 +12,10 @@
 
 #include "asphd.h"
 #include "config.h"
+#include "dirs.h"
 #include "log.h"
 #include "result.h"
+#include "time-util.h"
 #include "util-mem.h"
 
 struct call {
@@ -214,7 +216,7 @@ static int m_job_submit(struct call *c, json_t *params, json_t **result)
 	json_decref(spec);
 	if (!j.spec)
 		return PROTO_INTERNAL_ERROR;
-	int r = store_insert(d->store, &j, now_realtime_ns());
+	int r = store_insert(d->store, &j, realtime_now_ns());
 	if (r < 0) {
 		free(j.spec);
 		return fail(c, PROTO_STORAGE_ERROR, "cannot store the job: %s", strerror(-r));
@@ -236,11 +238,8 @@ static int history_entry(const struct store_event *e, void *data)
 {
 	json_t *list = data;
 	char buf[32];
-	time_t t = (time_t)(e->t_ns / 1000000000);
-	struct tm tm;
 
-	gmtime_r(&t, &tm);
-	strftime(buf, sizeof(buf), "%Y-%m-%dT%H:%M:%SZ", &tm);
+	iso8601_utc(e->t_ns, buf, sizeof(buf));
 	return json_array_append_new(list, json_pack("{s:s, s:s, s:s?, s:I}", "time", buf,
 		"state", job_state_name(e->state), "reason", e->reason,
 		"actor_uid", (json_int_t)e->actor_uid)) < 0 ? -ENOMEM : 0;
@@ -337,7 +336,7 @@ static int m_job_cancel(struct call *c, json_t *params, json_t **result)
 	switch (j.state) {
 	case JOB_QUEUED:
 	case JOB_INTERRUPTED:
-		j.finished_ns = now_realtime_ns();
+		j.finished_ns = realtime_now_ns();
 		store_update(c->d->store, &j);
 		jobs_set_state(c->d, &j, JOB_CANCELLED, NULL, actor(c));
 		break;
@@ -464,7 +463,7 @@ static int m_job_result(struct call *c, json_t *params, json_t **result)
 		return code;
 	}
 	res = json_loads(j.result, 0, NULL);
-	dir = job_dir(c->d, j.id);
+	dir = dirs_job_path(c->d->state_dir, j.id);
 	if (!res || !dir) {
 		json_decref(res);
 		job_record_clear(&j);

@@ -20,6 +20,7 @@
 
 #include "account.h"
 #include "asphd.h"
+#include "dirs.h"
 #include "log.h"
 #include "util-mem.h"
 
@@ -458,33 +459,6 @@ void server_broadcast(struct daemon *d, unsigned class, int64_t job,
 
 /* -------------------------------------------------------------- listen */
 
-int check_private_dir(const char *dir, const struct stat *st, bool sticky_ok,
-		      const char *what)
-{
-	char name[64];
-
-	if (st->st_uid != 0 && st->st_uid != geteuid()) {
-		if (account_user_name(st->st_uid, name, sizeof(name)) < 0)
-			snprintf(name, sizeof(name), "nobody known");
-		log_error("%s belongs to %s (uid %u), another user: refusing %s", dir,
-			  name, (unsigned)st->st_uid, what);
-		return -EPERM;
-	}
-	if ((st->st_mode & S_IWOTH) && !(sticky_ok && (st->st_mode & S_ISVTX))) {
-		log_error("%s is writable by every user: refusing %s", dir, what);
-		return -EPERM;
-	}
-	if ((st->st_mode & S_IWGRP) && st->st_gid != getegid() &&
-	    !(sticky_ok && (st->st_mode & S_ISVTX))) {
-		if (account_group_name(st->st_gid, name, sizeof(name)) < 0)
-			snprintf(name, sizeof(name), "unknown");
-		log_error("%s is writable by the group %s (gid %u): refusing %s", dir,
-			  name, (unsigned)st->st_gid, what);
-		return -EPERM;
-	}
-	return 0;
-}
-
 /* The directory of the socket must not be writable by other users, or
  * anyone could replace the socket. */
 static int check_socket_dir(const char *path)
@@ -506,7 +480,7 @@ static int check_socket_dir(const char *path)
 			return -errno;
 		return 0;
 	}
-	return check_private_dir(dir, &st, true, "to put the socket there");
+	return dirs_check_private(dir, &st, true, "to put the socket there");
 }
 
 static int bind_unix(struct daemon *d)

@@ -24,16 +24,8 @@ static struct daemon d;
 static struct client cl;
 static char state_dir[] = "/tmp/asph-fuzz-rpc-XXXXXX";
 
-/* main.c's two functions the methods call: the clock, and the status line
- * for systemd (there is none to tell here). */
-int64_t now_realtime_ns(void)
-{
-	struct timespec ts;
-
-	clock_gettime(CLOCK_REALTIME, &ts);
-	return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
-}
-
+/* main.c's function the methods call: the status line for systemd (there
+ * is none to tell here). */
 void daemon_update_status(struct daemon *dm)
 {
 	(void)dm;
