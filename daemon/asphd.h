@@ -103,7 +103,6 @@ struct daemon {
 	int64_t counts[JOB_N_STATES];   /* jobs per state */
 	uint64_t started_usec;          /* CLOCK_MONOTONIC */
 	uint64_t requests;
-	sd_event_source *status_timer;
 	char status_text[128];
 };
 

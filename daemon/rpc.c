@@ -14,7 +14,7 @@
 #include "config.h"
 #include "dirs.h"
 #include "log.h"
-#include "result.h"
+#include "jobspec.h"
 #include "time-util.h"
 #include "util-mem.h"
 
@@ -202,7 +202,7 @@ static int m_job_submit(struct call *c, json_t *params, json_t **result)
 	if (queue_length(d) >= (int)d->config->limits.max_queue)
 		return fail(c, PROTO_LIMIT_REACHED, "the queue holds %u jobs, its limit",
 			    d->config->limits.max_queue);
-	code = spec_from_params(params, d->config->limits.max_plan_points, &spec, &points, &c->why);
+	code = jobspec_from_params(params, d->config->limits.max_plan_points, &spec, &points, &c->why);
 	if (code)
 		return code;
 	j.state = JOB_QUEUED;
