@@ -14,7 +14,6 @@
 #include "config.h"
 #include "fit-json.h"
 #include "result.h"
-#include "runner.h"
 #include "sha256.h"
 #include "time-util.h"
 #include "util-mem.h"
@@ -61,7 +60,7 @@ static void characterized_release(struct characterized *c)
 	asph_scanfile_free(c->scan);
 }
 
-static int characterize(const struct runner_job *job, const struct job_plan *jp,
+static int characterize(const struct result_source *job, const struct job_plan *jp,
 			struct characterized *c, struct asph_error *err)
 {
 	int r = asph_scanfile_read(job->scan_path, &c->scan, err);
@@ -78,7 +77,7 @@ static int characterize(const struct runner_job *job, const struct job_plan *jp,
 }
 
 /* residuals.csv (x, y, z, residual_nm) and residual-map.png. */
-static int write_residuals(const struct runner_job *job, struct characterized *c,
+static int write_residuals(const struct result_source *job, struct characterized *c,
 			   json_t *files, struct asph_error *err)
 {
 	const double *res = asph_fit_residuals(c->fit);
@@ -90,7 +89,7 @@ static int write_residuals(const struct runner_job *job, struct characterized *c
 		return asph_error_set(err, r, "out of memory");
 	for (size_t i = 0; i < c->points->n; i++)
 		c->points->value[i] = res[i] * 1e6;
-	if (asprintf(&path, "%s/residuals.csv", job->result_dir) < 0)
+	if (asprintf(&path, "%s/residuals.csv", job->dir) < 0)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	r = asph_points_write(path, c->points, NULL, err);
 	if (r < 0)
@@ -98,7 +97,7 @@ static int write_residuals(const struct runner_job *job, struct characterized *c
 	json_object_set_new(files, "residuals", json_string("residuals.csv"));
 	free(path);
 	path = NULL;
-	if (asprintf(&path, "%s/residual-map.png", job->result_dir) < 0)
+	if (asprintf(&path, "%s/residual-map.png", job->dir) < 0)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	struct asph_plot_options po = {
 		.title = "Form error", .colour_label = "residual (nm)", .diverging = 1,
@@ -110,7 +109,7 @@ static int write_residuals(const struct runner_job *job, struct characterized *c
 	return 0;
 }
 
-static json_t *provenance(const struct runner_job *job, const struct job_plan *jp,
+static json_t *provenance(const struct result_source *job, const struct job_plan *jp,
 			  const struct asph_instrument_config *ic,
 			  const struct characterized *c, const char *sha)
 {
@@ -143,7 +142,7 @@ static json_t *provenance(const struct runner_job *job, const struct job_plan *j
 	return p;
 }
 
-int result_build(const struct runner_job *job, const struct job_plan *jp,
+int result_build(const struct result_source *job, const struct job_plan *jp,
 		 const struct asph_instrument_config *ic, char **out,
 		 struct asph_error *err)
 {
@@ -168,7 +167,7 @@ int result_build(const struct runner_job *job, const struct job_plan *jp,
 		json_decref(files);
 		goto out;
 	}
-	result = json_pack("{s:I, s:o, s:o, s:o}", "job", (json_int_t)job->id,
+	result = json_pack("{s:I, s:o, s:o, s:o}", "job", (json_int_t)job->job,
 			   "summary", fit_result_json(&c.res, jp->lens_name ? jp->lens_name
 							 : jp->prescription.name, jp->fit.robust),
 			   "provenance", provenance(job, jp, ic, &c, sha),
@@ -178,7 +177,7 @@ int result_build(const struct runner_job *job, const struct job_plan *jp,
 		r = asph_error_set(err, -ENOMEM, "out of memory");
 		goto out;
 	}
-	r = write_atomic(job->result_dir, "result.json", text, err);
+	r = write_atomic(job->dir, "result.json", text, err);
 	if (r == 0)
 		*out = steal_ptr(text);
 out:

@@ -269,8 +269,12 @@ static void run_job(struct runner *r, struct runner_job *job, struct runner_repo
 	else if (rc < 0)
 		done(&run, RUNNER_FAILED, NULL);
 	else {
+		struct result_source src = {
+			.job = job->id, .scan_path = job->scan_path, .dir = job->result_dir,
+			.metadata = job->metadata,
+		};
 		char *result = NULL;
-		rc = result_build(job, &run.jp, r->ic, &result, &run.err);
+		rc = result_build(&src, &run.jp, r->ic, &result, &run.err);
 		done(&run, rc < 0 ? RUNNER_FAILED : RUNNER_COMPLETED, result);
 	}
 	job_plan_release(&run.jp);

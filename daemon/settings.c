@@ -82,6 +82,8 @@ void settings_free(struct settings *c)
 	free(c->socket_group);
 	free(c->operator_group);
 	free(c->tcp_listen);
+	free(c->tcp_host);
+	free(c->tcp_port);
 	free(c->token_file);
 	free(c->state_dir);
 	free(c->instruments_json);
@@ -174,6 +176,43 @@ static void take_limits(struct loader *ld, json_t *obj, struct settings_limits *
 	}
 }
 
+/* "HOST:PORT", "[IPV6]:PORT": a host and a port number (0 picks one). */
+static void take_listen(struct loader *ld, json_t *v, struct settings *c)
+{
+	const char *text, *colon, *host;
+	size_t host_len;
+	char *end;
+	unsigned long port;
+
+	take_string(ld, v, "tcp_listen", &c->tcp_listen, false);
+	text = json_string_value(v);
+	if (!c->tcp_listen || !text)
+		return;
+	colon = strrchr(text, ':');
+	if (!colon) {
+		complain(ld, "tcp_listen", "must be HOST:PORT (a host name or address, a colon, "
+			 "a port number)");
+		return;
+	}
+	host = text;
+	host_len = (size_t)(colon - text);
+	if (host_len >= 2 && host[0] == '[' && host[host_len - 1] == ']') {
+		host++;
+		host_len -= 2;
+	}
+	errno = 0;
+	port = strtoul(colon + 1, &end, 10);
+	if (host_len == 0 || colon[1] < '0' || colon[1] > '9' || *end || errno || port > 65535) {
+		complain(ld, "tcp_listen", "must be HOST:PORT with a host and a port number "
+			 "from 0 to 65535, not \"%s\"", text);
+		return;
+	}
+	free(c->tcp_host);
+	free(c->tcp_port);
+	c->tcp_host = strndup(host, host_len);
+	c->tcp_port = strdup(colon + 1);
+}
+
 static void take_member(struct loader *ld, struct settings *c,
 			const char *key, json_t *v)
 {
@@ -186,7 +225,7 @@ static void take_member(struct loader *ld, struct settings *c,
 	else if (!strcmp(key, "operator_group"))
 		take_string(ld, v, key, &c->operator_group, false);
 	else if (!strcmp(key, "tcp_listen"))
-		take_string(ld, v, key, &c->tcp_listen, false);
+		take_listen(ld, v, c);
 	else if (!strcmp(key, "token_file"))
 		take_string(ld, v, key, &c->token_file, true);
 	else if (!strcmp(key, "state_dir"))
@@ -267,6 +306,9 @@ int settings_load(const char *path, struct settings **out,
 		json_object_foreach(root, key, v)
 			take_member(&ld, c, key, v);
 	json_decref(root);
+	if (c->tcp_listen && !c->token_file)
+		complain(&ld, "tcp_listen", "needs a token_file: TCP clients authenticate with "
+			 "its token");
 	if (ld.n_errors) {
 		settings_free(c);
 		return -EINVAL;
@@ -275,4 +317,16 @@ int settings_load(const char *path, struct settings **out,
 	c->text_len = len;
 	*out = c;
 	return 0;
+}
+
+void settings_locate(const struct settings *s, const char *field, struct asph_error *err)
+{
+	int line = 0, column = 0;
+
+	if (!err)
+		return;
+	if (s->text)
+		json_locate_dotted(s->text, s->text_len, field, &line, &column);
+	/* field may be err's own */
+	asph_error_locate(err, s->source, line, column, field == err->field ? NULL : field);
 }

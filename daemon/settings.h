@@ -32,7 +32,8 @@ struct settings {
 	char *socket_group;             /* NULL: the daemon's group */
 	mode_t socket_mode;
 	char *operator_group;           /* NULL: only root operates */
-	char *tcp_listen;               /* "host:port" or NULL (off) */
+	char *tcp_listen;               /* "HOST:PORT" or NULL (off), as written */
+	char *tcp_host, *tcp_port;      /* its parts ("[...]" of IPv6 taken off) */
 	char *token_file;
 	char *state_dir;
 	struct settings_limits limits;
@@ -58,5 +59,13 @@ void settings_free(struct settings *c);
 
 /* The defaults without a file. */
 int settings_defaults(struct settings **out);
+
+/*
+ * Points err at the setting field ("token_file", "limits.max_queue",
+ * "instruments.[0].probe"): the file with the line and column where it
+ * stands, and the field. For errors found after loading (the operator
+ * group, the token file, the instruments' drivers).
+ */
+void settings_locate(const struct settings *s, const char *field, struct asph_error *err);
 
 #endif
