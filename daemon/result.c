@@ -7,12 +7,13 @@
 #include <string.h>
 #include <unistd.h>
 
+#include <jansson.h>
+
 #include "asph/instrument.h"
 #include "asph/plot.h"
 #include "asph/points.h"
 #include "asph/scanfile.h"
 #include "config.h"
-#include "fit-json.h"
 #include "result.h"
 #include "sha256.h"
 #include "time-util.h"
@@ -142,6 +143,17 @@ static json_t *provenance(const struct result_source *job, const struct job_plan
 	return p;
 }
 
+/* The fit's summary as asph fit --json prints it; NULL on ENOMEM. */
+static json_t *summary_json(const struct asph_fit_result *res, const char *lens,
+			    int robust)
+{
+	_cleanup_free_ char *text = NULL;
+
+	if (asph_fit_result_to_json(res, lens, robust, &text) < 0)
+		return NULL;
+	return json_loads(text, 0, NULL);
+}
+
 int result_build(const struct result_source *job, const struct job_plan *jp,
 		 const struct asph_instrument_config *ic, char **out,
 		 struct asph_error *err)
@@ -168,7 +180,7 @@ int result_build(const struct result_source *job, const struct job_plan *jp,
 		goto out;
 	}
 	result = json_pack("{s:I, s:o, s:o, s:o}", "job", (json_int_t)job->job,
-			   "summary", fit_result_json(&c.res, jp->lens_name ? jp->lens_name
+			   "summary", summary_json(&c.res, jp->lens_name ? jp->lens_name
 							 : jp->prescription.name, jp->fit.robust),
 			   "provenance", provenance(job, jp, ic, &c, sha),
 			   "files", files);

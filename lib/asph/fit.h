@@ -205,6 +205,16 @@ int asph_fit_get_result(struct asph_fit *w, struct asph_fit_result *out,
 int asph_fit_run(struct asph_fit *w, const double *xyz, size_t n,
 		 struct asph_fit_result *out, struct asph_error *err);
 
+/*
+ * The summary of a fit as JSON text (malloc'd, caller frees): the object
+ * `asph fit --json` prints and asphd stores as a job's "summary", keys in
+ * docs/characterization.md. lens: the lens name shown (NULL: null); robust:
+ * whether the fit was robust. A value that could not be computed is null
+ * (JSON has no NaN). 0 or -ENOMEM.
+ */
+int asph_fit_result_to_json(const struct asph_fit_result *r, const char *lens,
+			    int robust, char **out);
+
 /* After the fit: residual per point in mm (NaN where status is OUTSIDE),
  * status per point, and the robust weight per point (1 when not robust). */
 const double *asph_fit_residuals(const struct asph_fit *w);

@@ -13,7 +13,6 @@
 #include "asph/plot.h"
 #include "asph/points.h"
 #include "asph-tool.h"
-#include "fit-json.h"
 #include "util-mem.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_surface *, asph_surface_free)
@@ -153,10 +152,12 @@ static int parse_args(struct fit_cli *c, int argc, char **argv)
 static int show_json(const struct fit_cli *c, const struct asph_surface *s,
 		     const struct asph_fit_result *r)
 {
-	_cleanup_(json_decrefp) json_t *root =
-		fit_result_json(r, asph_surface_prescription(s)->name, c->opts.robust);
+	_cleanup_free_ char *text = NULL;
+	_cleanup_(json_decrefp) json_t *root = NULL;
 
-	if (!root) {
+	if (asph_fit_result_to_json(r, asph_surface_prescription(s)->name,
+				    c->opts.robust, &text) < 0 ||
+	    !(root = json_loads(text, 0, NULL))) {
 		fprintf(stderr, "asph fit: out of memory\n");
 		return EXIT_FAILURE_RUN;
 	}

@@ -1,8 +1,8 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /* Sampling plans, internal: the planar point patterns every method starts
  * from, and the lattice constants the density relations use. */
-#ifndef ASPH_PLAN_INTERNAL_H
-#define ASPH_PLAN_INTERNAL_H
+#ifndef ASPH_PLAN_PATTERNS_H
+#define ASPH_PLAN_PATTERNS_H
 
 #include <stddef.h>
 #include <stdint.h>

@@ -1,8 +1,8 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /* The circle involute on any surface of revolution z = Z(r) given by its
  * profile, so that tests can feed an exact plane. Internal. */
-#ifndef ASPH_LIB_INVOLUTE_H
-#define ASPH_LIB_INVOLUTE_H
+#ifndef ASPH_INVOLUTE_PROFILE_H
+#define ASPH_INVOLUTE_PROFILE_H
 
 #include <stddef.h>
 

@@ -10,7 +10,7 @@
 #include <jansson.h>
 
 #include "asph/points.h"
-#include "colormap.h"
+#include "plot/colormap.h"
 #include "fileio.h"
 #include "util-mem.h"
 

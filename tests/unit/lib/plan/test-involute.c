@@ -15,7 +15,7 @@
 #include "asph/involute.h"
 #include "asph/prescription.h"
 #include "asph/surface.h"
-#include "involute.h"
+#include "involute-profile.h"
 
 static const char *const presets[] = { "weak", "strong", "turning-point" };
 

@@ -4,7 +4,7 @@
 #include <math.h>
 #include <stdlib.h>
 
-#include "plan.h"
+#include "plan-patterns.h"
 #include "util-mem.h"
 
 static void put(double *xyr, size_t i, double x, double y, double r)

@@ -9,7 +9,7 @@
 #include "asph/involute.h"
 #include "asph/lb.h"
 #include "asph/plan.h"
-#include "plan.h"
+#include "plan-patterns.h"
 #include "util-mem.h"
 
 /* Largest plan: triangle indices are 32-bit. */

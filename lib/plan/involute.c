@@ -8,7 +8,7 @@
 
 #include "asph/involute.h"
 #include "hermite.h"
-#include "involute.h"
+#include "involute-profile.h"
 #include "util-mem.h"
 
 /*

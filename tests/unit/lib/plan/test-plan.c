@@ -16,7 +16,7 @@
 #include "asph/plan.h"
 #include "asph/prescription.h"
 #include "asph/surface.h"
-#include "plan.h"
+#include "plan-patterns.h"
 
 /*
  * Plans of every method on the three presets at h = 0.05 are computed once

@@ -1,7 +1,13 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
+/* The JSON summary of a fit: one builder for `asph fit --json` and the
+ * results asphd stores, so both carry the same keys. */
+#include <errno.h>
 #include <math.h>
 
-#include "fit-json.h"
+#include <jansson.h>
+
+#include "asph/fit.h"
+#include "util-mem.h"
 
 static json_t *json_num(double v)
 {
@@ -19,8 +25,8 @@ static json_t *dof_object(const struct asph_fit_result *r, const double *v)
 	return o;
 }
 
-json_t *fit_result_json(const struct asph_fit_result *r, const char *lens,
-			int robust)
+static json_t *result_json(const struct asph_fit_result *r, const char *lens,
+			   int robust)
 {
 	json_t *root = json_object();
 	json_t *z = json_array();
@@ -54,4 +60,13 @@ json_t *fit_result_json(const struct asph_fit_result *r, const char *lens,
 	json_object_set_new(root, "slope_rms_urad", json_num(r->slope_rms.v));
 	json_object_set_new(root, "zernike_nm", z);
 	return root;
+}
+
+int asph_fit_result_to_json(const struct asph_fit_result *r, const char *lens,
+			    int robust, char **out)
+{
+	_cleanup_(json_decrefp) json_t *root = result_json(r, lens, robust);
+
+	*out = root ? json_dumps(root, JSON_COMPACT | JSON_REAL_PRECISION(17)) : NULL;
+	return *out ? 0 : -ENOMEM;
 }
