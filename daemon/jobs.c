@@ -442,6 +442,8 @@ static void job_done(struct slot *sl, const struct runner_report *rep)
 	switch (rep->outcome) {
 	case RUNNER_COMPLETED:
 		next = JOB_COMPLETED;
+		/* A job run again (requeue with restart) had a result before. */
+		free(j.result);
 		j.result = rep->result;
 		j.resume = false;
 		j.points_done = sl->act.total;
