@@ -608,6 +608,23 @@ static int bind_unix(struct server *srv, const struct settings *s)
 	return 0;
 }
 
+/* Whether ai's address came earlier in the list (a name may resolve to
+ * the same address twice). */
+static bool seen_before(const struct addrinfo *list, const struct addrinfo *ai)
+{
+	for (const struct addrinfo *p = list; p != ai; p = p->ai_next)
+		if (p->ai_addrlen == ai->ai_addrlen && !memcmp(p->ai_addr, ai->ai_addr, ai->ai_addrlen))
+			return true;
+	return false;
+}
+
+/* Whether bind_tcp()'s error means this host has no such address (a name
+ * that resolves to an IPv6 address on a host without IPv6). */
+static bool address_unavailable(int r)
+{
+	return r == -EADDRNOTAVAIL || r == -EAFNOSUPPORT;
+}
+
 static int bind_tcp(struct server *srv, const struct settings *s, const struct addrinfo *ai)
 {
 	_cleanup_close_ int fd = -1;
@@ -623,8 +640,9 @@ static int bind_tcp(struct server *srv, const struct settings *s, const struct a
 	     setsockopt(fd, IPPROTO_IPV6, IPV6_V6ONLY, &one, sizeof(one)) < 0) ||
 	    bind(fd, ai->ai_addr, ai->ai_addrlen) < 0 || listen(fd, 128) < 0) {
 		r = -errno;
-		log_error("tcp_listen %s: cannot listen on %s: %s", s->tcp_listen, where,
-			  strerror(-r));
+		log_job(address_unavailable(r) ? LOG_WARNING : LOG_ERR, 0,
+			"tcp_listen %s: cannot listen on %s: %s", s->tcp_listen, where,
+			strerror(-r));
 		return r;
 	}
 	if (!add_listener(srv, fd, true, false)) {
@@ -632,8 +650,29 @@ static int bind_tcp(struct server *srv, const struct settings *s, const struct a
 			  MAX_TCP_LISTENERS);
 		return -E2BIG;
 	}
+	log_debug("tcp_listen %s: listening on %s", s->tcp_listen, where);
 	steal_fd(fd);
 	return 0;
+}
+
+/* Every address of tcp_listen; one this host does not have is left out
+ * while another is there to listen on. */
+static int bind_tcp_all(struct server *srv, const struct settings *s, const struct addrinfo *tcp)
+{
+	int r = 0, bound = 0;
+
+	for (const struct addrinfo *ai = tcp; ai; ai = ai->ai_next) {
+		if (seen_before(tcp, ai))
+			continue;
+		r = bind_tcp(srv, s, ai);
+		if (r < 0 && !address_unavailable(r))
+			return r;
+		bound += r == 0;
+	}
+	if (bound)
+		return 0;
+	log_error("tcp_listen %s: no address of it is on this host", s->tcp_listen);
+	return -EADDRNOTAVAIL;
 }
 
 static bool has_unix(const struct server *srv)
@@ -677,16 +716,6 @@ static void take_activated(struct server *srv, const struct settings *s)
 	}
 }
 
-/* Whether ai's address came earlier in the list (a name may resolve to
- * the same address twice). */
-static bool seen_before(const struct addrinfo *list, const struct addrinfo *ai)
-{
-	for (const struct addrinfo *p = list; p != ai; p = p->ai_next)
-		if (p->ai_addrlen == ai->ai_addrlen && !memcmp(p->ai_addr, ai->ai_addr, ai->ai_addrlen))
-			return true;
-	return false;
-}
-
 int server_listen(struct server *srv, const struct settings *s, const struct addrinfo *tcp)
 {
 	int r;
@@ -695,13 +724,9 @@ int server_listen(struct server *srv, const struct settings *s, const struct add
 	/* The unix socket last: once it answers, everything listens, and a
 	 * bad TCP setting leaves no socket behind. */
 	if (s->tcp_listen && !has_tcp(srv)) {
-		for (const struct addrinfo *ai = tcp; ai; ai = ai->ai_next) {
-			if (seen_before(tcp, ai))
-				continue;
-			r = bind_tcp(srv, s, ai);
-			if (r < 0)
-				return r;
-		}
+		r = bind_tcp_all(srv, s, tcp);
+		if (r < 0)
+			return r;
 	}
 	if (!has_unix(srv)) {
 		r = bind_unix(srv, s);
@@ -720,7 +745,7 @@ int server_listen(struct server *srv, const struct settings *s, const struct add
 int server_resolve_tcp(const char *host, const char *port, struct addrinfo **out,
 		       struct asph_error *err)
 {
-	struct addrinfo hints = { .ai_socktype = SOCK_STREAM, .ai_flags = AI_NUMERICHOST };
+	struct addrinfo hints = { .ai_socktype = SOCK_STREAM, .ai_protocol = IPPROTO_TCP };
 	int r = getaddrinfo(host, port, &hints, out);
 
 	if (r != 0)
