@@ -108,7 +108,8 @@ struct proto_message {
 };
 
 /* Parses one line; NULL with a message in why on a syntax error. Duplicate
- * object keys are refused. */
+ * object keys are refused. A UTF-8 byte-order mark at the start of the
+ * line is skipped (columns still count it). */
 json_t *proto_parse(const char *text, size_t len, char *why, size_t why_size);
 
 /*

@@ -187,13 +187,25 @@ size_t proto_utf8_clean(char *text)
 
 json_t *proto_parse(const char *text, size_t len, char *why, size_t why_size)
 {
+	static const char bom[] = "\xef\xbb\xbf";
+	int skipped = 0;
 	json_error_t e;
-	json_t *j = json_loadb(text, len, JSON_REJECT_DUPLICATES | JSON_ALLOW_NUL | JSON_DECODE_ANY, &e);
+	json_t *j;
 
+	/* RFC 8259 lets a parser ignore a byte-order mark before a text, and
+	 * some tools (.NET's UTF8Encoding, Windows editors) write one. */
+	if (len >= 3 && !memcmp(text, bom, 3)) {
+		text += 3;
+		len -= 3;
+		skipped = 1;
+	}
+	j = json_loadb(text, len, JSON_REJECT_DUPLICATES | JSON_ALLOW_NUL | JSON_DECODE_ANY, &e);
 	if (!j && why && why_size > 0) {
 		/* jansson quotes the text near the error, which a cut may
-		 * leave in the middle of a character. */
-		snprintf(why, why_size, "column %d: %s", e.column, e.text);
+		 * leave in the middle of a character. The column counts the
+		 * mark too: it is a character of the line as sent. */
+		snprintf(why, why_size, "column %d: %s", e.column > 0 ? e.column + skipped : e.column,
+			 e.text);
 		proto_utf8_clean(why);
 	}
 	return j;

@@ -136,6 +136,27 @@ static void test_requests(void **state)
 	json_decref(str);
 }
 
+/* A UTF-8 byte-order mark is skipped at the start of a line only; the
+ * column of an error counts it. */
+static void test_byte_order_mark(void **state)
+{
+	char buf[128];
+	json_t *j = proto_parse("\xef\xbb\xbf{\"a\": 1}", 11, buf, sizeof(buf));
+
+	assert_non_null(j);
+	assert_int_equal(json_integer_value(json_object_get(j, "a")), 1);
+	json_decref(j);
+	/* The fault is the third character of the line as sent. */
+	assert_null(proto_parse("\xef\xbb\xbf{,}", 6, buf, sizeof(buf)));
+	assert_true(strncmp(buf, "column 3: ", 10) == 0);
+	assert_null(proto_parse("\xef\xbb\xbf\xef\xbb\xbf{}", 8, buf, sizeof(buf)));
+	assert_true(strncmp(buf, "column 2: ", 10) == 0);
+	assert_null(proto_parse(" \xef\xbb\xbf{}", 6, buf, sizeof(buf)));
+	assert_true(strncmp(buf, "column 2: ", 10) == 0);
+	assert_null(proto_parse("\xef\xbb\xbf", 3, buf, sizeof(buf)));
+	assert_null(proto_parse("\xef\xbb", 2, buf, sizeof(buf)));
+}
+
 static void test_utf8_clean(void **state)
 {
 	char cut[] = "no method \"\xc3\xa9\xc3\"";
@@ -237,6 +258,7 @@ int main(void)
 		cmocka_unit_test(test_lines_split),
 		cmocka_unit_test(test_lines_oversized),
 		cmocka_unit_test(test_requests),
+		cmocka_unit_test(test_byte_order_mark),
 		cmocka_unit_test(test_utf8_clean),
 		cmocka_unit_test(test_builders),
 		cmocka_unit_test(test_params),
