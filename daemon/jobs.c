@@ -57,7 +57,7 @@ static int open_store(struct jobs *jobs, struct asph_error *err)
 	r = store_open(path, &jobs->store, err);
 	if (r < 0)
 		return r;
-	n = store_recover(jobs->store, realtime_now_ns());
+	n = store_recover(jobs->store, now_realtime_ns());
 	if (n < 0)
 		return asph_error_set(err, n, "%s: cannot mark the interrupted jobs: %s", path,
 				      strerror(-n));
@@ -209,7 +209,7 @@ static int write_transition(struct store *s, const void *arg)
 {
 	const struct transition *t = arg;
 
-	return store_transition(s, t->j, t->state, t->reason, t->actor, realtime_now_ns());
+	return store_transition(s, t->j, t->state, t->reason, t->actor, now_realtime_ns());
 }
 
 /*
@@ -267,7 +267,7 @@ static char *job_metadata(const struct job_record *j)
 	json_t *m;
 	char *s;
 
-	iso8601_utc(j->submitted_ns, submitted, sizeof(submitted));
+	iso8601_utc(j->submitted_ns, 0, submitted, sizeof(submitted));
 	m = json_pack("{s:I, s:s?, s:{s:I, s:s?}, s:s, s:I, s:I}", "job", (json_int_t)j->id,
 		      "label", j->label, "submitted_by", "uid", (json_int_t)j->uid,
 		      "name", j->user, "submitted", submitted,
@@ -324,7 +324,7 @@ static int fail_to_start(struct jobs *jobs, struct job_record *j, const char *di
 	snprintf(reason, sizeof(reason), "cannot create the job directory %s: %s", dir,
 		 strerror(-r));
 	log_job(LOG_ERR, j->id, "%s", reason);
-	j->finished_ns = realtime_now_ns();
+	j->finished_ns = now_realtime_ns();
 	return transition(jobs, j, JOB_FAILED, reason, 0, NULL);
 }
 
@@ -342,7 +342,7 @@ static int start_job(struct jobs *jobs, struct slot *sl, struct job_record *j)
 	if (r < 0)
 		return fail_to_start(jobs, j, dir, r);
 	if (!j->started_ns)
-		j->started_ns = realtime_now_ns();
+		j->started_ns = now_realtime_ns();
 	j->attempts++;
 	j->finished_ns = 0;
 	free(j->scan_path);
@@ -402,7 +402,7 @@ void jobs_schedule(struct jobs *jobs)
 static void job_progress(struct slot *sl, const struct runner_report *rep)
 {
 	struct jobs *jobs = sl->jobs;
-	uint64_t now = (uint64_t)realtime_now_ns();
+	uint64_t now = (uint64_t)now_realtime_ns();
 
 	sl->act.done = (int64_t)rep->done;
 	sl->act.total = (int64_t)rep->total;
@@ -447,18 +447,18 @@ static void job_done(struct slot *sl, const struct runner_report *rep)
 		j.result = rep->result;
 		j.resume = false;
 		j.points_done = sl->act.total;
-		j.finished_ns = realtime_now_ns();
+		j.finished_ns = now_realtime_ns();
 		break;
 	case RUNNER_FAILED:
 		next = JOB_FAILED;
 		reason = rep->reason;
-		j.finished_ns = realtime_now_ns();
+		j.finished_ns = now_realtime_ns();
 		set_fault(sl, rep->reason);
 		events_instrument_fault(jobs->events, sl->in->name, j.id, rep->reason);
 		break;
 	case RUNNER_ABORTED:
 		next = JOB_CANCELLED;
-		j.finished_ns = realtime_now_ns();
+		j.finished_ns = now_realtime_ns();
 		break;
 	case RUNNER_STOPPED:
 	default:
@@ -543,7 +543,7 @@ int jobs_submit(struct jobs *jobs, const struct job_submission *sub,
 
 	if (r < 0)
 		return r;
-	r = store_insert(jobs->store, &j, realtime_now_ns());
+	r = store_insert(jobs->store, &j, now_realtime_ns());
 	if (r < 0)
 		return asph_error_set(err, r, "cannot store the job: %s", strerror(-r));
 	jobs->counts[JOB_QUEUED]++;
@@ -567,7 +567,7 @@ int jobs_cancel(struct jobs *jobs, int64_t id, const struct job_actor *who,
 	switch (j.state) {
 	case JOB_QUEUED:
 	case JOB_INTERRUPTED:
-		j.finished_ns = realtime_now_ns();
+		j.finished_ns = now_realtime_ns();
 		r = transition(jobs, &j, JOB_CANCELLED, NULL, who->uid, err);
 		break;
 	case JOB_RUNNING:
@@ -845,7 +845,7 @@ static json_t *time_json(int64_t ns)
 
 	if (ns <= 0)
 		return json_null();
-	iso8601_utc(ns, buf, sizeof(buf));
+	iso8601_utc(ns, 0, buf, sizeof(buf));
 	return json_string(buf);
 }
 

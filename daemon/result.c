@@ -122,8 +122,8 @@ static json_t *provenance(const struct result_source *job, const struct job_plan
 	asph_instrument_config_to_json(ic, &inst);
 	json_int_t st = json_integer_value(json_object_get(meta, "started_ns"));
 	if (st > 0)
-		iso8601_utc(st, started, sizeof(started));
-	iso8601_utc(realtime_now_ns(), finished, sizeof(finished));
+		iso8601_utc(st, 0, started, sizeof(started));
+	iso8601_utc(now_realtime_ns(), 0, finished, sizeof(finished));
 	p = json_pack("{s:s?, s:o, s:o, s:o, s:o?, s:{s:s, s:s, s:s}, s:O?, s:O?, s:O?,"
 		      " s:s?, s:s, s:{s:s, s:s, s:I, s:i, s:s}}",
 		"lens_name", jp->lens_name,

@@ -306,7 +306,7 @@ static int history_entry(const struct store_event *e, void *data)
 	json_t *list = data;
 	char buf[32];
 
-	iso8601_utc(e->t_ns, buf, sizeof(buf));
+	iso8601_utc(e->t_ns, 0, buf, sizeof(buf));
 	return json_array_append_new(list, json_pack("{s:s, s:s, s:s?, s:I}", "time", buf,
 		"state", job_state_name(e->state), "reason", e->reason,
 		"actor_uid", (json_int_t)e->actor_uid)) < 0 ? -ENOMEM : 0;

@@ -691,25 +691,28 @@ static bool has_tcp(const struct server *srv)
 	return false;
 }
 
-/* The sockets systemd passed: one unix socket, and inet ones when there
- * is a token to check. */
+/* What a socket systemd passed is for: 0 the unix socket, 1 TCP (only
+ * with a token to check), -1 nothing. */
+static int passed_kind(const struct server *srv, const struct settings *s, int fd)
+{
+	if (sd_is_socket_unix(fd, SOCK_STREAM, 1, NULL, 0) > 0 && !has_unix(srv))
+		return 0;
+	if (sd_is_socket_inet(fd, AF_UNSPEC, SOCK_STREAM, 1, 0) > 0 && s->token_file)
+		return 1;
+	return -1;
+}
+
 static void take_activated(struct server *srv, const struct settings *s)
 {
 	int n = sd_listen_fds(1);
 
 	for (int i = 0; i < (n > 0 ? n : 0); i++) {
 		int fd = SD_LISTEN_FDS_START + i;
-		bool tcp;
+		int kind = passed_kind(srv, s, fd);
 
-		if (sd_is_socket_unix(fd, SOCK_STREAM, 1, NULL, 0) > 0 && !has_unix(srv))
-			tcp = false;
-		else if (sd_is_socket_inet(fd, AF_UNSPEC, SOCK_STREAM, 1, 0) > 0 && s->token_file)
-			tcp = true;
-		else
-			fd = -fd;
-		if (fd < 0 || !add_listener(srv, fd, tcp, true)) {
-			log_warning("ignoring passed file descriptor %d", fd < 0 ? -fd : fd);
-			close(fd < 0 ? -fd : fd);
+		if (kind < 0 || !add_listener(srv, fd, kind == 1, true)) {
+			log_warning("ignoring passed file descriptor %d", fd);
+			close(fd);
 			continue;
 		}
 		fcntl(fd, F_SETFL, fcntl(fd, F_GETFL) | O_NONBLOCK);
