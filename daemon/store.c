@@ -231,6 +231,16 @@ static int step_done(sqlite3_stmt *st)
 	return rc == SQLITE_DONE ? 0 : sql_errno(rc);
 }
 
+/* The one row a query of one record reads: 0, -ENOENT when there is none. */
+static int step_row(sqlite3_stmt *st)
+{
+	int rc = sqlite3_step(st);
+
+	if (rc == SQLITE_ROW)
+		return 0;
+	return rc == SQLITE_DONE ? -ENOENT : -EIO;
+}
+
 static void bind_text(sqlite3_stmt *st, int i, const char *v)
 {
 	if (v)
@@ -357,11 +367,9 @@ int store_get(struct store *s, int64_t id, struct job_record *out)
 	if (!st)
 		return -EIO;
 	sqlite3_bind_int64(st, 1, id);
-	r = sqlite3_step(st);
-	if (r == SQLITE_DONE)
-		return -ENOENT;
-	if (r != SQLITE_ROW)
-		return -EIO;
+	r = step_row(st);
+	if (r < 0)
+		return r;
 	return read_job(st, out);
 }
 
@@ -553,11 +561,9 @@ int store_next(struct store *s, const char *instrument, struct job_record *out)
 		return -EIO;
 	sqlite3_bind_int(st, 1, JOB_QUEUED);
 	bind_text(st, 2, instrument);
-	r = sqlite3_step(st);
-	if (r == SQLITE_DONE)
-		return -ENOENT;
-	if (r != SQLITE_ROW)
-		return -EIO;
+	r = step_row(st);
+	if (r < 0)
+		return r;
 	return read_job(st, out);
 }
 
@@ -644,11 +650,9 @@ int store_meta_get(struct store *s, const char *key, char **value)
 	if (!st)
 		return -EIO;
 	bind_text(st, 1, key);
-	r = sqlite3_step(st);
-	if (r == SQLITE_DONE)
-		return -ENOENT;
-	if (r != SQLITE_ROW)
-		return -EIO;
+	r = step_row(st);
+	if (r < 0)
+		return r;
 	*value = column_text(st, 0);
 	return *value ? 0 : -ENOMEM;
 }
