@@ -1,9 +1,9 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
  * The daemon's clock: the wall-clock time and its ISO 8601 UTC form. Every
- * file of the daemon takes the time from here, with the names and meaning
- * of the tree's shared time header, so that moving to it is one edit.
- * Safe from any thread.
+ * file of the daemon takes the time from here, so that moving to a time
+ * header shared with lib/ (the same two names) is one edit. Safe from any
+ * thread.
  */
 #ifndef ASPHD_TIME_UTIL_H
 #define ASPHD_TIME_UTIL_H
