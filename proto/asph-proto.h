@@ -122,7 +122,8 @@ int proto_why_vset(struct proto_why *why, const char *fmt, va_list ap)
 	__attribute__((format(printf, 2, 0)));
 
 /* Parses one line; NULL with a message in why on a syntax error. Duplicate
- * object keys are refused. */
+ * object keys are refused. A UTF-8 byte-order mark at the start of the
+ * line is skipped (columns still count it). */
 json_t *proto_parse(const char *text, size_t len, struct proto_why *why);
 
 /*

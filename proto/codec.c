@@ -208,11 +208,24 @@ int proto_why_set(struct proto_why *why, const char *fmt, ...)
 
 json_t *proto_parse(const char *text, size_t len, struct proto_why *why)
 {
+	static const char bom[] = "\xef\xbb\xbf";
+	int skipped = 0;
 	json_error_t e;
-	json_t *j = json_loadb(text, len, JSON_REJECT_DUPLICATES | JSON_ALLOW_NUL | JSON_DECODE_ANY, &e);
+	json_t *j;
 
+	/* RFC 8259 lets a parser ignore a byte-order mark before a text, and
+	 * some tools (.NET's UTF8Encoding, Windows editors) write one. */
+	if (len >= 3 && !memcmp(text, bom, 3)) {
+		text += 3;
+		len -= 3;
+		skipped = 1;
+	}
+	j = json_loadb(text, len, JSON_REJECT_DUPLICATES | JSON_ALLOW_NUL | JSON_DECODE_ANY, &e);
+	/* The column counts the mark too: it is a character of the line as
+	 * sent. */
 	if (!j)
-		proto_why_set(why, "column %d: %s", e.column, e.text);
+		proto_why_set(why, "column %d: %s", e.column > 0 ? e.column + skipped : e.column,
+			      e.text);
 	return j;
 }
 

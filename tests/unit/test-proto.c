@@ -147,6 +147,27 @@ static void test_requests(void **state)
 	assert_int_equal(proto_why_set(NULL, "x"), -EINVAL);
 }
 
+/* A UTF-8 byte-order mark is skipped at the start of a line only; the
+ * column of an error counts it. */
+static void test_byte_order_mark(void **state)
+{
+	struct proto_why why;
+	json_t *j = proto_parse("\xef\xbb\xbf{\"a\": 1}", 11, &why);
+
+	assert_non_null(j);
+	assert_int_equal(json_integer_value(json_object_get(j, "a")), 1);
+	json_decref(j);
+	/* The fault is the third character of the line as sent. */
+	assert_null(proto_parse("\xef\xbb\xbf{,}", 6, &why));
+	assert_true(strncmp(why.text, "column 3: ", 10) == 0);
+	assert_null(proto_parse("\xef\xbb\xbf\xef\xbb\xbf{}", 8, &why));
+	assert_true(strncmp(why.text, "column 2: ", 10) == 0);
+	assert_null(proto_parse(" \xef\xbb\xbf{}", 6, &why));
+	assert_true(strncmp(why.text, "column 2: ", 10) == 0);
+	assert_null(proto_parse("\xef\xbb\xbf", 3, &why));
+	assert_null(proto_parse("\xef\xbb", 2, &why));
+}
+
 static void test_utf8_clean(void **state)
 {
 	char cut[] = "no method \"\xc3\xa9\xc3\"";
@@ -248,6 +269,7 @@ int main(void)
 		cmocka_unit_test(test_lines_split),
 		cmocka_unit_test(test_lines_oversized),
 		cmocka_unit_test(test_requests),
+		cmocka_unit_test(test_byte_order_mark),
 		cmocka_unit_test(test_utf8_clean),
 		cmocka_unit_test(test_builders),
 		cmocka_unit_test(test_params),
