@@ -377,9 +377,11 @@ static json_t *role_json(const struct asph_driver *drv, const struct asph_option
 {
 	json_t *obj = json_object(), *opts = json_object();
 	const struct asph_option_value *v = asph_options_values(o);
+	char abi[24];
 
 	json_object_set_new(obj, "driver", json_string(drv->name));
 	json_object_set_new(obj, "version", json_string(drv->version ? drv->version : ""));
+	json_object_set_new(obj, "abi", json_string(asph_driver_abi_text(drv->abi_version, abi, sizeof(abi))));
 	for (size_t i = 0; i < drv->n_options; i++) {
 		json_t *j = NULL;
 		if (drv->options[i].roles && !(drv->options[i].roles & role))
@@ -402,7 +404,8 @@ int asph_instrument_config_to_json(const struct asph_instrument_config *c,
 	_cleanup_(json_decrefp) json_t *root = json_object();
 
 	json_object_set_new(root, "name", json_string(c->name));
-	json_object_set_new(root, "driver_abi", json_integer(ASPH_DRIVER_ABI_VERSION));
+	json_object_set_new(root, "driver_abi", json_integer(ASPH_DRIVER_ABI_MAJOR));
+	json_object_set_new(root, "driver_abi_minor", json_integer(ASPH_DRIVER_ABI_MINOR));
 	json_object_set_new(root, "stage", role_json(c->stage_driver, c->stage_options, ASPH_ROLE_STAGE));
 	json_object_set_new(root, "probe", role_json(c->probe_driver, c->probe_options, ASPH_ROLE_PROBE));
 	*out = json_dumps(root, JSON_COMPACT | JSON_PRESERVE_ORDER | JSON_REAL_PRECISION(17));

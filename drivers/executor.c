@@ -351,7 +351,7 @@ static int measure_point(struct asph_scan *sc, size_t i, bool *recorded, struct 
 	scan_to_cartesian(sc, ctx.machine, ctx.xyz);
 	memcpy(cart, ctx.xyz, sizeof(cart));
 	double rate = in->probe_info.rate;
-	r = prefixed(in->probe_driver->probe->read(in->probe, &ctx, &rd,
+	r = prefixed(asph_instrument_read(in, &ctx, &rd,
 						   scaled_timeout(sc->o.read_timeout_ms,
 								  rate > 0 ? 1 / rate : 0), err),
 		     "probe", i, err);
@@ -416,7 +416,7 @@ static int measure_sweep(struct asph_scan *sc, size_t i, size_t *done, struct as
 	if (r < 0)
 		return prefixed(r, "stage", i, err);
 	memcpy(sc->pos, sc->path + 3 * (n - 1), sizeof(sc->pos));
-	r = in->probe_driver->probe->stream(in->probe, sc->ctx, n, sc->readings, &got,
+	r = asph_instrument_stream(in, sc->ctx, n, sc->readings, &got,
 					    scaled_timeout(sc->o.read_timeout_ms, reading), err);
 	if (r < 0)
 		r = prefixed(r, "probe", i + got, err);

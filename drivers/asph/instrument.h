@@ -76,6 +76,9 @@ int asph_driver_validate(const struct asph_driver *d, struct asph_error *err);
 int asph_registry_to_json(const struct asph_registry *r, bool pretty,
 			  char **out);
 
+/* "MAJOR.MINOR" of a driver ABI version, in buf (returned). */
+const char *asph_driver_abi_text(uint32_t version, char *buf, size_t size);
+
 const char *asph_option_type_name(enum asph_option_type t);
 const char *asph_kinematics_name(enum asph_kinematics k);
 const char *asph_probe_type_name(enum asph_probe_type t);
@@ -158,21 +161,60 @@ int asph_config_resolve(const struct asph_registry *reg, const char *arg,
 int asph_instrument_config_to_json(const struct asph_instrument_config *c,
 				   char **out);
 
-/* An instrument with its devices open. */
+/*
+ * An instrument with its devices open. stage_ops and probe_ops are the
+ * drivers' operations as this program may call them: those a driver of an
+ * older ABI minor version does not have are NULL. Readings go through
+ * asph_instrument_read() and asph_instrument_stream(), which also take
+ * them from drivers of ABI 1.0 (whose structures are shorter).
+ */
 struct asph_instrument {
 	const struct asph_instrument_config *config;
 	const struct asph_driver *stage_driver, *probe_driver;
 	struct asph_device *stage, *probe;
 	struct asph_stage_info stage_info;
 	struct asph_probe_info probe_info;
+	struct asph_stage_ops stage_ops;
+	struct asph_probe_ops probe_ops;
+	/* the probe is wired to the stage: triggered by its sweeps, its
+	 * timestamps in the stage's clock */
+	bool attached;
+	/* a probe's reading timestamps count in the instrument's clock */
+	bool shared_timebase;
+	void *scratch;          /* for readings of ABI 1.0 probes */
+	size_t scratch_n;
 };
 
-/* Opens the stage, then the probe, and reads their info. c must outlive
- * the instrument. */
+/* Opens the stage, then the probe, reads their info and attaches the probe
+ * to the stage. c must outlive the instrument. */
 int asph_instrument_open(const struct asph_instrument_config *c,
 			 unsigned timeout_ms, struct asph_instrument **out,
 			 struct asph_error *err);
 void asph_instrument_close(struct asph_instrument *inst);
+
+/* The probe's read and stream, for a driver of any ABI minor version; the
+ * members a probe's version does not have come back 0. */
+int asph_instrument_read(struct asph_instrument *inst, const struct asph_probe_context *ctx,
+			 struct asph_reading *out, unsigned timeout_ms, struct asph_error *err);
+int asph_instrument_stream(struct asph_instrument *inst, const struct asph_probe_context *ctx,
+			   size_t n, struct asph_reading *out, size_t *n_done,
+			   unsigned timeout_ms, struct asph_error *err);
+
+/* The instrument's clock, ns: the stage's when it has one (a simulated
+ * instrument counts simulated time), else CLOCK_MONOTONIC. */
+uint64_t asph_instrument_clock(struct asph_instrument *inst);
+
+/*
+ * The info of c's stage and probe as their options describe them, without
+ * opening anything (for estimates). -ENOTSUP when a driver cannot say
+ * (err names it).
+ */
+int asph_instrument_describe(const struct asph_instrument_config *c,
+			     struct asph_stage_info *stage, struct asph_probe_info *probe,
+			     struct asph_error *err);
+
+/* The ABI minor version a driver was built with. */
+unsigned asph_driver_abi_minor(const struct asph_driver *d);
 
 #ifdef __cplusplus
 }
