@@ -78,6 +78,12 @@ void asph_motion_profile_plan(double d, double v_max, double a_max, double j_max
 void asph_motion_profile_eval(const struct asph_motion_profile *p, double t, double *s,
 			      double *v, double *acc);
 
+/* Phase k of the profile (0 .. 6): its start s, speed, acceleration (just
+ * after the start, where they jump without limits) and its jerk; over the
+ * phase s = s0 + v0 t + a0 t^2 / 2 + j t^3 / 6. */
+void asph_motion_profile_phase(const struct asph_motion_profile *p, int k, double *s0,
+			       double *v0, double *a0, double *j);
+
 /*
  * A straight move from rest to rest: the path parameter follows a profile
  * whose speed, acceleration and jerk are the largest that keep every axis

@@ -122,6 +122,28 @@ void asph_motion_profile_eval(const struct asph_motion_profile *p, double t, dou
 		*acc = aa;
 }
 
+void asph_motion_profile_phase(const struct asph_motion_profile *p, int k, double *s0,
+			       double *v0, double *a0, double *j)
+{
+	const double jk[7] = { p->j, 0, -p->j, 0, -p->j, 0, p->j };
+	const double ak[7] = { 0, p->a, p->a, 0, 0, -p->a, -p->a };
+	double ss = 0, vv = 0;
+
+	for (int i = 0; i < k; i++) {
+		double d = p->t[i];
+		if (i == 3)
+			vv = p->v;
+		ss += vv * d + ak[i] * d * d / 2 + jk[i] * d * d * d / 6;
+		vv += ak[i] * d + jk[i] * d * d / 2;
+	}
+	if (k == 3)
+		vv = p->v;
+	*s0 = ss;
+	*v0 = vv;
+	*a0 = ak[k];
+	*j = jk[k];
+}
+
 /* -------------------------------------------------------------- move */
 
 /* The tightest of per-axis limits along the unit direction u (0 = none). */
