@@ -9,6 +9,7 @@
 
 #include <jansson.h>
 
+#include "asph/drift.h"
 #include "asph/instrument.h"
 #include "asph/plot.h"
 #include "asph/points.h"
@@ -52,6 +53,7 @@ struct characterized {
 	struct asph_points *points;
 	struct asph_fit *fit;
 	struct asph_fit_result res;
+	char *acquisition;      /* the acquisition's account, JSON */
 };
 
 static void characterized_release(struct characterized *c)
@@ -59,18 +61,21 @@ static void characterized_release(struct characterized *c)
 	asph_fit_free(c->fit);
 	asph_points_free(c->points);
 	asph_scanfile_free(c->scan);
+	free(c->acquisition);
 }
 
+/* The points as asph export writes them and asph replay fits them: the
+ * drift the references measured corrected. */
 static int characterize(const struct result_source *job, const struct job_plan *jp,
 			struct characterized *c, struct asph_error *err)
 {
-	int r = asph_scanfile_read(job->scan_path, &c->scan, err);
+	struct asph_drift_summary sum;
+	int r = asph_drift_scan_points(job->scan_path, 0, 0, &c->scan, &c->points, &sum, err);
 
 	if (r < 0)
 		return r;
-	r = asph_scanfile_to_points(c->scan, 0, &c->points, err);
-	if (r < 0)
-		return r;
+	if (asph_drift_report_json(c->scan, &sum, 1, &c->acquisition) < 0)
+		return asph_error_set(err, -ENOMEM, "out of memory");
 	r = asph_fit_alloc(jp->surface, c->points->n, &jp->fit, &c->fit, err);
 	if (r < 0)
 		return r;
@@ -140,18 +145,23 @@ static json_t *provenance(const struct result_source *job, const struct job_plan
 		"scan", "file", "scan.asphscan", "sha256", sha,
 		"points", (json_int_t)c->scan->n, "resumes", (int)c->scan->report.n_resumes,
 		"created", c->scan->header.created ? c->scan->header.created : "");
+	if (p)
+		json_object_set_new(p, "acquisition", json_loads(c->acquisition, 0, NULL));
 	return p;
 }
 
-/* The fit's summary as asph fit --json prints it; NULL on ENOMEM. */
+/* The fit's summary as asph replay --json prints it; NULL on ENOMEM. */
 static json_t *summary_json(const struct asph_fit_result *res, const char *lens,
-			    int robust)
+			    int robust, const char *acquisition)
 {
 	_cleanup_free_ char *text = NULL;
 
 	if (asph_fit_result_to_json(res, lens, robust, &text) < 0)
 		return NULL;
-	return json_loads(text, 0, NULL);
+	json_t *s = json_loads(text, 0, NULL);
+	if (s)
+		json_object_set_new(s, "acquisition", json_loads(acquisition, 0, NULL));
+	return s;
 }
 
 int result_build(const struct result_source *job, const struct job_plan *jp,
@@ -181,7 +191,8 @@ int result_build(const struct result_source *job, const struct job_plan *jp,
 	}
 	result = json_pack("{s:I, s:o, s:o, s:o}", "job", (json_int_t)job->job,
 			   "summary", summary_json(&c.res, jp->lens_name ? jp->lens_name
-							 : jp->prescription.name, jp->fit.robust),
+							 : jp->prescription.name, jp->fit.robust,
+					    c.acquisition),
 			   "provenance", provenance(job, jp, ic, &c, sha),
 			   "files", files);
 	text = result ? json_dumps(result, JSON_INDENT(2)) : NULL;

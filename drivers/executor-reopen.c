@@ -40,7 +40,7 @@ static int check_plan(const char *path, const struct asph_plan *plan,
 int asph_scan_reopen(const char *path, const struct asph_plan *plan,
 		     const struct asph_scanfile_writer_options *opts,
 		     struct asph_scanfile_writer **w, uint64_t *start_index,
-		     struct asph_error *err)
+		     struct asph_scanfile **recovered, struct asph_error *err)
 {
 	_cleanup_(asph_scanfile_freep) struct asph_scanfile *rec = NULL;
 	int ret = check_plan(path, plan, err);
@@ -53,5 +53,7 @@ int asph_scan_reopen(const char *path, const struct asph_plan *plan,
 	for (size_t i = 0; i < rec->n; i++)
 		if (rec->points[i].plan_index + 1 > *start_index)
 			*start_index = rec->points[i].plan_index + 1;
+	if (recovered)
+		*recovered = steal_ptr(rec);
 	return 0;
 }

@@ -4,6 +4,7 @@
 
 #include <stdbool.h>
 #include <stddef.h>
+#include <stdint.h>
 
 #include "asph/driver.h"
 #include "asph/error.h"
@@ -109,6 +110,46 @@ const struct asph_driver *asph_options_driver(const struct asph_options *o);
 const char *asph_option_value_format(const struct asph_option_value *v,
 				     char *buf, size_t size);
 
+/* ----------------------------------------------------- acquisition */
+
+#define ASPH_MAX_REFERENCES 16
+
+/*
+ * How the executor acquires with an instrument, whatever its drivers
+ * (docs/scanning.md): the settling window and time of step and measure,
+ * drift control (how often, and where the reference points are), and how
+ * often a dropout is measured again.
+ */
+struct asph_acquisition {
+	double settle_window;           /* mm; the read-back's distance to the target */
+	double settle_dwell;            /* s inside the window before the reading */
+	/* references every drift_interval_s of instrument time or every
+	 * drift_interval_points points, whichever comes first; neither: no
+	 * drift control */
+	double drift_interval_s;
+	uint64_t drift_interval_points;
+	size_t n_references;
+	double references[ASPH_MAX_REFERENCES][2];      /* x, y on the nominal surface, mm */
+	unsigned retries;               /* further tries of a point read invalid */
+};
+
+/* The defaults: window 1 um, no dwell, references at the vertex every 60 s,
+ * 3 retries. */
+void asph_acquisition_defaults(struct asph_acquisition *a);
+
+/*
+ * Sets one setting from text, as a spec or a configuration gives it:
+ * settle_window (um), settle_dwell (s), drift_interval ("60s", "5000points",
+ * "off"), drift_references ("vertex" or "X:Y;X:Y;..." in mm), retries.
+ * -ENOENT when name is none of them, -EINVAL or -ERANGE for a bad value
+ * (err names the setting).
+ */
+int asph_acquisition_set(struct asph_acquisition *a, const char *name, const char *text,
+			 struct asph_error *err);
+
+/* Whether drift control is on. */
+bool asph_acquisition_drift(const struct asph_acquisition *a);
+
 /* ----------------------------------------------------- instruments */
 
 struct asph_instrument_config {
@@ -117,6 +158,7 @@ struct asph_instrument_config {
 	const struct asph_driver *probe_driver;
 	struct asph_options *stage_options;
 	struct asph_options *probe_options;
+	struct asph_acquisition acquisition;
 };
 
 struct asph_config {
@@ -127,7 +169,8 @@ struct asph_config {
 /*
  * A spec in the style of sigrok-cli: NAME[:key=value,...]. The driver NAME
  * plays both roles (so it must have both) and the options apply to each
- * role that uses them. The instrument is named NAME.
+ * role that uses them; the acquisition settings (asph_acquisition_set())
+ * go to the instrument. The instrument is named NAME.
  */
 int asph_instrument_spec_parse(const struct asph_registry *reg,
 			       const char *spec,
@@ -137,7 +180,7 @@ int asph_instrument_spec_parse(const struct asph_registry *reg,
 /*
  * A JSON configuration file (format in docs/drivers.md):
  *   { "instruments": [ { "name": ..., "stage": { "driver": ...,
- *     "options": { ... } }, "probe": { ... } } ] }
+ *     "options": { ... } }, "probe": { ... }, "acquisition": { ... } } ] }
  * Errors carry the file, line, column and the dotted field.
  */
 int asph_config_load(const struct asph_registry *reg, const char *path,
@@ -156,8 +199,8 @@ int asph_config_resolve(const struct asph_registry *reg, const char *arg,
 			struct asph_config **out, size_t *index,
 			struct asph_error *err);
 
-/* The instrument as JSON text (drivers, versions, every option's value),
- * for the recorded scan's header. malloc'd. */
+/* The instrument as JSON text (drivers, versions, every option's value,
+ * the acquisition settings), for the recorded scan's header. malloc'd. */
 int asph_instrument_config_to_json(const struct asph_instrument_config *c,
 				   char **out);
 

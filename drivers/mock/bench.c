@@ -19,6 +19,7 @@
 struct piece {
 	double d;
 	double c[4][3];
+	double end[3];          /* c(d), exactly (a knot, a target) */
 	bool trigger;           /* fires the probe at its end */
 };
 
@@ -167,8 +168,10 @@ static void servo(const struct mock_bench *b, const struct piece *p, const doubl
 		  double tau, double x[3])
 {
 	if (b->omega == 0) {
+		/* on the command; at a piece's end exactly where it ends */
 		for (int k = 0; k < 3; k++)
-			x[k] = p->c[0][k] + tau * (p->c[1][k] + tau * (p->c[2][k] + tau * p->c[3][k]));
+			x[k] = tau == p->d ? p->end[k]
+					   : p->c[0][k] + tau * (p->c[1][k] + tau * (p->c[2][k] + tau * p->c[3][k]));
 		return;
 	}
 	double w = b->omega, decay = exp(-w * tau);
@@ -377,6 +380,7 @@ static void hold(struct mock_bench *b, double seconds)
 	if (!(seconds > 0))
 		return;
 	memcpy(p.c[0], b->cmd, sizeof(b->cmd));
+	memcpy(p.end, b->cmd, sizeof(b->cmd));
 	run(b, &p, 1, NULL);
 }
 
@@ -434,8 +438,11 @@ double mock_bench_move(struct mock_bench *b, const double target[3])
 			q->c[1][ax] = mv.dir[ax] * v;
 			q->c[2][ax] = mv.dir[ax] * a / 2;
 			q->c[3][ax] = mv.dir[ax] * jk / 6;
+			q->end[ax] = q->c[0][ax] + q->d * (q->c[1][ax] + q->d * (q->c[2][ax] + q->d * q->c[3][ax]));
 		}
 	}
+	if (n)
+		memcpy(p[n - 1].end, target, 3 * sizeof(double));
 	/* the last phase ends exactly on the target */
 	run(b, p, n, NULL);
 	memcpy(b->cmd, target, sizeof(b->cmd));
@@ -480,6 +487,7 @@ double mock_bench_sweep(struct mock_bench *b, const double *pos, size_t n)
 		for (int k = 0; k < 3; k++) {
 			p[i].c[0][k] = from[k];
 			p[i].c[1][k] = len > 0 ? d[k] / p[i].d : 0;
+			p[i].end[k] = pos[3 * i + k];
 		}
 		p[i].trigger = true;
 		total += p[i].d;
@@ -519,7 +527,7 @@ int mock_bench_sweep_pvt(struct mock_bench *b, const struct asph_pvt *k, size_t 
 				if (fabs(k[i].position[a] - pos[a]) > 1e-9 ||
 				    fabs(k[i].velocity[a] - vel[a]) > 1e-9)
 					return asph_error_set(err, -EINVAL,
-							      "knot 0 at t = 0 is not where the stage is");
+							      "knot 0 at t = 0 is not where the stage is (%.9g %.9g %.9g, the stage at %.9g %.9g %.9g moving %.3g %.3g %.3g)", k[i].position[0], k[i].position[1], k[i].position[2], pos[0], pos[1], pos[2], vel[0], vel[1], vel[2]);
 			if (k[i].trigger) {
 				int r = fire(b, err);
 				if (r < 0)
@@ -536,6 +544,7 @@ int mock_bench_sweep_pvt(struct mock_bench *b, const struct asph_pvt *k, size_t 
 			q->c[1][a] = v0;
 			q->c[2][a] = (3 * (p1 - p0) / dt - 2 * v0 - v1) / dt;
 			q->c[3][a] = (2 * (p0 - p1) / dt + v0 + v1) / (dt * dt);
+			q->end[a] = p1;
 		}
 		memcpy(pos, k[i].position, sizeof(pos));
 		memcpy(vel, k[i].velocity, sizeof(vel));

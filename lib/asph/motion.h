@@ -149,6 +149,15 @@ int asph_motion_planner_start(struct asph_motion_planner *p, const double *point
 			      size_t n, const struct asph_motion_limits *lim,
 			      struct asph_error *err);
 
+/* Path point i into out (the axes' units): a path read as it is needed. */
+typedef void (*asph_motion_point_fn)(const void *data, size_t i, double out[ASPH_MOTION_AXES]);
+
+/* The same for the n points point() gives; the planner reads each point as
+ * its window reaches it (finite points are the caller's to give). */
+int asph_motion_planner_start_path(struct asph_motion_planner *p, asph_motion_point_fn point,
+				   const void *data, size_t n, const struct asph_motion_limits *lim,
+				   struct asph_error *err);
+
 /*
  * The next knots of the path, in order: at most max into out. *n_out is 0
  * when the path is done. The first knot is points[0] at t = 0, at rest;

@@ -78,7 +78,8 @@ struct phase {
 struct asph_motion_planner {
 	size_t cap, cap_ph;
 	/* the path */
-	const double *pts;
+	asph_motion_point_fn point;
+	const void *point_data;
 	size_t n_points;
 	struct asph_motion_limits lim;
 	double a_t;             /* tangential acceleration (INFINITY: none) */
@@ -100,6 +101,7 @@ struct asph_motion_planner {
 	double *vraw;           /* the node's own limit, before the window's */
 	double *as;             /* the average's acceleration at the node */
 	double *tan3;           /* the path's unit direction at the node, 3 per node */
+	double *pos3;           /* the node's position, 3 per node */
 	double *tA;             /* time of s_A at the node */
 	struct sum *SA;         /* integral of s_A until then */
 	size_t *ph_first;       /* global index of the first phase of segment g */
@@ -131,11 +133,26 @@ static inline struct phase *PH(const struct asph_motion_planner *p, size_t k)
 	return &p->ph[k & (p->cap_ph - 1)];
 }
 
+/* The position of a node in the rings. */
 static const double *node_pos(const struct asph_motion_planner *p, size_t g)
 {
+	return p->pos3 + 3 * R(p, g);
+}
+
+/* Reads node g's position into the rings. */
+static void load_pos(struct asph_motion_planner *p, size_t g)
+{
+	double *o = p->pos3 + 3 * R(p, g);
+
 	if (p->virtual_start && g == 0)
-		return p->start_pos;
-	return p->pts + 3 * (p->first_point + g - (p->virtual_start ? 1 : 0));
+		memcpy(o, p->start_pos, 3 * sizeof(double));
+	else
+		p->point(p->point_data, p->first_point + g - (p->virtual_start ? 1 : 0), o);
+}
+
+static void array_point(const void *data, size_t i, double out[3])
+{
+	memcpy(out, (const double *)data + 3 * i, 3 * sizeof(double));
 }
 
 static uint32_t node_point(const struct asph_motion_planner *p, size_t g)
@@ -195,6 +212,7 @@ void asph_motion_planner_free(struct asph_motion_planner *p)
 	free(p->vraw);
 	free(p->as);
 	free(p->tan3);
+	free(p->pos3);
 	free(p->hjerk);
 	free(p->tA);
 	free(p->SA);
@@ -225,12 +243,13 @@ int asph_motion_planner_alloc(size_t window, struct asph_motion_planner **out)
 	p->vraw = malloc(p->cap * sizeof(double));
 	p->as = malloc(p->cap * sizeof(double));
 	p->tan3 = malloc(3 * p->cap * sizeof(double));
+	p->pos3 = malloc(3 * p->cap * sizeof(double));
 	p->hjerk = malloc(p->cap * sizeof(double));
 	p->tA = malloc(p->cap * sizeof(double));
 	p->SA = malloc(p->cap * sizeof(struct sum));
 	p->ph_first = malloc(p->cap * sizeof(size_t));
 	p->ph = malloc(p->cap_ph * sizeof(struct phase));
-	if (!p->s || !p->vlim || !p->vA || !p->ts || !p->vs || !p->segcap || !p->vcap || !p->hacc || !p->hjerk || !p->vraw || !p->as || !p->tan3 || !p->tA || !p->SA ||
+	if (!p->s || !p->vlim || !p->vA || !p->ts || !p->vs || !p->segcap || !p->vcap || !p->hacc || !p->hjerk || !p->vraw || !p->as || !p->tan3 || !p->pos3 || !p->tA || !p->SA ||
 	    !p->ph_first || !p->ph) {
 		asph_motion_planner_free(p);
 		return -ENOMEM;
@@ -258,17 +277,16 @@ static void begin_stretch(struct asph_motion_planner *p, size_t first_point, boo
 		p->g_emit = 1;      /* the stage is there already */
 }
 
-int asph_motion_planner_start(struct asph_motion_planner *p, const double *points, size_t n,
-			      const struct asph_motion_limits *lim, struct asph_error *err)
+int asph_motion_planner_start_path(struct asph_motion_planner *p, asph_motion_point_fn point,
+				   const void *data, size_t n, const struct asph_motion_limits *lim,
+				   struct asph_error *err)
 {
 	int r = asph_motion_limits_check(lim, err);
 
 	if (r < 0)
 		return r;
-	for (size_t i = 0; i < 3 * n; i++)
-		if (!isfinite(points[i]))
-			return asph_error_set(err, -EINVAL, "path point %zu is not finite", i / 3);
-	p->pts = points;
+	p->point = point;
+	p->point_data = data;
 	p->n_points = n;
 	p->lim = *lim;
 	double a = min_positive(lim->accel), j = min_positive(lim->jerk);
@@ -284,6 +302,15 @@ int asph_motion_planner_start(struct asph_motion_planner *p, const double *point
 	p->path_done = n == 0;
 	begin_stretch(p, 0, false, NULL, 0);
 	return 0;
+}
+
+int asph_motion_planner_start(struct asph_motion_planner *p, const double *points, size_t n,
+			      const struct asph_motion_limits *lim, struct asph_error *err)
+{
+	for (size_t i = 0; i < 3 * n; i++)
+		if (!isfinite(points[i]))
+			return asph_error_set(err, -EINVAL, "path point %zu is not finite", i / 3);
+	return asph_motion_planner_start_path(p, array_point, points, n, lim, err);
 }
 
 /* ------------------------------------------------------------- limits */
@@ -346,6 +373,7 @@ static void fill_node(struct asph_motion_planner *p, size_t g)
 {
 	size_t r = R(p, g);
 
+	load_pos(p, g);
 	if (g == 0) {
 		p->s[r] = 0;
 	} else {
@@ -966,8 +994,9 @@ int asph_motion_planner_stop(struct asph_motion_planner *p, struct asph_motion_k
 		knot_of(p, g, &out[(*n_out)++]);
 		g++;
 	}
-	/* at rest: on a point, or between two */
-	double t_rest = t_k + tb + p->T;
+	/* at rest: on a point, or between two. Without limits the stop is
+	 * instant; a knot still needs a later time than the last. */
+	double t_rest = t_k + fmax(tb + p->T, 1e-6);
 	double pos[3];
 	size_t next_point;
 	if (g < p->n_nodes && fabs(p->s[R(p, g)] - s_rest) <= 1e-12 * (1 + s_rest)) {

@@ -66,7 +66,9 @@ try:
     dones = [x[1] for x in progress]
     expect(len(dones) >= 2 and dones == sorted(dones), f"progress events rise ({len(dones)} of them)")
     span = progress[-1][0] - progress[0][0] if progress else 0
-    expect(len(progress) <= span / 0.25 + 3, f"progress events are rate-limited ({len(progress)} in {span:.2f} s)")
+    # one per interval, and one at each change of the scan's state (started,
+    # checking, homing, the end of measuring, its outcome)
+    expect(len(progress) <= span / 0.25 + 5, f"progress events are rate-limited ({len(progress)} in {span:.2f} s)")
     outs = [w.communicate(timeout=60) for w in watchers]
     expect(all(w.returncode == 0 for w in watchers), "both asphctl watchers exit 0")
     expect(all("completed" in o[0].splitlines()[-1] for o in outs), "both watchers saw the end")
@@ -86,13 +88,22 @@ try:
     with open(os.path.join(res["dir"], "result.json")) as f:
         expect(json.load(f)["summary"] == res["summary"], "result.json holds the same summary")
 
-    # The summary is what `asph fit --json` says about the recorded points.
+    # The summary is what `asph fit --json` says about the recorded points
+    # (the drift corrected as `asph export` writes them), with the
+    # acquisition's account; `asph replay --json` says the same.
     asph = os.environ.get("ASPH_BIN", "asph")
     pts = os.path.join(d.top, "points.csv")
     subprocess.run([asph, "export", scan, "-o", pts], check=True, capture_output=True)
     fit = json.loads(subprocess.run([asph, "fit", "strong", pts, "--json"], check=True,
                                     capture_output=True, text=True).stdout)
-    expect(fit == res["summary"], "the summary equals asph fit --json on the exported points")
+    summary = dict(res["summary"])
+    acquisition = summary.pop("acquisition", None)
+    expect(fit == summary, "the summary equals asph fit --json on the exported points")
+    replay = json.loads(subprocess.run([asph, "replay", scan, "--json"], check=True,
+                                       capture_output=True, text=True).stdout)
+    expect(replay == res["summary"] and acquisition == prov.get("acquisition")
+           and acquisition["commanded_points"] == 0 and acquisition["drift"]["rounds"] >= 2,
+           "asph replay --json is the summary; the provenance has the acquisition's account")
 
     out = os.path.join(d.top, "copy")
     rc, text, _ = d.ctl("result", jid, "--out", out)

@@ -13,6 +13,7 @@
 #include "asph/plot.h"
 #include "asph/points.h"
 #include "asph-tool.h"
+#include "fit-tool.h"
 #include "util-mem.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_surface *, asph_surface_free)
@@ -29,11 +30,6 @@ enum {
 	OPT_ZERNIKE,
 };
 
-struct fit_cli {
-	const char *lens, *points, *residuals_out, *map_out;
-	struct asph_fit_options opts;
-	int json;
-};
 
 static void usage(FILE *out)
 {
@@ -114,8 +110,8 @@ static int take_option(struct fit_cli *c, int opt, const char *arg)
 	}
 }
 
-/* EXIT_OK, or the exit code to leave with; -1 for --help. */
-static int parse_args(struct fit_cli *c, int argc, char **argv)
+int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
+		  void (*usage_fn)(FILE *out))
 {
 	static const struct option longopts[] = {
 		{ "dof", required_argument, NULL, OPT_DOF },
@@ -134,23 +130,24 @@ static int parse_args(struct fit_cli *c, int argc, char **argv)
 	optind = 0;
 	while ((opt = getopt_long(argc, argv, "h", longopts, NULL)) != -1) {
 		if (opt == 'h') {
-			usage(stdout);
+			usage_fn(stdout);
 			return -1;
 		}
 		if (opt == '?' || take_option(c, opt, optarg) < 0)
 			return EXIT_USAGE;
 	}
-	if (argc - optind != 2) {
-		fprintf(stderr, "asph fit: need LENS and POINTS_FILE (see --help)\n");
+	if (argc - optind != operands) {
+		fprintf(stderr, "asph %s: need %s (see --help)\n", argv[0],
+			operands == 2 ? "LENS and POINTS_FILE" : "SCAN");
 		return EXIT_USAGE;
 	}
-	c->lens = argv[optind];
-	c->points = argv[optind + 1];
+	c->lens = operands == 2 ? argv[optind] : NULL;
+	c->points = argv[optind + operands - 1];
 	return EXIT_OK;
 }
 
 static int show_json(const struct fit_cli *c, const struct asph_surface *s,
-		     const struct asph_fit_result *r)
+		     const struct asph_fit_result *r, const char *acquisition)
 {
 	_cleanup_free_ char *text = NULL;
 	_cleanup_(json_decrefp) json_t *root = NULL;
@@ -161,6 +158,8 @@ static int show_json(const struct fit_cli *c, const struct asph_surface *s,
 		fprintf(stderr, "asph fit: out of memory\n");
 		return EXIT_FAILURE_RUN;
 	}
+	if (acquisition)
+		json_object_set_new(root, "acquisition", json_loads(acquisition, 0, NULL));
 	json_dumpf(root, stdout, JSON_INDENT(2) | JSON_PRESERVE_ORDER | JSON_REAL_PRECISION(17));
 	fputc('\n', stdout);
 	return EXIT_OK;
@@ -255,15 +254,45 @@ static int write_outputs(const struct fit_cli *c, const struct asph_surface *s,
 	return EXIT_OK;
 }
 
+int fit_cli_run(const struct fit_cli *c, const struct asph_surface *s,
+		const struct asph_points *pts, const char *acquisition,
+		void (*more_text)(void *data), void *data)
+{
+	_cleanup_(asph_fit_freep) struct asph_fit *w = NULL;
+	struct asph_fit_result res;
+	struct asph_error err;
+	int r;
+
+	asph_error_clear(&err);
+	if (asph_fit_alloc(s, pts->n, &c->opts, &w, &err) < 0 ||
+	    asph_fit_run(w, pts->xyz, pts->n, &res, &err) < 0) {
+		tool_print_error(c->points, &err);
+		return EXIT_FAILURE_RUN;
+	}
+	if (c->json) {
+		r = show_json(c, s, &res, acquisition);
+		if (r != EXIT_OK)
+			return r;
+	} else {
+		show_text(c, s, &res);
+		if (more_text)
+			more_text(data);
+	}
+	r = write_outputs(c, s, pts, w);
+	if (r == EXIT_OK && !res.converged) {
+		fprintf(stderr, "asph fit: the fit did not converge: %s\n", res.reason);
+		r = EXIT_FAILURE_RUN;
+	}
+	return r;
+}
+
 int cmd_fit(int argc, char **argv)
 {
 	_cleanup_(asph_surface_freep) struct asph_surface *s = NULL;
 	_cleanup_(asph_points_freep) struct asph_points *pts = NULL;
-	_cleanup_(asph_fit_freep) struct asph_fit *w = NULL;
 	struct fit_cli c = { 0 };
-	struct asph_fit_result res;
 	struct asph_error err;
-	int r = parse_args(&c, argc, argv);
+	int r = fit_cli_parse(&c, argc, argv, 2, usage);
 
 	if (r != EXIT_OK)
 		return r < 0 ? EXIT_OK : r;
@@ -274,22 +303,5 @@ int cmd_fit(int argc, char **argv)
 		tool_print_error(NULL, &err);
 		return EXIT_FAILURE_RUN;
 	}
-	if (asph_fit_alloc(s, pts->n, &c.opts, &w, &err) < 0 ||
-	    asph_fit_run(w, pts->xyz, pts->n, &res, &err) < 0) {
-		tool_print_error(c.points, &err);
-		return EXIT_FAILURE_RUN;
-	}
-	if (c.json) {
-		r = show_json(&c, s, &res);
-		if (r != EXIT_OK)
-			return r;
-	} else {
-		show_text(&c, s, &res);
-	}
-	r = write_outputs(&c, s, pts, w);
-	if (r == EXIT_OK && !res.converged) {
-		fprintf(stderr, "asph fit: the fit did not converge: %s\n", res.reason);
-		r = EXIT_FAILURE_RUN;
-	}
-	return r;
+	return fit_cli_run(&c, s, pts, NULL, NULL, NULL);
 }
