@@ -30,11 +30,37 @@ enum asph_surface_type {
 	ASPH_SURFACE_QBFS,          /* Forbes best-fit-sphere Q polynomials */
 	ASPH_SURFACE_QCON,          /* conic plus Forbes Q^con polynomials */
 	ASPH_SURFACE_ODD_ASPHERE,   /* conic plus all powers r^1 .. r^20 */
+	/* Freeforms: not rotationally symmetric. */
+	ASPH_SURFACE_BICONIC,       /* Rx, kx, Ry, ky plus even powers of r */
+	ASPH_SURFACE_TOROIDAL,      /* y-z conic asphere rotated about an axis */
+	ASPH_SURFACE_XY_POLYNOMIAL, /* conic plus sum c_ij (x/rho)^i (y/rho)^j */
+	ASPH_SURFACE_ZERNIKE_SAG,   /* conic plus powers of r plus Zernike terms */
+	ASPH_SURFACE_Q2D,           /* Forbes freeform Q polynomials */
 };
 
 #define ASPH_SURFACE_MAX_POWER 20
 /* Highest Q polynomial order m (a_0 .. a_30). */
 #define ASPH_SURFACE_MAX_Q 30
+/* xy_polynomial: highest total degree i + j, and the number of monomials
+ * x^i y^j with 0 <= i + j <= 20 (the constant, index 0, is not allowed). */
+#define ASPH_SURFACE_XY_MAX_DEGREE 20
+#define ASPH_SURFACE_XY_TERMS 231
+/* zernike_sag: Noll indices 1 .. 231 (radial order 20). */
+#define ASPH_SURFACE_MAX_ZERNIKE 231
+/* q2d: azimuthal orders m = 1 .. 20 and radial orders n = 0 .. 20 of the
+ * a_n^m (cos) and b_n^m (sin) terms; m = 0 is the Qbfs part in Q[]. */
+#define ASPH_SURFACE_Q2D_MAX_M 20
+#define ASPH_SURFACE_Q2D_MAX_N 20
+
+/* Index of the monomial x^i y^j in asph_prescription.C: the monomials come
+ * by total degree, and within a degree by falling power of x (x, y, x^2,
+ * x y, y^2, x^3, ...), so that index t is OpticStudio's extended polynomial
+ * term t. */
+static inline int asph_xy_index(int i, int j)
+{
+	return (i + j) * (i + j + 1) / 2 + j;
+}
+
 /*
  * The clear aperture, in the part's own x-y frame. A shape of 0 means the
  * prescription gives aperture_diameter (a centred circle); the other shapes
@@ -60,6 +86,18 @@ struct asph_aperture {
  *   even/odd asphere: conic(R, k) + sum A_i r^i
  *   Qbfs: sphere(R) + u^2 (1 - u^2) / sqrt(1 - r^2/R^2) sum a_m Q_m^bfs(u^2)
  *   Qcon: conic(R, k) + u^4 sum a_m Q_m^con(u^2),   u = r / norm_radius
+ *   biconic: (cx x^2 + cy y^2) / (1 + sqrt(1 - (1+kx) cx^2 x^2
+ *            - (1+ky) cy^2 y^2)) + sum A_i r^i,   cx = 1/Rx, cy = 1/Ry
+ *   toroidal: the y-z curve conic(R, k)(y) + sum A_i y^i rotated about
+ *            the axis parallel to y at z = R_rotation
+ *   xy_polynomial: conic(R, k) + sum C_ij (x/rho)^i (y/rho)^j
+ *   zernike_sag: conic(R, k) + sum A_i r^i + sum Z_j Zernike_j
+ *   q2d: sphere(R) + [u^2 (1 - u^2) sum a_n^0 Q_n^0(u^2) + sum_m u^m
+ *        sum_n (a_n^m cos m theta + b_n^m sin m theta) Q_n^m(u^2)]
+ *        / sqrt(1 - r^2/R^2)
+ * The freeform types with a base curvature (toroidal, xy_polynomial,
+ * zernike_sag, q2d, and biconic's Rx, Ry) take R = INFINITY for a flat
+ * base.
  */
 struct asph_prescription {
 	enum asph_surface_type type;
@@ -75,6 +113,26 @@ struct asph_prescription {
 	double norm_radius;
 	double Q[ASPH_SURFACE_MAX_Q + 1];
 
+	/* Freeform types (0 for the others; docs/prescriptions.md):
+	 * biconic: radii (mm; INFINITY for flat) and conic constants along x
+	 * and y, plus the even powers A[2..20] of r. */
+	double Rx, Ry, kx, ky;
+	/* toroidal: the y-z curve is R, k and the even powers A[i] of y; it is
+	 * rotated about an axis parallel to y at z = R_rotation (mm; INFINITY
+	 * for a cylinder). */
+	double R_rotation;
+	/* xy_polynomial: C[asph_xy_index(i, j)] (mm) multiplies
+	 * (x/norm_radius)^i (y/norm_radius)^j; the base is the conic R, k. */
+	double C[ASPH_SURFACE_XY_TERMS];
+	/* zernike_sag: Zernike[j - 1] (mm) multiplies Noll's Z_j(rho, theta),
+	 * rho = |(x, y) - zernike_decenter| / norm_radius; the base is the
+	 * conic R, k plus the even powers A[i] of r. */
+	double Zernike[ASPH_SURFACE_MAX_ZERNIKE];
+	double zernike_decenter[2];
+	/* q2d: Forbes' a_n^m (cos m theta) and b_n^m (sin m theta), mm, at
+	 * [m - 1][n], over the best-fit sphere R; the m = 0 terms are Q[]. */
+	double q2d_a[ASPH_SURFACE_Q2D_MAX_M][ASPH_SURFACE_Q2D_MAX_N + 1];
+	double q2d_b[ASPH_SURFACE_Q2D_MAX_M][ASPH_SURFACE_Q2D_MAX_N + 1];
 	/* Freeform types only: a non-circular or off-centre aperture, with
 	 * aperture_diameter 0. */
 	struct asph_aperture aperture;
@@ -100,12 +158,14 @@ const struct asph_prescription *
 asph_surface_prescription(const struct asph_surface *s);
 const char *asph_surface_type_name(enum asph_surface_type type);
 
-/* Parses a type name ("even_asphere", "qbfs", "qcon", "odd_asphere");
+/* Parses a type name ("even_asphere", "qbfs", "qcon", "odd_asphere",
+ * "biconic", "toroidal", "xy_polynomial", "zernike_sag", "q2d");
  * -EINVAL if unknown. */
 int asph_surface_type_from_name(const char *name, enum asph_surface_type *out);
 
-/* Whether the type has a free conic constant k (all but Qbfs, whose base
- * is a sphere). */
+/* Whether the type has a single free conic constant k: the even and odd
+ * aspheres, Qcon, xy_polynomial, zernike_sag and toroidal (not Qbfs and
+ * q2d, whose base is a sphere, nor biconic, which has kx and ky). */
 int asph_surface_type_has_conic(enum asph_surface_type type);
 
 /* Whether surfaces of the type are rotationally symmetric about z. */

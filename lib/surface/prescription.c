@@ -11,6 +11,7 @@
 #include "asph/prescription.h"
 #include "fileio.h"
 #include "jsonpos.h"
+#include "prescription-json.h"
 #include "util-mem.h"
 
 
@@ -56,19 +57,8 @@ int asph_prescription_preset(const char *name, struct asph_prescription *out)
 	return -ENOENT;
 }
 
-struct parse_ctx {
-	const char *text;
-	size_t len;
-	const char *source;
-	struct asph_error *err;
-};
-
-/* Fails with the location of `field` (a dotted path) in the text. */
-static int fail_at(const struct parse_ctx *c, const char *field, int code,
-		   const char *fmt, ...) __attribute__((format(printf, 4, 5)));
-
-static int fail_at(const struct parse_ctx *c, const char *field, int code,
-		   const char *fmt, ...)
+int fail_at(const struct parse_ctx *c, const char *field, int code,
+	    const char *fmt, ...)
 {
 	int line = 0, col = 0;
 	char msg[512];
@@ -86,8 +76,8 @@ static int fail_at(const struct parse_ctx *c, const char *field, int code,
 	return code;
 }
 
-static int get_number(const struct parse_ctx *c, json_t *v, const char *field,
-		      double *out)
+int get_number(const struct parse_ctx *c, json_t *v, const char *field,
+	       double *out)
 {
 	if (!json_is_number(v))
 		return fail_at(c, field, -EINVAL, "expected a number");
@@ -166,6 +156,17 @@ static const char *type_members(enum asph_surface_type t)
 		return "type, name, R, norm_radius, a, aperture_diameter";
 	case ASPH_SURFACE_QCON:
 		return "type, name, R, k, norm_radius, a, aperture_diameter";
+	case ASPH_SURFACE_BICONIC:
+		return "type, name, Rx, Ry, kx, ky, A, aperture_diameter, aperture";
+	case ASPH_SURFACE_TOROIDAL:
+		return "type, name, R, k, A, R_rotation, aperture_diameter, aperture";
+	case ASPH_SURFACE_XY_POLYNOMIAL:
+		return "type, name, R, k, norm_radius, c, aperture_diameter, aperture";
+	case ASPH_SURFACE_ZERNIKE_SAG:
+		return "type, name, R, k, A, norm_radius, zernike, zernike_decenter, "
+		       "aperture_diameter, aperture";
+	case ASPH_SURFACE_Q2D:
+		return "type, name, R, norm_radius, a, a_m, b_m, aperture_diameter, aperture";
 	case ASPH_SURFACE_EVEN_ASPHERE:
 	case ASPH_SURFACE_ODD_ASPHERE:
 		break;
@@ -197,7 +198,8 @@ static int parse_type(const struct parse_ctx *c, json_t *root,
 		return fail_at(c, "type", -EINVAL, "expected a string");
 	if (asph_surface_type_from_name(json_string_value(v), &out->type) < 0)
 		return fail_at(c, "type", -EINVAL,
-			       "unknown surface type '%s' (known: even_asphere, odd_asphere, qbfs, qcon)",
+			       "unknown surface type '%s' (known: even_asphere, odd_asphere, qbfs, qcon, "
+			       "biconic, toroidal, xy_polynomial, zernike_sag, q2d)",
 			       json_string_value(v));
 	return 0;
 }
@@ -234,9 +236,10 @@ static int parse_members(const struct parse_ctx *c, json_t *root,
 	}
 
 	v = json_object_get(root, "R");
-	if (!v)
+	if (!v && is_member_of("R", members))
 		return fail_at(c, NULL, -EINVAL, "missing member \"R\" (vertex radius of curvature, mm)");
-	if ((r = get_number(c, v, "R", &out->R)) < 0)
+	if (v && (r = asph_surface_type_is_rotational(out->type) ? get_number(c, v, "R", &out->R)
+								 : get_radius(c, v, "R", &out->R)) < 0)
 		return r;
 	if ((r = parse_optional_number(c, root, "k", &out->k)) < 0)
 		return r;
@@ -256,9 +259,15 @@ static int parse_members(const struct parse_ctx *c, json_t *root,
 	if (v && (r = parse_q_coefficients(c, v, out)) < 0)
 		return r;
 
+	if (!asph_surface_type_is_rotational(out->type) &&
+	    (r = parse_freeform_members(c, root, out)) < 0)
+		return r;
 	v = json_object_get(root, "aperture_diameter");
+	if (!v && json_object_get(root, "aperture"))
+		return 0;
 	if (!v)
-		return fail_at(c, NULL, -EINVAL, "missing member \"aperture_diameter\" (mm)");
+		return fail_at(c, NULL, -EINVAL, "missing member \"aperture_diameter\" (mm)%s",
+			       asph_surface_type_is_rotational(out->type) ? "" : " or \"aperture\"");
 	if ((r = get_number(c, v, "aperture_diameter", &out->aperture_diameter)) < 0)
 		return r;
 	return 0;
@@ -331,7 +340,7 @@ int asph_prescription_load(const char *name_or_path,
 	return r;
 }
 
-static json_t *q_array(const struct asph_prescription *p)
+json_t *q_array(const struct asph_prescription *p)
 {
 	json_t *arr = json_array();
 	int n = 0;
@@ -344,7 +353,7 @@ static json_t *q_array(const struct asph_prescription *p)
 	return arr;
 }
 
-static json_t *power_object(const struct asph_prescription *p)
+json_t *power_object(const struct asph_prescription *p)
 {
 	json_t *coeffs = json_object();
 
@@ -361,7 +370,14 @@ static json_t *power_object(const struct asph_prescription *p)
 int asph_prescription_to_json(const struct asph_prescription *p, char **out)
 {
 	const int q = p->type == ASPH_SURFACE_QBFS || p->type == ASPH_SURFACE_QCON;
-	_cleanup_(json_decrefp) json_t *root = json_object();
+	_cleanup_(json_decrefp) json_t *root = NULL;
+
+	if (!asph_surface_type_is_rotational(p->type)) {
+		root = freeform_to_json(p);
+		*out = root ? json_dumps(root, JSON_REAL_PRECISION(17) | JSON_PRESERVE_ORDER) : NULL;
+		return *out ? 0 : -ENOMEM;
+	}
+	root = json_object();
 	json_t *coeffs = q ? q_array(p) : power_object(p);
 
 	if (!root || !coeffs) {

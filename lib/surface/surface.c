@@ -11,6 +11,7 @@
 #include "asph/surface.h"
 #include "aperture.h"
 #include "chebyshev.h"
+#include "freeform.h"
 #include "qpoly.h"
 #include "util-mem.h"
 
@@ -52,6 +53,7 @@ struct asph_surface {
 	struct asph_aperture ap;          /* resolved */
 	double total_area;
 	struct asph_surface_extent extent;
+	struct freeform ff;               /* freeform types */
 };
 
 static const char *const type_names[] = {
@@ -59,6 +61,11 @@ static const char *const type_names[] = {
 	[ASPH_SURFACE_QBFS] = "qbfs",
 	[ASPH_SURFACE_QCON] = "qcon",
 	[ASPH_SURFACE_ODD_ASPHERE] = "odd_asphere",
+	[ASPH_SURFACE_BICONIC] = "biconic",
+	[ASPH_SURFACE_TOROIDAL] = "toroidal",
+	[ASPH_SURFACE_XY_POLYNOMIAL] = "xy_polynomial",
+	[ASPH_SURFACE_ZERNIKE_SAG] = "zernike_sag",
+	[ASPH_SURFACE_Q2D] = "q2d",
 };
 
 const char *asph_surface_type_name(enum asph_surface_type type)
@@ -81,7 +88,8 @@ int asph_surface_type_from_name(const char *name, enum asph_surface_type *out)
 
 int asph_surface_type_has_conic(enum asph_surface_type type)
 {
-	return type != ASPH_SURFACE_QBFS;
+	return type != ASPH_SURFACE_QBFS && type != ASPH_SURFACE_Q2D &&
+	       type != ASPH_SURFACE_BICONIC;
 }
 
 int asph_surface_type_is_rotational(enum asph_surface_type type)
@@ -218,12 +226,17 @@ static void rotational_derivs_xy(const struct asph_surface *s, double x, double 
 void asph_surface_derivs_xy(const struct asph_surface *s, double x, double y,
 			    struct asph_sag *out)
 {
-	rotational_derivs_xy(s, x, y, out);
+	if (s->rotational)
+		rotational_derivs_xy(s, x, y, out);
+	else
+		freeform_eval(&s->ff, x, y, out);
 }
 
 double asph_surface_sag_xy(const struct asph_surface *s, double x, double y)
 {
-	return asph_surface_sag(s, sqrt(x * x + y * y));
+	if (s->rotational)
+		return asph_surface_sag(s, sqrt(x * x + y * y));
+	return freeform_sag(&s->ff, x, y);
 }
 
 double asph_surface_area_element(const struct asph_surface *s, double x, double y)
@@ -239,6 +252,15 @@ void asph_surface_normal(const struct asph_surface *s, double x, double y,
 {
 	double r = hypot(x, y), d[3];
 
+	if (!s->rotational) {
+		struct asph_sag g;
+		freeform_eval(&s->ff, x, y, &g);
+		double inv = 1.0 / sqrt(1.0 + g.zx * g.zx + g.zy * g.zy);
+		n[0] = -g.zx * inv;
+		n[1] = -g.zy * inv;
+		n[2] = inv;
+		return;
+	}
 	asph_surface_sag_derivs(s, r, d);
 	double inv = 1.0 / sqrt(1.0 + d[1] * d[1]);
 	if (r > 0) {
@@ -586,6 +608,8 @@ int asph_prescription_check(const struct asph_prescription *p,
 
 	if ((unsigned)p->type >= ARRAY_SIZE(type_names) || !type_names[p->type])
 		return refuse(err, "type", "unknown surface type %d", (int)p->type);
+	if (!asph_surface_type_is_rotational(p->type))
+		return freeform_check(p, err);
 	if (!isfinite(p->R))
 		return refuse(err, "R", "R must be a finite number");
 	if (p->R == 0)
@@ -650,6 +674,32 @@ static int build_tables(struct asph_surface *s)
 	return 0;
 }
 
+/* A freeform has no radial tables: its area is a 2-D integral, its extent
+ * a search over the aperture. */
+static int freeform_alloc(struct asph_surface *s, struct asph_surface **out,
+			  struct asph_error *err)
+{
+	freeform_init(&s->ff, &s->p);
+	s->a = aperture_max_radius(&s->ap);
+	s->gl = gsl_integration_glfixed_table_alloc(GL_ORDER);
+	if (!s->gl) {
+		asph_surface_free(s);
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	}
+	s->total_area = freeform_area(&s->ff, &s->ap, s->gl);
+	if (!isfinite(s->total_area)) {
+		asph_surface_free(s);
+		return asph_error_set(err, -EINVAL, "the surface is too steep to sample: its "
+				      "area over the aperture overflows");
+	}
+	freeform_extent(&s->ff, &s->ap, &s->extent);
+	s->max_slope = s->extent.max_slope;
+	s->r_max_slope = hypot(s->extent.max_slope_at[0], s->extent.max_slope_at[1]);
+	s->arc_a = s->area_a = NAN;
+	*out = s;
+	return 0;
+}
+
 int asph_surface_alloc(const struct asph_prescription *p,
 		       struct asph_surface **out, struct asph_error *err)
 {
@@ -663,6 +713,8 @@ int asph_surface_alloc(const struct asph_prescription *p,
 	s->p = *p;
 	s->rotational = asph_surface_type_is_rotational(p->type);
 	aperture_resolve(p, &s->ap);
+	if (!s->rotational)
+		return freeform_alloc(s, out, err);
 	s->a = 0.5 * p->aperture_diameter;
 	s->c = 1.0 / p->R;
 	for (int i = 1; i <= ASPH_SURFACE_MAX_POWER; i++)
@@ -725,6 +777,8 @@ double asph_surface_aperture_radius(const struct asph_surface *s)
 
 double asph_surface_arc_length(const struct asph_surface *s, double r)
 {
+	if (!s->rotational)
+		return NAN;
 	r = fabs(r);
 	if (r > s->a)
 		return s->arc_a + (arc_exact(s, r) - arc_exact(s, s->a));
@@ -734,6 +788,8 @@ double asph_surface_arc_length(const struct asph_surface *s, double r)
 double asph_surface_radius_at_arc_length(const struct asph_surface *s,
 					 double arc)
 {
+	if (!s->rotational)
+		return NAN;
 	if (arc <= 0)
 		return 0;
 	if (arc > s->arc_a)
@@ -743,6 +799,8 @@ double asph_surface_radius_at_arc_length(const struct asph_surface *s,
 
 double asph_surface_area(const struct asph_surface *s, double r)
 {
+	if (!s->rotational)
+		return NAN;
 	r = fabs(r);
 	if (r > s->a)
 		return area_exact(s, r);
@@ -751,6 +809,8 @@ double asph_surface_area(const struct asph_surface *s, double r)
 
 double asph_surface_radius_at_area(const struct asph_surface *s, double area)
 {
+	if (!s->rotational)
+		return NAN;
 	if (area <= 0)
 		return 0;
 	double q = sqrt(area / M_PI);
