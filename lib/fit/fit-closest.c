@@ -21,14 +21,17 @@ void fit_model_init(struct fit_model *m, const struct asph_surface *s)
 	const struct asph_prescription *p = asph_surface_prescription(s);
 
 	m->s = s;
+	m->rotational = asph_surface_is_rotational(s);
 	m->a = asph_surface_aperture_radius(s);
 	m->conic_changed = 0;
-	m->c0 = m->c = 1.0 / p->R;
+	m->c0 = m->c = m->rotational ? 1.0 / p->R : 0.0;
 	m->K0 = m->K = 1.0 + p->k;
 }
 
 void fit_model_set_conic(struct fit_model *m, double R, double k)
 {
+	if (!m->rotational)
+		return;
 	m->c = 1.0 / R;
 	m->K = 1.0 + k;
 	m->conic_changed = (m->c != m->c0 || m->K != m->K0);
@@ -186,6 +189,92 @@ int fit_foot(const struct fit_model *m, const double q[3], double r0,
 	return foot_search(m, rho, q[2], r0, d, f);
 }
 
+/* ---- the foot on a freeform: Newton in (x, y) -------------------------- */
+
+/* phi = |q - (x, y, S)|^2 / 2 at (x, y); d holds S and its derivatives. */
+static double xy_eval(const struct fit_model *m, double x, double y, const double q[3],
+		      struct asph_sag *d)
+{
+	asph_surface_derivs_xy(m->s, x, y, d);
+	double ex = x - q[0], ey = y - q[1], ez = d->z - q[2];
+	return 0.5 * (ex * ex + ey * ey + ez * ez);
+}
+
+/* Newton's step on phi: gradient (x - qx + e S_x, y - qy + e S_y),
+ * e = S - qz, Hessian I + grad S grad S^T + e Hess S; where that is not
+ * safely positive, Gauss-Newton's I + grad S grad S^T. */
+static void xy_step(double x, double y, const double q[3], const struct asph_sag *d,
+		    double step[2])
+{
+	double e = d->z - q[2];
+	double gx = x - q[0] + e * d->zx, gy = y - q[1] + e * d->zy;
+	double g11 = 1.0 + d->zx * d->zx, g12 = d->zx * d->zy, g22 = 1.0 + d->zy * d->zy;
+	double h11 = g11 + e * d->zxx, h12 = g12 + e * d->zxy, h22 = g22 + e * d->zyy;
+	double det = h11 * h22 - h12 * h12, gdet = g11 * g22 - g12 * g12;
+
+	if (!(h11 > 0 && det > 0.01 * gdet)) {
+		h11 = g11, h12 = g12, h22 = g22;
+		det = gdet;
+	}
+	step[0] = -(h22 * gx - h12 * gy) / det;
+	step[1] = -(h11 * gy - h12 * gx) / det;
+}
+
+/* The last step, below tolerance, by Taylor expansion of S and its
+ * gradient; the distance along the normal there. */
+static void xy_finish(double x, double y, const double st[2], const double q[3],
+		      const struct asph_sag *d, struct fit_foot_xy *f)
+{
+	f->x = x + st[0];
+	f->y = y + st[1];
+	f->zx = d->zx + d->zxx * st[0] + d->zxy * st[1];
+	f->zy = d->zy + d->zxy * st[0] + d->zyy * st[1];
+	f->z = d->z + st[0] * (d->zx + 0.5 * (d->zxx * st[0] + d->zxy * st[1])) +
+	       st[1] * (d->zy + 0.5 * (d->zxy * st[0] + d->zyy * st[1]));
+	f->dist = (-(q[0] - f->x) * f->zx - (q[1] - f->y) * f->zy + (q[2] - f->z)) /
+		  sqrt(1.0 + f->zx * f->zx + f->zy * f->zy);
+}
+
+int fit_foot_xy(const struct fit_model *m, const double q[3], double x0, double y0,
+		struct fit_foot_xy *f)
+{
+	const double tol = FOOT_TOL * (1.0 + m->a), cap = 0.25 * m->a;
+	double x = isfinite(x0) ? x0 : q[0], y = isfinite(x0) ? y0 : q[1], st[2];
+	struct asph_sag d, dn;
+	double phi = xy_eval(m, x, y, q, &d);
+
+	if (!isfinite(phi)) {
+		x = y = 0.0;    /* the vertex is always in the domain */
+		phi = xy_eval(m, x, y, q, &d);
+	}
+	for (int it = 0; it <= FOOT_MAX_ITER; it++) {
+		xy_step(x, y, q, &d, st);
+		double len = hypot(st[0], st[1]);
+		if (len <= tol && isfinite(phi)) {
+			xy_finish(x, y, st, q, &d, f);
+			f->iterations = it;
+			return 0;
+		}
+		if (len > cap)
+			st[0] *= cap / len, st[1] *= cap / len;
+		int moved = 0;
+		for (int k = 0; k < 60 && !moved; k++) {
+			double phin = xy_eval(m, x + st[0], y + st[1], q, &dn);
+			/* tiny steps are Newton's quadratic tail: rounding in
+			 * phi must not reject them */
+			if (isfinite(phin) && (phin <= phi || hypot(st[0], st[1]) < 1e-6 * (1.0 + m->a))) {
+				x += st[0], y += st[1], phi = phin, d = dn;
+				moved = 1;
+			} else {
+				st[0] *= 0.5, st[1] *= 0.5;
+			}
+		}
+		if (!moved)
+			return -EDOM;
+	}
+	return -EDOM;
+}
+
 void fit_foot_normal(const struct fit_foot *f, const double q[3], double n[3])
 {
 	double inv = 1.0 / sqrt(1.0 + f->slope * f->slope);
@@ -205,6 +294,18 @@ int asph_fit_closest_point(const struct asph_surface *s, const double p[3],
 	int r;
 
 	fit_model_init(&m, s);
+	if (!m.rotational) {
+		struct fit_foot_xy fx;
+		if ((r = fit_foot_xy(&m, p, NAN, NAN, &fx)) < 0)
+			return r;
+		double inv = 1.0 / sqrt(1.0 + fx.zx * fx.zx + fx.zy * fx.zy);
+		*out = (struct asph_closest){
+			.foot = { fx.x, fx.y, fx.z }, .normal = { -fx.zx * inv, -fx.zy * inv, inv },
+			.distance = fx.dist, .foot_radius = hypot(fx.x, fx.y),
+			.inside = asph_surface_contains(s, fx.x, fx.y, 0), .iterations = fx.iterations,
+		};
+		return 0;
+	}
 	r = fit_foot(&m, p, NAN, &f);
 	if (r < 0)
 		return r;
@@ -221,12 +322,19 @@ int asph_fit_closest_point(const struct asph_surface *s, const double p[3],
 
 /* --- Pose --------------------------------------------------------------- */
 
-void asph_pose_apply(const struct asph_pose *pose, const double q[3],
+void asph_pose_apply(const struct asph_pose *pose, const double q_in[3],
 		     double p[3])
 {
 	double cx = cos(pose->rx), sx = sin(pose->rx);
 	double cy = cos(pose->ry), sy = sin(pose->ry);
-	/* Rx(rx) first ... */
+	double q[3] = { q_in[0], q_in[1], q_in[2] };
+	/* Rz(rz) first ... */
+	if (pose->rz != 0) {
+		double cz = cos(pose->rz), sz = sin(pose->rz);
+		q[0] = cz * q_in[0] - sz * q_in[1];
+		q[1] = sz * q_in[0] + cz * q_in[1];
+	}
+	/* ... then Rx(rx) ... */
 	double y1 = cx * q[1] - sx * q[2], z1 = sx * q[1] + cx * q[2];
 	/* ... then Ry(ry), then the shift. */
 	p[0] = cy * q[0] + sy * z1 + pose->t[0];
@@ -242,16 +350,22 @@ void asph_pose_apply_inverse(const struct asph_pose *pose, const double p[3],
 	double u[3] = { p[0] - pose->t[0], p[1] - pose->t[1], p[2] - pose->t[2] };
 	/* Ry(-ry) ... */
 	double x1 = cy * u[0] - sy * u[2], z1 = sy * u[0] + cy * u[2];
-	/* ... then Rx(-rx). */
+	/* ... then Rx(-rx) ... */
 	q[0] = x1;
 	q[1] = cx * u[1] + sx * z1;
 	q[2] = -sx * u[1] + cx * z1;
+	/* ... then Rz(-rz). */
+	if (pose->rz != 0) {
+		double cz = cos(pose->rz), sz = sin(pose->rz), q0 = q[0];
+		q[0] = cz * q0 + sz * q[1];
+		q[1] = -sz * q0 + cz * q[1];
+	}
 }
 
 /* --- Names -------------------------------------------------------------- */
 
 static const char *const dof_names[ASPH_FIT_N_DOF] = {
-	"tx", "ty", "tz", "rx", "ry", "R", "k",
+	"tx", "ty", "tz", "rx", "ry", "R", "k", "rz",
 };
 
 const char *asph_fit_dof_name(enum asph_fit_dof d)
@@ -280,7 +394,7 @@ int asph_fit_dof_parse(const char *list, unsigned *mask,
 		int d = dof_lookup(p, len);
 		if (d < 0)
 			return asph_error_set(err, -EINVAL,
-					      "unknown degree of freedom '%.*s' (tx, ty, tz, rx, ry, R, k)",
+					      "unknown degree of freedom '%.*s' (tx, ty, tz, rx, ry, rz, R, k)",
 					      (int)len, p);
 		if (out & ASPH_FIT_DOF_BIT(d))
 			return asph_error_set(err, -EINVAL,

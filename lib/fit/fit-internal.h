@@ -29,7 +29,9 @@ struct asph_fit {
 
 	/* Per point. */
 	double *r_foot;     /* signed meridian foot, the next Newton start */
-	double *slope;      /* dZ/dr there (NaN: no foot) */
+	double *slope;      /* dZ/dr there (NaN: no foot; 0 on a freeform) */
+	double *foot_xy;    /* freeform: 2 n, the foot (x, y), the next start */
+	double *grad;       /* freeform: 2 n, grad S there */
 	double *resid;      /* residual, mm (unweighted) */
 	double *weight;     /* robust weight */
 	double *scratch;    /* n, for f evaluations the solver does not own */

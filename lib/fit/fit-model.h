@@ -16,6 +16,7 @@
  */
 struct fit_model {
 	const struct asph_surface *s;
+	int rotational;         /* else a freeform: the (x, y) kernel, no conic change */
 	double a;               /* aperture radius */
 	int conic_changed;
 	double c0, K0;          /* nominal */
@@ -48,6 +49,19 @@ struct fit_foot {
  * q's radius. Returns 0, or -EDOM when there is no foot. */
 int fit_foot(const struct fit_model *m, const double q[3], double r0,
 	     struct fit_foot *f);
+
+/* Foot of q on a freeform, found in (x, y). */
+struct fit_foot_xy {
+	double x, y, z;         /* the foot */
+	double zx, zy;          /* the gradient of S there */
+	double dist;            /* signed normal distance */
+	int iterations;
+};
+
+/* (x0, y0): a start (the previous foot), or NaN to start below q.
+ * Returns 0, or -EDOM when there is no foot. */
+int fit_foot_xy(const struct fit_model *m, const double q[3], double x0, double y0,
+		struct fit_foot_xy *f);
 
 /* Unit normal at the foot of q, n_z > 0. */
 void fit_foot_normal(const struct fit_foot *f, const double q[3], double n[3]);

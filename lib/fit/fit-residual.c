@@ -19,10 +19,17 @@ void fit_point_polar(const struct asph_fit *w, size_t i, double *rho,
 {
 	struct asph_pose pose = {
 		{ w->full[0], w->full[1], w->full[2] },
-		w->full[ASPH_FIT_RX], w->full[ASPH_FIT_RY],
+		w->full[ASPH_FIT_RX], w->full[ASPH_FIT_RY], w->full[ASPH_FIT_RZ],
 	};
 	double q[3], r = w->r_foot[i], rq;
 
+	if (!w->model.rotational) {
+		/* the foot itself (or the point, for sag residuals) */
+		const double *f = w->foot_xy + 2 * i;
+		*rho = hypot(f[0], f[1]) / w->model.a;
+		*theta = atan2(f[1], f[0]);
+		return;
+	}
 	asph_pose_apply_inverse(&pose, w->xyz + 3 * i, q);
 	rq = hypot(q[0], q[1]);
 	if (w->opt.residual == ASPH_FIT_RESIDUAL_SAG || !(rq > 0)) {

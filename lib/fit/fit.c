@@ -46,8 +46,9 @@
 /* The pose as cosines and sines, computed once per evaluation. */
 struct frame {
 	double t[3];
-	double cx, sx, cy, sy;
-	double R[3][3];          /* Ry(ry) Rx(rx) */
+	double cx, sx, cy, sy, cz, sz;
+	int clocked;             /* rz != 0 */
+	double R[3][3];          /* Ry(ry) Rx(rx) Rz(rz) */
 };
 
 static void frame_init(struct frame *fr, const double *full)
@@ -64,6 +65,14 @@ static void frame_init(struct frame *fr, const double *full)
 		{ -fr->sy, fr->cy * fr->sx, fr->cy * fr->cx },
 	};
 	memcpy(fr->R, m, sizeof(m));
+	fr->clocked = full[ASPH_FIT_RZ] != 0;
+	fr->cz = cos(full[ASPH_FIT_RZ]);
+	fr->sz = sin(full[ASPH_FIT_RZ]);
+	if (fr->clocked)
+		for (int k = 0; k < 3; k++) {
+			fr->R[k][0] = fr->cz * m[k][0] + fr->sz * m[k][1];
+			fr->R[k][1] = -fr->sz * m[k][0] + fr->cz * m[k][1];
+		}
 }
 
 /* q = Rx(-rx) Ry(-ry) (p - t); w = Ry(-ry) (p - t) on the way. */
@@ -78,6 +87,11 @@ static void frame_to_part(const struct frame *fr, const double *p,
 	q[0] = wv[0];
 	q[1] = fr->cx * wv[1] + fr->sx * wv[2];
 	q[2] = -fr->sx * wv[1] + fr->cx * wv[2];
+	if (fr->clocked) {
+		double q0 = q[0];
+		q[0] = fr->cz * q0 + fr->sz * q[1];
+		q[1] = -fr->sz * q0 + fr->cz * q[1];
+	}
 }
 
 /* The solver works on y, whitened coordinates: x = xref + T y (see
@@ -102,6 +116,34 @@ static void set_full_from_vector(struct asph_fit *w, const gsl_vector *y)
 	set_full_from_y(w, yy);
 }
 
+/* point_eval() on a freeform: the foot in (x, y), the aperture by shape. */
+static int point_eval_xy(struct asph_fit *w, const double q[3], size_t i, double *res)
+{
+	double *fxy = w->foot_xy + 2 * i, *g = w->grad + 2 * i;
+	const double tol = w->opt.aperture_tolerance;
+
+	if (w->opt.residual == ASPH_FIT_RESIDUAL_SAG) {
+		struct asph_sag d;
+		asph_surface_derivs_xy(w->model.s, q[0], q[1], &d);
+		*res = q[2] - d.z;
+		fxy[0] = q[0], fxy[1] = q[1], g[0] = d.zx, g[1] = d.zy;
+		w->slope[i] = isfinite(*res) ? 0.0 : NAN;
+		if (!isfinite(*res))
+			return -1;
+		return !asph_surface_contains(w->model.s, q[0], q[1], tol);
+	}
+	struct fit_foot_xy f;
+	if (fit_foot_xy(&w->model, q, fxy[0], fxy[1], &f) < 0) {
+		w->slope[i] = NAN;
+		*res = NAN;
+		return -1;
+	}
+	fxy[0] = f.x, fxy[1] = f.y, g[0] = f.zx, g[1] = f.zy;
+	w->slope[i] = 0.0;
+	*res = f.dist;
+	return !asph_surface_contains(w->model.s, f.x, f.y, tol);
+}
+
 /*
  * Residual of point i at the current parameters; refreshes its foot.
  * Returns 0 inside, 1 when the foot is past the aperture, -1 when there is
@@ -113,6 +155,8 @@ static int point_eval(struct asph_fit *w, const struct frame *fr, size_t i,
 	double q[3], wv[3], lim = w->model.a + w->opt.aperture_tolerance;
 
 	frame_to_part(fr, w->xyz + 3 * i, q, wv);
+	if (!w->model.rotational)
+		return point_eval_xy(w, q, i, res);
 	if (w->opt.residual == ASPH_FIT_RESIDUAL_SAG) {
 		double rho = sqrt(q[0] * q[0] + q[1] * q[1]), d[3];
 		fit_model_derivs(&w->model, rho, d);
@@ -229,6 +273,46 @@ static void jacobian_row(const struct asph_fit *w, const struct frame *fr,
 		row[k] = sw * d[w->idx[k]];
 }
 
+/*
+ * jacobian_row() on a freeform, with clocking: v the normal at the foot (or
+ * (-S_x, -S_y, 1) for sag residuals) and c = q x v; a rotation by theta
+ * about an axis that is a in the part frame moves q by -a x q, so
+ *   d/drx = -a_x . c,  a_x = Rz(-rz) e_x
+ *   d/dry = -a_y . c,  a_y = Rz(-rz) Rx(-rx) e_y
+ *   d/drz = -c_z
+ */
+static void jacobian_row_xy(const struct asph_fit *w, const struct frame *fr, size_t i,
+			    double sw, double *row)
+{
+	const double *g = w->grad + 2 * i;
+	double q[3], wv[3], v[3], c[3], d[ASPH_FIT_N_DOF] = { 0 };
+	double inv = w->opt.residual == ASPH_FIT_RESIDUAL_SAG ? 1.0 : 1.0 / sqrt(1.0 + g[0] * g[0] + g[1] * g[1]);
+
+	frame_to_part(fr, w->xyz + 3 * i, q, wv);
+	v[0] = -g[0] * inv;
+	v[1] = -g[1] * inv;
+	v[2] = inv;
+	for (int k = 0; k < 3; k++)
+		d[k] = -(fr->R[k][0] * v[0] + fr->R[k][1] * v[1] + fr->R[k][2] * v[2]);
+	c[0] = q[1] * v[2] - q[2] * v[1];
+	c[1] = q[2] * v[0] - q[0] * v[2];
+	c[2] = q[0] * v[1] - q[1] * v[0];
+	d[ASPH_FIT_RX] = -(fr->cz * c[0] - fr->sz * c[1]);
+	d[ASPH_FIT_RY] = -(fr->sz * fr->cx * c[0] + fr->cz * fr->cx * c[1] - fr->sx * c[2]);
+	d[ASPH_FIT_RZ] = -c[2];
+	for (int k = 0; k < w->p; k++)
+		row[k] = sw * d[w->idx[k]];
+}
+
+static void any_jacobian_row(const struct asph_fit *w, const struct frame *fr, size_t i,
+			     double sw, double *row)
+{
+	if (w->model.rotational)
+		jacobian_row(w, fr, i, sw, row);
+	else
+		jacobian_row_xy(w, fr, i, sw, row);
+}
+
 /* Row of dr/dy = (dr/dx) T; T is upper triangular. */
 static void row_to_solver(const struct asph_fit *w, const double *rx, double *ry)
 {
@@ -260,7 +344,7 @@ static int cb_df(const gsl_vector *y, void *params, gsl_matrix *J)
 			memset(row, 0, (size_t)w->p * sizeof(double));
 			continue;
 		}
-		jacobian_row(w, &fr, i, sqrt(w->weight[i]), rx);
+		any_jacobian_row(w, &fr, i, sqrt(w->weight[i]), rx);
 		row_to_solver(w, rx, row);
 	}
 	return GSL_SUCCESS;
@@ -325,7 +409,7 @@ static int options_resolve(struct asph_fit_options *o, struct asph_error *err)
 	for (int k = 0; k < 3; k++)
 		if (!isfinite(o->start.t[k]))
 			return asph_error_set(err, -EINVAL, "fit options: start pose is not finite");
-	if (!isfinite(o->start.rx) || !isfinite(o->start.ry))
+	if (!isfinite(o->start.rx) || !isfinite(o->start.ry) || !isfinite(o->start.rz))
 		return asph_error_set(err, -EINVAL, "fit options: start pose is not finite");
 	return 0;
 }
@@ -351,6 +435,20 @@ int asph_fit_alloc(const struct asph_surface *s, size_t n_max,
 		return asph_error_set(err, -EINVAL,
 				      "a %s surface has no conic constant: k cannot be fitted (R can)",
 				      asph_surface_type_name(type));
+	int rotational = asph_surface_is_rotational(s);
+	if ((w->opt.dof & ASPH_FIT_DOF_BIT(ASPH_FIT_RZ)) && rotational)
+		return asph_error_set(err, -EINVAL,
+				      "a %s surface is rotationally symmetric: it looks the same "
+				      "clocked, so rz cannot be fitted",
+				      asph_surface_type_name(type));
+	if ((w->opt.dof & (ASPH_FIT_DOF_BIT(ASPH_FIT_R) | ASPH_FIT_DOF_BIT(ASPH_FIT_K))) && !rotational)
+		return asph_error_set(err, -EINVAL,
+				      "R and k are fitted on rotationally symmetric surfaces; a %s "
+				      "surface takes the rigid motions tx, ty, tz, rx, ry, rz",
+				      asph_surface_type_name(type));
+	if (rotational && w->opt.start.rz != 0)
+		return asph_error_set(err, -EINVAL, "fit options: a start rz on a rotationally "
+				      "symmetric surface");
 	fit_model_init(&w->model, s);
 	for (int d = 0; d < ASPH_FIT_N_DOF; d++)
 		if (w->opt.dof & ASPH_FIT_DOF_BIT(d))
@@ -363,6 +461,12 @@ int asph_fit_alloc(const struct asph_surface *s, size_t n_max,
 	w->scratch = malloc(n_max * sizeof(double) + 1);
 	w->status = calloc(n_max + 1, 1);
 	w->left = w->opt.robust ? malloc(n_max * sizeof(double) + 1) : NULL;
+	if (!rotational) {
+		w->foot_xy = malloc(2 * n_max * sizeof(double) + 1);
+		w->grad = malloc(2 * n_max * sizeof(double) + 1);
+		if (!w->foot_xy || !w->grad)
+			return asph_error_set(err, -ENOMEM, "out of memory for %zu points", n_max);
+	}
 	w->x0 = gsl_vector_alloc((size_t)w->p);
 	w->covar = gsl_matrix_alloc((size_t)w->p, (size_t)w->p);
 	if (!w->r_foot || !w->slope || !w->resid || !w->weight || !w->scratch ||
@@ -386,6 +490,8 @@ void asph_fit_free(struct asph_fit *w)
 	free(w->weight);
 	free(w->scratch);
 	free(w->left);
+	free(w->foot_xy);
+	free(w->grad);
 	free(w->status);
 	free(w);
 }
@@ -467,7 +573,7 @@ static int whiten(struct asph_fit *w, struct asph_error *err)
 	for (size_t i = 0; i < w->n; i++) {
 		if (!point_counts(w, i) || !isfinite(w->slope[i]))
 			continue;
-		jacobian_row(w, &fr, i, sqrt(w->weight[i]), rx);
+		any_jacobian_row(w, &fr, i, sqrt(w->weight[i]), rx);
 		for (int k = 0; k < p; k++)
 			for (int j = 0; j <= k; j++)
 				A[k][j] += rx[k] * rx[j];
@@ -554,9 +660,12 @@ int asph_fit_init(struct asph_fit *w, const double *xyz, size_t n,
 	memcpy(w->full, w->opt.start.t, 3 * sizeof(double));
 	w->full[ASPH_FIT_RX] = w->opt.start.rx;
 	w->full[ASPH_FIT_RY] = w->opt.start.ry;
+	w->full[ASPH_FIT_RZ] = w->opt.start.rz;
 	w->full[ASPH_FIT_R] = pr->R;
 	w->full[ASPH_FIT_K] = pr->k;
 	fit_model_set_conic(&w->model, pr->R, pr->k);
+	for (size_t i = 0; i < n && w->foot_xy; i++)
+		w->foot_xy[2 * i] = w->foot_xy[2 * i + 1] = NAN;
 	for (size_t i = 0; i < n; i++) {
 		w->r_foot[i] = NAN;
 		w->slope[i] = NAN;

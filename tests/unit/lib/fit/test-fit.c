@@ -453,7 +453,9 @@ static void test_bad_input(void **state)
 	assert_int_equal(asph_fit_dof_parse("tx,ty,tz,rx,ry,R,k", &mask, &err), 0);
 	assert_int_equal(mask, 0x7f);
 	assert_int_equal(asph_fit_dof_parse("tx,tx", &mask, &err), -EINVAL);
-	assert_int_equal(asph_fit_dof_parse("tx,rz", &mask, &err), -EINVAL);
+	assert_int_equal(asph_fit_dof_parse("tx,rw", &mask, &err), -EINVAL);
+	assert_int_equal(asph_fit_dof_parse("tx,ty,tz,rx,ry,rz", &mask, &err), 0);
+	assert_int_equal(mask, ASPH_FIT_DOF_RIGID6);
 	assert_int_equal(asph_fit_dof_parse("", &mask, &err), -EINVAL);
 	free(xyz);
 	asph_surface_free(s);
