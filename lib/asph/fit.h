@@ -251,11 +251,12 @@ struct asph_synth_options {
 };
 
 /*
- * A part with form error sum_j c_j Z_j(r/a, theta) (nm, along the surface
+ * A part with form error sum_j c_j Z_j(rho, theta) (nm, along the surface
  * normal at (x, y)) and noise, lying with the given pose, measured at the
  * nominal points xyz_nominal (on the surface; only their x, y are used):
- * xyz_out[i] = pose(S(x, y) + (e(x, y) + noise_i) n(x, y)), r = |(x, y)|,
- * a the aperture radius (asph_surface_aperture_radius()). Deterministic
+ * xyz_out[i] = pose(S(x, y) + (e(x, y) + noise_i) n(x, y)); rho and theta
+ * are polar coordinates about the centre of asph_surface_aperture_disk(),
+ * rho over its radius (for a centred circle, r / a). Deterministic
  * for a seed (GSL's MT19937 and ziggurat Gaussian). xyz_out may equal
  * xyz_nominal. -EINVAL for a bad Noll index, a point outside the aperture.
  */

@@ -219,6 +219,12 @@ void asph_surface_bounds(const struct asph_surface *s, double box[4]);
  * the aperture). */
 double asph_surface_aperture_radius(const struct asph_surface *s);
 
+/* The smallest disk centred at the aperture's centre that holds the
+ * aperture: the domain of the Zernike terms of form errors and residuals
+ * (for a centred circle, the aperture itself). */
+void asph_surface_aperture_disk(const struct asph_surface *s, double centre[2],
+				double *radius);
+
 /* Area of the aperture in the x-y plane, mm^2. */
 double asph_surface_projected_area(const struct asph_surface *s);
 

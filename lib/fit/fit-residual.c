@@ -24,10 +24,13 @@ void fit_point_polar(const struct asph_fit *w, size_t i, double *rho,
 	double q[3], r = w->r_foot[i], rq;
 
 	if (!w->model.rotational) {
-		/* the foot itself (or the point, for sag residuals) */
+		/* the foot itself (or the point, for sag residuals), over the
+		 * disk about the aperture's centre */
 		const double *f = w->foot_xy + 2 * i;
-		*rho = hypot(f[0], f[1]) / w->model.a;
-		*theta = atan2(f[1], f[0]);
+		double c[2], R;
+		asph_surface_aperture_disk(w->model.s, c, &R);
+		*rho = hypot(f[0] - c[0], f[1] - c[1]) / R;
+		*theta = atan2(f[1] - c[1], f[0] - c[0]);
 		return;
 	}
 	asph_pose_apply_inverse(&pose, w->xyz + 3 * i, q);
@@ -184,9 +187,10 @@ static int zernike_stats(const struct asph_fit *w, const struct field *f,
 {
 	_cleanup_free_ double *zf = malloc(w->n * sizeof(double) + 1);
 	_cleanup_free_ double *g = malloc(2 * w->n * sizeof(double) + 1);
-	double lo = INFINITY, hi = -INFINITY, left2 = 0, slope2 = 0;
+	double lo = INFINITY, hi = -INFINITY, left2 = 0, slope2 = 0, centre[2], disk_r;
 	size_t m = 0;
 
+	asph_surface_aperture_disk(w->model.s, centre, &disk_r);
 	if (!zf || !g)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	asph_zernike_series_many(coef, out->n_zernike, f->rho, f->theta, w->n, zf, g);
@@ -196,9 +200,9 @@ static int zernike_stats(const struct asph_fit *w, const struct field *f,
 		lo = fmin(lo, zf[i]);
 		hi = fmax(hi, zf[i]);
 		left2 += (f->val[i] - zf[i]) * (f->val[i] - zf[i]);
-		/* nm per unit rho -> mm per mm of the aperture radius */
+		/* nm per unit rho -> mm per mm of the disk's radius */
 		slope2 += (g[2 * i] * g[2 * i] + g[2 * i + 1] * g[2 * i + 1]) * 1e-12 /
-			  (w->model.a * w->model.a);
+			  (disk_r * disk_r);
 		m++;
 	}
 	out->zernike_fit_rms_left.v = sqrt(left2 / (double)m);

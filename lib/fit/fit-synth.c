@@ -37,8 +37,10 @@ int asph_fit_synthesize(const struct asph_surface *s,
 			struct asph_error *err)
 {
 	_cleanup_(gsl_rng_freep) gsl_rng *rng = gsl_rng_alloc(gsl_rng_mt19937);
-	double coef[ASPH_ZERNIKE_MAX_J], a = asph_surface_aperture_radius(s);
+	double coef[ASPH_ZERNIKE_MAX_J], a = asph_surface_aperture_radius(s), c[2], disk_r;
 	int n_coef, r, rot = asph_surface_is_rotational(s);
+
+	asph_surface_aperture_disk(s, c, &disk_r);
 
 	if (!rng)
 		return asph_error_set(err, -ENOMEM, "out of memory");
@@ -59,7 +61,9 @@ int asph_fit_synthesize(const struct asph_surface *s,
 					      "point %zu at (%.17g, %.17g) mm is outside the aperture",
 					      i + 1, x, y);
 		if (n_coef > 0)
-			e_nm = asph_zernike_series(coef, n_coef, rr / a, atan2(y, x), NULL);
+			e_nm = rot ? asph_zernike_series(coef, n_coef, rr / a, atan2(y, x), NULL)
+				   : asph_zernike_series(coef, n_coef, hypot(x - c[0], y - c[1]) / disk_r,
+							 atan2(y - c[1], x - c[0]), NULL);
 		/* One draw per point at any noise level: a seed gives the same
 		 * sequence whatever the level. */
 		e_nm += opts->noise_nm * gsl_ran_gaussian_ziggurat(rng, 1.0);

@@ -438,13 +438,13 @@ int asph_fit_alloc(const struct asph_surface *s, size_t n_max,
 	int rotational = asph_surface_is_rotational(s);
 	if ((w->opt.dof & ASPH_FIT_DOF_BIT(ASPH_FIT_RZ)) && rotational)
 		return asph_error_set(err, -EINVAL,
-				      "a %s surface is rotationally symmetric: it looks the same "
+				      "surface type %s is rotationally symmetric: it looks the same "
 				      "clocked, so rz cannot be fitted",
 				      asph_surface_type_name(type));
 	if ((w->opt.dof & (ASPH_FIT_DOF_BIT(ASPH_FIT_R) | ASPH_FIT_DOF_BIT(ASPH_FIT_K))) && !rotational)
 		return asph_error_set(err, -EINVAL,
-				      "R and k are fitted on rotationally symmetric surfaces; a %s "
-				      "surface takes the rigid motions tx, ty, tz, rx, ry, rz",
+				      "R and k are fitted on rotationally symmetric surfaces only; "
+				      "surface type %s takes the rigid motions tx, ty, tz, rx, ry, rz",
 				      asph_surface_type_name(type));
 	if (rotational && w->opt.start.rz != 0)
 		return asph_error_set(err, -EINVAL, "fit options: a start rz on a rotationally "

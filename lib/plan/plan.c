@@ -96,6 +96,84 @@ struct plan_size {
 	size_t n;       /* points */
 };
 
+static int fill_pattern(enum asph_plan_method m, double a, double p, double *xyr);
+
+/* Points of a method's pattern over a disk of radius a at pitch p. */
+static size_t disk_pattern_count(enum asph_plan_method m, double a, double p)
+{
+	switch (m) {
+	case ASPH_PLAN_RASTER:
+		return plan_raster_count(a, p);
+	case ASPH_PLAN_CONCENTRIC:
+		return plan_concentric_count(a, p);
+	case ASPH_PLAN_SPIRAL:
+		return plan_spiral_count(a, p);
+	case ASPH_PLAN_FERMAT:
+		return plan_fermat_count(a, p);
+	default:
+		return plan_disk_grid_count(a, p, NULL);
+	}
+}
+
+/*
+ * Freeform surfaces: the plans of the vertex plane (op and the classic
+ * patterns) laid over the disk that circumscribes the aperture about its
+ * centre, kept where they fall inside the aperture, lifted with S(x, y).
+ */
+static double freeform_radius(const struct asph_surface *s)
+{
+	double c[2], R;
+
+	asph_surface_aperture_disk(s, c, &R);
+	return R;
+}
+
+static int freeform_supports(enum asph_plan_method m)
+{
+	return m != ASPH_PLAN_OT && m != ASPH_PLAN_LB && m != ASPH_PLAN_CI;
+}
+
+/* The kept points, lifted, into a new array (*xyz, *n); -ENOMEM. */
+static int freeform_points(const struct asph_surface *s, enum asph_plan_method m, double p,
+			   double **xyz, size_t *n)
+{
+	struct asph_aperture ap;
+	double R = freeform_radius(s);
+	size_t cap = disk_pattern_count(m, R, p), k = 0;
+	double *buf = malloc(3 * cap * sizeof(double) + 1);
+
+	if (!buf || fill_pattern(m, R, p, buf) < 0) {
+		free(buf);
+		return -ENOMEM;
+	}
+	asph_surface_aperture(s, &ap);
+	for (size_t i = 0; i < cap; i++) {
+		double x = buf[3 * i] + ap.offset[0], y = buf[3 * i + 1] + ap.offset[1];
+		if (!asph_surface_contains(s, x, y, 0))
+			continue;
+		buf[3 * k] = x;
+		buf[3 * k + 1] = y;
+		buf[3 * k + 2] = asph_surface_sag_xy(s, x, y);
+		k++;
+	}
+	*xyz = buf;
+	*n = k;
+	return 0;
+}
+
+static size_t freeform_count(const struct asph_surface *s, enum asph_plan_method m, double p)
+{
+	double R = freeform_radius(s), *xyz = NULL;
+	size_t n = 0;
+
+	if (!(M_PI * R * R / (p * p) < 2.0 * (double)PLAN_MAX_POINTS))
+		return SIZE_MAX;
+	if (freeform_points(s, m, p, &xyz, &n) < 0)
+		return SIZE_MAX;
+	free(xyz);
+	return n;
+}
+
 /* Exact point count of the method's pattern at pitch p (CI: the involute's
  * own count, asph/involute.h). SIZE_MAX for anything far too large. */
 static size_t pattern_count(const struct asph_surface *s,
@@ -104,6 +182,8 @@ static size_t pattern_count(const struct asph_surface *s,
 	double a = asph_surface_aperture_radius(s);
 	double area = asph_surface_area(s, a), guess;
 
+	if (!asph_surface_is_rotational(s))
+		return freeform_count(s, m, p);
 	/* The exact counters loop over rows and rings: screen absurd sizes
 	 * first so they never run for long. */
 	guess = m == ASPH_PLAN_CI ? area / (p * p) : M_PI * a * a / (p * p);
@@ -150,8 +230,9 @@ static double pitch_for_points(const struct asph_surface *s,
 			       enum asph_plan_method m, double n_req)
 {
 	double a = asph_surface_aperture_radius(s);
-	double area = m == ASPH_PLAN_CI ? asph_surface_area(s, a)
-					: M_PI * a * a;
+	double area = !asph_surface_is_rotational(s) ? asph_surface_projected_area(s)
+		      : m == ASPH_PLAN_CI ? asph_surface_area(s, a)
+					  : M_PI * a * a;
 	double p = sqrt(area / (plan_lattice_of(m)->area_per_pitch2 * n_req));
 
 	for (int it = 0; it < 2; it++) {
@@ -173,6 +254,17 @@ static int resolve(const struct asph_surface *s, enum asph_plan_method m,
 	if ((unsigned)m >= ASPH_PLAN_N_METHODS) {
 		asph_error_locate(err, NULL, 0, 0, "method");
 		return asph_error_set(err, -EINVAL, "unknown method %d", m);
+	}
+	if (!asph_surface_is_rotational(s)) {
+		if (!freeform_supports(m)) {
+			asph_error_locate(err, NULL, 0, 0, "method");
+			return asph_error_set(err, -EINVAL,
+					      "the %s plan is for rotationally symmetric surfaces; on a "
+					      "%s surface use op, raster, concentric, spiral or fermat",
+					      asph_plan_method_name(m),
+					      asph_surface_type_name(asph_surface_prescription(s)->type));
+		}
+		a = freeform_radius(s);
 	}
 	if (!isfinite(d.value) || d.value <= 0) {
 		asph_error_locate(err, NULL, 0, 0, field);
@@ -492,6 +584,14 @@ static int compute_points(const struct asph_surface *s, struct asph_plan *plan,
 
 	if (m == ASPH_PLAN_CI)
 		return compute_ci(s, plan, sz->p, err);
+	if (!asph_surface_is_rotational(s)) {
+		if (freeform_points(s, m, sz->p, &plan->xyz, &plan->n) < 0)
+			return asph_error_set(err, -ENOMEM, "out of memory (%zu points)", sz->n);
+		if (is_grid_method(m) && !(flags & ASPH_PLAN_NO_MESH))
+			return plan_disk_mesh(plan->xyz, plan->n, &plan->triangles,
+					      &plan->n_triangles, err);
+		return 0;
+	}
 	plan->xyz = malloc(3 * sz->n * sizeof(*plan->xyz));
 	if (!plan->xyz)
 		return asph_error_set(err, -ENOMEM, "out of memory (%zu points)", sz->n);

@@ -862,3 +862,13 @@ void asph_surface_extent(const struct asph_surface *s, struct asph_surface_exten
 {
 	*out = s->extent;
 }
+
+void asph_surface_aperture_disk(const struct asph_surface *s, double centre[2], double *radius)
+{
+	centre[0] = s->ap.offset[0];
+	centre[1] = s->ap.offset[1];
+	if (s->ap.shape == ASPH_APERTURE_RECTANGULAR)
+		*radius = 0.5 * hypot(s->ap.width, s->ap.height);
+	else
+		*radius = 0.5 * fmax(s->ap.width, s->ap.height);
+}
