@@ -249,7 +249,8 @@ int fit_foot_xy(const struct fit_model *m, const double q[3], double x0, double 
 	}
 	for (int it = 0; it <= FOOT_MAX_ITER; it++) {
 		xy_step(x, y, q, &d, st);
-		double len = hypot(st[0], st[1]);
+		/* hypot's overflow guard is not needed at mm scale, and costs */
+		double len = sqrt(st[0] * st[0] + st[1] * st[1]);
 		if (len <= tol && isfinite(phi)) {
 			xy_finish(x, y, st, q, &d, f);
 			f->iterations = it;
@@ -262,7 +263,8 @@ int fit_foot_xy(const struct fit_model *m, const double q[3], double x0, double 
 			double phin = xy_eval(m, x + st[0], y + st[1], q, &dn);
 			/* tiny steps are Newton's quadratic tail: rounding in
 			 * phi must not reject them */
-			if (isfinite(phin) && (phin <= phi || hypot(st[0], st[1]) < 1e-6 * (1.0 + m->a))) {
+			if (isfinite(phin) &&
+			    (phin <= phi || sqrt(st[0] * st[0] + st[1] * st[1]) < 1e-6 * (1.0 + m->a))) {
 				x += st[0], y += st[1], phi = phin, d = dn;
 				moved = 1;
 			} else {

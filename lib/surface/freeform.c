@@ -332,8 +332,10 @@ void freeform_eval(const struct freeform *f, double x, double y, struct asph_sag
 	case ASPH_SURFACE_XY_POLYNOMIAL:
 	case ASPH_SURFACE_ZERNIKE_SAG:
 		v = conic_xy(f->c, f->K, x, y);
-		part = even_radial(f, x, y);
-		j6_add(&v, &part);
+		if (f->max_power > 0) {
+			part = even_radial(f, x, y);
+			j6_add(&v, &part);
+		}
 		part = polynomial(f, x, y);
 		j6_add(&v, &part);
 		break;
@@ -369,6 +371,24 @@ static double even_radial_value(const struct freeform *f, double X)
 	return g * X;
 }
 
+static double zernike_value(const struct zseries *z, double u, double v)
+{
+	double X = u * u + v * v, re = 1, im = 0, sum = 0;
+
+	for (int m = 0; m <= z->m_max; m++) {
+		double gc = 0, gs = 0;
+		for (int p = z->deg[m]; p >= 0; p--) {
+			gc = gc * X + z->c[m][0][p];
+			gs = gs * X + z->c[m][1][p];
+		}
+		sum += re * gc + im * gs;
+		double nre = re * u - im * v;
+		im = re * v + im * u;
+		re = nre;
+	}
+	return sum;
+}
+
 double freeform_sag(const struct freeform *f, double x, double y)
 {
 	double X = x * x + y * y, W, z;
@@ -379,10 +399,14 @@ double freeform_sag(const struct freeform *f, double x, double y)
 		W = 1.0 - f->Kx * f->cx * f->cx * x * x - f->Ky * f->cy * f->cy * y * y;
 		return (f->cx * x * x + f->cy * y * y) / (1.0 + sqrt(W)) + even_radial_value(f, X);
 	case ASPH_SURFACE_XY_POLYNOMIAL:
+	case ASPH_SURFACE_ZERNIKE_SAG:
 		W = 1.0 - f->K * f->c * f->c * X;
 		z = f->c * X / (1.0 + sqrt(W)) + even_radial_value(f, X);
-		return z + bipoly_value(&f->poly, (x - f->decenter[0]) * f->inv_norm,
-					(y - f->decenter[1]) * f->inv_norm);
+		x = (x - f->decenter[0]) * f->inv_norm;
+		y = (y - f->decenter[1]) * f->inv_norm;
+		if (f->type == ASPH_SURFACE_ZERNIKE_SAG)
+			return z + zernike_value(&f->zern, x, y);
+		return z + bipoly_value(&f->poly, x, y);
 	default:
 		freeform_eval(f, x, y, &o);
 		return o.z;
