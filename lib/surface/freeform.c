@@ -229,6 +229,9 @@ static struct j6 harmonic_series(double u, double v, int m_max, double (*gc)[3],
 		im[k] = re[k - 1] * v + im[k - 1] * u;
 	}
 	for (int m = 1; m <= m_max; m++) {
+		if (gc[m][0] == 0 && gc[m][1] == 0 && gc[m][2] == 0 && gs[m][0] == 0 &&
+		    gs[m][1] == 0 && gs[m][2] == 0)
+			continue;       /* an order with no terms */
 		double mm = m, m2 = m * (m - 1.0);
 		double c2 = m >= 2 ? re[m - 2] : 0, s2 = m >= 2 ? im[m - 2] : 0;
 		struct j6 C = { re[m], mm * re[m - 1], -mm * im[m - 1], m2 * c2, -m2 * s2, -m2 * c2 };
