@@ -7,7 +7,6 @@
  */
 #include <errno.h>
 #include <math.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <string.h>
 
@@ -478,21 +477,6 @@ void freeform_init(struct freeform *f, const struct asph_prescription *p)
 
 /* ---- checks ------------------------------------------------------------- */
 
-static int refuse(struct asph_error *err, const char *field, const char *fmt, ...)
-	__attribute__((format(printf, 3, 4)));
-
-static int refuse(struct asph_error *err, const char *field, const char *fmt, ...)
-{
-	char msg[400];
-	va_list ap;
-
-	va_start(ap, fmt);
-	vsnprintf(msg, sizeof(msg), fmt, ap);
-	va_end(ap);
-	asph_error_locate(err, NULL, 0, 0, field);
-	return asph_error_set(err, -EINVAL, "%s", msg);
-}
-
 enum uses {
 	USES_R = 1 << 0, USES_K = 1 << 1, USES_BICONIC = 1 << 2, USES_ROTATION = 1 << 3,
 	USES_A = 1 << 4, USES_NORM = 1 << 5, USES_C = 1 << 6, USES_ZERNIKE = 1 << 7,
@@ -521,12 +505,15 @@ static unsigned type_uses(enum asph_surface_type t)
 static int check_radius(double R, const char *field, struct asph_error *err)
 {
 	if (isnan(R))
-		return refuse(err, field, "%s is not a number", field);
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+					 "%s is not a number", field);
 	if (R == 0)
-		return refuse(err, field, "%s = 0 is not a radius of curvature "
-			      "(a flat base is \"infinity\")", field);
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+					 "%s = 0 is not a radius of curvature "
+					 "(a flat base is \"infinity\")", field);
 	if (isfinite(R) && !isfinite(1.0 / R))
-		return refuse(err, field, "%s = %g mm is too small: its curvature overflows", field, R);
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+					 "%s = %g mm is too small: its curvature overflows", field, R);
 	return 0;
 }
 
@@ -535,7 +522,8 @@ static int check_unused(double v, unsigned uses, unsigned bit, const char *field
 			const char *type, struct asph_error *err)
 {
 	if (!(uses & bit) && v != 0)
-		return refuse(err, field, "a %s surface has no %s", type, field);
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+					 "a %s surface has no %s", type, field);
 	return 0;
 }
 
@@ -569,9 +557,11 @@ static int check_scalars(const struct asph_prescription *p, unsigned uses, const
 	};
 	for (size_t i = 0; i < sizeof(fin) / sizeof(fin[0]); i++)
 		if (!isfinite(fin[i].v))
-			return refuse(err, fin[i].name, "%s must be a finite number", fin[i].name);
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, fin[i].name,
+						 "%s must be a finite number", fin[i].name);
 	if ((uses & USES_NORM) && (!(p->norm_radius > 0) || !isfinite(p->norm_radius)))
-		return refuse(err, "norm_radius", "norm_radius must be a positive number of mm");
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "norm_radius",
+					 "norm_radius must be a positive number of mm");
 	return 0;
 }
 
@@ -583,38 +573,48 @@ static int check_coefficients(const struct asph_prescription *p, unsigned uses,
 	for (int i = 0; i <= ASPH_SURFACE_MAX_POWER; i++) {
 		snprintf(field, sizeof(field), "A.%d", i);
 		if (!isfinite(p->A[i]))
-			return refuse(err, field, "coefficient A%d is not finite", i);
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+						 "coefficient A%d is not finite", i);
 		if (p->A[i] != 0 && !(uses & USES_A))
-			return refuse(err, field, "a %s surface has no power coefficients A", type);
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+						 "a %s surface has no power coefficients A", type);
 		if (p->A[i] != 0 && (i < 2 || i % 2))
-			return refuse(err, field, "a %s surface has even powers A2, A4, ..., A20 only "
-				      "(A%d given)", type, i);
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+						 "a %s surface has even powers A2, A4, ..., A20 only "
+						 "(A%d given)", type, i);
 	}
 	for (int i = 0; i <= ASPH_SURFACE_XY_MAX_DEGREE; i++)
 		for (int j = 0; i + j <= ASPH_SURFACE_XY_MAX_DEGREE; j++) {
 			double c = p->C[asph_xy_index(i, j)];
 			snprintf(field, sizeof(field), "c.x%dy%d", i, j);
 			if (!isfinite(c))
-				return refuse(err, field, "coefficient x%dy%d is not finite", i, j);
+				return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+							 "coefficient x%dy%d is not finite", i, j);
 			if (c != 0 && !(uses & USES_C))
-				return refuse(err, field, "a %s surface has no x-y coefficients c", type);
+				return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+							 "a %s surface has no x-y coefficients c", type);
 			if (c != 0 && i + j == 0)
-				return refuse(err, field, "the constant term x0y0 would move the vertex "
-					      "off the origin");
+				return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+							 "the constant term x0y0 would move the vertex "
+							 "off the origin");
 		}
 	for (int j = 1; j <= ASPH_SURFACE_MAX_ZERNIKE; j++) {
 		snprintf(field, sizeof(field), "zernike.[%d]", j - 1);
 		if (!isfinite(p->Zernike[j - 1]))
-			return refuse(err, field, "Zernike coefficient Z%d is not finite", j);
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+						 "Zernike coefficient Z%d is not finite", j);
 		if (p->Zernike[j - 1] != 0 && !(uses & USES_ZERNIKE))
-			return refuse(err, field, "a %s surface has no Zernike terms", type);
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+						 "a %s surface has no Zernike terms", type);
 	}
 	for (int n = 0; n <= ASPH_SURFACE_MAX_Q; n++) {
 		snprintf(field, sizeof(field), "a.[%d]", n);
 		if (!isfinite(p->Q[n]))
-			return refuse(err, field, "coefficient a%d is not finite", n);
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+						 "coefficient a%d is not finite", n);
 		if (p->Q[n] != 0 && !(uses & USES_Q))
-			return refuse(err, field, "a %s surface has no Q coefficients", type);
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+						 "a %s surface has no Q coefficients", type);
 	}
 	for (int m = 1; m <= ASPH_SURFACE_Q2D_MAX_M; m++)
 		for (int n = 0; n <= ASPH_SURFACE_Q2D_MAX_N; n++)
@@ -622,10 +622,12 @@ static int check_coefficients(const struct asph_prescription *p, unsigned uses,
 				double v = b ? p->q2d_b[m - 1][n] : p->q2d_a[m - 1][n];
 				snprintf(field, sizeof(field), "%s.%d.[%d]", b ? "b_m" : "a_m", m, n);
 				if (!isfinite(v))
-					return refuse(err, field, "coefficient %c_%d^%d is not finite",
-						      b ? 'b' : 'a', n, m);
+					return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+								 "coefficient %c_%d^%d is not finite",
+								 b ? 'b' : 'a', n, m);
 				if (v != 0 && !(uses & USES_Q))
-					return refuse(err, field, "a %s surface has no Q coefficients", type);
+					return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+								 "a %s surface has no Q coefficients", type);
 			}
 	return 0;
 }
@@ -636,25 +638,30 @@ static int check_aperture(const struct asph_prescription *p, struct asph_error *
 
 	if (ap->shape == ASPH_APERTURE_FROM_DIAMETER) {
 		if (!(p->aperture_diameter > 0) || !isfinite(p->aperture_diameter))
-			return refuse(err, "aperture_diameter",
-				      "aperture_diameter (or aperture) must give a positive size in mm");
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture_diameter",
+						 "aperture_diameter (or aperture) must give a positive size in mm");
 		return 0;
 	}
 	if ((unsigned)ap->shape > ASPH_APERTURE_ELLIPTICAL)
-		return refuse(err, "aperture.shape", "unknown aperture shape %d", (int)ap->shape);
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture.shape",
+					 "unknown aperture shape %d", (int)ap->shape);
 	if (p->aperture_diameter != 0)
-		return refuse(err, "aperture_diameter",
-			      "give either aperture_diameter or aperture, not both");
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture_diameter",
+					 "give either aperture_diameter or aperture, not both");
 	if (!(ap->width > 0) || !isfinite(ap->width))
-		return refuse(err, ap->shape == ASPH_APERTURE_CIRCULAR ? "aperture.diameter"
-								     : "aperture.width",
-			      "the aperture's size must be a positive number of mm");
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0,
+					 ap->shape == ASPH_APERTURE_CIRCULAR ? "aperture.diameter"
+									     : "aperture.width",
+					 "the aperture's size must be a positive number of mm");
 	if (!(ap->height > 0) || !isfinite(ap->height))
-		return refuse(err, "aperture.height", "the aperture's height must be a positive number of mm");
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture.height",
+					 "the aperture's height must be a positive number of mm");
 	if (ap->shape == ASPH_APERTURE_CIRCULAR && ap->width != ap->height)
-		return refuse(err, "aperture", "a circular aperture has one diameter");
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture",
+					 "a circular aperture has one diameter");
 	if (!isfinite(ap->offset[0]) || !isfinite(ap->offset[1]))
-		return refuse(err, "aperture.offset", "the aperture's offset must be finite");
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture.offset",
+					 "the aperture's offset must be finite");
 	return 0;
 }
 
@@ -729,8 +736,9 @@ static int check_toroid_roots(const struct asph_prescription *p, const struct as
 	aperture_bounds(ap, box);
 	ymax = fmax(fabs(box[2]), fabs(box[3]));
 	if ((1.0 + p->k) * c * c * ymax * ymax >= 1.0)
-		return refuse(err, "k", "the y-z curve's square root 1 - (1+k) y^2/R^2 reaches zero "
-			      "inside the aperture (|y| up to %.6g mm; R = %g, k = %g)", ymax, p->R, p->k);
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "k",
+					 "the y-z curve's square root 1 - (1+k) y^2/R^2 reaches zero "
+					 "inside the aperture (|y| up to %.6g mm; R = %g, k = %g)", ymax, p->R, p->k);
 	freeform_init(&f, p);
 	for (int i = 0; i <= n; i++) {
 		double y = box[2] + (box[3] - box[2]) * i / n, d[3];
@@ -738,9 +746,9 @@ static int check_toroid_roots(const struct asph_prescription *p, const struct as
 		toroid_curve(&f, y, d);
 		double e = 1.0 - f.cr * d[0];
 		if (!(e > 0) || !(e * e - f.cr * f.cr * x * x > 0))
-			return refuse(err, "R_rotation",
-				      "the circle of rotation (R_rotation = %g mm) does not reach the "
-				      "aperture's edge at x = %.6g mm, y = %.6g mm", p->R_rotation, x, y);
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "R_rotation",
+						 "the circle of rotation (R_rotation = %g mm) does not reach the "
+						 "aperture's edge at x = %.6g mm, y = %.6g mm", p->R_rotation, x, y);
 	}
 	return 0;
 }
@@ -755,24 +763,28 @@ static int check_roots(const struct asph_prescription *p, struct asph_error *err
 	switch (p->type) {
 	case ASPH_SURFACE_BICONIC:
 		if (boundary_max(&ap, biconic_root_term, p, at) >= 1.0)
-			return refuse(err, fabs(at[0] * curvature(p->Rx)) >= fabs(at[1] * curvature(p->Ry))
-					   ? "kx" : "ky",
-				      "the biconic square root 1 - (1+kx) x^2/Rx^2 - (1+ky) y^2/Ry^2 "
-				      "reaches zero inside the aperture, at x = %.6g mm, y = %.6g mm",
-				      at[0], at[1]);
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0,
+						 fabs(at[0] * curvature(p->Rx)) >=
+								 fabs(at[1] * curvature(p->Ry))
+							 ? "kx" : "ky",
+						 "the biconic square root 1 - (1+kx) x^2/Rx^2 - (1+ky) y^2/Ry^2 "
+						 "reaches zero inside the aperture, at x = %.6g mm, y = %.6g mm",
+						 at[0], at[1]);
 		return 0;
 	case ASPH_SURFACE_TOROIDAL:
 		return check_toroid_roots(p, &ap, err);
 	case ASPH_SURFACE_Q2D:
 		if (c * c * rmax * rmax >= 1.0)
-			return refuse(err, "R", "the aperture reaches r = %.6g mm, past the best-fit "
-				      "sphere's radius |R| = %g mm", rmax, fabs(p->R));
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "R",
+						 "the aperture reaches r = %.6g mm, past the best-fit "
+						 "sphere's radius |R| = %g mm", rmax, fabs(p->R));
 		return 0;
 	default:
 		if ((1.0 + p->k) * c * c * rmax * rmax >= 1.0)
-			return refuse(err, "k", "the conic square root 1 - (1+k) r^2/R^2 reaches zero "
-				      "inside the aperture, which reaches r = %.6g mm (R = %g, k = %g)",
-				      rmax, p->R, p->k);
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "k",
+						 "the conic square root 1 - (1+k) r^2/R^2 reaches zero "
+						 "inside the aperture, which reaches r = %.6g mm (R = %g, k = %g)",
+						 rmax, p->R, p->k);
 		return 0;
 	}
 }

@@ -18,8 +18,8 @@ int get_radius(const struct parse_ctx *c, json_t *v, const char *field, double *
 			*out = neg ? -INFINITY : INFINITY;
 			return 0;
 		}
-		return fail_at(c, field, -EINVAL,
-			       "expected a radius in mm, or \"infinity\" for a plane (got \"%s\")", s);
+		return json_error_set_at(c->err, -EINVAL, &c->src, field,
+					 "expected a radius in mm, or \"infinity\" for a plane (got \"%s\")", s);
 	}
 	return get_number(c, v, field, out);
 }
@@ -30,7 +30,8 @@ static int optional_radius(const struct parse_ctx *c, json_t *root, const char *
 	json_t *v = json_object_get(root, key);
 
 	if (!v && required)
-		return fail_at(c, NULL, -EINVAL, "missing member \"%s\" (%s)", key, what);
+		return json_error_set_at(c->err, -EINVAL, &c->src, NULL,
+					 "missing member \"%s\" (%s)", key, what);
 	return v ? get_radius(c, v, key, out) : 0;
 }
 
@@ -59,21 +60,21 @@ static int parse_xy(const struct parse_ctx *c, json_t *obj, struct asph_prescrip
 	json_t *v;
 
 	if (!json_is_object(obj))
-		return fail_at(c, "c", -EINVAL,
-			       "expected an object of coefficients, e.g. {\"x2y0\": 1.5e-3, \"x0y2\": 2e-3}");
+		return json_error_set_at(c->err, -EINVAL, &c->src, "c",
+					 "expected an object of coefficients, e.g. {\"x2y0\": 1.5e-3, \"x0y2\": 2e-3}");
 	json_object_foreach(obj, key, v) {
 		char field[80];
 		const char *y = key[0] == 'x' ? strchr(key, 'y') : NULL;
 		long i, j;
 		snprintf(field, sizeof(field), "c.%.64s", key);
 		if (!y || plain_int(key + 1, y, &i) < 0 || plain_int(y + 1, y + strlen(y), &j) < 0)
-			return fail_at(c, field, -EINVAL,
-				       "coefficient key '%s' is not xIyJ with plain whole numbers "
-				       "(e.g. \"x2y1\" for x^2 y)", key);
+			return json_error_set_at(c->err, -EINVAL, &c->src, field,
+						 "coefficient key '%s' is not xIyJ with plain whole numbers "
+						 "(e.g. \"x2y1\" for x^2 y)", key);
 		if (i + j < 1 || i + j > ASPH_SURFACE_XY_MAX_DEGREE)
-			return fail_at(c, field, -EINVAL,
-				       "x%ldy%ld has degree %ld; the degrees are 1 .. %d", i, j, i + j,
-				       ASPH_SURFACE_XY_MAX_DEGREE);
+			return json_error_set_at(c->err, -EINVAL, &c->src, field,
+						 "x%ldy%ld has degree %ld; the degrees are 1 .. %d", i, j, i + j,
+						 ASPH_SURFACE_XY_MAX_DEGREE);
 		int r = get_number(c, v, field, &out->C[asph_xy_index((int)i, (int)j)]);
 		if (r < 0)
 			return r;
@@ -89,10 +90,12 @@ static int parse_array(const struct parse_ctx *c, json_t *arr, const char *name,
 	json_t *v;
 
 	if (!json_is_array(arr))
-		return fail_at(c, name, -EINVAL, "expected an array of %s", what);
+		return json_error_set_at(c->err, -EINVAL, &c->src, name,
+					 "expected an array of %s", what);
 	if (json_array_size(arr) > max)
-		return fail_at(c, name, -EINVAL, "%zu values; at most %zu (%s)",
-			       json_array_size(arr), max, what);
+		return json_error_set_at(c->err, -EINVAL, &c->src, name,
+					 "%zu values; at most %zu (%s)",
+					 json_array_size(arr), max, what);
 	json_array_foreach(arr, i, v) {
 		char field[64];
 		snprintf(field, sizeof(field), "%s.[%zu]", name, i);
@@ -111,16 +114,16 @@ static int parse_q2d_terms(const struct parse_ctx *c, json_t *obj, const char *n
 	json_t *v;
 
 	if (!json_is_object(obj))
-		return fail_at(c, name, -EINVAL,
-			       "expected an object keyed by the azimuthal order m, e.g. {\"2\": [1e-4, -2e-5]}");
+		return json_error_set_at(c->err, -EINVAL, &c->src, name,
+					 "expected an object keyed by the azimuthal order m, e.g. {\"2\": [1e-4, -2e-5]}");
 	json_object_foreach(obj, key, v) {
 		char field[80];
 		long m;
 		snprintf(field, sizeof(field), "%s.%.64s", name, key);
 		if (plain_int(key, key + strlen(key), &m) < 0 || m < 1 || m > ASPH_SURFACE_Q2D_MAX_M)
-			return fail_at(c, field, -EINVAL,
-				       "'%s' is not an azimuthal order m in 1 .. %d (m = 0 is \"a\")",
-				       key, ASPH_SURFACE_Q2D_MAX_M);
+			return json_error_set_at(c->err, -EINVAL, &c->src, field,
+						 "'%s' is not an azimuthal order m in 1 .. %d (m = 0 is \"a\")",
+						 key, ASPH_SURFACE_Q2D_MAX_M);
 		int r = parse_array(c, v, field, ASPH_SURFACE_Q2D_MAX_N + 1,
 				    "coefficients n = 0, 1, ... in mm", dst[m - 1]);
 		if (r < 0)
@@ -144,18 +147,18 @@ static int parse_aperture(const struct parse_ctx *c, json_t *obj, struct asph_ap
 	int r;
 
 	if (!json_is_object(obj))
-		return fail_at(c, "aperture", -EINVAL,
-			       "expected an object such as {\"shape\": \"rectangular\", \"width\": 30, \"height\": 20}");
+		return json_error_set_at(c->err, -EINVAL, &c->src, "aperture",
+					 "expected an object such as {\"shape\": \"rectangular\", \"width\": 30, \"height\": 20}");
 	if (!v || !json_is_string(v))
-		return fail_at(c, v ? "aperture.shape" : "aperture", -EINVAL,
-			       "the aperture needs a \"shape\": circular, rectangular or elliptical");
+		return json_error_set_at(c->err, -EINVAL, &c->src, v ? "aperture.shape" : "aperture",
+					 "the aperture needs a \"shape\": circular, rectangular or elliptical");
 	for (int s = ASPH_APERTURE_CIRCULAR; s <= ASPH_APERTURE_ELLIPTICAL; s++)
 		if (!strcmp(json_string_value(v), shape_names[s]))
 			ap->shape = (enum asph_aperture_shape)s;
 	if (ap->shape == ASPH_APERTURE_FROM_DIAMETER)
-		return fail_at(c, "aperture.shape", -EINVAL,
-			       "unknown aperture shape '%s' (circular, rectangular, elliptical)",
-			       json_string_value(v));
+		return json_error_set_at(c->err, -EINVAL, &c->src, "aperture.shape",
+					 "unknown aperture shape '%s' (circular, rectangular, elliptical)",
+					 json_string_value(v));
 	int circle = ap->shape == ASPH_APERTURE_CIRCULAR;
 	allowed = circle ? "shape, diameter, offset" : "shape, width, height, offset";
 	json_object_foreach(obj, key, v) {
@@ -163,8 +166,9 @@ static int parse_aperture(const struct parse_ctx *c, json_t *obj, struct asph_ap
 		snprintf(field, sizeof(field), "aperture.%.64s", key);
 		if (strcmp(key, "shape") && strcmp(key, "offset") &&
 		    (circle ? strcmp(key, "diameter") : strcmp(key, "width") && strcmp(key, "height")))
-			return fail_at(c, field, -EINVAL, "unknown member '%s' for a %s aperture (expected %s)",
-				       key, shape_names[ap->shape], allowed);
+			return json_error_set_at(c->err, -EINVAL, &c->src, field,
+						 "unknown member '%s' for a %s aperture (expected %s)",
+						 key, shape_names[ap->shape], allowed);
 	}
 	const char *const sizes[2] = { circle ? "diameter" : "width", circle ? "diameter" : "height" };
 	double *dst[2] = { &ap->width, &ap->height };
@@ -173,7 +177,8 @@ static int parse_aperture(const struct parse_ctx *c, json_t *obj, struct asph_ap
 		snprintf(field, sizeof(field), "aperture.%s", sizes[k]);
 		v = json_object_get(obj, sizes[k]);
 		if (!v)
-			return fail_at(c, "aperture", -EINVAL, "missing member \"%s\" (mm)", sizes[k]);
+			return json_error_set_at(c->err, -EINVAL, &c->src, "aperture",
+						 "missing member \"%s\" (mm)", sizes[k]);
 		if ((r = get_number(c, v, field, dst[k])) < 0)
 			return r;
 	}
@@ -181,7 +186,8 @@ static int parse_aperture(const struct parse_ctx *c, json_t *obj, struct asph_ap
 	if (v && (r = parse_array(c, v, "aperture.offset", 2, "x, y in mm", ap->offset)) < 0)
 		return r;
 	if (v && json_array_size(v) != 2)
-		return fail_at(c, "aperture.offset", -EINVAL, "expected [x, y] in mm");
+		return json_error_set_at(c->err, -EINVAL, &c->src, "aperture.offset",
+					 "expected [x, y] in mm");
 	return 0;
 }
 
@@ -209,7 +215,8 @@ int parse_freeform_members(const struct parse_ctx *c, json_t *root,
 		if ((r = parse_array(c, v, "zernike_decenter", 2, "x, y in mm", out->zernike_decenter)) < 0)
 			return r;
 		if (json_array_size(v) != 2)
-			return fail_at(c, "zernike_decenter", -EINVAL, "expected [x, y] in mm");
+			return json_error_set_at(c->err, -EINVAL, &c->src, "zernike_decenter",
+						 "expected [x, y] in mm");
 	}
 	if ((v = json_object_get(root, "a_m")) && (r = parse_q2d_terms(c, v, "a_m", out->q2d_a)) < 0)
 		return r;
@@ -220,8 +227,8 @@ int parse_freeform_members(const struct parse_ctx *c, json_t *root,
 	if (out->type == ASPH_SURFACE_XY_POLYNOMIAL || out->type == ASPH_SURFACE_ZERNIKE_SAG ||
 	    out->type == ASPH_SURFACE_Q2D) {
 		if (!json_object_get(root, "norm_radius"))
-			return fail_at(c, NULL, -EINVAL,
-				       "missing member \"norm_radius\" (normalization radius, mm)");
+			return json_error_set_at(c->err, -EINVAL, &c->src, NULL,
+						 "missing member \"norm_radius\" (normalization radius, mm)");
 	}
 	return 0;
 }

@@ -7,17 +7,13 @@
 #include <jansson.h>
 
 #include "asph/prescription.h"
+#include "jsonpos.h"
 
+/* The text being read, for messages that point into it. */
 struct parse_ctx {
-	const char *text;
-	size_t len;
-	const char *source;
+	struct json_source src;
 	struct asph_error *err;
 };
-
-/* Fails with the location of `field` (a dotted path) in the text. */
-int fail_at(const struct parse_ctx *c, const char *field, int code,
-	    const char *fmt, ...) __attribute__((format(printf, 4, 5)));
 
 /* A finite number. */
 int get_number(const struct parse_ctx *c, json_t *v, const char *field, double *out);
