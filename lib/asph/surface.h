@@ -89,7 +89,8 @@ struct asph_aperture {
  *   biconic: (cx x^2 + cy y^2) / (1 + sqrt(1 - (1+kx) cx^2 x^2
  *            - (1+ky) cy^2 y^2)) + sum A_i r^i,   cx = 1/Rx, cy = 1/Ry
  *   toroidal: the y-z curve conic(R, k)(y) + sum A_i y^i rotated about
- *            the axis parallel to y at z = R_rotation
+ *            the axis parallel to y at z = R_rotation, plus optional
+ *            Zernike terms sum Z_j Zernike_j(r / norm_radius, theta)
  *   xy_polynomial: conic(R, k) + sum C_ij (x/rho)^i (y/rho)^j
  *   zernike_sag: conic(R, k) + sum A_i r^i + sum Z_j Zernike_j
  *   q2d: sphere(R) + [u^2 (1 - u^2) sum a_n^0 Q_n^0(u^2) + sum_m u^m
@@ -126,7 +127,8 @@ struct asph_prescription {
 	double C[ASPH_SURFACE_XY_TERMS];
 	/* zernike_sag: Zernike[j - 1] (mm) multiplies Noll's Z_j(rho, theta),
 	 * rho = |(x, y) - zernike_decenter| / norm_radius; the base is the
-	 * conic R, k plus the even powers A[i] of r. */
+	 * conic R, k plus the even powers A[i] of r. A toroidal surface may
+	 * add the same terms, centred (zernike_decenter 0). */
 	double Zernike[ASPH_SURFACE_MAX_ZERNIKE];
 	double zernike_decenter[2];
 	/* q2d: Forbes' a_n^m (cos m theta) and b_n^m (sin m theta), mm, at

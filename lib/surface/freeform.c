@@ -309,7 +309,7 @@ static struct j6 polynomial(const struct freeform *f, double x, double y)
 {
 	double u = (x - f->decenter[0]) * f->inv_norm, v = (y - f->decenter[1]) * f->inv_norm, d[6];
 
-	if (f->type == ASPH_SURFACE_ZERNIKE_SAG) {
+	if (f->type != ASPH_SURFACE_XY_POLYNOMIAL) {
 		struct j6 z = zernike(f, u, v);
 		double zd[6] = { z.v, z.x, z.y, z.xx, z.xy, z.yy };
 		return j6_scaled(zd, f->inv_norm);
@@ -330,6 +330,10 @@ void freeform_eval(const struct freeform *f, double x, double y, struct asph_sag
 		break;
 	case ASPH_SURFACE_TOROIDAL:
 		v = toroidal(f, x, y);
+		if (f->has_zernike) {
+			part = polynomial(f, x, y);
+			j6_add(&v, &part);
+		}
 		break;
 	case ASPH_SURFACE_XY_POLYNOMIAL:
 	case ASPH_SURFACE_ZERNIKE_SAG:
@@ -447,12 +451,14 @@ void freeform_init(struct freeform *f, const struct asph_prescription *p)
 					f->poly.deg = d;
 			}
 	}
-	if (p->type == ASPH_SURFACE_ZERNIKE_SAG) {
+	if (p->type == ASPH_SURFACE_ZERNIKE_SAG || p->type == ASPH_SURFACE_TOROIDAL) {
 		f->decenter[0] = p->zernike_decenter[0];
 		f->decenter[1] = p->zernike_decenter[1];
 		for (int j = 1; j <= ASPH_SURFACE_MAX_ZERNIKE; j++)
-			if (p->Zernike[j - 1] != 0)
+			if (p->Zernike[j - 1] != 0) {
 				zseries_add(&f->zern, j, p->Zernike[j - 1]);
+				f->has_zernike = 1;
+			}
 	}
 	if (p->type == ASPH_SURFACE_Q2D) {
 		qbfs_coef_init(&f->qbfs);
@@ -480,20 +486,30 @@ void freeform_init(struct freeform *f, const struct asph_prescription *p)
 enum uses {
 	USES_R = 1 << 0, USES_K = 1 << 1, USES_BICONIC = 1 << 2, USES_ROTATION = 1 << 3,
 	USES_A = 1 << 4, USES_NORM = 1 << 5, USES_C = 1 << 6, USES_ZERNIKE = 1 << 7,
-	USES_Q = 1 << 8,
+	USES_Q = 1 << 8, USES_DECENTER = 1 << 9,
 };
 
-static unsigned type_uses(enum asph_surface_type t)
+static int has_zernike(const struct asph_prescription *p)
 {
-	switch (t) {
+	for (int j = 0; j < ASPH_SURFACE_MAX_ZERNIKE; j++)
+		if (p->Zernike[j] != 0)
+			return 1;
+	return 0;
+}
+
+static unsigned type_uses(const struct asph_prescription *p)
+{
+	switch (p->type) {
 	case ASPH_SURFACE_BICONIC:
 		return USES_BICONIC | USES_A;
 	case ASPH_SURFACE_TOROIDAL:
-		return USES_R | USES_K | USES_A | USES_ROTATION;
+		/* the Zernike terms are optional, and their radius with them */
+		return USES_R | USES_K | USES_A | USES_ROTATION | USES_ZERNIKE |
+		       (has_zernike(p) || p->norm_radius != 0 ? USES_NORM : 0);
 	case ASPH_SURFACE_XY_POLYNOMIAL:
 		return USES_R | USES_K | USES_NORM | USES_C;
 	case ASPH_SURFACE_ZERNIKE_SAG:
-		return USES_R | USES_K | USES_A | USES_NORM | USES_ZERNIKE;
+		return USES_R | USES_K | USES_A | USES_NORM | USES_ZERNIKE | USES_DECENTER;
 	case ASPH_SURFACE_Q2D:
 		return USES_R | USES_NORM | USES_Q;
 	default:
@@ -535,8 +551,8 @@ static int check_scalars(const struct asph_prescription *p, unsigned uses, const
 		{ p->Ry, USES_BICONIC, "Ry" }, { p->kx, USES_BICONIC, "kx" },
 		{ p->ky, USES_BICONIC, "ky" }, { p->R_rotation, USES_ROTATION, "R_rotation" },
 		{ p->norm_radius, USES_NORM, "norm_radius" },
-		{ p->zernike_decenter[0], USES_ZERNIKE, "zernike_decenter" },
-		{ p->zernike_decenter[1], USES_ZERNIKE, "zernike_decenter" },
+		{ p->zernike_decenter[0], USES_DECENTER, "zernike_decenter" },
+		{ p->zernike_decenter[1], USES_DECENTER, "zernike_decenter" },
 	};
 	int r;
 
@@ -561,7 +577,9 @@ static int check_scalars(const struct asph_prescription *p, unsigned uses, const
 						 "%s must be a finite number", fin[i].name);
 	if ((uses & USES_NORM) && (!(p->norm_radius > 0) || !isfinite(p->norm_radius)))
 		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "norm_radius",
-					 "norm_radius must be a positive number of mm");
+					 "norm_radius must be a positive number of mm%s",
+					 p->type == ASPH_SURFACE_TOROIDAL
+						 ? " (the radius of the Zernike terms)" : "");
 	return 0;
 }
 
@@ -792,7 +810,7 @@ static int check_roots(const struct asph_prescription *p, struct asph_error *err
 int freeform_check(const struct asph_prescription *p, struct asph_error *err)
 {
 	const char *type = asph_surface_type_name(p->type);
-	unsigned uses = type_uses(p->type);
+	unsigned uses = type_uses(p);
 	int r;
 
 	if ((r = check_scalars(p, uses, type, err)) < 0 ||

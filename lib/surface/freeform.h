@@ -43,7 +43,8 @@ struct freeform {
 	double inv_norm;          /* 1 / norm_radius */
 	double decenter[2];       /* zernike_sag */
 	struct bipoly poly;       /* xy_polynomial */
-	struct zseries zern;      /* zernike_sag */
+	struct zseries zern;      /* zernike_sag; a toroid's optional terms */
+	int has_zernike;
 	/* q2d */
 	struct qbfs_coef qbfs;
 	int n0;                   /* m = 0 terms */

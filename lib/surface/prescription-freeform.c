@@ -331,8 +331,12 @@ json_t *freeform_to_json(const struct asph_prescription *p)
 		json_object_set_new(o, "norm_radius", json_real(p->norm_radius));
 	if (t == ASPH_SURFACE_XY_POLYNOMIAL)
 		json_object_set_new(o, "c", xy_json(p));
-	if (t == ASPH_SURFACE_ZERNIKE_SAG) {
-		json_object_set_new(o, "zernike", array_json(p->Zernike, ASPH_SURFACE_MAX_ZERNIKE));
+	if (t == ASPH_SURFACE_ZERNIKE_SAG || t == ASPH_SURFACE_TOROIDAL) {
+		json_t *z = array_json(p->Zernike, ASPH_SURFACE_MAX_ZERNIKE);
+		if (t == ASPH_SURFACE_ZERNIKE_SAG || json_array_size(z) > 0)
+			json_object_set_new(o, "zernike", z);
+		else
+			json_decref(z);
 		if (p->zernike_decenter[0] != 0 || p->zernike_decenter[1] != 0)
 			json_object_set_new(o, "zernike_decenter",
 					    json_pack("[ff]", p->zernike_decenter[0], p->zernike_decenter[1]));

@@ -141,7 +141,8 @@ static const char *type_members(enum asph_surface_type t)
 	case ASPH_SURFACE_BICONIC:
 		return "type, name, Rx, Ry, kx, ky, A, aperture_diameter, aperture";
 	case ASPH_SURFACE_TOROIDAL:
-		return "type, name, R, k, A, R_rotation, aperture_diameter, aperture";
+		return "type, name, R, k, A, R_rotation, norm_radius, zernike, aperture_diameter, "
+		       "aperture";
 	case ASPH_SURFACE_XY_POLYNOMIAL:
 		return "type, name, R, k, norm_radius, c, aperture_diameter, aperture";
 	case ASPH_SURFACE_ZERNIKE_SAG:
@@ -234,7 +235,9 @@ static int parse_members(const struct parse_ctx *c, json_t *root,
 		return r;
 
 	if (is_member_of("norm_radius", members)) {
-		if (!json_object_get(root, "norm_radius"))
+		/* a toroid's Zernike terms are optional, and their radius with them */
+		int required = out->type != ASPH_SURFACE_TOROIDAL || json_object_get(root, "zernike");
+		if (required && !json_object_get(root, "norm_radius"))
 			return json_error_set_at(c->err, -EINVAL, &c->src, NULL,
 						 "missing member \"norm_radius\" (normalization radius, mm)");
 		if ((r = parse_optional_number(c, root, "norm_radius", &out->norm_radius)) < 0)

@@ -145,16 +145,23 @@ static hd h_biconic(const struct asph_prescription *p, hd x, hd y)
 	return hadd(hdiv(num, hadd(hc(1), hsqrt(w))), h_even(p, hadd(x2, y2)));
 }
 
-/* R_rot - sqrt((R_rot - Z(y))^2 - x^2), or Z(y) for a cylinder */
+static hd h_zernike_terms(const struct asph_prescription *p, hd x, hd y);
+
+/* R_rot - sqrt((R_rot - Z(y))^2 - x^2), or Z(y) for a cylinder; plus the
+ * Zernike terms */
 static hd h_toroidal(const struct asph_prescription *p, hd x, hd y)
 {
-	hd zy = h_conic(p->R, p->k, hmul(y, y));
+	hd zy = h_conic(p->R, p->k, hmul(y, y)), z;
 	for (int i = 2; i <= ASPH_SURFACE_MAX_POWER; i += 2)
 		zy = hadd(zy, hscale(hpow(y, i), p->A[i]));
-	if (isinf(p->R_rotation))
-		return zy;
-	hd d = hsub(hc(p->R_rotation), zy);
-	return hsub(hc(p->R_rotation), hscale(hsqrt(hsub(hmul(d, d), hmul(x, x))), p->R_rotation > 0 ? 1 : -1));
+	if (isinf(p->R_rotation)) {
+		z = zy;
+	} else {
+		hd d = hsub(hc(p->R_rotation), zy);
+		z = hsub(hc(p->R_rotation),
+			 hscale(hsqrt(hsub(hmul(d, d), hmul(x, x))), p->R_rotation > 0 ? 1 : -1));
+	}
+	return hadd(z, h_zernike_terms(p, x, y));
 }
 
 static hd h_xy(const struct asph_prescription *p, hd x, hd y)
@@ -191,16 +198,24 @@ static hd h_zernike_term(int j, hd u, hd v)
 	return hscale(hmul(radial, m < 0 ? im : re), norm);
 }
 
+/* sum Z_j Zernike_j((x, y) - decenter) / norm_radius) */
+static hd h_zernike_terms(const struct asph_prescription *p, hd x, hd y)
+{
+	hd z = hc(0);
+	for (int j = 1; j <= ASPH_SURFACE_MAX_ZERNIKE; j++) {
+		if (p->Zernike[j - 1] == 0)
+			continue;
+		hd u = hscale(hsub(x, hc(p->zernike_decenter[0])), 1 / p->norm_radius);
+		hd v = hscale(hsub(y, hc(p->zernike_decenter[1])), 1 / p->norm_radius);
+		z = hadd(z, hscale(h_zernike_term(j, u, v), p->Zernike[j - 1]));
+	}
+	return z;
+}
+
 static hd h_zernike(const struct asph_prescription *p, hd x, hd y)
 {
 	hd r2 = hadd(hmul(x, x), hmul(y, y));
-	hd z = hadd(h_conic(p->R, p->k, r2), h_even(p, r2));
-	hd u = hscale(hsub(x, hc(p->zernike_decenter[0])), 1 / p->norm_radius);
-	hd v = hscale(hsub(y, hc(p->zernike_decenter[1])), 1 / p->norm_radius);
-	for (int j = 1; j <= ASPH_SURFACE_MAX_ZERNIKE; j++)
-		if (p->Zernike[j - 1] != 0)
-			z = hadd(z, hscale(h_zernike_term(j, u, v), p->Zernike[j - 1]));
-	return z;
+	return hadd(hadd(h_conic(p->R, p->k, r2), h_even(p, r2)), h_zernike_terms(p, x, y));
 }
 
 /* Q2D: sum_n a_n Q_n^m(X) by the recurrence, in hyper-dual arithmetic. */
@@ -288,6 +303,18 @@ static struct asph_prescription toroid(double R_rotation)
 	return p;
 }
 
+/* OpticStudio's toroid with its optional Zernike Standard terms */
+static struct asph_prescription toroid_zernike(void)
+{
+	struct asph_prescription p = toroid(-71.3);
+	const int js[] = { 3, 4, 6, 7, 10, 12, 17, 24, 31, 44 };
+
+	p.norm_radius = 9.3;
+	for (size_t i = 0; i < sizeof(js) / sizeof(js[0]); i++)
+		p.Zernike[js[i] - 1] = 1e-3 * (0.23 + 0.11 * (double)i) * (i % 3 ? 1 : -1);
+	return p;
+}
+
 static struct asph_prescription xy_poly(void)
 {
 	struct asph_prescription p = { .type = ASPH_SURFACE_XY_POLYNOMIAL, .R = -87.3, .k = 0.37,
@@ -360,6 +387,8 @@ static void test_derivatives_independent(void **state)
 	p = toroid(-44.1);
 	check_against_hd(&p, h_toroidal, 5.8);
 	p = toroid(INFINITY);
+	check_against_hd(&p, h_toroidal, 5.8);
+	p = toroid_zernike();
 	check_against_hd(&p, h_toroidal, 5.8);
 	p = xy_poly();
 	check_against_hd(&p, h_xy, 7.5);
@@ -673,6 +702,12 @@ static void test_checks(void **state)
 	expect_refusal(&p, "A.3");
 	p = toroid(5.0);  /* the circle of rotation is smaller than the aperture */
 	expect_refusal(&p, "R_rotation");
+	p = toroid_zernike();
+	p.norm_radius = 0;
+	expect_refusal(&p, "norm_radius");
+	p = toroid_zernike();
+	p.zernike_decenter[1] = 0.5;  /* OpticStudio's toroid centres its terms */
+	expect_refusal(&p, "zernike_decenter");
 	p = xy_poly();
 	p.C[0] = 1;
 	expect_refusal(&p, "c.x0y0");
@@ -774,6 +809,18 @@ static void test_json(void **state)
 	assert_memory_equal(&p, &back, sizeof(p));
 	free(text);
 
+	parse_ok("{\"type\": \"toroidal\", \"R\": 60, \"R_rotation\": -40, \"norm_radius\": 9,"
+		 " \"zernike\": [0, 0, 2e-4, 0, 0, -1e-4], \"aperture_diameter\": 16}", &p);
+	assert_close(p.Zernike[5], -1e-4, 0, "Z6");
+	assert_int_equal(asph_prescription_to_json(&p, &text), 0);
+	assert_non_null(strstr(text, "\"zernike\""));
+	parse_ok(text, &back);
+	assert_memory_equal(&p, &back, sizeof(p));
+	free(text);
+	parse_fails("{\"type\": \"toroidal\", \"R\": 60, \"R_rotation\": -40,\n"
+		    " \"zernike\": [0, 1e-4], \"aperture_diameter\": 16}", "", 0, 0);
+	parse_fails("{\"type\": \"toroidal\", \"R\": 60, \"R_rotation\": -40, \"norm_radius\": 9,\n"
+		    " \"zernike_decenter\": [1, 0], \"aperture_diameter\": 16}", "zernike_decenter", 2, 2);
 	parse_fails("{\"type\": \"xy_polynomial\", \"R\": 50, \"norm_radius\": 10,\n"
 		    "  \"c\": {\"x2\": 1e-3}, \"aperture_diameter\": 20}", "c.x2", 2, 9);
 	parse_fails("{\"type\": \"xy_polynomial\", \"R\": 50, \"norm_radius\": 10,\n"
