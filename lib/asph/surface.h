@@ -192,6 +192,12 @@ double asph_surface_sag_xy(const struct asph_surface *s, double x, double y);
 void asph_surface_derivs_xy(const struct asph_surface *s, double x, double y,
 			    struct asph_sag *out);
 
+/* S and its gradient, g = { S, S_x, S_y }: asph_surface_derivs_xy()
+ * without the work of the Hessian, for the closest point and anything
+ * else that needs no curvature. */
+void asph_surface_sag_grad_xy(const struct asph_surface *s, double x, double y,
+			      double g[3]);
+
 /* Unit normal at (x, y, S(x, y)), oriented with n[2] > 0:
  * (-S_x, -S_y, 1) / sqrt(1 + S_x^2 + S_y^2). */
 void asph_surface_normal(const struct asph_surface *s, double x, double y,

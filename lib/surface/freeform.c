@@ -14,36 +14,6 @@
 #include "aperture.h"
 #include "freeform.h"
 
-/* ---- bivariate polynomials ---------------------------------------------- */
-
-void bipoly_eval(const struct bipoly *p, double u, double v, double d[6])
-{
-	/* p = sum_i u^i q_i(v): Horner in v for each q_i (value, q', q''),
-	 * then in u over the three series. */
-	double s0 = 0, s1 = 0, s2 = 0, t0 = 0, t1 = 0, w0 = 0;
-
-	for (int i = p->deg; i >= 0; i--) {
-		double q0 = 0, q1 = 0, q2 = 0;
-		for (int j = p->deg - i; j >= 0; j--) {
-			q2 = q2 * v + 2.0 * q1;
-			q1 = q1 * v + q0;
-			q0 = q0 * v + p->c[i][j];
-		}
-		s2 = s2 * u + 2.0 * s1;
-		s1 = s1 * u + s0;
-		s0 = s0 * u + q0;
-		t1 = t1 * u + t0;
-		t0 = t0 * u + q1;
-		w0 = w0 * u + q2;
-	}
-	d[0] = s0;
-	d[1] = s1;
-	d[2] = t0;
-	d[3] = s2;
-	d[4] = t1;
-	d[5] = w0;
-}
-
 static double binomial(int n, int k)
 {
 	double b = 1;
@@ -79,8 +49,21 @@ void zseries_add(struct zseries *z, int j, double w)
 		z->m_max = am;
 }
 
-/* ---- one piece and its two derivatives: value, x, y, xx, xy, yy -------- */
+/* ---- evaluation to an order ---------------------------------------------- */
 
+/*
+ * Every piece is evaluated to a chosen order: SAG (the value), GRADIENT
+ * (with its first derivatives) or HESSIAN (with its second ones too), and
+ * computes no more than that order asks. The three entry points at the end
+ * call one core with a constant order, which is inlined into each so that
+ * the compiler drops the work the order does not need.
+ */
+enum order { SAG = 0, GRADIENT = 1, HESSIAN = 2 };
+
+#define ALWAYS_INLINE static inline __attribute__((always_inline))
+
+/* One piece and its derivatives: value, x, y, xx, xy, yy (those past the
+ * order are 0). */
 struct j6 {
 	double v, x, y, xx, xy, yy;
 };
@@ -108,86 +91,229 @@ static struct j6 j6_mul(const struct j6 *a, const struct j6 *b)
 }
 
 /* g(X), X = x^2 + y^2, from g, g', g'' in X. */
-static struct j6 j6_of_r2(double x, double y, const double g[3])
+ALWAYS_INLINE struct j6 j6_of_r2(double x, double y, const double g[3], enum order o)
 {
-	return (struct j6){
-		g[0], 2.0 * x * g[1], 2.0 * y * g[1],
-		2.0 * g[1] + 4.0 * x * x * g[2], 4.0 * x * y * g[2], 2.0 * g[1] + 4.0 * y * y * g[2],
-	};
+	struct j6 r = { g[0], 0, 0, 0, 0, 0 };
+
+	if (o >= GRADIENT)
+		r.x = 2.0 * x * g[1], r.y = 2.0 * y * g[1];
+	if (o >= HESSIAN) {
+		r.xx = 2.0 * g[1] + 4.0 * x * x * g[2];
+		r.xy = 4.0 * x * y * g[2];
+		r.yy = 2.0 * g[1] + 4.0 * y * y * g[2];
+	}
+	return r;
 }
 
 /* A function of normalized coordinates (u, v) = (x, y) s as one of (x, y). */
-static struct j6 j6_scaled(const double d[6], double s)
+static struct j6 j6_scaled(struct j6 d, double s)
 {
-	return (struct j6){ d[0], d[1] * s, d[2] * s, d[3] * s * s, d[4] * s * s, d[5] * s * s };
+	return (struct j6){ d.v, d.x * s, d.y * s, d.xx * s * s, d.xy * s * s, d.yy * s * s };
 }
+
+/* Horner for sum c[p] t^p, p <= deg, and its derivatives in t to the order. */
+ALWAYS_INLINE void horner(const double *c, int deg, double t, enum order o, double g[3])
+{
+	g[0] = g[1] = g[2] = 0;
+	for (int p = deg; p >= 0; p--) {
+		if (o >= HESSIAN)
+			g[2] = g[2] * t + 2.0 * g[1];
+		if (o >= GRADIENT)
+			g[1] = g[1] * t + g[0];
+		g[0] = g[0] * t + c[p];
+	}
+}
+
+/* ---- bivariate polynomials: Horner in v for each power of u, then in u --- */
+
+ALWAYS_INLINE struct j6 bipoly(const struct bipoly *p, double u, double v, enum order o)
+{
+	/* p = sum_i u^i q_i(v): s = sum u^i q_i and its u derivatives, t and w
+	 * the same sums of q_i' and q_i'' */
+	double s0 = 0, s1 = 0, s2 = 0, t0 = 0, t1 = 0, w0 = 0;
+
+	for (int i = p->deg; i >= 0; i--) {
+		double q[3];
+		horner(p->c[i], p->deg - i, v, o, q);
+		if (o >= HESSIAN) {
+			s2 = s2 * u + 2.0 * s1;
+			t1 = t1 * u + t0;
+			w0 = w0 * u + q[2];
+		}
+		if (o >= GRADIENT) {
+			s1 = s1 * u + s0;
+			t0 = t0 * u + q[1];
+		}
+		s0 = s0 * u + q[0];
+	}
+	return (struct j6){ s0, s1, t0, s2, t1, w0 };
+}
+
+/* ---- sums of harmonics ---------------------------------------------------- */
+
+/*
+ * F = sum_m Re(w^m) A_m(X) + Im(w^m) B_m(X), w = u + i v, X = |w|^2. With
+ * C_m = A_m - i B_m, F = Re G, G = sum_m C_m(X) w^m: Horner in w gives
+ * P = sum C_m w^m with P' and P'' in w, Q = sum C_m' w^m with Q', and
+ * R = sum C_m'' w^m (' in X for C, in w for P, Q), and
+ *   G_u = 2u Q + P',  G_v = 2v Q + i P',
+ *   G_uu = 2Q + 4u^2 R + 4u Q' + P'',  G_vv = 2Q + 4v^2 R + 4i v Q' - P'',
+ *   G_uv = 4uv R + 2(v + i u) Q' + i P''.
+ * No power of w is formed and no term is expanded into monomials. The sum
+ * is taken one harmonic at a time, from the highest m down.
+ */
+struct harmonics {
+	double pr, pi, p1r, p1i, p2r, p2i;      /* P, P', P'' */
+	double qr, qi, q1r, q1i, rr, ri;        /* Q, Q', R */
+};
+
+/* The harmonic m, A_m and B_m with their X-derivatives in a and b: one
+ * Horner step in w. */
+ALWAYS_INLINE void harmonic_step(struct harmonics *h, double u, double v, const double a[3],
+				 const double b[3], enum order o)
+{
+	double t;
+
+	if (o >= HESSIAN) {
+		t = h->p2r * u - h->p2i * v + 2.0 * h->p1r;
+		h->p2i = h->p2r * v + h->p2i * u + 2.0 * h->p1i;
+		h->p2r = t;
+		t = h->q1r * u - h->q1i * v + h->qr;
+		h->q1i = h->q1r * v + h->q1i * u + h->qi;
+		h->q1r = t;
+		t = h->rr * u - h->ri * v + a[2];
+		h->ri = h->rr * v + h->ri * u - b[2];
+		h->rr = t;
+	}
+	if (o >= GRADIENT) {
+		t = h->p1r * u - h->p1i * v + h->pr;
+		h->p1i = h->p1r * v + h->p1i * u + h->pi;
+		h->p1r = t;
+		t = h->qr * u - h->qi * v + a[1];
+		h->qi = h->qr * v + h->qi * u - b[1];
+		h->qr = t;
+	}
+	t = h->pr * u - h->pi * v + a[0];
+	h->pi = h->pr * v + h->pi * u - b[0];
+	h->pr = t;
+}
+
+/* F and its derivatives in (u, v) once every harmonic is in. */
+ALWAYS_INLINE struct j6 harmonic_sum(const struct harmonics *h, double u, double v,
+				     enum order o)
+{
+	struct j6 out = { h->pr, 0, 0, 0, 0, 0 };
+
+	if (o >= GRADIENT) {
+		out.x = 2.0 * u * h->qr + h->p1r;
+		out.y = 2.0 * v * h->qr - h->p1i;
+	}
+	if (o >= HESSIAN) {
+		out.xx = 2.0 * h->qr + 4.0 * u * u * h->rr + 4.0 * u * h->q1r + h->p2r;
+		out.yy = 2.0 * h->qr + 4.0 * v * v * h->rr - 4.0 * v * h->q1i - h->p2r;
+		out.xy = 4.0 * u * v * h->rr + 2.0 * v * h->q1r - 2.0 * u * h->q1i - h->p2i;
+	}
+	return out;
+}
+
+ALWAYS_INLINE struct j6 zernike(const struct zseries *z, double u, double v, enum order o)
+{
+	struct harmonics h = { 0 };
+	double X = u * u + v * v, a[3], b[3];
+
+	for (int m = z->m_max; m >= 0; m--) {
+		/* the cos and sin polynomials side by side: two chains at once */
+		a[0] = a[1] = a[2] = b[0] = b[1] = b[2] = 0;
+		for (int p = z->deg[m]; p >= 0; p--) {
+			if (o >= HESSIAN) {
+				a[2] = a[2] * X + 2.0 * a[1];
+				b[2] = b[2] * X + 2.0 * b[1];
+			}
+			if (o >= GRADIENT) {
+				a[1] = a[1] * X + a[0];
+				b[1] = b[1] * X + b[0];
+			}
+			a[0] = a[0] * X + z->c[m][0][p];
+			b[0] = b[0] * X + z->c[m][1][p];
+		}
+		harmonic_step(&h, u, v, a, b, o);
+	}
+	return harmonic_sum(&h, u, v, o);
+}
+
+/* ---- the pieces of the surfaces ------------------------------------------ */
 
 /* The conic of revolution c r^2 / (1 + sqrt(1 - K c^2 r^2)): gradient
  * c (x, y) / w, Hessian (c/w) I + (K c^3 / w^3) (x, y)(x, y)^T, w the root,
  * with no division by r. */
-static struct j6 conic_xy(double c, double K, double x, double y)
+ALWAYS_INLINE struct j6 conic_xy(double c, double K, double x, double y, enum order o)
 {
 	double r2 = x * x + y * y, W = 1.0 - K * c * c * r2, w = sqrt(W);
-	double t = c / w, q = K * c * c * c / (W * w);
+	struct j6 r = { c * r2 / (1.0 + w), 0, 0, 0, 0, 0 };
 
-	return (struct j6){ c * r2 / (1.0 + w), t * x, t * y, t + q * x * x, q * x * y, t + q * y * y };
+	if (o >= GRADIENT) {
+		double t = c / w;
+		r.x = t * x, r.y = t * y;
+		if (o >= HESSIAN) {
+			double q = K * c * c * c / (W * w);
+			r.xx = t + q * x * x, r.xy = q * x * y, r.yy = t + q * y * y;
+		}
+	}
+	return r;
 }
 
-/* sum A_2k (x^2 + y^2)^k. */
-static struct j6 even_radial(const struct freeform *f, double x, double y)
+/* sum A_2k (x^2 + y^2)^k = X sum A_2k X^(k-1). */
+ALWAYS_INLINE struct j6 even_radial(const struct freeform *f, double x, double y, enum order o)
 {
 	double g[3] = { 0, 0, 0 }, X = x * x + y * y;
 
 	for (int i = f->max_power & ~1; i >= 2; i -= 2) {
-		g[2] = g[2] * X + 2.0 * g[1];
-		g[1] = g[1] * X + g[0];
+		if (o >= HESSIAN)
+			g[2] = g[2] * X + 2.0 * g[1];
+		if (o >= GRADIENT)
+			g[1] = g[1] * X + g[0];
 		g[0] = g[0] * X + f->A[i];
 	}
-	/* g holds sum A_2k X^(k-1): one more step multiplies by X */
 	g[2] = g[2] * X + 2.0 * g[1];
 	g[1] = g[1] * X + g[0];
 	g[0] = g[0] * X;
-	return j6_of_r2(x, y, g);
+	return j6_of_r2(x, y, g, o);
 }
-
-/* ---- the types ----------------------------------------------------------- */
 
 /* (cx x^2 + cy y^2) / D, D = 1 + sqrt(W), W = 1 - Kx cx^2 x^2 - Ky cy^2 y^2:
  * from N = z D, z' = (N' - z D') / D and z'' = (N'' - 2 z' D' - z D'') / D. */
-static struct j6 biconic(const struct freeform *f, double x, double y)
+ALWAYS_INLINE struct j6 biconic(const struct freeform *f, double x, double y, enum order o)
 {
 	double ax = f->Kx * f->cx * f->cx, ay = f->Ky * f->cy * f->cy;
 	double W = 1.0 - ax * x * x - ay * y * y, w = sqrt(W), D = 1.0 + w;
-	double Wx = -2.0 * ax * x, Wy = -2.0 * ay * y;
-	double Dx = Wx / (2.0 * w), Dy = Wy / (2.0 * w);
-	double Dxx = -ax / w - Wx * Wx / (4.0 * W * w);
-	double Dyy = -ay / w - Wy * Wy / (4.0 * W * w);
-	double Dxy = -Wx * Wy / (4.0 * W * w);
-	struct j6 o;
+	struct j6 r = { (f->cx * x * x + f->cy * y * y) / D, 0, 0, 0, 0, 0 };
 
-	o.v = (f->cx * x * x + f->cy * y * y) / D;
-	o.x = (2.0 * f->cx * x - o.v * Dx) / D;
-	o.y = (2.0 * f->cy * y - o.v * Dy) / D;
-	o.xx = (2.0 * f->cx - 2.0 * o.x * Dx - o.v * Dxx) / D;
-	o.yy = (2.0 * f->cy - 2.0 * o.y * Dy - o.v * Dyy) / D;
-	o.xy = (-o.x * Dy - o.y * Dx - o.v * Dxy) / D;
-	return o;
+	if (o >= GRADIENT) {
+		double Wx = -2.0 * ax * x, Wy = -2.0 * ay * y;
+		double Dx = Wx / (2.0 * w), Dy = Wy / (2.0 * w);
+		r.x = (2.0 * f->cx * x - r.v * Dx) / D;
+		r.y = (2.0 * f->cy * y - r.v * Dy) / D;
+		if (o >= HESSIAN) {
+			double Dxx = -ax / w - Wx * Wx / (4.0 * W * w);
+			double Dyy = -ay / w - Wy * Wy / (4.0 * W * w);
+			double Dxy = -Wx * Wy / (4.0 * W * w);
+			r.xx = (2.0 * f->cx - 2.0 * r.x * Dx - r.v * Dxx) / D;
+			r.yy = (2.0 * f->cy - 2.0 * r.y * Dy - r.v * Dyy) / D;
+			r.xy = (-r.x * Dy - r.y * Dx - r.v * Dxy) / D;
+		}
+	}
+	return r;
 }
 
 /* The toroid's y-z curve Z(y) = conic + sum A_i y^i, d = Z, Z', Z''. */
-static void toroid_curve(const struct freeform *f, double y, double d[3])
+ALWAYS_INLINE void toroid_curve(const struct freeform *f, double y, enum order o, double d[3])
 {
-	double W = 1.0 - f->K * f->c * f->c * y * y, w = sqrt(W);
-	double p0 = 0, p1 = 0, p2 = 0;
+	double W = 1.0 - f->K * f->c * f->c * y * y, w = sqrt(W), p[3];
 
-	for (int i = f->max_power; i >= 1; i--) {
-		p2 = p2 * y + 2.0 * p1;
-		p1 = p1 * y + p0;
-		p0 = p0 * y + f->A[i];
-	}
-	d[0] = f->c * y * y / (1.0 + w) + p0 * y;
-	d[1] = f->c * y / w + p1 * y + p0;
-	d[2] = f->c / (W * w) + p2 * y + 2.0 * p1;
+	horner(f->A + 1, f->max_power - 1, y, o, p);
+	d[0] = f->c * y * y / (1.0 + w) + p[0] * y;
+	d[1] = o >= GRADIENT ? f->c * y / w + p[1] * y + p[0] : 0;
+	d[2] = o >= HESSIAN ? f->c / (W * w) + p[2] * y + 2.0 * p[1] : 0;
 }
 
 /*
@@ -197,226 +323,126 @@ static void toroid_curve(const struct freeform *f, double y, double d[3])
  *   S_xx = cr e^2 / t^3,  S_xy = cr^2 x e Z' / t^3,
  *   S_yy = Z'' e / t + cr^3 x^2 Z'^2 / t^3.
  */
-static struct j6 toroidal(const struct freeform *f, double x, double y)
+ALWAYS_INLINE struct j6 toroidal(const struct freeform *f, double x, double y, enum order o)
 {
 	double d[3], cr = f->cr;
 
-	toroid_curve(f, y, d);
+	toroid_curve(f, y, o, d);
 	double e = 1.0 - cr * d[0], T = e * e - cr * cr * x * x, t = sqrt(T), t3 = T * t;
-	return (struct j6){
-		d[0] + cr * x * x / (e + t),
-		cr * x / t,
-		d[1] * e / t,
-		cr * e * e / t3,
-		cr * cr * x * e * d[1] / t3,
-		d[2] * e / t + cr * cr * cr * x * x * d[1] * d[1] / t3,
-	};
-}
-
-/* sum_m Re(w^m) gc[m](X) + Im(w^m) gs[m](X), w = u + i v, X = u^2 + v^2,
- * from g, g', g'' in X of each (gs[0] unused). The harmonics Re, Im w^m
- * have derivatives m w^(m-1) and m (m-1) w^(m-2) (times i for v). */
-static struct j6 harmonic_series(double u, double v, int m_max, double (*gc)[3],
-				 double (*gs)[3])
-{
-	double re[ASPH_SURFACE_XY_MAX_DEGREE + 1], im[ASPH_SURFACE_XY_MAX_DEGREE + 1];
-	struct j6 out = j6_of_r2(u, v, gc[0]);
-
-	re[0] = 1, im[0] = 0;
-	for (int k = 1; k <= m_max; k++) {
-		re[k] = re[k - 1] * u - im[k - 1] * v;
-		im[k] = re[k - 1] * v + im[k - 1] * u;
+	struct j6 r = { d[0] + cr * x * x / (e + t), 0, 0, 0, 0, 0 };
+	if (o >= GRADIENT)
+		r.x = cr * x / t, r.y = d[1] * e / t;
+	if (o >= HESSIAN) {
+		r.xx = cr * e * e / t3;
+		r.xy = cr * cr * x * e * d[1] / t3;
+		r.yy = d[2] * e / t + cr * cr * cr * x * x * d[1] * d[1] / t3;
 	}
-	for (int m = 1; m <= m_max; m++) {
-		if (gc[m][0] == 0 && gc[m][1] == 0 && gc[m][2] == 0 && gs[m][0] == 0 &&
-		    gs[m][1] == 0 && gs[m][2] == 0)
-			continue;       /* an order with no terms */
-		double mm = m, m2 = m * (m - 1.0);
-		double c2 = m >= 2 ? re[m - 2] : 0, s2 = m >= 2 ? im[m - 2] : 0;
-		struct j6 C = { re[m], mm * re[m - 1], -mm * im[m - 1], m2 * c2, -m2 * s2, -m2 * c2 };
-		struct j6 S = { im[m], mm * im[m - 1], mm * re[m - 1], m2 * s2, m2 * c2, -m2 * s2 };
-		struct j6 A = j6_of_r2(u, v, gc[m]), B = j6_of_r2(u, v, gs[m]);
-		struct j6 ca = j6_mul(&C, &A), sb = j6_mul(&S, &B);
-		j6_add(&out, &ca);
-		j6_add(&out, &sb);
-	}
-	return out;
-}
-
-/* Horner for sum c[p] X^p, p <= deg, with two derivatives. */
-static void series_x(const double *c, int deg, double X, double g[3])
-{
-	g[0] = g[1] = g[2] = 0;
-	for (int p = deg; p >= 0; p--) {
-		g[2] = g[2] * X + 2.0 * g[1];
-		g[1] = g[1] * X + g[0];
-		g[0] = g[0] * X + c[p];
-	}
-}
-
-static struct j6 zernike(const struct freeform *f, double u, double v)
-{
-	const struct zseries *z = &f->zern;
-	double gc[ASPH_SURFACE_XY_MAX_DEGREE + 1][3], gs[ASPH_SURFACE_XY_MAX_DEGREE + 1][3];
-	double X = u * u + v * v;
-
-	for (int m = 0; m <= z->m_max; m++) {
-		series_x(z->c[m][0], z->deg[m], X, gc[m]);
-		series_x(z->c[m][1], z->deg[m], X, gs[m]);
-	}
-	return harmonic_series(u, v, z->m_max, gc, gs);
+	return r;
 }
 
 /* u^2 (1 - u^2) S0(u^2) + sum_m [Re w^m Sa_m(u^2) + Im w^m Sb_m(u^2)],
  * w = u + i v, in normalized coordinates. */
-static struct j6 q2d_departure(const struct freeform *f, double u, double v)
+ALWAYS_INLINE struct j6 q2d_departure(const struct freeform *f, double u, double v,
+				      enum order o)
 {
 	double X = u * u + v * v, s[3] = { 0, 0, 0 };
-	double gc[ASPH_SURFACE_Q2D_MAX_M + 1][3] = { { 0 } }, gs[ASPH_SURFACE_Q2D_MAX_M + 1][3] = { { 0 } };
+	double a[ASPH_SURFACE_Q2D_MAX_M + 1][3] = { { 0 } }, b[ASPH_SURFACE_Q2D_MAX_M + 1][3] = { { 0 } };
 
 	if (f->n0 > 0)
 		qbfs_sum(&f->qbfs, f->q0, f->n0, X, s);
-	gc[0][0] = X * (1.0 - X) * s[0];
-	gc[0][1] = (1.0 - 2.0 * X) * s[0] + X * (1.0 - X) * s[1];
-	gc[0][2] = -2.0 * s[0] + 2.0 * (1.0 - 2.0 * X) * s[1] + X * (1.0 - X) * s[2];
-	for (int m = 1; m <= f->m_max; m++) {
-		int n = f->count[m - 1];
-		if (n == 0)
-			continue;
-		q2d_sum(&f->q2d[m - 1], f->qa[m - 1], n, X, gc[m]);
-		q2d_sum(&f->q2d[m - 1], f->qb[m - 1], n, X, gs[m]);
+	a[0][0] = X * (1.0 - X) * s[0];
+	a[0][1] = (1.0 - 2.0 * X) * s[0] + X * (1.0 - X) * s[1];
+	a[0][2] = -2.0 * s[0] + 2.0 * (1.0 - 2.0 * X) * s[1] + X * (1.0 - X) * s[2];
+	struct harmonics h = { 0 };
+	for (int m = f->m_max; m >= 0; m--) {
+		int n = m > 0 ? f->count[m - 1] : 0;
+		if (n > 0) {
+			q2d_sum(&f->q2d[m - 1], f->qa[m - 1], n, X, a[m]);
+			q2d_sum(&f->q2d[m - 1], f->qb[m - 1], n, X, b[m]);
+		}
+		harmonic_step(&h, u, v, a[m], b[m], o);
 	}
-	return harmonic_series(u, v, f->m_max, gc, gs);
+	return harmonic_sum(&h, u, v, o);
 }
 
 /* Sphere plus the departure over sqrt(1 - c^2 r^2): g = (1 - c^2 r^2)^-1/2,
  * g_x = c^2 x g^3, g_xx = c^2 g^3 + 3 c^4 x^2 g^5, g_xy = 3 c^4 x y g^5. */
-static struct j6 q2d(const struct freeform *f, double x, double y)
+ALWAYS_INLINE struct j6 q2d(const struct freeform *f, double x, double y, enum order o)
 {
 	double s = f->inv_norm, c2 = f->c * f->c;
-	struct j6 dn = q2d_departure(f, x * s, y * s);
-	double d6[6] = { dn.v, dn.x, dn.y, dn.xx, dn.xy, dn.yy };
-	struct j6 dep = j6_scaled(d6, s);
+	struct j6 dep = j6_scaled(q2d_departure(f, x * s, y * s, o), s);
 	double g = 1.0 / sqrt(1.0 - c2 * (x * x + y * y)), g3 = g * g * g, g5 = g3 * g * g;
 	struct j6 gj = { g, c2 * x * g3, c2 * y * g3, c2 * g3 + 3.0 * c2 * c2 * x * x * g5,
 			 3.0 * c2 * c2 * x * y * g5, c2 * g3 + 3.0 * c2 * c2 * y * y * g5 };
-	struct j6 out = conic_xy(f->c, 1.0, x, y), prod = j6_mul(&gj, &dep);
+	struct j6 out = conic_xy(f->c, 1.0, x, y, o), prod = j6_mul(&gj, &dep);
 	j6_add(&out, &prod);
 	return out;
 }
 
-static struct j6 polynomial(const struct freeform *f, double x, double y)
+/* The xy polynomial's terms, or the Zernike terms (of a Zernike sag or a
+ * toroid), in coordinates normalized about their centre. */
+ALWAYS_INLINE struct j6 polynomial(const struct freeform *f, double x, double y, enum order o)
 {
-	double u = (x - f->decenter[0]) * f->inv_norm, v = (y - f->decenter[1]) * f->inv_norm, d[6];
+	double u = (x - f->decenter[0]) * f->inv_norm, v = (y - f->decenter[1]) * f->inv_norm;
 
-	if (f->type != ASPH_SURFACE_XY_POLYNOMIAL) {
-		struct j6 z = zernike(f, u, v);
-		double zd[6] = { z.v, z.x, z.y, z.xx, z.xy, z.yy };
-		return j6_scaled(zd, f->inv_norm);
+	if (f->type == ASPH_SURFACE_XY_POLYNOMIAL)
+		return j6_scaled(bipoly(&f->poly, u, v, o), f->inv_norm);
+	return j6_scaled(zernike(&f->zern, u, v, o), f->inv_norm);
+}
+
+ALWAYS_INLINE struct j6 eval(const struct freeform *f, double x, double y, enum order o)
+{
+	struct j6 v, part;
+
+	switch (f->type) {
+	case ASPH_SURFACE_BICONIC:
+		v = biconic(f, x, y, o);
+		if (f->max_power > 0) {
+			part = even_radial(f, x, y, o);
+			j6_add(&v, &part);
+		}
+		return v;
+	case ASPH_SURFACE_TOROIDAL:
+		v = toroidal(f, x, y, o);
+		if (f->has_zernike) {
+			part = polynomial(f, x, y, o);
+			j6_add(&v, &part);
+		}
+		return v;
+	case ASPH_SURFACE_XY_POLYNOMIAL:
+	case ASPH_SURFACE_ZERNIKE_SAG:
+		v = conic_xy(f->c, f->K, x, y, o);
+		if (f->max_power > 0) {
+			part = even_radial(f, x, y, o);
+			j6_add(&v, &part);
+		}
+		part = polynomial(f, x, y, o);
+		j6_add(&v, &part);
+		return v;
+	case ASPH_SURFACE_Q2D:
+		return q2d(f, x, y, o);
+	default:
+		return (struct j6){ NAN, NAN, NAN, NAN, NAN, NAN };
 	}
-	bipoly_eval(&f->poly, u, v, d);
-	return j6_scaled(d, f->inv_norm);
 }
 
 void freeform_eval(const struct freeform *f, double x, double y, struct asph_sag *o)
 {
-	struct j6 v = { 0 }, part;
+	struct j6 v = eval(f, x, y, HESSIAN);
 
-	switch (f->type) {
-	case ASPH_SURFACE_BICONIC:
-		v = biconic(f, x, y);
-		part = even_radial(f, x, y);
-		j6_add(&v, &part);
-		break;
-	case ASPH_SURFACE_TOROIDAL:
-		v = toroidal(f, x, y);
-		if (f->has_zernike) {
-			part = polynomial(f, x, y);
-			j6_add(&v, &part);
-		}
-		break;
-	case ASPH_SURFACE_XY_POLYNOMIAL:
-	case ASPH_SURFACE_ZERNIKE_SAG:
-		v = conic_xy(f->c, f->K, x, y);
-		if (f->max_power > 0) {
-			part = even_radial(f, x, y);
-			j6_add(&v, &part);
-		}
-		part = polynomial(f, x, y);
-		j6_add(&v, &part);
-		break;
-	case ASPH_SURFACE_Q2D:
-		v = q2d(f, x, y);
-		break;
-	default:
-		v = (struct j6){ NAN, NAN, NAN, NAN, NAN, NAN };
-		break;
-	}
 	*o = (struct asph_sag){ v.v, v.x, v.y, v.xx, v.xy, v.yy };
 }
 
-static double bipoly_value(const struct bipoly *p, double u, double v)
+void freeform_sag_grad(const struct freeform *f, double x, double y, double g[3])
 {
-	double s0 = 0;
+	struct j6 v = eval(f, x, y, GRADIENT);
 
-	for (int i = p->deg; i >= 0; i--) {
-		double q0 = 0;
-		for (int j = p->deg - i; j >= 0; j--)
-			q0 = q0 * v + p->c[i][j];
-		s0 = s0 * u + q0;
-	}
-	return s0;
-}
-
-static double even_radial_value(const struct freeform *f, double X)
-{
-	double g = 0;
-
-	for (int i = f->max_power & ~1; i >= 2; i -= 2)
-		g = g * X + f->A[i];
-	return g * X;
-}
-
-static double zernike_value(const struct zseries *z, double u, double v)
-{
-	double X = u * u + v * v, re = 1, im = 0, sum = 0;
-
-	for (int m = 0; m <= z->m_max; m++) {
-		double gc = 0, gs = 0;
-		for (int p = z->deg[m]; p >= 0; p--) {
-			gc = gc * X + z->c[m][0][p];
-			gs = gs * X + z->c[m][1][p];
-		}
-		sum += re * gc + im * gs;
-		double nre = re * u - im * v;
-		im = re * v + im * u;
-		re = nre;
-	}
-	return sum;
+	g[0] = v.v, g[1] = v.x, g[2] = v.y;
 }
 
 double freeform_sag(const struct freeform *f, double x, double y)
 {
-	double X = x * x + y * y, W, z;
-	struct asph_sag o;
-
-	switch (f->type) {
-	case ASPH_SURFACE_BICONIC:
-		W = 1.0 - f->Kx * f->cx * f->cx * x * x - f->Ky * f->cy * f->cy * y * y;
-		return (f->cx * x * x + f->cy * y * y) / (1.0 + sqrt(W)) + even_radial_value(f, X);
-	case ASPH_SURFACE_XY_POLYNOMIAL:
-	case ASPH_SURFACE_ZERNIKE_SAG:
-		W = 1.0 - f->K * f->c * f->c * X;
-		z = f->c * X / (1.0 + sqrt(W)) + even_radial_value(f, X);
-		x = (x - f->decenter[0]) * f->inv_norm;
-		y = (y - f->decenter[1]) * f->inv_norm;
-		if (f->type == ASPH_SURFACE_ZERNIKE_SAG)
-			return z + zernike_value(&f->zern, x, y);
-		return z + bipoly_value(&f->poly, x, y);
-	default:
-		freeform_eval(f, x, y, &o);
-		return o.z;
-	}
+	return eval(f, x, y, SAG).v;
 }
 
 /* curvature of a radius that may be infinite (a plane) */
@@ -761,7 +787,7 @@ static int check_toroid_roots(const struct asph_prescription *p, const struct as
 	for (int i = 0; i <= n; i++) {
 		double y = box[2] + (box[3] - box[2]) * i / n, d[3];
 		double x = aperture_x_extent(ap, y);
-		toroid_curve(&f, y, d);
+		toroid_curve(&f, y, SAG, d);
 		double e = 1.0 - f.cr * d[0];
 		if (!(e > 0) || !(e * e - f.cr * f.cr * x * x > 0))
 			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "R_rotation",

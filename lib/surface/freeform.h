@@ -19,9 +19,6 @@ struct bipoly {
 	double c[ASPH_SURFACE_XY_MAX_DEGREE + 1][ASPH_SURFACE_XY_MAX_DEGREE + 1];
 };
 
-/* d = { p, p_u, p_v, p_uu, p_uv, p_vv } at (u, v). */
-void bipoly_eval(const struct bipoly *p, double u, double v, double d[6]);
-
 /* Zernike terms as sum_m {Re, Im}(u + i v)^m c[m][cos 0, sin 1](X),
  * X = u^2 + v^2, the c polynomials of degree deg[m]. */
 struct zseries {
@@ -67,7 +64,11 @@ void freeform_init(struct freeform *f, const struct asph_prescription *p);
 /* S and its derivatives at (x, y); NaN past a conic's root. */
 void freeform_eval(const struct freeform *f, double x, double y, struct asph_sag *o);
 
-/* S alone, with less work than freeform_eval() where the type allows. */
+/* S and its gradient, g = { S, S_x, S_y }: freeform_eval() without the
+ * work of the Hessian. */
+void freeform_sag_grad(const struct freeform *f, double x, double y, double g[3]);
+
+/* S alone. */
 double freeform_sag(const struct freeform *f, double x, double y);
 
 /* The sag range and steepest slope over the aperture, and the area. */

@@ -233,6 +233,21 @@ void asph_surface_derivs_xy(const struct asph_surface *s, double x, double y,
 		freeform_eval(&s->ff, x, y, out);
 }
 
+void asph_surface_sag_grad_xy(const struct asph_surface *s, double x, double y,
+			      double g[3])
+{
+	double r = sqrt(x * x + y * y), d[3];
+
+	if (!s->rotational) {
+		freeform_sag_grad(&s->ff, x, y, g);
+		return;
+	}
+	asph_surface_sag_derivs(s, r, d);
+	g[0] = d[0];
+	g[1] = r > 0 ? d[1] * x / r : 0;
+	g[2] = r > 0 ? d[1] * y / r : 0;
+}
+
 double asph_surface_sag_xy(const struct asph_surface *s, double x, double y)
 {
 	if (s->rotational)

@@ -374,6 +374,11 @@ static void check_against_hd(const struct asph_prescription *p, sag_fn f, double
 		hd_derivs(f, p, x, y, &want);
 		assert_same_sag(&got, &want, 1e-12);
 		assert_close(asph_surface_sag_xy(s, x, y), got.z, 1e-15 * fabs(got.z) + 1e-300, "sag_xy");
+		/* the gradient alone is the same computation without the Hessian */
+		double g[3];
+		asph_surface_sag_grad_xy(s, x, y, g);
+		struct asph_sag first = { g[0], g[1], g[2], want.zxx, want.zxy, want.zyy };
+		assert_same_sag(&first, &want, 1e-12);
 	}
 	asph_surface_free(s);
 }
