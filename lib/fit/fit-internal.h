@@ -30,8 +30,8 @@ struct asph_fit {
 	/* Per point. */
 	double *r_foot;     /* signed meridian foot, the next Newton start */
 	double *slope;      /* dZ/dr there (NaN: no foot; 0 on a freeform) */
-	double *foot_xy;    /* freeform: 2 n, the foot (x, y), the next start */
-	double *grad;       /* freeform: 2 n, grad S there */
+	/* freeform: the foot with S and its gradient there, the next start */
+	struct fit_surface_point *foot;
 	double *resid;      /* residual, mm (unweighted) */
 	double *weight;     /* robust weight */
 	double *scratch;    /* n, for f evaluations the solver does not own */

@@ -50,18 +50,27 @@ struct fit_foot {
 int fit_foot(const struct fit_model *m, const double q[3], double r0,
 	     struct fit_foot *f);
 
-/* Foot of q on a freeform, found in (x, y). */
-struct fit_foot_xy {
-	double x, y, z;         /* the foot */
-	double zx, zy;          /* the gradient of S there */
-	double dist;            /* signed normal distance */
-	int iterations;
+/* A point of a freeform surface with the gradient of S there: where the
+ * search for a foot stands. */
+struct fit_surface_point {
+	double x, y, z;
+	double zx, zy;
 };
 
-/* (x0, y0): a start (the previous foot), or NaN to start below q.
- * Returns 0, or -EDOM when there is no foot. */
-int fit_foot_xy(const struct fit_model *m, const double q[3], double x0, double y0,
-		struct fit_foot_xy *f);
+/* The fit's tolerance on the foot, mm: fit_foot_xy() with this (times
+ * 1 + a) leaves the distance off by less than 1e-13 mm. */
+#define FIT_FOOT_TOL 1e-7
+
+/*
+ * Foot of q on a freeform, found in (x, y). at: in, the start (the
+ * previous foot: with its z and gradient it costs no evaluation; with only
+ * x and y finite it is evaluated there; x NaN starts below q); out, the
+ * foot, a point of the surface within about tol (mm) of the exact foot.
+ * *dist is the signed distance along the normal there. Returns 0, or
+ * -EDOM when there is no foot.
+ */
+int fit_foot_xy(const struct fit_model *m, const double q[3], double tol,
+		struct fit_surface_point *at, double *dist, int *iterations);
 
 /* Unit normal at the foot of q, n_z > 0. */
 void fit_foot_normal(const struct fit_foot *f, const double q[3], double n[3]);

@@ -26,11 +26,11 @@ void fit_point_polar(const struct asph_fit *w, size_t i, double *rho,
 	if (!w->model.rotational) {
 		/* the foot itself (or the point, for sag residuals), over the
 		 * disk about the aperture's centre */
-		const double *f = w->foot_xy + 2 * i;
+		const struct fit_surface_point *f = &w->foot[i];
 		double c[2], R;
 		asph_surface_aperture_disk(w->model.s, c, &R);
-		*rho = hypot(f[0] - c[0], f[1] - c[1]) / R;
-		*theta = atan2(f[1] - c[1], f[0] - c[0]);
+		*rho = hypot(f->x - c[0], f->y - c[1]) / R;
+		*theta = atan2(f->y - c[1], f->x - c[0]);
 		return;
 	}
 	asph_pose_apply_inverse(&pose, w->xyz + 3 * i, q);

@@ -119,29 +119,28 @@ static void set_full_from_vector(struct asph_fit *w, const gsl_vector *y)
 /* point_eval() on a freeform: the foot in (x, y), the aperture by shape. */
 static int point_eval_xy(struct asph_fit *w, const double q[3], size_t i, double *res)
 {
-	double *fxy = w->foot_xy + 2 * i, *g = w->grad + 2 * i;
+	struct fit_surface_point *f = &w->foot[i];
 	const double tol = w->opt.aperture_tolerance;
+	int it;
 
 	if (w->opt.residual == ASPH_FIT_RESIDUAL_SAG) {
-		struct asph_sag d;
-		asph_surface_derivs_xy(w->model.s, q[0], q[1], &d);
-		*res = q[2] - d.z;
-		fxy[0] = q[0], fxy[1] = q[1], g[0] = d.zx, g[1] = d.zy;
+		double g[3];
+		asph_surface_sag_grad_xy(w->model.s, q[0], q[1], g);
+		*res = q[2] - g[0];
+		*f = (struct fit_surface_point){ q[0], q[1], g[0], g[1], g[2] };
 		w->slope[i] = isfinite(*res) ? 0.0 : NAN;
 		if (!isfinite(*res))
 			return -1;
 		return !asph_surface_contains(w->model.s, q[0], q[1], tol);
 	}
-	struct fit_foot_xy f;
-	if (fit_foot_xy(&w->model, q, fxy[0], fxy[1], &f) < 0) {
+	if (fit_foot_xy(&w->model, q, FIT_FOOT_TOL * (1.0 + w->model.a), f, res, &it) < 0) {
+		*f = (struct fit_surface_point){ NAN, NAN, NAN, NAN, NAN };
 		w->slope[i] = NAN;
 		*res = NAN;
 		return -1;
 	}
-	fxy[0] = f.x, fxy[1] = f.y, g[0] = f.zx, g[1] = f.zy;
 	w->slope[i] = 0.0;
-	*res = f.dist;
-	return !asph_surface_contains(w->model.s, f.x, f.y, tol);
+	return !asph_surface_contains(w->model.s, f->x, f->y, tol);
 }
 
 /*
@@ -284,13 +283,14 @@ static void jacobian_row(const struct asph_fit *w, const struct frame *fr,
 static void jacobian_row_xy(const struct asph_fit *w, const struct frame *fr, size_t i,
 			    double sw, double *row)
 {
-	const double *g = w->grad + 2 * i;
+	const struct fit_surface_point *f = &w->foot[i];
 	double q[3], wv[3], v[3], c[3], d[ASPH_FIT_N_DOF] = { 0 };
-	double inv = w->opt.residual == ASPH_FIT_RESIDUAL_SAG ? 1.0 : 1.0 / sqrt(1.0 + g[0] * g[0] + g[1] * g[1]);
+	double inv = w->opt.residual == ASPH_FIT_RESIDUAL_SAG ? 1.0
+							       : 1.0 / sqrt(1.0 + f->zx * f->zx + f->zy * f->zy);
 
 	frame_to_part(fr, w->xyz + 3 * i, q, wv);
-	v[0] = -g[0] * inv;
-	v[1] = -g[1] * inv;
+	v[0] = -f->zx * inv;
+	v[1] = -f->zy * inv;
 	v[2] = inv;
 	for (int k = 0; k < 3; k++)
 		d[k] = -(fr->R[k][0] * v[0] + fr->R[k][1] * v[1] + fr->R[k][2] * v[2]);
@@ -462,9 +462,8 @@ int asph_fit_alloc(const struct asph_surface *s, size_t n_max,
 	w->status = calloc(n_max + 1, 1);
 	w->left = w->opt.robust ? malloc(n_max * sizeof(double) + 1) : NULL;
 	if (!rotational) {
-		w->foot_xy = malloc(2 * n_max * sizeof(double) + 1);
-		w->grad = malloc(2 * n_max * sizeof(double) + 1);
-		if (!w->foot_xy || !w->grad)
+		w->foot = malloc(n_max * sizeof(*w->foot) + 1);
+		if (!w->foot)
 			return asph_error_set(err, -ENOMEM, "out of memory for %zu points", n_max);
 	}
 	w->x0 = gsl_vector_alloc((size_t)w->p);
@@ -490,8 +489,7 @@ void asph_fit_free(struct asph_fit *w)
 	free(w->weight);
 	free(w->scratch);
 	free(w->left);
-	free(w->foot_xy);
-	free(w->grad);
+	free(w->foot);
 	free(w->status);
 	free(w);
 }
@@ -664,8 +662,8 @@ int asph_fit_init(struct asph_fit *w, const double *xyz, size_t n,
 	w->full[ASPH_FIT_R] = pr->R;
 	w->full[ASPH_FIT_K] = pr->k;
 	fit_model_set_conic(&w->model, pr->R, pr->k);
-	for (size_t i = 0; i < n && w->foot_xy; i++)
-		w->foot_xy[2 * i] = w->foot_xy[2 * i + 1] = NAN;
+	for (size_t i = 0; i < n && w->foot; i++)
+		w->foot[i] = (struct fit_surface_point){ NAN, NAN, NAN, NAN, NAN };
 	for (size_t i = 0; i < n; i++) {
 		w->r_foot[i] = NAN;
 		w->slope[i] = NAN;
