@@ -220,39 +220,41 @@ static double xy_eval(const struct fit_model *m, const double q[3], int newton,
 		asph_surface_sag_grad_xy(m->s, p->x, p->y, g);
 		p->z = g[0], p->zx = g[1], p->zy = g[2];
 	}
+	p->nz = NAN;
 	double ex = p->x - q[0], ey = p->y - q[1], ez = p->z - q[2];
 	return 0.5 * (ex * ex + ey * ey + ez * ez);
 }
 
 /* The step from p: Gauss-Newton's, -G^-1 g with G^-1 = I - s s^T / (1 + |s|^2)
- * (s = grad S); or Newton's with h, the Hessian of S at p, where it is
- * safely positive. */
+ * (s = grad S, det G = 1 + |s|^2); or Newton's with h, the Hessian of S at
+ * p, where it is safely positive. */
 static void xy_step(const struct fit_surface_point *p, const double q[3],
 		    const struct asph_sag *h, double st[2])
 {
 	double e = p->z - q[2];
 	double gx = p->x - q[0] + e * p->zx, gy = p->y - q[1] + e * p->zy;
-	double g11 = 1.0 + p->zx * p->zx, g12 = p->zx * p->zy, g22 = 1.0 + p->zy * p->zy;
-	double gdet = g11 * g22 - g12 * g12;
+	double gdet = 1.0 + p->zx * p->zx + p->zy * p->zy;
 
 	if (h) {
-		double h11 = g11 + e * h->zxx, h12 = g12 + e * h->zxy, h22 = g22 + e * h->zyy;
-		double det = h11 * h22 - h12 * h12;
+		double h11 = 1.0 + p->zx * p->zx + e * h->zxx, h12 = p->zx * p->zy + e * h->zxy;
+		double h22 = 1.0 + p->zy * p->zy + e * h->zyy, det = h11 * h22 - h12 * h12;
 		if (h11 > 0 && det > 0.01 * gdet) {
 			st[0] = -(h22 * gx - h12 * gy) / det;
 			st[1] = -(h11 * gy - h12 * gx) / det;
 			return;
 		}
 	}
-	st[0] = -(g22 * gx - g12 * gy) / gdet;
-	st[1] = -(g11 * gy - g12 * gx) / gdet;
+	double sg = (p->zx * gx + p->zy * gy) / gdet;
+	st[0] = p->zx * sg - gx;
+	st[1] = p->zy * sg - gy;
 }
 
-/* The signed distance of q along the normal at p. */
-static double xy_distance(const struct fit_surface_point *p, const double q[3])
+/* The signed distance of q along the normal at p; sets p->nz. */
+static double xy_distance(struct fit_surface_point *p, const double q[3])
 {
-	return (-(q[0] - p->x) * p->zx - (q[1] - p->y) * p->zy + (q[2] - p->z)) /
-	       sqrt(1.0 + p->zx * p->zx + p->zy * p->zy);
+	if (!isfinite(p->nz))
+		p->nz = 1.0 / sqrt(1.0 + p->zx * p->zx + p->zy * p->zy);
+	return (-(q[0] - p->x) * p->zx - (q[1] - p->y) * p->zy + (q[2] - p->z)) * p->nz;
 }
 
 /*
@@ -263,13 +265,15 @@ static int xy_move(const struct fit_model *m, const double q[3], int newton, dou
 		   struct fit_surface_point *p, double *phi, struct asph_sag *h)
 {
 	const double cap = 0.25 * m->a;
-	double len = sqrt(st[0] * st[0] + st[1] * st[1]);
+	double len2 = st[0] * st[0] + st[1] * st[1];
 	struct asph_sag hn;
 
-	if (len > cap)
-		st[0] *= cap / len, st[1] *= cap / len;
+	if (len2 > cap * cap) {
+		double f = cap / sqrt(len2);
+		st[0] *= f, st[1] *= f;
+	}
 	for (int k = 0; k < 60; k++) {
-		struct fit_surface_point t = { p->x + st[0], p->y + st[1], 0, 0, 0 };
+		struct fit_surface_point t = { p->x + st[0], p->y + st[1], 0, 0, 0, NAN };
 		double phin = xy_eval(m, q, newton, &t, &hn);
 		/* tiny steps are the iteration's tail: rounding in phi must not
 		 * reject them */
@@ -291,11 +295,11 @@ int fit_foot_xy(const struct fit_model *m, const double q[3], double tol,
 {
 	struct fit_surface_point p = *at;
 	struct asph_sag h;
-	double phi, st[2], last = INFINITY;
+	double phi, st[2], last2 = INFINITY;
 	int newton = 0;
 
 	if (!isfinite(p.x) || !isfinite(p.y))
-		p.x = q[0], p.y = q[1], p.z = NAN;
+		p = (struct fit_surface_point){ q[0], q[1], NAN, NAN, NAN, NAN };
 	/* a start that carries its surface values costs no evaluation */
 	if (isfinite(p.z) && isfinite(p.zx) && isfinite(p.zy)) {
 		double ex = p.x - q[0], ey = p.y - q[1], ez = p.z - q[2];
@@ -309,22 +313,23 @@ int fit_foot_xy(const struct fit_model *m, const double q[3], double tol,
 	}
 	for (int it = 0; it <= FOOT_MAX_ITER; it++) {
 		xy_step(&p, q, newton ? &h : NULL, st);
-		double len = sqrt(st[0] * st[0] + st[1] * st[1]);
+		double len2 = st[0] * st[0] + st[1] * st[1];
 		/* Not taking this last step leaves the distance off by about
-		 * the curvature times len^2 / 2: below 1e-13 mm at the fit's
-		 * tolerance. */
-		if (len <= tol && isfinite(phi)) {
-			*at = p;
+		 * the curvature times its length squared over 2: below 1e-13 mm
+		 * at the fit's tolerance. */
+		if (len2 <= tol * tol && isfinite(phi)) {
 			*dist = xy_distance(&p, q);
+			*at = p;
 			*iterations = it;
 			return 0;
 		}
-		if (!newton && it > 0 && len > FOOT_SLOW_CONTRACTION * last) {
+		if (!newton && it > 0 &&
+		    len2 > FOOT_SLOW_CONTRACTION * FOOT_SLOW_CONTRACTION * last2) {
 			newton = 1;
 			phi = xy_eval(m, q, 1, &p, &h);
 			continue;
 		}
-		last = len;
+		last2 = len2;
 		if (xy_move(m, q, newton, st, &p, &phi, &h) < 0)
 			return -EDOM;
 	}
@@ -351,7 +356,7 @@ int asph_fit_closest_point(const struct asph_surface *s, const double p[3],
 
 	fit_model_init(&m, s);
 	if (!m.rotational) {
-		struct fit_surface_point fx = { NAN, NAN, NAN, NAN, NAN };
+		struct fit_surface_point fx = FIT_NO_POINT;
 		double dist;
 		int it;
 		if ((r = fit_foot_xy(&m, p, FOOT_TOL_EXACT * (1.0 + m.a), &fx, &dist, &it)) < 0)

@@ -51,11 +51,14 @@ int fit_foot(const struct fit_model *m, const double q[3], double r0,
 	     struct fit_foot *f);
 
 /* A point of a freeform surface with the gradient of S there: where the
- * search for a foot stands. */
+ * search for a foot stands. nz = 1 / sqrt(1 + |grad S|^2), the unit
+ * normal's z component, where known (else NaN). */
 struct fit_surface_point {
 	double x, y, z;
 	double zx, zy;
+	double nz;
 };
+#define FIT_NO_POINT ((struct fit_surface_point){ NAN, NAN, NAN, NAN, NAN, NAN })
 
 /* The fit's tolerance on the foot, mm: fit_foot_xy() with this (times
  * 1 + a) leaves the distance off by less than 1e-13 mm. */

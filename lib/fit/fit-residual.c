@@ -70,8 +70,7 @@ static void count_points(const struct asph_fit *w, struct asph_fit_result *out)
  * weighted as in the last pass, s^2 = chi^2 / (points counted - DOF). */
 static void uncertainties(struct asph_fit *w, struct asph_fit_result *out)
 {
-	gsl_vector *f = gsl_multifit_nlinear_residual(w->solver);
-	gsl_matrix *J = gsl_multifit_nlinear_jac(w->solver);
+	gsl_vector *f = gsl_multilarge_nlinear_residual(w->solver);
 	size_t counted = 0;
 	double chi2 = 0, s2;
 
@@ -82,7 +81,7 @@ static void uncertainties(struct asph_fit *w, struct asph_fit_result *out)
 	s2 = counted > (size_t)w->p ? chi2 / (double)(counted - (size_t)w->p) : NAN;
 	out->sigma_mm = sqrt(s2);
 	/* J is over the solver's y = T^-1 (x - xref): Cov(x) = T Cov(y) T^T. */
-	gsl_multifit_nlinear_covar(J, 0.0, w->covar);
+	gsl_multilarge_nlinear_covar(w->covar, w->solver);
 	for (int d = 0; d < ASPH_FIT_N_DOF; d++)
 		out->uncertainty[d] = 0.0;
 	for (int k = 0; k < w->p; k++) {

@@ -49,6 +49,30 @@ static struct asph_prescription xy_part(void)
 	return p;
 }
 
+/* A conic with Zernike terms to radial order 7, decentred, and a toroid
+ * carrying Zernike terms: the harmonic sums of the closest point. */
+static struct asph_prescription zernike_part(void)
+{
+	struct asph_prescription p = { .type = ASPH_SURFACE_ZERNIKE_SAG, .R = 48.3, .k = -0.61,
+				       .norm_radius = 12.5, .zernike_decenter = { 0.7, -0.4 },
+				       .aperture_diameter = 23 };
+	for (int j = 4; j <= 36; j++)
+		p.Zernike[j - 1] = 2.3e-3 * (j % 3 ? 1 : -1) / j;
+	return p;
+}
+
+static struct asph_prescription toroid_part(void)
+{
+	struct asph_prescription p = { .type = ASPH_SURFACE_TOROIDAL, .R = 44.1, .k = -0.35,
+				       .R_rotation = -63.7, .norm_radius = 9,
+				       .aperture = { ASPH_APERTURE_RECTANGULAR, 16, 12, { 0, 0 } } };
+	p.A[4] = 1.9e-6;
+	p.Zernike[5] = 4.1e-3;
+	p.Zernike[7] = -2.6e-3;
+	p.Zernike[10] = 1.7e-3;
+	return p;
+}
+
 static struct asph_prescription biconic_part(void)
 {
 	struct asph_prescription p = { .type = ASPH_SURFACE_BICONIC, .Rx = 37.3, .Ry = 52.9,
@@ -136,10 +160,11 @@ static void check_pose(const struct asph_fit_result *r, const struct asph_pose *
 
 static void test_six_dof_noise_free(void **state)
 {
-	const struct asph_prescription parts[] = { xy_part(), biconic_part() };
+	const struct asph_prescription parts[] = { xy_part(), biconic_part(), zernike_part(),
+						   toroid_part() };
 	const struct asph_pose pose = { { 0.137, -0.083, 0.029 }, 1.3e-3, -0.9e-3, 2.7e-3 };
 
-	for (size_t k = 0; k < 2; k++) {
+	for (size_t k = 0; k < sizeof(parts) / sizeof(parts[0]); k++) {
 		struct asph_surface *s = build(&parts[k]);
 		struct asph_synth_options so = { .pose = pose };
 		struct asph_fit_result res;
