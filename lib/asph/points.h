@@ -3,6 +3,7 @@
 #define ASPH_POINTS_H
 
 #include <stddef.h>
+#include <stdio.h>
 #include <stdint.h>
 
 #include "asph/error.h"
@@ -61,6 +62,11 @@ struct asph_points_write_options {
 int asph_points_write(const char *path, const struct asph_points *p,
 		      const struct asph_points_write_options *opts,
 		      struct asph_error *err);
+/* The same to f (flushed, not closed), in the format name's extension
+ * names (CSV when name is NULL); name is what messages call it. */
+int asph_points_write_stream(FILE *f, const char *name, const struct asph_points *p,
+			     const struct asph_points_write_options *opts,
+			     struct asph_error *err);
 
 #ifdef __cplusplus
 }

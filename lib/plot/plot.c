@@ -3,6 +3,7 @@
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "config.h"
 #include "asph/plot.h"
@@ -447,56 +448,59 @@ static cairo_status_t write_to_file(void *closure, const unsigned char *data,
 							  : CAIRO_STATUS_WRITE_ERROR;
 }
 
-static int write_png(cairo_surface_t *surface, const char *path,
+/* The figure's panels and size (0: the default), checked before anything
+ * is written. */
+static int check_figure(const struct asph_plot_panel *panels, size_t n_panels, int *width,
+			int *height, struct asph_error *err)
+{
+	if (!panels || n_panels == 0 || n_panels > 16)
+		return asph_error_set(err, -EINVAL, "a plot needs a path and 1 to 16 panels");
+	if (*width == 0)
+		*width = DEFAULT_WIDTH * (int)n_panels;
+	if (*height == 0)
+		*height = DEFAULT_HEIGHT;
+	if (*width < MIN_SIZE || *height < MIN_SIZE || *width > MAX_SIZE || *height > MAX_SIZE)
+		return asph_error_set(err, -EINVAL, "image size %d x %d is outside %d..%d pixels",
+				      *width, *height, MIN_SIZE, MAX_SIZE);
+	for (size_t i = 0; i < n_panels; i++) {
+		int r = check_panel(&panels[i], i, err);
+		if (r < 0)
+			return r;
+	}
+	return 0;
+}
+
+/* The PNG to f, flushed; name is for messages. */
+static int write_png(cairo_surface_t *surface, FILE *f, const char *name,
 		     struct asph_error *err)
 {
-	_cleanup_fclose_ FILE *f = fopen(path, "wb");
 	cairo_status_t st;
-	int r;
 
-	if (!f)
-		return asph_error_set(err, -errno, "cannot create %s: %s", path,
-				      strerror(errno));
+	errno = 0;
 	st = cairo_surface_write_to_png_stream(surface, write_to_file, f);
 	if (st == CAIRO_STATUS_SUCCESS && fflush(f) != 0)
 		st = CAIRO_STATUS_WRITE_ERROR;
 	if (st != CAIRO_STATUS_SUCCESS)
-		return asph_error_set(err, -EIO, "cannot write %s: %s", path,
+		return asph_error_set(err, -EIO, "cannot write %s: %s", name,
 				      st == CAIRO_STATUS_WRITE_ERROR && errno
 					      ? strerror(errno)
 					      : cairo_status_to_string(st));
-	r = fclose(f);
-	f = NULL;
-	if (r != 0)
-		return asph_error_set(err, -errno, "cannot write %s: %s", path,
-				      strerror(errno));
 	return 0;
 }
 
-int asph_plot_panels_png(const char *path, const struct asph_plot_panel *panels,
-			 size_t n_panels, int width, int height,
-			 struct asph_error *err)
+int asph_plot_panels_png_stream(FILE *f, const char *name,
+				const struct asph_plot_panel *panels, size_t n_panels,
+				int width, int height, struct asph_error *err)
 {
 	_cleanup_(cairo_surface_destroyp) cairo_surface_t *surface = NULL;
 	_cleanup_(cairo_destroyp) cairo_t *cr = NULL;
 	struct plot_rect panel;
-	int r;
+	int r = check_figure(panels, n_panels, &width, &height, err);
 
-	if (!path || !panels || n_panels == 0 || n_panels > 16)
-		return asph_error_set(err, -EINVAL, "a plot needs a path and 1 to 16 panels");
-	if (width == 0)
-		width = DEFAULT_WIDTH * (int)n_panels;
-	if (height == 0)
-		height = DEFAULT_HEIGHT;
-	if (width < MIN_SIZE || height < MIN_SIZE || width > MAX_SIZE || height > MAX_SIZE)
-		return asph_error_set(err, -EINVAL, "image size %d x %d is outside %d..%d pixels",
-				      width, height, MIN_SIZE, MAX_SIZE);
-	for (size_t i = 0; i < n_panels; i++) {
-		r = check_panel(&panels[i], i, err);
-		if (r < 0)
-			return r;
-	}
-
+	if (r < 0)
+		return r;
+	if (!f)
+		return asph_error_set(err, -EINVAL, "a plot needs a file");
 	surface = cairo_image_surface_create(CAIRO_FORMAT_RGB24, width, height);
 	cr = cairo_create(surface);
 	if (cairo_status(cr) != CAIRO_STATUS_SUCCESS)
@@ -509,7 +513,30 @@ int asph_plot_panels_png(const char *path, const struct asph_plot_panel *panels,
 		draw_panel(cr, &panels[i], &panel);
 	}
 	cairo_surface_flush(surface);
-	return write_png(surface, path, err);
+	return write_png(surface, f, name ? name : "the plot", err);
+}
+
+int asph_plot_panels_png(const char *path, const struct asph_plot_panel *panels,
+			 size_t n_panels, int width, int height,
+			 struct asph_error *err)
+{
+	FILE *f;
+	int r = check_figure(panels, n_panels, &width, &height, err);
+
+	if (r < 0)
+		return r;
+	if (!path)
+		return asph_error_set(err, -EINVAL, "a plot needs a path and 1 to 16 panels");
+	f = fopen(path, "wbe");
+	if (!f)
+		return asph_error_set(err, -errno, "cannot create %s: %s", path,
+				      strerror(errno));
+	r = asph_plot_panels_png_stream(f, path, panels, n_panels, width, height, err);
+	if (fclose(f) != 0 && r == 0)
+		r = asph_error_set(err, -errno, "cannot write %s: %s", path, strerror(errno));
+	if (r < 0)
+		unlink(path);
+	return r;
 }
 
 #else /* !HAVE_CAIRO */
@@ -517,6 +544,14 @@ int asph_plot_panels_png(const char *path, const struct asph_plot_panel *panels,
 int asph_plot_panels_png(const char *path, const struct asph_plot_panel *panels,
 			 size_t n_panels, int width, int height,
 			 struct asph_error *err)
+{
+	return asph_error_set(err, -ENOTSUP,
+			      "PNG plots need cairo, and this libasph was built without it");
+}
+
+int asph_plot_panels_png_stream(FILE *f, const char *name,
+				const struct asph_plot_panel *panels, size_t n_panels,
+				int width, int height, struct asph_error *err)
 {
 	return asph_error_set(err, -ENOTSUP,
 			      "PNG plots need cairo, and this libasph was built without it");
@@ -542,6 +577,20 @@ int asph_plot_points_png(const char *path, const double *xyz,
 	if (opts)
 		p.opts = *opts;
 	return single_panel(path, &p, err);
+}
+
+int asph_plot_points_png_stream(FILE *f, const char *name, const double *xyz,
+				const double *value, size_t n,
+				const struct asph_plot_options *opts,
+				struct asph_error *err)
+{
+	struct asph_plot_panel p = {
+		.kind = ASPH_PLOT_POINTS, .xyz = xyz, .n = n, .value = value,
+	};
+
+	if (opts)
+		p.opts = *opts;
+	return asph_plot_panels_png_stream(f, name, &p, 1, p.opts.width, p.opts.height, err);
 }
 
 int asph_plot_triangles_png(const char *path, const double *xyz,

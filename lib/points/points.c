@@ -792,19 +792,13 @@ static void write_json(FILE *f, const struct asph_points *p, int prec)
 	fprintf(f, "}\n");
 }
 
-int asph_points_write(const char *path, const struct asph_points *p,
-		      const struct asph_points_write_options *opts,
-		      struct asph_error *err)
+int asph_points_write_stream(FILE *f, const char *name, const struct asph_points *p,
+			     const struct asph_points_write_options *opts,
+			     struct asph_error *err)
 {
-	int is_stdout = !strcmp(path, "-");
 	int prec = opts && opts->precision > 0 ? opts->precision : 17;
-	FILE *f = is_stdout ? stdout : fopen(path, "we");
 
-	if (!f) {
-		int e = -errno;
-		return fail(err, path, 0, 0, NULL, e, "cannot create: %s", strerror(-e));
-	}
-	switch (is_stdout ? FMT_CSV : format_of(path)) {
+	switch (name ? format_of(name) : FMT_CSV) {
 	case FMT_PLY:
 		write_ply(f, p, prec, opts);
 		break;
@@ -815,12 +809,31 @@ int asph_points_write(const char *path, const struct asph_points *p,
 		write_csv(f, p, prec);
 		break;
 	}
-	int failed = fflush(f) != 0 || ferror(f);
-	int e = errno;
-	if (!is_stdout && fclose(f) != 0)
-		failed = 1, e = errno;
-	if (failed)
-		return fail(err, is_stdout ? "<stdout>" : path, 0, 0, NULL, -e,
-			    "write error: %s", strerror(e));
+	if (fflush(f) != 0 || ferror(f)) {
+		int e = errno ? errno : EIO;
+		return fail(err, name ? name : "<stream>", 0, 0, NULL, -e, "write error: %s",
+			    strerror(e));
+	}
 	return 0;
+}
+
+int asph_points_write(const char *path, const struct asph_points *p,
+		      const struct asph_points_write_options *opts,
+		      struct asph_error *err)
+{
+	int is_stdout = !strcmp(path, "-");
+	FILE *f = is_stdout ? stdout : fopen(path, "we");
+	int r;
+
+	if (!f) {
+		int e = -errno;
+		return fail(err, path, 0, 0, NULL, e, "cannot create: %s", strerror(-e));
+	}
+	/* "<stdout>" names no format: CSV, as for stdout before. */
+	r = asph_points_write_stream(f, is_stdout ? "<stdout>" : path, p, opts, err);
+	if (!is_stdout && fclose(f) != 0 && r == 0) {
+		int e = errno;
+		return fail(err, path, 0, 0, NULL, -e, "write error: %s", strerror(e));
+	}
+	return r;
 }
