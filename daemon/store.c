@@ -484,7 +484,7 @@ static void filter_sql(const struct store_filter *f, char *sql, size_t size)
 		n += (size_t)snprintf(sql + n, size - n, " AND ((1 << state) & ?)");
 	if (f->instrument)
 		n += (size_t)snprintf(sql + n, size - n, " AND instrument = ?");
-	if (f->uid >= 0)
+	if (f->uid != STORE_ANY_UID)
 		n += (size_t)snprintf(sql + n, size - n, " AND uid = ?");
 	if (f->label)
 		n += (size_t)snprintf(sql + n, size - n, " AND label = ?");
@@ -500,7 +500,7 @@ static int filter_bind(sqlite3_stmt *st, const struct store_filter *f)
 		sqlite3_bind_int64(st, i++, f->states);
 	if (f->instrument)
 		bind_text(st, i++, f->instrument);
-	if (f->uid >= 0)
+	if (f->uid != STORE_ANY_UID)
 		sqlite3_bind_int64(st, i++, f->uid);
 	if (f->label)
 		bind_text(st, i++, f->label);

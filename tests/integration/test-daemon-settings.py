@@ -13,7 +13,7 @@ import subprocess
 
 from daemontest import ASPHD, Daemon, expect, finish, mock_instrument
 
-TOKEN = "s3cr3t-t0ken-0123456789"
+TOKEN = "Kq8vT2mXw9LpZr4bNc7YhGd3"
 
 
 def free_port():

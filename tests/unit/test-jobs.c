@@ -222,7 +222,7 @@ static int ignore(const struct job_record *j, void *data)
 static void assert_counts(struct fixture *f)
 {
 	for (int s = 0; s < JOB_N_STATES; s++) {
-		struct store_filter one = { .uid = -1, .states = 1u << s, .limit = 1 };
+		struct store_filter one = { .uid = STORE_ANY_UID, .states = 1u << s, .limit = 1 };
 		int64_t n = -1;
 
 		assert_int_equal(jobs_list(f->jobs, &one, ignore, NULL, &n, NULL), 0);

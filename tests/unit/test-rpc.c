@@ -39,6 +39,7 @@ static void as(struct rpc_session *s, uid_t uid, const char *name)
 	s->peer.uid = uid;
 	s->peer.gid = uid;
 	snprintf(s->peer.name, sizeof(s->peer.name), "%s", name);
+	snprintf(s->peer.key, sizeof(s->peer.key), "uid %u", (unsigned)uid);
 	s->authenticated = true;
 }
 
@@ -54,6 +55,7 @@ static int setup(void **state)
 	assert_int_equal(settings_defaults(&f->settings), 0);
 	f->settings->limits.max_queue = 2;
 	f->settings->limits.max_subscriptions = 2;
+	f->settings->limits.reserved_subscriptions = 0;
 	f->settings->limits.max_plan_points = 4000;
 	asph_error_clear(&err);
 	assert_int_equal(sd_event_new(&f->event), 0);

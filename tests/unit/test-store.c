@@ -148,7 +148,7 @@ static void test_list(void **state)
 {
 	struct fixture *f = *state;
 	int64_t id[6], got[8] = { 0 }, total = 0;
-	struct store_filter flt = { .uid = -1, .limit = 2, .offset = 1 };
+	struct store_filter flt = { .uid = STORE_ANY_UID, .limit = 2, .offset = 1 };
 
 	for (int i = 0; i < 6; i++)
 		id[i] = add(f->s, i % 2 ? "m1" : "m2", 0, i < 3 ? "x" : "y");
@@ -161,7 +161,7 @@ static void test_list(void **state)
 	assert_int_equal(got[2], 0);
 	/* by state, instrument, label */
 	memset(got, 0, sizeof(got));
-	flt = (struct store_filter){ .uid = -1, .states = 1u << JOB_QUEUED, .instrument = "m2",
+	flt = (struct store_filter){ .uid = STORE_ANY_UID, .states = 1u << JOB_QUEUED, .instrument = "m2",
 				     .label = "x" };
 	assert_int_equal(store_list(f->s, &flt, collect, got, &total), 0);
 	assert_int_equal(total, 2);
