@@ -21,6 +21,7 @@
 #include "access.h"
 #include "asph-proto.h"
 #include "config.h"
+#include "devices.h"
 #include "events.h"
 #include "instruments.h"
 #include "jobs.h"
@@ -122,6 +123,23 @@ static void unload_configuration(struct daemon *d)
 	d->instruments = NULL;
 	settings_free(d->settings);
 	d->settings = NULL;
+}
+
+/* --device-policy: the drop-in or the rules the instruments need. */
+static int device_policy(struct daemon *d, const char *kind)
+{
+	int n_errors = 0, r;
+
+	if (strcmp(kind, "systemd") && strcmp(kind, "udev")) {
+		fprintf(stderr, "asphd: --device-policy takes systemd or udev, not \"%s\"\n", kind);
+		return ASPHD_EXIT_USAGE;
+	}
+	if (settings_load(d->config_path, &d->settings, report_config_error, &n_errors) < 0)
+		return ASPHD_EXIT_CONFIG;
+	n_errors = load_configuration(d);
+	r = n_errors ? -EINVAL : devices_policy(d->instruments, kind, stdout);
+	unload_configuration(d);
+	return r < 0 ? ASPHD_EXIT_CONFIG : ASPHD_EXIT_OK;
 }
 
 static int check_config(struct daemon *d)
@@ -406,6 +424,9 @@ static void usage(FILE *f)
 		   "  -s, --socket PATH     unix socket (default %s)\n"
 		   "  -d, --state-dir DIR   jobs, scans and results (default /var/lib/asphd)\n"
 		   "      --check-config    check the configuration, name every error, exit\n"
+		   "      --device-policy=systemd|udev\n"
+		   "                        print the devices and hosts the instruments need,\n"
+		   "                        as a systemd drop-in or as udev rules, exit\n"
 		   "  -v, --verbose         log debug messages\n"
 		   "      --version         print the version\n"
 		   "  -h, --help            this help\n", DEFAULT_CONFIG, PROTO_DEFAULT_SOCKET);
@@ -418,12 +439,14 @@ int main(int argc, char **argv)
 		{ "socket", required_argument, NULL, 's' },
 		{ "state-dir", required_argument, NULL, 'd' },
 		{ "check-config", no_argument, NULL, 'C' },
+		{ "device-policy", required_argument, NULL, 'D' },
 		{ "verbose", no_argument, NULL, 'v' },
 		{ "version", no_argument, NULL, 'V' },
 		{ "help", no_argument, NULL, 'h' },
 		{ NULL, 0, NULL, 0 },
 	};
 	struct daemon d = { 0 };
+	const char *policy = NULL;
 	bool check = false, verbose = false;
 	int c, r, n_errors = 0;
 
@@ -437,6 +460,7 @@ int main(int argc, char **argv)
 		case 's': d.socket_override = optarg; break;
 		case 'd': d.state_override = optarg; break;
 		case 'C': check = true; break;
+		case 'D': policy = optarg; break;
 		case 'v': verbose = true; break;
 		case 'V': printf("asphd %s\n", ASPH_VERSION); return ASPHD_EXIT_OK;
 		case 'h': usage(stdout); return ASPHD_EXIT_OK;
@@ -451,6 +475,8 @@ int main(int argc, char **argv)
 		d.config_path = DEFAULT_CONFIG;
 	if (check)
 		return check_config(&d);
+	if (policy)
+		return device_policy(&d, policy);
 	log_setup(verbose ? LOG_DEBUG : LOG_INFO);
 	if (settings_load(d.config_path, &d.settings, report_config_error, &n_errors) < 0)
 		return ASPHD_EXIT_CONFIG;
