@@ -698,9 +698,13 @@ static int m_events_subscribe(struct call *c, json_t *params, json_t **result)
 {
 	static const char *const names[] = { "events", "job", NULL };
 	const struct settings_limits *l = c->rpc->limits;
+	const struct peer *p = &c->s->peer;
 	struct event_quota q = {
-		.owner = c->s->peer.key, .operator = is_operator(c), .max = l->max_subscriptions,
-		.per_owner = l->max_subscriptions_per_user, .reserved = l->reserved_subscriptions,
+		.owner = p->key, .operator = is_operator(c), .max = l->max_subscriptions,
+		/* root has no quota of its own, as for connections */
+		.per_owner = !p->tcp && p->uid == 0 ? l->max_subscriptions
+						    : l->max_subscriptions_per_user,
+		.reserved = l->reserved_subscriptions,
 	};
 	unsigned mask = EVENT_ALL;
 	int64_t job = 0;

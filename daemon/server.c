@@ -810,6 +810,9 @@ static struct client *client_new(struct server *srv, int cfd, bool tcp, struct p
 		client_drop(c, "out of memory");
 		return NULL;
 	}
+	/* Below the sockets: a client's requests wait while another's bytes
+	 * come in or go out, and the clients' requests take turns. */
+	sd_event_source_set_priority(c->work, SD_EVENT_PRIORITY_NORMAL + 1);
 	sd_event_source_set_enabled(c->work, SD_EVENT_OFF);
 	arm_timer(c);
 	return c;
