@@ -71,7 +71,7 @@ char *ctl_escape(const char *s, bool json)
 			o += sprintf(o, "\\n");
 		else if (cp == '\t')
 			o += sprintf(o, "\\t");
-		else if (cp < 0x100)
+		else if (cp < 0x80)
 			o += sprintf(o, "\\x%02x", cp);
 		else
 			o += sprintf(o, "\\u%04x", cp);
