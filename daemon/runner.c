@@ -178,7 +178,8 @@ static int open_writer(struct run *run, uint64_t *start,
 	if (job->resume && exists) {
 		struct asph_scanfile *rec = NULL;
 		wo.flags = ASPH_SCANFILE_REOPEN_ENDED;
-		r = asph_scanfile_writer_resume(job->scan_path, &wo, &rec, w, &run->err);
+		r = asph_scanfile_writer_resume_at(job->dir_fd, RUNNER_SCAN_FILE, &wo, &rec, w,
+						   &run->err);
 		if (r < 0)
 			return r;
 		/* The executor measures in plan order: go on after the last
@@ -200,7 +201,8 @@ static int open_writer(struct run *run, uint64_t *start,
 	if (exists && unlinkat(job->dir_fd, RUNNER_SCAN_FILE, 0) < 0)
 		return asph_error_set(&run->err, -errno, "%s: cannot replace it: %s",
 				      job->scan_path, strerror(errno));
-	return asph_scanfile_writer_create(job->scan_path, &info, &wo, w, &run->err);
+	return asph_scanfile_writer_create_at(job->dir_fd, RUNNER_SCAN_FILE, &info, &wo, w,
+					      &run->err);
 }
 
 /* Runs the executor; returns its code. */
