@@ -565,10 +565,8 @@ static int single_panel(const char *path, const struct asph_plot_panel *p,
 	return asph_plot_panels_png(path, p, 1, p->opts.width, p->opts.height, err);
 }
 
-int asph_plot_points_png(const char *path, const double *xyz,
-			 const double *value, size_t n,
-			 const struct asph_plot_options *opts,
-			 struct asph_error *err)
+static struct asph_plot_panel points_panel(const double *xyz, const double *value, size_t n,
+					   const struct asph_plot_options *opts)
 {
 	struct asph_plot_panel p = {
 		.kind = ASPH_PLOT_POINTS, .xyz = xyz, .n = n, .value = value,
@@ -576,6 +574,16 @@ int asph_plot_points_png(const char *path, const double *xyz,
 
 	if (opts)
 		p.opts = *opts;
+	return p;
+}
+
+int asph_plot_points_png(const char *path, const double *xyz,
+			 const double *value, size_t n,
+			 const struct asph_plot_options *opts,
+			 struct asph_error *err)
+{
+	struct asph_plot_panel p = points_panel(xyz, value, n, opts);
+
 	return single_panel(path, &p, err);
 }
 
@@ -584,12 +592,8 @@ int asph_plot_points_png_stream(FILE *f, const char *name, const double *xyz,
 				const struct asph_plot_options *opts,
 				struct asph_error *err)
 {
-	struct asph_plot_panel p = {
-		.kind = ASPH_PLOT_POINTS, .xyz = xyz, .n = n, .value = value,
-	};
+	struct asph_plot_panel p = points_panel(xyz, value, n, opts);
 
-	if (opts)
-		p.opts = *opts;
 	return asph_plot_panels_png_stream(f, name, &p, 1, p.opts.width, p.opts.height, err);
 }
 

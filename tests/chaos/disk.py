@@ -81,6 +81,16 @@ def fill(path, leave):
     return filler
 
 
+def on_small_tmpfs(d):
+    """A 24 MB tmpfs as d's state directory, or the test is skipped."""
+    os.makedirs(d.state)
+    ok, why = mount("-t", "tmpfs", "-o", "size=24m,mode=0755", "tmpfs", d.state)
+    if not ok:
+        print(f"SKIP: cannot mount a tmpfs: {why}")
+        d.cleanup()
+        sys.exit(77)
+
+
 def disk_full():
     # "paced" measures at about 5,000 points a second, so that its scan
     # writes a block every second: some reach the disk before it is full.
@@ -88,12 +98,7 @@ def disk_full():
     # here: this case is about a disk that fills all the same.
     d = Daemon(instruments=[mock_instrument(time_factor=0), mock_instrument("paced", time_factor=0.004)],
                extra={"limits": {"min_free_disk_mb": 0}})
-    os.makedirs(d.state)
-    ok, why = mount("-t", "tmpfs", "-o", "size=24m,mode=0755", "tmpfs", d.state)
-    if not ok:
-        print(f"SKIP: cannot mount a tmpfs: {why}")
-        d.cleanup()
-        sys.exit(77)
+    on_small_tmpfs(d)
     try:
         d.start()
         c = Client(d.socket)
@@ -158,12 +163,7 @@ def guard():
     start with the same reason; nothing is lost and the daemon measures
     again once there is room."""
     d = Daemon(instruments=[mock_instrument(time_factor=0)], extra={"limits": {"min_free_disk_mb": 8}})
-    os.makedirs(d.state)
-    ok, why = mount("-t", "tmpfs", "-o", "size=24m,mode=0755", "tmpfs", d.state)
-    if not ok:
-        print(f"SKIP: cannot mount a tmpfs: {why}")
-        d.cleanup()
-        sys.exit(77)
+    on_small_tmpfs(d)
     try:
         d.start()
         c = Client(d.socket)

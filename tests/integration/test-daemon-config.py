@@ -10,20 +10,12 @@ import socket
 import subprocess
 import time
 
-from daemontest import ASPHD, Client, Daemon, expect, finish, mock_instrument, poll_state
+from daemontest import ASPHD, Client, Daemon, expect, finish, mock_instrument, poll_state, free_port
 
 
 def check(path):
     p = subprocess.run([ASPHD, "--check-config", "--config", path], capture_output=True, text=True)
     return p.returncode, p.stdout, p.stderr
-
-
-def free_port():
-    s = socket.socket()
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
 
 
 d = Daemon()

@@ -22,7 +22,7 @@ import threading
 import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "integration"))
-from daemontest import expect, finish  # noqa: E402,F401
+from daemontest import expect, finish, free_port  # noqa: E402,F401
 
 UNDER_VALGRIND = bool(os.environ.get("ASPH_UNDER_VALGRIND"))
 PYTHON = next((p for p in ("/usr/bin/python3", "/usr/local/bin/python3", sys.executable)
@@ -158,14 +158,6 @@ class Notify:
     def close(self):
         self._stop = True
         self.sock.close()
-
-
-def free_port():
-    s = socket.socket()
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
 
 
 class Poller(threading.Thread):

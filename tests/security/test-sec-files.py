@@ -33,7 +33,7 @@ import subprocess
 import time
 
 from seclib import Accounts, expect, finish, tempdir
-from daemontest import ASPHCTL, ASPHD, Client, Daemon, mock_instrument
+from daemontest import ASPHCTL, ASPHD, Client, Daemon, mock_instrument, poll_state
 
 SPEC = {"lens": "strong", "plan": {"method": "fermat", "points": 300}}
 INLINE = {"lens": {"type": "even_asphere", "name": "confidential-R20", "R": 20.097, "k": -1.0,
@@ -60,14 +60,8 @@ def intact(path):
         return f.read() == SECRET
 
 
-def wait(c, job, states=("completed", "failed", "cancelled"), timeout=120):
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        j = c.call("job.get", {"id": job})
-        if j["state"] in states:
-            return j
-        time.sleep(0.05)
-    raise TimeoutError(job)
+def wait(c, job, states=("completed", "failed", "cancelled")):
+    return poll_state(c, job, states)
 
 
 def sha(path):

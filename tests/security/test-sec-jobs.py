@@ -16,17 +16,7 @@ import os
 import time
 
 from seclib import UNDER_VALGRIND, expect, finish
-from daemontest import Client, Daemon, mock_instrument
-
-
-def wait(c, job, states, timeout=300):
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        j = c.call("job.get", {"id": job})
-        if j["state"] in states:
-            return j
-        time.sleep(0.02)
-    raise TimeoutError(f"job {job} did not reach {states}")
+from daemontest import Client, Daemon, mock_instrument, poll_state
 
 
 d = Daemon(instruments=[mock_instrument("slow", time_factor=0.05), mock_instrument("fast", time_factor=0)])
@@ -43,7 +33,7 @@ try:
                b'{"jsonrpc":"2.0","id":2,"method":"job.cancel","params":{"id":' + str(a).encode() + b'}}]\n')
     answers = c.read_message()
     expect(all("result" in x for x in answers), "queue.stop abort and job.cancel, in one line, both accepted")
-    j = wait(c, a, ["cancelled", "interrupted", "completed", "failed"])
+    j = poll_state(c, a, ["cancelled", "interrupted", "completed", "failed"])
     h = [e["state"] for e in c.call("job.get", {"id": a, "history": True})["history"]]
     expect(j["state"] == "cancelled" and "interrupted" not in h,
            f"the job ends cancelled, never interrupted ({j['state']}; {h})")
@@ -60,12 +50,12 @@ try:
             break
     expect(seen, "daemon.status says the job is characterizing")
     r = c.call("job.cancel", {"id": b})
-    j = wait(c, b, ["cancelled", "completed", "failed"])
+    j = poll_state(c, b, ["cancelled", "completed", "failed"])
     expect(r["state"] == "running" and j["state"] == "cancelled",
            f"a cancel while characterizing: cancelled ({j['state']})")
     expect(c.call_error("job.result", {"id": b}) == 107, "with no result")
     c.call("job.requeue", {"id": b})
-    j = wait(c, b, ["completed", "failed", "cancelled"])
+    j = poll_state(c, b, ["completed", "failed", "cancelled"])
     expect(j["state"] == "completed" and c.call("job.result", {"id": b})["summary"]["n_points"] > 0,
            "re-queued, it is characterized and completes")
 
@@ -78,8 +68,8 @@ try:
     with open(os.path.join(d.state, "jobs", str(x)), "w") as f:
         f.write("in the way")
     c.call("queue.start")
-    jx = wait(c, x, ["failed", "completed"])
-    jy = wait(c, y, ["completed", "failed"], timeout=60)
+    jx = poll_state(c, x, ["failed", "completed"])
+    jy = poll_state(c, y, ["completed", "failed"], timeout=60)
     expect(jx["state"] == "failed" and "cannot create the job directory" in jx["reason"],
            f"the job without a folder fails with the reason ({jx['reason']})")
     expect(jy["state"] == "completed", "and the next one runs at once, without another request")
