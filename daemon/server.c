@@ -1,10 +1,11 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
  * Event loop thread. Non-blocking sockets, one JSON text per line in; the
- * lines of each client are answered a request at a time by a deferred
- * source of its own ("work"), so that sd-event serves the connections in
- * turn and one batch cannot hold the loop (or the watchdog) for longer
- * than one request.
+ * lines are answered by one deferred source ("work") that takes the
+ * clients with requests waiting in turn, first come first served, a slice
+ * of a few milliseconds each, so that one batch cannot hold the loop (or
+ * the watchdog) for longer than one request and every connection is
+ * served between two of its requests.
  */
 #include <arpa/inet.h>
 #include <errno.h>
@@ -56,7 +57,8 @@ struct client {
 	bool tcp;
 	sd_event_source *io;
 	sd_event_source *timer;         /* the nearest of client_deadline() */
-	sd_event_source *work;          /* answers the lines read */
+	struct client *turn_next, *turn_prev;   /* waiting for its turn */
+	bool in_turn;
 	struct proto_lines in;
 	bool have_lines;                /* input not yet cut into lines */
 	struct rpc_line *line;          /* being answered */
@@ -89,6 +91,10 @@ struct server {
 	struct client *clients;
 	struct client *dead;            /* dropped, freed by the reaper */
 	sd_event_source *reaper;
+	/* The clients whose requests wait, in the order they came: work
+	 * answers the first for one slice, then puts it last if it has more. */
+	struct client *turns, *turns_last;
+	sd_event_source *work;
 	uint64_t next_serial;
 	bool refusing;
 	/* EMFILE: a descriptor kept to be given up, the pause, its log. */
@@ -100,6 +106,7 @@ struct server {
 
 static int reap(sd_event_source *s, void *data);
 static int accept_resume(sd_event_source *s, uint64_t usec, void *data);
+static int work(sd_event_source *s, void *data);
 
 static uint64_t now_usec(const struct server *srv)
 {
@@ -133,6 +140,8 @@ int server_new(const struct server_setup *setup, struct server **out)
 	if (r == 0)
 		r = sd_event_add_defer(srv->event, &srv->reaper, reap, srv);
 	if (r == 0)
+		r = sd_event_add_defer(srv->event, &srv->work, work, srv);
+	if (r == 0)
 		r = sd_event_add_time(srv->event, &srv->accept_timer, CLOCK_MONOTONIC, UINT64_MAX,
 				      0, accept_resume, srv);
 	if (r < 0) {
@@ -141,6 +150,9 @@ int server_new(const struct server_setup *setup, struct server **out)
 	}
 	sd_event_source_set_enabled(srv->reaper, SD_EVENT_OFF);
 	sd_event_source_set_enabled(srv->accept_timer, SD_EVENT_OFF);
+	/* Below the sockets: bytes in and out first, then the requests. */
+	sd_event_source_set_priority(srv->work, SD_EVENT_PRIORITY_NORMAL + 1);
+	sd_event_source_set_enabled(srv->work, SD_EVENT_OFF);
 	*out = srv;
 	return 0;
 }
@@ -160,15 +172,51 @@ static void client_unlink(struct client *c)
 	c->next = c->prev = NULL;
 }
 
+/* c waits for its turn (nothing when it waits already). */
+static void turn_queue(struct client *c)
+{
+	struct server *srv = c->srv;
+
+	if (c->in_turn)
+		return;
+	c->in_turn = true;
+	c->turn_next = NULL;
+	c->turn_prev = srv->turns_last;
+	if (srv->turns_last)
+		srv->turns_last->turn_next = c;
+	else
+		srv->turns = c;
+	srv->turns_last = c;
+	sd_event_source_set_enabled(srv->work, SD_EVENT_ONESHOT);
+}
+
+static void turn_remove(struct client *c)
+{
+	struct server *srv = c->srv;
+
+	if (!c->in_turn)
+		return;
+	if (c->turn_prev)
+		c->turn_prev->turn_next = c->turn_next;
+	else
+		srv->turns = c->turn_next;
+	if (c->turn_next)
+		c->turn_next->turn_prev = c->turn_prev;
+	else
+		srv->turns_last = c->turn_prev;
+	c->turn_next = c->turn_prev = NULL;
+	c->in_turn = false;
+}
+
 static void client_free(struct client *c)
 {
 	if (!c)
 		return;
+	turn_remove(c);
 	rpc_line_free(c->line);
 	rpc_session_close(c->srv->rpc, &c->session);
 	sd_event_source_disable_unref(c->io);
 	sd_event_source_disable_unref(c->timer);
-	sd_event_source_disable_unref(c->work);
 	if (c->fd >= 0)
 		close(c->fd);
 	proto_lines_release(&c->in);
@@ -205,7 +253,7 @@ static void client_drop(struct client *c, const char *why)
 	log_debug("client %" PRIu64 " (%s) dropped: %s", c->serial, c->session.peer.name, why);
 	sd_event_source_set_enabled(c->io, SD_EVENT_OFF);
 	sd_event_source_set_enabled(c->timer, SD_EVENT_OFF);
-	sd_event_source_set_enabled(c->work, SD_EVENT_OFF);
+	turn_remove(c);
 	close(c->fd);
 	c->fd = -1;
 	client_unlink(c);
@@ -278,9 +326,13 @@ static enum deadline client_deadline(const struct client *c, uint64_t *at)
 	return which;
 }
 
+/* The timer fires at the nearest deadline or before it: one armed
+ * earlier is left (client_timer() looks again when it fires), so that a
+ * busy client does not move it at every request. */
 static void arm_timer(struct client *c)
 {
-	uint64_t at;
+	uint64_t at, armed;
+	int on;
 
 	if (client_dead(c))
 		return;
@@ -288,6 +340,9 @@ static void arm_timer(struct client *c)
 		sd_event_source_set_enabled(c->timer, SD_EVENT_OFF);
 		return;
 	}
+	on = sd_event_source_get_enabled(c->timer, NULL);
+	if (on > 0 && sd_event_source_get_time(c->timer, &armed) >= 0 && armed <= at)
+		return;
 	sd_event_source_set_time(c->timer, at);
 	sd_event_source_set_enabled(c->timer, SD_EVENT_ONESHOT);
 }
@@ -295,6 +350,7 @@ static void arm_timer(struct client *c)
 /* ------------------------------------------------------------ output */
 
 static void update_events(struct client *c);
+static void client_turn(struct client *c);
 
 static int flush_output(struct client *c)
 {
@@ -431,7 +487,7 @@ static void update_events(struct client *c)
 	sd_event_source_set_io_events(c->io, ev ? ev : EPOLLOUT);
 	sd_event_source_set_enabled(c->io, ev ? SD_EVENT_ON : SD_EVENT_OFF);
 	if (work_pending(c) && !output_blocked(c))
-		sd_event_source_set_enabled(c->work, SD_EVENT_ONESHOT);
+		turn_queue(c);
 	arm_timer(c);
 }
 
@@ -476,9 +532,8 @@ static void end_of_input(struct client *c)
 }
 
 /* One turn: the requests of c's lines, for about WORK_SLICE_USEC. */
-static int client_work(sd_event_source *s, void *data)
+static void client_turn(struct client *c)
 {
-	struct client *c = data;
 	uint64_t start = monotonic_usec();
 	int n = 0, r;
 
@@ -493,18 +548,33 @@ static int client_work(sd_event_source *s, void *data)
 		}
 		if (r < 0) {
 			client_drop(c, r == -ENOMEM ? "out of memory" : "connection lost");
-			return 0;
+			return;
 		}
 		n++;
 		if (monotonic_usec() - start > WORK_SLICE_USEC)
 			break;
 	}
 	if (client_dead(c))
-		return 0;
+		return;
 	if (c->eof && !c->line && !c->have_lines && c->partial_usec)
 		end_of_input(c);
 	if (!client_dead(c))
 		flush_output(c);
+}
+
+/* The first client waiting gets its turn; it waits again, last, when it
+ * has more (flush_output() queues it through update_events()). */
+static int work(sd_event_source *s, void *data)
+{
+	struct server *srv = data;
+	struct client *c = srv->turns;
+
+	if (c) {
+		turn_remove(c);
+		client_turn(c);
+	}
+	if (srv->turns)
+		sd_event_source_set_enabled(srv->work, SD_EVENT_ONESHOT);
 	return 0;
 }
 
@@ -544,6 +614,12 @@ static void read_input(struct client *c)
 		return;
 	if (c->eof && !c->have_lines && !c->line && proto_lines_pending(&c->in) > 0)
 		c->partial_usec = c->partial_usec ? c->partial_usec : now_usec(c->srv);
+	/* Nobody waits for a turn: this one is taken now (a turn is the
+	 * same whether it starts here or from work()). */
+	if (!c->srv->turns && work_pending(c) && !output_blocked(c)) {
+		client_turn(c);
+		return;
+	}
 	update_events(c);
 }
 
@@ -805,15 +881,10 @@ static struct client *client_new(struct server *srv, int cfd, bool tcp, struct p
 	srv->clients = c;
 	if (sd_event_add_io(srv->event, &c->io, cfd, EPOLLIN, client_io, c) < 0 ||
 	    sd_event_add_time(srv->event, &c->timer, CLOCK_MONOTONIC, UINT64_MAX, 0,
-			      client_timer, c) < 0 ||
-	    sd_event_add_defer(srv->event, &c->work, client_work, c) < 0) {
+			      client_timer, c) < 0) {
 		client_drop(c, "out of memory");
 		return NULL;
 	}
-	/* Below the sockets: a client's requests wait while another's bytes
-	 * come in or go out, and the clients' requests take turns. */
-	sd_event_source_set_priority(c->work, SD_EVENT_PRIORITY_NORMAL + 1);
-	sd_event_source_set_enabled(c->work, SD_EVENT_OFF);
 	arm_timer(c);
 	return c;
 }
@@ -1211,6 +1282,7 @@ void server_free(struct server *srv)
 	free_list(srv->clients);
 	free_list(srv->dead);
 	sd_event_source_disable_unref(srv->reaper);
+	sd_event_source_disable_unref(srv->work);
 	sd_event_source_disable_unref(srv->accept_timer);
 	for (size_t i = 0; i < srv->n_listeners; i++) {
 		struct listener *l = &srv->listeners[i];
