@@ -25,6 +25,19 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "integration"))
 from daemontest import expect, finish, free_port  # noqa: E402,F401
 
 UNDER_VALGRIND = bool(os.environ.get("ASPH_UNDER_VALGRIND"))
+
+
+def _sanitized():
+    """Whether the daemon was built with AddressSanitizer, whose quarantine
+    and shadow memory make its RSS say nothing of the daemon's own."""
+    try:
+        with open(os.environ.get("ASPHD_BIN", ""), "rb") as f:
+            return b"libasan.so" in f.read()
+    except OSError:
+        return False
+
+
+SANITIZED = _sanitized()
 PYTHON = next((p for p in ("/usr/bin/python3", "/usr/local/bin/python3", sys.executable)
                if os.path.exists(p) and os.stat(p).st_mode & 0o001), None)
 
