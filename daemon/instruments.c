@@ -140,53 +140,12 @@ json_t *instrument_to_json(const struct instrument *in, const struct instrument_
 	return o;
 }
 
-static json_t *option_to_json(const struct asph_option_desc *o)
-{
-	json_t *j = json_pack("{s:s, s:s, s:s?, s:s?, s:s?}", "name", o->name,
-			      "type", asph_option_type_name(o->type),
-			      "default", o->default_value, "unit", o->unit, "help", o->help);
-
-	if (!j)
-		return NULL;
-	if (o->ranged) {
-		json_object_set_new(j, "min", json_real(o->min));
-		json_object_set_new(j, "max", json_real(o->max));
-	}
-	if (o->choices) {
-		json_t *c = json_array();
-		for (size_t k = 0; o->choices[k]; k++)
-			json_array_append_new(c, json_string(o->choices[k]));
-		json_object_set_new(j, "choices", c);
-	}
-	if (o->roles) {
-		json_t *roles = json_array();
-		if (o->roles & ASPH_ROLE_STAGE)
-			json_array_append_new(roles, json_string("stage"));
-		if (o->roles & ASPH_ROLE_PROBE)
-			json_array_append_new(roles, json_string("probe"));
-		json_object_set_new(j, "roles", roles);
-	}
-	return j;
-}
-
+/* The registry as asph drivers --json describes it (drivers/describe.c). */
 json_t *drivers_to_json(const struct instruments *ins)
 {
-	const struct asph_registry *reg = ins->registry;
-	json_t *list = json_array();
+	_cleanup_free_ char *text = NULL;
 
-	for (size_t i = 0; list && i < asph_registry_count(reg); i++) {
-		const struct asph_driver *drv = asph_registry_get(reg, i);
-		json_t *roles = json_array(), *opts = json_array();
-		if (drv->roles & ASPH_ROLE_STAGE)
-			json_array_append_new(roles, json_string("stage"));
-		if (drv->roles & ASPH_ROLE_PROBE)
-			json_array_append_new(roles, json_string("probe"));
-		for (size_t k = 0; k < drv->n_options; k++)
-			json_array_append_new(opts, option_to_json(&drv->options[k]));
-		json_array_append_new(list, json_pack("{s:s, s:s?, s:s?, s:s, s:o, s:o}",
-			"name", drv->name, "description", drv->description,
-			"version", drv->version, "origin", asph_registry_origin(reg, i),
-			"roles", roles, "options", opts));
-	}
-	return list;
+	if (asph_registry_to_json(ins->registry, false, &text) < 0)
+		return NULL;
+	return json_loads(text, 0, NULL);
 }

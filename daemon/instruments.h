@@ -54,7 +54,7 @@ int instruments_find(const struct instruments *ins, const char *name);
 const char *instrument_state_name(const struct instrument_activity *a);
 /* The instrument object of proto/README.md. */
 json_t *instrument_to_json(const struct instrument *in, const struct instrument_activity *a);
-/* driver.list's drivers. */
+/* driver.list's result: the registry as asph drivers --json prints it. */
 json_t *drivers_to_json(const struct instruments *ins);
 
 #endif

@@ -4,8 +4,9 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include <jansson.h>
+
 #include "jobplan.h"
-#include "jobspec.h"
 #include "util-mem.h"
 
 int job_plan_build(const char *spec_text, uint64_t max_points, struct job_plan *jp,
@@ -17,7 +18,6 @@ int job_plan_build(const char *spec_text, uint64_t max_points, struct job_plan *
 	struct asph_plan_options po = { .max_points = max_points, .flags = ASPH_PLAN_NO_MESH };
 	enum asph_plan_method m;
 	_cleanup_free_ char *text = NULL;
-	const char *dname;
 	int r;
 
 	memset(jp, 0, sizeof(*jp));
@@ -39,21 +39,15 @@ int job_plan_build(const char *spec_text, uint64_t max_points, struct job_plan *
 		return r;
 	if (asph_plan_method_from_name(json_string_value(json_object_get(plan, "method")), &m) < 0)
 		return asph_error_set(err, -EINVAL, "the stored plan method is damaged");
-	dname = json_string_value(json_object_get(plan, "density"));
-	if (jobspec_density_parse(dname, &density.kind) < 0)
+	if (asph_plan_density_from_name(json_string_value(json_object_get(plan, "density")),
+					&density.kind) < 0)
 		return asph_error_set(err, -EINVAL, "the stored plan density is damaged");
 	density.value = json_number_value(json_object_get(plan, "value"));
 	r = asph_plan_compute_opts(jp->surface, m, density, &po, &jp->plan, err);
 	if (r < 0)
 		return r;
-	json_t *pj = json_pack("{s:s, s:s, s:f, s:f, s:I}", "method", asph_plan_method_name(m),
-			       "density", jobspec_density_name(density.kind), "value", density.value,
-			       "spacing_mm", jp->plan->spacing_mm,
-			       "points", (json_int_t)jp->plan->n);
-	jp->plan_json = json_dumps(pj, JSON_COMPACT);
-	json_decref(pj);
-	r = asph_prescription_to_json(&jp->prescription, &jp->prescription_json);
-	if (r < 0 || !jp->plan_json)
+	if (asph_plan_to_json(jp->plan, &jp->plan_json) < 0 ||
+	    asph_prescription_to_json(&jp->prescription, &jp->prescription_json) < 0)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	jp->fit_json = json_dumps(fit, JSON_COMPACT);
 	r = asph_fit_dof_parse(json_string_value(json_object_get(fit, "dof")), &jp->fit.dof, err);

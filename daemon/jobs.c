@@ -12,8 +12,8 @@
 #include "jobs.h"
 #include "log.h"
 #include "runner.h"
-#include "time-util.h"
 #include "util-fs.h"
+#include "util-time.h"
 #include "util-mem.h"
 
 /* Progress reaches the store at most this often (a restart resumes from

@@ -11,27 +11,6 @@
 #include "jobspec.h"
 #include "util-mem.h"
 
-static const char *const density_names[] = {
-	[ASPH_DENSITY_H] = "h",
-	[ASPH_DENSITY_SPACING] = "spacing",
-	[ASPH_DENSITY_POINTS] = "points",
-};
-
-const char *jobspec_density_name(enum asph_plan_density_kind kind)
-{
-	return (unsigned)kind < ARRAY_SIZE(density_names) ? density_names[kind] : NULL;
-}
-
-int jobspec_density_parse(const char *name, enum asph_plan_density_kind *kind)
-{
-	for (size_t k = 0; name && k < ARRAY_SIZE(density_names); k++)
-		if (!strcmp(name, density_names[k])) {
-			*kind = (enum asph_plan_density_kind)k;
-			return 0;
-		}
-	return -EINVAL;
-}
-
 static int spec_lens(json_t *params, json_t *spec, struct asph_prescription *p,
 		     struct proto_why *why)
 {
@@ -121,7 +100,8 @@ static int spec_plan(json_t *params, json_t *spec, const struct asph_prescriptio
 	}
 	for (int k = 0; k < 3; k++) {
 		double v;
-		r = proto_param_number(plan, density_names[k], false, 1e-9, 1e12, &v, why);
+		r = proto_param_number(plan, asph_plan_density_name((enum asph_plan_density_kind)k),
+				       false, 1e-9, 1e12, &v, why);
 		if (r == -EINVAL)
 			return PROTO_INVALID_PARAMS;
 		if (r == 0) {
@@ -148,7 +128,7 @@ static int spec_plan(json_t *params, json_t *spec, const struct asph_prescriptio
 	}
 	*points = n;
 	json_object_set_new(spec, "plan", json_pack("{s:s, s:s, s:f}", "method", method,
-		"density", density_names[density.kind], "value", density.value));
+		"density", asph_plan_density_name(density.kind), "value", density.value));
 	return 0;
 }
 

@@ -5,8 +5,8 @@
  * worker measures from (jobplan.h reads it back). Event loop thread.
  *
  * The specification: {"lens": {"name": PRESET or null, "prescription":
- * {...}}, "plan": {"method", "density": "h" | "spacing" | "points",
- * "value"}, "fit": {"dof", "residual", "robust", "zernike"}}.
+ * {...}}, "plan": {"method", "density": "h" | "spacing" | "points"
+ * (asph_plan_density_name()), "value"}, "fit": {"dof", "residual", "robust", "zernike"}}.
  */
 #ifndef ASPHD_JOBSPEC_H
 #define ASPHD_JOBSPEC_H
@@ -26,11 +26,5 @@
  */
 int jobspec_from_params(json_t *params, uint64_t max_points, json_t **spec,
 			uint64_t *points, struct proto_why *why);
-
-/* The name of a plan density in a specification ("h", "spacing",
- * "points"), or NULL; and back (-EINVAL for a name that is none). Safe
- * from any thread. */
-const char *jobspec_density_name(enum asph_plan_density_kind kind);
-int jobspec_density_parse(const char *name, enum asph_plan_density_kind *kind);
 
 #endif

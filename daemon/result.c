@@ -21,8 +21,8 @@
 #include "result.h"
 #include "runner.h"
 #include "sha256.h"
-#include "time-util.h"
 #include "util-fs.h"
+#include "util-time.h"
 #include "util-mem.h"
 
 #define STR(x) #x

@@ -17,7 +17,7 @@
 #include "log.h"
 #include "ratelimit.h"
 #include "rpc.h"
-#include "time-util.h"
+#include "util-time.h"
 #include "util-mem.h"
 
 /* Failed hellos a peer (an address, a uid) may make at once, then one per
@@ -139,7 +139,7 @@ static int fail(struct call *c, int code, const char *fmt, ...)
 	va_list ap;
 
 	va_start(ap, fmt);
-	vsnprintf(c->why.text, sizeof(c->why.text), fmt, ap);
+	proto_why_vset(&c->why, fmt, ap);
 	va_end(ap);
 	return code;
 }
@@ -688,7 +688,7 @@ static int m_driver_list(struct call *c, json_t *params, json_t **result)
 
 	if (code)
 		return code;
-	*result = json_pack("{s:o}", "drivers", drivers_to_json(c->rpc->instruments));
+	*result = drivers_to_json(c->rpc->instruments);
 	return 0;
 }
 
@@ -839,17 +839,13 @@ static json_t *handle(struct rpc *rpc, struct rpc_session *s, json_t *msg)
 {
 	struct call c = { .rpc = rpc, .s = s };
 	struct proto_message m;
-	const char *why = NULL;
 	json_t *result = NULL, *data;
 	int code;
 
-	code = proto_check_request(msg, &m, &why);
+	code = proto_check_request(msg, &m, &c.why);
 	if (code) {
 		if (m.unknown)
 			fail(&c, code, "unknown member \"%.64s\" in request", m.unknown);
-		else
-			fail(&c, code, "%s", why);
-		proto_utf8_clean(c.why.text);
 		return proto_make_error(m.id, code, NULL, json_pack("{s:s}", "detail", c.why.text));
 	}
 	code = dispatch(&c, &m, &result);
@@ -912,23 +908,23 @@ int rpc_line_new(struct rpc *rpc, struct rpc_session *s, const char *text, size_
 		 struct rpc_line **out)
 {
 	struct rpc_line *l = calloc(1, sizeof(*l));
-	char why[160], detail[96];
+	struct proto_why why;
 
 	if (!l)
 		return -ENOMEM;
 	*l = (struct rpc_line){ .rpc = rpc, .s = s };
 	rpc->requests++;
-	l->msg = proto_parse(text, len, why, sizeof(why));
+	l->msg = proto_parse(text, len, &why);
 	if (!l->msg) {
-		l->msg = error_reply(PROTO_PARSE_ERROR, why);
+		l->msg = error_reply(PROTO_PARSE_ERROR, why.text);
 	} else if (json_is_array(l->msg) && json_array_size(l->msg) == 0) {
 		json_decref(l->msg);
 		l->msg = error_reply(PROTO_INVALID_REQUEST, "an empty batch");
 	} else if (json_is_array(l->msg) && json_array_size(l->msg) > PROTO_MAX_BATCH) {
-		snprintf(detail, sizeof(detail), "a batch of %zu requests, more than %d",
-			 json_array_size(l->msg), PROTO_MAX_BATCH);
+		proto_why_set(&why, "a batch of %zu requests, more than %d",
+			      json_array_size(l->msg), PROTO_MAX_BATCH);
 		json_decref(l->msg);
-		l->msg = error_reply(PROTO_INVALID_REQUEST, detail);
+		l->msg = error_reply(PROTO_INVALID_REQUEST, why.text);
 	} else {
 		l->parsed = true;
 		l->batch = json_is_array(l->msg);
@@ -957,16 +953,15 @@ void rpc_line_free(struct rpc_line *l)
 static json_t *over_budget(const struct rpc_line *l, json_t *msg)
 {
 	struct proto_message m;
-	const char *why;
-	char detail[200];
+	struct proto_why why;
 
 	if (proto_check_request(msg, &m, &why) == 0 && m.kind == PROTO_KIND_NOTIFICATION)
 		return NULL;
-	snprintf(detail, sizeof(detail), "the answers to this line already take %zu bytes, "
-		 "more than limits.max_response_bytes (%u): the request was not carried out",
-		 l->written, l->rpc->limits->max_response_bytes);
+	proto_why_set(&why, "the answers to this line already take %zu bytes, more than "
+		      "limits.max_response_bytes (%u): the request was not carried out",
+		      l->written, l->rpc->limits->max_response_bytes);
 	return proto_make_error(m.id, PROTO_RESPONSE_TOO_LARGE, NULL,
-				json_pack("{s:s}", "detail", detail));
+				json_pack("{s:s}", "detail", why.text));
 }
 
 int rpc_line_step(struct rpc_line *l, rpc_write_fn write, void *data)

@@ -176,18 +176,11 @@ static int open_writer(struct run *run, uint64_t *start,
 		return asph_error_set(&run->err, -ELOOP, "%s is not a regular file: refusing to "
 				      "continue it", job->scan_path);
 	if (job->resume && exists) {
-		struct asph_scanfile *rec = NULL;
 		wo.flags = ASPH_SCANFILE_REOPEN_ENDED;
-		r = asph_scanfile_writer_resume_at(job->dir_fd, RUNNER_SCAN_FILE, &wo, &rec, w,
-						   &run->err);
+		r = asph_scan_reopen_at(job->dir_fd, RUNNER_SCAN_FILE, run->jp.plan, &wo, w, start,
+					&run->err);
 		if (r < 0)
 			return r;
-		/* The executor measures in plan order: go on after the last
-		 * point recorded. */
-		for (size_t i = 0; i < rec->n; i++)
-			if (rec->points[i].plan_index + 1 > *start)
-				*start = rec->points[i].plan_index + 1;
-		asph_scanfile_free(rec);
 		log_job(LOG_INFO, job->id, "resuming the scan at plan point %" PRIu64, *start);
 		return 0;
 	}

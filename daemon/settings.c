@@ -27,18 +27,15 @@ static void complain(struct loader *ld, const char *field, const char *fmt, ...)
 
 static void complain(struct loader *ld, const char *field, const char *fmt, ...)
 {
+	struct json_source src = { ld->text, ld->len, ld->source };
 	struct asph_error e;
 	va_list ap;
-	int line = 0, column = 0;
 
 	asph_error_clear(&e);
-	e.code = -EINVAL;
 	va_start(ap, fmt);
-	vsnprintf(e.message, sizeof(e.message), fmt, ap);
+	asph_error_vset_at(&e, -EINVAL, NULL, 0, 0, NULL, fmt, ap);
 	va_end(ap);
-	if (field && ld->text)
-		json_locate_dotted(ld->text, ld->len, field, &line, &column);
-	asph_error_locate(&e, ld->source, line, column, field);
+	json_error_locate(&e, -EINVAL, &src, field);
 	ld->n_errors++;
 	if (ld->report)
 		ld->report(&e, ld->data);
@@ -325,8 +322,7 @@ int settings_load(const char *path, struct settings **out,
 			r = -errno;
 			struct asph_error e;
 			asph_error_clear(&e);
-			asph_error_set(&e, r, "cannot open: %s", strerror(-r));
-			asph_error_locate(&e, path, 0, 0, NULL);
+			asph_error_set_at(&e, r, path, 0, 0, NULL, "cannot open: %s", strerror(-r));
 			if (report)
 				report(&e, data);
 			settings_free(c);
@@ -346,8 +342,7 @@ int settings_load(const char *path, struct settings **out,
 	if (!root) {
 		struct asph_error e;
 		asph_error_clear(&e);
-		asph_error_set(&e, -EINVAL, "%s", je.text);
-		asph_error_locate(&e, path, je.line, je.column, NULL);
+		asph_error_set_at(&e, -EINVAL, path, je.line, je.column, NULL, "%s", je.text);
 		if (report)
 			report(&e, data);
 		settings_free(c);
@@ -375,12 +370,7 @@ int settings_load(const char *path, struct settings **out,
 
 void settings_locate(const struct settings *s, const char *field, struct asph_error *err)
 {
-	int line = 0, column = 0;
+	struct json_source src = { s->text, s->text_len, s->source };
 
-	if (!err)
-		return;
-	if (s->text)
-		json_locate_dotted(s->text, s->text_len, field, &line, &column);
-	/* field may be err's own */
-	asph_error_locate(err, s->source, line, column, field == err->field ? NULL : field);
+	json_error_locate(err, 0, &src, field);
 }

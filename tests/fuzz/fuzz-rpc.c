@@ -120,7 +120,7 @@ static bool starts_queue(const json_t *msg)
 /* A line that would start the queue, alone or in a batch. */
 static bool starts_scans(const char *line, size_t len)
 {
-	json_t *msg = proto_parse(line, len, NULL, 0), *e;
+	json_t *msg = proto_parse(line, len, NULL), *e;
 	bool found = starts_queue(msg);
 	size_t i;
 
