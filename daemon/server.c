@@ -698,7 +698,7 @@ static void peer_groups(int fd, struct peer *p)
 /* A TCP peer: its address, and its key (an IPv6 address by its /64). */
 static void tcp_identity(int fd, struct peer *p)
 {
-	struct sockaddr_storage sa;
+	struct sockaddr_storage sa = { 0 };
 	socklen_t len = sizeof(sa);
 	char host[INET6_ADDRSTRLEN] = "?";
 

@@ -7,6 +7,7 @@
 #include <string.h>
 #include <sys/random.h>
 #include <sys/syscall.h>
+#include <time.h>
 #include <unistd.h>
 
 #if __has_include(<linux/openat2.h>)
@@ -128,9 +129,15 @@ static void temp_name(const char *name, char *buf, size_t size)
 	unsigned char r[6];
 	char suffix[7];
 
-	if (getrandom(r, sizeof(r), 0) != (ssize_t)sizeof(r))
-		for (size_t i = 0; i < sizeof(r); i++)
-			r[i] = (unsigned char)(rand() >> 8);
+	/* Unique is enough (O_EXCL refuses a name taken): without
+	 * getrandom() the clock will do. */
+	if (getrandom(r, sizeof(r), GRND_NONBLOCK) != (ssize_t)sizeof(r)) {
+		struct timespec ts;
+		clock_gettime(CLOCK_MONOTONIC, &ts);
+		uint64_t v = (uint64_t)ts.tv_nsec ^ ((uint64_t)ts.tv_sec << 30) ^ (uint64_t)getpid();
+		for (size_t i = 0; i < sizeof(r); i++, v >>= 8)
+			r[i] = (unsigned char)v;
+	}
 	for (size_t i = 0; i < sizeof(r); i++)
 		suffix[i] = chars[r[i] % (sizeof(chars) - 1)];
 	suffix[6] = '\0';

@@ -65,13 +65,11 @@ char *ctl_escape(const char *s, bool json)
 			*o++ = (char)*p++;
 			continue;
 		}
-		if (json)
-			o += sprintf(o, "\\u%04x", cp);
-		else if (cp == '\n')
+		if (!json && cp == '\n')
 			o += sprintf(o, "\\n");
-		else if (cp == '\t')
+		else if (!json && cp == '\t')
 			o += sprintf(o, "\\t");
-		else if (cp < 0x80)
+		else if (!json && cp < 0x80)
 			o += sprintf(o, "\\x%02x", cp);
 		else
 			o += sprintf(o, "\\u%04x", cp);
