@@ -49,17 +49,22 @@ p = subprocess.run(args, capture_output=True, text=True, timeout=60, preexec_fn=
 expect(p.returncode == 3 and "limits.max_clients" in p.stderr and "LimitNOFILE" in p.stderr,
        f"256 clients with 100 descriptors: exit 3 naming the limit ({p.stderr.strip()[-200:]})")
 
-# A soft limit of 100 under a hard one of 1024: the daemon raises it and runs.
-p = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                     preexec_fn=limited(100, 1024))
-deadline = time.time() + (100 if UNDER_VALGRIND else 20)
-while time.time() < deadline and not os.path.exists(os.path.join(run, "s.sock")) and p.poll() is None:
-    time.sleep(0.05)
-time.sleep(0.2)
-soft, hard = resource.prlimit(p.pid, resource.RLIMIT_NOFILE) if p.poll() is None else (0, 0)
-expect(soft >= 256 + 64 and hard == 1024, f"a soft limit of 100 under 1024: raised to {soft}, and it runs")
-p.terminate()
-p.wait(timeout=60)
+# A soft limit of 100 under a hard one of 1024: the daemon raises it and
+# runs. valgrind keeps descriptors of its own and its own view of the
+# limits: there the case is left out.
+if UNDER_VALGRIND:
+    print("# under valgrind: raising the soft limit is not checked (valgrind manages the limit)")
+else:
+    p = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                         preexec_fn=limited(100, 1024))
+    deadline = time.time() + 20
+    while time.time() < deadline and not os.path.exists(os.path.join(run, "s.sock")) and p.poll() is None:
+        time.sleep(0.05)
+    time.sleep(0.2)
+    soft, hard = resource.prlimit(p.pid, resource.RLIMIT_NOFILE) if p.poll() is None else (0, 0)
+    expect(soft >= 256 + 64 and hard == 1024, f"a soft limit of 100 under 1024: raised to {soft}, and it runs")
+    p.terminate()
+    p.wait(timeout=60)
 
 d = Daemon(instruments=[mock_instrument(time_factor=0)],
            extra={"socket_group": lab, "limits": {"max_clients": 256}})
