@@ -222,13 +222,16 @@ static int tail(struct cursor *c)
 	int r;
 
 	for (;;) {
+		/* A part is set off by ';' or by blanks (which the caller may
+		 * have skipped already). */
+		int blank = c->pos > 0 && (c->s[c->pos - 1] == ' ' || c->s[c->pos - 1] == '\t');
 		size_t before = c->pos;
 		skip_blanks(c);
 		int sep = accept(c, ";");
 		skip_blanks(c);
 		if (at_end(c))
 			return sep ? fail(c, c->pos, "nothing follows '%s'", ";") : 0;
-		if (!sep && c->pos == before)
+		if (!sep && !blank && c->pos == before)
 			return fail(c, c->pos, "expected ';' or a blank before %s",
 				    found(c, f, sizeof(f)));
 		if (starts_lambda(c))

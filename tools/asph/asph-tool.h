@@ -15,6 +15,8 @@ enum {
 	EXIT_OK = 0,
 	EXIT_FAILURE_RUN = 1,   /* the command ran and failed (bad data, I/O) */
 	EXIT_USAGE = 2,         /* bad command line */
+	EXIT_VERDICT_FAIL = 3,  /* asph fit with a tolerance: the part fails */
+	EXIT_VERDICT_UNDECIDED = 4, /* ... conformance is not proven either way */
 };
 
 struct tool_command {

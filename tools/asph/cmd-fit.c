@@ -27,11 +27,15 @@ enum {
 	OPT_RESIDUALS,
 	OPT_MAP,
 	OPT_ZERNIKE,
+	OPT_TOLERANCE,
+	OPT_WAVELENGTH,
+	OPT_SLOPE_LENGTH,
 };
 
 struct fit_cli {
-	const char *lens, *points, *residuals_out, *map_out;
+	const char *lens, *points, *residuals_out, *map_out, *tolerance_arg;
 	struct asph_fit_options opts;
+	struct asph_tolerance tolerance;
 	int json;
 };
 
@@ -54,9 +58,20 @@ static void usage(FILE *out)
 		"  --residuals OUT     write x,y,z,residual_nm of the points fitted (.csv or .ply,\n"
 		"                      PLY coloured by residual)\n"
 		"  --map OUT.png       residual map with a colour bar in nm\n"
+		"  --tolerance T       a tolerance (JSON text or a file holding it): ISO 10110-5\n"
+		"                      call-out, RMS, slope and R limits; decides pass, fail or\n"
+		"                      undecided (ISO 14253-1) and sets the exit status\n"
+		"  --wavelength NM     test wavelength of the fringes (default: the tolerance's,\n"
+		"                      else 546.07)\n"
+		"  --slope-length MM   evaluation length of the slope deviation (default: the\n"
+		"                      tolerance's, else 1)\n"
 		"  --json              one JSON object (n_points, dof, uncertainty, iterations,\n"
-		"                      converged, rms_nm, pv_nm, pvr_nm, slope_rms_urad, zernike_nm...)\n"
-		"  -h, --help          this text\n",
+		"                      converged, rms_nm, pv_nm, pvr_nm, zernike_nm, form, slope,\n"
+		"                      radius, uncertainty_k2, verdict...)\n"
+		"  -h, --help          this text\n\n"
+		"Exit status: 0 done (and the part passes its tolerance), 1 refused input or no\n"
+		"convergence, 2 bad command line, 3 the part fails its tolerance, 4 the verdict\n"
+		"is undecided.\n",
 		ASPH_FIT_MAX_ZERNIKE);
 }
 
@@ -73,6 +88,23 @@ static int parse_int(const char *arg, const char *name, int lo, int hi, int *out
 		return -1;
 	}
 	*out = (int)v;
+	return 0;
+}
+
+static int parse_positive(const char *arg, const char *name, double lo, double hi,
+			  double *out)
+{
+	char *end;
+	double v;
+
+	errno = 0;
+	v = strtod(arg, &end);
+	if (errno || end == arg || *end || !(v >= lo && v <= hi)) {
+		fprintf(stderr, "asph fit: --%s: '%s' is not a number in %g..%g\n", name, arg,
+			lo, hi);
+		return -1;
+	}
+	*out = v;
 	return 0;
 }
 
@@ -109,9 +141,48 @@ static int take_option(struct fit_cli *c, int opt, const char *arg)
 		return 0;
 	case OPT_ZERNIKE:
 		return parse_int(arg, "zernike", 1, ASPH_FIT_MAX_ZERNIKE, &c->opts.n_zernike);
+	case OPT_TOLERANCE:
+		asph_error_clear(&err);
+		if (asph_tolerance_load(arg, &c->tolerance, &err) < 0) {
+			tool_print_error("fit: --tolerance", &err);
+			return -1;
+		}
+		c->tolerance_arg = arg;
+		return 0;
+	case OPT_WAVELENGTH:
+		return parse_positive(arg, "wavelength", 100, 20000, &c->opts.wavelength_nm);
+	case OPT_SLOPE_LENGTH:
+		return parse_positive(arg, "slope-length", 1e-6, 1e6, &c->opts.slope_length_mm);
 	default:
 		return -1;
 	}
+}
+
+/* The options a tolerance fixes must agree with it. */
+static int check_tolerance(struct fit_cli *c)
+{
+	const struct asph_tolerance *t = &c->tolerance;
+
+	if (!c->tolerance_arg)
+		return EXIT_OK;
+	c->opts.tolerance = t;
+	if (c->opts.wavelength_nm != 0 && c->opts.wavelength_nm != t->wavelength_nm) {
+		fprintf(stderr, "asph fit: --wavelength %g disagrees with the tolerance's %g nm\n",
+			c->opts.wavelength_nm, t->wavelength_nm);
+		return EXIT_USAGE;
+	}
+	if (c->opts.slope_length_mm != 0 && !isnan(t->slope_length_mm) &&
+	    c->opts.slope_length_mm != t->slope_length_mm) {
+		fprintf(stderr, "asph fit: --slope-length %g disagrees with the tolerance's "
+			"slope_urad.length_mm %g\n", c->opts.slope_length_mm, t->slope_length_mm);
+		return EXIT_USAGE;
+	}
+	if (!isnan(t->R_mm) && !(c->opts.dof & ASPH_FIT_DOF_BIT(ASPH_FIT_R))) {
+		fprintf(stderr, "asph fit: --tolerance: R_mm needs R among the degrees of freedom "
+			"(--dof tx,ty,tz,rx,ry,R)\n");
+		return EXIT_USAGE;
+	}
+	return EXIT_OK;
 }
 
 /* EXIT_OK, or the exit code to leave with; -1 for --help. */
@@ -125,6 +196,9 @@ static int parse_args(struct fit_cli *c, int argc, char **argv)
 		{ "residuals", required_argument, NULL, OPT_RESIDUALS },
 		{ "map", required_argument, NULL, OPT_MAP },
 		{ "zernike", required_argument, NULL, OPT_ZERNIKE },
+		{ "tolerance", required_argument, NULL, OPT_TOLERANCE },
+		{ "wavelength", required_argument, NULL, OPT_WAVELENGTH },
+		{ "slope-length", required_argument, NULL, OPT_SLOPE_LENGTH },
 		{ "help", no_argument, NULL, 'h' },
 		{ NULL, 0, NULL, 0 },
 	};
@@ -146,7 +220,7 @@ static int parse_args(struct fit_cli *c, int argc, char **argv)
 	}
 	c->lens = argv[optind];
 	c->points = argv[optind + 1];
-	return EXIT_OK;
+	return check_tolerance(c);
 }
 
 static int show_json(const struct fit_cli *c, const struct asph_surface *s,
@@ -164,6 +238,35 @@ static int show_json(const struct fit_cli *c, const struct asph_surface *s,
 	json_dumpf(root, stdout, JSON_INDENT(2) | JSON_PRESERVE_ORDER | JSON_REAL_PRECISION(17));
 	fputc('\n', stdout);
 	return EXIT_OK;
+}
+
+static void show_form(const struct asph_fit_result *r)
+{
+	const struct asph_form *f = &r->form;
+	const struct asph_uncertainty_k2 *u = &r->uncertainty_k2;
+
+	if (r->form_valid) {
+		printf("ISO 14999-4 (lambda %g nm; U for k = 2):\n", f->wavelength_nm);
+		printf("  A %+.3f nm (%+.4f fr) U %.3f | B %.3f nm (%.4f fr) U %.3f | C %.3f nm (%.4f fr) U %.3f\n",
+		       f->A.v, f->A_fringes, u->A.v, f->B.v, f->B_fringes, u->B.v, f->C.v,
+		       f->C_fringes, u->C.v);
+		printf("  RMSt %.3f nm, RMSi %.3f nm, RMSa %.3f nm (U %.3f)\n", f->rms_t.v,
+		       f->rms_i.v, f->rms_a.v, u->rms_t.v);
+	}
+	if (r->slope_valid)
+		printf("Slope over %g mm: RMS %.3f urad (radial %.3f, azimuthal %.3f), max %.3f urad\n",
+		       r->slope.length_mm, r->slope.rms.v, r->slope.rms_radial.v,
+		       r->slope.rms_azimuthal.v, r->slope.max.v);
+	if (!isnan(r->R_deviation_mm))
+		printf("Radius deviation %+.6f mm (U %.6f mm)\n", r->R_deviation_mm, u->R_mm);
+	if (!r->verdict.present)
+		return;
+	printf("Verdict (ISO 14253-1): %s\n", asph_verdict_name(r->verdict.overall));
+	for (size_t i = 0; i < r->verdict.n_items; i++) {
+		const struct asph_verdict_item *it = &r->verdict.items[i];
+		printf("  %-16s %12.6g  U %-10.4g limit %-10.6g %s\n", it->quantity, it->value, it->U,
+		       it->limit, asph_verdict_name(it->verdict));
+	}
 }
 
 static void show_text(const struct fit_cli *c, const struct asph_surface *s,
@@ -185,6 +288,7 @@ static void show_text(const struct fit_cli *c, const struct asph_surface *s,
 	       r->n_outside_aperture, r->n_outliers);
 	printf("Residual RMS %.4f nm, PV %.4f nm, PVr %.4f nm, slope RMS %.4f urad\n",
 	       r->rms.v, r->pv.v, r->pvr.v, r->slope_rms.v);
+	show_form(r);
 	if (r->n_zernike == 0) {
 		printf("Too few points for the Zernike decomposition (PVr and slope need it)\n");
 		return;
@@ -291,5 +395,8 @@ int cmd_fit(int argc, char **argv)
 		fprintf(stderr, "asph fit: the fit did not converge: %s\n", res.reason);
 		r = EXIT_FAILURE_RUN;
 	}
+	if (r == EXIT_OK && res.verdict.present && res.verdict.overall != ASPH_VERDICT_PASS)
+		r = res.verdict.overall == ASPH_VERDICT_FAIL ? EXIT_VERDICT_FAIL
+							     : EXIT_VERDICT_UNDECIDED;
 	return r;
 }
