@@ -24,6 +24,8 @@ extern "C" {
  *          exists) and faces when a mesh exists; reading also takes
  *          binary_little_endian PLY
  *   .json  {"points": [[x,y,z],...], "triangles": [[i,j,k],...], ...}
+ *   .x3p   written only: ISO 25178-72, the list layout of the points
+ *          (asph/x3p.h; the value and the mesh are not part of it)
  *   "-"    CSV on stdin / stdout
  */
 struct asph_points {

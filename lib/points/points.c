@@ -11,6 +11,7 @@
 #include <jansson.h>
 
 #include "asph/points.h"
+#include "asph/x3p.h"
 #include "plot/colormap.h"
 #include "fileio.h"
 #include "util-mem.h"
@@ -856,6 +857,11 @@ int asph_points_write(const char *path, const struct asph_points *p,
 {
 	int is_stdout = !strcmp(path, "-");
 	int prec = opts && opts->precision > 0 ? opts->precision : 17;
+	const char *dot = strrchr(path, '.');
+
+	/* X3P: the list layout of ISO 25178-72 (lib/export/x3p.c). */
+	if (!is_stdout && dot && !strcasecmp(dot, ".x3p"))
+		return asph_x3p_write_points(path, p->xyz, p->n, NULL, err);
 	FILE *f = is_stdout ? stdout : fopen(path, "we");
 
 	if (!f) {

@@ -9,8 +9,10 @@
 
 #include <jansson.h>
 
+#include "asph/correction.h"
 #include "asph/fit.h"
 #include "asph/plot.h"
+#include "asph/x3p.h"
 #include "asph/points.h"
 #include "asph-tool.h"
 #include "util-mem.h"
@@ -18,6 +20,8 @@
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_surface *, asph_surface_free)
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_fit *, asph_fit_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scatter *, asph_scatter_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_grid *, asph_grid_free)
 
 enum {
 	OPT_DOF = 0x100,
@@ -30,6 +34,17 @@ enum {
 	OPT_TOLERANCE,
 	OPT_WAVELENGTH,
 	OPT_SLOPE_LENGTH,
+	OPT_X3P,
+	OPT_GRID_SPACING,
+	OPT_CORRECTION,
+	OPT_CORRECTION_KIND,
+	OPT_CORRECTION_SIGN,
+	OPT_CORRECTION_DIRECTION,
+	OPT_CORRECTION_MATERIAL,
+	OPT_CORRECTION_STEP,
+	OPT_CORRECTION_SMOOTH,
+	OPT_CORRECTION_EXTEND,
+	OPT_CORRECTION_EXTEND_METHOD,
 };
 
 struct fit_cli {
@@ -37,6 +52,9 @@ struct fit_cli {
 	struct asph_fit_options opts;
 	struct asph_tolerance tolerance;
 	int json;
+	const char *x3p_out, *correction_out;
+	double grid_spacing;
+	struct asph_correction_options correction;
 };
 
 static void usage(FILE *out)
@@ -65,6 +83,18 @@ static void usage(FILE *out)
 		"                      else 546.07)\n"
 		"  --slope-length MM   evaluation length of the slope deviation (default: the\n"
 		"                      tolerance's, else 1)\n"
+		"  --x3p OUT.x3p       the residual resampled on a grid (ISO 25178-72 matrix layout)\n"
+		"  --grid-spacing MM   spacing of that grid (default: the median point spacing)\n"
+		"  --correction OUT    a correction table of the residual (CSV, conventions in its\n"
+		"                      header), with:\n"
+		"    --correction-kind radial|grid          z(r) of a turned part (default) or XY\n"
+		"    --correction-sign height-error|material-to-remove   (default height-error)\n"
+		"    --correction-direction z|normal        along z (default) or the normal\n"
+		"    --correction-material below|above      the part's side of the surface (below)\n"
+		"    --correction-step MM                   spacing (default: the point spacing)\n"
+		"    --correction-smooth MM                 Gaussian cut-off (default 0: none)\n"
+		"    --correction-extend MM                 beyond the aperture (default 0)\n"
+		"    --correction-extend-method constant|linear   (default constant)\n"
 		"  --json              one JSON object (n_points, dof, uncertainty, iterations,\n"
 		"                      converged, rms_nm, pv_nm, pvr_nm, zernike_nm, form, slope,\n"
 		"                      radius, uncertainty_k2, verdict...)\n"
@@ -107,6 +137,23 @@ static int parse_positive(const char *arg, const char *name, double lo, double h
 	*out = v;
 	return 0;
 }
+
+static int parse_nonnegative(const char *arg, const char *name, double *out)
+{
+	char *end;
+	double v;
+
+	errno = 0;
+	v = strtod(arg, &end);
+	if (errno || end == arg || *end || !(v >= 0) || !isfinite(v)) {
+		fprintf(stderr, "asph fit: --%s: '%s' is not a number >= 0\n", name, arg);
+		return -1;
+	}
+	*out = v;
+	return 0;
+}
+
+static int take_correction_option(struct fit_cli *c, int opt, const char *arg);
 
 /* 0 taken, -1 bad value (message printed). */
 static int take_option(struct fit_cli *c, int opt, const char *arg)
@@ -153,9 +200,56 @@ static int take_option(struct fit_cli *c, int opt, const char *arg)
 		return parse_positive(arg, "wavelength", 100, 20000, &c->opts.wavelength_nm);
 	case OPT_SLOPE_LENGTH:
 		return parse_positive(arg, "slope-length", 1e-6, 1e6, &c->opts.slope_length_mm);
+	case OPT_X3P:
+		c->x3p_out = arg;
+		return 0;
+	case OPT_GRID_SPACING:
+		return parse_positive(arg, "grid-spacing", 1e-6, 1e6, &c->grid_spacing);
+	case OPT_CORRECTION:
+		c->correction_out = arg;
+		return 0;
+	default:
+		return take_correction_option(c, opt, arg);
+	}
+}
+
+/* The --correction-* options: 0, or -1 after saying why. */
+static int take_correction_option(struct fit_cli *c, int opt, const char *arg)
+{
+	struct asph_correction_options *o = &c->correction;
+	struct asph_error err;
+	int r = 0;
+
+	asph_error_clear(&err);
+	switch (opt) {
+	case OPT_CORRECTION_KIND:
+		r = asph_correction_kind_parse(arg, "--correction-kind", &o->kind, &err);
+		break;
+	case OPT_CORRECTION_SIGN:
+		r = asph_correction_sign_parse(arg, "--correction-sign", &o->sign, &err);
+		break;
+	case OPT_CORRECTION_DIRECTION:
+		r = asph_correction_direction_parse(arg, "--correction-direction", &o->direction, &err);
+		break;
+	case OPT_CORRECTION_MATERIAL:
+		r = asph_correction_material_parse(arg, "--correction-material", &o->material, &err);
+		break;
+	case OPT_CORRECTION_EXTEND_METHOD:
+		r = asph_correction_extension_parse(arg, "--correction-extend-method", &o->extension,
+						    &err);
+		break;
+	case OPT_CORRECTION_STEP:
+		return parse_positive(arg, "correction-step", 1e-6, 1e6, &o->step_mm);
+	case OPT_CORRECTION_SMOOTH:
+		return parse_nonnegative(arg, "correction-smooth", &o->smooth_mm);
+	case OPT_CORRECTION_EXTEND:
+		return parse_nonnegative(arg, "correction-extend", &o->extend_mm);
 	default:
 		return -1;
 	}
+	if (r < 0)
+		tool_print_error("fit", &err);
+	return r < 0 ? -1 : 0;
 }
 
 /* The options a tolerance fixes must agree with it. */
@@ -199,6 +293,17 @@ static int parse_args(struct fit_cli *c, int argc, char **argv)
 		{ "tolerance", required_argument, NULL, OPT_TOLERANCE },
 		{ "wavelength", required_argument, NULL, OPT_WAVELENGTH },
 		{ "slope-length", required_argument, NULL, OPT_SLOPE_LENGTH },
+		{ "x3p", required_argument, NULL, OPT_X3P },
+		{ "grid-spacing", required_argument, NULL, OPT_GRID_SPACING },
+		{ "correction", required_argument, NULL, OPT_CORRECTION },
+		{ "correction-kind", required_argument, NULL, OPT_CORRECTION_KIND },
+		{ "correction-sign", required_argument, NULL, OPT_CORRECTION_SIGN },
+		{ "correction-direction", required_argument, NULL, OPT_CORRECTION_DIRECTION },
+		{ "correction-material", required_argument, NULL, OPT_CORRECTION_MATERIAL },
+		{ "correction-step", required_argument, NULL, OPT_CORRECTION_STEP },
+		{ "correction-smooth", required_argument, NULL, OPT_CORRECTION_SMOOTH },
+		{ "correction-extend", required_argument, NULL, OPT_CORRECTION_EXTEND },
+		{ "correction-extend-method", required_argument, NULL, OPT_CORRECTION_EXTEND_METHOD },
 		{ "help", no_argument, NULL, 'h' },
 		{ NULL, 0, NULL, 0 },
 	};
@@ -328,6 +433,60 @@ static int residual_points(const struct asph_points *pts, const struct asph_fit 
 	return 0;
 }
 
+/* The residual of the used points as the interpolant on the part. */
+static int residual_scatter(const struct asph_fit *w, size_t n_used,
+			    struct asph_scatter **out, struct asph_error *err)
+{
+	_cleanup_free_ double *xy = malloc(2 * n_used * sizeof(double) + 1);
+	_cleanup_free_ double *v = malloc(n_used * sizeof(double) + 1);
+
+	if (!xy || !v)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	size_t m = asph_fit_residual_map(w, xy, v);
+	return asph_scatter_alloc(xy, v, m, NULL, out, err);
+}
+
+/* --x3p and --correction. */
+static int write_exports(const struct fit_cli *c, const struct asph_surface *s,
+			 const struct asph_fit *w, const struct asph_fit_result *res)
+{
+	_cleanup_(asph_scatter_freep) struct asph_scatter *sc = NULL;
+	_cleanup_(asph_grid_freep) struct asph_grid *g = NULL;
+	const char *lens = asph_surface_prescription(s)->name;
+	struct asph_error err;
+	char comment[256];
+
+	if (!c->x3p_out && !c->correction_out)
+		return EXIT_OK;
+	asph_error_clear(&err);
+	if (residual_scatter(w, res->n_used, &sc, &err) < 0) {
+		tool_print_error("fit: the residual map", &err);
+		return EXIT_FAILURE_RUN;
+	}
+	if (c->x3p_out) {
+		double dx = c->grid_spacing > 0 ? c->grid_spacing : asph_scatter_median_edge(sc);
+		struct asph_x3p_info info = { .creator = "asph fit", .comment = comment };
+		snprintf(comment, sizeof(comment), "%s residual of %s after the best fit (z in m)",
+			 asph_fit_residual_name(res->residual), lens);
+		if (asph_grid_resample(sc, asph_surface_aperture_radius(s), dx, &g, &err) < 0 ||
+		    asph_x3p_write_grid(c->x3p_out, g, &info, &err) < 0) {
+			tool_print_error("fit: --x3p", &err);
+			return EXIT_FAILURE_RUN;
+		}
+	}
+	if (c->correction_out &&
+	    asph_correction_write(c->correction_out, s, lens, sc,
+				  res->residual == ASPH_FIT_RESIDUAL_NORMAL, &c->correction, &err) < 0) {
+		char where[192];
+		snprintf(where, sizeof(where), "fit: --correction%s%s", err.field[0] ? "-" : "",
+			 err.field);
+		err.field[0] = '\0';
+		tool_print_error(where, &err);
+		return err.code == -EINVAL ? EXIT_USAGE : EXIT_FAILURE_RUN;
+	}
+	return EXIT_OK;
+}
+
 static int write_outputs(const struct fit_cli *c, const struct asph_surface *s,
 			 const struct asph_points *pts, const struct asph_fit *w)
 {
@@ -391,6 +550,8 @@ int cmd_fit(int argc, char **argv)
 		show_text(&c, s, &res);
 	}
 	r = write_outputs(&c, s, pts, w);
+	if (r == EXIT_OK)
+		r = write_exports(&c, s, w, &res);
 	if (r == EXIT_OK && !res.converged) {
 		fprintf(stderr, "asph fit: the fit did not converge: %s\n", res.reason);
 		r = EXIT_FAILURE_RUN;
