@@ -288,11 +288,41 @@ def verdict_exit(tmp):
     check(r.returncode == 2 and "R among the degrees of freedom" in r.stderr, f"R_mm: {r.stderr}")
 
 
+def report(tmp):
+    """The PDF rendered by a real viewer (poppler's pdftoppm): one page, not
+    blank, the verdict's exit status."""
+    pts = os.path.join(tmp, "rep.csv")
+    pdf = os.path.join(tmp, "report.pdf")
+    asph("synth", "weak", "--method", "concentric", "--h", "0.08", "--zernike", "6=25,11=-10",
+         "--noise", "1", "-o", pts)
+    r = asph("report", pdf, "weak", pts, "--part", "P-17", "--lot", "L3", "--serial", "0042",
+             "--tolerance", '{"iso10110_5": "3/0.5(0.3)"}')
+    check(r.returncode == 3, f"report with a failing tolerance: exit {r.returncode}: {r.stderr}")
+    base = os.path.join(tmp, "page")
+    r = run(["pdftoppm", "-r", "40", pdf, base])
+    check(r.returncode == 0, f"pdftoppm: {r.stderr}")
+    pages = sorted(f for f in os.listdir(tmp) if f.startswith("page"))
+    check(len(pages) == 1, f"{len(pages)} pages")
+    if pages:
+        data = open(os.path.join(tmp, pages[0]), "rb").read()
+        parts = data.split(maxsplit=4)          # P6 width height maxval pixels
+        check(parts[0] == b"P6", "pdftoppm did not write a PPM")
+        w, h, pixels = int(parts[1]), int(parts[2]), parts[4]
+        ink = sum(1 for k in range(0, 3 * w * h, 3) if pixels[k] + pixels[k + 1] + pixels[k + 2] < 600)
+        coloured = sum(1 for k in range(0, 3 * w * h, 3)
+                       if max(pixels[k:k + 3]) - min(pixels[k:k + 3]) > 60)
+        check(ink > 0.03 * w * h, f"the page is blank: {ink} dark pixels of {w * h}")
+        check(coloured > 0.01 * w * h, f"no residual map: {coloured} coloured pixels")
+    r = asph("report", pdf, "not-a-scan.scan")
+    check(r.returncode == 2 and "not a recorded scan" in r.stderr, f"report of nothing: {r.stderr}")
+
+
 def main():
     if not ASPH:
         print("ASPH_BIN not set")
         return 1
-    missing = [t for t in ("unzip", "md5sum", "xmllint", "od", "gwyddion") if not shutil.which(t)]
+    missing = [t for t in ("unzip", "md5sum", "xmllint", "od", "gwyddion", "pdftoppm")
+               if not shutil.which(t)]
     if missing:
         print("skip: missing", ", ".join(missing), "(scripts/install-deps installs them)")
         return 77
@@ -301,6 +331,7 @@ def main():
         points_export(tmp)
         correction_tables(tmp)
         verdict_exit(tmp)
+        report(tmp)
     print(f"{len(FAILURES)} failed" if FAILURES else "all passed")
     return 1 if FAILURES else 0
 

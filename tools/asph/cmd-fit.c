@@ -12,7 +12,12 @@
 #include "asph/correction.h"
 #include "asph/fit.h"
 #include "asph/plot.h"
+#include "asph/prescription.h"
+#include "asph/report.h"
+#include "asph/scanfile.h"
 #include "asph/x3p.h"
+#include "config.h"
+#include "fileio.h"
 #include "asph/points.h"
 #include "asph-tool.h"
 #include "util-mem.h"
@@ -45,6 +50,11 @@ enum {
 	OPT_CORRECTION_SMOOTH,
 	OPT_CORRECTION_EXTEND,
 	OPT_CORRECTION_EXTEND_METHOD,
+	OPT_REPORT,
+	OPT_PART,
+	OPT_LOT,
+	OPT_SERIAL,
+	OPT_SCAN,
 };
 
 struct fit_cli {
@@ -55,6 +65,7 @@ struct fit_cli {
 	const char *x3p_out, *correction_out;
 	double grid_spacing;
 	struct asph_correction_options correction;
+	const char *report_out, *part, *lot, *serial, *scan;
 };
 
 static void usage(FILE *out)
@@ -95,6 +106,10 @@ static void usage(FILE *out)
 		"    --correction-smooth MM                 Gaussian cut-off (default 0: none)\n"
 		"    --correction-extend MM                 beyond the aperture (default 0)\n"
 		"    --correction-extend-method constant|linear   (default constant)\n"
+		"  --report OUT.pdf    the measurement report (PDF), with:\n"
+		"    --part P, --lot L, --serial S          what was measured\n"
+		"    --scan SCAN                            the recorded scan the points come from\n"
+		"                                           (its plan and instrument are reported)\n"
 		"  --json              one JSON object (n_points, dof, uncertainty, iterations,\n"
 		"                      converged, rms_nm, pv_nm, pvr_nm, zernike_nm, form, slope,\n"
 		"                      radius, uncertainty_k2, verdict...)\n"
@@ -208,6 +223,21 @@ static int take_option(struct fit_cli *c, int opt, const char *arg)
 	case OPT_CORRECTION:
 		c->correction_out = arg;
 		return 0;
+	case OPT_REPORT:
+		c->report_out = arg;
+		return 0;
+	case OPT_PART:
+		c->part = arg;
+		return 0;
+	case OPT_LOT:
+		c->lot = arg;
+		return 0;
+	case OPT_SERIAL:
+		c->serial = arg;
+		return 0;
+	case OPT_SCAN:
+		c->scan = arg;
+		return 0;
 	default:
 		return take_correction_option(c, opt, arg);
 	}
@@ -304,6 +334,11 @@ static int parse_args(struct fit_cli *c, int argc, char **argv)
 		{ "correction-smooth", required_argument, NULL, OPT_CORRECTION_SMOOTH },
 		{ "correction-extend", required_argument, NULL, OPT_CORRECTION_EXTEND },
 		{ "correction-extend-method", required_argument, NULL, OPT_CORRECTION_EXTEND_METHOD },
+		{ "report", required_argument, NULL, OPT_REPORT },
+		{ "part", required_argument, NULL, OPT_PART },
+		{ "lot", required_argument, NULL, OPT_LOT },
+		{ "serial", required_argument, NULL, OPT_SERIAL },
+		{ "scan", required_argument, NULL, OPT_SCAN },
 		{ "help", no_argument, NULL, 'h' },
 		{ NULL, 0, NULL, 0 },
 	};
@@ -446,7 +481,49 @@ static int residual_scatter(const struct asph_fit *w, size_t n_used,
 	return asph_scatter_alloc(xy, v, m, NULL, out, err);
 }
 
-/* --x3p and --correction. */
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile *, asph_scanfile_free)
+
+/* --report: the provenance from the scan when there is one. */
+static int write_report(const struct fit_cli *c, const struct asph_surface *s,
+			const struct asph_fit *w, const struct asph_fit_result *res,
+			const struct asph_scatter *sc)
+{
+	_cleanup_(asph_scanfile_freep) struct asph_scanfile *scan = NULL;
+	_cleanup_free_ char *lens_json = NULL, *data = NULL;
+	_cleanup_free_ double *xy = malloc(2 * res->n_used * sizeof(double) + 1);
+	_cleanup_free_ double *v = malloc(res->n_used * sizeof(double) + 1);
+	struct asph_error err;
+	size_t len = 0;
+
+	asph_error_clear(&err);
+	if (!xy || !v || asph_prescription_to_json(asph_surface_prescription(s), &lens_json) < 0) {
+		fprintf(stderr, "asph fit: out of memory\n");
+		return EXIT_FAILURE_RUN;
+	}
+	if ((c->scan && asph_scanfile_read(c->scan, &scan, &err) < 0) ||
+	    file_read_all(c->scan ? c->scan : c->points, (size_t)1 << 31, &data, &len, &err) < 0) {
+		tool_print_error("fit: --report", &err);
+		return EXIT_FAILURE_RUN;
+	}
+	struct asph_report r = {
+		.part = c->part, .lot = c->lot, .serial = c->serial,
+		.lens_name = asph_surface_prescription(s)->name, .lens_json = lens_json,
+		.plan_json = scan ? scan->header.plan : NULL,
+		.instrument_json = scan ? scan->header.instrument : NULL,
+		.data_name = c->scan ? c->scan : c->points, .data = data, .data_len = len,
+		.software = "asph " ASPH_VERSION, .fit = res,
+		.tolerance = c->tolerance_arg ? &c->tolerance : NULL,
+		.xy = xy, .residual_nm = v, .n = asph_fit_residual_map(w, xy, v),
+		.scatter = sc, .radius = asph_surface_aperture_radius(s),
+	};
+	if (asph_report_write_pdf(c->report_out, &r, &err) < 0) {
+		tool_print_error("fit: --report", &err);
+		return EXIT_FAILURE_RUN;
+	}
+	return EXIT_OK;
+}
+
+/* --x3p, --correction and --report. */
 static int write_exports(const struct fit_cli *c, const struct asph_surface *s,
 			 const struct asph_fit *w, const struct asph_fit_result *res)
 {
@@ -456,7 +533,7 @@ static int write_exports(const struct fit_cli *c, const struct asph_surface *s,
 	struct asph_error err;
 	char comment[256];
 
-	if (!c->x3p_out && !c->correction_out)
+	if (!c->x3p_out && !c->correction_out && !c->report_out)
 		return EXIT_OK;
 	asph_error_clear(&err);
 	if (residual_scatter(w, res->n_used, &sc, &err) < 0) {
@@ -484,6 +561,8 @@ static int write_exports(const struct fit_cli *c, const struct asph_surface *s,
 		tool_print_error(where, &err);
 		return err.code == -EINVAL ? EXIT_USAGE : EXIT_FAILURE_RUN;
 	}
+	if (c->report_out)
+		return write_report(c, s, w, res, sc);
 	return EXIT_OK;
 }
 
