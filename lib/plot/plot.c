@@ -216,7 +216,7 @@ static void set_value_colour(cairo_t *cr, const struct colour_scale *cs,
 	cairo_set_source_rgb(cr, rgb[0] / 255.0, rgb[1] / 255.0, rgb[2] / 255.0);
 }
 
-static double nice_step(double span, int target)
+double plot_nice_step(double span, int target)
 {
 	double raw = span / target;
 	double p = pow(10, floor(log10(raw)));
@@ -309,7 +309,7 @@ static void draw_axes(cairo_t *cr, const struct plot_frame *f)
 {
 	const struct plot_rect *b = &f->box;
 	double x1 = f->x0 + b->w / f->scale, y1 = f->y0 + b->h / f->scale;
-	double step = nice_step(fmax(x1 - f->x0, y1 - f->y0), 6);
+	double step = plot_nice_step(fmax(x1 - f->x0, y1 - f->y0), 6);
 	char label[32];
 	double u, v;
 
@@ -335,7 +335,7 @@ static void draw_colour_bar(cairo_t *cr, const struct plot_frame *f,
 			    const struct colour_scale *cs, const char *label)
 {
 	const struct plot_rect *r = &f->bar;
-	double step = nice_step(cs->hi - cs->lo, 6);
+	double step = plot_nice_step(cs->hi - cs->lo, 6);
 	double widest = 0;
 	char text[32];
 	cairo_text_extents_t te;
@@ -413,8 +413,8 @@ static void draw_triangles(cairo_t *cr, const struct asph_plot_panel *p,
 	}
 }
 
-static void draw_panel(cairo_t *cr, const struct asph_plot_panel *p,
-		       const struct plot_rect *panel)
+void plot_draw_panel(cairo_t *cr, const struct asph_plot_panel *p,
+		     const struct plot_rect *panel)
 {
 	struct plot_frame f;
 	struct colour_scale cs;
@@ -510,7 +510,7 @@ int asph_plot_panels_png_stream(FILE *f, const char *name,
 	cairo_paint(cr);
 	for (size_t i = 0; i < n_panels; i++) {
 		plot_figure_panel(width, height, n_panels, i, &panel);
-		draw_panel(cr, &panels[i], &panel);
+		plot_draw_panel(cr, &panels[i], &panel);
 	}
 	cairo_surface_flush(surface);
 	return write_png(surface, f, name ? name : "the plot", err);

@@ -11,6 +11,7 @@
 #include <jansson.h>
 
 #include "asph/points.h"
+#include "asph/x3p.h"
 #include "plot/colormap.h"
 #include "fileio.h"
 #include "util-mem.h"
@@ -855,7 +856,11 @@ int asph_points_write_stream(FILE *f, const char *name, const struct asph_points
 			     struct asph_error *err)
 {
 	int prec = opts && opts->precision > 0 ? opts->precision : 17;
+	const char *dot = name ? strrchr(name, '.') : NULL;
 
+	if (dot && !strcasecmp(dot, ".x3p"))
+		return asph_error_set_at(err, -EINVAL, name, 0, 0, NULL,
+					 "X3P is a container written by path, not to a stream");
 	switch (name ? format_of(name) : FMT_CSV) {
 	case FMT_PLY:
 		write_ply(f, p, prec, opts);
@@ -880,9 +885,14 @@ int asph_points_write(const char *path, const struct asph_points *p,
 		      struct asph_error *err)
 {
 	int is_stdout = !strcmp(path, "-");
-	FILE *f = is_stdout ? stdout : fopen(path, "we");
+	const char *dot = strrchr(path, '.');
+	FILE *f;
 	int r;
 
+	/* X3P: the list layout of ISO 25178-72 (lib/export/x3p.c). */
+	if (!is_stdout && dot && !strcasecmp(dot, ".x3p"))
+		return asph_x3p_write_points(path, p->xyz, p->n, NULL, err);
+	f = is_stdout ? stdout : fopen(path, "we");
 	if (!f) {
 		int e = -errno;
 		return asph_error_set_at(err, e, path, 0, 0, NULL, "cannot create: %s",
