@@ -293,10 +293,38 @@ static void stage_fill_info(struct stage *s, const struct asph_option_value *o)
 	}
 }
 
+/* Speed, acceleration and current in the drive's units must fit its
+ * registers: refused here, before anything moves, never wrapped. */
+static int check_settings(const struct stage *s, const struct asph_option_value *o,
+			  struct asph_error *err)
+{
+	int r = 0;
+
+	for (int k = 0; r == 0 && k < 3; k++) {
+		bool rotary = s->info.kinematics == ASPH_KINEMATICS_RTZ && k == 1;
+		r = stage_check_setting(s, "speed", o[OPT_SPEED].d, rotary ? "rad/s" : "mm/s",
+					s->axes[k].speed, err);
+		if (r == 0)
+			r = stage_check_setting(s, "accel", o[OPT_ACCEL].d,
+						rotary ? "rad/s^2" : "mm/s^2", s->axes[k].accel, err);
+	}
+	if (r == 0)
+		r = stage_check_setting(s, "current", o[OPT_CURRENT].d, "%", o[OPT_CURRENT].d * 10,
+					err);
+	return r;
+}
+
 static int stage_open(const struct asph_driver *drv, const struct asph_option_value *o,
 		      unsigned timeout_ms, struct asph_device **out, struct asph_error *err)
 {
-	int r;
+	struct stage checked = { 0 };
+
+	/* the settings are checked before the bus is opened */
+	stage_map(o, &checked.map);
+	stage_fill_info(&checked, o);
+	int r = check_settings(&checked, o, err);
+	if (r < 0)
+		return r;
 	struct asph_device *d = dev_new(o, &r, err);
 
 	if (!d)

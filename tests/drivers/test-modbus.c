@@ -372,10 +372,68 @@ static void test_stage_custom_map(void **state)
 	};
 
 	sim_start(e, false, &m, 1e-3);
-	exercise_stage(e, "word_size=16,word_order=low-first,start=start-bit,reg_data=256,"
+	/* 100 mm/s^2 would be 100000 counts/s^2: more than a 16-bit register */
+	exercise_stage(e, "accel=60,word_size=16,word_order=low-first,start=start-bit,reg_data=256,"
 		       "reg_command=16,reg_status=17,reg_position=18,reg_alarm=19,bit_start=0,"
 		       "bit_zhome=1,bit_stop=2,bit_alm_rst=3,bit_ready=8,bit_busy=9,bit_in_pos=10,"
 		       "bit_alm=11,bit_home_end=12");
+	sim_stop(e);
+}
+
+/* Values that do not fit the map's registers are refused when the stage
+ * is opened, naming the option and the width; nothing is written. */
+static void test_settings_fit(void **state)
+{
+	static const struct {
+		const char *opts, *words;
+	} cases[] = {
+		{ "word_size=16,speed=66", "option 'speed': 66 mm/s is 66000 drive units, which do "
+					   "not fit the drive's 16-bit register (at most 65535)" },
+		{ "word_size=16,speed=10,accel=100", "option 'accel': 100 mm/s^2 is 100000 drive "
+						     "units, which do not fit the drive's 16-bit" },
+		{ "counts_per_mm=1e7,speed=300,accel=1", "option 'speed': 300 mm/s is 3000000000 drive "
+							 "units, which do not fit the drive's 32-bit "
+							 "register (at most 2147483647)" },
+		{ "kinematics=r-theta-z,counts_per_rad=1e6,word_size=16,speed=0.1,accel=0.05",
+		  "option 'speed': 0.1 rad/s is 100000 drive units" },
+	};
+	struct env *e = *state;
+	struct asph_error err;
+	struct mbsim_stats sim;
+	struct dev st;
+
+	sim_start(e, false, NULL, 1e-3);
+	for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
+		expect(dev_open(e, true, cases[i].opts, &st, &err), -ERANGE, &err, cases[i].words);
+		assert_string_equal(err.field, strstr(cases[i].words, "'accel'") ? "accel" : "speed");
+	}
+	mbsim_stats(e->sim, &sim);
+	assert_int_equal(sim.requests, 0);
+	/* the largest that fit: 65535 counts/s */
+	must(dev_open(e, true, "word_size=16,speed=65.535,accel=65.535", &st, &err), &err);
+	dev_close(e, &st);
+	sim_stop(e);
+}
+
+/* A stage configured with the wrong word order: homing does not end, and
+ * the timeout says what the position looks like either way. */
+static void test_word_order_hint(void **state)
+{
+	struct env *e = *state;
+	struct asph_error err;
+	struct dev st;
+	double t[3] = { 12.345, -3.21, 4.5 };
+
+	sim_start(e, false, NULL, 1e-3);
+	homed_stage(e, "", &st);
+	must(e->drv->stage->move_to(st.d, t, 2000, &err), &err);
+	dev_close(e, &st);
+	must(dev_open(e, true, "word_order=low-first", &st, &err), &err);
+	expect(e->drv->stage->home(st.d, 300, &err), -ETIMEDOUT, &err,
+	       "axis z (unit 3): homing did not finish within 300 ms; its position reads 294912 mm, "
+	       "far outside the travel, and 4.5 mm with the words swapped: check word_order (now "
+	       "low-first)");
+	dev_close(e, &st);
 	sim_stop(e);
 }
 
@@ -859,6 +917,8 @@ int main(void)
 		cmocka_unit_test(test_stage_rtheta),
 		cmocka_unit_test(test_stage_custom_map),
 		cmocka_unit_test(test_stage_rtu),
+		cmocka_unit_test(test_settings_fit),
+		cmocka_unit_test(test_word_order_hint),
 		cmocka_unit_test(test_exceptions),
 		cmocka_unit_test(test_silent),
 		cmocka_unit_test(test_garbled),
