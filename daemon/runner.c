@@ -26,7 +26,7 @@
 #define INSTRUMENT_TIMEOUT_MS 10000
 
 struct runner {
-	const struct asph_instrument_config *ic;
+	struct asph_instrument_config *ic;    /* this worker's alone: its lens follows the job */
 	runner_report_fn fn;
 	void *data;
 	int efd;
@@ -204,6 +204,10 @@ static int measure(struct run *run)
 	struct asph_scan *scan = NULL;
 	int rc;
 
+	/* a simulated part is the lens the job measures, unless configured */
+	rc = asph_instrument_config_set_lens(r->ic, run->jp.prescription_json, &run->err);
+	if (rc < 0)
+		return rc;
 	rc = asph_instrument_open(r->ic, INSTRUMENT_TIMEOUT_MS, &run->inst, &run->err);
 	if (rc < 0)
 		return rc;
@@ -306,7 +310,7 @@ static void *worker(void *data)
 
 /* ---------------------------------------------------------- controls */
 
-int runner_new(const struct asph_instrument_config *instrument,
+int runner_new(struct asph_instrument_config *instrument,
 	       sd_event *event, runner_report_fn fn, void *data,
 	       struct runner **out)
 {

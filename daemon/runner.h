@@ -65,7 +65,7 @@ struct runner;
  * A worker for an instrument (the configuration must outlive it); reports
  * are delivered on event's thread to fn.
  */
-int runner_new(const struct asph_instrument_config *instrument,
+int runner_new(struct asph_instrument_config *instrument,
 	       sd_event *event, runner_report_fn fn, void *data,
 	       struct runner **out);
 /* Stops the current job (as runner_stop) and joins the thread. */

@@ -404,6 +404,26 @@ int asph_config_resolve(const struct asph_registry *reg, const char *arg,
 	return -ENOENT;
 }
 
+static int lens_option(struct asph_options *o, const char *json, struct asph_error *err)
+{
+	int i = option_index(asph_options_driver(o), "lens");
+
+	if (i < 0 || asph_options_driver(o)->options[i].type != ASPH_OPTION_STRING)
+		return 0;
+	return asph_options_set_default(o, "lens", json, err);
+}
+
+int asph_instrument_config_set_lens(struct asph_instrument_config *c,
+				    const char *prescription_json,
+				    struct asph_error *err)
+{
+	int r = lens_option(c->stage_options, prescription_json, err);
+
+	if (r >= 0)
+		r = lens_option(c->probe_options, prescription_json, err);
+	return r < 0 ? r : 0;
+}
+
 static json_t *role_json(const struct asph_driver *drv, const struct asph_options *o,
 		 unsigned role)
 {

@@ -204,6 +204,26 @@ int asph_options_set(struct asph_options *o, const char *name,
 	return 0;
 }
 
+int asph_options_set_default(struct asph_options *o, const char *name,
+			     const char *text, struct asph_error *err)
+{
+	int i = option_index(o->drv, name);
+	struct asph_option_value v = { 0 };
+
+	if (i < 0 || o->values[i].set)
+		return 0;
+	_cleanup_free_ char *copy = strdup(text);
+	if (!copy)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	int r = option_parse(&o->drv->options[i], copy, &v, err);
+	if (r < 0)
+		return r;
+	free(o->texts[i]);
+	o->texts[i] = steal_ptr(copy);
+	o->values[i] = v;
+	return 1;
+}
+
 const struct asph_option_value *asph_options_values(const struct asph_options *o)
 {
 	return o->values;

@@ -94,6 +94,15 @@ void asph_options_free(struct asph_options *o);
 int asph_options_set(struct asph_options *o, const char *name,
 		     const char *text, struct asph_error *err);
 
+/*
+ * Gives option name the value text unless the configuration set it: the
+ * value stays "not set", so the next call replaces it. 1 when it was
+ * given, 0 when the driver has no such option or the configuration set
+ * it, else the error of asph_options_set().
+ */
+int asph_options_set_default(struct asph_options *o, const char *name,
+			     const char *text, struct asph_error *err);
+
 /* The values, parallel to the driver's option descriptors. */
 const struct asph_option_value *
 asph_options_values(const struct asph_options *o);
@@ -149,6 +158,18 @@ void asph_config_free(struct asph_config *c);
 int asph_config_resolve(const struct asph_registry *reg, const char *arg,
 			struct asph_config **out, size_t *index,
 			struct asph_error *err);
+
+/*
+ * The lens a job measures, for drivers that simulate the part: a string
+ * option named "lens" of the stage's or the probe's driver that the
+ * configuration leaves unset takes prescription_json (the lens's
+ * prescription as JSON text, asph_prescription_to_json()). One the
+ * configuration sets is kept: that is how a wrong part is simulated.
+ * Call it before each job's asph_instrument_open().
+ */
+int asph_instrument_config_set_lens(struct asph_instrument_config *c,
+				    const char *prescription_json,
+				    struct asph_error *err);
 
 /* The instrument as JSON text (drivers, versions, every option's value),
  * for the recorded scan's header. malloc'd. */
