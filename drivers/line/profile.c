@@ -41,6 +41,7 @@ struct parser {
 	struct asph_error *err;
 	struct line_profile *p;
 	int op;                 /* the open "op" block, or -1 */
+	int op_line;            /* where it opened */
 	bool seen_magic;
 };
 
@@ -341,6 +342,7 @@ static int setting(struct parser *ps, const struct words *w)
 					return fail(ps, w->col[1], "operation '%s' defined twice", w->w[1]);
 				p->ops[i].defined = true;
 				ps->op = i;
+				ps->op_line = ps->line;
 				return 0;
 			}
 		return fail(ps, w->col[1], "'%s' is not an operation (connect, enable, velocity, "
@@ -506,7 +508,7 @@ static int complete(struct parser *ps)
 int line_profile_parse(const char *text, size_t len, const char *source,
 		       struct line_profile *out, struct asph_error *err)
 {
-	struct parser ps = { source, 0, err, out, -1, false };
+	struct parser ps = { source, 0, err, out, -1, 0, false };
 	size_t i = 0;
 
 	memset(out, 0, sizeof(*out));
@@ -540,8 +542,10 @@ int line_profile_parse(const char *text, size_t len, const char *source,
 	ps.line = ps.line ? ps.line : 1;
 	if (!ps.seen_magic)
 		return fail(&ps, 1, "empty profile: the first line must be '" MAGIC " 1'");
-	if (ps.op >= 0)
-		return fail(&ps, 0, "the operation '%s' has no 'end'", op_names[ps.op]);
+	if (ps.op >= 0) {
+		ps.line = ps.op_line;
+		return fail(&ps, 1, "the operation '%s' has no 'end'", op_names[ps.op]);
+	}
 	return complete(&ps);
 }
 
