@@ -343,6 +343,7 @@ static int setting(struct parser *ps, const struct words *w)
 				p->ops[i].defined = true;
 				ps->op = i;
 				ps->op_line = ps->line;
+				p->ops[i].line = ps->line;
 				return 0;
 			}
 		return fail(ps, w->col[1], "'%s' is not an operation (connect, enable, velocity, "
@@ -479,6 +480,9 @@ static int complete(struct parser *ps)
 	struct line_profile *p = ps->p;
 	static const int stage_ops[] = { LINE_OP_HOME, LINE_OP_MOVE, LINE_OP_POSITION, LINE_OP_STOP };
 
+	/* what is missing belongs to the whole file, not its last line */
+	ps->line = 0;
+
 	if (!p->name[0])
 		return fail(ps, 0, "the profile has no 'name'");
 	if (!p->roles)
@@ -498,10 +502,12 @@ static int complete(struct parser *ps)
 	op = &p->ops[LINE_OP_READ];
 	for (unsigned i = 0; i < op->n; i++)
 		value = value || strstr(op->steps[i].reply, "{value}");
+	ps->line = p->ops[LINE_OP_POSITION].line;
 	if (p->roles == LINE_ROLE_STAGE && !pos)
-		return fail(ps, 0, "the 'position' operation's replies need {pos} or {p0} {p1} {p2}");
+		return fail(ps, 1, "the 'position' operation's replies need {pos} or {p0} {p1} {p2}");
+	ps->line = p->ops[LINE_OP_READ].line;
 	if (p->roles == LINE_ROLE_PROBE && !value)
-		return fail(ps, 0, "the 'read' operation's replies need {value}");
+		return fail(ps, 1, "the 'read' operation's replies need {value}");
 	return 0;
 }
 

@@ -51,6 +51,7 @@ struct line_op {
 	struct line_step steps[LINE_MAX_STEPS];
 	unsigned n;
 	bool defined;
+	int line;                       /* where it opens in the profile */
 };
 
 enum line_op_id {

@@ -63,7 +63,7 @@ static void test_profile_refusals(void **state)
 		{ HEAD "op read\n  query \"M{target}\" \"M1,{value}\"\nend\n", 7, 0, "" },
 		{ HEAD "op read\n  query \"M1\" \"M1,{value}\n", 7, 14, "a string without its closing quote" },
 		{ HEAD "op read\n  query \"M1\" \"M1,{value}\"\n", 6, 1, "the operation 'read' has no 'end'" },
-		{ HEAD "op read\n  query \"M1\" \"M1,{code}\"\nend\n", 0, 0, "need {value}" },
+		{ HEAD "op read\n  query \"M1\" \"M1,{code}\"\nend\n", 6, 1, "need {value}" },
 		{ HEAD "op read\n  jump 3\nend\n", 7, 3, "'jump' is not a step" },
 		{ HEAD "op fly\nend\n", 6, 4, "'fly' is not an operation" },
 		{ HEAD "serial 9600 9 none 1\n", 6, 13, "9 is outside 5 .. 8" },
@@ -76,7 +76,7 @@ static void test_profile_refusals(void **state)
 		{ "asphd-line-profile 1\nname lab\nrole stage\nsend_terminator \"\\n\"\n"
 		  "reply_terminator \"\\n\"\nop position\n  query \"P\" \"{p0}\"\nend\n", 0, 0,
 		  "a stage profile needs the operation 'home'" },
-		{ HEAD "description \"caf\xc3\xa9\"\n", 6, 18, "not ASCII text" },
+		{ HEAD "description \"caf\xc3\xa9\"\n", 6, 17, "not ASCII text" },
 	};
 	struct line_profile p;
 	struct asph_error err;
