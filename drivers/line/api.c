@@ -64,7 +64,8 @@ static const struct asph_option_desc line_options[N_OPTIONS] = {
 	[OPT_DTR] = { "dtr", ASPH_OPTION_ENUM, "on", .choices = dtrs,
 		      .help = "serial: DTR while open (some cables draw power from it)" },
 	[OPT_AXES] = { "axes", ASPH_OPTION_STRING, "",
-		       .roles = S, .help = "the controller's axis ids for x, y, z, e.g. 1,2,3 (empty: the profile's)" },
+		       .help = "a stage: the controller's axis ids for x, y, z, e.g. 1,2,3; a sensor: its "
+			       "channel or head (empty: the profile's)" },
 	[OPT_TIMEOUT] = { "timeout", ASPH_OPTION_INT, "1000", RANGE(1, 600000), .unit = "ms",
 			  .help = "the longest wait for one reply" },
 	[OPT_RECONNECT] = { "reconnect", ASPH_OPTION_BOOL, "true",
@@ -187,13 +188,16 @@ static int parse_axes(struct asph_device *d, const char *text, struct asph_error
 	snprintf(buf, sizeof(buf), "%s", text);
 	char *save = NULL;
 	for (char *id = strtok_r(buf, ",", &save); id; id = strtok_r(NULL, ",", &save), n++) {
-		if (n == 3 || strlen(id) >= sizeof(d->ids[0]) || strpbrk(id, " {}\\"))
+		if (n == 3 || strlen(id) >= sizeof(d->ids[0]) || strpbrk(id, " {}\\")) {
+			n = -1;
 			break;
+		}
 		snprintf(d->ids[n], sizeof(d->ids[n]), "%s", id);
 	}
-	if (n != 3 || save == NULL || *save) {
-		asph_error_set(err, -EINVAL, "option 'axes': three axis ids for x, y, z separated "
-			       "by commas (e.g. 1,2,3), not '%s'", text);
+	if (d->stage ? n != 3 : n < 1) {
+		asph_error_set(err, -EINVAL, "option 'axes': %s separated by commas (e.g. %s), not '%s'",
+			       d->stage ? "three axis ids for x, y, z" : "the sensor's channel first",
+			       d->stage ? "1,2,3" : "1", text);
 		asph_error_locate(err, NULL, 0, 0, "axes");
 		return -EINVAL;
 	}

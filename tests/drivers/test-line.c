@@ -193,8 +193,9 @@ static void test_patterns(void **state)
 
 struct env {
 	struct scan_fixture fx;
+	struct asph_plan *plan;         /* the plan scanned: fx's, or dense */
+	struct asph_plan *dense;
 	struct mock_part *part;
-	struct linesim *stage_sim;      /* what the sensor rides on */
 };
 
 static const struct mock_part_params part_params = {
@@ -203,13 +204,47 @@ static const struct mock_part_params part_params = {
 	.seed = 1,
 };
 
-/* A sensor on the simulated stage sees the part from where it is. */
+/* Where the mock stage that carries a sensor is: the mock stage's
+ * operations wrapped to tell (the executor calls them from one thread,
+ * the simulator reads from its own). */
+static pthread_mutex_t tracked_lock = PTHREAD_MUTEX_INITIALIZER;
+static double tracked[3];
+static const struct asph_stage_ops *mock_stage;
+
+static void track(struct asph_device *d)
+{
+	double p[3];
+
+	if (mock_stage->position(d, p, 0, NULL) < 0)
+		return;
+	pthread_mutex_lock(&tracked_lock);
+	memcpy(tracked, p, sizeof(p));
+	pthread_mutex_unlock(&tracked_lock);
+}
+
+static int track_home(struct asph_device *d, unsigned t, struct asph_error *err)
+{
+	int r = mock_stage->home(d, t, err);
+	track(d);
+	return r;
+}
+
+static int track_move(struct asph_device *d, const double *p, unsigned t, struct asph_error *err)
+{
+	int r = mock_stage->move_to(d, p, t, err);
+	track(d);
+	return r;
+}
+
+/* A sensor on the stage sees the part from where the stage is. */
 static bool sense(void *data, double *mm)
 {
 	struct env *e = data;
 	double pos[3], z;
 
-	linesim_position(e->stage_sim, pos);
+	pthread_mutex_lock(&tracked_lock);
+	memcpy(pos, tracked, sizeof(pos));
+	pthread_mutex_unlock(&tracked_lock);
 	if (mock_part_probe_z(e->part, pos[0], pos[1], 0, &z) < 0)
 		return false;
 	*mm = z - pos[2];
@@ -223,6 +258,13 @@ static int setup(void **state)
 	assert_non_null(e);
 	scan_fixture_init(&e->fx, 150, "line");
 	assert_int_equal(mock_part_new(&part_params, &e->part, NULL), 0);
+	/* A sensor reports to 10 nm (the finest its format carries): 4000
+	 * readings bring the fit's error from rounding under 1 nm, where 150
+	 * leave it at about 3 nm */
+	struct asph_plan_density d = { ASPH_DENSITY_POINTS, 4000 };
+	struct asph_plan_options po = { .flags = ASPH_PLAN_NO_MESH };
+	assert_int_equal(asph_plan_compute_opts(e->fx.s, ASPH_PLAN_FERMAT, d, &po, &e->dense, NULL), 0);
+	e->plan = e->fx.plan;
 	*state = e;
 	return 0;
 }
@@ -232,6 +274,7 @@ static int teardown(void **state)
 	struct env *e = *state;
 
 	mock_part_free(e->part);
+	asph_plan_free(e->dense);
 	scan_fixture_fini(&e->fx);
 	free(e);
 	return 0;
@@ -263,12 +306,13 @@ static const struct profile_case cases[] = {
 	{ "sylvac", LINESIM_SYLVAC, false, NULL, "Sylvac error 0: sensor error", NULL },
 };
 
-/* The instrument: the profile's device on its simulator, and the mock
- * stage or probe for the other role. */
+/* The instrument: the profile's device on its simulator at address, and
+ * the mock probe riding on it (a stage profile) or the mock stage
+ * carrying it (a sensor profile). */
 static struct asph_config *bench(struct env *e, const struct profile_case *pc, bool serial,
 				 const char *address, const char *axes)
 {
-	char text[2048], conn[512], line[1024];
+	char text[2048], dev[768], conn[512];
 	struct asph_config *c;
 	struct asph_error err;
 
@@ -276,26 +320,226 @@ static struct asph_config *bench(struct env *e, const struct profile_case *pc, b
 		snprintf(conn, sizeof(conn), "\"device\": \"%s\"", address);
 	else
 		snprintf(conn, sizeof(conn), "\"port\": %s", address);
-	if (pc->stage) {
-		snprintf(line, sizeof(line), "\"driver\": \"line\", \"options\": {\"profile\": \"%s\", "
-			 "%s, \"timeout\": %u%s%s%s}", pc->profile, conn, reply_ms(),
-			 axes ? ", \"axes\": \"" : "", axes ? axes : "", axes ? "\"" : "");
+	snprintf(dev, sizeof(dev), "\"driver\": \"line\", \"options\": {\"profile\": \"%s\", %s, "
+		 "\"timeout\": %u%s%s%s%s}", pc->profile, conn, reply_ms(),
+		 pc->stage ? "" : ", \"standoff\": 0, \"range\": 1",
+		 axes ? ", \"axes\": \"" : "", axes ? axes : "", axes ? "\"" : "");
+	if (pc->stage)
 		snprintf(text, sizeof(text),
 			 "{\"instruments\": [{\"name\": \"bench\", \"stage\": {%s},\n"
 			 " \"probe\": {\"driver\": \"mock\", \"options\": {\"time_factor\": 0, "
-			 MISALIGNMENT "}}}]}", line);
-	} else {
-		snprintf(line, sizeof(line), "\"driver\": \"line\", \"options\": {\"profile\": \"%s\", "
-			 "%s, \"timeout\": %u, \"standoff\": 0, \"range\": 1%s%s%s}", pc->profile, conn,
-			 reply_ms(), axes ? ", \"axes\": \"" : "", axes ? axes : "", axes ? "\"" : "");
+			 MISALIGNMENT "}}}]}", dev);
+	else
 		snprintf(text, sizeof(text),
-			 "{\"instruments\": [{\"name\": \"bench\", \"stage\": {\"driver\": \"line\", "
-			 "\"options\": {\"profile\": \"pi-gcs\", \"port\": %s, \"timeout\": %u}},\n"
-			 " \"probe\": {%s}}]}", "@STAGE@", reply_ms(), line);
-	}
+			 "{\"instruments\": [{\"name\": \"bench\", \"stage\": {\"driver\": \"mock\", "
+			 "\"options\": {\"time_factor\": 0}},\n \"probe\": {%s}}]}", dev);
 	if (asph_config_parse(e->fx.reg, text, strlen(text), "bench.json", &c, &err) < 0)
 		fail_msg("%s", err.message);
+	if (!pc->stage) {
+		/* the mock stage, telling the sensor's simulator where it is */
+		static struct asph_stage_ops ops;
+		static struct asph_driver tracking;
+		mock_stage = c->instruments[0].stage_driver->stage;
+		ops = *mock_stage;
+		ops.home = track_home;
+		ops.move_to = track_move;
+		tracking = *c->instruments[0].stage_driver;
+		tracking.stage = &ops;
+		c->instruments[0].stage_driver = &tracking;
+	}
 	return c;
+}
+
+struct rig {
+	struct linesim *dev;
+	char address[128];
+};
+
+/* The simulators of a case: the device, and for a sensor the stage. */
+static void rig_start(struct env *e, const struct profile_case *pc, bool serial, struct rig *rg)
+{
+	struct linesim_config sc = { .kind = pc->kind, .serial = serial, .time_scale = 1e-4,
+				     .travel = 50, .speed = 20, .sense = sense, .sense_data = e };
+
+	memset(rg, 0, sizeof(*rg));
+	assert_int_equal(linesim_start(&sc, &rg->dev, rg->address, sizeof(rg->address)), 0);
+}
+
+static void rig_stop(struct env *e, struct rig *rg)
+{
+	linesim_stop(rg->dev);
+}
+
+/* Measures the plan with the first instrument of c into path. -errno of
+ * the scan; the instrument's open failure fails the test unless
+ * open_err is given (then its code is returned). */
+static int scan(struct env *e, struct asph_config *c, const char *path, struct asph_error *err,
+		bool open_may_fail)
+{
+	struct asph_scanfile_header_info info = { "{\"name\":\"strong\"}", "{\"method\":\"fermat\"}",
+						  "{\"name\":\"bench\"}", NULL };
+	struct asph_scanfile_writer *w;
+	struct asph_instrument *inst;
+	struct asph_scan *sc;
+
+	int r = asph_instrument_open(&c->instruments[0], 2000, &inst, err);
+	if (r < 0 && open_may_fail)
+		return r;
+	if (r < 0)
+		fail_msg("open: %s", err->message);
+	assert_int_equal(asph_scan_new(inst, e->fx.s, e->plan->xyz, e->plan->n, NULL, &sc,
+				       NULL), 0);
+	assert_int_equal(asph_scanfile_writer_create(path, &info, NULL, &w, NULL), 0);
+	r = asph_scan_run(sc, w, err);
+	asph_scan_free(sc);
+	asph_instrument_close(inst);
+	return r;
+}
+
+static void fit(struct env *e, const char *path, struct asph_fit_result *res)
+{
+	struct asph_scanfile *s = read_scan(path);
+	struct asph_points *pts;
+	struct asph_fit *w;
+	struct asph_error err;
+	struct asph_fit_options fo = { .dof = ASPH_FIT_DOF_RIGID };
+
+	assert_int_equal(s->report.outcome, ASPH_SCANFILE_COMPLETED);
+	assert_int_equal(s->n, e->plan->n);
+	assert_int_equal(asph_scanfile_to_points(s, 0, &pts, NULL), 0);
+	assert_int_equal(asph_fit_alloc(e->fx.s, pts->n, &fo, &w, NULL), 0);
+	if (asph_fit_run(w, pts->xyz, pts->n, res, &err) < 0)
+		fail_msg("fit: %s", err.message);
+	asph_fit_free(w);
+	asph_points_free(pts);
+	asph_scanfile_free(s);
+}
+
+/* A whole scan of the strong preset over TCP and over a pty: the fit
+ * returns the part's misalignment. */
+static void scan_case(struct env *e, const struct profile_case *pc)
+{
+	static const double want[5] = { SHIFT_X, SHIFT_Y, SHIFT_Z, TILT_X, TILT_Y };
+	struct asph_fit_result res;
+	struct asph_error err;
+	char path[128];
+	struct rig rg;
+
+	e->plan = pc->stage ? e->fx.plan : e->dense;
+	for (int serial = 0; serial < 2; serial++) {
+		rig_start(e, pc, serial, &rg);
+		struct asph_config *c = bench(e, pc, serial, rg.address, NULL);
+		if (scan(e, c, new_path(&e->fx, path, sizeof(path)), &err, false) < 0)
+			fail_msg("%s over %s: %s", pc->profile, serial ? "a pty" : "TCP", err.message);
+		asph_config_free(c);
+		struct linesim_stats st;
+		linesim_stats(rg.dev, &st);
+		assert_false(st.moving);
+		rig_stop(e, &rg);
+		fit(e, path, &res);
+		/* shifts to 1e-6 mm; tilts to 1e-7 rad, 1e-6 mm over 10 mm */
+		for (int k = 0; k < 5; k++)
+			if (fabs(res.value[ASPH_FIT_TX + k] - want[k]) > (k < 3 ? 1e-6 : 1e-7))
+				fail_msg("%s over %s: dof %d is %.9g, the part's %.9g", pc->profile,
+					 serial ? "a pty" : "TCP", k, res.value[ASPH_FIT_TX + k], want[k]);
+	}
+	e->plan = e->fx.plan;
+}
+
+static void test_scans(void **state)
+{
+	for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++)
+		scan_case(*state, &cases[i]);
+}
+
+/* ------------------------------------------------------------ faults */
+
+struct fault_case {
+	enum linesim_fault fault;
+	const char *words;              /* NULL: the case's own device error */
+};
+
+static void fault_scan(struct env *e, const struct profile_case *pc, const struct fault_case *fc)
+{
+	struct asph_error err;
+	struct linesim_stats st;
+	char path[128];
+	struct rig rg;
+
+	rig_start(e, pc, false, &rg);
+	struct asph_config *c = bench(e, pc, false, rg.address, NULL);
+	/* at the 40th move (a stage) or reading (a sensor) */
+	linesim_inject(rg.dev, fc->fault, pc->stage ? 120 : 40);
+	int r = scan(e, c, new_path(&e->fx, path, sizeof(path)), &err, false);
+	const char *words = fc->words ? fc->words : pc->error_words;
+	if (r >= 0 || !strstr(err.message, words))
+		fail_msg("%s, fault %d: %d '%s', expected '%s'", pc->profile, fc->fault, r,
+			 err.message, words);
+	linesim_stats(rg.dev, &st);
+	/* the stage stands: stopped by the driver after a fault of its own
+	 * (connecting again when the connection was lost), or still after
+	 * the probe's */
+	assert_false(st.moving);
+	if (pc->stage)
+		assert_true(st.stops >= 1);
+	if (pc->stage && fc->fault == LINESIM_DISCONNECT)
+		assert_int_equal(st.connections, 2);
+	rig_stop(e, &rg);
+	asph_config_free(c);
+	struct asph_scanfile *s = read_scan(path);
+	assert_int_equal(s->report.outcome, ASPH_SCANFILE_FAILED);
+	assert_non_null(strstr(s->report.reason, words));
+	if (!(s->n >= 30 && s->n < e->plan->n))
+		fail_msg("%s, fault %d: %zu points recorded", pc->profile, fc->fault, s->n);
+	asph_scanfile_free(s);
+}
+
+static void test_faults(void **state)
+{
+	static const struct fault_case faults[] = {
+		{ LINESIM_DEVICE_ERROR, NULL },
+		{ LINESIM_GARBLE, "garbled reply" },
+		{ LINESIM_STALL, "no reply to '" },
+		{ LINESIM_DISCONNECT, "closed the connection" },
+		{ LINESIM_PARTIAL, "partial reply" },
+	};
+	for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++)
+		for (size_t f = 0; f < sizeof(faults) / sizeof(faults[0]); f++)
+			if (faults[f].words || cases[i].error_words)
+				fault_scan(*state, &cases[i], &faults[f]);
+}
+
+/* A wrong axis id: a stage refuses to open (before anything moves), a
+ * sensor's first reading fails; the reason is the device's. */
+static void test_wrong_axis(void **state)
+{
+	struct env *e = *state;
+	struct asph_error err;
+	char path[128];
+	struct rig rg;
+
+	for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
+		const struct profile_case *pc = &cases[i];
+		if (!pc->wrong_axes)
+			continue;
+		rig_start(e, pc, false, &rg);
+		struct asph_config *c = bench(e, pc, false, rg.address, pc->wrong_axes);
+		int r = scan(e, c, new_path(&e->fx, path, sizeof(path)), &err, pc->stage);
+		if (r >= 0 || !strstr(err.message, pc->wrong_axis_words))
+			fail_msg("%s: %d '%s'", pc->profile, r, err.message);
+		if (!pc->stage) {
+			struct asph_scanfile *s = read_scan(path);
+			assert_int_equal(s->report.outcome, ASPH_SCANFILE_FAILED);
+			assert_non_null(strstr(s->report.reason, pc->wrong_axis_words));
+			asph_scanfile_free(s);
+		}
+		struct linesim_stats st;
+		linesim_stats(rg.dev, &st);
+		assert_false(st.moving);
+		assert_int_equal(st.moves, 0);
+		rig_stop(e, &rg);
+		asph_config_free(c);
+	}
 }
 
 int main(void)
@@ -305,11 +549,9 @@ int main(void)
 		cmocka_unit_test(test_builtin_profiles),
 		cmocka_unit_test(test_reader),
 		cmocka_unit_test(test_patterns),
+		cmocka_unit_test_setup_teardown(test_scans, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_faults, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_wrong_axis, setup, teardown),
 	};
-	(void)bench;
-	(void)cases;
-	(void)setup;
-	(void)teardown;
-	(void)sense;
 	return cmocka_run_group_tests(tests, NULL, NULL);
 }
