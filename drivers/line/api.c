@@ -403,16 +403,19 @@ static int run_error_query(struct asph_device *d, uint64_t deadline, bool *clean
 	struct line_match m;
 	bool oor = false;
 
+	char cmd[LINE_REPLY_MAX / 2];
+
 	memset(&m, 0, sizeof(m));
 	*clean = true;
-	int r = query(d, d->prof.error_query, d->prof.error_reply_pattern, NULL, &m, &oor,
-		      deadline, err);
+	int r = line_expand(d->prof.error_query, &d->vars, cmd, sizeof(cmd), err);
+	if (r == 0)
+		r = query(d, cmd, d->prof.error_reply_pattern, NULL, &m, &oor, deadline, err);
 	if (r < 0)
 		return r;
-	if (m.code == d->prof.error_none)
+	if (m.has_code ? m.code == d->prof.error_none : !strcmp(m.text, d->prof.error_none_text))
 		return 0;
 	*clean = false;
-	return device_error(d, m.code, true, m.has_text ? m.text : "", err);
+	return device_error(d, m.code, m.has_code, m.has_text ? m.text : "", err);
 }
 
 static int nap(struct asph_device *d, unsigned ms, uint64_t deadline, struct asph_error *err)
@@ -439,10 +442,14 @@ static int wait_step(struct asph_device *d, const struct line_step *st, const ch
 			r = read_reply(d, cmd, reply, sizeof(reply), deadline, d->reply_ms, err);
 		if (r < 0)
 			return r;
-		if (line_match(st->reply, reply, &d->vars, m))
-			return 0;
-		bool busy = false;
 		struct line_match b;
+		memset(&b, 0, sizeof(b));
+		bool matched = line_match(st->reply, reply, &d->vars, &b);
+		if (matched && (!st->has_mask || (b.code & st->mask) == st->value)) {
+			line_match(st->reply, reply, &d->vars, m);
+			return 0;
+		}
+		bool busy = matched;
 		for (unsigned i = 0; i < st->n_busy && !busy; i++)
 			busy = line_match(st->busy[i], reply, &d->vars, &b);
 		if (!busy) {
@@ -486,7 +493,6 @@ static int run_step(struct asph_device *d, const struct line_step *st, struct li
 	case LINE_STEP_QUERY:
 		return query(d, cmd, st->reply, st->range, m, oor, deadline, err);
 	case LINE_STEP_READ:
-		line_reader_clear(&d->rd);
 		return query(d, NULL, st->reply, st->range, m, oor, deadline, err);
 	case LINE_STEP_WAIT:
 		return wait_step(d, st, cmd, m, deadline, timeout_ms, err);

@@ -256,6 +256,20 @@ static int step_options(struct parser *ps, const struct words *w, int first,
 		} else if (!strcmp(key, "range") &&
 			   (st->kind == LINE_STEP_QUERY || st->kind == LINE_STEP_READ)) {
 			r = checked(ps, w, i + 1, LINE_TEXT_PATTERN, st->range, NULL);
+		} else if (!strcmp(key, "mask") && st->kind == LINE_STEP_WAIT) {
+			char *end1, *end2;
+			if (i + 2 >= w->n)
+				return fail(ps, w->col[i], "'mask' takes a mask and the value the masked "
+					    "{code} has when done");
+			st->mask = strtol(w->w[i + 1], &end1, 0);
+			st->value = strtol(w->w[i + 2], &end2, 0);
+			if (!*w->w[i + 1] || *end1 || !*w->w[i + 2] || *end2)
+				return fail(ps, w->col[i + 1], "'mask' takes two integers (0x.. allowed)");
+			if (!strstr(st->reply, "{code}") && !strstr(st->reply, "{hex}"))
+				return fail(ps, w->col[i], "'mask' needs {code} or {hex} in the done pattern");
+			st->has_mask = true;
+			i++;
+			r = 0;
 		} else if (!strcmp(key, "busy") && st->kind == LINE_STEP_WAIT) {
 			if (st->n_busy == LINE_MAX_PATTERNS)
 				return fail(ps, w->col[i], "more than %d busy patterns", LINE_MAX_PATTERNS);
@@ -413,8 +427,8 @@ static int setting(struct parser *ps, const struct words *w)
 		if (r == 0)
 			r = checked(ps, w, 2, LINE_TEXT_PATTERN, p->error_reply_pattern, &pa);
 		if (r == 0 && !strstr(p->error_reply_pattern, "{code}") &&
-		    !strstr(p->error_reply_pattern, "{hex}"))
-			return fail(ps, w->col[2], "the error query's reply needs {code} or {hex}");
+		    !strstr(p->error_reply_pattern, "{hex}") && !strstr(p->error_reply_pattern, "{text}"))
+			return fail(ps, w->col[2], "the error query's reply needs {code}, {hex} or {text}");
 		return r;
 	}
 	if (!strcmp(k, "error_none")) {
@@ -423,6 +437,9 @@ static int setting(struct parser *ps, const struct words *w)
 		p->error_none = (long)x;
 		return r;
 	}
+	if (!strcmp(k, "error_none_text"))
+		return (r = want(ps, w, 1, 1)) < 0 ? r
+		       : copy_text(ps, w, 1, p->error_none_text, LINE_TEXT_MAX);
 	if (!strcmp(k, "error_bits"))
 		return (r = want(ps, w, 0, 0)) < 0 ? r : (p->error_bits = true, 0);
 	if (!strcmp(k, "error_format")) {

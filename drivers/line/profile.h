@@ -43,6 +43,8 @@ struct line_step {
 	char busy[LINE_MAX_PATTERNS][LINE_TEXT_MAX]; /* WAIT: not done yet */
 	unsigned n_busy;
 	unsigned ms;                    /* DELAY, DTR */
+	bool has_mask;                  /* WAIT: done when ({code} & mask) == value */
+	long mask, value;
 	bool per_axis;                  /* the command names one axis */
 	int line;                       /* where in the profile */
 };
@@ -99,6 +101,7 @@ struct line_profile {
 	char error_query[LINE_TEXT_MAX];
 	char error_reply_pattern[LINE_TEXT_MAX]; /* with {code} and/or {text} */
 	long error_none;
+	char error_none_text[LINE_TEXT_MAX]; /* a {text} error query: "no error" */
 	bool error_bits;                /* codes are bit masks of the table */
 	char error_format[LINE_TEXT_MAX]; /* "PI error {code}: {text}" */
 	struct line_error_entry errors[LINE_MAX_ERRORS];

@@ -12,6 +12,7 @@
 #include <strings.h>
 #include <time.h>
 #include <unistd.h>
+#include <ctype.h>
 #include <arpa/inet.h>
 #include <netinet/in.h>
 #include <sys/socket.h>
@@ -34,7 +35,8 @@ struct linesim {
 	struct sim_axis ax[3];
 	const char *ids[3];
 	long error;                     /* the error the device keeps (PI, Newport) */
-	bool enabled;                   /* LinuxCNC: the session may command */
+	bool enabled, linked, echo, verbose; /* LinuxCNC: the session */
+	char text[160];                 /* LinuxCNC: the last error's text */
 	bool stalled, garble_next, partial_next;
 	enum linesim_fault fault;
 	int fault_at;                   /* moves or readings from now */
@@ -338,6 +340,279 @@ static bool pi_char(struct linesim *s, char c)
 	return false;
 }
 
+/* ---------------------------------------------- Newport ESP301 */
+
+/* "1PA12.5": the axis, two letters, a parameter; "TE?" without axis. */
+static void newport_line(struct linesim *s, char *line)
+{
+	enum linesim_fault f;
+	char *end;
+
+	if (!strcmp(line, "TE?")) {
+		reply(s, "\r\n", "%ld", s->error);
+		s->error = 0;
+		return;
+	}
+	long ax = strtol(line, &end, 10);
+	if (end == line) {
+		s->error = 37;
+		return;
+	}
+	int k = (int)ax - 1;
+	if (k < 0 || k > 2) {
+		s->error = 9;
+		return;
+	}
+	const char *cmd = end, *arg = end + 2;
+	if (strlen(cmd) < 2) {
+		s->error = 6;
+		return;
+	}
+	if (!strncmp(cmd, "MO", 2)) {
+		s->ax[k].servo = true;
+	} else if (!strncmp(cmd, "VA", 2)) {
+		s->ax[k].vel = strtod(arg, NULL);
+	} else if (!strcmp(cmd, "OR")) {
+		if (!s->ax[k].servo) {
+			s->error = 13;
+			return;
+		}
+		s->ax[k].referenced = true;
+		start_move(s, k, 0);
+	} else if (!strcmp(cmd, "MD?")) {
+		reply(s, "\r\n", "%d", !axis_moving(s, k));
+	} else if (!strcmp(cmd, "TP")) {
+		reply(s, "\r\n", "%.6f", axis_pos(s, k));
+	} else if (!strcmp(cmd, "ST")) {
+		stop_axis(s, k);
+		s->st.stops++;
+	} else if (!strncmp(cmd, "PA", 2)) {
+		double to = strtod(arg, &end);
+		if (!*arg || *end) {
+			s->error = 38;
+			return;
+		}
+		if (!s->ax[k].servo) {
+			s->error = 13;
+			return;
+		}
+		s->st.moves++;
+		bool fault = fault_now(s, &f) && f == LINESIM_DEVICE_ERROR;
+		if (fabs(to) > s->c.travel || fault) {
+			s->error = (long)(k + 1) * 100 + (to < 0 && !fault ? 7 : 6);
+			return;
+		}
+		start_move(s, k, to);
+		if (f == LINESIM_DISCONNECT)
+			disconnect(s);
+	} else {
+		s->error = 6;
+	}
+}
+
+/* ------------------------------------------- Aerotech Ensemble */
+
+#define AXISFAULT_CW_SOFTWARE_LIMIT 16
+
+static void aerotech_line(struct linesim *s, char *line)
+{
+	enum linesim_fault f;
+	char *w[8], arg[64] = "";
+	int n = words(line, w, 8), k = -1;
+
+	if (n == 0)
+		return;
+	/* FUNCTION(AXIS) queries */
+	char *open = strchr(w[0], '('), *close = open ? strchr(open, ')') : NULL;
+	if (open && close && !close[1]) {
+		*open = '\0';
+		*close = '\0';
+		snprintf(arg, sizeof(arg), "%s", open + 1);
+		k = axis_index(s, arg);
+		if (k < 0) {
+			reply(s, "\n", "!");
+			return;
+		}
+		if (!strcmp(w[0], "PFBKPROG"))
+			reply(s, "\n", "%%%.6f", axis_pos(s, k));
+		else if (!strcmp(w[0], "AXISSTATUS"))
+			reply(s, "\n", "%%%d", (int)s->ax[k].servo | (int)s->ax[k].referenced << 1 |
+			      (int)!axis_moving(s, k) << 2 | (int)axis_moving(s, k) << 3);
+		else if (!strcmp(w[0], "AXISFAULT"))
+			reply(s, "\n", "%%%ld", s->error);
+		else
+			reply(s, "\n", "!");
+		return;
+	}
+	if (n == 3 && !strcmp(w[0], "WAIT") && !strcmp(w[1], "MODE") && !strcmp(w[2], "NOWAIT")) {
+		reply(s, "\n", "%%");
+		return;
+	}
+	if (n == 1 && !strcmp(w[0], "ACKNOWLEDGEALL")) {
+		s->error = 0;
+		reply(s, "\n", "%%");
+		return;
+	}
+	if (n < 2 || (k = axis_index(s, w[1])) < 0) {
+		reply(s, "\n", "!");
+		return;
+	}
+	if (!strcmp(w[0], "ENABLE") && n == 2) {
+		s->ax[k].servo = true;
+	} else if (!strcmp(w[0], "HOME") && n == 2) {
+		if (!s->ax[k].servo || s->error) {
+			reply(s, "\n", "#");
+			return;
+		}
+		s->ax[k].referenced = true;
+		start_move(s, k, 0);
+	} else if (!strcmp(w[0], "ABORT") && n == 2) {
+		stop_axis(s, k);
+		s->st.stops++;
+	} else if (!strcmp(w[0], "MOVEABS") && n == 3) {
+		char *end;
+		double to = strtod(w[2], &end);
+		if (*end) {
+			reply(s, "\n", "!");
+			return;
+		}
+		s->st.moves++;
+		bool fault = fault_now(s, &f) && f == LINESIM_DEVICE_ERROR;
+		if (!s->ax[k].referenced || !s->ax[k].servo || s->error || fault ||
+		    fabs(to) > s->c.travel) {
+			if (fault || fabs(to) > s->c.travel)
+				s->error = AXISFAULT_CW_SOFTWARE_LIMIT;
+			reply(s, "\n", "#");
+			return;
+		}
+		start_move(s, k, to);
+		if (f == LINESIM_DISCONNECT) {
+			disconnect(s);
+			return;
+		}
+	} else {
+		reply(s, "\n", "!");
+		return;
+	}
+	reply(s, "\n", "%%");
+}
+
+/* ----------------------------------------------- linuxcncrsh */
+
+static void lcnc_set(struct linesim *s, char **w, int n, bool verbose)
+{
+	enum linesim_fault f;
+	bool ok = true;
+
+	if (!s->enabled && strcasecmp(w[1], "enable") && strcasecmp(w[1], "echo") &&
+	    strcasecmp(w[1], "verbose")) {
+		ok = false;
+	} else if (!strcasecmp(w[1], "enable")) {
+		s->enabled = n == 3 && !strcmp(w[2], "EMCTOO");
+		ok = s->enabled;
+	} else if (!strcasecmp(w[1], "joint_home")) {
+		for (int k = 0; k < 3; k++) {
+			s->ax[k].referenced = true;
+			start_move(s, k, 0);
+		}
+	} else if (!strcasecmp(w[1], "abort")) {
+		for (int k = 0; k < 3; k++)
+			stop_axis(s, k);
+		s->st.stops++;
+	} else if (!strcasecmp(w[1], "mdi")) {
+		double to[3];
+		bool seen[3] = { false, false, false };
+		for (int i = 2; i < n; i++) {
+			if (!strcasecmp(w[i], "G53") || !strcasecmp(w[i], "G0"))
+				continue;
+			int k = -1;
+			for (int a = 0; a < 3; a++)
+				if (toupper((unsigned char)w[i][0]) == "XYZ"[a])
+					k = a;
+			if (k < 0) {
+				ok = false;
+				snprintf(s->text, sizeof(s->text), "unknown word '%s'", w[i]);
+				break;
+			}
+			to[k] = strtod(w[i] + 1, NULL);
+			seen[k] = true;
+		}
+		if (ok) {
+			s->st.moves++;
+			bool fault = fault_now(s, &f) && f == LINESIM_DEVICE_ERROR;
+			for (int k = 0; k < 3 && ok; k++)
+				if (seen[k] && (fault || fabs(to[k]) > s->c.travel)) {
+					ok = false;
+					snprintf(s->text, sizeof(s->text),
+						 "Move on line 0 would exceed joint %d's positive limit", k);
+				}
+			for (int k = 0; k < 3 && ok; k++)
+				if (seen[k])
+					start_move(s, k, to[k]);
+			if (f == LINESIM_DISCONNECT) {
+				disconnect(s);
+				return;
+			}
+		}
+	}
+	if (verbose || !ok) {
+		char up[32];
+		snprintf(up, sizeof(up), "%s", w[1]);
+		for (char *c = up; *c; c++)
+			*c = (char)toupper((unsigned char)*c);
+		reply(s, "\r\n", "SET %s %s", up, ok ? "ACK" : "NAK");
+	}
+}
+
+static void linuxcnc_line(struct linesim *s, char *line)
+{
+	char copy[512], *w[16];
+
+	if (s->echo)
+		reply(s, "\r\n", "%s", line);
+	snprintf(copy, sizeof(copy), "%s", line);
+	int n = words(copy, w, 16);
+	if (n == 0)
+		return;
+	if (!strcasecmp(w[0], "hello")) {
+		s->linked = n >= 3 && !strcmp(w[1], "EMC");
+		reply(s, "\r\n", s->linked ? "HELLO ACK EMCNETSVR 1.1" : "HELLO NAK");
+		return;
+	}
+	if (!s->linked || n < 2)
+		return;
+	if (!strcasecmp(w[0], "set") && !strcasecmp(w[1], "echo") && n == 3) {
+		s->echo = !strcasecmp(w[2], "on");
+		return;
+	}
+	if (!strcasecmp(w[0], "set") && !strcasecmp(w[1], "verbose") && n == 3) {
+		s->verbose = !strcasecmp(w[2], "on");
+		if (s->verbose)
+			reply(s, "\r\n", "SET VERBOSE ACK");
+		return;
+	}
+	if (!strcasecmp(w[0], "set")) {
+		lcnc_set(s, w, n, s->verbose);
+		return;
+	}
+	if (strcasecmp(w[0], "get"))
+		return;
+	if (!strcasecmp(w[1], "abs_act_pos"))
+		reply(s, "\r\n", "ABS_ACT_POS %f %f %f %f %f %f", axis_pos(s, 0), axis_pos(s, 1),
+		      axis_pos(s, 2), 0.0, 0.0, 0.0);
+	else if (!strcasecmp(w[1], "program_status"))
+		reply(s, "\r\n", "PROGRAM_STATUS %s", any_moving(s) ? "RUNNING" : "IDLE");
+	else if (!strcasecmp(w[1], "joint_homed"))
+		reply(s, "\r\n", "JOINT_HOMED %s %s %s",
+		      s->ax[0].referenced && !any_moving(s) ? "YES" : "NO",
+		      s->ax[1].referenced && !any_moving(s) ? "YES" : "NO",
+		      s->ax[2].referenced && !any_moving(s) ? "YES" : "NO");
+	else if (!strcasecmp(w[1], "error")) {
+		reply(s, "\r\n", "ERROR %s", s->text[0] ? s->text : "OK");
+		s->text[0] = '\0';
+	}
+}
+
 /* ------------------------------------------------------- sensors */
 
 static bool sense(struct linesim *s, double *mm, enum linesim_fault *f)
@@ -437,6 +712,9 @@ static void handle_line(struct linesim *s, char *line)
 	s->st.commands++;
 	switch (s->c.kind) {
 	case LINESIM_PI: pi_line(s, line); break;
+	case LINESIM_NEWPORT: newport_line(s, line); break;
+	case LINESIM_AEROTECH: aerotech_line(s, line); break;
+	case LINESIM_LINUXCNC: linuxcnc_line(s, line); break;
 	case LINESIM_KEYENCE: keyence_line(s, line); break;
 	case LINESIM_MITUTOYO: mitutoyo_line(s, line); break;
 	case LINESIM_SYLVAC: sylvac_line(s, line); break;
@@ -518,6 +796,9 @@ static void *serve(void *data)
 			if (s->conn_fd >= 0) {
 				s->st.connections++;
 				s->stalled = false;
+				/* linuxcncrsh: a new session, echo on */
+				s->linked = s->enabled = s->verbose = false;
+				s->echo = true;
 			}
 		} else {
 			ssize_t n = read(device_fd(s), s->in + s->in_len, sizeof(s->in) - s->in_len);
@@ -574,6 +855,7 @@ int linesim_start(const struct linesim_config *c, struct linesim **out, char *ad
 	if (s->c.travel <= 0)
 		s->c.travel = 50;
 	s->listen_fd = s->conn_fd = s->master_fd = -1;
+	s->echo = true;
 	for (int k = 0; k < 3; k++)
 		s->ids[k] = c->kind == LINESIM_PI || c->kind == LINESIM_NEWPORT ? pi_ids[k] : xyz[k];
 	pthread_mutex_init(&s->lock, NULL);
