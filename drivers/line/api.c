@@ -1,7 +1,7 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
- * Line-protocol stages and sensors: PI GCS, Newport, Aerotech, Keyence,
- * Micro-Epsilon, Sylvac, Mitutoyo, LinuxCNC and a lab's own devices, each
+ * Line-protocol stages and sensors: PI GCS, Newport, Aerotech, LinuxCNC,
+ * Keyence, Sylvac, Mitutoyo and a lab's own devices, each
  * described by a profile file (profile.h), over TCP or a serial port.
  */
 #include <errno.h>
@@ -43,7 +43,7 @@ static const char *const triggers[] = { "request", "dtr", "operator", NULL };
 static const struct asph_option_desc line_options[N_OPTIONS] = {
 	[OPT_PROFILE] = { "profile", ASPH_OPTION_STRING, "pi-gcs",
 			  .help = "the device's profile: a name (pi-gcs, newport-esp, aerotech-ascii, "
-				  "linuxcnc, keyence-lk, microepsilon-ascii, sylvac, mitutoyo-vcp, or a "
+				  "linuxcnc, keyence-lk, sylvac, mitutoyo-vcp, or a "
 				  "lab's own in " ASPH_LINE_PROFILE_ETC_DIR ") or a profile file's path" },
 	[OPT_HOST] = { "host", ASPH_OPTION_STRING, "127.0.0.1",
 		       .help = "TCP: the controller's host name or address (used when device is empty)" },
@@ -955,7 +955,7 @@ const struct asph_driver line_driver = {
 	.name = "line",
 	.description = "ASCII line-protocol stages and sensors over TCP or a serial port, "
 		       "described by profiles (PI GCS, Newport, Aerotech, LinuxCNC, Keyence, "
-		       "Micro-Epsilon, Sylvac, Mitutoyo)",
+		       "Sylvac, Mitutoyo)",
 	.version = "1.0",
 	.roles = ASPH_ROLE_STAGE | ASPH_ROLE_PROBE,
 	.options = line_options,

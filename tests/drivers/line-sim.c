@@ -725,7 +725,7 @@ static void handle_line(struct linesim *s, char *line)
 static const char *terminators(enum linesim_kind k)
 {
 	switch (k) {
-	case LINESIM_PI: case LINESIM_AEROTECH: case LINESIM_MICROEPSILON: return "\n";
+	case LINESIM_PI: case LINESIM_AEROTECH: return "\n";
 	case LINESIM_LINUXCNC: return "\r\n";
 	default: return "\r";
 	}

@@ -20,7 +20,6 @@ enum linesim_kind {
 	LINESIM_AEROTECH,       /* Aerotech Ensemble ASCII */
 	LINESIM_LINUXCNC,       /* linuxcncrsh */
 	LINESIM_KEYENCE,        /* Keyence LK-G */
-	LINESIM_MICROEPSILON,   /* Micro-Epsilon confocalDT ASCII */
 	LINESIM_SYLVAC,         /* Sylvac gauge */
 	LINESIM_MITUTOYO,       /* Mitutoyo USB-ITN, virtual COM */
 	LINESIM_COUNT
