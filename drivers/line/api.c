@@ -361,16 +361,13 @@ static int error_reply(struct asph_device *d, const char *reply, uint64_t deadli
 static int unexpected(struct asph_device *d, const char *cmd, const char *reply,
 		      const char *pattern, struct asph_error *err)
 {
-	char shown[160], pat[160], exp[160];
-	struct line_vars v = d->vars;
+	char shown[160], pat[160], sent[160];
 
 	line_printable(reply, shown, sizeof(shown));
-	/* the pattern with this axis's id, as the reply should have been */
-	if (line_expand(pattern, &v, exp, sizeof(exp), NULL) < 0)
-		snprintf(exp, sizeof(exp), "%s", pattern);
 	line_printable(pattern, pat, sizeof(pat));
+	line_printable(cmd, sent, sizeof(sent));
 	return asph_error_set(err, -EPROTO, "unexpected reply '%s' to '%s' (expected %s): a "
-			      "garbled line or the answer to another command", shown, cmd, pat);
+			      "garbled line or the answer to another command", shown, sent, pat);
 }
 
 /* Sends cmd and matches its reply against pattern (and range, an
@@ -603,7 +600,6 @@ static int finish(struct asph_device *d, int r, struct asph_error *err)
 	if (r == -ENODEV) {
 		if (reconnect(d, d->reply_ms, &e) == 0) {
 			send_stop(d);
-			d->homed = d->homed && true;
 			if (err) {
 				char msg[sizeof(err->message)];
 				snprintf(msg, sizeof(msg), "%s", err->message);
