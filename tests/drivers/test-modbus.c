@@ -245,7 +245,7 @@ static void must(int r, const struct asph_error *err)
 static void expect(int r, int code, const struct asph_error *err, const char *words)
 {
 	if (r != code || !strstr(err->message, words))
-		fail_msg("expected %d '%s', got %d '%s'", code, words, r, err->message);
+		fail_msg("expected %d '%s', got %d '%s'", code, words ? words : "", r, err->message);
 }
 
 static void assert_at(struct env *e, struct dev *st, const double *t)
