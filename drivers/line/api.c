@@ -380,7 +380,8 @@ static int query(struct asph_device *d, const char *cmd, const char *pattern, co
 	int r = cmd ? send_line(d, cmd, deadline, err) : 0;
 
 	if (r == 0)
-		r = read_reply(d, cmd ? cmd : "(a reading)", reply, sizeof(reply), deadline,
+		r = read_reply(d, cmd ? cmd : "(a reading: the gauge's data button or foot switch)",
+			       reply, sizeof(reply), deadline,
 			       cmd ? d->reply_ms : transport_ms_left(deadline), err);
 	if (r < 0)
 		return r;

@@ -911,6 +911,20 @@ void linesim_stats(struct linesim *s, struct linesim_stats *out)
 	pthread_mutex_unlock(&s->lock);
 }
 
+void linesim_operator(struct linesim *s)
+{
+	char request[] = "1";
+
+	pthread_mutex_lock(&s->lock);
+	/* the same line the request would bring */
+	if (s->c.kind == LINESIM_MITUTOYO)
+		mitutoyo_line(s, request);
+	else if (s->c.kind == LINESIM_SYLVAC)
+		sylvac_line(s, (char[]){ "PRI" });
+	flush_out(s);
+	pthread_mutex_unlock(&s->lock);
+}
+
 void linesim_position(struct linesim *s, double pos[3])
 {
 	pthread_mutex_lock(&s->lock);

@@ -66,6 +66,10 @@ struct linesim_stats {
 };
 void linesim_stats(struct linesim *s, struct linesim_stats *out);
 
+/* A gauge sends its reading unasked, as when the operator presses its
+ * data button or foot switch (Mitutoyo, Sylvac). */
+void linesim_operator(struct linesim *s);
+
 /* Where a stage simulator's axes are now (mm): what a sensor riding on
  * it sees. */
 void linesim_position(struct linesim *s, double pos[3]);

@@ -551,6 +551,71 @@ static void test_wrong_axis(void **state)
 	}
 }
 
+/* Readings the operator triggers (a foot switch) within the timeout, and
+ * a DTR request on a line without DTR (a pty). */
+struct presser {
+	struct linesim *sim;
+};
+
+static void *press_later(void *data)
+{
+	struct presser *p = data;
+	struct timespec ts = { 0, 50000000 };
+
+	nanosleep(&ts, NULL);
+	linesim_operator(p->sim);
+	return NULL;
+}
+
+static void test_triggers(void **state)
+{
+	static const struct profile_case gauge = { "mitutoyo-vcp", LINESIM_MITUTOYO, false };
+	struct env *e = *state;
+	struct asph_error err;
+	struct asph_options *o;
+	struct asph_device *d;
+	struct asph_reading rd;
+	struct asph_probe_context ctx = { 0 };
+	struct rig rg;
+	char opts[512];
+	pthread_t th;
+	const struct asph_driver *line = asph_registry_find(e->fx.reg, "line");
+
+	for (int serial = 0; serial < 2; serial++) {
+		rig_start(e, &gauge, serial, &rg);
+		tracked[0] = 1.7, tracked[1] = -2.3, tracked[2] = -3.1;
+		assert_int_equal(asph_options_new(line, &o, NULL), 0);
+		snprintf(opts, sizeof(opts), "%s", rg.address);
+		assert_int_equal(asph_options_set(o, "profile", "mitutoyo-vcp", NULL), 0);
+		assert_int_equal(asph_options_set(o, serial ? "device" : "port", opts, NULL), 0);
+		assert_int_equal(asph_options_set(o, "trigger", serial ? "dtr" : "operator", NULL), 0);
+		assert_int_equal(asph_options_set(o, "range", "100", NULL), 0);
+		if (line->probe->open(line, asph_options_values(o), 1000, &d, &err) < 0)
+			fail_msg("open: %s", err.message);
+		if (serial) {
+			/* a pty has no modem lines: said, not a wrong number */
+			assert_int_equal(line->probe->read(d, &ctx, &rd, 500, &err), -ENOTSUP);
+			assert_non_null(strstr(err.message, "this line has no DTR"));
+		} else {
+			struct presser p = { rg.dev };
+			double z;
+			assert_int_equal(pthread_create(&th, NULL, press_later, &p), 0);
+			int r = line->probe->read(d, &ctx, &rd, 2000, &err);
+			pthread_join(th, NULL);
+			if (r < 0)
+				fail_msg("read: %s", err.message);
+			assert_int_equal(mock_part_probe_z(e->part, 1.7, -2.3, 0, &z), 0);
+			assert_true(fabs(rd.value - (z + 3.1)) < 0.5e-5);
+			/* nobody presses */
+			assert_int_equal(line->probe->read(d, &ctx, &rd, 100, &err), -ETIMEDOUT);
+			assert_non_null(strstr(err.message, "data button or foot switch"));
+		}
+		line->probe->close(d);
+		asph_options_free(o);
+		rig_stop(e, &rg);
+	}
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -561,6 +626,7 @@ int main(void)
 		cmocka_unit_test_setup_teardown(test_scans, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_faults, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_wrong_axis, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_triggers, setup, teardown),
 	};
 	return cmocka_run_group_tests(tests, NULL, NULL);
 }
