@@ -616,6 +616,68 @@ static void test_triggers(void **state)
 	}
 }
 
+/* stop() from another thread interrupts a move: the wait ends at once,
+ * the stop command reaches the controller, and the stage stays stopped
+ * until it is opened again. */
+struct stopper {
+	const struct asph_driver *drv;
+	struct asph_device *d;
+};
+
+static void *stop_later(void *data)
+{
+	struct stopper *s = data;
+	struct timespec ts = { 0, 80000000 };
+
+	nanosleep(&ts, NULL);
+	s->drv->stage->stop(s->d, NULL);
+	return NULL;
+}
+
+static void test_stop(void **state)
+{
+	struct env *e = *state;
+	const struct asph_driver *line = asph_registry_find(e->fx.reg, "line");
+	struct linesim_config sc = { .kind = LINESIM_PI, .time_scale = 1, .travel = 50, .speed = 20 };
+	struct linesim *sim;
+	struct linesim_stats st;
+	struct asph_options *o;
+	struct asph_error err;
+	struct stopper sp = { line, NULL };
+	char port[32];
+	double t[3] = { 40, -30, 10 };
+	pthread_t th;
+
+	assert_int_equal(linesim_start(&sc, &sim, port, sizeof(port)), 0);
+	assert_int_equal(asph_options_new(line, &o, NULL), 0);
+	assert_int_equal(asph_options_set(o, "port", port, NULL), 0);
+	if (line->stage->open(line, asph_options_values(o), 1000, &sp.d, &err) < 0)
+		fail_msg("open: %s", err.message);
+	if (line->stage->home(sp.d, 5000, &err) < 0)
+		fail_msg("home: %s", err.message);
+	assert_int_equal(pthread_create(&th, NULL, stop_later, &sp), 0);
+	/* 2 s of motion at 20 mm/s */
+	int r = line->stage->move_to(sp.d, t, 60000, &err);
+	pthread_join(th, NULL);
+	if (r != -ECANCELED)
+		fail_msg("%d %s", r, err.message);
+	/* the simulator takes the stop command from its own thread: until
+	 * then, the axes move on (at most the rest of the 2 s move) */
+	for (int i = 0; i < 400; i++) {
+		linesim_stats(sim, &st);
+		if (!st.moving)
+			break;
+		nanosleep(&(struct timespec){ 0, 5000000 }, NULL);
+	}
+	assert_false(st.moving);
+	assert_true(st.stops >= 1);
+	assert_true(st.position[0] > 0 && st.position[0] < 40);
+	assert_int_equal(line->stage->move_to(sp.d, t, 1000, &err), -ECANCELED);
+	line->stage->close(sp.d);
+	asph_options_free(o);
+	linesim_stop(sim);
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -627,6 +689,7 @@ int main(void)
 		cmocka_unit_test_setup_teardown(test_faults, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_wrong_axis, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_triggers, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_stop, setup, teardown),
 	};
 	return cmocka_run_group_tests(tests, NULL, NULL);
 }
