@@ -1,14 +1,20 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
-/* The configured instruments, each with its worker, and the drivers. */
+/* Event loop thread: the configured instruments and the drivers. */
 #include <errno.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "asph/instrument.h"
-#include "asphd.h"
-#include "jsonpos.h"
+#include "instruments.h"
 #include "log.h"
 #include "util-mem.h"
+
+struct instruments {
+	struct asph_registry *registry;
+	struct asph_config *config;
+	struct instrument *v;
+	size_t n;
+};
 
 static void warn_plugin(const struct asph_error *err, void *data)
 {
@@ -17,174 +23,129 @@ static void warn_plugin(const struct asph_error *err, void *data)
 	log_warning("driver plugin: %s", asph_error_format(err, buf, sizeof(buf)));
 }
 
-int instruments_load(const struct daemon_config *cfg, struct asph_registry **reg_out,
-		     struct asph_config **out, struct asph_error *err)
+static int parse(const struct settings *s, struct instruments *ins, struct asph_error *err)
 {
-	struct asph_registry *reg = NULL;
 	int r;
 
-	r = asph_registry_new(&reg, err);
+	r = asph_registry_new(&ins->registry, err);
 	if (r < 0)
 		return r;
-	asph_registry_load_default_dirs(reg, warn_plugin, NULL, NULL);
-	if (!cfg->instruments_json) {
-		r = asph_instrument_spec_parse(reg, "mock", out, err);
-	} else {
-		r = asph_config_parse(reg, cfg->instruments_json, strlen(cfg->instruments_json),
-				      cfg->source, out, err);
-		/* Their positions refer to the text we gave them; point into
-		 * the file instead. */
-		if (r < 0 && err && err->field[0] && cfg->text) {
-			int line = 0, column = 0;
-			if (json_locate_dotted(cfg->text, cfg->text_len, err->field,
-					       &line, &column) == 0)
-				asph_error_locate(err, cfg->source, line, column, NULL);
-		}
-	}
-	if (r < 0) {
-		asph_registry_free(reg);
-		return r;
-	}
-	*reg_out = reg;
-	return 0;
+	asph_registry_load_default_dirs(ins->registry, warn_plugin, NULL, NULL);
+	if (!s->instruments_json)
+		return asph_instrument_spec_parse(ins->registry, "mock", &ins->config, err);
+	r = asph_config_parse(ins->registry, s->instruments_json, strlen(s->instruments_json),
+			      s->source, &ins->config, err);
+	/* Their positions refer to the text we gave them; point into the
+	 * file instead. */
+	if (r < 0 && err && err->field[0])
+		settings_locate(s, err->field, err);
+	return r;
 }
 
-static void report(const struct runner_report *rep, void *data)
+static int describe(struct instruments *ins, struct asph_error *err)
 {
-	jobs_runner_report(data, rep);
-}
-
-int instruments_setup(struct daemon *d, struct asph_error *err)
-{
-	struct asph_config *cfg = d->instrument_config;
-	int r;
-
-	d->instruments = calloc(cfg->n, sizeof(*d->instruments));
-	if (!d->instruments)
+	ins->v = calloc(ins->config->n, sizeof(*ins->v));
+	if (!ins->v)
 		return asph_error_set(err, -ENOMEM, "out of memory");
-	d->n_instruments = cfg->n;
-	for (size_t i = 0; i < cfg->n; i++) {
-		struct instrument *in = &d->instruments[i];
+	ins->n = ins->config->n;
+	for (size_t i = 0; i < ins->n; i++) {
+		struct instrument *in = &ins->v[i];
 		_cleanup_free_ char *desc = NULL;
+		int r;
 
-		in->d = d;
-		in->name = strdup(cfg->instruments[i].name);
+		in->config = &ins->config->instruments[i];
+		in->name = strdup(in->config->name);
 		if (!in->name)
 			return asph_error_set(err, -ENOMEM, "out of memory");
-		r = asph_instrument_config_to_json(&cfg->instruments[i], &desc);
+		r = asph_instrument_config_to_json(in->config, &desc);
 		if (r < 0)
-			return asph_error_set(err, r, "instrument %s: cannot describe it",
-					      in->name);
+			return asph_error_set(err, r, "instrument %s: cannot describe it", in->name);
 		in->description = json_loads(desc, 0, NULL);
-		r = runner_new(&cfg->instruments[i], d->event, report, in, &in->runner);
-		if (r < 0)
-			return asph_error_set(err, r, "instrument %s: cannot start its worker: %s",
-					      in->name, strerror(-r));
 	}
 	return 0;
 }
 
-void instruments_free(struct daemon *d)
+int instruments_load(const struct settings *s, struct instruments **out, struct asph_error *err)
 {
-	for (size_t i = 0; i < d->n_instruments; i++) {
-		struct instrument *in = &d->instruments[i];
-		runner_free(in->runner);
-		json_decref(in->description);
-		free(in->name);
-		free(in->fault);
+	struct instruments *ins = calloc(1, sizeof(*ins));
+	int r;
+
+	if (!ins)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	r = parse(s, ins, err);
+	if (r == 0)
+		r = describe(ins, err);
+	if (r < 0) {
+		instruments_free(ins);
+		return r;
 	}
-	free(d->instruments);
-	d->instruments = NULL;
-	d->n_instruments = 0;
+	*out = ins;
+	return 0;
 }
 
-struct instrument *instrument_find(struct daemon *d, const char *name)
+void instruments_free(struct instruments *ins)
 {
-	for (size_t i = 0; i < d->n_instruments; i++)
-		if (!strcmp(d->instruments[i].name, name))
-			return &d->instruments[i];
-	return NULL;
+	if (!ins)
+		return;
+	for (size_t i = 0; i < ins->n; i++) {
+		json_decref(ins->v[i].description);
+		free(ins->v[i].name);
+	}
+	free(ins->v);
+	asph_config_free(ins->config);
+	asph_registry_free(ins->registry);
+	free(ins);
 }
 
-struct instrument *instrument_of_job(struct daemon *d, int64_t id)
+size_t instruments_count(const struct instruments *ins)
 {
-	for (size_t i = 0; i < d->n_instruments; i++)
-		if (d->instruments[i].job == id)
-			return &d->instruments[i];
-	return NULL;
+	return ins->n;
 }
 
-const char *instrument_state(const struct instrument *in)
+const struct instrument *instruments_get(const struct instruments *ins, size_t i)
 {
-	if (in->job)
-		return in->paused ? "paused" : "measuring";
-	return in->fault ? "fault" : "idle";
+	return i < ins->n ? &ins->v[i] : NULL;
 }
 
-json_t *instrument_to_json(struct instrument *in)
+int instruments_find(const struct instruments *ins, const char *name)
+{
+	for (size_t i = 0; i < ins->n; i++)
+		if (!strcmp(ins->v[i].name, name))
+			return (int)i;
+	return -ENOENT;
+}
+
+const char *instrument_state_name(const struct instrument_activity *a)
+{
+	if (a->job)
+		return a->paused ? "paused" : "measuring";
+	return a->fault ? "fault" : "idle";
+}
+
+json_t *instrument_to_json(const struct instrument *in, const struct instrument_activity *a)
 {
 	json_t *o = json_pack("{s:s, s:s, s:O?}", "name", in->name,
-			      "state", instrument_state(in),
+			      "state", instrument_state_name(a),
 			      "configuration", in->description);
 
 	if (!o)
 		return NULL;
-	json_object_set_new(o, "job", in->job ? json_integer(in->job) : json_null());
-	json_object_set_new(o, "fault", in->fault ? json_string(in->fault) : json_null());
-	if (in->job)
+	json_object_set_new(o, "job", a->job ? json_integer(a->job) : json_null());
+	json_object_set_new(o, "fault", a->fault ? json_string(a->fault) : json_null());
+	if (a->job)
 		json_object_set_new(o, "progress",
-				    json_pack("{s:I, s:I, s:f, s:f}", "done", (json_int_t)in->done,
-					      "total", (json_int_t)in->total, "rate", in->rate,
-					      "eta_s", in->eta_s));
+				    json_pack("{s:I, s:I, s:f, s:f}", "done", (json_int_t)a->done,
+					      "total", (json_int_t)a->total, "rate", a->rate,
+					      "eta_s", a->eta_s));
 	return o;
 }
 
-static json_t *option_to_json(const struct asph_option_desc *o)
+/* The registry as asph drivers --json describes it (drivers/describe.c). */
+json_t *drivers_to_json(const struct instruments *ins)
 {
-	json_t *j = json_pack("{s:s, s:s, s:s?, s:s?, s:s?}", "name", o->name,
-			      "type", asph_option_type_name(o->type),
-			      "default", o->default_value, "unit", o->unit, "help", o->help);
+	_cleanup_free_ char *text = NULL;
 
-	if (!j)
+	if (asph_registry_to_json(ins->registry, false, &text) < 0)
 		return NULL;
-	if (o->ranged) {
-		json_object_set_new(j, "min", json_real(o->min));
-		json_object_set_new(j, "max", json_real(o->max));
-	}
-	if (o->choices) {
-		json_t *c = json_array();
-		for (size_t k = 0; o->choices[k]; k++)
-			json_array_append_new(c, json_string(o->choices[k]));
-		json_object_set_new(j, "choices", c);
-	}
-	if (o->roles) {
-		json_t *roles = json_array();
-		if (o->roles & ASPH_ROLE_STAGE)
-			json_array_append_new(roles, json_string("stage"));
-		if (o->roles & ASPH_ROLE_PROBE)
-			json_array_append_new(roles, json_string("probe"));
-		json_object_set_new(j, "roles", roles);
-	}
-	return j;
-}
-
-json_t *drivers_to_json(struct daemon *d)
-{
-	json_t *list = json_array();
-
-	for (size_t i = 0; list && i < asph_registry_count(d->registry); i++) {
-		const struct asph_driver *drv = asph_registry_get(d->registry, i);
-		json_t *roles = json_array(), *opts = json_array();
-		if (drv->roles & ASPH_ROLE_STAGE)
-			json_array_append_new(roles, json_string("stage"));
-		if (drv->roles & ASPH_ROLE_PROBE)
-			json_array_append_new(roles, json_string("probe"));
-		for (size_t k = 0; k < drv->n_options; k++)
-			json_array_append_new(opts, option_to_json(&drv->options[k]));
-		json_array_append_new(list, json_pack("{s:s, s:s?, s:s?, s:s, s:o, s:o}",
-			"name", drv->name, "description", drv->description,
-			"version", drv->version, "origin", asph_registry_origin(d->registry, i),
-			"roles", roles, "options", opts));
-	}
-	return list;
+	return json_loads(text, 0, NULL);
 }

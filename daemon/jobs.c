@@ -1,157 +1,265 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
-/*
- * The queue: jobs wait in the store ordered by priority, then submission;
- * each idle instrument takes its first queued job. Every state change goes
- * through jobs_set_state(), which records it and tells the subscribers.
- */
+/* Event loop thread: the queue, the transitions of jobs, the workers. */
 #include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
-#include <time.h>
 
-#include "asphd.h"
+#include "dirs.h"
+#include "jobs.h"
 #include "log.h"
+#include "runner.h"
+#include "util-time.h"
 #include "util-mem.h"
 
 /* Progress reaches the store at most this often (a restart resumes from
  * the scan file, not from this number). */
 #define PROGRESS_STORE_NS 5000000000ull
 
-static void iso_time(int64_t ns, char *buf, size_t size)
+/* An instrument as the queue sees it: its worker and what it does. */
+struct slot {
+	struct jobs *jobs;
+	const struct instrument *in;
+	struct runner *runner;
+	struct instrument_activity act;
+	char *fault;                    /* act.fault */
+	uint64_t last_progress_store_ns;
+};
+
+struct jobs {
+	sd_event *event;
+	struct store *store;
+	struct events *events;
+	const struct settings_limits *limits;
+	char *state_dir;
+	struct slot *slots;
+	size_t n_slots;
+	int64_t counts[JOB_N_STATES];   /* jobs per state */
+	bool queue_running;
+	bool stopping;
+	void (*stopped)(void *data);
+	void *stopped_data;
+};
+
+static void on_report(const struct runner_report *rep, void *data);
+
+/* ---------------------------------------------------------- set up */
+
+static int open_store(struct jobs *jobs, struct asph_error *err)
 {
-	time_t t = (time_t)(ns / 1000000000);
-	struct tm tm;
-
-	gmtime_r(&t, &tm);
-	strftime(buf, size, "%Y-%m-%dT%H:%M:%SZ", &tm);
-}
-
-static json_t *time_json(int64_t ns)
-{
-	char buf[32];
-
-	if (ns <= 0)
-		return json_null();
-	iso_time(ns, buf, sizeof(buf));
-	return json_string(buf);
-}
-
-int jobs_init(struct daemon *d)
-{
+	_cleanup_free_ char *path = NULL;
 	_cleanup_free_ char *v = NULL;
-	int n = store_recover(d->store, now_realtime_ns());
+	int n, r;
 
+	if (asprintf(&path, "%s/jobs.sqlite", jobs->state_dir) < 0)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	r = store_open(path, &jobs->store, err);
+	if (r < 0)
+		return r;
+	n = store_recover(jobs->store, now_realtime_ns());
 	if (n < 0)
-		return n;
+		return asph_error_set(err, n, "%s: cannot mark the interrupted jobs: %s", path,
+				      strerror(-n));
 	if (n > 0)
 		log_notice("%d job(s) were interrupted when the daemon stopped; "
 			   "resume or re-queue them", n);
-	d->queue_running = true;
-	if (store_meta_get(d->store, "queue.running", &v) == 0)
-		d->queue_running = strcmp(v, "0") != 0;
-	return store_count(d->store, d->counts);
+	jobs->queue_running = true;
+	if (store_meta_get(jobs->store, "queue.running", &v) == 0)
+		jobs->queue_running = strcmp(v, "0") != 0;
+	r = store_count(jobs->store, jobs->counts);
+	if (r < 0)
+		return asph_error_set(err, r, "%s: cannot count the jobs: %s", path, strerror(-r));
+	return 0;
 }
 
-char *job_dir(struct daemon *d, int64_t id)
+static int start_workers(struct jobs *jobs, const struct instruments *ins,
+			 struct asph_error *err)
 {
-	char *p = NULL;
+	jobs->n_slots = instruments_count(ins);
+	jobs->slots = calloc(jobs->n_slots, sizeof(*jobs->slots));
+	if (!jobs->slots)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	for (size_t i = 0; i < jobs->n_slots; i++) {
+		struct slot *sl = &jobs->slots[i];
+		int r;
 
-	if (asprintf(&p, "%s/jobs/%" PRId64, d->state_dir, id) < 0)
-		return NULL;
-	return p;
-}
-
-json_t *job_to_json(struct daemon *d, const struct job_record *j)
-{
-	_cleanup_(json_decrefp) json_t *spec = json_loads(j->spec, 0, NULL);
-	struct instrument *in = j->state == JOB_RUNNING || j->state == JOB_PAUSED
-		? instrument_of_job(d, j->id) : NULL;
-	int64_t done = in ? in->done : j->points_done;
-	int64_t total = in && in->total ? in->total : j->points_total;
-	json_t *lens = json_object_get(spec, "lens");
-	json_t *o;
-
-	o = json_pack("{s:I, s:s, s:s?, s:s, s:I, s:{s:I, s:s?}, s:O?, s:O?, s:O?,"
-		      " s:o, s:o, s:o, s:{s:I, s:I, s:f, s:f}, s:s?, s:I, s:b}",
-		"id", (json_int_t)j->id,
-		"state", job_state_name(j->state),
-		"label", j->label,
-		"instrument", j->instrument,
-		"priority", (json_int_t)j->priority,
-		"submitter", "uid", (json_int_t)j->uid, "name", j->user,
-		"lens", json_object_get(lens, "name"),
-		"plan", json_object_get(spec, "plan"),
-		"fit", json_object_get(spec, "fit"),
-		"submitted", time_json(j->submitted_ns),
-		"started", time_json(j->started_ns),
-		"finished", time_json(j->finished_ns),
-		"progress", "done", (json_int_t)done, "total", (json_int_t)total,
-		"rate", in ? in->rate : 0.0, "eta_s", in ? in->eta_s : -1.0,
-		"reason", j->reason,
-		"attempts", (json_int_t)j->attempts,
-		"resumable", j->resume);
-	return o;
-}
-
-int jobs_set_state(struct daemon *d, struct job_record *j, enum job_state s,
-		   const char *reason, int64_t actor)
-{
-	enum job_state old = j->state;
-	int r = store_set_state(d->store, j->id, s, reason, actor, now_realtime_ns());
-
-	if (r == -ENOSPC && store_release_reserve(d->store) == 0) {
-		log_job(LOG_WARNING, j->id, "the state directory is full: using the store's reserve "
-			"to record the state %s", job_state_name(s));
-		r = store_set_state(d->store, j->id, s, reason, actor, now_realtime_ns());
+		sl->jobs = jobs;
+		sl->in = instruments_get(ins, i);
+		sl->act.eta_s = -1;
+		r = runner_new(sl->in->config, jobs->event, on_report, sl, &sl->runner);
+		if (r < 0)
+			return asph_error_set(err, r, "instrument %s: cannot start its worker: %s",
+					      sl->in->name, strerror(-r));
 	}
+	return 0;
+}
+
+int jobs_new(const struct jobs_setup *setup, struct jobs **out, struct asph_error *err)
+{
+	struct jobs *jobs = calloc(1, sizeof(*jobs));
+	int r;
+
+	if (!jobs)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	jobs->event = setup->event;
+	jobs->events = setup->events;
+	jobs->limits = setup->limits;
+	jobs->state_dir = strdup(setup->state_dir);
+	r = jobs->state_dir ? 0 : asph_error_set(err, -ENOMEM, "out of memory");
+	if (r == 0)
+		r = open_store(jobs, err);
+	if (r == 0)
+		r = start_workers(jobs, setup->instruments, err);
+	if (r < 0) {
+		jobs_free(jobs);
+		return r;
+	}
+	*out = jobs;
+	return 0;
+}
+
+void jobs_free(struct jobs *jobs)
+{
+	if (!jobs)
+		return;
+	for (size_t i = 0; i < jobs->n_slots; i++) {
+		runner_free(jobs->slots[i].runner);
+		free(jobs->slots[i].fault);
+	}
+	free(jobs->slots);
+	store_close(jobs->store);
+	free(jobs->state_dir);
+	free(jobs);
+}
+
+/* ---------------------------------------------------------- helpers */
+
+static struct slot *slot_of_job(struct jobs *jobs, int64_t id)
+{
+	for (size_t i = 0; i < jobs->n_slots; i++)
+		if (jobs->slots[i].act.job == id)
+			return &jobs->slots[i];
+	return NULL;
+}
+
+static const struct slot *slot_of_instrument_name(const struct jobs *jobs, const char *name)
+{
+	for (size_t i = 0; i < jobs->n_slots; i++)
+		if (!strcmp(jobs->slots[i].in->name, name))
+			return &jobs->slots[i];
+	return NULL;
+}
+
+static const struct slot *slot_of_job_const(const struct jobs *jobs, int64_t id)
+{
+	return slot_of_job((struct jobs *)jobs, id);
+}
+
+static void set_fault(struct slot *sl, const char *fault)
+{
+	free(sl->fault);
+	sl->fault = fault ? strdup(fault) : NULL;
+	sl->act.fault = sl->fault;
+}
+
+/* The end of a change of j with outcome r: j goes to out (may be NULL)
+ * when it succeeded, else it is cleared. Returns r. */
+static int hand_over(struct job_record *j, int r, struct job_record *out)
+{
+	if (r == 0 && out)
+		*out = *j;
+	else
+		job_record_clear(j);
+	return r;
+}
+
+static int refuse_state(const struct job_record *j, const char *what, struct asph_error *err)
+{
+	return asph_error_set(err, -EINVAL, "job %" PRId64 " is %s%s", j->id,
+			      job_state_name(j->state), what);
+}
+
+/*
+ * A store write that must not be lost to a full disk, such as how a job
+ * ended: on -ENOSPC the store's reserve is given up once and the write
+ * tried again.
+ */
+static int write_essential(struct jobs *jobs, int64_t id, const char *what,
+			   int (*write)(struct store *s, const void *arg), const void *arg)
+{
+	int r = write(jobs->store, arg);
+
+	if (r == -ENOSPC && store_release_reserve(jobs->store) == 0) {
+		log_job(LOG_WARNING, id, "the state directory is full: using the store's reserve "
+			"to record %s", what);
+		r = write(jobs->store, arg);
+	}
+	return r;
+}
+
+struct transition {
+	const struct job_record *j;
+	enum job_state state;
+	const char *reason;
+	int64_t actor;
+};
+
+static int write_transition(struct store *s, const void *arg)
+{
+	const struct transition *t = arg;
+
+	return store_transition(s, t->j, t->state, t->reason, t->actor, now_realtime_ns());
+}
+
+/*
+ * The one place a job changes state: j (with its other columns as they
+ * are in j) is recorded in the new state, counted, logged and told to the
+ * watchers. reason may be NULL.
+ */
+static int transition(struct jobs *jobs, struct job_record *j, enum job_state s,
+		      const char *reason, int64_t actor, struct asph_error *err)
+{
+	struct transition t = { .j = j, .state = s, .reason = reason, .actor = actor };
+	enum job_state old = j->state;
+	char what[64];
+	int r;
+
+	snprintf(what, sizeof(what), "the state %s", job_state_name(s));
+	r = write_essential(jobs, j->id, what, write_transition, &t);
 	if (r < 0) {
 		log_job(LOG_ERR, j->id, "cannot record the state %s: %s", job_state_name(s),
 			strerror(-r));
-		return r;
+		return asph_error_set(err, r, "cannot record the state %s of job %" PRId64 ": %s",
+				      job_state_name(s), j->id, strerror(-r));
 	}
-	d->counts[old]--;
-	d->counts[s]++;
+	jobs->counts[old]--;
+	jobs->counts[s]++;
 	j->state = s;
-	if (reason && reason != j->reason) {
+	/* As the store keeps it: a return to the queue clears the reason. */
+	if (reason || s == JOB_QUEUED) {
 		free(j->reason);
-		j->reason = strdup(reason);
+		j->reason = reason ? strdup(reason) : NULL;
 	}
 	log_job(s == JOB_FAILED ? LOG_WARNING : LOG_INFO, j->id, "%s -> %s%s%s",
 		job_state_name(old), job_state_name(s), reason ? ": " : "", reason ? reason : "");
-	server_broadcast(d, EVENT_JOB, j->id, "job.state",
-			 json_pack("{s:I, s:s, s:s, s:s?, s:s}", "job", (json_int_t)j->id,
-				   "state", job_state_name(s), "previous", job_state_name(old),
-				   "reason", reason, "instrument", j->instrument));
-	daemon_update_status(d);
+	events_job_state(jobs->events, j->id, s, (int)old, reason, j->instrument);
 	return 0;
 }
 
-/* Results are readable by whoever may read the socket's answers: asphctl
- * result --out copies them as the calling user. */
-static bool real_dir(const char *path)
+/* Reads job id for a change. */
+static int load(struct jobs *jobs, int64_t id, struct job_record *j, struct asph_error *err)
 {
-	struct stat st;
+	int r = store_get(jobs->store, id, j);
 
-	return lstat(path, &st) == 0 && S_ISDIR(st.st_mode);
-}
-
-static int make_dirs(struct daemon *d, const char *dir)
-{
-	_cleanup_free_ char *jobs = NULL;
-
-	if (asprintf(&jobs, "%s/jobs", d->state_dir) < 0)
-		return -ENOMEM;
-	if (mkdir(jobs, 0755) < 0 && errno != EEXIST)
-		return -errno;
-	if (mkdir(dir, 0755) < 0 && errno != EEXIST)
-		return -errno;
-	/* Never write through a symlink put in place of a folder. */
-	if (!real_dir(jobs) || !real_dir(dir))
-		return -ENOTDIR;
+	if (r == -ENOENT)
+		return asph_error_set(err, r, "no job %" PRId64, id);
+	if (r < 0)
+		return asph_error_set(err, r, "cannot read job %" PRId64 ": %s", id, strerror(-r));
 	return 0;
 }
+
+/* ---------------------------------------------------------- starting */
 
 static char *job_metadata(const struct job_record *j)
 {
@@ -159,7 +267,7 @@ static char *job_metadata(const struct job_record *j)
 	json_t *m;
 	char *s;
 
-	iso_time(j->submitted_ns, submitted, sizeof(submitted));
+	iso8601_utc(j->submitted_ns, 0, submitted, sizeof(submitted));
 	m = json_pack("{s:I, s:s?, s:{s:I, s:s?}, s:s, s:I, s:I}", "job", (json_int_t)j->id,
 		      "label", j->label, "submitted_by", "uid", (json_int_t)j->uid,
 		      "name", j->user, "submitted", submitted,
@@ -185,28 +293,54 @@ static void set_aside(const char *scan, int64_t attempt)
 		log_warning("cannot keep %s: %s", scan, strerror(errno));
 }
 
-static int start_job(struct daemon *d, struct instrument *in, struct job_record *j)
+/* What the worker needs for j, whose folder is dir. */
+static struct runner_job *runner_job_of(struct jobs *jobs, const struct job_record *j,
+					const char *dir)
 {
-	_cleanup_free_ char *dir = job_dir(d, j->id);
+	struct runner_job *rj = calloc(1, sizeof(*rj));
+
+	if (!rj)
+		return NULL;
+	rj->id = j->id;
+	rj->spec = strdup(j->spec);
+	rj->result_dir = strdup(dir);
+	rj->metadata = job_metadata(j);
+	rj->resume = j->resume;
+	rj->max_points = jobs->limits->max_plan_points;
+	rj->progress_interval_ms = jobs->limits->progress_interval_ms;
+	if (asprintf(&rj->scan_path, "%s/scan.asphscan", dir) < 0)
+		rj->scan_path = NULL;
+	if (!rj->spec || !rj->result_dir || !rj->metadata || !rj->scan_path) {
+		runner_job_free(rj);
+		return NULL;
+	}
+	return rj;
+}
+
+static int fail_to_start(struct jobs *jobs, struct job_record *j, const char *dir, int r)
+{
+	char reason[512];
+
+	snprintf(reason, sizeof(reason), "cannot create the job directory %s: %s", dir,
+		 strerror(-r));
+	log_job(LOG_ERR, j->id, "%s", reason);
+	j->finished_ns = now_realtime_ns();
+	return transition(jobs, j, JOB_FAILED, reason, 0, NULL);
+}
+
+static int start_job(struct jobs *jobs, struct slot *sl, struct job_record *j)
+{
+	_cleanup_free_ char *dir = dirs_job_path(jobs->state_dir, j->id);
 	struct runner_job *rj;
 	int r;
 
 	if (!dir)
 		return -ENOMEM;
 	/* Room to record how this job ends, even if it fills the disk. */
-	store_renew_reserve(d->store);
-	r = make_dirs(d, dir);
-	if (r < 0) {
-		char reason[512];
-		snprintf(reason, sizeof(reason), "cannot create the job directory %s: %s", dir,
-			 strerror(-r));
-		log_job(LOG_ERR, j->id, "%s", reason);
-		j->finished_ns = now_realtime_ns();
-		return jobs_set_state(d, j, JOB_FAILED, reason, 0);
-	}
-	rj = calloc(1, sizeof(*rj));
-	if (!rj)
-		return -ENOMEM;
+	store_renew_reserve(jobs->store);
+	r = dirs_make_job(jobs->state_dir, j->id);
+	if (r < 0)
+		return fail_to_start(jobs, j, dir, r);
 	if (!j->started_ns)
 		j->started_ns = now_realtime_ns();
 	j->attempts++;
@@ -214,16 +348,8 @@ static int start_job(struct daemon *d, struct instrument *in, struct job_record 
 	free(j->scan_path);
 	if (asprintf(&j->scan_path, "jobs/%" PRId64 "/scan.asphscan", j->id) < 0)
 		j->scan_path = NULL;
-	rj->id = j->id;
-	rj->spec = strdup(j->spec);
-	rj->result_dir = strdup(dir);
-	rj->metadata = job_metadata(j);
-	rj->resume = j->resume;
-	rj->max_points = d->config->limits.max_plan_points;
-	rj->progress_interval_ms = d->config->limits.progress_interval_ms;
-	if (asprintf(&rj->scan_path, "%s/scan.asphscan", dir) < 0)
-		rj->scan_path = NULL;
-	if (!rj->spec || !rj->result_dir || !rj->metadata || !rj->scan_path || !j->scan_path) {
+	rj = runner_job_of(jobs, j, dir);
+	if (!rj || !j->scan_path) {
 		runner_job_free(rj);
 		return -ENOMEM;
 	}
@@ -232,102 +358,103 @@ static int start_job(struct daemon *d, struct instrument *in, struct job_record 
 	/* From here on the scan file, once it exists, is what a later run
 	 * continues. */
 	j->resume = true;
-	r = store_update(d->store, j);
+	r = store_update(jobs->store, j);
 	if (r < 0) {
 		runner_job_free(rj);
 		return r;
 	}
-	in->job = j->id;
-	in->paused = false;
-	in->done = j->points_done;
-	in->total = j->points_total;
-	in->rate = 0;
-	in->eta_s = -1;
-	in->last_progress_store_ns = 0;
-	free(in->fault);
-	in->fault = NULL;
-	r = runner_start(in->runner, rj);
+	sl->act = (struct instrument_activity){
+		.job = j->id, .done = j->points_done, .total = j->points_total, .eta_s = -1,
+	};
+	sl->last_progress_store_ns = 0;
+	set_fault(sl, NULL);
+	r = runner_start(sl->runner, rj);
 	if (r < 0) {
-		in->job = 0;
+		sl->act.job = 0;
 		runner_job_free(rj);
 		return r;
 	}
-	log_job(LOG_INFO, j->id, "starting on %s (attempt %" PRId64 "%s)", in->name,
+	log_job(LOG_INFO, j->id, "starting on %s (attempt %" PRId64 "%s)", sl->in->name,
 		j->attempts, rj->resume ? ", resuming the recorded scan" : "");
-	return jobs_set_state(d, j, JOB_RUNNING, NULL, 0);
+	return transition(jobs, j, JOB_RUNNING, NULL, 0, NULL);
 }
 
-void jobs_schedule(struct daemon *d)
+void jobs_schedule(struct jobs *jobs)
 {
-	if (!d->queue_running || d->shutting_down)
+	if (!jobs->queue_running || jobs->stopping)
 		return;
-	for (size_t i = 0; i < d->n_instruments; i++) {
-		struct instrument *in = &d->instruments[i];
+	for (size_t i = 0; i < jobs->n_slots; i++) {
+		struct slot *sl = &jobs->slots[i];
 		struct job_record j;
 
-		if (in->job || runner_busy(in->runner))
+		if (sl->act.job || runner_busy(sl->runner))
 			continue;
-		if (store_next(d->store, in->name, &j) < 0)
+		if (store_next(jobs->store, sl->in->name, &j) < 0)
 			continue;
-		if (start_job(d, in, &j) < 0)
+		if (start_job(jobs, sl, &j) < 0)
 			log_job(LOG_ERR, j.id, "cannot start");
 		job_record_clear(&j);
 	}
 }
 
-static void job_progress(struct instrument *in, const struct runner_report *rep)
+/* ---------------------------------------------------------- the workers */
+
+static void job_progress(struct slot *sl, const struct runner_report *rep)
 {
-	struct daemon *d = in->d;
+	struct jobs *jobs = sl->jobs;
 	uint64_t now = (uint64_t)now_realtime_ns();
 
-	in->done = (int64_t)rep->done;
-	in->total = (int64_t)rep->total;
-	in->rate = rep->rate;
-	in->eta_s = rep->eta_s;
-	if (now - in->last_progress_store_ns > PROGRESS_STORE_NS || rep->kind == RUNNER_STARTED) {
-		store_set_progress(d->store, rep->job, in->done, in->total);
-		in->last_progress_store_ns = now;
+	sl->act.done = (int64_t)rep->done;
+	sl->act.total = (int64_t)rep->total;
+	sl->act.rate = rep->rate;
+	sl->act.eta_s = rep->eta_s;
+	if (now - sl->last_progress_store_ns > PROGRESS_STORE_NS || rep->kind == RUNNER_STARTED) {
+		store_set_progress(jobs->store, rep->job, sl->act.done, sl->act.total);
+		sl->last_progress_store_ns = now;
 	}
-	server_broadcast(d, EVENT_PROGRESS, rep->job, "job.progress",
-			 json_pack("{s:I, s:s, s:I, s:I, s:f, s:f}", "job", (json_int_t)rep->job,
-				   "instrument", in->name, "done", (json_int_t)in->done,
-				   "total", (json_int_t)in->total, "rate", in->rate,
-				   "eta_s", in->eta_s));
-	daemon_update_status(d);
+	events_job_progress(jobs->events, rep->job, sl->in->name, sl->act.done, sl->act.total,
+			    sl->act.rate, sl->act.eta_s);
 }
 
-static void job_done(struct instrument *in, const struct runner_report *rep)
+static bool any_running(const struct jobs *jobs)
 {
-	struct daemon *d = in->d;
+	for (size_t i = 0; i < jobs->n_slots; i++)
+		if (jobs->slots[i].act.job)
+			return true;
+	return false;
+}
+
+static void job_done(struct slot *sl, const struct runner_report *rep)
+{
+	struct jobs *jobs = sl->jobs;
 	struct job_record j;
 	enum job_state next;
 	const char *reason = NULL;
 
-	in->job = 0;
-	in->paused = false;
-	if (store_get(d->store, rep->job, &j) < 0) {
+	sl->act.job = 0;
+	sl->act.paused = false;
+	if (store_get(jobs->store, rep->job, &j) < 0) {
 		log_job(LOG_ERR, rep->job, "finished, but is gone from the store");
 		free(rep->result);
 		return;
 	}
-	j.points_done = in->done;
+	j.points_done = sl->act.done;
 	switch (rep->outcome) {
 	case RUNNER_COMPLETED:
 		next = JOB_COMPLETED;
+		/* A job run again (requeue with restart) had a result before. */
+		free(j.result);
 		j.result = rep->result;
 		j.resume = false;
-		j.points_done = in->total;
+		j.points_done = sl->act.total;
 		j.finished_ns = now_realtime_ns();
 		break;
 	case RUNNER_FAILED:
 		next = JOB_FAILED;
 		reason = rep->reason;
 		j.finished_ns = now_realtime_ns();
-		free(in->fault);
-		in->fault = strdup(rep->reason);
-		server_broadcast(d, EVENT_INSTRUMENT, 0, "instrument.fault",
-				 json_pack("{s:s, s:I, s:s}", "instrument", in->name,
-					   "job", (json_int_t)j.id, "reason", rep->reason));
+		set_fault(sl, rep->reason);
+		events_instrument_fault(jobs->events, sl->in->name, j.id, rep->reason);
 		break;
 	case RUNNER_ABORTED:
 		next = JOB_CANCELLED;
@@ -336,60 +463,479 @@ static void job_done(struct instrument *in, const struct runner_report *rep)
 	case RUNNER_STOPPED:
 	default:
 		next = JOB_INTERRUPTED;
-		reason = d->shutting_down ? "the daemon stopped during the scan"
-					  : "the queue was stopped";
+		reason = jobs->stopping ? "the daemon stopped during the scan"
+					: "the queue was stopped";
 		break;
 	}
-	int r = store_update(d->store, &j);
-	if (r == -ENOSPC && store_release_reserve(d->store) == 0) {
-		log_job(LOG_WARNING, j.id, "the state directory is full: using the store's reserve "
-			"to record how the job ended");
-		r = store_update(d->store, &j);
-	}
-	if (r < 0)
-		log_job(LOG_ERR, j.id, "cannot record the result: %s", strerror(-r));
-	jobs_set_state(d, &j, next, reason, 0);
+	transition(jobs, &j, next, reason, 0, NULL);
 	job_record_clear(&j);
-	if (d->shutting_down) {
-		for (size_t i = 0; i < d->n_instruments; i++)
-			if (d->instruments[i].job)
-				return;
-		sd_event_exit(d->event, d->exit_code);
+	if (jobs->stopping) {
+		if (!any_running(jobs) && jobs->stopped)
+			jobs->stopped(jobs->stopped_data);
 		return;
 	}
-	jobs_schedule(d);
+	jobs_schedule(jobs);
 }
 
-void jobs_runner_report(struct instrument *in, const struct runner_report *rep)
+static void on_report(const struct runner_report *rep, void *data)
 {
+	struct slot *sl = data;
+
 	switch (rep->kind) {
 	case RUNNER_STARTED:
 	case RUNNER_PROGRESS:
-		if (rep->job == in->job)
-			job_progress(in, rep);
+		if (rep->job == sl->act.job)
+			job_progress(sl, rep);
 		break;
 	case RUNNER_PAUSED:
 	case RUNNER_RESUMED:
 		break;
 	case RUNNER_DONE:
-		job_done(in, rep);
+		job_done(sl, rep);
 		break;
 	}
 }
 
-void jobs_shutdown(struct daemon *d)
+void jobs_shutdown(struct jobs *jobs, void (*stopped)(void *data), void *data)
 {
-	bool busy = false;
-
-	d->shutting_down = true;
-	for (size_t i = 0; i < d->n_instruments; i++) {
-		struct instrument *in = &d->instruments[i];
-		if (in->job) {
-			log_job(LOG_INFO, in->job, "stopping the scan for shutdown");
-			runner_stop(in->runner);
-			busy = true;
+	jobs->stopping = true;
+	jobs->stopped = stopped;
+	jobs->stopped_data = data;
+	for (size_t i = 0; i < jobs->n_slots; i++) {
+		struct slot *sl = &jobs->slots[i];
+		if (sl->act.job) {
+			log_job(LOG_INFO, sl->act.job, "stopping the scan for shutdown");
+			runner_stop(sl->runner);
 		}
 	}
-	if (!busy)
-		sd_event_exit(d->event, d->exit_code);
+	if (!any_running(jobs) && stopped)
+		stopped(data);
+}
+
+/* ---------------------------------------------------------- changes */
+
+static int queue_length(const struct jobs *jobs)
+{
+	return (int)(jobs->counts[JOB_QUEUED] + jobs->counts[JOB_RUNNING] +
+		     jobs->counts[JOB_PAUSED] + jobs->counts[JOB_INTERRUPTED]);
+}
+
+int jobs_check_submit(const struct jobs *jobs, const char *instrument, struct asph_error *err)
+{
+	if (instrument && !slot_of_instrument_name(jobs, instrument))
+		return asph_error_set(err, -ENODEV, "no instrument \"%s\"", instrument);
+	if (queue_length(jobs) >= (int)jobs->limits->max_queue)
+		return asph_error_set(err, -ENOBUFS, "the queue holds %u jobs, its limit",
+				      jobs->limits->max_queue);
+	return 0;
+}
+
+int jobs_submit(struct jobs *jobs, const struct job_submission *sub,
+		const struct job_actor *who, struct job_record *out, struct asph_error *err)
+{
+	const char *instrument = sub->instrument ? sub->instrument : jobs->slots[0].in->name;
+	struct job_record j = {
+		.state = JOB_QUEUED, .priority = sub->priority, .label = (char *)sub->label,
+		.instrument = (char *)instrument, .uid = who->uid, .user = (char *)who->name,
+		.spec = (char *)sub->spec, .points_total = sub->points,
+	};
+	int r = jobs_check_submit(jobs, instrument, err);
+
+	if (r < 0)
+		return r;
+	r = store_insert(jobs->store, &j, now_realtime_ns());
+	if (r < 0)
+		return asph_error_set(err, r, "cannot store the job: %s", strerror(-r));
+	jobs->counts[JOB_QUEUED]++;
+	log_job(LOG_INFO, j.id, "submitted by %s (uid %" PRId64 ") for %s", who->name, who->uid,
+		instrument);
+	events_job_state(jobs->events, j.id, JOB_QUEUED, -1, NULL, instrument);
+	r = out ? load(jobs, j.id, out, err) : 0;
+	jobs_schedule(jobs);
+	return r;
+}
+
+int jobs_cancel(struct jobs *jobs, int64_t id, const struct job_actor *who,
+		struct job_record *out, struct asph_error *err)
+{
+	struct job_record j;
+	struct slot *sl;
+	int r = load(jobs, id, &j, err);
+
+	if (r < 0)
+		return r;
+	switch (j.state) {
+	case JOB_QUEUED:
+	case JOB_INTERRUPTED:
+		j.finished_ns = now_realtime_ns();
+		r = transition(jobs, &j, JOB_CANCELLED, NULL, who->uid, err);
+		break;
+	case JOB_RUNNING:
+	case JOB_PAUSED:
+		/* The worker stops the scan; its report ends the job. */
+		sl = slot_of_job(jobs, j.id);
+		if (sl)
+			runner_abort(sl->runner);
+		log_job(LOG_INFO, j.id, "cancel requested by %s", who->name);
+		break;
+	default:
+		r = refuse_state(&j, "", err);
+	}
+	return hand_over(&j, r, out);
+}
+
+/* Back to the queue; with restart a new recording. */
+static int requeue(struct jobs *jobs, struct job_record *j, bool restart,
+		   const struct job_actor *who, struct asph_error *err)
+{
+	if (restart)
+		j->resume = false;
+	j->finished_ns = 0;
+	return transition(jobs, j, JOB_QUEUED, NULL, who->uid, err);
+}
+
+/* running <-> paused: recorded first, then the worker is told, so that a
+ * change the store cannot keep does not happen. */
+static int set_paused(struct jobs *jobs, struct job_record *j, struct slot *sl, bool pause,
+		      const struct job_actor *who, struct asph_error *err)
+{
+	int r = transition(jobs, j, pause ? JOB_PAUSED : JOB_RUNNING, NULL, who->uid, err);
+
+	if (r < 0)
+		return r;
+	sl->act.paused = pause;
+	if (pause)
+		runner_pause(sl->runner);
+	else
+		runner_resume(sl->runner);
+	return 0;
+}
+
+/* Pauses a running job, or (!pause) resumes a paused one or queues an
+ * interrupted one to continue. */
+static int pause_or_resume(struct jobs *jobs, int64_t id, bool pause,
+			   const struct job_actor *who, struct job_record *out,
+			   struct asph_error *err)
+{
+	struct job_record j;
+	struct slot *sl;
+	int r = load(jobs, id, &j, err);
+
+	if (r < 0)
+		return r;
+	sl = slot_of_job(jobs, j.id);
+	if (sl && j.state == (pause ? JOB_RUNNING : JOB_PAUSED))
+		r = set_paused(jobs, &j, sl, pause, who, err);
+	else if (!pause && j.state == JOB_INTERRUPTED)
+		r = requeue(jobs, &j, false, who, err);
+	else
+		r = refuse_state(&j, pause ? ", not running" : "", err);
+	if (r == 0 && !pause)
+		jobs_schedule(jobs);
+	return hand_over(&j, r, out);
+}
+
+int jobs_pause(struct jobs *jobs, int64_t id, const struct job_actor *who,
+	       struct job_record *out, struct asph_error *err)
+{
+	return pause_or_resume(jobs, id, true, who, out, err);
+}
+
+int jobs_resume(struct jobs *jobs, int64_t id, const struct job_actor *who,
+		struct job_record *out, struct asph_error *err)
+{
+	return pause_or_resume(jobs, id, false, who, out, err);
+}
+
+int jobs_requeue(struct jobs *jobs, int64_t id, bool restart, const struct job_actor *who,
+		 struct job_record *out, struct asph_error *err)
+{
+	struct job_record j;
+	int r = load(jobs, id, &j, err);
+
+	if (r < 0)
+		return r;
+	if (j.state != JOB_FAILED && j.state != JOB_INTERRUPTED && j.state != JOB_CANCELLED &&
+	    !(j.state == JOB_COMPLETED && restart))
+		r = refuse_state(&j, j.state == JOB_COMPLETED ? " (re-queue it with restart)" : "",
+				 err);
+	else
+		r = requeue(jobs, &j, restart || j.state == JOB_COMPLETED, who, err);
+	if (r == 0)
+		jobs_schedule(jobs);
+	return hand_over(&j, r, out);
+}
+
+struct ids {
+	int64_t *v;
+	size_t n, cap;
+};
+
+static int collect_id(const struct job_record *j, void *data)
+{
+	struct ids *ids = data;
+
+	if (ids->n == ids->cap) {
+		size_t cap = ids->cap ? 2 * ids->cap : 64;
+		int64_t *v = realloc(ids->v, cap * sizeof(*v));
+		if (!v)
+			return -ENOMEM;
+		ids->v = v;
+		ids->cap = cap;
+	}
+	ids->v[ids->n++] = j->id;
+	return 0;
+}
+
+/* Moves id within ids (the queue in order) to pos; returns where it went. */
+static size_t reorder(struct ids *ids, int64_t id, int64_t pos)
+{
+	size_t from = 0;
+
+	while (from < ids->n && ids->v[from] != id)
+		from++;
+	memmove(ids->v + from, ids->v + from + 1, (ids->n - from - 1) * sizeof(*ids->v));
+	ids->n--;
+	if ((size_t)pos > ids->n)
+		pos = (int64_t)ids->n;
+	memmove(ids->v + pos + 1, ids->v + pos, (ids->n - (size_t)pos) * sizeof(*ids->v));
+	ids->v[pos] = id;
+	ids->n++;
+	return (size_t)pos;
+}
+
+/* Writes the queue's order as ids has it, j (the moved job) included. */
+static int renumber(struct jobs *jobs, const struct ids *ids, struct job_record *j)
+{
+	int r = store_begin(jobs->store);
+
+	for (size_t k = 0; r == 0 && k < ids->n; k++) {
+		struct job_record q;
+		if (ids->v[k] == j->id) {
+			j->seq = (int64_t)k + 1;
+			r = store_update(jobs->store, j);
+		} else if ((r = store_get(jobs->store, ids->v[k], &q)) == 0) {
+			q.seq = (int64_t)k + 1;
+			r = store_update(jobs->store, &q);
+			job_record_clear(&q);
+		}
+	}
+	if (r == 0)
+		r = store_commit(jobs->store);
+	if (r < 0)
+		store_rollback(jobs->store);
+	return r;
+}
+
+int jobs_move(struct jobs *jobs, int64_t id, int64_t position, const struct job_actor *who,
+	      struct asph_error *err)
+{
+	struct store_filter f = { .uid = -1, .states = 1u << JOB_QUEUED, .queue_order = true };
+	struct ids ids = { 0 };
+	struct job_record j, other;
+	size_t pos;
+	int r = load(jobs, id, &j, err);
+
+	if (r < 0)
+		return r;
+	if (j.state != JOB_QUEUED) {
+		r = refuse_state(&j, ", not queued", err);
+		goto out;
+	}
+	r = store_list(jobs->store, &f, collect_id, &ids, NULL);
+	if (r < 0) {
+		r = asph_error_set(err, r, "cannot read the queue: %s", strerror(-r));
+		goto out;
+	}
+	pos = reorder(&ids, j.id, position);
+	/* The neighbour's priority keeps the order "priority, then sequence". */
+	if (ids.n > 1 && store_get(jobs->store, ids.v[pos + 1 < ids.n ? pos + 1 : pos - 1],
+				   &other) == 0) {
+		j.priority = other.priority;
+		job_record_clear(&other);
+	}
+	r = renumber(jobs, &ids, &j);
+	if (r < 0) {
+		r = asph_error_set(err, r, "cannot reorder the queue: %s", strerror(-r));
+		goto out;
+	}
+	log_job(LOG_INFO, j.id, "moved to position %zu by %s", pos, who->name);
+out:
+	free(ids.v);
+	job_record_clear(&j);
+	return r;
+}
+
+static int set_queue_running(struct jobs *jobs, bool running, struct asph_error *err)
+{
+	int r = store_meta_set(jobs->store, "queue.running", running ? "1" : "0");
+
+	if (r < 0)
+		return asph_error_set(err, r, "cannot record that the queue %s: %s",
+				      running ? "runs" : "stopped", strerror(-r));
+	jobs->queue_running = running;
+	events_queue_state(jobs->events, running);
+	return 0;
+}
+
+int jobs_queue_start(struct jobs *jobs, const struct job_actor *who, struct asph_error *err)
+{
+	int r = set_queue_running(jobs, true, err);
+
+	if (r < 0)
+		return r;
+	log_info("queue started by %s", who->name);
+	jobs_schedule(jobs);
+	return 0;
+}
+
+int jobs_queue_stop(struct jobs *jobs, bool abort, const struct job_actor *who,
+		    struct asph_error *err)
+{
+	int r = set_queue_running(jobs, false, err);
+
+	if (r < 0)
+		return r;
+	log_info("queue stopped by %s%s", who->name, abort ? ", running scans stopped" : "");
+	for (size_t i = 0; abort && i < jobs->n_slots; i++)
+		if (jobs->slots[i].act.job)
+			runner_stop(jobs->slots[i].runner);
+	return 0;
+}
+
+/* ---------------------------------------------------------- reading */
+
+int jobs_get(struct jobs *jobs, int64_t id, struct job_record *out, struct asph_error *err)
+{
+	return load(jobs, id, out, err);
+}
+
+int jobs_list(struct jobs *jobs, const struct store_filter *f, store_job_fn fn, void *data,
+	      int64_t *total, struct asph_error *err)
+{
+	int r = store_list(jobs->store, f, fn, data, total);
+
+	return r < 0 ? asph_error_set(err, r, "cannot read the jobs: %s", strerror(-r)) : 0;
+}
+
+int jobs_list_queue(struct jobs *jobs, store_job_fn fn, void *data, struct asph_error *err)
+{
+	struct store_filter f = {
+		.uid = -1,
+		.states = 1u << JOB_QUEUED | 1u << JOB_RUNNING | 1u << JOB_PAUSED,
+		.queue_order = true,
+	};
+	int r = store_list(jobs->store, &f, fn, data, NULL);
+
+	return r < 0 ? asph_error_set(err, r, "cannot read the queue: %s", strerror(-r)) : 0;
+}
+
+int jobs_history(struct jobs *jobs, int64_t id, store_event_fn fn, void *data,
+		 struct asph_error *err)
+{
+	int r = store_history(jobs->store, id, fn, data);
+
+	return r < 0 ? asph_error_set(err, r, "cannot read the history of job %" PRId64 ": %s",
+				      id, strerror(-r)) : 0;
+}
+
+static json_t *time_json(int64_t ns)
+{
+	char buf[32];
+
+	if (ns <= 0)
+		return json_null();
+	iso8601_utc(ns, 0, buf, sizeof(buf));
+	return json_string(buf);
+}
+
+json_t *jobs_job_to_json(const struct jobs *jobs, const struct job_record *j)
+{
+	_cleanup_(json_decrefp) json_t *spec = json_loads(j->spec, 0, NULL);
+	const struct slot *sl = j->state == JOB_RUNNING || j->state == JOB_PAUSED
+		? slot_of_job_const(jobs, j->id) : NULL;
+	const struct instrument_activity *a = sl ? &sl->act : NULL;
+	int64_t done = a ? a->done : j->points_done;
+	int64_t total = a && a->total ? a->total : j->points_total;
+	json_t *lens = json_object_get(spec, "lens");
+
+	return json_pack("{s:I, s:s, s:s?, s:s, s:I, s:{s:I, s:s?}, s:O?, s:O?, s:O?,"
+			 " s:o, s:o, s:o, s:{s:I, s:I, s:f, s:f}, s:s?, s:I, s:b}",
+		"id", (json_int_t)j->id,
+		"state", job_state_name(j->state),
+		"label", j->label,
+		"instrument", j->instrument,
+		"priority", (json_int_t)j->priority,
+		"submitter", "uid", (json_int_t)j->uid, "name", j->user,
+		"lens", json_object_get(lens, "name"),
+		"plan", json_object_get(spec, "plan"),
+		"fit", json_object_get(spec, "fit"),
+		"submitted", time_json(j->submitted_ns),
+		"started", time_json(j->started_ns),
+		"finished", time_json(j->finished_ns),
+		"progress", "done", (json_int_t)done, "total", (json_int_t)total,
+		"rate", a ? a->rate : 0.0, "eta_s", a ? a->eta_s : -1.0,
+		"reason", j->reason,
+		"attempts", (json_int_t)j->attempts,
+		"resumable", j->resume);
+}
+
+int jobs_result(struct jobs *jobs, int64_t id, json_t **out, struct asph_error *err)
+{
+	_cleanup_free_ char *dir = NULL;
+	struct job_record j;
+	json_t *res;
+	int r = load(jobs, id, &j, err);
+
+	if (r < 0)
+		return r;
+	if (j.state != JOB_COMPLETED || !j.result) {
+		r = asph_error_set(err, -ENODATA, "job %" PRId64 " is %s", j.id,
+				   job_state_name(j.state));
+		job_record_clear(&j);
+		return r;
+	}
+	res = json_loads(j.result, 0, NULL);
+	dir = dirs_job_path(jobs->state_dir, j.id);
+	job_record_clear(&j);
+	if (!res || !dir) {
+		json_decref(res);
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	}
+	json_object_set_new(res, "dir", json_string(dir));
+	*out = res;
+	return 0;
+}
+
+bool jobs_queue_running(const struct jobs *jobs)
+{
+	return jobs->queue_running;
+}
+
+const int64_t *jobs_counts(const struct jobs *jobs)
+{
+	return jobs->counts;
+}
+
+const struct instrument_activity *jobs_activity(const struct jobs *jobs, size_t i)
+{
+	return i < jobs->n_slots ? &jobs->slots[i].act : NULL;
+}
+
+void jobs_status_text(const struct jobs *jobs, char *buf, size_t size)
+{
+	size_t n = 0;
+
+	buf[0] = '\0';
+	for (size_t i = 0; i < jobs->n_slots && n < size; i++) {
+		const struct instrument_activity *a = &jobs->slots[i].act;
+		if (!a->job)
+			continue;
+		n += (size_t)snprintf(buf + n, size - n, "%s%s job %" PRId64 ": %d %%",
+				      n ? ", " : "", a->paused ? "paused" : "measuring", a->job,
+				      a->total > 0 ? (int)(100 * a->done / a->total) : 0);
+	}
+	if (!buf[0])
+		snprintf(buf, size, "%s", jobs->stopping ? "stopping"
+			 : jobs->queue_running ? "idle" : "idle, queue stopped");
 }

@@ -1,24 +1,32 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
-/* asphd: the measurement daemon. docs/asphd.8.md describes its use. */
+/*
+ * asphd: the measurement daemon (docs/asphd.8.md describes its use). This
+ * file is the process: options, the configuration, signals, the event
+ * loop, and the wiring of the modules, which it alone knows all of
+ * (docs/architecture.md). Event loop thread.
+ */
 #include <errno.h>
 #include <getopt.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
-#include <sys/statvfs.h>
-#include <time.h>
 #include <unistd.h>
 
 #include <gsl/gsl_errno.h>
 #include <systemd/sd-daemon.h>
 
-#include "account.h"
-#include "asph/instrument.h"
-#include "asphd.h"
+#include "access.h"
+#include "asph-proto.h"
 #include "config.h"
+#include "dirs.h"
+#include "events.h"
+#include "instruments.h"
+#include "jobs.h"
 #include "log.h"
+#include "rpc.h"
+#include "server.h"
+#include "settings.h"
 #include "util-mem.h"
 
 /* Exit codes, documented in docs/asphd.8.md. */
@@ -31,36 +39,28 @@ enum {
 
 #define DEFAULT_CONFIG "/etc/asphd/asphd.conf"
 
-int64_t now_realtime_ns(void)
-{
-	struct timespec ts;
+struct daemon {
+	const char *config_path;
+	const char *socket_override;
+	const char *state_override;
 
-	clock_gettime(CLOCK_REALTIME, &ts);
-	return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
-}
+	/* What the configuration gives, checked (load_configuration()). */
+	struct settings *settings;
+	struct settings_limits limits;  /* the modules read these; a reload writes them */
+	struct instruments *instruments;
+	struct access *access;
+	struct addrinfo *tcp;           /* tcp_listen's addresses */
 
-void daemon_update_status(struct daemon *d)
-{
-	char text[128];
-	size_t n = 0;
-
-	text[0] = '\0';
-	for (size_t i = 0; i < d->n_instruments && n < sizeof(text); i++) {
-		struct instrument *in = &d->instruments[i];
-		if (!in->job)
-			continue;
-		n += (size_t)snprintf(text + n, sizeof(text) - n, "%s%s job %" PRId64 ": %d %%",
-				      n ? ", " : "", in->paused ? "paused" : "measuring", in->job,
-				      in->total > 0 ? (int)(100 * in->done / in->total) : 0);
-	}
-	if (!text[0])
-		snprintf(text, sizeof(text), "%s", d->shutting_down ? "stopping"
-					      : d->queue_running ? "idle" : "idle, queue stopped");
-	if (strcmp(text, d->status_text)) {
-		snprintf(d->status_text, sizeof(d->status_text), "%s", text);
-		sd_notifyf(0, "STATUS=%s", text);
-	}
-}
+	sd_event *event;
+	uint64_t started_usec;
+	struct events *events;
+	struct jobs *jobs;
+	struct rpc *rpc;
+	struct server *server;
+	char status[128];               /* as systemd was last told */
+	bool stopping;
+	int exit_code;
+};
 
 static void report_config_error(const struct asph_error *err, void *data)
 {
@@ -71,176 +71,225 @@ static void report_config_error(const struct asph_error *err, void *data)
 	(*n)++;
 }
 
-/* Operator group by name, looked up again on reload. */
-static int resolve_groups(struct daemon *d)
+/* --------------------------------------------------------- configuration */
+
+static int resolve_tcp(const struct settings *s, struct addrinfo **out,
+		       settings_error_fn report, void *data)
 {
-	d->have_operator_group = false;
-	if (!d->config->operator_group)
+	struct asph_error err;
+	int r;
+
+	if (!s->tcp_listen)
 		return 0;
-	int r = account_group_id(d->config->operator_group, &d->operator_gid);
+	asph_error_clear(&err);
+	r = server_resolve_tcp(s->tcp_host, s->tcp_port, out, &err);
 	if (r < 0) {
-		log_error("operator_group: group \"%s\": %s", d->config->operator_group,
-			  r == -ENOENT ? "does not exist" : strerror(-r));
-		return r;
+		settings_locate(s, "tcp_listen", &err);
+		report(&err, data);
 	}
-	d->have_operator_group = true;
-	return 0;
+	return r;
 }
 
-static int check_config(const char *path)
+/*
+ * Everything the configuration says that needs more than the file to
+ * check: the instruments against the drivers, the operator group, the
+ * token file, the TCP address. `asphd --check-config` and the start run
+ * this same function, so that they agree. Returns the number of errors
+ * (reported as found).
+ */
+static int load_configuration(struct daemon *d)
 {
-	struct daemon_config *cfg = NULL;
-	struct asph_registry *reg = NULL;
-	struct asph_config *ic = NULL;
 	struct asph_error err;
-	int n_errors = 0, r;
+	int n_errors = 0;
 
-	r = config_load(path, &cfg, report_config_error, &n_errors);
-	if (r == 0) {
-		asph_error_clear(&err);
-		r = instruments_load(cfg, &reg, &ic, &err);
-		if (r < 0)
-			report_config_error(&err, &n_errors);
-		gid_t gid;
-		int g = 0;
-		if (r == 0 && cfg->operator_group)
-			g = account_group_id(cfg->operator_group, &gid);
-		if (g < 0) {
-			fprintf(stderr, "asphd: %s: operator_group: group \"%s\": %s\n", path,
-				cfg->operator_group, g == -ENOENT ? "does not exist" : strerror(-g));
-			n_errors++;
+	asph_error_clear(&err);
+	if (instruments_load(d->settings, &d->instruments, &err) < 0)
+		report_config_error(&err, &n_errors);
+	access_load(d->settings, &d->access, report_config_error, &n_errors);
+	resolve_tcp(d->settings, &d->tcp, report_config_error, &n_errors);
+	return n_errors;
+}
+
+static void unload_configuration(struct daemon *d)
+{
+	if (d->tcp)
+		freeaddrinfo(d->tcp);
+	d->tcp = NULL;
+	access_free(d->access);
+	d->access = NULL;
+	instruments_free(d->instruments);
+	d->instruments = NULL;
+	settings_free(d->settings);
+	d->settings = NULL;
+}
+
+static int check_config(struct daemon *d)
+{
+	int n_errors = 0;
+
+	if (settings_load(d->config_path, &d->settings, report_config_error, &n_errors) < 0)
+		return ASPHD_EXIT_CONFIG;
+	n_errors = load_configuration(d);
+	if (n_errors == 0)
+		printf("%s: OK, %zu instrument(s)\n", d->config_path ? d->config_path : "(defaults)",
+		       instruments_count(d->instruments));
+	unload_configuration(d);
+	return n_errors ? ASPHD_EXIT_CONFIG : ASPHD_EXIT_OK;
+}
+
+/* The command line's socket and state directory, else systemd's. */
+static int apply_overrides(struct daemon *d)
+{
+	struct settings *s = d->settings;
+	const char *env;
+
+	if (d->socket_override) {
+		free(s->socket_path);
+		s->socket_path = strdup(d->socket_override);
+	}
+	if (d->state_override) {
+		free(s->state_dir);
+		s->state_dir = strdup(d->state_override);
+	} else if (!s->source || !strcmp(s->state_dir, "/var/lib/asphd")) {
+		/* systemd's StateDirectory= tells where ours is. */
+		env = getenv("STATE_DIRECTORY");
+		if (env && env[0] == '/' && !strchr(env, ':')) {
+			free(s->state_dir);
+			s->state_dir = strdup(env);
 		}
 	}
-	if (r == 0 && n_errors == 0)
-		printf("%s: OK, %zu instrument(s)\n", path ? path : "(defaults)", ic->n);
-	asph_config_free(ic);
-	asph_registry_free(reg);
-	config_free(cfg);
-	return n_errors || r < 0 ? ASPHD_EXIT_CONFIG : ASPHD_EXIT_OK;
+	return s->socket_path && s->state_dir ? 0 : -ENOMEM;
+}
+
+/* ------------------------------------------------------------ status */
+
+/* systemd's STATUS= line, told when it changes. */
+static void update_status(struct daemon *d)
+{
+	char text[128];
+
+	jobs_status_text(d->jobs, text, sizeof(text));
+	if (strcmp(text, d->status)) {
+		snprintf(d->status, sizeof(d->status), "%s", text);
+		sd_notifyf(0, "STATUS=%s", text);
+	}
+}
+
+/* The event watch behind the status line: every event may change it. */
+static void status_watch(const struct event *ev, void *data)
+{
+	update_status(data);
+}
+
+/* ------------------------------------------------------------ signals */
+
+static void jobs_stopped(void *data)
+{
+	struct daemon *d = data;
+
+	sd_event_exit(d->event, d->exit_code);
 }
 
 static int on_terminate(sd_event_source *s, const struct signalfd_siginfo *si, void *data)
 {
 	struct daemon *d = data;
 
-	if (d->shutting_down)
+	if (d->stopping)
 		return 0;
+	d->stopping = true;
 	log_info("signal %s: stopping", strsignal((int)si->ssi_signo));
 	sd_notify(0, "STOPPING=1");
-	jobs_shutdown(d);
-	daemon_update_status(d);
+	server_refuse_clients(d->server);
+	jobs_shutdown(d->jobs, jobs_stopped, d);
+	update_status(d);
 	return 0;
 }
 
+/* The running value of a setting that a reload does not change. */
+static void keep_setting(char **next, char **running)
+{
+	free(*next);
+	*next = *running;
+	*running = NULL;
+}
+
+/*
+ * What a running daemon can change: the limits and who may do what (the
+ * operator group, the token). Listeners, paths and instruments stay until
+ * the next start. A configuration with any error is refused whole.
+ */
 static int on_reload(sd_event_source *s, const struct signalfd_siginfo *si, void *data)
 {
 	struct daemon *d = data;
-	struct daemon_config *cfg = NULL;
+	struct settings *next = NULL;
+	struct access *access = NULL;
 	int n_errors = 0;
 
 	sd_notify(0, "RELOADING=1");
-	if (config_load(d->config_path, &cfg, report_config_error, &n_errors) < 0) {
+	if (settings_load(d->config_path, &next, report_config_error, &n_errors) == 0)
+		access_load(next, &access, report_config_error, &n_errors);
+	if (n_errors || !next || !access) {
 		log_error("reload: the configuration has %d error(s); keeping the old one", n_errors);
+		settings_free(next);
 		sd_notify(0, "READY=1");
 		return 0;
 	}
-	if ((cfg->instruments_json || d->config->instruments_json) &&
-	    (!cfg->instruments_json || !d->config->instruments_json ||
-	     strcmp(cfg->instruments_json, d->config->instruments_json)))
+	if ((next->instruments_json || d->settings->instruments_json) &&
+	    (!next->instruments_json || !d->settings->instruments_json ||
+	     strcmp(next->instruments_json, d->settings->instruments_json)))
 		log_warning("reload: instrument changes take effect at the next start");
-	/* What a running daemon can change: limits, groups, the mode of
-	 * new sockets. Listener and state paths stay. */
-	/* d->socket_path and d->state_dir point at these strings: move them. */
-	free(cfg->socket_path);
-	cfg->socket_path = d->config->socket_path;
-	d->config->socket_path = NULL;
-	free(cfg->state_dir);
-	cfg->state_dir = d->config->state_dir;
-	d->config->state_dir = NULL;
-	free(cfg->instruments_json);
-	cfg->instruments_json = d->config->instruments_json;
-	d->config->instruments_json = NULL;
-	config_free(d->config);
-	d->config = cfg;
-	resolve_groups(d);
+	d->limits = next->limits;
+	rpc_set_access(d->rpc, access);
+	access_free(d->access);
+	d->access = access;
+	/* The listeners and the state directory keep the paths they have. */
+	keep_setting(&next->socket_path, &d->settings->socket_path);
+	keep_setting(&next->state_dir, &d->settings->state_dir);
+	keep_setting(&next->instruments_json, &d->settings->instruments_json);
+	settings_free(d->settings);
+	d->settings = next;
 	log_info("configuration reloaded");
 	sd_notify(0, "READY=1");
 	return 0;
 }
 
-static int make_state_dir(const char *dir)
-{
-	struct statvfs vfs;
-	struct stat st;
+/* ------------------------------------------------------------ running */
 
-	if (mkdir(dir, 0755) < 0 && errno != EEXIST) {
-		log_error("cannot create the state directory %s: %s", dir, strerror(errno));
-		return -errno;
-	}
-	if (stat(dir, &st) < 0 || !S_ISDIR(st.st_mode)) {
-		log_error("%s is not a directory", dir);
-		return -ENOTDIR;
-	}
-	if (check_private_dir(dir, &st, false, "it as the state directory") < 0)
-		return -EPERM;
-	if (statvfs(dir, &vfs) == 0 && (vfs.f_flag & ST_RDONLY)) {
-		log_error("the state directory %s is on a read-only file system", dir);
-		return -EROFS;
-	}
-	return 0;
-}
-
-static int setup(struct daemon *d)
+static int start_modules(struct daemon *d)
 {
-	_cleanup_free_ char *db = NULL;
 	struct asph_error err;
 	char buf[1024];
-	const char *env;
 	int r;
 
 	asph_error_clear(&err);
-	if (d->socket_override) {
-		free(d->config->socket_path);
-		d->config->socket_path = strdup(d->socket_override);
-	}
-	if (d->state_override) {
-		free(d->config->state_dir);
-		d->config->state_dir = strdup(d->state_override);
-	} else if (!d->config->source || !strcmp(d->config->state_dir, "/var/lib/asphd")) {
-		/* systemd's StateDirectory= tells where ours is. */
-		env = getenv("STATE_DIRECTORY");
-		if (env && env[0] == '/' && !strchr(env, ':')) {
-			free(d->config->state_dir);
-			d->config->state_dir = strdup(env);
-		}
-	}
-	if (!d->config->socket_path || !d->config->state_dir)
-		return -ENOMEM;
-	d->state_dir = d->config->state_dir;
-	d->socket_path = d->config->socket_path;
-	r = make_state_dir(d->state_dir);
+	r = events_new(&d->events);
 	if (r < 0)
 		return r;
-	if (asprintf(&db, "%s/jobs.sqlite", d->state_dir) < 0)
-		return -ENOMEM;
-	r = store_open(db, &d->store, &err);
-	if (r == 0)
-		r = jobs_init(d);
+	r = jobs_new(&(struct jobs_setup){
+			.event = d->event, .state_dir = d->settings->state_dir,
+			.instruments = d->instruments, .events = d->events, .limits = &d->limits,
+		     }, &d->jobs, &err);
 	if (r < 0) {
 		log_error("%s", err.message[0] ? asph_error_format(&err, buf, sizeof(buf))
 					       : strerror(-r));
 		return r;
 	}
-	r = instruments_load(d->config, &d->registry, &d->instrument_config, &err);
+	r = rpc_new(&(struct rpc_setup){
+			.event = d->event, .started_usec = d->started_usec, .jobs = d->jobs,
+			.instruments = d->instruments, .events = d->events, .access = d->access,
+			.limits = &d->limits,
+		    }, &d->rpc);
 	if (r == 0)
-		r = instruments_setup(d, &err);
-	if (r < 0) {
-		log_error("instruments: %s", asph_error_format(&err, buf, sizeof(buf)));
+		r = server_new(&(struct server_setup){
+				.event = d->event, .rpc = d->rpc, .limits = &d->limits,
+			       }, &d->server);
+	if (r < 0)
 		return r;
-	}
-	if (resolve_groups(d) < 0)
-		return -ENOENT;
-	return server_listen(d);
+	/* The sink: events reach the clients and the status line. */
+	r = events_watch_add(d->events, EVENT_ALL, server_notify, d->server, NULL);
+	if (r > 0)
+		r = events_watch_add(d->events, EVENT_ALL, status_watch, d, NULL);
+	return r < 0 ? r : 0;
 }
 
 static int run(struct daemon *d)
@@ -263,25 +312,30 @@ static int run(struct daemon *d)
 	/* Pings the watchdog from the loop itself: a hung loop is caught. */
 	sd_event_set_watchdog(d->event, true);
 	sd_event_now(d->event, CLOCK_MONOTONIC, &d->started_usec);
-	r = setup(d);
+	r = dirs_make_state(d->settings->state_dir);
+	if (r == 0)
+		r = start_modules(d);
+	if (r == 0)
+		r = server_listen(d->server, d->settings, d->tcp);
 	if (r < 0)
 		return r;
-	log_info("listening on %s, state in %s, %zu instrument(s), queue %s", d->socket_path,
-		 d->state_dir, d->n_instruments, d->queue_running ? "running" : "stopped");
-	daemon_update_status(d);
+	log_info("listening on %s, state in %s, %zu instrument(s), queue %s",
+		 d->settings->socket_path, d->settings->state_dir,
+		 instruments_count(d->instruments),
+		 jobs_queue_running(d->jobs) ? "running" : "stopped");
+	update_status(d);
 	sd_notify(0, "READY=1");
-	jobs_schedule(d);
+	jobs_schedule(d->jobs);
 	return sd_event_loop(d->event);
 }
 
 static void teardown(struct daemon *d)
 {
-	server_close(d);
-	instruments_free(d);
-	asph_config_free(d->instrument_config);
-	asph_registry_free(d->registry);
-	store_close(d->store);
-	config_free(d->config);
+	server_free(d->server);
+	rpc_free(d->rpc);
+	jobs_free(d->jobs);
+	events_free(d->events);
+	unload_configuration(d);
 	sd_event_unref(d->event);
 }
 
@@ -310,7 +364,7 @@ int main(int argc, char **argv)
 		{ "help", no_argument, NULL, 'h' },
 		{ NULL, 0, NULL, 0 },
 	};
-	struct daemon d = { .unix_fd = -1, .tcp_fd = -1 };
+	struct daemon d = { 0 };
 	bool check = false, verbose = false;
 	int c, r, n_errors = 0;
 
@@ -334,11 +388,18 @@ int main(int argc, char **argv)
 	if (!d.config_path && access(DEFAULT_CONFIG, F_OK) == 0)
 		d.config_path = DEFAULT_CONFIG;
 	if (check)
-		return check_config(d.config_path);
+		return check_config(&d);
 	log_setup(verbose ? LOG_DEBUG : LOG_INFO);
-	if (config_load(d.config_path, &d.config, report_config_error, &n_errors) < 0)
+	if (settings_load(d.config_path, &d.settings, report_config_error, &n_errors) < 0)
 		return ASPHD_EXIT_CONFIG;
-	r = run(&d);
+	if (load_configuration(&d) > 0) {
+		unload_configuration(&d);
+		return ASPHD_EXIT_CONFIG;
+	}
+	d.limits = d.settings->limits;
+	r = apply_overrides(&d);
+	if (r == 0)
+		r = run(&d);
 	if (r < 0) {
 		log_error("cannot run: %s", strerror(-r));
 		sd_notifyf(0, "ERRNO=%d", -r);

@@ -1,29 +1,91 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
- * The methods of proto/README.md. Each handler returns 0 with a result, or
- * a protocol error code with a detail in call->why. Mutating methods are
- * refused before their handler runs unless the peer is an operator.
+ * Event loop thread. Each handler returns 0 with a result, or a protocol
+ * error code with a detail in call->why.
  */
 #include <errno.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
 
-#include "asphd.h"
+#include "asph-proto.h"
 #include "config.h"
+#include "jobspec.h"
 #include "log.h"
-#include "result.h"
+#include "rpc.h"
+#include "util-time.h"
 #include "util-mem.h"
 
+struct rpc {
+	sd_event *event;
+	uint64_t started_usec;
+	struct jobs *jobs;
+	const struct instruments *instruments;
+	struct events *events;
+	const struct access *access;
+	const struct settings_limits *limits;
+	size_t n_sessions;
+	uint64_t requests;
+};
+
 struct call {
-	struct daemon *d;
-	struct client *client;
+	struct rpc *rpc;
+	struct rpc_session *s;
 	struct proto_why why;
-	json_t *data;           /* extra error data, or NULL */
 };
 
 typedef int (*method_fn)(struct call *c, json_t *params, json_t **result);
+
+int rpc_new(const struct rpc_setup *setup, struct rpc **out)
+{
+	struct rpc *rpc = calloc(1, sizeof(*rpc));
+
+	if (!rpc)
+		return -ENOMEM;
+	*rpc = (struct rpc){
+		.event = setup->event, .started_usec = setup->started_usec,
+		.jobs = setup->jobs, .instruments = setup->instruments, .events = setup->events,
+		.access = setup->access, .limits = setup->limits,
+	};
+	*out = rpc;
+	return 0;
+}
+
+void rpc_free(struct rpc *rpc)
+{
+	free(rpc);
+}
+
+void rpc_set_access(struct rpc *rpc, const struct access *access)
+{
+	rpc->access = access;
+}
+
+void rpc_session_open(struct rpc *rpc, struct rpc_session *s)
+{
+	if (s->open)
+		return;
+	s->open = true;
+	rpc->n_sessions++;
+}
+
+void rpc_session_close(struct rpc *rpc, struct rpc_session *s)
+{
+	if (!s->open)
+		return;
+	events_unsubscribe(rpc->events, &s->events);
+	s->open = false;
+	rpc->n_sessions--;
+}
+
+size_t rpc_sessions(const struct rpc *rpc)
+{
+	return rpc->n_sessions;
+}
+
+/* ------------------------------------------------------------ helpers */
 
 static int fail(struct call *c, int code, const char *fmt, ...)
 	__attribute__((format(printf, 3, 4)));
@@ -33,27 +95,40 @@ static int fail(struct call *c, int code, const char *fmt, ...)
 	va_list ap;
 
 	va_start(ap, fmt);
-	vsnprintf(c->why.text, sizeof(c->why.text), fmt, ap);
+	proto_why_vset(&c->why, fmt, ap);
 	va_end(ap);
 	return code;
 }
 
-bool client_is_operator(const struct client *c)
+/* The protocol's answer to an error of jobs.h. */
+static int job_error(struct call *c, int r, const struct asph_error *err)
 {
-	const struct daemon *d = c->d;
+	static const struct {
+		int errno_code, code;
+	} map[] = {
+		{ -ENOENT, PROTO_NO_SUCH_JOB },
+		{ -ENODEV, PROTO_NO_SUCH_INSTRUMENT },
+		{ -EINVAL, PROTO_INVALID_STATE },
+		{ -ENOBUFS, PROTO_LIMIT_REACHED },
+		{ -ENODATA, PROTO_NO_RESULT },
+		{ -ENOMEM, PROTO_INTERNAL_ERROR },
+	};
+	int code = PROTO_STORAGE_ERROR;
 
-	if (c->tcp)
-		return c->authenticated && d->token;
-	if (c->uid == 0)
-		return true;
-	if (!d->have_operator_group)
-		return false;
-	if (c->gid == d->operator_gid)
-		return true;
-	for (int i = 0; i < c->n_groups; i++)
-		if (c->groups[i] == d->operator_gid)
-			return true;
-	return false;
+	for (size_t i = 0; i < ARRAY_SIZE(map); i++)
+		if (map[i].errno_code == r)
+			code = map[i].code;
+	return fail(c, code, "%s", err->message[0] ? err->message : strerror(-r));
+}
+
+static bool is_operator(const struct call *c)
+{
+	return access_is_operator(c->rpc->access, &c->s->peer, c->s->authenticated);
+}
+
+static struct job_actor actor(const struct call *c)
+{
+	return (struct job_actor){ .uid = (int64_t)(int)c->s->peer.uid, .name = c->s->peer.name };
 }
 
 /* params: only the listed members, each checked by the handler. */
@@ -62,25 +137,38 @@ static int only(struct call *c, json_t *params, const char *const *names)
 	return proto_params_only(params, names, &c->why) < 0 ? PROTO_INVALID_PARAMS : 0;
 }
 
-static int get_job(struct call *c, json_t *params, struct job_record *j)
+static int job_id(struct call *c, json_t *params, int64_t *id)
 {
-	int64_t id;
-	int r;
-
-	if (proto_param_int(params, "id", true, 1, INT64_MAX, &id, &c->why) < 0)
-		return PROTO_INVALID_PARAMS;
-	r = store_get(c->d->store, id, j);
-	if (r == -ENOENT)
-		return fail(c, PROTO_NO_SUCH_JOB, "no job %" PRId64, id);
-	if (r < 0)
-		return fail(c, PROTO_STORAGE_ERROR, "cannot read job %" PRId64, id);
-	return 0;
+	return proto_param_int(params, "id", true, 1, INT64_MAX, id, &c->why) < 0
+		? PROTO_INVALID_PARAMS : 0;
 }
 
-static int job_result_json(struct call *c, const struct job_record *j, json_t **result)
+/* The job j as the result; clears j. */
+static int job_result(struct call *c, struct job_record *j, json_t **result)
 {
-	*result = job_to_json(c->d, j);
+	*result = jobs_job_to_json(c->rpc->jobs, j);
+	job_record_clear(j);
 	return *result ? 0 : PROTO_INTERNAL_ERROR;
+}
+
+/* The methods that change one job and answer with it. */
+typedef int (*job_change_fn)(struct jobs *jobs, int64_t id, const struct job_actor *who,
+			     struct job_record *out, struct asph_error *err);
+
+static int change_job(struct call *c, json_t *params, job_change_fn change, json_t **result)
+{
+	static const char *const names[] = { "id", NULL };
+	struct job_actor who = actor(c);
+	struct asph_error err;
+	struct job_record j;
+	int64_t id;
+	int code = only(c, params, names), r;
+
+	if (code || (code = job_id(c, params, &id)))
+		return code;
+	asph_error_clear(&err);
+	r = change(c->rpc->jobs, id, &who, &j, &err);
+	return r < 0 ? job_error(c, r, &err) : job_result(c, &j, result);
 }
 
 /* ------------------------------------------------------------ daemon */
@@ -89,7 +177,7 @@ static int m_hello(struct call *c, json_t *params, json_t **result)
 {
 	static const char *const names[] = { "client", "token", NULL };
 	const char *token = NULL, *client = NULL;
-	struct daemon *d = c->d;
+	struct rpc_session *s = c->s;
 	int code = only(c, params, names);
 
 	if (code)
@@ -97,21 +185,16 @@ static int m_hello(struct call *c, json_t *params, json_t **result)
 	if (proto_param_string(params, "client", false, 128, &client, &c->why) == -EINVAL ||
 	    proto_param_string(params, "token", false, 512, &token, &c->why) == -EINVAL)
 		return PROTO_INVALID_PARAMS;
-	if (c->client->tcp && !c->client->authenticated) {
-		/* Constant time in the token's length. */
-		size_t n = d->token ? strlen(d->token) : 0, m = token ? strlen(token) : 0;
-		unsigned diff = (unsigned)(n != m) | (unsigned)!token;
-		for (size_t i = 0; token && i < n; i++)
-			diff |= (unsigned)(d->token[i] ^ (i < m ? token[i] : 0));
-		if (diff)
+	if (s->peer.tcp && !s->authenticated) {
+		if (!access_token_matches(c->rpc->access, token))
 			return fail(c, PROTO_PERMISSION_DENIED, "wrong token");
-		c->client->authenticated = true;
+		s->authenticated = true;
 	}
 	*result = json_pack("{s:s, s:s, s:{s:i, s:i}, s:{s:I, s:s, s:b}}",
 		"server", "asphd", "version", ASPH_VERSION,
 		"protocol", "major", PROTO_VERSION_MAJOR, "minor", PROTO_VERSION_MINOR,
-		"peer", "uid", (json_int_t)(int)c->client->uid, "name", c->client->name,
-		"operator", client_is_operator(c->client));
+		"peer", "uid", (json_int_t)(int)s->peer.uid, "name", s->peer.name,
+		"operator", is_operator(c));
 	return 0;
 }
 
@@ -128,119 +211,102 @@ static int m_version(struct call *c, json_t *params, json_t **result)
 	return 0;
 }
 
-static json_t *counts_json(struct daemon *d)
+static json_t *counts_json(const struct jobs *jobs)
 {
+	const int64_t *counts = jobs_counts(jobs);
 	json_t *o = json_object();
 
 	for (int s = 0; o && s < JOB_N_STATES; s++)
-		json_object_set_new(o, job_state_name((enum job_state)s),
-				    json_integer(d->counts[s]));
+		json_object_set_new(o, job_state_name((enum job_state)s), json_integer(counts[s]));
 	return o;
+}
+
+static json_t *instrument_states_json(const struct rpc *rpc)
+{
+	json_t *list = json_array();
+
+	for (size_t i = 0; list && i < instruments_count(rpc->instruments); i++) {
+		const struct instrument_activity *a = jobs_activity(rpc->jobs, i);
+		json_array_append_new(list, json_pack("{s:s, s:s, s:o}",
+			"name", instruments_get(rpc->instruments, i)->name,
+			"state", instrument_state_name(a),
+			"job", a->job ? json_integer(a->job) : json_null()));
+	}
+	return list;
 }
 
 static int m_daemon_status(struct call *c, json_t *params, json_t **result)
 {
 	static const char *const names[] = { NULL };
-	struct daemon *d = c->d;
-	json_t *inst;
+	struct rpc *rpc = c->rpc;
+	char status[128];
 	uint64_t now;
 	int code = only(c, params, names);
 
 	if (code)
 		return code;
-	inst = json_array();
-	for (size_t i = 0; inst && i < d->n_instruments; i++) {
-		struct instrument *in = &d->instruments[i];
-		json_array_append_new(inst, json_pack("{s:s, s:s, s:o}", "name", in->name,
-			"state", instrument_state(in),
-			"job", in->job ? json_integer(in->job) : json_null()));
-	}
-	sd_event_now(d->event, CLOCK_MONOTONIC, &now);
+	sd_event_now(rpc->event, CLOCK_MONOTONIC, &now);
+	jobs_status_text(rpc->jobs, status, sizeof(status));
 	*result = json_pack("{s:s, s:i, s:f, s:s, s:{s:b}, s:o, s:o, s:I, s:I}",
 		"version", ASPH_VERSION, "pid", (int)getpid(),
-		"uptime_s", (double)(now - d->started_usec) / 1e6,
-		"status", d->status_text,
-		"queue", "running", d->queue_running,
-		"jobs", counts_json(d), "instruments", inst,
-		"clients", (json_int_t)d->n_clients, "requests", (json_int_t)d->requests);
+		"uptime_s", (double)(now - rpc->started_usec) / 1e6,
+		"status", status,
+		"queue", "running", jobs_queue_running(rpc->jobs),
+		"jobs", counts_json(rpc->jobs), "instruments", instrument_states_json(rpc),
+		"clients", (json_int_t)rpc->n_sessions, "requests", (json_int_t)rpc->requests);
 	return 0;
 }
 
 /* -------------------------------------------------------------- jobs */
 
-static int queue_length(struct daemon *d)
-{
-	return (int)(d->counts[JOB_QUEUED] + d->counts[JOB_RUNNING] + d->counts[JOB_PAUSED] +
-		     d->counts[JOB_INTERRUPTED]);
-}
-
 static int m_job_submit(struct call *c, json_t *params, json_t **result)
 {
 	static const char *const names[] = { "lens", "plan", "fit", "instrument", "priority",
 					     "label", NULL };
-	struct daemon *d = c->d;
-	struct job_record j = { 0 };
-	const char *instrument = d->instruments[0].name, *label = NULL;
-	int64_t priority = 0;
-	json_t *spec = NULL;
+	struct job_submission sub = { 0 };
+	struct job_actor who = actor(c);
+	_cleanup_(json_decrefp) json_t *spec = NULL;
+	_cleanup_free_ char *text = NULL;
+	struct asph_error err;
+	struct job_record j;
 	uint64_t points = 0;
-	int code = only(c, params, names);
+	int code = only(c, params, names), r;
 
 	if (code)
 		return code;
 	if (!params || !json_object_get(params, "lens"))
 		return fail(c, PROTO_INVALID_PARAMS, "missing parameter \"lens\"");
-	if (proto_param_string(params, "instrument", false, 63, &instrument, &c->why) == -EINVAL ||
-	    proto_param_string(params, "label", false, d->config->limits.max_label_bytes, &label,
+	if (proto_param_string(params, "instrument", false, 63, &sub.instrument,
 			       &c->why) == -EINVAL ||
-	    proto_param_int(params, "priority", false, -1000, 1000, &priority, &c->why) == -EINVAL)
+	    proto_param_string(params, "label", false, c->rpc->limits->max_label_bytes, &sub.label,
+			       &c->why) == -EINVAL ||
+	    proto_param_int(params, "priority", false, -1000, 1000, &sub.priority,
+			    &c->why) == -EINVAL)
 		return PROTO_INVALID_PARAMS;
-	if (!instrument_find(d, instrument))
-		return fail(c, PROTO_NO_SUCH_INSTRUMENT, "no instrument \"%s\"", instrument);
-	if (queue_length(d) >= (int)d->config->limits.max_queue)
-		return fail(c, PROTO_LIMIT_REACHED, "the queue holds %u jobs, its limit",
-			    d->config->limits.max_queue);
-	code = spec_from_params(params, d->config->limits.max_plan_points, &spec, &points, &c->why);
+	/* The cheap refusals before the plan is computed. */
+	asph_error_clear(&err);
+	r = jobs_check_submit(c->rpc->jobs, sub.instrument, &err);
+	if (r < 0)
+		return job_error(c, r, &err);
+	code = jobspec_from_params(params, c->rpc->limits->max_plan_points, &spec, &points,
+				   &c->why);
 	if (code)
 		return code;
-	j.state = JOB_QUEUED;
-	j.priority = priority;
-	j.label = (char *)label;
-	j.instrument = (char *)instrument;
-	j.uid = (int64_t)(int)c->client->uid;
-	j.user = c->client->name;
-	j.spec = json_dumps(spec, JSON_COMPACT);
-	j.points_total = (int64_t)points;
-	json_decref(spec);
-	if (!j.spec)
+	text = json_dumps(spec, JSON_COMPACT);
+	if (!text)
 		return PROTO_INTERNAL_ERROR;
-	int r = store_insert(d->store, &j, now_realtime_ns());
-	if (r < 0) {
-		free(j.spec);
-		return fail(c, PROTO_STORAGE_ERROR, "cannot store the job: %s", strerror(-r));
-	}
-	d->counts[JOB_QUEUED]++;
-	log_job(LOG_INFO, j.id, "submitted by %s (uid %d) for %s", c->client->name,
-		(int)c->client->uid, instrument);
-	server_broadcast(d, EVENT_JOB, j.id, "job.state",
-			 json_pack("{s:I, s:s, s:n, s:n, s:s}", "job", (json_int_t)j.id,
-				   "state", "queued", "previous", "reason",
-				   "instrument", instrument));
-	code = job_result_json(c, &j, result);
-	free(j.spec);
-	jobs_schedule(d);
-	return code;
+	sub.spec = text;
+	sub.points = (int64_t)points;
+	r = jobs_submit(c->rpc->jobs, &sub, &who, &j, &err);
+	return r < 0 ? job_error(c, r, &err) : job_result(c, &j, result);
 }
 
 static int history_entry(const struct store_event *e, void *data)
 {
 	json_t *list = data;
 	char buf[32];
-	time_t t = (time_t)(e->t_ns / 1000000000);
-	struct tm tm;
 
-	gmtime_r(&t, &tm);
-	strftime(buf, sizeof(buf), "%Y-%m-%dT%H:%M:%SZ", &tm);
+	iso8601_utc(e->t_ns, 0, buf, sizeof(buf));
 	return json_array_append_new(list, json_pack("{s:s, s:s, s:s?, s:I}", "time", buf,
 		"state", job_state_name(e->state), "reason", e->reason,
 		"actor_uid", (json_int_t)e->actor_uid)) < 0 ? -ENOMEM : 0;
@@ -249,37 +315,62 @@ static int history_entry(const struct store_event *e, void *data)
 static int m_job_get(struct call *c, json_t *params, json_t **result)
 {
 	static const char *const names[] = { "id", "history", NULL };
+	struct asph_error err;
 	struct job_record j;
 	bool history = false;
-	int code = only(c, params, names);
+	int64_t id;
+	int code = only(c, params, names), r;
 
 	if (code)
 		return code;
 	if (proto_param_bool(params, "history", false, &history, &c->why) == -EINVAL)
 		return PROTO_INVALID_PARAMS;
-	code = get_job(c, params, &j);
-	if (code)
+	if ((code = job_id(c, params, &id)))
 		return code;
-	code = job_result_json(c, &j, result);
+	asph_error_clear(&err);
+	r = jobs_get(c->rpc->jobs, id, &j, &err);
+	if (r < 0)
+		return job_error(c, r, &err);
+	code = job_result(c, &j, result);
 	if (!code && history) {
 		json_t *h = json_array();
-		store_history(c->d->store, j.id, history_entry, h);
+		jobs_history(c->rpc->jobs, id, history_entry, h, NULL);
 		json_object_set_new(*result, "history", h);
 	}
-	job_record_clear(&j);
 	return code;
 }
 
 struct list_ctx {
-	struct daemon *d;
-	json_t *jobs;
+	const struct jobs *jobs;
+	json_t *list;
 };
 
 static int list_entry(const struct job_record *j, void *data)
 {
 	struct list_ctx *l = data;
 
-	return json_array_append_new(l->jobs, job_to_json(l->d, j)) < 0 ? -ENOMEM : 0;
+	return json_array_append_new(l->list, jobs_job_to_json(l->jobs, j)) < 0 ? -ENOMEM : 0;
+}
+
+/* The jobs f selects (NULL: the queue), as a JSON array in *list. */
+static int list_jobs(struct call *c, const struct store_filter *f, json_t **list,
+		     int64_t *total)
+{
+	struct list_ctx l = { .jobs = c->rpc->jobs, .list = json_array() };
+	struct asph_error err;
+	int r;
+
+	if (!l.list)
+		return PROTO_INTERNAL_ERROR;
+	asph_error_clear(&err);
+	r = f ? jobs_list(c->rpc->jobs, f, list_entry, &l, total, &err)
+	      : jobs_list_queue(c->rpc->jobs, list_entry, &l, &err);
+	if (r < 0) {
+		json_decref(l.list);
+		return job_error(c, r, &err);
+	}
+	*list = l.list;
+	return 0;
 }
 
 static const char *const state_list[] = {
@@ -291,7 +382,7 @@ static int m_job_list(struct call *c, json_t *params, json_t **result)
 	static const char *const names[] = { "states", "instrument", "label", "uid", "mine",
 					     "offset", "limit", NULL };
 	struct store_filter f = { .uid = -1, .limit = 100 };
-	struct list_ctx l = { .d = c->d };
+	json_t *list;
 	bool mine = false;
 	int64_t total = 0;
 	int code = only(c, params, names);
@@ -307,193 +398,76 @@ static int m_job_list(struct call *c, json_t *params, json_t **result)
 	    proto_param_int(params, "limit", false, 1, 1000, &f.limit, &c->why) == -EINVAL)
 		return PROTO_INVALID_PARAMS;
 	if (mine)
-		f.uid = (int64_t)(int)c->client->uid;
-	l.jobs = json_array();
-	if (!l.jobs)
-		return PROTO_INTERNAL_ERROR;
-	if (store_list(c->d->store, &f, list_entry, &l, &total) < 0) {
-		json_decref(l.jobs);
-		return fail(c, PROTO_STORAGE_ERROR, "cannot read the jobs");
-	}
-	*result = json_pack("{s:o, s:I, s:I, s:I}", "jobs", l.jobs, "total", (json_int_t)total,
+		f.uid = (int64_t)(int)c->s->peer.uid;
+	code = list_jobs(c, &f, &list, &total);
+	if (code)
+		return code;
+	*result = json_pack("{s:o, s:I, s:I, s:I}", "jobs", list, "total", (json_int_t)total,
 			    "offset", (json_int_t)f.offset, "limit", (json_int_t)f.limit);
 	return 0;
 }
 
-static int actor(struct call *c)
-{
-	return (int)c->client->uid;
-}
-
 static int m_job_cancel(struct call *c, json_t *params, json_t **result)
 {
-	static const char *const names[] = { "id", NULL };
-	struct job_record j;
-	struct instrument *in;
-	int code = only(c, params, names);
-
-	if (code || (code = get_job(c, params, &j)))
-		return code;
-	switch (j.state) {
-	case JOB_QUEUED:
-	case JOB_INTERRUPTED:
-		j.finished_ns = now_realtime_ns();
-		store_update(c->d->store, &j);
-		jobs_set_state(c->d, &j, JOB_CANCELLED, NULL, actor(c));
-		break;
-	case JOB_RUNNING:
-	case JOB_PAUSED:
-		in = instrument_of_job(c->d, j.id);
-		if (in)
-			runner_abort(in->runner);
-		log_job(LOG_INFO, j.id, "cancel requested by %s", c->client->name);
-		break;
-	default:
-		code = fail(c, PROTO_INVALID_STATE, "job %" PRId64 " is %s", j.id,
-			    job_state_name(j.state));
-	}
-	if (!code)
-		code = job_result_json(c, &j, result);
-	job_record_clear(&j);
-	return code;
+	return change_job(c, params, jobs_cancel, result);
 }
 
 static int m_job_pause(struct call *c, json_t *params, json_t **result)
 {
-	static const char *const names[] = { "id", NULL };
-	struct job_record j;
-	struct instrument *in;
-	int code = only(c, params, names);
-
-	if (code || (code = get_job(c, params, &j)))
-		return code;
-	in = instrument_of_job(c->d, j.id);
-	if (j.state != JOB_RUNNING || !in) {
-		code = fail(c, PROTO_INVALID_STATE, "job %" PRId64 " is %s, not running", j.id,
-			    job_state_name(j.state));
-	} else {
-		runner_pause(in->runner);
-		in->paused = true;
-		jobs_set_state(c->d, &j, JOB_PAUSED, NULL, actor(c));
-		code = job_result_json(c, &j, result);
-	}
-	job_record_clear(&j);
-	return code;
-}
-
-static int requeue(struct call *c, struct job_record *j, bool restart)
-{
-	if (restart)
-		j->resume = false;
-	j->finished_ns = 0;
-	if (store_update(c->d->store, j) < 0)
-		return fail(c, PROTO_STORAGE_ERROR, "cannot update job %" PRId64, j->id);
-	jobs_set_state(c->d, j, JOB_QUEUED, NULL, actor(c));
-	return 0;
+	return change_job(c, params, jobs_pause, result);
 }
 
 static int m_job_resume(struct call *c, json_t *params, json_t **result)
 {
-	static const char *const names[] = { "id", NULL };
-	struct job_record j;
-	struct instrument *in;
-	int code = only(c, params, names);
-
-	if (code || (code = get_job(c, params, &j)))
-		return code;
-	in = instrument_of_job(c->d, j.id);
-	if (j.state == JOB_PAUSED && in) {
-		runner_resume(in->runner);
-		in->paused = false;
-		jobs_set_state(c->d, &j, JOB_RUNNING, NULL, actor(c));
-	} else if (j.state == JOB_INTERRUPTED) {
-		code = requeue(c, &j, false);
-	} else {
-		code = fail(c, PROTO_INVALID_STATE, "job %" PRId64 " is %s", j.id,
-			    job_state_name(j.state));
-	}
-	if (!code)
-		code = job_result_json(c, &j, result);
-	job_record_clear(&j);
-	if (!code)
-		jobs_schedule(c->d);
-	return code;
+	return change_job(c, params, jobs_resume, result);
 }
 
 static int m_job_requeue(struct call *c, json_t *params, json_t **result)
 {
 	static const char *const names[] = { "id", "restart", NULL };
+	struct job_actor who = actor(c);
+	struct asph_error err;
 	struct job_record j;
 	bool restart = false;
-	int code = only(c, params, names);
+	int64_t id;
+	int code = only(c, params, names), r;
 
 	if (code)
 		return code;
 	if (proto_param_bool(params, "restart", false, &restart, &c->why) == -EINVAL)
 		return PROTO_INVALID_PARAMS;
-	if ((code = get_job(c, params, &j)))
+	if ((code = job_id(c, params, &id)))
 		return code;
-	if (j.state != JOB_FAILED && j.state != JOB_INTERRUPTED && j.state != JOB_CANCELLED &&
-	    !(j.state == JOB_COMPLETED && restart))
-		code = fail(c, PROTO_INVALID_STATE, "job %" PRId64 " is %s", j.id,
-			    job_state_name(j.state));
-	else
-		code = requeue(c, &j, restart || j.state == JOB_COMPLETED);
-	if (!code)
-		code = job_result_json(c, &j, result);
-	job_record_clear(&j);
-	if (!code)
-		jobs_schedule(c->d);
-	return code;
+	asph_error_clear(&err);
+	r = jobs_requeue(c->rpc->jobs, id, restart, &who, &j, &err);
+	return r < 0 ? job_error(c, r, &err) : job_result(c, &j, result);
 }
 
 static int m_job_result(struct call *c, json_t *params, json_t **result)
 {
 	static const char *const names[] = { "id", NULL };
-	struct job_record j;
-	_cleanup_free_ char *dir = NULL;
-	json_t *res;
-	int code = only(c, params, names);
+	struct asph_error err;
+	int64_t id;
+	int code = only(c, params, names), r;
 
-	if (code || (code = get_job(c, params, &j)))
+	if (code || (code = job_id(c, params, &id)))
 		return code;
-	if (j.state != JOB_COMPLETED || !j.result) {
-		code = fail(c, PROTO_NO_RESULT, "job %" PRId64 " is %s", j.id,
-			    job_state_name(j.state));
-		job_record_clear(&j);
-		return code;
-	}
-	res = json_loads(j.result, 0, NULL);
-	dir = job_dir(c->d, j.id);
-	if (!res || !dir) {
-		json_decref(res);
-		job_record_clear(&j);
-		return PROTO_INTERNAL_ERROR;
-	}
-	json_object_set_new(res, "dir", json_string(dir));
-	*result = res;
-	job_record_clear(&j);
-	return 0;
+	asph_error_clear(&err);
+	r = jobs_result(c->rpc->jobs, id, result, &err);
+	return r < 0 ? job_error(c, r, &err) : 0;
 }
 
 /* ------------------------------------------------------------- queue */
 
 static int queue_json(struct call *c, json_t **result)
 {
-	struct store_filter f = {
-		.uid = -1,
-		.states = 1u << JOB_QUEUED | 1u << JOB_RUNNING | 1u << JOB_PAUSED,
-		.queue_order = true,
-	};
-	struct list_ctx l = { .d = c->d, .jobs = json_array() };
+	json_t *list;
+	int code = list_jobs(c, NULL, &list, NULL);
 
-	if (!l.jobs)
-		return PROTO_INTERNAL_ERROR;
-	if (store_list(c->d->store, &f, list_entry, &l, NULL) < 0) {
-		json_decref(l.jobs);
-		return fail(c, PROTO_STORAGE_ERROR, "cannot read the queue");
-	}
-	*result = json_pack("{s:b, s:o}", "running", c->d->queue_running, "jobs", l.jobs);
+	if (code)
+		return code;
+	*result = json_pack("{s:b, s:o}", "running", jobs_queue_running(c->rpc->jobs),
+			    "jobs", list);
 	return 0;
 }
 
@@ -505,139 +479,63 @@ static int m_queue_get(struct call *c, json_t *params, json_t **result)
 	return code ? code : queue_json(c, result);
 }
 
-struct ids {
-	int64_t *v;
-	size_t n, cap;
-};
-
-static int collect_id(const struct job_record *j, void *data)
-{
-	struct ids *ids = data;
-
-	if (ids->n == ids->cap) {
-		size_t cap = ids->cap ? 2 * ids->cap : 64;
-		int64_t *v = realloc(ids->v, cap * sizeof(*v));
-		if (!v)
-			return -ENOMEM;
-		ids->v = v;
-		ids->cap = cap;
-	}
-	ids->v[ids->n++] = j->id;
-	return 0;
-}
-
-/* Moves a queued job to position (0 = runs next among queued jobs). The
- * moved job takes the priority of the job it lands before (or after, at
- * the end), so that the order stays "priority, then sequence". */
 static int m_queue_move(struct call *c, json_t *params, json_t **result)
 {
 	static const char *const names[] = { "id", "position", NULL };
-	struct store_filter f = { .uid = -1, .states = 1u << JOB_QUEUED, .queue_order = true };
-	struct ids ids = { 0 };
-	struct job_record j, other;
-	int64_t pos;
-	size_t k, from = SIZE_MAX;
-	int code = only(c, params, names);
+	struct job_actor who = actor(c);
+	struct asph_error err;
+	int64_t id, pos;
+	int code = only(c, params, names), r;
 
 	if (code)
 		return code;
 	if (proto_param_int(params, "position", true, 0, INT64_MAX, &pos, &c->why) < 0)
 		return PROTO_INVALID_PARAMS;
-	if ((code = get_job(c, params, &j)))
+	if ((code = job_id(c, params, &id)))
 		return code;
-	if (j.state != JOB_QUEUED) {
-		code = fail(c, PROTO_INVALID_STATE, "job %" PRId64 " is %s, not queued", j.id,
-			    job_state_name(j.state));
-		goto out;
-	}
-	if (store_list(c->d->store, &f, collect_id, &ids, NULL) < 0) {
-		code = fail(c, PROTO_STORAGE_ERROR, "cannot read the queue");
-		goto out;
-	}
-	for (k = 0; k < ids.n; k++)
-		if (ids.v[k] == j.id)
-			from = k;
-	memmove(ids.v + from, ids.v + from + 1, (ids.n - from - 1) * sizeof(*ids.v));
-	ids.n--;
-	if ((size_t)pos > ids.n)
-		pos = (int64_t)ids.n;
-	memmove(ids.v + pos + 1, ids.v + pos, (ids.n - (size_t)pos) * sizeof(*ids.v));
-	ids.v[pos] = j.id;
-	ids.n++;
-	/* Neighbour's priority, then renumber the whole queue. */
-	if (ids.n > 1 && store_get(c->d->store, ids.v[pos + 1 < (int64_t)ids.n ? pos + 1 : pos - 1],
-				   &other) == 0) {
-		j.priority = other.priority;
-		job_record_clear(&other);
-	}
-	store_begin(c->d->store);
-	for (k = 0; k < ids.n; k++) {
-		struct job_record q;
-		if (ids.v[k] == j.id) {
-			j.seq = (int64_t)k + 1;
-			store_update(c->d->store, &j);
-		} else if (store_get(c->d->store, ids.v[k], &q) == 0) {
-			q.seq = (int64_t)k + 1;
-			store_update(c->d->store, &q);
-			job_record_clear(&q);
-		}
-	}
-	if (store_commit(c->d->store) < 0) {
-		store_rollback(c->d->store);
-		code = fail(c, PROTO_STORAGE_ERROR, "cannot reorder the queue");
-		goto out;
-	}
-	log_job(LOG_INFO, j.id, "moved to position %" PRId64 " by %s", pos, c->client->name);
-	code = queue_json(c, result);
-out:
-	free(ids.v);
-	job_record_clear(&j);
-	return code;
-}
-
-static void set_queue_running(struct daemon *d, bool running)
-{
-	d->queue_running = running;
-	store_meta_set(d->store, "queue.running", running ? "1" : "0");
-	server_broadcast(d, EVENT_QUEUE, 0, "queue.state",
-			 json_pack("{s:b}", "running", running));
-	daemon_update_status(d);
+	asph_error_clear(&err);
+	r = jobs_move(c->rpc->jobs, id, pos, &who, &err);
+	return r < 0 ? job_error(c, r, &err) : queue_json(c, result);
 }
 
 static int m_queue_start(struct call *c, json_t *params, json_t **result)
 {
 	static const char *const names[] = { NULL };
-	int code = only(c, params, names);
+	struct job_actor who = actor(c);
+	struct asph_error err;
+	int code = only(c, params, names), r;
 
 	if (code)
 		return code;
-	set_queue_running(c->d, true);
-	log_info("queue started by %s", c->client->name);
-	jobs_schedule(c->d);
-	return queue_json(c, result);
+	asph_error_clear(&err);
+	r = jobs_queue_start(c->rpc->jobs, &who, &err);
+	return r < 0 ? job_error(c, r, &err) : queue_json(c, result);
 }
 
 static int m_queue_stop(struct call *c, json_t *params, json_t **result)
 {
 	static const char *const names[] = { "abort", NULL };
+	struct job_actor who = actor(c);
+	struct asph_error err;
 	bool abort_running = false;
-	int code = only(c, params, names);
+	int code = only(c, params, names), r;
 
 	if (code)
 		return code;
 	if (proto_param_bool(params, "abort", false, &abort_running, &c->why) == -EINVAL)
 		return PROTO_INVALID_PARAMS;
-	set_queue_running(c->d, false);
-	log_info("queue stopped by %s%s", c->client->name,
-		 abort_running ? ", running scans stopped" : "");
-	if (abort_running)
-		for (size_t i = 0; i < c->d->n_instruments; i++)
-			if (c->d->instruments[i].job)
-				runner_stop(c->d->instruments[i].runner);
-	return queue_json(c, result);
+	asph_error_clear(&err);
+	r = jobs_queue_stop(c->rpc->jobs, abort_running, &who, &err);
+	return r < 0 ? job_error(c, r, &err) : queue_json(c, result);
 }
 
 /* ------------------------------------------------------- instruments */
+
+static json_t *instrument_json(const struct rpc *rpc, size_t i)
+{
+	return instrument_to_json(instruments_get(rpc->instruments, i),
+				  jobs_activity(rpc->jobs, i));
+}
 
 static int m_instrument_list(struct call *c, json_t *params, json_t **result)
 {
@@ -648,8 +546,8 @@ static int m_instrument_list(struct call *c, json_t *params, json_t **result)
 	if (code)
 		return code;
 	list = json_array();
-	for (size_t i = 0; list && i < c->d->n_instruments; i++)
-		json_array_append_new(list, instrument_to_json(&c->d->instruments[i]));
+	for (size_t i = 0; list && i < instruments_count(c->rpc->instruments); i++)
+		json_array_append_new(list, instrument_json(c->rpc, i));
 	*result = json_pack("{s:o}", "instruments", list);
 	return 0;
 }
@@ -658,17 +556,16 @@ static int m_instrument_status(struct call *c, json_t *params, json_t **result)
 {
 	static const char *const names[] = { "name", NULL };
 	const char *name;
-	struct instrument *in;
-	int code = only(c, params, names);
+	int i, code = only(c, params, names);
 
 	if (code)
 		return code;
 	if (proto_param_string(params, "name", true, 63, &name, &c->why) < 0)
 		return PROTO_INVALID_PARAMS;
-	in = instrument_find(c->d, name);
-	if (!in)
+	i = instruments_find(c->rpc->instruments, name);
+	if (i < 0)
 		return fail(c, PROTO_NO_SUCH_INSTRUMENT, "no instrument \"%s\"", name);
-	*result = instrument_to_json(in);
+	*result = instrument_json(c->rpc, (size_t)i);
 	return 0;
 }
 
@@ -679,42 +576,36 @@ static int m_driver_list(struct call *c, json_t *params, json_t **result)
 
 	if (code)
 		return code;
-	*result = json_pack("{s:o}", "drivers", drivers_to_json(c->d));
+	*result = drivers_to_json(c->rpc->instruments);
 	return 0;
 }
 
 /* ------------------------------------------------------------ events */
 
-static const char *const event_names[] = { "job", "progress", "instrument", "queue", NULL };
-
 static int m_events_subscribe(struct call *c, json_t *params, json_t **result)
 {
 	static const char *const names[] = { "events", "job", NULL };
-	struct client *cl = c->client;
-	unsigned mask = EVENT_JOB | EVENT_PROGRESS | EVENT_INSTRUMENT | EVENT_QUEUE;
+	unsigned mask = EVENT_ALL, limit = c->rpc->limits->max_subscriptions;
 	int64_t job = 0;
 	json_t *list;
 	int code = only(c, params, names);
 
 	if (code)
 		return code;
-	if (proto_param_flags(params, "events", false, event_names, &mask, &c->why) == -EINVAL ||
+	if (proto_param_flags(params, "events", false, event_class_names, &mask,
+			      &c->why) == -EINVAL ||
 	    proto_param_int(params, "job", false, 1, INT64_MAX, &job, &c->why) == -EINVAL)
 		return PROTO_INVALID_PARAMS;
-	if (!cl->events && mask) {
-		if (c->d->n_subscribed >= c->d->config->limits.max_subscriptions)
-			return fail(c, PROTO_LIMIT_REACHED, "%u clients are subscribed, the limit",
-				    c->d->config->limits.max_subscriptions);
-		c->d->n_subscribed++;
-	} else if (cl->events && !mask) {
-		c->d->n_subscribed--;
-	}
-	cl->events = mask;
-	cl->event_job = job;
+	/* A batch may go on after its connection was dropped: nothing is
+	 * sent there any more, so nothing is counted for it. */
+	if (!c->s->open)
+		return fail(c, PROTO_INVALID_REQUEST, "the connection is closed");
+	if (events_subscribe(c->rpc->events, &c->s->events, mask, job, limit) < 0)
+		return fail(c, PROTO_LIMIT_REACHED, "%u clients are subscribed, the limit", limit);
 	list = json_array();
-	for (int k = 0; list && event_names[k]; k++)
+	for (int k = 0; list && event_class_names[k]; k++)
 		if (mask & (1u << k))
-			json_array_append_new(list, json_string(event_names[k]));
+			json_array_append_new(list, json_string(event_class_names[k]));
 	*result = json_pack("{s:o, s:o}", "events", list, "job", job ? json_integer(job) : json_null());
 	return 0;
 }
@@ -726,10 +617,7 @@ static int m_events_unsubscribe(struct call *c, json_t *params, json_t **result)
 
 	if (code)
 		return code;
-	if (c->client->events)
-		c->d->n_subscribed--;
-	c->client->events = 0;
-	c->client->event_job = 0;
+	events_unsubscribe(c->rpc->events, &c->s->events);
 	*result = json_object();
 	return 0;
 }
@@ -771,57 +659,108 @@ static const struct method *find_method(const char *name)
 	return NULL;
 }
 
-json_t *rpc_handle(struct client *cl, json_t *msg)
+/* Runs the method of a valid request; returns 0 or the error code. */
+static int dispatch(struct call *c, const struct proto_message *m, json_t **result)
 {
-	struct call c = { .d = cl->d, .client = cl };
-	struct proto_message m;
-	const struct method *meth;
-	const char *why = NULL;
-	json_t *result = NULL, *params;
+	const struct method *meth = find_method(m->method);
+	const struct peer *p = &c->s->peer;
+	json_t *params = m->params;
 	int code;
 
-	code = proto_check_request(msg, &m, &why);
-	if (code && m.unknown)
-		fail(&c, code, "unknown member \"%.64s\" in request", m.unknown);
-	else if (code)
-		fail(&c, code, "%s", why);
+	if (!meth)
+		return fail(c, PROTO_METHOD_NOT_FOUND, "no method \"%.64s\"", m->method);
+	if (!c->s->authenticated && meth->fn != m_hello)
+		return fail(c, PROTO_PERMISSION_DENIED, "send \"hello\" with the token first");
+	if (meth->mutating && !is_operator(c)) {
+		log_notice("refused %s to %s (uid %d)", m->method, p->name, (int)p->uid);
+		return fail(c, PROTO_PERMISSION_DENIED,
+			    "%s needs an operator: %s (uid %d) is not in the operator group",
+			    m->method, p->name, (int)p->uid);
+	}
+	if (json_is_array(params) && json_array_size(params) > 0)
+		return fail(c, PROTO_INVALID_PARAMS, "params must be an object");
+	if (json_is_array(params))
+		params = NULL;
+	code = meth->fn(c, params, result);
+	if (!code && !*result)
+		code = fail(c, PROTO_INTERNAL_ERROR, "out of memory");
+	return code;
+}
+
+/* One request or notification (an element of a batch, or a line). */
+static json_t *handle(struct rpc *rpc, struct rpc_session *s, json_t *msg)
+{
+	struct call c = { .rpc = rpc, .s = s };
+	struct proto_message m;
+	json_t *result = NULL, *data;
+	int code;
+
+	code = proto_check_request(msg, &m, &c.why);
 	if (code) {
-		proto_utf8_clean(c.why.text);
+		if (m.unknown)
+			fail(&c, code, "unknown member \"%.64s\" in request", m.unknown);
 		return proto_make_error(m.id, code, NULL, json_pack("{s:s}", "detail", c.why.text));
 	}
-	params = m.params;
-	meth = find_method(m.method);
-	if (!meth) {
-		code = fail(&c, PROTO_METHOD_NOT_FOUND, "no method \"%.64s\"", m.method);
-	} else if (!cl->authenticated && meth->fn != m_hello) {
-		code = fail(&c, PROTO_PERMISSION_DENIED, "send \"hello\" with the token first");
-	} else if (meth->mutating && !client_is_operator(cl)) {
-		code = fail(&c, PROTO_PERMISSION_DENIED,
-			    "%s needs an operator: %s (uid %d) is not in the operator group",
-			    m.method, cl->name, (int)cl->uid);
-		log_notice("refused %s to %s (uid %d)", m.method, cl->name, (int)cl->uid);
-	} else if (json_is_array(params) && json_array_size(params) > 0) {
-		code = fail(&c, PROTO_INVALID_PARAMS, "params must be an object");
-	} else {
-		if (json_is_array(params))
-			params = NULL;
-		code = meth->fn(&c, params, &result);
-		if (!code && !result)
-			code = fail(&c, PROTO_INTERNAL_ERROR, "out of memory");
-	}
+	code = dispatch(&c, &m, &result);
 	if (m.kind == PROTO_KIND_NOTIFICATION) {
 		json_decref(result);
-		json_decref(c.data);
 		return NULL;
 	}
-	if (code) {
-		json_decref(result);
-		json_t *data = c.data ? c.data : json_object();
-		/* A name cut at 64 bytes may end inside a character. */
-		proto_utf8_clean(c.why.text);
-		if (c.why.text[0])
-			json_object_set_new(data, "detail", json_string(c.why.text));
-		return proto_make_error(m.id, code, NULL, data);
+	if (!code)
+		return proto_make_result(m.id, result);
+	json_decref(result);
+	data = json_object();
+	/* A name cut at 64 bytes may end inside a character. */
+	proto_utf8_clean(c.why.text);
+	if (c.why.text[0])
+		json_object_set_new(data, "detail", json_string(c.why.text));
+	return proto_make_error(m.id, code, NULL, data);
+}
+
+static json_t *error_reply(int code, const char *detail)
+{
+	return proto_make_error(NULL, code, NULL, json_pack("{s:s}", "detail", detail));
+}
+
+static json_t *handle_batch(struct rpc *rpc, struct rpc_session *s, json_t *batch)
+{
+	json_t *reply, *e;
+	struct proto_why why;
+	size_t i;
+
+	if (json_array_size(batch) == 0)
+		return error_reply(PROTO_INVALID_REQUEST, "an empty batch");
+	if (json_array_size(batch) > PROTO_MAX_BATCH) {
+		proto_why_set(&why, "a batch of %zu requests, more than %d",
+			      json_array_size(batch), PROTO_MAX_BATCH);
+		return error_reply(PROTO_INVALID_REQUEST, why.text);
 	}
-	return proto_make_result(m.id, result);
+	reply = json_array();
+	json_array_foreach(batch, i, e) {
+		json_t *r = handle(rpc, s, e);
+		if (r && reply)
+			json_array_append_new(reply, r);
+		else
+			json_decref(r);
+	}
+	/* A batch of notifications only is not answered. */
+	if (reply && json_array_size(reply) == 0) {
+		json_decref(reply);
+		reply = NULL;
+	}
+	return reply;
+}
+
+json_t *rpc_handle_line(struct rpc *rpc, struct rpc_session *s, const char *line, size_t len)
+{
+	_cleanup_(json_decrefp) json_t *msg = NULL;
+	struct proto_why why;
+
+	rpc->requests++;
+	msg = proto_parse(line, len, &why);
+	if (!msg)
+		return error_reply(PROTO_PARSE_ERROR, why.text);
+	if (json_is_array(msg))
+		return handle_batch(rpc, s, msg);
+	return handle(rpc, s, msg);
 }

@@ -2,7 +2,9 @@
 /*
  * The worker thread of one instrument. It owns the instrument's devices
  * while a job runs; the event loop only flips controls (under the lock)
- * and receives reports through the eventfd.
+ * and receives reports through the eventfd. worker() and what it calls
+ * run on the worker thread; runner_new(), the controls and on_reports()
+ * on the event loop thread.
  */
 #include <errno.h>
 #include <pthread.h>
@@ -19,6 +21,7 @@
 #include "asph/prescription.h"
 #include "asph/scanfile.h"
 #include "log.h"
+#include "jobplan.h"
 #include "result.h"
 #include "runner.h"
 #include "util-mem.h"
@@ -163,17 +166,10 @@ static int open_writer(struct run *run, uint64_t *start,
 
 	*start = 0;
 	if (job->resume && stat(job->scan_path, &st) == 0) {
-		struct asph_scanfile *rec = NULL;
 		wo.flags = ASPH_SCANFILE_REOPEN_ENDED;
-		r = asph_scanfile_writer_resume(job->scan_path, &wo, &rec, w, &run->err);
+		r = asph_scan_reopen(job->scan_path, run->jp.plan, &wo, w, start, &run->err);
 		if (r < 0)
 			return r;
-		/* The executor measures in plan order: go on after the last
-		 * point recorded. */
-		for (size_t i = 0; i < rec->n; i++)
-			if (rec->points[i].plan_index + 1 > *start)
-				*start = rec->points[i].plan_index + 1;
-		asph_scanfile_free(rec);
 		log_job(LOG_INFO, job->id, "resuming the scan at plan point %" PRIu64, *start);
 		return 0;
 	}
@@ -270,8 +266,12 @@ static void run_job(struct runner *r, struct runner_job *job, struct runner_repo
 	else if (rc < 0)
 		done(&run, RUNNER_FAILED, NULL);
 	else {
+		struct result_source src = {
+			.job = job->id, .scan_path = job->scan_path, .dir = job->result_dir,
+			.metadata = job->metadata,
+		};
 		char *result = NULL;
-		rc = result_build(job, &run.jp, r->ic, &result, &run.err);
+		rc = result_build(&src, &run.jp, r->ic, &result, &run.err);
 		done(&run, rc < 0 ? RUNNER_FAILED : RUNNER_COMPLETED, result);
 	}
 	job_plan_release(&run.jp);
@@ -299,7 +299,6 @@ static void *worker(void *data)
 		r->running = false;
 		r->want_pause = r->want_abort = r->want_stop = false;
 		runner_job_free(job);
-		pthread_cond_broadcast(&r->cond);
 		pthread_mutex_unlock(&r->lock);
 		post(r, &final);
 		pthread_mutex_lock(&r->lock);
@@ -432,13 +431,4 @@ bool runner_busy(struct runner *r)
 	busy = r->job != NULL;
 	pthread_mutex_unlock(&r->lock);
 	return busy;
-}
-
-/* Waits until the current job has ended. */
-void runner_wait_idle(struct runner *r)
-{
-	pthread_mutex_lock(&r->lock);
-	while (r->job)
-		pthread_cond_wait(&r->cond, &r->lock);
-	pthread_mutex_unlock(&r->lock);
 }

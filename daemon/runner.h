@@ -80,7 +80,5 @@ void runner_abort(struct runner *r);
 /* Shutdown: stops at the next point, flushes, leaves the scan resumable. */
 void runner_stop(struct runner *r);
 bool runner_busy(struct runner *r);
-/* Blocks until the current job (if any) has ended. */
-void runner_wait_idle(struct runner *r);
 
 #endif

@@ -1,13 +1,12 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
- * Listeners and clients: non-blocking sockets on the event loop, one JSON
- * text per line in, bounded output per client. A client whose output
- * passes the limit is dropped rather than waited for.
+ * Event loop thread. Non-blocking sockets, one JSON text per line in,
+ * bounded output per client: a client whose output passes the limit is
+ * dropped rather than waited for.
  */
 #include <arpa/inet.h>
 #include <errno.h>
 #include <fcntl.h>
-#include <netdb.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -19,41 +18,105 @@
 #include <systemd/sd-daemon.h>
 
 #include "account.h"
-#include "asphd.h"
+#include "asph-proto.h"
+#include "dirs.h"
 #include "log.h"
+#include "server.h"
 #include "util-mem.h"
 
 #define READ_CHUNK 65536
 /* Bytes read from one client per wake-up, so that one fast writer cannot
  * starve the others. */
 #define READ_BUDGET (256 * 1024)
+/* TCP addresses listened on at once (a host name may have several). */
+#define MAX_TCP_LISTENERS 16
 
-static int client_io(sd_event_source *s, int fd, uint32_t revents, void *data);
+struct client {
+	struct server *srv;
+	struct client *next, *prev;
+	struct rpc_session session;
+	uint64_t serial;
+	int fd;
+	sd_event_source *io;
+	sd_event_source *timeout;       /* an incomplete request waits */
+	struct proto_lines in;
+	char *out;                      /* pending output */
+	size_t out_off, out_len, out_cap;
+	bool closing;                   /* flush what is queued, then close */
+	bool eof;
+};
+
+struct listener {
+	struct server *srv;
+	int fd;
+	sd_event_source *src;
+	bool tcp;
+	bool activated;                 /* from systemd: not ours to unlink */
+};
+
+struct server {
+	sd_event *event;
+	struct rpc *rpc;
+	const struct settings_limits *limits;
+	struct listener listeners[1 + MAX_TCP_LISTENERS];
+	size_t n_listeners;
+	char *socket_path;              /* bound by us: unlinked at the end */
+	struct client *clients;
+	struct client *dead;            /* dropped, freed by the reaper */
+	sd_event_source *reaper;
+	uint64_t next_serial;
+	bool refusing;
+};
+
+static int reap(sd_event_source *s, void *data);
+
+int server_new(const struct server_setup *setup, struct server **out)
+{
+	struct server *srv = calloc(1, sizeof(*srv));
+	int r;
+
+	if (!srv)
+		return -ENOMEM;
+	srv->event = setup->event;
+	srv->rpc = setup->rpc;
+	srv->limits = setup->limits;
+	r = sd_event_add_defer(srv->event, &srv->reaper, reap, srv);
+	if (r < 0) {
+		free(srv);
+		return r;
+	}
+	sd_event_source_set_enabled(srv->reaper, SD_EVENT_OFF);
+	*out = srv;
+	return 0;
+}
+
+/* ------------------------------------------------------------ clients */
 
 static void client_unlink(struct client *c)
 {
-	struct daemon *d = c->d;
+	struct server *srv = c->srv;
 
 	if (c->prev)
 		c->prev->next = c->next;
-	else if (d->clients == c)
-		d->clients = c->next;
+	else if (srv->clients == c)
+		srv->clients = c->next;
 	if (c->next)
 		c->next->prev = c->prev;
 	c->next = c->prev = NULL;
 }
 
-void client_free(struct client *c)
+static void client_free(struct client *c)
 {
 	if (!c)
 		return;
+	rpc_session_close(c->srv->rpc, &c->session);
 	sd_event_source_disable_unref(c->io);
 	sd_event_source_disable_unref(c->timeout);
 	if (c->fd >= 0)
 		close(c->fd);
 	proto_lines_release(&c->in);
 	free(c->out);
-	free(c->groups);
+	free(c->session.peer.groups);
 	free(c);
 }
 
@@ -69,31 +132,29 @@ static void free_list(struct client *c)
 /* Frees dropped clients once the callback that dropped them has returned. */
 static int reap(sd_event_source *s, void *data)
 {
-	struct daemon *d = data;
+	struct server *srv = data;
 
-	free_list(d->dead);
-	d->dead = NULL;
+	free_list(srv->dead);
+	srv->dead = NULL;
 	return 0;
 }
 
 static void client_drop(struct client *c, const char *why)
 {
-	struct daemon *d = c->d;
+	struct server *srv = c->srv;
 
 	if (c->fd < 0)
 		return;
-	log_debug("client %" PRIu64 " (%s) dropped: %s", c->serial, c->name, why);
+	log_debug("client %" PRIu64 " (%s) dropped: %s", c->serial, c->session.peer.name, why);
 	sd_event_source_set_enabled(c->io, SD_EVENT_OFF);
 	sd_event_source_set_enabled(c->timeout, SD_EVENT_OFF);
 	close(c->fd);
 	c->fd = -1;
 	client_unlink(c);
-	d->n_clients--;
-	if (c->events)
-		d->n_subscribed--;
-	c->next = d->dead;
-	d->dead = c;
-	sd_event_source_set_enabled(d->reaper, SD_EVENT_ONESHOT);
+	rpc_session_close(srv->rpc, &c->session);
+	c->next = srv->dead;
+	srv->dead = c;
+	sd_event_source_set_enabled(srv->reaper, SD_EVENT_ONESHOT);
 }
 
 static bool client_dead(const struct client *c)
@@ -165,7 +226,7 @@ static int out_append(const char *buf, size_t n, void *data)
 {
 	struct client *c = data;
 
-	if (c->out_len - c->out_off + n > c->d->config->limits.max_output_bytes)
+	if (c->out_len - c->out_off + n > c->srv->limits->max_output_bytes)
 		return -1;
 	if (out_reserve(c, n) < 0)
 		return -1;
@@ -174,7 +235,9 @@ static int out_append(const char *buf, size_t n, void *data)
 	return 0;
 }
 
-int client_send(struct client *c, const json_t *msg)
+/* Queues a message to c; drops c when its output would pass the limit.
+ * Returns 0 or -ECONNRESET (dropped). */
+static int client_send(struct client *c, const json_t *msg)
 {
 	size_t start;
 
@@ -184,9 +247,9 @@ int client_send(struct client *c, const json_t *msg)
 	if (json_dump_callback(msg, out_append, c, JSON_COMPACT) < 0 ||
 	    out_append("\n", 1, c) < 0) {
 		/* Either the limit or memory: the client goes. */
-		if (c->out_len - c->out_off > c->d->config->limits.max_output_bytes / 2)
+		if (c->out_len - c->out_off > c->srv->limits->max_output_bytes / 2)
 			log_info("client %" PRIu64 " (%s) does not read its output: dropped",
-				 c->serial, c->name);
+				 c->serial, c->session.peer.name);
 		c->out_len = start < c->out_off ? c->out_off : start;
 		client_drop(c, "output buffer full");
 		return -ECONNRESET;
@@ -205,42 +268,9 @@ static void send_error(struct client *c, int code, const char *detail)
 
 static void handle_line(struct client *c, const char *line, size_t len)
 {
-	char why[160];
-	_cleanup_(json_decrefp) json_t *msg = NULL;
-	_cleanup_(json_decrefp) json_t *reply = NULL;
+	_cleanup_(json_decrefp) json_t *reply = rpc_handle_line(c->srv->rpc, &c->session,
+								line, len);
 
-	c->d->requests++;
-	msg = proto_parse(line, len, why, sizeof(why));
-	if (!msg) {
-		send_error(c, PROTO_PARSE_ERROR, why);
-		return;
-	}
-	if (!json_is_array(msg)) {
-		reply = rpc_handle(c, msg);
-	} else if (json_array_size(msg) == 0) {
-		send_error(c, PROTO_INVALID_REQUEST, "an empty batch");
-		return;
-	} else if (json_array_size(msg) > PROTO_MAX_BATCH) {
-		snprintf(why, sizeof(why), "a batch of %zu requests, more than %d",
-			 json_array_size(msg), PROTO_MAX_BATCH);
-		send_error(c, PROTO_INVALID_REQUEST, why);
-		return;
-	} else {
-		size_t i;
-		json_t *e;
-		reply = json_array();
-		json_array_foreach(msg, i, e) {
-			json_t *r = rpc_handle(c, e);
-			if (r && reply)
-				json_array_append_new(reply, r);
-			else
-				json_decref(r);
-		}
-		if (reply && json_array_size(reply) == 0) {
-			json_decref(reply);
-			reply = NULL;
-		}
-	}
 	if (reply && !client_dead(c))
 		client_send(c, reply);
 }
@@ -268,10 +298,29 @@ static void arm_timeout(struct client *c)
 	}
 	if (sd_event_source_get_enabled(c->timeout, NULL) > 0)
 		return;
-	sd_event_now(c->d->event, CLOCK_MONOTONIC, &now);
+	sd_event_now(c->srv->event, CLOCK_MONOTONIC, &now);
 	sd_event_source_set_time(c->timeout,
-		now + (uint64_t)c->d->config->limits.request_timeout_ms * 1000);
+		now + (uint64_t)c->srv->limits->request_timeout_ms * 1000);
 	sd_event_source_set_enabled(c->timeout, SD_EVENT_ONESHOT);
+}
+
+/* The complete lines read so far, each handled. */
+static void handle_lines(struct client *c)
+{
+	char *line;
+	size_t len;
+	int r;
+
+	while (!client_dead(c) && (r = proto_lines_next(&c->in, &line, &len)) != 0) {
+		if (r == -EMSGSIZE) {
+			char why[96];
+			snprintf(why, sizeof(why), "a request is longer than %u bytes",
+				 c->srv->limits->max_request_bytes);
+			send_error(c, PROTO_REQUEST_TOO_LARGE, why);
+			continue;
+		}
+		handle_line(c, line, len);
+	}
 }
 
 static void read_input(struct client *c)
@@ -279,10 +328,8 @@ static void read_input(struct client *c)
 	size_t budget = READ_BUDGET;
 
 	while (budget > 0 && !client_dead(c) && !c->closing) {
-		char *dst, *line;
-		size_t len;
+		char *dst;
 		ssize_t n;
-		int r;
 
 		if (proto_lines_reserve(&c->in, READ_CHUNK, &dst) < 0) {
 			client_drop(c, "out of memory");
@@ -306,23 +353,14 @@ static void read_input(struct client *c)
 		 * hear EAGAIN (the loop calls again when more arrives). */
 		if ((size_t)n < READ_CHUNK)
 			budget = 0;
-		while (!client_dead(c) && (r = proto_lines_next(&c->in, &line, &len)) != 0) {
-			if (r == -EMSGSIZE) {
-				char why[96];
-				snprintf(why, sizeof(why), "a request is longer than %u bytes",
-					 c->d->config->limits.max_request_bytes);
-				send_error(c, PROTO_REQUEST_TOO_LARGE, why);
-				continue;
-			}
-			handle_line(c, line, len);
-		}
+		handle_lines(c);
 	}
 	if (client_dead(c))
 		return;
 	if (c->eof && proto_lines_pending(&c->in) > 0) {
 		send_error(c, PROTO_PARSE_ERROR, "the input ended inside a request");
 		proto_lines_release(&c->in);
-		proto_lines_init(&c->in, c->d->config->limits.max_request_bytes);
+		proto_lines_init(&c->in, c->srv->limits->max_request_bytes);
 	}
 	if (client_dead(c))
 		return;
@@ -341,20 +379,22 @@ static int client_io(sd_event_source *s, int fd, uint32_t revents, void *data)
 	return 0;
 }
 
+/* ------------------------------------------------------------ accept */
+
 /* The peer's supplementary groups as the kernel has them for the
  * connecting process, not as /etc/group says: room for 32 first, then
  * the size the kernel says it needs (ERANGE). None when it cannot tell. */
-static void peer_groups(struct client *c)
+static void peer_groups(int fd, struct peer *p)
 {
 	socklen_t len = 32 * sizeof(gid_t);
 
 	for (int tries = 0; tries < 2; tries++) {
-		gid_t *g = realloc(c->groups, len > 0 ? len : 1);
+		gid_t *g = realloc(p->groups, len > 0 ? len : 1);
 		if (!g)
 			return;
-		c->groups = g;
-		if (getsockopt(c->fd, SOL_SOCKET, SO_PEERGROUPS, g, &len) == 0) {
-			c->n_groups = (int)(len / sizeof(gid_t));
+		p->groups = g;
+		if (getsockopt(fd, SOL_SOCKET, SO_PEERGROUPS, g, &len) == 0) {
+			p->n_groups = (int)(len / sizeof(gid_t));
 			return;
 		}
 		if (errno != ERANGE)
@@ -362,29 +402,48 @@ static void peer_groups(struct client *c)
 	}
 }
 
-static void peer_identity(struct client *c)
+static void peer_identity(int fd, bool tcp, struct peer *p)
 {
 	struct ucred cred;
 	socklen_t len = sizeof(cred);
 
-	if (getsockopt(c->fd, SOL_SOCKET, SO_PEERCRED, &cred, &len) < 0) {
-		c->uid = (uid_t)-1;
-		c->gid = (gid_t)-1;
-		snprintf(c->name, sizeof(c->name), "unknown");
+	p->tcp = tcp;
+	if (tcp) {
+		p->uid = (uid_t)-1;
+		p->gid = (gid_t)-1;
+		snprintf(p->name, sizeof(p->name), "tcp peer");
 		return;
 	}
-	c->uid = cred.uid;
-	c->gid = cred.gid;
-	c->pid = cred.pid;
-	peer_groups(c);
-	if (account_user_name(cred.uid, c->name, sizeof(c->name)) < 0)
-		snprintf(c->name, sizeof(c->name), "uid %u", (unsigned)cred.uid);
+	if (getsockopt(fd, SOL_SOCKET, SO_PEERCRED, &cred, &len) < 0) {
+		p->uid = (uid_t)-1;
+		p->gid = (gid_t)-1;
+		snprintf(p->name, sizeof(p->name), "unknown");
+		return;
+	}
+	p->uid = cred.uid;
+	p->gid = cred.gid;
+	p->pid = cred.pid;
+	peer_groups(fd, p);
+	if (account_user_name(cred.uid, p->name, sizeof(p->name)) < 0)
+		snprintf(p->name, sizeof(p->name), "uid %u", (unsigned)cred.uid);
+}
+
+/* A connection that cannot be taken gets the reason and is closed. */
+static void refuse(struct server *srv, int fd)
+{
+	_cleanup_(json_decrefp) json_t *e = proto_make_error(NULL,
+		srv->refusing ? PROTO_SHUTTING_DOWN : PROTO_TOO_MANY_CLIENTS, NULL, NULL);
+	_cleanup_free_ char *t = proto_dump(e, NULL);
+
+	if (t && send(fd, t, strlen(t), MSG_NOSIGNAL | MSG_DONTWAIT) < 0)
+		log_debug("refused client: %s", strerror(errno));
+	close(fd);
 }
 
 static int on_accept(sd_event_source *s, int fd, uint32_t revents, void *data)
 {
-	struct daemon *d = data;
-	bool tcp = fd == d->tcp_fd;
+	const struct listener *l = data;
+	struct server *srv = l->srv;
 	struct client *c;
 	int cfd;
 
@@ -394,13 +453,8 @@ static int on_accept(sd_event_source *s, int fd, uint32_t revents, void *data)
 			log_warning("accept: %s", strerror(errno));
 		return 0;
 	}
-	if (d->n_clients >= d->config->limits.max_clients || d->shutting_down) {
-		_cleanup_(json_decrefp) json_t *e = proto_make_error(NULL,
-			d->shutting_down ? PROTO_SHUTTING_DOWN : PROTO_TOO_MANY_CLIENTS, NULL, NULL);
-		_cleanup_free_ char *t = proto_dump(e, NULL);
-		if (t && send(cfd, t, strlen(t), MSG_NOSIGNAL | MSG_DONTWAIT) < 0)
-			log_debug("refused client: %s", strerror(errno));
-		close(cfd);
+	if (srv->refusing || rpc_sessions(srv->rpc) >= srv->limits->max_clients) {
+		refuse(srv, cfd);
 		return 0;
 	}
 	c = calloc(1, sizeof(*c));
@@ -408,82 +462,54 @@ static int on_accept(sd_event_source *s, int fd, uint32_t revents, void *data)
 		close(cfd);
 		return 0;
 	}
-	c->d = d;
+	c->srv = srv;
 	c->fd = cfd;
-	c->tcp = tcp;
-	c->serial = ++d->next_serial;
-	proto_lines_init(&c->in, d->config->limits.max_request_bytes);
-	if (tcp) {
-		c->uid = (uid_t)-1;
-		c->gid = (gid_t)-1;
-		snprintf(c->name, sizeof(c->name), "tcp peer");
-	} else {
-		peer_identity(c);
-		c->authenticated = true;
-	}
-	c->next = d->clients;
-	if (d->clients)
-		d->clients->prev = c;
-	d->clients = c;
-	d->n_clients++;
-	if (sd_event_add_io(d->event, &c->io, cfd, EPOLLIN, client_io, c) < 0 ||
-	    sd_event_add_time(d->event, &c->timeout, CLOCK_MONOTONIC, UINT64_MAX, 0,
+	c->serial = ++srv->next_serial;
+	proto_lines_init(&c->in, srv->limits->max_request_bytes);
+	peer_identity(cfd, l->tcp, &c->session.peer);
+	c->session.authenticated = !l->tcp;
+	rpc_session_open(srv->rpc, &c->session);
+	c->next = srv->clients;
+	if (srv->clients)
+		srv->clients->prev = c;
+	srv->clients = c;
+	if (sd_event_add_io(srv->event, &c->io, cfd, EPOLLIN, client_io, c) < 0 ||
+	    sd_event_add_time(srv->event, &c->timeout, CLOCK_MONOTONIC, UINT64_MAX, 0,
 			      request_timeout, c) < 0) {
 		client_drop(c, "out of memory");
 		return 0;
 	}
 	sd_event_source_set_enabled(c->timeout, SD_EVENT_OFF);
 	log_debug("client %" PRIu64 " connected: %s (uid %d, pid %d)", c->serial,
-		  c->name, (int)c->uid, (int)c->pid);
+		  c->session.peer.name, (int)c->session.peer.uid, (int)c->session.peer.pid);
 	return 0;
 }
 
-void server_broadcast(struct daemon *d, unsigned class, int64_t job,
-		      const char *method, json_t *params)
+void server_refuse_clients(struct server *srv)
 {
-	_cleanup_(json_decrefp) json_t *msg = proto_make_notification(method, params);
+	srv->refusing = true;
+}
+
+void server_notify(const struct event *ev, void *data)
+{
+	struct server *srv = data;
+	_cleanup_(json_decrefp) json_t *msg = NULL;
 	struct client *c, *next;
 
-	if (!msg || d->n_subscribed == 0)
-		return;
-	for (c = d->clients; c; c = next) {
+	for (c = srv->clients; c; c = next) {
 		next = c->next;
-		if (client_dead(c) || !(c->events & class))
+		if (client_dead(c) || !events_subscription_matches(&c->session.events, ev))
 			continue;
-		if (job && c->event_job && c->event_job != job)
-			continue;
+		/* Built for the first client that wants it. */
+		if (!msg)
+			msg = proto_make_notification(ev->method, json_incref(ev->params));
+		if (!msg)
+			return;
 		client_send(c, msg);
 	}
 }
 
 /* -------------------------------------------------------------- listen */
-
-int check_private_dir(const char *dir, const struct stat *st, bool sticky_ok,
-		      const char *what)
-{
-	char name[64];
-
-	if (st->st_uid != 0 && st->st_uid != geteuid()) {
-		if (account_user_name(st->st_uid, name, sizeof(name)) < 0)
-			snprintf(name, sizeof(name), "nobody known");
-		log_error("%s belongs to %s (uid %u), another user: refusing %s", dir,
-			  name, (unsigned)st->st_uid, what);
-		return -EPERM;
-	}
-	if ((st->st_mode & S_IWOTH) && !(sticky_ok && (st->st_mode & S_ISVTX))) {
-		log_error("%s is writable by every user: refusing %s", dir, what);
-		return -EPERM;
-	}
-	if ((st->st_mode & S_IWGRP) && st->st_gid != getegid() &&
-	    !(sticky_ok && (st->st_mode & S_ISVTX))) {
-		if (account_group_name(st->st_gid, name, sizeof(name)) < 0)
-			snprintf(name, sizeof(name), "unknown");
-		log_error("%s is writable by the group %s (gid %u): refusing %s", dir,
-			  name, (unsigned)st->st_gid, what);
-		return -EPERM;
-	}
-	return 0;
-}
 
 /* The directory of the socket must not be writable by other users, or
  * anyone could replace the socket. */
@@ -506,13 +532,40 @@ static int check_socket_dir(const char *path)
 			return -errno;
 		return 0;
 	}
-	return check_private_dir(dir, &st, true, "to put the socket there");
+	return dirs_check_private(dir, &st, true, "to put the socket there");
 }
 
-static int bind_unix(struct daemon *d)
+static struct listener *add_listener(struct server *srv, int fd, bool tcp, bool activated)
+{
+	struct listener *l;
+
+	if (srv->n_listeners == ARRAY_SIZE(srv->listeners))
+		return NULL;
+	l = &srv->listeners[srv->n_listeners++];
+	*l = (struct listener){ .srv = srv, .fd = fd, .tcp = tcp, .activated = activated };
+	return l;
+}
+
+/* Gives the socket at path its group and mode as the settings say. */
+static void socket_access(const struct settings *s, const char *path)
+{
+	if (s->socket_group) {
+		gid_t gid;
+		int r = account_group_id(s->socket_group, &gid);
+		if (r == 0 && chown(path, (uid_t)-1, gid) < 0)
+			r = -errno;
+		if (r < 0)
+			log_warning("cannot give %s to group %s: %s", path, s->socket_group,
+				    r == -ENOENT ? "no such group" : strerror(-r));
+	}
+	if (chmod(path, s->socket_mode) < 0)
+		log_warning("chmod %s: %s", path, strerror(errno));
+}
+
+static int bind_unix(struct server *srv, const struct settings *s)
 {
 	struct sockaddr_un sa = { .sun_family = AF_UNIX };
-	const char *path = d->socket_path;
+	const char *path = s->socket_path;
 	_cleanup_close_ int fd = -1;
 	int r;
 
@@ -537,7 +590,7 @@ static int bind_unix(struct daemon *d)
 		}
 	}
 	unlink(path);
-	mode_t old = umask(0777 & ~d->config->socket_mode);
+	mode_t old = umask(0777 & ~s->socket_mode);
 	r = bind(fd, (struct sockaddr *)&sa, sizeof(sa));
 	umask(old);
 	if (r < 0) {
@@ -545,158 +598,179 @@ static int bind_unix(struct daemon *d)
 		log_error("cannot bind %s: %s", path, strerror(-r));
 		return r;
 	}
-	if (d->config->socket_group) {
-		gid_t gid;
-		r = account_group_id(d->config->socket_group, &gid);
-		if (r == 0 && chown(path, (uid_t)-1, gid) < 0)
-			r = -errno;
-		if (r < 0)
-			log_warning("cannot give %s to group %s: %s", path, d->config->socket_group,
-				    r == -ENOENT ? "no such group" : strerror(-r));
-	}
-	if (chmod(path, d->config->socket_mode) < 0)
-		log_warning("chmod %s: %s", path, strerror(errno));
+	srv->socket_path = strdup(path);
+	if (!srv->socket_path)
+		return -ENOMEM;
+	socket_access(s, path);
 	if (listen(fd, 128) < 0)
 		return -errno;
-	d->unix_fd = steal_fd(fd);
+	add_listener(srv, steal_fd(fd), false, false);
 	return 0;
 }
 
-static int bind_tcp(struct daemon *d)
+/* Whether ai's address came earlier in the list (a name may resolve to
+ * the same address twice). */
+static bool seen_before(const struct addrinfo *list, const struct addrinfo *ai)
 {
-	_cleanup_free_ char *spec = strdup(d->config->tcp_listen);
-	struct addrinfo hints = { .ai_socktype = SOCK_STREAM, .ai_flags = AI_NUMERICHOST };
-	struct addrinfo *ai = NULL;
-	char *colon;
-	int fd, one = 1, r;
+	for (const struct addrinfo *p = list; p != ai; p = p->ai_next)
+		if (p->ai_addrlen == ai->ai_addrlen && !memcmp(p->ai_addr, ai->ai_addr, ai->ai_addrlen))
+			return true;
+	return false;
+}
 
-	if (!spec)
-		return -ENOMEM;
-	colon = strrchr(spec, ':');
-	if (!colon) {
-		log_error("tcp_listen must be HOST:PORT, not %s", spec);
-		return -EINVAL;
-	}
-	*colon = '\0';
-	char *host = spec;
-	if (host[0] == '[' && colon[-1] == ']') {
-		host++;
-		colon[-1] = '\0';
-	}
-	r = getaddrinfo(host, colon + 1, &hints, &ai);
-	if (r != 0) {
-		log_error("tcp_listen %s: %s", d->config->tcp_listen, gai_strerror(r));
-		return -EINVAL;
-	}
+/* Whether bind_tcp()'s error means this host has no such address (a name
+ * that resolves to an IPv6 address on a host without IPv6). */
+static bool address_unavailable(int r)
+{
+	return r == -EADDRNOTAVAIL || r == -EAFNOSUPPORT;
+}
+
+static int bind_tcp(struct server *srv, const struct settings *s, const struct addrinfo *ai)
+{
+	_cleanup_close_ int fd = -1;
+	char where[INET6_ADDRSTRLEN + 8];
+	int one = 1, r;
+
+	if (getnameinfo(ai->ai_addr, ai->ai_addrlen, where, sizeof(where), NULL, 0,
+			NI_NUMERICHOST) != 0)
+		snprintf(where, sizeof(where), "?");
 	fd = socket(ai->ai_family, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
 	if (fd < 0 || setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof(one)) < 0 ||
+	    (ai->ai_family == AF_INET6 &&
+	     setsockopt(fd, IPPROTO_IPV6, IPV6_V6ONLY, &one, sizeof(one)) < 0) ||
 	    bind(fd, ai->ai_addr, ai->ai_addrlen) < 0 || listen(fd, 128) < 0) {
 		r = -errno;
-		log_error("cannot listen on %s: %s", d->config->tcp_listen, strerror(errno));
-		if (fd >= 0)
-			close(fd);
-		freeaddrinfo(ai);
+		log_job(address_unavailable(r) ? LOG_WARNING : LOG_ERR, 0,
+			"tcp_listen %s: cannot listen on %s: %s", s->tcp_listen, where,
+			strerror(-r));
 		return r;
 	}
-	freeaddrinfo(ai);
-	d->tcp_fd = fd;
+	if (!add_listener(srv, fd, true, false)) {
+		log_error("tcp_listen %s: more than %d addresses", s->tcp_listen,
+			  MAX_TCP_LISTENERS);
+		return -E2BIG;
+	}
+	log_debug("tcp_listen %s: listening on %s", s->tcp_listen, where);
+	steal_fd(fd);
 	return 0;
 }
 
-static int read_token(struct daemon *d)
+/* Every address of tcp_listen; one this host does not have is left out
+ * while another is there to listen on. */
+static int bind_tcp_all(struct server *srv, const struct settings *s, const struct addrinfo *tcp)
 {
-	_cleanup_fclose_ FILE *f = fopen(d->config->token_file, "re");
-	char buf[512];
-	struct stat st;
+	int r = 0, bound = 0;
 
-	if (!f) {
-		int e = errno;
-		log_error("cannot read the token file %s: %s", d->config->token_file,
-			  strerror(e));
-		return -e;
+	for (const struct addrinfo *ai = tcp; ai; ai = ai->ai_next) {
+		if (seen_before(tcp, ai))
+			continue;
+		r = bind_tcp(srv, s, ai);
+		if (r < 0 && !address_unavailable(r))
+			return r;
+		bound += r == 0;
 	}
-	if (fstat(fileno(f), &st) < 0 || (st.st_mode & 0077) || st.st_uid != geteuid()) {
-		log_error("the token file %s must belong to the daemon's user (uid %u) and be "
-			  "readable by its owner only", d->config->token_file, (unsigned)geteuid());
-		return -EPERM;
-	}
-	if (!fgets(buf, sizeof(buf), f))
-		return -EINVAL;
-	buf[strcspn(buf, "\r\n")] = '\0';
-	if (strlen(buf) < 16) {
-		log_error("the token in %s is shorter than 16 characters", d->config->token_file);
-		return -EINVAL;
-	}
-	free(d->token);
-	d->token = strdup(buf);
-	return d->token ? 0 : -ENOMEM;
+	if (bound)
+		return 0;
+	log_error("tcp_listen %s: no address of it is on this host", s->tcp_listen);
+	return -EADDRNOTAVAIL;
 }
 
-int server_listen(struct daemon *d)
+static bool has_unix(const struct server *srv)
 {
-	int n = sd_listen_fds(1), r;
+	for (size_t i = 0; i < srv->n_listeners; i++)
+		if (!srv->listeners[i].tcp)
+			return true;
+	return false;
+}
 
-	d->unix_fd = d->tcp_fd = -1;
+static bool has_tcp(const struct server *srv)
+{
+	for (size_t i = 0; i < srv->n_listeners; i++)
+		if (srv->listeners[i].tcp)
+			return true;
+	return false;
+}
+
+/* What a socket systemd passed is for: 0 the unix socket, 1 TCP (only
+ * with a token to check), -1 nothing. */
+static int passed_kind(const struct server *srv, const struct settings *s, int fd)
+{
+	if (sd_is_socket_unix(fd, SOCK_STREAM, 1, NULL, 0) > 0 && !has_unix(srv))
+		return 0;
+	if (sd_is_socket_inet(fd, AF_UNSPEC, SOCK_STREAM, 1, 0) > 0 && s->token_file)
+		return 1;
+	return -1;
+}
+
+static void take_activated(struct server *srv, const struct settings *s)
+{
+	int n = sd_listen_fds(1);
+
 	for (int i = 0; i < (n > 0 ? n : 0); i++) {
 		int fd = SD_LISTEN_FDS_START + i;
-		if (sd_is_socket_unix(fd, SOCK_STREAM, 1, NULL, 0) > 0 && d->unix_fd < 0) {
-			d->unix_fd = fd;
-			d->unix_activated = true;
-		} else if (sd_is_socket_inet(fd, AF_UNSPEC, SOCK_STREAM, 1, 0) > 0 &&
-			   d->tcp_fd < 0 && d->config->token_file) {
-			d->tcp_fd = fd;
-		} else {
+		int kind = passed_kind(srv, s, fd);
+
+		if (kind < 0 || !add_listener(srv, fd, kind == 1, true)) {
 			log_warning("ignoring passed file descriptor %d", fd);
 			close(fd);
 			continue;
 		}
 		fcntl(fd, F_SETFL, fcntl(fd, F_GETFL) | O_NONBLOCK);
 	}
-	/* The unix socket last: once it answers, everything listens, and a
-	 * bad TCP setting leaves no socket behind. */
-	if (d->config->tcp_listen && d->tcp_fd < 0) {
-		if (!d->config->token_file) {
-			log_error("tcp_listen needs a token_file");
-			return -EINVAL;
-		}
-		r = bind_tcp(d);
-		if (r < 0)
-			return r;
-	}
-	if (d->tcp_fd >= 0 && (r = read_token(d)) < 0)
-		return r;
-	if (d->unix_fd < 0) {
-		r = bind_unix(d);
-		if (r < 0)
-			return r;
-	}
-	r = sd_event_add_defer(d->event, &d->reaper, reap, d);
-	if (r < 0)
-		return r;
-	sd_event_source_set_enabled(d->reaper, SD_EVENT_OFF);
-	r = sd_event_add_io(d->event, &d->unix_src, d->unix_fd, EPOLLIN, on_accept, d);
-	if (r >= 0 && d->tcp_fd >= 0)
-		r = sd_event_add_io(d->event, &d->tcp_src, d->tcp_fd, EPOLLIN, on_accept, d);
-	return r < 0 ? r : 0;
 }
 
-void server_close(struct daemon *d)
+int server_listen(struct server *srv, const struct settings *s, const struct addrinfo *tcp)
 {
-	free_list(d->clients);
-	free_list(d->dead);
-	d->clients = d->dead = NULL;
-	d->n_clients = d->n_subscribed = 0;
-	d->reaper = sd_event_source_disable_unref(d->reaper);
-	d->unix_src = sd_event_source_disable_unref(d->unix_src);
-	d->tcp_src = sd_event_source_disable_unref(d->tcp_src);
-	if (d->unix_fd >= 0) {
-		close(d->unix_fd);
-		if (!d->unix_activated && d->socket_path)
-			unlink(d->socket_path);
+	int r;
+
+	take_activated(srv, s);
+	/* The unix socket last: once it answers, everything listens, and a
+	 * bad TCP setting leaves no socket behind. */
+	if (s->tcp_listen && !has_tcp(srv)) {
+		r = bind_tcp_all(srv, s, tcp);
+		if (r < 0)
+			return r;
 	}
-	if (d->tcp_fd >= 0)
-		close(d->tcp_fd);
-	d->unix_fd = d->tcp_fd = -1;
-	free(d->token);
-	d->token = NULL;
+	if (!has_unix(srv)) {
+		r = bind_unix(srv, s);
+		if (r < 0)
+			return r;
+	}
+	for (size_t i = 0; i < srv->n_listeners; i++) {
+		struct listener *l = &srv->listeners[i];
+		r = sd_event_add_io(srv->event, &l->src, l->fd, EPOLLIN, on_accept, l);
+		if (r < 0)
+			return r;
+	}
+	return 0;
+}
+
+int server_resolve_tcp(const char *host, const char *port, struct addrinfo **out,
+		       struct asph_error *err)
+{
+	struct addrinfo hints = { .ai_socktype = SOCK_STREAM, .ai_protocol = IPPROTO_TCP };
+	int r = getaddrinfo(host, port, &hints, out);
+
+	if (r != 0)
+		return asph_error_set(err, -EINVAL, "%s: %s", host,
+				      r == EAI_SYSTEM ? strerror(errno) : gai_strerror(r));
+	return 0;
+}
+
+void server_free(struct server *srv)
+{
+	if (!srv)
+		return;
+	free_list(srv->clients);
+	free_list(srv->dead);
+	sd_event_source_disable_unref(srv->reaper);
+	for (size_t i = 0; i < srv->n_listeners; i++) {
+		struct listener *l = &srv->listeners[i];
+		sd_event_source_disable_unref(l->src);
+		close(l->fd);
+		if (!l->tcp && !l->activated && srv->socket_path)
+			unlink(srv->socket_path);
+	}
+	free(srv->socket_path);
+	free(srv);
 }

@@ -16,7 +16,7 @@ struct loader {
 	const char *source;
 	const char *text;
 	size_t len;
-	config_error_fn report;
+	settings_error_fn report;
 	void *data;
 	int n_errors;
 };
@@ -26,24 +26,21 @@ static void complain(struct loader *ld, const char *field, const char *fmt, ...)
 
 static void complain(struct loader *ld, const char *field, const char *fmt, ...)
 {
+	struct json_source src = { ld->text, ld->len, ld->source };
 	struct asph_error e;
 	va_list ap;
-	int line = 0, column = 0;
 
 	asph_error_clear(&e);
-	e.code = -EINVAL;
 	va_start(ap, fmt);
-	vsnprintf(e.message, sizeof(e.message), fmt, ap);
+	asph_error_vset_at(&e, -EINVAL, NULL, 0, 0, NULL, fmt, ap);
 	va_end(ap);
-	if (field && ld->text)
-		json_locate_dotted(ld->text, ld->len, field, &line, &column);
-	asph_error_locate(&e, ld->source, line, column, field);
+	json_error_locate(&e, -EINVAL, &src, field);
 	ld->n_errors++;
 	if (ld->report)
 		ld->report(&e, ld->data);
 }
 
-static const struct daemon_limits default_limits = {
+static const struct settings_limits default_limits = {
 	.max_clients = 256,
 	.max_request_bytes = 1u << 20,
 	.max_output_bytes = 8u << 20,
@@ -55,16 +52,16 @@ static const struct daemon_limits default_limits = {
 	.max_label_bytes = 256,
 };
 
-int config_defaults(struct daemon_config **out)
+int settings_defaults(struct settings **out)
 {
-	struct daemon_config *c = calloc(1, sizeof(*c));
+	struct settings *c = calloc(1, sizeof(*c));
 
 	if (!c)
 		return -ENOMEM;
 	c->socket_path = strdup(PROTO_DEFAULT_SOCKET);
 	c->state_dir = strdup("/var/lib/asphd");
 	if (!c->socket_path || !c->state_dir) {
-		config_free(c);
+		settings_free(c);
 		return -ENOMEM;
 	}
 	c->socket_mode = 0660;
@@ -73,7 +70,7 @@ int config_defaults(struct daemon_config **out)
 	return 0;
 }
 
-void config_free(struct daemon_config *c)
+void settings_free(struct settings *c)
 {
 	if (!c)
 		return;
@@ -82,6 +79,8 @@ void config_free(struct daemon_config *c)
 	free(c->socket_group);
 	free(c->operator_group);
 	free(c->tcp_listen);
+	free(c->tcp_host);
+	free(c->tcp_port);
 	free(c->token_file);
 	free(c->state_dir);
 	free(c->instruments_json);
@@ -130,7 +129,7 @@ static const struct {
 	size_t offset;
 	uint32_t min, max;
 } limit_fields[] = {
-#define LIMIT(n, lo, hi) { #n, offsetof(struct daemon_limits, n), lo, hi }
+#define LIMIT(n, lo, hi) { #n, offsetof(struct settings_limits, n), lo, hi }
 	LIMIT(max_clients, 1, 65536),
 	LIMIT(max_request_bytes, 1024, 64u << 20),
 	LIMIT(max_output_bytes, 65536, 1u << 30),
@@ -143,7 +142,7 @@ static const struct {
 #undef LIMIT
 };
 
-static void take_limits(struct loader *ld, json_t *obj, struct daemon_limits *l)
+static void take_limits(struct loader *ld, json_t *obj, struct settings_limits *l)
 {
 	const char *key;
 	json_t *v;
@@ -174,7 +173,44 @@ static void take_limits(struct loader *ld, json_t *obj, struct daemon_limits *l)
 	}
 }
 
-static void take_member(struct loader *ld, struct daemon_config *c,
+/* "HOST:PORT", "[IPV6]:PORT": a host and a port number (0 picks one). */
+static void take_listen(struct loader *ld, json_t *v, struct settings *c)
+{
+	const char *text, *colon, *host;
+	size_t host_len;
+	char *end;
+	unsigned long port;
+
+	take_string(ld, v, "tcp_listen", &c->tcp_listen, false);
+	text = json_string_value(v);
+	if (!c->tcp_listen || !text)
+		return;
+	colon = strrchr(text, ':');
+	if (!colon) {
+		complain(ld, "tcp_listen", "must be HOST:PORT (a host name or address, a colon, "
+			 "a port number)");
+		return;
+	}
+	host = text;
+	host_len = (size_t)(colon - text);
+	if (host_len >= 2 && host[0] == '[' && host[host_len - 1] == ']') {
+		host++;
+		host_len -= 2;
+	}
+	errno = 0;
+	port = strtoul(colon + 1, &end, 10);
+	if (host_len == 0 || colon[1] < '0' || colon[1] > '9' || *end || errno || port > 65535) {
+		complain(ld, "tcp_listen", "must be HOST:PORT with a host and a port number "
+			 "from 0 to 65535, not \"%s\"", text);
+		return;
+	}
+	free(c->tcp_host);
+	free(c->tcp_port);
+	c->tcp_host = strndup(host, host_len);
+	c->tcp_port = strdup(colon + 1);
+}
+
+static void take_member(struct loader *ld, struct settings *c,
 			const char *key, json_t *v)
 {
 	if (!strcmp(key, "socket"))
@@ -186,7 +222,7 @@ static void take_member(struct loader *ld, struct daemon_config *c,
 	else if (!strcmp(key, "operator_group"))
 		take_string(ld, v, key, &c->operator_group, false);
 	else if (!strcmp(key, "tcp_listen"))
-		take_string(ld, v, key, &c->tcp_listen, false);
+		take_listen(ld, v, c);
 	else if (!strcmp(key, "token_file"))
 		take_string(ld, v, key, &c->token_file, true);
 	else if (!strcmp(key, "state_dir"))
@@ -207,11 +243,11 @@ static void take_member(struct loader *ld, struct daemon_config *c,
 		complain(ld, key, "unknown setting");
 }
 
-int config_load(const char *path, struct daemon_config **out,
-		config_error_fn report, void *data)
+int settings_load(const char *path, struct settings **out,
+		settings_error_fn report, void *data)
 {
 	struct loader ld = { .source = path, .report = report, .data = data };
-	struct daemon_config *c = NULL;
+	struct settings *c = NULL;
 	_cleanup_free_ char *text = NULL;
 	json_error_t je;
 	json_t *root, *v;
@@ -219,7 +255,7 @@ int config_load(const char *path, struct daemon_config **out,
 	size_t len;
 	int r;
 
-	r = config_defaults(&c);
+	r = settings_defaults(&c);
 	if (r < 0)
 		return r;
 	if (!path) {
@@ -233,18 +269,17 @@ int config_load(const char *path, struct daemon_config **out,
 			r = -errno;
 			struct asph_error e;
 			asph_error_clear(&e);
-			asph_error_set(&e, r, "cannot open: %s", strerror(-r));
-			asph_error_locate(&e, path, 0, 0, NULL);
+			asph_error_set_at(&e, r, path, 0, 0, NULL, "cannot open: %s", strerror(-r));
 			if (report)
 				report(&e, data);
-			config_free(c);
+			settings_free(c);
 			return r;
 		}
 		text = malloc(1u << 20);
 		len = text ? fread(text, 1, 1u << 20, f) : 0;
 		if (!text || len == 1u << 20 || ferror(f)) {
 			complain(&ld, NULL, "cannot read, or larger than 1 MiB");
-			config_free(c);
+			settings_free(c);
 			return -EINVAL;
 		}
 	}
@@ -254,11 +289,10 @@ int config_load(const char *path, struct daemon_config **out,
 	if (!root) {
 		struct asph_error e;
 		asph_error_clear(&e);
-		asph_error_set(&e, -EINVAL, "%s", je.text);
-		asph_error_locate(&e, path, je.line, je.column, NULL);
+		asph_error_set_at(&e, -EINVAL, path, je.line, je.column, NULL, "%s", je.text);
 		if (report)
 			report(&e, data);
-		config_free(c);
+		settings_free(c);
 		return -EINVAL;
 	}
 	if (!json_is_object(root))
@@ -267,12 +301,22 @@ int config_load(const char *path, struct daemon_config **out,
 		json_object_foreach(root, key, v)
 			take_member(&ld, c, key, v);
 	json_decref(root);
+	if (c->tcp_listen && !c->token_file)
+		complain(&ld, "tcp_listen", "needs a token_file: TCP clients authenticate with "
+			 "its token");
 	if (ld.n_errors) {
-		config_free(c);
+		settings_free(c);
 		return -EINVAL;
 	}
 	c->text = steal_ptr(text);
 	c->text_len = len;
 	*out = c;
 	return 0;
+}
+
+void settings_locate(const struct settings *s, const char *field, struct asph_error *err)
+{
+	struct json_source src = { s->text, s->text_len, s->source };
+
+	json_error_locate(err, 0, &src, field);
 }

@@ -14,7 +14,7 @@
 
 #include "asph/error.h"
 
-struct daemon_limits {
+struct settings_limits {
 	uint32_t max_clients;
 	uint32_t max_request_bytes;     /* one line */
 	uint32_t max_output_bytes;      /* queued to one client */
@@ -26,16 +26,17 @@ struct daemon_limits {
 	uint32_t max_label_bytes;
 };
 
-struct daemon_config {
+struct settings {
 	char *source;                   /* the file, or NULL for defaults */
 	char *socket_path;
 	char *socket_group;             /* NULL: the daemon's group */
 	mode_t socket_mode;
 	char *operator_group;           /* NULL: only root operates */
-	char *tcp_listen;               /* "host:port" or NULL (off) */
+	char *tcp_listen;               /* "HOST:PORT" or NULL (off), as written */
+	char *tcp_host, *tcp_port;      /* its parts ("[...]" of IPv6 taken off) */
 	char *token_file;
 	char *state_dir;
-	struct daemon_limits limits;
+	struct settings_limits limits;
 	/* Instruments: {"instruments": [...]} as JSON text for the drivers'
 	 * parser, or NULL for the default single "mock" instrument. */
 	char *instruments_json;
@@ -44,19 +45,27 @@ struct daemon_config {
 };
 
 /* Called once for every error found (the load goes on where it can). */
-typedef void (*config_error_fn)(const struct asph_error *err, void *data);
+typedef void (*settings_error_fn)(const struct asph_error *err, void *data);
 
 /*
  * Loads path (NULL: the defaults). Every problem is reported through
  * report (may be NULL); returns 0 or -EINVAL when there was any, -errno
  * when the file cannot be read. The instruments are checked separately
- * (instruments_check in instruments.c), since that needs the drivers.
+ * (instruments_load() in instruments.c), since that needs the drivers.
  */
-int config_load(const char *path, struct daemon_config **out,
-		config_error_fn report, void *data);
-void config_free(struct daemon_config *c);
+int settings_load(const char *path, struct settings **out,
+		settings_error_fn report, void *data);
+void settings_free(struct settings *c);
 
 /* The defaults without a file. */
-int config_defaults(struct daemon_config **out);
+int settings_defaults(struct settings **out);
+
+/*
+ * Points err at the setting field ("token_file", "limits.max_queue",
+ * "instruments.[0].probe"): the file with the line and column where it
+ * stands, and the field. For errors found after loading (the operator
+ * group, the token file, the instruments' drivers).
+ */
+void settings_locate(const struct settings *s, const char *field, struct asph_error *err);
 
 #endif

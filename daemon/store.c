@@ -231,6 +231,16 @@ static int step_done(sqlite3_stmt *st)
 	return rc == SQLITE_DONE ? 0 : sql_errno(rc);
 }
 
+/* The one row a query of one record reads: 0, -ENOENT when there is none. */
+static int step_row(sqlite3_stmt *st)
+{
+	int rc = sqlite3_step(st);
+
+	if (rc == SQLITE_ROW)
+		return 0;
+	return rc == SQLITE_DONE ? -ENOENT : -EIO;
+}
+
 static void bind_text(sqlite3_stmt *st, int i, const char *v)
 {
 	if (v)
@@ -357,39 +367,61 @@ int store_get(struct store *s, int64_t id, struct job_record *out)
 	if (!st)
 		return -EIO;
 	sqlite3_bind_int64(st, 1, id);
-	r = sqlite3_step(st);
-	if (r == SQLITE_DONE)
-		return -ENOENT;
-	if (r != SQLITE_ROW)
-		return -EIO;
+	r = step_row(st);
+	if (r < 0)
+		return r;
 	return read_job(st, out);
 }
 
-int store_set_state(struct store *s, int64_t id, enum job_state state,
-		    const char *reason, int64_t actor_uid, int64_t now_ns)
+/* The state change and its history entry, inside a transaction. */
+static int change_state(struct store *s, int64_t id, enum job_state state,
+			const char *reason, int64_t actor_uid, int64_t now_ns)
 {
-	_cleanup_stmt_ sqlite3_stmt *st = NULL;
-	int r = store_begin(s);
-
-	if (r < 0)
-		return r;
 	/* A state change without a reason keeps the last one (a pause does
 	 * not explain away a fault), except a return to the queue: a re-queued
 	 * job starts afresh, so a failure it later recovers from is not shown
 	 * as its reason once it completes. The history keeps every reason. */
-	st = prepare(s, state == JOB_QUEUED
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, state == JOB_QUEUED
 			? "UPDATE jobs SET state = ?, reason = ? WHERE id = ?"
 			: "UPDATE jobs SET state = ?, reason = IFNULL(?, reason) WHERE id = ?");
-	if (!st) {
-		store_rollback(s);
+	int r;
+
+	if (!st)
 		return -EIO;
-	}
 	sqlite3_bind_int(st, 1, state);
 	bind_text(st, 2, reason);
 	sqlite3_bind_int64(st, 3, id);
 	r = step_done(st);
 	if (r == 0)
 		r = add_history(s, id, state, reason, actor_uid, now_ns);
+	return r;
+}
+
+int store_set_state(struct store *s, int64_t id, enum job_state state,
+		    const char *reason, int64_t actor_uid, int64_t now_ns)
+{
+	int r = store_begin(s);
+
+	if (r < 0)
+		return r;
+	r = change_state(s, id, state, reason, actor_uid, now_ns);
+	if (r == 0)
+		r = store_commit(s);
+	if (r < 0)
+		store_rollback(s);
+	return r;
+}
+
+int store_transition(struct store *s, const struct job_record *j, enum job_state state,
+		     const char *reason, int64_t actor_uid, int64_t now_ns)
+{
+	int r = store_begin(s);
+
+	if (r < 0)
+		return r;
+	r = store_update(s, j);
+	if (r == 0)
+		r = change_state(s, j->id, state, reason, actor_uid, now_ns);
 	if (r == 0)
 		r = store_commit(s);
 	if (r < 0)
@@ -529,11 +561,9 @@ int store_next(struct store *s, const char *instrument, struct job_record *out)
 		return -EIO;
 	sqlite3_bind_int(st, 1, JOB_QUEUED);
 	bind_text(st, 2, instrument);
-	r = sqlite3_step(st);
-	if (r == SQLITE_DONE)
-		return -ENOENT;
-	if (r != SQLITE_ROW)
-		return -EIO;
+	r = step_row(st);
+	if (r < 0)
+		return r;
 	return read_job(st, out);
 }
 
@@ -620,11 +650,9 @@ int store_meta_get(struct store *s, const char *key, char **value)
 	if (!st)
 		return -EIO;
 	bind_text(st, 1, key);
-	r = sqlite3_step(st);
-	if (r == SQLITE_DONE)
-		return -ENOENT;
-	if (r != SQLITE_ROW)
-		return -EIO;
+	r = step_row(st);
+	if (r < 0)
+		return r;
 	*value = column_text(st, 0);
 	return *value ? 0 : -ENOMEM;
 }

@@ -65,6 +65,10 @@ int store_get(struct store *s, int64_t id, struct job_record *out);
 /* A state change with its history entry; reason may be NULL. */
 int store_set_state(struct store *s, int64_t id, enum job_state state,
 		    const char *reason, int64_t actor_uid, int64_t now_ns);
+/* A state change as store_set_state(), with every mutable column of j
+ * written in the same transaction. */
+int store_transition(struct store *s, const struct job_record *j, enum job_state state,
+		     const char *reason, int64_t actor_uid, int64_t now_ns);
 /* Writes every mutable column of j (state history is not touched). */
 int store_update(struct store *s, const struct job_record *j);
 int store_set_progress(struct store *s, int64_t id, int64_t done,

@@ -110,25 +110,6 @@ int asph_instrument_spec_parse(const struct asph_registry *reg,
 
 /* ------------------------------------------------------------- JSON */
 
-struct json_src {
-	const char *text;
-	size_t len;
-	const char *source;
-};
-
-/* Sets the error's location to the member at the dotted path. */
-static int at(const struct json_src *src, struct asph_error *err, int code,
-	      const char *dotted)
-{
-	int line = 0, column = 0;
-
-	json_locate_dotted(src->text, src->len, dotted, &line, &column);
-	if (err)
-		err->field[0] = '\0';
-	asph_error_locate(err, src->source, line, column, dotted);
-	return code;
-}
-
 static int value_text(const struct asph_option_desc *d, json_t *v, char *buf,
 		      size_t size, const char **text)
 {
@@ -169,7 +150,7 @@ static const char *json_type_word(enum asph_option_type t)
 	}
 }
 
-static int json_options(const struct json_src *src, json_t *obj,
+static int json_options(const struct json_source *src, json_t *obj,
 			struct asph_options *opts, const char *path,
 			struct asph_error *err)
 {
@@ -178,10 +159,8 @@ static int json_options(const struct json_src *src, json_t *obj,
 	json_t *v;
 	char dotted[256], buf[64];
 
-	if (!json_is_object(obj)) {
-		asph_error_set(err, -EINVAL, "options must be an object");
-		return at(src, err, -EINVAL, path);
-	}
+	if (!json_is_object(obj))
+		return json_error_set_at(err, -EINVAL, src, path, "options must be an object");
 	json_object_foreach(obj, key, v) {
 		int i = option_index(drv, key);
 		const char *text;
@@ -189,24 +168,22 @@ static int json_options(const struct json_src *src, json_t *obj,
 
 		if (snprintf(dotted, sizeof(dotted), "%s.%s", path, key) >= (int)sizeof(dotted))
 			dotted[0] = '\0';
-		if (i < 0) {
-			asph_error_set(err, -ENOENT, "driver '%s' has no option '%s' (see asph drivers)",
-				       drv->name, key);
-			return at(src, err, -ENOENT, dotted);
-		}
-		if (value_text(&drv->options[i], v, buf, sizeof(buf), &text) < 0) {
-			asph_error_set(err, -EINVAL, "option '%s' expects %s", key,
-				       json_type_word(drv->options[i].type));
-			return at(src, err, -EINVAL, dotted);
-		}
+		if (i < 0)
+			return json_error_set_at(err, -ENOENT, src, dotted,
+						 "driver '%s' has no option '%s' (see asph drivers)",
+						 drv->name, key);
+		if (value_text(&drv->options[i], v, buf, sizeof(buf), &text) < 0)
+			return json_error_set_at(err, -EINVAL, src, dotted,
+						 "option '%s' expects %s", key,
+						 json_type_word(drv->options[i].type));
 		r = asph_options_set(opts, key, text, err);
 		if (r < 0)
-			return at(src, err, r, dotted);
+			return json_error_locate(err, r, src, dotted);
 	}
 	return 0;
 }
 
-static int json_role(const struct json_src *src, const struct asph_registry *reg,
+static int json_role(const struct json_source *src, const struct asph_registry *reg,
 		     json_t *obj, unsigned role, const char *path,
 		     const struct asph_driver **drv_out,
 		     struct asph_options **opts, struct asph_error *err)
@@ -222,41 +199,37 @@ static int json_role(const struct json_src *src, const struct asph_registry *reg
 		snprintf(parent, sizeof(parent), "%s", path);
 		*strrchr(parent, '.') = '\0';
 		json_locate_dotted(src->text, src->len, parent, &line, &column);
-		asph_error_set(err, -EINVAL, "missing: an object with \"driver\"");
-		asph_error_locate(err, src->source, line, column, path);
-		return -EINVAL;
+		return asph_error_set_at(err, -EINVAL, src->name, line, column, path,
+					 "missing: an object with \"driver\"");
 	}
-	if (!json_is_object(obj)) {
-		asph_error_set(err, -EINVAL, "not an object with \"driver\"");
-		return at(src, err, -EINVAL, path);
-	}
+	if (!json_is_object(obj))
+		return json_error_set_at(err, -EINVAL, src, path, "not an object with \"driver\"");
 	json_object_foreach(obj, key, v) {
 		if (strcmp(key, "driver") && strcmp(key, "options")) {
 			snprintf(dotted, sizeof(dotted), "%s.%s", path, key);
-			asph_error_set(err, -EINVAL, "unknown member '%s' (driver, options)", key);
-			return at(src, err, -EINVAL, dotted);
+			return json_error_set_at(err, -EINVAL, src, dotted,
+						 "unknown member '%s' (driver, options)", key);
 		}
 	}
 	snprintf(dotted, sizeof(dotted), "%s.driver", path);
 	const char *name = json_string_value(json_object_get(obj, "driver"));
-	if (!name) {
-		asph_error_set(err, -EINVAL, "\"driver\" must be a driver name");
-		return at(src, err, -EINVAL, json_object_get(obj, "driver") ? dotted : path);
-	}
+	if (!name)
+		return json_error_set_at(err, -EINVAL, src,
+					 json_object_get(obj, "driver") ? dotted : path,
+					 "\"driver\" must be a driver name");
 	const struct asph_driver *drv = asph_registry_find(reg, name);
-	if (!drv) {
-		asph_error_set(err, -ENOENT, "no driver '%s' (see asph drivers)", name);
-		return at(src, err, -ENOENT, dotted);
-	}
+	if (!drv)
+		return json_error_set_at(err, -ENOENT, src, dotted,
+					 "no driver '%s' (see asph drivers)", name);
 	int r = role_options(drv, role, drv_out, opts, err);
 	if (r < 0)
-		return at(src, err, r, dotted);
+		return json_error_locate(err, r, src, dotted);
 	json_t *o = json_object_get(obj, "options");
 	snprintf(dotted, sizeof(dotted), "%s.options", path);
 	return o ? json_options(src, o, *opts, dotted, err) : 0;
 }
 
-static int json_instrument(const struct json_src *src,
+static int json_instrument(const struct json_source *src,
 			   const struct asph_registry *reg, json_t *obj,
 			   size_t idx, struct asph_instrument_config *ic,
 			   struct asph_error *err)
@@ -266,24 +239,23 @@ static int json_instrument(const struct json_src *src,
 	json_t *v;
 
 	snprintf(path, sizeof(path), "instruments.[%zu]", idx);
-	if (!json_is_object(obj)) {
-		asph_error_set(err, -EINVAL, "an instrument must be an object");
-		return at(src, err, -EINVAL, path);
-	}
+	if (!json_is_object(obj))
+		return json_error_set_at(err, -EINVAL, src, path,
+					 "an instrument must be an object");
 	json_object_foreach(obj, key, v) {
 		if (strcmp(key, "name") && strcmp(key, "stage") && strcmp(key, "probe")) {
 			snprintf(dotted, sizeof(dotted), "%s.%s", path, key);
-			asph_error_set(err, -EINVAL, "unknown member '%s' (name, stage, probe)", key);
-			return at(src, err, -EINVAL, dotted);
+			return json_error_set_at(err, -EINVAL, src, dotted,
+						 "unknown member '%s' (name, stage, probe)", key);
 		}
 	}
 	json_t *name = json_object_get(obj, "name");
 	snprintf(dotted, sizeof(dotted), "%s.name", path);
 	if (name && (!json_is_string(name) || !json_string_length(name) ||
 		     json_string_length(name) >= sizeof(ic->name))) {
-		asph_error_set(err, -EINVAL, "name must be a string of 1 to %zu bytes",
-			       sizeof(ic->name) - 1);
-		return at(src, err, -EINVAL, dotted);
+		return json_error_set_at(err, -EINVAL, src, dotted,
+					 "name must be a string of 1 to %zu bytes",
+					 sizeof(ic->name) - 1);
 	}
 	if (name)
 		snprintf(ic->name, sizeof(ic->name), "%s", json_string_value(name));
@@ -299,7 +271,7 @@ static int json_instrument(const struct json_src *src,
 			 dotted, &ic->probe_driver, &ic->probe_options, err);
 }
 
-static int check_names(const struct json_src *src, const struct asph_config *c,
+static int check_names(const struct json_source *src, const struct asph_config *c,
 		       struct asph_error *err)
 {
 	char path[64];
@@ -308,9 +280,9 @@ static int check_names(const struct json_src *src, const struct asph_config *c,
 		for (size_t j = 0; j < i; j++)
 			if (!strcmp(c->instruments[i].name, c->instruments[j].name)) {
 				snprintf(path, sizeof(path), "instruments.[%zu].name", i);
-				asph_error_set(err, -EINVAL, "instrument name '%s' used twice",
-					       c->instruments[i].name);
-				return at(src, err, -EINVAL, path);
+				return json_error_set_at(err, -EINVAL, src, path,
+							 "instrument name '%s' used twice",
+							 c->instruments[i].name);
 			}
 	return 0;
 }
@@ -319,34 +291,31 @@ int asph_config_parse(const struct asph_registry *reg, const char *text,
 		      size_t len, const char *source, struct asph_config **out,
 		      struct asph_error *err)
 {
-	struct json_src src = { text, len, source };
+	struct json_source src = { text, len, source };
 	_cleanup_(asph_config_freep) struct asph_config *c = NULL;
 	json_error_t jerr;
 	const char *key;
 	json_t *v;
 
 	_cleanup_(json_decrefp) json_t *root = json_loadb(text, len, JSON_REJECT_DUPLICATES, &jerr);
-	if (!root) {
-		asph_error_set(err, -EINVAL, "%s", jerr.text);
-		asph_error_locate(err, source, jerr.line, jerr.column, NULL);
-		return -EINVAL;
-	}
-	if (!json_is_object(root)) {
-		asph_error_set(err, -EINVAL, "the configuration must be a JSON object");
-		asph_error_locate(err, source, 1, 1, NULL);
-		return -EINVAL;
-	}
+	if (!root)
+		return asph_error_set_at(err, -EINVAL, source, jerr.line, jerr.column, NULL, "%s",
+					 jerr.text);
+	if (!json_is_object(root))
+		return asph_error_set_at(err, -EINVAL, source, 1, 1, NULL,
+					 "the configuration must be a JSON object");
 	json_object_foreach(root, key, v) {
-		if (strcmp(key, "instruments")) {
-			asph_error_set(err, -EINVAL, "unknown member '%s' (instruments)", key);
-			return at(&src, err, -EINVAL, key);
-		}
+		if (strcmp(key, "instruments"))
+			return json_error_set_at(err, -EINVAL, &src, key,
+						 "unknown member '%s' (instruments)", key);
 	}
 	json_t *list = json_object_get(root, "instruments");
 	if (!json_is_array(list) || json_array_size(list) == 0) {
 		asph_error_set(err, -EINVAL, "\"instruments\" must be a non-empty array");
-		return list ? at(&src, err, -EINVAL, "instruments")
-			    : (asph_error_locate(err, source, 1, 1, "instruments"), -EINVAL);
+		if (list)
+			return json_error_locate(err, -EINVAL, &src, "instruments");
+		asph_error_locate(err, source, 1, 1, "instruments");
+		return -EINVAL;
 	}
 	int r = config_alloc(json_array_size(list), &c, err);
 	for (size_t i = 0; r == 0 && i < c->n; i++)
@@ -399,9 +368,8 @@ int asph_config_resolve(const struct asph_registry *reg, const char *arg,
 			return *index = i, 0;
 	asph_config_free(*out);
 	*out = NULL;
-	asph_error_set(err, -ENOENT, "no instrument '%s' in the configuration", hash + 1);
-	asph_error_locate(err, path, 0, 0, NULL);
-	return -ENOENT;
+	return asph_error_set_at(err, -ENOENT, path, 0, 0, NULL,
+				 "no instrument '%s' in the configuration", hash + 1);
 }
 
 static int lens_option(struct asph_options *o, const char *json, struct asph_error *err)

@@ -1,6 +1,7 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
-/* The registry described as JSON (asph drivers --json, the daemon's
- * driver.list). */
+/* The registry described as JSON: the one builder of asph drivers --json
+ * and the daemon's driver.list. Every member is present; what a driver
+ * table leaves out is null, and roles are always named. */
 #include <errno.h>
 
 #include <jansson.h>
@@ -8,6 +9,7 @@
 #include "asph/instrument.h"
 #include "util-mem.h"
 
+/* Every role named: an option (or driver) of roles 0 serves both. */
 static json_t *roles_json(unsigned roles)
 {
 	json_t *a = json_array();
@@ -19,15 +21,20 @@ static json_t *roles_json(unsigned roles)
 	return a;
 }
 
+/* A text member that may be absent in the table: null then. */
+static json_t *text_or_null(const char *s)
+{
+	return s ? json_string(s) : json_null();
+}
+
 static json_t *option_json(const struct asph_option_desc *o)
 {
 	json_t *j = json_object();
 
 	json_object_set_new(j, "name", json_string(o->name));
 	json_object_set_new(j, "type", json_string(asph_option_type_name(o->type)));
-	json_object_set_new(j, "default", json_string(o->default_value));
-	if (o->unit)
-		json_object_set_new(j, "unit", json_string(o->unit));
+	json_object_set_new(j, "default", text_or_null(o->default_value));
+	json_object_set_new(j, "unit", text_or_null(o->unit));
 	if (o->ranged) {
 		json_object_set_new(j, "min", json_real(o->min));
 		json_object_set_new(j, "max", json_real(o->max));
@@ -39,7 +46,7 @@ static json_t *option_json(const struct asph_option_desc *o)
 		json_object_set_new(j, "choices", c);
 	}
 	json_object_set_new(j, "roles", roles_json(o->roles));
-	json_object_set_new(j, "help", json_string(o->help));
+	json_object_set_new(j, "help", text_or_null(o->help));
 	return j;
 }
 
@@ -53,8 +60,8 @@ int asph_registry_to_json(const struct asph_registry *reg, bool pretty, char **o
 		const struct asph_driver *d = asph_registry_get(reg, i);
 		json_t *j = json_object(), *opts = json_array();
 		json_object_set_new(j, "name", json_string(d->name));
-		json_object_set_new(j, "description", json_string(d->description ? d->description : ""));
-		json_object_set_new(j, "version", json_string(d->version ? d->version : ""));
+		json_object_set_new(j, "description", text_or_null(d->description));
+		json_object_set_new(j, "version", text_or_null(d->version));
 		json_object_set_new(j, "origin", json_string(asph_registry_origin(reg, i)));
 		json_object_set_new(j, "roles", roles_json(d->roles));
 		for (size_t k = 0; k < d->n_options; k++)

@@ -154,12 +154,10 @@ static int refuse_axis(const struct asph_scan *sc, size_t i, const double *m,
 		const struct asph_axis_info *a = &si->axes[k];
 		if (m[k] >= a->min && m[k] <= a->max)
 			continue;
-		asph_error_set(err, -ERANGE,
-			       "plan point %zu (%.6f, %.6f, %.6f): the %s needs axis %s at %.6f %s, outside its travel %.6g .. %.6g",
-			       i, sc->xyz[3 * i], sc->xyz[3 * i + 1], sc->xyz[3 * i + 2], what,
-			       a->name, m[k], a->unit, a->min, a->max);
-		asph_error_locate(err, NULL, 0, 0, a->name);
-		return -ERANGE;
+		return asph_error_set_at(err, -ERANGE, NULL, 0, 0, a->name,
+					 "plan point %zu (%.6f, %.6f, %.6f): the %s needs axis %s at %.6f %s, outside its travel %.6g .. %.6g",
+					 i, sc->xyz[3 * i], sc->xyz[3 * i + 1], sc->xyz[3 * i + 2],
+					 what, a->name, m[k], a->unit, a->min, a->max);
 	}
 	return 0;
 }

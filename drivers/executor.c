@@ -13,13 +13,7 @@
 
 #include "executor-internal.h"
 #include "util-mem.h"
-
-static uint64_t now_ns(void)
-{
-	struct timespec ts;
-	clock_gettime(CLOCK_MONOTONIC, &ts);
-	return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
+#include "util-time.h"
 
 const char *asph_scan_state_name(enum asph_scan_state s)
 {
@@ -95,7 +89,7 @@ void asph_scan_free(struct asph_scan *sc)
 static void publish(struct asph_scan *sc, enum asph_scan_state state, uint64_t done,
 		    uint64_t measured, bool force)
 {
-	uint64_t t = now_ns();
+	uint64_t t = now_monotonic_ns();
 
 	if (!force && t - sc->last_report_ns < sc->o.progress_interval_ns)
 		return;
@@ -176,7 +170,7 @@ struct stamp {
 
 static struct stamp stamp_now(const struct asph_scan *sc)
 {
-	return (struct stamp){ asph_scanfile_writer_elapsed_ns(sc->w), now_ns() };
+	return (struct stamp){ asph_scanfile_writer_elapsed_ns(sc->w), now_monotonic_ns() };
 }
 
 static uint64_t reading_time(const struct stamp *st, uint64_t t_ns)
@@ -314,13 +308,8 @@ static int wait_paused(struct asph_scan *sc, uint64_t done, uint64_t measured,
 	publish(sc, ASPH_SCAN_PAUSED, done, measured, true);
 	pthread_mutex_lock(&sc->lock);
 	while (r == 0 && atomic_load(&sc->paused) && !atomic_load(&sc->aborted)) {
-		struct timespec ts;
-		clock_gettime(CLOCK_REALTIME, &ts);
-		ts.tv_nsec += 200000000;
-		if (ts.tv_nsec >= 1000000000) {
-			ts.tv_sec++;
-			ts.tv_nsec -= 1000000000;
-		}
+		/* the condition variable's clock is CLOCK_REALTIME */
+		struct timespec ts = timespec_from_ns(now_realtime_ns() + 200 * NS_PER_MS);
 		pthread_cond_timedwait(&sc->wake, &sc->lock, &ts);
 		pthread_mutex_unlock(&sc->lock);
 		r = asph_scanfile_writer_tick(sc->w, err);
@@ -452,7 +441,7 @@ static int scan_loop(struct asph_scan *sc, struct asph_error *err)
 	size_t i = sc->o.start_index;
 	int r = 0;
 
-	sc->measure_t0_ns = now_ns();
+	sc->measure_t0_ns = now_monotonic_ns();
 	sc->measure_done0 = i;
 	while (r == 0 && i < sc->n) {
 		r = wait_paused(sc, i, measured, err);
@@ -534,7 +523,7 @@ int asph_scan_run(struct asph_scan *sc, struct asph_scanfile_writer *w,
 	asph_error_clear(err);
 	sc->w = w;
 	sc->n_rec = 0;
-	sc->t0_ns = now_ns();
+	sc->t0_ns = now_monotonic_ns();
 	sc->last_report_ns = 0;
 	publish(sc, ASPH_SCAN_CHECKING, sc->o.start_index, 0, true);
 	r = asph_scan_check(sc, err);

@@ -19,9 +19,8 @@ struct asph_options {
 static int refuse(const struct asph_option_desc *d, int code,
 		  struct asph_error *err, const char *what, const char *text)
 {
-	asph_error_set(err, code, "option '%s': %s '%s'", d->name, what, text);
-	asph_error_locate(err, NULL, 0, 0, d->name);
-	return code;
+	return asph_error_set_at(err, code, NULL, 0, 0, d->name, "option '%s': %s '%s'", d->name,
+				 what, text);
 }
 
 static int parse_bool(const char *t, bool *out)
@@ -43,11 +42,9 @@ static int check_range(const struct asph_option_desc *d, double x,
 {
 	if (!d->ranged || (x >= d->min && x <= d->max))
 		return 0;
-	asph_error_set(err, -ERANGE, "option '%s': %s is outside %.10g..%.10g%s%s",
-		       d->name, text, d->min, d->max, d->unit ? " " : "",
-		       d->unit ? d->unit : "");
-	asph_error_locate(err, NULL, 0, 0, d->name);
-	return -ERANGE;
+	return asph_error_set_at(err, -ERANGE, NULL, 0, 0, d->name,
+				 "option '%s': %s is outside %.10g..%.10g%s%s", d->name, text,
+				 d->min, d->max, d->unit ? " " : "", d->unit ? d->unit : "");
 }
 
 static int parse_enum(const struct asph_option_desc *d, const char *text,
@@ -65,10 +62,8 @@ static int parse_enum(const struct asph_option_desc *d, const char *text,
 		snprintf(list + used, sizeof(list) - used, "%s%s", i ? ", " : "",
 			 d->choices[i]);
 	}
-	asph_error_set(err, -ERANGE, "option '%s': '%s' is not one of %s", d->name,
-		       text, list);
-	asph_error_locate(err, NULL, 0, 0, d->name);
-	return -ERANGE;
+	return asph_error_set_at(err, -ERANGE, NULL, 0, 0, d->name,
+				 "option '%s': '%s' is not one of %s", d->name, text, list);
 }
 
 int option_parse(const struct asph_option_desc *d, const char *text,
@@ -185,12 +180,10 @@ int asph_options_set(struct asph_options *o, const char *name,
 	int i = option_index(o->drv, name);
 	struct asph_option_value v = { 0 };
 
-	if (i < 0) {
-		asph_error_set(err, -ENOENT, "driver '%s' has no option '%s' (see asph drivers)",
-			       o->drv->name, name);
-		asph_error_locate(err, NULL, 0, 0, name);
-		return -ENOENT;
-	}
+	if (i < 0)
+		return asph_error_set_at(err, -ENOENT, NULL, 0, 0, name,
+					 "driver '%s' has no option '%s' (see asph drivers)",
+					 o->drv->name, name);
 	_cleanup_free_ char *copy = strdup(text);
 	if (!copy)
 		return asph_error_set(err, -ENOMEM, "out of memory");

@@ -229,9 +229,8 @@ int asph_registry_load_dir(struct asph_registry *r, const char *dir,
 		if (errno == ENOENT)
 			return 0;
 		int e = -errno;
-		asph_error_set(err, e, "cannot read plugin directory: %s", strerror(-e));
-		asph_error_locate(err, dir, 0, 0, NULL);
-		return e;
+		return asph_error_set_at(err, e, dir, 0, 0, NULL,
+					 "cannot read plugin directory: %s", strerror(-e));
 	}
 	for (int i = 0; i < n; i++) {
 		_cleanup_free_ char *path = NULL;

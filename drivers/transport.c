@@ -12,6 +12,7 @@
 #include <unistd.h>
 
 #include "transport.h"
+#include "util-time.h"
 
 struct transport {
 	int fd;
@@ -22,15 +23,12 @@ struct transport {
 
 uint64_t transport_deadline(unsigned timeout_ms)
 {
-	struct timespec ts;
-	clock_gettime(CLOCK_MONOTONIC, &ts);
-	return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec +
-	       (uint64_t)timeout_ms * 1000000u;
+	return now_monotonic_ns() + (uint64_t)timeout_ms * (uint64_t)NS_PER_MS;
 }
 
 unsigned transport_ms_left(uint64_t deadline)
 {
-	uint64_t now = transport_deadline(0);
+	uint64_t now = now_monotonic_ns();
 	/* rounded up, so a wait never ends before the deadline */
 	return deadline > now ? (unsigned)((deadline - now + 999999u) / 1000000u) : 0;
 }

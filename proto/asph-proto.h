@@ -8,6 +8,7 @@
 #ifndef ASPH_PROTO_H
 #define ASPH_PROTO_H
 
+#include <stdarg.h>
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
@@ -107,9 +108,23 @@ struct proto_message {
 	const char *unknown;      /* the member that made a request invalid */
 };
 
+/* Why a message or a parameter was refused, for the "detail" of the error
+ * response: valid UTF-8, cut to fit. Every function here that refuses
+ * takes one (or NULL, not to be told). */
+struct proto_why {
+	char text[256];
+};
+
+/* Sets why (which may be NULL) and returns -EINVAL. */
+int proto_why_set(struct proto_why *why, const char *fmt, ...)
+	__attribute__((format(printf, 2, 3)));
+int proto_why_vset(struct proto_why *why, const char *fmt, va_list ap)
+	__attribute__((format(printf, 2, 0)));
+
 /* Parses one line; NULL with a message in why on a syntax error. Duplicate
- * object keys are refused. */
-json_t *proto_parse(const char *text, size_t len, char *why, size_t why_size);
+ * object keys are refused. A UTF-8 byte-order mark at the start of the
+ * line is skipped (columns still count it). */
+json_t *proto_parse(const char *text, size_t len, struct proto_why *why);
 
 /*
  * Server side: checks one element (a request or a notification). Returns 0,
@@ -117,11 +132,11 @@ json_t *proto_parse(const char *text, size_t len, char *why, size_t why_size);
  * read (so the error response can carry it), else NULL.
  */
 int proto_check_request(json_t *msg, struct proto_message *out,
-			const char **why);
+			struct proto_why *why);
 
 /* Client side: checks a response or a notification from the server. */
 int proto_check_incoming(json_t *msg, struct proto_message *out,
-			 const char **why);
+			 struct proto_why *why);
 
 /* Builders; every json_t argument is stolen except id, which is copied. */
 json_t *proto_make_request(json_int_t id, const char *method, json_t *params);
@@ -146,10 +161,6 @@ size_t proto_utf8_clean(char *text);
  * message naming the member) for a wrong type or value. A NULL params
  * counts as an empty object.
  */
-struct proto_why {
-	char text[256];
-};
-
 int proto_params_only(json_t *params, const char *const *names,
 		      struct proto_why *why);
 int proto_param_int(json_t *params, const char *name, bool required,

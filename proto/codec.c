@@ -185,17 +185,47 @@ size_t proto_utf8_clean(char *text)
 	return (size_t)(out - (unsigned char *)text);
 }
 
-json_t *proto_parse(const char *text, size_t len, char *why, size_t why_size)
+int proto_why_vset(struct proto_why *why, const char *fmt, va_list ap)
 {
-	json_error_t e;
-	json_t *j = json_loadb(text, len, JSON_REJECT_DUPLICATES | JSON_ALLOW_NUL | JSON_DECODE_ANY, &e);
-
-	if (!j && why && why_size > 0) {
-		/* jansson quotes the text near the error, which a cut may
-		 * leave in the middle of a character. */
-		snprintf(why, why_size, "column %d: %s", e.column, e.text);
-		proto_utf8_clean(why);
+	if (why) {
+		vsnprintf(why->text, sizeof(why->text), fmt, ap);
+		/* a cut, or jansson quoting the text near an error, may end
+		 * in the middle of a character */
+		proto_utf8_clean(why->text);
 	}
+	return -EINVAL;
+}
+
+int proto_why_set(struct proto_why *why, const char *fmt, ...)
+{
+	va_list ap;
+
+	va_start(ap, fmt);
+	proto_why_vset(why, fmt, ap);
+	va_end(ap);
+	return -EINVAL;
+}
+
+json_t *proto_parse(const char *text, size_t len, struct proto_why *why)
+{
+	static const char bom[] = "\xef\xbb\xbf";
+	int skipped = 0;
+	json_error_t e;
+	json_t *j;
+
+	/* RFC 8259 lets a parser ignore a byte-order mark before a text, and
+	 * some tools (.NET's UTF8Encoding, Windows editors) write one. */
+	if (len >= 3 && !memcmp(text, bom, 3)) {
+		text += 3;
+		len -= 3;
+		skipped = 1;
+	}
+	j = json_loadb(text, len, JSON_REJECT_DUPLICATES | JSON_ALLOW_NUL | JSON_DECODE_ANY, &e);
+	/* The column counts the mark too: it is a character of the line as
+	 * sent. */
+	if (!j)
+		proto_why_set(why, "column %d: %s", e.column > 0 ? e.column + skipped : e.column,
+			      e.text);
 	return j;
 }
 
@@ -206,14 +236,14 @@ static bool valid_id(const json_t *id)
 }
 
 int proto_check_request(json_t *msg, struct proto_message *out,
-			const char **why)
+			struct proto_why *why)
 {
 	json_t *v, *id, *method, *params;
 	const char *key;
 
 	memset(out, 0, sizeof(*out));
 	if (!json_is_object(msg)) {
-		*why = "a request must be an object";
+		proto_why_set(why, "a request must be an object");
 		return PROTO_INVALID_REQUEST;
 	}
 	id = json_object_get(msg, "id");
@@ -222,33 +252,33 @@ int proto_check_request(json_t *msg, struct proto_message *out,
 	v = json_object_get(msg, "jsonrpc");
 	if (!json_is_string(v) || json_string_length(v) != 3 ||
 	    strcmp(json_string_value(v), "2.0")) {
-		*why = "\"jsonrpc\" must be \"2.0\"";
+		proto_why_set(why, "\"jsonrpc\" must be \"2.0\"");
 		return PROTO_INVALID_REQUEST;
 	}
 	if (id && !valid_id(id)) {
-		*why = "\"id\" must be a string, a number or null";
+		proto_why_set(why, "\"id\" must be a string, a number or null");
 		return PROTO_INVALID_REQUEST;
 	}
 	method = json_object_get(msg, "method");
 	if (!json_is_string(method)) {
-		*why = "\"method\" must be a string";
+		proto_why_set(why, "\"method\" must be a string");
 		return PROTO_INVALID_REQUEST;
 	}
 	/* Lines may hold \u0000 (JSON_ALLOW_NUL): "hello\u0000x" must not
 	 * dispatch as "hello". */
 	if (strlen(json_string_value(method)) != json_string_length(method)) {
-		*why = "\"method\" contains a NUL character";
+		proto_why_set(why, "\"method\" contains a NUL character");
 		return PROTO_INVALID_REQUEST;
 	}
 	params = json_object_get(msg, "params");
 	if (params && !json_is_object(params) && !json_is_array(params)) {
-		*why = "\"params\" must be an object or an array";
+		proto_why_set(why, "\"params\" must be an object or an array");
 		return PROTO_INVALID_REQUEST;
 	}
 	json_object_foreach(msg, key, v) {
 		if (strcmp(key, "jsonrpc") && strcmp(key, "id") &&
 		    strcmp(key, "method") && strcmp(key, "params")) {
-			*why = "unknown member in request";
+			proto_why_set(why, "unknown member in request");
 			out->unknown = key;
 			return PROTO_INVALID_REQUEST;
 		}
@@ -260,24 +290,24 @@ int proto_check_request(json_t *msg, struct proto_message *out,
 }
 
 int proto_check_incoming(json_t *msg, struct proto_message *out,
-			 const char **why)
+			 struct proto_why *why)
 {
 	json_t *v, *method;
 
 	memset(out, 0, sizeof(*out));
 	if (!json_is_object(msg)) {
-		*why = "a message must be an object";
+		proto_why_set(why, "a message must be an object");
 		return PROTO_INVALID_REQUEST;
 	}
 	v = json_object_get(msg, "jsonrpc");
 	if (!json_is_string(v) || strcmp(json_string_value(v), "2.0")) {
-		*why = "\"jsonrpc\" must be \"2.0\"";
+		proto_why_set(why, "\"jsonrpc\" must be \"2.0\"");
 		return PROTO_INVALID_REQUEST;
 	}
 	method = json_object_get(msg, "method");
 	if (method) {
 		if (!json_is_string(method)) {
-			*why = "\"method\" must be a string";
+			proto_why_set(why, "\"method\" must be a string");
 			return PROTO_INVALID_REQUEST;
 		}
 		out->kind = PROTO_KIND_NOTIFICATION;
@@ -290,14 +320,14 @@ int proto_check_incoming(json_t *msg, struct proto_message *out,
 	out->result = json_object_get(msg, "result");
 	out->error = json_object_get(msg, "error");
 	if (!out->id || !!out->result == !!out->error) {
-		*why = "a response needs an id and exactly one of result and error";
+		proto_why_set(why, "a response needs an id and exactly one of result and error");
 		return PROTO_INVALID_REQUEST;
 	}
 	if (out->error) {
 		json_t *c = json_object_get(out->error, "code");
 		json_t *m = json_object_get(out->error, "message");
 		if (!json_is_integer(c) || !json_is_string(m)) {
-			*why = "an error needs an integer code and a message";
+			proto_why_set(why, "an error needs an integer code and a message");
 			return PROTO_INVALID_REQUEST;
 		}
 		out->error_code = (int)json_integer_value(c);
@@ -366,29 +396,13 @@ char *proto_dump(const json_t *msg, size_t *len)
 
 /* ---------------------------------------------------------- parameters */
 
-static int why_set(struct proto_why *why, const char *fmt, ...)
-	__attribute__((format(printf, 2, 3)));
-
-static int why_set(struct proto_why *why, const char *fmt, ...)
-{
-	va_list ap;
-
-	if (why) {
-		va_start(ap, fmt);
-		vsnprintf(why->text, sizeof(why->text), fmt, ap);
-		va_end(ap);
-		proto_utf8_clean(why->text);
-	}
-	return -EINVAL;
-}
-
 static int param_get(json_t *params, const char *name, bool required,
 		     json_t **v, struct proto_why *why)
 {
 	/* null is a value of the wrong type, not an absent member. */
 	*v = json_is_object(params) ? json_object_get(params, name) : NULL;
 	if (!*v)
-		return required ? why_set(why, "missing parameter \"%s\"", name)
+		return required ? proto_why_set(why, "missing parameter \"%s\"", name)
 				: -ENOENT;
 	return 0;
 }
@@ -402,14 +416,14 @@ int proto_params_only(json_t *params, const char *const *names,
 	if (!params)
 		return 0;
 	if (!json_is_object(params))
-		return why_set(why, "params must be an object");
+		return proto_why_set(why, "params must be an object");
 	json_object_foreach(params, key, v) {
 		size_t i;
 		for (i = 0; names[i]; i++)
 			if (!strcmp(names[i], key))
 				break;
 		if (!names[i])
-			return why_set(why, "unknown parameter \"%.64s\"", key);
+			return proto_why_set(why, "unknown parameter \"%.64s\"", key);
 	}
 	return 0;
 }
@@ -424,10 +438,10 @@ int proto_param_int(json_t *params, const char *name, bool required,
 	if (r < 0)
 		return r;
 	if (!json_is_integer(v))
-		return why_set(why, "\"%s\" must be an integer", name);
+		return proto_why_set(why, "\"%s\" must be an integer", name);
 	json_int_t x = json_integer_value(v);
 	if (x < min || x > max)
-		return why_set(why, "\"%s\" must be in [%lld, %lld]", name,
+		return proto_why_set(why, "\"%s\" must be in [%lld, %lld]", name,
 			       (long long)min, (long long)max);
 	*out = x;
 	return 0;
@@ -443,10 +457,10 @@ int proto_param_number(json_t *params, const char *name, bool required,
 	if (r < 0)
 		return r;
 	if (!json_is_number(v))
-		return why_set(why, "\"%s\" must be a number", name);
+		return proto_why_set(why, "\"%s\" must be a number", name);
 	double x = json_number_value(v);
 	if (!isfinite(x) || x < min || x > max)
-		return why_set(why, "\"%s\" must be in [%g, %g]", name, min, max);
+		return proto_why_set(why, "\"%s\" must be in [%g, %g]", name, min, max);
 	*out = x;
 	return 0;
 }
@@ -460,7 +474,7 @@ int proto_param_bool(json_t *params, const char *name, bool required,
 	if (r < 0)
 		return r;
 	if (!json_is_boolean(v))
-		return why_set(why, "\"%s\" must be true or false", name);
+		return proto_why_set(why, "\"%s\" must be true or false", name);
 	*out = json_is_true(v);
 	return 0;
 }
@@ -475,11 +489,11 @@ int proto_param_string(json_t *params, const char *name, bool required,
 	if (r < 0)
 		return r;
 	if (!json_is_string(v))
-		return why_set(why, "\"%s\" must be a string", name);
+		return proto_why_set(why, "\"%s\" must be a string", name);
 	if (json_string_length(v) > max_len)
-		return why_set(why, "\"%s\" is longer than %zu bytes", name, max_len);
+		return proto_why_set(why, "\"%s\" is longer than %zu bytes", name, max_len);
 	if (strlen(json_string_value(v)) != json_string_length(v))
-		return why_set(why, "\"%s\" contains a NUL character", name);
+		return proto_why_set(why, "\"%s\" contains a NUL character", name);
 	*out = json_string_value(v);
 	return 0;
 }
@@ -493,7 +507,7 @@ int proto_param_object(json_t *params, const char *name, bool required,
 	if (r < 0)
 		return r;
 	if (!json_is_object(v))
-		return why_set(why, "\"%s\" must be an object", name);
+		return proto_why_set(why, "\"%s\" must be an object", name);
 	*out = v;
 	return 0;
 }
@@ -509,19 +523,19 @@ int proto_param_flags(json_t *params, const char *name, bool required,
 	if (r < 0)
 		return r;
 	if (!json_is_array(v))
-		return why_set(why, "\"%s\" must be an array of strings", name);
+		return proto_why_set(why, "\"%s\" must be an array of strings", name);
 	*mask = 0;
 	json_array_foreach(v, i, e) {
 		size_t k;
 		if (!json_is_string(e))
-			return why_set(why, "\"%s\"[%zu] must be a string", name, i);
+			return proto_why_set(why, "\"%s\"[%zu] must be a string", name, i);
 		if (strlen(json_string_value(e)) != json_string_length(e))
-			return why_set(why, "\"%s\"[%zu] contains a NUL character", name, i);
+			return proto_why_set(why, "\"%s\"[%zu] contains a NUL character", name, i);
 		for (k = 0; allowed[k]; k++)
 			if (!strcmp(allowed[k], json_string_value(e)))
 				break;
 		if (!allowed[k])
-			return why_set(why, "\"%s\"[%zu]: unknown value \"%.64s\"",
+			return proto_why_set(why, "\"%s\"[%zu]: unknown value \"%.64s\"",
 				       name, i, json_string_value(e));
 		*mask |= 1u << k;
 	}

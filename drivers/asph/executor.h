@@ -8,6 +8,7 @@
 
 #include "asph/error.h"
 #include "asph/instrument.h"
+#include "asph/plan.h"
 #include "asph/scanfile.h"
 #include "asph/surface.h"
 
@@ -115,6 +116,21 @@ int asph_scan_check(struct asph_scan *sc, struct asph_error *err);
  */
 int asph_scan_run(struct asph_scan *sc, struct asph_scanfile_writer *w,
 		  struct asph_error *err);
+
+/*
+ * Reopens the interrupted scan at path to go on measuring plan: the
+ * executor measures in plan order, so *start_index (for
+ * asph_scan_options.start_index) follows the last plan index recorded.
+ * The scan must have been recorded with this plan (method, density and
+ * point count, as its header says in either shape
+ * asph_plan_info_from_json() reads), else -EINVAL and the file is left as
+ * it was: points of two plans never share a file. opts and the other
+ * refusals are asph_scanfile_writer_resume()'s.
+ */
+int asph_scan_reopen(const char *path, const struct asph_plan *plan,
+		     const struct asph_scanfile_writer_options *opts,
+		     struct asph_scanfile_writer **w, uint64_t *start_index,
+		     struct asph_error *err);
 
 /* Any thread. Pause takes effect before the next point; abort stops the
  * stage and the probe at once. */

@@ -67,9 +67,12 @@ const struct asph_driver *asph_registry_find(const struct asph_registry *r,
 int asph_driver_validate(const struct asph_driver *d, struct asph_error *err);
 
 /* Every driver with its roles and options, as asph drivers --json prints
- * it: { "driver_abi": N, "drivers": [ { "name", "description", "version",
- * "origin", "roles", "options": [ { "name", "type", "default", "unit",
- * "min", "max", "choices", "roles", "help" } ] } ] }. malloc'd. */
+ * it and asphd's driver.list answers: { "driver_abi": N, "drivers": [ {
+ * "name", "description", "version", "origin", "roles", "options": [ {
+ * "name", "type", "default", "unit", "min", "max", "choices", "roles",
+ * "help" } ] } ] }. min and max only for a ranged option, choices only for
+ * an enum; a text the driver leaves out is null; roles are always named
+ * (an option of both roles has ["stage", "probe"]). malloc'd. */
 int asph_registry_to_json(const struct asph_registry *r, bool pretty,
 			  char **out);
 

@@ -14,7 +14,9 @@
 
 #include "asph/driver.h"
 #include "bus.h"
+#include "std.h"
 #include "transport.h"
+#include "util-time.h"
 
 enum {
 	OPT_INTERFACE, OPT_X_NODE, OPT_Y_NODE, OPT_Z_NODE,
@@ -710,11 +712,8 @@ static int probe_open(const struct asph_driver *drv, const struct asph_option_va
 	d->p_scale = o[OPT_PROBE_SCALE].d;
 	d->p_offset = o[OPT_PROBE_OFFSET].d;
 	struct asph_probe_info *pi = &d->pinfo;
-	pi->type = o[OPT_PROBE_KIND].i == 1 ? ASPH_PROBE_TACTILE : ASPH_PROBE_OPTICAL;
-	pi->tip_radius = pi->type == ASPH_PROBE_TACTILE ? o[OPT_PROBE_TIP_RADIUS].d : 0;
-	pi->standoff = o[OPT_PROBE_STANDOFF].d;
-	pi->range_min = pi->standoff - o[OPT_PROBE_RANGE].d / 2;
-	pi->range_max = pi->standoff + o[OPT_PROBE_RANGE].d / 2;
+	std_probe_geometry(pi, o[OPT_PROBE_KIND].i == 1, o[OPT_PROBE_TIP_RADIUS].d,
+			   o[OPT_PROBE_STANDOFF].d, o[OPT_PROBE_RANGE].d);
 	snprintf(pi->model, sizeof(pi->model), "CANopen probe on %.40s", d->iface);
 	snprintf(pi->serial, sizeof(pi->serial), "node %u 0x%04x:%02x", d->nodes[0], d->p_index,
 		 d->p_sub);
@@ -765,9 +764,8 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 	memset(out, 0, sizeof(*out));
 	out->raw = probe_raw(d->p_format, v);
 	out->value = out->raw * d->p_scale + d->p_offset;
-	out->t_ns = transport_deadline(0);
-	if (!(out->value >= d->pinfo.range_min && out->value <= d->pinfo.range_max))
-		out->flags = ASPH_READING_OUT_OF_RANGE;
+	out->t_ns = now_monotonic_ns();
+	std_reading_check_range(out, &d->pinfo);
 	return 0;
 }
 

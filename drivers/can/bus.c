@@ -18,6 +18,7 @@
 
 #include "bus.h"
 #include "transport.h"
+#include "util-time.h"
 
 struct node {
 	bool used;
@@ -216,11 +217,6 @@ bool can_bus_node_lost(const struct can_bus *b, uint8_t node)
 
 /* ------------------------------------------------- frames arriving */
 
-static uint64_t now_ns(void)
-{
-	return transport_deadline(0);
-}
-
 /* The faults seen so far; they stay. */
 static int check_faults(struct can_bus *b, struct asph_error *err)
 {
@@ -245,7 +241,7 @@ static int check_faults(struct can_bus *b, struct asph_error *err)
  * (a slow probe) are no silence. */
 static void heartbeat_timeouts(struct can_bus *b)
 {
-	uint64_t now = now_ns();
+	uint64_t now = now_monotonic_ns();
 
 	for (unsigned i = 1; i <= CANOPEN_NODE_MAX; i++) {
 		struct node *n = &b->nodes[i];
@@ -257,7 +253,7 @@ static void heartbeat_timeouts(struct can_bus *b)
 /* ms until the first watched heartbeat is due (UINT32_MAX: none). */
 static unsigned heartbeat_due_ms(const struct can_bus *b)
 {
-	uint64_t now = now_ns(), first = UINT64_MAX;
+	uint64_t now = now_monotonic_ns(), first = UINT64_MAX;
 
 	for (unsigned i = 1; i <= CANOPEN_NODE_MAX; i++) {
 		const struct node *n = &b->nodes[i];
@@ -284,7 +280,7 @@ static int handle(struct can_bus *b, const struct can_frame *f, struct asph_erro
 	switch (ev.type) {
 	case CAN_EV_HEARTBEAT:
 		n->state = ev.u.state;
-		n->last_hb_ns = now_ns();
+		n->last_hb_ns = now_monotonic_ns();
 		if (ev.u.state == CANOPEN_STATE_BOOTUP) {
 			if (n->used && n->started && !n->expect_boot)
 				n->restarted = true;
@@ -486,7 +482,7 @@ void can_bus_watch(struct can_bus *b, uint8_t node, unsigned timeout_ms)
 	struct node *n = &b->nodes[node & 0x7f];
 
 	n->hb_timeout_ms = timeout_ms;
-	n->last_hb_ns = now_ns();
+	n->last_hb_ns = now_monotonic_ns();
 	n->lost = false;
 }
 

@@ -13,7 +13,9 @@
 #include "asph/driver.h"
 #include "keyboard.h"
 #include "protocol.h"
+#include "std.h"
 #include "util-mem.h"
+#include "util-time.h"
 
 enum {
 	OPT_PATH, OPT_VENDOR_ID, OPT_PRODUCT_ID, OPT_SERIAL, OPT_PROFILE,
@@ -167,11 +169,7 @@ static void fill_info(struct asph_device *d, const struct asph_option_value *o,
 	struct asph_probe_info *pi = &d->info;
 	bool tactile = o[OPT_PROBE].i == 0;
 
-	pi->type = tactile ? ASPH_PROBE_TACTILE : ASPH_PROBE_OPTICAL;
-	pi->tip_radius = tactile ? o[OPT_TIP_RADIUS].d : 0;
-	pi->standoff = o[OPT_STANDOFF].d;
-	pi->range_min = pi->standoff - o[OPT_RANGE].d / 2;
-	pi->range_max = pi->standoff + o[OPT_RANGE].d / 2;
+	std_probe_geometry(pi, tactile, o[OPT_TIP_RADIUS].d, o[OPT_STANDOFF].d, o[OPT_RANGE].d);
 	pi->rate = o[OPT_RATE].d;
 	snprintf(pi->model, sizeof(pi->model), "HID %.59s", li->product[0] ? li->product : li->path);
 	snprintf(pi->serial, sizeof(pi->serial), "%s", li->serial);
@@ -232,13 +230,6 @@ static int probe_info(struct asph_device *d, struct asph_probe_info *out,
 	return 0;
 }
 
-static uint64_t now_ns(void)
-{
-	struct timespec ts;
-	clock_gettime(CLOCK_MONOTONIC, &ts);
-	return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
-
 static void to_reading(const struct asph_device *d, const struct hid_sample *s,
 		       struct asph_reading *out)
 {
@@ -246,8 +237,8 @@ static void to_reading(const struct asph_device *d, const struct hid_sample *s,
 
 	out->raw = (double)s->counts;
 	out->value = s->mm + d->offset;
+	std_reading_check_range(out, pi);
 	if ((s->status & HID_STATUS_OUT_OF_RANGE) ||
-	    !(out->value >= pi->range_min && out->value <= pi->range_max) ||
 	    (pi->type == ASPH_PROBE_TACTILE && d->prof.touch_mask && d->prof.status_offset >= 0 &&
 	     !(s->status & HID_STATUS_TOUCHED)))
 		out->flags |= ASPH_READING_OUT_OF_RANGE;
@@ -317,7 +308,7 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 		r = hid_link_read(d->link, buf, sizeof(buf), timeout_ms, err);
 	if (r < 0)
 		return r;
-	out->t_ns = now_ns();
+	out->t_ns = now_monotonic_ns();
 	r = hid_decode_report(&d->prof, buf, (size_t)r, &s, err);
 	if (r < 0)
 		return r;

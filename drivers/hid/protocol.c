@@ -14,6 +14,7 @@
 #include <hidapi/hidapi.h>
 
 #include "protocol.h"
+#include "util-time.h"
 
 const struct hid_profile hid_default_profile = {
 	.report_id = 0x01,
@@ -315,39 +316,32 @@ int hid_link_send(struct hid_link *l, const struct hid_command *c, struct asph_e
 	return 0;
 }
 
-static uint64_t now_ms(void)
-{
-	struct timespec ts;
-	clock_gettime(CLOCK_MONOTONIC, &ts);
-	return (uint64_t)ts.tv_sec * 1000u + (uint64_t)ts.tv_nsec / 1000000u;
-}
-
 /* A slice short enough for stop() to be prompt. */
 #define SLICE_MS 20
 
 int hid_link_read(struct hid_link *l, uint8_t *buf, size_t size, unsigned timeout_ms,
 		  struct asph_error *err)
 {
-	uint64_t start = now_ms(), deadline = start + timeout_ms;
+	uint64_t start = now_monotonic_ms(), deadline = start + timeout_ms;
 
 	memset(buf, 0, size);           /* no stale bytes in a short report */
 	for (;;) {
 		if (atomic_load(l->stop))
 			return asph_error_set(err, -ECANCELED, "reading stopped");
-		uint64_t t = now_ms();
+		uint64_t t = now_monotonic_ms();
 		int wait = t >= deadline ? 0 : (int)(deadline - t < SLICE_MS ? deadline - t : SLICE_MS);
 		int n = hid_read_timeout(l->dev, buf, size, wait);
 		if (n > 0)
 			return n;
 		if (n < 0)
 			return link_fail(l, "a read", err);
-		if (now_ms() >= deadline)
+		if (now_monotonic_ms() >= deadline)
 			return asph_error_set(err, -ETIMEDOUT, "no input report from %s within %u ms",
 					      l->path, timeout_ms);
 		/* A read that came back empty before its time: the node is
 		 * always readable (not a hidraw node); do not spin. */
-		if (now_ms() < t + (unsigned)wait)
-			usleep(1000);
+		if (now_monotonic_ms() < t + (unsigned)wait)
+			msleep(1);
 	}
 }
 

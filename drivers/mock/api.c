@@ -12,6 +12,8 @@
 #include "asph/driver.h"
 #include "asph/units.h"
 #include "protocol.h"
+#include "std.h"
+#include "util-time.h"
 
 enum {
 	OPT_LENS, OPT_PROBE, OPT_KINEMATICS, OPT_TIP_RADIUS, OPT_STANDOFF,
@@ -300,11 +302,7 @@ static int probe_open(const struct asph_driver *drv, const struct asph_option_va
 		return r;
 	}
 	struct asph_probe_info *pi = &d->pinfo;
-	pi->type = tactile ? ASPH_PROBE_TACTILE : ASPH_PROBE_OPTICAL;
-	pi->tip_radius = pp.tip_radius;
-	pi->standoff = o[OPT_STANDOFF].d;
-	pi->range_min = pi->standoff - o[OPT_RANGE].d / 2;
-	pi->range_max = pi->standoff + o[OPT_RANGE].d / 2;
+	std_probe_geometry(pi, tactile, pp.tip_radius, o[OPT_STANDOFF].d, o[OPT_RANGE].d);
 	pi->max_slope = o[OPT_MAX_SLOPE].d * M_PI / 180;
 	d->rate = o[OPT_RATE].d;
 	pi->rate = d->time_factor > 0 ? d->rate / d->time_factor : 0;
@@ -323,13 +321,6 @@ static int probe_info(struct asph_device *d, struct asph_probe_info *out,
 {
 	*out = d->pinfo;
 	return 0;
-}
-
-static uint64_t now_ns(void)
-{
-	struct timespec ts;
-	clock_gettime(CLOCK_MONOTONIC, &ts);
-	return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
 }
 
 /* One reading without pacing; faults by reading number. */
@@ -361,8 +352,7 @@ static int measure(struct asph_device *d, const struct asph_probe_context *ctx,
 	}
 	out->value = z - ctx->xyz[2];
 	out->raw = out->value;
-	if (!(out->value >= d->pinfo.range_min && out->value <= d->pinfo.range_max))
-		out->flags = ASPH_READING_OUT_OF_RANGE;
+	std_reading_check_range(out, &d->pinfo);
 	return 0;
 }
 
@@ -377,7 +367,7 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 	} else if (atomic_load_explicit(&d->stop, memory_order_relaxed)) {
 		return asph_error_set(err, -ECANCELED, "reading stopped");
 	}
-	return measure(d, ctx, out, now_ns(), timeout_ms, err);
+	return measure(d, ctx, out, now_monotonic_ns(), timeout_ms, err);
 }
 
 static int probe_stream(struct asph_device *d, const struct asph_probe_context *ctx,
@@ -396,7 +386,7 @@ static int probe_stream(struct asph_device *d, const struct asph_probe_context *
 		return asph_error_set(err, -ECANCELED, "streaming stopped");
 	}
 	/* the readings of a sweep are spread over it at the probe's rate */
-	uint64_t t0 = now_ns();
+	uint64_t t0 = now_monotonic_ns();
 	double dt = d->time_factor * 1e9 / d->rate;
 	uint64_t t_end = t0 - (uint64_t)((double)n * dt);
 	for (size_t i = 0; i < n; i++) {

@@ -10,6 +10,7 @@
 #include "asph/units.h"
 #include "protocol.h"
 #include "util-mem.h"
+#include "util-time.h"
 
 struct mock_part {
 	struct asph_surface *surface;
@@ -186,8 +187,7 @@ int mock_wait(atomic_bool *stop, double seconds, unsigned timeout_ms)
 		return -ECANCELED;
 	while (left > 0) {
 		double slice = left < 0.01 ? left : 0.01;
-		struct timespec ts = { 0, (long)(slice * 1e9) };
-		nanosleep(&ts, NULL);
+		sleep_ns((uint64_t)(slice * 1e9));
 		left -= slice;
 		if (atomic_load_explicit(stop, memory_order_relaxed))
 			return -ECANCELED;

@@ -13,6 +13,8 @@
 #include "asph/driver.h"
 #include "protocol.h"
 #include "stage.h"
+#include "std.h"
+#include "util-time.h"
 
 enum {
 	/* the bus */
@@ -391,11 +393,7 @@ static int probe_open(const struct asph_driver *drv, const struct asph_option_va
 		return r;
 	bool tactile = o[OPT_PROBE].i == 1;
 	struct asph_probe_info *pi = &d->pinfo;
-	pi->type = tactile ? ASPH_PROBE_TACTILE : ASPH_PROBE_OPTICAL;
-	pi->tip_radius = tactile ? o[OPT_TIP_RADIUS].d : 0;
-	pi->standoff = o[OPT_STANDOFF].d;
-	pi->range_min = pi->standoff - o[OPT_RANGE].d / 2;
-	pi->range_max = pi->standoff + o[OPT_RANGE].d / 2;
+	std_probe_geometry(pi, tactile, o[OPT_TIP_RADIUS].d, o[OPT_STANDOFF].d, o[OPT_RANGE].d);
 	pi->rate = o[OPT_RATE].d;
 	snprintf(pi->model, sizeof(pi->model), "Modbus displacement sensor");
 	snprintf(pi->serial, sizeof(pi->serial), "unit %lld", (long long)o[OPT_SLAVE].i);
@@ -435,13 +433,6 @@ static double raw_value(const struct asph_device *d, const uint16_t *w)
 	return d->is_signed ? (double)(int16_t)w[0] : (double)w[0];
 }
 
-static uint64_t now_ns(void)
-{
-	struct timespec ts;
-	clock_gettime(CLOCK_MONOTONIC, &ts);
-	return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
-
 static int probe_read(struct asph_device *d, const struct asph_probe_context *ctx,
 		      struct asph_reading *out, unsigned timeout_ms, struct asph_error *err)
 {
@@ -457,7 +448,7 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 	if (r < 0)
 		return r;
 	memset(out, 0, sizeof(*out));
-	out->t_ns = now_ns();
+	out->t_ns = now_monotonic_ns();
 	out->raw = raw_value(d, w);
 	if (!(flag >> d->valid_bit & 1)) {
 		out->value = NAN;
@@ -465,8 +456,7 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 		return 0;
 	}
 	out->value = out->raw * d->scale + d->offset;
-	if (!(out->value >= d->pinfo.range_min && out->value <= d->pinfo.range_max))
-		out->flags = ASPH_READING_OUT_OF_RANGE;
+	std_reading_check_range(out, &d->pinfo);
 	return 0;
 }
 

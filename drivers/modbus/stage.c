@@ -9,6 +9,7 @@
 
 #include "stage.h"
 #include "transport.h"
+#include "util-time.h"
 
 /*
  * Oriental Motor AZ series, "direct data operation" (the register numbers
@@ -102,7 +103,7 @@ static void stop_all(struct stage *s, bool latch)
 {
 	for (int k = 0; k < 3; k++) {
 		s->axes[k].known = false;
-		uint64_t deadline = transport_deadline(0);
+		uint64_t deadline = now_monotonic_ns();
 		if (write_command(s, k, 1u << s->map.bit_stop, deadline, NULL) == 0 && !latch)
 			write_command(s, k, 0, deadline, NULL);
 	}
@@ -191,8 +192,7 @@ static void nap(unsigned ms, uint64_t deadline)
 	unsigned left = ms_left(deadline);
 	if (ms > left)
 		ms = left;
-	struct timespec ts = { ms / 1000, (long)(ms % 1000) * 1000000 };
-	nanosleep(&ts, NULL);
+	msleep(ms);
 }
 
 /*

@@ -13,6 +13,8 @@
 
 #include "asph/driver.h"
 #include "asph/scanfile.h"
+#include "std.h"
+#include "util-time.h"
 
 enum { OPT_FILE, OPT_TIME_FACTOR, N_OPTIONS };
 
@@ -147,11 +149,9 @@ static int probe_open(const struct asph_driver *drv, const struct asph_option_va
 	struct asph_device *d = NULL;
 	int r;
 
-	if (!o[OPT_FILE].s || !*o[OPT_FILE].s) {
-		asph_error_set(err, -EINVAL, "option 'file' is required: the scan to play back");
-		asph_error_locate(err, NULL, 0, 0, "file");
-		return -EINVAL;
-	}
+	if (!o[OPT_FILE].s || !*o[OPT_FILE].s)
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "file",
+					 "option 'file' is required: the scan to play back");
 	r = stage_open(drv, o, timeout_ms, &d, err);
 	if (r < 0)
 		return r;
@@ -182,9 +182,7 @@ static int probe_info(struct asph_device *d, struct asph_probe_info *out,
 static void pace(struct asph_device *d, uint64_t t_ns)
 {
 	if (d->time_factor > 0 && t_ns > d->last_t_ns) {
-		double s = d->time_factor * (double)(t_ns - d->last_t_ns) * 1e-9;
-		struct timespec ts = { (time_t)s, (long)((s - floor(s)) * 1e9) };
-		nanosleep(&ts, NULL);
+		sleep_ns((uint64_t)(d->time_factor * (double)(t_ns - d->last_t_ns)));
 	}
 	d->last_t_ns = t_ns;
 }
@@ -218,18 +216,12 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 	return 0;
 }
 
+/* The recording's readings belong to their plan points, moving or not. */
 static int probe_stream(struct asph_device *d, const struct asph_probe_context *ctx,
 			size_t n, struct asph_reading *out, size_t *n_done,
 			unsigned timeout_ms, struct asph_error *err)
 {
-	*n_done = 0;
-	for (size_t i = 0; i < n; i++) {
-		int r = probe_read(d, ctx + i, out + i, timeout_ms, err);
-		if (r < 0)
-			return r;
-		*n_done = i + 1;
-	}
-	return 0;
+	return std_stream_by_read(d, probe_read, ctx, n, out, n_done, timeout_ms, err);
 }
 
 static const struct asph_stage_ops replay_stage = {

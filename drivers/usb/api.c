@@ -16,7 +16,9 @@
 #include "asph/driver.h"
 #include "protocol.h"
 #include "scpi.h"
+#include "std.h"
 #include "transport.h"
+#include "util-time.h"
 
 enum {
 	OPT_VENDOR, OPT_PRODUCT, OPT_SERIAL, OPT_READ_CHUNK, OPT_CLEAR,
@@ -222,10 +224,10 @@ static int dev_open(const struct asph_option_value *o, bool stage, unsigned time
 	for (size_t i = 0; i < sizeof(templates) / sizeof(templates[0]); i++)
 		if (stage && scpi_check_template(o[templates[i]].s, 3) < 0) {
 			dev_close(d);
-			asph_error_set(err, -EINVAL, "option '%s': '%s' may use only {0}, {1}, {2}",
-				       usb_options[templates[i]].name, o[templates[i]].s);
-			asph_error_locate(err, NULL, 0, 0, usb_options[templates[i]].name);
-			return -EINVAL;
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0,
+						 usb_options[templates[i]].name,
+						 "option '%s': '%s' may use only {0}, {1}, {2}",
+						 usb_options[templates[i]].name, o[templates[i]].s);
 		}
 	int r = link_get(d, timeout_ms, err);
 	if (r < 0) {
@@ -311,12 +313,6 @@ static int query_status(struct asph_device *d, long *bits, unsigned timeout_ms,
 	return 0;
 }
 
-static void sleep_ms(unsigned ms)
-{
-	struct timespec ts = { ms / 1000, (long)(ms % 1000) * 1000000 };
-	nanosleep(&ts, NULL);
-}
-
 /* Polls the status until the stage stands (and is homed when homing). */
 static int settle(struct asph_device *d, bool homing, uint64_t deadline, unsigned timeout_ms,
 		  struct asph_error *err)
@@ -335,7 +331,7 @@ static int settle(struct asph_device *d, bool homing, uint64_t deadline, unsigne
 			return asph_error_set(err, -ETIMEDOUT, "%s: the stage did not %s within %u ms",
 					      usbtmc_name(d->link->t), homing ? "home" : "arrive",
 					      timeout_ms);
-		sleep_ms(d->poll_ms);
+		msleep(d->poll_ms);
 	}
 }
 
@@ -417,11 +413,7 @@ static int probe_open(const struct asph_driver *drv, const struct asph_option_va
 	struct asph_device *d = *out;
 	struct asph_probe_info *pi = &d->pinfo;
 	bool tactile = o[OPT_PROBE].i == 1;
-	pi->type = tactile ? ASPH_PROBE_TACTILE : ASPH_PROBE_OPTICAL;
-	pi->tip_radius = tactile ? o[OPT_TIP_RADIUS].d : 0;
-	pi->standoff = o[OPT_STANDOFF].d;
-	pi->range_min = pi->standoff - o[OPT_RANGE].d / 2;
-	pi->range_max = pi->standoff + o[OPT_RANGE].d / 2;
+	std_probe_geometry(pi, tactile, o[OPT_TIP_RADIUS].d, o[OPT_STANDOFF].d, o[OPT_RANGE].d);
 	pi->max_slope = o[OPT_MAX_SLOPE].d * M_PI / 180;
 	pi->rate = o[OPT_RATE].d;
 	identify(d, pi->model, sizeof(pi->model), pi->serial, sizeof(pi->serial));
@@ -440,7 +432,6 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 		      struct asph_reading *out, unsigned timeout_ms, struct asph_error *err)
 {
 	char reply[SCPI_REPLY_MAX];
-	struct timespec ts;
 	double v;
 	int r = call(d, d->o[OPT_CMD_MEASURE].s, reply, sizeof(reply), timeout_ms, err);
 
@@ -449,13 +440,11 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 	if (scpi_parse_numbers(reply, &v, 1) < 0)
 		return asph_error_set(err, -EPROTO, "%s: '%s' answered '%s', not a number",
 				      usbtmc_name(d->link->t), d->o[OPT_CMD_MEASURE].s, reply);
-	clock_gettime(CLOCK_MONOTONIC, &ts);
 	memset(out, 0, sizeof(*out));
-	out->t_ns = (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+	out->t_ns = now_monotonic_ns();
 	out->raw = v;
 	out->value = v * d->scale;
-	if (!(out->value >= d->pinfo.range_min && out->value <= d->pinfo.range_max))
-		out->flags = ASPH_READING_OUT_OF_RANGE;
+	std_reading_check_range(out, &d->pinfo);
 	return 0;
 }
 

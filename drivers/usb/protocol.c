@@ -11,6 +11,7 @@
 #include "protocol.h"
 #include "transport.h"
 #include "util-mem.h"
+#include "util-time.h"
 
 #define USBTMC_CLASS 0xfe
 #define USBTMC_SUBCLASS 0x03
@@ -262,12 +263,6 @@ static int transfer_error(struct usbtmc *t, int r, const char *what, uint8_t ep,
 #define REQ_IFACE (LIBUSB_ENDPOINT_IN | LIBUSB_REQUEST_TYPE_CLASS | LIBUSB_RECIPIENT_INTERFACE)
 #define REQ_EP (LIBUSB_ENDPOINT_IN | LIBUSB_REQUEST_TYPE_CLASS | LIBUSB_RECIPIENT_ENDPOINT)
 
-static void sleep_ms(unsigned ms)
-{
-	struct timespec ts = { 0, (long)ms * 1000000 };
-	nanosleep(&ts, NULL);
-}
-
 /* Reads and drops what the device has queued on bulk-IN, up to a short
  * packet. */
 static int drain_in(struct usbtmc *t, atomic_bool *stop, uint64_t deadline)
@@ -313,7 +308,7 @@ static int poll_status(struct usbtmc *t, uint8_t type, uint8_t request, uint16_t
 			if (r < 0)
 				return r;
 		} else {
-			sleep_ms(1);
+			msleep(1);
 		}
 		if (transport_ms_left(deadline) == 0)
 			return -ETIMEDOUT;
@@ -321,21 +316,32 @@ static int poll_status(struct usbtmc *t, uint8_t type, uint8_t request, uint16_t
 	return -EPROTO;
 }
 
-static int abort_in(struct usbtmc *t, uint8_t tag, atomic_bool *stop, uint64_t deadline)
+/* INITIATE_ABORT_BULK_IN or _OUT of the transfer tagged tag on ep: 1 when
+ * the device is aborting it, 0 when there was none to abort (FAILED, or no
+ * transfer in progress), else an error. */
+static int initiate_abort(struct usbtmc *t, uint8_t request, uint8_t tag, uint8_t ep,
+			  atomic_bool *stop, uint64_t deadline)
 {
 	uint8_t st[2] = { 0 };
 	int got = 0;
-	int r = control(t, REQ_EP, USBTMC_INITIATE_ABORT_BULK_IN, tag, t->ep_in, st, 2,
-			stop, deadline, &got);
+	int r = control(t, REQ_EP, request, tag, ep, st, 2, stop, deadline, &got);
 
 	if (r < 0)
 		return r;
 	if (got < 1)
 		return -EPROTO;
-	/* FAILED: no transfer of that tag in progress, nothing to abort */
-	if (st[0] != USBTMC_STATUS_SUCCESS)
-		return st[0] == USBTMC_STATUS_FAILED ||
-		       st[0] == USBTMC_STATUS_TRANSFER_NOT_IN_PROGRESS ? 0 : -EPROTO;
+	if (st[0] == USBTMC_STATUS_SUCCESS)
+		return 1;
+	return st[0] == USBTMC_STATUS_FAILED ||
+	       st[0] == USBTMC_STATUS_TRANSFER_NOT_IN_PROGRESS ? 0 : -EPROTO;
+}
+
+static int abort_in(struct usbtmc *t, uint8_t tag, atomic_bool *stop, uint64_t deadline)
+{
+	int r = initiate_abort(t, USBTMC_INITIATE_ABORT_BULK_IN, tag, t->ep_in, stop, deadline);
+
+	if (r <= 0)
+		return r;
 	r = drain_in(t, stop, deadline);
 	if (r < 0)
 		return r;
@@ -345,18 +351,10 @@ static int abort_in(struct usbtmc *t, uint8_t tag, atomic_bool *stop, uint64_t d
 
 static int abort_out(struct usbtmc *t, uint8_t tag, atomic_bool *stop, uint64_t deadline)
 {
-	uint8_t st[2] = { 0 };
-	int got = 0;
-	int r = control(t, REQ_EP, USBTMC_INITIATE_ABORT_BULK_OUT, tag, t->ep_out, st, 2,
-			stop, deadline, &got);
+	int r = initiate_abort(t, USBTMC_INITIATE_ABORT_BULK_OUT, tag, t->ep_out, stop, deadline);
 
-	if (r < 0)
+	if (r <= 0)
 		return r;
-	if (got < 1)
-		return -EPROTO;
-	if (st[0] != USBTMC_STATUS_SUCCESS)
-		return st[0] == USBTMC_STATUS_FAILED ||
-		       st[0] == USBTMC_STATUS_TRANSFER_NOT_IN_PROGRESS ? 0 : -EPROTO;
 	r = poll_status(t, REQ_EP, USBTMC_CHECK_ABORT_BULK_OUT_STATUS, t->ep_out, 8, false,
 			stop, deadline);
 	return r < 0 ? r : clear_halt(t, t->ep_out);

@@ -2,6 +2,7 @@
 #ifndef ASPH_ERROR_H
 #define ASPH_ERROR_H
 
+#include <stdarg.h>
 #include <stddef.h>
 
 #ifdef __cplusplus
@@ -40,6 +41,19 @@ int asph_error_set(struct asph_error *err, int code, const char *fmt, ...)
 /* Sets the location parts; any may be NULL/0 to leave them as they are. */
 void asph_error_locate(struct asph_error *err, const char *source, int line,
 		       int column, const char *field);
+
+/* asph_error_set() and asph_error_locate() in one call: the message and
+ * where. The arguments may point into err itself (to re-word a message). */
+int asph_error_set_at(struct asph_error *err, int code, const char *source,
+		      int line, int column, const char *field, const char *fmt, ...)
+	__attribute__((format(printf, 7, 8)));
+int asph_error_vset_at(struct asph_error *err, int code, const char *source,
+		       int line, int column, const char *field, const char *fmt,
+		       va_list ap) __attribute__((format(printf, 7, 0)));
+
+#ifdef __clang_analyzer__
+#define asph_error_set_at(err, code, ...) (asph_error_set_at(err, code, __VA_ARGS__), (code))
+#endif
 
 /* "source:line:column: field: message" with absent parts left out.
  * Returns buf. */

@@ -45,6 +45,11 @@ struct asph_plan_density {
 	double value;
 };
 
+/* "h", "spacing", "points" (as the options and JSON keys) and back. */
+const char *asph_plan_density_name(enum asph_plan_density_kind k);
+int asph_plan_density_from_name(const char *name,
+				enum asph_plan_density_kind *out);
+
 struct asph_plan {
 	enum asph_plan_method method;
 	struct asph_plan_density density;
@@ -99,6 +104,33 @@ int asph_plan_resolve(const struct asph_surface *s, enum asph_plan_method m,
 /* A copy of the plan as points (xyz and the mesh, if any) for
  * asph_points_write(). */
 int asph_plan_to_points(const struct asph_plan *p, struct asph_points **out);
+
+/*
+ * A plan's parameters as JSON text (malloc'd, caller frees), the shape of a
+ * recorded scan's header and of asphd's job results:
+ *   {"method": "ot", "density": "h", "value": 0.05, "spacing_mm": 1.005,
+ *    "points": 1653}
+ * 0 or -ENOMEM.
+ */
+int asph_plan_to_json(const struct asph_plan *p, char **out);
+
+/* What such a text says. */
+struct asph_plan_info {
+	enum asph_plan_method method;
+	struct asph_plan_density density;
+	double spacing_mm;       /* NaN when not given */
+	uint64_t points;         /* 0 when not given */
+};
+
+/*
+ * Reads asph_plan_to_json()'s text, and the shape `asph scan` wrote into
+ * scan headers before, with the density as an object:
+ *   {"method": "ot", "density": {"kind": "h", "value": 0.05}, ...}
+ * Other members are ignored. -EINVAL, err naming the member (source: where
+ * the text comes from, for the message), for anything else.
+ */
+int asph_plan_info_from_json(const char *text, size_t len, const char *source,
+			     struct asph_plan_info *out, struct asph_error *err);
 
 /*
  * The OT radial map of Eq. (9) on the aperture disk of radius a: the

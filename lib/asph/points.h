@@ -16,7 +16,10 @@ extern "C" {
  * point (e.g. "residual_nm") and a triangle mesh over them.
  *
  * Files: the format follows the extension.
- *   .csv   header "x,y,z" (plus the value column's name if any)
+ *   .csv   header "x,y,z" (plus the value column's name if any); reading
+ *          takes the names in any case and order, and quoted fields
+ *          ("x","y","z", as R and spreadsheets write them), a UTF-8
+ *          byte-order mark, '#' comment lines and blank lines
  *   .ply   ASCII PLY, vertices (+ the value and an RGB colour when a value
  *          exists) and faces when a mesh exists; reading also takes
  *          binary_little_endian PLY

@@ -5,8 +5,9 @@
 
 #include "asph/error.h"
 
-/* The analyzers' view of it (asph/error.h) is not the function itself. */
+/* The analyzers' view of them (asph/error.h) is not the functions. */
 #undef asph_error_set
+#undef asph_error_set_at
 
 void asph_error_clear(struct asph_error *err)
 {
@@ -16,13 +17,11 @@ void asph_error_clear(struct asph_error *err)
 
 int asph_error_set(struct asph_error *err, int code, const char *fmt, ...)
 {
-	if (!err)
-		return code;
 	va_list ap;
+
 	va_start(ap, fmt);
-	vsnprintf(err->message, sizeof(err->message), fmt, ap);
+	asph_error_vset_at(err, code, NULL, 0, 0, NULL, fmt, ap);
 	va_end(ap);
-	err->code = code;
 	return code;
 }
 
@@ -31,14 +30,42 @@ void asph_error_locate(struct asph_error *err, const char *source, int line,
 {
 	if (!err)
 		return;
-	if (source)
+	/* copying a part onto itself would overlap */
+	if (source && source != err->source)
 		snprintf(err->source, sizeof(err->source), "%s", source);
 	if (line > 0)
 		err->line = line;
 	if (column > 0)
 		err->column = column;
-	if (field)
+	if (field && field != err->field)
 		snprintf(err->field, sizeof(err->field), "%s", field);
+}
+
+int asph_error_vset_at(struct asph_error *err, int code, const char *source,
+		       int line, int column, const char *field, const char *fmt,
+		       va_list ap)
+{
+	char msg[sizeof(err->message)];
+
+	if (!err)
+		return code;
+	/* formatted aside first: the arguments may be err's own strings */
+	vsnprintf(msg, sizeof(msg), fmt, ap);
+	asph_error_locate(err, source, line, column, field);
+	memcpy(err->message, msg, sizeof(msg));
+	err->code = code;
+	return code;
+}
+
+int asph_error_set_at(struct asph_error *err, int code, const char *source,
+		      int line, int column, const char *field, const char *fmt, ...)
+{
+	va_list ap;
+
+	va_start(ap, fmt);
+	asph_error_vset_at(err, code, source, line, column, field, fmt, ap);
+	va_end(ap);
+	return code;
 }
 
 const char *asph_error_format(const struct asph_error *err, char *buf,

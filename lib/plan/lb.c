@@ -7,6 +7,7 @@
 
 #include "asph/lb.h"
 #include "hermite.h"
+#include "numeric/newton.h"
 #include "util-mem.h"
 
 /*
@@ -175,13 +176,8 @@ static double radius_from_f(const struct asph_lb_map *m, double rho, double r)
 		double q = exp(poly5(c, s)), f = r * q - rho;
 		if (f == 0)
 			return r;
-		if (f > 0)
-			hi = r;
-		else
-			lo = r;
-		double next = r - f / (q * (1 + r * poly5_deriv(c, s) * m->f.inv_h));
-		if (!(next > lo && next < hi))
-			next = 0.5 * (lo + hi);
+		double next = newton_bracketed_step(r, f, q * (1 + r * poly5_deriv(c, s) * m->f.inv_h),
+						    &lo, &hi);
 		if (fabs(next - r) <= 4e-16 * r)
 			return next;
 		r = next;

@@ -50,7 +50,7 @@ static size_t disk_ring_count(double a, double p)
 	return m < 3 ? 3 : (size_t)m;
 }
 
-size_t plan_disk_grid_count(double a, double p, size_t *n_spiral)
+size_t plan_disk_grid_spiral_count(double a, double p)
 {
 	double s0 = p / (2.0 * M_PI), rmax = a - 0.5 * p;
 	size_t k = 0;
@@ -64,16 +64,18 @@ size_t plan_disk_grid_count(double a, double p, size_t *n_spiral)
 		while (involute_rho(s0, k) <= rmax)
 			k++;
 	}
-	if (n_spiral)
-		*n_spiral = k;
-	return k + disk_ring_count(a, p);
+	return k;
 }
 
-void plan_disk_grid_fill(double a, double p, double *xyr)
+size_t plan_disk_grid_count(double a, double p)
+{
+	return plan_disk_grid_spiral_count(a, p) + disk_ring_count(a, p);
+}
+
+int plan_disk_grid_fill(double a, double p, double *xyr)
 {
 	double s0 = p / (2.0 * M_PI), xy[2] = { a, 0 }, rho;
-	size_t ns, n = plan_disk_grid_count(a, p, &ns);
-	size_t m = n - ns;
+	size_t ns = plan_disk_grid_spiral_count(a, p), m = disk_ring_count(a, p);
 
 	for (size_t k = 0; k < ns; k++) {
 		plan_involute_point(s0, k, xy, &rho);
@@ -86,6 +88,7 @@ void plan_disk_grid_fill(double a, double p, double *xyr)
 		double phi = phi0 + 2.0 * M_PI * (double)j / (double)m;
 		put_rim(xyr, ns + j, a, a * cos(phi), a * sin(phi));
 	}
+	return 0;
 }
 
 /* ---- x-y raster ------------------------------------------------------------ */
@@ -149,13 +152,14 @@ static size_t raster_row(double a, double p, double y, int reverse,
 	return cnt;
 }
 
-void plan_raster_fill(double a, double p, double *xyr)
+int plan_raster_fill(double a, double p, double *xyr)
 {
 	long rows = raster_rows(a, p);
 	size_t at = 0;
 
 	for (long j = -rows; j <= rows; j++)
 		at += raster_row(a, p, (double)j * p, (j + rows) % 2, xyr, at);
+	return 0;
 }
 
 /* ---- concentric circles ---------------------------------------------------- */
@@ -186,7 +190,7 @@ size_t plan_concentric_count(double a, double p)
 	return n;
 }
 
-void plan_concentric_fill(double a, double p, double *xyr)
+int plan_concentric_fill(double a, double p, double *xyr)
 {
 	size_t rings = concentric_rings(a, p), at = 1;
 	double phi_end = 0;
@@ -205,6 +209,7 @@ void plan_concentric_fill(double a, double p, double *xyr)
 		}
 		phi_end = fmod(phi0 + step * (double)(m - 1), 2.0 * M_PI);
 	}
+	return 0;
 }
 
 /* ---- Archimedean spiral ---------------------------------------------------- */
@@ -256,7 +261,7 @@ static void spiral_state(double b, double th, double target,
 
 /* Arc-length samples by the stepper of plan.h, anchored on the closed form
  * of the arc length. */
-void plan_spiral_fill(double a, double p, double *xyr)
+int plan_spiral_fill(double a, double p, double *xyr)
 {
 	double b = p / (2.0 * M_PI), th_end = a / b;
 	size_t m = spiral_steps(a, p), since = INVERSE_STEP_ANCHOR;
@@ -287,6 +292,7 @@ void plan_spiral_fill(double a, double p, double *xyr)
 		}
 		put(xyr, k, b * th * cos(th), b * th * sin(th), b * th);
 	}
+	return 0;
 }
 
 /* ---- Fermat (golden-angle) spiral ----------------------------------------- */

@@ -29,14 +29,16 @@ const struct plan_lattice *plan_lattice_of(enum asph_plan_method m);
  * plane and in the third slot the radius sqrt(x^2 + y^2) as the generator
  * knows it (exactly a on the aperture circle), so that the lift to the
  * surface needs no square root and never sees a radius above a.
- * count() is exact: fill() writes exactly that many points.
+ * count() is exact: fill() writes exactly that many points; it returns 0
+ * or -ENOMEM.
  */
 
 /* Disk grid of paper 5.1: the circle involute of Eq. (5) with base radius
  * s0 = p / (2 pi) sampled at arc length 2 pi s0 = p while its radius stays
  * <= a - p/2, then a ring of ceil(2 pi a / p) points on the circle r = a. */
-size_t plan_disk_grid_count(double a, double p, size_t *n_spiral);
-void plan_disk_grid_fill(double a, double p, double *xyr);
+size_t plan_disk_grid_count(double a, double p);
+size_t plan_disk_grid_spiral_count(double a, double p);   /* involute samples */
+int plan_disk_grid_fill(double a, double p, double *xyr);
 
 /* k-th involute sample: t_k = 2 s0 sqrt(pi k), the arc length being
  * t^2 / (2 s0) = 2 pi s0 k. */
@@ -45,18 +47,18 @@ void plan_involute_point(double s0, size_t k, double xy[2], double *rho);
 /* x-y raster: rows y = j p, lattice columns x = i p at least p/2 inside the
  * rim, and both row ends on the rim; serpentine order from y = -a up. */
 size_t plan_raster_count(double a, double p);
-void plan_raster_fill(double a, double p, double *xyr);
+int plan_raster_fill(double a, double p, double *xyr);
 
 /* Concentric circles: the centre, then M = ceil(a/p) rings at radii
  * j a / M with ceil(2 pi r_j / p) points each, ring after ring, each ring
  * counter-clockwise from the angle where the previous one ended. */
 size_t plan_concentric_count(double a, double p);
-void plan_concentric_fill(double a, double p, double *xyr);
+int plan_concentric_fill(double a, double p, double *xyr);
 
 /* Archimedean spiral r = p theta / (2 pi) from the vertex to r = a,
  * sampled at equal arc length (<= p, the last sample exactly on the rim). */
 size_t plan_spiral_count(double a, double p);
-void plan_spiral_fill(double a, double p, double *xyr);
+int plan_spiral_fill(double a, double p, double *xyr);
 
 /* Fermat spiral: n points r_i = a sqrt(i / (n - 1)), theta_i = i times the
  * golden angle, n = round(pi a^2 / p^2); visited in annular bands of

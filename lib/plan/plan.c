@@ -2,6 +2,7 @@
 /* Sampling plans: density resolution, the methods' maps, the disk mesh. */
 #include <errno.h>
 #include <math.h>
+#include <stdbool.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -18,75 +19,67 @@
 /* Triangles of the disk grid below this q are dropped (paper 5.1). */
 #define DISK_MESH_MIN_Q 0.75
 
-static const char *const method_names[ASPH_PLAN_N_METHODS] = {
-	[ASPH_PLAN_OP] = "op",
-	[ASPH_PLAN_OT] = "ot",
-	[ASPH_PLAN_LB] = "lb",
-	[ASPH_PLAN_CI] = "ci",
-	[ASPH_PLAN_RASTER] = "raster",
-	[ASPH_PLAN_CONCENTRIC] = "concentric",
-	[ASPH_PLAN_SPIRAL] = "spiral",
-	[ASPH_PLAN_FERMAT] = "fermat",
+/*
+ * A sampling method: its name, its lattice, and the three steps of a plan:
+ * count (exact, at lattice pitch p), fill (the points in scan order) and
+ * lift (onto the surface). Most methods lay a pattern in the disk or the
+ * vertex plane (plan-patterns.h: x, y and the radius) and lift it; CI lays
+ * its lattice on the surface itself, so its pitch is measured there and its
+ * points need no lift. The table is at the end of this file.
+ */
+struct plan_method {
+	const char *name;
+	struct plan_lattice lattice;
+	bool on_surface;        /* the lattice lies on the surface (CI) */
+	bool mesh;              /* the disk grid's mesh comes with the plan */
+	size_t (*count)(const struct asph_surface *s, double a, double p);
+	/* plan->n is count's; fill allocates plan->xyz and may set plan->n */
+	int (*fill)(const struct asph_surface *s, double a, double p,
+		    struct asph_plan *plan, struct asph_error *err);
+	/* NULL: the points are on the surface already */
+	int (*lift)(const struct asph_surface *s, double *xyz, size_t n,
+		    struct asph_error *err);
 };
 
-const char *asph_plan_method_name(enum asph_plan_method m)
+static const struct plan_method *method_of(enum asph_plan_method m);
+
+/* The area the method's lattice covers. */
+static double pattern_area(const struct asph_surface *s,
+			   const struct plan_method *meth)
 {
-	if ((unsigned)m >= ASPH_PLAN_N_METHODS)
-		return "unknown";
-	return method_names[m];
+	double a = asph_surface_aperture_radius(s);
+
+	return meth->on_surface ? asph_surface_area(s, a) : M_PI * a * a;
 }
 
-int asph_plan_method_from_name(const char *name, enum asph_plan_method *out)
+/* ---- density ------------------------------------------------------------- */
+
+static const char *const density_names[] = {
+	[ASPH_DENSITY_H] = "h",
+	[ASPH_DENSITY_SPACING] = "spacing",
+	[ASPH_DENSITY_POINTS] = "points",
+};
+
+const char *asph_plan_density_name(enum asph_plan_density_kind k)
 {
-	for (unsigned i = 0; name && i < ASPH_PLAN_N_METHODS; i++) {
-		if (!strcmp(name, method_names[i])) {
-			*out = (enum asph_plan_method)i;
+	return (unsigned)k < ARRAY_SIZE(density_names) ? density_names[k] : "unknown";
+}
+
+int asph_plan_density_from_name(const char *name, enum asph_plan_density_kind *out)
+{
+	for (unsigned i = 0; name && i < ARRAY_SIZE(density_names); i++) {
+		if (!strcmp(name, density_names[i])) {
+			*out = (enum asph_plan_density_kind)i;
 			return 0;
 		}
 	}
 	return -EINVAL;
 }
 
-/*
- * Measured on flat patterns of 1.26e5 points on the unit disk (Delaunay
- * triangulation, mean edge length; points per area), docs/sampling-plans.md,
- * "Density". Each lattice has one point per p^2 of area to within 0.5 %.
- * CI is the disk grid's lattice laid on the surface.
- */
-static const struct plan_lattice lattices[ASPH_PLAN_N_METHODS] = {
-	[ASPH_PLAN_OP] = { 1.0, 1.099 },
-	[ASPH_PLAN_OT] = { 1.0, 1.099 },
-	[ASPH_PLAN_LB] = { 1.0, 1.099 },
-	[ASPH_PLAN_CI] = { 1.0, 1.099 },
-	[ASPH_PLAN_RASTER] = { 1.0, 1.138 },   /* (2 + sqrt 2) / 3 */
-	[ASPH_PLAN_CONCENTRIC] = { 1.0, 1.098 },
-	[ASPH_PLAN_SPIRAL] = { 1.0, 1.099 },
-	[ASPH_PLAN_FERMAT] = { 1.0, 1.114 },
-};
-
-const struct plan_lattice *plan_lattice_of(enum asph_plan_method m)
-{
-	return &lattices[(unsigned)m < ASPH_PLAN_N_METHODS ? m : 0];
-}
-
-/* ---- density ------------------------------------------------------------- */
-
-static int is_grid_method(enum asph_plan_method m)
-{
-	return m == ASPH_PLAN_OP || m == ASPH_PLAN_OT || m == ASPH_PLAN_LB;
-}
-
+/* The option an error about the density names. */
 static const char *density_field(enum asph_plan_density_kind k)
 {
-	switch (k) {
-	case ASPH_DENSITY_H:
-		return "h";
-	case ASPH_DENSITY_SPACING:
-		return "spacing";
-	case ASPH_DENSITY_POINTS:
-		return "points";
-	}
-	return "density";
+	return (unsigned)k < ARRAY_SIZE(density_names) ? density_names[k] : "density";
 }
 
 /* What a density resolves to for one method on one surface. */
@@ -96,40 +89,19 @@ struct plan_size {
 	size_t n;       /* points */
 };
 
-/* Exact point count of the method's pattern at pitch p (CI: the involute's
- * own count, asph/involute.h). SIZE_MAX for anything far too large. */
+/* Exact point count of the method's pattern at pitch p. SIZE_MAX for
+ * anything far too large. */
 static size_t pattern_count(const struct asph_surface *s,
 			    enum asph_plan_method m, double p)
 {
+	const struct plan_method *meth = method_of(m);
 	double a = asph_surface_aperture_radius(s);
-	double area = asph_surface_area(s, a), guess;
 
 	/* The exact counters loop over rows and rings: screen absurd sizes
 	 * first so they never run for long. */
-	guess = m == ASPH_PLAN_CI ? area / (p * p) : M_PI * a * a / (p * p);
-	if (!(guess < 2.0 * (double)PLAN_MAX_POINTS))
+	if (!(pattern_area(s, meth) / (p * p) < 2.0 * (double)PLAN_MAX_POINTS))
 		return SIZE_MAX;
-	switch (m) {
-	case ASPH_PLAN_OP:
-	case ASPH_PLAN_OT:
-	case ASPH_PLAN_LB:
-		return plan_disk_grid_count(a, p, NULL);
-	case ASPH_PLAN_CI: {
-		double r0 = p / (2.0 * M_PI);
-		return (size_t)floor((area - asph_surface_area(s, r0)) /
-				     (p * p)) + 1;
-	}
-	case ASPH_PLAN_RASTER:
-		return plan_raster_count(a, p);
-	case ASPH_PLAN_CONCENTRIC:
-		return plan_concentric_count(a, p);
-	case ASPH_PLAN_SPIRAL:
-		return plan_spiral_count(a, p);
-	case ASPH_PLAN_FERMAT:
-	case ASPH_PLAN_N_METHODS:
-		break;
-	}
-	return plan_fermat_count(a, p);
+	return meth->count(s, a, p);
 }
 
 /* Pitch / spacing ratio: vertex-plane and disk lattices are stretched by
@@ -137,9 +109,10 @@ static size_t pattern_count(const struct asph_surface *s,
 static double pitch_per_spacing(const struct asph_surface *s,
 				enum asph_plan_method m)
 {
-	double c = plan_lattice_of(m)->edge_per_pitch;
+	const struct plan_method *meth = method_of(m);
+	double c = meth->lattice.edge_per_pitch;
 
-	if (m == ASPH_PLAN_CI)
+	if (meth->on_surface)
 		return 1.0 / c;
 	return 1.0 / (c * sqrt(asph_surface_gamma(s)));
 }
@@ -149,10 +122,8 @@ static double pitch_per_spacing(const struct asph_surface *s,
 static double pitch_for_points(const struct asph_surface *s,
 			       enum asph_plan_method m, double n_req)
 {
-	double a = asph_surface_aperture_radius(s);
-	double area = m == ASPH_PLAN_CI ? asph_surface_area(s, a)
-					: M_PI * a * a;
-	double p = sqrt(area / (plan_lattice_of(m)->area_per_pitch2 * n_req));
+	const struct plan_method *meth = method_of(m);
+	double p = sqrt(pattern_area(s, meth) / (meth->lattice.area_per_pitch2 * n_req));
 
 	for (int it = 0; it < 2; it++) {
 		size_t n = pattern_count(s, m, p);
@@ -170,16 +141,12 @@ static int resolve(const struct asph_surface *s, enum asph_plan_method m,
 	const char *field = density_field(d.kind);
 	double a = asph_surface_aperture_radius(s), ratio;
 
-	if ((unsigned)m >= ASPH_PLAN_N_METHODS) {
-		asph_error_locate(err, NULL, 0, 0, "method");
-		return asph_error_set(err, -EINVAL, "unknown method %d", m);
-	}
-	if (!isfinite(d.value) || d.value <= 0) {
-		asph_error_locate(err, NULL, 0, 0, field);
-		return asph_error_set(err, -EINVAL,
-				      "must be positive and finite (got %g)",
-				      d.value);
-	}
+	if ((unsigned)m >= ASPH_PLAN_N_METHODS)
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "method", "unknown method %d",
+					 m);
+	if (!isfinite(d.value) || d.value <= 0)
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+					 "must be positive and finite (got %g)", d.value);
 	ratio = pitch_per_spacing(s, m);
 	switch (d.kind) {
 	case ASPH_DENSITY_H:
@@ -195,24 +162,19 @@ static int resolve(const struct asph_surface *s, enum asph_plan_method m,
 		out->e = out->p / ratio;
 		break;
 	default:
-		asph_error_locate(err, NULL, 0, 0, "density");
-		return asph_error_set(err, -EINVAL, "unknown density kind %d",
-				      d.kind);
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "density",
+					 "unknown density kind %d", d.kind);
 	}
-	if (!(out->e <= a)) {
-		asph_error_locate(err, NULL, 0, 0, field);
-		return asph_error_set(err, -EINVAL,
-				      "%g is too coarse: it gives a spacing of %.6g mm, "
-				      "more than the aperture radius %.6g mm (h > 1)",
-				      d.value, out->e, a);
-	}
+	if (!(out->e <= a))
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+					 "%g is too coarse: it gives a spacing of %.6g mm, "
+					 "more than the aperture radius %.6g mm (h > 1)",
+					 d.value, out->e, a);
 	out->n = pattern_count(s, m, out->p);
-	if (out->n > PLAN_MAX_POINTS) {
-		asph_error_locate(err, NULL, 0, 0, field);
-		return asph_error_set(err, -EINVAL,
-				      "%g gives more than %zu points, the most a plan can hold",
-				      d.value, PLAN_MAX_POINTS);
-	}
+	if (out->n > PLAN_MAX_POINTS)
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+					 "%g gives more than %zu points, the most a plan can hold",
+					 d.value, PLAN_MAX_POINTS);
 	return 0;
 }
 
@@ -247,11 +209,12 @@ double asph_plan_ot_radius(const struct asph_surface *s, double rho)
 }
 
 /* Vertical projection: z = Z(r), r in the third slot. */
-static void lift_projected(const struct asph_surface *s, double *xyz,
-			   size_t n)
+static int lift_projected(const struct asph_surface *s, double *xyz,
+			  size_t n, struct asph_error *err)
 {
 	for (size_t i = 0; i < n; i++)
 		xyz[3 * i + 2] = asph_surface_sag(s, xyz[3 * i + 2]);
+	return 0;
 }
 
 /* Moves the disk point at radius rho to radius r at height z. */
@@ -338,7 +301,8 @@ static void ot_point(const struct asph_surface *s, double *xyz,
  * dependency chain, so the grid is cut into OT_LANES runs stepped side by
  * side, which the processor overlaps.
  */
-static void lift_ot(const struct asph_surface *s, double *xyz, size_t n)
+static int lift_ot(const struct asph_surface *s, double *xyz, size_t n,
+		   struct asph_error *err)
 {
 	double a = asph_surface_aperture_radius(s);
 	double per_rho2 = asph_surface_area(s, a) / (a * a);
@@ -354,6 +318,7 @@ static void lift_ot(const struct asph_surface *s, double *xyz, size_t n)
 		for (size_t l = 0; l < OT_LANES; l++)
 			if (lanes[l].i < lanes[l].end)
 				ot_point(s, xyz, &lanes[l], a, per_rho2);
+	return 0;
 }
 
 static int lift_lb(const struct asph_surface *s, double *xyz, size_t n,
@@ -451,70 +416,24 @@ int asph_plan_to_points(const struct asph_plan *p, struct asph_points **out)
 	return 0;
 }
 
-static int fill_pattern(enum asph_plan_method m, double a, double p,
-			double *xyr)
-{
-	switch (m) {
-	case ASPH_PLAN_RASTER:
-		plan_raster_fill(a, p, xyr);
-		return 0;
-	case ASPH_PLAN_CONCENTRIC:
-		plan_concentric_fill(a, p, xyr);
-		return 0;
-	case ASPH_PLAN_SPIRAL:
-		plan_spiral_fill(a, p, xyr);
-		return 0;
-	case ASPH_PLAN_FERMAT:
-		return plan_fermat_fill(a, p, xyr);
-	default:
-		plan_disk_grid_fill(a, p, xyr);
-		return 0;
-	}
-}
-
-static int compute_ci(const struct asph_surface *s, struct asph_plan *plan,
-		      double p, struct asph_error *err)
-{
-	size_t n = 0;
-	int r = asph_involute_points(s, p, 0, &plan->xyz, &n, err);
-
-	plan->n = n;
-	return r;
-}
-
 static int compute_points(const struct asph_surface *s, struct asph_plan *plan,
 			  const struct plan_size *sz, unsigned flags,
 			  struct asph_error *err)
 {
-	double a = asph_surface_aperture_radius(s);
-	enum asph_plan_method m = plan->method;
+	const struct plan_method *meth = method_of(plan->method);
 	int r;
 
-	if (m == ASPH_PLAN_CI)
-		return compute_ci(s, plan, sz->p, err);
-	plan->xyz = malloc(3 * sz->n * sizeof(*plan->xyz));
-	if (!plan->xyz)
-		return asph_error_set(err, -ENOMEM, "out of memory (%zu points)", sz->n);
 	plan->n = sz->n;
-	r = fill_pattern(m, a, sz->p, plan->xyz);
+	r = meth->fill(s, asph_surface_aperture_radius(s), sz->p, plan, err);
 	if (r < 0)
-		return asph_error_set(err, r, "out of memory (%zu points)", sz->n);
-	if (is_grid_method(m) && !(flags & ASPH_PLAN_NO_MESH)) {
+		return r;
+	if (meth->mesh && !(flags & ASPH_PLAN_NO_MESH)) {
 		r = plan_disk_mesh(plan->xyz, plan->n, &plan->triangles,
 				   &plan->n_triangles, err);
 		if (r < 0)
 			return r;
 	}
-	switch (m) {
-	case ASPH_PLAN_OT:
-		lift_ot(s, plan->xyz, plan->n);
-		return 0;
-	case ASPH_PLAN_LB:
-		return lift_lb(s, plan->xyz, plan->n, err);
-	default:
-		lift_projected(s, plan->xyz, plan->n);
-		return 0;
-	}
+	return meth->lift ? meth->lift(s, plan->xyz, plan->n, err) : 0;
 }
 
 int asph_plan_compute_opts(const struct asph_surface *s,
@@ -531,12 +450,10 @@ int asph_plan_compute_opts(const struct asph_surface *s,
 
 	if (r < 0)
 		return r;
-	if (max_points && sz.n > max_points) {
-		asph_error_locate(err, NULL, 0, 0, density_field(density.kind));
-		return asph_error_set(err, -EINVAL,
-				      "%g gives %zu points, more than the limit of %zu",
-				      density.value, sz.n, max_points);
-	}
+	if (max_points && sz.n > max_points)
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, density_field(density.kind),
+					 "%g gives %zu points, more than the limit of %zu",
+					 density.value, sz.n, max_points);
 	plan = calloc(1, sizeof(*plan));
 	if (!plan)
 		return asph_error_set(err, -ENOMEM, "out of memory");
@@ -557,4 +474,139 @@ int asph_plan_compute(const struct asph_surface *s, enum asph_plan_method m,
 	struct asph_plan_options o = { .max_points = max_points };
 
 	return asph_plan_compute_opts(s, m, density, &o, out, err);
+}
+
+/* ---- the methods ---------------------------------------------------------- */
+
+/* Room for plan->n points, laid out by a planar pattern. */
+static int planar(struct asph_plan *plan, double a, double p,
+		  int (*pattern)(double a, double p, double *xyr),
+		  struct asph_error *err)
+{
+	plan->xyz = malloc(3 * plan->n * sizeof(*plan->xyz));
+	if (!plan->xyz || pattern(a, p, plan->xyz) < 0)
+		return asph_error_set(err, -ENOMEM, "out of memory (%zu points)", plan->n);
+	return 0;
+}
+
+static size_t disk_grid_count(const struct asph_surface *s, double a, double p)
+{
+	return plan_disk_grid_count(a, p);
+}
+
+static int disk_grid_fill(const struct asph_surface *s, double a, double p,
+			  struct asph_plan *plan, struct asph_error *err)
+{
+	return planar(plan, a, p, plan_disk_grid_fill, err);
+}
+
+/* CI: the involute's own count, asph/involute.h. */
+static size_t ci_count(const struct asph_surface *s, double a, double p)
+{
+	double r0 = p / (2.0 * M_PI);
+
+	return (size_t)floor((asph_surface_area(s, a) - asph_surface_area(s, r0)) /
+			     (p * p)) + 1;
+}
+
+static int ci_fill(const struct asph_surface *s, double a, double p,
+		   struct asph_plan *plan, struct asph_error *err)
+{
+	return asph_involute_points(s, p, 0, &plan->xyz, &plan->n, err);
+}
+
+static size_t raster_count(const struct asph_surface *s, double a, double p)
+{
+	return plan_raster_count(a, p);
+}
+
+static int raster_fill(const struct asph_surface *s, double a, double p,
+		       struct asph_plan *plan, struct asph_error *err)
+{
+	return planar(plan, a, p, plan_raster_fill, err);
+}
+
+static size_t concentric_count(const struct asph_surface *s, double a, double p)
+{
+	return plan_concentric_count(a, p);
+}
+
+static int concentric_fill(const struct asph_surface *s, double a, double p,
+			   struct asph_plan *plan, struct asph_error *err)
+{
+	return planar(plan, a, p, plan_concentric_fill, err);
+}
+
+static size_t spiral_count(const struct asph_surface *s, double a, double p)
+{
+	return plan_spiral_count(a, p);
+}
+
+static int spiral_fill(const struct asph_surface *s, double a, double p,
+		       struct asph_plan *plan, struct asph_error *err)
+{
+	return planar(plan, a, p, plan_spiral_fill, err);
+}
+
+static size_t fermat_count(const struct asph_surface *s, double a, double p)
+{
+	return plan_fermat_count(a, p);
+}
+
+static int fermat_fill(const struct asph_surface *s, double a, double p,
+		       struct asph_plan *plan, struct asph_error *err)
+{
+	return planar(plan, a, p, plan_fermat_fill, err);
+}
+
+/*
+ * Lattices measured on flat patterns of 1.26e5 points on the unit disk
+ * (Delaunay triangulation, mean edge length; points per area),
+ * docs/sampling-plans.md, "Density". Each lattice has one point per p^2 of
+ * area to within 0.5 %. CI is the disk grid's lattice laid on the surface.
+ */
+static const struct plan_method methods[ASPH_PLAN_N_METHODS] = {
+	[ASPH_PLAN_OP] = { "op", { 1.0, 1.099 }, false, true,
+			   disk_grid_count, disk_grid_fill, lift_projected },
+	[ASPH_PLAN_OT] = { "ot", { 1.0, 1.099 }, false, true,
+			   disk_grid_count, disk_grid_fill, lift_ot },
+	[ASPH_PLAN_LB] = { "lb", { 1.0, 1.099 }, false, true,
+			   disk_grid_count, disk_grid_fill, lift_lb },
+	[ASPH_PLAN_CI] = { "ci", { 1.0, 1.099 }, true, false,
+			   ci_count, ci_fill, NULL },
+	[ASPH_PLAN_RASTER] = { "raster", { 1.0, 1.138 } /* (2 + sqrt 2) / 3 */, false, false,
+			       raster_count, raster_fill, lift_projected },
+	[ASPH_PLAN_CONCENTRIC] = { "concentric", { 1.0, 1.098 }, false, false,
+				   concentric_count, concentric_fill, lift_projected },
+	[ASPH_PLAN_SPIRAL] = { "spiral", { 1.0, 1.099 }, false, false,
+			       spiral_count, spiral_fill, lift_projected },
+	[ASPH_PLAN_FERMAT] = { "fermat", { 1.0, 1.114 }, false, false,
+			       fermat_count, fermat_fill, lift_projected },
+};
+
+/* m is checked by the callers (resolve); an unknown one reads as OP. */
+static const struct plan_method *method_of(enum asph_plan_method m)
+{
+	return &methods[(unsigned)m < ASPH_PLAN_N_METHODS ? m : 0];
+}
+
+const struct plan_lattice *plan_lattice_of(enum asph_plan_method m)
+{
+	return &method_of(m)->lattice;
+}
+
+const char *asph_plan_method_name(enum asph_plan_method m)
+{
+	return (unsigned)m < ASPH_PLAN_N_METHODS ? methods[m].name : "unknown";
+}
+
+int asph_plan_method_from_name(const char *name, enum asph_plan_method *out)
+{
+	for (unsigned i = 0; name && i < ASPH_PLAN_N_METHODS; i++) {
+		if (!strcmp(name, methods[i].name)) {
+			*out = (enum asph_plan_method)i;
+			return 0;
+		}
+	}
+	return -EINVAL;
 }

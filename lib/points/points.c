@@ -2,6 +2,7 @@
 #include <errno.h>
 #include <math.h>
 #include <stdarg.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -58,24 +59,6 @@ void asph_points_free(struct asph_points *p)
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
 
-static int fail(struct asph_error *err, const char *source, int line, int col,
-		const char *field, int code, const char *fmt, ...)
-	__attribute__((format(printf, 7, 8)));
-
-static int fail(struct asph_error *err, const char *source, int line, int col,
-		const char *field, int code, const char *fmt, ...)
-{
-	char msg[512];
-	va_list ap;
-
-	va_start(ap, fmt);
-	vsnprintf(msg, sizeof(msg), fmt, ap);
-	va_end(ap);
-	asph_error_set(err, code, "%s", msg);
-	asph_error_locate(err, source, line, col, field);
-	return code;
-}
-
 enum format { FMT_CSV, FMT_PLY, FMT_JSON };
 
 static enum format format_of(const char *path)
@@ -96,41 +79,89 @@ struct csv_columns {
 	char value_name[32];
 };
 
-static int csv_header(const char *line, size_t len, const char *source,
+static bool is_blank(char c)
+{
+	return c == ' ' || c == '\t' || c == '\r';
+}
+
+/* One field of a CSV line: its text at [b, e) without the blanks around it
+ * and without the double quotes of a quoted field (R and spreadsheets quote
+ * the header: "x","y","z"), and where the next field starts (past len after
+ * the last one). */
+struct csv_field {
+	size_t b, e, next;
+};
+
+static int csv_field(const char *line, size_t len, size_t pos, int lineno,
+		     const char *source, struct csv_field *f, struct asph_error *err)
+{
+	size_t p = pos, q;
+
+	while (p < len && is_blank(line[p]))
+		p++;
+	if (p < len && line[p] == '"') {
+		/* a quote inside is doubled ("") */
+		for (q = p + 1; q < len; q++) {
+			if (line[q] == '"' && q + 1 < len && line[q + 1] == '"')
+				q++;
+			else if (line[q] == '"')
+				break;
+		}
+		if (q >= len)
+			return asph_error_set_at(err, -EINVAL, source, lineno, (int)p + 1, NULL,
+						 "a quote that does not close");
+		f->b = p + 1;
+		f->e = q;
+		for (q++; q < len && is_blank(line[q]); q++)
+			;
+		if (q < len && line[q] != ',')
+			return asph_error_set_at(err, -EINVAL, source, lineno, (int)q + 1, NULL,
+						 "text after the closing quote");
+		f->next = q + 1;
+		return 0;
+	}
+	for (q = p; q < len && line[q] != ','; q++)
+		;
+	f->b = p;
+	f->e = q;
+	while (f->e > f->b && is_blank(line[f->e - 1]))
+		f->e--;
+	f->next = q + 1;
+	return 0;
+}
+
+/* The header: columns x, y and z (in any case, in any order, quoted or
+ * not), and the first other named column as the value. */
+static int csv_header(const char *line, size_t len, int lineno, const char *source,
 		      struct csv_columns *cols, struct asph_error *err)
 {
+	struct csv_field f = { .next = 0 };
 	int col = 0;
-	size_t start = 0;
 
 	cols->ix = cols->iy = cols->iz = cols->ivalue = -1;
-	for (size_t i = 0; i <= len; i++) {
-		if (i < len && line[i] != ',')
-			continue;
-		size_t b = start, e = i;
-		while (b < e && (line[b] == ' ' || line[b] == '\t'))
-			b++;
-		while (e > b && (line[e - 1] == ' ' || line[e - 1] == '\t' || line[e - 1] == '\r'))
-			e--;
+	while (f.next <= len) {
+		int r = csv_field(line, len, f.next, lineno, source, &f, err);
+		if (r < 0)
+			return r;
 		char name[64];
-		snprintf(name, sizeof(name), "%.*s", (int)(e - b), line + b);
-		if (!strcmp(name, "x"))
+		snprintf(name, sizeof(name), "%.*s", (int)(f.e - f.b), line + f.b);
+		if (!strcasecmp(name, "x"))
 			cols->ix = col;
-		else if (!strcmp(name, "y"))
+		else if (!strcasecmp(name, "y"))
 			cols->iy = col;
-		else if (!strcmp(name, "z"))
+		else if (!strcasecmp(name, "z"))
 			cols->iz = col;
 		else if (cols->ivalue < 0 && name[0]) {
 			cols->ivalue = col;
 			snprintf(cols->value_name, sizeof(cols->value_name), "%.31s", name);
 		}
 		col++;
-		start = i + 1;
 	}
 	cols->count = col;
 	if (cols->ix < 0 || cols->iy < 0 || cols->iz < 0)
-		return fail(err, source, 1, 1, NULL, -EINVAL,
-			    "the first line must be a header naming the columns x,y,z (got '%.*s')",
-			    (int)(len > 80 ? 80 : len), line);
+		return asph_error_set_at(err, -EINVAL, source, lineno, 1, NULL,
+					 "the first line must be a header naming the columns x,y,z (got '%.*s')",
+					 (int)(len > 80 ? 80 : len), line);
 	return 0;
 }
 
@@ -138,48 +169,40 @@ static int csv_row(const char *line, size_t len, int lineno, const char *source,
 		   const struct csv_columns *cols, double *xyz, double *value,
 		   struct asph_error *err)
 {
-	static const char *const names[] = { "x", "y", "z" };
-	size_t pos = 0;
+	struct csv_field f = { .next = 0 };
 
 	for (int col = 0; col < cols->count; col++) {
-		if (pos > len || (col > 0 && line[pos - 1] != ','))
-			return fail(err, source, lineno, (int)pos + 1, NULL, -EINVAL,
-				    "expected %d columns, found %d", cols->count, col);
+		if (f.next > len)
+			return asph_error_set_at(err, -EINVAL, source, lineno, (int)len + 1, NULL,
+						 "expected %d columns, found %d", cols->count, col);
+		int r = csv_field(line, len, f.next, lineno, source, &f, err);
+		if (r < 0)
+			return r;
 		const char *field = col == cols->ix ? "x" : col == cols->iy ? "y" :
 				    col == cols->iz ? "z" : col == cols->ivalue ? cols->value_name : NULL;
-		size_t end = pos;
-		while (end < len && line[end] != ',')
-			end++;
+		if (!field)
+			continue;
 		char tmp[128], *stop;
-		size_t b = pos, e = end;
-		while (b < e && (line[b] == ' ' || line[b] == '\t'))
-			b++;
-		while (e > b && (line[e - 1] == ' ' || line[e - 1] == '\t' || line[e - 1] == '\r'))
-			e--;
-		if (field) {
-			if (e - b == 0 || e - b >= sizeof(tmp))
-				return fail(err, source, lineno, (int)b + 1, field, -EINVAL,
-					    e == b ? "empty value" : "value too long");
-			memcpy(tmp, line + b, e - b);
-			tmp[e - b] = '\0';
-			double v = strtod(tmp, &stop);
-			if (*stop != '\0')
-				return fail(err, source, lineno, (int)b + 1, field, -EINVAL,
-					    "not a number: '%s'", tmp);
-			if (!isfinite(v))
-				return fail(err, source, lineno, (int)b + 1, field, -EINVAL,
-					    "not a finite number: '%s'", tmp);
-			if (col == cols->ivalue)
-				*value = v;
-			else
-				xyz[col == cols->ix ? 0 : col == cols->iy ? 1 : 2] = v;
-		}
-		pos = end + 1;
+		if (f.e == f.b || f.e - f.b >= sizeof(tmp))
+			return asph_error_set_at(err, -EINVAL, source, lineno, (int)f.b + 1, field,
+						 f.e == f.b ? "empty value" : "value too long");
+		memcpy(tmp, line + f.b, f.e - f.b);
+		tmp[f.e - f.b] = '\0';
+		double v = strtod(tmp, &stop);
+		if (*stop != '\0')
+			return asph_error_set_at(err, -EINVAL, source, lineno, (int)f.b + 1, field,
+						 "not a number: '%s'", tmp);
+		if (!isfinite(v))
+			return asph_error_set_at(err, -EINVAL, source, lineno, (int)f.b + 1, field,
+						 "not a finite number: '%s'", tmp);
+		if (col == cols->ivalue)
+			*value = v;
+		else
+			xyz[col == cols->ix ? 0 : col == cols->iy ? 1 : 2] = v;
 	}
-	if (pos <= len)
-		return fail(err, source, lineno, (int)pos, NULL, -EINVAL,
-			    "expected %d columns, found more", cols->count);
-	(void)names;
+	if (f.next <= len)
+		return asph_error_set_at(err, -EINVAL, source, lineno, (int)f.next, NULL,
+					 "expected %d columns, found more", cols->count);
 	return 0;
 }
 
@@ -195,6 +218,9 @@ int asph_points_read_csv_text(const char *text, size_t len,
 
 	if (!xyz || !val)
 		return asph_error_set(err, -ENOMEM, "out of memory");
+	/* spreadsheets' "CSV UTF-8" starts with a byte-order mark */
+	if (len >= 3 && !memcmp(text, "\xef\xbb\xbf", 3))
+		pos = 3;
 	while (pos < len) {
 		size_t end = pos;
 		while (end < len && text[end] != '\n')
@@ -209,20 +235,18 @@ int asph_points_read_csv_text(const char *text, size_t len,
 		if (skip == ll || line[skip] == '#')
 			continue;
 		if (memchr(line, '\0', ll))
-			return fail(err, source, lineno, 1, NULL, -EINVAL, "binary data in a CSV file");
+			return asph_error_set_at(err, -EINVAL, source, lineno, 1, NULL,
+						 "binary data in a CSV file");
 		if (!have_header) {
-			if ((r = csv_header(line, ll, source, &cols, err)) < 0) {
-				if (err)
-					err->line = lineno;
+			if ((r = csv_header(line, ll, lineno, source, &cols, err)) < 0)
 				return r;
-			}
 			have_header = 1;
 			continue;
 		}
 		if (n == cap) {
 			if (cap >= POINTS_MAX)
-				return fail(err, source, lineno, 1, NULL, -E2BIG,
-					    "more than %zu points", POINTS_MAX);
+				return asph_error_set_at(err, -E2BIG, source, lineno, 1, NULL,
+							 "more than %zu points", POINTS_MAX);
 			cap *= 2;
 			double *gx = realloc(xyz, 3 * cap * sizeof(double));
 			if (!gx)
@@ -239,8 +263,8 @@ int asph_points_read_csv_text(const char *text, size_t len,
 		n++;
 	}
 	if (!have_header)
-		return fail(err, source, 0, 0, NULL, -EINVAL,
-			    "empty file: expected a header x,y,z and points");
+		return asph_error_set_at(err, -EINVAL, source, 0, 0, NULL,
+					 "empty file: expected a header x,y,z and points");
 	struct asph_points *p = calloc(1, sizeof(*p));
 	if (!p)
 		return asph_error_set(err, -ENOMEM, "out of memory");
@@ -308,14 +332,16 @@ static int ply_parse_header(const char *text, size_t len, const char *source,
 	h->vertex_first = 1;
 	for (;;) {
 		if (pos >= len)
-			return fail(err, source, lineno, 1, NULL, -EINVAL, "PLY header without end_header");
+			return asph_error_set_at(err, -EINVAL, source, lineno, 1, NULL,
+						 "PLY header without end_header");
 		size_t end = pos;
 		while (end < len && text[end] != '\n')
 			end++;
 		char line[256];
 		size_t ll = end - pos;
 		if (ll >= sizeof(line))
-			return fail(err, source, lineno + 1, 1, NULL, -EINVAL, "PLY header line too long");
+			return asph_error_set_at(err, -EINVAL, source, lineno + 1, 1, NULL,
+						 "PLY header line too long");
 		memcpy(line, text + pos, ll);
 		line[ll] = '\0';
 		if (ll && line[ll - 1] == '\r')
@@ -326,7 +352,8 @@ static int ply_parse_header(const char *text, size_t len, const char *source,
 		int nw = sscanf(line, "%31s %31s %31s %31s %31s", w1, w2, w3, w4, w5);
 		if (lineno == 1) {
 			if (strcmp(line, "ply"))
-				return fail(err, source, 1, 1, NULL, -EINVAL, "not a PLY file (no 'ply' magic)");
+				return asph_error_set_at(err, -EINVAL, source, 1, 1, NULL,
+							 "not a PLY file (no 'ply' magic)");
 			continue;
 		}
 		if (nw <= 0 || !strcmp(w1, "comment") || !strcmp(w1, "obj_info"))
@@ -337,14 +364,15 @@ static int ply_parse_header(const char *text, size_t len, const char *source,
 			else if (!strcmp(w2, "binary_little_endian"))
 				h->binary = 1;
 			else
-				return fail(err, source, lineno, 8, "format", -ENOTSUP,
-					    "PLY format '%s' not supported (ascii, binary_little_endian)", w2);
+				return asph_error_set_at(err, -ENOTSUP, source, lineno, 8, "format",
+							 "PLY format '%s' not supported (ascii, binary_little_endian)",
+							 w2);
 		} else if (!strcmp(w1, "element")) {
 			char *stop;
 			unsigned long long count = strtoull(w3, &stop, 10);
 			if (nw < 3 || *stop || count > POINTS_MAX)
-				return fail(err, source, lineno, 9, "element", -EINVAL,
-					    "bad element count '%s'", w3);
+				return asph_error_set_at(err, -EINVAL, source, lineno, 9, "element",
+							 "bad element count '%s'", w3);
 			if (!strcmp(w2, "vertex")) {
 				in = 1;
 				h->n_vertex = count;
@@ -355,28 +383,35 @@ static int ply_parse_header(const char *text, size_t len, const char *source,
 				h->n_face = count;
 			} else {
 				if (count)
-					return fail(err, source, lineno, 9, w2, -ENOTSUP,
-						    "PLY element '%s' not supported", w2);
+					return asph_error_set_at(err, -ENOTSUP, source, lineno, 9,
+								 w2,
+								 "PLY element '%s' not supported",
+								 w2);
 				in = 3;
 			}
 		} else if (!strcmp(w1, "property")) {
 			if (in == 1) {
 				if (h->n_props == PLY_MAX_PROPS)
-					return fail(err, source, lineno, 1, NULL, -EINVAL, "too many properties");
+					return asph_error_set_at(err, -EINVAL, source, lineno, 1,
+								 NULL, "too many properties");
 				h->prop_type[h->n_props] = ply_type_of(w2);
 				if (h->prop_type[h->n_props] == PLY_NONE || nw < 3)
-					return fail(err, source, lineno, 10, w3, -EINVAL,
-						    "bad vertex property type '%s'", w2);
+					return asph_error_set_at(err, -EINVAL, source, lineno, 10,
+								 w3,
+								 "bad vertex property type '%s'",
+								 w2);
 				snprintf(h->prop_name[h->n_props], 32, "%s", w3);
 				h->n_props++;
 			} else if (in == 2) {
 				if (strcmp(w2, "list") || nw < 5)
-					return fail(err, source, lineno, 10, NULL, -EINVAL,
-						    "face property must be 'list <count type> <index type> vertex_indices'");
+					return asph_error_set_at(err, -EINVAL, source, lineno, 10,
+								 NULL,
+								 "face property must be 'list <count type> <index type> vertex_indices'");
 				h->face_count_type = ply_type_of(w3);
 				h->face_index_type = ply_type_of(w4);
 				if (!h->face_count_type || !h->face_index_type)
-					return fail(err, source, lineno, 15, NULL, -EINVAL, "bad face list types");
+					return asph_error_set_at(err, -EINVAL, source, lineno, 15,
+								 NULL, "bad face list types");
 			}
 		} else if (!strcmp(w1, "end_header")) {
 			/* A header ending without a newline leaves pos past
@@ -385,13 +420,13 @@ static int ply_parse_header(const char *text, size_t len, const char *source,
 			h->data_line = lineno + 1;
 			break;
 		} else {
-			return fail(err, source, lineno, 1, NULL, -EINVAL,
-				    "unexpected PLY header line '%s'", line);
+			return asph_error_set_at(err, -EINVAL, source, lineno, 1, NULL,
+						 "unexpected PLY header line '%s'", line);
 		}
 	}
 	if (!h->vertex_first && h->n_face)
-		return fail(err, source, 0, 0, NULL, -ENOTSUP,
-			    "faces before vertices are not supported");
+		return asph_error_set_at(err, -ENOTSUP, source, 0, 0, NULL,
+					 "faces before vertices are not supported");
 	return 0;
 }
 
@@ -460,16 +495,17 @@ static int ply_check_end(const struct ply_header *h, struct ply_cursor *c,
 	if (h->binary) {
 		if (avail == 0)
 			return 0;
-		return fail(err, source, 0, 0, "element", -EINVAL,
-			    "%zu bytes after the %zu vertices and %zu faces the header announces",
-			    avail, h->n_vertex, h->n_face);
+		return asph_error_set_at(err, -EINVAL, source, 0, 0, "element",
+					 "%zu bytes after the %zu vertices and %zu faces the header announces",
+					 avail, h->n_vertex, h->n_face);
 	}
 	ply_skip_space(c);
 	if (c->pos >= c->len)
 		return 0;
-	return fail(err, source, c->line, (int)(c->pos - c->line_start) + 1, "element", -EINVAL,
-		    "data after the %zu vertices and %zu faces the header announces",
-		    h->n_vertex, h->n_face);
+	return asph_error_set_at(err, -EINVAL, source, c->line, (int)(c->pos - c->line_start) + 1,
+				 "element",
+				 "data after the %zu vertices and %zu faces the header announces",
+				 h->n_vertex, h->n_face);
 }
 
 static int ply_read_body(const char *text, size_t len, const char *source,
@@ -487,7 +523,8 @@ static int ply_read_body(const char *text, size_t len, const char *source,
 		stride += ply_size(h->prop_type[i]);
 	}
 	if (ix < 0 || iy < 0 || iz < 0)
-		return fail(err, source, 0, 0, NULL, -EINVAL, "PLY vertices lack x, y or z");
+		return asph_error_set_at(err, -EINVAL, source, 0, 0, NULL,
+					 "PLY vertices lack x, y or z");
 	if (iv >= 0 && asph_points_add_value(p, h->prop_name[iv]) < 0)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 
@@ -499,8 +536,9 @@ static int ply_read_body(const char *text, size_t len, const char *source,
 	for (size_t i = 0; i < h->n_vertex; i++) {
 		if (h->binary) {
 			if (avail < stride)
-				return fail(err, source, 0, 0, NULL, -EINVAL,
-					    "PLY data ends at vertex %zu of %zu", i, h->n_vertex);
+				return asph_error_set_at(err, -EINVAL, source, 0, 0, NULL,
+							 "PLY data ends at vertex %zu of %zu", i,
+							 h->n_vertex);
 			for (int k = 0; k < h->n_props; k++) {
 				prop[k] = ply_get_binary(bin, h->prop_type[k]);
 				bin += ply_size(h->prop_type[k]);
@@ -510,17 +548,20 @@ static int ply_read_body(const char *text, size_t len, const char *source,
 			for (int k = 0; k < h->n_props; k++) {
 				int r = ply_next(&c, &prop[k]);
 				if (r < 0)
-					return fail(err, source, c.line, (int)(c.pos - c.line_start) + 1,
-						    h->prop_name[k], -EINVAL,
-						    r == -ENODATA ? "PLY data ends at vertex %zu" :
-								    "not a number at vertex %zu", i);
+					return asph_error_set_at(err, -EINVAL, source, c.line,
+								 (int)(c.pos - c.line_start) + 1,
+								 h->prop_name[k],
+								 r == -ENODATA ? "PLY data ends at vertex %zu" : "not a number at vertex %zu",
+								 i);
 			}
 		}
 		for (int k = 0; k < 3; k++) {
 			int idx = k == 0 ? ix : k == 1 ? iy : iz;
 			if (!isfinite(prop[idx]))
-				return fail(err, source, h->binary ? 0 : c.line, 0, h->prop_name[idx],
-					    -EINVAL, "vertex %zu: not a finite number", i);
+				return asph_error_set_at(err, -EINVAL, source,
+							 h->binary ? 0 : c.line, 0,
+							 h->prop_name[idx],
+							 "vertex %zu: not a finite number", i);
 			p->xyz[3 * i + k] = prop[idx];
 		}
 		if (iv >= 0)
@@ -536,15 +577,18 @@ static int ply_read_body(const char *text, size_t len, const char *source,
 		if (h->binary) {
 			size_t cs = ply_size(h->face_count_type), is = ply_size(h->face_index_type);
 			if (avail < cs)
-				return fail(err, source, 0, 0, NULL, -EINVAL, "PLY data ends at face %zu", f);
+				return asph_error_set_at(err, -EINVAL, source, 0, 0, NULL,
+							 "PLY data ends at face %zu", f);
 			cnt = ply_get_binary(bin, h->face_count_type);
 			bin += cs;
 			avail -= cs;
 			if (cnt != 3)
-				return fail(err, source, 0, 0, NULL, -EINVAL,
-					    "face %zu has %g vertices; only triangles are supported", f, cnt);
+				return asph_error_set_at(err, -EINVAL, source, 0, 0, NULL,
+							 "face %zu has %g vertices; only triangles are supported",
+							 f, cnt);
 			if (avail < 3 * is)
-				return fail(err, source, 0, 0, NULL, -EINVAL, "PLY data ends at face %zu", f);
+				return asph_error_set_at(err, -EINVAL, source, 0, 0, NULL,
+							 "PLY data ends at face %zu", f);
 			for (int k = 0; k < 3; k++) {
 				idx[k] = ply_get_binary(bin, h->face_index_type);
 				bin += is;
@@ -552,17 +596,21 @@ static int ply_read_body(const char *text, size_t len, const char *source,
 			avail -= 3 * is;
 		} else {
 			if (ply_next(&c, &cnt) < 0 || cnt != 3)
-				return fail(err, source, c.line, 1, NULL, -EINVAL,
-					    "face %zu: expected '3 i j k' (triangles only)", f);
+				return asph_error_set_at(err, -EINVAL, source, c.line, 1, NULL,
+							 "face %zu: expected '3 i j k' (triangles only)",
+							 f);
 			for (int k = 0; k < 3; k++)
 				if (ply_next(&c, &idx[k]) < 0)
-					return fail(err, source, c.line, 1, NULL, -EINVAL,
-						    "face %zu: bad vertex index", f);
+					return asph_error_set_at(err, -EINVAL, source, c.line, 1,
+								 NULL, "face %zu: bad vertex index",
+								 f);
 		}
 		for (int k = 0; k < 3; k++) {
 			if (!(idx[k] >= 0 && idx[k] < (double)h->n_vertex) || idx[k] != floor(idx[k]))
-				return fail(err, source, h->binary ? 0 : c.line, 0, NULL, -EINVAL,
-					    "face %zu: vertex index %g out of range", f, idx[k]);
+				return asph_error_set_at(err, -EINVAL, source,
+							 h->binary ? 0 : c.line, 0, NULL,
+							 "face %zu: vertex index %g out of range",
+							 f, idx[k]);
 			p->triangles[3 * f + k] = (uint32_t)idx[k];
 		}
 	}
@@ -583,9 +631,9 @@ static int read_ply(const char *text, size_t len, const char *source,
 	size_t per_vertex = h.n_props > 0 ? (size_t)h.n_props : 1;
 	if (h.n_vertex > avail / per_vertex ||
 	    h.n_face > (avail - h.n_vertex * per_vertex) / 4)
-		return fail(err, source, h.data_line, 1, "element", -EINVAL,
-			    "PLY header announces %zu vertices and %zu faces, more than the %zu bytes of data hold",
-			    h.n_vertex, h.n_face, avail);
+		return asph_error_set_at(err, -EINVAL, source, h.data_line, 1, "element",
+					 "PLY header announces %zu vertices and %zu faces, more than the %zu bytes of data hold",
+					 h.n_vertex, h.n_face, avail);
 	_cleanup_(asph_points_freep) struct asph_points *p = asph_points_alloc(h.n_vertex);
 	if (!p)
 		return asph_error_set(err, -ENOMEM, "out of memory");
@@ -598,6 +646,33 @@ static int read_ply(const char *text, size_t len, const char *source,
 
 /* ---- JSON ---- */
 
+/* Member i of the array list, three numbers: finite coordinates, or with
+ * indices, vertex indices below n_points. */
+static int json_triple(json_t *list, const char *name, size_t i, bool indices,
+		       size_t n_points, const char *source, double v[3],
+		       struct asph_error *err)
+{
+	json_t *e = json_array_get(list, i);
+	char field[48];
+
+	snprintf(field, sizeof(field), "%s[%zu]", name, i);
+	if (!json_is_array(e) || json_array_size(e) != 3)
+		return asph_error_set_at(err, -EINVAL, source, 0, 0, field, "expected %s",
+					 indices ? "[i, j, k]" : "[x, y, z]");
+	for (size_t k = 0; k < 3; k++) {
+		json_t *x = json_array_get(e, k);
+		if (!indices && !(json_is_number(x) && isfinite(json_number_value(x))))
+			return asph_error_set_at(err, -EINVAL, source, 0, 0, field,
+						 "coordinate %zu is not a finite number", k);
+		if (indices && (!json_is_integer(x) || json_integer_value(x) < 0 ||
+				 (json_int_t)n_points <= json_integer_value(x)))
+			return asph_error_set_at(err, -EINVAL, source, 0, 0, field,
+						 "vertex index out of range");
+		v[k] = json_number_value(x);
+	}
+	return 0;
+}
+
 static int read_json(const char *text, size_t len, const char *source,
 		     struct asph_points **out, struct asph_error *err)
 {
@@ -605,26 +680,20 @@ static int read_json(const char *text, size_t len, const char *source,
 	_cleanup_(json_decrefp) json_t *root = json_loadb(text, len, 0, &jerr);
 
 	if (!root)
-		return fail(err, source, jerr.line, jerr.column, NULL, -EINVAL, "%s", jerr.text);
+		return asph_error_set_at(err, -EINVAL, source, jerr.line, jerr.column, NULL, "%s",
+					 jerr.text);
 	json_t *pts = json_object_get(root, "points");
 	if (!json_is_array(pts))
-		return fail(err, source, 0, 0, "points", -EINVAL, "expected an array \"points\" of [x,y,z]");
+		return asph_error_set_at(err, -EINVAL, source, 0, 0, "points",
+					 "expected an array \"points\" of [x,y,z]");
 	size_t n = json_array_size(pts);
 	_cleanup_(asph_points_freep) struct asph_points *p = asph_points_alloc(n);
 	if (!p)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	for (size_t i = 0; i < n; i++) {
-		json_t *e = json_array_get(pts, i);
-		char field[48];
-		snprintf(field, sizeof(field), "points[%zu]", i);
-		if (!json_is_array(e) || json_array_size(e) != 3)
-			return fail(err, source, 0, 0, field, -EINVAL, "expected [x, y, z]");
-		for (size_t k = 0; k < 3; k++) {
-			json_t *v = json_array_get(e, k);
-			if (!json_is_number(v) || !isfinite(json_number_value(v)))
-				return fail(err, source, 0, 0, field, -EINVAL, "coordinate %zu is not a finite number", k);
-			p->xyz[3 * i + k] = json_number_value(v);
-		}
+		int r = json_triple(pts, "points", i, false, 0, source, p->xyz + 3 * i, err);
+		if (r < 0)
+			return r;
 	}
 	json_t *tris = json_object_get(root, "triangles");
 	if (json_is_array(tris) && json_array_size(tris) > 0) {
@@ -633,32 +702,28 @@ static int read_json(const char *text, size_t len, const char *source,
 		if (!p->triangles)
 			return asph_error_set(err, -ENOMEM, "out of memory");
 		for (size_t i = 0; i < nt; i++) {
-			json_t *e = json_array_get(tris, i);
-			char field[48];
-			snprintf(field, sizeof(field), "triangles[%zu]", i);
-			if (!json_is_array(e) || json_array_size(e) != 3)
-				return fail(err, source, 0, 0, field, -EINVAL, "expected [i, j, k]");
-			for (size_t k = 0; k < 3; k++) {
-				json_t *v = json_array_get(e, k);
-				if (!json_is_integer(v) || json_integer_value(v) < 0 ||
-				    (json_int_t)n <= json_integer_value(v))
-					return fail(err, source, 0, 0, field, -EINVAL, "vertex index out of range");
-				p->triangles[3 * i + k] = (uint32_t)json_integer_value(v);
-			}
+			double t[3];
+			int r = json_triple(tris, "triangles", i, true, n, source, t, err);
+			if (r < 0)
+				return r;
+			for (size_t k = 0; k < 3; k++)
+				p->triangles[3 * i + k] = (uint32_t)t[k];
 		}
 		p->n_triangles = nt;
 	}
 	json_t *vals = json_object_get(root, "values");
 	if (json_is_array(vals)) {
 		if (json_array_size(vals) != n)
-			return fail(err, source, 0, 0, "values", -EINVAL, "expected one value per point");
+			return asph_error_set_at(err, -EINVAL, source, 0, 0, "values",
+						 "expected one value per point");
 		json_t *name = json_object_get(root, "value_name");
 		if (asph_points_add_value(p, json_is_string(name) ? json_string_value(name) : "value") < 0)
 			return asph_error_set(err, -ENOMEM, "out of memory");
 		for (size_t i = 0; i < n; i++) {
 			json_t *v = json_array_get(vals, i);
 			if (!json_is_number(v))
-				return fail(err, source, 0, 0, "values", -EINVAL, "value %zu is not a number", i);
+				return asph_error_set_at(err, -EINVAL, source, 0, 0, "values",
+							 "value %zu is not a number", i);
 			p->value[i] = json_number_value(v);
 		}
 	}
@@ -693,15 +758,8 @@ int asph_points_read(const char *path, struct asph_points **out,
 	int r = file_read_all(path, POINTS_FILE_LIMIT, &text, &len, err);
 	if (r < 0)
 		return r;
-	switch (is_stdin ? FMT_CSV : format_of(path)) {
-	case FMT_PLY:
-		return read_ply(text, len, source, out, err);
-	case FMT_JSON:
-		return read_json(text, len, source, out, err);
-	case FMT_CSV:
-		break;
-	}
-	return asph_points_read_csv_text(text, len, source, out, err);
+	/* "<stdin>" has no extension: CSV */
+	return asph_points_read_memory(text, len, source, out, err);
 }
 
 /* ---- writing ---- */
@@ -802,7 +860,8 @@ int asph_points_write(const char *path, const struct asph_points *p,
 
 	if (!f) {
 		int e = -errno;
-		return fail(err, path, 0, 0, NULL, e, "cannot create: %s", strerror(-e));
+		return asph_error_set_at(err, e, path, 0, 0, NULL, "cannot create: %s",
+					 strerror(-e));
 	}
 	switch (is_stdout ? FMT_CSV : format_of(path)) {
 	case FMT_PLY:
@@ -820,7 +879,7 @@ int asph_points_write(const char *path, const struct asph_points *p,
 	if (!is_stdout && fclose(f) != 0)
 		failed = 1, e = errno;
 	if (failed)
-		return fail(err, is_stdout ? "<stdout>" : path, 0, 0, NULL, -e,
-			    "write error: %s", strerror(e));
+		return asph_error_set_at(err, -e, is_stdout ? "<stdout>" : path, 0, 0, NULL,
+					 "write error: %s", strerror(e));
 	return 0;
 }

@@ -111,10 +111,6 @@ bool block_header_decode(const uint8_t *in, struct block_header *h);
  * block + BLOCK_HEADER_SIZE; returns the block's total size. */
 size_t block_seal(uint8_t *block, const struct block_header *h);
 
-/* "2026-11-21T08:16:41.123456789Z" (buf of at least 40 bytes). */
-void scanfile_format_time(int64_t ns, char *buf, size_t size);
-int64_t scanfile_realtime_ns(void);
-
 /* Where bytes come from: a file descriptor or memory. */
 struct scanfile_source {
 	int fd;                  /* -1 for memory */

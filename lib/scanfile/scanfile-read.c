@@ -37,30 +37,6 @@ enum block_status {
 	BLOCK_CORRUPT,
 };
 
-static int fail(const struct asph_scanfile_reader *r, struct asph_error *err,
-		int code, const char *field, const char *fmt, ...)
-	__attribute__((format(printf, 5, 6)));
-
-static int fail(const struct asph_scanfile_reader *r, struct asph_error *err,
-		int code, const char *field, const char *fmt, ...)
-{
-	char msg[400];
-	va_list ap;
-
-	va_start(ap, fmt);
-	vsnprintf(msg, sizeof(msg), fmt, ap);
-	va_end(ap);
-	asph_error_set(err, code, "%s", msg);
-	asph_error_locate(err, r->name, 0, 0, field);
-	return code;
-}
-
-/* The clang analyzer does not follow variadic functions: tell it that
- * fail() returns code. */
-#ifdef __clang_analyzer__
-#define fail(r, err, code, ...) (fail(r, err, code, __VA_ARGS__), (code))
-#endif
-
 static void header_clear(struct asph_scanfile_header *h)
 {
 	free(h->json);
@@ -86,10 +62,11 @@ static int header_object(const struct asph_scanfile_reader *r, json_t *root,
 		return *out ? 0 : -ENOMEM;
 	}
 	if (!v)
-		return fail(r, err, -EBADMSG, key, "header has no \"%s\"", key);
+		return asph_error_set_at(err, -EBADMSG, r->name, 0, 0, key, "header has no \"%s\"",
+					 key);
 	if (!json_is_object(v))
-		return fail(r, err, -EBADMSG, key,
-			    "header member \"%s\" is not an object", key);
+		return asph_error_set_at(err, -EBADMSG, r->name, 0, 0, key,
+					 "header member \"%s\" is not an object", key);
 	*out = json_dumps(v, JSON_COMPACT | JSON_REAL_PRECISION(17));
 	return *out ? 0 : -ENOMEM;
 }
@@ -105,18 +82,19 @@ static int header_members(struct asph_scanfile_reader *r, json_t *root,
 	int ret;
 
 	if (!json_is_object(root))
-		return fail(r, err, -EBADMSG, "header", "header is not a JSON object");
+		return asph_error_set_at(err, -EBADMSG, r->name, 0, 0, "header",
+					 "header is not a JSON object");
 	if ((ret = header_object(r, root, "prescription", true, &h->prescription, err)) < 0 ||
 	    (ret = header_object(r, root, "plan", true, &h->plan, err)) < 0 ||
 	    (ret = header_object(r, root, "instrument", true, &h->instrument, err)) < 0 ||
 	    (ret = header_object(r, root, "metadata", false, &h->metadata, err)) < 0)
 		return ret;
 	if (!json_is_string(ver))
-		return fail(r, err, -EBADMSG, "software.version",
-			    "header has no software version");
+		return asph_error_set_at(err, -EBADMSG, r->name, 0, 0, "software.version",
+					 "header has no software version");
 	if (!json_is_string(created) || !json_is_integer(created_ns))
-		return fail(r, err, -EBADMSG, "created",
-			    "header has no creation time");
+		return asph_error_set_at(err, -EBADMSG, r->name, 0, 0, "created",
+					 "header has no creation time");
 	h->software_version = strdup(json_string_value(ver));
 	h->created = strdup(json_string_value(created));
 	h->created_ns = json_integer_value(created_ns);
@@ -131,11 +109,9 @@ static int parse_header_json(struct asph_scanfile_reader *r, char *text,
 	json_error_t jerr;
 	_cleanup_(json_decrefp) json_t *root = json_loadb(text, len, 0, &jerr);
 
-	if (!root) {
-		fail(r, err, -EBADMSG, "header", "header JSON: %s", jerr.text);
-		asph_error_locate(err, NULL, jerr.line, jerr.column, NULL);
-		return -EBADMSG;
-	}
+	if (!root)
+		return asph_error_set_at(err, -EBADMSG, r->name, jerr.line, jerr.column, "header",
+					 "header JSON: %s", jerr.text);
 	return header_members(r, root, err);
 }
 
@@ -147,28 +123,33 @@ static int read_prefix(struct asph_scanfile_reader *r, uint8_t *pre, uint32_t *l
 	int64_t n = scanfile_source_read(&r->src, 0, pre, SCANFILE_PREFIX_SIZE);
 
 	if (n < 0)
-		return fail(r, err, (int)n, NULL, "cannot read: %s", strerror((int)-n));
+		return asph_error_set_at(err, (int)n, r->name, 0, 0, NULL, "cannot read: %s",
+					 strerror((int)-n));
 	if (n == 0)
-		return fail(r, err, -EBADMSG, NULL, "empty file, not a recorded scan");
+		return asph_error_set_at(err, -EBADMSG, r->name, 0, 0, NULL,
+					 "empty file, not a recorded scan");
 	if (memcmp(pre, SCANFILE_MAGIC, n < SCANFILE_MAGIC_SIZE ? (size_t)n : SCANFILE_MAGIC_SIZE))
-		return fail(r, err, -EBADMSG, NULL, "not a recorded scan (bad magic)");
+		return asph_error_set_at(err, -EBADMSG, r->name, 0, 0, NULL,
+					 "not a recorded scan (bad magic)");
 	if (n < SCANFILE_PREFIX_SIZE)
-		return fail(r, err, -EBADMSG, NULL, "truncated header: %lld of %d bytes",
-			    (long long)n, SCANFILE_PREFIX_SIZE);
+		return asph_error_set_at(err, -EBADMSG, r->name, 0, 0, NULL,
+					 "truncated header: %lld of %d bytes", (long long)n,
+					 SCANFILE_PREFIX_SIZE);
 	*len = get_le32(pre + 12);
 	h->version_major = get_le16(pre + 8);
 	h->version_minor = get_le16(pre + 10);
 	if (h->version_major == 0)
-		return fail(r, err, -EBADMSG, NULL, "invalid format version 0.%u",
-			    h->version_minor);
+		return asph_error_set_at(err, -EBADMSG, r->name, 0, 0, NULL,
+					 "invalid format version 0.%u", h->version_minor);
 	if (h->version_major > ASPH_SCANFILE_VERSION_MAJOR)
-		return fail(r, err, -ENOTSUP, NULL,
-			    "format version %u.%u is newer than this reader (%d.%d)",
-			    h->version_major, h->version_minor,
-			    ASPH_SCANFILE_VERSION_MAJOR, ASPH_SCANFILE_VERSION_MINOR);
+		return asph_error_set_at(err, -ENOTSUP, r->name, 0, 0, NULL,
+					 "format version %u.%u is newer than this reader (%d.%d)",
+					 h->version_major, h->version_minor,
+					 ASPH_SCANFILE_VERSION_MAJOR, ASPH_SCANFILE_VERSION_MINOR);
 	if (*len == 0 || *len > ASPH_SCANFILE_MAX_HEADER)
-		return fail(r, err, -EBADMSG, NULL,
-			    "header length %u is outside 1..%u", *len, ASPH_SCANFILE_MAX_HEADER);
+		return asph_error_set_at(err, -EBADMSG, r->name, 0, 0, NULL,
+					 "header length %u is outside 1..%u", *len,
+					 ASPH_SCANFILE_MAX_HEADER);
 	return 0;
 }
 
@@ -182,16 +163,18 @@ static int read_header(struct asph_scanfile_reader *r, struct asph_error *err)
 		return ret;
 	_cleanup_free_ char *text = malloc((size_t)len + 1);
 	if (!text)
-		return fail(r, err, -ENOMEM, NULL, "out of memory");
+		return asph_error_set_at(err, -ENOMEM, r->name, 0, 0, NULL, "out of memory");
 	int64_t n = scanfile_source_read(&r->src, SCANFILE_PREFIX_SIZE, text, len);
 	if (n < 0)
-		return fail(r, err, (int)n, NULL, "cannot read: %s", strerror((int)-n));
+		return asph_error_set_at(err, (int)n, r->name, 0, 0, NULL, "cannot read: %s",
+					 strerror((int)-n));
 	if (n < len)
-		return fail(r, err, -EBADMSG, NULL, "truncated header: %lld of %u bytes",
-			    (long long)n, len);
+		return asph_error_set_at(err, -EBADMSG, r->name, 0, 0, NULL,
+					 "truncated header: %lld of %u bytes", (long long)n, len);
 	uint32_t crc = crc32c(crc32c(0, pre, SCANFILE_PREFIX_CRC_OFFSET), text, len);
 	if (!CRC_MATCHES(crc, get_le32(pre + SCANFILE_PREFIX_CRC_OFFSET)))
-		return fail(r, err, -EBADMSG, NULL, "header checksum mismatch");
+		return asph_error_set_at(err, -EBADMSG, r->name, 0, 0, NULL,
+					 "header checksum mismatch");
 	text[len] = '\0';
 	if ((ret = parse_header_json(r, text, len, err)) < 0)
 		return ret;
@@ -456,8 +439,8 @@ static int accept_block(struct asph_scanfile_reader *r, const struct block_heade
 
 static int io_error(struct asph_scanfile_reader *r, int code, struct asph_error *err)
 {
-	return fail(r, err, code, NULL, "cannot read at offset %llu: %s",
-		    (unsigned long long)r->offset, strerror(-code));
+	return asph_error_set_at(err, code, r->name, 0, 0, NULL, "cannot read at offset %llu: %s",
+				 (unsigned long long)r->offset, strerror(-code));
 }
 
 int asph_scanfile_reader_next(struct asph_scanfile_reader *r,
@@ -482,7 +465,7 @@ int asph_scanfile_reader_next(struct asph_scanfile_reader *r,
 		int st = read_block(&r->src, r->offset, &r->buf, &r->buf_size, &h,
 				    detail, sizeof(detail));
 		if (st == -ENOMEM)
-			return fail(r, err, st, NULL, "out of memory");
+			return asph_error_set_at(err, st, r->name, 0, 0, NULL, "out of memory");
 		if (st < 0)
 			return io_error(r, st, err);
 		if (st != BLOCK_OK) {
@@ -495,7 +478,7 @@ int asph_scanfile_reader_next(struct asph_scanfile_reader *r,
 			break;
 		}
 		if (ret < 0)
-			return fail(r, err, ret, NULL, "out of memory");
+			return asph_error_set_at(err, ret, r->name, 0, 0, NULL, "out of memory");
 		if (h.type == BLOCK_POINTS) {
 			*pts = r->pts;
 			*n = h.count;
@@ -537,9 +520,8 @@ int asph_scanfile_reader_open(const char *path,
 
 	if (fd < 0) {
 		int code = -errno;
-		asph_error_set(err, code, "cannot open: %s", strerror(-code));
-		asph_error_locate(err, path, 0, 0, NULL);
-		return code;
+		return asph_error_set_at(err, code, path, 0, 0, NULL, "cannot open: %s",
+					 strerror(-code));
 	}
 	return scanfile_reader_open_fd(fd, true, path, out, err);
 }

@@ -23,6 +23,7 @@
 #include "crc32c.h"
 #include "scanfile-format.h"
 #include "util-mem.h"
+#include "util-time.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile_reader *, asph_scanfile_reader_free)
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile *, asph_scanfile_free)
@@ -60,45 +61,18 @@ static void writer_free(struct asph_scanfile_writer *w)
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile_writer *, writer_free)
 
-static int fail(const char *path, struct asph_error *err, int code,
-		const char *field, const char *fmt, ...)
-	__attribute__((format(printf, 5, 6)));
-
-static int fail(const char *path, struct asph_error *err, int code,
-		const char *field, const char *fmt, ...)
-{
-	char msg[400];
-	va_list ap;
-
-	va_start(ap, fmt);
-	vsnprintf(msg, sizeof(msg), fmt, ap);
-	va_end(ap);
-	asph_error_set(err, code, "%s", msg);
-	asph_error_locate(err, path, 0, 0, field);
-	return code;
-}
-
-/* The clang analyzer does not follow variadic functions: tell it that
- * fail() returns code. */
-#ifdef __clang_analyzer__
-#define fail(path, err, code, ...) (fail(path, err, code, __VA_ARGS__), (code))
-#endif
-
-/* fail() with the reason from errno, which must still be the call's. */
+/* A failure with the reason from errno, which must still be the call's. */
 static int fail_errno(const char *path, struct asph_error *err, const char *what)
 {
 	/* Never 0, so a caller cannot take the failure for success. */
 	int code = errno > 0 ? -errno : -EIO;
 
-	return fail(path, err, code, NULL, "%s: %s", what, strerror(-code));
+	return asph_error_set_at(err, code, path, 0, 0, NULL, "%s: %s", what, strerror(-code));
 }
 
 static uint64_t monotonic_ns(void *data)
 {
-	struct timespec ts;
-
-	clock_gettime(CLOCK_MONOTONIC, &ts);
-	return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+	return now_monotonic_ns();
 }
 
 static uint64_t now(const struct asph_scanfile_writer *w)
@@ -114,8 +88,9 @@ static int writer_alloc(const char *path, const struct asph_scanfile_writer_opti
 	if (opts)
 		o = *opts;
 	if (o.block_points > ASPH_SCANFILE_MAX_BLOCK_POINTS)
-		return fail(path, err, -EINVAL, "block_points",
-			    "at most %u points per block", ASPH_SCANFILE_MAX_BLOCK_POINTS);
+		return asph_error_set_at(err, -EINVAL, path, 0, 0, "block_points",
+					 "at most %u points per block",
+					 ASPH_SCANFILE_MAX_BLOCK_POINTS);
 	struct asph_scanfile_writer *w = calloc(1, sizeof(*w));
 	if (!w)
 		return -ENOMEM;
@@ -158,7 +133,7 @@ static int writer_error(struct asph_scanfile_writer *w, struct asph_error *err,
 		w->error = code;
 		snprintf(w->error_msg, sizeof(w->error_msg), "%s: %s", what, strerror(-code));
 	}
-	return fail(w->path, err, w->error, NULL, "%s", w->error_msg);
+	return asph_error_set_at(err, w->error, w->path, 0, 0, NULL, "%s", w->error_msg);
 }
 
 /* Writes one sealed block and syncs it. A failed write is cut off again
@@ -211,8 +186,9 @@ static int write_json_block(struct asph_scanfile_writer *w, enum block_type type
 		return -ENOMEM;
 	size_t len = strlen(text);
 	if (len > BLOCK_MAX_JSON)
-		return fail(w->path, err, -EINVAL, NULL,
-			    "record of %zu bytes is longer than %u", len, BLOCK_MAX_JSON);
+		return asph_error_set_at(err, -EINVAL, w->path, 0, 0, NULL,
+					 "record of %zu bytes is longer than %u", len,
+					 BLOCK_MAX_JSON);
 	_cleanup_free_ uint8_t *block = malloc(BLOCK_OVERHEAD + len);
 	if (!block)
 		return -ENOMEM;
@@ -241,10 +217,10 @@ static int check_points(const struct asph_scanfile_writer *w,
 		if (p->flags & ASPH_SCANFILE_POINT_OUT_OF_RANGE)
 			continue;
 		if (!isfinite(p->x) || !isfinite(p->y) || !isfinite(p->z))
-			return fail(w->path, err, -EINVAL, NULL,
-				    "point %zu (plan index %llu) has non-finite coordinates "
-				    "and is not flagged out of range",
-				    i, (unsigned long long)p->plan_index);
+			return asph_error_set_at(err, -EINVAL, w->path, 0, 0, NULL,
+						 "point %zu (plan index %llu) has non-finite coordinates "
+						 "and is not flagged out of range",
+						 i, (unsigned long long)p->plan_index);
 	}
 	return 0;
 }
@@ -256,7 +232,7 @@ int asph_scanfile_writer_append(struct asph_scanfile_writer *w,
 	int r;
 
 	if (w->error)
-		return fail(w->path, err, w->error, NULL, "%s", w->error_msg);
+		return asph_error_set_at(err, w->error, w->path, 0, 0, NULL, "%s", w->error_msg);
 	if ((r = check_points(w, pts, n, err)) < 0)
 		return r;
 	for (size_t i = 0; i < n; i++) {
@@ -272,14 +248,14 @@ int asph_scanfile_writer_append(struct asph_scanfile_writer *w,
 int asph_scanfile_writer_flush(struct asph_scanfile_writer *w, struct asph_error *err)
 {
 	if (w->error)
-		return fail(w->path, err, w->error, NULL, "%s", w->error_msg);
+		return asph_error_set_at(err, w->error, w->path, 0, 0, NULL, "%s", w->error_msg);
 	return write_pending(w, err);
 }
 
 int asph_scanfile_writer_tick(struct asph_scanfile_writer *w, struct asph_error *err)
 {
 	if (w->error)
-		return fail(w->path, err, w->error, NULL, "%s", w->error_msg);
+		return asph_error_set_at(err, w->error, w->path, 0, 0, NULL, "%s", w->error_msg);
 	return sync_due(w) ? write_pending(w, err) : 0;
 }
 
@@ -312,25 +288,27 @@ int asph_scanfile_writer_finish(struct asph_scanfile_writer *writer,
 				const char *reason, struct asph_error *err)
 {
 	_cleanup_(writer_freep) struct asph_scanfile_writer *w = writer;
-	char when[48];
+	char when[ISO8601_SIZE];
 	int r;
 
 	if (outcome == ASPH_SCANFILE_UNFINISHED ||
 	    !strcmp(asph_scanfile_outcome_name(outcome), "unknown"))
-		return fail(w->path, err, -EINVAL, "outcome", "invalid outcome %d", (int)outcome);
+		return asph_error_set_at(err, -EINVAL, w->path, 0, 0, "outcome",
+					 "invalid outcome %d", (int)outcome);
 	if (w->error)
-		return fail(w->path, err, w->error, NULL, "%s", w->error_msg);
+		return asph_error_set_at(err, w->error, w->path, 0, 0, NULL, "%s", w->error_msg);
 	if ((r = write_pending(w, err)) < 0)
 		return r;
 
-	int64_t t = scanfile_realtime_ns();
-	scanfile_format_time(t, when, sizeof(when));
+	int64_t t = now_realtime_ns();
+	iso8601_utc(t, 9, when, sizeof(when));
 	_cleanup_(json_decrefp) json_t *end = json_pack("{s:s, s:s?, s:I, s:s, s:I, s:I}",
 		"outcome", asph_scanfile_outcome_name(outcome), "reason", reason,
 		"points", (json_int_t)w->n_points, "time", when, "time_ns", (json_int_t)t,
 		"elapsed_ns", (json_int_t)asph_scanfile_writer_elapsed_ns(w));
 	if (!end)
-		return fail(w->path, err, -EINVAL, "reason", "reason is not valid UTF-8");
+		return asph_error_set_at(err, -EINVAL, w->path, 0, 0, "reason",
+					 "reason is not valid UTF-8");
 	if ((r = write_json_block(w, BLOCK_END, end, err)) < 0)
 		return r;
 	return close_fd(w, err);
@@ -344,7 +322,7 @@ int asph_scanfile_writer_close(struct asph_scanfile_writer *writer, struct asph_
 	if (!w)
 		return 0;
 	if (w->error)
-		return fail(w->path, err, w->error, NULL, "%s", w->error_msg);
+		return asph_error_set_at(err, w->error, w->path, 0, 0, NULL, "%s", w->error_msg);
 	if ((r = write_pending(w, err)) < 0)
 		return r;
 	return close_fd(w, err);
@@ -361,16 +339,17 @@ static int member(const char *path, json_t *hdr, const char *key, const char *te
 	if (!text && !required)
 		return json_object_set_new(hdr, key, json_object()) ? -ENOMEM : 0;
 	if (!text)
-		return fail(path, err, -EINVAL, key, "the header needs the %s", key);
+		return asph_error_set_at(err, -EINVAL, path, 0, 0, key, "the header needs the %s",
+					 key);
 	json_t *v = json_loads(text, 0, &jerr);
 	if (!v) {
-		fail(path, err, -EINVAL, key, "%s is not valid JSON: %s", key, jerr.text);
-		asph_error_locate(err, NULL, jerr.line, jerr.column, NULL);
-		return -EINVAL;
+		return asph_error_set_at(err, -EINVAL, path, jerr.line, jerr.column, key,
+					 "%s is not valid JSON: %s", key, jerr.text);
 	}
 	if (!json_is_object(v)) {
 		json_decref(v);
-		return fail(path, err, -EINVAL, key, "%s must be a JSON object", key);
+		return asph_error_set_at(err, -EINVAL, path, 0, 0, key, "%s must be a JSON object",
+					 key);
 	}
 	return json_object_set_new(hdr, key, v) ? -ENOMEM : 0;
 }
@@ -378,11 +357,11 @@ static int member(const char *path, json_t *hdr, const char *key, const char *te
 static int header_text(const char *path, const struct asph_scanfile_header_info *info,
 		       char **out, struct asph_error *err)
 {
-	char when[48];
-	int64_t t = scanfile_realtime_ns();
+	char when[ISO8601_SIZE];
+	int64_t t = now_realtime_ns();
 	int r;
 
-	scanfile_format_time(t, when, sizeof(when));
+	iso8601_utc(t, 9, when, sizeof(when));
 	_cleanup_(json_decrefp) json_t *hdr = json_pack("{s:s, s:{s:s, s:s}, s:s, s:I}",
 		"format", "asph-scan", "software", "name", "libasph", "version", ASPH_VERSION,
 		"created", when, "created_ns", (json_int_t)t);
@@ -397,8 +376,9 @@ static int header_text(const char *path, const struct asph_scanfile_header_info 
 	if (!*out)
 		return -ENOMEM;
 	if (strlen(*out) > ASPH_SCANFILE_MAX_HEADER)
-		return fail(path, err, -EINVAL, NULL, "header of %zu bytes is longer than %u",
-			    strlen(*out), ASPH_SCANFILE_MAX_HEADER);
+		return asph_error_set_at(err, -EINVAL, path, 0, 0, NULL,
+					 "header of %zu bytes is longer than %u", strlen(*out),
+					 ASPH_SCANFILE_MAX_HEADER);
 	return 0;
 }
 
@@ -422,7 +402,8 @@ static int write_header(struct asph_scanfile_writer *w, const char *json,
 	if (r == 0 && fsync(w->fd) < 0)
 		r = -errno;
 	if (r < 0)
-		return fail(w->path, err, r, NULL, "writing the header: %s", strerror(-r));
+		return asph_error_set_at(err, r, w->path, 0, 0, NULL, "writing the header: %s",
+					 strerror(-r));
 	w->offset = SCANFILE_PREFIX_SIZE + len;
 	return 0;
 }
@@ -444,7 +425,8 @@ static int lock_file(int fd, const char *path, struct asph_error *err)
 	if (flock(fd, LOCK_EX | LOCK_NB) == 0)
 		return 0;
 	if (errno == EWOULDBLOCK)
-		return fail(path, err, -EBUSY, NULL, "another writer has the scan open");
+		return asph_error_set_at(err, -EBUSY, path, 0, 0, NULL,
+					 "another writer has the scan open");
 	return fail_errno(path, err, "cannot lock");
 }
 
@@ -509,10 +491,12 @@ static int check_resumable(const char *path, const struct asph_scanfile *s, unsi
 	if (!rep->ended)
 		return 0;
 	if (rep->outcome == ASPH_SCANFILE_COMPLETED)
-		return fail(path, err, -EALREADY, NULL, "the scan has completed");
+		return asph_error_set_at(err, -EALREADY, path, 0, 0, NULL,
+					 "the scan has completed");
 	if (!(flags & ASPH_SCANFILE_REOPEN_ENDED))
-		return fail(path, err, -EALREADY, NULL, "the scan has ended (%s%s%s)", name,
-			    rep->reason ? ": " : "", rep->reason ? rep->reason : "");
+		return asph_error_set_at(err, -EALREADY, path, 0, 0, NULL,
+					 "the scan has ended (%s%s%s)", name,
+					 rep->reason ? ": " : "", rep->reason ? rep->reason : "");
 	return 0;
 }
 
@@ -526,11 +510,12 @@ static int check_damage(struct asph_scanfile_reader *r, const struct asph_scanfi
 		return 0;
 	int ret = scanfile_find_valid_block(&r->src, rep->stop_offset + 1, &found);
 	if (ret < 0)
-		return fail(path, err, ret, NULL, "cannot read: %s", strerror(-ret));
+		return asph_error_set_at(err, ret, path, 0, 0, NULL, "cannot read: %s",
+					 strerror(-ret));
 	if (ret > 0)
-		return fail(path, err, -EBADMSG, NULL,
-			    "%s, and a valid block follows at offset %llu; not cutting the file",
-			    rep->stop_detail, (unsigned long long)found);
+		return asph_error_set_at(err, -EBADMSG, path, 0, 0, NULL,
+					 "%s, and a valid block follows at offset %llu; not cutting the file",
+					 rep->stop_detail, (unsigned long long)found);
 	return 0;
 }
 
@@ -538,10 +523,10 @@ static int write_resume_record(struct asph_scanfile_writer *w, const struct asph
 			       uint64_t cut, struct asph_error *err)
 {
 	const struct asph_scanfile_report *rep = &s->report;
-	char when[48];
-	int64_t t = scanfile_realtime_ns();
+	char when[ISO8601_SIZE];
+	int64_t t = now_realtime_ns();
 
-	scanfile_format_time(t, when, sizeof(when));
+	iso8601_utc(t, 9, when, sizeof(when));
 	_cleanup_(json_decrefp) json_t *ev = json_pack("{s:s, s:s, s:I, s:I, s:I, s:s, s:s}",
 		"event", "resume", "time", when, "time_ns", (json_int_t)t,
 		"points", (json_int_t)w->n_points, "discarded_bytes", (json_int_t)cut,
@@ -560,7 +545,7 @@ static int write_resume_record(struct asph_scanfile_writer *w, const struct asph
 /* Times continue from the later of the last point and the wall clock. */
 static uint64_t resumed_time_base(const struct asph_scanfile_reader *r)
 {
-	int64_t since = scanfile_realtime_ns() - r->header.created_ns;
+	int64_t since = now_realtime_ns() - r->header.created_ns;
 
 	return since > 0 && (uint64_t)since > r->last_t_ns ? (uint64_t)since : r->last_t_ns;
 }

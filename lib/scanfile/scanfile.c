@@ -147,33 +147,6 @@ size_t block_seal(uint8_t *block, const struct block_header *h)
 	return len + BLOCK_CRC_SIZE;
 }
 
-void scanfile_format_time(int64_t ns, char *buf, size_t size)
-{
-	time_t sec = (time_t)(ns / 1000000000);
-	long frac = (long)(ns % 1000000000);
-	struct tm tm;
-	char day[32];
-
-	if (frac < 0) {
-		frac += 1000000000;
-		sec--;
-	}
-	if (!gmtime_r(&sec, &tm) ||
-	    !strftime(day, sizeof(day), "%Y-%m-%dT%H:%M:%S", &tm)) {
-		snprintf(buf, size, "@%lld", (long long)ns);
-		return;
-	}
-	snprintf(buf, size, "%s.%09ldZ", day, frac);
-}
-
-int64_t scanfile_realtime_ns(void)
-{
-	struct timespec ts;
-
-	clock_gettime(CLOCK_REALTIME, &ts);
-	return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
-}
-
 int64_t scanfile_source_read(const struct scanfile_source *src, uint64_t off,
 			     void *buf, size_t n)
 {

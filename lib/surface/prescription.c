@@ -57,43 +57,18 @@ int asph_prescription_preset(const char *name, struct asph_prescription *out)
 }
 
 struct parse_ctx {
-	const char *text;
-	size_t len;
-	const char *source;
+	struct json_source src;
 	struct asph_error *err;
 };
-
-/* Fails with the location of `field` (a dotted path) in the text. */
-static int fail_at(const struct parse_ctx *c, const char *field, int code,
-		   const char *fmt, ...) __attribute__((format(printf, 4, 5)));
-
-static int fail_at(const struct parse_ctx *c, const char *field, int code,
-		   const char *fmt, ...)
-{
-	int line = 0, col = 0;
-	char msg[512];
-	va_list ap;
-
-	if (!c->err)
-		return code;
-	va_start(ap, fmt);
-	vsnprintf(msg, sizeof(msg), fmt, ap);
-	va_end(ap);
-	if (field)
-		json_locate_dotted(c->text, c->len, field, &line, &col);
-	asph_error_set(c->err, code, "%s", msg);
-	asph_error_locate(c->err, c->source, line, col, field);
-	return code;
-}
 
 static int get_number(const struct parse_ctx *c, json_t *v, const char *field,
 		      double *out)
 {
 	if (!json_is_number(v))
-		return fail_at(c, field, -EINVAL, "expected a number");
+		return json_error_set_at(c->err, -EINVAL, &c->src, field, "expected a number");
 	*out = json_number_value(v);
 	if (!isfinite(*out))
-		return fail_at(c, field, -EINVAL, "not a finite number");
+		return json_error_set_at(c->err, -EINVAL, &c->src, field, "not a finite number");
 	return 0;
 }
 
@@ -105,8 +80,8 @@ static int parse_coefficients(const struct parse_ctx *c, json_t *obj,
 	json_t *v;
 
 	if (!json_is_object(obj))
-		return fail_at(c, "A", -EINVAL,
-			       "expected an object of coefficients, e.g. {\"4\": -2.1e-5}");
+		return json_error_set_at(c->err, -EINVAL, &c->src, "A",
+					 "expected an object of coefficients, e.g. {\"4\": -2.1e-5}");
 	json_object_foreach(obj, key, v) {
 		char field[64], *end;
 		snprintf(field, sizeof(field), "A.%s", key);
@@ -116,17 +91,17 @@ static int parse_coefficients(const struct parse_ctx *c, json_t *obj,
 		 * otherwise name the same term twice, the later one winning. */
 		int plain = (key[0] >= '1' && key[0] <= '9') || !strcmp(key, "0");
 		if (!plain || *end != '\0' || errno)
-			return fail_at(c, field, -EINVAL,
-				       "coefficient key '%s' is not a power of r written as a plain number (e.g. \"4\")",
-				       key);
+			return json_error_set_at(c->err, -EINVAL, &c->src, field,
+						 "coefficient key '%s' is not a power of r written as a plain number (e.g. \"4\")",
+						 key);
 		if (odd && (power < 1 || power > ASPH_SURFACE_MAX_POWER))
-			return fail_at(c, field, -EINVAL,
-				       "an odd asphere has coefficients for powers 1, 2, ..., %d; got %ld",
-				       ASPH_SURFACE_MAX_POWER, power);
+			return json_error_set_at(c->err, -EINVAL, &c->src, field,
+						 "an odd asphere has coefficients for powers 1, 2, ..., %d; got %ld",
+						 ASPH_SURFACE_MAX_POWER, power);
 		if (!odd && (power < 2 || power > ASPH_SURFACE_MAX_POWER || power % 2))
-			return fail_at(c, field, -EINVAL,
-				       "an even asphere has coefficients for powers 2, 4, ..., %d; got %ld",
-				       ASPH_SURFACE_MAX_POWER, power);
+			return json_error_set_at(c->err, -EINVAL, &c->src, field,
+						 "an even asphere has coefficients for powers 2, 4, ..., %d; got %ld",
+						 ASPH_SURFACE_MAX_POWER, power);
 		int r = get_number(c, v, field, &out->A[power]);
 		if (r < 0)
 			return r;
@@ -142,12 +117,13 @@ static int parse_q_coefficients(const struct parse_ctx *c, json_t *arr,
 	json_t *v;
 
 	if (!json_is_array(arr))
-		return fail_at(c, "a", -EINVAL,
-			       "expected an array of Q coefficients [a0, a1, ...] in mm");
+		return json_error_set_at(c->err, -EINVAL, &c->src, "a",
+					 "expected an array of Q coefficients [a0, a1, ...] in mm");
 	if (json_array_size(arr) > ASPH_SURFACE_MAX_Q + 1)
-		return fail_at(c, "a", -EINVAL, "%zu Q coefficients; at most %d (a0..a%d)",
-			       json_array_size(arr), ASPH_SURFACE_MAX_Q + 1,
-			       ASPH_SURFACE_MAX_Q);
+		return json_error_set_at(c->err, -EINVAL, &c->src, "a",
+					 "%zu Q coefficients; at most %d (a0..a%d)",
+					 json_array_size(arr), ASPH_SURFACE_MAX_Q + 1,
+					 ASPH_SURFACE_MAX_Q);
 	json_array_foreach(arr, i, v) {
 		char field[32];
 		snprintf(field, sizeof(field), "a.[%zu]", i);
@@ -192,13 +168,14 @@ static int parse_type(const struct parse_ctx *c, json_t *root,
 	json_t *v = json_object_get(root, "type");
 
 	if (!v)
-		return fail_at(c, NULL, -EINVAL, "missing member \"type\" (e.g. \"even_asphere\")");
+		return json_error_set_at(c->err, -EINVAL, &c->src, NULL,
+					 "missing member \"type\" (e.g. \"even_asphere\")");
 	if (!json_is_string(v))
-		return fail_at(c, "type", -EINVAL, "expected a string");
+		return json_error_set_at(c->err, -EINVAL, &c->src, "type", "expected a string");
 	if (asph_surface_type_from_name(json_string_value(v), &out->type) < 0)
-		return fail_at(c, "type", -EINVAL,
-			       "unknown surface type '%s' (known: even_asphere, odd_asphere, qbfs, qcon)",
-			       json_string_value(v));
+		return json_error_set_at(c->err, -EINVAL, &c->src, "type",
+					 "unknown surface type '%s' (known: even_asphere, odd_asphere, qbfs, qcon)",
+					 json_string_value(v));
 	return 0;
 }
 
@@ -221,21 +198,23 @@ static int parse_members(const struct parse_ctx *c, json_t *root,
 	members = type_members(out->type);
 	json_object_foreach(root, key, v) {
 		if (!is_member_of(key, members))
-			return fail_at(c, key, -EINVAL,
-				       "unknown member '%s' for type %s (expected %s)",
-				       key, asph_surface_type_name(out->type), members);
+			return json_error_set_at(c->err, -EINVAL, &c->src, key,
+						 "unknown member '%s' for type %s (expected %s)",
+						 key, asph_surface_type_name(out->type), members);
 	}
 
 	v = json_object_get(root, "name");
 	if (v) {
 		if (!json_is_string(v))
-			return fail_at(c, "name", -EINVAL, "expected a string");
+			return json_error_set_at(c->err, -EINVAL, &c->src, "name",
+						 "expected a string");
 		snprintf(out->name, sizeof(out->name), "%s", json_string_value(v));
 	}
 
 	v = json_object_get(root, "R");
 	if (!v)
-		return fail_at(c, NULL, -EINVAL, "missing member \"R\" (vertex radius of curvature, mm)");
+		return json_error_set_at(c->err, -EINVAL, &c->src, NULL,
+					 "missing member \"R\" (vertex radius of curvature, mm)");
 	if ((r = get_number(c, v, "R", &out->R)) < 0)
 		return r;
 	if ((r = parse_optional_number(c, root, "k", &out->k)) < 0)
@@ -247,8 +226,8 @@ static int parse_members(const struct parse_ctx *c, json_t *root,
 
 	if (is_member_of("norm_radius", members)) {
 		if (!json_object_get(root, "norm_radius"))
-			return fail_at(c, NULL, -EINVAL,
-				       "missing member \"norm_radius\" (normalization radius, mm)");
+			return json_error_set_at(c->err, -EINVAL, &c->src, NULL,
+						 "missing member \"norm_radius\" (normalization radius, mm)");
 		if ((r = parse_optional_number(c, root, "norm_radius", &out->norm_radius)) < 0)
 			return r;
 	}
@@ -258,7 +237,8 @@ static int parse_members(const struct parse_ctx *c, json_t *root,
 
 	v = json_object_get(root, "aperture_diameter");
 	if (!v)
-		return fail_at(c, NULL, -EINVAL, "missing member \"aperture_diameter\" (mm)");
+		return json_error_set_at(c->err, -EINVAL, &c->src, NULL,
+					 "missing member \"aperture_diameter\" (mm)");
 	if ((r = get_number(c, v, "aperture_diameter", &out->aperture_diameter)) < 0)
 		return r;
 	return 0;
@@ -268,20 +248,19 @@ int asph_prescription_parse(const char *text, size_t len, const char *source,
 			    struct asph_prescription *out,
 			    struct asph_error *err)
 {
-	struct parse_ctx c = { text, len, source ? source : "<input>", err };
+	struct parse_ctx c = { { text, len, source ? source : "<input>" }, err };
 	json_error_t jerr;
 	int r;
 
 	memset(out, 0, sizeof(*out));
 	_cleanup_(json_decrefp) json_t *root =
 		json_loadb(text, len, JSON_REJECT_DUPLICATES, &jerr);
-	if (!root) {
-		asph_error_set(err, -EINVAL, "%s", jerr.text);
-		asph_error_locate(err, c.source, jerr.line, jerr.column, NULL);
-		return -EINVAL;
-	}
+	if (!root)
+		return asph_error_set_at(err, -EINVAL, c.src.name, jerr.line, jerr.column, NULL,
+					 "%s", jerr.text);
 	if (!json_is_object(root))
-		return fail_at(&c, "", -EINVAL, "a prescription is a JSON object");
+		return json_error_set_at(c.err, -EINVAL, &c.src, "",
+					 "a prescription is a JSON object");
 	r = parse_members(&c, root, out);
 	if (r < 0)
 		return r;
@@ -290,8 +269,8 @@ int asph_prescription_parse(const char *text, size_t len, const char *source,
 	asph_error_clear(&check);
 	r = asph_prescription_check(out, &check);
 	if (r < 0)
-		return fail_at(&c, check.field[0] ? check.field : NULL, r, "%s",
-			       check.message);
+		return json_error_set_at(c.err, r, &c.src, check.field[0] ? check.field : NULL,
+					 "%s", check.message);
 	return 0;
 }
 
@@ -324,9 +303,8 @@ int asph_prescription_load(const char *name_or_path,
 	int r = asph_prescription_load_file(name_or_path, out, err);
 	if (r == -ENOENT && !strchr(name_or_path, '/') && !strchr(name_or_path, '.')) {
 		asph_error_clear(err);
-		asph_error_locate(err, name_or_path, 0, 0, NULL);
-		return asph_error_set(err, -ENOENT,
-				      "neither a preset (weak, strong, turning-point) nor a file");
+		return asph_error_set_at(err, -ENOENT, name_or_path, 0, 0, NULL,
+					 "neither a preset (weak, strong, turning-point) nor a file");
 	}
 	return r;
 }

@@ -10,6 +10,7 @@
 
 #include "asph/surface.h"
 #include "chebyshev.h"
+#include "numeric/newton.h"
 #include "qpoly.h"
 #include "util-mem.h"
 
@@ -310,13 +311,7 @@ static double invert_monotone(const struct asph_surface *s, double target,
 		double f = g(s, r) - target;
 		if (f == 0)
 			return r;
-		if (f > 0)
-			hi = r;
-		else
-			lo = r;
-		double next = r - f / dg(s, r);
-		if (!(next > lo && next < hi))
-			next = 0.5 * (lo + hi);
+		double next = newton_bracketed_step(r, f, dg(s, r), &lo, &hi);
 		if (fabs(next - r) <= 2e-16 * r)
 			return next;
 		r = next;
@@ -400,22 +395,6 @@ static void find_max_slope(struct asph_surface *s)
 	s->r_max_slope = best_r;
 }
 
-static int refuse(struct asph_error *err, const char *field, const char *fmt,
-		  ...) __attribute__((format(printf, 3, 4)));
-
-static int refuse(struct asph_error *err, const char *field, const char *fmt,
-		  ...)
-{
-	char msg[400];
-	va_list ap;
-
-	va_start(ap, fmt);
-	vsnprintf(msg, sizeof(msg), fmt, ap);
-	va_end(ap);
-	asph_error_locate(err, NULL, 0, 0, field);
-	return asph_error_set(err, -EINVAL, "%s", msg);
-}
-
 /* The power coefficients a type allows: none (Q types), A2..A20 even
  * (even asphere), A1..A20 (odd asphere). A0 would move the vertex. */
 static int check_powers(const struct asph_prescription *p,
@@ -427,20 +406,23 @@ static int check_powers(const struct asph_prescription *p,
 	for (int i = 0; i <= ASPH_SURFACE_MAX_POWER; i++) {
 		snprintf(field, sizeof(field), "A.%d", i);
 		if (!isfinite(p->A[i]))
-			return refuse(err, field, "coefficient A%d is not finite", i);
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+						 "coefficient A%d is not finite", i);
 		if (p->A[i] == 0)
 			continue;
 		if (is_q_type(p->type))
-			return refuse(err, field,
-				      "a %s surface has Q coefficients \"a\", not powers of r (A%d given)",
-				      name, i);
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+						 "a %s surface has Q coefficients \"a\", not powers of r (A%d given)",
+						 name, i);
 		if (i == 0 || (i == 1 && p->type == ASPH_SURFACE_EVEN_ASPHERE))
-			return refuse(err, field, "an %s asphere has coefficients A%d..A20 only",
-				      p->type == ASPH_SURFACE_EVEN_ASPHERE ? "even" : "odd",
-				      p->type == ASPH_SURFACE_EVEN_ASPHERE ? 2 : 1);
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+						 "an %s asphere has coefficients A%d..A20 only",
+						 p->type == ASPH_SURFACE_EVEN_ASPHERE ? "even" : "odd",
+						 p->type == ASPH_SURFACE_EVEN_ASPHERE ? 2 : 1);
 		if (p->type == ASPH_SURFACE_EVEN_ASPHERE && i % 2)
-			return refuse(err, field,
-				      "an even asphere has even powers only (A%d given)", i);
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+						 "an even asphere has even powers only (A%d given)",
+						 i);
 	}
 	return 0;
 }
@@ -452,23 +434,25 @@ static int check_q(const struct asph_prescription *p, struct asph_error *err)
 	for (int m = 0; m <= ASPH_SURFACE_MAX_Q; m++) {
 		snprintf(field, sizeof(field), "a.[%d]", m);
 		if (!isfinite(p->Q[m]))
-			return refuse(err, field, "coefficient a%d is not finite", m);
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+						 "coefficient a%d is not finite", m);
 		if (p->Q[m] != 0 && !is_q_type(p->type))
-			return refuse(err, field,
-				      "only the qbfs and qcon types have Q coefficients (a%d given)", m);
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
+						 "only the qbfs and qcon types have Q coefficients (a%d given)",
+						 m);
 	}
 	if (!is_q_type(p->type)) {
 		if (p->norm_radius != 0)
-			return refuse(err, "norm_radius",
-				      "only the qbfs and qcon types have a normalization radius");
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "norm_radius",
+						 "only the qbfs and qcon types have a normalization radius");
 		return 0;
 	}
 	if (!(p->norm_radius > 0) || !isfinite(p->norm_radius))
-		return refuse(err, "norm_radius",
-			      "norm_radius must be a positive number of mm");
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "norm_radius",
+					 "norm_radius must be a positive number of mm");
 	if (p->type == ASPH_SURFACE_QBFS && p->k != 0)
-		return refuse(err, "k",
-			      "a qbfs surface has no conic constant (its base is a sphere)");
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "k",
+					 "a qbfs surface has no conic constant (its base is a sphere)");
 	return 0;
 }
 
@@ -478,28 +462,34 @@ int asph_prescription_check(const struct asph_prescription *p,
 	int r;
 
 	if ((unsigned)p->type >= ARRAY_SIZE(type_names))
-		return refuse(err, "type", "unknown surface type %d", (int)p->type);
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "type",
+					 "unknown surface type %d", (int)p->type);
 	if (!isfinite(p->R))
-		return refuse(err, "R", "R must be a finite number");
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "R",
+					 "R must be a finite number");
 	if (p->R == 0)
-		return refuse(err, "R", "R = 0 is not a radius of curvature");
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "R",
+					 "R = 0 is not a radius of curvature");
 	if (!isfinite(1.0 / p->R))
-		return refuse(err, "R", "R = %g mm is too small: its curvature 1/R overflows", p->R);
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "R",
+					 "R = %g mm is too small: its curvature 1/R overflows",
+					 p->R);
 	if (!isfinite(p->k))
-		return refuse(err, "k", "k must be a finite number");
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "k",
+					 "k must be a finite number");
 	if ((r = check_powers(p, err)) < 0 || (r = check_q(p, err)) < 0)
 		return r;
 	if (!(p->aperture_diameter > 0) || !isfinite(p->aperture_diameter))
-		return refuse(err, "aperture_diameter",
-			      "aperture_diameter must be a positive number of mm");
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture_diameter",
+					 "aperture_diameter must be a positive number of mm");
 	double a = 0.5 * p->aperture_diameter;
 	double c = 1.0 / p->R;
 	if ((1.0 + p->k) * c * c * a * a >= 1.0) {
 		double r_fail = fabs(p->R) / sqrt(1.0 + p->k);
-		return refuse(err, "k",
-			"the conic square root 1 - (1+k) r^2/R^2 reaches zero at r = %.6g mm, "
-			"inside the aperture radius %.6g mm (R = %g, k = %g)",
-			r_fail, a, p->R, p->k);
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "k",
+					 "the conic square root 1 - (1+k) r^2/R^2 reaches zero at r = %.6g mm, "
+					 "inside the aperture radius %.6g mm (R = %g, k = %g)",
+					 r_fail, a, p->R, p->k);
 	}
 	return 0;
 }

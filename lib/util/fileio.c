@@ -10,9 +10,7 @@
 static int fail(struct asph_error *err, const char *source, int code,
 		const char *what)
 {
-	asph_error_set(err, code, "%s", what);
-	asph_error_locate(err, source, 0, 0, NULL);
-	return code;
+	return asph_error_set_at(err, code, source, 0, 0, NULL, "%s", what);
 }
 
 int file_read_all(const char *path, size_t limit, char **out, size_t *len,
@@ -27,9 +25,8 @@ int file_read_all(const char *path, size_t limit, char **out, size_t *len,
 
 	if (!f) {
 		int e = -errno;
-		asph_error_set(err, e, "cannot open: %s", strerror(-e));
-		asph_error_locate(err, source, 0, 0, NULL);
-		return e;
+		return asph_error_set_at(err, e, source, 0, 0, NULL, "cannot open: %s",
+					 strerror(-e));
 	}
 	for (;;) {
 		if (n == cap) {

@@ -489,7 +489,6 @@ def utf8_cases():
                         text(request("job.get", rid=6001)).replace(b'"history"', b'"hist\xc0\xafory"')),
                        ("id-string", v.replace(b"6001", b'"id\xed\xa0\x80"')),
                        ("jsonrpc", v.replace(b'"2.0"', b'"2.\xbf"')),
-                       ("utf8-bom", b"\xef\xbb\xbf" + v),
                        ("utf16-le-bom", ("\ufeff" + v.decode()).encode("utf-16-le")),
                        ("utf16-be", v.decode().encode("utf-16-be")),
                        ("utf32-le", v.decode().encode("utf-32-le"))]:
@@ -497,6 +496,19 @@ def utf8_cases():
         data += b"\n"
         cases.append(PCase("invalid UTF-8 and NUL", name, data, [parse_error(data, bad, bad + 3, 2)],
                            "shared"))
+    # A UTF-8 byte-order mark is skipped at the start of a line (RFC 8259
+    # allows it; proto/README.md says so) and refused anywhere else, the
+    # column counting it.
+    bom = b"\xef\xbb\xbf"
+    cases.append(PCase("byte-order mark", "utf8-bom", bom + v + b"\n", [OK], "shared"))
+    cases.append(PCase("byte-order mark", "utf8-bom-batch",
+                       bom + b"[" + v + b"," + text(request("daemon.status", rid=6004)) + b"]\n",
+                       [[OK, OK]], "shared"))
+    for name, data, at in [("utf8-bom-twice", bom + bom + v, 3),
+                           ("utf8-bom-after-space", b" " + bom + v, 1),
+                           ("utf8-bom-inside", v[:-1] + bom + b"}", len(v) - 1)]:
+        cases.append(PCase("byte-order mark", name, data + b"\n",
+                           [Err(PARSE, r"^column %d: " % column(data, at), None, None)], "shared"))
     # Escapes that are not characters.
     for name, esc in [("escaped-high-surrogate", r"\ud800"), ("escaped-low-surrogate", r"\udfff"),
                       ("escaped-reversed-pair", r"\udc00\ud800"), ("escaped-high-then-letter", r"\ud83dA"),

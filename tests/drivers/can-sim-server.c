@@ -42,6 +42,7 @@
 #include <linux/can/error.h>
 
 #include "can-sim.h"
+#include "util-time.h"
 
 #define MAX_CONNS 8
 
@@ -81,13 +82,6 @@ struct server {
 	size_t n_line;
 };
 
-static uint64_t now_ns(void)
-{
-	struct timespec ts;
-	clock_gettime(CLOCK_MONOTONIC, &ts);
-	return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
-
 static uint32_t rnd(struct server *sv)
 {
 	/* xorshift64*: reproducible from --seed */
@@ -103,7 +97,7 @@ static void log_event(struct server *sv, const char *fmt, ...)
 
 	if (!sv->log)
 		return;
-	fprintf(sv->log, "{\"t\": %.6f, ", (double)(now_ns() - sv->t0_ns) * 1e-9);
+	fprintf(sv->log, "{\"t\": %.6f, ", (double)(now_monotonic_ns() - sv->t0_ns) * 1e-9);
 	va_start(ap, fmt);
 	vfprintf(sv->log, fmt, ap);
 	va_end(ap);
@@ -580,7 +574,7 @@ int main(int argc, char **argv)
 		return 2;
 	}
 	signal(SIGPIPE, SIG_IGN);
-	sv.t0_ns = now_ns();
+	sv.t0_ns = now_monotonic_ns();
 	if (listen_on(&sv) == 0 && start_sim(&sv) == 0) {
 		log_event(&sv, "\"event\": \"listening\", \"socket\": \"%s\"", sv.path);
 		printf("{\"ready\": true}\n");

@@ -15,6 +15,7 @@
 #include <linux/can/error.h>
 
 #include "can-sim.h"
+#include "util-time.h"
 
 #define ABORT_NO_OBJECT 0x06020000u
 #define ABORT_NO_SUBINDEX 0x06090011u
@@ -69,13 +70,6 @@ struct can_sim {
 	unsigned n_pending;
 };
 
-static uint64_t now_ns(void)
-{
-	struct timespec ts;
-	clock_gettime(CLOCK_MONOTONIC, &ts);
-	return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
-
 static struct sim_node *find(struct can_sim *s, uint8_t id)
 {
 	for (unsigned i = 0; i < s->cfg.n_nodes; i++)
@@ -119,7 +113,7 @@ static void reset_node(struct can_sim *s, struct sim_node *n, bool application)
 
 	n->nmt = CANOPEN_STATE_PRE_OPERATIONAL;
 	n->hb_ms = (uint16_t)s->cfg.heartbeat_ms;
-	n->next_hb_ns = now_ns() + n->hb_ms * 1000000ull;
+	n->next_hb_ns = now_monotonic_ns() + n->hb_ms * 1000000ull;
 	n->resets++;
 	if (application) {
 		n->state = CIA402_SWITCH_ON_DISABLED;
@@ -195,7 +189,7 @@ static void controlword(struct can_sim *s, struct sim_node *n, uint16_t cw)
 			n->reached = false;
 			n->moving = true;
 			if (n->fault_on_move)
-				n->fault_at_ns = now_ns() + 3000000;
+				n->fault_at_ns = now_monotonic_ns() + 3000000;
 		}
 	} else if (n->mode == CIA402_MODE_HOMING) {
 		if (rise)
@@ -236,7 +230,7 @@ static void step(struct can_sim *s, struct sim_node *n, double dt, uint64_t now)
 
 static void tick(struct can_sim *s)
 {
-	uint64_t now = now_ns();
+	uint64_t now = now_monotonic_ns();
 	double dt = s->last_tick_ns ? (double)(now - s->last_tick_ns) * 1e-9 : 0;
 	struct can_frame f;
 
@@ -507,7 +501,7 @@ int can_sim_new(int fd, const struct can_sim_config *c, struct can_sim **out)
 		n->nmt = CANOPEN_STATE_PRE_OPERATIONAL;
 		n->heartbeat_on = true;
 		n->hb_ms = (uint16_t)c->heartbeat_ms;
-		n->next_hb_ns = now_ns();
+		n->next_hb_ns = now_monotonic_ns();
 		n->state = CIA402_SWITCH_ON_DISABLED;
 		n->reached = true;
 		n->velocity = 1000;

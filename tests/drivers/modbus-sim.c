@@ -19,6 +19,7 @@
 #include <modbus.h>
 
 #include "modbus-sim.h"
+#include "util-time.h"
 
 enum { N_REGS = 0x200, N_CLIENTS = 4, N_FAULTS = 8, N_DATA = 8 };
 
@@ -51,13 +52,6 @@ struct mbsim {
 	struct fault faults[N_FAULTS];
 	struct mbsim_stats stats;
 };
-
-static uint64_t now_ns(void)
-{
-	struct timespec ts;
-	clock_gettime(CLOCK_MONOTONIC, &ts);
-	return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
 
 /* ----------------------------------------------------------- values */
 
@@ -284,7 +278,7 @@ static void handle(struct mbsim *s, const uint8_t *req, int len)
 	int hl = modbus_get_header_length(s->ctx), k;
 	int unit = req[hl - 1], fn = req[hl];
 	int addr = req[hl + 1] << 8 | req[hl + 2], n = req[hl + 3] << 8 | req[hl + 4];
-	uint64_t t = now_ns();
+	uint64_t t = now_monotonic_ns();
 
 	pthread_mutex_lock(&s->lock);
 	s->stats.requests++;
@@ -305,7 +299,7 @@ static void handle(struct mbsim *s, const uint8_t *req, int len)
 		pthread_mutex_unlock(&s->lock);
 		nanosleep(&late, NULL);
 		pthread_mutex_lock(&s->lock);
-		t = now_ns();
+		t = now_monotonic_ns();
 		f = NULL;
 	}
 	for (int i = 0; i < 3; i++)
@@ -538,7 +532,7 @@ void mbsim_inject(struct mbsim *s, int unit, enum mbsim_fault fault, int code, i
 {
 	pthread_mutex_lock(&s->lock);
 	if (fault == MBSIM_ALARM) {
-		uint64_t t = now_ns();
+		uint64_t t = now_monotonic_ns();
 		for (int k = 0; k < 3; k++)
 			if (s->drives[k].map && s->drives[k].unit == unit && count > 0) {
 				s->drives[k].alarm_after = count;
@@ -565,7 +559,7 @@ void mbsim_clear_faults(struct mbsim *s)
 
 void mbsim_stats(struct mbsim *s, struct mbsim_stats *out)
 {
-	uint64_t t = now_ns();
+	uint64_t t = now_monotonic_ns();
 
 	pthread_mutex_lock(&s->lock);
 	*out = s->stats;

@@ -12,6 +12,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -660,6 +661,85 @@ static void test_resume(void **state)
 	asph_scanfile_free(b);
 }
 
+/* A scan cut off after plan points 0 .. last - 1 (and one more measured
+ * out of order, kept as recorded), under a header whose plan is plan_json. */
+static void write_cut_scan(const char *path, const char *plan_json, uint64_t last)
+{
+	struct asph_scanfile_header_info info = { "{\"name\":\"strong\"}", plan_json,
+						  "{\"name\":\"mock\"}", NULL };
+	struct asph_scanfile_writer *w;
+	struct asph_scanfile_point pt = { .x = 1.5, .y = -2.25, .z = 0.125, .raw = 0.125 };
+
+	assert_int_equal(asph_scanfile_writer_create(path, &info, NULL, &w, NULL), 0);
+	for (uint64_t i = 0; i < last; i++) {
+		pt.plan_index = i == 3 ? last : (i == last - 1 ? 3 : i);
+		pt.t_ns = 1000 * i;
+		assert_int_equal(asph_scanfile_writer_append(w, &pt, 1, NULL), 0);
+	}
+	assert_int_equal(asph_scanfile_writer_close(w, NULL), 0);
+}
+
+static long file_size(const char *path)
+{
+	struct stat st;
+
+	assert_int_equal(stat(path, &st), 0);
+	return (long)st.st_size;
+}
+
+/* asph_scan_reopen(): after the last plan index, with the plan of the
+ * header in the shape asphd and asph scan write now and in the one asph
+ * scan wrote before; another plan is refused before anything is written. */
+static void test_reopen(void **state)
+{
+	struct scan_fixture *e = *state;
+	const struct asph_plan *p = e->plan;
+	char now[128], before[128], *plan_json = NULL, old_json[256];
+	struct asph_scanfile_writer *w;
+	struct asph_error err;
+	uint64_t start = 0;
+
+	assert_int_equal(asph_plan_to_json(p, &plan_json), 0);
+	snprintf(old_json, sizeof(old_json),
+		 "{\"method\":\"fermat\",\"density\":{\"kind\":\"points\",\"value\":%.17g},"
+		 "\"spacing_mm\":%.17g,\"points\":%zu}", p->density.value, p->spacing_mm, p->n);
+	write_cut_scan(new_path(e, now, sizeof(now)), plan_json, 40);
+	write_cut_scan(new_path(e, before, sizeof(before)), old_json, 57);
+	free(plan_json);
+
+	assert_int_equal(asph_scan_reopen(now, p, NULL, &w, &start, &err), 0);
+	assert_int_equal(start, 41);
+	assert_int_equal(asph_scanfile_writer_close(w, NULL), 0);
+	assert_int_equal(asph_scan_reopen(before, p, NULL, &w, &start, &err), 0);
+	assert_int_equal(start, 58);
+	assert_int_equal(asph_scanfile_writer_close(w, NULL), 0);
+	struct asph_scanfile *rec = read_scan(before);
+	assert_int_equal(rec->report.n_resumes, 1);
+	assert_int_equal(rec->n, 57);
+	asph_scanfile_free(rec);
+
+	/* another plan of the same method: refused, the file untouched */
+	struct asph_plan *other;
+	struct asph_plan_density d = { ASPH_DENSITY_POINTS, 650 };
+	assert_int_equal(asph_plan_compute(e->s, ASPH_PLAN_FERMAT, d, 0, &other, NULL), 0);
+	long size = file_size(now);
+	asph_error_clear(&err);
+	w = NULL;
+	assert_int_equal(asph_scan_reopen(now, other, NULL, &w, &start, &err), -EINVAL);
+	assert_null(w);
+	assert_string_equal(err.field, "plan");
+	assert_string_equal(err.source, now);
+	assert_non_null(strstr(err.message, "two plans"));
+	assert_int_equal(file_size(now), size);
+	asph_plan_free(other);
+
+	/* a header whose plan says nothing usable */
+	char bare[128];
+	write_cut_scan(new_path(e, bare, sizeof(bare)), "{\"method\":\"fermat\"}", 5);
+	assert_int_equal(asph_scan_reopen(bare, p, NULL, &w, &start, &err), -EINVAL);
+	assert_string_equal(err.field, "plan.density");
+}
+
 static void test_replay_identical(void **state)
 {
 	struct scan_fixture *e = *state;
@@ -729,6 +809,7 @@ int main(void)
 		cmocka_unit_test(test_recovery),
 		cmocka_unit_test(test_tip_on_surface),
 		cmocka_unit_test(test_resume),
+		cmocka_unit_test(test_reopen),
 		cmocka_unit_test(test_replay_identical),
 	};
 	return cmocka_run_group_tests(tests, setup, teardown);

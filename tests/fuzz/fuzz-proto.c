@@ -42,14 +42,14 @@ static void read_params(json_t *params)
 static void answer(json_t *msg)
 {
 	struct proto_message m;
-	const char *why = NULL;
+	struct proto_why why = { "" };
 	json_t *reply;
 
 	int code = proto_check_request(msg, &m, &why);
 	if (code) {
-		if (!why)
+		if (!why.text[0])
 			fuzz_die("request refused without a reason");
-		reply = proto_make_error(m.id, code, why, NULL);
+		reply = proto_make_error(m.id, code, why.text, NULL);
 	} else {
 		read_params(m.params);
 		reply = proto_make_result(m.id, json_string(m.method));
@@ -59,7 +59,7 @@ static void answer(json_t *msg)
 	if (!text || len == 0 || text[len - 1] != '\n' || memchr(text, '\n', len - 1))
 		fuzz_die("the answer is not one line");
 	/* What the server sends, its client reads back. */
-	json_t *back = proto_parse(text, len - 1, NULL, 0);
+	json_t *back = proto_parse(text, len - 1, NULL);
 	if (!back || proto_check_incoming(back, &m, &why) != 0)
 		fuzz_die("the client refuses the server's answer: %s", text);
 	json_decref(back);
@@ -94,8 +94,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 				continue;
 			if (len > MAX_LINE || strlen(line) > len)
 				fuzz_die("the framer returned a line of %zu bytes", len);
-			char why[256];
-			json_t *msg = proto_parse(line, len, why, sizeof(why));
+			struct proto_why why;
+			json_t *msg = proto_parse(line, len, &why);
 			if (!msg)
 				continue;
 			answer(msg);

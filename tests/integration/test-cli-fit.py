@@ -131,6 +131,31 @@ def outputs(tmp):
         check(r.returncode == 0 and f.read(8) == b"\x89PNG\r\n\x1a\n", f"PNG map: {r.stderr}")
 
 
+def spreadsheet_headers(tmp):
+    """CSV as R's write.csv() and spreadsheets write it: quoted names, an
+    unnamed row-name column, upper case, a byte-order mark. The fit is the
+    one of the plain file, to the last bit."""
+    text = synth("strong", "--noise", "2", "--seed", "11")
+    rows = text.splitlines()
+    plain = fit("strong", text)
+    variants = {
+        "r-write-csv": '"","x","y","z"\n' + "".join(f'"{i + 1}",{r}\n' for i, r in enumerate(rows[1:])),
+        "quoted": '"x","y","z"\n' + "\n".join(rows[1:]) + "\n",
+        "upper-case": "X,Y,Z\n" + "\n".join(rows[1:]) + "\n",
+        "bom-crlf": "\ufeffX,Y,Z\r\n" + "\r\n".join(rows[1:]) + "\r\n",
+    }
+    for name, variant in variants.items():
+        path = os.path.join(tmp, name + ".csv")
+        with open(path, "w", encoding="utf-8", newline="") as f:
+            f.write(variant)
+        r = run(["fit", "strong", path, "--json"])
+        check(r.returncode == 0, f"{name}: exit {r.returncode}: {r.stderr}")
+        if r.returncode == 0 and plain:
+            d = json.loads(r.stdout)
+            check(d["dof"] == plain["dof"] and d["n_points"] == plain["n_points"],
+                  f"{name}: the fit differs from the plain file's")
+
+
 def bad_input(tmp):
     good = synth("weak")
     rows = good.splitlines()
@@ -168,6 +193,7 @@ def main():
         form_error_and_noise()
         deterministic()
         outputs(tmp)
+        spreadsheet_headers(tmp)
         bad_input(tmp)
     if FAILURES:
         print(f"{len(FAILURES)} failures")

@@ -111,13 +111,14 @@ try:
     expect(d.stop() == 0, "clean stop")
     os.chmod(token, 0o644)
     d.start(wait=False)
-    expect(d.proc.wait(timeout=30) == 1 and "readable by its owner only" in d.log_text(),
-           "a token file others can read is refused")
+    expect(d.proc.wait(timeout=30) == 3 and "readable by its owner only" in d.log_text(),
+           "a token file others can read is refused (exit 3, a configuration error)")
     d.proc = None
     cfg.pop("token_file")
     json.dump(cfg, open(d.config, "w"))
     d.start(wait=False)
-    expect(d.proc.wait(timeout=30) == 1 and "needs a token_file" in d.log_text(), "TCP without a token is refused")
+    expect(d.proc.wait(timeout=30) == 3 and "needs a token_file" in d.log_text(),
+           "TCP without a token is refused (exit 3, a configuration error)")
     d.proc = None
 
     # --- socket activation and the notify protocol, as systemd does them

@@ -21,8 +21,15 @@ try:
     expect(c.call("version")["server"] == "asphd", "version")
     st = c.call("daemon.status")
     expect(st["instruments"][0]["name"] == "mock" and st["queue"]["running"], "daemon.status")
-    drivers = c.call("driver.list")["drivers"]
+    listed = c.call("driver.list")
+    drivers = listed["drivers"]
     expect(any(x["name"] == "mock" for x in drivers), "driver.list has the mock")
+    cli = json.loads(subprocess.run([os.environ["ASPH_BIN"], "drivers", "--json"], check=True,
+                                    capture_output=True, text=True).stdout)
+    expect(listed == cli, "driver.list is the document asph drivers --json prints")
+    opt = next(o for x in drivers if x["name"] == "mock" for o in x["options"] if o["name"] == "stream")
+    expect(opt["roles"] == ["stage", "probe"] and "help" in opt and "unit" in opt,
+           "an option of both roles names both; every member is present")
     inst = c.call("instrument.list")["instruments"]
     expect(inst[0]["configuration"]["probe"]["driver"] == "mock", "instrument.list describes the drivers")
 

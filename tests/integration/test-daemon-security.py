@@ -71,8 +71,9 @@ def inet_sockets(pid):
     return found
 
 
-def refuses_to_start(d, what, needle):
-    """The daemon must exit 1 with needle in its log; one that answers a
+def refuses_to_start(d, what, needle, code=1):
+    """The daemon must exit with code (1: it cannot run; 3: the
+    configuration is refused) with needle in its log; one that answers a
     request instead is stopped again."""
     mark = len(d.log_text())
     d.start(wait=False)
@@ -92,7 +93,7 @@ def refuses_to_start(d, what, needle):
         d.stop()
     d.proc = None
     said = d.log_text()[mark:]
-    expect(rc == 1 and needle in said, f"{what}: asphd refuses to start (exit {rc}: {said.strip()[-200:]})")
+    expect(rc == code and needle in said, f"{what}: asphd refuses to start (exit {rc}: {said.strip()[-200:]})")
 
 
 d = Daemon(extra={"operator_group": OPERATORS.gr_name,
@@ -165,7 +166,7 @@ try:
     os.chmod(token, 0o600)
     os.chown(token, NOBODY, NOGROUP)
     json.dump(dict(cfg, tcp_listen="127.0.0.1:0", token_file=token), open(d.config, "w"))
-    refuses_to_start(d, "a token file owned by another user", "token")
+    refuses_to_start(d, "a token file owned by another user", "token", code=3)
     os.chown(token, 0, 0)
 
     # --- limits, each with its documented error naming the limit

@@ -76,10 +76,10 @@ static void test_lines_oversized(void **state)
 	proto_lines_release(&l);
 }
 
-static int check(const char *text, struct proto_message *m, const char **why)
+static int check(const char *text, struct proto_message *m, struct proto_why *why)
 {
-	char buf[128];
-	json_t *j = proto_parse(text, strlen(text), buf, sizeof(buf));
+	struct proto_why parse_why;
+	json_t *j = proto_parse(text, strlen(text), &parse_why);
 	int r;
 
 	assert_non_null(j);
@@ -91,7 +91,7 @@ static int check(const char *text, struct proto_message *m, const char **why)
 static void test_requests(void **state)
 {
 	struct proto_message m;
-	const char *why;
+	struct proto_why why;
 
 	assert_int_equal(check("{\"jsonrpc\":\"2.0\",\"id\":7,\"method\":\"hello\"}", &m, &why), 0);
 	assert_int_equal(m.kind, PROTO_KIND_REQUEST);
@@ -111,7 +111,7 @@ static void test_requests(void **state)
 	/* A NUL inside the method name does not cut it to a known one. */
 	assert_int_equal(check("{\"jsonrpc\":\"2.0\",\"id\":3,\"method\":\"hello\\u0000x\"}", &m, &why),
 			 PROTO_INVALID_REQUEST);
-	assert_non_null(strstr(why, "NUL"));
+	assert_non_null(strstr(why.text, "NUL"));
 	assert_non_null(m.id);
 
 	/* The unknown member is named (borrowed from the message). */
@@ -122,18 +122,50 @@ static void test_requests(void **state)
 	assert_string_equal(m.unknown, "Params");
 	json_decref(j);
 
-	char buf[128];
-	assert_null(proto_parse("{\"a\":1,\"a\":2}", 13, buf, sizeof(buf)));
-	assert_null(proto_parse("{\"a\":", 5, buf, sizeof(buf)));
-	assert_non_null(strstr(buf, "column"));
-	/* jansson quotes the text near the error; cut by the buffer inside
-	 * a character, the message stays valid UTF-8. */
+	struct proto_why pw;
+	assert_null(proto_parse("{\"a\":1,\"a\":2}", 13, &pw));
+	assert_null(proto_parse("{\"a\":", 5, &pw));
+	assert_non_null(strstr(pw.text, "column"));
+	assert_null(proto_parse("{\"a\":", 5, NULL));
+	/* jansson quotes the text near the error: the message is valid
+	 * UTF-8 */
 	const char *bad = "{\"a\": x\xc3\xa9\xc3\xa9\xc3\xa9\xc3\xa9}";
-	char small[36];
-	assert_null(proto_parse(bad, strlen(bad), small, sizeof(small)));
-	json_t *str = json_string(small);
+	assert_null(proto_parse(bad, strlen(bad), &pw));
+	json_t *str = json_string(pw.text);
 	assert_non_null(str);
 	json_decref(str);
+	/* cut to fit inside a character, it stays valid UTF-8 */
+	char long_text[601];
+	for (int i = 0; i < 300; i++)
+		memcpy(long_text + 2 * i, "\xc3\xa9", 2);
+	long_text[600] = '\0';
+	assert_int_equal(proto_why_set(&pw, "%s", long_text), -EINVAL);
+	assert_int_equal(strlen(pw.text), 254);
+	str = json_string(pw.text);
+	assert_non_null(str);
+	json_decref(str);
+	assert_int_equal(proto_why_set(NULL, "x"), -EINVAL);
+}
+
+/* A UTF-8 byte-order mark is skipped at the start of a line only; the
+ * column of an error counts it. */
+static void test_byte_order_mark(void **state)
+{
+	struct proto_why why;
+	json_t *j = proto_parse("\xef\xbb\xbf{\"a\": 1}", 11, &why);
+
+	assert_non_null(j);
+	assert_int_equal(json_integer_value(json_object_get(j, "a")), 1);
+	json_decref(j);
+	/* The fault is the third character of the line as sent. */
+	assert_null(proto_parse("\xef\xbb\xbf{,}", 6, &why));
+	assert_true(strncmp(why.text, "column 3: ", 10) == 0);
+	assert_null(proto_parse("\xef\xbb\xbf\xef\xbb\xbf{}", 8, &why));
+	assert_true(strncmp(why.text, "column 2: ", 10) == 0);
+	assert_null(proto_parse(" \xef\xbb\xbf{}", 6, &why));
+	assert_true(strncmp(why.text, "column 2: ", 10) == 0);
+	assert_null(proto_parse("\xef\xbb\xbf", 3, &why));
+	assert_null(proto_parse("\xef\xbb", 2, &why));
 }
 
 static void test_utf8_clean(void **state)
@@ -159,7 +191,7 @@ static void test_builders(void **state)
 	size_t n;
 	char *s = proto_dump(r, &n);
 	struct proto_message m;
-	const char *why;
+	struct proto_why why;
 
 	assert_non_null(s);
 	assert_int_equal(s[n - 1], '\n');
@@ -237,6 +269,7 @@ int main(void)
 		cmocka_unit_test(test_lines_split),
 		cmocka_unit_test(test_lines_oversized),
 		cmocka_unit_test(test_requests),
+		cmocka_unit_test(test_byte_order_mark),
 		cmocka_unit_test(test_utf8_clean),
 		cmocka_unit_test(test_builders),
 		cmocka_unit_test(test_params),

@@ -44,9 +44,9 @@ static char *write_tmp(const char *text)
 
 static void test_defaults(void **state)
 {
-	struct daemon_config *c = NULL;
+	struct settings *c = NULL;
 
-	assert_int_equal(config_load(NULL, &c, NULL, NULL), 0);
+	assert_int_equal(settings_load(NULL, &c, NULL, NULL), 0);
 	assert_string_equal(c->socket_path, "/run/asphd/asphd.sock");
 	assert_string_equal(c->state_dir, "/var/lib/asphd");
 	assert_int_equal(c->socket_mode, 0660);
@@ -54,12 +54,12 @@ static void test_defaults(void **state)
 	assert_null(c->tcp_listen);
 	assert_null(c->instruments_json);
 	assert_int_equal(c->limits.max_request_bytes, 1u << 20);
-	config_free(c);
+	settings_free(c);
 }
 
 static void test_full(void **state)
 {
-	struct daemon_config *c = NULL;
+	struct settings *c = NULL;
 	char *path = write_tmp("{\n \"operator_group\": \"lab\",\n \"socket\": \"/run/x/a.sock\",\n"
 			       " \"socket_mode\": \"0640\",\n \"limits\": {\"max_queue\": 37, "
 			       "\"request_timeout_ms\": 1500},\n"
@@ -67,7 +67,7 @@ static void test_full(void **state)
 			       " \"probe\": {\"driver\": \"mock\"}}]\n}\n");
 	struct seen s = { 0 };
 
-	assert_int_equal(config_load(path, &c, collect, &s), 0);
+	assert_int_equal(settings_load(path, &c, collect, &s), 0);
 	assert_int_equal(s.n, 0);
 	assert_string_equal(c->operator_group, "lab");
 	assert_string_equal(c->socket_path, "/run/x/a.sock");
@@ -76,19 +76,19 @@ static void test_full(void **state)
 	assert_int_equal(c->limits.request_timeout_ms, 1500);
 	assert_int_equal(c->limits.max_clients, 256);   /* untouched default */
 	assert_non_null(strstr(c->instruments_json, "\"instruments\""));
-	config_free(c);
+	settings_free(c);
 	unlink(path);
 }
 
 /* Every error is reported, each with its line, column and setting. */
 static void test_errors(void **state)
 {
-	struct daemon_config *c = NULL;
+	struct settings *c = NULL;
 	char *path = write_tmp("{\n \"socket\": \"relative.sock\",\n \"colour\": 3,\n"
 			       " \"socket_mode\": \"0666\",\n \"limits\": {\"max_queue\": 0, \"speed\": 1}\n}\n");
 	struct seen s = { 0 };
 
-	assert_int_equal(config_load(path, &c, collect, &s), -EINVAL);
+	assert_int_equal(settings_load(path, &c, collect, &s), -EINVAL);
 	assert_null(c);
 	assert_int_equal(s.n, 5);
 	assert_string_equal(s.e[0].field, "socket");
@@ -106,16 +106,16 @@ static void test_errors(void **state)
 
 static void test_syntax_and_missing(void **state)
 {
-	struct daemon_config *c = NULL;
+	struct settings *c = NULL;
 	char *path = write_tmp("{\n \"socket\": \"/a\",\n \"limits\": {\n");
 	struct seen s = { 0 };
 
-	assert_int_equal(config_load(path, &c, collect, &s), -EINVAL);
+	assert_int_equal(settings_load(path, &c, collect, &s), -EINVAL);
 	assert_int_equal(s.n, 1);
 	assert_int_equal(s.e[0].line, 4);
 	unlink(path);
 	s.n = 0;
-	assert_int_equal(config_load("/nonexistent/asphd.conf", &c, collect, &s), -ENOENT);
+	assert_int_equal(settings_load("/nonexistent/asphd.conf", &c, collect, &s), -ENOENT);
 	assert_int_equal(s.n, 1);
 	assert_string_equal(s.e[0].source, "/nonexistent/asphd.conf");
 }

@@ -3,7 +3,9 @@
 #ifndef ASPH_TOOL_H
 #define ASPH_TOOL_H
 
+#include <getopt.h>
 #include <stdbool.h>
+#include <stdio.h>
 
 #include "asph/error.h"
 #include "asph/surface.h"
@@ -36,6 +38,24 @@ int cmd_synth(int argc, char **argv);
 
 /* Prints "asph: <formatted error>" to stderr. */
 void tool_print_error(const char *context, const struct asph_error *err);
+
+/* Takes one option of a command: 0, or < 0 for a value it refuses (after
+ * saying why). */
+typedef int tool_option_fn(int opt, const char *arg, void *data);
+
+/*
+ * The option loop of a command (getopt_long() from argv[1]): -h/--help
+ * prints usage to stdout and the command exits 0; an unknown option or a
+ * missing value prints usage to stderr and a refused value ends it, both
+ * as a usage error. Returns -1 once the options are read (the operands
+ * start at optind), else the exit code.
+ */
+int tool_getopt(int argc, char **argv, const char *shortopts,
+		const struct option *longopts, void (*usage)(FILE *out),
+		tool_option_fn *take, void *data);
+
+/* For a command whose one option is a flag: sets the int at data. */
+tool_option_fn tool_take_flag;
 
 /* Loads LENS (preset name or file) and builds its surface; prints the error
  * and returns a negative errno on failure. */

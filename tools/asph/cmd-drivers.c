@@ -69,6 +69,22 @@ static void usage(FILE *out)
 		     "                     installed plugin directory\n");
 }
 
+struct drivers_args {
+	const char *plugin_dir;
+	int json;
+};
+
+static int take(int opt, const char *arg, void *data)
+{
+	struct drivers_args *a = data;
+
+	if (opt == 'j')
+		a->json = 1;
+	else
+		a->plugin_dir = arg;
+	return 0;
+}
+
 int cmd_drivers(int argc, char **argv)
 {
 	static const struct option long_opts[] = {
@@ -78,25 +94,18 @@ int cmd_drivers(int argc, char **argv)
 		{ NULL, 0, NULL, 0 },
 	};
 	_cleanup_(asph_registry_freep) struct asph_registry *reg = NULL;
-	const char *plugin_dir = NULL;
-	bool json = false;
-	int c;
+	struct drivers_args a = { 0 };
+	int code = tool_getopt(argc, argv, "h", long_opts, usage, take, &a);
 
-	while ((c = getopt_long(argc, argv, "h", long_opts, NULL)) != -1) {
-		switch (c) {
-		case 'j': json = true; break;
-		case 'P': plugin_dir = optarg; break;
-		case 'h': usage(stdout); return EXIT_OK;
-		default: usage(stderr); return EXIT_USAGE;
-		}
-	}
+	if (code >= 0)
+		return code;
 	if (optind != argc) {
 		fprintf(stderr, "asph drivers: unexpected argument '%s'\n", argv[optind]);
 		return EXIT_USAGE;
 	}
-	if (tool_registry_new(plugin_dir, &reg) < 0)
+	if (tool_registry_new(a.plugin_dir, &reg) < 0)
 		return EXIT_FAILURE_RUN;
-	if (json)
+	if (a.json)
 		return print_json(reg);
 	print_text(reg);
 	return EXIT_OK;

@@ -31,6 +31,21 @@ static void warn_damage(const char *path, const struct asph_scanfile_report *rep
 			path);
 }
 
+struct export_args {
+	const char *output, *exclude;
+};
+
+static int take(int opt, const char *arg, void *data)
+{
+	struct export_args *a = data;
+
+	if (opt == 'o')
+		a->output = arg;
+	else
+		a->exclude = arg;
+	return 0;
+}
+
 int cmd_export(int argc, char **argv)
 {
 	static const struct option options[] = {
@@ -39,39 +54,24 @@ int cmd_export(int argc, char **argv)
 		{ "help", no_argument, NULL, 'h' },
 		{ 0 }
 	};
-	const char *output = NULL, *exclude = "";
+	struct export_args a = { .exclude = "" };
 	struct asph_scanfile_report rep;
 	struct asph_error err;
 	uint32_t mask;
-	int c;
+	int code = tool_getopt(argc, argv, "o:h", options, usage, take, &a);
 
-	optind = 1;
-	while ((c = getopt_long(argc, argv, "o:h", options, NULL)) != -1) {
-		switch (c) {
-		case 'o':
-			output = optarg;
-			break;
-		case 'x':
-			exclude = optarg;
-			break;
-		case 'h':
-			usage(stdout);
-			return EXIT_OK;
-		default:
-			usage(stderr);
-			return EXIT_USAGE;
-		}
-	}
-	if (optind + 1 != argc || !output) {
+	if (code >= 0)
+		return code;
+	if (optind + 1 != argc || !a.output) {
 		usage(stderr);
 		return EXIT_USAGE;
 	}
 	asph_error_clear(&err);
-	if (asph_scanfile_flags_parse(exclude, &mask, &err) < 0) {
+	if (asph_scanfile_flags_parse(a.exclude, &mask, &err) < 0) {
 		tool_print_error("--exclude", &err);
 		return EXIT_USAGE;
 	}
-	if (asph_scanfile_export(argv[optind], output, mask, &rep, &err) < 0) {
+	if (asph_scanfile_export(argv[optind], a.output, mask, &rep, &err) < 0) {
 		tool_print_error(NULL, &err);
 		return EXIT_FAILURE_RUN;
 	}

@@ -1,649 +1,49 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
- * asph lens import: one surface of an OpticStudio .zmx lens file (UTF-8 or
- * UTF-16 with a byte-order mark), or a row of a CSV table, as our JSON
- * prescription. docs/prescriptions.md ("Importing") lists what is read.
+ * asph lens import: one surface of an OpticStudio .zmx lens file or a row of
+ * a CSV table as our JSON prescription (libasph's asph/lens-import.h reads
+ * the file; docs/prescriptions.md, "Importing", lists what is read).
  */
-#include <ctype.h>
 #include <errno.h>
 #include <getopt.h>
 #include <limits.h>
 #include <math.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <strings.h>
 
-#include "asph/prescription.h"
+#include "asph/lens-import.h"
 #include "asph-tool.h"
 #include "util-mem.h"
 
-#define MAX_PARM 40
-#define MAX_SURFACES 1024
-/* Lens files are small; anything larger is not one. */
-#define MAX_FILE_BYTES (16u << 20)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_lens_import *, asph_lens_import_free)
 
-struct zsurf {
-	int number;
-	int line;                 /* of its SURF line */
-	char type[32];
-	int type_line, type_col;
-	double curv, coni, diam;
-	int has_diam;
-	double parm[MAX_PARM + 1];
-	int parm_line[MAX_PARM + 1];
-};
-
-struct importer {
-	const char *path;
-	struct asph_error *err;
-	char *text;               /* UTF-8, NUL-terminated */
-	size_t len;
-	struct zsurf *surf;
-	size_t n_surf;
-};
-
-static void refuse(const struct importer *im, int line, int col, const char *field,
-		   const char *fmt, ...) __attribute__((format(printf, 5, 6)));
-
-static void refuse(const struct importer *im, int line, int col, const char *field,
-		   const char *fmt, ...)
+/* The surfaces of a file with several, for choosing one with --surface. */
+static void list(const struct asph_lens_import *im)
 {
-	char msg[400];
-	va_list ap;
+	struct asph_lens_surface s;
+	size_t n = asph_lens_import_count(im);
 
-	va_start(ap, fmt);
-	vsnprintf(msg, sizeof(msg), fmt, ap);
-	va_end(ap);
-	asph_error_set(im->err, -EINVAL, "%s", msg);
-	asph_error_locate(im->err, im->path, line, col, field);
-}
-
-/* A refusal of the file's content, with where; always -EINVAL, which a
- * macro lets every caller (and the static analyzer) see. */
-#define fail(im, line, col, field, ...) (refuse(im, line, col, field, __VA_ARGS__), -EINVAL)
-
-/* ---- reading and decoding ------------------------------------------------- */
-
-static int read_all(struct importer *im, unsigned char **out, size_t *len)
-{
-	_cleanup_fclose_ FILE *f = fopen(im->path, "re");
-	_cleanup_free_ unsigned char *buf = NULL;
-	size_t n = 0, cap = 0;
-
-	if (!f) {
-		int e = -errno;
-		if (e >= 0)     /* never 0, which is success */
-			e = -EIO;
-		asph_error_locate(im->err, im->path, 0, 0, NULL);
-		return asph_error_set(im->err, e, "cannot open: %s", strerror(-e));
-	}
-	for (;;) {
-		if (n == cap) {
-			cap = cap ? 2 * cap : 65536;
-			unsigned char *grown = realloc(buf, cap + 1);
-			if (!grown)
-				return asph_error_set(im->err, -ENOMEM, "out of memory");
-			buf = grown;
+	if (asph_lens_import_format(im) == ASPH_LENS_CSV) {
+		printf("%-8s %16s %10s %14s\n", "row", "R (mm)", "k", "diameter (mm)");
+		for (size_t i = 0; i < n; i++) {
+			asph_lens_import_surface(im, i, &s);
+			printf("%-8d %16.10g %10.6g %14.10g\n", s.number, s.R, s.k,
+			       s.aperture_diameter);
 		}
-		size_t got = fread(buf + n, 1, cap - n, f);
-		n += got;
-		if (n > MAX_FILE_BYTES)
-			return fail(im, 0, 0, NULL, "larger than %u bytes: not a lens file",
-				    MAX_FILE_BYTES);
-		if (got == 0)
-			break;
+		return;
 	}
-	if (ferror(f))
-		return fail(im, 0, 0, NULL, "read error");
-	*out = steal_ptr(buf);
-	*len = n;
-	return 0;
-}
-
-static size_t put_utf8(char *o, unsigned cp)
-{
-	if (cp < 0x80) {
-		o[0] = (char)cp;
-		return 1;
-	}
-	if (cp < 0x800) {
-		o[0] = (char)(0xc0 | (cp >> 6));
-		o[1] = (char)(0x80 | (cp & 0x3f));
-		return 2;
-	}
-	if (cp < 0x10000) {
-		o[0] = (char)(0xe0 | (cp >> 12));
-		o[1] = (char)(0x80 | ((cp >> 6) & 0x3f));
-		o[2] = (char)(0x80 | (cp & 0x3f));
-		return 3;
-	}
-	o[0] = (char)(0xf0 | (cp >> 18));
-	o[1] = (char)(0x80 | ((cp >> 12) & 0x3f));
-	o[2] = (char)(0x80 | ((cp >> 6) & 0x3f));
-	o[3] = (char)(0x80 | (cp & 0x3f));
-	return 4;
-}
-
-/* UTF-16 (after its byte-order mark) to UTF-8. */
-static int from_utf16(struct importer *im, const unsigned char *b, size_t n, int big)
-{
-	size_t units = n / 2, o = 0;
-	int line = 1;
-
-	if (n % 2)
-		return fail(im, 0, 0, NULL,
-			    "UTF-16 text with an odd number of bytes: the file is truncated");
-	im->text = malloc(3 * units + 1);
-	if (!im->text)
-		return asph_error_set(im->err, -ENOMEM, "out of memory");
-	for (size_t i = 0; i < units; i++) {
-		unsigned u = big ? (unsigned)(b[2 * i] << 8 | b[2 * i + 1])
-				 : (unsigned)(b[2 * i + 1] << 8 | b[2 * i]);
-		if (u >= 0xd800 && u < 0xdc00 && i + 1 < units) {
-			unsigned v = big ? (unsigned)(b[2 * i + 2] << 8 | b[2 * i + 3])
-					 : (unsigned)(b[2 * i + 3] << 8 | b[2 * i + 2]);
-			if (v >= 0xdc00 && v < 0xe000) {
-				u = 0x10000 + ((u - 0xd800) << 10) + (v - 0xdc00);
-				i++;
-			}
-		}
-		if ((u >= 0xd800 && u < 0xe000) || u == 0)
-			return fail(im, line, 0, NULL, "invalid UTF-16 code unit 0x%04x", u);
-		line += u == '\n';
-		o += put_utf8(im->text + o, u);
-	}
-	im->text[o] = '\0';
-	im->len = o;
-	return 0;
-}
-
-static int decode(struct importer *im)
-{
-	_cleanup_free_ unsigned char *b = NULL;
-	size_t n = 0;
-	int r = read_all(im, &b, &n);
-
-	if (r < 0)
-		return r;
-	if (n >= 2 && b[0] == 0xff && b[1] == 0xfe)
-		return from_utf16(im, b + 2, n - 2, 0);
-	if (n >= 2 && b[0] == 0xfe && b[1] == 0xff)
-		return from_utf16(im, b + 2, n - 2, 1);
-	size_t skip = (n >= 3 && b[0] == 0xef && b[1] == 0xbb && b[2] == 0xbf) ? 3 : 0;
-	if (memchr(b + skip, '\0', n - skip))
-		return fail(im, 0, 0, NULL,
-			    "contains NUL bytes: UTF-16 without a byte-order mark is not read");
-	im->len = n - skip;
-	im->text = malloc(im->len + 1);
-	if (!im->text)
-		return asph_error_set(im->err, -ENOMEM, "out of memory");
-	memcpy(im->text, b + skip, im->len);
-	im->text[im->len] = '\0';
-	return 0;
-}
-
-/* ---- lines and tokens --------------------------------------------------- */
-
-struct cursor {
-	char *p;                  /* the current line, NUL-terminated in place */
-	int line;
-	const char *line_start;
-	int ended_with_newline;
-};
-
-/* Splits the next line off the text (CR LF or LF). NULL at the end. */
-static char *next_line(char **rest, int *had_newline)
-{
-	char *s = *rest, *nl;
-
-	if (!s || !*s)
-		return NULL;
-	nl = strchr(s, '\n');
-	*had_newline = nl != NULL;
-	if (nl) {
-		*nl = '\0';
-		*rest = nl + 1;
-	} else {
-		*rest = s + strlen(s);
-	}
-	size_t l = strlen(s);
-	if (l && s[l - 1] == '\r')
-		s[l - 1] = '\0';
-	return s;
-}
-
-#define TOKEN_MAX 128
-
-/* Copies the next whitespace-separated token at *p into tok (truncated to
- * TOKEN_MAX - 1 bytes; the line itself is left intact); its 1-based
- * column. NULL at the end of the line. */
-static char *token(const char **p, const char *line_start, char tok[TOKEN_MAX], int *col)
-{
-	const char *s = *p, *e;
-
-	while (*s == ' ' || *s == '\t')
-		s++;
-	if (!*s)
-		return NULL;
-	*col = (int)(s - line_start) + 1;
-	for (e = s; *e && *e != ' ' && *e != '\t'; e++)
-		;
-	snprintf(tok, TOKEN_MAX, "%.*s", (int)(e - s), s);
-	*p = e;
-	return tok;
-}
-
-static int parse_double(const char *s, double *out)
-{
-	char *end;
-
-	errno = 0;
-	*out = strtod(s, &end);
-	return s[0] && !*end && !errno && isfinite(*out) ? 0 : -EINVAL;
-}
-
-/* A keyword's numeric argument (the first after the keyword). */
-static int number_arg(const struct importer *im, const char **p, const char *ls, int line,
-		      const char *kw, double *out)
-{
-	char buf[TOKEN_MAX];
-	int col = 0;
-	const char *t = token(p, ls, buf, &col);
-
-	if (!t)
-		return fail(im, line, (int)strlen(ls) + 1, kw, "%s without a value", kw);
-	if (parse_double(t, out) < 0)
-		return fail(im, line, col, kw, "'%s' is not a finite number", t);
-	return 0;
-}
-
-/* ---- .zmx ------------------------------------------------------------- */
-
-static int zmx_surface_line(struct importer *im, struct zsurf *z, const char *p,
-			    const char *ls, int line, const char *kw)
-{
-	char buf[TOKEN_MAX];
-	int col = 0;
-
-	if (!strcmp(kw, "TYPE")) {
-		const char *t = token(&p, ls, buf, &col);
-		if (!t)
-			return fail(im, line, (int)strlen(ls) + 1, "TYPE", "TYPE without a name");
-		snprintf(z->type, sizeof(z->type), "%s", t);
-		z->type_line = line;
-		z->type_col = col;
-		return 0;
-	}
-	if (!strcmp(kw, "CURV"))
-		return number_arg(im, &p, ls, line, kw, &z->curv);
-	if (!strcmp(kw, "CONI"))
-		return number_arg(im, &p, ls, line, kw, &z->coni);
-	if (!strcmp(kw, "DIAM")) {
-		z->has_diam = 1;
-		return number_arg(im, &p, ls, line, kw, &z->diam);
-	}
-	if (!strcmp(kw, "PARM")) {
-		double idx, v;
-		int r = number_arg(im, &p, ls, line, kw, &idx);
-		if (r < 0)
-			return r;
-		if (idx != floor(idx) || idx < 0 || idx > MAX_PARM)
-			return fail(im, line, 0, "PARM", "parameter number %g is not 0..%d", idx,
-				    MAX_PARM);
-		if ((r = number_arg(im, &p, ls, line, kw, &v)) < 0)
-			return r;
-		z->parm[(int)idx] = v;
-		z->parm_line[(int)idx] = line;
-	}
-	return 0;
-}
-
-static int zmx_unit(struct importer *im, const char *p, const char *ls, int line)
-{
-	char buf[TOKEN_MAX];
-	int col = 0;
-	const char *t = token(&p, ls, buf, &col);
-
-	if (t && strcmp(t, "MM"))
-		return fail(im, line, col, "UNIT",
-			    "lens units %s: only files in millimetres (UNIT MM) are read", t);
-	return 0;
-}
-
-static int zmx_parse(struct importer *im)
-{
-	char *rest = im->text, *l;
-	int line = 0, nl = 1;
-	struct zsurf *cur = NULL;
-
-	im->surf = calloc(MAX_SURFACES, sizeof(*im->surf));
-	if (!im->surf)
-		return asph_error_set(im->err, -ENOMEM, "out of memory");
-	while ((l = next_line(&rest, &nl))) {
-		int col = 0, indented = (*l == ' ' || *l == '\t');
-		const char *ls = l, *p = l, *kw;
-		char kwbuf[TOKEN_MAX];
-		line++;
-		if (!(kw = token(&p, ls, kwbuf, &col)))
-			continue;
-		if (!indented)
-			cur = NULL;
-		if (!strcmp(kw, "UNIT")) {
-			int r = zmx_unit(im, p, ls, line);
-			if (r < 0)
-				return r;
-		} else if (!strcmp(kw, "SURF")) {
-			double num;
-			int r = number_arg(im, &p, ls, line, "SURF", &num);
-			if (r < 0)
-				return r;
-			if (num != floor(num) || num < 0 || im->n_surf == MAX_SURFACES)
-				return fail(im, line, col, "SURF", "bad surface number %g", num);
-			cur = &im->surf[im->n_surf++];
-			cur->number = (int)num;
-			cur->line = line;
-		} else if (cur) {
-			int r = zmx_surface_line(im, cur, p, ls, line, kw);
-			if (r < 0)
-				return r;
-		}
-		if (!nl && cur)
-			return fail(im, line, (int)strlen(ls) + 1, NULL,
-				    "the file ends inside surface %d: it is truncated", cur->number);
-	}
-	if (im->n_surf == 0)
-		return fail(im, line, 0, NULL, "no SURF block: not an OpticStudio lens file");
-	for (size_t i = 0; i < im->n_surf; i++)
-		if (!im->surf[i].type[0])
-			return fail(im, im->surf[i].line, 1, NULL,
-				    "surface %d has no TYPE line (truncated file?)",
-				    im->surf[i].number);
-	return 0;
-}
-
-enum ztype { Z_STANDARD, Z_EVENASPH, Z_ODDASPH, Z_QTYPE, Z_UNKNOWN };
-
-static enum ztype ztype_of(const char *t)
-{
-	if (!strcmp(t, "STANDARD"))
-		return Z_STANDARD;
-	if (!strcmp(t, "EVENASPH"))
-		return Z_EVENASPH;
-	if (!strcmp(t, "ODDASPH"))
-		return Z_ODDASPH;
-	if (!strcmp(t, "QTYPEASPH") || !strcmp(t, "QTYPE"))
-		return Z_QTYPE;
-	return Z_UNKNOWN;
-}
-
-/* Q type: PARM 1 family (0 Qbfs, 1 Qcon), PARM 2 normalization radius,
- * PARM 3 number of terms N, PARM 4 .. 3+N the coefficients a_0 .. a_{N-1}. */
-static int zmx_qtype(struct importer *im, const struct zsurf *z,
-		     struct asph_prescription *p)
-{
-	double fam = z->parm[1], n = z->parm[3];
-	int line = z->parm_line[1] ? z->parm_line[1] : z->type_line;
-
-	if (fam != 0 && fam != 1)
-		return fail(im, line, 0, "PARM 1",
-			    "surface %d: Q family %g (0 is Qbfs, 1 is Qcon)", z->number, fam);
-	p->type = fam == 0 ? ASPH_SURFACE_QBFS : ASPH_SURFACE_QCON;
-	p->norm_radius = z->parm[2];
-	if (n != floor(n) || n < 1 || n > ASPH_SURFACE_MAX_Q + 1 || 3 + n > MAX_PARM)
-		return fail(im, z->parm_line[3] ? z->parm_line[3] : z->type_line, 0, "PARM 3",
-			    "surface %d: %g Q terms (1..%d)", z->number, n, ASPH_SURFACE_MAX_Q + 1);
-	for (int m = 0; m < (int)n; m++)
-		p->Q[m] = z->parm[4 + m];
-	if (p->type == ASPH_SURFACE_QBFS && p->k != 0)
-		return fail(im, z->line, 1, "CONI",
-			    "surface %d: a Qbfs surface has no conic constant (CONI %g)",
-			    z->number, p->k);
-	if (p->type == ASPH_SURFACE_QBFS)
-		p->k = 0;
-	return 0;
-}
-
-static int zmx_convert(struct importer *im, const struct zsurf *z,
-		       struct asph_prescription *p)
-{
-	enum ztype t = ztype_of(z->type);
-
-	if (t == Z_UNKNOWN)
-		return fail(im, z->type_line, z->type_col, "TYPE",
-			    "surface %d has type %s, which is not imported "
-			    "(STANDARD, EVENASPH, ODDASPH, QTYPEASPH are)", z->number, z->type);
-	if (z->curv == 0)
-		return fail(im, z->line, 1, "CURV",
-			    "surface %d is flat (CURV 0): a prescription needs a radius", z->number);
-	if (!z->has_diam || !(z->diam > 0))
-		return fail(im, z->line, 1, "DIAM",
-			    "surface %d has no positive semi-diameter (DIAM)", z->number);
-	p->R = 1.0 / z->curv;
-	p->k = z->coni;
-	p->aperture_diameter = 2.0 * z->diam;
-	p->type = t == Z_ODDASPH ? ASPH_SURFACE_ODD_ASPHERE : ASPH_SURFACE_EVEN_ASPHERE;
-	/* EVENASPH: PARM i multiplies r^(2i); ODDASPH: r^i; i = 1..8. */
-	for (int i = 1; i <= 8 && t != Z_QTYPE && t != Z_STANDARD; i++)
-		p->A[t == Z_EVENASPH ? 2 * i : i] = z->parm[i];
-	if (t == Z_QTYPE)
-		return zmx_qtype(im, z, p);
-	return 0;
-}
-
-static void zmx_list(const struct importer *im)
-{
 	printf("%-8s %-12s %16s %14s\n", "surface", "type", "radius (mm)", "semi-diam (mm)");
-	for (size_t i = 0; i < im->n_surf; i++) {
-		const struct zsurf *z = &im->surf[i];
+	for (size_t i = 0; i < n; i++) {
 		char rad[32];
-		if (z->curv == 0)
+		asph_lens_import_surface(im, i, &s);
+		if (isinf(s.R))
 			snprintf(rad, sizeof(rad), "inf");
 		else
-			snprintf(rad, sizeof(rad), "%.10g", 1.0 / z->curv);
-		printf("%-8d %-12s %16s %14.10g\n", z->number, z->type, rad, z->diam);
+			snprintf(rad, sizeof(rad), "%.10g", s.R);
+		printf("%-8d %-12s %16s %14.10g\n", s.number, s.type, rad,
+		       s.aperture_diameter / 2);
 	}
-}
-
-/* ---- CSV ---------------------------------------------------------------- */
-
-enum { COL_R = -1, COL_K = -2, COL_D = -3, COL_NONE = -4 };
-
-static int csv_header(struct importer *im, char *l, int *cols, int *n_cols)
-{
-	char *p = l;
-	int n = 0, have_r = 0, have_d = 0;
-
-	while (p) {
-		char *f = p, *comma = strchr(p, ',');
-		int col = (int)(f - l) + 1;
-		if (comma)
-			*comma = '\0';
-		p = comma ? comma + 1 : NULL;
-		while (isspace((unsigned char)*f))
-			f++;
-		for (char *e = f + strlen(f); e > f && isspace((unsigned char)e[-1]); )
-			*--e = '\0';
-		if (n == 64)
-			return fail(im, 1, col, NULL, "more than 64 columns");
-		char *end;
-		long pw;
-		if (!strcmp(f, "R"))
-			cols[n] = COL_R, have_r = 1;
-		else if (!strcmp(f, "k"))
-			cols[n] = COL_K;
-		else if (!strcmp(f, "aperture_diameter"))
-			cols[n] = COL_D, have_d = 1;
-		else if (f[0] == 'A' && (pw = strtol(f + 1, &end, 10), !*end && f[1]) &&
-			 pw >= 1 && pw <= ASPH_SURFACE_MAX_POWER)
-			cols[n] = (int)pw;
-		else
-			return fail(im, 1, col, f,
-				    "unknown column '%s' (R, k, A1..A20, aperture_diameter)", f);
-		n++;
-	}
-	if (!have_r || !have_d)
-		return fail(im, 1, 1, have_r ? "aperture_diameter" : "R",
-			    "the header needs the columns R and aperture_diameter");
-	*n_cols = n;
-	return 0;
-}
-
-static int csv_row(struct importer *im, char *l, int line, const int *cols, int n_cols,
-		   struct asph_prescription *p)
-{
-	char *pos = l;
-	int odd = 0;
-
-	memset(p, 0, sizeof(*p));
-	for (int c = 0; c < n_cols; c++) {
-		if (!pos)
-			return fail(im, line, (int)strlen(l) + 1, NULL,
-				    "%d fields, the header has %d", c, n_cols);
-		char *f = pos, *comma = strchr(pos, ',');
-		int col = (int)(f - l) + 1;
-		if (comma)
-			*comma = '\0';
-		pos = comma ? comma + 1 : NULL;
-		double v = 0;
-		while (isspace((unsigned char)*f))
-			f++;
-		for (char *e = f + strlen(f); e > f && isspace((unsigned char)e[-1]); )
-			*--e = '\0';
-		if (*f && parse_double(f, &v) < 0)
-			return fail(im, line, col, NULL, "'%s' is not a finite number", f);
-		if (cols[c] == COL_R)
-			p->R = v;
-		else if (cols[c] == COL_K)
-			p->k = v;
-		else if (cols[c] == COL_D)
-			p->aperture_diameter = v;
-		else
-			p->A[cols[c]] = v, odd |= (cols[c] % 2) && v != 0;
-	}
-	if (pos)
-		return fail(im, line, (int)(pos - l) + 1, NULL, "more fields than the header's %d", n_cols);
-	p->type = odd ? ASPH_SURFACE_ODD_ASPHERE : ASPH_SURFACE_EVEN_ASPHERE;
-	return 0;
-}
-
-struct csv_rows {
-	struct asph_prescription *p;
-	int *line;
-	int n;
-};
-
-static int csv_import(struct importer *im, struct csv_rows *rows)
-{
-	char *rest = im->text, *l;
-	int line = 0, nl, cols[64], n_cols = 0, cap = 0;
-
-	while ((l = next_line(&rest, &nl))) {
-		line++;
-		if (line == 1) {
-			int r = csv_header(im, l, cols, &n_cols);
-			if (r < 0)
-				return r;
-			continue;
-		}
-		if (!*l)
-			continue;
-		if (rows->n == cap) {
-			cap = cap ? 2 * cap : 16;
-			void *a = realloc(rows->p, (size_t)cap * sizeof(*rows->p));
-			if (a)
-				rows->p = a;
-			void *b = realloc(rows->line, (size_t)cap * sizeof(int));
-			if (b)
-				rows->line = b;
-			if (!a || !b)
-				return asph_error_set(im->err, -ENOMEM, "out of memory");
-		}
-		int r = csv_row(im, l, line, cols, n_cols, &rows->p[rows->n]);
-		if (r < 0)
-			return r;
-		rows->line[rows->n++] = line;
-	}
-	if (line == 0)
-		return fail(im, 0, 0, NULL, "empty file");
-	if (rows->n == 0)
-		return fail(im, line, 0, NULL, "a header and no data row");
-	return 0;
-}
-
-/* ---- the command ------------------------------------------------------- */
-
-static int is_csv(const struct importer *im)
-{
-	const char *dot = strrchr(im->path, '.');
-	return (dot && !strcasecmp(dot, ".csv")) || !strncmp(im->text, "R,", 2);
-}
-
-static void name_from(struct asph_prescription *p, const char *path, int surface)
-{
-	const char *base = strrchr(path, '/');
-
-	base = base ? base + 1 : path;
-	snprintf(p->name, sizeof(p->name), "%.*s-s%d", (int)strcspn(base, "."), base, surface);
-}
-
-static int check(struct importer *im, const struct asph_prescription *p, int line)
-{
-	struct asph_error e;
-	asph_error_clear(&e);
-	if (asph_prescription_check(p, &e) == 0)
-		return 0;
-	return fail(im, line, 0, e.field[0] ? e.field : NULL, "%s", e.message);
-}
-
-static int import_zmx(struct importer *im, int want, struct asph_prescription *p, int *listed)
-{
-	int r = zmx_parse(im);
-	const struct zsurf *z = NULL;
-
-	if (r < 0)
-		return r;
-	if (want < 0 && im->n_surf > 1) {
-		zmx_list(im);
-		*listed = 1;
-		return 0;
-	}
-	for (size_t i = 0; i < im->n_surf; i++)
-		if (want < 0 || im->surf[i].number == want)
-			z = &im->surf[i];
-	if (!z)
-		return fail(im, 0, 0, NULL, "no surface %d (the file has %d to %d)", want,
-			    im->surf[0].number, im->surf[im->n_surf - 1].number);
-	memset(p, 0, sizeof(*p));
-	if ((r = zmx_convert(im, z, p)) < 0)
-		return r;
-	name_from(p, im->path, z->number);
-	return check(im, p, z->line);
-}
-
-static int import_csv(struct importer *im, int want, struct asph_prescription *p, int *listed)
-{
-	struct csv_rows rows = { 0 };
-	int r = csv_import(im, &rows);
-
-	if (r == 0 && want < 0 && rows.n > 1) {
-		printf("%-8s %16s %10s %14s\n", "row", "R (mm)", "k", "diameter (mm)");
-		for (int i = 0; i < rows.n; i++)
-			printf("%-8d %16.10g %10.6g %14.10g\n", i + 1, rows.p[i].R, rows.p[i].k,
-			       rows.p[i].aperture_diameter);
-		*listed = 1;
-	} else if (r == 0 && (want == 0 || want > rows.n)) {
-		r = fail(im, 0, 0, NULL, "no row %d (the file has %d)", want, rows.n);
-	} else if (r == 0) {
-		int i = want < 0 ? 0 : want - 1;
-		*p = rows.p[i];
-		name_from(p, im->path, i + 1);
-		r = check(im, p, rows.line[i]);
-	}
-	free(rows.p);
-	free(rows.line);
-	return r;
 }
 
 static void usage(FILE *out)
@@ -674,6 +74,54 @@ static int write_out(const struct asph_prescription *p, const char *out)
 	return EXIT_OK;
 }
 
+static int import(const char *path, int want, const char *out)
+{
+	_cleanup_(asph_lens_import_freep) struct asph_lens_import *im = NULL;
+	struct asph_prescription p;
+	struct asph_error err;
+
+	asph_error_clear(&err);
+	if (asph_lens_import_load(path, &im, &err) < 0) {
+		tool_print_error("lens import", &err);
+		return EXIT_FAILURE_RUN;
+	}
+	if (want < 0 && asph_lens_import_count(im) > 1) {
+		list(im);
+		fprintf(stderr, "asph: lens import: several surfaces; choose one with --surface N\n");
+		return EXIT_OK;
+	}
+	if (asph_lens_import_prescription(im, want, &p, &err) < 0) {
+		tool_print_error("lens import", &err);
+		return EXIT_FAILURE_RUN;
+	}
+	return write_out(&p, out);
+}
+
+struct import_args {
+	const char *out;
+	int want;               /* -1: the only surface */
+};
+
+static int take(int opt, const char *arg, void *data)
+{
+	struct import_args *a = data;
+	char *end;
+
+	if (opt == 'o') {
+		a->out = arg;
+		return 0;
+	}
+	errno = 0;
+	long v = strtol(arg, &end, 10);
+	if (arg[0] < '0' || arg[0] > '9' || *end || errno || v > INT_MAX) {
+		fprintf(stderr, "asph: lens import: --surface wants a number from 0 to %d, "
+			"not '%s'\n", INT_MAX, arg);
+		return -EINVAL;
+	}
+	a->want = (int)v;
+	return 0;
+}
+
 int cmd_lens_import(int argc, char **argv)
 {
 	static const struct option options[] = {
@@ -682,58 +130,14 @@ int cmd_lens_import(int argc, char **argv)
 		{ "help", no_argument, NULL, 'h' },
 		{ 0 }
 	};
-	const char *out = NULL;
-	int want = -1, c;
-	char *end;
+	struct import_args a = { .want = -1 };
+	int code = tool_getopt(argc, argv, "o:h", options, usage, take, &a);
 
-	optind = 1;
-	while ((c = getopt_long(argc, argv, "o:h", options, NULL)) != -1) {
-		switch (c) {
-		case 's': {
-			errno = 0;
-			long v = strtol(optarg, &end, 10);
-			if (optarg[0] < '0' || optarg[0] > '9' || *end || errno || v > INT_MAX) {
-				fprintf(stderr, "asph: lens import: --surface wants a number from 0 to %d, "
-					"not '%s'\n", INT_MAX, optarg);
-				return EXIT_USAGE;
-			}
-			want = (int)v;
-			break;
-		}
-		case 'o':
-			out = optarg;
-			break;
-		case 'h':
-			usage(stdout);
-			return EXIT_OK;
-		default:
-			usage(stderr);
-			return EXIT_USAGE;
-		}
-	}
+	if (code >= 0)
+		return code;
 	if (optind + 1 != argc) {
 		usage(stderr);
 		return EXIT_USAGE;
 	}
-	struct asph_error err;
-	struct importer im = { .path = argv[optind], .err = &err };
-	struct asph_prescription p;
-	int listed = 0, r;
-
-	asph_error_clear(&err);
-	r = decode(&im);
-	if (r == 0)
-		r = is_csv(&im) ? import_csv(&im, want, &p, &listed)
-				: import_zmx(&im, want, &p, &listed);
-	free(im.text);
-	free(im.surf);
-	if (r < 0) {
-		tool_print_error("lens import", &err);
-		return EXIT_FAILURE_RUN;
-	}
-	if (listed) {
-		fprintf(stderr, "asph: lens import: several surfaces; choose one with --surface N\n");
-		return EXIT_OK;
-	}
-	return write_out(&p, out);
+	return import(argv[optind], a.want, a.out);
 }

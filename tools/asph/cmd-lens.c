@@ -94,24 +94,13 @@ int cmd_lens(int argc, char **argv)
 		{ "help", no_argument, NULL, 'h' },
 		{ 0 }
 	};
-	int json = 0, c;
+	int json = 0, code;
 
 	if (argc >= 2 && !strcmp(argv[1], "import"))
 		return cmd_lens_import(argc - 1, argv + 1);
-	optind = 1;
-	while ((c = getopt_long(argc, argv, "h", options, NULL)) != -1) {
-		switch (c) {
-		case 'j':
-			json = 1;
-			break;
-		case 'h':
-			usage(stdout);
-			return EXIT_OK;
-		default:
-			usage(stderr);
-			return EXIT_USAGE;
-		}
-	}
+	code = tool_getopt(argc, argv, "h", options, usage, tool_take_flag, &json);
+	if (code >= 0)
+		return code;
 	if (optind < argc && !strcmp(argv[optind], "presets") && optind + 1 == argc) {
 		for (const char *const *n = asph_prescription_preset_names(); *n; n++)
 			printf("%s\n", *n);

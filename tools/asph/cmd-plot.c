@@ -62,6 +62,31 @@ static int draw(const char *path, const char *lens, const char *label,
 	return EXIT_OK;
 }
 
+struct plot_args {
+	struct plan_quality *pq;
+	const char *output;
+	int colour_q;
+};
+
+static int take(int opt, const char *arg, void *data)
+{
+	struct plot_args *a = data;
+	int r = plan_quality_option(a->pq, opt, arg);
+
+	if (r <= 0)
+		return r;
+	if (opt == 'o') {
+		a->output = arg;
+		return 0;
+	}
+	if (strcmp(arg, "area") && strcmp(arg, "q")) {
+		fprintf(stderr, "asph: --color: '%s' is not area or q\n", arg);
+		return -EINVAL;
+	}
+	a->colour_q = !strcmp(arg, "q");
+	return 0;
+}
+
 int cmd_plot(int argc, char **argv)
 {
 	static const struct option options[] = {
@@ -72,37 +97,13 @@ int cmd_plot(int argc, char **argv)
 		{ 0 },
 	};
 	_cleanup_(plan_quality_clear) struct plan_quality pq = { 0 };
-	const char *output = NULL;
+	struct plot_args a = { .pq = &pq };
 	char label[128];
-	int colour_q = 0, c, r;
+	int r = tool_getopt(argc, argv, "ho:", options, usage, take, &a);
 
-	optind = 1;
-	while ((c = getopt_long(argc, argv, "ho:", options, NULL)) != -1) {
-		r = plan_quality_option(&pq, c, optarg);
-		if (r < 0)
-			return EXIT_USAGE;
-		if (r == 0)
-			continue;
-		switch (c) {
-		case 'o':
-			output = optarg;
-			break;
-		case 'C':
-			if (strcmp(optarg, "area") && strcmp(optarg, "q")) {
-				fprintf(stderr, "asph: --color: '%s' is not area or q\n", optarg);
-				return EXIT_USAGE;
-			}
-			colour_q = !strcmp(optarg, "q");
-			break;
-		case 'h':
-			usage(stdout);
-			return EXIT_OK;
-		default:
-			usage(stderr);
-			return EXIT_USAGE;
-		}
-	}
-	if (!output) {
+	if (r >= 0)
+		return r;
+	if (!a.output) {
 		fprintf(stderr, "asph: plot: -o FILE.png is required\n");
 		return EXIT_USAGE;
 	}
@@ -110,5 +111,6 @@ int cmd_plot(int argc, char **argv)
 	if (r != EXIT_OK)
 		return r;
 	plan_source_label(&pq.src, label, sizeof(label));
-	return draw(output, asph_surface_prescription(pq.s)->name, label, pq.pts, pq.q, colour_q);
+	return draw(a.output, asph_surface_prescription(pq.s)->name, label, pq.pts, pq.q,
+		    a.colour_q);
 }

@@ -97,6 +97,25 @@ static int parse_rim_angle(const char *arg, double *out)
 	return 0;
 }
 
+struct quality_args {
+	struct plan_quality *pq;
+	int json;
+};
+
+static int take(int opt, const char *arg, void *data)
+{
+	struct quality_args *a = data;
+	int r = plan_quality_option(a->pq, opt, arg);
+
+	if (r <= 0)
+		return r;
+	if (opt == 'j') {
+		a->json = 1;
+		return 0;
+	}
+	return parse_rim_angle(arg, &a->pq->opts.max_rim_angle);
+}
+
 int cmd_quality(int argc, char **argv)
 {
 	static const struct option options[] = {
@@ -107,37 +126,17 @@ int cmd_quality(int argc, char **argv)
 		{ 0 },
 	};
 	_cleanup_(plan_quality_clear) struct plan_quality pq = { 0 };
+	struct quality_args a = { .pq = &pq };
 	char label[128];
-	int json = 0, c, r;
+	int r = tool_getopt(argc, argv, "h", options, usage, take, &a);
 
-	optind = 1;
-	while ((c = getopt_long(argc, argv, "h", options, NULL)) != -1) {
-		r = plan_quality_option(&pq, c, optarg);
-		if (r < 0)
-			return EXIT_USAGE;
-		if (r == 0)
-			continue;
-		switch (c) {
-		case 'r':
-			if (parse_rim_angle(optarg, &pq.opts.max_rim_angle) < 0)
-				return EXIT_USAGE;
-			break;
-		case 'j':
-			json = 1;
-			break;
-		case 'h':
-			usage(stdout);
-			return EXIT_OK;
-		default:
-			usage(stderr);
-			return EXIT_USAGE;
-		}
-	}
+	if (r >= 0)
+		return r;
 	r = plan_quality_run(&pq, "quality", argc, argv, optind);
 	if (r != EXIT_OK)
 		return r;
 	plan_source_label(&pq.src, label, sizeof(label));
-	if (json)
+	if (a.json)
 		show_json(pq.q);
 	else
 		show_text(asph_surface_prescription(pq.s)->name, label, pq.q);

@@ -18,6 +18,7 @@
 #include "asph/prescription.h"
 #include "plan-source.h"
 #include "util-mem.h"
+#include "util-time.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_registry *, asph_registry_free)
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_config *, asph_config_free)
@@ -47,12 +48,10 @@ struct bar {
 static void progress_cb(const struct asph_scan_progress *p, void *data)
 {
 	struct bar *b = data;
-	struct timespec ts;
 
 	if (b->quiet)
 		return;
-	clock_gettime(CLOCK_MONOTONIC, &ts);
-	uint64_t t = (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+	uint64_t t = now_monotonic_ns();
 	bool final = p->state >= ASPH_SCAN_COMPLETED;
 	double pct = p->total ? 100.0 * (double)p->done / (double)p->total : 100.0;
 	char eta[32] = "--";
@@ -90,21 +89,6 @@ static void *sigwatch_run(void *data)
 	return NULL;
 }
 
-static int plan_json(const struct asph_plan *plan, char **out)
-{
-	static const char *const kinds[] = { "h", "spacing", "points" };
-	_cleanup_(json_decrefp) json_t *j = json_object();
-
-	json_object_set_new(j, "method", json_string(asph_plan_method_name(plan->method)));
-	json_object_set_new(j, "density", json_pack("{s:s,s:f}", "kind",
-						     kinds[plan->density.kind], "value",
-						     plan->density.value));
-	json_object_set_new(j, "spacing_mm", json_real(plan->spacing_mm));
-	json_object_set_new(j, "points", json_integer((json_int_t)plan->n));
-	*out = json_dumps(j, JSON_COMPACT | JSON_PRESERVE_ORDER | JSON_REAL_PRECISION(17));
-	return *out ? 0 : -ENOMEM;
-}
-
 static int open_writer(const struct scan_args *a, const struct asph_surface *s,
 		       const struct asph_plan *plan, const struct asph_instrument_config *ic,
 		       struct asph_scanfile_writer **w, uint64_t *start, struct asph_error *err)
@@ -113,18 +97,10 @@ static int open_writer(const struct scan_args *a, const struct asph_surface *s,
 	struct asph_scanfile_writer_options wo = { .flags = a->force ? ASPH_SCANFILE_OVERWRITE : 0 };
 
 	*start = 0;
-	if (a->resume) {
-		_cleanup_(asph_scanfile_freep) struct asph_scanfile *rec = NULL;
-		int r = asph_scanfile_writer_resume(a->output, NULL, &rec, w, err);
-		if (r < 0)
-			return r;
-		for (size_t i = 0; i < rec->n; i++)
-			if (rec->points[i].plan_index + 1 > *start)
-				*start = rec->points[i].plan_index + 1;
-		return 0;
-	}
+	if (a->resume)
+		return asph_scan_reopen(a->output, plan, NULL, w, start, err);
 	if (asph_prescription_to_json(asph_surface_prescription(s), &pj) < 0 ||
-	    plan_json(plan, &plj) < 0 || asph_instrument_config_to_json(ic, &ij) < 0)
+	    asph_plan_to_json(plan, &plj) < 0 || asph_instrument_config_to_json(ic, &ij) < 0)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	struct asph_scanfile_header_info info = { pj, plj, ij, NULL };
 	return asph_scanfile_writer_create(a->output, &info, &wo, w, err);
@@ -244,6 +220,34 @@ static void usage(FILE *out)
 		"SIGINT or SIGTERM aborts the scan; the file keeps what was measured.\n");
 }
 
+static int take(int opt, const char *arg, void *data)
+{
+	struct scan_args *a = data;
+	int r = plan_source_option(&a->ps, opt, arg);
+	char *end;
+
+	if (r <= 0)
+		return r;
+	switch (opt) {
+	case OPT_INSTRUMENT: a->instrument = arg; break;
+	case 'o': a->output = arg; break;
+	case OPT_FORCE: a->force = true; break;
+	case OPT_RESUME: a->resume = true; break;
+	case OPT_NO_STREAM: a->no_stream = true; break;
+	case OPT_SKIP_OOR: a->skip_oor = true; break;
+	case OPT_PLUGIN_DIR: a->plugin_dir = arg; break;
+	case OPT_QUIET: a->quiet = true; break;
+	case OPT_CLEARANCE:
+		a->clearance = strtod(arg, &end);
+		if (*end || !(a->clearance > 0) || a->clearance > 1000) {
+			fprintf(stderr, "asph scan: --clearance must be a length in mm, > 0\n");
+			return -EINVAL;
+		}
+		break;
+	}
+	return 0;
+}
+
 static int parse(int argc, char **argv, struct scan_args *a)
 {
 	static const struct option long_opts[] = {
@@ -260,35 +264,10 @@ static int parse(int argc, char **argv, struct scan_args *a)
 		{ "help", no_argument, NULL, 'h' },
 		{ NULL, 0, NULL, 0 },
 	};
-	char *end;
-	int c;
+	int code = tool_getopt(argc, argv, "o:h", long_opts, usage, take, a);
 
-	while ((c = getopt_long(argc, argv, "o:h", long_opts, NULL)) != -1) {
-		int r = plan_source_option(&a->ps, c, optarg);
-		if (r < 0)
-			return EXIT_USAGE;
-		if (r == 0)
-			continue;
-		switch (c) {
-		case OPT_INSTRUMENT: a->instrument = optarg; break;
-		case 'o': a->output = optarg; break;
-		case OPT_FORCE: a->force = true; break;
-		case OPT_RESUME: a->resume = true; break;
-		case OPT_NO_STREAM: a->no_stream = true; break;
-		case OPT_SKIP_OOR: a->skip_oor = true; break;
-		case OPT_PLUGIN_DIR: a->plugin_dir = optarg; break;
-		case OPT_QUIET: a->quiet = true; break;
-		case OPT_CLEARANCE:
-			a->clearance = strtod(optarg, &end);
-			if (*end || !(a->clearance > 0) || a->clearance > 1000) {
-				fprintf(stderr, "asph scan: --clearance must be a length in mm, > 0\n");
-				return EXIT_USAGE;
-			}
-			break;
-		case 'h': usage(stdout); return EXIT_OK;
-		default: usage(stderr); return EXIT_USAGE;
-		}
-	}
+	if (code >= 0)
+		return code;
 	if (optind + 1 != argc || !a->instrument || !a->output) {
 		fprintf(stderr, "asph scan: give LENS, --instrument and -o SCAN (see --help)\n");
 		return EXIT_USAGE;

@@ -160,22 +160,11 @@ int cmd_scaninfo(int argc, char **argv)
 		{ "help", no_argument, NULL, 'h' },
 		{ 0 }
 	};
-	int json = 0, c;
+	int json = 0;
+	int code = tool_getopt(argc, argv, "h", options, usage, tool_take_flag, &json);
 
-	optind = 1;
-	while ((c = getopt_long(argc, argv, "h", options, NULL)) != -1) {
-		switch (c) {
-		case 'j':
-			json = 1;
-			break;
-		case 'h':
-			usage(stdout);
-			return EXIT_OK;
-		default:
-			usage(stderr);
-			return EXIT_USAGE;
-		}
-	}
+	if (code >= 0)
+		return code;
 	if (optind + 1 != argc) {
 		usage(stderr);
 		return EXIT_USAGE;

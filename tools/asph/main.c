@@ -35,6 +35,34 @@ void tool_print_error(const char *context, const struct asph_error *err)
 		fprintf(stderr, "asph: %s\n", buf);
 }
 
+int tool_getopt(int argc, char **argv, const char *shortopts,
+		const struct option *longopts, void (*usage)(FILE *out),
+		tool_option_fn *take, void *data)
+{
+	int c;
+
+	optind = 1;
+	while ((c = getopt_long(argc, argv, shortopts, longopts, NULL)) != -1) {
+		if (c == 'h') {
+			usage(stdout);
+			return EXIT_OK;
+		}
+		if (c == '?' || c == ':') {
+			usage(stderr);
+			return EXIT_USAGE;
+		}
+		if (take(c, optarg, data) < 0)
+			return EXIT_USAGE;
+	}
+	return -1;
+}
+
+int tool_take_flag(int opt, const char *arg, void *data)
+{
+	*(int *)data = 1;
+	return 0;
+}
+
 int tool_load_surface(const char *lens, struct asph_surface **out)
 {
 	struct asph_prescription p;

@@ -57,13 +57,17 @@ int ctl_call(struct ctl *ctl, const char *method, json_t *params,
 	     json_t **result);
 /* Prints JSON (pretty) to stdout. */
 void ctl_print_json(const json_t *j);
-/* Parses a job id argument; -1 (after printing) when it is not one. */
 /* Whole-string conversions: 0, or -EINVAL for an empty string, trailing
  * characters, a value out of [min, max] (or out of range of the type), or
  * a real that is not finite. */
 int ctl_parse_integer(const char *arg, long long min, long long max, long long *v);
 int ctl_parse_real(const char *arg, double *v);
+/* Parses a job id argument; -1 (after printing) when it is not one. */
 int64_t ctl_job_id(const char *arg);
+/* The one operand after the options, a job id; -1 (after printing usage,
+ * "Usage: asphctl USAGE", or why) when there is not exactly one or it is
+ * not a job id. */
+int64_t ctl_job_operand(int argc, char **argv, const char *usage);
 
 int cmd_submit(struct ctl *ctl, int argc, char **argv);
 int cmd_status(struct ctl *ctl, int argc, char **argv);

@@ -214,10 +214,7 @@ static int simple_job_command(struct ctl *ctl, int argc, char **argv, const char
 		default: return usage_error(usage);
 		}
 	}
-	if (optind + 1 != argc)
-		return usage_error(usage);
-	id = ctl_job_id(argv[optind]);
-	if (id < 0)
+	if ((id = ctl_job_operand(argc, argv, usage)) < 0)
 		return CTL_EXIT_USAGE;
 	r = ctl_call(ctl, method, json_pack("{s:I}", "id", (json_int_t)id), &result);
 	if (r)
@@ -264,9 +261,7 @@ int cmd_requeue(struct ctl *ctl, int argc, char **argv)
 		default: return usage_error(usage);
 		}
 	}
-	if (optind + 1 != argc)
-		return usage_error(usage);
-	if ((id = ctl_job_id(argv[optind])) < 0)
+	if ((id = ctl_job_operand(argc, argv, usage)) < 0)
 		return CTL_EXIT_USAGE;
 	r = ctl_call(ctl, "job.requeue",
 		     json_pack("{s:I, s:b}", "id", (json_int_t)id, "restart", restart), &result);
@@ -500,9 +495,7 @@ int cmd_result(struct ctl *ctl, int argc, char **argv)
 		default: return usage_error(usage);
 		}
 	}
-	if (optind + 1 != argc)
-		return usage_error(usage);
-	if ((id = ctl_job_id(argv[optind])) < 0)
+	if ((id = ctl_job_operand(argc, argv, usage)) < 0)
 		return CTL_EXIT_USAGE;
 	r = ctl_call(ctl, "job.result", json_pack("{s:I}", "id", (json_int_t)id), &result);
 	if (r)

@@ -153,11 +153,7 @@ int cmd_watch(struct ctl *ctl, int argc, char **argv)
 		default: fprintf(stderr, "Usage: asphctl %s\n", usage); return CTL_EXIT_USAGE;
 		}
 	}
-	if (optind + 1 != argc) {
-		fprintf(stderr, "Usage: asphctl %s\n", usage);
-		return CTL_EXIT_USAGE;
-	}
-	if ((id = ctl_job_id(argv[optind])) < 0)
+	if ((id = ctl_job_operand(argc, argv, usage)) < 0)
 		return CTL_EXIT_USAGE;
 	return ctl_watch_job(ctl, id, ctl->json);
 }

@@ -100,7 +100,7 @@ static int read_message(struct conn *c, int timeout_ms, json_t **msg)
 		if (r == -EMSGSIZE)
 			return -EMSGSIZE;
 		if (r == 1) {
-			*msg = proto_parse(line, len, NULL, 0);
+			*msg = proto_parse(line, len, NULL);
 			if (!*msg)
 				return -EBADMSG;
 			return 1;
@@ -144,12 +144,11 @@ int conn_call(struct conn *c, const char *method, json_t *params,
 	for (;;) {
 		_cleanup_(json_decrefp) json_t *msg = NULL;
 		struct proto_message m;
-		const char *why;
 
 		r = read_message(c, -1, &msg);
 		if (r < 0)
 			return io_error(e, r, "the connection to asphd broke");
-		if (proto_check_incoming(msg, &m, &why) != 0)
+		if (proto_check_incoming(msg, &m, NULL) != 0)
 			return io_error(e, -EBADMSG, "asphd sent a malformed message");
 		if (m.kind == PROTO_KIND_NOTIFICATION) {
 			json_array_append(c->events, msg);
@@ -187,12 +186,11 @@ int conn_next_event(struct conn *c, int timeout_ms, json_t **msg)
 	}
 	for (;;) {
 		struct proto_message m;
-		const char *why;
 		int r = read_message(c, timeout_ms, msg);
 
 		if (r <= 0)
 			return r;
-		if (proto_check_incoming(*msg, &m, &why) == 0 && m.kind == PROTO_KIND_NOTIFICATION)
+		if (proto_check_incoming(*msg, &m, NULL) == 0 && m.kind == PROTO_KIND_NOTIFICATION)
 			return 1;
 		json_decref(*msg);
 		*msg = NULL;

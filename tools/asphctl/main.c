@@ -98,6 +98,15 @@ int64_t ctl_job_id(const char *arg)
 	return v;
 }
 
+int64_t ctl_job_operand(int argc, char **argv, const char *usage)
+{
+	if (optind + 1 != argc) {
+		fprintf(stderr, "Usage: asphctl %s\n", usage);
+		return -1;
+	}
+	return ctl_job_id(argv[optind]);
+}
+
 static void usage(FILE *f)
 {
 	fprintf(f, "Usage: asphctl [--socket PATH] [--json] COMMAND [ARGS...]\n\n"

@@ -31,9 +31,35 @@ static void test_format(void **state)
 	assert_int_equal(strlen(tiny), 7);
 }
 
+static void test_set_at(void **state)
+{
+	struct asph_error e;
+	char buf[256];
+
+	asph_error_clear(&e);
+	assert_int_equal(asph_error_set_at(&e, -EINVAL, "lens.zmx", 12, 3, "SURF 2",
+					   "bad %s", "CURV"), -EINVAL);
+	assert_int_equal(e.code, -EINVAL);
+	assert_string_equal(asph_error_format(&e, buf, sizeof(buf)),
+			    "lens.zmx:12:3: SURF 2: bad CURV");
+	/* absent parts stay as they were */
+	asph_error_set_at(&e, -ERANGE, NULL, 0, 0, NULL, "too large");
+	assert_int_equal(e.code, -ERANGE);
+	assert_string_equal(asph_error_format(&e, buf, sizeof(buf)),
+			    "lens.zmx:12:3: SURF 2: too large");
+	/* re-wording a message with its own text and parts */
+	asph_error_set_at(&e, -EINVAL, e.source, 0, 0, e.field, "in %s: %s", e.field, e.message);
+	assert_string_equal(e.message, "in SURF 2: too large");
+	assert_string_equal(asph_error_format(&e, buf, sizeof(buf)),
+			    "lens.zmx:12:3: SURF 2: in SURF 2: too large");
+	asph_error_set(&e, -EIO, "%s, again", e.message);
+	assert_string_equal(e.message, "in SURF 2: too large, again");
+}
+
 static void test_null_error(void **state)
 {
 	assert_int_equal(asph_error_set(NULL, -EIO, "x"), -EIO);
+	assert_int_equal(asph_error_set_at(NULL, -EIO, "a", 1, 1, "b", "x"), -EIO);
 	asph_error_locate(NULL, "a", 1, 1, "b");
 	asph_error_clear(NULL);
 	char buf[4];
@@ -44,6 +70,7 @@ int main(void)
 {
 	const struct CMUnitTest tests[] = {
 		cmocka_unit_test(test_format),
+		cmocka_unit_test(test_set_at),
 		cmocka_unit_test(test_null_error),
 	};
 	return cmocka_run_group_tests(tests, NULL, NULL);

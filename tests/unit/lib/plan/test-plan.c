@@ -146,7 +146,7 @@ static double polyline_length(double s0, double sig0, double sig1)
 static void test_disk_grid_closed_form(void **state)
 {
 	const double a = 17.31, p = 0.7193, s0 = p / (2.0 * M_PI);
-	size_t ns, n = plan_disk_grid_count(a, p, &ns);
+	size_t ns = plan_disk_grid_spiral_count(a, p), n = plan_disk_grid_count(a, p);
 	double *g = malloc(3 * n * sizeof(*g)), want[2];
 
 	plan_disk_grid_fill(a, p, g);
@@ -210,7 +210,7 @@ static void test_op_on_surface(void **state)
 		const struct asph_plan *p = f->plan[i][ASPH_PLAN_OP];
 		double a = asph_surface_aperture_radius(f->s[i]);
 		double pitch = pitch_of(f->s[i], p);
-		size_t n = plan_disk_grid_count(a, pitch, NULL);
+		size_t n = plan_disk_grid_count(a, pitch);
 		assert_int_equal(n, p->n);
 		double *g = malloc(3 * n * sizeof(*g));
 		plan_disk_grid_fill(a, pitch, g);
@@ -688,6 +688,65 @@ static void test_fermat(void **state)
 	free(g);
 }
 
+/* The plan's JSON: one writer, and a reader of both shapes scan headers
+ * have held. */
+static void test_plan_json(void **state)
+{
+	struct fixture *f = *state;
+	const struct asph_plan *p = f->plan[1][ASPH_PLAN_OT];
+	struct asph_plan_info info;
+	struct asph_error err;
+	char *text = NULL;
+
+	assert_int_equal(asph_plan_to_json(p, &text), 0);
+	assert_int_equal(asph_plan_info_from_json(text, strlen(text), "t", &info, &err), 0);
+	assert_int_equal(info.method, ASPH_PLAN_OT);
+	assert_int_equal(info.density.kind, p->density.kind);
+	assert_true(info.density.value == p->density.value);
+	assert_true(info.spacing_mm == p->spacing_mm);
+	assert_int_equal(info.points, p->n);
+	assert_non_null(strstr(text, "\"density\":\"h\""));
+	free(text);
+
+	/* as asph scan wrote it before: the density an object */
+	const char *old = "{\"method\":\"fermat\",\"density\":{\"kind\":\"points\","
+			  "\"value\":50},\"spacing_mm\":4.71,\"points\":50}";
+	assert_int_equal(asph_plan_info_from_json(old, strlen(old), "t", &info, &err), 0);
+	assert_true(info.method == ASPH_PLAN_FERMAT && info.density.kind == ASPH_DENSITY_POINTS);
+	assert_true(info.density.value == 50 && info.spacing_mm == 4.71 && info.points == 50);
+	/* spacing and count are optional */
+	const char *bare = "{\"method\":\"ci\",\"density\":\"spacing\",\"value\":0.25}";
+	assert_int_equal(asph_plan_info_from_json(bare, strlen(bare), "t", &info, &err), 0);
+	assert_true(info.method == ASPH_PLAN_CI && info.density.kind == ASPH_DENSITY_SPACING);
+	assert_true(info.density.value == 0.25 && isnan(info.spacing_mm) && info.points == 0);
+
+	static const struct { const char *text, *field; } bad[] = {
+		{ "[1]", "plan" },
+		{ "{\"method\":\"zigzag\",\"density\":\"h\",\"value\":0.1}", "plan.method" },
+		{ "{\"method\":\"ot\",\"density\":\"n\",\"value\":0.1}", "plan.density" },
+		{ "{\"method\":\"ot\",\"density\":\"h\",\"value\":0}", "plan.value" },
+		{ "{\"method\":\"ot\",\"density\":{\"kind\":\"h\"}}", "plan.density.value" },
+		{ "{\"method\":\"ot\",\"density\":{\"kind\":1,\"value\":1}}", "plan.density.kind" },
+		{ "{\"method\":\"ot\",\"density\":\"h\",\"value\":0.1,\"points\":-3}", "plan.points" },
+	};
+	for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++) {
+		asph_error_clear(&err);
+		assert_int_equal(asph_plan_info_from_json(bad[i].text, strlen(bad[i].text), "hdr",
+							  &info, &err), -EINVAL);
+		assert_string_equal(err.field, bad[i].field);
+		assert_string_equal(err.source, "hdr");
+	}
+
+	enum asph_plan_density_kind k;
+	for (int i = 0; i < 3; i++) {
+		assert_int_equal(asph_plan_density_from_name(
+			asph_plan_density_name((enum asph_plan_density_kind)i), &k), 0);
+		assert_int_equal(k, i);
+	}
+	assert_int_equal(asph_plan_density_from_name("H", &k), -EINVAL);
+	assert_int_equal(asph_plan_density_from_name(NULL, &k), -EINVAL);
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -710,6 +769,7 @@ int main(void)
 		cmocka_unit_test(test_concentric),
 		cmocka_unit_test(test_archimedean),
 		cmocka_unit_test(test_fermat),
+		cmocka_unit_test(test_plan_json),
 	};
 
 	return cmocka_run_group_tests(tests, setup, teardown);

@@ -135,6 +135,10 @@ static const struct bad_csv bad[] = {
 	{ "x,y,z\n1,,3\n", 2, 3, "y", "empty value" },
 	{ "x,y,z\n1,2,inf\n", 2, 5, "z", "not a finite number" },
 	{ "x,y,z\n1,2,1e999\n", 2, 5, "z", "not a finite number" },
+	{ "\"x\",\"y\",\"z\n1,2,3\n", 1, 9, "", "does not close" },
+	{ "x,y,z\n\"1\"2,2,3\n", 2, 4, "", "after the closing quote" },
+	{ "x,y,z\n1,\"2 mm\",3\n", 2, 4, "y", "not a number: '2 mm'" },
+	{ "X,Y,Q\n1,2,3\n", 1, 1, "", "header" },
 };
 
 static void test_csv_errors(void **state)
@@ -164,6 +168,41 @@ static void test_csv_tolerant(void **state)
 	assert_true(p->xyz[3] == 5 && p->xyz[5] == 7);
 	assert_string_equal(p->value_name, "residual_nm");
 	assert_true(p->value[1] == 8);
+	asph_points_free(p);
+}
+
+/* Headers as R's write.csv() and spreadsheets write them. */
+static void test_csv_quoted_header(void **state)
+{
+	static const char *const texts[] = {
+		"\"x\",\"y\",\"z\"\n1.5,-2.25,0.125\n3,4,5\n",
+		"X,Y,Z\n1.5,-2.25,0.125\n3,4,5\n",
+		/* R's row names: an unnamed first column of quoted numbers */
+		"\"\",\"X\",\"Y\",\"Z\"\n\"1\",1.5,-2.25,0.125\n\"2\",3,4,5\n",
+		/* a byte-order mark, CR LF, blanks around the quotes, quoted values */
+		"\xef\xbb\xbf \"Z\" , \"y\",\"x\"\r\n\"0.125\",-2.25,1.5\r\n5,\"4\",3\r\n",
+	};
+	for (size_t i = 0; i < sizeof(texts) / sizeof(texts[0]); i++) {
+		struct asph_points *p = NULL;
+		struct asph_error err;
+		asph_error_clear(&err);
+		if (asph_points_read_csv_text(texts[i], strlen(texts[i]), "r.csv", &p, &err) < 0) {
+			char buf[512];
+			print_error("case %zu: %s\n", i, asph_error_format(&err, buf, sizeof(buf)));
+			fail();
+		}
+		assert_int_equal(p->n, 2);
+		assert_true(p->xyz[0] == 1.5 && p->xyz[1] == -2.25 && p->xyz[2] == 0.125);
+		assert_true(p->xyz[3] == 3 && p->xyz[4] == 4 && p->xyz[5] == 5);
+		assert_null(p->value);
+		asph_points_free(p);
+	}
+	/* a quoted value column keeps its name */
+	const char *named = "\"x\",\"y\",\"z\",\"residual_nm\"\n1,2,3,4.5\n";
+	struct asph_points *p = NULL;
+	assert_int_equal(asph_points_read_csv_text(named, strlen(named), "r.csv", &p, NULL), 0);
+	assert_string_equal(p->value_name, "residual_nm");
+	assert_true(p->value[0] == 4.5);
 	asph_points_free(p);
 }
 
@@ -347,6 +386,7 @@ int main(void)
 		cmocka_unit_test(test_ply_binary),
 		cmocka_unit_test(test_csv_errors),
 		cmocka_unit_test(test_csv_tolerant),
+		cmocka_unit_test(test_csv_quoted_header),
 		cmocka_unit_test(test_ply_errors),
 		cmocka_unit_test(test_missing_file),
 		cmocka_unit_test(test_read_memory),

@@ -1,0 +1,59 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/*
+ * The configured instruments (each a stage and a probe driver with their
+ * options) and the driver registry they come from. Loaded once from the
+ * settings and not changed afterwards; what an instrument is doing is the
+ * job queue's to say (jobs.h), here only described. Event loop thread.
+ */
+#ifndef ASPHD_INSTRUMENTS_H
+#define ASPHD_INSTRUMENTS_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include <jansson.h>
+
+#include "asph/error.h"
+#include "settings.h"
+
+struct asph_instrument_config;
+
+struct instrument {
+	char *name;
+	json_t *description;    /* the drivers and every option (instrument.list) */
+	const struct asph_instrument_config *config;
+};
+
+/* What an instrument is doing: written by the job queue (jobs.c). */
+struct instrument_activity {
+	int64_t job;            /* running or paused job, 0 if none */
+	bool paused;
+	int64_t done, total;    /* live progress of that job */
+	double rate, eta_s;
+	const char *fault;      /* the last driver fault, or NULL */
+};
+
+struct instruments;
+
+/*
+ * The driver registry (built-in drivers and plugins) and the instruments
+ * of s (the one "mock" instrument when s names none). An error in the
+ * instruments names its place in the settings file.
+ */
+int instruments_load(const struct settings *s, struct instruments **out, struct asph_error *err);
+void instruments_free(struct instruments *ins);
+
+size_t instruments_count(const struct instruments *ins);
+const struct instrument *instruments_get(const struct instruments *ins, size_t i);
+/* The index of the instrument called name, or -ENOENT. */
+int instruments_find(const struct instruments *ins, const char *name);
+
+/* "idle", "measuring", "paused" or "fault". */
+const char *instrument_state_name(const struct instrument_activity *a);
+/* The instrument object of proto/README.md. */
+json_t *instrument_to_json(const struct instrument *in, const struct instrument_activity *a);
+/* driver.list's result: the registry as asph drivers --json prints it. */
+json_t *drivers_to_json(const struct instruments *ins);
+
+#endif

@@ -1,0 +1,74 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* Worker thread: a stored job specification made ready to measure. */
+#include <errno.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <jansson.h>
+
+#include "jobplan.h"
+#include "util-mem.h"
+
+int job_plan_build(const char *spec_text, uint64_t max_points, struct job_plan *jp,
+		   struct asph_error *err)
+{
+	_cleanup_(json_decrefp) json_t *spec = json_loads(spec_text, 0, NULL);
+	json_t *lens, *plan, *fit;
+	struct asph_plan_density density = { 0 };
+	struct asph_plan_options po = { .max_points = max_points, .flags = ASPH_PLAN_NO_MESH };
+	enum asph_plan_method m;
+	_cleanup_free_ char *text = NULL;
+	int r;
+
+	memset(jp, 0, sizeof(*jp));
+	lens = json_object_get(spec, "lens");
+	plan = json_object_get(spec, "plan");
+	fit = json_object_get(spec, "fit");
+	if (!lens || !plan || !fit)
+		return asph_error_set(err, -EINVAL, "the stored job specification is damaged");
+	text = json_dumps(json_object_get(lens, "prescription"), JSON_COMPACT);
+	if (!text)
+		return asph_error_set(err, -EINVAL, "the stored prescription is damaged");
+	r = asph_prescription_parse(text, strlen(text), "job", &jp->prescription, err);
+	if (r < 0)
+		return r;
+	if (json_is_string(json_object_get(lens, "name")))
+		jp->lens_name = strdup(json_string_value(json_object_get(lens, "name")));
+	r = asph_surface_alloc(&jp->prescription, &jp->surface, err);
+	if (r < 0)
+		return r;
+	if (asph_plan_method_from_name(json_string_value(json_object_get(plan, "method")), &m) < 0)
+		return asph_error_set(err, -EINVAL, "the stored plan method is damaged");
+	if (asph_plan_density_from_name(json_string_value(json_object_get(plan, "density")),
+					&density.kind) < 0)
+		return asph_error_set(err, -EINVAL, "the stored plan density is damaged");
+	density.value = json_number_value(json_object_get(plan, "value"));
+	r = asph_plan_compute_opts(jp->surface, m, density, &po, &jp->plan, err);
+	if (r < 0)
+		return r;
+	if (asph_plan_to_json(jp->plan, &jp->plan_json) < 0 ||
+	    asph_prescription_to_json(&jp->prescription, &jp->prescription_json) < 0)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	jp->fit_json = json_dumps(fit, JSON_COMPACT);
+	r = asph_fit_dof_parse(json_string_value(json_object_get(fit, "dof")), &jp->fit.dof, err);
+	if (r < 0)
+		return r;
+	r = asph_fit_residual_from_name(json_string_value(json_object_get(fit, "residual")),
+					&jp->fit.residual);
+	if (r < 0)
+		return asph_error_set(err, r, "the stored fit options are damaged");
+	jp->fit.robust = json_is_true(json_object_get(fit, "robust"));
+	jp->fit.n_zernike = (int)json_integer_value(json_object_get(fit, "zernike"));
+	return 0;
+}
+
+void job_plan_release(struct job_plan *jp)
+{
+	asph_plan_free(jp->plan);
+	asph_surface_free(jp->surface);
+	free(jp->prescription_json);
+	free(jp->plan_json);
+	free(jp->fit_json);
+	free(jp->lens_name);
+	memset(jp, 0, sizeof(*jp));
+}

@@ -1,0 +1,141 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/*
+ * The job queue: the one owner and writer of job state. Jobs wait in the
+ * store (store.h) ordered by priority, then submission; each idle
+ * instrument takes its first queued job and runs it on its worker
+ * (runner.h). Every change of a job's state goes through this module: it
+ * records the change, counts it, logs it and builds its event (events.h).
+ * It also owns whether the queue runs, and what each instrument is doing.
+ *
+ * The operations return 0 or a negative errno, with a message in err
+ * (may be NULL) for a person:
+ *   -ENOENT   no such job
+ *   -ENODEV   no such instrument
+ *   -EINVAL   the job's state does not allow this
+ *   -ENOBUFS  the queue is at its limit (limits.max_queue)
+ *   -ENODATA  the job has no result
+ *   -ENOMEM   out of memory
+ *   -EIO, -ENOSPC, -EROFS, ...: the store could not be read or written
+ *
+ * Event loop thread.
+ */
+#ifndef ASPHD_JOBS_H
+#define ASPHD_JOBS_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include <jansson.h>
+#include <systemd/sd-event.h>
+
+#include "asph/error.h"
+#include "events.h"
+#include "instruments.h"
+#include "settings.h"
+#include "store.h"
+
+struct jobs_setup {
+	sd_event *event;                        /* the workers report here */
+	const char *state_dir;                  /* jobs.sqlite and jobs/ID/ */
+	const struct instruments *instruments;  /* one worker each */
+	struct events *events;
+	const struct settings_limits *limits;   /* read at each use: may change */
+};
+
+struct jobs;
+
+/*
+ * Opens the job store in the state directory, marks the jobs that were
+ * running when the daemon stopped interrupted, and starts a worker per
+ * instrument. Starts no job: jobs_schedule() does. The setup's pointers
+ * must outlive jobs.
+ */
+int jobs_new(const struct jobs_setup *setup, struct jobs **out, struct asph_error *err);
+/* Stops the workers (a running scan at its next point) and frees. */
+void jobs_free(struct jobs *jobs);
+
+/* Who asks for a change: recorded in the job's history, named in the log. */
+struct job_actor {
+	int64_t uid;
+	const char *name;
+};
+
+struct job_submission {
+	const char *spec;       /* the normalized specification (jobspec.h) */
+	int64_t points;         /* its plan's size */
+	const char *instrument; /* NULL: the first configured */
+	int64_t priority;
+	const char *label;      /* may be NULL */
+};
+
+/* Whether a job for instrument (NULL: the first) would be taken now: the
+ * instrument exists and the queue has room. jobs_submit() checks it
+ * again. */
+int jobs_check_submit(const struct jobs *jobs, const char *instrument, struct asph_error *err);
+
+/*
+ * The changes. Each one that succeeds fills out (may be NULL; the caller
+ * clears it with job_record_clear()) with the job as it is afterwards.
+ */
+int jobs_submit(struct jobs *jobs, const struct job_submission *sub,
+		const struct job_actor *who, struct job_record *out, struct asph_error *err);
+/* A queued or interrupted job is cancelled at once; a running or paused
+ * one is stopped, and becomes cancelled when its worker has stopped. */
+int jobs_cancel(struct jobs *jobs, int64_t id, const struct job_actor *who,
+		struct job_record *out, struct asph_error *err);
+int jobs_pause(struct jobs *jobs, int64_t id, const struct job_actor *who,
+	       struct job_record *out, struct asph_error *err);
+/* A paused job runs again; an interrupted one is queued to continue. */
+int jobs_resume(struct jobs *jobs, int64_t id, const struct job_actor *who,
+		struct job_record *out, struct asph_error *err);
+/* A failed, interrupted or cancelled job is queued again, continuing its
+ * recorded scan, or with restart recording a new one (a completed job
+ * only with restart). */
+int jobs_requeue(struct jobs *jobs, int64_t id, bool restart, const struct job_actor *who,
+		 struct job_record *out, struct asph_error *err);
+/* Moves a queued job to position among the queued jobs (0: next; past
+ * the end: last); it takes the priority of the job it lands next to. */
+int jobs_move(struct jobs *jobs, int64_t id, int64_t position, const struct job_actor *who,
+	      struct asph_error *err);
+int jobs_queue_start(struct jobs *jobs, const struct job_actor *who, struct asph_error *err);
+/* No job starts any more; with abort the running scans stop at their next
+ * point and their jobs become interrupted. */
+int jobs_queue_stop(struct jobs *jobs, bool abort, const struct job_actor *who,
+		    struct asph_error *err);
+
+/* Starts the first queued job of every idle instrument. */
+void jobs_schedule(struct jobs *jobs);
+/*
+ * Shutdown: starts no job any more and stops every running scan at its
+ * next point (the job becomes interrupted and resumable). stopped(data)
+ * is called once no worker runs a job, at once when none does.
+ */
+void jobs_shutdown(struct jobs *jobs, void (*stopped)(void *data), void *data);
+
+/* --- reading */
+
+int jobs_get(struct jobs *jobs, int64_t id, struct job_record *out, struct asph_error *err);
+/* As store_list(). */
+int jobs_list(struct jobs *jobs, const struct store_filter *f, store_job_fn fn, void *data,
+	      int64_t *total, struct asph_error *err);
+/* The queue: running, paused and queued jobs, in the order they run. */
+int jobs_list_queue(struct jobs *jobs, store_job_fn fn, void *data, struct asph_error *err);
+int jobs_history(struct jobs *jobs, int64_t id, store_event_fn fn, void *data,
+		 struct asph_error *err);
+/* The job object of proto/README.md, with the live progress of a running
+ * job. */
+json_t *jobs_job_to_json(const struct jobs *jobs, const struct job_record *j);
+/* The result of a completed job, with "dir", its folder. */
+int jobs_result(struct jobs *jobs, int64_t id, json_t **out, struct asph_error *err);
+
+bool jobs_queue_running(const struct jobs *jobs);
+/* Jobs in each state. */
+const int64_t *jobs_counts(const struct jobs *jobs);
+/* What instrument i (as in instruments.h) is doing. */
+const struct instrument_activity *jobs_activity(const struct jobs *jobs, size_t i);
+/* One line for people: "idle", "measuring job 12: 45 %", "idle, queue
+ * stopped", "stopping" (systemd's STATUS=, daemon.status). */
+void jobs_status_text(const struct jobs *jobs, char *buf, size_t size);
+
+#endif

@@ -1,0 +1,189 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* Event loop thread: job.submit's parameters into a job specification. */
+#include <errno.h>
+#include <inttypes.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "asph/fit.h"
+#include "asph/prescription.h"
+#include "jobspec.h"
+#include "util-mem.h"
+
+static int spec_lens(json_t *params, json_t *spec, struct asph_prescription *p,
+		     struct proto_why *why)
+{
+	json_t *lens = json_object_get(params, "lens");
+	struct asph_error err;
+	_cleanup_free_ char *text = NULL;
+	_cleanup_free_ char *norm = NULL;
+	int r;
+
+	asph_error_clear(&err);
+	if (json_is_string(lens)) {
+		/* A name only: files are never read on a client's behalf. */
+		if (strlen(json_string_value(lens)) != json_string_length(lens)) {
+			snprintf(why->text, sizeof(why->text),
+				 "\"lens\" contains a NUL character");
+			return PROTO_INVALID_PARAMS;
+		}
+		if (asph_prescription_preset(json_string_value(lens), p) < 0) {
+			snprintf(why->text, sizeof(why->text),
+				 "\"lens\": no preset named \"%.64s\" (send the prescription "
+				 "as an object)", json_string_value(lens));
+			return PROTO_INVALID_LENS;
+		}
+	} else if (json_is_object(lens)) {
+		text = json_dumps(lens, JSON_COMPACT);
+		if (!text)
+			return PROTO_INTERNAL_ERROR;
+		r = asph_prescription_parse(text, strlen(text), "lens", p, &err);
+		if (r < 0) {
+			snprintf(why->text, sizeof(why->text), "\"lens\"%s%.100s: %.120s",
+				 err.field[0] ? "." : "", err.field, err.message);
+			return PROTO_INVALID_LENS;
+		}
+	} else {
+		snprintf(why->text, sizeof(why->text),
+			 "\"lens\" must be a preset name or a prescription object");
+		return PROTO_INVALID_PARAMS;
+	}
+	if (asph_prescription_check(p, &err) < 0) {
+		snprintf(why->text, sizeof(why->text), "\"lens\": %.200s", err.message);
+		return PROTO_INVALID_LENS;
+	}
+	if (asph_prescription_to_json(p, &norm) < 0)
+		return PROTO_INTERNAL_ERROR;
+	json_object_set_new(spec, "lens", json_pack("{s:s?, s:o}",
+		"name", json_is_string(lens) ? json_string_value(lens) : NULL,
+		"prescription", json_loads(norm, 0, NULL)));
+	return 0;
+}
+
+/* How many points the plan of this lens would have. */
+static int plan_size(const struct asph_prescription *p, enum asph_plan_method m,
+		     struct asph_plan_density density, size_t *n, struct asph_error *err)
+{
+	struct asph_surface *s = NULL;
+	double spacing;
+	int r = asph_surface_alloc(p, &s, err);
+
+	if (r < 0)
+		return r;
+	r = asph_plan_resolve(s, m, density, &spacing, n, err);
+	asph_surface_free(s);
+	return r;
+}
+
+static int spec_plan(json_t *params, json_t *spec, const struct asph_prescription *p,
+		     uint64_t max_points, uint64_t *points, struct proto_why *why)
+{
+	static const char *const names[] = { "method", "h", "spacing", "points", NULL };
+	struct asph_plan_density density = { 0 };
+	enum asph_plan_method m;
+	struct asph_error err;
+	json_t *plan;
+	const char *method;
+	int n_density = 0, r;
+	size_t n;
+
+	if (proto_param_object(params, "plan", true, &plan, why) < 0)
+		return PROTO_INVALID_PARAMS;
+	if (proto_params_only(plan, names, why) < 0 ||
+	    proto_param_string(plan, "method", true, 32, &method, why) < 0)
+		return PROTO_INVALID_PARAMS;
+	if (asph_plan_method_from_name(method, &m) < 0) {
+		snprintf(why->text, sizeof(why->text), "\"plan.method\": unknown method \"%s\"",
+			 method);
+		return PROTO_INVALID_PLAN;
+	}
+	for (int k = 0; k < 3; k++) {
+		double v;
+		r = proto_param_number(plan, asph_plan_density_name((enum asph_plan_density_kind)k),
+				       false, 1e-9, 1e12, &v, why);
+		if (r == -EINVAL)
+			return PROTO_INVALID_PARAMS;
+		if (r == 0) {
+			density.kind = (enum asph_plan_density_kind)k;
+			density.value = v;
+			n_density++;
+		}
+	}
+	if (n_density != 1) {
+		snprintf(why->text, sizeof(why->text),
+			 "\"plan\" needs exactly one of \"h\", \"spacing\", \"points\"");
+		return PROTO_INVALID_PARAMS;
+	}
+	asph_error_clear(&err);
+	r = plan_size(p, m, density, &n, &err);
+	if (r < 0) {
+		snprintf(why->text, sizeof(why->text), "\"plan\": %.200s", err.message);
+		return PROTO_INVALID_PLAN;
+	}
+	if (n > max_points) {
+		snprintf(why->text, sizeof(why->text),
+			 "the plan has %zu points, more than the limit of %" PRIu64, n, max_points);
+		return PROTO_LIMIT_REACHED;
+	}
+	*points = n;
+	json_object_set_new(spec, "plan", json_pack("{s:s, s:s, s:f}", "method", method,
+		"density", asph_plan_density_name(density.kind), "value", density.value));
+	return 0;
+}
+
+static int spec_fit(json_t *params, json_t *spec, struct proto_why *why)
+{
+	static const char *const names[] = { "dof", "residual", "robust", "zernike", NULL };
+	json_t *fit = NULL;
+	const char *dof = "tx,ty,tz,rx,ry", *residual = "normal";
+	bool robust = false;
+	int64_t zernike = ASPH_FIT_DEFAULT_ZERNIKE;
+	enum asph_fit_residual_kind kind;
+	struct asph_error err;
+	unsigned mask;
+
+	if (proto_param_object(params, "fit", false, &fit, why) == -EINVAL)
+		return PROTO_INVALID_PARAMS;
+	if (fit && (proto_params_only(fit, names, why) < 0 ||
+		    proto_param_string(fit, "dof", false, 64, &dof, why) == -EINVAL ||
+		    proto_param_string(fit, "residual", false, 16, &residual, why) == -EINVAL ||
+		    proto_param_bool(fit, "robust", false, &robust, why) == -EINVAL ||
+		    proto_param_int(fit, "zernike", false, 1, ASPH_FIT_MAX_ZERNIKE, &zernike,
+				    why) == -EINVAL))
+		return PROTO_INVALID_PARAMS;
+	if (asph_fit_dof_parse(dof, &mask, &err) < 0) {
+		snprintf(why->text, sizeof(why->text), "\"fit.dof\": %.200s", err.message);
+		return PROTO_INVALID_PARAMS;
+	}
+	if (asph_fit_residual_from_name(residual, &kind) < 0) {
+		snprintf(why->text, sizeof(why->text),
+			 "\"fit.residual\" must be \"normal\" or \"sag\"");
+		return PROTO_INVALID_PARAMS;
+	}
+	json_object_set_new(spec, "fit", json_pack("{s:s, s:s, s:b, s:I}", "dof", dof,
+		"residual", residual, "robust", robust, "zernike", (json_int_t)zernike));
+	return 0;
+}
+
+int jobspec_from_params(json_t *params, uint64_t max_points, json_t **out,
+		     uint64_t *points, struct proto_why *why)
+{
+	struct asph_prescription p;
+	json_t *spec = json_object();
+	int code;
+
+	if (!spec)
+		return PROTO_INTERNAL_ERROR;
+	code = spec_lens(params, spec, &p, why);
+	if (!code)
+		code = spec_plan(params, spec, &p, max_points, points, why);
+	if (!code)
+		code = spec_fit(params, spec, why);
+	if (code) {
+		json_decref(spec);
+		return code;
+	}
+	*out = spec;
+	return 0;
+}

@@ -1,0 +1,83 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/*
+ * Lens files of other programs as prescriptions: the surfaces of an
+ * OpticStudio sequential lens file (.zmx; UTF-8, or UTF-16 with a byte-order
+ * mark) or the rows of a CSV table (R,k,A4,...,aperture_diameter).
+ * docs/prescriptions.md ("Importing from lens design files") lists what is
+ * read. The text is untrusted: a refusal names the line, the column and the
+ * keyword or column.
+ */
+#ifndef ASPH_LENS_IMPORT_H
+#define ASPH_LENS_IMPORT_H
+
+#include <stddef.h>
+
+#include "asph/error.h"
+#include "asph/prescription.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+enum asph_lens_format {
+	ASPH_LENS_ZMX,
+	ASPH_LENS_CSV,
+};
+
+/* Lens files are small: a larger file is not one (-EFBIG). */
+#define ASPH_LENS_IMPORT_MAX_BYTES (16u << 20)
+
+/* A file read: its surfaces, in file order. */
+struct asph_lens_import;
+
+/* One surface the file holds: a .zmx SURF block or a CSV row. */
+struct asph_lens_surface {
+	int number;                 /* the SURF number; a CSV row's, from 1 */
+	char type[32];              /* the .zmx TYPE; "" in a CSV table */
+	double R;                   /* mm; INFINITY for a plane */
+	double k;
+	double aperture_diameter;   /* mm; 0 when the file gives none */
+	int line;                   /* where it starts, from 1 */
+};
+
+/*
+ * Reads the bytes of a lens file. name is the file's name, for messages and
+ * for the names of the prescriptions; the file is a CSV table when name ends
+ * in ".csv" or the text starts with "R,", else a .zmx file. The whole file
+ * is checked: a surface block cut short, an unknown CSV column or a value
+ * that is not a number refuses it (-EINVAL, with where). -ENOMEM.
+ */
+int asph_lens_import_parse(const void *data, size_t len, const char *name,
+			   struct asph_lens_import **out, struct asph_error *err);
+
+/* As parse, for the file at path ("-" for stdin). -EFBIG for a file larger
+ * than ASPH_LENS_IMPORT_MAX_BYTES, -errno when it cannot be read. */
+int asph_lens_import_load(const char *path, struct asph_lens_import **out,
+			  struct asph_error *err);
+
+void asph_lens_import_free(struct asph_lens_import *im);
+
+enum asph_lens_format asph_lens_import_format(const struct asph_lens_import *im);
+
+/* How many surfaces (at least 1), and the i-th (i < count). */
+size_t asph_lens_import_count(const struct asph_lens_import *im);
+void asph_lens_import_surface(const struct asph_lens_import *im, size_t i,
+			      struct asph_lens_surface *out);
+
+/*
+ * The surface numbered `number` (-1: the only one) as a checked
+ * prescription, named "BASE-sN" after the file (BASE: its name without
+ * folders and extensions) and the surface. -ENOENT when the file has no such
+ * surface (or, for -1, several); -EINVAL, with where, when the surface
+ * cannot be a prescription (a type that is not imported, a plane, no
+ * aperture, bad Q-type parameters).
+ */
+int asph_lens_import_prescription(const struct asph_lens_import *im, int number,
+				  struct asph_prescription *out,
+				  struct asph_error *err);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif

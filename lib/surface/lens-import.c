@@ -1,0 +1,659 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/*
+ * Lens files of other programs: OpticStudio .zmx surface blocks and CSV
+ * tables of prescriptions. The file is decoded to UTF-8 and split into
+ * lines in place; every surface is read (and the file refused as a whole
+ * when any is malformed), a surface is converted when it is asked for.
+ */
+#include <ctype.h>
+#include <errno.h>
+#include <limits.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <strings.h>
+
+#include "asph/lens-import.h"
+#include "fileio.h"
+#include "util-mem.h"
+
+#define MAX_PARM 40
+#define MAX_SURFACES 1024
+
+struct zsurf {
+	int number;
+	int line;                 /* of its SURF line */
+	char type[32];
+	int type_line, type_col;
+	double curv, coni, diam;
+	int has_diam;
+	double parm[MAX_PARM + 1];
+	int parm_line[MAX_PARM + 1];
+};
+
+struct csv_rows {
+	struct asph_prescription *p;
+	int *line;
+	int n;
+};
+
+struct asph_lens_import {
+	char *name;
+	enum asph_lens_format format;
+	struct zsurf *surf;
+	size_t n_surf;
+	struct csv_rows rows;
+	/* while parsing */
+	struct asph_error *err;
+	char *text;               /* UTF-8, NUL-terminated */
+	size_t len;
+};
+
+/* A refusal of the file's content, with where: -EINVAL. */
+#define fail(im, line, col, field, ...) \
+	asph_error_set_at((im)->err, -EINVAL, (im)->name, line, col, field, __VA_ARGS__)
+
+/* ---- reading and decoding ------------------------------------------------- */
+
+static size_t put_utf8(char *o, unsigned cp)
+{
+	if (cp < 0x80) {
+		o[0] = (char)cp;
+		return 1;
+	}
+	if (cp < 0x800) {
+		o[0] = (char)(0xc0 | (cp >> 6));
+		o[1] = (char)(0x80 | (cp & 0x3f));
+		return 2;
+	}
+	if (cp < 0x10000) {
+		o[0] = (char)(0xe0 | (cp >> 12));
+		o[1] = (char)(0x80 | ((cp >> 6) & 0x3f));
+		o[2] = (char)(0x80 | (cp & 0x3f));
+		return 3;
+	}
+	o[0] = (char)(0xf0 | (cp >> 18));
+	o[1] = (char)(0x80 | ((cp >> 12) & 0x3f));
+	o[2] = (char)(0x80 | ((cp >> 6) & 0x3f));
+	o[3] = (char)(0x80 | (cp & 0x3f));
+	return 4;
+}
+
+/* UTF-16 (after its byte-order mark) to UTF-8. */
+static int from_utf16(struct asph_lens_import *im, const unsigned char *b, size_t n, int big)
+{
+	size_t units = n / 2, o = 0;
+	int line = 1;
+
+	if (n % 2)
+		return fail(im, 0, 0, NULL,
+			    "UTF-16 text with an odd number of bytes: the file is truncated");
+	im->text = malloc(3 * units + 1);
+	if (!im->text)
+		return asph_error_set(im->err, -ENOMEM, "out of memory");
+	for (size_t i = 0; i < units; i++) {
+		unsigned u = big ? (unsigned)(b[2 * i] << 8 | b[2 * i + 1])
+				 : (unsigned)(b[2 * i + 1] << 8 | b[2 * i]);
+		if (u >= 0xd800 && u < 0xdc00 && i + 1 < units) {
+			unsigned v = big ? (unsigned)(b[2 * i + 2] << 8 | b[2 * i + 3])
+					 : (unsigned)(b[2 * i + 3] << 8 | b[2 * i + 2]);
+			if (v >= 0xdc00 && v < 0xe000) {
+				u = 0x10000 + ((u - 0xd800) << 10) + (v - 0xdc00);
+				i++;
+			}
+		}
+		if ((u >= 0xd800 && u < 0xe000) || u == 0)
+			return fail(im, line, 0, NULL, "invalid UTF-16 code unit 0x%04x", u);
+		line += u == '\n';
+		o += put_utf8(im->text + o, u);
+	}
+	im->text[o] = '\0';
+	im->len = o;
+	return 0;
+}
+
+static int decode(struct asph_lens_import *im, const unsigned char *b, size_t n)
+{
+	if (n >= 2 && b[0] == 0xff && b[1] == 0xfe)
+		return from_utf16(im, b + 2, n - 2, 0);
+	if (n >= 2 && b[0] == 0xfe && b[1] == 0xff)
+		return from_utf16(im, b + 2, n - 2, 1);
+	size_t skip = (n >= 3 && b[0] == 0xef && b[1] == 0xbb && b[2] == 0xbf) ? 3 : 0;
+	if (memchr(b + skip, '\0', n - skip))
+		return fail(im, 0, 0, NULL,
+			    "contains NUL bytes: UTF-16 without a byte-order mark is not read");
+	im->len = n - skip;
+	im->text = malloc(im->len + 1);
+	if (!im->text)
+		return asph_error_set(im->err, -ENOMEM, "out of memory");
+	memcpy(im->text, b + skip, im->len);
+	im->text[im->len] = '\0';
+	return 0;
+}
+
+/* ---- lines and tokens --------------------------------------------------- */
+
+/* Splits the next line off the text (CR LF or LF). NULL at the end. */
+static char *next_line(char **rest, int *had_newline)
+{
+	char *s = *rest, *nl;
+
+	if (!s || !*s)
+		return NULL;
+	nl = strchr(s, '\n');
+	*had_newline = nl != NULL;
+	if (nl) {
+		*nl = '\0';
+		*rest = nl + 1;
+	} else {
+		*rest = s + strlen(s);
+	}
+	size_t l = strlen(s);
+	if (l && s[l - 1] == '\r')
+		s[l - 1] = '\0';
+	return s;
+}
+
+#define TOKEN_MAX 128
+
+/* Copies the next whitespace-separated token at *p into tok (truncated to
+ * TOKEN_MAX - 1 bytes; the line itself is left intact); its 1-based
+ * column. NULL at the end of the line. */
+static char *token(const char **p, const char *line_start, char tok[TOKEN_MAX], int *col)
+{
+	const char *s = *p, *e;
+
+	while (*s == ' ' || *s == '\t')
+		s++;
+	if (!*s)
+		return NULL;
+	*col = (int)(s - line_start) + 1;
+	for (e = s; *e && *e != ' ' && *e != '\t'; e++)
+		;
+	snprintf(tok, TOKEN_MAX, "%.*s", (int)(e - s), s);
+	*p = e;
+	return tok;
+}
+
+static int parse_double(const char *s, double *out)
+{
+	char *end;
+
+	errno = 0;
+	*out = strtod(s, &end);
+	return s[0] && !*end && !errno && isfinite(*out) ? 0 : -EINVAL;
+}
+
+/* A keyword's numeric argument (the first after the keyword). */
+static int number_arg(const struct asph_lens_import *im, const char **p, const char *ls, int line,
+		      const char *kw, double *out)
+{
+	char buf[TOKEN_MAX];
+	int col = 0;
+	const char *t = token(p, ls, buf, &col);
+
+	if (!t)
+		return fail(im, line, (int)strlen(ls) + 1, kw, "%s without a value", kw);
+	if (parse_double(t, out) < 0)
+		return fail(im, line, col, kw, "'%s' is not a finite number", t);
+	return 0;
+}
+
+/* ---- .zmx ------------------------------------------------------------- */
+
+static int zmx_surface_line(struct asph_lens_import *im, struct zsurf *z, const char *p,
+			    const char *ls, int line, const char *kw)
+{
+	char buf[TOKEN_MAX];
+	int col = 0;
+
+	if (!strcmp(kw, "TYPE")) {
+		const char *t = token(&p, ls, buf, &col);
+		if (!t)
+			return fail(im, line, (int)strlen(ls) + 1, "TYPE", "TYPE without a name");
+		snprintf(z->type, sizeof(z->type), "%s", t);
+		z->type_line = line;
+		z->type_col = col;
+		return 0;
+	}
+	if (!strcmp(kw, "CURV"))
+		return number_arg(im, &p, ls, line, kw, &z->curv);
+	if (!strcmp(kw, "CONI"))
+		return number_arg(im, &p, ls, line, kw, &z->coni);
+	if (!strcmp(kw, "DIAM")) {
+		z->has_diam = 1;
+		return number_arg(im, &p, ls, line, kw, &z->diam);
+	}
+	if (!strcmp(kw, "PARM")) {
+		double idx, v;
+		int r = number_arg(im, &p, ls, line, kw, &idx);
+		if (r < 0)
+			return r;
+		if (idx != floor(idx) || idx < 0 || idx > MAX_PARM)
+			return fail(im, line, 0, "PARM", "parameter number %g is not 0..%d", idx,
+				    MAX_PARM);
+		if ((r = number_arg(im, &p, ls, line, kw, &v)) < 0)
+			return r;
+		z->parm[(int)idx] = v;
+		z->parm_line[(int)idx] = line;
+	}
+	return 0;
+}
+
+static int zmx_unit(struct asph_lens_import *im, const char *p, const char *ls, int line)
+{
+	char buf[TOKEN_MAX];
+	int col = 0;
+	const char *t = token(&p, ls, buf, &col);
+
+	if (t && strcmp(t, "MM"))
+		return fail(im, line, col, "UNIT",
+			    "lens units %s: only files in millimetres (UNIT MM) are read", t);
+	return 0;
+}
+
+static int zmx_parse(struct asph_lens_import *im)
+{
+	char *rest = im->text, *l;
+	int line = 0, nl = 1;
+	struct zsurf *cur = NULL;
+
+	im->surf = calloc(MAX_SURFACES, sizeof(*im->surf));
+	if (!im->surf)
+		return asph_error_set(im->err, -ENOMEM, "out of memory");
+	while ((l = next_line(&rest, &nl))) {
+		int col = 0, indented = (*l == ' ' || *l == '\t');
+		const char *ls = l, *p = l, *kw;
+		char kwbuf[TOKEN_MAX];
+		line++;
+		if (!(kw = token(&p, ls, kwbuf, &col)))
+			continue;
+		if (!indented)
+			cur = NULL;
+		if (!strcmp(kw, "UNIT")) {
+			int r = zmx_unit(im, p, ls, line);
+			if (r < 0)
+				return r;
+		} else if (!strcmp(kw, "SURF")) {
+			double num;
+			int r = number_arg(im, &p, ls, line, "SURF", &num);
+			if (r < 0)
+				return r;
+			if (num != floor(num) || num < 0 || num > INT_MAX)
+				return fail(im, line, col, "SURF",
+					    "bad surface number %g (a whole number, 0 to %d)", num,
+					    INT_MAX);
+			if (im->n_surf == MAX_SURFACES)
+				return fail(im, line, col, "SURF", "more than %d surfaces",
+					    MAX_SURFACES);
+			cur = &im->surf[im->n_surf++];
+			cur->number = (int)num;
+			cur->line = line;
+		} else if (cur) {
+			int r = zmx_surface_line(im, cur, p, ls, line, kw);
+			if (r < 0)
+				return r;
+		}
+		if (!nl && cur)
+			return fail(im, line, (int)strlen(ls) + 1, NULL,
+				    "the file ends inside surface %d: it is truncated", cur->number);
+	}
+	if (im->n_surf == 0)
+		return fail(im, line, 0, NULL, "no SURF block: not an OpticStudio lens file");
+	for (size_t i = 0; i < im->n_surf; i++)
+		if (!im->surf[i].type[0])
+			return fail(im, im->surf[i].line, 1, NULL,
+				    "surface %d has no TYPE line (truncated file?)",
+				    im->surf[i].number);
+	return 0;
+}
+
+enum ztype { Z_STANDARD, Z_EVENASPH, Z_ODDASPH, Z_QTYPE, Z_UNKNOWN };
+
+static enum ztype ztype_of(const char *t)
+{
+	if (!strcmp(t, "STANDARD"))
+		return Z_STANDARD;
+	if (!strcmp(t, "EVENASPH"))
+		return Z_EVENASPH;
+	if (!strcmp(t, "ODDASPH"))
+		return Z_ODDASPH;
+	if (!strcmp(t, "QTYPEASPH") || !strcmp(t, "QTYPE"))
+		return Z_QTYPE;
+	return Z_UNKNOWN;
+}
+
+/* Q type: PARM 1 family (0 Qbfs, 1 Qcon), PARM 2 normalization radius,
+ * PARM 3 number of terms N, PARM 4 .. 3+N the coefficients a_0 .. a_{N-1}. */
+static int zmx_qtype(struct asph_lens_import *im, const struct zsurf *z,
+		     struct asph_prescription *p)
+{
+	double fam = z->parm[1], n = z->parm[3];
+	int line = z->parm_line[1] ? z->parm_line[1] : z->type_line;
+
+	if (fam != 0 && fam != 1)
+		return fail(im, line, 0, "PARM 1",
+			    "surface %d: Q family %g (0 is Qbfs, 1 is Qcon)", z->number, fam);
+	p->type = fam == 0 ? ASPH_SURFACE_QBFS : ASPH_SURFACE_QCON;
+	p->norm_radius = z->parm[2];
+	if (n != floor(n) || n < 1 || n > ASPH_SURFACE_MAX_Q + 1 || 3 + n > MAX_PARM)
+		return fail(im, z->parm_line[3] ? z->parm_line[3] : z->type_line, 0, "PARM 3",
+			    "surface %d: %g Q terms (1..%d)", z->number, n, ASPH_SURFACE_MAX_Q + 1);
+	for (int m = 0; m < (int)n; m++)
+		p->Q[m] = z->parm[4 + m];
+	if (p->type == ASPH_SURFACE_QBFS && p->k != 0)
+		return fail(im, z->line, 1, "CONI",
+			    "surface %d: a Qbfs surface has no conic constant (CONI %g)",
+			    z->number, p->k);
+	if (p->type == ASPH_SURFACE_QBFS)
+		p->k = 0;
+	return 0;
+}
+
+static int zmx_convert(struct asph_lens_import *im, const struct zsurf *z,
+		       struct asph_prescription *p)
+{
+	enum ztype t = ztype_of(z->type);
+
+	if (t == Z_UNKNOWN)
+		return fail(im, z->type_line, z->type_col, "TYPE",
+			    "surface %d has type %s, which is not imported "
+			    "(STANDARD, EVENASPH, ODDASPH, QTYPEASPH are)", z->number, z->type);
+	if (z->curv == 0)
+		return fail(im, z->line, 1, "CURV",
+			    "surface %d is flat (CURV 0): a prescription needs a radius", z->number);
+	if (!z->has_diam || !(z->diam > 0))
+		return fail(im, z->line, 1, "DIAM",
+			    "surface %d has no positive semi-diameter (DIAM)", z->number);
+	p->R = 1.0 / z->curv;
+	p->k = z->coni;
+	p->aperture_diameter = 2.0 * z->diam;
+	p->type = t == Z_ODDASPH ? ASPH_SURFACE_ODD_ASPHERE : ASPH_SURFACE_EVEN_ASPHERE;
+	/* EVENASPH: PARM i multiplies r^(2i); ODDASPH: r^i; i = 1..8. */
+	for (int i = 1; i <= 8 && t != Z_QTYPE && t != Z_STANDARD; i++)
+		p->A[t == Z_EVENASPH ? 2 * i : i] = z->parm[i];
+	if (t == Z_QTYPE)
+		return zmx_qtype(im, z, p);
+	return 0;
+}
+
+/* ---- CSV ---------------------------------------------------------------- */
+
+enum { COL_R = -1, COL_K = -2, COL_D = -3, COL_NONE = -4 };
+
+static int csv_header(struct asph_lens_import *im, char *l, int *cols, int *n_cols)
+{
+	char *p = l;
+	int n = 0, have_r = 0, have_d = 0;
+
+	while (p) {
+		char *f = p, *comma = strchr(p, ',');
+		int col = (int)(f - l) + 1;
+		if (comma)
+			*comma = '\0';
+		p = comma ? comma + 1 : NULL;
+		while (isspace((unsigned char)*f))
+			f++;
+		for (char *e = f + strlen(f); e > f && isspace((unsigned char)e[-1]); )
+			*--e = '\0';
+		if (n == 64)
+			return fail(im, 1, col, NULL, "more than 64 columns");
+		char *end;
+		long pw;
+		if (!strcmp(f, "R"))
+			cols[n] = COL_R, have_r = 1;
+		else if (!strcmp(f, "k"))
+			cols[n] = COL_K;
+		else if (!strcmp(f, "aperture_diameter"))
+			cols[n] = COL_D, have_d = 1;
+		else if (f[0] == 'A' && (pw = strtol(f + 1, &end, 10), !*end && f[1]) &&
+			 pw >= 1 && pw <= ASPH_SURFACE_MAX_POWER)
+			cols[n] = (int)pw;
+		else
+			return fail(im, 1, col, f,
+				    "unknown column '%s' (R, k, A1..A20, aperture_diameter)", f);
+		n++;
+	}
+	if (!have_r || !have_d)
+		return fail(im, 1, 1, have_r ? "aperture_diameter" : "R",
+			    "the header needs the columns R and aperture_diameter");
+	*n_cols = n;
+	return 0;
+}
+
+static int csv_row(struct asph_lens_import *im, char *l, int line, const int *cols, int n_cols,
+		   struct asph_prescription *p)
+{
+	char *pos = l;
+	int odd = 0;
+
+	memset(p, 0, sizeof(*p));
+	for (int c = 0; c < n_cols; c++) {
+		if (!pos)
+			return fail(im, line, (int)strlen(l) + 1, NULL,
+				    "%d fields, the header has %d", c, n_cols);
+		char *f = pos, *comma = strchr(pos, ',');
+		int col = (int)(f - l) + 1;
+		if (comma)
+			*comma = '\0';
+		pos = comma ? comma + 1 : NULL;
+		double v = 0;
+		while (isspace((unsigned char)*f))
+			f++;
+		for (char *e = f + strlen(f); e > f && isspace((unsigned char)e[-1]); )
+			*--e = '\0';
+		if (*f && parse_double(f, &v) < 0)
+			return fail(im, line, col, NULL, "'%s' is not a finite number", f);
+		if (cols[c] == COL_R)
+			p->R = v;
+		else if (cols[c] == COL_K)
+			p->k = v;
+		else if (cols[c] == COL_D)
+			p->aperture_diameter = v;
+		else
+			p->A[cols[c]] = v, odd |= (cols[c] % 2) && v != 0;
+	}
+	if (pos)
+		return fail(im, line, (int)(pos - l) + 1, NULL, "more fields than the header's %d", n_cols);
+	p->type = odd ? ASPH_SURFACE_ODD_ASPHERE : ASPH_SURFACE_EVEN_ASPHERE;
+	return 0;
+}
+
+static int csv_import(struct asph_lens_import *im)
+{
+	struct csv_rows *rows = &im->rows;
+	char *rest = im->text, *l;
+	int line = 0, nl, cols[64], n_cols = 0, cap = 0;
+
+	while ((l = next_line(&rest, &nl))) {
+		line++;
+		if (line == 1) {
+			int r = csv_header(im, l, cols, &n_cols);
+			if (r < 0)
+				return r;
+			continue;
+		}
+		if (!*l)
+			continue;
+		if (rows->n == cap) {
+			cap = cap ? 2 * cap : 16;
+			void *a = realloc(rows->p, (size_t)cap * sizeof(*rows->p));
+			if (a)
+				rows->p = a;
+			void *b = realloc(rows->line, (size_t)cap * sizeof(int));
+			if (b)
+				rows->line = b;
+			if (!a || !b)
+				return asph_error_set(im->err, -ENOMEM, "out of memory");
+		}
+		int r = csv_row(im, l, line, cols, n_cols, &rows->p[rows->n]);
+		if (r < 0)
+			return r;
+		rows->line[rows->n++] = line;
+	}
+	if (line == 0)
+		return fail(im, 0, 0, NULL, "empty file");
+	if (rows->n == 0)
+		return fail(im, line, 0, NULL, "a header and no data row");
+	return 0;
+}
+
+/* ---- the library's face ----------------------------------------------- */
+
+void asph_lens_import_free(struct asph_lens_import *im)
+{
+	if (!im)
+		return;
+	free(im->name);
+	free(im->surf);
+	free(im->rows.p);
+	free(im->rows.line);
+	free(im->text);
+	free(im);
+}
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_lens_import *, asph_lens_import_free)
+
+static int is_csv(const struct asph_lens_import *im)
+{
+	const char *dot = strrchr(im->name, '.');
+	return (dot && !strcasecmp(dot, ".csv")) || !strncmp(im->text, "R,", 2);
+}
+
+int asph_lens_import_parse(const void *data, size_t len, const char *name,
+			   struct asph_lens_import **out, struct asph_error *err)
+{
+	_cleanup_(asph_lens_import_freep) struct asph_lens_import *im = calloc(1, sizeof(*im));
+	int r;
+
+	if (!im || !(im->name = strdup(name ? name : "<input>")))
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	im->err = err;
+	r = decode(im, data, len);
+	if (r == 0) {
+		im->format = is_csv(im) ? ASPH_LENS_CSV : ASPH_LENS_ZMX;
+		r = im->format == ASPH_LENS_CSV ? csv_import(im) : zmx_parse(im);
+	}
+	if (r < 0)
+		return r;
+	/* the text was cut into lines; what was read is in surf and rows */
+	free(steal_ptr(im->text));
+	im->err = NULL;
+	*out = steal_ptr(im);
+	return 0;
+}
+
+int asph_lens_import_load(const char *path, struct asph_lens_import **out,
+			  struct asph_error *err)
+{
+	_cleanup_free_ char *data = NULL;
+	size_t len = 0;
+	int r = file_read_all(path, ASPH_LENS_IMPORT_MAX_BYTES, &data, &len, err);
+
+	if (r < 0)
+		return r;
+	return asph_lens_import_parse(data, len, strcmp(path, "-") ? path : "<stdin>", out, err);
+}
+
+enum asph_lens_format asph_lens_import_format(const struct asph_lens_import *im)
+{
+	return im->format;
+}
+
+size_t asph_lens_import_count(const struct asph_lens_import *im)
+{
+	return im->format == ASPH_LENS_CSV ? (size_t)im->rows.n : im->n_surf;
+}
+
+void asph_lens_import_surface(const struct asph_lens_import *im, size_t i,
+			      struct asph_lens_surface *out)
+{
+	memset(out, 0, sizeof(*out));
+	if (im->format == ASPH_LENS_CSV) {
+		const struct asph_prescription *p = &im->rows.p[i];
+		out->number = (int)i + 1;
+		out->R = p->R;
+		out->k = p->k;
+		out->aperture_diameter = p->aperture_diameter;
+		out->line = im->rows.line[i];
+		return;
+	}
+	const struct zsurf *z = &im->surf[i];
+	out->number = z->number;
+	snprintf(out->type, sizeof(out->type), "%s", z->type);
+	out->R = z->curv == 0 ? INFINITY : 1.0 / z->curv;
+	out->k = z->coni;
+	out->aperture_diameter = z->has_diam ? 2.0 * z->diam : 0;
+	out->line = z->line;
+}
+
+static void name_from(struct asph_prescription *p, const char *path, int surface)
+{
+	const char *base = strrchr(path, '/');
+
+	base = base ? base + 1 : path;
+	snprintf(p->name, sizeof(p->name), "%.*s-s%d", (int)strcspn(base, "."), base, surface);
+}
+
+static int check(struct asph_lens_import *im, const struct asph_prescription *p, int line)
+{
+	struct asph_error e;
+
+	asph_error_clear(&e);
+	if (asph_prescription_check(p, &e) == 0)
+		return 0;
+	return fail(im, line, 0, e.field[0] ? e.field : NULL, "%s", e.message);
+}
+
+static int zmx_prescription(struct asph_lens_import *im, int want,
+			    struct asph_prescription *p)
+{
+	const struct zsurf *z = NULL;
+	int r;
+
+	for (size_t i = 0; i < im->n_surf; i++)
+		if (im->surf[i].number == want || (want < 0 && im->n_surf == 1))
+			z = &im->surf[i];
+	if (!z && want < 0)
+		return asph_error_set_at(im->err, -ENOENT, im->name, 0, 0, NULL,
+					 "%zu surfaces: choose one", im->n_surf);
+	if (!z)
+		return asph_error_set_at(im->err, -ENOENT, im->name, 0, 0, NULL,
+					 "no surface %d (the file has %d to %d)", want,
+					 im->surf[0].number, im->surf[im->n_surf - 1].number);
+	memset(p, 0, sizeof(*p));
+	if ((r = zmx_convert(im, z, p)) < 0)
+		return r;
+	name_from(p, im->name, z->number);
+	return check(im, p, z->line);
+}
+
+static int csv_prescription(struct asph_lens_import *im, int want,
+			    struct asph_prescription *p)
+{
+	const struct csv_rows *rows = &im->rows;
+
+	if (want < 0 && rows->n > 1)
+		return asph_error_set_at(im->err, -ENOENT, im->name, 0, 0, NULL,
+					 "%d rows: choose one", rows->n);
+	if (want == 0 || want > rows->n)
+		return asph_error_set_at(im->err, -ENOENT, im->name, 0, 0, NULL,
+					 "no row %d (the file has %d)", want, rows->n);
+	int i = want < 0 ? 0 : want - 1;
+	*p = rows->p[i];
+	name_from(p, im->name, i + 1);
+	return check(im, p, rows->line[i]);
+}
+
+int asph_lens_import_prescription(const struct asph_lens_import *im, int number,
+				  struct asph_prescription *out,
+				  struct asph_error *err)
+{
+	/* The error sink is the caller's for this call only. */
+	struct asph_lens_import call = *im;
+
+	call.err = err;
+	return im->format == ASPH_LENS_CSV ? csv_prescription(&call, number, out)
+					   : zmx_prescription(&call, number, out);
+}

@@ -1,0 +1,252 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/*
+ * The methods (daemon/rpc.c) over sessions without sockets: the errors of
+ * the job queue come back as the documented protocol codes with their
+ * detail, the sessions and their subscriptions are counted once however
+ * they end, and every line is counted as a request.
+ */
+#include <errno.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <syslog.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+
+#include "asph-proto.h"
+#include "log.h"
+#include "rpc.h"
+
+struct fixture {
+	char dir[64];
+	struct settings *settings;
+	sd_event *event;
+	struct events *events;
+	struct instruments *ins;
+	struct access *access;
+	struct jobs *jobs;
+	struct rpc *rpc;
+	struct rpc_session root, reader;
+};
+
+static void as(struct rpc_session *s, uid_t uid, const char *name)
+{
+	s->peer.uid = uid;
+	s->peer.gid = uid;
+	snprintf(s->peer.name, sizeof(s->peer.name), "%s", name);
+	s->authenticated = true;
+}
+
+static int setup(void **state)
+{
+	struct fixture *f = calloc(1, sizeof(*f));
+	struct job_actor root = { .uid = 0, .name = "root" };
+	struct asph_error err;
+
+	log_setup(LOG_CRIT);
+	snprintf(f->dir, sizeof(f->dir), "/tmp/test-rpc-XXXXXX");
+	assert_non_null(mkdtemp(f->dir));
+	assert_int_equal(settings_defaults(&f->settings), 0);
+	f->settings->limits.max_queue = 2;
+	f->settings->limits.max_subscriptions = 2;
+	f->settings->limits.max_plan_points = 4000;
+	asph_error_clear(&err);
+	assert_int_equal(sd_event_new(&f->event), 0);
+	assert_int_equal(events_new(&f->events), 0);
+	assert_int_equal(instruments_load(f->settings, &f->ins, &err), 0);
+	assert_int_equal(access_load(f->settings, &f->access, NULL, NULL), 0);
+	assert_int_equal(jobs_new(&(struct jobs_setup){
+				.event = f->event, .state_dir = f->dir, .instruments = f->ins,
+				.events = f->events, .limits = &f->settings->limits,
+			 }, &f->jobs, &err), 0);
+	/* No scan runs here. */
+	assert_int_equal(jobs_queue_stop(f->jobs, false, &root, NULL), 0);
+	assert_int_equal(rpc_new(&(struct rpc_setup){
+				.event = f->event, .jobs = f->jobs, .instruments = f->ins,
+				.events = f->events, .access = f->access,
+				.limits = &f->settings->limits,
+			 }, &f->rpc), 0);
+	as(&f->root, 0, "root");
+	as(&f->reader, 65534, "nobody");
+	rpc_session_open(f->rpc, &f->root);
+	rpc_session_open(f->rpc, &f->reader);
+	*state = f;
+	return 0;
+}
+
+static int teardown(void **state)
+{
+	struct fixture *f = *state;
+	char cmd[128];
+
+	rpc_session_close(f->rpc, &f->root);
+	rpc_session_close(f->rpc, &f->reader);
+	rpc_free(f->rpc);
+	jobs_free(f->jobs);
+	access_free(f->access);
+	instruments_free(f->ins);
+	events_free(f->events);
+	settings_free(f->settings);
+	sd_event_unref(f->event);
+	snprintf(cmd, sizeof(cmd), "rm -rf '%s'", f->dir);
+	assert_int_equal(system(cmd), 0);
+	free(f);
+	return 0;
+}
+
+/* The answer to one line. */
+static json_t *line(struct fixture *f, struct rpc_session *s, const char *text)
+{
+	return rpc_handle_line(f->rpc, s, text, strlen(text));
+}
+
+/* A request's result (which must come), as a new reference. */
+static json_t *result_of(struct fixture *f, struct rpc_session *s, const char *text)
+{
+	json_t *r = line(f, s, text), *res;
+
+	assert_non_null(r);
+	res = json_object_get(r, "result");
+	if (!res)
+		fail_msg("%s: %s", text, json_dumps(r, 0));
+	json_incref(res);
+	json_decref(r);
+	return res;
+}
+
+/* A request's error code, and its detail must hold detail. */
+static int error_of(struct fixture *f, struct rpc_session *s, const char *text,
+		    const char *detail)
+{
+	json_t *r = line(f, s, text);
+	json_t *e = json_object_get(r, "error");
+	const char *d = json_string_value(json_object_get(json_object_get(e, "data"), "detail"));
+	int code;
+
+	if (!e)
+		fail_msg("%s: no error: %s", text, json_dumps(r, 0));
+	if (detail && (!d || !strstr(d, detail)))
+		fail_msg("%s: the detail \"%s\" does not say \"%s\"", text, d ? d : "", detail);
+	code = (int)json_integer_value(json_object_get(e, "code"));
+	json_decref(r);
+	return code;
+}
+
+#define SUBMIT "{\"jsonrpc\": \"2.0\", \"id\": 1, \"method\": \"job.submit\", \"params\": " \
+	"{\"lens\": \"strong\", \"plan\": {\"method\": \"fermat\", \"points\": 200}%s}}"
+
+static void test_job_errors(void **state)
+{
+	struct fixture *f = *state;
+	char text[256];
+	json_t *job;
+	int64_t id;
+
+	snprintf(text, sizeof(text), SUBMIT, "");
+	job = result_of(f, &f->root, text);
+	id = json_integer_value(json_object_get(job, "id"));
+	assert_string_equal(json_string_value(json_object_get(job, "state")), "queued");
+	json_decref(job);
+
+	snprintf(text, sizeof(text), "{\"jsonrpc\": \"2.0\", \"id\": 2, \"method\": \"job.pause\","
+		 " \"params\": {\"id\": %" PRId64 "}}", id);
+	assert_int_equal(error_of(f, &f->root, text, "is queued, not running"), PROTO_INVALID_STATE);
+	snprintf(text, sizeof(text), "{\"jsonrpc\": \"2.0\", \"id\": 3, \"method\": \"job.result\","
+		 " \"params\": {\"id\": %" PRId64 "}}", id);
+	assert_int_equal(error_of(f, &f->root, text, "is queued"), PROTO_NO_RESULT);
+	assert_int_equal(error_of(f, &f->root, "{\"jsonrpc\": \"2.0\", \"id\": 4, \"method\": "
+				  "\"job.get\", \"params\": {\"id\": 999}}", "no job 999"),
+			 PROTO_NO_SUCH_JOB);
+	snprintf(text, sizeof(text), SUBMIT, ", \"instrument\": \"nosuch\"");
+	assert_int_equal(error_of(f, &f->root, text, "no instrument \"nosuch\""),
+			 PROTO_NO_SUCH_INSTRUMENT);
+	/* A reader may read, not change. */
+	snprintf(text, sizeof(text), "{\"jsonrpc\": \"2.0\", \"id\": 5, \"method\": \"job.cancel\","
+		 " \"params\": {\"id\": %" PRId64 "}}", id);
+	assert_int_equal(error_of(f, &f->reader, text, "needs an operator"),
+			 PROTO_PERMISSION_DENIED);
+	/* The queue's limit (2). */
+	snprintf(text, sizeof(text), SUBMIT, "");
+	json_decref(result_of(f, &f->root, text));
+	assert_int_equal(error_of(f, &f->root, text, "its limit"), PROTO_LIMIT_REACHED);
+	snprintf(text, sizeof(text), "{\"jsonrpc\": \"2.0\", \"id\": 6, \"method\": \"job.cancel\","
+		 " \"params\": {\"id\": %" PRId64 "}}", id);
+	json_decref(result_of(f, &f->root, text));
+	assert_int_equal(error_of(f, &f->root, text, "is cancelled"), PROTO_INVALID_STATE);
+}
+
+static void test_sessions_and_requests(void **state)
+{
+	struct fixture *f = *state;
+	const char *status = "{\"jsonrpc\": \"2.0\", \"id\": 1, \"method\": \"daemon.status\"}";
+	struct rpc_session third = { 0 };
+	json_t *st, *r;
+
+	assert_int_equal(rpc_sessions(f->rpc), 2);
+	as(&third, 1000, "anna");
+	rpc_session_open(f->rpc, &third);
+	rpc_session_open(f->rpc, &third);
+	assert_int_equal(rpc_sessions(f->rpc), 3);
+	rpc_session_close(f->rpc, &third);
+	rpc_session_close(f->rpc, &third);
+	assert_int_equal(rpc_sessions(f->rpc), 2);
+
+	/* Lines that are not JSON, notifications and batches count too. */
+	r = line(f, &f->root, "{nope");
+	assert_int_equal(json_integer_value(json_object_get(json_object_get(r, "error"), "code")),
+			 PROTO_PARSE_ERROR);
+	json_decref(r);
+	assert_null(line(f, &f->root, "{\"jsonrpc\": \"2.0\", \"method\": \"version\"}"));
+	r = line(f, &f->root, "[]");
+	assert_int_equal(json_integer_value(json_object_get(json_object_get(r, "error"), "code")),
+			 PROTO_INVALID_REQUEST);
+	json_decref(r);
+	st = result_of(f, &f->root, status);
+	assert_int_equal(json_integer_value(json_object_get(st, "clients")), 2);
+	assert_int_equal(json_integer_value(json_object_get(st, "requests")), 4);
+	assert_string_equal(json_string_value(json_object_get(st, "status")), "idle, queue stopped");
+	json_decref(st);
+}
+
+static void test_subscriptions(void **state)
+{
+	struct fixture *f = *state;
+	const char *sub = "{\"jsonrpc\": \"2.0\", \"id\": 1, \"method\": \"events.subscribe\"}";
+	const char *unsub = "{\"jsonrpc\": \"2.0\", \"id\": 2, \"method\": \"events.unsubscribe\"}";
+	struct rpc_session third = { 0 };
+	char batch[256];
+
+	as(&third, 1000, "anna");
+	rpc_session_open(f->rpc, &third);
+	json_decref(result_of(f, &f->root, sub));
+	json_decref(result_of(f, &f->reader, sub));
+	assert_int_equal(error_of(f, &third, sub, "the limit"), PROTO_LIMIT_REACHED);
+	/* A connection dropped inside a batch [subscribe, ..., unsubscribe]:
+	 * the batch goes on after its session closed, and the count stays
+	 * right. */
+	rpc_session_close(f->rpc, &f->reader);
+	assert_int_equal(events_subscriptions(f->events), 1);
+	snprintf(batch, sizeof(batch), "[%s, %s, %s]", unsub, sub, unsub);
+	json_decref(line(f, &f->reader, batch));
+	assert_int_equal(events_subscriptions(f->events), 1);
+	json_decref(result_of(f, &third, sub));
+	assert_int_equal(events_subscriptions(f->events), 2);
+	rpc_session_close(f->rpc, &third);
+	assert_int_equal(events_subscriptions(f->events), 1);
+}
+
+int main(void)
+{
+	const struct CMUnitTest tests[] = {
+		cmocka_unit_test_setup_teardown(test_job_errors, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_sessions_and_requests, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_subscriptions, setup, teardown),
+	};
+
+	return cmocka_run_group_tests(tests, NULL, NULL);
+}
