@@ -29,7 +29,8 @@
 #define INSTRUMENT_TIMEOUT_MS 10000
 
 struct runner {
-	struct asph_instrument_config *ic;    /* this worker's alone: its lens follows the job */
+	struct asph_config *own;        /* this worker's copy of the instrument */
+	struct asph_instrument_config *ic;    /* own's: its lens follows the job */
 	runner_report_fn fn;
 	void *data;
 	int efd;
@@ -309,7 +310,7 @@ static void *worker(void *data)
 
 /* ---------------------------------------------------------- controls */
 
-int runner_new(struct asph_instrument_config *instrument,
+int runner_new(const struct asph_instrument_config *instrument,
 	       sd_event *event, runner_report_fn fn, void *data,
 	       struct runner **out)
 {
@@ -318,11 +319,17 @@ int runner_new(struct asph_instrument_config *instrument,
 
 	if (!r)
 		return -ENOMEM;
-	r->ic = instrument;
-	r->fn = fn;
-	r->data = data;
+	r->efd = -1;
 	pthread_mutex_init(&r->lock, NULL);
 	pthread_cond_init(&r->cond, NULL);
+	rc = asph_instrument_config_copy(instrument, &r->own, NULL);
+	if (rc < 0) {
+		runner_free(r);
+		return rc;
+	}
+	r->ic = &r->own->instruments[0];
+	r->fn = fn;
+	r->data = data;
 	r->efd = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
 	if (r->efd < 0) {
 		rc = -errno;
@@ -364,6 +371,7 @@ void runner_free(struct runner *r)
 		close(r->efd);
 	pthread_cond_destroy(&r->cond);
 	pthread_mutex_destroy(&r->lock);
+	asph_config_free(r->own);
 	free(r);
 }
 

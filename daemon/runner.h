@@ -62,10 +62,11 @@ typedef void (*runner_report_fn)(const struct runner_report *rep, void *data);
 struct runner;
 
 /*
- * A worker for an instrument (the configuration must outlive it); reports
+ * A worker for an instrument; it works on its own copy of the
+ * configuration, whose simulated part follows each job's lens. Reports
  * are delivered on event's thread to fn.
  */
-int runner_new(struct asph_instrument_config *instrument,
+int runner_new(const struct asph_instrument_config *instrument,
 	       sd_event *event, runner_report_fn fn, void *data,
 	       struct runner **out);
 /* Stops the current job (as runner_stop) and joins the thread. */

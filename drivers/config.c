@@ -372,6 +372,27 @@ int asph_config_resolve(const struct asph_registry *reg, const char *arg,
 				 "no instrument '%s' in the configuration", hash + 1);
 }
 
+int asph_instrument_config_copy(const struct asph_instrument_config *c,
+				struct asph_config **out, struct asph_error *err)
+{
+	_cleanup_(asph_config_freep) struct asph_config *copy = NULL;
+	int r = config_alloc(1, &copy, err);
+
+	if (r < 0)
+		return r;
+	struct asph_instrument_config *ic = &copy->instruments[0];
+	*ic = (struct asph_instrument_config){ .stage_driver = c->stage_driver,
+					       .probe_driver = c->probe_driver };
+	memcpy(ic->name, c->name, sizeof(ic->name));
+	r = asph_options_copy(c->stage_options, &ic->stage_options, err);
+	if (r == 0)
+		r = asph_options_copy(c->probe_options, &ic->probe_options, err);
+	if (r < 0)
+		return r;
+	*out = steal_ptr(copy);
+	return 0;
+}
+
 static int lens_option(struct asph_options *o, const char *json, struct asph_error *err)
 {
 	int i = option_index(asph_options_driver(o), "lens");

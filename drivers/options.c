@@ -217,6 +217,32 @@ int asph_options_set_default(struct asph_options *o, const char *name,
 	return 1;
 }
 
+int asph_options_copy(const struct asph_options *o, struct asph_options **out,
+		      struct asph_error *err)
+{
+	struct asph_options *c = NULL;
+	int r = asph_options_new(o->drv, &c, err);
+
+	for (size_t i = 0; r == 0 && i < o->drv->n_options; i++) {
+		if (!o->texts[i])
+			continue;
+		char *copy = strdup(o->texts[i]);
+		if (!copy) {
+			r = asph_error_set(err, -ENOMEM, "out of memory");
+			break;
+		}
+		c->texts[i] = copy;
+		r = option_parse(&o->drv->options[i], copy, &c->values[i], err);
+		c->values[i].set = o->values[i].set;
+	}
+	if (r < 0) {
+		asph_options_free(c);
+		return r;
+	}
+	*out = c;
+	return 0;
+}
+
 const struct asph_option_value *asph_options_values(const struct asph_options *o)
 {
 	return o->values;

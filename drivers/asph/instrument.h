@@ -106,6 +106,10 @@ int asph_options_set(struct asph_options *o, const char *name,
 int asph_options_set_default(struct asph_options *o, const char *name,
 			     const char *text, struct asph_error *err);
 
+/* An independent copy of o: the same values, set or not. */
+int asph_options_copy(const struct asph_options *o, struct asph_options **out,
+		      struct asph_error *err);
+
 /* The values, parallel to the driver's option descriptors. */
 const struct asph_option_value *
 asph_options_values(const struct asph_options *o);
@@ -161,6 +165,15 @@ void asph_config_free(struct asph_config *c);
 int asph_config_resolve(const struct asph_registry *reg, const char *arg,
 			struct asph_config **out, size_t *index,
 			struct asph_error *err);
+
+/*
+ * A configuration of one instrument that is a copy of c, options included:
+ * the caller's own to change (a worker sets the lens of each job on its
+ * copy while the loaded configuration stays as it was read).
+ * asph_config_free() frees it.
+ */
+int asph_instrument_config_copy(const struct asph_instrument_config *c,
+				struct asph_config **out, struct asph_error *err);
 
 /*
  * The lens a job measures, for drivers that simulate the part: a string

@@ -14,6 +14,7 @@
 #include "keyboard.h"
 #include "protocol.h"
 #include "std.h"
+#include "transport.h"
 #include "util-mem.h"
 #include "util-time.h"
 
@@ -251,7 +252,7 @@ static int keyboard_read(struct asph_device *d, struct asph_reading *out, unsign
 			 struct asph_error *err)
 {
 	uint8_t buf[HID_REPORT_MAX];
-	uint64_t start = now_ns(), deadline = start + (uint64_t)timeout_ms * 1000000u;
+	uint64_t deadline = transport_deadline(timeout_ms);
 	double v;
 
 	hid_kbd_reset(&d->kbd);
@@ -259,8 +260,7 @@ static int keyboard_read(struct asph_device *d, struct asph_reading *out, unsign
 	if (r == 0)
 		r = hid_link_send(d->link, &d->prof.request, err);
 	while (r == 0) {
-		uint64_t t = now_ns();
-		unsigned left = t >= deadline ? 0 : (unsigned)((deadline - t + 999999u) / 1000000u);
+		unsigned left = transport_ms_left(deadline);
 		if (left == 0) {
 			return asph_error_set(err, -ETIMEDOUT, "no reading typed within %u ms%s",
 					      timeout_ms, d->prof.request.kind == HID_COMMAND_NONE
@@ -275,7 +275,7 @@ static int keyboard_read(struct asph_device *d, struct asph_reading *out, unsign
 			return r;
 		r = hid_kbd_feed(&d->kbd, d->prof.report_id, buf, (size_t)r, &v, err);
 		if (r == 1) {
-			out->t_ns = now_ns();
+			out->t_ns = now_monotonic_ns();
 			out->raw = v;
 			struct hid_sample s = { .mm = v * d->unit_scale };
 			to_reading(d, &s, out);
