@@ -5,6 +5,7 @@
 #include <fcntl.h>
 #include <linux/input.h>
 #include <math.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -60,10 +61,18 @@ static bool was_held(const struct hid_kbd *k, uint8_t code)
 }
 
 /* Starts afresh after a reading that went wrong. */
-static int fail(struct hid_kbd *k, struct asph_error *err, const char *msg)
+/* Ends the reading being typed with the reason; what was typed is
+ * formatted before it is forgotten. */
+__attribute__((format(printf, 3, 4)))
+static int fail(struct hid_kbd *k, struct asph_error *err, const char *fmt, ...)
 {
+	va_list ap;
+
+	va_start(ap, fmt);
+	asph_error_vset_at(err, -EPROTO, NULL, 0, 0, NULL, fmt, ap);
+	va_end(ap);
 	hid_kbd_reset(k);
-	return asph_error_set(err, -EPROTO, "%s", msg);
+	return -EPROTO;
 }
 
 /* The text typed as a number: an optional sign, digits with one point
@@ -84,12 +93,8 @@ static int finish(struct hid_kbd *k, double *value, struct asph_error *err)
 		digits += c >= '0' && c <= '9';
 	}
 	buf[k->len] = '\0';
-	if (!digits || points > 1) {
-		char msg[96];
-		snprintf(msg, sizeof(msg), "the gauge typed '%s', which is not a number", buf);
-		hid_kbd_reset(k);
-		return asph_error_set(err, -EPROTO, "%s", msg);
-	}
+	if (!digits || points > 1)
+		return fail(k, err, "the gauge typed '%s', which is not a number", buf);
 	*value = strtod(buf, &end);
 	hid_kbd_reset(k);
 	return isfinite(*value) && !*end ? 1 : asph_error_set(err, -EPROTO, "not a number");
@@ -98,21 +103,15 @@ static int finish(struct hid_kbd *k, double *value, struct asph_error *err)
 int hid_kbd_feed(struct hid_kbd *k, uint8_t report_id, const uint8_t *rep, size_t n,
 		 double *value, struct asph_error *err)
 {
-	char msg[96];
-
 	if (report_id) {
-		if (n == 0 || rep[0] != report_id) {
-			snprintf(msg, sizeof(msg), "keyboard report id %u is not the gauge's (%u)",
-				 n ? rep[0] : 0u, report_id);
-			return fail(k, err, msg);
-		}
+		if (n == 0 || rep[0] != report_id)
+			return fail(k, err, "keyboard report id %u is not the gauge's (%u)",
+				    n ? rep[0] : 0u, report_id);
 		rep++;
 		n--;
 	}
-	if (n != 8) {
-		snprintf(msg, sizeof(msg), "a keyboard report of %zu bytes (boot protocol: 8)", n);
-		return fail(k, err, msg);
-	}
+	if (n != 8)
+		return fail(k, err, "a keyboard report of %zu bytes (boot protocol: 8)", n);
 	bool shift = rep[0] & MOD_SHIFT;
 	const uint8_t *keys = rep + 2;
 	if (keys[0] == USAGE_ERR_ROLLOVER)
@@ -124,9 +123,8 @@ int hid_kbd_feed(struct hid_kbd *k, uint8_t report_id, const uint8_t *rep, size_
 			continue;
 		char c = key_char(code, shift);
 		if (!c) {
-			snprintf(msg, sizeof(msg), "the gauge typed key 0x%02x, which has no place in a "
-				 "reading", code);
-			r = fail(k, err, msg);
+			r = fail(k, err, "the gauge typed key 0x%02x, which has no place in a reading",
+				 code);
 			break;
 		}
 		if (c == '\n') {
