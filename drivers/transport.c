@@ -104,7 +104,9 @@ static int wait_for(struct transport *t, short events, uint64_t deadline,
 static int io_error(struct transport *t, const char *what, struct asph_error *err)
 {
 	int e = errno;
-	if (e == EPIPE || e == ECONNRESET || e == ENXIO || e == ENODEV || e == ENETDOWN)
+	/* EIO: a terminal hung up (a serial adapter unplugged, a pty whose
+	 * other end closed) */
+	if (e == EPIPE || e == ECONNRESET || e == ENXIO || e == ENODEV || e == ENETDOWN || e == EIO)
 		return asph_error_set(err, -ENODEV, "%s: the device went away (%s)", t->name,
 				      strerror(e));
 	return asph_error_set(err, -EIO, "%s: %s failed: %s", t->name, what, strerror(e));

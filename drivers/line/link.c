@@ -9,12 +9,12 @@
 #include <sys/ioctl.h>
 #include <sys/socket.h>
 #include <termios.h>
-#include <time.h>
 #include <unistd.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
 
 #include "link.h"
+#include "util-time.h"
 
 static int tcp_connect(const struct line_link_params *p, unsigned timeout_ms, int *fd_out,
 		       struct asph_error *err)
@@ -147,13 +147,12 @@ int line_link_open(const struct line_link_params *p, unsigned timeout_ms,
 int line_link_dtr_pulse(struct transport *t, unsigned ms, struct asph_error *err)
 {
 	int fd = transport_fd(t), bit = TIOCM_DTR;
-	struct timespec ts = { ms / 1000, (long)(ms % 1000) * 1000000 };
 
 	if (ioctl(fd, TIOCMBIS, &bit) < 0)
 		return asph_error_set(err, -ENOTSUP,
 				      "this line has no DTR to request a reading with (%s)",
 				      strerror(errno));
-	nanosleep(&ts, NULL);
+	msleep(ms);
 	if (ioctl(fd, TIOCMBIC, &bit) < 0)
 		return asph_error_set(err, -EIO, "cannot lower DTR: %s", strerror(errno));
 	return 0;

@@ -45,17 +45,15 @@ struct parser {
 	bool seen_magic;
 };
 
+/* The reason, at the file's line and column (0: none). */
 __attribute__((format(printf, 3, 4)))
 static int fail(struct parser *ps, int col, const char *fmt, ...)
 {
-	char msg[256];
 	va_list ap;
 
 	va_start(ap, fmt);
-	vsnprintf(msg, sizeof(msg), fmt, ap);
+	asph_error_vset_at(ps->err, -EINVAL, ps->source, ps->line, col, NULL, fmt, ap);
 	va_end(ap);
-	asph_error_set(ps->err, -EINVAL, "%s", msg);
-	asph_error_locate(ps->err, ps->source, ps->line, col, NULL);
 	return -EINVAL;
 }
 
