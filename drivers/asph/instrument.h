@@ -62,6 +62,26 @@ const char *asph_registry_origin(const struct asph_registry *r, size_t i);
 const struct asph_driver *asph_registry_find(const struct asph_registry *r,
 					     const char *name);
 
+/* A profile a driver's "profile" option can name, found at run time in
+ * the profile directories (the line driver's profile files). */
+struct asph_driver_profile {
+	char name[64];
+	unsigned roles;         /* enum asph_driver_role; 0 when it does not load */
+	char description[128];
+	char reference[128];    /* the document it follows */
+	char path[512];         /* the file the name loads */
+	char error[512];        /* why it does not load, "" when it does */
+};
+
+/*
+ * The profiles driver i's "profile" option can name, as the profile
+ * directories hold them now, one per name, sorted. *n is 0 for a driver
+ * whose profiles are not files. The array is malloc'd (free() it).
+ */
+int asph_registry_profiles(const struct asph_registry *r, size_t i,
+			   struct asph_driver_profile **out, size_t *n,
+			   struct asph_error *err);
+
 /* Checks a driver table as the registry does (plugins are checked on
  * load). */
 int asph_driver_validate(const struct asph_driver *d, struct asph_error *err);
@@ -70,9 +90,12 @@ int asph_driver_validate(const struct asph_driver *d, struct asph_error *err);
  * it and asphd's driver.list answers: { "driver_abi": N, "drivers": [ {
  * "name", "description", "version", "origin", "roles", "options": [ {
  * "name", "type", "default", "unit", "min", "max", "choices", "roles",
- * "help" } ] } ] }. min and max only for a ranged option, choices only for
- * an enum; a text the driver leaves out is null; roles are always named
- * (an option of both roles has ["stage", "probe"]). malloc'd. */
+ * "help" } ], "profiles": [ { "name", "roles", "description", "reference",
+ * "path", "error" } ] } ] }. min and max only for a ranged option, choices
+ * only for an enum; a text the driver leaves out is null; roles are always
+ * named (an option of both roles has ["stage", "probe"]); profiles as
+ * asph_registry_profiles() finds them (empty for a driver without profile
+ * files; error null for one that loads). malloc'd. */
 int asph_registry_to_json(const struct asph_registry *r, bool pretty,
 			  char **out);
 

@@ -24,7 +24,7 @@ enum {
 	OPT_SCALE, OPT_STATUS_OFFSET, OPT_VALID_MASK, OPT_RANGE_MASK, OPT_TOUCH_MASK,
 	OPT_ERROR_MASK, OPT_CMD_REQUEST, OPT_CMD_ZERO, OPT_CMD_HOLD, OPT_ZERO_ON_OPEN,
 	OPT_HOLD, OPT_OFFSET, OPT_PROBE, OPT_TIP_RADIUS, OPT_STANDOFF, OPT_RANGE, OPT_RATE,
-	OPT_GRAB, OPT_UNIT_SCALE,
+	OPT_GRAB, OPT_UNIT_SCALE, OPT_READ_TIMEOUT,
 	N_OPTIONS
 };
 
@@ -100,6 +100,11 @@ static const struct asph_option_desc hid_options[N_OPTIONS] = {
 	[OPT_UNIT_SCALE] = { "unit_scale", ASPH_OPTION_DOUBLE, "1", RANGE(-1e6, 1e6), .unit = "mm",
 			     .help = "keyboard: mm per typed unit (0.0254 for a gauge typing inches; "
 				     "negative when the value grows towards the probe)" },
+	[OPT_READ_TIMEOUT] = { "read_timeout", ASPH_OPTION_INT, "0", RANGE(0, 3600000), .unit = "ms",
+			       .help = "the longest the host waits for one reading (0: its default, "
+				       "2000 ms plus the reading's time at the rate); a keyboard gauge "
+				       "without a request: the time the operator has to press its data "
+				       "button or foot switch" },
 };
 
 #undef RANGE
@@ -261,11 +266,11 @@ static int keyboard_read(struct asph_device *d, struct asph_reading *out, unsign
 		r = hid_link_send(d->link, &d->prof.request, err);
 	while (r == 0) {
 		unsigned left = transport_ms_left(deadline);
-		if (left == 0) {
+		if (left == 0)
 			return asph_error_set(err, -ETIMEDOUT, "no reading typed within %u ms%s",
 					      timeout_ms, d->prof.request.kind == HID_COMMAND_NONE
-					      ? " (press the gauge's data button or foot switch)" : "");
-		}
+					      ? " (press the gauge's data button or foot switch; the "
+						"read_timeout option gives the operator longer)" : "");
 		r = hid_link_read(d->link, buf, sizeof(buf), left, err);
 		if (r == -ETIMEDOUT) {
 			r = 0;
@@ -275,11 +280,10 @@ static int keyboard_read(struct asph_device *d, struct asph_reading *out, unsign
 			return r;
 		r = hid_kbd_feed(&d->kbd, d->prof.report_id, buf, (size_t)r, &v, err);
 		if (r == 1) {
-			out->t_ns = now_monotonic_ns();
-			out->raw = v;
 			struct hid_sample s = { .mm = v * d->unit_scale };
+			out->t_ns = now_monotonic_ns();
 			to_reading(d, &s, out);
-			out->raw = v;
+			out->raw = v;   /* what the gauge typed, not counts */
 			return 0;
 		}
 	}
