@@ -192,8 +192,9 @@ static int error_reply(struct asph_device *d, const char *reply, uint64_t deadli
 			return asph_error_set(err, -EPROTO, "the device answered '%s', an error, and "
 					      "its error query reports none", shown);
 		}
+		/* a reply whose meaning the profile spells out is its message */
 		if (er->text[0] && !m.has_code)
-			return device_error(d, 0, false, er->text, err);
+			return asph_error_set(err, -EPROTO, "%s", er->text);
 		return device_error(d, m.code, m.has_code, m.has_text ? m.text : er->text, err);
 	}
 	return 0;
@@ -315,12 +316,14 @@ static int send_step(struct asph_device *d, const struct line_step *st, const ch
 	char reply[LINE_REPLY_MAX];
 	int r = send_line(d, cmd, deadline, err);
 
-	if (r < 0 || !*ack)
-		return r;
-	r = read_reply(d, cmd, reply, sizeof(reply), deadline, d->reply_ms, err);
-	if (r < 0 || line_match(ack, reply, &d->vars, m))
-		return r;
-	return refuse_reply(d, cmd, reply, ack, deadline, err);
+	if (r == 0 && *ack) {
+		r = read_reply(d, cmd, reply, sizeof(reply), deadline, d->reply_ms, err);
+		if (r == 0 && !line_match(ack, reply, &d->vars, m))
+			r = refuse_reply(d, cmd, reply, ack, deadline, err);
+	}
+	if (r == 0 && st->check)
+		r = run_error_query(d, deadline, err);
+	return r;
 }
 
 static int run_step(struct asph_device *d, const struct line_step *st, struct line_match *m,

@@ -246,6 +246,13 @@ static int step_options(struct parser *ps, const struct words *w, int first,
 {
 	for (int i = first; i < w->n; i += 2) {
 		const char *key = w->w[i];
+		if (!strcmp(key, "check") && st->kind == LINE_STEP_SEND) {
+			if (!ps->p->error_query[0])
+				return fail(ps, w->col[i], "'check' needs an error_query before it");
+			st->check = true;
+			i--;
+			continue;
+		}
 		if (i + 1 >= w->n)
 			return fail(ps, w->col[i], "'%s' needs a pattern after it", key);
 		int r;

@@ -46,6 +46,8 @@ struct line_step {
 	bool has_mask;                  /* WAIT: done when ({code} & mask) == value */
 	long mask, value;
 	bool per_axis;                  /* the command names one axis */
+	bool check;                     /* SEND: the error query after it (for
+					 * each axis: the error names it) */
 	int line;                       /* where in the profile */
 };
 

@@ -38,6 +38,7 @@ struct linesim {
 	bool enabled, linked, echo, verbose; /* LinuxCNC: the session */
 	char text[160];                 /* LinuxCNC: the last error's text */
 	bool stalled, garble_next, partial_next;
+	double replug_at;               /* real time a dropped serial line comes back, 0: not */
 	enum linesim_fault fault;
 	int fault_at;                   /* moves or readings from now */
 	struct linesim_stats st;
@@ -172,8 +173,11 @@ static int axis_index(const struct linesim *s, const char *id)
 static void disconnect(struct linesim *s)
 {
 	if (s->c.serial) {
-		close(s->master_fd);
+		if (s->master_fd >= 0)
+			close(s->master_fd);
 		s->master_fd = -1;
+		if (s->c.link && s->c.replug)
+			s->replug_at = real_now() + s->c.replug_s;
 	} else if (s->conn_fd >= 0) {
 		close(s->conn_fd);
 		s->conn_fd = -1;
@@ -530,8 +534,17 @@ static void lcnc_set(struct linesim *s, char **w, int n, bool verbose)
 				if (toupper((unsigned char)w[i][0]) == "XYZ"[a])
 					k = a;
 			if (k < 0) {
+				/* rs274ngc's check_other_codes (interp_check.cc): a Q
+				 * word needs a code that uses it; a letter the
+				 * interpreter does not know is a bad character */
 				ok = false;
-				snprintf(s->text, sizeof(s->text), "unknown word '%s'", w[i]);
+				if (toupper((unsigned char)w[i][0]) == 'Q')
+					snprintf(s->text, sizeof(s->text), "Q word with no G5, G10, G64, "
+						 "G73, G71, G76, G83, M19, M66, M67, M68 or user M code "
+						 "that uses it");
+				else
+					snprintf(s->text, sizeof(s->text), "Bad character '%c' used",
+						 tolower((unsigned char)w[i][0]));
 				break;
 			}
 			to[k] = strtod(w[i] + 1, NULL);
@@ -674,8 +687,8 @@ static void mitutoyo_line(struct linesim *s, char *line)
 	if (f == LINESIM_DISCONNECT)
 		return;
 	if (f == LINESIM_DEVICE_ERROR || !ok) {
-		/* the gauge does not answer: the cable reports its error */
-		reply(s, "\r", "91");
+		/* the specification names no error reply: a gauge that has
+		 * nothing to send sends nothing */
 		return;
 	}
 	reply(s, "\r", "01A%c%08.5f", mm < 0 ? '-' : '+', fabs(mm));
@@ -775,6 +788,37 @@ static void flush_out(struct linesim *s)
 	s->out_len = 0;
 }
 
+/* A new pty pair; with a link, the link (re)pointed at its slave in one
+ * step, as udev moves a by-id name to a re-enumerated adapter. */
+static int open_pty(struct linesim *s)
+{
+	char tmp[600];
+
+	s->master_fd = posix_openpt(O_RDWR | O_NOCTTY | O_CLOEXEC);
+	if (s->master_fd < 0 || grantpt(s->master_fd) < 0 || unlockpt(s->master_fd) < 0 ||
+	    ptsname_r(s->master_fd, s->slave, sizeof(s->slave)) != 0)
+		return -errno;
+	if (!s->c.link)
+		return 0;
+	snprintf(tmp, sizeof(tmp), "%s.new", s->c.link);
+	unlink(tmp);
+	if (symlink(s->slave, tmp) < 0 || rename(tmp, s->c.link) < 0)
+		return -errno;
+	return 0;
+}
+
+/* A dropped serial line whose time to come back has come. */
+static void replug_due(struct linesim *s)
+{
+	if (s->replug_at <= 0 || real_now() < s->replug_at)
+		return;
+	s->replug_at = 0;
+	s->in_len = s->out_len = 0;
+	s->stalled = false;
+	if (open_pty(s) == 0)
+		s->st.connections++;
+}
+
 static void *serve(void *data)
 {
 	struct linesim *s = data;
@@ -782,9 +826,11 @@ static void *serve(void *data)
 	for (;;) {
 		struct pollfd p[2] = { { s->wake[0], POLLIN, 0 }, { -1, POLLIN, 0 } };
 		pthread_mutex_lock(&s->lock);
+		replug_due(s);
 		p[1].fd = device_fd(s) >= 0 ? device_fd(s) : (s->c.serial ? -1 : s->listen_fd);
+		int wait_ms = s->replug_at > 0 ? 5 : 100;
 		pthread_mutex_unlock(&s->lock);
-		if (poll(p, 2, 100) < 0 && errno != EINTR)
+		if (poll(p, 2, wait_ms) < 0 && errno != EINTR)
 			break;
 		if (p[0].revents)
 			break;
@@ -821,11 +867,10 @@ static void *serve(void *data)
 static int open_endpoint(struct linesim *s, char *address, size_t size)
 {
 	if (s->c.serial) {
-		s->master_fd = posix_openpt(O_RDWR | O_NOCTTY | O_CLOEXEC);
-		if (s->master_fd < 0 || grantpt(s->master_fd) < 0 || unlockpt(s->master_fd) < 0 ||
-		    ptsname_r(s->master_fd, s->slave, sizeof(s->slave)) != 0)
-			return -errno;
-		snprintf(address, size, "%s", s->slave);
+		int r = open_pty(s);
+		if (r < 0)
+			return r;
+		snprintf(address, size, "%s", s->c.link ? s->c.link : s->slave);
 		return 0;
 	}
 	struct sockaddr_in a = { .sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK) };
@@ -884,6 +929,8 @@ void linesim_stop(struct linesim *s)
 	if (write(s->wake[1], "x", 1) == 1)
 		pthread_join(s->th, NULL);
 	disconnect(s);
+	if (s->c.link)
+		unlink(s->c.link);
 	if (s->listen_fd >= 0)
 		close(s->listen_fd);
 	close(s->wake[0]);

@@ -36,6 +36,14 @@ struct linesim_config {
 	double speed;                   /* stage: mm/s */
 	linesim_sense_fn sense;         /* sensor */
 	void *sense_data;
+	/* serial: a symbolic link to the pty, as udev's /dev/serial/by-id
+	 * names are; the address given back is then this path. After a
+	 * disconnect, with replug, the line comes back after replug_s
+	 * (real seconds) on a new pty the link points to, as a USB adapter
+	 * that re-enumerates; the device keeps its state meanwhile. */
+	const char *link;
+	bool replug;
+	double replug_s;
 };
 
 enum linesim_fault {

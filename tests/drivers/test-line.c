@@ -29,6 +29,7 @@
 #include "line/protocol.h"
 #include "mock/protocol.h"
 #include "scan-fixture.h"
+#include "util-time.h"
 
 /* The part's misalignment: what the fit must recover. */
 #define SHIFT_X 0.0371
@@ -297,20 +298,23 @@ struct profile_case {
 	const char *error_words;        /* the device's error, as reported */
 	const char *wrong_axis_words;
 	bool tcp_only;                  /* no serial line (linuxcncrsh) */
+	bool wrong_axis_in_scan;        /* only a move (a reading) names the axes */
 };
 
 static const struct profile_case cases[] = {
 	{ "pi-gcs", LINESIM_PI, true, "1,2,4", "PI error 7: position out of limits",
-	  "PI error 15: invalid axis identifier" },
+	  "axis z (4): enable: PI error 15: invalid axis identifier" },
 	{ "newport-esp", LINESIM_NEWPORT, true, "1,2,4", "POSITIVE SOFTWARE LIMIT DETECTED",
-	  "Newport error 9: AXIS NUMBER OUT OF RANGE" },
+	  "axis z (4): enable: Newport error 9: AXIS NUMBER OUT OF RANGE" },
 	{ "aerotech-ascii", LINESIM_AEROTECH, true, "X,Y,W",
 	  "Aerotech axis fault 16: CwSoftwareLimitFault",
-	  "the controller does not take the command" },
-	{ "linuxcnc", LINESIM_LINUXCNC, true, NULL,
-	  "LinuxCNC error: Move on line 0 would exceed joint", NULL, true },
+	  "axis z (W): enable: Aerotech: the controller does not take the command" },
+	/* G53 G0 X.. Y.. Q..: rs274ngc refuses the Q word at the first move */
+	{ "linuxcnc", LINESIM_LINUXCNC, true, "X,Y,Q",
+	  "LinuxCNC error: Move on line 0 would exceed joint",
+	  "move: LinuxCNC error: Q word with no G5, G10, G64", true, true },
 	{ "keyence-lk", LINESIM_KEYENCE, false, "2", "Keyence error 99: other error",
-	  "Keyence error 1: status error" },
+	  "read: Keyence error 1: status error", false, true },
 	{ "mitutoyo-vcp", LINESIM_MITUTOYO, false, NULL, NULL, NULL },
 	{ "sylvac", LINESIM_SYLVAC, false, NULL, "Sylvac error 0: sensor error", NULL },
 };
@@ -319,9 +323,9 @@ static const struct profile_case cases[] = {
  * the mock probe riding on it (a stage profile) or the mock stage
  * carrying it (a sensor profile). */
 static struct asph_config *bench(struct env *e, const struct profile_case *pc, bool serial,
-				 const char *address, const char *axes)
+				 const char *address, const char *extra)
 {
-	char text[2048], dev[768], conn[512];
+	char text[2048], dev[1024], conn[512];
 	struct asph_config *c;
 	struct asph_error err;
 
@@ -330,9 +334,9 @@ static struct asph_config *bench(struct env *e, const struct profile_case *pc, b
 	else
 		snprintf(conn, sizeof(conn), "\"port\": %s", address);
 	snprintf(dev, sizeof(dev), "\"driver\": \"line\", \"options\": {\"profile\": \"%s\", %s, "
-		 "\"timeout\": %u%s%s%s%s}", pc->profile, conn, reply_ms(),
-		 pc->stage ? "" : ", \"standoff\": 0, \"range\": 1",
-		 axes ? ", \"axes\": \"" : "", axes ? axes : "", axes ? "\"" : "");
+		 "\"timeout\": %u%s%s%s}", pc->profile, conn, reply_ms(),
+		 pc->stage ? "" : ", \"standoff\": 0, \"range\": 1", extra ? ", " : "",
+		 extra ? extra : "");
 	if (pc->stage)
 		snprintf(text, sizeof(text),
 			 "{\"instruments\": [{\"name\": \"bench\", \"stage\": {%s},\n"
@@ -364,14 +368,22 @@ struct rig {
 	char address[128];
 };
 
-/* The simulators of a case: the device, and for a sensor the stage. */
-static void rig_start(struct env *e, const struct profile_case *pc, bool serial, struct rig *rg)
+/* The simulator of a case; link: a serial line reached through this
+ * symbolic link, which comes back after a drop when replug. */
+static void rig_start_link(struct env *e, const struct profile_case *pc, bool serial,
+			   const char *link, bool replug, struct rig *rg)
 {
 	struct linesim_config sc = { .kind = pc->kind, .serial = serial, .time_scale = 1e-4,
-				     .travel = 50, .speed = 20, .sense = sense, .sense_data = e };
+				     .travel = 50, .speed = 20, .sense = sense, .sense_data = e,
+				     .link = link, .replug = replug, .replug_s = 0.05 };
 
 	memset(rg, 0, sizeof(*rg));
 	assert_int_equal(linesim_start(&sc, &rg->dev, rg->address, sizeof(rg->address)), 0);
+}
+
+static void rig_start(struct env *e, const struct profile_case *pc, bool serial, struct rig *rg)
+{
+	rig_start_link(e, pc, serial, NULL, false, rg);
 }
 
 static void rig_stop(struct env *e, struct rig *rg)
@@ -382,8 +394,8 @@ static void rig_stop(struct env *e, struct rig *rg)
 /* Measures the plan with the first instrument of c into path. -errno of
  * the scan; the instrument's open failure fails the test unless
  * open_err is given (then its code is returned). */
-static int scan(struct env *e, struct asph_config *c, const char *path, struct asph_error *err,
-		bool open_may_fail)
+static int scan_n(struct env *e, struct asph_config *c, size_t n, const char *path,
+		  struct asph_error *err, bool open_may_fail)
 {
 	struct asph_scanfile_header_info info = { "{\"name\":\"strong\"}", "{\"method\":\"fermat\"}",
 						  "{\"name\":\"bench\"}", NULL };
@@ -396,13 +408,18 @@ static int scan(struct env *e, struct asph_config *c, const char *path, struct a
 		return r;
 	if (r < 0)
 		fail_msg("open: %s", err->message);
-	assert_int_equal(asph_scan_new(inst, e->fx.s, e->plan->xyz, e->plan->n, NULL, &sc,
-				       NULL), 0);
+	assert_int_equal(asph_scan_new(inst, e->fx.s, e->plan->xyz, n, NULL, &sc, NULL), 0);
 	assert_int_equal(asph_scanfile_writer_create(path, &info, NULL, &w, NULL), 0);
 	r = asph_scan_run(sc, w, err);
 	asph_scan_free(sc);
 	asph_instrument_close(inst);
 	return r;
+}
+
+static int scan(struct env *e, struct asph_config *c, const char *path, struct asph_error *err,
+		bool open_may_fail)
+{
+	return scan_n(e, c, e->plan->n, path, err, open_may_fail);
 }
 
 static void fit(struct env *e, const char *path, struct asph_fit_result *res)
@@ -518,13 +535,32 @@ static void test_faults(void **state)
 				fault_scan(*state, &cases[i], &faults[f]);
 }
 
-/* A wrong axis id: a stage refuses to open (before anything moves), a
- * sensor's first reading fails; the reason is the device's. */
+/* The scan file of a scan that failed: it reads back, with the reason. */
+static size_t failed_file(const char *path, const char *words)
+{
+	struct asph_scanfile *s = read_scan(path);
+	size_t n = s->n;
+
+	assert_int_equal(s->report.outcome, ASPH_SCANFILE_FAILED);
+	if (!strstr(s->report.reason, words))
+		fail_msg("the file's reason '%s' lacks '%s'", s->report.reason, words);
+	asph_scanfile_free(s);
+	return n;
+}
+
+/*
+ * A wrong axis id. Where the profile names every axis when the stage is
+ * opened (servo on, enable), the controller refuses it then, with its
+ * reason and the axis, before anything moves. Where only a move names the
+ * axes (LinuxCNC's MDI line) or a reading its channel (Keyence), the scan
+ * fails at the first one: the reason is in the file, which reads back,
+ * and the stage stands.
+ */
 static void test_wrong_axis(void **state)
 {
 	struct env *e = *state;
 	struct asph_error err;
-	char path[128];
+	char path[128], opt[64];
 	struct rig rg;
 
 	for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
@@ -532,37 +568,93 @@ static void test_wrong_axis(void **state)
 		if (!pc->wrong_axes)
 			continue;
 		rig_start(e, pc, false, &rg);
-		struct asph_config *c = bench(e, pc, false, rg.address, pc->wrong_axes);
-		int r = scan(e, c, new_path(&e->fx, path, sizeof(path)), &err, pc->stage);
+		snprintf(opt, sizeof(opt), "\"axes\": \"%s\"", pc->wrong_axes);
+		struct asph_config *c = bench(e, pc, false, rg.address, opt);
+		asph_error_clear(&err);
+		int r = scan(e, c, new_path(&e->fx, path, sizeof(path)), &err, !pc->wrong_axis_in_scan);
 		if (r >= 0 || !strstr(err.message, pc->wrong_axis_words))
-			fail_msg("%s: %d '%s'", pc->profile, r, err.message);
-		if (!pc->stage) {
-			struct asph_scanfile *s = read_scan(path);
-			assert_int_equal(s->report.outcome, ASPH_SCANFILE_FAILED);
-			assert_non_null(strstr(s->report.reason, pc->wrong_axis_words));
-			asph_scanfile_free(s);
-		}
+			fail_msg("%s: %d '%s', expected '%s'", pc->profile, r, err.message,
+				 pc->wrong_axis_words);
+		if (pc->wrong_axis_in_scan)
+			assert_int_equal(failed_file(path, pc->wrong_axis_words), 0);
+		else
+			assert_int_equal(access(path, F_OK), -1);    /* refused before a file */
 		struct linesim_stats st;
 		linesim_stats(rg.dev, &st);
 		assert_false(st.moving);
-		assert_int_equal(st.moves, 0);
+		/* the refused move is the only one; a stage that got that far
+		 * was stopped */
+		assert_true(st.moves <= (pc->stage && pc->wrong_axis_in_scan ? 1u : 0u));
+		if (pc->stage && pc->wrong_axis_in_scan)
+			assert_true(st.stops >= 1);
 		rig_stop(e, &rg);
 		asph_config_free(c);
 	}
+}
+
+/*
+ * A serial line that drops in the middle of a move (a USB adapter
+ * unplugged): the driver opens the port again as soon as it is back (the
+ * same /dev/serial/by-id name, a new tty behind it) and stops the stage.
+ * When the port does not come back, the reason says that the stage could
+ * not be stopped from here. Either way the scan file reads back.
+ */
+static void serial_drop(struct env *e, const struct profile_case *pc, bool replug)
+{
+	struct asph_error err;
+	struct linesim_stats st;
+	char path[128], link[256], opt[64];
+	struct rig rg;
+
+	snprintf(link, sizeof(link), "%s/by-id-%s", e->fx.dir, pc->profile);
+	rig_start_link(e, pc, true, link, replug, &rg);
+	snprintf(opt, sizeof(opt), "\"reconnect_ms\": %u", replug ? 5 * reply_ms() : 300);
+	struct asph_config *c = bench(e, pc, true, rg.address, opt);
+	linesim_inject(rg.dev, LINESIM_DISCONNECT, 120);
+	asph_error_clear(&err);
+	int r = scan(e, c, new_path(&e->fx, path, sizeof(path)), &err, false);
+	const char *words = replug ? "; opened the port again and stopped the stage"
+				   : "again to stop the stage";
+	if (r != -ENODEV || !strstr(err.message, "went away") || !strstr(err.message, words))
+		fail_msg("%s: %d '%s', expected '%s'", pc->profile, r, err.message, words);
+	if (!replug && !strstr(err.message, link))
+		fail_msg("%s: '%s' does not name the port", pc->profile, err.message);
+	size_t n = failed_file(path, words);
+	if (!(n >= 10 && n < e->plan->n))
+		fail_msg("%s: %zu points recorded", pc->profile, n);
+	linesim_stats(rg.dev, &st);
+	if (replug) {
+		/* stopped at once, not at the move's end */
+		assert_int_equal(st.connections, 1);
+		assert_true(st.stops >= 1);
+		assert_false(st.moving);
+	} else {
+		assert_int_equal(st.stops, 0);
+	}
+	rig_stop(e, &rg);
+	asph_config_free(c);
+}
+
+static void test_serial_drop(void **state)
+{
+	for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++)
+		if (cases[i].stage && !cases[i].tcp_only)
+			serial_drop(*state, &cases[i], true);
+	serial_drop(*state, &cases[0], false);
 }
 
 /* Readings the operator triggers (a foot switch) within the timeout, and
  * a DTR request on a line without DTR (a pty). */
 struct presser {
 	struct linesim *sim;
+	unsigned ms;            /* after this long */
 };
 
 static void *press_later(void *data)
 {
 	struct presser *p = data;
-	struct timespec ts = { 0, 50000000 };
 
-	nanosleep(&ts, NULL);
+	msleep(p->ms);
 	linesim_operator(p->sim);
 	return NULL;
 }
@@ -597,7 +689,7 @@ static void test_triggers(void **state)
 			assert_int_equal(line->probe->read(d, &ctx, &rd, 500, &err), -ENOTSUP);
 			assert_non_null(strstr(err.message, "this line has no DTR"));
 		} else {
-			struct presser p = { rg.dev };
+			struct presser p = { rg.dev, 50 };
 			double z;
 			assert_int_equal(pthread_create(&th, NULL, press_later, &p), 0);
 			int r = line->probe->read(d, &ctx, &rd, 2000, &err);
@@ -614,6 +706,72 @@ static void test_triggers(void **state)
 		asph_options_free(o);
 		rig_stop(e, &rg);
 	}
+}
+
+/*
+ * Readings the operator triggers, through the executor: the probe's
+ * read_timeout option is how long the host waits for each (the default
+ * would be 2000 ms), so a press 2.3 s after the request still makes the
+ * reading. The wrapped read records the timeout the executor gives and
+ * has the simulated operator press the gauge's button after a while.
+ */
+static const struct asph_probe_ops *line_probe_ops;
+static struct linesim *gauge;
+static unsigned press_ms, longest_timeout;
+
+static int pressed_read(struct asph_device *d, const struct asph_probe_context *ctx,
+			struct asph_reading *out, unsigned timeout_ms, struct asph_error *err)
+{
+	struct presser p = { gauge, press_ms };
+	pthread_t th;
+
+	if (timeout_ms > longest_timeout)
+		longest_timeout = timeout_ms;
+	assert_int_equal(pthread_create(&th, NULL, press_later, &p), 0);
+	int r = line_probe_ops->read(d, ctx, out, timeout_ms, err);
+	pthread_join(th, NULL);
+	press_ms = 30;
+	return r;
+}
+
+static void operator_scan(struct env *e, const char *extra, unsigned first_press_ms,
+			  unsigned want_timeout)
+{
+	static const struct profile_case pc = { "mitutoyo-vcp", LINESIM_MITUTOYO, false };
+	static struct asph_probe_ops ops;
+	static struct asph_driver pressing;
+	struct asph_error err;
+	char path[128];
+	struct rig rg;
+
+	rig_start(e, &pc, false, &rg);
+	struct asph_config *c = bench(e, &pc, false, rg.address, extra);
+	line_probe_ops = c->instruments[0].probe_driver->probe;
+	ops = *line_probe_ops;
+	ops.read = pressed_read;
+	pressing = *c->instruments[0].probe_driver;
+	pressing.probe = &ops;
+	c->instruments[0].probe_driver = &pressing;
+	gauge = rg.dev;
+	press_ms = first_press_ms;
+	longest_timeout = 0;
+	asph_error_clear(&err);
+	if (scan_n(e, c, 3, new_path(&e->fx, path, sizeof(path)), &err, false) < 0)
+		fail_msg("%s", err.message);
+	assert_int_equal(longest_timeout, want_timeout);
+	struct asph_scanfile *s = read_scan(path);
+	assert_int_equal(s->report.outcome, ASPH_SCANFILE_COMPLETED);
+	assert_int_equal(s->n, 3);
+	asph_scanfile_free(s);
+	rig_stop(e, &rg);
+	asph_config_free(c);
+}
+
+static void test_read_timeout(void **state)
+{
+	/* without the option: the host's 2000 ms */
+	operator_scan(*state, "\"trigger\": \"operator\"", 30, 2000);
+	operator_scan(*state, "\"trigger\": \"operator\", \"read_timeout\": 4000", 2300, 4000);
 }
 
 /* stop() from another thread interrupts a move: the wait ends at once,
@@ -688,6 +846,8 @@ int main(void)
 		cmocka_unit_test_setup_teardown(test_scans, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_faults, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_wrong_axis, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_serial_drop, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_read_timeout, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_triggers, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_stop, setup, teardown),
 	};

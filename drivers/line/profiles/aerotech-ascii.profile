@@ -19,7 +19,7 @@ unit mm
 poll_ms 5
 ack "%"
 
-error_reply "!{*}" "the controller does not take the command (syntax, unknown axis or argument)"
+error_reply "!{*}" "Aerotech: the controller does not take the command (a syntax error, an unknown axis or argument)"
 error_reply "#{*}"
 error_query "AXISFAULT({axis})" "%{code}"
 error_none 0

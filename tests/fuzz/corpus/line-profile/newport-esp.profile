@@ -40,25 +40,21 @@ op connect
 end
 
 op enable
-  send "{axis}MO"
-  check
+  send "{axis}MO" check
 end
 
 op velocity
-  send "{axis}VA{speed}"
-  check
+  send "{axis}VA{speed}" check
 end
 
 op home
-  send "{axis}OR"
-  check
+  send "{axis}OR" check
   wait "{axis}MD?" "1" busy "0"
   check
 end
 
 op move
-  send "{axis}PA{target}"
-  check
+  send "{axis}PA{target}" check
   wait "{axis}MD?" "1" busy "0"
 end
 

@@ -43,18 +43,15 @@ op connect
 end
 
 op enable
-  send "SVO {axis} 1"
-  check
+  send "SVO {axis} 1" check
 end
 
 op velocity
-  send "VEL {axis} {speed}"
-  check
+  send "VEL {axis} {speed}" check
 end
 
 op home
-  send "FRF {axis}"
-  check
+  send "FRF {axis}" check
   # #7: controller ready (0xB1) once the reference moves are done
   wait "\x07" "\xB1" busy "\xB0"
   wait "FRF? {axis}" "{axis}=1" busy "{axis}=0"
