@@ -90,7 +90,8 @@ static void print_text(const struct asph_registry *reg)
 static void usage(FILE *out)
 {
 	fprintf(out, "Usage: asph drivers [--json] [--plugin-dir DIR]\n\n"
-		     "Lists the instrument drivers (built in and plugins) with their roles and options.\n"
+		     "Lists the instrument drivers (built in and plugins) with their roles and options,\n"
+		     "and the profile files a driver's profile option can name, as found now.\n"
 		     "  --json             one JSON object\n"
 		     "  --plugin-dir DIR   load plugins from DIR instead of $ASPH_DRIVER_PATH or the\n"
 		     "                     installed plugin directory\n");
