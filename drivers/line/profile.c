@@ -288,6 +288,16 @@ static int step_options(struct parser *ps, const struct words *w, int first,
 	return 0;
 }
 
+/* A step of one text, a command or a pattern, and its options. */
+static int text_step(struct parser *ps, const struct words *w, struct line_step *st,
+		     enum line_text_kind kind, char *dst)
+{
+	if (w->n < 2)
+		return want(ps, w, 1, 1);
+	int r = checked(ps, w, 1, kind, dst, &st->per_axis);
+	return r < 0 ? r : step_options(ps, w, 2, st);
+}
+
 static int step_line(struct parser *ps, const struct words *w)
 {
 	struct line_op *op = &ps->p->ops[ps->op];
@@ -301,11 +311,7 @@ static int step_line(struct parser *ps, const struct words *w)
 	st->line = ps->line;
 	if (!strcmp(k, "send")) {
 		st->kind = LINE_STEP_SEND;
-		if (w->n < 2)
-			return want(ps, w, 1, 1);
-		r = checked(ps, w, 1, LINE_TEXT_COMMAND, st->command, &st->per_axis);
-		if (r == 0)
-			r = step_options(ps, w, 2, st);
+		r = text_step(ps, w, st, LINE_TEXT_COMMAND, st->command);
 	} else if (!strcmp(k, "query") || !strcmp(k, "wait")) {
 		st->kind = k[0] == 'q' ? LINE_STEP_QUERY : LINE_STEP_WAIT;
 		if (w->n < 3)
@@ -317,11 +323,7 @@ static int step_line(struct parser *ps, const struct words *w)
 			r = step_options(ps, w, 3, st);
 	} else if (!strcmp(k, "read")) {
 		st->kind = LINE_STEP_READ;
-		if (w->n < 2)
-			return want(ps, w, 1, 1);
-		r = checked(ps, w, 1, LINE_TEXT_PATTERN, st->reply, &st->per_axis);
-		if (r == 0)
-			r = step_options(ps, w, 2, st);
+		r = text_step(ps, w, st, LINE_TEXT_PATTERN, st->reply);
 	} else if (!strcmp(k, "check")) {
 		st->kind = LINE_STEP_CHECK;
 		r = want(ps, w, 0, 0);

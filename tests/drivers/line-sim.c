@@ -176,6 +176,10 @@ static void disconnect(struct linesim *s)
 		if (s->master_fd >= 0)
 			close(s->master_fd);
 		s->master_fd = -1;
+		/* the adapter's by-id name goes with it, as udev removes it:
+		 * the pty's number is free for any other */
+		if (s->c.link)
+			unlink(s->c.link);
 		if (s->c.link && s->c.replug)
 			s->replug_at = real_now() + s->c.replug_s;
 	} else if (s->conn_fd >= 0) {
@@ -628,22 +632,35 @@ static void linuxcnc_line(struct linesim *s, char *line)
 
 /* ------------------------------------------------------- sensors */
 
-static bool sense(struct linesim *s, double *mm, enum linesim_fault *f)
+/*
+ * A reading for a request: false when the request gets no reading reply,
+ * because the line dropped or the injected device error was answered
+ * (with error, which a device without one leaves NULL); *ok false when
+ * there is no target.
+ */
+static bool sense(struct linesim *s, const char *error, double *mm, bool *ok)
 {
+	enum linesim_fault f;
+
 	s->st.readings++;
-	fault_now(s, f);
-	if (*f == LINESIM_DISCONNECT) {
+	fault_now(s, &f);
+	if (f == LINESIM_DISCONNECT) {
 		disconnect(s);
 		return false;
 	}
-	return s->c.sense(s->c.sense_data, mm);
+	if (f == LINESIM_DEVICE_ERROR) {
+		if (error)
+			reply(s, "\r", "%s", error);
+		return false;
+	}
+	*ok = s->c.sense(s->c.sense_data, mm);
+	return true;
 }
 
 /* Keyence LK-G: "M1" answers "M1,+0.12345": a sign and seven characters
  * with the point where the settings put it; out of range "+FFFFFF". */
 static void keyence_line(struct linesim *s, char *line)
 {
-	enum linesim_fault f;
 	double mm;
 
 	if (line[0] != 'M' && line[0] != 'm') {
@@ -658,13 +675,9 @@ static void keyence_line(struct linesim *s, char *line)
 		reply(s, "\r", "ER,M2,01");
 		return;
 	}
-	bool ok = sense(s, &mm, &f);
-	if (f == LINESIM_DISCONNECT)
+	bool ok;
+	if (!sense(s, "ER,M1,99", &mm, &ok))
 		return;
-	if (f == LINESIM_DEVICE_ERROR) {
-		reply(s, "\r", "ER,M1,99");
-		return;
-	}
 	if (!ok || fabs(mm) >= 9.99999)
 		reply(s, "\r", "M1,%cFFFFFF", ok && mm < 0 ? '-' : '+');
 	else
@@ -676,21 +689,17 @@ static void keyence_line(struct linesim *s, char *line)
  * floating point. */
 static void mitutoyo_line(struct linesim *s, char *line)
 {
-	enum linesim_fault f;
 	double mm;
 
 	if (strcmp(line, "1")) {
 		/* the cable knows one request; anything else is not answered */
 		return;
 	}
-	bool ok = sense(s, &mm, &f);
-	if (f == LINESIM_DISCONNECT)
+	bool ok;
+	/* the specification names no error reply: a gauge that has nothing
+	 * to send sends nothing */
+	if (!sense(s, NULL, &mm, &ok) || !ok)
 		return;
-	if (f == LINESIM_DEVICE_ERROR || !ok) {
-		/* the specification names no error reply: a gauge that has
-		 * nothing to send sends nothing */
-		return;
-	}
 	reply(s, "\r", "01A%c%08.5f", mm < 0 ? '-' : '+', fabs(mm));
 }
 
@@ -698,20 +707,15 @@ static void mitutoyo_line(struct linesim *s, char *line)
  * point, decimals; errors are "ERR" and a number. */
 static void sylvac_line(struct linesim *s, char *line)
 {
-	enum linesim_fault f;
 	double mm;
 
 	if (strcasecmp(line, "?") && strcasecmp(line, "PRI")) {
 		reply(s, "\r", "ERR1");
 		return;
 	}
-	bool ok = sense(s, &mm, &f);
-	if (f == LINESIM_DISCONNECT)
+	bool ok;
+	if (!sense(s, "ERR0", &mm, &ok))
 		return;
-	if (f == LINESIM_DEVICE_ERROR) {
-		reply(s, "\r", "ERR0");
-		return;
-	}
 	if (!ok)
 		reply(s, "\r", "ERR3");
 	else
@@ -928,9 +932,8 @@ void linesim_stop(struct linesim *s)
 		return;
 	if (write(s->wake[1], "x", 1) == 1)
 		pthread_join(s->th, NULL);
+	s->c.replug = false;
 	disconnect(s);
-	if (s->c.link)
-		unlink(s->c.link);
 	if (s->listen_fd >= 0)
 		close(s->listen_fd);
 	close(s->wake[0]);

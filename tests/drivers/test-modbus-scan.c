@@ -80,41 +80,13 @@ static int teardown(void **state)
 /* Measures the plan with the first instrument of c into path. */
 static int scan(struct env *e, struct asph_config *c, const char *path, struct asph_error *err)
 {
-	struct asph_scanfile_header_info info = { "{\"name\":\"strong\"}", "{\"method\":\"fermat\"}",
-						  "{\"name\":\"bench\"}", NULL };
-	struct asph_scanfile_writer *w;
-	struct asph_instrument *inst;
-	struct asph_scan *sc;
-	struct asph_error oerr;
-
-	if (asph_instrument_open(&c->instruments[0], 2000, &inst, &oerr) < 0)
-		fail_msg("open: %s", oerr.message);
-	assert_int_equal(asph_scan_new(inst, e->fx.s, e->fx.plan->xyz, e->fx.plan->n, NULL, &sc,
-				       NULL), 0);
-	assert_int_equal(asph_scanfile_writer_create(path, &info, NULL, &w, NULL), 0);
-	int r = asph_scan_run(sc, w, err);
-	asph_scan_free(sc);
-	asph_instrument_close(inst);
-	return r;
+	return fixture_scan(&e->fx, &c->instruments[0], e->fx.plan->xyz, e->fx.plan->n, path, err,
+			    false);
 }
 
 static void fit(struct env *e, const char *path, struct asph_fit_result *res)
 {
-	struct asph_scanfile *s = read_scan(path);
-	struct asph_points *pts;
-	struct asph_fit *w;
-	struct asph_error err;
-	struct asph_fit_options fo = { .dof = ASPH_FIT_DOF_RIGID };
-
-	assert_int_equal(s->report.outcome, ASPH_SCANFILE_COMPLETED);
-	assert_int_equal(s->n, e->fx.plan->n);
-	assert_int_equal(asph_scanfile_to_points(s, 0, &pts, NULL), 0);
-	assert_int_equal(asph_fit_alloc(e->fx.s, pts->n, &fo, &w, NULL), 0);
-	if (asph_fit_run(w, pts->xyz, pts->n, res, &err) < 0)
-		fail_msg("fit: %s", err.message);
-	asph_fit_free(w);
-	asph_points_free(pts);
-	asph_scanfile_free(s);
+	fixture_fit_rigid(&e->fx, path, e->fx.plan->n, res);
 }
 
 /* The sensor of a profile sees the part from the stage too: the depth
@@ -206,29 +178,35 @@ static void measure_modbus(struct env *e, bool rtu, struct asph_fit_result *res)
 	measure_sensor(e, rtu, MBSIM_SENSOR_GENERIC, GENERIC_PROBE, res);
 }
 
-static void assert_same_fit(const struct asph_fit_result *bus, const struct asph_fit_result *mock)
+static void assert_close_fit(const char *what, const struct asph_fit_result *a,
+			     const struct asph_fit_result *b, double shift, double tilt, double nm)
 {
-	/*
-	 * Both measure the same part without noise; the Modbus sensor rounds
-	 * each reading to 1e-8 mm (at most 5e-9 mm off) and measures where
-	 * the drives are (10 nm counts), which is on the same surface. So the
-	 * pose agrees far below the tolerances of characterization, and each
-	 * Zernike term within a few thousandths of a nm.
-	 */
 	for (int k = 0; k < 3; k++)
-		if (fabs(bus->value[ASPH_FIT_TX + k] - mock->value[ASPH_FIT_TX + k]) > 1e-8)
-			fail_msg("t%d: modbus %.12g, mock %.12g", k, bus->value[ASPH_FIT_TX + k],
-				 mock->value[ASPH_FIT_TX + k]);
+		if (fabs(a->value[ASPH_FIT_TX + k] - b->value[ASPH_FIT_TX + k]) > shift)
+			fail_msg("%s t%d: %.12g, mock %.12g", what, k, a->value[ASPH_FIT_TX + k],
+				 b->value[ASPH_FIT_TX + k]);
 	for (int k = 0; k < 2; k++)
-		if (fabs(bus->value[ASPH_FIT_RX + k] - mock->value[ASPH_FIT_RX + k]) > 1e-9)
-			fail_msg("r%d: modbus %.12g, mock %.12g", k, bus->value[ASPH_FIT_RX + k],
-				 mock->value[ASPH_FIT_RX + k]);
+		if (fabs(a->value[ASPH_FIT_RX + k] - b->value[ASPH_FIT_RX + k]) > tilt)
+			fail_msg("%s r%d: %.12g, mock %.12g", what, k, a->value[ASPH_FIT_RX + k],
+				 b->value[ASPH_FIT_RX + k]);
 	static const int terms[] = { 5, 9, 12 };
 	for (size_t k = 0; k < 3; k++) {
-		double a = bus->zernike[terms[k] - 1].v, b = mock->zernike[terms[k] - 1].v;
-		if (fabs(a - b) > 0.005)
-			fail_msg("Z%d: modbus %.6f nm, mock %.6f nm", terms[k], a, b);
+		double za = a->zernike[terms[k] - 1].v, zb = b->zernike[terms[k] - 1].v;
+		if (fabs(za - zb) > nm)
+			fail_msg("%s Z%d: %.6f nm, mock %.6f nm", what, terms[k], za, zb);
 	}
+}
+
+/*
+ * Both measure the same part without noise; the Modbus sensor rounds each
+ * reading to 1e-8 mm (at most 5e-9 mm off) and measures where the drives
+ * are (10 nm counts), which is on the same surface. So the pose agrees
+ * far below the tolerances of characterization, and each Zernike term
+ * within a few thousandths of a nm.
+ */
+static void assert_same_fit(const struct asph_fit_result *bus, const struct asph_fit_result *mock)
+{
+	assert_close_fit("modbus", bus, mock, 1e-8, 1e-9, 0.005);
 	assert_true(fabs(bus->rms.v - mock->rms.v) < 0.005);
 }
 
@@ -266,25 +244,6 @@ static void mock_fit(struct env *e, struct asph_fit_result *mock)
 		fail_msg("mock: %s", err.message);
 	asph_config_free(c);
 	fit(e, path, mock);
-}
-
-static void assert_close_fit(const char *what, const struct asph_fit_result *a,
-			     const struct asph_fit_result *b, double shift, double tilt, double nm)
-{
-	for (int k = 0; k < 3; k++)
-		if (fabs(a->value[ASPH_FIT_TX + k] - b->value[ASPH_FIT_TX + k]) > shift)
-			fail_msg("%s t%d: %.12g, mock %.12g", what, k, a->value[ASPH_FIT_TX + k],
-				 b->value[ASPH_FIT_TX + k]);
-	for (int k = 0; k < 2; k++)
-		if (fabs(a->value[ASPH_FIT_RX + k] - b->value[ASPH_FIT_RX + k]) > tilt)
-			fail_msg("%s r%d: %.12g, mock %.12g", what, k, a->value[ASPH_FIT_RX + k],
-				 b->value[ASPH_FIT_RX + k]);
-	static const int terms[] = { 5, 9, 12 };
-	for (size_t k = 0; k < 3; k++) {
-		double za = a->zernike[terms[k] - 1].v, zb = b->zernike[terms[k] - 1].v;
-		if (fabs(za - zb) > nm)
-			fail_msg("%s Z%d: %.6f nm, mock %.6f nm", what, terms[k], za, zb);
-	}
 }
 
 /*
