@@ -210,27 +210,6 @@ static void assert_same_fit(const struct asph_fit_result *bus, const struct asph
 	assert_true(fabs(bus->rms.v - mock->rms.v) < 0.005);
 }
 
-/* Over TCP, and over RTU with the drives and the sensor on one line. */
-static void test_same_as_mock(void **state)
-{
-	struct env *e = *state;
-	struct asph_fit_result mock, bus;
-	struct asph_config *c;
-	struct asph_error err;
-	char path[128];
-
-	assert_int_equal(asph_instrument_spec_parse(e->fx.reg, "mock:time_factor=0," MISALIGNMENT,
-						    &c, NULL), 0);
-	if (scan(e, c, new_path(&e->fx, path, sizeof(path)), &err) < 0)
-		fail_msg("mock: %s", err.message);
-	asph_config_free(c);
-	fit(e, path, &mock);
-	for (int rtu = 0; rtu < 2; rtu++) {
-		measure_modbus(e, rtu, &bus);
-		assert_same_fit(&bus, &mock);
-	}
-}
-
 /* The mock's fit of the part. */
 static void mock_fit(struct env *e, struct asph_fit_result *mock)
 {
@@ -244,6 +223,19 @@ static void mock_fit(struct env *e, struct asph_fit_result *mock)
 		fail_msg("mock: %s", err.message);
 	asph_config_free(c);
 	fit(e, path, mock);
+}
+
+/* Over TCP, and over RTU with the drives and the sensor on one line. */
+static void test_same_as_mock(void **state)
+{
+	struct env *e = *state;
+	struct asph_fit_result mock, bus;
+
+	mock_fit(e, &mock);
+	for (int rtu = 0; rtu < 2; rtu++) {
+		measure_modbus(e, rtu, &bus);
+		assert_same_fit(&bus, &mock);
+	}
 }
 
 /*
