@@ -133,6 +133,12 @@ int asph_scan_reopen(const char *path, const struct asph_plan *plan,
 		     const struct asph_scanfile_writer_options *opts,
 		     struct asph_scanfile_writer **w, uint64_t *start_index,
 		     struct asph_error *err);
+/* The same with path relative to the directory dirfd, never opened
+ * through a symbolic link (asph_scanfile_writer_resume_at()). */
+int asph_scan_reopen_at(int dirfd, const char *path, const struct asph_plan *plan,
+			const struct asph_scanfile_writer_options *opts,
+			struct asph_scanfile_writer **w, uint64_t *start_index,
+			struct asph_error *err);
 
 /* Any thread. Pause takes effect before the next point; abort stops the
  * stage and the probe at once. */

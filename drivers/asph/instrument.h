@@ -29,6 +29,11 @@ void asph_registry_free(struct asph_registry *r);
 
 /*
  * Loads one plugin (a shared object exporting ASPH_DRIVER_PLUGIN_SYMBOL).
+ * Its code runs in this process, so before it is opened the file must
+ * belong to root or to the user running this, be writable by no one else,
+ * and every directory above it be trusted the same way (owned by root or
+ * that user, not writable by others unless sticky): -EPERM (or -ENOENT)
+ * with the step that is not, and nothing of it runs.
  * -ENOEXEC with the reason for a file that is not a plugin, -EPROTO for an
  * ABI version other than ours, -EINVAL for a malformed driver table (bad
  * name, options whose defaults do not parse, missing operations), -EEXIST

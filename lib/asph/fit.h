@@ -5,8 +5,11 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "asph/areal.h"
 #include "asph/error.h"
+#include "asph/form.h"
 #include "asph/surface.h"
+#include "asph/tolerance.h"
 #include "asph/units.h"
 
 #ifdef __cplusplus
@@ -114,6 +117,14 @@ struct asph_fit_options {
 	int n_zernike;              /* 0 = 36; up to ASPH_FIT_MAX_ZERNIKE */
 	struct asph_pose start;     /* initial pose (all 0 is fine for parts
 				       within a few 0.1 mm and mrad) */
+	/* Form deviation quantities (docs/characterization.md). */
+	double wavelength_nm;       /* test wavelength of the fringes;
+				       0 = the tolerance's, else 546.07 */
+	double slope_length_mm;     /* evaluation length of the slope; 0 =
+				       the tolerance's, else 1 mm */
+	const struct asph_tolerance *tolerance; /* NULL: no verdict; read
+				       by asph_fit_get_result(), so it must
+				       outlive the workspace */
 };
 
 /* Per-point state after the fit. */
@@ -146,6 +157,22 @@ struct asph_fit_result {
 	asph_urad slope_rms;        /* of the Zernike fit's gradient */
 	int n_zernike;
 	asph_nm zernike[ASPH_FIT_MAX_ZERNIKE]; /* Noll order, Z_1 first */
+
+	/* ISO 14999-4 quantities of the residual over the used points, with
+	 * rho = foot radius / aperture radius; form_valid 0 when the points
+	 * cannot determine them (the members are then NaN). */
+	int form_valid;
+	struct asph_form form;
+	/* Slope deviation over slope.length_mm; slope_valid 0 when no
+	 * position could be evaluated. */
+	int slope_valid;
+	struct asph_slope slope;
+	/* R - R_nominal when R is fitted, else NaN. */
+	double R_nominal_mm, R_deviation_mm;
+	/* Expanded uncertainties (k = 2) of the quantities above. */
+	struct asph_uncertainty_k2 uncertainty_k2;
+	/* With a tolerance: the decision per quantity and overall. */
+	struct asph_verdict_report verdict;
 };
 
 struct asph_fit;
@@ -220,6 +247,14 @@ int asph_fit_result_to_json(const struct asph_fit_result *r, const char *lens,
 const double *asph_fit_residuals(const struct asph_fit *w);
 const uint8_t *asph_fit_point_status(const struct asph_fit *w);
 const double *asph_fit_weights(const struct asph_fit *w);
+
+/* After the fit: the used points as a map of the part, the foot of each
+ * (x, y in the part frame, mm; the point's own x, y for sag residuals) in
+ * xy[2k], xy[2k+1] and its residual in nm in value_nm[k], in input order.
+ * The arrays hold n_used entries (see the result); returns how many were
+ * written. */
+size_t asph_fit_residual_map(const struct asph_fit *w, double *xy,
+			     double *value_nm);
 
 /* --- Synthetic measurements (tests, the mock instrument) ----------------- */
 

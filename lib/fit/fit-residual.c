@@ -244,5 +244,6 @@ int asph_fit_get_result(struct asph_fit *w, struct asph_fit_result *out,
 	out->converged = w->converged;
 	snprintf(out->reason, sizeof(out->reason), "%s", w->reason);
 	uncertainties(w, out);
-	return fit_fill_statistics(w, out, err);
+	int r = fit_fill_statistics(w, out, err);
+	return r < 0 ? r : fit_fill_form(w, out, err);
 }

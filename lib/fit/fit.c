@@ -320,6 +320,10 @@ static int options_resolve(struct asph_fit_options *o, struct asph_error *err)
 	if (o->n_zernike < 1 || o->n_zernike > ASPH_FIT_MAX_ZERNIKE)
 		return asph_error_set(err, -EINVAL, "fit options: %d Zernike terms (1..%d)",
 				      o->n_zernike, ASPH_FIT_MAX_ZERNIKE);
+	if (!isfinite(o->wavelength_nm) || o->wavelength_nm < 0 ||
+	    !isfinite(o->slope_length_mm) || o->slope_length_mm < 0)
+		return asph_error_set(err, -EINVAL,
+				      "fit options: wavelength and slope length must be positive");
 	if ((unsigned)o->residual > ASPH_FIT_RESIDUAL_SAG)
 		return asph_error_set(err, -EINVAL, "fit options: unknown residual kind %d", (int)o->residual);
 	for (int k = 0; k < 3; k++)

@@ -3,7 +3,9 @@
  * A driver built outside the tree: only asph/driver.h, no library symbol.
  * A probe that reads a constant height above whatever stage carries it.
  * Built twice: as a good plugin, and with PLUGIN_ABI set to another
- * version to test the refusal.
+ * version to test the refusal. Its constructor leaves a mark where
+ * $ASPH_TEST_PLUGIN_MARK says, so that a test can tell whether any of its
+ * code ran (a plugin that is refused must not run at all).
  */
 #include <errno.h>
 #include <stdio.h>
@@ -14,6 +16,17 @@
 #ifndef PLUGIN_ABI
 #define PLUGIN_ABI ASPH_DRIVER_ABI_VERSION
 #endif
+
+__attribute__((constructor)) static void mark_loaded(void)
+{
+	const char *mark = getenv("ASPH_TEST_PLUGIN_MARK");
+	FILE *f = mark ? fopen(mark, "a") : NULL;
+
+	if (f) {
+		fputs("loaded\n", f);
+		fclose(f);
+	}
+}
 
 struct asph_device {
 	double height;

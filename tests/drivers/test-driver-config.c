@@ -7,6 +7,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cmocka.h>
@@ -319,7 +320,7 @@ static void test_plugins(void **state)
 	assert_non_null(strstr(err.message, "ABI 999"));
 	assert_string_equal(err.source, bad);
 	assert_int_equal(asph_registry_count(reg), n0);
-	assert_int_equal(asph_registry_load_plugin(reg, "/nonexistent/x.so", &err), -ENOEXEC);
+	assert_int_equal(asph_registry_load_plugin(reg, "/nonexistent/x.so", &err), -ENOENT);
 	assert_int_equal(asph_registry_load_plugin(reg, good, &err), 0);
 	assert_int_equal(asph_registry_count(reg), n0 + 1);
 	assert_string_equal(asph_registry_origin(reg, n0), good);
@@ -381,6 +382,89 @@ static void test_plugin_dir(void **state)
 	rmdir(dir);
 }
 
+/* Copies the file at from to to with mode. */
+static void copy_file(const char *from, const char *to, mode_t mode)
+{
+	char buf[65536];
+	FILE *in = fopen(from, "rb"), *out = fopen(to, "wb");
+	size_t n;
+
+	assert_non_null(in);
+	assert_non_null(out);
+	while ((n = fread(buf, 1, sizeof(buf), in)) > 0)
+		assert_int_equal(fwrite(buf, 1, n, out), n);
+	fclose(in);
+	fclose(out);
+	assert_int_equal(chmod(to, mode), 0);
+}
+
+static bool marked(const char *mark)
+{
+	return access(mark, F_OK) == 0;
+}
+
+/* A plugin others could have written is refused before any of its code
+ * runs (its constructor leaves a mark); a trusted copy loads. */
+static void test_plugin_trust(void **state)
+{
+	const char *good = getenv("ASPH_TEST_PLUGIN_GOOD");
+	char dir[] = "/tmp/asph-test-trust-XXXXXX", so[128], mark[128], sub[128];
+	struct asph_registry *reg;
+	struct asph_error err;
+
+	if (!good)
+		skip();
+	assert_non_null(mkdtemp(dir));
+	assert_int_equal(chmod(dir, 0755), 0);
+	snprintf(so, sizeof(so), "%s/echo.so", dir);
+	snprintf(mark, sizeof(mark), "%s/mark", dir);
+	setenv("ASPH_TEST_PLUGIN_MARK", mark, 1);
+	assert_int_equal(asph_registry_new(&reg, NULL), 0);
+
+	copy_file(good, so, 0666);
+	asph_error_clear(&err);
+	assert_int_equal(asph_registry_load_plugin(reg, so, &err), -EPERM);
+	assert_non_null(strstr(err.message, "writable by every user"));
+	assert_false(marked(mark));
+	assert_int_equal(chmod(so, 0664), 0);
+	assert_int_equal(asph_registry_load_plugin(reg, so, &err), -EPERM);
+	assert_false(marked(mark));
+	/* A directory others may write, on the way. */
+	assert_int_equal(chmod(so, 0755), 0);
+	assert_int_equal(chmod(dir, 0777), 0);
+	assert_int_equal(asph_registry_load_plugin(reg, so, &err), -EPERM);
+	assert_non_null(strstr(err.message, "other users may write it"));
+	assert_false(marked(mark));
+	assert_int_equal(chmod(dir, 0755), 0);
+	if (geteuid() == 0) {
+		/* Another user's file, or one in another user's directory. */
+		assert_int_equal(chown(so, 65534, 65534), 0);
+		assert_int_equal(asph_registry_load_plugin(reg, so, &err), -EPERM);
+		assert_non_null(strstr(err.message, "belongs to another user"));
+		assert_int_equal(chown(so, 0, 0), 0);
+		snprintf(sub, sizeof(sub), "%s/sub", dir);
+		assert_int_equal(mkdir(sub, 0755), 0);
+		assert_int_equal(chown(sub, 65534, 65534), 0);
+		snprintf(so, sizeof(so), "%s/sub/echo.so", dir);
+		copy_file(good, so, 0755);
+		assert_int_equal(asph_registry_load_plugin(reg, so, &err), -EPERM);
+		assert_false(marked(mark));
+		unlink(so);
+		rmdir(sub);
+		snprintf(so, sizeof(so), "%s/echo.so", dir);
+	} else {
+		print_message("not root: the cases of another user's files are left out\n");
+	}
+	assert_int_equal(asph_registry_load_plugin(reg, so, &err), 0);
+	assert_true(marked(mark));
+	assert_non_null(asph_registry_find(reg, "echo"));
+	asph_registry_free(reg);
+	unsetenv("ASPH_TEST_PLUGIN_MARK");
+	unlink(mark);
+	unlink(so);
+	rmdir(dir);
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -394,6 +478,7 @@ int main(void)
 		cmocka_unit_test_setup_teardown(test_resolve, setup, teardown),
 		cmocka_unit_test(test_plugins),
 		cmocka_unit_test(test_plugin_dir),
+		cmocka_unit_test(test_plugin_trust),
 	};
 	return cmocka_run_group_tests(tests, NULL, NULL);
 }
