@@ -2,6 +2,7 @@
 /* Event loop thread: the operator group and the TCP token. */
 #include <errno.h>
 #include <fcntl.h>
+#include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -11,12 +12,17 @@
 
 #include "access.h"
 #include "account.h"
+#include "sha256.h"
 #include "util-mem.h"
+
+/* The name of the one credential there is today. */
+#define TOKEN_FILE_CREDENTIAL "token_file"
 
 struct access {
 	bool have_operator_group;
 	gid_t operator_gid;
 	char *token;            /* TCP token, or NULL */
+	uint8_t token_digest[32];
 };
 
 struct loader {
@@ -61,6 +67,33 @@ static void load_group(struct loader *ld, struct access *a)
 	a->have_operator_group = true;
 }
 
+static void digest_of(const char *token, uint8_t digest[32])
+{
+	struct sha256 h;
+
+	sha256_init(&h);
+	sha256_update(&h, token, strlen(token));
+	sha256_final(&h, digest);
+	explicit_bzero(&h, sizeof(h));
+}
+
+double access_token_strength(const char *token)
+{
+	bool seen[256] = { false };
+	size_t counted = 0, distinct = 0;
+	const unsigned char *t = (const unsigned char *)token;
+
+	for (size_t i = 0; t[i]; i++) {
+		if (!seen[t[i]]) {
+			seen[t[i]] = true;
+			distinct++;
+		}
+		if (i == 0 || (t[i] != t[i - 1] && t[i] != t[i - 1] + 1 && t[i] + 1 != t[i - 1]))
+			counted++;
+	}
+	return distinct > 1 ? (double)counted * log2((double)distinct) : 0;
+}
+
 /* The first line of the token file, without its end. */
 static void load_token(struct loader *ld, struct access *a)
 {
@@ -95,9 +128,19 @@ static void load_token(struct loader *ld, struct access *a)
 			 path, ACCESS_TOKEN_MIN);
 		return;
 	}
+	if (access_token_strength(buf) < ACCESS_TOKEN_MIN_BITS) {
+		complain(ld, "token_file", -EINVAL, "the token in %s is too easy to guess "
+			 "(about %.0f bits, %d needed: repeated or consecutive characters and a "
+			 "small alphabet count little); make one with `head -c 32 /dev/urandom | "
+			 "base64`", path, access_token_strength(buf), ACCESS_TOKEN_MIN_BITS);
+		explicit_bzero(buf, sizeof(buf));
+		return;
+	}
 	a->token = strdup(buf);
 	if (!a->token)
 		complain(ld, "token_file", -ENOMEM, "out of memory");
+	else
+		digest_of(a->token, a->token_digest);
 	explicit_bzero(buf, sizeof(buf));
 }
 
@@ -130,10 +173,11 @@ void access_free(struct access *a)
 	free(a);
 }
 
-bool access_is_operator(const struct access *a, const struct peer *p, bool authenticated)
+bool access_is_operator(const struct access *a, const struct peer *p,
+			const struct access_grant *g)
 {
 	if (p->tcp)
-		return authenticated && a->token;
+		return g && g->valid && g->operator && access_grant_current(a, g);
 	if (p->uid == 0)
 		return true;
 	if (!a->have_operator_group)
@@ -146,13 +190,36 @@ bool access_is_operator(const struct access *a, const struct peer *p, bool authe
 	return false;
 }
 
-bool access_token_matches(const struct access *a, const char *token)
+/* Constant time in the configured token's length: every byte of it is
+ * compared whatever the client sent. */
+static bool token_equal(const char *mine, const char *theirs)
 {
-	/* Constant time in the token's length. */
-	size_t n = a->token ? strlen(a->token) : 0, m = token ? strlen(token) : 0;
-	unsigned diff = (unsigned)(n != m) | (unsigned)!token | (unsigned)!a->token;
+	size_t n = strlen(mine), m = strlen(theirs);
+	unsigned diff = (unsigned)(n != m);
 
-	for (size_t i = 0; token && i < n; i++)
-		diff |= (unsigned)(a->token[i] ^ (i < m ? token[i] : 0));
+	for (size_t i = 0; i < n; i++)
+		diff |= (unsigned)(mine[i] ^ (i < m ? theirs[i] : 0));
 	return !diff;
+}
+
+int access_authenticate(const struct access *a, const char *token, struct access_grant *g)
+{
+	*g = (struct access_grant){ 0 };
+	if (!a->token || !token || !token_equal(a->token, token))
+		return -EACCES;
+	*g = (struct access_grant){ .valid = true, .operator = true };
+	snprintf(g->credential, sizeof(g->credential), "%s", TOKEN_FILE_CREDENTIAL);
+	memcpy(g->digest, a->token_digest, sizeof(g->digest));
+	return 0;
+}
+
+bool access_grant_current(const struct access *a, const struct access_grant *g)
+{
+	return g->valid && a->token && !strcmp(g->credential, TOKEN_FILE_CREDENTIAL) &&
+	       !memcmp(g->digest, a->token_digest, sizeof(g->digest));
+}
+
+bool access_has_token(const struct access *a)
+{
+	return a->token != NULL;
 }

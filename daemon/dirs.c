@@ -1,5 +1,7 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 #include <errno.h>
+#include <fcntl.h>
+#include <libgen.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -9,6 +11,7 @@
 #include "account.h"
 #include "dirs.h"
 #include "log.h"
+#include "util-fs.h"
 #include "util-mem.h"
 
 int dirs_check_private(const char *dir, const struct stat *st, bool sticky_ok,
@@ -38,26 +41,103 @@ int dirs_check_private(const char *dir, const struct stat *st, bool sticky_ok,
 	return 0;
 }
 
-int dirs_make_state(const char *dir)
+static const struct fs_owners *daemon_owners(struct fs_owners *o)
 {
+	*o = (struct fs_owners){ .uid = geteuid(), .gid = getegid() };
+	return o;
+}
+
+/* Opens dir through trusted steps; what says what for in the log. */
+static int open_trusted_dir(const char *dir, const char *what)
+{
+	struct fs_owners o;
+	struct asph_error err;
+	char buf[1024];
+	int fd;
+
+	asph_error_clear(&err);
+	fd = fs_open_trusted(dir, daemon_owners(&o), O_RDONLY | O_DIRECTORY, &err);
+	if (fd < 0 && fd != -ENOENT)
+		log_error("%s: refusing %s", asph_error_format(&err, buf, sizeof(buf)), what);
+	return fd;
+}
+
+/* dir's parent, trusted, then dir in it (made with mode if missing). */
+static int make_in_trusted_parent(const char *dir, mode_t mode, const char *what)
+{
+	_cleanup_free_ char *a = strdup(dir), *b = strdup(dir);
+	_cleanup_close_ int parent = -1;
+	const char *base;
+	int fd;
+
+	if (!a || !b)
+		return -ENOMEM;
+	parent = open_trusted_dir(dirname(a), what);
+	if (parent < 0) {
+		if (parent == -ENOENT)
+			log_error("%s: the directory above it does not exist: refusing %s",
+				  dir, what);
+		return parent;
+	}
+	base = basename(b);
+	fd = fs_mkdir_beneath(parent, base, mode);
+	if (fd < 0)
+		log_error("cannot create %s: %s", dir, strerror(-fd));
+	return fd;
+}
+
+int dirs_open_state(const char *dir)
+{
+	static const char what[] = "it as the state directory";
+	_cleanup_close_ int fd = open_trusted_dir(dir, what);
 	struct statvfs vfs;
 	struct stat st;
 
-	if (mkdir(dir, 0755) < 0 && errno != EEXIST) {
-		log_error("cannot create the state directory %s: %s", dir, strerror(errno));
-		return -errno;
-	}
-	if (stat(dir, &st) < 0 || !S_ISDIR(st.st_mode)) {
+	if (fd == -ENOENT)
+		fd = make_in_trusted_parent(dir, DIRS_DIR_MODE, what);
+	if (fd < 0)
+		return fd;
+	if (fstat(fd, &st) < 0 || !S_ISDIR(st.st_mode)) {
 		log_error("%s is not a directory", dir);
 		return -ENOTDIR;
 	}
-	if (dirs_check_private(dir, &st, false, "it as the state directory") < 0)
+	if (dirs_check_private(dir, &st, false, what) < 0)
 		return -EPERM;
-	if (statvfs(dir, &vfs) == 0 && (vfs.f_flag & ST_RDONLY)) {
+	if (fstatvfs(fd, &vfs) == 0 && (vfs.f_flag & ST_RDONLY)) {
 		log_error("the state directory %s is on a read-only file system", dir);
 		return -EROFS;
 	}
-	return 0;
+	/* Jobs, scans and results are the daemon's; readers ask the socket. */
+	if ((st.st_mode & 0027) && st.st_uid == geteuid()) {
+		if (fchmod(fd, st.st_mode & 07750) == 0)
+			log_notice("%s was open to other users (mode %04o): now %04o", dir,
+				   (unsigned)(st.st_mode & 07777), (unsigned)(st.st_mode & 07750));
+		else
+			log_warning("%s is open to other users (mode %04o): %s", dir,
+				    (unsigned)(st.st_mode & 07777), strerror(errno));
+	}
+	return steal_fd(fd);
+}
+
+int dirs_check_socket_dir(const char *socket_path)
+{
+	static const char what[] = "to put the socket there";
+	_cleanup_free_ char *copy = strdup(socket_path);
+	_cleanup_close_ int fd = -1;
+	struct stat st;
+	char *dir;
+
+	if (!copy)
+		return -ENOMEM;
+	dir = dirname(copy);
+	fd = open_trusted_dir(dir, what);
+	if (fd == -ENOENT)
+		fd = make_in_trusted_parent(dir, 0755, what);
+	if (fd < 0)
+		return fd;
+	if (fstat(fd, &st) < 0)
+		return -errno;
+	return dirs_check_private(dir, &st, true, what);
 }
 
 char *dirs_job_path(const char *state_dir, int64_t id)
@@ -69,28 +149,29 @@ char *dirs_job_path(const char *state_dir, int64_t id)
 	return p;
 }
 
-/* Results are readable by whoever may read the socket's answers: asphctl
- * result --out copies them as the calling user. */
-static bool real_dir(const char *path)
+int dirs_open_job(int state_fd, int64_t id, bool create)
 {
-	struct stat st;
+	_cleanup_close_ int jobs = -1;
+	char name[24];
 
-	return lstat(path, &st) == 0 && S_ISDIR(st.st_mode);
+	snprintf(name, sizeof(name), "%" PRId64, id);
+	if (!create) {
+		char rel[32];
+		snprintf(rel, sizeof(rel), "jobs/%s", name);
+		return fs_open_beneath(state_fd, rel, O_RDONLY | O_DIRECTORY, 0);
+	}
+	jobs = fs_mkdir_beneath(state_fd, "jobs", DIRS_DIR_MODE);
+	if (jobs < 0)
+		return jobs;
+	return fs_mkdir_beneath(jobs, name, DIRS_DIR_MODE);
 }
 
-int dirs_make_job(const char *state_dir, int64_t id)
+int dirs_free_mb(int fd, uint64_t *mb)
 {
-	_cleanup_free_ char *jobs = NULL;
-	_cleanup_free_ char *dir = dirs_job_path(state_dir, id);
+	struct statvfs vfs;
 
-	if (!dir || asprintf(&jobs, "%s/jobs", state_dir) < 0)
-		return -ENOMEM;
-	if (mkdir(jobs, 0755) < 0 && errno != EEXIST)
+	if (fstatvfs(fd, &vfs) < 0)
 		return -errno;
-	if (mkdir(dir, 0755) < 0 && errno != EEXIST)
-		return -errno;
-	/* Never write through a symlink put in place of a folder. */
-	if (!real_dir(jobs) || !real_dir(dir))
-		return -ENOTDIR;
+	*mb = (uint64_t)vfs.f_bavail * vfs.f_frsize / (1024 * 1024);
 	return 0;
 }

@@ -1,6 +1,7 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /* Event loop thread: the watch list, the builders, the subscriptions. */
 #include <errno.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -17,6 +18,12 @@ struct watch {
 	event_destroy_fn destroy;
 };
 
+/* The subscriptions of one owner. */
+struct owner_count {
+	char key[64];
+	size_t n;
+};
+
 struct events {
 	struct watch *watches;
 	size_t n, cap;
@@ -24,6 +31,8 @@ struct events {
 	unsigned notifying;     /* depth of nested notifications */
 	bool stale;             /* removed watches wait for the end of it */
 	size_t n_subscribed;
+	struct owner_count *owners;     /* those with one or more */
+	size_t n_owners, cap_owners;
 };
 
 int events_new(struct events **out)
@@ -50,6 +59,7 @@ void events_free(struct events *e)
 		if (e->watches[i].fn)
 			watch_destroy(&e->watches[i]);
 	free(e->watches);
+	free(e->owners);
 	free(e);
 }
 
@@ -171,8 +181,45 @@ void events_queue_state(struct events *e, bool running)
 
 /* ------------------------------------------------------ subscriptions */
 
+static struct owner_count *owner_find(const struct events *e, const char *key)
+{
+	for (size_t i = 0; i < e->n_owners; i++)
+		if (!strncmp(e->owners[i].key, key, sizeof(e->owners[i].key) - 1))
+			return &e->owners[i];
+	return NULL;
+}
+
+static int owner_add(struct events *e, const char *key)
+{
+	struct owner_count *o = owner_find(e, key);
+
+	if (!o) {
+		if (e->n_owners == e->cap_owners) {
+			size_t cap = e->cap_owners ? 2 * e->cap_owners : 8;
+			o = realloc(e->owners, cap * sizeof(*o));
+			if (!o)
+				return -ENOMEM;
+			e->owners = o;
+			e->cap_owners = cap;
+		}
+		o = &e->owners[e->n_owners++];
+		*o = (struct owner_count){ 0 };
+		snprintf(o->key, sizeof(o->key), "%s", key);
+	}
+	o->n++;
+	return 0;
+}
+
+static void owner_remove(struct events *e, const char *key)
+{
+	struct owner_count *o = owner_find(e, key);
+
+	if (o && --o->n == 0)
+		*o = e->owners[--e->n_owners];
+}
+
 int events_subscribe(struct events *e, struct event_subscription *s, unsigned classes,
-		     int64_t job, unsigned limit)
+		     int64_t job, const struct event_quota *q)
 {
 	classes &= EVENT_ALL;
 	if (!classes) {
@@ -181,9 +228,16 @@ int events_subscribe(struct events *e, struct event_subscription *s, unsigned cl
 		return 0;
 	}
 	if (!s->classes) {
-		if (e->n_subscribed >= limit)
+		const struct owner_count *o = owner_find(e, q->owner);
+		unsigned open_to_all = q->max > q->reserved ? q->max - q->reserved : 0;
+		if (e->n_subscribed >= (q->operator ? q->max : open_to_all))
 			return -EUSERS;
+		if (o && o->n >= q->per_owner)
+			return -EDQUOT;
+		if (owner_add(e, q->owner) < 0)
+			return -ENOMEM;
 		e->n_subscribed++;
+		s->owner = q->owner;
 	}
 	s->classes = classes;
 	s->job = job;
@@ -192,10 +246,13 @@ int events_subscribe(struct events *e, struct event_subscription *s, unsigned cl
 
 void events_unsubscribe(struct events *e, struct event_subscription *s)
 {
-	if (s->classes)
+	if (s->classes) {
 		e->n_subscribed--;
+		owner_remove(e, s->owner);
+	}
 	s->classes = 0;
 	s->job = 0;
+	s->owner = NULL;
 }
 
 bool events_subscription_matches(const struct event_subscription *s, const struct event *ev)
@@ -208,4 +265,11 @@ bool events_subscription_matches(const struct event_subscription *s, const struc
 size_t events_subscriptions(const struct events *e)
 {
 	return e->n_subscribed;
+}
+
+size_t events_subscriptions_of(const struct events *e, const char *owner)
+{
+	const struct owner_count *o = owner_find(e, owner);
+
+	return o ? o->n : 0;
 }

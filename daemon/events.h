@@ -88,20 +88,33 @@ void events_queue_state(struct events *e, bool running);
 struct event_subscription {
 	unsigned classes;       /* EVENT_*; 0: not subscribed */
 	int64_t job;            /* only this job's job and progress events; 0: all */
+	const char *owner;      /* whom it counts against (the quota's owner,
+				   which must outlive it) */
+};
+
+/* What a subscription that starts is counted against. */
+struct event_quota {
+	const char *owner;      /* the subscriber: "uid N", "tcp ADDRESS" */
+	bool operator;          /* may take the subscriptions kept for operators */
+	unsigned max;           /* subscriptions in all */
+	unsigned per_owner;     /* of one owner */
+	unsigned reserved;      /* the last ones of max, for operators */
 };
 
 /*
  * Sets s to classes and job; classes 0 ends it (as events_unsubscribe). A
- * subscription that starts counts against limit: -EUSERS when limit are
- * counted already (s is then unchanged).
+ * subscription that starts counts against q: -EUSERS when max are counted
+ * (for one that is not an operator's: max - reserved), -EDQUOT when its
+ * owner has per_owner already (s is then unchanged).
  */
 int events_subscribe(struct events *e, struct event_subscription *s, unsigned classes,
-		     int64_t job, unsigned limit);
+		     int64_t job, const struct event_quota *q);
 /* Ends s; ending an ended subscription changes nothing. */
 void events_unsubscribe(struct events *e, struct event_subscription *s);
 /* Whether ev is one that s asked for. */
 bool events_subscription_matches(const struct event_subscription *s, const struct event *ev);
-/* The number of subscriptions counted. */
+/* The number of subscriptions counted, in all and of one owner. */
 size_t events_subscriptions(const struct events *e);
+size_t events_subscriptions_of(const struct events *e, const char *owner);
 
 #endif

@@ -29,6 +29,7 @@ struct instrument {
 struct instrument_activity {
 	int64_t job;            /* running or paused job, 0 if none */
 	bool paused;
+	bool characterizing;    /* its scan is recorded, the result being made */
 	int64_t done, total;    /* live progress of that job */
 	double rate, eta_s;
 	const char *fault;      /* the last driver fault, or NULL */

@@ -1,21 +1,28 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /* Event loop thread: the queue, the transitions of jobs, the workers. */
 #include <errno.h>
+#include <fcntl.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include "dirs.h"
 #include "jobs.h"
 #include "log.h"
 #include "runner.h"
+#include "util-fs.h"
 #include "util-time.h"
 #include "util-mem.h"
 
 /* Progress reaches the store at most this often (a restart resumes from
  * the scan file, not from this number). */
 #define PROGRESS_STORE_NS 5000000000ull
+/* What a recorded point takes on disk with its share of the result files
+ * (a scan record of 56 bytes, a line of residuals.csv): for the disk guard
+ * (limits.min_free_disk_mb). */
+#define JOB_BYTES_PER_POINT 160
 
 /* An instrument as the queue sees it: its worker and what it does. */
 struct slot {
@@ -25,6 +32,7 @@ struct slot {
 	struct instrument_activity act;
 	char *fault;                    /* act.fault */
 	uint64_t last_progress_store_ns;
+	bool cancel;                    /* its job's cancel was accepted */
 };
 
 struct jobs {
@@ -33,6 +41,8 @@ struct jobs {
 	struct events *events;
 	const struct settings_limits *limits;
 	char *state_dir;
+	int state_fd;                   /* dirs.h: every file goes through it */
+	sd_event_source *retry;         /* jobs_schedule() again, after a store error */
 	struct slot *slots;
 	size_t n_slots;
 	int64_t counts[JOB_N_STATES];   /* jobs per state */
@@ -43,6 +53,7 @@ struct jobs {
 };
 
 static void on_report(const struct runner_report *rep, void *data);
+static int retry_schedule(sd_event_source *s, uint64_t usec, void *data);
 
 /* ---------------------------------------------------------- set up */
 
@@ -52,6 +63,10 @@ static int open_store(struct jobs *jobs, struct asph_error *err)
 	_cleanup_free_ char *v = NULL;
 	int n, r;
 
+	jobs->state_fd = dirs_open_state(jobs->state_dir);
+	if (jobs->state_fd < 0)
+		return asph_error_set(err, jobs->state_fd, "%s: cannot use it as the state "
+				      "directory", jobs->state_dir);
 	if (asprintf(&path, "%s/jobs.sqlite", jobs->state_dir) < 0)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	r = store_open(path, &jobs->store, err);
@@ -105,12 +120,16 @@ int jobs_new(const struct jobs_setup *setup, struct jobs **out, struct asph_erro
 	jobs->event = setup->event;
 	jobs->events = setup->events;
 	jobs->limits = setup->limits;
+	jobs->state_fd = -1;
 	jobs->state_dir = strdup(setup->state_dir);
 	r = jobs->state_dir ? 0 : asph_error_set(err, -ENOMEM, "out of memory");
 	if (r == 0)
 		r = open_store(jobs, err);
 	if (r == 0)
 		r = start_workers(jobs, setup->instruments, err);
+	if (r == 0 && sd_event_add_time(jobs->event, &jobs->retry, CLOCK_MONOTONIC, UINT64_MAX,
+					0, retry_schedule, jobs) < 0)
+		r = asph_error_set(err, -ENOMEM, "out of memory");
 	if (r < 0) {
 		jobs_free(jobs);
 		return r;
@@ -128,7 +147,10 @@ void jobs_free(struct jobs *jobs)
 		free(jobs->slots[i].fault);
 	}
 	free(jobs->slots);
+	sd_event_source_disable_unref(jobs->retry);
 	store_close(jobs->store);
+	if (jobs->state_fd >= 0)
+		close(jobs->state_fd);
 	free(jobs->state_dir);
 	free(jobs);
 }
@@ -279,36 +301,38 @@ static char *job_metadata(const struct job_record *j)
 }
 
 /* A restarted job keeps the earlier attempt's recording aside. */
-static void set_aside(const char *scan, int64_t attempt)
+static void set_aside(int dir_fd, int64_t id, int64_t attempt)
 {
-	_cleanup_free_ char *old = NULL;
+	char old[64];
 	struct stat st;
 
-	if (stat(scan, &st) < 0)
+	if (fstatat(dir_fd, RUNNER_SCAN_FILE, &st, AT_SYMLINK_NOFOLLOW) < 0)
 		return;
-	if (asprintf(&old, "%.*s-attempt%" PRId64 ".asphscan",
-		     (int)(strlen(scan) - strlen(".asphscan")), scan, attempt) < 0)
-		return;
-	if (rename(scan, old) < 0)
-		log_warning("cannot keep %s: %s", scan, strerror(errno));
+	snprintf(old, sizeof(old), "scan-attempt%" PRId64 ".asphscan", attempt);
+	if (renameat(dir_fd, RUNNER_SCAN_FILE, dir_fd, old) < 0)
+		log_job(LOG_WARNING, id, "cannot keep the scan of attempt %" PRId64 ": %s",
+			attempt, strerror(errno));
 }
 
-/* What the worker needs for j, whose folder is dir. */
+/* What the worker needs for j, whose folder is dir (dir_fd, taken). */
 static struct runner_job *runner_job_of(struct jobs *jobs, const struct job_record *j,
-					const char *dir)
+					const char *dir, int dir_fd)
 {
 	struct runner_job *rj = calloc(1, sizeof(*rj));
 
-	if (!rj)
+	if (!rj) {
+		close(dir_fd);
 		return NULL;
+	}
 	rj->id = j->id;
+	rj->dir_fd = dir_fd;
 	rj->spec = strdup(j->spec);
 	rj->result_dir = strdup(dir);
 	rj->metadata = job_metadata(j);
 	rj->resume = j->resume;
 	rj->max_points = jobs->limits->max_plan_points;
 	rj->progress_interval_ms = jobs->limits->progress_interval_ms;
-	if (asprintf(&rj->scan_path, "%s/scan.asphscan", dir) < 0)
+	if (asprintf(&rj->scan_path, "%s/" RUNNER_SCAN_FILE, dir) < 0)
 		rj->scan_path = NULL;
 	if (!rj->spec || !rj->result_dir || !rj->metadata || !rj->scan_path) {
 		runner_job_free(rj);
@@ -317,44 +341,75 @@ static struct runner_job *runner_job_of(struct jobs *jobs, const struct job_reco
 	return rj;
 }
 
-static int fail_to_start(struct jobs *jobs, struct job_record *j, const char *dir, int r)
+/* j cannot start, for reason: it fails (1), or stays queued when even that
+ * cannot be recorded (< 0). */
+static int fail_to_start(struct jobs *jobs, struct job_record *j, const char *reason)
 {
-	char reason[512];
+	int r;
 
-	snprintf(reason, sizeof(reason), "cannot create the job directory %s: %s", dir,
-		 strerror(-r));
 	log_job(LOG_ERR, j->id, "%s", reason);
 	j->finished_ns = now_realtime_ns();
-	return transition(jobs, j, JOB_FAILED, reason, 0, NULL);
+	r = transition(jobs, j, JOB_FAILED, reason, 0, NULL);
+	return r < 0 ? r : 1;
 }
 
+/* The disk space a recording of points (and its result files) takes. */
+static uint64_t job_disk_mb(int64_t points)
+{
+	return ((uint64_t)(points > 0 ? points : 0) * JOB_BYTES_PER_POINT >> 20) + 1;
+}
+
+/* Whether the state directory has room for points more, and what it keeps
+ * free (limits.min_free_disk_mb, 0: no check): 0, or -EDQUOT with why. */
+static int check_room(const struct jobs *jobs, int64_t points, char *why, size_t size)
+{
+	uint64_t free_mb, need = job_disk_mb(points), keep = jobs->limits->min_free_disk_mb;
+
+	/* 0: no guard; a disk that fills is met as it comes (write_essential()). */
+	if (!keep || dirs_free_mb(jobs->state_fd, &free_mb) < 0 || free_mb >= need + keep)
+		return 0;
+	snprintf(why, size, "the state directory has %" PRIu64 " MiB free: a recording of "
+		 "%" PRId64 " points takes about %" PRIu64 " MiB, and limits.min_free_disk_mb "
+		 "keeps %" PRIu64 " MiB free", free_mb, points, need, keep);
+	return -EDQUOT;
+}
+
+/* Starts j on sl: 0, 1 when j failed to start (recorded), < 0 when it could
+ * not even be failed (it stays queued). */
 static int start_job(struct jobs *jobs, struct slot *sl, struct job_record *j)
 {
 	_cleanup_free_ char *dir = dirs_job_path(jobs->state_dir, j->id);
 	struct runner_job *rj;
-	int r;
+	char reason[512];
+	int r, fd;
 
 	if (!dir)
 		return -ENOMEM;
+	if (check_room(jobs, j->points_total - (j->resume ? j->points_done : 0), reason,
+		       sizeof(reason)) < 0)
+		return fail_to_start(jobs, j, reason);
 	/* Room to record how this job ends, even if it fills the disk. */
 	store_renew_reserve(jobs->store);
-	r = dirs_make_job(jobs->state_dir, j->id);
-	if (r < 0)
-		return fail_to_start(jobs, j, dir, r);
+	fd = dirs_open_job(jobs->state_fd, j->id, true);
+	if (fd < 0) {
+		snprintf(reason, sizeof(reason), "cannot create the job directory %s: %s", dir,
+			 fd == -ELOOP ? "it is a symbolic link" : strerror(-fd));
+		return fail_to_start(jobs, j, reason);
+	}
 	if (!j->started_ns)
 		j->started_ns = now_realtime_ns();
 	j->attempts++;
 	j->finished_ns = 0;
 	free(j->scan_path);
-	if (asprintf(&j->scan_path, "jobs/%" PRId64 "/scan.asphscan", j->id) < 0)
+	if (asprintf(&j->scan_path, "jobs/%" PRId64 "/" RUNNER_SCAN_FILE, j->id) < 0)
 		j->scan_path = NULL;
-	rj = runner_job_of(jobs, j, dir);
+	if (!j->resume && j->attempts > 1)
+		set_aside(fd, j->id, j->attempts - 1);
+	rj = runner_job_of(jobs, j, dir, fd);
 	if (!rj || !j->scan_path) {
 		runner_job_free(rj);
 		return -ENOMEM;
 	}
-	if (!j->resume && j->attempts > 1)
-		set_aside(rj->scan_path, j->attempts - 1);
 	/* From here on the scan file, once it exists, is what a later run
 	 * continues. */
 	j->resume = true;
@@ -367,6 +422,7 @@ static int start_job(struct jobs *jobs, struct slot *sl, struct job_record *j)
 		.job = j->id, .done = j->points_done, .total = j->points_total, .eta_s = -1,
 	};
 	sl->last_progress_store_ns = 0;
+	sl->cancel = false;
 	set_fault(sl, NULL);
 	r = runner_start(sl->runner, rj);
 	if (r < 0) {
@@ -379,22 +435,56 @@ static int start_job(struct jobs *jobs, struct slot *sl, struct job_record *j)
 	return transition(jobs, j, JOB_RUNNING, NULL, 0, NULL);
 }
 
+/*
+ * Starts the first queued job of sl. One that cannot start fails and the
+ * next is taken at once, so that a job whose folder cannot be made does
+ * not stall the queue. Returns false when the store could not be read or
+ * written: the queue is tried again later.
+ */
+static bool schedule_slot(struct jobs *jobs, struct slot *sl)
+{
+	int64_t tries = jobs->counts[JOB_QUEUED];
+
+	while (!sl->act.job && !runner_busy(sl->runner) && tries-- > 0) {
+		struct job_record j;
+		int r = store_next(jobs->store, sl->in->name, &j);
+
+		if (r == -ENOENT)
+			return true;
+		if (r < 0)
+			return false;
+		r = start_job(jobs, sl, &j);
+		if (r < 0)
+			log_job(LOG_ERR, j.id, "cannot start: %s", strerror(-r));
+		job_record_clear(&j);
+		if (r < 0)
+			return false;
+	}
+	return true;
+}
+
+/* After a store error the queue is tried again this much later. */
+#define SCHEDULE_RETRY_USEC (5 * 1000000ull)
+
 void jobs_schedule(struct jobs *jobs)
 {
+	bool retry = false;
+	uint64_t now;
+
 	if (!jobs->queue_running || jobs->stopping)
 		return;
-	for (size_t i = 0; i < jobs->n_slots; i++) {
-		struct slot *sl = &jobs->slots[i];
-		struct job_record j;
-
-		if (sl->act.job || runner_busy(sl->runner))
-			continue;
-		if (store_next(jobs->store, sl->in->name, &j) < 0)
-			continue;
-		if (start_job(jobs, sl, &j) < 0)
-			log_job(LOG_ERR, j.id, "cannot start");
-		job_record_clear(&j);
+	for (size_t i = 0; i < jobs->n_slots; i++)
+		retry |= !schedule_slot(jobs, &jobs->slots[i]);
+	if (retry && sd_event_now(jobs->event, CLOCK_MONOTONIC, &now) >= 0) {
+		sd_event_source_set_time(jobs->retry, now + SCHEDULE_RETRY_USEC);
+		sd_event_source_set_enabled(jobs->retry, SD_EVENT_ONESHOT);
 	}
+}
+
+static int retry_schedule(sd_event_source *s, uint64_t usec, void *data)
+{
+	jobs_schedule(data);
+	return 0;
 }
 
 /* ---------------------------------------------------------- the workers */
@@ -424,24 +514,46 @@ static bool any_running(const struct jobs *jobs)
 	return false;
 }
 
+/*
+ * What a job becomes when its worker reports outcome. A cancel that was
+ * accepted while the job ran wins over how the scan ended, unless it
+ * failed (a fault must show): a cancel after queue.stop's abort, or while
+ * the recorded points were characterized, or after the last point but
+ * before the loop heard of it, still cancels.
+ */
+static enum job_state job_end(const struct slot *sl, enum runner_outcome outcome)
+{
+	switch (outcome) {
+	case RUNNER_COMPLETED:
+		return sl->cancel ? JOB_CANCELLED : JOB_COMPLETED;
+	case RUNNER_FAILED:
+		return JOB_FAILED;
+	case RUNNER_ABORTED:
+		return JOB_CANCELLED;
+	case RUNNER_STOPPED:
+	default:
+		return sl->cancel ? JOB_CANCELLED : JOB_INTERRUPTED;
+	}
+}
+
 static void job_done(struct slot *sl, const struct runner_report *rep)
 {
 	struct jobs *jobs = sl->jobs;
 	struct job_record j;
-	enum job_state next;
+	enum job_state next = job_end(sl, rep->outcome);
 	const char *reason = NULL;
 
 	sl->act.job = 0;
-	sl->act.paused = false;
+	sl->act.paused = sl->act.characterizing = false;
+	sl->cancel = false;
 	if (store_get(jobs->store, rep->job, &j) < 0) {
 		log_job(LOG_ERR, rep->job, "finished, but is gone from the store");
 		free(rep->result);
 		return;
 	}
 	j.points_done = sl->act.done;
-	switch (rep->outcome) {
-	case RUNNER_COMPLETED:
-		next = JOB_COMPLETED;
+	switch (next) {
+	case JOB_COMPLETED:
 		/* A job run again (requeue with restart) had a result before. */
 		free(j.result);
 		j.result = rep->result;
@@ -449,20 +561,19 @@ static void job_done(struct slot *sl, const struct runner_report *rep)
 		j.points_done = sl->act.total;
 		j.finished_ns = now_realtime_ns();
 		break;
-	case RUNNER_FAILED:
-		next = JOB_FAILED;
+	case JOB_FAILED:
 		reason = rep->reason;
 		j.finished_ns = now_realtime_ns();
 		set_fault(sl, rep->reason);
 		events_instrument_fault(jobs->events, sl->in->name, j.id, rep->reason);
 		break;
-	case RUNNER_ABORTED:
-		next = JOB_CANCELLED;
+	case JOB_CANCELLED:
+		/* Its recording stays: a requeue continues (or characterizes) it. */
+		free(rep->result);
 		j.finished_ns = now_realtime_ns();
 		break;
-	case RUNNER_STOPPED:
+	case JOB_INTERRUPTED:
 	default:
-		next = JOB_INTERRUPTED;
 		reason = jobs->stopping ? "the daemon stopped during the scan"
 					: "the queue was stopped";
 		break;
@@ -486,6 +597,10 @@ static void on_report(const struct runner_report *rep, void *data)
 	case RUNNER_PROGRESS:
 		if (rep->job == sl->act.job)
 			job_progress(sl, rep);
+		break;
+	case RUNNER_CHARACTERIZING:
+		if (rep->job == sl->act.job)
+			sl->act.characterizing = true;
 		break;
 	case RUNNER_PAUSED:
 	case RUNNER_RESUMED:
@@ -539,10 +654,13 @@ int jobs_submit(struct jobs *jobs, const struct job_submission *sub,
 		.instrument = (char *)instrument, .uid = who->uid, .user = (char *)who->name,
 		.spec = (char *)sub->spec, .points_total = sub->points,
 	};
+	char why[320];
 	int r = jobs_check_submit(jobs, instrument, err);
 
 	if (r < 0)
 		return r;
+	if (check_room(jobs, sub->points, why, sizeof(why)) < 0)
+		return asph_error_set(err, -EDQUOT, "%s", why);
 	r = store_insert(jobs->store, &j, now_realtime_ns());
 	if (r < 0)
 		return asph_error_set(err, r, "cannot store the job: %s", strerror(-r));
@@ -572,10 +690,13 @@ int jobs_cancel(struct jobs *jobs, int64_t id, const struct job_actor *who,
 		break;
 	case JOB_RUNNING:
 	case JOB_PAUSED:
-		/* The worker stops the scan; its report ends the job. */
+		/* The worker stops the scan; its report ends the job, cancelled
+		 * whatever stop was asked before (job_end()). */
 		sl = slot_of_job(jobs, j.id);
-		if (sl)
+		if (sl) {
+			sl->cancel = true;
 			runner_abort(sl->runner);
+		}
 		log_job(LOG_INFO, j.id, "cancel requested by %s", who->name);
 		break;
 	default:
@@ -730,7 +851,7 @@ static int renumber(struct jobs *jobs, const struct ids *ids, struct job_record 
 int jobs_move(struct jobs *jobs, int64_t id, int64_t position, const struct job_actor *who,
 	      struct asph_error *err)
 {
-	struct store_filter f = { .uid = -1, .states = 1u << JOB_QUEUED, .queue_order = true };
+	struct store_filter f = { .uid = STORE_ANY_UID, .states = 1u << JOB_QUEUED, .queue_order = true };
 	struct ids ids = { 0 };
 	struct job_record j, other;
 	size_t pos;
@@ -821,7 +942,7 @@ int jobs_list(struct jobs *jobs, const struct store_filter *f, store_job_fn fn, 
 int jobs_list_queue(struct jobs *jobs, store_job_fn fn, void *data, struct asph_error *err)
 {
 	struct store_filter f = {
-		.uid = -1,
+		.uid = STORE_ANY_UID,
 		.states = 1u << JOB_QUEUED | 1u << JOB_RUNNING | 1u << JOB_PAUSED,
 		.queue_order = true,
 	};
@@ -907,6 +1028,47 @@ int jobs_result(struct jobs *jobs, int64_t id, json_t **out, struct asph_error *
 	return 0;
 }
 
+/* Whether name is among the files of a result (JSON text). */
+static bool result_has_file(const char *result, const char *name)
+{
+	_cleanup_(json_decrefp) json_t *r = json_loads(result, 0, NULL);
+	const char *key;
+	json_t *v;
+
+	json_object_foreach(json_object_get(r, "files"), key, v)
+		if (json_is_string(v) && !strcmp(json_string_value(v), name))
+			return true;
+	return false;
+}
+
+int jobs_result_file(struct jobs *jobs, int64_t id, const char *name, int *out,
+		     struct asph_error *err)
+{
+	_cleanup_close_ int dir = -1;
+	struct job_record j;
+	int r = load(jobs, id, &j, err), fd;
+
+	if (r < 0)
+		return r;
+	if (j.state != JOB_COMPLETED || !j.result) {
+		r = asph_error_set(err, -ENODATA, "job %" PRId64 " is %s", j.id,
+				   job_state_name(j.state));
+	} else if (!result_has_file(j.result, name)) {
+		r = asph_error_set(err, -EPERM, "\"%.64s\" is not a file of job %" PRId64
+				   "'s result", name, j.id);
+	}
+	job_record_clear(&j);
+	if (r < 0)
+		return r;
+	dir = dirs_open_job(jobs->state_fd, id, false);
+	fd = dir < 0 ? dir : fs_open_beneath(dir, name, O_RDONLY, 0);
+	if (fd < 0)
+		return asph_error_set(err, fd, "%s of job %" PRId64 ": %s", name, id,
+				      fd == -ELOOP ? "a symbolic link: not read" : strerror(-fd));
+	*out = fd;
+	return 0;
+}
+
 bool jobs_queue_running(const struct jobs *jobs)
 {
 	return jobs->queue_running;
@@ -932,7 +1094,8 @@ void jobs_status_text(const struct jobs *jobs, char *buf, size_t size)
 		if (!a->job)
 			continue;
 		n += (size_t)snprintf(buf + n, size - n, "%s%s job %" PRId64 ": %d %%",
-				      n ? ", " : "", a->paused ? "paused" : "measuring", a->job,
+				      n ? ", " : "", a->paused ? "paused"
+				      : a->characterizing ? "characterizing" : "measuring", a->job,
 				      a->total > 0 ? (int)(100 * a->done / a->total) : 0);
 	}
 	if (!buf[0])

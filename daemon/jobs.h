@@ -13,7 +13,10 @@
  *   -ENODEV   no such instrument
  *   -EINVAL   the job's state does not allow this
  *   -ENOBUFS  the queue is at its limit (limits.max_queue)
+ *   -EDQUOT   the state directory has no room for the job's recording and
+ *             limits.min_free_disk_mb
  *   -ENODATA  the job has no result
+ *   -EPERM    a file that is not one of the job's result
  *   -ENOMEM   out of memory
  *   -EIO, -ENOSPC, -EROFS, ...: the store could not be read or written
  *
@@ -46,7 +49,8 @@ struct jobs_setup {
 struct jobs;
 
 /*
- * Opens the job store in the state directory, marks the jobs that were
+ * Opens the state directory (dirs_open_state(): checked from "/", made
+ * private) and the job store in it, marks the jobs that were
  * running when the daemon stopped interrupted, and starts a worker per
  * instrument. Starts no job: jobs_schedule() does. The setup's pointers
  * must outlive jobs.
@@ -81,7 +85,10 @@ int jobs_check_submit(const struct jobs *jobs, const char *instrument, struct as
 int jobs_submit(struct jobs *jobs, const struct job_submission *sub,
 		const struct job_actor *who, struct job_record *out, struct asph_error *err);
 /* A queued or interrupted job is cancelled at once; a running or paused
- * one is stopped, and becomes cancelled when its worker has stopped. */
+ * one is stopped, and becomes cancelled when its worker has stopped: also
+ * when the queue was stopped with abort before, or the worker was
+ * characterizing the recorded scan or had just finished (but a job that
+ * fails meanwhile stays failed). Its recording is kept. */
 int jobs_cancel(struct jobs *jobs, int64_t id, const struct job_actor *who,
 		struct job_record *out, struct asph_error *err);
 int jobs_pause(struct jobs *jobs, int64_t id, const struct job_actor *who,
@@ -128,6 +135,12 @@ int jobs_history(struct jobs *jobs, int64_t id, store_event_fn fn, void *data,
 json_t *jobs_job_to_json(const struct jobs *jobs, const struct job_record *j);
 /* The result of a completed job, with "dir", its folder. */
 int jobs_result(struct jobs *jobs, int64_t id, json_t **out, struct asph_error *err);
+/* One of the files of a completed job's result (a name its "files" lists),
+ * opened for reading beneath the state directory without following a
+ * symlink: *out is the descriptor. -ENODATA when the job has no result,
+ * -EPERM for a name the result does not list. */
+int jobs_result_file(struct jobs *jobs, int64_t id, const char *name, int *out,
+		     struct asph_error *err);
 
 bool jobs_queue_running(const struct jobs *jobs);
 /* Jobs in each state. */

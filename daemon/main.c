@@ -11,6 +11,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <gsl/gsl_errno.h>
@@ -19,7 +21,7 @@
 #include "access.h"
 #include "asph-proto.h"
 #include "config.h"
-#include "dirs.h"
+#include "devices.h"
 #include "events.h"
 #include "instruments.h"
 #include "jobs.h"
@@ -123,6 +125,23 @@ static void unload_configuration(struct daemon *d)
 	d->settings = NULL;
 }
 
+/* --device-policy: the drop-in or the rules the instruments need. */
+static int device_policy(struct daemon *d, const char *kind)
+{
+	int n_errors = 0, r;
+
+	if (strcmp(kind, "systemd") && strcmp(kind, "udev")) {
+		fprintf(stderr, "asphd: --device-policy takes systemd or udev, not \"%s\"\n", kind);
+		return ASPHD_EXIT_USAGE;
+	}
+	if (settings_load(d->config_path, &d->settings, report_config_error, &n_errors) < 0)
+		return ASPHD_EXIT_CONFIG;
+	n_errors = load_configuration(d);
+	r = n_errors ? -EINVAL : devices_policy(d->instruments, kind, stdout);
+	unload_configuration(d);
+	return r < 0 ? ASPHD_EXIT_CONFIG : ASPHD_EXIT_OK;
+}
+
 static int check_config(struct daemon *d)
 {
 	int n_errors = 0;
@@ -137,10 +156,9 @@ static int check_config(struct daemon *d)
 	return n_errors ? ASPHD_EXIT_CONFIG : ASPHD_EXIT_OK;
 }
 
-/* The command line's socket and state directory, else systemd's. */
-static int apply_overrides(struct daemon *d)
+/* The command line's socket and state directory, else systemd's, in s. */
+static int apply_overrides(const struct daemon *d, struct settings *s)
 {
-	struct settings *s = d->settings;
 	const char *env;
 
 	if (d->socket_override) {
@@ -159,6 +177,35 @@ static int apply_overrides(struct daemon *d)
 		}
 	}
 	return s->socket_path && s->state_dir ? 0 : -ENOMEM;
+}
+
+/*
+ * The descriptors max_clients needs besides the daemon's own: the soft
+ * limit is raised as far as the hard one (LimitNOFILE=) allows. 0, or
+ * -EMFILE when it cannot be, which report says naming the setting.
+ */
+static int check_descriptors(const struct settings *s, size_t n_instruments,
+			     settings_error_fn report, void *data)
+{
+	rlim_t need = (rlim_t)s->limits.max_clients + SERVER_FIXED_FDS + 4 * n_instruments;
+	struct asph_error err;
+	struct rlimit rl;
+
+	if (getrlimit(RLIMIT_NOFILE, &rl) < 0 || rl.rlim_cur >= need)
+		return 0;
+	if (rl.rlim_max >= need) {
+		rl.rlim_cur = need;
+		if (setrlimit(RLIMIT_NOFILE, &rl) == 0)
+			return 0;
+	}
+	asph_error_clear(&err);
+	asph_error_set(&err, -EMFILE, "%u clients need about %llu file descriptors, and this "
+		       "process may open %llu (LimitNOFILE=, ulimit -n): lower "
+		       "limits.max_clients or raise the limit", s->limits.max_clients,
+		       (unsigned long long)need, (unsigned long long)rl.rlim_max);
+	settings_locate(s, "limits.max_clients", &err);
+	report(&err, data);
+	return -EMFILE;
 }
 
 /* ------------------------------------------------------------ status */
@@ -205,50 +252,82 @@ static int on_terminate(sd_event_source *s, const struct signalfd_siginfo *si, v
 	return 0;
 }
 
-/* The running value of a setting that a reload does not change. */
-static void keep_setting(char **next, char **running)
+/* Whether two optional strings differ. */
+static bool differ(const char *a, const char *b)
 {
-	free(*next);
-	*next = *running;
-	*running = NULL;
+	return (a || b) && (!a || !b || strcmp(a, b));
+}
+
+static void append(char *buf, size_t size, const char *what)
+{
+	size_t n = strlen(buf);
+
+	snprintf(buf + n, size - n, "%s%s", n ? ", " : "", what);
+}
+
+/* What next changes that only a restart applies: named into why (empty
+ * when nothing). */
+static void needs_restart(const struct daemon *d, const struct settings *next, char *why,
+			  size_t size)
+{
+	const struct settings *now = d->settings;
+	char tcp[256];
+
+	why[0] = '\0';
+	if (differ(next->socket_path, now->socket_path))
+		append(why, size, "socket");
+	if (differ(next->state_dir, now->state_dir))
+		append(why, size, "state_dir");
+	if (differ(next->instruments_json, now->instruments_json))
+		append(why, size, "instruments");
+	if (server_check_reload(d->server, next, tcp, sizeof(tcp)) < 0)
+		append(why, size, tcp);
 }
 
 /*
- * What a running daemon can change: the limits and who may do what (the
- * operator group, the token). Listeners, paths and instruments stay until
- * the next start. A configuration with any error is refused whole.
+ * Everything a running daemon can apply: the limits, who may do what (the
+ * operator group, the token: a TCP client that sent a token that is no
+ * longer there is disconnected), the socket's mode and group, and the end
+ * of the TCP listener. A configuration with any error, or one that changes
+ * what only a restart applies (the socket's path, the state directory, the
+ * instruments, a new TCP address), is refused whole, saying which.
  */
 static int on_reload(sd_event_source *s, const struct signalfd_siginfo *si, void *data)
 {
 	struct daemon *d = data;
 	struct settings *next = NULL;
 	struct access *access = NULL;
+	char why[512];
 	int n_errors = 0;
 
 	sd_notify(0, "RELOADING=1");
-	if (settings_load(d->config_path, &next, report_config_error, &n_errors) == 0)
-		access_load(next, &access, report_config_error, &n_errors);
+	if (settings_load(d->config_path, &next, report_config_error, &n_errors) == 0 &&
+	    access_load(next, &access, report_config_error, &n_errors) == 0 &&
+	    apply_overrides(d, next) == 0)
+		check_descriptors(next, instruments_count(d->instruments), report_config_error,
+				  &n_errors);
 	if (n_errors || !next || !access) {
 		log_error("reload: the configuration has %d error(s); keeping the old one", n_errors);
-		settings_free(next);
-		sd_notify(0, "READY=1");
-		return 0;
+		goto keep;
 	}
-	if ((next->instruments_json || d->settings->instruments_json) &&
-	    (!next->instruments_json || !d->settings->instruments_json ||
-	     strcmp(next->instruments_json, d->settings->instruments_json)))
-		log_warning("reload: instrument changes take effect at the next start");
+	needs_restart(d, next, why, sizeof(why));
+	if (why[0]) {
+		log_error("reload refused: %s changed, which needs a restart (systemctl restart "
+			  "asphd); the running configuration is kept", why);
+		goto keep;
+	}
 	d->limits = next->limits;
 	rpc_set_access(d->rpc, access);
 	access_free(d->access);
-	d->access = access;
-	/* The listeners and the state directory keep the paths they have. */
-	keep_setting(&next->socket_path, &d->settings->socket_path);
-	keep_setting(&next->state_dir, &d->settings->state_dir);
-	keep_setting(&next->instruments_json, &d->settings->instruments_json);
+	d->access = steal_ptr(access);
+	server_reload(d->server, next);
+	server_revalidate(d->server);
 	settings_free(d->settings);
-	d->settings = next;
+	d->settings = steal_ptr(next);
 	log_info("configuration reloaded");
+keep:
+	access_free(access);
+	settings_free(next);
 	sd_notify(0, "READY=1");
 	return 0;
 }
@@ -312,9 +391,7 @@ static int run(struct daemon *d)
 	/* Pings the watchdog from the loop itself: a hung loop is caught. */
 	sd_event_set_watchdog(d->event, true);
 	sd_event_now(d->event, CLOCK_MONOTONIC, &d->started_usec);
-	r = dirs_make_state(d->settings->state_dir);
-	if (r == 0)
-		r = start_modules(d);
+	r = start_modules(d);
 	if (r == 0)
 		r = server_listen(d->server, d->settings, d->tcp);
 	if (r < 0)
@@ -347,6 +424,9 @@ static void usage(FILE *f)
 		   "  -s, --socket PATH     unix socket (default %s)\n"
 		   "  -d, --state-dir DIR   jobs, scans and results (default /var/lib/asphd)\n"
 		   "      --check-config    check the configuration, name every error, exit\n"
+		   "      --device-policy=systemd|udev\n"
+		   "                        print the devices and hosts the instruments need,\n"
+		   "                        as a systemd drop-in or as udev rules, exit\n"
 		   "  -v, --verbose         log debug messages\n"
 		   "      --version         print the version\n"
 		   "  -h, --help            this help\n", DEFAULT_CONFIG, PROTO_DEFAULT_SOCKET);
@@ -359,22 +439,28 @@ int main(int argc, char **argv)
 		{ "socket", required_argument, NULL, 's' },
 		{ "state-dir", required_argument, NULL, 'd' },
 		{ "check-config", no_argument, NULL, 'C' },
+		{ "device-policy", required_argument, NULL, 'D' },
 		{ "verbose", no_argument, NULL, 'v' },
 		{ "version", no_argument, NULL, 'V' },
 		{ "help", no_argument, NULL, 'h' },
 		{ NULL, 0, NULL, 0 },
 	};
 	struct daemon d = { 0 };
+	const char *policy = NULL;
 	bool check = false, verbose = false;
 	int c, r, n_errors = 0;
 
 	gsl_set_error_handler_off();
+	/* Jobs, scans and results are private to the daemon's user and group,
+	 * under systemd (UMask=0027) or not. */
+	umask(0027);
 	while ((c = getopt_long(argc, argv, "c:s:d:vh", opts, NULL)) != -1) {
 		switch (c) {
 		case 'c': d.config_path = optarg; break;
 		case 's': d.socket_override = optarg; break;
 		case 'd': d.state_override = optarg; break;
 		case 'C': check = true; break;
+		case 'D': policy = optarg; break;
 		case 'v': verbose = true; break;
 		case 'V': printf("asphd %s\n", ASPH_VERSION); return ASPHD_EXIT_OK;
 		case 'h': usage(stdout); return ASPHD_EXIT_OK;
@@ -389,15 +475,19 @@ int main(int argc, char **argv)
 		d.config_path = DEFAULT_CONFIG;
 	if (check)
 		return check_config(&d);
+	if (policy)
+		return device_policy(&d, policy);
 	log_setup(verbose ? LOG_DEBUG : LOG_INFO);
 	if (settings_load(d.config_path, &d.settings, report_config_error, &n_errors) < 0)
 		return ASPHD_EXIT_CONFIG;
-	if (load_configuration(&d) > 0) {
+	if (load_configuration(&d) > 0 ||
+	    check_descriptors(d.settings, instruments_count(d.instruments), report_config_error,
+			      &n_errors) < 0) {
 		unload_configuration(&d);
 		return ASPHD_EXIT_CONFIG;
 	}
 	d.limits = d.settings->limits;
-	r = apply_overrides(&d);
+	r = apply_overrides(&d, d.settings);
 	if (r == 0)
 		r = run(&d);
 	if (r < 0) {

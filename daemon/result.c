@@ -5,6 +5,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <jansson.h>
@@ -14,41 +16,61 @@
 #include "asph/plot.h"
 #include "asph/points.h"
 #include "asph/scanfile.h"
+#include "asph-proto.h"
 #include "config.h"
+#include "dirs.h"
 #include "result.h"
+#include "runner.h"
 #include "sha256.h"
+#include "util-fs.h"
 #include "util-time.h"
 #include "util-mem.h"
 
-/* Writes text to dir/name through a temporary file, synced. */
-static int write_atomic(const char *dir, const char *name, const char *text,
-			struct asph_error *err)
-{
-	_cleanup_free_ char *tmp = NULL, *path = NULL;
-	_cleanup_close_ int fd = -1;
-	size_t len = strlen(text), off = 0;
+#define STR(x) #x
+#define XSTR(x) STR(x)
+#define PROTOCOL_VERSION XSTR(PROTO_VERSION_MAJOR) "." XSTR(PROTO_VERSION_MINOR)
 
-	if (asprintf(&tmp, "%s/.%s.tmp", dir, name) < 0 ||
-	    asprintf(&path, "%s/%s", dir, name) < 0)
-		return asph_error_set(err, -ENOMEM, "out of memory");
-	fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC | O_NOFOLLOW, 0644);
+/* The recorded scan, mapped read-only from the job's folder. */
+struct mapped {
+	void *data;
+	size_t len;
+};
+
+static void unmap(struct mapped *m)
+{
+	if (m->data && m->data != MAP_FAILED)
+		munmap(m->data, m->len);
+}
+
+static int map_scan(const struct result_source *job, struct mapped *m, struct asph_error *err)
+{
+	_cleanup_close_ int fd = fs_open_beneath(job->dir_fd, RUNNER_SCAN_FILE, O_RDONLY, 0);
+	struct stat st;
+
 	if (fd < 0)
-		return asph_error_set(err, -errno, "%s: %s", tmp, strerror(errno));
-	while (off < len) {
-		ssize_t n = write(fd, text + off, len - off);
-		if (n < 0) {
-			if (errno == EINTR)
-				continue;
-			return asph_error_set(err, -errno, "%s: %s", tmp, strerror(errno));
-		}
-		off += (size_t)n;
+		return asph_error_set(err, fd, "%s/%s: %s", job->dir, RUNNER_SCAN_FILE,
+				      fd == -ELOOP ? "a symbolic link: not read" : strerror(-fd));
+	if (fstat(fd, &st) < 0 || !S_ISREG(st.st_mode) || st.st_size <= 0)
+		return asph_error_set(err, -EINVAL, "%s/%s: not a recorded scan", job->dir,
+				      RUNNER_SCAN_FILE);
+	m->len = (size_t)st.st_size;
+	m->data = mmap(NULL, m->len, PROT_READ, MAP_PRIVATE, fd, 0);
+	if (m->data == MAP_FAILED) {
+		m->data = NULL;
+		return asph_error_set(err, -errno, "%s/%s: %s", job->dir, RUNNER_SCAN_FILE,
+				      strerror(errno));
 	}
-	if (fsync(fd) < 0 || rename(tmp, path) < 0)
-		return asph_error_set(err, -errno, "%s: %s", path, strerror(errno));
+	return 0;
+}
+
+static int write_text(FILE *f, void *data, struct asph_error *err)
+{
+	fputs(data, f);
 	return 0;
 }
 
 struct characterized {
+	struct mapped map;
 	struct asph_scanfile *scan;
 	struct asph_points *points;
 	struct asph_fit *fit;
@@ -62,6 +84,7 @@ static void characterized_release(struct characterized *c)
 	asph_points_free(c->points);
 	asph_scanfile_free(c->scan);
 	free(c->acquisition);
+	unmap(&c->map);
 }
 
 /* The points as asph export writes them and asph replay fits them: the
@@ -69,9 +92,18 @@ static void characterized_release(struct characterized *c)
 static int characterize(const struct result_source *job, const struct job_plan *jp,
 			struct characterized *c, struct asph_error *err)
 {
+	_cleanup_free_ char *path = NULL;
 	struct asph_drift_summary sum;
-	int r = asph_drift_scan_points(job->scan_path, 0, 0, &c->scan, &c->points, &sum, err);
+	int r = map_scan(job, &c->map, err);
 
+	if (r < 0)
+		return r;
+	if (asprintf(&path, "%s/%s", job->dir, RUNNER_SCAN_FILE) < 0)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	r = asph_scanfile_read_memory(c->map.data, c->map.len, path, &c->scan, err);
+	if (r < 0)
+		return r;
+	r = asph_drift_scanfile_points(c->scan, path, 0, 0, &c->points, &sum, err);
 	if (r < 0)
 		return r;
 	if (asph_drift_report_json(c->scan, &sum, 1, &c->acquisition) < 0)
@@ -82,12 +114,28 @@ static int characterize(const struct result_source *job, const struct job_plan *
 	return asph_fit_run(c->fit, c->points->xyz, c->points->n, &c->res, err);
 }
 
+static int write_csv(FILE *f, void *data, struct asph_error *err)
+{
+	return asph_points_write_stream(f, "residuals.csv", data, NULL, err);
+}
+
+static int write_map(FILE *f, void *data, struct asph_error *err)
+{
+	const struct asph_points *p = data;
+	struct asph_plot_options po = {
+		.title = "Form error", .colour_label = "residual (nm)", .diverging = 1,
+	};
+
+	return asph_plot_points_png_stream(f, "residual-map.png", p->xyz, p->value, p->n, &po,
+					   err);
+}
+
 /* residuals.csv (x, y, z, residual_nm) and residual-map.png. */
 static int write_residuals(const struct result_source *job, struct characterized *c,
 			   json_t *files, struct asph_error *err)
 {
 	const double *res = asph_fit_residuals(c->fit);
-	_cleanup_free_ char *path = NULL;
+	struct asph_error perr;
 	int r;
 
 	r = asph_points_add_value(c->points, "residual_nm");
@@ -95,22 +143,15 @@ static int write_residuals(const struct result_source *job, struct characterized
 		return asph_error_set(err, r, "out of memory");
 	for (size_t i = 0; i < c->points->n; i++)
 		c->points->value[i] = res[i] * 1e6;
-	if (asprintf(&path, "%s/residuals.csv", job->dir) < 0)
-		return asph_error_set(err, -ENOMEM, "out of memory");
-	r = asph_points_write(path, c->points, NULL, err);
+	r = fs_write_file_at(job->dir_fd, "residuals.csv", DIRS_FILE_MODE, write_csv, c->points,
+			     err);
 	if (r < 0)
 		return r;
 	json_object_set_new(files, "residuals", json_string("residuals.csv"));
-	free(path);
-	path = NULL;
-	if (asprintf(&path, "%s/residual-map.png", job->dir) < 0)
-		return asph_error_set(err, -ENOMEM, "out of memory");
-	struct asph_plot_options po = {
-		.title = "Form error", .colour_label = "residual (nm)", .diverging = 1,
-	};
-	struct asph_error perr;
-	if (asph_plot_points_png(path, c->points->xyz, c->points->value, c->points->n,
-				 &po, &perr) == 0)
+	/* The map is a picture of the same numbers: without cairo, none. */
+	asph_error_clear(&perr);
+	if (fs_write_file_at(job->dir_fd, "residual-map.png", DIRS_FILE_MODE, write_map,
+			     c->points, &perr) == 0)
 		json_object_set_new(files, "map", json_string("residual-map.png"));
 	return 0;
 }
@@ -136,13 +177,13 @@ static json_t *provenance(const struct result_source *job, const struct job_plan
 		"plan", json_loads(jp->plan_json, 0, NULL),
 		"fit_options", json_loads(jp->fit_json, 0, NULL),
 		"instrument", inst ? json_loads(inst, 0, NULL) : NULL,
-		"software", "asphd", ASPH_VERSION, "libasph", ASPH_VERSION, "protocol", "1.0",
+		"software", "asphd", ASPH_VERSION, "libasph", ASPH_VERSION, "protocol", PROTOCOL_VERSION,
 		"submitted_by", json_object_get(meta, "submitted_by"),
 		"label", json_object_get(meta, "label"),
 		"submitted", json_object_get(meta, "submitted"),
 		"started", started[0] ? started : NULL,
 		"finished", finished,
-		"scan", "file", "scan.asphscan", "sha256", sha,
+		"scan", "file", RUNNER_SCAN_FILE, "sha256", sha,
 		"points", (json_int_t)c->scan->n, "resumes", (int)c->scan->report.n_resumes,
 		"created", c->scan->header.created ? c->scan->header.created : "");
 	if (p)
@@ -178,12 +219,12 @@ int result_build(const struct result_source *job, const struct job_plan *jp,
 	r = characterize(job, jp, &c, err);
 	if (r < 0)
 		goto out;
-	r = sha256_file(job->scan_path, sha);
-	if (r < 0) {
-		asph_error_set(err, r, "cannot hash the scan: %s", strerror(-r));
+	if (job->cancelled && job->cancelled(job->cancelled_data)) {
+		r = -ECANCELED;
 		goto out;
 	}
-	files = json_pack("{s:s, s:s}", "scan", "scan.asphscan", "result", "result.json");
+	sha256_hex(c.map.data, c.map.len, sha);
+	files = json_pack("{s:s, s:s}", "scan", RUNNER_SCAN_FILE, "result", "result.json");
 	r = write_residuals(job, &c, files, err);
 	if (r < 0) {
 		json_decref(files);
@@ -200,7 +241,7 @@ int result_build(const struct result_source *job, const struct job_plan *jp,
 		r = asph_error_set(err, -ENOMEM, "out of memory");
 		goto out;
 	}
-	r = write_atomic(job->dir, "result.json", text, err);
+	r = fs_write_file_at(job->dir_fd, "result.json", DIRS_FILE_MODE, write_text, text, err);
 	if (r == 0)
 		*out = steal_ptr(text);
 out:

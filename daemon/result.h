@@ -6,6 +6,7 @@
 #ifndef ASPHD_RESULT_H
 #define ASPHD_RESULT_H
 
+#include <stdbool.h>
 #include <stdint.h>
 
 #include "asph/error.h"
@@ -16,15 +17,21 @@ struct asph_instrument_config;
 /* The recorded job to characterize. */
 struct result_source {
 	int64_t job;
-	const char *scan_path;  /* the recorded scan */
-	const char *dir;        /* where the result files go; exists */
+	int dir_fd;             /* its folder: the recorded scan, the result files */
+	const char *dir;        /* the same as a path, for messages */
 	const char *metadata;   /* the job's metadata of the scan header (JSON) */
+	/* Asked between the steps: true stops with -ECANCELED before anything
+	 * is written. May be NULL. */
+	bool (*cancelled)(void *data);
+	void *cancelled_data;
 };
 
 /*
- * Characterizes the recorded scan of job, writes the residuals, the map
- * and result.json into job->dir and returns the result JSON text
- * (summary, provenance, files).
+ * Characterizes the recorded scan of job (read through dir_fd, never
+ * through a symlink), writes the residuals, the map and result.json into
+ * the folder (each created exclusively under a temporary name and renamed
+ * into place, 0640) and returns the result JSON text (summary,
+ * provenance, files).
  */
 int result_build(const struct result_source *job, const struct job_plan *jp,
 		 const struct asph_instrument_config *ic, char **out,

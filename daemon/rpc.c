@@ -8,15 +8,28 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "asph-proto.h"
 #include "config.h"
 #include "jobspec.h"
 #include "log.h"
+#include "ratelimit.h"
 #include "rpc.h"
 #include "util-time.h"
 #include "util-mem.h"
+
+/* Failed hellos a peer (an address, a uid) may make at once, then one per
+ * interval: the guesses of a token are slowed down to that. */
+#define HELLO_FAILURES_BURST 5
+#define HELLO_FAILURE_INTERVAL_USEC (2 * 1000000ull)
+/* Refusals logged per peer at once, then one per interval (the rest are
+ * counted into the next line that is logged). */
+#define REFUSALS_LOGGED_BURST 10
+#define REFUSAL_LOG_INTERVAL_USEC (1000000ull)
+/* Peers whose counts are kept at once. */
+#define RATE_KEYS 256
 
 struct rpc {
 	sd_event *event;
@@ -28,6 +41,8 @@ struct rpc {
 	const struct settings_limits *limits;
 	size_t n_sessions;
 	uint64_t requests;
+	struct ratelimit *hello_failures;       /* per peer key */
+	struct ratelimit *refusals_logged;      /* per peer key */
 };
 
 struct call {
@@ -49,12 +64,23 @@ int rpc_new(const struct rpc_setup *setup, struct rpc **out)
 		.jobs = setup->jobs, .instruments = setup->instruments, .events = setup->events,
 		.access = setup->access, .limits = setup->limits,
 	};
+	if (ratelimit_new(HELLO_FAILURES_BURST, HELLO_FAILURE_INTERVAL_USEC, RATE_KEYS,
+			  &rpc->hello_failures) < 0 ||
+	    ratelimit_new(REFUSALS_LOGGED_BURST, REFUSAL_LOG_INTERVAL_USEC, RATE_KEYS,
+			  &rpc->refusals_logged) < 0) {
+		rpc_free(rpc);
+		return -ENOMEM;
+	}
 	*out = rpc;
 	return 0;
 }
 
 void rpc_free(struct rpc *rpc)
 {
+	if (!rpc)
+		return;
+	ratelimit_free(rpc->hello_failures);
+	ratelimit_free(rpc->refusals_logged);
 	free(rpc);
 }
 
@@ -85,6 +111,24 @@ size_t rpc_sessions(const struct rpc *rpc)
 	return rpc->n_sessions;
 }
 
+bool rpc_peer_operator(const struct rpc *rpc, const struct peer *p)
+{
+	return !p->tcp && access_is_operator(rpc->access, p, NULL);
+}
+
+bool rpc_session_valid(const struct rpc *rpc, const struct rpc_session *s)
+{
+	return !s->peer.tcp || !s->grant.valid || access_grant_current(rpc->access, &s->grant);
+}
+
+static uint64_t loop_usec(const struct rpc *rpc)
+{
+	uint64_t now = 0;
+
+	sd_event_now(rpc->event, CLOCK_MONOTONIC, &now);
+	return now;
+}
+
 /* ------------------------------------------------------------ helpers */
 
 static int fail(struct call *c, int code, const char *fmt, ...)
@@ -110,7 +154,9 @@ static int job_error(struct call *c, int r, const struct asph_error *err)
 		{ -ENODEV, PROTO_NO_SUCH_INSTRUMENT },
 		{ -EINVAL, PROTO_INVALID_STATE },
 		{ -ENOBUFS, PROTO_LIMIT_REACHED },
+		{ -EDQUOT, PROTO_LIMIT_REACHED },
 		{ -ENODATA, PROTO_NO_RESULT },
+		{ -EPERM, PROTO_INVALID_PATH },
 		{ -ENOMEM, PROTO_INTERNAL_ERROR },
 	};
 	int code = PROTO_STORAGE_ERROR;
@@ -123,7 +169,7 @@ static int job_error(struct call *c, int r, const struct asph_error *err)
 
 static bool is_operator(const struct call *c)
 {
-	return access_is_operator(c->rpc->access, &c->s->peer, c->s->authenticated);
+	return access_is_operator(c->rpc->access, &c->s->peer, &c->s->grant);
 }
 
 static struct job_actor actor(const struct call *c)
@@ -173,6 +219,35 @@ static int change_job(struct call *c, json_t *params, job_change_fn change, json
 
 /* ------------------------------------------------------------ daemon */
 
+/*
+ * A TCP peer's token. A wrong one costs the peer's key a token of
+ * hello_failures; with none left, hellos are refused without looking at
+ * the token, so that guessing goes no faster than the bucket refills.
+ */
+static int authenticate(struct call *c, const char *token)
+{
+	struct rpc_session *s = c->s;
+	struct rpc *rpc = c->rpc;
+	uint64_t now = loop_usec(rpc);
+	unsigned left_out = 0;
+
+	if (!ratelimit_allows(rpc->hello_failures, s->peer.key, now)) {
+		ratelimit_take(rpc->hello_failures, s->peer.key, now, NULL);
+		return fail(c, PROTO_PERMISSION_DENIED, "too many wrong tokens from %s: try "
+			    "again in %.1f s", s->peer.key,
+			    (double)ratelimit_wait(rpc->hello_failures, s->peer.key, now) / 1e6);
+	}
+	if (access_authenticate(rpc->access, token, &s->grant) < 0) {
+		ratelimit_take(rpc->hello_failures, s->peer.key, now, &left_out);
+		log_warning("wrong token in hello from %s (%u hello(s) refused unread before)",
+			    s->peer.name, left_out);
+		return fail(c, PROTO_PERMISSION_DENIED, "wrong token");
+	}
+	s->authenticated = true;
+	log_info("%s authenticated with %s", s->peer.name, s->grant.credential);
+	return 0;
+}
+
 static int m_hello(struct call *c, json_t *params, json_t **result)
 {
 	static const char *const names[] = { "client", "token", NULL };
@@ -185,11 +260,8 @@ static int m_hello(struct call *c, json_t *params, json_t **result)
 	if (proto_param_string(params, "client", false, 128, &client, &c->why) == -EINVAL ||
 	    proto_param_string(params, "token", false, 512, &token, &c->why) == -EINVAL)
 		return PROTO_INVALID_PARAMS;
-	if (s->peer.tcp && !s->authenticated) {
-		if (!access_token_matches(c->rpc->access, token))
-			return fail(c, PROTO_PERMISSION_DENIED, "wrong token");
-		s->authenticated = true;
-	}
+	if (s->peer.tcp && !s->authenticated && (code = authenticate(c, token)))
+		return code;
 	*result = json_pack("{s:s, s:s, s:{s:i, s:i}, s:{s:I, s:s, s:b}}",
 		"server", "asphd", "version", ASPH_VERSION,
 		"protocol", "major", PROTO_VERSION_MAJOR, "minor", PROTO_VERSION_MINOR,
@@ -381,7 +453,7 @@ static int m_job_list(struct call *c, json_t *params, json_t **result)
 {
 	static const char *const names[] = { "states", "instrument", "label", "uid", "mine",
 					     "offset", "limit", NULL };
-	struct store_filter f = { .uid = -1, .limit = 100 };
+	struct store_filter f = { .uid = STORE_ANY_UID, .limit = 100 };
 	json_t *list;
 	bool mine = false;
 	int64_t total = 0;
@@ -455,6 +527,46 @@ static int m_job_result(struct call *c, json_t *params, json_t **result)
 	asph_error_clear(&err);
 	r = jobs_result(c->rpc->jobs, id, result, &err);
 	return r < 0 ? job_error(c, r, &err) : 0;
+}
+
+/* The most bytes one job.file answer carries (before base64). */
+#define FILE_CHUNK_MAX (1u << 20)
+
+static int m_job_file(struct call *c, json_t *params, json_t **result)
+{
+	static const char *const names[] = { "id", "name", "offset", "length", NULL };
+	_cleanup_close_ int fd = -1;
+	_cleanup_free_ char *buf = NULL, *data = NULL;
+	struct asph_error err;
+	const char *name;
+	int64_t id, offset = 0, length = FILE_CHUNK_MAX;
+	struct stat st;
+	ssize_t n;
+	int code = only(c, params, names), r;
+
+	if (code || (code = job_id(c, params, &id)))
+		return code;
+	if (proto_param_string(params, "name", true, 255, &name, &c->why) < 0 ||
+	    proto_param_int(params, "offset", false, 0, INT64_MAX, &offset, &c->why) == -EINVAL ||
+	    proto_param_int(params, "length", false, 1, FILE_CHUNK_MAX, &length,
+			    &c->why) == -EINVAL)
+		return PROTO_INVALID_PARAMS;
+	asph_error_clear(&err);
+	r = jobs_result_file(c->rpc->jobs, id, name, &fd, &err);
+	if (r < 0)
+		return job_error(c, r, &err);
+	if (fstat(fd, &st) < 0 || !(buf = malloc((size_t)length)))
+		return fail(c, PROTO_STORAGE_ERROR, "%s: %s", name, strerror(errno));
+	n = offset < st.st_size ? pread(fd, buf, (size_t)length, (off_t)offset) : 0;
+	if (n < 0)
+		return fail(c, PROTO_STORAGE_ERROR, "%s: %s", name, strerror(errno));
+	data = proto_base64_encode(buf, (size_t)n);
+	if (!data)
+		return PROTO_INTERNAL_ERROR;
+	*result = json_pack("{s:s, s:I, s:I, s:s, s:b}", "name", name, "offset", (json_int_t)offset,
+			    "size", (json_int_t)st.st_size, "data", data,
+			    "eof", offset + n >= st.st_size);
+	return 0;
 }
 
 /* ------------------------------------------------------------- queue */
@@ -585,10 +697,19 @@ static int m_driver_list(struct call *c, json_t *params, json_t **result)
 static int m_events_subscribe(struct call *c, json_t *params, json_t **result)
 {
 	static const char *const names[] = { "events", "job", NULL };
-	unsigned mask = EVENT_ALL, limit = c->rpc->limits->max_subscriptions;
+	const struct settings_limits *l = c->rpc->limits;
+	const struct peer *p = &c->s->peer;
+	struct event_quota q = {
+		.owner = p->key, .operator = is_operator(c), .max = l->max_subscriptions,
+		/* root has no quota of its own, as for connections */
+		.per_owner = !p->tcp && p->uid == 0 ? l->max_subscriptions
+						    : l->max_subscriptions_per_user,
+		.reserved = l->reserved_subscriptions,
+	};
+	unsigned mask = EVENT_ALL;
 	int64_t job = 0;
 	json_t *list;
-	int code = only(c, params, names);
+	int code = only(c, params, names), r;
 
 	if (code)
 		return code;
@@ -600,8 +721,17 @@ static int m_events_subscribe(struct call *c, json_t *params, json_t **result)
 	 * sent there any more, so nothing is counted for it. */
 	if (!c->s->open)
 		return fail(c, PROTO_INVALID_REQUEST, "the connection is closed");
-	if (events_subscribe(c->rpc->events, &c->s->events, mask, job, limit) < 0)
-		return fail(c, PROTO_LIMIT_REACHED, "%u clients are subscribed, the limit", limit);
+	r = events_subscribe(c->rpc->events, &c->s->events, mask, job, &q);
+	if (r == -EDQUOT)
+		return fail(c, PROTO_LIMIT_REACHED, "%s has %u subscriptions, "
+			    "limits.max_subscriptions_per_user", q.owner, q.per_owner);
+	if (r == -EUSERS && !q.operator && l->reserved_subscriptions)
+		return fail(c, PROTO_LIMIT_REACHED, "%zu clients are subscribed; the last %u of "
+			    "limits.max_subscriptions (%u) are kept for operators",
+			    events_subscriptions(c->rpc->events), q.reserved, q.max);
+	if (r < 0)
+		return fail(c, PROTO_LIMIT_REACHED, "%u clients are subscribed, the limit "
+			    "(limits.max_subscriptions)", q.max);
 	list = json_array();
 	for (int k = 0; list && event_class_names[k]; k++)
 		if (mask & (1u << k))
@@ -640,6 +770,7 @@ static const struct method {
 	{ "job.resume", m_job_resume, true },
 	{ "job.requeue", m_job_requeue, true },
 	{ "job.result", m_job_result, false },
+	{ "job.file", m_job_file, false },
 	{ "queue.get", m_queue_get, false },
 	{ "queue.move", m_queue_move, true },
 	{ "queue.start", m_queue_start, true },
@@ -659,6 +790,22 @@ static const struct method *find_method(const char *name)
 	return NULL;
 }
 
+/* A refused mutating call is logged, at most so often per peer: a reader
+ * could otherwise write the log full with notifications. */
+static void log_refusal(const struct call *c, const char *method)
+{
+	const struct peer *p = &c->s->peer;
+	unsigned left_out = 0;
+
+	if (!ratelimit_take(c->rpc->refusals_logged, p->key, loop_usec(c->rpc), &left_out))
+		return;
+	if (left_out)
+		log_notice("refused %s to %s (uid %d), and %u refusal(s) before it not logged",
+			   method, p->name, (int)p->uid, left_out);
+	else
+		log_notice("refused %s to %s (uid %d)", method, p->name, (int)p->uid);
+}
+
 /* Runs the method of a valid request; returns 0 or the error code. */
 static int dispatch(struct call *c, const struct proto_message *m, json_t **result)
 {
@@ -672,7 +819,7 @@ static int dispatch(struct call *c, const struct proto_message *m, json_t **resu
 	if (!c->s->authenticated && meth->fn != m_hello)
 		return fail(c, PROTO_PERMISSION_DENIED, "send \"hello\" with the token first");
 	if (meth->mutating && !is_operator(c)) {
-		log_notice("refused %s to %s (uid %d)", m->method, p->name, (int)p->uid);
+		log_refusal(c, m->method);
 		return fail(c, PROTO_PERMISSION_DENIED,
 			    "%s needs an operator: %s (uid %d) is not in the operator group",
 			    m->method, p->name, (int)p->uid);
@@ -722,45 +869,172 @@ static json_t *error_reply(int code, const char *detail)
 	return proto_make_error(NULL, code, NULL, json_pack("{s:s}", "detail", detail));
 }
 
-static json_t *handle_batch(struct rpc *rpc, struct rpc_session *s, json_t *batch)
-{
-	json_t *reply, *e;
-	struct proto_why why;
-	size_t i;
+/* ------------------------------------------------------------ lines */
 
-	if (json_array_size(batch) == 0)
-		return error_reply(PROTO_INVALID_REQUEST, "an empty batch");
-	if (json_array_size(batch) > PROTO_MAX_BATCH) {
+struct rpc_line {
+	struct rpc *rpc;
+	struct rpc_session *s;
+	json_t *msg;            /* the request, the batch, or an error answer */
+	bool batch;
+	bool parsed;            /* msg is a request or batch to answer */
+	size_t next;            /* the batch element answered next */
+	size_t written;         /* bytes of answer so far */
+	bool opened;            /* a batch's "[" is out */
+};
+
+struct line_writer {
+	rpc_write_fn write;
+	void *data;
+	size_t *written;
+	int failed;
+};
+
+static int put(struct line_writer *w, const char *text, size_t len)
+{
+	if (w->failed || w->write(text, len, w->data) < 0) {
+		w->failed = -ECONNRESET;
+		return -1;
+	}
+	*w->written += len;
+	return 0;
+}
+
+static int put_json(const char *buf, size_t size, void *data)
+{
+	return put(data, buf, size);
+}
+
+int rpc_line_new(struct rpc *rpc, struct rpc_session *s, const char *text, size_t len,
+		 struct rpc_line **out)
+{
+	struct rpc_line *l = calloc(1, sizeof(*l));
+	struct proto_why why;
+
+	if (!l)
+		return -ENOMEM;
+	*l = (struct rpc_line){ .rpc = rpc, .s = s };
+	rpc->requests++;
+	l->msg = proto_parse(text, len, &why);
+	if (!l->msg) {
+		l->msg = error_reply(PROTO_PARSE_ERROR, why.text);
+	} else if (json_is_array(l->msg) && json_array_size(l->msg) == 0) {
+		json_decref(l->msg);
+		l->msg = error_reply(PROTO_INVALID_REQUEST, "an empty batch");
+	} else if (json_is_array(l->msg) && json_array_size(l->msg) > PROTO_MAX_BATCH) {
 		proto_why_set(&why, "a batch of %zu requests, more than %d",
-			      json_array_size(batch), PROTO_MAX_BATCH);
-		return error_reply(PROTO_INVALID_REQUEST, why.text);
+			      json_array_size(l->msg), PROTO_MAX_BATCH);
+		json_decref(l->msg);
+		l->msg = error_reply(PROTO_INVALID_REQUEST, why.text);
+	} else {
+		l->parsed = true;
+		l->batch = json_is_array(l->msg);
 	}
-	reply = json_array();
-	json_array_foreach(batch, i, e) {
-		json_t *r = handle(rpc, s, e);
-		if (r && reply)
-			json_array_append_new(reply, r);
-		else
-			json_decref(r);
+	if (!l->msg) {
+		free(l);
+		return -ENOMEM;
 	}
-	/* A batch of notifications only is not answered. */
-	if (reply && json_array_size(reply) == 0) {
-		json_decref(reply);
-		reply = NULL;
+	*out = l;
+	return 0;
+}
+
+void rpc_line_free(struct rpc_line *l)
+{
+	if (!l)
+		return;
+	json_decref(l->msg);
+	free(l);
+}
+
+/*
+ * The answer to a request whose turn came after the line's answers had
+ * used up limits.max_response_bytes: not carried out (a notification is
+ * dropped, as it would be answered by nothing).
+ */
+static json_t *over_budget(const struct rpc_line *l, json_t *msg)
+{
+	struct proto_message m;
+	struct proto_why why;
+
+	if (proto_check_request(msg, &m, &why) == 0 && m.kind == PROTO_KIND_NOTIFICATION)
+		return NULL;
+	proto_why_set(&why, "the answers to this line already take %zu bytes, more than "
+		      "limits.max_response_bytes (%u): the request was not carried out",
+		      l->written, l->rpc->limits->max_response_bytes);
+	return proto_make_error(m.id, PROTO_RESPONSE_TOO_LARGE, NULL,
+				json_pack("{s:s}", "detail", why.text));
+}
+
+int rpc_line_step(struct rpc_line *l, rpc_write_fn write, void *data)
+{
+	struct line_writer w = { .write = write, .data = data, .written = &l->written };
+	size_t n = l->batch ? json_array_size(l->msg) : 1;
+	json_t *msg = l->batch ? json_array_get(l->msg, l->next) : l->msg;
+	_cleanup_(json_decrefp) json_t *reply = NULL;
+	bool last;
+
+	if (l->next >= n)
+		return 0;
+	if (!l->parsed)
+		reply = json_incref(l->msg);
+	else if (l->written > l->rpc->limits->max_response_bytes)
+		reply = over_budget(l, msg);
+	else
+		reply = handle(l->rpc, l->s, msg);
+	last = ++l->next == n;
+	if (reply) {
+		if (l->batch)
+			put(&w, l->opened ? "," : "[", 1);
+		l->opened = true;
+		if (json_dump_callback(reply, put_json, &w, JSON_COMPACT) < 0 && !w.failed)
+			w.failed = -ENOMEM;
 	}
-	return reply;
+	if (last && l->opened)
+		put(&w, l->batch ? "]\n" : "\n", l->batch ? 2 : 1);
+	if (w.failed)
+		return w.failed;
+	return last ? 0 : 1;
+}
+
+/* Collects a line's answer for rpc_handle_line(). */
+struct collected {
+	char *text;
+	size_t len, cap;
+};
+
+static int collect(const char *text, size_t len, void *data)
+{
+	struct collected *c = data;
+
+	if (c->len + len + 1 > c->cap) {
+		size_t cap = c->cap ? c->cap : 256;
+		while (cap < c->len + len + 1)
+			cap *= 2;
+		char *t = realloc(c->text, cap);
+		if (!t)
+			return -1;
+		c->text = t;
+		c->cap = cap;
+	}
+	memcpy(c->text + c->len, text, len);
+	c->len += len;
+	c->text[c->len] = '\0';
+	return 0;
 }
 
 json_t *rpc_handle_line(struct rpc *rpc, struct rpc_session *s, const char *line, size_t len)
 {
-	_cleanup_(json_decrefp) json_t *msg = NULL;
-	struct proto_why why;
+	struct collected c = { 0 };
+	struct rpc_line *l;
+	json_t *reply = NULL;
+	int r;
 
-	rpc->requests++;
-	msg = proto_parse(line, len, &why);
-	if (!msg)
-		return error_reply(PROTO_PARSE_ERROR, why.text);
-	if (json_is_array(msg))
-		return handle_batch(rpc, s, msg);
-	return handle(rpc, s, msg);
+	if (rpc_line_new(rpc, s, line, len, &l) < 0)
+		return NULL;
+	while ((r = rpc_line_step(l, collect, &c)) > 0)
+		;
+	rpc_line_free(l);
+	if (r == 0 && c.text)
+		reply = json_loadb(c.text, c.len, 0, NULL);
+	free(c.text);
+	return reply;
 }

@@ -32,6 +32,7 @@
 struct rpc_session {
 	struct peer peer;               /* the transport fills it */
 	bool authenticated;             /* unix peers at once; TCP after hello */
+	struct access_grant grant;      /* rpc.c's: what a TCP peer proved */
 	struct event_subscription events;
 	bool open;                      /* rpc.c's */
 };
@@ -58,12 +59,43 @@ void rpc_set_access(struct rpc *rpc, const struct access *access);
 void rpc_session_open(struct rpc *rpc, struct rpc_session *s);
 void rpc_session_close(struct rpc *rpc, struct rpc_session *s);
 size_t rpc_sessions(const struct rpc *rpc);
+/* Whether a peer operates as it connects (root, the operator group; a TCP
+ * peer not before hello): it may take the connections reserved for them. */
+bool rpc_peer_operator(const struct rpc *rpc, const struct peer *p);
+/* Whether s still stands after a reload: false for a TCP session whose
+ * token was changed or removed, which the transport then ends. */
+bool rpc_session_valid(const struct rpc *rpc, const struct rpc_session *s);
 
 /*
- * Handles one line (without its "\n"): a request, a notification or a
- * batch. Returns what to answer (a response, or an array of them), or
- * NULL when nothing is to be answered.
+ * What a line's answer is written through: len bytes of text, in order (a
+ * response, or a piece of a batch's array); an answer ends with "\n".
+ * Returns 0, or -1 when the transport cannot take it (the connection is
+ * gone), which abandons the line.
  */
+typedef int (*rpc_write_fn)(const char *text, size_t len, void *data);
+
+/*
+ * One line being answered: a request, a notification or a batch. A batch
+ * is answered one request per rpc_line_step(), so that the transport can
+ * serve other connections between two requests and send each answer as
+ * it comes instead of building the whole array in memory. Once a line's
+ * answers have passed limits.max_response_bytes, each further request of
+ * it is answered -32004 without being carried out.
+ */
+struct rpc_line;
+
+/* Takes a line (without its "\n"; it is parsed here and not kept) of s,
+ * which must outlive the line. 0 or -ENOMEM. */
+int rpc_line_new(struct rpc *rpc, struct rpc_session *s, const char *text, size_t len,
+		 struct rpc_line **out);
+/* Answers the next request of l through write: 1 while requests remain, 0
+ * when the line is answered, -ECONNRESET when write refused, -ENOMEM. */
+int rpc_line_step(struct rpc_line *l, rpc_write_fn write, void *data);
+void rpc_line_free(struct rpc_line *l);
+
+/* The whole answer to one line at once (every step), as JSON, or NULL when
+ * nothing is due: what the transport would send, for tests and the fuzz
+ * target. */
 json_t *rpc_handle_line(struct rpc *rpc, struct rpc_session *s, const char *line, size_t len);
 
 #endif

@@ -7,6 +7,7 @@
  * on the event loop thread.
  */
 #include <errno.h>
+#include <fcntl.h>
 #include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -29,7 +30,8 @@
 #define INSTRUMENT_TIMEOUT_MS 10000
 
 struct runner {
-	const struct asph_instrument_config *ic;
+	struct asph_config *own;        /* this worker's copy of the instrument */
+	struct asph_instrument_config *ic;    /* own's: its lens follows the job */
 	runner_report_fn fn;
 	void *data;
 	int efd;
@@ -53,6 +55,8 @@ void runner_job_free(struct runner_job *j)
 	if (!j)
 		return;
 	free(j->spec);
+	if (j->dir_fd >= 0)
+		close(j->dir_fd);
 	free(j->scan_path);
 	free(j->result_dir);
 	free(j->metadata);
@@ -163,13 +167,20 @@ static int open_writer(struct run *run, uint64_t *start,
 	_cleanup_free_ char *instrument = NULL;
 	struct asph_scanfile_header_info info;
 	struct stat st;
+	bool exists;
 	int r;
 
 	*start = 0;
-	if (job->resume && stat(job->scan_path, &st) == 0) {
+	/* Never through a symlink: what is in the folder is looked at through
+	 * its descriptor; a fresh recording is created exclusively. */
+	exists = fstatat(job->dir_fd, RUNNER_SCAN_FILE, &st, AT_SYMLINK_NOFOLLOW) == 0;
+	if (exists && !S_ISREG(st.st_mode) && job->resume)
+		return asph_error_set(&run->err, -ELOOP, "%s is not a regular file: refusing to "
+				      "continue it", job->scan_path);
+	if (job->resume && exists) {
 		wo.flags = ASPH_SCANFILE_REOPEN_ENDED;
-		r = asph_scan_reopen(job->scan_path, run->jp.plan, &wo, w, start, &run->recovered,
-				     &run->err);
+		r = asph_scan_reopen_at(job->dir_fd, RUNNER_SCAN_FILE, run->jp.plan, &wo, w, start,
+					&run->recovered, &run->err);
 		if (r < 0)
 			return r;
 		log_job(LOG_INFO, job->id, "resuming the scan at plan point %" PRIu64, *start);
@@ -182,8 +193,11 @@ static int open_writer(struct run *run, uint64_t *start,
 	info.plan = run->jp.plan_json;
 	info.instrument = instrument;
 	info.metadata = job->metadata;
-	wo.flags = ASPH_SCANFILE_OVERWRITE;
-	return asph_scanfile_writer_create(job->scan_path, &info, &wo, w, &run->err);
+	if (exists && unlinkat(job->dir_fd, RUNNER_SCAN_FILE, 0) < 0)
+		return asph_error_set(&run->err, -errno, "%s: cannot replace it: %s",
+				      job->scan_path, strerror(errno));
+	return asph_scanfile_writer_create_at(job->dir_fd, RUNNER_SCAN_FILE, &info, &wo, w,
+					      &run->err);
 }
 
 /* Runs the executor; returns its code. */
@@ -202,6 +216,10 @@ static int measure(struct run *run)
 	struct asph_scan *scan = NULL;
 	int rc;
 
+	/* a simulated part is the lens the job measures, unless configured */
+	rc = asph_instrument_config_set_lens(r->ic, run->jp.prescription_json, &run->err);
+	if (rc < 0)
+		return rc;
 	rc = asph_instrument_open(r->ic, INSTRUMENT_TIMEOUT_MS, &run->inst, &run->err);
 	if (rc < 0)
 		return rc;
@@ -239,6 +257,37 @@ static int measure(struct run *run)
 	return rc;
 }
 
+/* Whether the job was cancelled (result_build() asks between its steps). */
+static bool abort_wanted(void *data)
+{
+	struct runner *r = data;
+	bool yes;
+
+	pthread_mutex_lock(&r->lock);
+	yes = r->want_abort;
+	pthread_mutex_unlock(&r->lock);
+	return yes;
+}
+
+static void characterize(struct run *run)
+{
+	struct runner_job *job = run->job;
+	struct result_source src = {
+		.job = job->id, .dir_fd = job->dir_fd, .dir = job->result_dir,
+		.metadata = job->metadata, .cancelled = abort_wanted, .cancelled_data = run->r,
+	};
+	struct runner_report rep = { .kind = RUNNER_CHARACTERIZING, .job = job->id, .eta_s = -1 };
+	char *result = NULL;
+	int rc;
+
+	post(run->r, &rep);
+	rc = result_build(&src, &run->jp, run->r->ic, &result, &run->err);
+	if (rc == -ECANCELED)
+		done(run, RUNNER_ABORTED, NULL);
+	else
+		done(run, rc < 0 ? RUNNER_FAILED : RUNNER_COMPLETED, result);
+}
+
 static void run_job(struct runner *r, struct runner_job *job, struct runner_report *final)
 {
 	struct run run = { .r = r, .job = job, .final = final };
@@ -265,15 +314,8 @@ static void run_job(struct runner *r, struct runner_job *job, struct runner_repo
 		done(&run, stop ? RUNNER_STOPPED : RUNNER_ABORTED, NULL);
 	else if (rc < 0)
 		done(&run, RUNNER_FAILED, NULL);
-	else {
-		struct result_source src = {
-			.job = job->id, .scan_path = job->scan_path, .dir = job->result_dir,
-			.metadata = job->metadata,
-		};
-		char *result = NULL;
-		rc = result_build(&src, &run.jp, r->ic, &result, &run.err);
-		done(&run, rc < 0 ? RUNNER_FAILED : RUNNER_COMPLETED, result);
-	}
+	else
+		characterize(&run);
 	job_plan_release(&run.jp);
 }
 
@@ -318,11 +360,17 @@ int runner_new(const struct asph_instrument_config *instrument,
 
 	if (!r)
 		return -ENOMEM;
-	r->ic = instrument;
-	r->fn = fn;
-	r->data = data;
+	r->efd = -1;
 	pthread_mutex_init(&r->lock, NULL);
 	pthread_cond_init(&r->cond, NULL);
+	rc = asph_instrument_config_copy(instrument, &r->own, NULL);
+	if (rc < 0) {
+		runner_free(r);
+		return rc;
+	}
+	r->ic = &r->own->instruments[0];
+	r->fn = fn;
+	r->data = data;
 	r->efd = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
 	if (r->efd < 0) {
 		rc = -errno;
@@ -364,6 +412,7 @@ void runner_free(struct runner *r)
 		close(r->efd);
 	pthread_cond_destroy(&r->cond);
 	pthread_mutex_destroy(&r->lock);
+	asph_config_free(r->own);
 	free(r);
 }
 

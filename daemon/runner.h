@@ -16,11 +16,16 @@
 
 struct asph_instrument_config;
 
-/* What a worker needs for one job; every string is owned by the job. */
+/* The recorded scan's name in its job's folder. */
+#define RUNNER_SCAN_FILE "scan.asphscan"
+
+/* What a worker needs for one job; every string and dir_fd are owned by
+ * the job. */
 struct runner_job {
 	int64_t id;
 	char *spec;             /* the normalized submission (JSON) */
-	char *scan_path;        /* absolute */
+	int dir_fd;             /* the job's folder: its files go through it */
+	char *scan_path;        /* absolute, for messages and the scan's library */
 	char *result_dir;       /* absolute; exists */
 	char *metadata;         /* JSON for the scan header: job, submitter */
 	bool resume;            /* continue scan_path */
@@ -33,6 +38,7 @@ void runner_job_free(struct runner_job *j);
 enum runner_report_kind {
 	RUNNER_STARTED,         /* the plan is computed; total is known */
 	RUNNER_PROGRESS,
+	RUNNER_CHARACTERIZING,  /* the scan is recorded; the result is being made */
 	RUNNER_PAUSED,          /* the scan stopped at a point and waits */
 	RUNNER_RESUMED,
 	RUNNER_DONE,
@@ -41,7 +47,7 @@ enum runner_report_kind {
 enum runner_outcome {
 	RUNNER_COMPLETED,       /* result written */
 	RUNNER_FAILED,          /* reason says why; points kept */
-	RUNNER_ABORTED,         /* cancelled */
+	RUNNER_ABORTED,         /* cancelled (while measuring or characterizing) */
 	RUNNER_STOPPED,         /* daemon shutdown: the scan is resumable */
 };
 
@@ -62,7 +68,8 @@ typedef void (*runner_report_fn)(const struct runner_report *rep, void *data);
 struct runner;
 
 /*
- * A worker for an instrument (the configuration must outlive it); reports
+ * A worker for an instrument; it works on its own copy of the
+ * configuration, whose simulated part follows each job's lens. Reports
  * are delivered on event's thread to fn.
  */
 int runner_new(const struct asph_instrument_config *instrument,

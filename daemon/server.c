@@ -1,18 +1,23 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
- * Event loop thread. Non-blocking sockets, one JSON text per line in,
- * bounded output per client: a client whose output passes the limit is
- * dropped rather than waited for.
+ * Event loop thread. Non-blocking sockets, one JSON text per line in; the
+ * lines are answered by one deferred source ("work") that takes the
+ * clients with requests waiting in turn, first come first served, a slice
+ * of a few milliseconds each, so that one batch cannot hold the loop (or
+ * the watchdog) for longer than one request and every connection is
+ * served between two of its requests.
  */
 #include <arpa/inet.h>
 #include <errno.h>
 #include <fcntl.h>
+#include <malloc.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <sys/un.h>
+#include <time.h>
 #include <unistd.h>
 
 #include <systemd/sd-daemon.h>
@@ -21,6 +26,7 @@
 #include "asph-proto.h"
 #include "dirs.h"
 #include "log.h"
+#include "ratelimit.h"
 #include "server.h"
 #include "util-mem.h"
 
@@ -30,6 +36,17 @@
 #define READ_BUDGET (256 * 1024)
 /* TCP addresses listened on at once (a host name may have several). */
 #define MAX_TCP_LISTENERS 16
+/* One turn of a client's work: requests answered until this much time has
+ * passed (the one that passes it is finished), at most this many. */
+#define WORK_SLICE_USEC 2000
+#define WORK_SLICE_REQUESTS 64
+/* An output buffer this large is given back once it has drained, and the
+ * heap trimmed, so that a spike does not stay in the daemon's RSS. */
+#define OUT_KEEP_BYTES (256 * 1024)
+/* Accepting pauses this long when the process has no descriptor left,
+ * doubling up to the maximum while it lasts. */
+#define ACCEPT_BACKOFF_MIN_USEC 50000
+#define ACCEPT_BACKOFF_MAX_USEC 2000000
 
 struct client {
 	struct server *srv;
@@ -37,13 +54,22 @@ struct client {
 	struct rpc_session session;
 	uint64_t serial;
 	int fd;
+	bool tcp;
 	sd_event_source *io;
-	sd_event_source *timeout;       /* an incomplete request waits */
+	sd_event_source *timer;         /* the nearest of client_deadline() */
+	struct client *turn_next, *turn_prev;   /* waiting for its turn */
+	bool in_turn;
 	struct proto_lines in;
+	bool have_lines;                /* input not yet cut into lines */
+	struct rpc_line *line;          /* being answered */
 	char *out;                      /* pending output */
 	size_t out_off, out_len, out_cap;
 	bool closing;                   /* flush what is queued, then close */
 	bool eof;
+	uint64_t connected_usec;
+	uint64_t partial_usec;          /* since when an incomplete line waits, or 0 */
+	uint64_t request_usec;          /* the last line taken */
+	uint64_t stalled_usec;          /* since when output waits unread, or 0 */
 };
 
 struct listener {
@@ -61,14 +87,43 @@ struct server {
 	struct listener listeners[1 + MAX_TCP_LISTENERS];
 	size_t n_listeners;
 	char *socket_path;              /* bound by us: unlinked at the end */
+	char *tcp_listen;               /* as it was bound */
 	struct client *clients;
 	struct client *dead;            /* dropped, freed by the reaper */
 	sd_event_source *reaper;
+	/* The clients whose requests wait, in the order they came: work
+	 * answers the first for one slice, then puts it last if it has more. */
+	struct client *turns, *turns_last;
+	sd_event_source *work;
 	uint64_t next_serial;
 	bool refusing;
+	/* EMFILE: a descriptor kept to be given up, the pause, its log. */
+	int reserve_fd;
+	sd_event_source *accept_timer;
+	uint64_t accept_backoff;
+	struct ratelimit *log_limit;
 };
 
 static int reap(sd_event_source *s, void *data);
+static int accept_resume(sd_event_source *s, uint64_t usec, void *data);
+static int work(sd_event_source *s, void *data);
+
+static uint64_t now_usec(const struct server *srv)
+{
+	uint64_t now = 0;
+
+	sd_event_now(srv->event, CLOCK_MONOTONIC, &now);
+	return now;
+}
+
+/* The time now, not the loop's time of its last wake-up. */
+static uint64_t monotonic_usec(void)
+{
+	struct timespec ts;
+
+	clock_gettime(CLOCK_MONOTONIC, &ts);
+	return (uint64_t)ts.tv_sec * 1000000u + (uint64_t)ts.tv_nsec / 1000u;
+}
 
 int server_new(const struct server_setup *setup, struct server **out)
 {
@@ -80,12 +135,24 @@ int server_new(const struct server_setup *setup, struct server **out)
 	srv->event = setup->event;
 	srv->rpc = setup->rpc;
 	srv->limits = setup->limits;
-	r = sd_event_add_defer(srv->event, &srv->reaper, reap, srv);
+	srv->reserve_fd = open("/dev/null", O_RDONLY | O_CLOEXEC);
+	r = ratelimit_new(1, 10 * 1000000ull, 16, &srv->log_limit);
+	if (r == 0)
+		r = sd_event_add_defer(srv->event, &srv->reaper, reap, srv);
+	if (r == 0)
+		r = sd_event_add_defer(srv->event, &srv->work, work, srv);
+	if (r == 0)
+		r = sd_event_add_time(srv->event, &srv->accept_timer, CLOCK_MONOTONIC, UINT64_MAX,
+				      0, accept_resume, srv);
 	if (r < 0) {
-		free(srv);
+		server_free(srv);
 		return r;
 	}
 	sd_event_source_set_enabled(srv->reaper, SD_EVENT_OFF);
+	sd_event_source_set_enabled(srv->accept_timer, SD_EVENT_OFF);
+	/* Below the sockets: bytes in and out first, then the requests. */
+	sd_event_source_set_priority(srv->work, SD_EVENT_PRIORITY_NORMAL + 1);
+	sd_event_source_set_enabled(srv->work, SD_EVENT_OFF);
 	*out = srv;
 	return 0;
 }
@@ -105,13 +172,51 @@ static void client_unlink(struct client *c)
 	c->next = c->prev = NULL;
 }
 
+/* c waits for its turn (nothing when it waits already). */
+static void turn_queue(struct client *c)
+{
+	struct server *srv = c->srv;
+
+	if (c->in_turn)
+		return;
+	c->in_turn = true;
+	c->turn_next = NULL;
+	c->turn_prev = srv->turns_last;
+	if (srv->turns_last)
+		srv->turns_last->turn_next = c;
+	else
+		srv->turns = c;
+	srv->turns_last = c;
+	sd_event_source_set_enabled(srv->work, SD_EVENT_ONESHOT);
+}
+
+static void turn_remove(struct client *c)
+{
+	struct server *srv = c->srv;
+
+	if (!c->in_turn)
+		return;
+	if (c->turn_prev)
+		c->turn_prev->turn_next = c->turn_next;
+	else
+		srv->turns = c->turn_next;
+	if (c->turn_next)
+		c->turn_next->turn_prev = c->turn_prev;
+	else
+		srv->turns_last = c->turn_prev;
+	c->turn_next = c->turn_prev = NULL;
+	c->in_turn = false;
+}
+
 static void client_free(struct client *c)
 {
 	if (!c)
 		return;
+	turn_remove(c);
+	rpc_line_free(c->line);
 	rpc_session_close(c->srv->rpc, &c->session);
 	sd_event_source_disable_unref(c->io);
-	sd_event_source_disable_unref(c->timeout);
+	sd_event_source_disable_unref(c->timer);
 	if (c->fd >= 0)
 		close(c->fd);
 	proto_lines_release(&c->in);
@@ -147,10 +252,13 @@ static void client_drop(struct client *c, const char *why)
 		return;
 	log_debug("client %" PRIu64 " (%s) dropped: %s", c->serial, c->session.peer.name, why);
 	sd_event_source_set_enabled(c->io, SD_EVENT_OFF);
-	sd_event_source_set_enabled(c->timeout, SD_EVENT_OFF);
+	sd_event_source_set_enabled(c->timer, SD_EVENT_OFF);
+	turn_remove(c);
 	close(c->fd);
 	c->fd = -1;
 	client_unlink(c);
+	rpc_line_free(c->line);
+	c->line = NULL;
 	rpc_session_close(srv->rpc, &c->session);
 	c->next = srv->dead;
 	srv->dead = c;
@@ -162,26 +270,92 @@ static bool client_dead(const struct client *c)
 	return c->fd < 0;
 }
 
-static void update_events(struct client *c)
+static size_t output_pending(const struct client *c)
 {
-	uint32_t ev = 0;
+	return c->out_len - c->out_off;
+}
+
+/* Unread output this large holds the client's next request back. */
+static bool output_blocked(const struct client *c)
+{
+	return output_pending(c) >= c->srv->limits->max_output_bytes / 2;
+}
+
+static bool work_pending(const struct client *c)
+{
+	return !c->closing && (c->line || c->have_lines || (c->eof && c->partial_usec));
+}
+
+/* ------------------------------------------------------------ timers */
+
+enum deadline {
+	DEADLINE_NONE,
+	DEADLINE_PARTIAL,       /* an incomplete request waits */
+	DEADLINE_OUTPUT,        /* the client does not read its output */
+	DEADLINE_AUTH,          /* a TCP client has not sent the token */
+	DEADLINE_IDLE,          /* nothing sent, nothing subscribed */
+};
+
+static void nearest(enum deadline *which, uint64_t *at, enum deadline d, uint64_t t)
+{
+	if (t < *at) {
+		*at = t;
+		*which = d;
+	}
+}
+
+/* The first thing c is waiting too long for, and when it is due. */
+static enum deadline client_deadline(const struct client *c, uint64_t *at)
+{
+	const struct settings_limits *l = c->srv->limits;
+	enum deadline which = DEADLINE_NONE;
+
+	*at = UINT64_MAX;
+	if (c->partial_usec)
+		nearest(&which, at, DEADLINE_PARTIAL,
+			c->partial_usec + (uint64_t)l->request_timeout_ms * 1000);
+	if (c->stalled_usec)
+		nearest(&which, at, DEADLINE_OUTPUT,
+			c->stalled_usec + (uint64_t)l->request_timeout_ms * 1000);
+	if (c->tcp && !c->session.authenticated)
+		nearest(&which, at, DEADLINE_AUTH,
+			c->connected_usec + (uint64_t)l->auth_timeout_ms * 1000);
+	if (l->idle_timeout_ms && !c->session.events.classes && !c->line && !c->have_lines)
+		nearest(&which, at, DEADLINE_IDLE,
+			c->request_usec + (uint64_t)l->idle_timeout_ms * 1000);
+	return which;
+}
+
+/* The timer fires at the nearest deadline or before it: one armed
+ * earlier is left (client_timer() looks again when it fires), so that a
+ * busy client does not move it at every request. */
+static void arm_timer(struct client *c)
+{
+	uint64_t at, armed;
+	int on;
 
 	if (client_dead(c))
 		return;
-	if (!c->closing && !c->eof)
-		ev |= EPOLLIN;
-	if (c->out_len > c->out_off)
-		ev |= EPOLLOUT;
-	if (!ev) {
-		/* Nothing more to read or write. */
-		client_drop(c, c->closing ? "closed" : "end of input");
+	if (client_deadline(c, &at) == DEADLINE_NONE) {
+		sd_event_source_set_enabled(c->timer, SD_EVENT_OFF);
 		return;
 	}
-	sd_event_source_set_io_events(c->io, ev);
+	on = sd_event_source_get_enabled(c->timer, NULL);
+	if (on > 0 && sd_event_source_get_time(c->timer, &armed) >= 0 && armed <= at)
+		return;
+	sd_event_source_set_time(c->timer, at);
+	sd_event_source_set_enabled(c->timer, SD_EVENT_ONESHOT);
 }
+
+/* ------------------------------------------------------------ output */
+
+static void update_events(struct client *c);
+static void client_turn(struct client *c);
 
 static int flush_output(struct client *c)
 {
+	size_t before = output_pending(c);
+
 	while (c->out_len > c->out_off) {
 		ssize_t n = send(c->fd, c->out + c->out_off, c->out_len - c->out_off,
 				 MSG_NOSIGNAL | MSG_DONTWAIT);
@@ -195,8 +369,21 @@ static int flush_output(struct client *c)
 		}
 		c->out_off += (size_t)n;
 	}
-	if (c->out_off == c->out_len)
+	if (c->out_off == c->out_len) {
 		c->out_off = c->out_len = 0;
+		if (c->out_cap > OUT_KEEP_BYTES) {
+			/* A spike's buffer goes back to the system. */
+			free(c->out);
+			c->out = NULL;
+			c->out_cap = 0;
+			malloc_trim(0);
+		}
+	}
+	/* Output that waits counts from when the client last took some. */
+	if (!output_pending(c))
+		c->stalled_usec = 0;
+	else if (!c->stalled_usec || output_pending(c) < before)
+		c->stalled_usec = now_usec(c->srv);
 	update_events(c);
 	return 0;
 }
@@ -221,18 +408,32 @@ static int out_reserve(struct client *c, size_t n)
 	return 0;
 }
 
-/* jansson writes the text straight into the output buffer. */
-static int out_append(const char *buf, size_t n, void *data)
+static int out_put(struct client *c, const char *buf, size_t n)
 {
-	struct client *c = data;
-
-	if (c->out_len - c->out_off + n > c->srv->limits->max_output_bytes)
-		return -1;
 	if (out_reserve(c, n) < 0)
 		return -1;
 	memcpy(c->out + c->out_len, buf, n);
 	c->out_len += n;
 	return 0;
+}
+
+/* An answer: its size is bounded by the work that made it (one request
+ * taken only under half of max_output_bytes), not refused here. */
+static int out_answer(const char *buf, size_t n, void *data)
+{
+	struct client *c = data;
+
+	return client_dead(c) ? -1 : out_put(c, buf, n);
+}
+
+/* A notification or an error of the transport: refused past the limit. */
+static int out_message(const char *buf, size_t n, void *data)
+{
+	struct client *c = data;
+
+	if (output_pending(c) + n > c->srv->limits->max_output_bytes)
+		return -1;
+	return out_put(c, buf, n);
 }
 
 /* Queues a message to c; drops c when its output would pass the limit.
@@ -244,10 +445,10 @@ static int client_send(struct client *c, const json_t *msg)
 	if (client_dead(c))
 		return -ECONNRESET;
 	start = c->out_len;
-	if (json_dump_callback(msg, out_append, c, JSON_COMPACT) < 0 ||
-	    out_append("\n", 1, c) < 0) {
+	if (json_dump_callback(msg, out_message, c, JSON_COMPACT) < 0 ||
+	    out_message("\n", 1, c) < 0) {
 		/* Either the limit or memory: the client goes. */
-		if (c->out_len - c->out_off > c->srv->limits->max_output_bytes / 2)
+		if (output_pending(c) > c->srv->limits->max_output_bytes / 2)
 			log_info("client %" PRIu64 " (%s) does not read its output: dropped",
 				 c->serial, c->session.peer.name);
 		c->out_len = start < c->out_off ? c->out_off : start;
@@ -266,61 +467,115 @@ static void send_error(struct client *c, int code, const char *detail)
 		client_send(c, e);
 }
 
-static void handle_line(struct client *c, const char *line, size_t len)
+/* ------------------------------------------------------------ input */
+
+static void update_events(struct client *c)
 {
-	_cleanup_(json_decrefp) json_t *reply = rpc_handle_line(c->srv->rpc, &c->session,
-								line, len);
+	uint32_t ev = 0;
 
-	if (reply && !client_dead(c))
-		client_send(c, reply);
-}
-
-static int request_timeout(sd_event_source *s, uint64_t usec, void *data)
-{
-	struct client *c = data;
-
-	send_error(c, PROTO_REQUEST_TIMEOUT, "an incomplete request waited too long");
-	if (!client_dead(c)) {
-		c->closing = true;
-		update_events(c);
-	}
-	return 0;
-}
-
-static void arm_timeout(struct client *c)
-{
-	bool pending = proto_lines_pending(&c->in) > 0;
-	uint64_t now;
-
-	if (!pending) {
-		sd_event_source_set_enabled(c->timeout, SD_EVENT_OFF);
+	if (client_dead(c))
+		return;
+	if (!c->closing && !c->eof && !c->line && !c->have_lines)
+		ev |= EPOLLIN;
+	if (c->out_len > c->out_off)
+		ev |= EPOLLOUT;
+	if (!ev && !work_pending(c)) {
+		/* Nothing more to read, answer or write. */
+		client_drop(c, c->closing ? "closed" : "end of input");
 		return;
 	}
-	if (sd_event_source_get_enabled(c->timeout, NULL) > 0)
-		return;
-	sd_event_now(c->srv->event, CLOCK_MONOTONIC, &now);
-	sd_event_source_set_time(c->timeout,
-		now + (uint64_t)c->srv->limits->request_timeout_ms * 1000);
-	sd_event_source_set_enabled(c->timeout, SD_EVENT_ONESHOT);
+	sd_event_source_set_io_events(c->io, ev ? ev : EPOLLOUT);
+	sd_event_source_set_enabled(c->io, ev ? SD_EVENT_ON : SD_EVENT_OFF);
+	if (work_pending(c) && !output_blocked(c))
+		turn_queue(c);
+	arm_timer(c);
 }
 
-/* The complete lines read so far, each handled. */
-static void handle_lines(struct client *c)
+/* Takes the next complete line: 1 with c->line, 0 when there is none. */
+static int take_line(struct client *c)
 {
 	char *line;
 	size_t len;
 	int r;
 
-	while (!client_dead(c) && (r = proto_lines_next(&c->in, &line, &len)) != 0) {
-		if (r == -EMSGSIZE) {
-			char why[96];
-			snprintf(why, sizeof(why), "a request is longer than %u bytes",
-				 c->srv->limits->max_request_bytes);
-			send_error(c, PROTO_REQUEST_TOO_LARGE, why);
-			continue;
-		}
-		handle_line(c, line, len);
+	while ((r = proto_lines_next(&c->in, &line, &len)) == -EMSGSIZE) {
+		char why[96];
+		snprintf(why, sizeof(why), "a request is longer than %u bytes",
+			 c->srv->limits->max_request_bytes);
+		send_error(c, PROTO_REQUEST_TOO_LARGE, why);
+		if (client_dead(c))
+			return 0;
 	}
+	if (r == 0) {
+		c->have_lines = false;
+		c->partial_usec = proto_lines_pending(&c->in) == 0 ? 0
+				: c->partial_usec ? c->partial_usec : now_usec(c->srv);
+		return 0;
+	}
+	c->request_usec = now_usec(c->srv);
+	if (rpc_line_new(c->srv->rpc, &c->session, line, len, &c->line) < 0) {
+		client_drop(c, "out of memory");
+		return 0;
+	}
+	return 1;
+}
+
+/* The input ended: what is left of a line is refused. */
+static void end_of_input(struct client *c)
+{
+	send_error(c, PROTO_PARSE_ERROR, "the input ended inside a request");
+	if (client_dead(c))
+		return;
+	proto_lines_release(&c->in);
+	proto_lines_init(&c->in, c->srv->limits->max_request_bytes);
+	c->partial_usec = 0;
+}
+
+/* One turn: the requests of c's lines, for about WORK_SLICE_USEC. */
+static void client_turn(struct client *c)
+{
+	uint64_t start = monotonic_usec();
+	int n = 0, r;
+
+	while (!client_dead(c) && !c->closing && !output_blocked(c) &&
+	       n < WORK_SLICE_REQUESTS) {
+		if (!c->line && (!c->have_lines || !take_line(c)))
+			break;
+		r = rpc_line_step(c->line, out_answer, c);
+		if (r <= 0) {
+			rpc_line_free(c->line);
+			c->line = NULL;
+		}
+		if (r < 0) {
+			client_drop(c, r == -ENOMEM ? "out of memory" : "connection lost");
+			return;
+		}
+		n++;
+		if (monotonic_usec() - start > WORK_SLICE_USEC)
+			break;
+	}
+	if (client_dead(c))
+		return;
+	if (c->eof && !c->line && !c->have_lines && c->partial_usec)
+		end_of_input(c);
+	if (!client_dead(c))
+		flush_output(c);
+}
+
+/* The first client waiting gets its turn; it waits again, last, when it
+ * has more (flush_output() queues it through update_events()). */
+static int work(sd_event_source *s, void *data)
+{
+	struct server *srv = data;
+	struct client *c = srv->turns;
+
+	if (c) {
+		turn_remove(c);
+		client_turn(c);
+	}
+	if (srv->turns)
+		sd_event_source_set_enabled(srv->work, SD_EVENT_ONESHOT);
+	return 0;
 }
 
 static void read_input(struct client *c)
@@ -349,22 +604,22 @@ static void read_input(struct client *c)
 		}
 		budget -= (size_t)n < budget ? (size_t)n : budget;
 		proto_lines_commit(&c->in, (size_t)n);
+		c->have_lines = true;
 		/* A short read drained the socket: no second recv() just to
 		 * hear EAGAIN (the loop calls again when more arrives). */
 		if ((size_t)n < READ_CHUNK)
-			budget = 0;
-		handle_lines(c);
+			break;
 	}
 	if (client_dead(c))
 		return;
-	if (c->eof && proto_lines_pending(&c->in) > 0) {
-		send_error(c, PROTO_PARSE_ERROR, "the input ended inside a request");
-		proto_lines_release(&c->in);
-		proto_lines_init(&c->in, c->srv->limits->max_request_bytes);
-	}
-	if (client_dead(c))
+	if (c->eof && !c->have_lines && !c->line && proto_lines_pending(&c->in) > 0)
+		c->partial_usec = c->partial_usec ? c->partial_usec : now_usec(c->srv);
+	/* Nobody waits for a turn: this one is taken now (a turn is the
+	 * same whether it starts here or from work()). */
+	if (!c->srv->turns && work_pending(c) && !output_blocked(c)) {
+		client_turn(c);
 		return;
-	arm_timeout(c);
+	}
 	update_events(c);
 }
 
@@ -374,8 +629,46 @@ static int client_io(sd_event_source *s, int fd, uint32_t revents, void *data)
 
 	if (revents & EPOLLOUT)
 		flush_output(c);
-	if (!client_dead(c) && (revents & (EPOLLIN | EPOLLHUP | EPOLLERR)))
+	if (!client_dead(c) && (revents & (EPOLLIN | EPOLLHUP | EPOLLERR)) &&
+	    !c->line && !c->have_lines)
 		read_input(c);
+	return 0;
+}
+
+static int client_timer(sd_event_source *s, uint64_t usec, void *data)
+{
+	struct client *c = data;
+	uint64_t at;
+	enum deadline which = client_deadline(c, &at);
+
+	if (at > now_usec(c->srv)) {
+		arm_timer(c);
+		return 0;
+	}
+	switch (which) {
+	case DEADLINE_PARTIAL:
+		send_error(c, PROTO_REQUEST_TIMEOUT, "an incomplete request waited too long");
+		break;
+	case DEADLINE_OUTPUT:
+		log_info("client %" PRIu64 " (%s) does not read its output: dropped",
+			 c->serial, c->session.peer.name);
+		client_drop(c, "output not read");
+		return 0;
+	case DEADLINE_AUTH:
+		send_error(c, PROTO_REQUEST_TIMEOUT, "no hello with the token in time "
+			   "(limits.auth_timeout_ms)");
+		break;
+	case DEADLINE_IDLE:
+		send_error(c, PROTO_REQUEST_TIMEOUT, "no request for limits.idle_timeout_ms");
+		break;
+	case DEADLINE_NONE:
+		return 0;
+	}
+	if (!client_dead(c)) {
+		c->closing = true;
+		c->partial_usec = 0;
+		update_events(c);
+	}
 	return 0;
 }
 
@@ -402,6 +695,38 @@ static void peer_groups(int fd, struct peer *p)
 	}
 }
 
+/* A TCP peer: its address, and its key (an IPv6 address by its /64). */
+static void tcp_identity(int fd, struct peer *p)
+{
+	struct sockaddr_storage sa = { 0 };
+	socklen_t len = sizeof(sa);
+	char host[INET6_ADDRSTRLEN] = "?";
+
+	p->uid = (uid_t)-1;
+	p->gid = (gid_t)-1;
+	if (getpeername(fd, (struct sockaddr *)&sa, &len) == 0) {
+		if (sa.ss_family == AF_INET6) {
+			struct in6_addr a = ((struct sockaddr_in6 *)&sa)->sin6_addr;
+			if (IN6_IS_ADDR_V4MAPPED(&a)) {
+				inet_ntop(AF_INET, &a.s6_addr[12], host, sizeof(host));
+				snprintf(p->key, sizeof(p->key), "tcp %s", host);
+			} else {
+				inet_ntop(AF_INET6, &a, host, sizeof(host));
+				memset(&a.s6_addr[8], 0, 8);
+				char prefix[INET6_ADDRSTRLEN];
+				inet_ntop(AF_INET6, &a, prefix, sizeof(prefix));
+				snprintf(p->key, sizeof(p->key), "tcp %s/64", prefix);
+			}
+		} else if (sa.ss_family == AF_INET) {
+			inet_ntop(AF_INET, &((struct sockaddr_in *)&sa)->sin_addr, host, sizeof(host));
+			snprintf(p->key, sizeof(p->key), "tcp %s", host);
+		}
+	}
+	if (!p->key[0])
+		snprintf(p->key, sizeof(p->key), "tcp ?");
+	snprintf(p->name, sizeof(p->name), "tcp %s", host);
+}
+
 static void peer_identity(int fd, bool tcp, struct peer *p)
 {
 	struct ucred cred;
@@ -409,15 +734,14 @@ static void peer_identity(int fd, bool tcp, struct peer *p)
 
 	p->tcp = tcp;
 	if (tcp) {
-		p->uid = (uid_t)-1;
-		p->gid = (gid_t)-1;
-		snprintf(p->name, sizeof(p->name), "tcp peer");
+		tcp_identity(fd, p);
 		return;
 	}
 	if (getsockopt(fd, SOL_SOCKET, SO_PEERCRED, &cred, &len) < 0) {
 		p->uid = (uid_t)-1;
 		p->gid = (gid_t)-1;
 		snprintf(p->name, sizeof(p->name), "unknown");
+		snprintf(p->key, sizeof(p->key), "uid ?");
 		return;
 	}
 	p->uid = cred.uid;
@@ -426,13 +750,14 @@ static void peer_identity(int fd, bool tcp, struct peer *p)
 	peer_groups(fd, p);
 	if (account_user_name(cred.uid, p->name, sizeof(p->name)) < 0)
 		snprintf(p->name, sizeof(p->name), "uid %u", (unsigned)cred.uid);
+	snprintf(p->key, sizeof(p->key), "uid %u", (unsigned)cred.uid);
 }
 
 /* A connection that cannot be taken gets the reason and is closed. */
-static void refuse(struct server *srv, int fd)
+static void refuse(struct server *srv, int fd, int code, const char *detail)
 {
-	_cleanup_(json_decrefp) json_t *e = proto_make_error(NULL,
-		srv->refusing ? PROTO_SHUTTING_DOWN : PROTO_TOO_MANY_CLIENTS, NULL, NULL);
+	_cleanup_(json_decrefp) json_t *e = proto_make_error(NULL, code, NULL,
+		detail ? json_pack("{s:s}", "detail", detail) : NULL);
 	_cleanup_free_ char *t = proto_dump(e, NULL);
 
 	if (t && send(fd, t, strlen(t), MSG_NOSIGNAL | MSG_DONTWAIT) < 0)
@@ -440,46 +765,166 @@ static void refuse(struct server *srv, int fd)
 	close(fd);
 }
 
-static int on_accept(sd_event_source *s, int fd, uint32_t revents, void *data)
+static size_t connections_of(const struct server *srv, const char *key)
 {
-	const struct listener *l = data;
-	struct server *srv = l->srv;
-	struct client *c;
-	int cfd;
+	size_t n = 0;
 
-	cfd = accept4(fd, NULL, NULL, SOCK_NONBLOCK | SOCK_CLOEXEC);
-	if (cfd < 0) {
-		if (errno != EAGAIN && errno != EINTR)
-			log_warning("accept: %s", strerror(errno));
-		return 0;
+	for (const struct client *c = srv->clients; c; c = c->next)
+		if (!strcmp(c->session.peer.key, key))
+			n++;
+	return n;
+}
+
+/* Why p may not connect now (into why), or false when it may. */
+static bool refused(const struct server *srv, const struct peer *p, char *why, size_t size)
+{
+	const struct settings_limits *l = srv->limits;
+	size_t n = rpc_sessions(srv->rpc);
+
+	if (n >= l->max_clients) {
+		snprintf(why, size, "%zu clients are connected, limits.max_clients", n);
+		return true;
 	}
-	if (srv->refusing || rpc_sessions(srv->rpc) >= srv->limits->max_clients) {
-		refuse(srv, cfd);
-		return 0;
+	if (n + l->reserved_clients >= l->max_clients && !rpc_peer_operator(srv->rpc, p)) {
+		snprintf(why, size, "the last %u of limits.max_clients (%u) are kept for root "
+			 "and operators", l->reserved_clients, l->max_clients);
+		return true;
 	}
-	c = calloc(1, sizeof(*c));
+	if (!p->tcp && p->uid == 0)
+		return false;
+	n = connections_of(srv, p->key);
+	if (n >= l->max_clients_per_user) {
+		snprintf(why, size, "%s has %zu connections, limits.max_clients_per_user", p->key, n);
+		return true;
+	}
+	return false;
+}
+
+/* At most one line of key's every 10 s, saying how many were left out. */
+static void log_limited(struct server *srv, const char *key, const char *what)
+{
+	unsigned left_out = 0;
+
+	if (!ratelimit_take(srv->log_limit, key, now_usec(srv), &left_out))
+		return;
+	if (left_out)
+		log_warning("%s (and %u such message(s) left out)", what, left_out);
+	else
+		log_warning("%s", what);
+}
+
+static void pause_accepting(struct server *srv, bool pause)
+{
+	for (size_t i = 0; i < srv->n_listeners; i++)
+		if (srv->listeners[i].src)
+			sd_event_source_set_enabled(srv->listeners[i].src,
+						    pause ? SD_EVENT_OFF : SD_EVENT_ON);
+}
+
+static int accept_resume(sd_event_source *s, uint64_t usec, void *data)
+{
+	pause_accepting(data, false);
+	return 0;
+}
+
+/*
+ * No descriptor left (EMFILE, ENFILE): the connection waiting would wake
+ * the loop again at once, for ever. The descriptor kept in reserve is
+ * given up to take it and tell it why, and accepting pauses a while.
+ */
+static void out_of_descriptors(struct server *srv, int listen_fd, int err)
+{
+	char what[128];
+
+	if (srv->reserve_fd >= 0) {
+		close(srv->reserve_fd);
+		int fd = accept4(listen_fd, NULL, NULL, SOCK_NONBLOCK | SOCK_CLOEXEC);
+		if (fd >= 0)
+			refuse(srv, fd, PROTO_TOO_MANY_CLIENTS,
+			       "the daemon has no file descriptor left (LimitNOFILE=)");
+		srv->reserve_fd = open("/dev/null", O_RDONLY | O_CLOEXEC);
+	}
+	srv->accept_backoff = srv->accept_backoff ? 2 * srv->accept_backoff
+						  : ACCEPT_BACKOFF_MIN_USEC;
+	if (srv->accept_backoff > ACCEPT_BACKOFF_MAX_USEC)
+		srv->accept_backoff = ACCEPT_BACKOFF_MAX_USEC;
+	pause_accepting(srv, true);
+	sd_event_source_set_time(srv->accept_timer, now_usec(srv) + srv->accept_backoff);
+	sd_event_source_set_enabled(srv->accept_timer, SD_EVENT_ONESHOT);
+	snprintf(what, sizeof(what), "accept: %s: new connections wait %.2f s",
+		 strerror(err), (double)srv->accept_backoff / 1e6);
+	log_limited(srv, "accept", what);
+}
+
+/* A client for cfd and p (taking both, even when it fails). */
+static struct client *client_new(struct server *srv, int cfd, bool tcp, struct peer *p)
+{
+	struct client *c = calloc(1, sizeof(*c));
+
 	if (!c) {
 		close(cfd);
-		return 0;
+		free(p->groups);
+		return NULL;
 	}
 	c->srv = srv;
 	c->fd = cfd;
+	c->tcp = tcp;
 	c->serial = ++srv->next_serial;
+	c->connected_usec = c->request_usec = now_usec(srv);
 	proto_lines_init(&c->in, srv->limits->max_request_bytes);
-	peer_identity(cfd, l->tcp, &c->session.peer);
-	c->session.authenticated = !l->tcp;
+	c->session.peer = *p;
+	c->session.authenticated = !tcp;
 	rpc_session_open(srv->rpc, &c->session);
 	c->next = srv->clients;
 	if (srv->clients)
 		srv->clients->prev = c;
 	srv->clients = c;
 	if (sd_event_add_io(srv->event, &c->io, cfd, EPOLLIN, client_io, c) < 0 ||
-	    sd_event_add_time(srv->event, &c->timeout, CLOCK_MONOTONIC, UINT64_MAX, 0,
-			      request_timeout, c) < 0) {
+	    sd_event_add_time(srv->event, &c->timer, CLOCK_MONOTONIC, UINT64_MAX, 0,
+			      client_timer, c) < 0) {
 		client_drop(c, "out of memory");
+		return NULL;
+	}
+	arm_timer(c);
+	return c;
+}
+
+static int on_accept(sd_event_source *s, int fd, uint32_t revents, void *data)
+{
+	const struct listener *l = data;
+	struct server *srv = l->srv;
+	struct peer p = { 0 };
+	struct client *c;
+	char why[160];
+	int cfd;
+
+	cfd = accept4(fd, NULL, NULL, SOCK_NONBLOCK | SOCK_CLOEXEC);
+	if (cfd < 0) {
+		if (errno == EMFILE || errno == ENFILE) {
+			out_of_descriptors(srv, fd, errno);
+		} else if (errno != EAGAIN && errno != EINTR) {
+			snprintf(why, sizeof(why), "accept: %s", strerror(errno));
+			log_limited(srv, "accept", why);
+		}
 		return 0;
 	}
-	sd_event_source_set_enabled(c->timeout, SD_EVENT_OFF);
+	srv->accept_backoff = 0;
+	if (srv->refusing) {
+		refuse(srv, cfd, PROTO_SHUTTING_DOWN, NULL);
+		return 0;
+	}
+	peer_identity(cfd, l->tcp, &p);
+	if (refused(srv, &p, why, sizeof(why))) {
+		char what[256];
+		snprintf(what, sizeof(what), "refused a connection of %.63s: %.160s", p.name, why);
+		log_limited(srv, p.key, what);
+		free(p.groups);
+		refuse(srv, cfd, PROTO_TOO_MANY_CLIENTS, why);
+		return 0;
+	}
+	c = client_new(srv, cfd, l->tcp, &p);
+	if (!c)
+		return 0;
 	log_debug("client %" PRIu64 " connected: %s (uid %d, pid %d)", c->serial,
 		  c->session.peer.name, (int)c->session.peer.uid, (int)c->session.peer.pid);
 	return 0;
@@ -509,31 +954,26 @@ void server_notify(const struct event *ev, void *data)
 	}
 }
 
-/* -------------------------------------------------------------- listen */
-
-/* The directory of the socket must not be writable by other users, or
- * anyone could replace the socket. */
-static int check_socket_dir(const char *path)
+void server_revalidate(struct server *srv)
 {
-	_cleanup_free_ char *dir = strdup(path);
-	char *slash;
-	struct stat st;
+	struct client *c, *next;
 
-	if (!dir)
-		return -ENOMEM;
-	slash = strrchr(dir, '/');
-	if (!slash)
-		return 0;
-	*(slash == dir ? slash + 1 : slash) = '\0';
-	if (stat(dir, &st) < 0) {
-		if (errno != ENOENT)
-			return -errno;
-		if (mkdir(dir, 0755) < 0 && errno != EEXIST)
-			return -errno;
-		return 0;
+	for (c = srv->clients; c; c = next) {
+		next = c->next;
+		if (client_dead(c) || rpc_session_valid(srv->rpc, &c->session))
+			continue;
+		log_info("client %" PRIu64 " (%s): its token was changed or removed: "
+			 "disconnected", c->serial, c->session.peer.name);
+		send_error(c, PROTO_PERMISSION_DENIED, "the token this connection sent was "
+			   "changed or removed: connect again with the new one");
+		if (!client_dead(c)) {
+			c->closing = true;
+			update_events(c);
+		}
 	}
-	return dirs_check_private(dir, &st, true, "to put the socket there");
 }
+
+/* -------------------------------------------------------------- listen */
 
 static struct listener *add_listener(struct server *srv, int fd, bool tcp, bool activated)
 {
@@ -562,6 +1002,33 @@ static void socket_access(const struct settings *s, const char *path)
 		log_warning("chmod %s: %s", path, strerror(errno));
 }
 
+/*
+ * A socket file left by a daemon that died is replaced; a live one is not,
+ * and nothing that is not a socket is ever removed (--socket names a path
+ * that may be anything).
+ */
+static int clear_socket_path(const struct sockaddr_un *sa)
+{
+	const char *path = sa->sun_path;
+	_cleanup_close_ int probe = -1;
+	struct stat st;
+
+	if (lstat(path, &st) < 0)
+		return errno == ENOENT ? 0 : -errno;
+	if (!S_ISSOCK(st.st_mode)) {
+		log_error("%s exists and is not a socket: refusing to remove it", path);
+		return -EEXIST;
+	}
+	probe = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
+	if (probe >= 0 && connect(probe, (const struct sockaddr *)sa, sizeof(*sa)) == 0) {
+		log_error("another daemon listens on %s", path);
+		return -EADDRINUSE;
+	}
+	if (unlink(path) < 0 && errno != ENOENT)
+		return -errno;
+	return 0;
+}
+
 static int bind_unix(struct server *srv, const struct settings *s)
 {
 	struct sockaddr_un sa = { .sun_family = AF_UNIX };
@@ -573,23 +1040,16 @@ static int bind_unix(struct server *srv, const struct settings *s)
 		log_error("socket path %s is too long", path);
 		return -ENAMETOOLONG;
 	}
-	r = check_socket_dir(path);
+	r = dirs_check_socket_dir(path);
 	if (r < 0)
 		return r;
 	memcpy(sa.sun_path, path, strlen(path));
 	fd = socket(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
 	if (fd < 0)
 		return -errno;
-	/* A socket file left by a daemon that died is replaced; a live one
-	 * is not. */
-	{
-		_cleanup_close_ int probe = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
-		if (probe >= 0 && connect(probe, (struct sockaddr *)&sa, sizeof(sa)) == 0) {
-			log_error("another daemon listens on %s", path);
-			return -EADDRINUSE;
-		}
-	}
-	unlink(path);
+	r = clear_socket_path(&sa);
+	if (r < 0)
+		return r;
 	mode_t old = umask(0777 & ~s->socket_mode);
 	r = bind(fd, (struct sockaddr *)&sa, sizeof(sa));
 	umask(old);
@@ -683,10 +1143,10 @@ static bool has_unix(const struct server *srv)
 	return false;
 }
 
-static bool has_tcp(const struct server *srv)
+static bool has_tcp(const struct server *srv, bool activated)
 {
 	for (size_t i = 0; i < srv->n_listeners; i++)
-		if (srv->listeners[i].tcp)
+		if (srv->listeners[i].tcp && srv->listeners[i].activated == activated)
 			return true;
 	return false;
 }
@@ -726,7 +1186,7 @@ int server_listen(struct server *srv, const struct settings *s, const struct add
 	take_activated(srv, s);
 	/* The unix socket last: once it answers, everything listens, and a
 	 * bad TCP setting leaves no socket behind. */
-	if (s->tcp_listen && !has_tcp(srv)) {
+	if (s->tcp_listen && !has_tcp(srv, true)) {
 		r = bind_tcp_all(srv, s, tcp);
 		if (r < 0)
 			return r;
@@ -742,7 +1202,65 @@ int server_listen(struct server *srv, const struct settings *s, const struct add
 		if (r < 0)
 			return r;
 	}
-	return 0;
+	srv->tcp_listen = s->tcp_listen ? strdup(s->tcp_listen) : NULL;
+	return s->tcp_listen && !srv->tcp_listen ? -ENOMEM : 0;
+}
+
+/* ------------------------------------------------------------- reload */
+
+int server_check_reload(const struct server *srv, const struct settings *s, char *why,
+			size_t size)
+{
+	/* Listening on a new address needs a restart; ceasing to does not. */
+	if (!s->tcp_listen || has_tcp(srv, true))
+		return 0;
+	if (srv->tcp_listen && !strcmp(srv->tcp_listen, s->tcp_listen))
+		return 0;
+	snprintf(why, size, "tcp_listen (from %s to %s)", srv->tcp_listen ? srv->tcp_listen : "off",
+		 s->tcp_listen);
+	return -EBUSY;
+}
+
+static void close_tcp(struct server *srv)
+{
+	struct client *c, *next;
+	size_t k = 0;
+
+	for (size_t i = 0; i < srv->n_listeners; i++) {
+		struct listener *l = &srv->listeners[i];
+		if (!l->tcp) {
+			srv->listeners[k++] = *l;
+			continue;
+		}
+		sd_event_source_disable_unref(l->src);
+		close(l->fd);
+	}
+	srv->n_listeners = k;
+	/* The sources point at their listener: the array moved. */
+	for (size_t i = 0; i < srv->n_listeners; i++)
+		if (srv->listeners[i].src)
+			sd_event_source_set_userdata(srv->listeners[i].src, &srv->listeners[i]);
+	for (c = srv->clients; c; c = next) {
+		next = c->next;
+		if (!c->tcp)
+			continue;
+		send_error(c, PROTO_SHUTTING_DOWN, "the TCP listener was turned off");
+		client_drop(c, "TCP turned off");
+	}
+	free(srv->tcp_listen);
+	srv->tcp_listen = NULL;
+	log_info("TCP listener closed (tcp_listen and token_file removed)");
+}
+
+void server_reload(struct server *srv, const struct settings *s)
+{
+	if (srv->socket_path)
+		socket_access(s, srv->socket_path);
+	else if (s->socket_group || s->socket_mode != 0660)
+		log_notice("socket_mode and socket_group apply to a socket asphd binds itself; "
+			   "systemd's (asphd.socket: SocketMode=, SocketGroup=) keeps its own");
+	if (!s->token_file && (has_tcp(srv, false) || has_tcp(srv, true)))
+		close_tcp(srv);
 }
 
 int server_resolve_tcp(const char *host, const char *port, struct addrinfo **out,
@@ -764,6 +1282,8 @@ void server_free(struct server *srv)
 	free_list(srv->clients);
 	free_list(srv->dead);
 	sd_event_source_disable_unref(srv->reaper);
+	sd_event_source_disable_unref(srv->work);
+	sd_event_source_disable_unref(srv->accept_timer);
 	for (size_t i = 0; i < srv->n_listeners; i++) {
 		struct listener *l = &srv->listeners[i];
 		sd_event_source_disable_unref(l->src);
@@ -771,6 +1291,10 @@ void server_free(struct server *srv)
 		if (!l->tcp && !l->activated && srv->socket_path)
 			unlink(srv->socket_path);
 	}
+	if (srv->reserve_fd >= 0)
+		close(srv->reserve_fd);
+	ratelimit_free(srv->log_limit);
+	free(srv->tcp_listen);
 	free(srv->socket_path);
 	free(srv);
 }

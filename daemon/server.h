@@ -2,10 +2,22 @@
 /*
  * The socket server: the listeners (the unix socket, the optional TCP
  * addresses, or what systemd passed) and the connections. It reads lines,
- * hands each to the methods (rpc.h) and queues their answers, with bounded
- * output per client; it knows nothing of the methods. main.c plugs
- * server_notify() into the event sink (events.h), which is how
- * notifications reach the subscribed clients. Event loop thread.
+ * hands each to the methods (rpc.h) and sends their answers as they come;
+ * it knows nothing of the methods. main.c plugs server_notify() into the
+ * event sink (events.h), which is how notifications reach the subscribed
+ * clients. Event loop thread.
+ *
+ * What bounds a connection (the limits of settings.h, docs/daemon.md):
+ * - connections: max_clients in all, the last reserved_clients of them for
+ *   root and operators, max_clients_per_user per uid (TCP: per address);
+ * - time: an incomplete line or unread output may wait request_timeout_ms,
+ *   a TCP client without the token auth_timeout_ms, a client that sends
+ *   nothing and is not subscribed idle_timeout_ms;
+ * - work: one request of a line at a time, a few milliseconds of them per
+ *   turn of the loop, so that every connection is served in turn; a new
+ *   request is taken only while the client's unread output is under half
+ *   of max_output_bytes, so what one connection's unanswered requests cost
+ *   is bounded by its socket buffer, one line and one answer.
  */
 #ifndef ASPHD_SERVER_H
 #define ASPHD_SERVER_H
@@ -35,10 +47,25 @@ void server_free(struct server *srv);
 /*
  * Listens: on the sockets systemd passed (sd_listen_fds; TCP ones only
  * when s has a token_file), else binds s's unix socket (its directory
- * must be private; mode and group as s says) and the TCP addresses tcp
- * (may be NULL). Returns 0 or -errno, having logged why.
+ * must be private; a file at its path that is not a socket is refused;
+ * mode and group as s says) and the TCP addresses tcp (may be NULL).
+ * Returns 0 or -errno, having logged why.
  */
 int server_listen(struct server *srv, const struct settings *s, const struct addrinfo *tcp);
+
+/*
+ * A reload: whether s (the new settings) can be applied to the listeners
+ * without a restart; if not, names in why (size bytes) what needs one and
+ * returns -EBUSY. Call before server_reload(), which then cannot fail.
+ */
+int server_check_reload(const struct server *srv, const struct settings *s, char *why,
+			size_t size);
+/* Applies s: the socket's mode and group (of a socket asphd bound), and
+ * with tcp_listen removed closes the TCP listeners and connections. */
+void server_reload(struct server *srv, const struct settings *s);
+/* Ends the connections whose session no longer stands (rpc_session_valid():
+ * a TCP client that proved a token that was changed or removed). */
+void server_revalidate(struct server *srv);
 
 /* Shutdown: new connections are answered -32001 and closed. */
 void server_refuse_clients(struct server *srv);
@@ -54,5 +81,10 @@ void server_notify(const struct event *ev, void *data);
  */
 int server_resolve_tcp(const char *host, const char *port, struct addrinfo **out,
 		       struct asph_error *err);
+
+/* The descriptors asphd needs besides its clients' (listeners, the job
+ * store, workers, devices, the log): what LimitNOFILE= must leave above
+ * max_clients. */
+#define SERVER_FIXED_FDS 64
 
 #endif

@@ -19,6 +19,7 @@ struct loader {
 	settings_error_fn report;
 	void *data;
 	int n_errors;
+	uint64_t limits_given;          /* bit i: limit_fields[i] is in the file */
 };
 
 static void complain(struct loader *ld, const char *field, const char *fmt, ...)
@@ -42,14 +43,22 @@ static void complain(struct loader *ld, const char *field, const char *fmt, ...)
 
 static const struct settings_limits default_limits = {
 	.max_clients = 256,
+	.max_clients_per_user = 32,
+	.reserved_clients = 8,
 	.max_request_bytes = 1u << 20,
+	.max_response_bytes = 4u << 20,
 	.max_output_bytes = 8u << 20,
 	.max_queue = 10000,
 	.max_plan_points = 5000000,
 	.max_subscriptions = 64,
+	.max_subscriptions_per_user = 8,
+	.reserved_subscriptions = 8,
 	.request_timeout_ms = 30000,
+	.auth_timeout_ms = 10000,
+	.idle_timeout_ms = 600000,
 	.progress_interval_ms = 250,
 	.max_label_bytes = 256,
+	.min_free_disk_mb = 64,
 };
 
 int settings_defaults(struct settings **out)
@@ -131,14 +140,22 @@ static const struct {
 } limit_fields[] = {
 #define LIMIT(n, lo, hi) { #n, offsetof(struct settings_limits, n), lo, hi }
 	LIMIT(max_clients, 1, 65536),
+	LIMIT(max_clients_per_user, 1, 65536),
+	LIMIT(reserved_clients, 0, 65535),
 	LIMIT(max_request_bytes, 1024, 64u << 20),
+	LIMIT(max_response_bytes, 4096, 512u << 20),
 	LIMIT(max_output_bytes, 65536, 1u << 30),
 	LIMIT(max_queue, 1, 10000000),
 	LIMIT(max_plan_points, 10, 100000000),
 	LIMIT(max_subscriptions, 1, 65536),
+	LIMIT(max_subscriptions_per_user, 1, 65536),
+	LIMIT(reserved_subscriptions, 0, 65535),
 	LIMIT(request_timeout_ms, 100, 3600000),
+	LIMIT(auth_timeout_ms, 100, 3600000),
+	LIMIT(idle_timeout_ms, 0, 86400000),
 	LIMIT(progress_interval_ms, 10, 60000),
 	LIMIT(max_label_bytes, 16, 4096),
+	LIMIT(min_free_disk_mb, 0, 1048576),
 #undef LIMIT
 };
 
@@ -170,7 +187,43 @@ static void take_limits(struct loader *ld, json_t *obj, struct settings_limits *
 		}
 		*(uint32_t *)((char *)l + limit_fields[i].offset) =
 			(uint32_t)json_integer_value(v);
+		ld->limits_given |= 1ull << i;
 	}
+}
+
+static bool given(const struct loader *ld, const char *name)
+{
+	for (size_t i = 0; i < ARRAY_SIZE(limit_fields); i++)
+		if (!strcmp(limit_fields[i].name, name))
+			return ld->limits_given & (1ull << i);
+	return false;
+}
+
+/* The default of a limit bounded by another the file set, scaled down. */
+static void derive(const struct loader *ld, const char *name, uint32_t *v, uint32_t bound)
+{
+	if (!given(ld, name) && *v > bound)
+		*v = bound;
+}
+
+/* The limits that bound each other: a default follows a smaller limit the
+ * file sets; a value the file sets must fit. */
+static void check_limit_pairs(struct loader *ld, struct settings_limits *l)
+{
+	derive(ld, "reserved_clients", &l->reserved_clients, l->max_clients / 4);
+	derive(ld, "reserved_subscriptions", &l->reserved_subscriptions,
+	       l->max_subscriptions / 4);
+	derive(ld, "max_response_bytes", &l->max_response_bytes, l->max_output_bytes / 2);
+	if (l->reserved_clients >= l->max_clients)
+		complain(ld, "limits.reserved_clients", "must be less than limits.max_clients "
+			 "(%u), or nobody but operators could connect", l->max_clients);
+	if (l->reserved_subscriptions >= l->max_subscriptions)
+		complain(ld, "limits.reserved_subscriptions", "must be less than "
+			 "limits.max_subscriptions (%u)", l->max_subscriptions);
+	if (l->max_response_bytes > l->max_output_bytes / 2)
+		complain(ld, "limits.max_response_bytes", "must be at most half of "
+			 "limits.max_output_bytes (%u): a line's answers wait in the output",
+			 l->max_output_bytes / 2);
 }
 
 /* "HOST:PORT", "[IPV6]:PORT": a host and a port number (0 picks one). */
@@ -301,6 +354,7 @@ int settings_load(const char *path, struct settings **out,
 		json_object_foreach(root, key, v)
 			take_member(&ld, c, key, v);
 	json_decref(root);
+	check_limit_pairs(&ld, &c->limits);
 	if (c->tcp_listen && !c->token_file)
 		complain(&ld, "tcp_listen", "needs a token_file: TCP clients authenticate with "
 			 "its token");

@@ -16,14 +16,22 @@
 
 struct settings_limits {
 	uint32_t max_clients;
+	uint32_t max_clients_per_user;  /* per uid; per TCP address */
+	uint32_t reserved_clients;      /* of max_clients, for root and operators */
 	uint32_t max_request_bytes;     /* one line */
+	uint32_t max_response_bytes;    /* the answers to one line */
 	uint32_t max_output_bytes;      /* queued to one client */
 	uint32_t max_queue;             /* jobs queued, paused or interrupted */
 	uint32_t max_plan_points;
 	uint32_t max_subscriptions;     /* clients subscribed to events */
-	uint32_t request_timeout_ms;    /* an incomplete request */
+	uint32_t max_subscriptions_per_user;
+	uint32_t reserved_subscriptions;        /* of max_subscriptions, for operators */
+	uint32_t request_timeout_ms;    /* an incomplete request; unread output */
+	uint32_t auth_timeout_ms;       /* a TCP client without hello */
+	uint32_t idle_timeout_ms;       /* a client without requests; 0: none */
 	uint32_t progress_interval_ms;  /* between progress events of a job */
 	uint32_t max_label_bytes;
+	uint32_t min_free_disk_mb;      /* kept free on the state directory */
 };
 
 struct settings {

@@ -1,12 +1,8 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
-#include <errno.h>
-#include <fcntl.h>
 #include <stdio.h>
 #include <string.h>
-#include <unistd.h>
 
 #include "sha256.h"
-#include "util-mem.h"
 
 static const uint32_t k[64] = {
 	0x428a2f98, 0x71374491, 0xb5c0fbcf, 0xe9b5dba5, 0x3956c25b, 0x59f111f1, 0x923f82a4, 0xab1c5ed5,
@@ -100,26 +96,14 @@ void sha256_final(struct sha256 *c, uint8_t digest[32])
 	}
 }
 
-int sha256_file(const char *path, char hex[65])
+void sha256_hex(const void *data, size_t n, char hex[65])
 {
-	_cleanup_close_ int fd = open(path, O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
-	uint8_t buf[65536], d[32];
 	struct sha256 c;
-	ssize_t n;
+	uint8_t d[32];
 
-	if (fd < 0)
-		return -errno;
 	sha256_init(&c);
-	while ((n = read(fd, buf, sizeof(buf))) != 0) {
-		if (n < 0) {
-			if (errno == EINTR)
-				continue;
-			return -errno;
-		}
-		sha256_update(&c, buf, (size_t)n);
-	}
+	sha256_update(&c, data, n);
 	sha256_final(&c, d);
 	for (int i = 0; i < 32; i++)
 		snprintf(hex + 2 * i, 3, "%02x", d[i]);
-	return 0;
 }

@@ -17,8 +17,7 @@ void sha256_init(struct sha256 *c);
 void sha256_update(struct sha256 *c, const void *data, size_t n);
 void sha256_final(struct sha256 *c, uint8_t digest[32]);
 
-/* Lower-case hex digest (65 bytes with the NUL) of a whole file;
- * 0 or -errno. */
-int sha256_file(const char *path, char hex[65]);
+/* The lower-case hex digest (65 bytes with the NUL) of n bytes. */
+void sha256_hex(const void *data, size_t n, char hex[65]);
 
 #endif

@@ -133,15 +133,35 @@ static int check_version(struct store *s, struct asph_error *err)
 	return 0;
 }
 
+/* The store and its journals are regular files where they are: never
+ * opened through a symlink (SQLite's NOFOLLOW covers the store itself). */
+static int check_files(const char *path, struct asph_error *err)
+{
+	static const char *const suffixes[] = { "", "-wal", "-shm", "-journal", ".reserve" };
+	char name[4096];
+	struct stat st;
+
+	for (size_t i = 0; i < ARRAY_SIZE(suffixes); i++) {
+		snprintf(name, sizeof(name), "%s%s", path, suffixes[i]);
+		if (lstat(name, &st) == 0 && !S_ISREG(st.st_mode))
+			return asph_error_set(err, -ELOOP, "%s is not a regular file: refusing "
+					      "to use it for the job store", name);
+	}
+	return 0;
+}
+
 int store_open(const char *path, struct store **out, struct asph_error *err)
 {
-	struct store *s = calloc(1, sizeof(*s));
-	int r;
+	struct store *s;
+	int r = check_files(path, err);
 
+	if (r < 0)
+		return r;
+	s = calloc(1, sizeof(*s));
 	if (!s)
 		return -ENOMEM;
 	if (sqlite3_open_v2(path, &s->db, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE |
-			    SQLITE_OPEN_NOMUTEX, NULL) != SQLITE_OK) {
+			    SQLITE_OPEN_NOMUTEX | SQLITE_OPEN_NOFOLLOW, NULL) != SQLITE_OK) {
 		r = asph_error_set(err, -EIO, "cannot open the job store %s: %s", path,
 				   s->db ? sqlite3_errmsg(s->db) : "out of memory");
 		store_close(s);
@@ -484,7 +504,7 @@ static void filter_sql(const struct store_filter *f, char *sql, size_t size)
 		n += (size_t)snprintf(sql + n, size - n, " AND ((1 << state) & ?)");
 	if (f->instrument)
 		n += (size_t)snprintf(sql + n, size - n, " AND instrument = ?");
-	if (f->uid >= 0)
+	if (f->uid != STORE_ANY_UID)
 		n += (size_t)snprintf(sql + n, size - n, " AND uid = ?");
 	if (f->label)
 		n += (size_t)snprintf(sql + n, size - n, " AND label = ?");
@@ -500,7 +520,7 @@ static int filter_bind(sqlite3_stmt *st, const struct store_filter *f)
 		sqlite3_bind_int64(st, i++, f->states);
 	if (f->instrument)
 		bind_text(st, i++, f->instrument);
-	if (f->uid >= 0)
+	if (f->uid != STORE_ANY_UID)
 		sqlite3_bind_int64(st, i++, f->uid);
 	if (f->label)
 		bind_text(st, i++, f->label);

@@ -74,10 +74,14 @@ int store_update(struct store *s, const struct job_record *j);
 int store_set_progress(struct store *s, int64_t id, int64_t done,
 		       int64_t total);
 
+/* A filter's uid that selects every submitter (-1 is the uid of the jobs
+ * submitted over TCP). */
+#define STORE_ANY_UID INT64_MIN
+
 struct store_filter {
 	unsigned states;        /* bit per enum job_state; 0 = all */
 	const char *instrument; /* or NULL */
-	int64_t uid;            /* -1 = any */
+	int64_t uid;            /* STORE_ANY_UID = any */
 	const char *label;      /* exact, or NULL */
 	int64_t before_id;      /* only ids below; 0 = no bound */
 	int64_t offset, limit;

@@ -44,7 +44,7 @@ int scan_reference_round(struct asph_scan *sc, struct asph_error *err)
 				     .attempt = (uint32_t)sc->round };
 		bool recorded;
 		double p[3] = { a->references[k][0], a->references[k][1], 0 };
-		p[2] = asph_surface_sag(sc->surface, hypot(p[0], p[1]));
+		p[2] = asph_surface_sag_xy(sc->surface, p[0], p[1]);
 		scan_target_at(sc, p, false, &t);
 		r = scan_measure_at(sc, &t, &m, 0, &recorded, err);
 		if (r < 0 && err) {

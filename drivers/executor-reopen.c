@@ -2,6 +2,7 @@
 /* Going on with an interrupted scan: the one place that decides where, for
  * asph scan --resume and asphd's resumed jobs. */
 #include <errno.h>
+#include <fcntl.h>
 #include <string.h>
 
 #include "asph/executor.h"
@@ -11,12 +12,12 @@ DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile_reader *, asph_scanfile_reader_
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile *, asph_scanfile_free)
 
 /* The header's plan is plan: read before anything is written. */
-static int check_plan(const char *path, const struct asph_plan *plan,
+static int check_plan(int dirfd, const char *path, const struct asph_plan *plan,
 		      struct asph_error *err)
 {
 	_cleanup_(asph_scanfile_reader_freep) struct asph_scanfile_reader *r = NULL;
 	struct asph_plan_info was;
-	int ret = asph_scanfile_reader_open(path, &r, err);
+	int ret = asph_scanfile_reader_open_at(dirfd, path, &r, err);
 
 	if (ret < 0)
 		return ret;
@@ -42,11 +43,19 @@ int asph_scan_reopen(const char *path, const struct asph_plan *plan,
 		     struct asph_scanfile_writer **w, uint64_t *start_index,
 		     struct asph_scanfile **recovered, struct asph_error *err)
 {
+	return asph_scan_reopen_at(AT_FDCWD, path, plan, opts, w, start_index, recovered, err);
+}
+
+int asph_scan_reopen_at(int dirfd, const char *path, const struct asph_plan *plan,
+			const struct asph_scanfile_writer_options *opts,
+			struct asph_scanfile_writer **w, uint64_t *start_index,
+			struct asph_scanfile **recovered, struct asph_error *err)
+{
 	_cleanup_(asph_scanfile_freep) struct asph_scanfile *rec = NULL;
-	int ret = check_plan(path, plan, err);
+	int ret = check_plan(dirfd, path, plan, err);
 
 	if (ret == 0)
-		ret = asph_scanfile_writer_resume(path, opts, &rec, w, err);
+		ret = asph_scanfile_writer_resume_at(dirfd, path, opts, &rec, w, err);
 	if (ret < 0)
 		return ret;
 	*start_index = 0;

@@ -3,13 +3,19 @@
 #include <dirent.h>
 #include <dlfcn.h>
 #include <errno.h>
+#include <fcntl.h>
+#include <limits.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include "asph/instrument.h"
 #include "builtin-drivers.h"
 #include "drivers-config.h"
 #include "options-internal.h"
+#include "util-fs.h"
 #include "util-mem.h"
 
 struct registry_entry {
@@ -197,25 +203,65 @@ static int load_table(struct asph_registry *r, void *h, const char *path,
 	return 0;
 }
 
+/*
+ * A plugin runs as the program that loads it (root, under
+ * --check-config too): before dlopen() it must be a regular file of root
+ * or of the user running this, writable by nobody else, in directories
+ * trusted the same way from / (fs_open_trusted()). Returns the opened
+ * file's descriptor, or -EPERM/-errno with err saying why.
+ */
+static int open_trusted_plugin(const char *path, struct asph_error *err)
+{
+	struct fs_owners owners = { .uid = geteuid(), .gid = getegid() };
+	_cleanup_free_ char *abs = NULL;
+	_cleanup_close_ int fd = -1;
+	char cwd[PATH_MAX];
+	struct stat st;
+
+	if (path[0] != '/') {
+		if (!getcwd(cwd, sizeof(cwd)) || asprintf(&abs, "%s/%s", cwd, path) < 0)
+			return asph_error_set(err, -ENOMEM, "cannot make the path absolute");
+		path = abs;
+	}
+	fd = fs_open_trusted(path, &owners, O_RDONLY, err);
+	if (fd < 0)
+		return fd;
+	if (fstat(fd, &st) < 0 || !S_ISREG(st.st_mode))
+		return asph_error_set(err, -ENOEXEC, "not a regular file");
+	if (st.st_mode & (S_IWGRP | S_IWOTH))
+		return asph_error_set(err, -EPERM, "writable by %s (mode %04o): not loaded",
+				      st.st_mode & S_IWOTH ? "every user" : "its group",
+				      (unsigned)(st.st_mode & 07777));
+	return steal_fd(fd);
+}
+
 int asph_registry_load_plugin(struct asph_registry *r, const char *path,
 			      struct asph_error *err)
 {
-	void *h = dlopen(path, RTLD_NOW | RTLD_LOCAL);
-	int ret;
+	_cleanup_close_ int fd = open_trusted_plugin(path, err);
+	void *h = NULL;
+	int ret = fd;
 
-	if (!h) {
-		const char *why = dlerror();
-		ret = asph_error_set(err, -ENOEXEC, "cannot load: %s", why ? why : "dlopen failed");
-	} else {
-		ret = load_table(r, h, path, err);
-		if (ret == 0)
-			ret = keep_handle(r, h, err);
-		if (ret < 0)
-			dlclose(h);
+	if (fd >= 0) {
+		/* By its path (a name such as /proc/self/fd/N would be taken
+		 * for another plugin once the number is used again): only the
+		 * owners checked above can change what it names. */
+		h = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+		if (!h) {
+			const char *why = dlerror();
+			ret = asph_error_set(err, -ENOEXEC, "cannot load: %s",
+					     why ? why : "dlopen failed");
+		} else {
+			ret = load_table(r, h, path, err);
+			if (ret == 0)
+				ret = keep_handle(r, h, err);
+			if (ret < 0)
+				dlclose(h);
+		}
 	}
 	if (ret < 0)
 		asph_error_locate(err, path, 0, 0, NULL);
-	return ret;
+	return ret < 0 ? ret : 0;
 }
 
 static int by_name(const struct dirent **a, const struct dirent **b)
@@ -298,6 +344,21 @@ const char *asph_registry_origin(const struct asph_registry *r, size_t i)
 	if (i >= r->n)
 		return NULL;
 	return r->entries[i].origin ? r->entries[i].origin : "built-in";
+}
+
+int asph_registry_profiles(const struct asph_registry *r, size_t i,
+			   struct asph_driver_profile **out, size_t *n,
+			   struct asph_error *err)
+{
+	*out = NULL;
+	*n = 0;
+	if (i >= r->n)
+		return asph_error_set(err, -EINVAL, "no driver %zu in the registry", i);
+	/* a plugin's table is its own: only built-in drivers list files */
+	for (size_t k = 0; !r->entries[i].origin && k < builtin_profile_lists_count; k++)
+		if (builtin_profile_lists[k].driver == r->entries[i].driver)
+			return builtin_profile_lists[k].list(out, n, err);
+	return 0;
 }
 
 const struct asph_driver *asph_registry_find(const struct asph_registry *r,

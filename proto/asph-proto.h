@@ -18,7 +18,7 @@
 /* Protocol version reported by `hello`; the minor part grows with
  * compatible additions. */
 #define PROTO_VERSION_MAJOR 1
-#define PROTO_VERSION_MINOR 0
+#define PROTO_VERSION_MINOR 1
 
 #define PROTO_DEFAULT_SOCKET "/run/asphd/asphd.sock"
 #define PROTO_DEFAULT_MAX_LINE (1u << 20)
@@ -39,6 +39,7 @@ enum proto_error_code {
 	PROTO_SHUTTING_DOWN = -32001,
 	PROTO_TOO_MANY_CLIENTS = -32002,
 	PROTO_REQUEST_TIMEOUT = -32003,
+	PROTO_RESPONSE_TOO_LARGE = -32004,
 	/* application errors */
 	PROTO_PERMISSION_DENIED = 100,
 	PROTO_NO_SUCH_JOB = 101,
@@ -152,6 +153,15 @@ char *proto_dump(const json_t *msg, size_t *len);
  * "%.64s" may end inside a character, and JSON strings must be valid);
  * returns the new length. */
 size_t proto_utf8_clean(char *text);
+
+/* ---------------------------------------------------------------- base64 */
+
+/* RFC 4648 base64 with padding, as job.file sends bytes: the text
+ * (malloc'd, NUL-terminated) or NULL. */
+char *proto_base64_encode(const void *data, size_t n);
+/* Back to bytes (malloc'd, *n of them): 0, -EINVAL for anything but
+ * padded base64 of the standard alphabet, -ENOMEM. */
+int proto_base64_decode(const char *text, size_t len, void **out, size_t *n);
 
 /* ---------------------------------------------------------- parameters */
 

@@ -22,6 +22,7 @@ static const struct {
 	{ PROTO_SHUTTING_DOWN, "Server shutting down" },
 	{ PROTO_TOO_MANY_CLIENTS, "Too many clients" },
 	{ PROTO_REQUEST_TIMEOUT, "Request timed out" },
+	{ PROTO_RESPONSE_TOO_LARGE, "Response too large" },
 	{ PROTO_PERMISSION_DENIED, "Permission denied" },
 	{ PROTO_NO_SUCH_JOB, "No such job" },
 	{ PROTO_NO_SUCH_INSTRUMENT, "No such instrument" },
@@ -539,5 +540,76 @@ int proto_param_flags(json_t *params, const char *name, bool required,
 				       name, i, json_string_value(e));
 		*mask |= 1u << k;
 	}
+	return 0;
+}
+
+/* ------------------------------------------------------------- base64 */
+
+static const char b64[] = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+
+char *proto_base64_encode(const void *data, size_t n)
+{
+	const unsigned char *in = data;
+	char *out = malloc(4 * ((n + 2) / 3) + 1), *o = out;
+
+	if (!out)
+		return NULL;
+	for (size_t i = 0; i < n; i += 3) {
+		uint32_t v = (uint32_t)in[i] << 16;
+		if (i + 1 < n)
+			v |= (uint32_t)in[i + 1] << 8;
+		if (i + 2 < n)
+			v |= in[i + 2];
+		*o++ = b64[v >> 18 & 63];
+		*o++ = b64[v >> 12 & 63];
+		*o++ = i + 1 < n ? b64[v >> 6 & 63] : '=';
+		*o++ = i + 2 < n ? b64[v & 63] : '=';
+	}
+	*o = '\0';
+	return out;
+}
+
+static int b64_value(char c)
+{
+	const char *p = c ? strchr(b64, c) : NULL;
+
+	return p ? (int)(p - b64) : -1;
+}
+
+int proto_base64_decode(const char *text, size_t len, void **out, size_t *n)
+{
+	unsigned char *buf, *o;
+
+	if (len % 4)
+		return -EINVAL;
+	buf = malloc(len / 4 * 3 + 1);
+	if (!buf)
+		return -ENOMEM;
+	o = buf;
+	for (size_t i = 0; i < len; i += 4) {
+		int v[4], pad = 0;
+		for (int k = 0; k < 4; k++) {
+			bool last = i + 4 == len;
+			if (text[i + k] == '=' && last && k >= 2 && (k == 3 || text[i + 3] == '=')) {
+				v[k] = 0;
+				pad++;
+				continue;
+			}
+			v[k] = pad ? -1 : b64_value(text[i + k]);
+			if (v[k] < 0) {
+				free(buf);
+				return -EINVAL;
+			}
+		}
+		uint32_t w = (uint32_t)v[0] << 18 | (uint32_t)v[1] << 12 | (uint32_t)v[2] << 6 |
+			     (uint32_t)v[3];
+		*o++ = (unsigned char)(w >> 16);
+		if (pad < 2)
+			*o++ = (unsigned char)(w >> 8);
+		if (pad < 1)
+			*o++ = (unsigned char)w;
+	}
+	*out = buf;
+	*n = (size_t)(o - buf);
 	return 0;
 }

@@ -87,7 +87,9 @@ struct asph_scan_options {
 	uint64_t start_index;           /* first plan point to measure */
 	double clearance;               /* mm above each point; 0 = 0.5 */
 	unsigned move_timeout_ms;       /* 0 = 60000 */
-	unsigned read_timeout_ms;       /* 0 = 2000 */
+	unsigned read_timeout_ms;       /* 0 = the probe's read_timeout option
+					 * when it sets one (docs/drivers.md),
+					 * else 2000 */
 	unsigned home_timeout_ms;       /* 0 = 120000 */
 	size_t stream_batch;            /* points per sweep; 0 = 4096 */
 	asph_scan_progress_fn progress; /* may be NULL */
@@ -146,6 +148,12 @@ int asph_scan_reopen(const char *path, const struct asph_plan *plan,
 		     const struct asph_scanfile_writer_options *opts,
 		     struct asph_scanfile_writer **w, uint64_t *start_index,
 		     struct asph_scanfile **recovered, struct asph_error *err);
+/* The same with path relative to the directory dirfd, never opened
+ * through a symbolic link (asph_scanfile_writer_resume_at()). */
+int asph_scan_reopen_at(int dirfd, const char *path, const struct asph_plan *plan,
+			const struct asph_scanfile_writer_options *opts,
+			struct asph_scanfile_writer **w, uint64_t *start_index,
+			struct asph_scanfile **recovered, struct asph_error *err);
 
 /* Any thread. Pause takes effect before the next point; abort stops the
  * stage and the probe at once. */

@@ -88,6 +88,10 @@ int asph_drift_report_json(const struct asph_scanfile *s, const struct asph_drif
 int asph_drift_scan_points(const char *scan_path, uint32_t exclude_flags, int raw,
 			   struct asph_scanfile **s_out, struct asph_points **out,
 			   struct asph_drift_summary *sum, struct asph_error *err);
+/* The same for a scan already read; name locates errors. */
+int asph_drift_scanfile_points(const struct asph_scanfile *s, const char *name,
+			       uint32_t exclude_flags, int raw, struct asph_points **out,
+			       struct asph_drift_summary *sum, struct asph_error *err);
 
 #ifdef __cplusplus
 }

@@ -4,6 +4,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 
 #include "asph/error.h"
 
@@ -35,6 +36,14 @@ int asph_plot_points_png(const char *path, const double *xyz,
 			 const double *value, size_t n,
 			 const struct asph_plot_options *opts,
 			 struct asph_error *err);
+
+/* The same written to f (flushed, not closed), which the caller opened as
+ * it sees fit (e.g. a temporary file renamed into place); name is what
+ * messages call it. */
+int asph_plot_points_png_stream(FILE *f, const char *name, const double *xyz,
+				const double *value, size_t n,
+				const struct asph_plot_options *opts,
+				struct asph_error *err);
 
 /* Triangles filled by a per-triangle value (e.g. q or A_i / mean A). */
 int asph_plot_triangles_png(const char *path, const double *xyz,
@@ -68,6 +77,10 @@ struct asph_plot_panel {
 int asph_plot_panels_png(const char *path, const struct asph_plot_panel *panels,
 			 size_t n_panels, int width, int height,
 			 struct asph_error *err);
+/* The same written to f, as asph_plot_points_png_stream(). */
+int asph_plot_panels_png_stream(FILE *f, const char *name,
+				const struct asph_plot_panel *panels, size_t n_panels,
+				int width, int height, struct asph_error *err);
 
 #ifdef __cplusplus
 }

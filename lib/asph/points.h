@@ -3,6 +3,7 @@
 #define ASPH_POINTS_H
 
 #include <stddef.h>
+#include <stdio.h>
 #include <stdint.h>
 
 #include "asph/error.h"
@@ -24,6 +25,8 @@ extern "C" {
  *          exists) and faces when a mesh exists; reading also takes
  *          binary_little_endian PLY
  *   .json  {"points": [[x,y,z],...], "triangles": [[i,j,k],...], ...}
+ *   .x3p   written only: ISO 25178-72, the list layout of the points
+ *          (asph/x3p.h; the value and the mesh are not part of it)
  *   "-"    CSV on stdin / stdout
  */
 struct asph_points {
@@ -64,6 +67,12 @@ struct asph_points_write_options {
 int asph_points_write(const char *path, const struct asph_points *p,
 		      const struct asph_points_write_options *opts,
 		      struct asph_error *err);
+/* The same to f (flushed, not closed), in the format name's extension
+ * names (CSV when name is NULL; not X3P, a container written by path:
+ * -EINVAL); name is what messages call it. */
+int asph_points_write_stream(FILE *f, const char *name, const struct asph_points *p,
+			     const struct asph_points_write_options *opts,
+			     struct asph_error *err);
 
 #ifdef __cplusplus
 }

@@ -175,6 +175,17 @@ int asph_scanfile_writer_create(const char *path,
 				struct asph_scanfile_writer **out,
 				struct asph_error *err);
 
+/*
+ * The same with path relative to the directory dirfd (which may be
+ * closed once this returns): the file is never opened through a symbolic
+ * link (O_NOFOLLOW), and the directory synced is dirfd itself.
+ */
+int asph_scanfile_writer_create_at(int dirfd, const char *path,
+				   const struct asph_scanfile_header_info *info,
+				   const struct asph_scanfile_writer_options *opts,
+				   struct asph_scanfile_writer **out,
+				   struct asph_error *err);
+
 struct asph_scanfile;
 
 /*
@@ -191,6 +202,12 @@ int asph_scanfile_writer_resume(const char *path,
 				struct asph_scanfile **recovered,
 				struct asph_scanfile_writer **out,
 				struct asph_error *err);
+/* The same relative to dirfd, never through a symbolic link. */
+int asph_scanfile_writer_resume_at(int dirfd, const char *path,
+				   const struct asph_scanfile_writer_options *opts,
+				   struct asph_scanfile **recovered,
+				   struct asph_scanfile_writer **out,
+				   struct asph_error *err);
 
 /*
  * Appends n measurements of drift references (1.1): the points pending are
@@ -281,6 +298,11 @@ struct asph_scanfile_reader;
  * scan (empty, bad magic, torn or corrupt header, malformed header JSON),
  * -ENOTSUP for a newer major version; err says which.
  */
+/* asph_scanfile_reader_open_at(): relative to dirfd, never through a
+ * symbolic link. */
+int asph_scanfile_reader_open_at(int dirfd, const char *path,
+				 struct asph_scanfile_reader **out,
+				 struct asph_error *err);
 int asph_scanfile_reader_open(const char *path,
 			      struct asph_scanfile_reader **out,
 			      struct asph_error *err);

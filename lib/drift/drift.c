@@ -47,11 +47,11 @@ static bool measured(const struct asph_scanfile_point *p)
 static double height(const struct asph_surface *s, const struct asph_scanfile_point *p,
 		     double g[2])
 {
-	double r = hypot(p->x, p->y), d[3];
+	double d[3];
 
-	asph_surface_sag_derivs(s, r, d);
-	g[0] = r > 0 ? d[1] * p->x / r : 0;
-	g[1] = r > 0 ? d[1] * p->y / r : 0;
+	asph_surface_sag_grad_xy(s, p->x, p->y, d);
+	g[0] = d[1];
+	g[1] = d[2];
 	return p->z - d[0];
 }
 
@@ -330,21 +330,18 @@ int asph_drift_report_json(const struct asph_scanfile *s, const struct asph_drif
 	return *out ? 0 : -ENOMEM;
 }
 
-int asph_drift_scan_points(const char *scan_path, uint32_t exclude_flags, int raw,
-			   struct asph_scanfile **s_out, struct asph_points **out,
-			   struct asph_drift_summary *sum, struct asph_error *err)
+int asph_drift_scanfile_points(const struct asph_scanfile *s, const char *name,
+			       uint32_t exclude_flags, int raw, struct asph_points **out,
+			       struct asph_drift_summary *sum, struct asph_error *err)
 {
-	_cleanup_(asph_scanfile_freep) struct asph_scanfile *s = NULL;
 	_cleanup_(asph_surface_freep) struct asph_surface *surf = NULL;
 	_cleanup_(asph_drift_freep) struct asph_drift *d = NULL;
 	struct asph_prescription p;
-	int r = asph_scanfile_read(scan_path, &s, err);
+	int r = 0;
 
-	if (r < 0)
-		return r;
 	if (!raw && s->n_references) {
 		const char *text = s->header.prescription;
-		r = asph_prescription_parse(text, strlen(text), scan_path, &p, err);
+		r = asph_prescription_parse(text, strlen(text), name, &p, err);
 		if (r == 0)
 			r = asph_surface_alloc(&p, &surf, err);
 		if (r == 0)
@@ -353,10 +350,22 @@ int asph_drift_scan_points(const char *scan_path, uint32_t exclude_flags, int ra
 			return r;
 	}
 	r = asph_drift_points(d, s, exclude_flags, out, sum, err);
-	if (r < 0) {
-		asph_error_locate(err, scan_path, 0, 0, NULL);
+	if (r < 0)
+		asph_error_locate(err, name, 0, 0, NULL);
+	return r;
+}
+
+int asph_drift_scan_points(const char *scan_path, uint32_t exclude_flags, int raw,
+			   struct asph_scanfile **s_out, struct asph_points **out,
+			   struct asph_drift_summary *sum, struct asph_error *err)
+{
+	_cleanup_(asph_scanfile_freep) struct asph_scanfile *s = NULL;
+	int r = asph_scanfile_read(scan_path, &s, err);
+
+	if (r == 0)
+		r = asph_drift_scanfile_points(s, scan_path, exclude_flags, raw, out, sum, err);
+	if (r < 0)
 		return r;
-	}
 	if (s_out)
 		*s_out = steal_ptr(s);
 	return 0;

@@ -25,6 +25,108 @@ static json_t *dof_object(const struct asph_fit_result *r, const double *v)
 	return o;
 }
 
+static json_t *form_object(const struct asph_form *f)
+{
+	json_t *o = json_object();
+
+	if (!o)
+		return NULL;
+	json_object_set_new(o, "A_nm", json_num(f->A.v));
+	json_object_set_new(o, "B_nm", json_num(f->B.v));
+	json_object_set_new(o, "C_nm", json_num(f->C.v));
+	json_object_set_new(o, "A_fringes", json_num(f->A_fringes));
+	json_object_set_new(o, "B_fringes", json_num(f->B_fringes));
+	json_object_set_new(o, "C_fringes", json_num(f->C_fringes));
+	json_object_set_new(o, "rms_t_nm", json_num(f->rms_t.v));
+	json_object_set_new(o, "rms_i_nm", json_num(f->rms_i.v));
+	json_object_set_new(o, "rms_a_nm", json_num(f->rms_a.v));
+	json_object_set_new(o, "wavelength_nm", json_num(f->wavelength_nm));
+	return o;
+}
+
+static json_t *slope_object(const struct asph_slope *sl)
+{
+	json_t *o = json_object();
+
+	if (!o)
+		return NULL;
+	json_object_set_new(o, "rms_urad", json_num(sl->rms.v));
+	json_object_set_new(o, "max_urad", json_num(sl->max.v));
+	json_object_set_new(o, "length_mm", json_num(sl->length_mm));
+	json_object_set_new(o, "rms_radial_urad", json_num(sl->rms_radial.v));
+	json_object_set_new(o, "max_radial_urad", json_num(sl->max_radial.v));
+	json_object_set_new(o, "rms_azimuthal_urad", json_num(sl->rms_azimuthal.v));
+	json_object_set_new(o, "max_azimuthal_urad", json_num(sl->max_azimuthal.v));
+	json_object_set_new(o, "n_positions", json_integer((json_int_t)sl->n));
+	return o;
+}
+
+static json_t *radius_object(const struct asph_fit_result *r)
+{
+	json_t *o;
+
+	if (!(r->dof & ASPH_FIT_DOF_BIT(ASPH_FIT_R)))
+		return json_null();
+	o = json_object();
+	if (!o)
+		return NULL;
+	json_object_set_new(o, "R_mm", json_num(r->value[ASPH_FIT_R]));
+	json_object_set_new(o, "nominal_mm", json_num(r->R_nominal_mm));
+	json_object_set_new(o, "deviation_mm", json_num(r->R_deviation_mm));
+	return o;
+}
+
+/* The same keys as the quantities covered (form, slope, radius). */
+static json_t *uncertainty_object(const struct asph_uncertainty_k2 *u)
+{
+	json_t *o = json_object();
+
+	if (!o)
+		return NULL;
+	json_object_set_new(o, "A_nm", json_num(u->A.v));
+	json_object_set_new(o, "B_nm", json_num(u->B.v));
+	json_object_set_new(o, "C_nm", json_num(u->C.v));
+	json_object_set_new(o, "A_fringes", json_num(u->A_fringes));
+	json_object_set_new(o, "B_fringes", json_num(u->B_fringes));
+	json_object_set_new(o, "C_fringes", json_num(u->C_fringes));
+	json_object_set_new(o, "rms_t_nm", json_num(u->rms_t.v));
+	json_object_set_new(o, "rms_i_nm", json_num(u->rms_i.v));
+	json_object_set_new(o, "rms_a_nm", json_num(u->rms_a.v));
+	json_object_set_new(o, "rms_urad", json_num(u->slope_rms.v));
+	json_object_set_new(o, "max_urad", json_num(u->slope_max.v));
+	json_object_set_new(o, "R_mm", json_num(u->R_mm));
+	json_object_set_new(o, "deviation_mm", json_num(u->R_mm));
+	return o;
+}
+
+static json_t *verdict_object(const struct asph_verdict_report *v)
+{
+	json_t *o, *items;
+
+	if (!v->present)
+		return json_null();
+	o = json_object();
+	items = json_array();
+	if (!o || !items) {
+		json_decref(o);
+		json_decref(items);
+		return NULL;
+	}
+	for (size_t i = 0; i < v->n_items; i++) {
+		const struct asph_verdict_item *it = &v->items[i];
+		json_t *e = json_object();
+		json_object_set_new(e, "quantity", json_string(it->quantity));
+		json_object_set_new(e, "value", json_num(it->value));
+		json_object_set_new(e, "U", json_num(it->U));
+		json_object_set_new(e, "limit", json_num(it->limit));
+		json_object_set_new(e, "verdict", json_string(asph_verdict_name(it->verdict)));
+		json_array_append_new(items, e);
+	}
+	json_object_set_new(o, "overall", json_string(asph_verdict_name(v->overall)));
+	json_object_set_new(o, "items", items);
+	return o;
+}
+
 static json_t *result_json(const struct asph_fit_result *r, const char *lens,
 			   int robust)
 {
@@ -59,6 +161,13 @@ static json_t *result_json(const struct asph_fit_result *r, const char *lens,
 	json_object_set_new(root, "zernike_fit_rms_left_nm", json_num(r->zernike_fit_rms_left.v));
 	json_object_set_new(root, "slope_rms_urad", json_num(r->slope_rms.v));
 	json_object_set_new(root, "zernike_nm", z);
+	json_object_set_new(root, "form", form_object(&r->form));
+	json_object_set_new(root, "slope", slope_object(&r->slope));
+	json_object_set_new(root, "radius", radius_object(r));
+	json_object_set_new(root, "uncertainty_k2", uncertainty_object(&r->uncertainty_k2));
+	json_object_set_new(root, "uncertainty_method",
+			    json_string(asph_uncertainty_method_name(r->uncertainty_k2.method)));
+	json_object_set_new(root, "verdict", verdict_object(&r->verdict));
 	return root;
 }
 

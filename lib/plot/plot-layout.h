@@ -46,4 +46,20 @@ double plot_point_radius(const struct plot_frame *f, const double ext[4],
 void plot_figure_panel(int width, int height, size_t n_panels, size_t i,
 		       struct plot_rect *panel);
 
+#include "config.h"
+#include "asph/plot.h"
+
+/* A tick step of 1, 2 or 5 times a power of ten giving about target ticks
+ * over span. */
+double plot_nice_step(double span, int target);
+
+#if HAVE_CAIRO
+#include <cairo.h>
+
+/* Draws one map panel into panel (device units) of any cairo surface: the
+ * PNG figures and the PDF report share it. The panel must be valid. */
+void plot_draw_panel(cairo_t *cr, const struct asph_plot_panel *p,
+		     const struct plot_rect *panel);
+#endif
+
 #endif

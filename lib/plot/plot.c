@@ -3,6 +3,7 @@
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "config.h"
 #include "asph/plot.h"
@@ -215,7 +216,7 @@ static void set_value_colour(cairo_t *cr, const struct colour_scale *cs,
 	cairo_set_source_rgb(cr, rgb[0] / 255.0, rgb[1] / 255.0, rgb[2] / 255.0);
 }
 
-static double nice_step(double span, int target)
+double plot_nice_step(double span, int target)
 {
 	double raw = span / target;
 	double p = pow(10, floor(log10(raw)));
@@ -308,7 +309,7 @@ static void draw_axes(cairo_t *cr, const struct plot_frame *f)
 {
 	const struct plot_rect *b = &f->box;
 	double x1 = f->x0 + b->w / f->scale, y1 = f->y0 + b->h / f->scale;
-	double step = nice_step(fmax(x1 - f->x0, y1 - f->y0), 6);
+	double step = plot_nice_step(fmax(x1 - f->x0, y1 - f->y0), 6);
 	char label[32];
 	double u, v;
 
@@ -334,7 +335,7 @@ static void draw_colour_bar(cairo_t *cr, const struct plot_frame *f,
 			    const struct colour_scale *cs, const char *label)
 {
 	const struct plot_rect *r = &f->bar;
-	double step = nice_step(cs->hi - cs->lo, 6);
+	double step = plot_nice_step(cs->hi - cs->lo, 6);
 	double widest = 0;
 	char text[32];
 	cairo_text_extents_t te;
@@ -412,8 +413,8 @@ static void draw_triangles(cairo_t *cr, const struct asph_plot_panel *p,
 	}
 }
 
-static void draw_panel(cairo_t *cr, const struct asph_plot_panel *p,
-		       const struct plot_rect *panel)
+void plot_draw_panel(cairo_t *cr, const struct asph_plot_panel *p,
+		     const struct plot_rect *panel)
 {
 	struct plot_frame f;
 	struct colour_scale cs;
@@ -447,56 +448,59 @@ static cairo_status_t write_to_file(void *closure, const unsigned char *data,
 							  : CAIRO_STATUS_WRITE_ERROR;
 }
 
-static int write_png(cairo_surface_t *surface, const char *path,
+/* The figure's panels and size (0: the default), checked before anything
+ * is written. */
+static int check_figure(const struct asph_plot_panel *panels, size_t n_panels, int *width,
+			int *height, struct asph_error *err)
+{
+	if (!panels || n_panels == 0 || n_panels > 16)
+		return asph_error_set(err, -EINVAL, "a plot needs a path and 1 to 16 panels");
+	if (*width == 0)
+		*width = DEFAULT_WIDTH * (int)n_panels;
+	if (*height == 0)
+		*height = DEFAULT_HEIGHT;
+	if (*width < MIN_SIZE || *height < MIN_SIZE || *width > MAX_SIZE || *height > MAX_SIZE)
+		return asph_error_set(err, -EINVAL, "image size %d x %d is outside %d..%d pixels",
+				      *width, *height, MIN_SIZE, MAX_SIZE);
+	for (size_t i = 0; i < n_panels; i++) {
+		int r = check_panel(&panels[i], i, err);
+		if (r < 0)
+			return r;
+	}
+	return 0;
+}
+
+/* The PNG to f, flushed; name is for messages. */
+static int write_png(cairo_surface_t *surface, FILE *f, const char *name,
 		     struct asph_error *err)
 {
-	_cleanup_fclose_ FILE *f = fopen(path, "wb");
 	cairo_status_t st;
-	int r;
 
-	if (!f)
-		return asph_error_set(err, -errno, "cannot create %s: %s", path,
-				      strerror(errno));
+	errno = 0;
 	st = cairo_surface_write_to_png_stream(surface, write_to_file, f);
 	if (st == CAIRO_STATUS_SUCCESS && fflush(f) != 0)
 		st = CAIRO_STATUS_WRITE_ERROR;
 	if (st != CAIRO_STATUS_SUCCESS)
-		return asph_error_set(err, -EIO, "cannot write %s: %s", path,
+		return asph_error_set(err, -EIO, "cannot write %s: %s", name,
 				      st == CAIRO_STATUS_WRITE_ERROR && errno
 					      ? strerror(errno)
 					      : cairo_status_to_string(st));
-	r = fclose(f);
-	f = NULL;
-	if (r != 0)
-		return asph_error_set(err, -errno, "cannot write %s: %s", path,
-				      strerror(errno));
 	return 0;
 }
 
-int asph_plot_panels_png(const char *path, const struct asph_plot_panel *panels,
-			 size_t n_panels, int width, int height,
-			 struct asph_error *err)
+int asph_plot_panels_png_stream(FILE *f, const char *name,
+				const struct asph_plot_panel *panels, size_t n_panels,
+				int width, int height, struct asph_error *err)
 {
 	_cleanup_(cairo_surface_destroyp) cairo_surface_t *surface = NULL;
 	_cleanup_(cairo_destroyp) cairo_t *cr = NULL;
 	struct plot_rect panel;
-	int r;
+	int r = check_figure(panels, n_panels, &width, &height, err);
 
-	if (!path || !panels || n_panels == 0 || n_panels > 16)
-		return asph_error_set(err, -EINVAL, "a plot needs a path and 1 to 16 panels");
-	if (width == 0)
-		width = DEFAULT_WIDTH * (int)n_panels;
-	if (height == 0)
-		height = DEFAULT_HEIGHT;
-	if (width < MIN_SIZE || height < MIN_SIZE || width > MAX_SIZE || height > MAX_SIZE)
-		return asph_error_set(err, -EINVAL, "image size %d x %d is outside %d..%d pixels",
-				      width, height, MIN_SIZE, MAX_SIZE);
-	for (size_t i = 0; i < n_panels; i++) {
-		r = check_panel(&panels[i], i, err);
-		if (r < 0)
-			return r;
-	}
-
+	if (r < 0)
+		return r;
+	if (!f)
+		return asph_error_set(err, -EINVAL, "a plot needs a file");
 	surface = cairo_image_surface_create(CAIRO_FORMAT_RGB24, width, height);
 	cr = cairo_create(surface);
 	if (cairo_status(cr) != CAIRO_STATUS_SUCCESS)
@@ -506,10 +510,33 @@ int asph_plot_panels_png(const char *path, const struct asph_plot_panel *panels,
 	cairo_paint(cr);
 	for (size_t i = 0; i < n_panels; i++) {
 		plot_figure_panel(width, height, n_panels, i, &panel);
-		draw_panel(cr, &panels[i], &panel);
+		plot_draw_panel(cr, &panels[i], &panel);
 	}
 	cairo_surface_flush(surface);
-	return write_png(surface, path, err);
+	return write_png(surface, f, name ? name : "the plot", err);
+}
+
+int asph_plot_panels_png(const char *path, const struct asph_plot_panel *panels,
+			 size_t n_panels, int width, int height,
+			 struct asph_error *err)
+{
+	FILE *f;
+	int r = check_figure(panels, n_panels, &width, &height, err);
+
+	if (r < 0)
+		return r;
+	if (!path)
+		return asph_error_set(err, -EINVAL, "a plot needs a path and 1 to 16 panels");
+	f = fopen(path, "wbe");
+	if (!f)
+		return asph_error_set(err, -errno, "cannot create %s: %s", path,
+				      strerror(errno));
+	r = asph_plot_panels_png_stream(f, path, panels, n_panels, width, height, err);
+	if (fclose(f) != 0 && r == 0)
+		r = asph_error_set(err, -errno, "cannot write %s: %s", path, strerror(errno));
+	if (r < 0)
+		unlink(path);
+	return r;
 }
 
 #else /* !HAVE_CAIRO */
@@ -517,6 +544,14 @@ int asph_plot_panels_png(const char *path, const struct asph_plot_panel *panels,
 int asph_plot_panels_png(const char *path, const struct asph_plot_panel *panels,
 			 size_t n_panels, int width, int height,
 			 struct asph_error *err)
+{
+	return asph_error_set(err, -ENOTSUP,
+			      "PNG plots need cairo, and this libasph was built without it");
+}
+
+int asph_plot_panels_png_stream(FILE *f, const char *name,
+				const struct asph_plot_panel *panels, size_t n_panels,
+				int width, int height, struct asph_error *err)
 {
 	return asph_error_set(err, -ENOTSUP,
 			      "PNG plots need cairo, and this libasph was built without it");
@@ -530,10 +565,8 @@ static int single_panel(const char *path, const struct asph_plot_panel *p,
 	return asph_plot_panels_png(path, p, 1, p->opts.width, p->opts.height, err);
 }
 
-int asph_plot_points_png(const char *path, const double *xyz,
-			 const double *value, size_t n,
-			 const struct asph_plot_options *opts,
-			 struct asph_error *err)
+static struct asph_plot_panel points_panel(const double *xyz, const double *value, size_t n,
+					   const struct asph_plot_options *opts)
 {
 	struct asph_plot_panel p = {
 		.kind = ASPH_PLOT_POINTS, .xyz = xyz, .n = n, .value = value,
@@ -541,7 +574,27 @@ int asph_plot_points_png(const char *path, const double *xyz,
 
 	if (opts)
 		p.opts = *opts;
+	return p;
+}
+
+int asph_plot_points_png(const char *path, const double *xyz,
+			 const double *value, size_t n,
+			 const struct asph_plot_options *opts,
+			 struct asph_error *err)
+{
+	struct asph_plot_panel p = points_panel(xyz, value, n, opts);
+
 	return single_panel(path, &p, err);
+}
+
+int asph_plot_points_png_stream(FILE *f, const char *name, const double *xyz,
+				const double *value, size_t n,
+				const struct asph_plot_options *opts,
+				struct asph_error *err)
+{
+	struct asph_plot_panel p = points_panel(xyz, value, n, opts);
+
+	return asph_plot_panels_png_stream(f, name, &p, 1, p.opts.width, p.opts.height, err);
 }
 
 int asph_plot_triangles_png(const char *path, const double *xyz,

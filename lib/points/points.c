@@ -11,6 +11,7 @@
 #include <jansson.h>
 
 #include "asph/points.h"
+#include "asph/x3p.h"
 #include "plot/colormap.h"
 #include "fileio.h"
 #include "util-mem.h"
@@ -850,20 +851,17 @@ static void write_json(FILE *f, const struct asph_points *p, int prec)
 	fprintf(f, "}\n");
 }
 
-int asph_points_write(const char *path, const struct asph_points *p,
-		      const struct asph_points_write_options *opts,
-		      struct asph_error *err)
+int asph_points_write_stream(FILE *f, const char *name, const struct asph_points *p,
+			     const struct asph_points_write_options *opts,
+			     struct asph_error *err)
 {
-	int is_stdout = !strcmp(path, "-");
 	int prec = opts && opts->precision > 0 ? opts->precision : 17;
-	FILE *f = is_stdout ? stdout : fopen(path, "we");
+	const char *dot = name ? strrchr(name, '.') : NULL;
 
-	if (!f) {
-		int e = -errno;
-		return asph_error_set_at(err, e, path, 0, 0, NULL, "cannot create: %s",
-					 strerror(-e));
-	}
-	switch (is_stdout ? FMT_CSV : format_of(path)) {
+	if (dot && !strcasecmp(dot, ".x3p"))
+		return asph_error_set_at(err, -EINVAL, name, 0, 0, NULL,
+					 "X3P is a container written by path, not to a stream");
+	switch (name ? format_of(name) : FMT_CSV) {
 	case FMT_PLY:
 		write_ply(f, p, prec, opts);
 		break;
@@ -874,12 +872,37 @@ int asph_points_write(const char *path, const struct asph_points *p,
 		write_csv(f, p, prec);
 		break;
 	}
-	int failed = fflush(f) != 0 || ferror(f);
-	int e = errno;
-	if (!is_stdout && fclose(f) != 0)
-		failed = 1, e = errno;
-	if (failed)
-		return asph_error_set_at(err, -e, is_stdout ? "<stdout>" : path, 0, 0, NULL,
+	if (fflush(f) != 0 || ferror(f)) {
+		int e = errno ? errno : EIO;
+		return asph_error_set_at(err, -e, name ? name : "<stream>", 0, 0, NULL,
 					 "write error: %s", strerror(e));
+	}
 	return 0;
+}
+
+int asph_points_write(const char *path, const struct asph_points *p,
+		      const struct asph_points_write_options *opts,
+		      struct asph_error *err)
+{
+	int is_stdout = !strcmp(path, "-");
+	const char *dot = strrchr(path, '.');
+	FILE *f;
+	int r;
+
+	/* X3P: the list layout of ISO 25178-72 (lib/export/x3p.c). */
+	if (!is_stdout && dot && !strcasecmp(dot, ".x3p"))
+		return asph_x3p_write_points(path, p->xyz, p->n, NULL, err);
+	f = is_stdout ? stdout : fopen(path, "we");
+	if (!f) {
+		int e = -errno;
+		return asph_error_set_at(err, e, path, 0, 0, NULL, "cannot create: %s",
+					 strerror(-e));
+	}
+	/* "<stdout>" names no format: CSV, as for stdout before. */
+	r = asph_points_write_stream(f, is_stdout ? "<stdout>" : path, p, opts, err);
+	if (!is_stdout && fclose(f) != 0 && r == 0) {
+		int e = errno;
+		return asph_error_set_at(err, -e, path, 0, 0, NULL, "write error: %s", strerror(e));
+	}
+	return r;
 }

@@ -544,7 +544,14 @@ int asph_scanfile_reader_open(const char *path,
 			      struct asph_scanfile_reader **out,
 			      struct asph_error *err)
 {
-	int fd = open(path, O_RDONLY | O_CLOEXEC);
+	return asph_scanfile_reader_open_at(AT_FDCWD, path, out, err);
+}
+
+int asph_scanfile_reader_open_at(int dirfd, const char *path,
+				 struct asph_scanfile_reader **out,
+				 struct asph_error *err)
+{
+	int fd = openat(dirfd, path, O_RDONLY | O_CLOEXEC | (dirfd == AT_FDCWD ? 0 : O_NOFOLLOW));
 
 	if (fd < 0) {
 		int code = -errno;

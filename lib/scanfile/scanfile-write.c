@@ -30,6 +30,7 @@ DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile *, asph_scanfile_free)
 
 struct asph_scanfile_writer {
 	int fd;
+	int dirfd;               /* what path is relative to: AT_FDCWD, or ours */
 	char *path;
 	uint32_t block_points;
 	uint64_t sync_interval_ns;
@@ -54,6 +55,8 @@ static void writer_free(struct asph_scanfile_writer *w)
 		return;
 	if (w->fd >= 0)
 		close(w->fd);
+	if (w->dirfd >= 0)
+		close(w->dirfd);
 	free(w->path);
 	free(w->buf);
 	free(w);
@@ -80,7 +83,9 @@ static uint64_t now(const struct asph_scanfile_writer *w)
 	return w->clock(w->clock_data);
 }
 
-static int writer_alloc(const char *path, const struct asph_scanfile_writer_options *opts,
+/* dirfd: AT_FDCWD, or a directory path is relative to (dup'd here). */
+static int writer_alloc(int dirfd, const char *path,
+			const struct asph_scanfile_writer_options *opts,
 			struct asph_scanfile_writer **out, struct asph_error *err)
 {
 	struct asph_scanfile_writer_options o = { 0 };
@@ -95,13 +100,14 @@ static int writer_alloc(const char *path, const struct asph_scanfile_writer_opti
 	if (!w)
 		return -ENOMEM;
 	w->fd = -1;
+	w->dirfd = dirfd == AT_FDCWD ? AT_FDCWD : fcntl(dirfd, F_DUPFD_CLOEXEC, 3);
 	w->block_points = o.block_points ? o.block_points : ASPH_SCANFILE_DEFAULT_BLOCK_POINTS;
 	w->sync_interval_ns = o.sync_interval_ns ? o.sync_interval_ns : ASPH_SCANFILE_DEFAULT_SYNC_NS;
 	w->clock = o.clock ? o.clock : monotonic_ns;
 	w->clock_data = o.clock_data;
 	w->path = strdup(path);
 	w->buf = malloc(BLOCK_OVERHEAD + (size_t)w->block_points * ASPH_SCANFILE_RECORD_SIZE);
-	if (!w->path || !w->buf) {
+	if (!w->path || !w->buf || (dirfd != AT_FDCWD && w->dirfd < 0)) {
 		writer_free(w);
 		return -ENOMEM;
 	}
@@ -444,15 +450,29 @@ static int write_header(struct asph_scanfile_writer *w, const char *json,
 }
 
 /* Makes the new directory entry durable too. */
-static int sync_dir(const char *path, struct asph_error *err)
+static int sync_dir(const struct asph_scanfile_writer *w, struct asph_error *err)
 {
-	_cleanup_free_ char *copy = strdup(path);
+	_cleanup_free_ char *copy = strdup(w->path);
+	_cleanup_close_ int dfd = -1;
+
 	if (!copy)
 		return -ENOMEM;
-	_cleanup_close_ int dfd = open(dirname(copy), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+	if (w->dirfd != AT_FDCWD && !strchr(w->path, '/'))
+		dfd = fcntl(w->dirfd, F_DUPFD_CLOEXEC, 3);
+	else
+		dfd = openat(w->dirfd, dirname(copy), O_RDONLY | O_DIRECTORY | O_CLOEXEC |
+			     (w->dirfd == AT_FDCWD ? 0 : O_NOFOLLOW));
 	if (dfd < 0 || (fsync(dfd) < 0 && errno != EINVAL))
-		return fail_errno(path, err, "syncing the directory");
+		return fail_errno(w->path, err, "syncing the directory");
 	return 0;
+}
+
+/* Files opened through a directory descriptor never follow a symlink. */
+static int writer_open(const struct asph_scanfile_writer *w, int flags, mode_t mode)
+{
+	if (w->dirfd == AT_FDCWD)
+		return open(w->path, flags, mode);
+	return openat(w->dirfd, w->path, flags | O_NOFOLLOW, mode);
 }
 
 static int lock_file(int fd, const char *path, struct asph_error *err)
@@ -472,7 +492,7 @@ static int open_new(struct asph_scanfile_writer *w, bool overwrite, bool *create
 	int flags = O_WRONLY | O_APPEND | O_CREAT | O_CLOEXEC | (overwrite ? 0 : O_EXCL);
 
 	/* Not O_TRUNC: the file is cut only once its lock is ours. */
-	w->fd = open(w->path, flags, 0644);
+	w->fd = writer_open(w, flags, 0644);
 	if (w->fd < 0)
 		return fail_errno(w->path, err, "cannot create");
 	*created = !overwrite;
@@ -484,18 +504,17 @@ static int open_new(struct asph_scanfile_writer *w, bool overwrite, bool *create
 	return 0;
 }
 
-int asph_scanfile_writer_create(const char *path,
-				const struct asph_scanfile_header_info *info,
-				const struct asph_scanfile_writer_options *opts,
-				struct asph_scanfile_writer **out,
-				struct asph_error *err)
+static int writer_create(int dirfd, const char *path,
+			 const struct asph_scanfile_header_info *info,
+			 const struct asph_scanfile_writer_options *opts,
+			 struct asph_scanfile_writer **out, struct asph_error *err)
 {
 	_cleanup_(writer_freep) struct asph_scanfile_writer *w = NULL;
 	_cleanup_free_ char *json = NULL;
 	bool created = false;
 	int r;
 
-	if ((r = writer_alloc(path, opts, &w, err)) < 0)
+	if ((r = writer_alloc(dirfd, path, opts, &w, err)) < 0)
 		return r;
 	if ((r = header_text(path, info, &json, err)) < 0)
 		return r;
@@ -503,16 +522,34 @@ int asph_scanfile_writer_create(const char *path,
 	if (r == 0)
 		r = write_header(w, json, err);
 	if (r == 0)
-		r = sync_dir(path, err);
+		r = sync_dir(w, err);
 	if (r < 0) {
 		/* A file without a whole header holds nothing worth keeping. */
 		if (created)
-			unlink(path);
+			unlinkat(w->dirfd, path, 0);
 		return r;
 	}
 	w->t_start = w->last_sync = now(w);
 	*out = steal_ptr(w);
 	return 0;
+}
+
+int asph_scanfile_writer_create(const char *path,
+				const struct asph_scanfile_header_info *info,
+				const struct asph_scanfile_writer_options *opts,
+				struct asph_scanfile_writer **out,
+				struct asph_error *err)
+{
+	return writer_create(AT_FDCWD, path, info, opts, out, err);
+}
+
+int asph_scanfile_writer_create_at(int dirfd, const char *path,
+				   const struct asph_scanfile_header_info *info,
+				   const struct asph_scanfile_writer_options *opts,
+				   struct asph_scanfile_writer **out,
+				   struct asph_error *err)
+{
+	return writer_create(dirfd, path, info, opts, out, err);
 }
 
 /* ---------------------------------------------------------------- resume */
@@ -590,7 +627,7 @@ static uint64_t resumed_time_base(const struct asph_scanfile_reader *r,
 static int open_existing(struct asph_scanfile_writer *w, struct asph_scanfile_reader **r,
 			 struct asph_error *err)
 {
-	w->fd = open(w->path, O_RDWR | O_APPEND | O_CLOEXEC);
+	w->fd = writer_open(w, O_RDWR | O_APPEND | O_CLOEXEC, 0);
 	if (w->fd < 0)
 		return fail_errno(w->path, err, "cannot open");
 	int ret = lock_file(w->fd, w->path, err);
@@ -599,18 +636,18 @@ static int open_existing(struct asph_scanfile_writer *w, struct asph_scanfile_re
 	return scanfile_reader_open_fd(w->fd, false, w->path, r, err);
 }
 
-int asph_scanfile_writer_resume(const char *path,
-				const struct asph_scanfile_writer_options *opts,
-				struct asph_scanfile **recovered,
-				struct asph_scanfile_writer **out,
-				struct asph_error *err)
+static int writer_resume(int dirfd, const char *path,
+			 const struct asph_scanfile_writer_options *opts,
+			 struct asph_scanfile **recovered,
+			 struct asph_scanfile_writer **out,
+			 struct asph_error *err)
 {
 	_cleanup_(writer_freep) struct asph_scanfile_writer *w = NULL;
 	_cleanup_(asph_scanfile_reader_freep) struct asph_scanfile_reader *r = NULL;
 	_cleanup_(asph_scanfile_freep) struct asph_scanfile *s = NULL;
 	int ret;
 
-	if ((ret = writer_alloc(path, opts, &w, err)) < 0 ||
+	if ((ret = writer_alloc(dirfd, path, opts, &w, err)) < 0 ||
 	    (ret = open_existing(w, &r, err)) < 0 ||
 	    (ret = scanfile_collect(r, &s, err)) < 0 ||
 	    (ret = check_resumable(path, s, opts ? opts->flags : 0, err)) < 0 ||
@@ -632,4 +669,22 @@ int asph_scanfile_writer_resume(const char *path,
 		*recovered = steal_ptr(s);
 	*out = steal_ptr(w);
 	return 0;
+}
+
+int asph_scanfile_writer_resume(const char *path,
+				const struct asph_scanfile_writer_options *opts,
+				struct asph_scanfile **recovered,
+				struct asph_scanfile_writer **out,
+				struct asph_error *err)
+{
+	return writer_resume(AT_FDCWD, path, opts, recovered, out, err);
+}
+
+int asph_scanfile_writer_resume_at(int dirfd, const char *path,
+				   const struct asph_scanfile_writer_options *opts,
+				   struct asph_scanfile **recovered,
+				   struct asph_scanfile_writer **out,
+				   struct asph_error *err)
+{
+	return writer_resume(dirfd, path, opts, recovered, out, err);
 }

@@ -8,7 +8,10 @@ recorded before stays readable and unchanged (results, scans, the store),
 the daemon keeps answering, and once there is room again it measures.
 Needs root (mount); exits 77 otherwise.
 
-  disk.py [full] [read-only]"""
+The guard that keeps room on the disk (limits.min_free_disk_mb) is
+checked on the same kind of tmpfs.
+
+  disk.py [full] [guard] [read-only]"""
 import hashlib
 import os
 import subprocess
@@ -78,16 +81,24 @@ def fill(path, leave):
     return filler
 
 
-def disk_full():
-    # "paced" measures at about 5,000 points a second, so that its scan
-    # writes a block every second: some reach the disk before it is full.
-    d = Daemon(instruments=[mock_instrument(time_factor=0), mock_instrument("paced", time_factor=0.004)])
+def on_small_tmpfs(d):
+    """A 24 MB tmpfs as d's state directory, or the test is skipped."""
     os.makedirs(d.state)
     ok, why = mount("-t", "tmpfs", "-o", "size=24m,mode=0755", "tmpfs", d.state)
     if not ok:
         print(f"SKIP: cannot mount a tmpfs: {why}")
         d.cleanup()
         sys.exit(77)
+
+
+def disk_full():
+    # "paced" measures at about 5,000 points a second, so that its scan
+    # writes a block every second: some reach the disk before it is full.
+    # The guard that keeps disk room (limits.min_free_disk_mb) is off
+    # here: this case is about a disk that fills all the same.
+    d = Daemon(instruments=[mock_instrument(time_factor=0), mock_instrument("paced", time_factor=0.004)],
+               extra={"limits": {"min_free_disk_mb": 0}})
+    on_small_tmpfs(d)
     try:
         d.start()
         c = Client(d.socket)
@@ -136,6 +147,48 @@ def disk_full():
         expect(d.stop() == 0, "disk full: clean stop")
         answer, _ = store_check(d.state)
         expect(answer == "ok", f"disk full: the store passes integrity_check ({answer})")
+    except Exception:
+        print(d.log_text()[-6000:])
+        raise
+    finally:
+        if d.proc:
+            d.stop()
+        umount(d.state)
+        d.cleanup()
+
+
+def guard():
+    """limits.min_free_disk_mb: on a 24 MB tmpfs keeping 8 MiB free, a job
+    whose recording would not leave that is refused at submission (104,
+    naming the limit), and one queued while there was room fails at its
+    start with the same reason; nothing is lost and the daemon measures
+    again once there is room."""
+    d = Daemon(instruments=[mock_instrument(time_factor=0)], extra={"limits": {"min_free_disk_mb": 8}})
+    on_small_tmpfs(d)
+    try:
+        d.start()
+        c = Client(d.socket)
+        first = c.call("job.submit", SMALL)["id"]
+        expect(wait_final(c, first)["state"] == "completed", "guard: a job with room completes")
+        # 100,000 points need about 16 MiB; 22 MiB are free, 8 are kept.
+        code = c.call_error("job.submit", {"lens": "strong", "plan": {"method": "fermat", "points": 100000}})
+        expect(code == 104, f"guard: a recording that would eat into the kept room is refused (104: {code})")
+        c.call("queue.stop")
+        queued = c.call("job.submit", SMALL)["id"]
+        filler = fill(d.state, 6 * 1024 * 1024)
+        m = c.response(c.request("job.submit", SMALL))
+        detail = m.get("error", {}).get("data", {}).get("detail", "")
+        expect(m.get("error", {}).get("code") == 104 and "min_free_disk_mb" in detail,
+               f"guard: with 6 MiB free even a small job is refused, naming the limit ({detail})")
+        c.call("queue.start")
+        j = wait_final(c, queued)
+        expect(j["state"] == "failed" and "min_free_disk_mb" in (j["reason"] or ""),
+               f"guard: the queued job fails at its start with the reason ({j['state']}: {j['reason']})")
+        os.unlink(filler)
+        c.call("job.requeue", {"id": queued})
+        expect(wait_final(c, queued)["state"] == "completed", "guard: with room again, re-queued, it completes")
+        c.close()
+        expect(d.stop() == 0, "guard: clean stop")
     except Exception:
         print(d.log_text()[-6000:])
         raise
@@ -216,9 +269,11 @@ def read_only():
         d.cleanup()
 
 
-which = sys.argv[1:] or ["full", "read-only"]
+which = sys.argv[1:] or ["full", "guard", "read-only"]
 if "full" in which:
     disk_full()
+if "guard" in which:
+    guard()
 if "read-only" in which:
     read_only()
 finish()

@@ -5,7 +5,9 @@
  * reading at a time or streamed along a sweep. Built against this tree's
  * header, against the ABI 1.0 header (tests/drivers/abi-1.0: plugins of an
  * older minor version must load and measure), and with PLUGIN_ABI set to
- * versions the host refuses.
+ * versions the host refuses. Its constructor leaves a mark where
+ * $ASPH_TEST_PLUGIN_MARK says, so that a test can tell whether any of its
+ * code ran (a plugin that is refused must not run at all).
  */
 #include <errno.h>
 #include <stdio.h>
@@ -16,6 +18,17 @@
 #ifndef PLUGIN_ABI
 #define PLUGIN_ABI ASPH_DRIVER_ABI_VERSION
 #endif
+
+__attribute__((constructor)) static void mark_loaded(void)
+{
+	const char *mark = getenv("ASPH_TEST_PLUGIN_MARK");
+	FILE *f = mark ? fopen(mark, "a") : NULL;
+
+	if (f) {
+		fputs("loaded\n", f);
+		fclose(f);
+	}
+}
 
 struct asph_device {
 	double height;

@@ -7,6 +7,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cmocka.h>
@@ -142,6 +143,52 @@ static const struct asph_option_value *spec_value(const struct asph_config *c,
 			return &asph_options_values(c->instruments[0].probe_options)[i];
 	fail_msg("no option %s", name);
 	return NULL;
+}
+
+/* The mock's part is the lens being measured unless the configuration
+ * names another; each job replaces the last job's lens. */
+static void test_lens_follows_job(void **state)
+{
+	struct fixture *f = *state;
+	struct asph_config *c;
+	struct asph_error err;
+
+	assert_int_equal(asph_instrument_spec_parse(f->reg, "mock", &c, &err), 0);
+	assert_string_equal(spec_value(c, "lens")->s, "");
+	assert_int_equal(asph_instrument_config_set_lens(&c->instruments[0], "{\"a\":1}", &err), 0);
+	assert_string_equal(spec_value(c, "lens")->s, "{\"a\":1}");
+	assert_false(spec_value(c, "lens")->set);
+	assert_int_equal(asph_instrument_config_set_lens(&c->instruments[0], "{\"b\":2}", &err), 0);
+	assert_string_equal(spec_value(c, "lens")->s, "{\"b\":2}");
+	asph_config_free(c);
+
+	assert_int_equal(asph_instrument_spec_parse(f->reg, "mock:lens=weak", &c, &err), 0);
+	assert_int_equal(asph_instrument_config_set_lens(&c->instruments[0], "{\"a\":1}", &err), 0);
+	assert_string_equal(spec_value(c, "lens")->s, "weak");
+	assert_true(spec_value(c, "lens")->set);
+	asph_config_free(c);
+}
+
+/* A worker's copy of an instrument is the whole instrument: its options and
+ * its acquisition settings. */
+static void test_config_copy(void **state)
+{
+	struct fixture *f = *state;
+	struct asph_config *c, *copy;
+	struct asph_error err;
+
+	assert_int_equal(asph_instrument_spec_parse(f->reg, "mock:rate=2500,settle_dwell=0.03,"
+		"drift_interval=900points,drift_references=1:2;-3:4,retries=5", &c, &err), 0);
+	assert_int_equal(asph_instrument_config_copy(&c->instruments[0], &copy, &err), 0);
+	const struct asph_acquisition *a = &copy->instruments[0].acquisition;
+	assert_true(spec_value(copy, "rate")->d == 2500);
+	assert_true(a->settle_dwell == 0.03);
+	assert_int_equal(a->drift_interval_points, 900);
+	assert_int_equal(a->n_references, 2);
+	assert_true(a->references[1][0] == -3 && a->references[1][1] == 4);
+	assert_int_equal(a->retries, 5);
+	asph_config_free(copy);
+	asph_config_free(c);
 }
 
 static void test_spec(void **state)
@@ -295,7 +342,7 @@ static void test_plugins(void **state)
 	assert_non_null(strstr(err.message, "ABI 999"));
 	assert_string_equal(err.source, bad);
 	assert_int_equal(asph_registry_count(reg), n0);
-	assert_int_equal(asph_registry_load_plugin(reg, "/nonexistent/x.so", &err), -ENOEXEC);
+	assert_int_equal(asph_registry_load_plugin(reg, "/nonexistent/x.so", &err), -ENOENT);
 	assert_int_equal(asph_registry_load_plugin(reg, good, &err), 0);
 	assert_int_equal(asph_registry_count(reg), n0 + 1);
 	assert_string_equal(asph_registry_origin(reg, n0), good);
@@ -427,12 +474,97 @@ static void test_plugin_dir(void **state)
 	rmdir(dir);
 }
 
+/* Copies the file at from to to with mode. */
+static void copy_file(const char *from, const char *to, mode_t mode)
+{
+	char buf[65536];
+	FILE *in = fopen(from, "rb"), *out = fopen(to, "wb");
+	size_t n;
+
+	assert_non_null(in);
+	assert_non_null(out);
+	while ((n = fread(buf, 1, sizeof(buf), in)) > 0)
+		assert_int_equal(fwrite(buf, 1, n, out), n);
+	fclose(in);
+	fclose(out);
+	assert_int_equal(chmod(to, mode), 0);
+}
+
+static bool marked(const char *mark)
+{
+	return access(mark, F_OK) == 0;
+}
+
+/* A plugin others could have written is refused before any of its code
+ * runs (its constructor leaves a mark); a trusted copy loads. */
+static void test_plugin_trust(void **state)
+{
+	const char *good = getenv("ASPH_TEST_PLUGIN_GOOD");
+	char dir[] = "/tmp/asph-test-trust-XXXXXX", so[128], mark[128], sub[128];
+	struct asph_registry *reg;
+	struct asph_error err;
+
+	if (!good)
+		skip();
+	assert_non_null(mkdtemp(dir));
+	assert_int_equal(chmod(dir, 0755), 0);
+	snprintf(so, sizeof(so), "%s/echo.so", dir);
+	snprintf(mark, sizeof(mark), "%s/mark", dir);
+	setenv("ASPH_TEST_PLUGIN_MARK", mark, 1);
+	assert_int_equal(asph_registry_new(&reg, NULL), 0);
+
+	copy_file(good, so, 0666);
+	asph_error_clear(&err);
+	assert_int_equal(asph_registry_load_plugin(reg, so, &err), -EPERM);
+	assert_non_null(strstr(err.message, "writable by every user"));
+	assert_false(marked(mark));
+	assert_int_equal(chmod(so, 0664), 0);
+	assert_int_equal(asph_registry_load_plugin(reg, so, &err), -EPERM);
+	assert_false(marked(mark));
+	/* A directory others may write, on the way. */
+	assert_int_equal(chmod(so, 0755), 0);
+	assert_int_equal(chmod(dir, 0777), 0);
+	assert_int_equal(asph_registry_load_plugin(reg, so, &err), -EPERM);
+	assert_non_null(strstr(err.message, "other users may write it"));
+	assert_false(marked(mark));
+	assert_int_equal(chmod(dir, 0755), 0);
+	if (geteuid() == 0) {
+		/* Another user's file, or one in another user's directory. */
+		assert_int_equal(chown(so, 65534, 65534), 0);
+		assert_int_equal(asph_registry_load_plugin(reg, so, &err), -EPERM);
+		assert_non_null(strstr(err.message, "belongs to another user"));
+		assert_int_equal(chown(so, 0, 0), 0);
+		snprintf(sub, sizeof(sub), "%s/sub", dir);
+		assert_int_equal(mkdir(sub, 0755), 0);
+		assert_int_equal(chown(sub, 65534, 65534), 0);
+		snprintf(so, sizeof(so), "%s/sub/echo.so", dir);
+		copy_file(good, so, 0755);
+		assert_int_equal(asph_registry_load_plugin(reg, so, &err), -EPERM);
+		assert_false(marked(mark));
+		unlink(so);
+		rmdir(sub);
+		snprintf(so, sizeof(so), "%s/echo.so", dir);
+	} else {
+		print_message("not root: the cases of another user's files are left out\n");
+	}
+	assert_int_equal(asph_registry_load_plugin(reg, so, &err), 0);
+	assert_true(marked(mark));
+	assert_non_null(asph_registry_find(reg, "echo"));
+	asph_registry_free(reg);
+	unsetenv("ASPH_TEST_PLUGIN_MARK");
+	unlink(mark);
+	unlink(so);
+	rmdir(dir);
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
 		cmocka_unit_test_setup_teardown(test_builtin, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_validate_refuses, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_options, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_lens_follows_job, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_config_copy, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_spec, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_config_file, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_config_refusals, setup, teardown),
@@ -440,6 +572,7 @@ int main(void)
 		cmocka_unit_test(test_plugins),
 		cmocka_unit_test(test_plugin_dir),
 		cmocka_unit_test(test_plugin_abi_1_0),
+		cmocka_unit_test(test_plugin_trust),
 	};
 	return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -277,6 +277,15 @@ class Client:
         raise TimeoutError(f"job {job} did not reach {states}")
 
 
+def free_port():
+    """A TCP port on 127.0.0.1 that nothing listens on (for tcp_listen)."""
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return port
+
+
 def poll_state(client, job, states, timeout=120):
     deadline = time.time() + timeout
     while time.time() < deadline:

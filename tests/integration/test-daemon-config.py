@@ -10,20 +10,12 @@ import socket
 import subprocess
 import time
 
-from daemontest import ASPHD, Client, Daemon, expect, finish, mock_instrument, poll_state
+from daemontest import ASPHD, Client, Daemon, expect, finish, mock_instrument, poll_state, free_port
 
 
 def check(path):
     p = subprocess.run([ASPHD, "--check-config", "--config", path], capture_output=True, text=True)
     return p.returncode, p.stdout, p.stderr
-
-
-def free_port():
-    s = socket.socket()
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
 
 
 d = Daemon()
@@ -89,7 +81,7 @@ try:
     port = free_port()
     token = os.path.join(d.top, "token")
     with open(token, "w") as f:
-        f.write("s3cr3t-t0ken-0123456789\n")
+        f.write("Kq8vT2mXw9LpZr4bNc7YhGd3\n")
     os.chmod(token, 0o600)
     cfg = {"instruments": [mock_instrument()], "tcp_listen": f"127.0.0.1:{port}", "token_file": token}
     json.dump(cfg, open(d.config, "w"))
@@ -104,7 +96,7 @@ try:
 
     expect(tcall("daemon.status").get("error", {}).get("code") == 100, "TCP: nothing before hello")
     expect(tcall("hello", {"token": "wrong"}).get("error", {}).get("code") == 100, "TCP: a wrong token is refused")
-    r = tcall("hello", {"token": "s3cr3t-t0ken-0123456789"})
+    r = tcall("hello", {"token": "Kq8vT2mXw9LpZr4bNc7YhGd3"})
     expect(r.get("result", {}).get("peer", {}).get("operator") is True, "TCP: the token authenticates an operator")
     expect("result" in tcall("daemon.status"), "TCP: then every method works")
     t.close()

@@ -162,7 +162,7 @@ try:
     # --- a token file must belong to the daemon's user and be private
     token = os.path.join(d.top, "token")
     with open(token, "w") as f:
-        f.write("0123456789abcdef-token\n")
+        f.write("Kq8vT2mXw9LpZr4bNc7YhGd3\n")
     os.chmod(token, 0o600)
     os.chown(token, NOBODY, NOGROUP)
     json.dump(dict(cfg, tcp_listen="127.0.0.1:0", token_file=token), open(d.config, "w"))

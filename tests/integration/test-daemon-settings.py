@@ -11,17 +11,9 @@ import os
 import socket
 import subprocess
 
-from daemontest import ASPHD, Daemon, expect, finish, mock_instrument
+from daemontest import ASPHD, Daemon, expect, finish, mock_instrument, free_port
 
-TOKEN = "s3cr3t-t0ken-0123456789"
-
-
-def free_port():
-    s = socket.socket()
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
+TOKEN = "Kq8vT2mXw9LpZr4bNc7YhGd3"
 
 
 def errors(text):

@@ -106,7 +106,10 @@ try:
     c.call("daemon.status")
     poll_state(c, job, ["completed"])
     c.call("job.get", {"id": job, "history": True})
-    c.call("job.result", {"id": job})
+    res = c.call("job.result", {"id": job})
+    piece = c.call("job.file", {"id": job, "name": res["files"]["result"], "offset": 0, "length": 64})
+    expect(piece["size"] > 64 and not piece["eof"] and len(piece["data"]) == 88,
+           f"job.file: the first 64 bytes of result.json, base64 ({piece['size']} bytes in all)")
     c.call("queue.stop", {"abort": False})
     j2 = c.call("job.submit", {"lens": "strong", "plan": {"method": "fermat", "points": 300}, "priority": 2})["id"]
     j3 = c.call("job.submit", {"lens": "strong", "plan": {"method": "fermat", "points": 300}})["id"]

@@ -185,14 +185,16 @@ static void test_subscriptions(void **state)
 	struct event job4 = { .class = EVENT_JOB, .job = 4, .method = "job.state" };
 	struct event queue = { .class = EVENT_QUEUE, .method = "queue.state" };
 
+	const struct event_quota two = { .owner = "uid 7", .max = 2, .per_owner = 2 };
+
 	assert_int_equal(events_new(&e), 0);
-	assert_int_equal(events_subscribe(e, &a, EVENT_ALL, 0, 2), 0);
-	assert_int_equal(events_subscribe(e, &b, EVENT_JOB, 3, 2), 0);
+	assert_int_equal(events_subscribe(e, &a, EVENT_ALL, 0, &two), 0);
+	assert_int_equal(events_subscribe(e, &b, EVENT_JOB, 3, &two), 0);
 	assert_int_equal(events_subscriptions(e), 2);
 	/* At the limit: refused and unchanged; a change of one is no new one. */
-	assert_int_equal(events_subscribe(e, &c, EVENT_QUEUE, 0, 2), -EUSERS);
+	assert_int_equal(events_subscribe(e, &c, EVENT_QUEUE, 0, &two), -EUSERS);
 	assert_int_equal(c.classes, 0);
-	assert_int_equal(events_subscribe(e, &b, EVENT_JOB | EVENT_PROGRESS, 3, 2), 0);
+	assert_int_equal(events_subscribe(e, &b, EVENT_JOB | EVENT_PROGRESS, 3, &two), 0);
 	assert_int_equal(events_subscriptions(e), 2);
 	assert_true(events_subscription_matches(&a, &job4));
 	assert_true(events_subscription_matches(&b, &job3));
@@ -206,12 +208,51 @@ static void test_subscriptions(void **state)
 	assert_int_equal(events_subscriptions(e), 1);
 	assert_false(events_subscription_matches(&b, &job3));
 	/* No classes is an end too; classes outside EVENT_ALL are none. */
-	assert_int_equal(events_subscribe(e, &a, 0, 0, 2), 0);
+	assert_int_equal(events_subscribe(e, &a, 0, 0, &two), 0);
 	assert_int_equal(events_subscriptions(e), 0);
-	assert_int_equal(events_subscribe(e, &c, 1u << 12, 0, 2), 0);
+	assert_int_equal(events_subscribe(e, &c, 1u << 12, 0, &two), 0);
 	assert_int_equal(events_subscriptions(e), 0);
 	events_unsubscribe(e, &c);
 	assert_int_equal(events_subscriptions(e), 0);
+	events_free(e);
+}
+
+/* Per owner, and the last subscriptions kept for operators. */
+static void test_quotas(void **state)
+{
+	struct events *e;
+	struct event_subscription s[6] = { { 0 } };
+	struct event_quota reader = { .owner = "uid 1000", .max = 5, .per_owner = 2,
+				      .reserved = 2 };
+	struct event_quota other = reader, op = reader;
+
+	other.owner = "uid 1001";
+	op.owner = "uid 1002";
+	op.operator = true;
+	assert_int_equal(events_new(&e), 0);
+	assert_int_equal(events_subscribe(e, &s[0], EVENT_ALL, 0, &reader), 0);
+	assert_int_equal(events_subscribe(e, &s[1], EVENT_ALL, 0, &reader), 0);
+	/* A third of the same owner: its quota. */
+	assert_int_equal(events_subscribe(e, &s[2], EVENT_ALL, 0, &reader), -EDQUOT);
+	assert_int_equal(events_subscriptions_of(e, "uid 1000"), 2);
+	/* Another reader takes the last one open to all... */
+	assert_int_equal(events_subscribe(e, &s[2], EVENT_ALL, 0, &other), 0);
+	assert_int_equal(events_subscribe(e, &s[3], EVENT_JOB, 0, &other), -EUSERS);
+	/* ...and an operator still gets the two kept for operators. */
+	assert_int_equal(events_subscribe(e, &s[3], EVENT_JOB, 0, &op), 0);
+	assert_int_equal(events_subscribe(e, &s[4], EVENT_JOB, 0, &op), 0);
+	assert_int_equal(events_subscribe(e, &s[5], EVENT_JOB, 0, &op), -EUSERS);
+	assert_int_equal(events_subscriptions(e), 5);
+	/* Ended twice, counted off once, from its own owner. */
+	events_unsubscribe(e, &s[0]);
+	events_unsubscribe(e, &s[0]);
+	assert_int_equal(events_subscriptions_of(e, "uid 1000"), 1);
+	assert_int_equal(events_subscriptions_of(e, "uid 1002"), 2);
+	assert_int_equal(events_subscriptions(e), 4);
+	for (size_t i = 0; i < 6; i++)
+		events_unsubscribe(e, &s[i]);
+	assert_int_equal(events_subscriptions(e), 0);
+	assert_int_equal(events_subscriptions_of(e, "uid 1000"), 0);
 	events_free(e);
 }
 
@@ -223,6 +264,7 @@ int main(void)
 		cmocka_unit_test(test_add_while_told),
 		cmocka_unit_test(test_builders),
 		cmocka_unit_test(test_subscriptions),
+		cmocka_unit_test(test_quotas),
 	};
 
 	return cmocka_run_group_tests(tests, NULL, NULL);

@@ -5,6 +5,7 @@
  * and no sockets: every transition, with its record, count, history and
  * event, and every refused transition, which changes nothing.
  */
+#include <dirent.h>
 #include <errno.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -222,7 +223,7 @@ static int ignore(const struct job_record *j, void *data)
 static void assert_counts(struct fixture *f)
 {
 	for (int s = 0; s < JOB_N_STATES; s++) {
-		struct store_filter one = { .uid = -1, .states = 1u << s, .limit = 1 };
+		struct store_filter one = { .uid = STORE_ANY_UID, .states = 1u << s, .limit = 1 };
 		int64_t n = -1;
 
 		assert_int_equal(jobs_list(f->jobs, &one, ignore, NULL, &n, NULL), 0);
@@ -521,6 +522,82 @@ static void test_queue_stop_abort(void **state)
 	assert_counts(f);
 }
 
+/* queue.stop abort, then job.cancel before the scan has stopped: the
+ * cancel is not lost, the job ends cancelled (not interrupted). */
+static void test_cancel_after_queue_stop_abort(void **state)
+{
+	struct fixture *f = *state;
+	int64_t a = submit_to(f, "slow1", SLOW_POINTS, 0);
+	struct history h;
+	struct job_record j;
+
+	assert_int_equal(jobs_queue_start(f->jobs, &root, NULL), 0);
+	run_until_measuring(f, 1, a);
+	assert_int_equal(jobs_queue_stop(f->jobs, true, &root, NULL), 0);
+	assert_int_equal(jobs_cancel(f->jobs, a, &root, &j, NULL), 0);
+	assert_int_equal(j.state, JOB_RUNNING);         /* stopping: the worker decides when */
+	job_record_clear(&j);
+	assert_int_equal(run_while(f, a, BUSY), JOB_CANCELLED);
+	assert_event(f, a, "running", "cancelled");
+	h = history_of(f, a);
+	assert_int_equal(h.states[h.n - 1], JOB_CANCELLED);
+	for (size_t i = 0; i < h.n; i++)
+		assert_int_not_equal(h.states[i], JOB_INTERRUPTED);
+	j = get(f, a);
+	assert_true(j.finished_ns > 0);
+	/* The recording stays: re-queued, the job continues it. */
+	assert_true(j.resume);
+	job_record_clear(&j);
+	assert_int_equal(jobs_activity(f->jobs, 1)->job, 0);
+	assert_counts(f);
+}
+
+/*
+ * A cancel while the recorded points are characterized: the job ends
+ * cancelled, with no result, its recording kept; re-queued it is
+ * characterized again and completes. The cancel is taken while the loop
+ * sees the worker characterizing (its RUNNER_CHARACTERIZING report); a
+ * worker fast enough to finish first still ends the job cancelled, since
+ * the cancel was accepted while the job ran.
+ */
+static void test_cancel_while_characterizing(void **state)
+{
+	struct fixture *f = *state;
+	int64_t a = submit_to(f, "fast", 20000, 0);
+	const struct instrument_activity *act = jobs_activity(f->jobs, 0);
+	char status[128];
+	struct job_record j;
+	bool seen = false;
+
+	assert_int_equal(jobs_queue_start(f->jobs, &root, NULL), 0);
+	while (state_of(f, a) == JOB_RUNNING && !(seen = act->characterizing))
+		assert_true(sd_event_run(f->event, UINT64_MAX) >= 0);
+	if (seen) {
+		jobs_status_text(f->jobs, status, sizeof(status));
+		assert_non_null(strstr(status, "characterizing"));
+	} else {
+		print_message("the worker finished before the loop saw it characterize\n");
+	}
+	assert_int_equal(state_of(f, a), JOB_RUNNING);
+	assert_int_equal(jobs_cancel(f->jobs, a, &root, NULL, NULL), 0);
+	assert_int_equal(run_while(f, a, BUSY), JOB_CANCELLED);
+	assert_event(f, a, "running", "cancelled");
+	j = get(f, a);
+	assert_null(j.result);
+	assert_int_equal(j.points_done, 20000);
+	job_record_clear(&j);
+	assert_int_equal(jobs_result(f->jobs, a, &(json_t *){ NULL }, NULL), -ENODATA);
+
+	/* The scan was complete: re-queued, it is characterized, not measured. */
+	assert_int_equal(jobs_requeue(f->jobs, a, false, &root, NULL, NULL), 0);
+	assert_int_equal(run_while(f, a, BUSY), JOB_COMPLETED);
+	j = get(f, a);
+	assert_non_null(j.result);
+	assert_int_equal(j.attempts, 2);
+	job_record_clear(&j);
+	assert_counts(f);
+}
+
 static void test_requeue(void **state)
 {
 	struct fixture *f = *state;
@@ -583,21 +660,44 @@ static void test_job_folder_refused(void **state)
 {
 	struct fixture *f = *state;
 	int64_t a = submit_to(f, "fast", FAST_POINTS, 0);
-	char path[128];
+	int64_t b = submit_to(f, "fast", FAST_POINTS, 0);
+	int64_t c = submit_to(f, "fast", FAST_POINTS, 0);
+	char path[128], target[128];
 	FILE *file;
+	DIR *d;
+	int n = 0;
 
-	/* A file where the job's folder goes: the job cannot start. */
+	/* A file where a's folder goes, a symlink where b's goes: neither can
+	 * start. They fail at once, and the queue goes on to c without being
+	 * told again (it used to wait for the next change). */
 	snprintf(path, sizeof(path), "%s/jobs", f->dir);
 	assert_int_equal(mkdir(path, 0755), 0);
 	snprintf(path, sizeof(path), "%s/jobs/%" PRId64, f->dir, a);
 	file = fopen(path, "w");
 	assert_non_null(file);
 	fclose(file);
+	snprintf(target, sizeof(target), "%s/elsewhere", f->dir);
+	assert_int_equal(mkdir(target, 0755), 0);
+	snprintf(path, sizeof(path), "%s/jobs/%" PRId64, f->dir, b);
+	assert_int_equal(symlink(target, path), 0);
+
 	assert_int_equal(jobs_queue_start(f->jobs, &root, NULL), 0);
 	assert_int_equal(state_of(f, a), JOB_FAILED);
+	assert_int_equal(state_of(f, b), JOB_FAILED);
+	assert_int_equal(state_of(f, c), JOB_RUNNING);
+	assert_int_equal(jobs_activity(f->jobs, 0)->job, c);
 	assert_event(f, a, "queued", "failed");
 	assert_non_null(strstr(last_state_event(f, a)->reason, "cannot create the job directory"));
-	assert_int_equal(jobs_activity(f->jobs, 0)->job, 0);
+	assert_event(f, b, "queued", "failed");
+	assert_non_null(strstr(last_state_event(f, b)->reason, "symbolic link"));
+	assert_int_equal(run_while(f, c, BUSY), JOB_COMPLETED);
+	/* Nothing was written where the link points. */
+	d = opendir(target);
+	assert_non_null(d);
+	for (struct dirent *e; (e = readdir(d));)
+		n += e->d_name[0] != '.';
+	closedir(d);
+	assert_int_equal(n, 0);
 	assert_counts(f);
 }
 
@@ -808,6 +908,8 @@ int main(void)
 		cmocka_unit_test_setup_teardown(test_cancel_paused, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_driver_fault, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_queue_stop_abort, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_cancel_after_queue_stop_abort, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_cancel_while_characterizing, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_requeue, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_job_folder_refused, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_move, setup, teardown),

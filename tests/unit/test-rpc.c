@@ -39,6 +39,7 @@ static void as(struct rpc_session *s, uid_t uid, const char *name)
 	s->peer.uid = uid;
 	s->peer.gid = uid;
 	snprintf(s->peer.name, sizeof(s->peer.name), "%s", name);
+	snprintf(s->peer.key, sizeof(s->peer.key), "uid %u", (unsigned)uid);
 	s->authenticated = true;
 }
 
@@ -54,6 +55,7 @@ static int setup(void **state)
 	assert_int_equal(settings_defaults(&f->settings), 0);
 	f->settings->limits.max_queue = 2;
 	f->settings->limits.max_subscriptions = 2;
+	f->settings->limits.reserved_subscriptions = 0;
 	f->settings->limits.max_plan_points = 4000;
 	asph_error_clear(&err);
 	assert_int_equal(sd_event_new(&f->event), 0);
@@ -240,12 +242,132 @@ static void test_subscriptions(void **state)
 	assert_int_equal(events_subscriptions(f->events), 1);
 }
 
+/* Collects what a line writes, step by step. */
+struct written {
+	char text[1 << 16];
+	size_t len;
+	size_t writes;
+};
+
+static int take(const char *text, size_t len, void *data)
+{
+	struct written *w = data;
+
+	assert_true(w->len + len < sizeof(w->text));
+	memcpy(w->text + w->len, text, len);
+	w->len += len;
+	w->text[w->len] = '\0';
+	w->writes++;
+	return 0;
+}
+
+/* A batch is answered a request per step, and past max_response_bytes the
+ * rest is refused unrun: a notification there is not carried out. */
+static void test_batch_budget(void **state)
+{
+	struct fixture *f = *state;
+	static struct written w;
+	char batch[4096], one[128];
+	struct rpc_line *l;
+	json_t *answers, *a;
+	size_t n = 0, i, answered = 0, refused = 0, steps = 0;
+	int r;
+
+	f->settings->limits.max_response_bytes = 4096;
+	n += (size_t)snprintf(batch + n, sizeof(batch) - n, "[");
+	for (int k = 1; k <= 12; k++) {
+		snprintf(one, sizeof(one),
+			 "{\"jsonrpc\": \"2.0\", \"id\": %d, \"method\": \"driver.list\"}", k);
+		n += (size_t)snprintf(batch + n, sizeof(batch) - n, "%s, ", one);
+	}
+	/* Notifications last: queue.start (the queue is stopped) must not run. */
+	snprintf(batch + n, sizeof(batch) - n,
+		 "{\"jsonrpc\": \"2.0\", \"method\": \"queue.start\"}]");
+	assert_int_equal(rpc_line_new(f->rpc, &f->root, batch, strlen(batch), &l), 0);
+	memset(&w, 0, sizeof(w));
+	while ((r = rpc_line_step(l, take, &w)) > 0) {
+		size_t seen = 0;
+		steps++;
+		/* Each step has written exactly one more answer. */
+		for (const char *p = w.text; (p = strstr(p, "\"jsonrpc\"")); p++)
+			seen++;
+		assert_int_equal(seen, steps);
+	}
+	assert_int_equal(r, 0);
+	rpc_line_free(l);
+	assert_int_equal(steps + 1, 13);
+	assert_true(w.text[w.len - 1] == '\n');
+	answers = json_loads(w.text, 0, NULL);
+	assert_non_null(answers);
+	assert_int_equal(json_array_size(answers), 12);
+	json_array_foreach(answers, i, a) {
+		json_t *e = json_object_get(a, "error");
+		assert_int_equal(json_integer_value(json_object_get(a, "id")), (json_int_t)i + 1);
+		if (!e) {
+			assert_int_equal(refused, 0);   /* answered ones come first */
+			answered++;
+			continue;
+		}
+		refused++;
+		assert_int_equal(json_integer_value(json_object_get(e, "code")),
+				 PROTO_RESPONSE_TOO_LARGE);
+		assert_non_null(strstr(json_string_value(json_object_get(json_object_get(e, "data"),
+									  "detail")),
+				       "max_response_bytes"));
+	}
+	/* Each driver.list answer is a few kB: the first passes 4096. */
+	assert_true(answered >= 1 && answered < 4);
+	assert_int_equal(answered + refused, 12);
+	json_decref(answers);
+	assert_false(jobs_queue_running(f->jobs));
+}
+
+/* The exact sequence of the issue: a batch [events.subscribe, ...,
+ * events.unsubscribe] of a client dropped in its middle (the transport
+ * frees the line and closes the session), and one that runs to the end
+ * and then closes: each counts once. */
+static void test_batch_dropped_subscriber(void **state)
+{
+	struct fixture *f = *state;
+	const char *batch = "[{\"jsonrpc\": \"2.0\", \"id\": 1, \"method\": \"events.subscribe\"},"
+			    " {\"jsonrpc\": \"2.0\", \"id\": 2, \"method\": \"version\"},"
+			    " {\"jsonrpc\": \"2.0\", \"id\": 3, \"method\": \"events.unsubscribe\"}]";
+	struct rpc_session a = { 0 }, b = { 0 };
+	static struct written w;
+	struct rpc_line *l;
+
+	as(&a, 1000, "anna");
+	as(&b, 1001, "ben");
+	rpc_session_open(f->rpc, &a);
+	rpc_session_open(f->rpc, &b);
+	assert_int_equal(rpc_line_new(f->rpc, &a, batch, strlen(batch), &l), 0);
+	assert_int_equal(rpc_line_step(l, take, &w), 1);
+	assert_int_equal(events_subscriptions(f->events), 1);
+	rpc_line_free(l);
+	rpc_session_close(f->rpc, &a);
+	assert_int_equal(events_subscriptions(f->events), 0);
+	for (int round = 0; round < 3; round++) {
+		json_decref(line(f, &b, batch));
+		assert_int_equal(events_subscriptions(f->events), 0);
+	}
+	rpc_session_close(f->rpc, &b);
+	assert_int_equal(events_subscriptions(f->events), 0);
+	/* Both slots are free: two new subscribers get them. */
+	json_decref(result_of(f, &f->root, "{\"jsonrpc\": \"2.0\", \"id\": 1, \"method\": "
+			      "\"events.subscribe\"}"));
+	json_decref(result_of(f, &f->reader, "{\"jsonrpc\": \"2.0\", \"id\": 1, \"method\": "
+			      "\"events.subscribe\"}"));
+	assert_int_equal(events_subscriptions(f->events), 2);
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
 		cmocka_unit_test_setup_teardown(test_job_errors, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_sessions_and_requests, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_subscriptions, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_batch_budget, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_batch_dropped_subscriber, setup, teardown),
 	};
 
 	return cmocka_run_group_tests(tests, NULL, NULL);

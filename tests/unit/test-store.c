@@ -148,7 +148,7 @@ static void test_list(void **state)
 {
 	struct fixture *f = *state;
 	int64_t id[6], got[8] = { 0 }, total = 0;
-	struct store_filter flt = { .uid = -1, .limit = 2, .offset = 1 };
+	struct store_filter flt = { .uid = STORE_ANY_UID, .limit = 2, .offset = 1 };
 
 	for (int i = 0; i < 6; i++)
 		id[i] = add(f->s, i % 2 ? "m1" : "m2", 0, i < 3 ? "x" : "y");
@@ -161,7 +161,7 @@ static void test_list(void **state)
 	assert_int_equal(got[2], 0);
 	/* by state, instrument, label */
 	memset(got, 0, sizeof(got));
-	flt = (struct store_filter){ .uid = -1, .states = 1u << JOB_QUEUED, .instrument = "m2",
+	flt = (struct store_filter){ .uid = STORE_ANY_UID, .states = 1u << JOB_QUEUED, .instrument = "m2",
 				     .label = "x" };
 	assert_int_equal(store_list(f->s, &flt, collect, got, &total), 0);
 	assert_int_equal(total, 2);
@@ -236,6 +236,37 @@ static void test_schema_corrupt(void **state)
 	assert_non_null(strstr(err.message, "schema 2, newer than 1"));
 }
 
+/* A symlink in place of the store or of its write-ahead log: refused, and
+ * the file it points at is left as it was. */
+static void test_no_symlinks(void **state)
+{
+	struct fixture *f = *state;
+	struct asph_error err;
+	struct store *s2 = NULL;
+	char other[128], link[160], victim[128];
+	FILE *v;
+
+	snprintf(victim, sizeof(victim), "%s/victim", f->dir);
+	v = fopen(victim, "w");
+	assert_non_null(v);
+	fputs("precious", v);
+	fclose(v);
+	snprintf(other, sizeof(other), "%s/other.sqlite", f->dir);
+	assert_int_equal(symlink(victim, other), 0);
+	asph_error_clear(&err);
+	assert_int_equal(store_open(other, &s2, &err), -ELOOP);
+	assert_non_null(strstr(err.message, "not a regular file"));
+	unlink(other);
+	snprintf(link, sizeof(link), "%s-wal", other);
+	assert_int_equal(symlink(victim, link), 0);
+	assert_int_equal(store_open(other, &s2, &err), -ELOOP);
+	v = fopen(victim, "r");
+	char buf[16] = "";
+	assert_non_null(fgets(buf, sizeof(buf), v));
+	fclose(v);
+	assert_string_equal(buf, "precious");
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -244,6 +275,7 @@ int main(void)
 		cmocka_unit_test_setup_teardown(test_list, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_meta_and_schema, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_schema_corrupt, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_no_symlinks, setup, teardown),
 	};
 	return cmocka_run_group_tests(tests, NULL, NULL);
 }

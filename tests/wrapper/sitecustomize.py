@@ -14,6 +14,7 @@ fails the test."""
 import atexit
 import glob
 import os
+import re
 import shlex
 import shutil
 import subprocess
@@ -32,12 +33,30 @@ def _ours(program):
     return os.path.basename(program) in _NAMES or os.path.realpath(program) in _PATHS
 
 
+# valgrind 3.19 does not know openat2() (Linux 5.6, syscall 437): it says so
+# in five lines and fails the call with ENOSYS, where lib/util/util-fs.c
+# opens the same file with its O_NOFOLLOW walk. That notice is no error of
+# the program's and is left out; anything else in a log fails the test.
+_UNKNOWN_OPENAT2 = re.compile(
+    r"--\d+-- WARNING: unhandled amd64-linux syscall: 437\n"
+    r"(--\d+-- [^\n]*\n){4}")
+
+
+def report_text(log):
+    """What a valgrind log says that is an error of the program's: its
+    text without the openat2() notice, empty when clean or absent."""
+    try:
+        with open(log, errors="replace") as f:
+            return _UNKNOWN_OPENAT2.sub("", f.read()).strip()
+    except FileNotFoundError:
+        return ""
+
+
 def _report():
     bad = []
     for log in sorted(glob.glob(os.path.join(_LOGDIR, "*.log"))):
-        with open(log, errors="replace") as f:
-            text = f.read()
-        if text.strip():
+        text = report_text(log)
+        if text:
             bad.append(text)
     shutil.rmtree(_LOGDIR, ignore_errors=True)
     if bad:

@@ -15,6 +15,8 @@ enum {
 	EXIT_OK = 0,
 	EXIT_FAILURE_RUN = 1,   /* the command ran and failed (bad data, I/O) */
 	EXIT_USAGE = 2,         /* bad command line */
+	EXIT_VERDICT_FAIL = 3,  /* asph fit with a tolerance: the part fails */
+	EXIT_VERDICT_UNDECIDED = 4, /* ... conformance is not proven either way */
 };
 
 struct tool_command {
@@ -32,6 +34,7 @@ int cmd_plan(int argc, char **argv);
 int cmd_plot(int argc, char **argv);
 int cmd_quality(int argc, char **argv);
 int cmd_replay(int argc, char **argv);
+int cmd_report(int argc, char **argv);
 int cmd_scan(int argc, char **argv);
 int cmd_scaninfo(int argc, char **argv);
 int cmd_synth(int argc, char **argv);

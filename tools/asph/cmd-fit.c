@@ -9,8 +9,15 @@
 
 #include <jansson.h>
 
+#include "asph/correction.h"
 #include "asph/fit.h"
 #include "asph/plot.h"
+#include "asph/prescription.h"
+#include "asph/report.h"
+#include "asph/scanfile.h"
+#include "asph/x3p.h"
+#include "config.h"
+#include "fileio.h"
 #include "asph/points.h"
 #include "asph-tool.h"
 #include "fit-tool.h"
@@ -19,6 +26,8 @@
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_surface *, asph_surface_free)
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_fit *, asph_fit_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scatter *, asph_scatter_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_grid *, asph_grid_free)
 
 enum {
 	OPT_DOF = 0x100,
@@ -28,6 +37,25 @@ enum {
 	OPT_RESIDUALS,
 	OPT_MAP,
 	OPT_ZERNIKE,
+	OPT_TOLERANCE,
+	OPT_WAVELENGTH,
+	OPT_SLOPE_LENGTH,
+	OPT_X3P,
+	OPT_GRID_SPACING,
+	OPT_CORRECTION,
+	OPT_CORRECTION_KIND,
+	OPT_CORRECTION_SIGN,
+	OPT_CORRECTION_DIRECTION,
+	OPT_CORRECTION_MATERIAL,
+	OPT_CORRECTION_STEP,
+	OPT_CORRECTION_SMOOTH,
+	OPT_CORRECTION_EXTEND,
+	OPT_CORRECTION_EXTEND_METHOD,
+	OPT_REPORT,
+	OPT_PART,
+	OPT_LOT,
+	OPT_SERIAL,
+	OPT_SCAN,
 };
 
 
@@ -41,8 +69,9 @@ static void usage(FILE *out)
 		"docs/characterization.md states the conventions.\n\n"
 		"LENS is a preset (weak, strong, turning-point) or a prescription file.\n"
 		"POINTS_FILE is .csv (header x,y,z), .ply or .json; '-' reads CSV from stdin.\n\n"
-		"  --dof LIST          degrees of freedom, from tx,ty,tz (mm), rx,ry (rad), R (mm),\n"
-		"                      k (default tx,ty,tz,rx,ry)\n"
+		"  --dof LIST          degrees of freedom, from tx,ty,tz (mm), rx,ry,rz (rad), R (mm),\n"
+		"                      k (default tx,ty,tz,rx,ry); rz (clocking) for freeform\n"
+		"                      surfaces, R and k for rotationally symmetric ones\n"
 		"  --residual KIND     normal (default: distance along the surface normal) or sag\n"
 		"                      (z minus the sag)\n"
 		"  --robust            down-weight outliers (Tukey biweight) and leave them out\n"
@@ -50,9 +79,36 @@ static void usage(FILE *out)
 		"  --residuals OUT     write x,y,z,residual_nm of the points fitted (.csv or .ply,\n"
 		"                      PLY coloured by residual)\n"
 		"  --map OUT.png       residual map with a colour bar in nm\n"
+		"  --tolerance T       a tolerance (JSON text or a file holding it): ISO 10110-5\n"
+		"                      call-out, RMS, slope and R limits; decides pass, fail or\n"
+		"                      undecided (ISO 14253-1) and sets the exit status\n"
+		"  --wavelength NM     test wavelength of the fringes (default: the tolerance's,\n"
+		"                      else 546.07)\n"
+		"  --slope-length MM   evaluation length of the slope deviation (default: the\n"
+		"                      tolerance's, else 1)\n"
+		"  --x3p OUT.x3p       the residual resampled on a grid (ISO 25178-72 matrix layout)\n"
+		"  --grid-spacing MM   spacing of that grid (default: the median point spacing)\n"
+		"  --correction OUT    a correction table of the residual (CSV, conventions in its\n"
+		"                      header), with:\n"
+		"    --correction-kind radial|grid          z(r) of a turned part (default) or XY\n"
+		"    --correction-sign height-error|material-to-remove   (default height-error)\n"
+		"    --correction-direction z|normal        along z (default) or the normal\n"
+		"    --correction-material below|above      the part's side of the surface (below)\n"
+		"    --correction-step MM                   spacing (default: the point spacing)\n"
+		"    --correction-smooth MM                 Gaussian cut-off (default 0: none)\n"
+		"    --correction-extend MM                 beyond the aperture (default 0)\n"
+		"    --correction-extend-method constant|linear   (default constant)\n"
+		"  --report OUT.pdf    the measurement report (PDF), with:\n"
+		"    --part P, --lot L, --serial S          what was measured\n"
+		"    --scan SCAN                            the recorded scan the points come from\n"
+		"                                           (its plan and instrument are reported)\n"
 		"  --json              one JSON object (n_points, dof, uncertainty, iterations,\n"
-		"                      converged, rms_nm, pv_nm, pvr_nm, slope_rms_urad, zernike_nm...)\n"
-		"  -h, --help          this text\n",
+		"                      converged, rms_nm, pv_nm, pvr_nm, zernike_nm, form, slope,\n"
+		"                      radius, uncertainty_k2, verdict...)\n"
+		"  -h, --help          this text\n\n"
+		"Exit status: 0 done (and the part passes its tolerance), 1 refused input or no\n"
+		"convergence, 2 bad command line, 3 the part fails its tolerance, 4 the verdict\n"
+		"is undecided.\n",
 		ASPH_FIT_MAX_ZERNIKE);
 }
 
@@ -71,6 +127,40 @@ static int parse_int(const char *arg, const char *name, int lo, int hi, int *out
 	*out = (int)v;
 	return 0;
 }
+
+static int parse_positive(const char *arg, const char *name, double lo, double hi,
+			  double *out)
+{
+	char *end;
+	double v;
+
+	errno = 0;
+	v = strtod(arg, &end);
+	if (errno || end == arg || *end || !(v >= lo && v <= hi)) {
+		fprintf(stderr, "asph fit: --%s: '%s' is not a number in %g..%g\n", name, arg,
+			lo, hi);
+		return -1;
+	}
+	*out = v;
+	return 0;
+}
+
+static int parse_nonnegative(const char *arg, const char *name, double *out)
+{
+	char *end;
+	double v;
+
+	errno = 0;
+	v = strtod(arg, &end);
+	if (errno || end == arg || *end || !(v >= 0) || !isfinite(v)) {
+		fprintf(stderr, "asph fit: --%s: '%s' is not a number >= 0\n", name, arg);
+		return -1;
+	}
+	*out = v;
+	return 0;
+}
+
+static int take_correction_option(struct fit_cli *c, int opt, const char *arg);
 
 /* 0 taken, -1 bad value (message printed). */
 static int take_option(struct fit_cli *c, int opt, const char *arg)
@@ -105,9 +195,110 @@ static int take_option(struct fit_cli *c, int opt, const char *arg)
 		return 0;
 	case OPT_ZERNIKE:
 		return parse_int(arg, "zernike", 1, ASPH_FIT_MAX_ZERNIKE, &c->opts.n_zernike);
+	case OPT_TOLERANCE:
+		asph_error_clear(&err);
+		if (asph_tolerance_load(arg, &c->tolerance, &err) < 0) {
+			tool_print_error("fit: --tolerance", &err);
+			return -1;
+		}
+		c->tolerance_arg = arg;
+		return 0;
+	case OPT_WAVELENGTH:
+		return parse_positive(arg, "wavelength", 100, 20000, &c->opts.wavelength_nm);
+	case OPT_SLOPE_LENGTH:
+		return parse_positive(arg, "slope-length", 1e-6, 1e6, &c->opts.slope_length_mm);
+	case OPT_X3P:
+		c->x3p_out = arg;
+		return 0;
+	case OPT_GRID_SPACING:
+		return parse_positive(arg, "grid-spacing", 1e-6, 1e6, &c->grid_spacing);
+	case OPT_CORRECTION:
+		c->correction_out = arg;
+		return 0;
+	case OPT_REPORT:
+		c->report_out = arg;
+		return 0;
+	case OPT_PART:
+		c->part = arg;
+		return 0;
+	case OPT_LOT:
+		c->lot = arg;
+		return 0;
+	case OPT_SERIAL:
+		c->serial = arg;
+		return 0;
+	case OPT_SCAN:
+		c->scan = arg;
+		return 0;
+	default:
+		return take_correction_option(c, opt, arg);
+	}
+}
+
+/* The --correction-* options: 0, or -1 after saying why. */
+static int take_correction_option(struct fit_cli *c, int opt, const char *arg)
+{
+	struct asph_correction_options *o = &c->correction;
+	struct asph_error err;
+	int r = 0;
+
+	asph_error_clear(&err);
+	switch (opt) {
+	case OPT_CORRECTION_KIND:
+		r = asph_correction_kind_parse(arg, "--correction-kind", &o->kind, &err);
+		break;
+	case OPT_CORRECTION_SIGN:
+		r = asph_correction_sign_parse(arg, "--correction-sign", &o->sign, &err);
+		break;
+	case OPT_CORRECTION_DIRECTION:
+		r = asph_correction_direction_parse(arg, "--correction-direction", &o->direction, &err);
+		break;
+	case OPT_CORRECTION_MATERIAL:
+		r = asph_correction_material_parse(arg, "--correction-material", &o->material, &err);
+		break;
+	case OPT_CORRECTION_EXTEND_METHOD:
+		r = asph_correction_extension_parse(arg, "--correction-extend-method", &o->extension,
+						    &err);
+		break;
+	case OPT_CORRECTION_STEP:
+		return parse_positive(arg, "correction-step", 1e-6, 1e6, &o->step_mm);
+	case OPT_CORRECTION_SMOOTH:
+		return parse_nonnegative(arg, "correction-smooth", &o->smooth_mm);
+	case OPT_CORRECTION_EXTEND:
+		return parse_nonnegative(arg, "correction-extend", &o->extend_mm);
 	default:
 		return -1;
 	}
+	if (r < 0)
+		tool_print_error("fit", &err);
+	return r < 0 ? -1 : 0;
+}
+
+/* The options a tolerance fixes must agree with it. */
+static int check_tolerance(struct fit_cli *c)
+{
+	const struct asph_tolerance *t = &c->tolerance;
+
+	if (!c->tolerance_arg)
+		return EXIT_OK;
+	c->opts.tolerance = t;
+	if (c->opts.wavelength_nm != 0 && c->opts.wavelength_nm != t->wavelength_nm) {
+		fprintf(stderr, "asph fit: --wavelength %g disagrees with the tolerance's %g nm\n",
+			c->opts.wavelength_nm, t->wavelength_nm);
+		return EXIT_USAGE;
+	}
+	if (c->opts.slope_length_mm != 0 && !isnan(t->slope_length_mm) &&
+	    c->opts.slope_length_mm != t->slope_length_mm) {
+		fprintf(stderr, "asph fit: --slope-length %g disagrees with the tolerance's "
+			"slope_urad.length_mm %g\n", c->opts.slope_length_mm, t->slope_length_mm);
+		return EXIT_USAGE;
+	}
+	if (!isnan(t->R_mm) && !(c->opts.dof & ASPH_FIT_DOF_BIT(ASPH_FIT_R))) {
+		fprintf(stderr, "asph fit: --tolerance: R_mm needs R among the degrees of freedom "
+			"(--dof tx,ty,tz,rx,ry,R)\n");
+		return EXIT_USAGE;
+	}
+	return EXIT_OK;
 }
 
 int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
@@ -121,6 +312,25 @@ int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
 		{ "residuals", required_argument, NULL, OPT_RESIDUALS },
 		{ "map", required_argument, NULL, OPT_MAP },
 		{ "zernike", required_argument, NULL, OPT_ZERNIKE },
+		{ "tolerance", required_argument, NULL, OPT_TOLERANCE },
+		{ "wavelength", required_argument, NULL, OPT_WAVELENGTH },
+		{ "slope-length", required_argument, NULL, OPT_SLOPE_LENGTH },
+		{ "x3p", required_argument, NULL, OPT_X3P },
+		{ "grid-spacing", required_argument, NULL, OPT_GRID_SPACING },
+		{ "correction", required_argument, NULL, OPT_CORRECTION },
+		{ "correction-kind", required_argument, NULL, OPT_CORRECTION_KIND },
+		{ "correction-sign", required_argument, NULL, OPT_CORRECTION_SIGN },
+		{ "correction-direction", required_argument, NULL, OPT_CORRECTION_DIRECTION },
+		{ "correction-material", required_argument, NULL, OPT_CORRECTION_MATERIAL },
+		{ "correction-step", required_argument, NULL, OPT_CORRECTION_STEP },
+		{ "correction-smooth", required_argument, NULL, OPT_CORRECTION_SMOOTH },
+		{ "correction-extend", required_argument, NULL, OPT_CORRECTION_EXTEND },
+		{ "correction-extend-method", required_argument, NULL, OPT_CORRECTION_EXTEND_METHOD },
+		{ "report", required_argument, NULL, OPT_REPORT },
+		{ "part", required_argument, NULL, OPT_PART },
+		{ "lot", required_argument, NULL, OPT_LOT },
+		{ "serial", required_argument, NULL, OPT_SERIAL },
+		{ "scan", required_argument, NULL, OPT_SCAN },
 		{ "help", no_argument, NULL, 'h' },
 		{ NULL, 0, NULL, 0 },
 	};
@@ -143,7 +353,7 @@ int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
 	}
 	c->lens = operands == 2 ? argv[optind] : NULL;
 	c->points = argv[optind + operands - 1];
-	return EXIT_OK;
+	return check_tolerance(c);
 }
 
 static int show_json(const struct fit_cli *c, const struct asph_surface *s,
@@ -165,6 +375,35 @@ static int show_json(const struct fit_cli *c, const struct asph_surface *s,
 	return EXIT_OK;
 }
 
+static void show_form(const struct asph_fit_result *r)
+{
+	const struct asph_form *f = &r->form;
+	const struct asph_uncertainty_k2 *u = &r->uncertainty_k2;
+
+	if (r->form_valid) {
+		printf("ISO 14999-4 (lambda %g nm; U for k = 2):\n", f->wavelength_nm);
+		printf("  A %+.3f nm (%+.4f fr) U %.3f | B %.3f nm (%.4f fr) U %.3f | C %.3f nm (%.4f fr) U %.3f\n",
+		       f->A.v, f->A_fringes, u->A.v, f->B.v, f->B_fringes, u->B.v, f->C.v,
+		       f->C_fringes, u->C.v);
+		printf("  RMSt %.3f nm, RMSi %.3f nm, RMSa %.3f nm (U %.3f)\n", f->rms_t.v,
+		       f->rms_i.v, f->rms_a.v, u->rms_t.v);
+	}
+	if (r->slope_valid)
+		printf("Slope over %g mm: RMS %.3f urad (radial %.3f, azimuthal %.3f), max %.3f urad\n",
+		       r->slope.length_mm, r->slope.rms.v, r->slope.rms_radial.v,
+		       r->slope.rms_azimuthal.v, r->slope.max.v);
+	if (!isnan(r->R_deviation_mm))
+		printf("Radius deviation %+.6f mm (U %.6f mm)\n", r->R_deviation_mm, u->R_mm);
+	if (!r->verdict.present)
+		return;
+	printf("Verdict (ISO 14253-1): %s\n", asph_verdict_name(r->verdict.overall));
+	for (size_t i = 0; i < r->verdict.n_items; i++) {
+		const struct asph_verdict_item *it = &r->verdict.items[i];
+		printf("  %-16s %12.6g  U %-10.4g limit %-10.6g %s\n", it->quantity, it->value, it->U,
+		       it->limit, asph_verdict_name(it->verdict));
+	}
+}
+
 static void show_text(const struct fit_cli *c, const struct asph_surface *s,
 		      const struct asph_fit_result *r)
 {
@@ -184,6 +423,7 @@ static void show_text(const struct fit_cli *c, const struct asph_surface *s,
 	       r->n_outside_aperture, r->n_outliers);
 	printf("Residual RMS %.4f nm, PV %.4f nm, PVr %.4f nm, slope RMS %.4f urad\n",
 	       r->rms.v, r->pv.v, r->pvr.v, r->slope_rms.v);
+	show_form(r);
 	if (r->n_zernike == 0) {
 		printf("Too few points for the Zernike decomposition (PVr and slope need it)\n");
 		return;
@@ -221,6 +461,104 @@ static int residual_points(const struct asph_points *pts, const struct asph_fit 
 	}
 	*out = p;
 	return 0;
+}
+
+/* The residual of the used points as the interpolant on the part. */
+static int residual_scatter(const struct asph_fit *w, size_t n_used,
+			    struct asph_scatter **out, struct asph_error *err)
+{
+	_cleanup_free_ double *xy = malloc(2 * n_used * sizeof(double) + 1);
+	_cleanup_free_ double *v = malloc(n_used * sizeof(double) + 1);
+
+	if (!xy || !v)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	size_t m = asph_fit_residual_map(w, xy, v);
+	return asph_scatter_alloc(xy, v, m, NULL, out, err);
+}
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile *, asph_scanfile_free)
+
+/* --report: the provenance from the scan when there is one. */
+static int write_report(const struct fit_cli *c, const struct asph_surface *s,
+			const struct asph_fit *w, const struct asph_fit_result *res,
+			const struct asph_scatter *sc)
+{
+	_cleanup_(asph_scanfile_freep) struct asph_scanfile *scan = NULL;
+	_cleanup_free_ char *lens_json = NULL, *data = NULL;
+	_cleanup_free_ double *xy = malloc(2 * res->n_used * sizeof(double) + 1);
+	_cleanup_free_ double *v = malloc(res->n_used * sizeof(double) + 1);
+	struct asph_error err;
+	size_t len = 0;
+
+	asph_error_clear(&err);
+	if (!xy || !v || asph_prescription_to_json(asph_surface_prescription(s), &lens_json) < 0) {
+		fprintf(stderr, "asph fit: out of memory\n");
+		return EXIT_FAILURE_RUN;
+	}
+	if ((c->scan && asph_scanfile_read(c->scan, &scan, &err) < 0) ||
+	    file_read_all(c->scan ? c->scan : c->points, (size_t)1 << 31, &data, &len, &err) < 0) {
+		tool_print_error("fit: --report", &err);
+		return EXIT_FAILURE_RUN;
+	}
+	struct asph_report r = {
+		.part = c->part, .lot = c->lot, .serial = c->serial,
+		.lens_name = asph_surface_prescription(s)->name, .lens_json = lens_json,
+		.plan_json = scan ? scan->header.plan : NULL,
+		.instrument_json = scan ? scan->header.instrument : NULL,
+		.data_name = c->scan ? c->scan : c->points, .data = data, .data_len = len,
+		.software = "asph " ASPH_VERSION, .fit = res,
+		.tolerance = c->tolerance_arg ? &c->tolerance : NULL,
+		.xy = xy, .residual_nm = v, .n = asph_fit_residual_map(w, xy, v),
+		.scatter = sc, .radius = asph_surface_aperture_radius(s),
+	};
+	if (asph_report_write_pdf(c->report_out, &r, &err) < 0) {
+		tool_print_error("fit: --report", &err);
+		return EXIT_FAILURE_RUN;
+	}
+	return EXIT_OK;
+}
+
+/* --x3p, --correction and --report. */
+static int write_exports(const struct fit_cli *c, const struct asph_surface *s,
+			 const struct asph_fit *w, const struct asph_fit_result *res)
+{
+	_cleanup_(asph_scatter_freep) struct asph_scatter *sc = NULL;
+	_cleanup_(asph_grid_freep) struct asph_grid *g = NULL;
+	const char *lens = asph_surface_prescription(s)->name;
+	struct asph_error err;
+	char comment[256];
+
+	if (!c->x3p_out && !c->correction_out && !c->report_out)
+		return EXIT_OK;
+	asph_error_clear(&err);
+	if (residual_scatter(w, res->n_used, &sc, &err) < 0) {
+		tool_print_error("fit: the residual map", &err);
+		return EXIT_FAILURE_RUN;
+	}
+	if (c->x3p_out) {
+		double dx = c->grid_spacing > 0 ? c->grid_spacing : asph_scatter_median_edge(sc);
+		struct asph_x3p_info info = { .creator = "asph fit", .comment = comment };
+		snprintf(comment, sizeof(comment), "%s residual of %s after the best fit (z in m)",
+			 asph_fit_residual_name(res->residual), lens);
+		if (asph_grid_resample(sc, asph_surface_aperture_radius(s), dx, &g, &err) < 0 ||
+		    asph_x3p_write_grid(c->x3p_out, g, &info, &err) < 0) {
+			tool_print_error("fit: --x3p", &err);
+			return EXIT_FAILURE_RUN;
+		}
+	}
+	if (c->correction_out &&
+	    asph_correction_write(c->correction_out, s, lens, sc,
+				  res->residual == ASPH_FIT_RESIDUAL_NORMAL, &c->correction, &err) < 0) {
+		char where[192];
+		snprintf(where, sizeof(where), "fit: --correction%s%s", err.field[0] ? "-" : "",
+			 err.field);
+		err.field[0] = '\0';
+		tool_print_error(where, &err);
+		return err.code == -EINVAL ? EXIT_USAGE : EXIT_FAILURE_RUN;
+	}
+	if (c->report_out)
+		return write_report(c, s, w, res, sc);
+	return EXIT_OK;
 }
 
 static int write_outputs(const struct fit_cli *c, const struct asph_surface *s,
@@ -279,10 +617,15 @@ int fit_cli_run(const struct fit_cli *c, const struct asph_surface *s,
 			more_text(data);
 	}
 	r = write_outputs(c, s, pts, w);
+	if (r == EXIT_OK)
+		r = write_exports(c, s, w, &res);
 	if (r == EXIT_OK && !res.converged) {
 		fprintf(stderr, "asph fit: the fit did not converge: %s\n", res.reason);
 		r = EXIT_FAILURE_RUN;
 	}
+	if (r == EXIT_OK && res.verdict.present && res.verdict.overall != ASPH_VERDICT_PASS)
+		r = res.verdict.overall == ASPH_VERDICT_FAIL ? EXIT_VERDICT_FAIL
+							     : EXIT_VERDICT_UNDECIDED;
 	return r;
 }
 

@@ -6,13 +6,20 @@
 
 #include <stdio.h>
 
+#include "asph/correction.h"
 #include "asph/fit.h"
 #include "asph/points.h"
+#include "asph/tolerance.h"
 
 struct fit_cli {
-	const char *lens, *points, *residuals_out, *map_out;
+	const char *lens, *points, *residuals_out, *map_out, *tolerance_arg;
 	struct asph_fit_options opts;
+	struct asph_tolerance tolerance;
 	int json;
+	const char *x3p_out, *correction_out;
+	double grid_spacing;
+	struct asph_correction_options correction;
+	const char *report_out, *part, *lot, *serial, *scan;
 };
 
 /* The fit's options and `operands` operands (asph fit: LENS POINTS_FILE,

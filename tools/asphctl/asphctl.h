@@ -55,8 +55,16 @@ int ctl_fail(const struct ctl_error *e);
  * (> 0), else 0 with *result. */
 int ctl_call(struct ctl *ctl, const char *method, json_t *params,
 	     json_t **result);
-/* Prints JSON (pretty) to stdout. */
+/* Prints JSON (pretty) to stdout, with the characters that ctl_escape()
+ * escapes written as \u escapes. */
 void ctl_print_json(const json_t *j);
+/* s with its control characters (C0, DEL, C1, bidirectional overrides)
+ * escaped (malloc'd, or NULL): as \n, \t, \xNN or \uNNNN, or with json
+ * all as \uNNNN (for the inside of a JSON string). */
+char *ctl_escape(const char *s, bool json);
+/* Every string (and key) in j escaped as ctl_escape() does, for printing
+ * as text. */
+void ctl_escape_json(json_t *j);
 /* Whole-string conversions: 0, or -EINVAL for an empty string, trailing
  * characters, a value out of [min, max] (or out of range of the type), or
  * a real that is not finite. */

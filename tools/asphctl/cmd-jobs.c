@@ -11,6 +11,7 @@
 #include <unistd.h>
 
 #include "asphctl.h"
+#include "util-fs.h"
 #include "util-mem.h"
 
 #define JSON_OPTION { "json", no_argument, NULL, 'j' }
@@ -413,37 +414,77 @@ int cmd_list(struct ctl *ctl, int argc, char **argv)
 	return CTL_EXIT_OK;
 }
 
-/* Copies dir/name to out/name; names come from the daemon, so only plain
- * file names are accepted. */
-static int copy_file(const char *dir, const char *name, const char *out)
-{
-	_cleanup_free_ char *src = NULL, *dst = NULL;
-	_cleanup_close_ int in = -1, fd = -1;
-	char buf[65536];
-	ssize_t n;
+/* One file of a job's result, fetched from the daemon chunk by chunk. */
+struct fetch {
+	struct ctl *ctl;
+	int64_t id;
+	const char *name;
+	int code;               /* the exit code when a call failed */
+};
 
-	if (!name[0] || strchr(name, '/') || !strcmp(name, ".") || !strcmp(name, "..")) {
-		fprintf(stderr, "asphctl: refusing the file name '%s'\n", name);
-		return -EINVAL;
+static int fetch_chunks(FILE *f, void *data, struct asph_error *err)
+{
+	struct fetch *fe = data;
+	json_int_t offset = 0;
+
+	for (;;) {
+		_cleanup_(json_decrefp) json_t *chunk = NULL;
+		_cleanup_free_ void *bytes = NULL;
+		const char *text;
+		size_t n = 0;
+
+		fe->code = ctl_call(fe->ctl, "job.file", json_pack("{s:I, s:s, s:I}", "id",
+				    (json_int_t)fe->id, "name", fe->name, "offset", offset), &chunk);
+		if (fe->code)
+			return asph_error_set(err, -EIO, "%s: the daemon did not send it", fe->name);
+		text = json_string_value(json_object_get(chunk, "data"));
+		if (!text || proto_base64_decode(text, strlen(text), &bytes, &n) < 0)
+			return asph_error_set(err, -EBADMSG, "%s: the daemon sent no base64", fe->name);
+		if (n && fwrite(bytes, 1, n, f) != n)
+			return asph_error_set(err, -errno, "%s: %s", fe->name, strerror(errno));
+		offset += (json_int_t)n;
+		if (json_is_true(json_object_get(chunk, "eof")) || n == 0)
+			return 0;
 	}
-	if (asprintf(&src, "%s/%s", dir, name) < 0 || asprintf(&dst, "%s/%s", out, name) < 0)
-		return -ENOMEM;
-	in = open(src, O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
-	if (in < 0) {
-		fprintf(stderr, "asphctl: %s: %s\n", src, strerror(errno));
-		return -errno;
+}
+
+/*
+ * Copies the files of job id's result into the directory out (created if
+ * missing). The bytes come through the socket (job.file), so the caller
+ * needs no access to the daemon's state directory. Each file is written
+ * under a temporary name created exclusively in out and renamed into
+ * place: a symlink planted in out is replaced, never written through.
+ */
+static int copy_files(struct ctl *ctl, int64_t id, const json_t *files, const char *out)
+{
+	_cleanup_close_ int dir = -1;
+	const char *key;
+	json_t *v;
+
+	if (mkdir(out, 0777) < 0 && errno != EEXIST) {
+		fprintf(stderr, "asphctl: %s: %s\n", out, strerror(errno));
+		return CTL_EXIT_ERROR;
 	}
-	fd = open(dst, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-	if (fd < 0) {
-		fprintf(stderr, "asphctl: %s: %s\n", dst, strerror(errno));
-		return -errno;
+	dir = open(out, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+	if (dir < 0) {
+		fprintf(stderr, "asphctl: %s: %s\n", out, strerror(errno));
+		return CTL_EXIT_ERROR;
 	}
-	while ((n = read(in, buf, sizeof(buf))) > 0)
-		if (write(fd, buf, (size_t)n) != n) {
-			fprintf(stderr, "asphctl: %s: %s\n", dst, strerror(errno));
-			return -EIO;
+	json_object_foreach((json_t *)files, key, v) {
+		struct fetch fe = { .ctl = ctl, .id = id, .name = json_string_value(v) };
+		struct asph_error err;
+		char buf[600];
+
+		asph_error_clear(&err);
+		if (!fe.name || fs_write_file_at(dir, fe.name, 0666, fetch_chunks, &fe, &err) < 0) {
+			if (fe.code)
+				return fe.code;
+			fprintf(stderr, "asphctl: %s: %s\n", out,
+				fe.name ? asph_error_format(&err, buf, sizeof(buf)) : "a file without a name");
+			return CTL_EXIT_ERROR;
 		}
-	return n < 0 ? -errno : 0;
+	}
+	return CTL_EXIT_OK;
 }
 
 static void print_summary(const json_t *res)
@@ -500,17 +541,8 @@ int cmd_result(struct ctl *ctl, int argc, char **argv)
 	r = ctl_call(ctl, "job.result", json_pack("{s:I}", "id", (json_int_t)id), &result);
 	if (r)
 		return r;
-	if (out) {
-		const char *dir = str(result, "dir"), *key;
-		json_t *f;
-		if (mkdir(out, 0755) < 0 && errno != EEXIST) {
-			fprintf(stderr, "asphctl: %s: %s\n", out, strerror(errno));
-			return CTL_EXIT_ERROR;
-		}
-		json_object_foreach(json_object_get(result, "files"), key, f)
-			if (!json_is_string(f) || copy_file(dir, json_string_value(f), out) < 0)
-				return CTL_EXIT_ERROR;
-	}
+	if (out && (r = copy_files(ctl, id, json_object_get(result, "files"), out)))
+		return r;
 	if (ctl->json)
 		ctl_print_json(result);
 	else

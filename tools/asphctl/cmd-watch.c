@@ -118,6 +118,8 @@ int ctl_watch_job(struct ctl *ctl, int64_t id, bool quiet)
 			snprintf(e.message, sizeof(e.message), "the connection to asphd broke");
 			return ctl_fail(&e);
 		}
+		if (!ctl->json)
+			ctl_escape_json(ev);
 		const char *method = json_string_value(json_object_get(ev, "method"));
 		json_t *p = json_object_get(ev, "params");
 		if (json_integer_value(json_object_get(p, "job")) != id)

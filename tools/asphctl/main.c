@@ -31,10 +31,13 @@ static const struct {
 
 int ctl_fail(const struct ctl_error *e)
 {
-	if (e->detail[0])
-		fprintf(stderr, "asphctl: %s: %s\n", e->message, e->detail);
+	_cleanup_free_ char *message = ctl_escape(e->message, false);
+	_cleanup_free_ char *detail = ctl_escape(e->detail, false);
+
+	if (detail && detail[0])
+		fprintf(stderr, "asphctl: %s: %s\n", message ? message : "?", detail);
 	else
-		fprintf(stderr, "asphctl: %s\n", e->message);
+		fprintf(stderr, "asphctl: %s\n", message ? message : "?");
 	if (e->code == 0)
 		return CTL_EXIT_UNREACHABLE;
 	if (e->code == PROTO_PERMISSION_DENIED)
@@ -52,17 +55,22 @@ int ctl_call(struct ctl *ctl, const char *method, json_t *params, json_t **resul
 		return ctl_fail(&e);
 	}
 	r = conn_call(ctl->conn, method, params, result, &e);
-	return r < 0 ? ctl_fail(&e) : 0;
+	if (r < 0)
+		return ctl_fail(&e);
+	if (!ctl->json)
+		ctl_escape_json(*result);
+	return 0;
 }
 
 void ctl_print_json(const json_t *j)
 {
-	char *s = json_dumps(j, JSON_INDENT(2) | JSON_REAL_PRECISION(10));
+	_cleanup_free_ char *s = json_dumps(j, JSON_INDENT(2) | JSON_REAL_PRECISION(10));
+	/* jansson escapes C0; DEL, C1 and the bidirectional controls it
+	 * leaves as they are, inside strings only (JSON's syntax is ASCII). */
+	_cleanup_free_ char *e = s ? ctl_escape(s, true) : NULL;
 
-	if (s) {
-		puts(s);
-		free(s);
-	}
+	if (e)
+		puts(e);
 }
 
 int ctl_parse_integer(const char *arg, long long min, long long max, long long *v)

@@ -1386,10 +1386,53 @@ static void test_resumed_times(void **state)
 	unlink(path);
 }
 
+/* Relative to a directory descriptor: the same file, and never through a
+ * symlink planted at the name (to a file the test cares about). */
+static void test_at_no_symlinks(void **state)
+{
+	static const uint8_t precious[] = "not a scan, must stay";
+	int dirfd = open(tmpdir, O_RDONLY | O_DIRECTORY);
+	struct asph_scanfile_writer *w = NULL;
+	struct asph_scanfile_reader *r = NULL;
+	struct asph_scanfile *s;
+	struct asph_error err;
+	uint8_t *back;
+	size_t len;
+
+	assert_true(dirfd >= 0);
+	assert_int_equal(asph_scanfile_writer_create_at(dirfd, "at.scan", &info, NULL, &w, &err), 0);
+	append_pattern(w, 0, 12);
+	assert_int_equal(asph_scanfile_writer_close(w, &err), 0);
+	assert_int_equal(asph_scanfile_read(tmp_path("at.scan"), &s, &err), 0);
+	assert_pattern(s, 12);
+	asph_scanfile_free(s);
+	assert_int_equal(asph_scanfile_writer_resume_at(dirfd, "at.scan", NULL, NULL, &w, &err), 0);
+	append_pattern(w, 12, 3);
+	assert_int_equal(asph_scanfile_writer_finish(w, ASPH_SCANFILE_COMPLETED, NULL, &err), 0);
+	assert_int_equal(asph_scanfile_reader_open_at(dirfd, "at.scan", &r, &err), 0);
+	asph_scanfile_reader_free(r);
+
+	spit(tmp_path("victim"), precious, sizeof(precious));
+	assert_int_equal(symlink(tmp_path("victim"), tmp_path("link.scan")), 0);
+	asph_error_clear(&err);
+	assert_int_equal(asph_scanfile_writer_create_at(dirfd, "link.scan", &info,
+			 &(struct asph_scanfile_writer_options){ .flags = ASPH_SCANFILE_OVERWRITE },
+			 &w, &err), -ELOOP);
+	assert_int_equal(asph_scanfile_writer_resume_at(dirfd, "link.scan", NULL, NULL, &w, &err),
+			 -ELOOP);
+	assert_int_equal(asph_scanfile_reader_open_at(dirfd, "link.scan", &r, &err), -ELOOP);
+	back = slurp(tmp_path("victim"), &len);
+	assert_int_equal(len, sizeof(precious));
+	assert_memory_equal(back, precious, len);
+	free(back);
+	close(dirfd);
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
 		cmocka_unit_test(test_crc32c),
+		cmocka_unit_test(test_at_no_symlinks),
 		cmocka_unit_test(test_names),
 		cmocka_unit_test(test_round_trip),
 		cmocka_unit_test(test_layout),

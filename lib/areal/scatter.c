@@ -1,0 +1,212 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/*
+ * The interpolant of a residual at scattered points: linear on the
+ * triangles of their Delaunay triangulation, defined only in triangles whose
+ * edges are all short enough (the measured region).
+ */
+#include <errno.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "asph/areal.h"
+#include "asph/delaunay.h"
+#include "areal-internal.h"
+#include "util-mem.h"
+
+#define DEFAULT_EDGE_FACTOR 3.0
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_delaunay *, asph_delaunay_free)
+
+void asph_scatter_free(struct asph_scatter *s)
+{
+	if (!s)
+		return;
+	free(s->xy);
+	free(s->value);
+	free(s->tri);
+	free(s->adj);
+	free(s->kept);
+	free(s);
+}
+
+static double edge_length(const struct asph_scatter *s, uint32_t a, uint32_t b)
+{
+	return hypot(s->xy[2 * a] - s->xy[2 * b], s->xy[2 * a + 1] - s->xy[2 * b + 1]);
+}
+
+static int cmp_double(const void *a, const void *b)
+{
+	double x = *(const double *)a, y = *(const double *)b;
+
+	return (x > y) - (x < y);
+}
+
+/* Median edge length, then which triangles stay inside. */
+static int mark_kept(struct asph_scatter *s, const struct asph_scatter_options *o,
+		     struct asph_error *err)
+{
+	_cleanup_free_ double *len = malloc(3 * s->n_tri * sizeof(double));
+	double factor = o->max_edge_factor > 0 ? o->max_edge_factor : DEFAULT_EDGE_FACTOR;
+
+	s->kept = malloc(s->n_tri + 1);
+	if (!len || !s->kept)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	for (size_t t = 0; t < s->n_tri; t++)
+		for (int k = 0; k < 3; k++)
+			len[3 * t + k] = edge_length(s, s->tri[3 * t + k], s->tri[3 * t + (k + 1) % 3]);
+	qsort(len, 3 * s->n_tri, sizeof(double), cmp_double);
+	s->median_edge = len[3 * s->n_tri / 2];
+	s->max_edge = o->max_edge_mm > 0 ? o->max_edge_mm : factor * s->median_edge;
+	for (size_t t = 0; t < s->n_tri; t++) {
+		s->kept[t] = 1;
+		for (int k = 0; k < 3; k++)
+			if (edge_length(s, s->tri[3 * t + k], s->tri[3 * t + (k + 1) % 3]) > s->max_edge)
+				s->kept[t] = 0;
+	}
+	return 0;
+}
+
+int asph_scatter_alloc(const double *xy, const double *value, size_t n,
+		       const struct asph_scatter_options *opts,
+		       struct asph_scatter **out, struct asph_error *err)
+{
+	struct asph_scatter_options o = { 0 };
+	_cleanup_(asph_delaunay_freep) struct asph_delaunay *d = NULL;
+	struct asph_scatter *s;
+	int r;
+
+	if (opts)
+		o = *opts;
+	if (!isfinite(o.max_edge_mm) || o.max_edge_mm < 0 || !isfinite(o.max_edge_factor) ||
+	    o.max_edge_factor < 0)
+		return asph_error_set(err, -EINVAL, "the longest edge must be a positive number");
+	for (size_t i = 0; i < n; i++)
+		if (!isfinite(value[i]))
+			return asph_error_set(err, -EINVAL, "point %zu: value is not finite", i);
+	d = asph_delaunay_alloc(n);
+	s = calloc(1, sizeof(*s));
+	if (!d || !s) {
+		free(s);
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	}
+	s->n = n;
+	s->xy = malloc(2 * n * sizeof(double) + 1);
+	s->value = malloc(n * sizeof(double) + 1);
+	if (!s->xy || !s->value) {
+		asph_scatter_free(s);
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	}
+	memcpy(s->xy, xy, 2 * n * sizeof(double));
+	memcpy(s->value, value, n * sizeof(double));
+	r = asph_delaunay_triangulate(d, xy, n, &s->tri, &s->n_tri, err);
+	if (r == 0)
+		r = asph_delaunay_neighbors(d, &s->adj, err);
+	if (r == 0)
+		r = mark_kept(s, &o, err);
+	if (r < 0) {
+		asph_scatter_free(s);
+		return r;
+	}
+	*out = s;
+	return 0;
+}
+
+size_t asph_scatter_n_points(const struct asph_scatter *s)
+{
+	return s->n;
+}
+
+double asph_scatter_median_edge(const struct asph_scatter *s)
+{
+	return s->median_edge;
+}
+
+double asph_scatter_max_edge(const struct asph_scatter *s)
+{
+	return s->max_edge;
+}
+
+/* > 0 when p is left of a -> b. */
+static double orient(const double *a, const double *b, double x, double y)
+{
+	return (b[0] - a[0]) * (y - a[1]) - (b[1] - a[1]) * (x - a[0]);
+}
+
+/* Barycentric weights of (x, y) in triangle t; 1 when all >= 0. */
+static int barycentric(const struct asph_scatter *s, size_t t, double x, double y,
+		       double w[3])
+{
+	const double *a = s->xy + 2 * s->tri[3 * t], *b = s->xy + 2 * s->tri[3 * t + 1];
+	const double *c = s->xy + 2 * s->tri[3 * t + 2];
+	double area = orient(a, b, c[0], c[1]);
+
+	w[0] = orient(b, c, x, y) / area;
+	w[1] = orient(c, a, x, y) / area;
+	w[2] = 1 - w[0] - w[1];
+	return w[0] >= -1e-12 && w[1] >= -1e-12 && w[2] >= -1e-12;
+}
+
+/* The triangle holding (x, y) by a visibility walk from *hint; a walk that
+ * does not end (it cannot on a Delaunay triangulation, but rounding) falls
+ * back to a scan. -1 outside the hull. */
+static long locate(const struct asph_scatter *s, double x, double y, uint32_t *hint)
+{
+	size_t t = *hint < s->n_tri ? *hint : 0;
+
+	for (size_t step = 0; step < s->n_tri + 3; step++) {
+		int moved = 0;
+		for (int e = 0; e < 3; e++) {
+			int k = (int)((e + step) % 3);
+			const double *a = s->xy + 2 * s->tri[3 * t + k];
+			const double *b = s->xy + 2 * s->tri[3 * t + (k + 1) % 3];
+			if (orient(a, b, x, y) < 0) {
+				uint32_t nb = s->adj[3 * t + k];
+				if (nb == UINT32_MAX)
+					return -1;
+				t = nb;
+				moved = 1;
+				break;
+			}
+		}
+		if (!moved) {
+			*hint = (uint32_t)t;
+			return (long)t;
+		}
+	}
+	for (size_t u = 0; u < s->n_tri; u++) {
+		double w[3];
+		if (barycentric(s, u, x, y, w)) {
+			*hint = (uint32_t)u;
+			return (long)u;
+		}
+	}
+	return -1;
+}
+
+int asph_scatter_eval(const struct asph_scatter *s, double x, double y,
+		      uint32_t *hint, double *value, uint32_t idx[3],
+		      double w[3])
+{
+	uint32_t h0 = 0;
+	double ww[3];
+	long t;
+
+	*value = NAN;
+	if (!isfinite(x) || !isfinite(y))
+		return -EDOM;
+	t = locate(s, x, y, hint ? hint : &h0);
+	if (t < 0 || !s->kept[t])
+		return -EDOM;
+	barycentric(s, (size_t)t, x, y, ww);
+	*value = 0;
+	for (int k = 0; k < 3; k++) {
+		uint32_t i = s->tri[3 * (size_t)t + k];
+		*value += ww[k] * s->value[i];
+		if (idx)
+			idx[k] = i;
+		if (w)
+			w[k] = ww[k];
+	}
+	return 0;
+}

@@ -1,0 +1,245 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* X3P (ISO 25178-72) with libzip, libxml2 and nettle's MD5. */
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <libxml/tree.h>
+#include <nettle/md5.h>
+#include <zip.h>
+
+#include "asph/x3p.h"
+#include "util-mem.h"
+#include "util-time.h"
+
+#define NS "http://www.opengps.eu/2008/ISO5436_2"
+#define DATA_NAME "bindata/data.bin"
+#define MM_TO_M 1e-3
+#define NM_TO_M 1e-9
+
+static void md5_hex(const void *data, size_t len, char hex[33])
+{
+	struct md5_ctx c;
+	uint8_t d[MD5_DIGEST_SIZE];
+
+	md5_init(&c);
+	md5_update(&c, len, data);
+	md5_digest(&c, sizeof(d), d);
+	for (int i = 0; i < MD5_DIGEST_SIZE; i++)
+		snprintf(hex + 2 * i, 3, "%02x", d[i]);
+}
+
+/* The schema's elements below the root are unqualified (no namespace):
+ * xmlNewChild() would give them the parent's. */
+static xmlNodePtr element(xmlNodePtr parent, const char *name)
+{
+	xmlNodePtr n = xmlNewNode(NULL, BAD_CAST name);
+
+	return xmlAddChild(parent, n);
+}
+
+static xmlNodePtr text_child(xmlNodePtr parent, const char *name, const char *text)
+{
+	xmlNodePtr n = element(parent, name);
+
+	xmlAddChild(n, xmlNewText(BAD_CAST(text ? text : "")));
+	return n;
+}
+
+static void number_child(xmlNodePtr parent, const char *name, double v)
+{
+	char buf[40];
+
+	snprintf(buf, sizeof(buf), "%.17g", v);
+	text_child(parent, name, buf);
+}
+
+static void axis(xmlNodePtr axes, const char *name, int incremental, double increment)
+{
+	xmlNodePtr a = element(axes, name);
+
+	text_child(a, "AxisType", incremental ? "I" : "A");
+	text_child(a, "DataType", "D");
+	number_child(a, "Increment", increment);
+	number_child(a, "Offset", 0);
+}
+
+static void record2(xmlNodePtr root, const struct asph_x3p_info *in)
+{
+	struct asph_x3p_info info = { 0 };
+	xmlNodePtr r = element(root, "Record2"), ins, ps;
+	char date[64];
+
+	if (in)
+		info = *in;
+	/* xsd:dateTime with an explicit zone. */
+	iso8601_utc(info.date_ns ? info.date_ns : now_realtime_ns(), 3, date, sizeof(date));
+	if (date[0] && date[strlen(date) - 1] == 'Z') {
+		date[strlen(date) - 1] = '\0';
+		strncat(date, "+00:00", sizeof(date) - strlen(date) - 1);
+	}
+	text_child(r, "Date", date);
+	if (info.creator)
+		text_child(r, "Creator", info.creator);
+	ins = element(r, "Instrument");
+	text_child(ins, "Manufacturer", info.manufacturer ? info.manufacturer : "asphd");
+	text_child(ins, "Model", info.model ? info.model : "asph");
+	text_child(ins, "Serial", info.serial ? info.serial : "-");
+	text_child(ins, "Version", info.version ? info.version : "-");
+	ps = element(r, "ProbingSystem");
+	text_child(ps, "Type", info.probing_type ? info.probing_type : "Software");
+	text_child(ps, "Identification", info.probing_id ? info.probing_id : "-");
+	if (info.comment)
+		text_child(r, "Comment", info.comment);
+}
+
+struct layout {
+	const char *feature;        /* PCL or SUR */
+	int incremental_xy;
+	double dx;                  /* m, incremental axes */
+	size_t nx, ny, list;        /* list > 0: ListDimension */
+};
+
+/* main.xml as UTF-8 text (xmlFree it). */
+static int main_xml(const struct layout *L, const char *data_md5,
+		    const struct asph_x3p_info *info, xmlChar **out, int *len)
+{
+	xmlDocPtr doc = xmlNewDoc(BAD_CAST "1.0");
+	xmlNodePtr root = xmlNewNode(NULL, BAD_CAST "ISO5436_2"), r1, axes, r3, dl, r4;
+	xmlNsPtr ns = xmlNewNs(root, BAD_CAST NS, BAD_CAST "p");
+	char buf[32];
+
+	xmlSetNs(root, ns);
+	xmlDocSetRootElement(doc, root);
+	r1 = element(root, "Record1");
+	text_child(r1, "Revision", "ISO5436 - 2000");
+	text_child(r1, "FeatureType", L->feature);
+	axes = element(r1, "Axes");
+	axis(axes, "CX", L->incremental_xy, L->incremental_xy ? L->dx : 1);
+	axis(axes, "CY", L->incremental_xy, L->incremental_xy ? L->dx : 1);
+	axis(axes, "CZ", 0, 1);
+	record2(root, info);
+	r3 = element(root, "Record3");
+	if (L->list) {
+		snprintf(buf, sizeof(buf), "%zu", L->list);
+		text_child(r3, "ListDimension", buf);
+	} else {
+		xmlNodePtr md = element(r3, "MatrixDimension");
+		snprintf(buf, sizeof(buf), "%zu", L->nx);
+		text_child(md, "SizeX", buf);
+		snprintf(buf, sizeof(buf), "%zu", L->ny);
+		text_child(md, "SizeY", buf);
+		text_child(md, "SizeZ", "1");
+	}
+	dl = element(r3, "DataLink");
+	text_child(dl, "PointDataLink", DATA_NAME);
+	text_child(dl, "MD5ChecksumPointData", data_md5);
+	r4 = element(root, "Record4");
+	text_child(r4, "ChecksumFile", "md5checksum.hex");
+	xmlDocDumpFormatMemoryEnc(doc, out, len, "UTF-8", 1);
+	xmlFreeDoc(doc);
+	return *out ? 0 : -ENOMEM;
+}
+
+/* Little-endian doubles whatever the host's order. */
+static void put_le_double(uint8_t *p, double v)
+{
+	uint64_t u;
+
+	memcpy(&u, &v, sizeof(u));
+	for (int i = 0; i < 8; i++)
+		p[i] = (uint8_t)(u >> (8 * i));
+}
+
+static int container_add(zip_t *z, const char *name, const void *data, size_t len,
+		   const char *path, struct asph_error *err)
+{
+	zip_source_t *src = zip_source_buffer(z, data, len, 0);
+
+	if (!src || zip_file_add(z, name, src, ZIP_FL_OVERWRITE | ZIP_FL_ENC_UTF_8) < 0) {
+		if (src)
+			zip_source_free(src);
+		return asph_error_set(err, -EIO, "%s: cannot add %s: %s", path, name,
+				      zip_strerror(z));
+	}
+	return 0;
+}
+
+static int write_container(const char *path, const struct layout *L, const uint8_t *data,
+			   size_t len, const struct asph_x3p_info *info,
+			   struct asph_error *err)
+{
+	char data_md5[33], xml_md5[33], hexfile[64];
+	xmlChar *xml = NULL;
+	int xml_len = 0, zerr = 0, r;
+	zip_t *z;
+
+	md5_hex(data, len, data_md5);
+	if (main_xml(L, data_md5, info, &xml, &xml_len) < 0)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	md5_hex(xml, (size_t)xml_len, xml_md5);
+	snprintf(hexfile, sizeof(hexfile), "%s *main.xml\n", xml_md5);
+	z = zip_open(path, ZIP_CREATE | ZIP_TRUNCATE, &zerr);
+	if (!z) {
+		zip_error_t ze;
+		zip_error_init_with_code(&ze, zerr);
+		r = asph_error_set(err, -EIO, "cannot create %s: %s", path, zip_error_strerror(&ze));
+		zip_error_fini(&ze);
+		xmlFree(xml);
+		return r;
+	}
+	r = container_add(z, "main.xml", xml, (size_t)xml_len, path, err);
+	if (r == 0)
+		r = container_add(z, DATA_NAME, data, len, path, err);
+	if (r == 0)
+		r = container_add(z, "md5checksum.hex", hexfile, strlen(hexfile), path, err);
+	/* zip_close writes a temporary file and renames it: a failure leaves
+	 * no half-written container at path. */
+	if (r == 0 && zip_close(z) < 0)
+		r = asph_error_set(err, -EIO, "cannot write %s: %s", path, zip_strerror(z));
+	if (r < 0)
+		zip_discard(z);
+	xmlFree(xml);
+	return r;
+}
+
+int asph_x3p_write_points(const char *path, const double *xyz, size_t n,
+			  const struct asph_x3p_info *info, struct asph_error *err)
+{
+	_cleanup_free_ uint8_t *data = NULL;
+	struct layout L = { .feature = "PCL", .list = n };
+
+	if (n == 0)
+		return asph_error_set(err, -EINVAL, "%s: no point to write", path);
+	for (size_t i = 0; i < 3 * n; i++)
+		if (!isfinite(xyz[i]))
+			return asph_error_set(err, -EINVAL, "%s: point %zu has a non-finite coordinate",
+					      path, i / 3);
+	data = malloc(24 * n);
+	if (!data)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	for (size_t i = 0; i < 3 * n; i++)
+		put_le_double(data + 8 * i, xyz[i] * MM_TO_M);
+	return write_container(path, &L, data, 24 * n, info, err);
+}
+
+int asph_x3p_write_grid(const char *path, const struct asph_grid *g,
+			const struct asph_x3p_info *info, struct asph_error *err)
+{
+	_cleanup_free_ uint8_t *data = NULL;
+	struct layout L = { .feature = "SUR", .incremental_xy = 1, .dx = g->dx * MM_TO_M,
+			    .nx = g->nx, .ny = g->ny };
+	size_t m = g->nx * g->ny;
+
+	if (m == 0 || !(g->dx > 0) || !isfinite(g->dx))
+		return asph_error_set(err, -EINVAL, "%s: an empty grid or a bad spacing", path);
+	data = malloc(8 * m);
+	if (!data)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	/* X fastest, then Y: the order of the grid. */
+	for (size_t i = 0; i < m; i++)
+		put_le_double(data + 8 * i, isnan(g->z[i]) ? NAN : g->z[i] * NM_TO_M);
+	return write_container(path, &L, data, 8 * m, info, err);
+}

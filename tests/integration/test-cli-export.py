@@ -1,0 +1,340 @@
+#!/usr/bin/env python3
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""X3P exports read back by readers this project does not write, correction
+tables, and the verdict's exit status.
+
+Gwyddion (Debian's gwyddion) opens every export non-interactively:
+`gwyddion --check` and `gwyddion --convert-to-gwy`, whose GWY file holds the
+values Gwyddion read (a GWY file is a plain serialization, parsed below). The
+second reader is a chain of standard tools: `unzip -t` (the container and
+its CRCs), `md5sum -c` (main.xml against md5checksum.hex, and data.bin
+against the MD5 main.xml names), `xmllint --xpath` (the XML) and
+`od -t f8` (the little-endian doubles)."""
+
+import json
+import math
+import os
+import shutil
+import struct
+import subprocess
+import sys
+import tempfile
+
+ASPH = os.environ.get("ASPH_BIN")
+FAILURES = []
+
+
+def check(cond, what):
+    if not cond:
+        FAILURES.append(what)
+        print("FAIL:", what)
+
+
+def run(args, **kw):
+    return subprocess.run(args, capture_output=True, text=True, **kw)
+
+
+def asph(*args):
+    return run([ASPH, *args])
+
+
+# ---- GWY (Gwyddion's serialization) ---------------------------------------
+
+def gwy_object(b, pos):
+    """(name, {component: value}, next position) of the object at pos."""
+    end = b.index(b"\0", pos)
+    name = b[pos:end].decode()
+    size = struct.unpack_from("<I", b, end + 1)[0]
+    pos = end + 5
+    stop = pos + size
+    comps = {}
+    while pos < stop:
+        e = b.index(b"\0", pos)
+        key = b[pos:e].decode()
+        t = chr(b[e + 1])
+        pos = e + 2
+        if t in "bc":
+            val, pos = b[pos], pos + 1
+        elif t == "i":
+            val, pos = struct.unpack_from("<i", b, pos)[0], pos + 4
+        elif t == "q":
+            val, pos = struct.unpack_from("<q", b, pos)[0], pos + 8
+        elif t == "d":
+            val, pos = struct.unpack_from("<d", b, pos)[0], pos + 8
+        elif t == "s":
+            e2 = b.index(b"\0", pos)
+            val, pos = b[pos:e2].decode(), e2 + 1
+        elif t == "o":
+            _, val, pos = gwy_object(b, pos)
+        elif t in "CIQD":
+            n = struct.unpack_from("<I", b, pos)[0]
+            fmt = {"C": "B", "I": "i", "Q": "q", "D": "d"}[t]
+            width = struct.calcsize(fmt)
+            val = list(struct.unpack_from(f"<{n}{fmt}", b, pos + 4))
+            pos += 4 + n * width
+        elif t == "S":
+            n = struct.unpack_from("<I", b, pos)[0]
+            pos += 4
+            val = []
+            for _ in range(n):
+                e2 = b.index(b"\0", pos)
+                val.append(b[pos:e2].decode())
+                pos = e2 + 1
+        elif t == "O":
+            n = struct.unpack_from("<I", b, pos)[0]
+            pos += 4
+            val = []
+            for _ in range(n):
+                _, o, pos = gwy_object(b, pos)
+                val.append(o)
+        else:
+            raise ValueError(f"GWY component type {t!r}")
+        comps[key] = val
+    return name, comps, stop
+
+
+def gwyddion_read(x3p, tmp):
+    """The container Gwyddion makes of x3p, or (None, its complaint)."""
+    out = os.path.join(tmp, "gwy.gwy")
+    if os.path.exists(out):
+        os.remove(out)
+    env = dict(os.environ, GWYDDION_LOGFILE=os.path.join(tmp, "gwy.log"))
+    r = run(["gwyddion", "--no-splash", f"--convert-to-gwy={out}", x3p], env=env, timeout=120)
+    if not os.path.exists(out):
+        c = run(["gwyddion", "--check", x3p], env=env, timeout=120)
+        return None, (r.stderr + c.stdout + c.stderr).strip()
+    data = open(out, "rb").read()
+    if data[:4] != b"GWYP":
+        return None, "not a GWY file"
+    _, comps, _ = gwy_object(data, 4)
+    return comps, ""
+
+
+# ---- the second reader: unzip, md5sum, xmllint, od -------------------------
+
+def second_reader(x3p, tmp):
+    """Checks the container with standard tools and returns (xpath, values)."""
+    d = tempfile.mkdtemp(dir=tmp)
+    r = run(["unzip", "-t", x3p])
+    check(r.returncode == 0 and "No errors detected" in r.stdout, f"unzip -t {x3p}: {r.stdout}")
+    run(["unzip", "-q", x3p, "-d", d])
+    r = run(["md5sum", "-c", "md5checksum.hex"], cwd=d)
+    check(r.returncode == 0 and "main.xml: OK" in r.stdout, f"md5sum -c main.xml: {r.stdout}{r.stderr}")
+
+    def xpath(expr):
+        r = run(["xmllint", "--xpath", f"string({expr})", os.path.join(d, "main.xml")])
+        check(r.returncode == 0, f"xmllint {expr}: {r.stderr}")
+        return r.stdout.strip()
+
+    link = xpath("/*/Record3/DataLink/PointDataLink")
+    md5 = xpath("/*/Record3/DataLink/MD5ChecksumPointData")
+    r = run(["md5sum", "-c"], cwd=d, input=f"{md5}  {link}\n")
+    check(r.returncode == 0, f"data checksum {md5} of {link}: {r.stdout}{r.stderr}")
+    r = run(["od", "-A", "n", "-v", "-t", "f8", "--endian=little", "-w8", os.path.join(d, link)])
+    check(r.returncode == 0, f"od: {r.stderr}")
+    values = [float(v) for v in r.stdout.split()]
+    r = run(["xmllint", "--noout", os.path.join(d, "main.xml")])
+    check(r.returncode == 0, f"main.xml is not well-formed: {r.stderr}")
+    return xpath, values
+
+
+def grid_export(tmp):
+    """The gridded residual: matrix layout, read by Gwyddion and the chain."""
+    pts = os.path.join(tmp, "weak.csv")
+    x3p = os.path.join(tmp, "residual.x3p")
+    r = asph("synth", "weak", "--method", "concentric", "--h", "0.08", "--zernike", "6=30,11=-12",
+             "--noise", "1", "--seed", "4", "-o", pts)
+    check(r.returncode == 0, f"synth: {r.stderr}")
+    r = asph("fit", "weak", pts, "--json", "--x3p", x3p, "--grid-spacing", "0.4")
+    check(r.returncode == 0, f"fit --x3p: {r.stderr}")
+    summary = json.loads(r.stdout)
+    xpath, values = second_reader(x3p, tmp)
+    nx, ny = int(xpath("/*/Record3/MatrixDimension/SizeX")), int(xpath("/*/Record3/MatrixDimension/SizeY"))
+    inc = float(xpath("/*/Record1/Axes/CX/Increment"))
+    check(xpath("/*/Record1/FeatureType") == "SUR", "matrix export is not SUR")
+    check(xpath("/*/Record1/Axes/CX/AxisType") == "I" and xpath("/*/Record1/Axes/CZ/AxisType") == "A",
+          "axis types")
+    check(nx == ny == len(range(-48, 49)), f"grid {nx} x {ny}, expected 97 x 97 (19.5 mm / 0.4)")
+    check(abs(inc - 0.4e-3) < 1e-15, f"increment {inc} m")
+    check(len(values) == nx * ny, f"{len(values)} values for {nx} x {ny}")
+    valid = [v for v in values if not math.isnan(v)]
+    # Nodes outside the aperture are masked: about 1 - pi/4 of them.
+    check(0.15 < 1 - len(valid) / len(values) < 0.3, f"{len(values) - len(valid)} masked nodes")
+    rms = math.sqrt(sum((v - sum(valid) / len(valid)) ** 2 for v in valid) / len(valid)) * 1e9
+    # The grid weighs area evenly, the points do not quite: a sanity check.
+    check(abs(rms - summary["rms_nm"]) < 0.12 * summary["rms_nm"],
+          f"grid RMS {rms} nm, the fit's {summary['rms_nm']} nm")
+
+    comps, why = gwyddion_read(x3p, tmp)
+    check(comps is not None, f"Gwyddion cannot read the matrix export: {why}")
+    if comps is None:
+        return
+    field = comps["/0/data"]
+    check(field["xres"] == nx and field["yres"] == ny, f"Gwyddion: {field['xres']} x {field['yres']}")
+    check(abs(field["xreal"] - nx * inc) < 1e-12, f"Gwyddion xreal {field['xreal']}")
+    mask = comps.get("/0/mask", {}).get("data", [0.0] * (nx * ny))
+    gdata = field["data"]
+    # Gwyddion's row 0 is the top of the image: either order of rows.
+    def rows(flip):
+        return [values[(ny - 1 - (k // nx) if flip else k // nx) * nx + k % nx] for k in range(nx * ny)]
+    best = None
+    for flip in (False, True):
+        mine = rows(flip)
+        bad = sum(1 for k in range(nx * ny)
+                  if (math.isnan(mine[k]) != (mask[k] > 0.5)) or
+                  (not math.isnan(mine[k]) and mine[k] != gdata[k]))
+        best = bad if best is None else min(best, bad)
+    check(best == 0, f"Gwyddion reads {best} values differently from the file's doubles")
+
+
+def points_export(tmp):
+    """Measured points: the list layout, against the same points as CSV."""
+    csv = os.path.join(tmp, "plan.csv")
+    x3p = os.path.join(tmp, "plan.x3p")
+    for out in (csv, x3p):
+        r = asph("plan", "strong", "--method", "spiral", "--points", "400", "-o", out, "-q")
+        check(r.returncode == 0, f"plan -o {out}: {r.stderr}")
+    rows = [list(map(float, line.split(","))) for line in open(csv).read().split("\n")[1:] if line]
+    xpath, values = second_reader(x3p, tmp)
+    check(xpath("/*/Record1/FeatureType") == "PCL", "list export is not PCL")
+    check(int(xpath("/*/Record3/ListDimension")) == len(rows), "ListDimension")
+    check(len(values) == 3 * len(rows), f"{len(values)} doubles for {len(rows)} points")
+    worst = max((abs(values[3 * i + k] - rows[i][k] * 1e-3) for i in range(len(rows)) for k in range(3)),
+                default=1)
+    check(worst <= 1e-18, f"list values differ from the CSV by {worst} m")
+    comps, why = gwyddion_read(x3p, tmp)
+    if comps is None:
+        # Gwyddion 2.62 reads matrix data only; it must say so, not fail
+        # on the file.
+        check("FeatureType" in why or "Only type I" in why,
+              f"Gwyddion refuses the list export for another reason: {why}")
+        print("note: Gwyddion reads no X3P point list (", why.splitlines()[-1], ")")
+    else:
+        check(len(comps) > 0, "Gwyddion read an empty container")
+
+
+def correction_tables(tmp):
+    pts = os.path.join(tmp, "tp.csv")
+    asph("synth", "strong", "--method", "concentric", "--h", "0.06", "--zernike", "11=-20",
+         "-o", pts)
+    table = os.path.join(tmp, "radial.csv")
+    r = asph("fit", "strong", pts, "--residual", "sag", "--correction", table,
+             "--correction-step", "0.5", "--correction-extend", "1",
+             "--correction-extend-method", "linear")
+    check(r.returncode == 0, f"radial table: {r.stderr}")
+    lines = open(table).read().splitlines()
+    check(any(line.startswith("# value (nm): height error") for line in lines), "sign in header")
+    check(any(line.startswith("# direction: along z") for line in lines), "direction in header")
+    check(any("linear" in line and line.startswith("# extension") for line in lines), "extension")
+    check("r_mm,height_error_nm" in lines, "radial column names")
+    data = [tuple(map(float, line.split(","))) for line in lines if line and line[0].isdigit()]
+    check(all(not math.isnan(v) for _, v in data), "nan in a radial table over a measured part")
+    check(abs(data[-1][0] - (data[-2][0] + 0.5)) < 1e-9, "radial step")
+    # Material on the +z side flips the sign of "material to remove".
+    other = os.path.join(tmp, "radial-above.csv")
+    r = asph("fit", "strong", pts, "--residual", "sag", "--correction", other,
+             "--correction-step", "0.5", "--correction-extend", "1", "--correction-extend-method",
+             "linear", "--correction-sign", "material-to-remove", "--correction-material", "above")
+    check(r.returncode == 0, f"material-to-remove: {r.stderr}")
+    flipped = [tuple(map(float, line.split(","))) for line in open(other) if line[0].isdigit()]
+    check(all(abs(a[1] + b[1]) < 1e-5 for a, b in zip(data, flipped)), "material above flips")
+
+    # Every bad option is refused with where and why, before anything is written.
+    bad = [
+        (["--correction-kind", "polar"], "--correction-kind: 'polar' is not radial or grid"),
+        (["--correction-sign", "up"], "--correction-sign: 'up' is not height-error or material-to-remove"),
+        (["--correction-direction", "x"], "--correction-direction: 'x' is not z or normal"),
+        (["--correction-material", "left"], "--correction-material: 'left' is not below or above"),
+        (["--correction-extend-method", "cubic"], "'cubic' is not constant or linear"),
+        (["--correction-extend", "-1"], "--correction-extend: '-1' is not a number >= 0"),
+        (["--correction-extend", "99"], "--correction-extend: 99 mm is not in 0..20 mm (the aperture radius)"),
+        (["--correction-step", "0"], "--correction-step: '0' is not a number"),
+        (["--correction-smooth", "0.3", "--correction-step", "0.5"],
+         "--correction-smooth: cut-off 0.3 mm must be 0 (none) or at least two steps (1 mm)"),
+        (["--correction-smooth", "80"], "--correction-smooth: cut-off 80 mm is longer than the part"),
+        (["--grid-spacing", "abc", "--x3p", os.path.join(tmp, "g.x3p")], "--grid-spacing: 'abc'"),
+    ]
+    for extra, want in bad:
+        out = os.path.join(tmp, "refused.csv")
+        if os.path.exists(out):
+            os.remove(out)
+        r = asph("fit", "strong", pts, "--correction", out, *extra)
+        check(r.returncode == 2, f"{extra}: exit {r.returncode}")
+        check(want in r.stderr, f"{extra}: {r.stderr.strip()!r} lacks {want!r}")
+        check(not os.path.exists(out), f"{extra}: a table was written")
+
+
+def verdict_exit(tmp):
+    pts = os.path.join(tmp, "v.csv")
+    asph("synth", "weak", "--method", "concentric", "--h", "0.08", "--zernike", "6=40",
+         "--noise", "0.5", "-o", pts)
+    # 40 nm of astigmatism: B about 196 nm. A limit equal to the value
+    # itself is within its uncertainty: undecided.
+    r = asph("fit", "weak", pts, "--json")
+    rms_a = json.loads(r.stdout)["form"]["rms_a_nm"]
+    for tol, code, overall in (('{"iso10110_5": "3/-(1)"}', 0, "pass"),
+                               ('{"iso10110_5": "3/-(0.3)"}', 3, "fail"),
+                               ('{"rms_nm": {"a": %.17g}}' % rms_a, 4, "undecided")):
+        r = asph("fit", "weak", pts, "--json", "--tolerance", tol)
+        check(r.returncode == code, f"{tol}: exit {r.returncode}, want {code}: {r.stderr}")
+        if r.stdout:
+            v = json.loads(r.stdout)["verdict"]
+            check(v["overall"] == overall, f"{tol}: {v}")
+            for item in v["items"]:
+                check(set(item) == {"quantity", "value", "U", "limit", "verdict"}, f"item keys {item}")
+    r = asph("fit", "weak", pts, "--tolerance", '"3/2(0.5"')
+    check(r.returncode == 2 and "1:9: iso10110_5: missing ')'" in r.stderr, f"column 9: {r.stderr}")
+    r = asph("fit", "weak", pts, "--tolerance", '{"R_mm": 0.01}')
+    check(r.returncode == 2 and "R among the degrees of freedom" in r.stderr, f"R_mm: {r.stderr}")
+
+
+def report(tmp):
+    """The PDF rendered by a real viewer (poppler's pdftoppm): one page, not
+    blank, the verdict's exit status."""
+    pts = os.path.join(tmp, "rep.csv")
+    pdf = os.path.join(tmp, "report.pdf")
+    asph("synth", "weak", "--method", "concentric", "--h", "0.08", "--zernike", "6=25,11=-10",
+         "--noise", "1", "-o", pts)
+    r = asph("report", pdf, "weak", pts, "--part", "P-17", "--lot", "L3", "--serial", "0042",
+             "--tolerance", '{"iso10110_5": "3/0.5(0.3)"}')
+    check(r.returncode == 3, f"report with a failing tolerance: exit {r.returncode}: {r.stderr}")
+    base = os.path.join(tmp, "page")
+    r = run(["pdftoppm", "-r", "40", pdf, base])
+    check(r.returncode == 0, f"pdftoppm: {r.stderr}")
+    pages = sorted(f for f in os.listdir(tmp) if f.startswith("page"))
+    check(len(pages) == 1, f"{len(pages)} pages")
+    if pages:
+        data = open(os.path.join(tmp, pages[0]), "rb").read()
+        parts = data.split(maxsplit=4)          # P6 width height maxval pixels
+        check(parts[0] == b"P6", "pdftoppm did not write a PPM")
+        w, h, pixels = int(parts[1]), int(parts[2]), parts[4]
+        ink = sum(1 for k in range(0, 3 * w * h, 3) if pixels[k] + pixels[k + 1] + pixels[k + 2] < 600)
+        coloured = sum(1 for k in range(0, 3 * w * h, 3)
+                       if max(pixels[k:k + 3]) - min(pixels[k:k + 3]) > 60)
+        check(ink > 0.03 * w * h, f"the page is blank: {ink} dark pixels of {w * h}")
+        check(coloured > 0.01 * w * h, f"no residual map: {coloured} coloured pixels")
+    r = asph("report", pdf, "not-a-scan.scan")
+    check(r.returncode == 2 and "not a recorded scan" in r.stderr, f"report of nothing: {r.stderr}")
+
+
+def main():
+    if not ASPH:
+        print("ASPH_BIN not set")
+        return 1
+    missing = [t for t in ("unzip", "md5sum", "xmllint", "od", "gwyddion", "pdftoppm")
+               if not shutil.which(t)]
+    if missing:
+        print("skip: missing", ", ".join(missing), "(scripts/install-deps installs them)")
+        return 77
+    with tempfile.TemporaryDirectory() as tmp:
+        grid_export(tmp)
+        points_export(tmp)
+        correction_tables(tmp)
+        verdict_exit(tmp)
+        report(tmp)
+    print(f"{len(FAILURES)} failed" if FAILURES else "all passed")
+    return 1 if FAILURES else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,233 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""What the security tests share (suite 'security', docs/reliability.md,
+"Threat model"): users and groups made for the test and removed after it,
+programs run as them, the daemon's memory, CPU time and watchdog seen from
+outside, free TCP ports. The daemon itself comes from
+tests/integration/daemontest.py.
+
+The tests need root (to add users, and to run clients as them); without
+it, or without useradd/groupadd, or when adding one fails, a test exits 77
+and says why."""
+import atexit
+import json
+import os
+import secrets
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "integration"))
+from daemontest import expect, finish, free_port  # noqa: E402,F401
+
+UNDER_VALGRIND = bool(os.environ.get("ASPH_UNDER_VALGRIND"))
+
+
+def _sanitized():
+    """Whether the daemon was built with AddressSanitizer, whose quarantine
+    and shadow memory make its RSS say nothing of the daemon's own."""
+    try:
+        with open(os.environ.get("ASPHD_BIN", ""), "rb") as f:
+            return b"libasan.so" in f.read()
+    except OSError:
+        return False
+
+
+SANITIZED = _sanitized()
+PYTHON = next((p for p in ("/usr/bin/python3", "/usr/local/bin/python3", sys.executable)
+               if os.path.exists(p) and os.stat(p).st_mode & 0o001), None)
+
+
+def skip(why):
+    print(f"SKIP: {why}")
+    sys.exit(77)
+
+
+class Accounts:
+    """Users and groups that exist for the test only: names asph-t-XXXXXX,
+    removed at exit (also when the test fails)."""
+
+    def __init__(self):
+        if os.geteuid() != 0:
+            skip("needs root to add users and to run clients as them")
+        self.tools = {t: shutil.which(t) for t in ("useradd", "userdel", "groupadd", "groupdel")}
+        missing = [t for t, p in self.tools.items() if not p]
+        if missing:
+            skip(f"no {', '.join(missing)} to add users for the test")
+        if not PYTHON:
+            skip("no python3 that an unprivileged user may run")
+        self.users, self.groups = [], []
+        atexit.register(self.remove)
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(sig, lambda *_: sys.exit(1))
+
+    def _run(self, tool, *args):
+        p = subprocess.run([self.tools[tool], *args], capture_output=True, text=True, timeout=60)
+        if p.returncode != 0:
+            skip(f"{tool} {' '.join(args)} failed: {p.stderr.strip()}")
+
+    def group(self, role):
+        name = f"asph-t-{role[:4]}-{secrets.token_hex(3)}"
+        self._run("groupadd", "--system", name)
+        self.groups.append(name)
+        import grp
+        return grp.getgrnam(name).gr_gid, name
+
+    def user(self, role, groups=()):
+        """A user (no home, no login shell) in its own group and groups."""
+        name = f"asph-t-{role[:4]}-{secrets.token_hex(3)}"
+        args = ["--system", "--no-create-home", "--shell", "/usr/sbin/nologin", "--user-group"]
+        if groups:
+            args += ["--groups", ",".join(groups)]
+        self._run("useradd", *args, name)
+        self.users.append(name)
+        import pwd
+        pw = pwd.getpwnam(name)
+        return User(name, pw.pw_uid, pw.pw_gid, groups)
+
+    def remove(self):
+        for name in reversed(self.users):
+            subprocess.run([self.tools["userdel"], name], capture_output=True)
+        for name in reversed(self.groups):
+            subprocess.run([self.tools["groupdel"], name], capture_output=True)
+        self.users, self.groups = [], []
+
+
+class User:
+    def __init__(self, name, uid, gid, groups):
+        self.name, self.uid, self.gid = name, uid, gid
+        import grp
+        self.gids = [grp.getgrnam(g).gr_gid for g in groups]
+
+    def popen(self, argv, **kw):
+        """argv as this user (its groups as a login would give them)."""
+        return subprocess.Popen(argv, user=self.uid, group=self.gid, extra_groups=self.gids,
+                                cwd="/", **kw)
+
+    def run(self, argv, stdin=None, timeout=300, env=None):
+        return subprocess.run(argv, input=stdin, capture_output=True, text=True, timeout=timeout,
+                              user=self.uid, group=self.gid, extra_groups=self.gids, cwd="/",
+                              env=env)
+
+    def python(self, code, *args, stdin=None, timeout=300):
+        """Runs a python program as this user; its stdout parsed as JSON."""
+        p = self.run([PYTHON, "-c", code, *map(str, args)], stdin=stdin, timeout=timeout)
+        if p.returncode != 0:
+            raise RuntimeError(f"as {self.name}: {p.stderr.strip()[-2000:]}")
+        return json.loads(p.stdout)
+
+
+# ----------------------------------------------------------- the daemon seen from outside
+
+def rss_kib(pid):
+    """VmRSS and VmHWM (the peak) of pid, in KiB."""
+    out = {}
+    with open(f"/proc/{pid}/status") as f:
+        for line in f:
+            if line.startswith(("VmRSS:", "VmHWM:")):
+                out[line.split(":")[0]] = int(line.split()[1])
+    return out.get("VmRSS", 0), out.get("VmHWM", 0)
+
+
+def cpu_seconds(pid):
+    """User and system CPU time of pid so far."""
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+class Notify:
+    """A NOTIFY_SOCKET for the daemon: what it tells systemd (READY=1,
+    WATCHDOG=1, STATUS=...), with the time each came."""
+
+    def __init__(self, directory):
+        self.path = os.path.join(directory, "notify.sock")
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.sock.bind(self.path)
+        self.messages = []
+        self._stop = False
+        threading.Thread(target=self._listen, daemon=True).start()
+
+    def _listen(self):
+        self.sock.settimeout(0.2)
+        while not self._stop:
+            try:
+                data = self.sock.recv(4096)
+            except socket.timeout:
+                continue
+            except OSError:
+                return
+            now = time.monotonic()
+            for line in data.decode(errors="replace").splitlines():
+                self.messages.append((now, line))
+
+    def times(self, what):
+        return [t for t, m in self.messages if m == what]
+
+    def close(self):
+        self._stop = True
+        self.sock.close()
+
+
+class Poller(threading.Thread):
+    """Another client, asking daemon.status every interval while an attack
+    runs: the latency of each answer (s), or None for one that failed."""
+
+    def __init__(self, path, interval=0.05):
+        super().__init__(daemon=True)
+        self.path, self.interval = path, interval
+        self.latencies = []
+        self._done = threading.Event()
+
+    def run(self):
+        from daemontest import Client
+        c = Client(self.path, timeout=60)
+        while not self._done.is_set():
+            t0 = time.monotonic()
+            try:
+                c.call("daemon.status")
+                self.latencies.append(time.monotonic() - t0)
+            except Exception:  # noqa: BLE001 - a failure is recorded as such
+                self.latencies.append(None)
+                c.close()
+                c = Client(self.path, timeout=60)
+            self._done.wait(self.interval)
+        c.close()
+
+    def stop(self):
+        self._done.set()
+        self.join()
+
+
+class Sampler(threading.Thread):
+    """The daemon's RSS every interval: (time, KiB)."""
+
+    def __init__(self, pid, interval=0.02):
+        super().__init__(daemon=True)
+        self.pid, self.interval = pid, interval
+        self.samples = []
+        self._done = threading.Event()
+
+    def run(self):
+        while not self._done.is_set():
+            try:
+                self.samples.append((time.monotonic(), rss_kib(self.pid)[0]))
+            except OSError:
+                return
+            self._done.wait(self.interval)
+
+    def stop(self):
+        self._done.set()
+        self.join()
+        return max((kib for _, kib in self.samples), default=0)
+
+
+def tempdir():
+    d = tempfile.mkdtemp(prefix="asph-sec-")
+    os.chmod(d, 0o755)
+    atexit.register(shutil.rmtree, d, True)
+    return d
