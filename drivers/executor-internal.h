@@ -26,6 +26,7 @@ struct pending {
 	double cmd[3];          /* the command at the sample instant (machine) */
 	uint64_t t_ns;          /* the trigger on the instrument clock; 0 unknown */
 	bool timed;             /* cmd is at the sample instant (latency known) */
+	double dcmd[3];         /* timed: the command's motion from the trigger to cmd */
 };
 
 /* What a reading is paired with: the stage's position and its source. */

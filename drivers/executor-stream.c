@@ -143,10 +143,14 @@ static void lagrange(const struct asph_position_sample *s[], size_t n, double t,
 	}
 }
 
-/* Where a reading latched at c was sampled: the latency later, on the
- * parabola of c and its neighbours (the ones before when the next is not
- * there yet). */
-static void compensate(struct asph_scan *sc, const struct asph_position_sample *c,
+/* Where a reading latched at c was sampled: the latency later. On a timed
+ * sweep, c moved on as the command did over the latency (the axes follow
+ * their command with a lag that hardly changes within it; the neighbouring
+ * latches, a plan spacing away, cannot tell the motion of a fraction of a
+ * millisecond as well); else on the parabola of c and its neighbours (the
+ * ones before when the next is not there yet). */
+static void compensate(struct asph_scan *sc, const struct pending *pd,
+		       const struct asph_position_sample *c,
 		       const struct asph_position_sample *next, double out[3])
 {
 	const struct asph_position_sample *s[3];
@@ -154,6 +158,11 @@ static void compensate(struct asph_scan *sc, const struct asph_position_sample *
 
 	if (!(sc->latency > 0)) {
 		memcpy(out, c->position, 3 * sizeof(double));
+		return;
+	}
+	if (pd->timed) {
+		for (int k = 0; k < 3; k++)
+			out[k] = c->position[k] + pd->dcmd[k];
 		return;
 	}
 	if (next) {
@@ -245,7 +254,7 @@ static void place(struct asph_scan *sc, const struct pending *pd, const struct a
 			const struct asph_position_sample *next =
 				sc->trace_n && sc->trace[sc->trace_head].source == ASPH_POSITION_LATCHED
 					? &sc->trace[sc->trace_head] : NULL;
-			compensate(sc, &c, next, pl->machine);
+			compensate(sc, pd, &c, next, pl->machine);
 			remember_latch(sc, &c);
 			pl->source = ASPH_POSITION_LATCHED;
 			return;
@@ -571,6 +580,8 @@ static int stream_pvt(struct asph_scan *sc, size_t i, size_t *done, struct asph_
 						.t_ns = base + (uint64_t)llround(m->t * 1e9),
 						.timed = true };
 			command_at(sc->mk, n, k, m->t + lat, pd->cmd);
+			for (int a = 0; a < 3; a++)
+				pd->dcmd[a] = pd->cmd[a] - m->position[a];
 		}
 		double dur = sc->mk[n - 1].t - t_prev;
 		t_prev = sc->mk[n - 1].t;
