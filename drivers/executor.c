@@ -599,7 +599,11 @@ int asph_scan_run(struct asph_scan *sc, struct asph_scanfile_writer *w,
 	sc->n_rec = 0;
 	sc->t0_ns = now_monotonic_ns();
 	sc->clock0 = asph_instrument_clock(in);
-	sc->scan0 = asph_scanfile_writer_elapsed_ns(w);
+	/* a new scan's times are the instrument's from here, so that a
+	 * simulated one is the same to the bit each time; a resumed one's go
+	 * on from the time the file has lived */
+	sc->scan0 = sc->o.start_index == 0 && !sc->o.recovered ? 0
+								: asph_scanfile_writer_elapsed_ns(w);
 	sc->last_report_ns = 0;
 	scan_publish(sc, ASPH_SCAN_CHECKING, sc->o.start_index, true);
 	r = scan_stream_init(sc, err);
