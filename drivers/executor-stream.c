@@ -409,6 +409,10 @@ static int approach(struct asph_scan *sc, size_t i, bool clear_move, struct asph
 	struct target t;
 	double at[3];
 
+	/* the rotary axis takes the short way from where the stage is (the
+	 * checks and the path's look-ups have turned the angle on meanwhile) */
+	if (sc->inst->stage_info.kinematics == ASPH_KINEMATICS_RTZ)
+		sc->theta_prev = sc->pos[1];
 	scan_target(sc, i, false, &t);
 	int r = 0;
 	if (!clear_move || !scan_path_clear(sc, sc->pos, t.machine, sweep_gap(sc)))
@@ -535,6 +539,18 @@ static int next_knots(struct asph_scan *sc, bool stop, size_t *n)
 	return 0;
 }
 
+/* The rotary axis's angles of the run from i to e as the stage takes them
+ * from where the approach left it: whole turns on, and the first point's
+ * exactly where the stage is (at r = 0 any angle is that point). */
+static void align_theta(struct asph_scan *sc, size_t i, size_t e)
+{
+	double shift = 2 * M_PI * round((sc->pos[1] - sc->theta[i]) / (2 * M_PI));
+
+	for (size_t k = i; k < e; k++)
+		sc->theta[k] += shift;
+	sc->theta[i] = sc->pos[1];
+}
+
 static int stream_pvt(struct asph_scan *sc, size_t i, size_t *done, struct asph_error *err)
 {
 	struct asph_instrument *in = sc->inst;
@@ -547,6 +563,8 @@ static int stream_pvt(struct asph_scan *sc, size_t i, size_t *done, struct asph_
 
 	*done = 0;
 	r = approach(sc, i, true, err);
+	if (r == 0 && sc->theta)
+		align_theta(sc, i, e);
 	if (r == 0)
 		r = asph_motion_planner_start_path(sc->planner, run_point, &rn, e - i, &sc->lim, err);
 	if (r < 0)

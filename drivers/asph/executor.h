@@ -155,6 +155,18 @@ int asph_scan_reopen_at(int dirfd, const char *path, const struct asph_plan *pla
 			struct asph_scanfile_writer **w, uint64_t *start_index,
 			struct asph_scanfile **recovered, struct asph_error *err);
 
+/*
+ * The predicted measuring time in s of the n plan points xyz on surface s
+ * with instrument c and options so (may be NULL), before anything is
+ * opened (asph_instrument_describe()): streamed, the feed-rate planner's
+ * time along the path; point by point, the moves, the settling dwell and
+ * the readings; and the drift references' rounds. Homing and a stage's
+ * ringing are not included. -ENOTSUP when a driver cannot describe itself.
+ */
+int asph_scan_estimate(const struct asph_instrument_config *c, const struct asph_surface *s,
+		       const double *xyz, size_t n, const struct asph_scan_options *so,
+		       double *seconds, struct asph_error *err);
+
 /* Any thread. Pause takes effect before the next point; abort stops the
  * stage and the probe at once. */
 void asph_scan_pause(struct asph_scan *sc);

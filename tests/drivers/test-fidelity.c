@@ -42,6 +42,8 @@ struct measured {
 	char *account;          /* the acquisition's account, JSON */
 	struct asph_scanfile *scan;
 	uint64_t clock0_ns;     /* the instrument's clock when the scan began */
+	double seconds;         /* the scan's time on the instrument's clock */
+	double estimate_s;      /* asph_scan_estimate()'s prediction of it */
 };
 
 static void measured_free(struct measured *m)
@@ -79,9 +81,13 @@ static void measure(struct scan_fixture *f, const char *spec, int raw, struct me
 	assert_int_equal(asph_scanfile_writer_create(new_path(f, path, sizeof(path)), &info, NULL,
 						     &w, NULL), 0);
 	free(lens);
+	if (asph_scan_estimate(&c->instruments[0], f->s, f->plan->xyz, f->plan->n, &so,
+			       &m->estimate_s, &err) < 0)
+		fail_msg("estimate: %s", err.message);
 	m->clock0_ns = asph_instrument_clock(inst);
 	if (asph_scan_run(sc, w, &err) < 0)
 		fail_msg("%s: %s", spec, err.message);
+	m->seconds = (double)(asph_instrument_clock(inst) - m->clock0_ns) * 1e-9;
 	asph_scan_free(sc);
 	asph_instrument_close(inst);
 	asph_config_free(c);
@@ -315,6 +321,33 @@ static void test_reproducible(void **state)
 	measured_free(&b);
 }
 
+/* The prediction of the measuring time against the simulated duration,
+ * streamed on the ideal and the realistic bench, and on a rotary table
+ * (which must stream as exactly as the cartesian stage): within 5 %. */
+static void test_estimate(void **state)
+{
+	static const char *const specs[] = {
+		"mock:time_factor=0,drift_interval=off",
+		"mock:time_factor=0," REALISTIC,
+		"mock:time_factor=0,kinematics=r-theta-z,drift_interval=off",
+	};
+	struct scan_fixture *f = *state;
+
+	for (size_t i = 0; i < sizeof(specs) / sizeof(specs[0]); i++) {
+		struct measured m;
+		measure(f, specs[i], 0, &m);
+		print_message("%s: %.3f s simulated, %.3f s predicted\n", specs[i], m.seconds,
+			      m.estimate_s);
+		if (!(m.seconds > 1 && fabs(m.estimate_s / m.seconds - 1) <= 0.05))
+			fail_msg("%s: %.4f s simulated, %.4f s predicted", specs[i], m.seconds,
+				 m.estimate_s);
+		/* the ideal instruments measure the perfect part exactly */
+		if (!strstr(specs[i], "bench") && !(m.res.rms.v < 1e-3))
+			fail_msg("%s: %.6f nm RMS on a perfect part", specs[i], m.res.rms.v);
+		measured_free(&m);
+	}
+}
+
 static int setup(void **state)
 {
 	struct scan_fixture *f = calloc(1, sizeof(*f));
@@ -337,6 +370,7 @@ int main(void)
 	const struct CMUnitTest tests[] = {
 		cmocka_unit_test(test_fidelity),
 		cmocka_unit_test(test_reproducible),
+		cmocka_unit_test(test_estimate),
 	};
 	return cmocka_run_group_tests(tests, setup, teardown);
 }
