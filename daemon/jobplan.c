@@ -6,6 +6,7 @@
 
 #include <jansson.h>
 
+#include "asph/executor.h"
 #include "jobplan.h"
 #include "util-mem.h"
 
@@ -71,4 +72,26 @@ void job_plan_release(struct job_plan *jp)
 	free(jp->fit_json);
 	free(jp->lens_name);
 	memset(jp, 0, sizeof(*jp));
+}
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_config *, asph_config_free)
+
+int job_plan_estimate(const char *spec, uint64_t max_points,
+		      const struct asph_instrument_config *c, double *seconds,
+		      struct asph_error *err)
+{
+	_cleanup_(asph_config_freep) struct asph_config *own = NULL;
+	struct asph_scan_options so = { .flags = ASPH_SCAN_STREAM };
+	struct job_plan jp;
+	int r = job_plan_build(spec, max_points, &jp, err);
+
+	if (r == 0)
+		r = asph_instrument_config_copy(c, &own, err);
+	if (r == 0)
+		r = asph_instrument_config_set_lens(&own->instruments[0], jp.prescription_json, err);
+	if (r == 0)
+		r = asph_scan_estimate(&own->instruments[0], jp.surface, jp.plan->xyz, jp.plan->n,
+				       &so, seconds, err);
+	job_plan_release(&jp);
+	return r;
 }

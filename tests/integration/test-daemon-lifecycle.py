@@ -7,6 +7,7 @@ provenance, and the documented exit codes."""
 import hashlib
 import json
 import os
+import re
 import subprocess
 import time
 
@@ -43,6 +44,16 @@ try:
                                 "label": "first", "priority": 1})
     jid = job["id"]
     expect(job["state"] == "queued" and job["progress"]["total"] > 1000, "job.submit queues a job with its plan size")
+    # estimate_s: the prediction asph plan --estimate makes for the same
+    # plan on the same configured instrument
+    est = subprocess.run([os.environ.get("ASPH_BIN", "asph"), "plan", "strong", "--method", "ci",
+                          "--h", "0.04", "--estimate", d.config + "#mock", "-o",
+                          os.path.join(d.top, "plan.csv"), "-q"],
+                         capture_output=True, text=True)
+    said = float(est.stdout.split()[1]) if est.returncode == 0 else None
+    expect(isinstance(job.get("estimate_s"), float) and said is not None
+           and abs(job["estimate_s"] - said) <= 0.05 + 1e-9,
+           f"job.submit's estimate_s is asph plan --estimate's ({job.get('estimate_s')}, {said}, {est.stderr.strip()})")
     relays = [d.relay("job.get") for _ in range(2)]
     watchers = [subprocess.Popen([ASPHCTL, "--socket", r.path, "watch", str(jid)],
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -206,6 +217,9 @@ try:
     expect(p.returncode == 3, "no daemon: exit 3")
     rc, out, _ = d.ctl("submit", "strong", "--method", "fermat", "--points", "300", "--wait")
     expect(rc == 0 and "completed" in out, "asphctl submit --wait follows the job to its end")
+    rc, out, _ = d.ctl("submit", "strong", "--method", "fermat", "--points", "300")
+    expect(rc == 0 and re.search(r"queued \(300 points, about \d+ min \d\d s to measure\)", out),
+           f"asphctl submit shows the estimate ({out.strip()!r})")
     rc, out, err = d.ctl("submit", "strong", "--method", "ci", "--h", "0.03", "--instrument", "nope")
     expect(rc == 1 and "No such instrument" in err, "unknown instrument: exit 1 with the reason")
     try:

@@ -125,6 +125,28 @@ static const char submit_usage[] =
 	"       [--instrument NAME] [--priority P] [--label TEXT] [--dof LIST]\n"
 	"       [--residual normal|sag] [--robust] [--zernike N] [--wait] [--json]";
 
+/* "job 12 queued (700 points, about 1 min 15 s to measure)". */
+static void print_queued(const json_t *job, json_int_t id)
+{
+	json_t *est = json_object_get(job, "estimate_s");
+	long long n = (long long)json_integer_value(json_object_get(json_object_get(job, "progress"),
+								     "total"));
+
+	if (json_is_number(est)) {
+		double t = json_number_value(est);
+		long long s = (long long)(t + 0.5);
+		if (s >= 3600)
+			printf("job %lld queued (%lld points, about %lld h %02lld min to measure)\n",
+			       (long long)id, n, s / 3600, s / 60 % 60);
+		else
+			printf("job %lld queued (%lld points, about %lld min %02lld s to measure)\n",
+			       (long long)id, n, s / 60, s % 60);
+	} else {
+		printf("job %lld queued (%lld points; no estimate of the measuring time)\n",
+		       (long long)id, n);
+	}
+}
+
 int cmd_submit(struct ctl *ctl, int argc, char **argv)
 {
 	static const struct option opts[] = {
@@ -192,9 +214,7 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 	if (ctl->json && !wait)
 		ctl_print_json(result);
 	else if (!ctl->json)
-		printf("job %lld queued (%lld points)\n", (long long)id,
-		       (long long)json_integer_value(json_object_get(json_object_get(result, "progress"),
-								     "total")));
+		print_queued(result, id);
 	fflush(stdout);
 	return wait ? ctl_watch_job(ctl, id, ctl->json) : CTL_EXIT_OK;
 }
