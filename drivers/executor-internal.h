@@ -55,6 +55,7 @@ struct asph_scan {
 	double rate;
 	uint64_t measure_done0;
 	uint64_t clock0;        /* instrument clock when run() began */
+	size_t run_from, run_to; /* the last whole run of a timed sweep checked */
 	uint64_t scan0;         /* the scan's time then (ns since it began) */
 	double theta_prev;
 	double pos[3];          /* where the last motion ended, stage axes */

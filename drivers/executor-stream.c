@@ -36,6 +36,7 @@ static void limits(struct asph_scan *sc)
 int scan_stream_init(struct asph_scan *sc, struct asph_error *err)
 {
 	limits(sc);
+	sc->run_from = sc->run_to = 0;
 	if (!sc->stream)
 		return 0;
 	if (sc->pvt && !sc->planner && asph_motion_planner_alloc(0, &sc->planner) < 0)
@@ -367,7 +368,7 @@ static void direction(const double *a, const double *c, double u[3])
  * segment too close to the part ends it (the next run starts over the
  * part); for timed sweeps the curve's bulge off the segment counts too.
  * Timed sweeps take the whole run at once; else at most a batch. */
-static size_t run_end(struct asph_scan *sc, size_t i, size_t max)
+static size_t run_end_from(struct asph_scan *sc, size_t i, size_t max)
 {
 	struct target t0, t1, t2;
 	double g_prev = NAN, ta[3], tb[3];
@@ -401,6 +402,20 @@ static size_t run_end(struct asph_scan *sc, size_t i, size_t max)
 			scan_target(sc, e + 1, false, &t1);
 	}
 	return e;
+}
+
+/* The same, remembering a whole run: a timed sweep that stopped inside it
+ * (for drift references, a pause) goes on with the pairs already checked,
+ * but for its first one, where the planner now starts from rest. */
+static size_t run_end(struct asph_scan *sc, size_t i, size_t max)
+{
+	if (max != SIZE_MAX)
+		return run_end_from(sc, i, max);
+	if (sc->run_from <= i && i + 1 < sc->run_to && run_end_from(sc, i, 2) > i + 1)
+		return sc->run_to;
+	sc->run_from = i;
+	sc->run_to = run_end_from(sc, i, max);
+	return sc->run_to;
 }
 
 /* To plan point i, at rest there. */
