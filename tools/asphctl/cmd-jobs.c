@@ -507,6 +507,34 @@ static int copy_files(struct ctl *ctl, int64_t id, const json_t *files, const ch
 	return CTL_EXIT_OK;
 }
 
+/* Where the points' positions came from, the drift correction and its
+ * size, and the warnings (commanded positions, points left invalid). */
+static void print_acquisition(const json_t *a)
+{
+	json_t *d = json_object_get(a, "drift"), *v;
+	const char *key;
+	size_t i;
+
+	if (!json_is_object(a))
+		return;
+	printf("  positions  ");
+	json_object_foreach(json_object_get(a, "positions"), key, v)
+		if (json_integer_value(v))
+			printf(" %lld %s", (long long)json_integer_value(v), key);
+	printf("\n");
+	if (json_is_true(json_object_get(d, "corrected")))
+		printf("  drift       corrected from %lld rounds of references over %.0f s: "
+		       "max %.2f nm, RMS %.2f nm\n",
+		       (long long)json_integer_value(json_object_get(d, "rounds")),
+		       json_number_value(json_object_get(d, "span_s")),
+		       json_number_value(json_object_get(d, "max_nm")),
+		       json_number_value(json_object_get(d, "rms_nm")));
+	else
+		printf("  drift       not corrected (no drift references)\n");
+	json_array_foreach(json_object_get(a, "warnings"), i, v)
+		printf("  warning     %s\n", json_string_value(v));
+}
+
 static void print_summary(const json_t *res)
 {
 	json_t *s = json_object_get(res, "summary"), *dof, *unc, *v;
@@ -532,6 +560,7 @@ static void print_summary(const json_t *res)
 		       json_number_value(json_object_get(unc, key)) * scale,
 		       angle ? "urad" : shift ? "um" : key[0] == 'R' ? "mm" : "");
 	}
+	print_acquisition(json_object_get(s, "acquisition"));
 	printf("  scan sha256 %s\n", str(json_object_get(prov, "scan"), "sha256"));
 	printf("  files in %s\n", str(res, "dir"));
 }
