@@ -619,6 +619,8 @@ size_t mock_bench_trace(struct mock_bench *b, struct asph_position_sample *out, 
 {
 	size_t n = b->trace_n < max ? b->trace_n : max;
 
+	if (n == 0)
+		return 0;
 	memcpy(out, b->trace + b->trace_head, n * sizeof(*out));
 	b->trace_head += n;
 	b->trace_n -= n;
