@@ -13,22 +13,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "asph/executor.h"
-#include "asph/motion.h"
-
-/* The stage's and probe's limits for the planner, as the executor takes
- * them (executor-stream.c: a speed left unknown is as good as none). */
-static void estimate_limits(const struct asph_stage_info *si, const struct asph_probe_info *pi,
-			    struct asph_motion_limits *lim)
-{
-	memset(lim, 0, sizeof(*lim));
-	for (int k = 0; k < 3; k++) {
-		lim->speed[k] = si->axes[k].max_speed > 0 ? si->axes[k].max_speed : 1e6;
-		lim->accel[k] = si->max_accel[k] > 0 ? si->max_accel[k] : 0;
-		lim->jerk[k] = si->max_jerk[k] > 0 ? si->max_jerk[k] : 0;
-	}
-	lim->rate = pi->rate > 0 ? pi->rate : 0;
-}
+#include "executor-internal.h"
 
 /* Plan point p where the stage puts the probe's reference point: a
  * standoff above an optical probe's point, the tip's centre on a tactile
@@ -105,7 +90,7 @@ int asph_scan_estimate(const struct asph_instrument_config *c, const struct asph
 		return r;
 	if (n == 0)
 		return 0;
-	estimate_limits(&si, &pi, &lim);
+	scan_motion_limits(&si, &pi, &lim);
 	double *m = malloc(3 * n * sizeof(double));
 	if (!m)
 		return asph_error_set(err, -ENOMEM, "out of memory");

@@ -164,6 +164,11 @@ void scan_publish(struct asph_scan *sc, enum asph_scan_state state, uint64_t don
 
 /* -------------------------------------------------- executor-stream.c */
 
+/* The stage's and probe's limits for the planner: what they declare, a
+ * speed they leave unknown as good as none (the executor's and the
+ * estimate's). */
+void scan_motion_limits(const struct asph_stage_info *si, const struct asph_probe_info *pi,
+			struct asph_motion_limits *lim);
 int scan_stream_init(struct asph_scan *sc, struct asph_error *err);
 void scan_stream_fini(struct asph_scan *sc);
 /* Measures from plan point i on while the sweeps can go on; *done gets

@@ -18,24 +18,21 @@
 
 /* ------------------------------------------------------------ set up */
 
-/* The stage's and probe's limits for the planner: what they declare, a
- * speed they leave unknown as good as none. */
-static void limits(struct asph_scan *sc)
+void scan_motion_limits(const struct asph_stage_info *si, const struct asph_probe_info *pi,
+			struct asph_motion_limits *lim)
 {
-	const struct asph_stage_info *si = &sc->inst->stage_info;
-
-	memset(&sc->lim, 0, sizeof(sc->lim));
+	memset(lim, 0, sizeof(*lim));
 	for (int k = 0; k < 3; k++) {
-		sc->lim.speed[k] = si->axes[k].max_speed > 0 ? si->axes[k].max_speed : 1e6;
-		sc->lim.accel[k] = si->max_accel[k] > 0 ? si->max_accel[k] : 0;
-		sc->lim.jerk[k] = si->max_jerk[k] > 0 ? si->max_jerk[k] : 0;
+		lim->speed[k] = si->axes[k].max_speed > 0 ? si->axes[k].max_speed : 1e6;
+		lim->accel[k] = si->max_accel[k] > 0 ? si->max_accel[k] : 0;
+		lim->jerk[k] = si->max_jerk[k] > 0 ? si->max_jerk[k] : 0;
 	}
-	sc->lim.rate = sc->inst->probe_info.rate > 0 ? sc->inst->probe_info.rate : 0;
+	lim->rate = pi->rate > 0 ? pi->rate : 0;
 }
 
 int scan_stream_init(struct asph_scan *sc, struct asph_error *err)
 {
-	limits(sc);
+	scan_motion_limits(&sc->inst->stage_info, &sc->inst->probe_info, &sc->lim);
 	sc->run_from = sc->run_to = 0;
 	if (!sc->stream)
 		return 0;
