@@ -167,6 +167,23 @@ int asph_scan_estimate(const struct asph_instrument_config *c, const struct asph
 		       const double *xyz, size_t n, const struct asph_scan_options *so,
 		       double *seconds, struct asph_error *err);
 
+/*
+ * Re-simulation for a Monte Carlo evaluation: the points instrument c (a
+ * simulated one: the mock and its physical model, time_factor=0) measures
+ * for the n plan points xyz of surface s, streamed where it can, as
+ * characterization takes them from a recorded scan (the drift references'
+ * correction applied, drift receives its size; may be NULL), in *out
+ * (asph_points_free()). The recording is a temporary file in dir, removed
+ * before the call returns. Each draw of the model's contributions is a
+ * configuration: its options (seed, noise, misalignment, form, the bench's
+ * errors) decide the readings, and the same configuration gives the same
+ * points to the bit. 0 or -errno.
+ */
+struct asph_drift_summary;
+int asph_scan_simulate(const struct asph_instrument_config *c, const struct asph_surface *s,
+		       const double *xyz, size_t n, const char *dir, struct asph_points **out,
+		       struct asph_drift_summary *drift, struct asph_error *err);
+
 /* Any thread. Pause takes effect before the next point; abort stops the
  * stage and the probe at once. */
 void asph_scan_pause(struct asph_scan *sc);

@@ -348,6 +348,53 @@ static void test_estimate(void **state)
 	}
 }
 
+/* Re-simulation (asph_scan_simulate()): a draw is its configuration, the
+ * same one gives the same points to the bit, drift corrected; another seed
+ * other noise of the stated size (without drift references, whose own
+ * noise would enter the correction: two draws of 2 nm differ by
+ * 2 sqrt(2) nm RMS along z). */
+static struct asph_points *simulate(struct scan_fixture *f, const char *spec, size_t rounds)
+{
+	struct asph_config *c;
+	struct asph_points *pts;
+	struct asph_drift_summary drift;
+	struct asph_error err;
+
+	if (asph_instrument_spec_parse(f->reg, spec, &c, &err) < 0 ||
+	    asph_scan_simulate(&c->instruments[0], f->s, f->plan->xyz, f->plan->n, f->dir, &pts,
+			       &drift, &err) < 0)
+		fail_msg("%s: %s", spec, err.message);
+	assert_true(rounds ? drift.n_rounds >= rounds : drift.n_rounds == 0);
+	asph_config_free(c);
+	return pts;
+}
+
+static void test_simulate(void **state)
+{
+	struct scan_fixture *f = *state;
+	struct asph_points *a = simulate(f, "mock:time_factor=0," REALISTIC ",noise=2,seed=5", 2);
+	struct asph_points *b = simulate(f, "mock:time_factor=0," REALISTIC ",noise=2,seed=5", 2);
+	double sq = 0;
+
+	assert_int_equal(a->n, f->plan->n);
+	assert_int_equal(b->n, a->n);
+	assert_memory_equal(a->xyz, b->xyz, 3 * a->n * sizeof(double));
+	asph_points_free(a);
+	asph_points_free(b);
+	a = simulate(f, "mock:time_factor=0," REALISTIC ",drift_interval=off,noise=2,seed=5", 0);
+	struct asph_points *c =
+		simulate(f, "mock:time_factor=0," REALISTIC ",drift_interval=off,noise=2,seed=6", 0);
+	assert_int_equal(c->n, a->n);
+	for (size_t i = 0; i < a->n; i++)
+		sq += (a->xyz[3 * i + 2] - c->xyz[3 * i + 2]) * (a->xyz[3 * i + 2] - c->xyz[3 * i + 2]);
+	double rms = sqrt(sq / (double)a->n) * 1e6, want = 2 * sqrt(2.0);
+	/* the RMS of n = 700 draws: within 4 of its standard errors (7 %) */
+	if (fabs(rms - want) > 4 * want / sqrt(2.0 * (double)a->n))
+		fail_msg("two seeds differ by %.4f nm RMS along z, the noise says %.4f nm", rms, want);
+	asph_points_free(a);
+	asph_points_free(c);
+}
+
 static int setup(void **state)
 {
 	struct scan_fixture *f = calloc(1, sizeof(*f));
@@ -371,6 +418,7 @@ int main(void)
 		cmocka_unit_test(test_fidelity),
 		cmocka_unit_test(test_reproducible),
 		cmocka_unit_test(test_estimate),
+		cmocka_unit_test(test_simulate),
 	};
 	return cmocka_run_group_tests(tests, setup, teardown);
 }
