@@ -11,7 +11,12 @@ import subprocess
 import sys
 import tempfile
 
+sys.path.insert(0, os.path.dirname(__file__))
+from schemalite import SchemaSet  # noqa: E402
+
 ASPH = os.environ.get("ASPH_BIN")
+ROOT = os.path.join(os.path.dirname(__file__), "..", "..")
+SCHEMAS = SchemaSet(os.path.join(ROOT, "proto", "schema"))
 FAILURES = []
 
 
@@ -82,6 +87,8 @@ def keys_and_verdict(tmp):
     if r.returncode:
         return
     d = json.loads(r.stdout)
+    errs = SCHEMAS.errors(d, "common.json#/$defs/fitSummary")
+    check(not errs, f"the summary against proto's fitSummary: {errs[:3]}")
     k2, std = d["uncertainty_k2"], d["uncertainty_standard"]
     for key in ("tx", "ty", "tz", "rx", "ry", "rms_nm", "pv_nm", "A_nm", "B_nm", "C_nm",
                 "A_fringes", "B_fringes", "C_fringes", "rms_t_nm", "rms_i_nm", "rms_a_nm",

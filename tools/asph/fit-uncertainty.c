@@ -64,7 +64,7 @@ int fit_mc_take_option(struct fit_mc_cli *c, int opt, const char *arg)
 		c->opts.n_threads = (int)v;
 		return 0;
 	case OPT_MC_SEED:
-		if (parse_count(arg, "seed", 0, ULONG_MAX, &v) < 0)
+		if (parse_count(arg, "seed", 0, 4294967295ul, &v) < 0)
 			return -1;
 		c->opts.seed = v;
 		c->seed_set = 1;
