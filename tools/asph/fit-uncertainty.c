@@ -116,8 +116,8 @@ static int model_from_scan(const char *scan, struct asph_uncertainty_model *m)
 	}
 	asph_uncertainty_model_init(m);
 	json_object_foreach(u, key, v) {
-		if (asph_uncertainty_model_set(m, key, json_number_value(v), &err) < 0 ||
-		    !json_is_number(v)) {
+		if (!json_is_number(v) ||
+		    asph_uncertainty_model_set(m, key, json_number_value(v), &err) < 0) {
 			fprintf(stderr, "asph fit: %s: instrument.uncertainty.%s: %s\n", scan, key,
 				err.message[0] ? err.message : "not a number");
 			return -1;
