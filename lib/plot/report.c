@@ -414,20 +414,16 @@ static double header_block(cairo_t *cr, const struct asph_report *r)
 	return y + 10;
 }
 
-int asph_report_write_pdf(const char *path, const struct asph_report *r,
-			  struct asph_error *err)
+/* Draws the page on surface (a PDF surface of name) and finishes it. */
+static int draw_report(cairo_surface_t *surface, const char *name, const struct asph_report *r,
+		       struct asph_error *err)
 {
-	_cleanup_(cairo_surface_destroyp) cairo_surface_t *surface = NULL;
-	_cleanup_(cairo_destroyp) cairo_t *cr = NULL;
+	_cleanup_(cairo_destroyp) cairo_t *cr = cairo_create(surface);
 	double y, cw = (PAGE_W - 2 * MARGIN - 60) / 2, ch = 150;
 	cairo_status_t st;
 
-	if (!r->fit || !r->scatter || !r->xy || !r->residual_nm || r->n == 0 || !(r->radius > 0))
-		return asph_error_set(err, -EINVAL, "a report needs a fit and its residual map");
-	surface = cairo_pdf_surface_create(path, PAGE_W, PAGE_H);
-	cr = cairo_create(surface);
 	if (cairo_status(cr) != CAIRO_STATUS_SUCCESS)
-		return asph_error_set(err, -EIO, "cannot create %s: %s", path,
+		return asph_error_set(err, -EIO, "cannot create %s: %s", name,
 				      cairo_status_to_string(cairo_status(cr)));
 	cairo_pdf_surface_set_metadata(surface, CAIRO_PDF_METADATA_TITLE, "Form measurement report");
 	cairo_pdf_surface_set_metadata(surface, CAIRO_PDF_METADATA_CREATOR, "asphd");
@@ -447,8 +443,42 @@ int asph_report_write_pdf(const char *path, const struct asph_report *r,
 	cairo_surface_finish(surface);
 	st = cairo_surface_status(surface);
 	if (st != CAIRO_STATUS_SUCCESS)
-		return asph_error_set(err, -EIO, "cannot write %s: %s", path, cairo_status_to_string(st));
+		return asph_error_set(err, -EIO, "cannot write %s: %s", name, cairo_status_to_string(st));
 	return 0;
+}
+
+static int check_report(const struct asph_report *r, struct asph_error *err)
+{
+	if (!r->fit || !r->scatter || !r->xy || !r->residual_nm || r->n == 0 || !(r->radius > 0))
+		return asph_error_set(err, -EINVAL, "a report needs a fit and its residual map");
+	return 0;
+}
+
+int asph_report_write_pdf(const char *path, const struct asph_report *r,
+			  struct asph_error *err)
+{
+	_cleanup_(cairo_surface_destroyp) cairo_surface_t *surface = NULL;
+	int rc = check_report(r, err);
+
+	if (rc < 0)
+		return rc;
+	surface = cairo_pdf_surface_create(path, PAGE_W, PAGE_H);
+	return draw_report(surface, path, r, err);
+}
+
+int asph_report_write_pdf_stream(FILE *f, const char *name, const struct asph_report *r,
+				 struct asph_error *err)
+{
+	_cleanup_(cairo_surface_destroyp) cairo_surface_t *surface = NULL;
+	int rc = check_report(r, err);
+
+	if (rc < 0)
+		return rc;
+	surface = cairo_pdf_surface_create_for_stream(plot_write_to_file, f, PAGE_W, PAGE_H);
+	rc = draw_report(surface, name, r, err);
+	if (rc == 0 && fflush(f) != 0)
+		return asph_error_set(err, -errno, "cannot write %s: %s", name, strerror(errno));
+	return rc;
 }
 
 #else /* !HAVE_CAIRO */
@@ -458,6 +488,12 @@ int asph_report_write_pdf(const char *path, const struct asph_report *r,
 {
 	return asph_error_set(err, -ENOTSUP,
 			      "the PDF report needs cairo, and this libasph was built without it");
+}
+
+int asph_report_write_pdf_stream(FILE *f, const char *name, const struct asph_report *r,
+				 struct asph_error *err)
+{
+	return asph_report_write_pdf(name, r, err);
 }
 
 #endif

@@ -61,7 +61,7 @@ static void test_order_and_classes(void **state)
 	assert_true(events_watch_add(e, EVENT_QUEUE, told, &b, destroyed) > 0);
 	assert_true(events_watch_add(e, EVENT_JOB | EVENT_PROGRESS, told, &c, NULL) > 0);
 	events_queue_state(e, true);
-	events_job_state(e, 3, JOB_RUNNING, JOB_QUEUED, NULL, "m");
+	events_job_state(e, 3, JOB_RUNNING, JOB_QUEUED, NULL, "m", NULL);
 	events_job_progress(e, 3, "m", 1, 2, 3.0, 4.0);
 	events_instrument_fault(e, "m", 3, "why");
 	assert_string_equal(log.text, "a:queue.state b:queue.state a:job.state c:job.state "
@@ -154,10 +154,10 @@ static void test_builders(void **state)
 	json_t *want = json_pack("{s:i, s:s, s:n, s:n, s:s}", "job", 7, "state", "queued",
 				 "previous", "reason", "instrument", "bench");
 
-	events_job_state(e, 7, JOB_QUEUED, -1, NULL, "bench");
+	events_job_state(e, 7, JOB_QUEUED, -1, NULL, "bench", NULL);
 	assert_true(json_equal(kept, want));
 	json_decref(want);
-	events_job_state(e, 7, JOB_FAILED, JOB_RUNNING, "stalled", "bench");
+	events_job_state(e, 7, JOB_FAILED, JOB_RUNNING, "stalled", "bench", NULL);
 	assert_string_equal(json_string_value(json_object_get(kept, "previous")), "running");
 	assert_string_equal(json_string_value(json_object_get(kept, "reason")), "stalled");
 	class = EVENT_PROGRESS;

@@ -469,19 +469,6 @@ static int residual_points(const struct asph_points *pts, const struct asph_fit 
 	return 0;
 }
 
-/* The residual of the used points as the interpolant on the part. */
-static int residual_scatter(const struct asph_fit *w, size_t n_used,
-			    struct asph_scatter **out, struct asph_error *err)
-{
-	_cleanup_free_ double *xy = malloc(2 * n_used * sizeof(double) + 1);
-	_cleanup_free_ double *v = malloc(n_used * sizeof(double) + 1);
-
-	if (!xy || !v)
-		return asph_error_set(err, -ENOMEM, "out of memory");
-	size_t m = asph_fit_residual_map(w, xy, v);
-	return asph_scatter_alloc(xy, v, m, NULL, out, err);
-}
-
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile *, asph_scanfile_free)
 
 /* --report: the provenance from the scan when there is one. */
@@ -537,7 +524,7 @@ static int write_exports(const struct fit_cli *c, const struct asph_surface *s,
 	if (!c->x3p_out && !c->correction_out && !c->report_out)
 		return EXIT_OK;
 	asph_error_clear(&err);
-	if (residual_scatter(w, res->n_used, &sc, &err) < 0) {
+	if (asph_fit_residual_scatter(w, &sc, &err) < 0) {
 		tool_print_error("fit: the residual map", &err);
 		return EXIT_FAILURE_RUN;
 	}
