@@ -168,27 +168,29 @@ static int spec_fit(json_t *params, json_t *spec, struct proto_why *why)
 	return 0;
 }
 
-/* Where a tolerance is wrong: its member, and for a call-out the column
- * in the call-out string (the text the client wrote, not our copy). */
+/*
+ * Where a tolerance is wrong: its member, and for a call-out the column in
+ * the call-out as a JSON string ("3/2(0.5" -> column 9: missing ')'), as
+ * asph fit --tolerance counts it.
+ */
 static int tolerance_why(json_t *tol, const struct asph_error *err, struct proto_why *why)
 {
 	json_t *co = json_is_string(tol) ? tol : json_object_get(tol, "iso10110_5");
 	bool in_callout = json_is_string(tol) || !strcmp(err->field, "iso10110_5");
+	_cleanup_free_ char *text = NULL;
 	struct asph_tolerance t;
 	struct asph_error cerr;
-	int column = 0;
 
-	asph_tolerance_init(&t);
 	asph_error_clear(&cerr);
-	if (in_callout && json_is_string(co))
-		asph_tolerance_parse_callout(json_string_value(co), t.wavelength_nm, &t, &column,
-					     &cerr);
-	if (column > 0)
+	if (in_callout && json_is_string(co) && (text = json_dumps(co, JSON_ENCODE_ANY)) &&
+	    asph_tolerance_parse_json(text, strlen(text), "tolerance", &t, &cerr) < 0 &&
+	    cerr.column > 0) {
 		snprintf(why->text, sizeof(why->text), "\"tolerance%s\": column %d: %.150s",
-			 json_is_string(tol) ? "" : ".iso10110_5", column, err->message);
-	else
-		snprintf(why->text, sizeof(why->text), "\"tolerance%s%.60s\": %.150s",
-			 err->field[0] ? "." : "", err->field, err->message);
+			 json_is_string(tol) ? "" : ".iso10110_5", cerr.column, cerr.message);
+		return PROTO_INVALID_PARAMS;
+	}
+	snprintf(why->text, sizeof(why->text), "\"tolerance%s%.60s\": %.150s",
+		 err->field[0] ? "." : "", err->field, err->message);
 	return PROTO_INVALID_PARAMS;
 }
 
