@@ -209,7 +209,8 @@ static int write_report(FILE *f, void *data, struct asph_error *err)
 
 /*
  * residual.x3p (the residual map resampled on a grid, ISO 25178-72 matrix
- * layout) and report.pdf (without cairo, none).
+ * layout) and report.pdf (without cairo, none). A scan too sparse for a
+ * map of the part has neither; only a failure to write fails the result.
  */
 static int write_exports(const struct result_source *job, const struct job_plan *jp,
 			 const char *instrument_json, const struct characterized *c,
@@ -228,12 +229,19 @@ static int write_exports(const struct result_source *job, const struct job_plan 
 	if (!xy || !v)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	e.n = asph_fit_residual_map(c->fit, xy, v);
-	r = asph_fit_residual_scatter(c->fit, &sc, err);
+	asph_error_clear(&perr);
+	r = asph_fit_residual_scatter(c->fit, &sc, &perr);
 	if (r == 0)
 		r = asph_grid_resample(sc, radius, fmax(asph_scatter_median_edge(sc),
-							2 * radius / X3P_MIN_NODES_ACROSS), &g, err);
-	if (r < 0)
+							2 * radius / X3P_MIN_NODES_ACROSS), &g, &perr);
+	/* Too few points, or all on a line, for a map of the part: the
+	 * result stands without the map's exports. */
+	if (r == -EDOM || r == -EINVAL)
+		return 0;
+	if (r < 0) {
+		*err = perr;
 		return r;
+	}
 	e.scatter = sc;
 	e.grid = g;
 	r = fs_write_file_at(job->dir_fd, "residual.x3p", DIRS_FILE_MODE, write_x3p, &e, err);
@@ -242,7 +250,8 @@ static int write_exports(const struct result_source *job, const struct job_plan 
 	json_object_set_new(files, "x3p", json_string("residual.x3p"));
 	asph_error_clear(&perr);
 	r = fs_write_file_at(job->dir_fd, "report.pdf", DIRS_FILE_MODE, write_report, &e, &perr);
-	if (r == -ENOTSUP)
+	/* Without cairo, or a map too sparse to draw: no report. */
+	if (r == -ENOTSUP || r == -EDOM || r == -EINVAL)
 		return 0;
 	if (r < 0) {
 		*err = perr;
