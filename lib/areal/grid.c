@@ -222,10 +222,13 @@ int asph_gaussian_areal(const struct asph_grid *g, double cutoff,
 	 * z m and of m (m the mask), divided at the end: tmp holds z m, mask
 	 * holds m, each filtered along x then y with the plain kernel.
 	 */
-	for (size_t i = 0; i < nx * ny; i++) {
-		mask[i] = isnan(g->z[i]) ? 0 : 1;
-		tmp[i] = isnan(g->z[i]) ? 0 : g->z[i];
-	}
+	/* Row by row, as the passes below read them. */
+	for (size_t j = 0; j < ny; j++)
+		for (size_t i = 0; i < nx; i++) {
+			double v = g->z[j * nx + i];
+			mask[j * nx + i] = isnan(v) ? 0 : 1;
+			tmp[j * nx + i] = isnan(v) ? 0 : v;
+		}
 	for (int pass = 0; pass < 2; pass++) {
 		double *a = pass ? mask : tmp;
 		for (size_t j = 0; j < ny; j++) {

@@ -1,6 +1,7 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /* The measurement report as a PDF page (cairo's PDF surface). */
 #include <errno.h>
+#include <float.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -158,15 +159,22 @@ struct chart {
 	int logx, logy;
 };
 
+/* v on a logarithmic axis; a log axis has no place for v <= 0, which is
+ * pinned to the smallest positive double (far below any axis). */
+static double axis_value(int lg, double v)
+{
+	return lg ? log10(fmax(v, DBL_MIN)) : v;
+}
+
 static double chart_u(const struct chart *c, double v)
 {
-	double t = c->logx ? (log10(v) - c->x0) / (c->x1 - c->x0) : (v - c->x0) / (c->x1 - c->x0);
+	double t = (axis_value(c->logx, v) - c->x0) / (c->x1 - c->x0);
 	return c->x + t * c->w;
 }
 
 static double chart_v(const struct chart *c, double v)
 {
-	double t = c->logy ? (log10(v) - c->y0) / (c->y1 - c->y0) : (v - c->y0) / (c->y1 - c->y0);
+	double t = (axis_value(c->logy, v) - c->y0) / (c->y1 - c->y0);
 	return c->y + c->h - t * c->h;
 }
 
@@ -185,7 +193,11 @@ static void chart_frame(cairo_t *cr, const struct chart *c, const char *title,
 		double lo = axis ? c->y0 : c->x0, hi = axis ? c->y1 : c->x1;
 		int lg = axis ? c->logy : c->logx;
 		double step = lg ? 1 : plot_nice_step(hi - lo, 5);
-		for (double t = ceil(lo / step - 1e-9) * step; t <= hi + 1e-9 * step; t += step) {
+		/* Ticks counted, not summed: each an exact multiple of step. */
+		double first = ceil(lo / step - 1e-9);
+		int n_ticks = (int)(floor(hi / step + 1e-9) - first) + 1;
+		for (int i = 0; i < n_ticks; i++) {
+			double t = (first + i) * step;
 			double v = lg ? pow(10, t) : t;
 			if (lg)
 				snprintf(buf, sizeof(buf), "%.0e", v);
