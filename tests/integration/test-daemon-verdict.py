@@ -235,6 +235,10 @@ def main():
                "list --csv: state and lens columns")
         rc, out, _ = d.ctl("list", "--csv", "--limit", "1")
         expect(rc == 0 and len(list(csv.DictReader(io.StringIO(out)))) == 1, "list --csv --limit 1")
+        rc, out, err = d.ctl("submit", "strong", "--method", "ci", "--h", "0.05", "--tolerance",
+                             json.dumps(FAIL_TOL), "--wait")
+        expect(rc == 0 and out.rstrip().endswith("verdict fail"),
+               f"asphctl submit --tolerance JSON --wait: {rc} {out[-200:]} {err}")
         tfile = os.path.join(tmp, "bad.json")
         with open(tfile, "w") as f:
             f.write('{"iso10110_5": "3/2(0.5"}')
