@@ -235,6 +235,19 @@ def main():
                "list --csv: state and lens columns")
         rc, out, _ = d.ctl("list", "--csv", "--limit", "1")
         expect(rc == 0 and len(list(csv.DictReader(io.StringIO(out)))) == 1, "list --csv --limit 1")
+        # A sparse scan: decided all the same; the map's exports only when
+        # the points can make one, and every file listed can be fetched.
+        sparse = c.call("job.submit", {"lens": "strong", "plan": {"method": "fermat", "points": 12},
+                                       "tolerance": FAIL_TOL})["id"]
+        ev = wait_done(c, sparse)
+        expect(ev["state"] == "completed" and ev.get("verdict") in ("fail", "undecided"),
+               f"a 12-point scan completes and is decided: {ev}")
+        if ev["state"] == "completed":
+            sfiles = c.call("job.result", {"id": sparse})["files"]
+            for name in sfiles.values():
+                m = c.response(c.request("job.file", {"id": sparse, "name": name, "length": 16}))
+                expect("result" in m, f"sparse scan: {name} listed and there ({m.get('error')})")
+            print(f"# a 12-point scan's files: {sorted(sfiles)}")
         rc, out, err = d.ctl("submit", "strong", "--method", "ci", "--h", "0.05", "--tolerance",
                              json.dumps(FAIL_TOL), "--wait")
         expect(rc == 0 and out.rstrip().endswith("verdict fail"),
