@@ -212,9 +212,11 @@ int asph_gaussian_areal(const struct asph_grid *g, double cutoff,
 	if (out->nx != nx || out->ny != ny)
 		return asph_error_set(err, -EINVAL, "the output grid is not the input's size");
 	k = gaussian_kernel(g->dx, cutoff, &half);
-	tmp = malloc(nx * ny * sizeof(double));
-	line = malloc(big * sizeof(double));
-	mask = malloc(nx * ny * sizeof(double));
+	/* Zeroed, though every element is set below: the analyzer cannot
+	 * follow nx * ny elements set by one loop and read by two. */
+	tmp = calloc(nx * ny, sizeof(double));
+	line = calloc(big, sizeof(double));
+	mask = calloc(nx * ny, sizeof(double));
 	if (!k || !tmp || !line || !mask)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	/*
@@ -222,13 +224,10 @@ int asph_gaussian_areal(const struct asph_grid *g, double cutoff,
 	 * z m and of m (m the mask), divided at the end: tmp holds z m, mask
 	 * holds m, each filtered along x then y with the plain kernel.
 	 */
-	/* Row by row, as the passes below read them. */
-	for (size_t j = 0; j < ny; j++)
-		for (size_t i = 0; i < nx; i++) {
-			double v = g->z[j * nx + i];
-			mask[j * nx + i] = isnan(v) ? 0 : 1;
-			tmp[j * nx + i] = isnan(v) ? 0 : v;
-		}
+	for (size_t i = 0; i < nx * ny; i++) {
+		mask[i] = isnan(g->z[i]) ? 0 : 1;
+		tmp[i] = isnan(g->z[i]) ? 0 : g->z[i];
+	}
 	for (int pass = 0; pass < 2; pass++) {
 		double *a = pass ? mask : tmp;
 		for (size_t j = 0; j < ny; j++) {
