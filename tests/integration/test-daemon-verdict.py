@@ -48,10 +48,15 @@ def load_export_checks():
     return mod
 
 
+LABEL = 'lot 7, "A"\nsecond line'
+
+
 def submit(c, tol):
     params = {"lens": "strong", "plan": PLAN}
     if tol is not None:
         params["tolerance"] = tol
+    else:
+        params["label"] = LABEL
     return c.call("job.submit", params)["id"]
 
 
@@ -233,6 +238,11 @@ def main():
                f"asphctl list --csv: {got} {err}")
         expect(all(r["state"] == "completed" and r["lens"] == "strong" for r in rows),
                "list --csv: state and lens columns")
+        labels = {int(r["id"]): r["label"] for r in rows}
+        # Quoted as RFC 4180 wants; the line break shown escaped, as asphctl
+        # shows every control character of another user's text.
+        expect(labels.get(jobs["none"]) == 'lot 7, "A"\\nsecond line',
+               f"list --csv: a label with a comma, quotes and a line break: {labels.get(jobs['none'])!r}")
         rc, out, _ = d.ctl("list", "--csv", "--limit", "1")
         expect(rc == 0 and len(list(csv.DictReader(io.StringIO(out)))) == 1, "list --csv --limit 1")
         # A sparse scan: decided all the same; the map's exports only when
