@@ -287,6 +287,43 @@ static int json_acquisition(const struct json_source *src, json_t *obj, const ch
 	return 0;
 }
 
+/* "uncertainty": { "probe_noise_nm": 5, ... }, every member a number >= 0
+ * named as asph_uncertainty_model_fields() lists them. */
+static int json_uncertainty(const struct json_source *src, json_t *obj, const char *path,
+			    struct asph_instrument_config *ic, struct asph_error *err)
+{
+	char dotted[256];
+	const char *key;
+	json_t *v;
+	int r;
+
+	if (!json_is_object(obj))
+		return json_error_set_at(err, -EINVAL, src, path,
+					 "uncertainty must be an object of contributions");
+	asph_uncertainty_model_init(&ic->uncertainty);
+	json_object_foreach(obj, key, v) {
+		snprintf(dotted, sizeof(dotted), "%s.%s", path, key);
+		if (!json_is_number(v))
+			return json_error_set_at(err, -EINVAL, src, dotted,
+						 "'%s' must be a number", key);
+		r = asph_uncertainty_model_set(&ic->uncertainty, key, json_number_value(v), err);
+		if (r < 0)
+			return json_error_locate(err, r, src, dotted);
+	}
+	struct asph_error why;
+	asph_error_clear(&why);
+	r = asph_uncertainty_model_check(&ic->uncertainty, &why);
+	if (r < 0) {
+		/* at the member at fault when it is written, else the section */
+		if (!json_object_get(obj, why.field) ||
+		    snprintf(dotted, sizeof(dotted), "%s.%s", path, why.field) >= (int)sizeof(dotted))
+			snprintf(dotted, sizeof(dotted), "%s", path);
+		return json_error_set_at(err, r, src, dotted, "%s", why.message);
+	}
+	ic->has_uncertainty = 1;
+	return 0;
+}
+
 static int json_instrument(const struct json_source *src,
 			   const struct asph_registry *reg, json_t *obj,
 			   size_t idx, struct asph_instrument_config *ic,
@@ -302,10 +339,11 @@ static int json_instrument(const struct json_source *src,
 					 "an instrument must be an object");
 	json_object_foreach(obj, key, v) {
 		if (strcmp(key, "name") && strcmp(key, "stage") && strcmp(key, "probe") &&
-		    strcmp(key, "acquisition")) {
+		    strcmp(key, "acquisition") && strcmp(key, "uncertainty")) {
 			snprintf(dotted, sizeof(dotted), "%s.%s", path, key);
 			return json_error_set_at(err, -EINVAL, src, dotted,
-						 "unknown member '%s' (name, stage, probe, acquisition)",
+						 "unknown member '%s' (name, stage, probe, acquisition, "
+						 "uncertainty)",
 						 key);
 		}
 	}
@@ -333,6 +371,10 @@ static int json_instrument(const struct json_source *src,
 	snprintf(dotted, sizeof(dotted), "%s.acquisition", path);
 	if (r == 0 && acq)
 		r = json_acquisition(src, acq, dotted, &ic->acquisition, err);
+	json_t *u = json_object_get(obj, "uncertainty");
+	snprintf(dotted, sizeof(dotted), "%s.uncertainty", path);
+	if (r == 0 && u)
+		r = json_uncertainty(src, u, dotted, ic, err);
 	return r;
 }
 
@@ -450,6 +492,8 @@ int asph_instrument_config_copy(const struct asph_instrument_config *c,
 					       .probe_driver = c->probe_driver,
 					       .acquisition = c->acquisition };
 	memcpy(ic->name, c->name, sizeof(ic->name));
+	ic->has_uncertainty = c->has_uncertainty;
+	ic->uncertainty = c->uncertainty;
 	r = asph_options_copy(c->stage_options, &ic->stage_options, err);
 	if (r == 0)
 		r = asph_options_copy(c->probe_options, &ic->probe_options, err);
@@ -534,6 +578,12 @@ int asph_instrument_config_to_json(const struct asph_instrument_config *c,
 	json_object_set_new(root, "stage", role_json(c->stage_driver, c->stage_options, ASPH_ROLE_STAGE));
 	json_object_set_new(root, "probe", role_json(c->probe_driver, c->probe_options, ASPH_ROLE_PROBE));
 	json_object_set_new(root, "acquisition", acquisition_json(&c->acquisition));
+	if (c->has_uncertainty) {
+		_cleanup_free_ char *u = NULL;
+		if (asph_uncertainty_model_to_json(&c->uncertainty, &u) < 0)
+			return -ENOMEM;
+		json_object_set_new(root, "uncertainty", json_loads(u, 0, NULL));
+	}
 	*out = json_dumps(root, JSON_COMPACT | JSON_PRESERVE_ORDER | JSON_REAL_PRECISION(17));
 	return *out ? 0 : -ENOMEM;
 }

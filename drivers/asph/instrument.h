@@ -8,6 +8,7 @@
 
 #include "asph/driver.h"
 #include "asph/error.h"
+#include "asph/uncertainty.h"
 
 #ifdef __cplusplus
 extern "C" {
@@ -200,6 +201,11 @@ struct asph_instrument_config {
 	struct asph_options *stage_options;
 	struct asph_options *probe_options;
 	struct asph_acquisition acquisition;
+	/* The instrument's declared uncertainty contributions (the optional
+	 * "uncertainty" section of a configuration file, docs/drivers.md);
+	 * has_uncertainty 0 when it declares none. */
+	int has_uncertainty;
+	struct asph_uncertainty_model uncertainty;
 };
 
 struct asph_config {

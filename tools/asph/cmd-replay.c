@@ -34,7 +34,8 @@ static void usage(FILE *out)
 		     "points.csv` writes, with the acquisition's account added (where the\n"
 		     "positions came from, commanded points, the drift correction and its size).\n"
 		     "FIT OPTIONS are those of asph fit (--json, --dof, --residual, --robust,\n"
-		     "--residuals OUT, --map OUT.png); see asph fit --help. A scan that did not\n"
+		     "--residuals OUT, --map OUT.png, --uncertainty with the contributions the\n"
+		     "scan's instrument declares); see asph fit --help. A scan that did not\n"
 		     "complete is characterized on the points it kept; a note on standard error\n"
 		     "says so.\n");
 }
@@ -84,6 +85,9 @@ int cmd_replay(int argc, char **argv)
 	int r = fit_cli_parse(&c, argc, argv, 1, usage);
 	if (r != EXIT_OK)
 		return r < 0 ? EXIT_OK : r;
+	/* the report's provenance and --uncertainty's instrument: the scan's */
+	if (!c.scan)
+		c.scan = c.points;
 	asph_error_clear(&err);
 	if (asph_drift_scan_points(c.points, 0, 0, &s, &pts, &sum, &err) < 0) {
 		tool_print_error(NULL, &err);

@@ -6,10 +6,12 @@
 
 #include <stdio.h>
 
+#include "asph/areal.h"
 #include "asph/correction.h"
 #include "asph/fit.h"
 #include "asph/points.h"
 #include "asph/tolerance.h"
+#include "fit-uncertainty.h"
 
 struct fit_cli {
 	const char *lens, *points, *residuals_out, *map_out, *tolerance_arg;
@@ -20,6 +22,9 @@ struct fit_cli {
 	double grid_spacing;
 	struct asph_correction_options correction;
 	const char *report_out, *part, *lot, *serial, *scan;
+	struct fit_mc_cli mc;
+	int bands_given;
+	struct asph_bands bands;
 };
 
 /* The fit's options and `operands` operands (asph fit: LENS POINTS_FILE,
