@@ -10,6 +10,7 @@
 #include "asph/involute.h"
 #include "asph/lb.h"
 #include "asph/plan.h"
+#include "plan-aperture.h"
 #include "plan-patterns.h"
 #include "util-mem.h"
 
@@ -29,6 +30,7 @@
  */
 struct plan_method {
 	const char *name;
+	enum asph_plan_method pattern;  /* the planar pattern it lays (op: the disk grid) */
 	struct plan_lattice lattice;
 	bool on_surface;        /* the lattice lies on the surface (CI) */
 	bool mesh;              /* the disk grid's mesh comes with the plan */
@@ -621,70 +623,54 @@ static int fermat_fill(const struct asph_surface *s, double a, double p,
 
 /* ---- freeform surfaces ----------------------------------------------------- */
 
-/* The pattern's points moved to the aperture's centre and kept where they
- * fall inside the aperture, in place, lifted with z = S(x, y) if lift;
- * returns how many are kept. */
-static size_t keep_in_aperture(const struct asph_surface *s, const double centre[2],
-			       double *xyz, size_t n, bool lift)
+/* Lifts points of the aperture onto the surface: z = S(x, y). */
+static void lift_xy(const struct asph_surface *s, double *xyz, size_t n)
 {
-	size_t k = 0;
-
-	for (size_t i = 0; i < n; i++) {
-		double x = xyz[3 * i] + centre[0], y = xyz[3 * i + 1] + centre[1];
-		if (!asph_surface_contains(s, x, y, 0))
-			continue;
-		xyz[3 * k] = x;
-		xyz[3 * k + 1] = y;
-		xyz[3 * k + 2] = lift ? asph_surface_sag_xy(s, x, y) : 0;
-		k++;
-	}
-	return k;
+	for (size_t i = 0; i < n; i++)
+		xyz[3 * i + 2] = asph_surface_sag_xy(s, xyz[3 * i], xyz[3 * i + 1]);
 }
 
-/* The method's planar pattern over the disk about the aperture, clipped to
- * the aperture and lifted if lift. */
-static int clipped_pattern(const struct asph_surface *s, const struct plan_method *meth,
-			   double p, bool lift, struct asph_plan *plan, struct asph_error *err)
+/* Screens absurd sizes before a pattern over the aperture runs, as
+ * pattern_count() does for the disk. */
+static bool aperture_too_dense(const struct asph_surface *s, double p)
 {
-	double c[2], R;
-	int r;
+	double R = freeform_radius(s);
 
-	asph_surface_aperture_disk(s, c, &R);
-	plan->n = meth->count(s, R, p);
-	r = meth->fill(s, R, p, plan, err);
-	if (r < 0)
-		return r;
-	plan->n = keep_in_aperture(s, c, plan->xyz, plan->n, lift);
+	return !(M_PI * R * R / (p * p) < 2.0 * (double)PLAN_MAX_POINTS);
+}
+
+static size_t aperture_count(const struct asph_surface *s, const struct plan_method *meth,
+			     double p)
+{
+	struct plan_points pp = { 0 };
+	size_t n = SIZE_MAX;
+
+	if (aperture_too_dense(s, p))
+		return SIZE_MAX;
+	if (plan_aperture_pattern(s, meth->pattern, p, &pp, NULL) == 0)
+		n = pp.n;
+	plan_points_clear(&pp);
+	return n;
+}
+
+static int aperture_fill(const struct asph_surface *s, const struct plan_method *meth,
+			 double p, struct asph_plan *plan, struct asph_error *err)
+{
+	struct plan_points pp = { 0 };
+
+	if (plan_aperture_pattern(s, meth->pattern, p, &pp, NULL) < 0) {
+		plan_points_clear(&pp);
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	}
+	lift_xy(s, pp.xyz, pp.n);
+	plan->xyz = pp.xyz;
+	plan->n = pp.n;
 	return 0;
 }
 
-static size_t clipped_count(const struct asph_surface *s, const struct plan_method *meth,
-			    double p)
-{
-	double R = freeform_radius(s);
-	struct asph_plan plan = { 0 };
-
-	/* The pattern covers the whole disk: screen absurd sizes as
-	 * pattern_count() does. */
-	if (!(M_PI * R * R / (p * p) < 2.0 * (double)PLAN_MAX_POINTS))
-		return SIZE_MAX;
-	if (clipped_pattern(s, meth, p, false, &plan, NULL) < 0) {
-		free(plan.xyz);
-		return SIZE_MAX;
-	}
-	free(plan.xyz);
-	return plan.n;
-}
-
-static int clipped_fill(const struct asph_surface *s, const struct plan_method *meth,
-			double p, struct asph_plan *plan, struct asph_error *err)
-{
-	return clipped_pattern(s, meth, p, true, plan, err);
-}
-
 /* The plans of the vertex plane (op and the classic patterns): laid over
- * the disk about the aperture, kept inside it, lifted with S(x, y). */
-static const struct plan_freeform clipped_to_aperture = { clipped_count, clipped_fill };
+ * the aperture (plan-aperture.h), lifted with S(x, y). */
+static const struct plan_freeform over_aperture = { aperture_count, aperture_fill };
 
 /*
  * Lattices measured on flat patterns of 1.26e5 points on the unit disk
@@ -693,27 +679,27 @@ static const struct plan_freeform clipped_to_aperture = { clipped_count, clipped
  * area to within 0.5 %. CI is the disk grid's lattice laid on the surface.
  */
 static const struct plan_method methods[ASPH_PLAN_N_METHODS] = {
-	[ASPH_PLAN_OP] = { "op", { 1.0, 1.099 }, false, true,
+	[ASPH_PLAN_OP] = { "op", ASPH_PLAN_OP, { 1.0, 1.099 }, false, true,
 			   disk_grid_count, disk_grid_fill, lift_projected,
-			   &clipped_to_aperture },
-	[ASPH_PLAN_OT] = { "ot", { 1.0, 1.099 }, false, true,
+			   &over_aperture },
+	[ASPH_PLAN_OT] = { "ot", ASPH_PLAN_OP, { 1.0, 1.099 }, false, true,
 			   disk_grid_count, disk_grid_fill, lift_ot },
-	[ASPH_PLAN_LB] = { "lb", { 1.0, 1.099 }, false, true,
+	[ASPH_PLAN_LB] = { "lb", ASPH_PLAN_OP, { 1.0, 1.099 }, false, true,
 			   disk_grid_count, disk_grid_fill, lift_lb },
-	[ASPH_PLAN_CI] = { "ci", { 1.0, 1.099 }, true, false,
+	[ASPH_PLAN_CI] = { "ci", ASPH_PLAN_CI, { 1.0, 1.099 }, true, false,
 			   ci_count, ci_fill, NULL },
-	[ASPH_PLAN_RASTER] = { "raster", { 1.0, 1.138 } /* (2 + sqrt 2) / 3 */, false, false,
+	[ASPH_PLAN_RASTER] = { "raster", ASPH_PLAN_RASTER, { 1.0, 1.138 } /* (2 + sqrt 2) / 3 */, false, false,
 			       raster_count, raster_fill, lift_projected,
-			       &clipped_to_aperture },
-	[ASPH_PLAN_CONCENTRIC] = { "concentric", { 1.0, 1.098 }, false, false,
+			       &over_aperture },
+	[ASPH_PLAN_CONCENTRIC] = { "concentric", ASPH_PLAN_CONCENTRIC, { 1.0, 1.098 }, false, false,
 				   concentric_count, concentric_fill, lift_projected,
-				   &clipped_to_aperture },
-	[ASPH_PLAN_SPIRAL] = { "spiral", { 1.0, 1.099 }, false, false,
+				   &over_aperture },
+	[ASPH_PLAN_SPIRAL] = { "spiral", ASPH_PLAN_SPIRAL, { 1.0, 1.099 }, false, false,
 			       spiral_count, spiral_fill, lift_projected,
-			       &clipped_to_aperture },
-	[ASPH_PLAN_FERMAT] = { "fermat", { 1.0, 1.114 }, false, false,
+			       &over_aperture },
+	[ASPH_PLAN_FERMAT] = { "fermat", ASPH_PLAN_FERMAT, { 1.0, 1.114 }, false, false,
 			       fermat_count, fermat_fill, lift_projected,
-			       &clipped_to_aperture },
+			       &over_aperture },
 };
 
 /* m is checked by the callers (resolve); an unknown one reads as OP. */
