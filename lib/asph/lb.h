@@ -72,6 +72,20 @@ int asph_lb_fem_solve_graph(asph_lb_gradient_fn gradient, void *ctx,
 			    const double *xy, size_t n, const uint32_t *tri,
 			    size_t ntri, double *S_out, struct asph_error *err);
 
+/*
+ * The same with other Dirichlet values: boundary(bctx, x, y, S) gives the
+ * value S[2] of the map at a boundary node (x, y); NULL is S(x) = x. The
+ * map is harmonic for the surface's metric inside and takes these values on
+ * the boundary (a known harmonic map, such as the development of a
+ * cylinder onto the plane, is reproduced to the accuracy of P1 elements).
+ */
+typedef void (*asph_lb_boundary_fn)(void *bctx, double x, double y, double S[2]);
+
+int asph_lb_fem_solve_graph_dirichlet(asph_lb_gradient_fn gradient, void *ctx,
+				      asph_lb_boundary_fn boundary, void *bctx,
+				      const double *xy, size_t n, const uint32_t *tri,
+				      size_t ntri, double *S_out, struct asph_error *err);
+
 /* The same for the rotationally symmetric surface s: grad Z = Z'(r) x / r. */
 int asph_lb_fem_solve(const struct asph_surface *s, const double *xy,
 		      size_t n, const uint32_t *tri, size_t ntri,

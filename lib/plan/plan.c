@@ -11,6 +11,7 @@
 #include "asph/lb.h"
 #include "asph/plan.h"
 #include "plan-aperture.h"
+#include "plan-freeform.h"
 #include "plan-patterns.h"
 #include "util-mem.h"
 
@@ -48,15 +49,19 @@ struct plan_method {
 
 /*
  * A method on a freeform surface, where the radial maps of surfaces of
- * revolution do not apply: the exact count at pitch p, and the plan's
- * points on the surface (fill allocates plan->xyz and sets plan->n). Both
- * may use the method's own count and fill for its planar pattern.
+ * revolution do not apply: the exact count at pitch p; the plan's points
+ * (fill allocates plan->xyz and sets plan->n), in the aperture for a
+ * method with a map (the mesh is made of them), else on the surface; and
+ * the map onto the surface (plan-freeform.h), NULL for the lift
+ * z = S(x, y).
  */
 struct plan_freeform {
 	size_t (*count)(const struct asph_surface *s, const struct plan_method *meth,
 			double p);
 	int (*fill)(const struct asph_surface *s, const struct plan_method *meth,
 		    double p, struct asph_plan *plan, struct asph_error *err);
+	int (*map)(const struct asph_surface *s, double p, double *xyz, size_t n,
+		   struct asph_error *err);
 };
 
 static const struct plan_method *method_of(enum asph_plan_method m);
@@ -261,6 +266,13 @@ double asph_plan_ot_radius(const struct asph_surface *s, double rho)
 		return a;
 	double f = rho / a;
 	return asph_surface_radius_at_area(s, asph_surface_area(s, a) * f * f);
+}
+
+/* Lifts points of the aperture onto the surface: z = S(x, y). */
+static void lift_xy(const struct asph_surface *s, double *xyz, size_t n)
+{
+	for (size_t i = 0; i < n; i++)
+		xyz[3 * i + 2] = asph_surface_sag_xy(s, xyz[3 * i], xyz[3 * i + 1]);
 }
 
 /* Vertical projection: z = Z(r), r in the third slot. */
@@ -486,14 +498,20 @@ static int compute_points(const struct asph_surface *s, struct asph_plan *plan,
 		r = meth->fill(s, asph_surface_aperture_radius(s), sz->p, plan, err);
 	if (r < 0)
 		return r;
-	/* The mesh of the disk grid, before a radial lift moves its points */
+	/* The mesh of the disk grid, before a map moves its points */
 	if (meth->mesh && !(flags & ASPH_PLAN_NO_MESH)) {
 		r = plan_disk_mesh(plan->xyz, plan->n, &plan->triangles,
 				   &plan->n_triangles, err);
 		if (r < 0)
 			return r;
 	}
-	if (freeform || !meth->lift)
+	if (freeform && meth->freeform->map)
+		return meth->freeform->map(s, sz->p, plan->xyz, plan->n, err);
+	if (freeform) {
+		lift_xy(s, plan->xyz, plan->n);
+		return 0;
+	}
+	if (!meth->lift)
 		return 0;
 	return meth->lift(s, plan->xyz, plan->n, err);
 }
@@ -623,13 +641,6 @@ static int fermat_fill(const struct asph_surface *s, double a, double p,
 
 /* ---- freeform surfaces ----------------------------------------------------- */
 
-/* Lifts points of the aperture onto the surface: z = S(x, y). */
-static void lift_xy(const struct asph_surface *s, double *xyz, size_t n)
-{
-	for (size_t i = 0; i < n; i++)
-		xyz[3 * i + 2] = asph_surface_sag_xy(s, xyz[3 * i], xyz[3 * i + 1]);
-}
-
 /* Screens absurd sizes before a pattern over the aperture runs, as
  * pattern_count() does for the disk. */
 static bool aperture_too_dense(const struct asph_surface *s, double p)
@@ -662,7 +673,6 @@ static int aperture_fill(const struct asph_surface *s, const struct plan_method 
 		plan_points_clear(&pp);
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	}
-	lift_xy(s, pp.xyz, pp.n);
 	plan->xyz = pp.xyz;
 	plan->n = pp.n;
 	return 0;
@@ -670,7 +680,12 @@ static int aperture_fill(const struct asph_surface *s, const struct plan_method 
 
 /* The plans of the vertex plane (op and the classic patterns): laid over
  * the aperture (plan-aperture.h), lifted with S(x, y). */
-static const struct plan_freeform over_aperture = { aperture_count, aperture_fill };
+static const struct plan_freeform over_aperture = { aperture_count, aperture_fill, NULL };
+
+/* LB: the disk grid of the aperture moved by the inverse of the discrete
+ * harmonic map. */
+static const struct plan_freeform lb_freeform = { aperture_count, aperture_fill,
+						  plan_lb_freeform_map };
 
 /*
  * Lattices measured on flat patterns of 1.26e5 points on the unit disk
@@ -685,7 +700,7 @@ static const struct plan_method methods[ASPH_PLAN_N_METHODS] = {
 	[ASPH_PLAN_OT] = { "ot", ASPH_PLAN_OP, { 1.0, 1.099 }, false, true,
 			   disk_grid_count, disk_grid_fill, lift_ot },
 	[ASPH_PLAN_LB] = { "lb", ASPH_PLAN_OP, { 1.0, 1.099 }, false, true,
-			   disk_grid_count, disk_grid_fill, lift_lb },
+			   disk_grid_count, disk_grid_fill, lift_lb, &lb_freeform },
 	[ASPH_PLAN_CI] = { "ci", ASPH_PLAN_CI, { 1.0, 1.099 }, true, false,
 			   ci_count, ci_fill, NULL },
 	[ASPH_PLAN_RASTER] = { "raster", ASPH_PLAN_RASTER, { 1.0, 1.138 } /* (2 + sqrt 2) / 3 */, false, false,

@@ -264,6 +264,48 @@ static void test_freeform_counts(void **state)
 	}
 }
 
+/* Largest distance between the points of two plans with the same grid. */
+static double plan_distance(const struct asph_plan *p, const struct asph_plan *q)
+{
+	double worst = 0;
+
+	assert_int_equal(p->n, q->n);
+	for (size_t i = 0; i < p->n; i++) {
+		const double *a = p->xyz + 3 * i, *b = q->xyz + 3 * i;
+		worst = fmax(worst, sqrt(pow(a[0] - b[0], 2) + pow(a[1] - b[1], 2) +
+					 pow(a[2] - b[2], 2)));
+	}
+	return worst;
+}
+
+/* LB on a freeform is the P1 solution of Eq. (6), inverted piecewise
+ * linearly: on a surface of revolution written as a freeform it approaches
+ * the rotational plan (the exact radial map) as O(h^2), i.e. O(h) of the
+ * spacing (seen 9.7e-4 and 5.2e-4 of it on strong at h = 0.08, 0.04; 0.47
+ * and 0.27 on turning-point at h = 0.1, 0.05, whose map stretches the
+ * centre 3.7 times). */
+static void test_lb_freeform_converges(void **state)
+{
+	const char *names[] = { "strong", "turning-point" };
+	const double h[] = { 0.08, 0.1 }, tol[] = { 1e-3, 0.35 };
+
+	for (int k = 0; k < 2; k++) {
+		struct asph_surface *rot = preset(names[k]), *xy = preset_as_xy(names[k]);
+		double d[2];
+		for (int j = 0; j < 2; j++) {
+			struct asph_plan *p = plan_of(rot, ASPH_PLAN_LB, h[k] / (1 << j));
+			struct asph_plan *q = plan_of(xy, ASPH_PLAN_LB, h[k] / (1 << j));
+			d[j] = plan_distance(p, q) / p->spacing_mm;
+			asph_plan_free(p);
+			asph_plan_free(q);
+		}
+		assert_true(d[0] / d[1] > 1.6);
+		assert_true(d[1] < tol[k]);
+		asph_surface_free(rot);
+		asph_surface_free(xy);
+	}
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -271,6 +313,7 @@ int main(void)
 		cmocka_unit_test(test_rectangle_raster),
 		cmocka_unit_test(test_centred_circle_is_rotational),
 		cmocka_unit_test(test_freeform_counts),
+		cmocka_unit_test(test_lb_freeform_converges),
 	};
 
 	return cmocka_run_group_tests(tests, NULL, NULL);
