@@ -31,8 +31,9 @@ static const char *const kinematics[] = { "xyz", "r-theta-z", NULL };
 #define RANGE(lo, hi) .ranged = true, .min = (lo), .max = (hi)
 
 static const struct asph_option_desc mock_options[N_OPTIONS] = {
-	[OPT_LENS] = { "lens", ASPH_OPTION_STRING, "strong", .roles = P,
-		       .help = "the part: a preset (weak, strong, turning-point) or a prescription file" },
+	[OPT_LENS] = { "lens", ASPH_OPTION_STRING, "", .roles = P,
+		       .help = "the part: a preset (weak, strong, turning-point) or a prescription file; "
+			       "unset, the lens being measured (strong without a job)" },
 	[OPT_PROBE] = { "probe", ASPH_OPTION_ENUM, "optical", .choices = probe_types, .roles = P,
 			.help = "probe type" },
 	[OPT_KINEMATICS] = { "kinematics", ASPH_OPTION_ENUM, "xyz", .choices = kinematics,

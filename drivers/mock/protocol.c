@@ -67,7 +67,11 @@ int mock_part_new(const struct mock_part_params *pp, struct mock_part **out,
 	if (!p)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	p->seed = pp->seed;
-	r = asph_prescription_load(pp->lens, &pr, err);
+	/* the host hands the measured lens over as its prescription text */
+	if (pp->lens[0] == '{')
+		r = asph_prescription_parse(pp->lens, strlen(pp->lens), "the measured lens", &pr, err);
+	else
+		r = asph_prescription_load(*pp->lens ? pp->lens : "strong", &pr, err);
 	if (r == 0)
 		r = asph_surface_alloc(&pr, &p->surface, err);
 	if (r == 0)

@@ -23,7 +23,9 @@
 struct mock_part;
 
 struct mock_part_params {
-	const char *lens;               /* preset or prescription file */
+	const char *lens;               /* preset, prescription file or the
+					 * prescription as JSON text ("{...}");
+					 * "" is strong */
 	struct asph_pose pose;
 	const char *form;               /* "j:nm;j:nm;..." or "" */
 	double noise_nm;                /* along the probe axis */

@@ -89,7 +89,7 @@ static double *ring_points(const struct asph_surface *s, size_t n, double frac,
 
 static struct asph_pose random_pose(gsl_rng *rng)
 {
-	struct asph_pose p;
+	struct asph_pose p = { 0 };     /* rz stays 0: the lenses are round */
 
 	for (int k = 0; k < 3; k++)
 		p.t[k] = 0.1 * (2 * gsl_rng_uniform(rng) - 1);
