@@ -2,11 +2,13 @@
 /* The maps of the grid methods on freeform surfaces. */
 #include <errno.h>
 #include <math.h>
+#include <stdbool.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "asph/delaunay.h"
 #include "asph/lb.h"
+#include "asph/ot.h"
 #include "plan-aperture.h"
 #include "plan-freeform.h"
 #include "util-mem.h"
@@ -117,6 +119,60 @@ int plan_lb_freeform_map(const struct asph_surface *s, double p, double *xyz, si
 		xyz[3 * i] = x;
 		xyz[3 * i + 1] = y;
 		xyz[3 * i + 2] = asph_surface_sag_xy(s, x, y);
+	}
+	return 0;
+}
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_ot_map *, asph_ot_map_free)
+
+/* The map keeps the aperture and its edge, to its tables' interpolation
+ * (~1e-9 of the aperture): T back inside, and onto the edge for a point of
+ * the edge. In the aperture's reference coordinates (the unit disk or the
+ * square [-1, 1]^2). */
+static void snap_to_aperture(const struct asph_surface *s, const struct asph_aperture *ap,
+			     bool edge, double T[2])
+{
+	double hx = 0.5 * ap->width, hy = 0.5 * ap->height;
+	double u = (T[0] - ap->offset[0]) / hx, v = (T[1] - ap->offset[1]) / hy;
+
+	if (ap->shape == ASPH_APERTURE_RECTANGULAR) {
+		u = fmax(-1, fmin(1, u));
+		v = fmax(-1, fmin(1, v));
+		if (edge && fmax(fabs(u), fabs(v)) < 1) {
+			if (1 - fabs(u) < 1 - fabs(v))
+				u = copysign(1, u);
+			else
+				v = copysign(1, v);
+		}
+	} else if (edge || hypot(u, v) > 1) {
+		/* on the edge as asph_surface_aperture_edge() traces it */
+		double t = atan2(v, u);
+		u = cos(t);
+		v = sin(t);
+	}
+	T[0] = ap->offset[0] + hx * u;
+	T[1] = ap->offset[1] + hy * v;
+	plan_aperture_nudge_in(s, &T[0], &T[1]);
+}
+
+int plan_ot_freeform_map(const struct asph_surface *s, double p, double *xyz, size_t n,
+			 struct asph_error *err)
+{
+	_cleanup_(asph_ot_map_freep) struct asph_ot_map *m = NULL;
+	size_t n_edge = plan_outline_count(s, p);
+	struct asph_aperture ap;
+	int r = asph_ot_map_solve(s, NULL, &m, err);
+
+	if (r < 0)
+		return r;
+	asph_surface_aperture(s, &ap);
+	for (size_t i = 0; i < n; i++) {
+		double T[2];
+		asph_ot_map_apply(m, xyz[3 * i], xyz[3 * i + 1], T, NULL);
+		snap_to_aperture(s, &ap, i >= n - n_edge, T);
+		xyz[3 * i] = T[0];
+		xyz[3 * i + 1] = T[1];
+		xyz[3 * i + 2] = asph_surface_sag_xy(s, T[0], T[1]);
 	}
 	return 0;
 }

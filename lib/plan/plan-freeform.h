@@ -20,4 +20,10 @@
 int plan_lb_freeform_map(const struct asph_surface *s, double p, double *xyz, size_t n,
 			 struct asph_error *err);
 
+/* OT: T = grad phi of the Monge-Ampere equation of asph/ot.h, the
+ * aperture's uniform measure carried to the surface's area. -ERANGE when
+ * the map cannot be solved to its tolerance. */
+int plan_ot_freeform_map(const struct asph_surface *s, double p, double *xyz, size_t n,
+			 struct asph_error *err);
+
 #endif

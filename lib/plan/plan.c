@@ -687,6 +687,11 @@ static const struct plan_freeform over_aperture = { aperture_count, aperture_fil
 static const struct plan_freeform lb_freeform = { aperture_count, aperture_fill,
 						  plan_lb_freeform_map };
 
+/* OT: the disk grid of the aperture moved by the map of the Monge-Ampere
+ * equation (asph/ot.h). */
+static const struct plan_freeform ot_freeform = { aperture_count, aperture_fill,
+						  plan_ot_freeform_map };
+
 /*
  * Lattices measured on flat patterns of 1.26e5 points on the unit disk
  * (Delaunay triangulation, mean edge length; points per area),
@@ -698,7 +703,7 @@ static const struct plan_method methods[ASPH_PLAN_N_METHODS] = {
 			   disk_grid_count, disk_grid_fill, lift_projected,
 			   &over_aperture },
 	[ASPH_PLAN_OT] = { "ot", ASPH_PLAN_OP, { 1.0, 1.099 }, false, true,
-			   disk_grid_count, disk_grid_fill, lift_ot },
+			   disk_grid_count, disk_grid_fill, lift_ot, &ot_freeform },
 	[ASPH_PLAN_LB] = { "lb", ASPH_PLAN_OP, { 1.0, 1.099 }, false, true,
 			   disk_grid_count, disk_grid_fill, lift_lb, &lb_freeform },
 	[ASPH_PLAN_CI] = { "ci", ASPH_PLAN_CI, { 1.0, 1.099 }, true, false,

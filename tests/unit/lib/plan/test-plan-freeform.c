@@ -12,6 +12,7 @@
 
 #include <cmocka.h>
 
+#include "asph/ot.h"
 #include "asph/plan.h"
 #include "asph/prescription.h"
 #include "asph/surface.h"
@@ -306,6 +307,199 @@ static void test_lb_freeform_converges(void **state)
 	}
 }
 
+/* ---- OT ---------------------------------------------------------------------- */
+
+static struct asph_ot_map *ot_map_of(const struct asph_surface *s)
+{
+	struct asph_ot_map *m = NULL;
+	struct asph_error err;
+
+	if (asph_ot_map_solve(s, NULL, &m, &err) < 0)
+		fail_msg("OT map: %s", err.message);
+	return m;
+}
+
+/* The area of the surface over the image T(Q) of the square Q of side h at
+ * (x0, y0): T of a k x k grid of the square, lifted to the surface, in flat
+ * 3-D triangles; the error of the flat triangles, O((h/k)^2), is removed by
+ * Richardson's extrapolation from k and 2k. Independent of the map's own
+ * Jacobian. */
+static double image_area_k(const struct asph_surface *s, const struct asph_ot_map *m,
+			   double x0, double y0, double h, int k)
+{
+	double P[33][33][3], area = 0;
+
+	for (int i = 0; i <= k; i++)
+		for (int j = 0; j <= k; j++) {
+			double T[2];
+			asph_ot_map_apply(m, x0 + h * i / k, y0 + h * j / k, T, NULL);
+			P[i][j][0] = T[0];
+			P[i][j][1] = T[1];
+			P[i][j][2] = asph_surface_sag_xy(s, T[0], T[1]);
+		}
+	for (int i = 0; i < k; i++)
+		for (int j = 0; j < k; j++) {
+			const double *a = P[i][j], *b = P[i + 1][j], *c = P[i + 1][j + 1],
+				     *d = P[i][j + 1];
+			const double *t[2][3] = { { a, b, c }, { a, c, d } };
+			for (int q = 0; q < 2; q++) {
+				double u[3], v[3];
+				for (int e = 0; e < 3; e++) {
+					u[e] = t[q][1][e] - t[q][0][e];
+					v[e] = t[q][2][e] - t[q][0][e];
+				}
+				area += 0.5 * sqrt(pow(u[1] * v[2] - u[2] * v[1], 2) +
+						   pow(u[2] * v[0] - u[0] * v[2], 2) +
+						   pow(u[0] * v[1] - u[1] * v[0], 2));
+			}
+		}
+	return area;
+}
+
+static double image_area(const struct asph_surface *s, const struct asph_ot_map *m,
+			 double x0, double y0, double h)
+{
+	return (4 * image_area_k(s, m, x0, y0, h, 16) - image_area_k(s, m, x0, y0, h, 8)) / 3;
+}
+
+/* OT carries the aperture's uniform measure to the surface's area: every
+ * square of the aperture maps onto a patch of the surface of gamma times
+ * its area, gamma = surface area / projected area. Checked on a 9 x 9 grid
+ * of squares (those inside the aperture) against the surface areas of the
+ * images, to 2e-6; the map's own Jacobian check (between its nodes) holds
+ * to its tolerance, 1e-6. */
+static void test_ot_map_area_uniform(void **state)
+{
+	struct asph_surface *s[3] = { segment(), biconic_ellipse(), zernike_offset() };
+
+	for (int i = 0; i < 3; i++) {
+		struct asph_ot_map *m = ot_map_of(s[i]);
+		struct asph_ot_map_info info;
+		struct asph_aperture ap;
+		double gamma = asph_surface_total_area(s[i]) / asph_surface_projected_area(s[i]);
+		double worst = 0;
+		int cells = 0;
+
+		asph_ot_map_info(m, &info);
+		assert_true(info.jacobian_error <= 1e-6);
+		assert_true(fabs(info.gamma / gamma - 1) <= 1e-6);
+		asph_surface_aperture(s[i], &ap);
+		double h = fmin(ap.width, ap.height) / 10;
+		for (int a = 0; a < 9; a++)
+			for (int b = 0; b < 9; b++) {
+				double x0 = ap.offset[0] + (a - 4.5) * h, y0 = ap.offset[1] + (b - 4.5) * h;
+				if (!asph_surface_contains(s[i], x0, y0, 0) ||
+				    !asph_surface_contains(s[i], x0 + h, y0 + h, 0) ||
+				    !asph_surface_contains(s[i], x0, y0 + h, 0) ||
+				    !asph_surface_contains(s[i], x0 + h, y0, 0))
+					continue;
+				double e = image_area(s[i], m, x0, y0, h) / (gamma * h * h) - 1;
+				worst = fmax(worst, fabs(e));
+				cells++;
+			}
+		print_message("OT map %d: %d x %d nodes, %d Newton steps, Jacobian %.2g, "
+			      "area density %.2g over %d squares\n", i, info.nodes[0],
+			      info.nodes[1], info.newton_steps, info.jacobian_error, worst, cells);
+		assert_true(cells >= 40);
+		assert_true(worst <= 2e-6);
+		asph_ot_map_free(m);
+		asph_surface_free(s[i]);
+	}
+}
+
+/* On a surface of revolution written as an xy polynomial, the OT plan is
+ * the rotational one (the radial map of Eq. (9)) to 1e-6 of the radius. */
+static void test_ot_freeform_is_rotational(void **state)
+{
+	const char *names[] = { "weak", "strong" };
+
+	for (int k = 0; k < 2; k++) {
+		struct asph_surface *rot = preset(names[k]), *xy = preset_as_xy(names[k]);
+		double a = asph_surface_aperture_radius(rot);
+		struct asph_plan *p = plan_of(rot, ASPH_PLAN_OT, 0.05);
+		struct asph_plan *q = plan_of(xy, ASPH_PLAN_OT, 0.05);
+		double d = plan_distance(p, q);
+		print_message("OT %s: largest distance %.2g of the radius\n", names[k], d / a);
+		assert_true(d <= 1e-6 * a);
+		asph_plan_free(p);
+		asph_plan_free(q);
+		asph_surface_free(rot);
+		asph_surface_free(xy);
+	}
+}
+
+/* The OT plan on a freeform: the grid's triangles (the OP plan's, over the
+ * same aperture grid) carry equal surface area, gamma times their
+ * projected area, to the flat triangles' O(p^2) (1e-3 here). */
+static void test_ot_plan_area(void **state)
+{
+	struct asph_surface *s[3] = { segment(), biconic_ellipse(), zernike_offset() };
+
+	for (int i = 0; i < 3; i++) {
+		struct asph_plan_density d = { ASPH_DENSITY_POINTS, 3000 };
+		struct asph_plan *op = NULL, *ot = NULL;
+		double gamma = asph_surface_total_area(s[i]) / asph_surface_projected_area(s[i]);
+		double worst = 0;
+
+		assert_int_equal(asph_plan_compute(s[i], ASPH_PLAN_OP, d, 0, &op, NULL), 0);
+		assert_int_equal(asph_plan_compute(s[i], ASPH_PLAN_OT, d, 0, &ot, NULL), 0);
+		assert_int_equal(op->n, ot->n);
+		assert_int_equal(op->n_triangles, ot->n_triangles);
+		assert_true(ot->n_triangles > 0);
+		for (size_t k = 0; k < ot->n; k++) {
+			const double *q = ot->xyz + 3 * k;
+			assert_true(asph_surface_contains(s[i], q[0], q[1], 0));
+			assert_true(q[2] == asph_surface_sag_xy(s[i], q[0], q[1]));
+		}
+		for (size_t t = 0; t < ot->n_triangles; t++) {
+			const uint32_t *v = ot->triangles + 3 * t;
+			const double *a = op->xyz + 3 * (size_t)v[0], *b = op->xyz + 3 * (size_t)v[1],
+				     *c = op->xyz + 3 * (size_t)v[2];
+			double src = 0.5 * fabs((b[0] - a[0]) * (c[1] - a[1]) -
+						(c[0] - a[0]) * (b[1] - a[1]));
+			a = ot->xyz + 3 * (size_t)v[0];
+			b = ot->xyz + 3 * (size_t)v[1];
+			c = ot->xyz + 3 * (size_t)v[2];
+			double u[3], w[3];
+			for (int e = 0; e < 3; e++) {
+				u[e] = b[e] - a[e];
+				w[e] = c[e] - a[e];
+			}
+			double img = 0.5 * sqrt(pow(u[1] * w[2] - u[2] * w[1], 2) +
+						pow(u[2] * w[0] - u[0] * w[2], 2) +
+						pow(u[0] * w[1] - u[1] * w[0], 2));
+			worst = fmax(worst, fabs(img / (gamma * src) - 1));
+		}
+		print_message("OT plan %d: %zu points, area ratio within %.2g\n", i, ot->n, worst);
+		assert_true(worst <= 1e-3);
+		asph_plan_free(op);
+		asph_plan_free(ot);
+		asph_surface_free(s[i]);
+	}
+}
+
+/* Options out of range are refused; a resolution too small for the
+ * tolerance is a clear -ERANGE. */
+static void test_ot_map_refuses(void **state)
+{
+	struct asph_surface *s = zernike_offset();
+	struct asph_ot_map *m = NULL;
+	struct asph_error err;
+
+	assert_int_equal(asph_ot_map_solve(s, &(struct asph_ot_options){ .tolerance = 0.5 }, &m,
+					   &err), -EINVAL);
+	assert_non_null(strstr(err.message, "tolerance"));
+	assert_int_equal(asph_ot_map_solve(s, &(struct asph_ot_options){ .max_nodes = 65 }, &m,
+					   &err), -EINVAL);
+	assert_non_null(strstr(err.message, "max_nodes"));
+	assert_int_equal(asph_ot_map_solve(s, &(struct asph_ot_options){ .tolerance = 1e-14,
+									 .max_nodes = 6 },
+					   &m, &err), -ERANGE);
+	assert_non_null(strstr(err.message, "largest resolution"));
+	assert_null(m);
+	asph_surface_free(s);
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -314,6 +508,10 @@ int main(void)
 		cmocka_unit_test(test_centred_circle_is_rotational),
 		cmocka_unit_test(test_freeform_counts),
 		cmocka_unit_test(test_lb_freeform_converges),
+		cmocka_unit_test(test_ot_map_area_uniform),
+		cmocka_unit_test(test_ot_freeform_is_rotational),
+		cmocka_unit_test(test_ot_plan_area),
+		cmocka_unit_test(test_ot_map_refuses),
 	};
 
 	return cmocka_run_group_tests(tests, NULL, NULL);
