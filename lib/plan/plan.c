@@ -11,6 +11,7 @@
 #include "asph/lb.h"
 #include "asph/plan.h"
 #include "plan-aperture.h"
+#include "plan-cvt.h"
 #include "plan-freeform.h"
 #include "plan-patterns.h"
 #include "util-mem.h"
@@ -388,6 +389,19 @@ static int lift_ot(const struct asph_surface *s, double *xyz, size_t n,
 	return 0;
 }
 
+/* CVT: Lloyd's iterations from the OT plan. The disk grid has one point
+ * per p^2 of the disk, which gives p back. */
+static int lift_cvt(const struct asph_surface *s, double *xyz, size_t n,
+		    struct asph_error *err)
+{
+	double a = asph_surface_aperture_radius(s);
+	int r = lift_ot(s, xyz, n, err);
+
+	if (r < 0)
+		return r;
+	return plan_cvt_relax(s, a * sqrt(M_PI / (double)n), xyz, n, NULL, err);
+}
+
 static int lift_lb(const struct asph_surface *s, double *xyz, size_t n,
 		   struct asph_error *err)
 {
@@ -692,6 +706,18 @@ static const struct plan_freeform lb_freeform = { aperture_count, aperture_fill,
 static const struct plan_freeform ot_freeform = { aperture_count, aperture_fill,
 						  plan_ot_freeform_map };
 
+static int cvt_freeform_map(const struct asph_surface *s, double p, double *xyz, size_t n,
+			    struct asph_error *err)
+{
+	int r = plan_ot_freeform_map(s, p, xyz, n, err);
+
+	return r < 0 ? r : plan_cvt_relax(s, p, xyz, n, NULL, err);
+}
+
+/* CVT: the OT plan relaxed by Lloyd's iterations on the surface. */
+static const struct plan_freeform cvt_freeform = { aperture_count, aperture_fill,
+						   cvt_freeform_map };
+
 /*
  * Lattices measured on flat patterns of 1.26e5 points on the unit disk
  * (Delaunay triangulation, mean edge length; points per area),
@@ -720,6 +746,8 @@ static const struct plan_method methods[ASPH_PLAN_N_METHODS] = {
 	[ASPH_PLAN_FERMAT] = { "fermat", ASPH_PLAN_FERMAT, { 1.0, 1.114 }, false, false,
 			       fermat_count, fermat_fill, lift_projected,
 			       &over_aperture },
+	[ASPH_PLAN_CVT] = { "cvt", ASPH_PLAN_OP, { 1.0, 1.099 }, false, false,
+			    disk_grid_count, disk_grid_fill, lift_cvt, &cvt_freeform },
 };
 
 /* m is checked by the callers (resolve); an unknown one reads as OP. */

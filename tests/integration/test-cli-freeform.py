@@ -101,7 +101,7 @@ def refusals(tmp, lens, points):
     check(r.returncode != 0 and "R and k" in r.stderr, f"R on a freeform: {r.stderr}")
     r = run(["plan", lens, "--method", "ci", "--points", "100"])
     check(r.returncode != 0 and "rotationally symmetric" in r.stderr
-          and "use one of op, ot, lb, raster, concentric, spiral, fermat" in r.stderr, f"ci plan: {r.stderr}")
+          and "use one of op, ot, lb, raster, concentric, spiral, fermat, cvt" in r.stderr, f"ci plan: {r.stderr}")
     bad = os.path.join(tmp, "bad.json")
     with open(bad, "w") as f:
         f.write('{"type": "biconic", "Rx": 40, "Ry": 50,\n "kx": 60, "aperture_diameter": 20}')

@@ -595,6 +595,103 @@ static void test_quality_freeform_chart(void **state)
 	}
 }
 
+/* ---- CVT ------------------------------------------------------------------------------ */
+
+/* The centroid of site i's Voronoi cell restricted to the surface, by its
+ * own sampling: a lattice of pitch p / 20, offset from the plan's, over a
+ * disk of 2 p about the site, each sample weighted by its area element and
+ * kept when no site within 5 p is nearer in 3-D. */
+static void cell_centroid(const struct asph_surface *s, const struct asph_plan *pl, size_t i,
+			  double p, double c[3])
+{
+	const double *q = pl->xyz + 3 * i, h = p / 20;
+	size_t near[256], nn = 0;
+	double sum[4] = { 0 };
+
+	for (size_t k = 0; k < pl->n && nn < 256; k++)
+		if (hypot(pl->xyz[3 * k] - q[0], pl->xyz[3 * k + 1] - q[1]) < 5 * p)
+			near[nn++] = k;
+	assert_true(nn < 256);
+	for (int a = -40; a <= 40; a++)
+		for (int b = -40; b <= 40; b++) {
+			double x = q[0] + (a + 0.37) * h, y = q[1] + (b + 0.61) * h;
+			if (hypot(x - q[0], y - q[1]) > 2 * p || !asph_surface_contains(s, x, y, 0))
+				continue;
+			double z = asph_surface_sag_xy(s, x, y), v[3] = { x, y, z };
+			double d0 = pow(x - q[0], 2) + pow(y - q[1], 2) + pow(z - q[2], 2);
+			int mine = 1;
+			for (size_t k = 0; k < nn && mine; k++) {
+				const double *o = pl->xyz + 3 * near[k];
+				mine = pow(x - o[0], 2) + pow(y - o[1], 2) + pow(z - o[2], 2) >= d0;
+			}
+			if (!mine)
+				continue;
+			double w = asph_surface_area_element(s, x, y);
+			for (int e = 0; e < 3; e++)
+				sum[e] += w * v[e];
+			sum[3] += w;
+		}
+	for (int e = 0; e < 3; e++)
+		c[e] = sum[e] / sum[3];
+}
+
+/* The CVT plan is centroidal: every site away from the edge is within
+ * 0.05 p of the centroid of its cell on the surface (checked by a sampling
+ * of its own, on every 7th site; seen 0.02 to 0.03 p). Its triangles are
+ * better shaped than those of OT, where it starts, on all five surfaces,
+ * and than CI's on weak and strong (the fraction q > 0.9 in the conformal
+ * chart, seen 0.89 and 0.87 against CI's 0.84 and 0.83), but not on
+ * turning-point (0.72 against 0.83); and their areas vary more than CI's
+ * (the interquartile range of A_i/mean is 0.057 on weak and strong, 0.135
+ * on turning-point, against CI's 0.015 and 0.003): the tessellation's equal
+ * cell areas do not make equal Delaunay triangles. */
+static void test_cvt(void **state)
+{
+	struct asph_surface *s[5] = { preset("weak"), preset("strong"), preset("turning-point"),
+				      segment(), zernike_offset() };
+
+	for (int i = 0; i < 5; i++) {
+		struct asph_plan_density d = { ASPH_DENSITY_POINTS, 900 };
+		struct asph_plan *cvt = NULL, *ot = NULL, *ci = NULL;
+		double R, centre[2], worst = 0;
+
+		assert_int_equal(asph_plan_compute(s[i], ASPH_PLAN_CVT, d, 0, &cvt, NULL), 0);
+		assert_int_equal(asph_plan_compute(s[i], ASPH_PLAN_OT, d, 0, &ot, NULL), 0);
+		asph_surface_aperture_disk(s[i], centre, &R);
+		double p = sqrt(asph_surface_total_area(s[i]) / (double)cvt->n);
+		for (size_t k = 0; k < cvt->n; k += 7) {
+			const double *q = cvt->xyz + 3 * k;
+			assert_true(fabs(q[2] - asph_surface_sag_xy(s[i], q[0], q[1])) <= 1e-12 * R);
+			if (!asph_surface_contains(s[i], q[0], q[1], -1.5 * p))
+				continue;
+			double c[3];
+			cell_centroid(s[i], cvt, k, p, c);
+			worst = fmax(worst, sqrt(pow(c[0] - q[0], 2) + pow(c[1] - q[1], 2) +
+						 pow(c[2] - q[2], 2)) / p);
+		}
+		struct asph_quality *a = quality_of(s[i], cvt, ASPH_CHART_CONFORMAL);
+		struct asph_quality *b = quality_of(s[i], ot, ASPH_CHART_CONFORMAL);
+		print_message("cvt %d: %zu points, centroid within %.3g p; q > 0.9 %.3f (ot %.3f), "
+			      "IQR of A_i/mean %.4f (ot %.4f)\n", i, cvt->n, worst, a->q_frac_gt_0_9,
+			      b->q_frac_gt_0_9, a->area_stats.p75 - a->area_stats.p25,
+			      b->area_stats.p75 - b->area_stats.p25);
+		assert_true(worst <= 0.05);
+		assert_true(a->q_frac_gt_0_9 > b->q_frac_gt_0_9);
+		asph_quality_free(b);
+		if (i < 2) {
+			assert_int_equal(asph_plan_compute(s[i], ASPH_PLAN_CI, d, 0, &ci, NULL), 0);
+			b = quality_of(s[i], ci, ASPH_CHART_CONFORMAL);
+			assert_true(a->q_frac_gt_0_9 > b->q_frac_gt_0_9);
+			asph_quality_free(b);
+			asph_plan_free(ci);
+		}
+		asph_quality_free(a);
+		asph_plan_free(cvt);
+		asph_plan_free(ot);
+		asph_surface_free(s[i]);
+	}
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -608,6 +705,7 @@ int main(void)
 		cmocka_unit_test(test_ot_plan_area),
 		cmocka_unit_test(test_ot_map_refuses),
 		cmocka_unit_test(test_quality_freeform_chart),
+		cmocka_unit_test(test_cvt),
 	};
 
 	return cmocka_run_group_tests(tests, NULL, NULL);
