@@ -5,7 +5,7 @@
  * in the same run (issue targets: OT <= 200). Two freeforms: an xy
  * polynomial over an off-centre rectangle and a Zernike sag over an
  * off-centre circle (those of the plan tests). The plans are timed without
- * their mesh; lb is shown for information.
+ * their mesh; cvt (no target set) and lb are shown for information.
  */
 #include <math.h>
 #include <stdio.h>
@@ -92,7 +92,8 @@ static struct asph_surface *freeform(int which)
 int main(void)
 {
 	const char *names[] = { "xy polynomial, rectangle", "Zernike sag, off-centre circle" };
-	const enum asph_plan_method methods[] = { ASPH_PLAN_OP, ASPH_PLAN_OT, ASPH_PLAN_LB };
+	const enum asph_plan_method methods[] = { ASPH_PLAN_OP, ASPH_PLAN_OT, ASPH_PLAN_CVT,
+						  ASPH_PLAN_LB };
 	size_t n = bench_size(100000);
 	int misses = 0;
 

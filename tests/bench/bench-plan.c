@@ -80,8 +80,11 @@ static double *baseline_points(double a, size_t n)
 	return xy;
 }
 
+/* 0: no target (cvt, new, reported for information). */
 static double target_of(enum asph_plan_method m)
 {
+	if (m == ASPH_PLAN_CVT)
+		return 0;
 	return m == ASPH_PLAN_CI || m == ASPH_PLAN_LB ? 10.0 : 3.0;
 }
 

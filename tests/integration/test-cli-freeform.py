@@ -94,6 +94,28 @@ def grid_plans(lens):
     check(len(set(counts.values())) == 1, f"op, ot and lb move one grid: {counts}")
 
 
+def plots(tmp, lens, points):
+    """asph plot draws a freeform's ot and cvt plans (PNGs of the plot's
+    size), asph quality judges them, and asph fit --map draws the residual
+    map."""
+    for method in ("ot", "cvt"):
+        png = os.path.join(tmp, f"{method}.png")
+        r = run(["plot", lens, "--method", method, "--points", "400", "-o", png])
+        check(r.returncode == 0, f"plot {method}: {r.stderr}")
+        if r.returncode == 0:
+            with open(png, "rb") as f:
+                head = f.read(24)
+            check(head[:8] == b"\x89PNG\r\n\x1a\n", f"plot {method}: a PNG")
+            w, h = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+            check((w, h) == (1800, 760), f"plot {method}: size {w} x {h}")
+        q = run(["quality", lens, "--method", method, "--points", "400", "--json"])
+        check(q.returncode == 0 and json.loads(q.stdout)["n_points"] > 350,
+              f"quality {method}: {q.stderr}")
+    png = os.path.join(tmp, "residuals.png")
+    r = run(["fit", lens, "-", "--dof", DOF, "--map", png], stdin=points)
+    check(r.returncode == 0 and os.path.getsize(png) > 1000, f"fit --map: {r.stderr}")
+
+
 def refusals(tmp, lens, points):
     r = run(["fit", "weak", "-", "--dof", DOF], stdin=points)
     check(r.returncode != 0 and "rz cannot be fitted" in r.stderr, f"rz on weak: {r.stderr}")
@@ -121,6 +143,7 @@ def main():
         points = synth_fit(lens)
         scan_replay(tmp, lens)
         grid_plans(lens)
+        plots(tmp, lens, points)
         refusals(tmp, lens, points)
     if FAILURES:
         print(f"{len(FAILURES)} failures")
