@@ -27,7 +27,7 @@
 #include "util-mem.h"
 
 #define CVT_SAMPLES_PER_PITCH 8
-#define CVT_MAX_ITER 300
+#define CVT_MAX_ITER 100
 /* Stop when no site moves more than this fraction of the pitch. */
 #define CVT_MOVE_TOL 1e-3
 

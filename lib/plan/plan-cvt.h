@@ -17,7 +17,7 @@ struct plan_cvt_info {
 /*
  * Moves the n points xyz (on the surface, stride 3) to the centroids of
  * their Voronoi cells restricted to the surface, until none moves more than
- * 1e-3 p (at most 40 iterations); the points on the aperture's edge stay.
+ * 1e-3 p (at most 100 iterations); the points on the aperture's edge stay.
  * p: the plan's pitch (mm), which sets the samples' lattice. info may be
  * NULL. -EINVAL, -ENOMEM.
  */
