@@ -76,7 +76,6 @@ struct spectral {
 	double *bw;             /* barycentric weights of x */
 };
 
-enum stage { STAGE_NEWTON, STAGE_DONE };
 
 struct asph_ot_map {
 	const struct asph_surface *s;
@@ -93,7 +92,7 @@ struct asph_ot_map {
 	int stage_steps;        /* Newton steps at this t and resolution */
 	double *u_done;         /* the solution at t_done */
 	double g_done;
-	int steps, halvings_failed;
+	int steps;
 	double residual, jac_err;
 	bool done;
 	/* apply(): T on a uniform table (disk: r x angle; square: xi_1 x xi_2) */
