@@ -76,7 +76,6 @@ struct spectral {
 	double *bw;             /* barycentric weights of x */
 };
 
-
 struct asph_ot_map {
 	const struct asph_surface *s;
 	enum geometry geom;
