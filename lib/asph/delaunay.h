@@ -73,6 +73,19 @@ int asph_delaunay_neighbors(const struct asph_delaunay *w,
 int asph_delaunay_hull(const struct asph_delaunay *w, uint32_t **hull,
 		       size_t *n_hull, struct asph_error *err);
 
+/*
+ * Point location in a triangle mesh: any counter-clockwise mesh of the
+ * points xy with the adjacency of asph_delaunay_neighbors() (nb[3t + k] the
+ * triangle across the edge from vertex k to vertex k + 1, UINT32_MAX on
+ * the boundary), Delaunay or not. Walks from triangle *t (a good guess
+ * makes it short: the triangle of a neighbouring query) to the triangle
+ * that holds q, sets *t to it and bary to q's barycentric coordinates in it
+ * (each >= -1e-12). -ENOENT when q is outside the mesh (*t is then a
+ * boundary triangle near it).
+ */
+int asph_mesh_locate(const double *xy, const uint32_t *tri, const uint32_t *nb,
+		     size_t ntri, uint32_t *t, const double q[2], double bary[3]);
+
 #ifdef __cplusplus
 }
 #endif

@@ -72,10 +72,49 @@ int asph_lb_fem_solve_graph(asph_lb_gradient_fn gradient, void *ctx,
 			    const double *xy, size_t n, const uint32_t *tri,
 			    size_t ntri, double *S_out, struct asph_error *err);
 
+/*
+ * The same with other Dirichlet values: boundary(bctx, x, y, S) gives the
+ * value S[2] of the map at a boundary node (x, y); NULL is S(x) = x. The
+ * map is harmonic for the surface's metric inside and takes these values on
+ * the boundary (a known harmonic map, such as the development of a
+ * cylinder onto the plane, is reproduced to the accuracy of P1 elements).
+ */
+typedef void (*asph_lb_boundary_fn)(void *bctx, double x, double y, double S[2]);
+
+int asph_lb_fem_solve_graph_dirichlet(asph_lb_gradient_fn gradient, void *ctx,
+				      asph_lb_boundary_fn boundary, void *bctx,
+				      const double *xy, size_t n, const uint32_t *tri,
+				      size_t ntri, double *S_out, struct asph_error *err);
+
 /* The same for the rotationally symmetric surface s: grad Z = Z'(r) x / r. */
 int asph_lb_fem_solve(const struct asph_surface *s, const double *xy,
 		      size_t n, const uint32_t *tri, size_t ntri,
 		      double *S_out, struct asph_error *err);
+
+/*
+ * The harmonic chart of a freeform: the P1 solution S of Eq. (6) (above)
+ * on the Delaunay mesh of the aperture's disk grid at the given pitch (mm),
+ * with the aperture's edge fixed, interpolated linearly in its triangles.
+ * On a surface of revolution over a centred circle it is the conformal
+ * chart rho(r) (x, y) / r scaled by a / rho(a), to O(pitch^2); over another
+ * aperture it is harmonic, not conformal (the edge is held in place). The
+ * LB plan on a freeform is its inverse; asph_quality_compute() triangulates
+ * a freeform plan in it.
+ *
+ * -EINVAL for a pitch that is not > 0; -ERANGE when the discrete map folds
+ * a triangle; -ENOMEM. The chart keeps a pointer to s.
+ */
+struct asph_lb_chart;
+
+int asph_lb_chart_alloc(const struct asph_surface *s, double pitch,
+			struct asph_lb_chart **out, struct asph_error *err);
+void asph_lb_chart_free(struct asph_lb_chart *c);
+
+/* S(x, y) into uv; between a curved edge and the mesh, the nearby edge
+ * triangle's linear map extended. -ENOENT for a point outside the aperture.
+ * Not const: the chart remembers the last triangle, where the next search
+ * starts (nearby queries are O(1)). */
+int asph_lb_chart_map(struct asph_lb_chart *c, double x, double y, double uv[2]);
 
 #ifdef __cplusplus
 }

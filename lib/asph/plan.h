@@ -26,6 +26,7 @@ enum asph_plan_method {
 	ASPH_PLAN_CONCENTRIC,   /* concentric circles */
 	ASPH_PLAN_SPIRAL,       /* Archimedean spiral in the vertex plane */
 	ASPH_PLAN_FERMAT,       /* Fermat / golden-angle spiral */
+	ASPH_PLAN_CVT,          /* centroidal Voronoi tessellation on the surface */
 	ASPH_PLAN_N_METHODS
 };
 

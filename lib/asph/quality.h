@@ -23,6 +23,12 @@ extern "C" {
  * steep flanks; the vertex-plane (x-y) chart is offered for comparison and
  * produces needle triangles where the surface is steep. A mesh that comes
  * with the plan can be used instead.
+ *
+ * On a freeform surface the conformal chart has no closed form; there
+ * ASPH_CHART_CONFORMAL is the harmonic chart of asph/lb.h (the P1 solution
+ * of Eq. (6) with the aperture's edge fixed, at 1/48 of the radius of the
+ * disk about the aperture), which on a surface of revolution is the
+ * conformal chart up to scale.
  */
 enum asph_quality_chart {
 	ASPH_CHART_CONFORMAL = 0,  /* (rho(r) cos t, rho(r) sin t), isothermal */

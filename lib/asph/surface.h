@@ -212,11 +212,21 @@ double asph_surface_area_element(const struct asph_surface *s, double x,
 void asph_surface_aperture(const struct asph_surface *s,
 			   struct asph_aperture *out);
 
-/* Whether (x, y) lies in the aperture grown by tol mm (tol >= 0) along
- * its outward normal (a circle's radius, a rectangle's half sizes, an
- * ellipse's semi-axes each grow by tol). */
+/* Whether (x, y) lies in the aperture grown by tol mm along its outward
+ * normal (a circle's radius, a rectangle's half sizes, an ellipse's
+ * semi-axes each grow by tol). A negative tol shrinks the aperture the same
+ * way (an inset: for a circle or a rectangle, the points at least -tol from
+ * the edge); while it is more than minus the smallest half size. */
 int asph_surface_contains(const struct asph_surface *s, double x, double y,
 			  double tol);
+
+/* The aperture's edge as a closed curve of t in [0, 1): the point p and
+ * dp = dp/dt. Counter-clockwise seen from +z. A circle or an ellipse is
+ * (centre + (w/2 cos 2 pi t, h/2 sin 2 pi t)); a rectangle is traced side
+ * by side from its (+x, +y) corner, with its corners at t = 0, 1/4, 1/2,
+ * 3/4 and t linear along each side. */
+void asph_surface_aperture_edge(const struct asph_surface *s, double t,
+				double p[2], double dp[2]);
 
 /* The aperture's bounding box: box = { x_min, x_max, y_min, y_max }, mm. */
 void asph_surface_bounds(const struct asph_surface *s, double box[4]);

@@ -141,8 +141,8 @@ struct system {
 };
 
 static int assemble(asph_lb_gradient_fn gradient, void *ctx, const double *xy,
-		    const uint32_t *tri, size_t ntri, struct system *sys,
-		    struct asph_error *err)
+		    const double *S_fixed, const uint32_t *tri, size_t ntri,
+		    struct system *sys, struct asph_error *err)
 {
 	_cleanup_(gsl_spmatrix_freep) gsl_spmatrix *coo = NULL;
 	_cleanup_free_ double *diag = calloc(sys->n_free, sizeof(double));
@@ -175,8 +175,8 @@ static int assemble(asph_lb_gradient_fn gradient, void *ctx, const double *xy,
 				size_t fj = sys->index[v[j]];
 				double kij = el[t].k[i][j] * sys->dscale[fi];
 				if (fj == SIZE_MAX) {
-					sys->rhs[2 * fi] -= kij * xy[2 * v[j]];
-					sys->rhs[2 * fi + 1] -= kij * xy[2 * v[j] + 1];
+					sys->rhs[2 * fi] -= kij * S_fixed[2 * v[j]];
+					sys->rhs[2 * fi + 1] -= kij * S_fixed[2 * v[j] + 1];
 					continue;
 				}
 				kij *= sys->dscale[fj];
@@ -235,7 +235,7 @@ static int conjugate_gradients(const gsl_spmatrix *A, const gsl_vector *b,
 			      "(relative residual %g)", sqrt(rr) / bnorm);
 }
 
-static int solve(struct system *sys, const double *xy, size_t n,
+static int solve(struct system *sys, const double *xy, const double *S_fixed, size_t n,
 		 double *S_out, struct asph_error *err)
 {
 	_cleanup_(gsl_vector_freep) gsl_vector *y = gsl_vector_alloc(sys->n_free);
@@ -257,7 +257,7 @@ static int solve(struct system *sys, const double *xy, size_t n,
 			return r;
 		for (size_t i = 0; i < n; i++) {
 			size_t fi = sys->index[i];
-			S_out[2 * i + comp] = fi == SIZE_MAX ? xy[2 * i + comp] :
+			S_out[2 * i + comp] = fi == SIZE_MAX ? S_fixed[2 * i + comp] :
 				gsl_vector_get(y, fi) * sys->dscale[fi];
 		}
 	}
@@ -288,22 +288,37 @@ int asph_lb_fem_solve_graph(asph_lb_gradient_fn gradient, void *ctx,
 			    const double *xy, size_t n, const uint32_t *tri,
 			    size_t ntri, double *S_out, struct asph_error *err)
 {
+	return asph_lb_fem_solve_graph_dirichlet(gradient, ctx, NULL, NULL, xy, n, tri, ntri,
+						 S_out, err);
+}
+
+int asph_lb_fem_solve_graph_dirichlet(asph_lb_gradient_fn gradient, void *ctx,
+				      asph_lb_boundary_fn boundary, void *bctx,
+				      const double *xy, size_t n, const uint32_t *tri,
+				      size_t ntri, double *S_out, struct asph_error *err)
+{
 	int r = check_mesh(xy, n, tri, ntri, err);
 	if (r < 0)
 		return r;
 
 	_cleanup_free_ uint8_t *fixed = malloc(n);
 	_cleanup_free_ size_t *index = malloc(n * sizeof(size_t));
-	if (!fixed || !index)
+	_cleanup_free_ double *S_fixed = malloc(2 * n * sizeof(double));
+	if (!fixed || !index || !S_fixed)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	if (mark_fixed(tri, ntri, n, fixed) < 0)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 
 	struct system sys = { .index = index };
-	for (size_t i = 0; i < n; i++)
+	for (size_t i = 0; i < n; i++) {
 		index[i] = fixed[i] ? SIZE_MAX : sys.n_free++;
+		S_fixed[2 * i] = xy[2 * i];
+		S_fixed[2 * i + 1] = xy[2 * i + 1];
+		if (fixed[i] && boundary)
+			boundary(bctx, xy[2 * i], xy[2 * i + 1], S_fixed + 2 * i);
+	}
 	if (sys.n_free == 0) {
-		memcpy(S_out, xy, 2 * n * sizeof(double));
+		memcpy(S_out, S_fixed, 2 * n * sizeof(double));
 		return 0;
 	}
 	_cleanup_free_ double *dscale = malloc(sys.n_free * sizeof(double));
@@ -312,9 +327,9 @@ int asph_lb_fem_solve_graph(asph_lb_gradient_fn gradient, void *ctx,
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	sys.dscale = dscale;
 	sys.rhs = rhs;
-	r = assemble(gradient, ctx, xy, tri, ntri, &sys, err);
+	r = assemble(gradient, ctx, xy, S_fixed, tri, ntri, &sys, err);
 	if (r == 0)
-		r = solve(&sys, xy, n, S_out, err);
+		r = solve(&sys, xy, S_fixed, n, S_out, err);
 	if (sys.k)
 		gsl_spmatrix_free(sys.k);
 	return r;

@@ -64,7 +64,7 @@ int asph_plan_info_from_json(const char *text, size_t len, const char *source,
 	if (asph_plan_method_from_name(json_string_value(json_object_get(root, "method")),
 				       &out->method) < 0)
 		return asph_error_set_at(err, -EINVAL, source, 0, 0, "plan.method",
-					 "not a plan method (op, ot, lb, ci, raster, concentric, spiral, fermat)");
+					 "not a plan method (op, ot, lb, ci, raster, concentric, spiral, fermat, cvt)");
 	int r = density_of(root, source, &out->density, err);
 	if (r < 0)
 		return r;

@@ -98,8 +98,7 @@ static long raster_rows(double a, double p)
 	return (long)floor(a / p + 1e-12);
 }
 
-/* Lattice columns |i p| <= c - p/2, or -1 when there are none. */
-static long raster_cols(double c, double p)
+long plan_raster_cols(double c, double p)
 {
 	return c >= 0.5 * p ? (long)floor((c - 0.5 * p) / p) : -1;
 }
@@ -110,11 +109,11 @@ static double raster_chord(double a, double y)
 	return c2 > 0 ? sqrt(c2) : 0.0;
 }
 
-static size_t raster_row_count(double c, double p)
+size_t plan_raster_row_count(double c, double p)
 {
 	if (c < 0.25 * p)
 		return 1;
-	return (size_t)(2 * raster_cols(c, p) + 1) + 2;
+	return (size_t)(2 * plan_raster_cols(c, p) + 1) + 2;
 }
 
 size_t plan_raster_count(double a, double p)
@@ -123,7 +122,7 @@ size_t plan_raster_count(double a, double p)
 	size_t n = 0;
 
 	for (long j = -rows; j <= rows; j++)
-		n += raster_row_count(raster_chord(a, (double)j * p), p);
+		n += plan_raster_row_count(raster_chord(a, (double)j * p), p);
 	return n;
 }
 
@@ -133,13 +132,13 @@ static size_t raster_row(double a, double p, double y, int reverse,
 			 double *xyr, size_t at)
 {
 	double c = raster_chord(a, y);
-	size_t cnt = raster_row_count(c, p);
+	size_t cnt = plan_raster_row_count(c, p);
 
 	if (cnt == 1) {
 		put(xyr, at, 0.0, y, fabs(y));
 		return 1;
 	}
-	long cols = raster_cols(c, p);
+	long cols = plan_raster_cols(c, p);
 	for (size_t q = 0; q < cnt; q++) {
 		size_t i = reverse ? cnt - 1 - q : q;
 		if (i == 0 || i == cnt - 1) {

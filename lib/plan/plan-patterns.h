@@ -49,6 +49,13 @@ void plan_involute_point(double s0, size_t k, double xy[2], double *rho);
 size_t plan_raster_count(double a, double p);
 int plan_raster_fill(double a, double p, double *xyr);
 
+/* One raster row over the chord |x| <= c: its point count (1 for a chord
+ * shorter than p/2: the single point x = 0), and its lattice columns
+ * x = i p, |i| <= cols, at least p/2 inside the chord (-1: none); the
+ * other two points are the chord's ends. */
+size_t plan_raster_row_count(double c, double p);
+long plan_raster_cols(double c, double p);
+
 /* Concentric circles: the centre, then M = ceil(a/p) rings at radii
  * j a / M with ceil(2 pi r_j / p) points each, ring after ring, each ring
  * counter-clockwise from the angle where the previous one ended. */

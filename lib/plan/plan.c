@@ -10,6 +10,9 @@
 #include "asph/involute.h"
 #include "asph/lb.h"
 #include "asph/plan.h"
+#include "plan-aperture.h"
+#include "plan-cvt.h"
+#include "plan-freeform.h"
 #include "plan-patterns.h"
 #include "util-mem.h"
 
@@ -29,6 +32,7 @@
  */
 struct plan_method {
 	const char *name;
+	enum asph_plan_method pattern;  /* the planar pattern it lays (op: the disk grid) */
 	struct plan_lattice lattice;
 	bool on_surface;        /* the lattice lies on the surface (CI) */
 	bool mesh;              /* the disk grid's mesh comes with the plan */
@@ -46,15 +50,19 @@ struct plan_method {
 
 /*
  * A method on a freeform surface, where the radial maps of surfaces of
- * revolution do not apply: the exact count at pitch p, and the plan's
- * points on the surface (fill allocates plan->xyz and sets plan->n). Both
- * may use the method's own count and fill for its planar pattern.
+ * revolution do not apply: the exact count at pitch p; the plan's points
+ * (fill allocates plan->xyz and sets plan->n), in the aperture for a
+ * method with a map (the mesh is made of them), else on the surface; and
+ * the map onto the surface (plan-freeform.h), NULL for the lift
+ * z = S(x, y).
  */
 struct plan_freeform {
 	size_t (*count)(const struct asph_surface *s, const struct plan_method *meth,
 			double p);
 	int (*fill)(const struct asph_surface *s, const struct plan_method *meth,
 		    double p, struct asph_plan *plan, struct asph_error *err);
+	int (*map)(const struct asph_surface *s, double p, double *xyz, size_t n,
+		   struct asph_error *err);
 };
 
 static const struct plan_method *method_of(enum asph_plan_method m);
@@ -261,6 +269,13 @@ double asph_plan_ot_radius(const struct asph_surface *s, double rho)
 	return asph_surface_radius_at_area(s, asph_surface_area(s, a) * f * f);
 }
 
+/* Lifts points of the aperture onto the surface: z = S(x, y). */
+static void lift_xy(const struct asph_surface *s, double *xyz, size_t n)
+{
+	for (size_t i = 0; i < n; i++)
+		xyz[3 * i + 2] = asph_surface_sag_xy(s, xyz[3 * i], xyz[3 * i + 1]);
+}
+
 /* Vertical projection: z = Z(r), r in the third slot. */
 static int lift_projected(const struct asph_surface *s, double *xyz,
 			  size_t n, struct asph_error *err)
@@ -374,6 +389,19 @@ static int lift_ot(const struct asph_surface *s, double *xyz, size_t n,
 	return 0;
 }
 
+/* CVT: Lloyd's iterations from the OT plan. The disk grid has one point
+ * per p^2 of the disk, which gives p back. */
+static int lift_cvt(const struct asph_surface *s, double *xyz, size_t n,
+		    struct asph_error *err)
+{
+	double a = asph_surface_aperture_radius(s);
+	int r = lift_ot(s, xyz, n, err);
+
+	if (r < 0)
+		return r;
+	return plan_cvt_relax(s, a * sqrt(M_PI / (double)n), xyz, n, NULL, err);
+}
+
 static int lift_lb(const struct asph_surface *s, double *xyz, size_t n,
 		   struct asph_error *err)
 {
@@ -484,14 +512,20 @@ static int compute_points(const struct asph_surface *s, struct asph_plan *plan,
 		r = meth->fill(s, asph_surface_aperture_radius(s), sz->p, plan, err);
 	if (r < 0)
 		return r;
-	/* The mesh of the disk grid, before a radial lift moves its points */
+	/* The mesh of the disk grid, before a map moves its points */
 	if (meth->mesh && !(flags & ASPH_PLAN_NO_MESH)) {
 		r = plan_disk_mesh(plan->xyz, plan->n, &plan->triangles,
 				   &plan->n_triangles, err);
 		if (r < 0)
 			return r;
 	}
-	if (freeform || !meth->lift)
+	if (freeform && meth->freeform->map)
+		return meth->freeform->map(s, sz->p, plan->xyz, plan->n, err);
+	if (freeform) {
+		lift_xy(s, plan->xyz, plan->n);
+		return 0;
+	}
+	if (!meth->lift)
 		return 0;
 	return meth->lift(s, plan->xyz, plan->n, err);
 }
@@ -621,70 +655,68 @@ static int fermat_fill(const struct asph_surface *s, double a, double p,
 
 /* ---- freeform surfaces ----------------------------------------------------- */
 
-/* The pattern's points moved to the aperture's centre and kept where they
- * fall inside the aperture, in place, lifted with z = S(x, y) if lift;
- * returns how many are kept. */
-static size_t keep_in_aperture(const struct asph_surface *s, const double centre[2],
-			       double *xyz, size_t n, bool lift)
+/* Screens absurd sizes before a pattern over the aperture runs, as
+ * pattern_count() does for the disk. */
+static bool aperture_too_dense(const struct asph_surface *s, double p)
 {
-	size_t k = 0;
+	double R = freeform_radius(s);
 
-	for (size_t i = 0; i < n; i++) {
-		double x = xyz[3 * i] + centre[0], y = xyz[3 * i + 1] + centre[1];
-		if (!asph_surface_contains(s, x, y, 0))
-			continue;
-		xyz[3 * k] = x;
-		xyz[3 * k + 1] = y;
-		xyz[3 * k + 2] = lift ? asph_surface_sag_xy(s, x, y) : 0;
-		k++;
-	}
-	return k;
+	return !(M_PI * R * R / (p * p) < 2.0 * (double)PLAN_MAX_POINTS);
 }
 
-/* The method's planar pattern over the disk about the aperture, clipped to
- * the aperture and lifted if lift. */
-static int clipped_pattern(const struct asph_surface *s, const struct plan_method *meth,
-			   double p, bool lift, struct asph_plan *plan, struct asph_error *err)
+static size_t aperture_count(const struct asph_surface *s, const struct plan_method *meth,
+			     double p)
 {
-	double c[2], R;
-	int r;
+	struct plan_points pp = { 0 };
+	size_t n = SIZE_MAX;
 
-	asph_surface_aperture_disk(s, c, &R);
-	plan->n = meth->count(s, R, p);
-	r = meth->fill(s, R, p, plan, err);
-	if (r < 0)
-		return r;
-	plan->n = keep_in_aperture(s, c, plan->xyz, plan->n, lift);
+	if (aperture_too_dense(s, p))
+		return SIZE_MAX;
+	if (plan_aperture_pattern(s, meth->pattern, p, &pp, NULL) == 0)
+		n = pp.n;
+	plan_points_clear(&pp);
+	return n;
+}
+
+static int aperture_fill(const struct asph_surface *s, const struct plan_method *meth,
+			 double p, struct asph_plan *plan, struct asph_error *err)
+{
+	struct plan_points pp = { 0 };
+
+	if (plan_aperture_pattern(s, meth->pattern, p, &pp, NULL) < 0) {
+		plan_points_clear(&pp);
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	}
+	plan->xyz = pp.xyz;
+	plan->n = pp.n;
 	return 0;
 }
 
-static size_t clipped_count(const struct asph_surface *s, const struct plan_method *meth,
-			    double p)
-{
-	double R = freeform_radius(s);
-	struct asph_plan plan = { 0 };
-
-	/* The pattern covers the whole disk: screen absurd sizes as
-	 * pattern_count() does. */
-	if (!(M_PI * R * R / (p * p) < 2.0 * (double)PLAN_MAX_POINTS))
-		return SIZE_MAX;
-	if (clipped_pattern(s, meth, p, false, &plan, NULL) < 0) {
-		free(plan.xyz);
-		return SIZE_MAX;
-	}
-	free(plan.xyz);
-	return plan.n;
-}
-
-static int clipped_fill(const struct asph_surface *s, const struct plan_method *meth,
-			double p, struct asph_plan *plan, struct asph_error *err)
-{
-	return clipped_pattern(s, meth, p, true, plan, err);
-}
-
 /* The plans of the vertex plane (op and the classic patterns): laid over
- * the disk about the aperture, kept inside it, lifted with S(x, y). */
-static const struct plan_freeform clipped_to_aperture = { clipped_count, clipped_fill };
+ * the aperture (plan-aperture.h), lifted with S(x, y). */
+static const struct plan_freeform over_aperture = { aperture_count, aperture_fill, NULL };
+
+/* LB: the disk grid of the aperture moved by the inverse of the discrete
+ * harmonic map. */
+static const struct plan_freeform lb_freeform = { aperture_count, aperture_fill,
+						  plan_lb_freeform_map };
+
+/* OT: the disk grid of the aperture moved by the map of the Monge-Ampere
+ * equation (asph/ot.h). */
+static const struct plan_freeform ot_freeform = { aperture_count, aperture_fill,
+						  plan_ot_freeform_map };
+
+static int cvt_freeform_map(const struct asph_surface *s, double p, double *xyz, size_t n,
+			    struct asph_error *err)
+{
+	int r = plan_ot_freeform_map(s, p, xyz, n, err);
+
+	return r < 0 ? r : plan_cvt_relax(s, p, xyz, n, NULL, err);
+}
+
+/* CVT: the OT plan relaxed by Lloyd's iterations on the surface. */
+static const struct plan_freeform cvt_freeform = { aperture_count, aperture_fill,
+						   cvt_freeform_map };
 
 /*
  * Lattices measured on flat patterns of 1.26e5 points on the unit disk
@@ -693,27 +725,29 @@ static const struct plan_freeform clipped_to_aperture = { clipped_count, clipped
  * area to within 0.5 %. CI is the disk grid's lattice laid on the surface.
  */
 static const struct plan_method methods[ASPH_PLAN_N_METHODS] = {
-	[ASPH_PLAN_OP] = { "op", { 1.0, 1.099 }, false, true,
+	[ASPH_PLAN_OP] = { "op", ASPH_PLAN_OP, { 1.0, 1.099 }, false, true,
 			   disk_grid_count, disk_grid_fill, lift_projected,
-			   &clipped_to_aperture },
-	[ASPH_PLAN_OT] = { "ot", { 1.0, 1.099 }, false, true,
-			   disk_grid_count, disk_grid_fill, lift_ot },
-	[ASPH_PLAN_LB] = { "lb", { 1.0, 1.099 }, false, true,
-			   disk_grid_count, disk_grid_fill, lift_lb },
-	[ASPH_PLAN_CI] = { "ci", { 1.0, 1.099 }, true, false,
+			   &over_aperture },
+	[ASPH_PLAN_OT] = { "ot", ASPH_PLAN_OP, { 1.0, 1.099 }, false, true,
+			   disk_grid_count, disk_grid_fill, lift_ot, &ot_freeform },
+	[ASPH_PLAN_LB] = { "lb", ASPH_PLAN_OP, { 1.0, 1.099 }, false, true,
+			   disk_grid_count, disk_grid_fill, lift_lb, &lb_freeform },
+	[ASPH_PLAN_CI] = { "ci", ASPH_PLAN_CI, { 1.0, 1.099 }, true, false,
 			   ci_count, ci_fill, NULL },
-	[ASPH_PLAN_RASTER] = { "raster", { 1.0, 1.138 } /* (2 + sqrt 2) / 3 */, false, false,
+	[ASPH_PLAN_RASTER] = { "raster", ASPH_PLAN_RASTER, { 1.0, 1.138 } /* (2 + sqrt 2) / 3 */, false, false,
 			       raster_count, raster_fill, lift_projected,
-			       &clipped_to_aperture },
-	[ASPH_PLAN_CONCENTRIC] = { "concentric", { 1.0, 1.098 }, false, false,
+			       &over_aperture },
+	[ASPH_PLAN_CONCENTRIC] = { "concentric", ASPH_PLAN_CONCENTRIC, { 1.0, 1.098 }, false, false,
 				   concentric_count, concentric_fill, lift_projected,
-				   &clipped_to_aperture },
-	[ASPH_PLAN_SPIRAL] = { "spiral", { 1.0, 1.099 }, false, false,
+				   &over_aperture },
+	[ASPH_PLAN_SPIRAL] = { "spiral", ASPH_PLAN_SPIRAL, { 1.0, 1.099 }, false, false,
 			       spiral_count, spiral_fill, lift_projected,
-			       &clipped_to_aperture },
-	[ASPH_PLAN_FERMAT] = { "fermat", { 1.0, 1.114 }, false, false,
+			       &over_aperture },
+	[ASPH_PLAN_FERMAT] = { "fermat", ASPH_PLAN_FERMAT, { 1.0, 1.114 }, false, false,
 			       fermat_count, fermat_fill, lift_projected,
-			       &clipped_to_aperture },
+			       &over_aperture },
+	[ASPH_PLAN_CVT] = { "cvt", ASPH_PLAN_OP, { 1.0, 1.099 }, false, false,
+			    disk_grid_count, disk_grid_fill, lift_cvt, &cvt_freeform },
 };
 
 /* m is checked by the callers (resolve); an unknown one reads as OP. */

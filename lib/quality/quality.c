@@ -5,6 +5,7 @@
 #include <string.h>
 
 #include "asph/delaunay.h"
+#include "asph/lb.h"
 #include "asph/quality.h"
 #include "util-mem.h"
 
@@ -99,15 +100,46 @@ int asph_quality_summarize(const double *v, size_t n,
 	return 0;
 }
 
+/* The harmonic chart's pitch on a freeform: this fraction of the radius of
+ * the disk about the aperture (~7000 nodes on a circle); the chart's
+ * O(pitch^2) error is far below what moves a Delaunay edge of a plan. */
+#define FREEFORM_CHART_DIVISIONS 48
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_lb_chart *, asph_lb_chart_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_conformal_chart *, asph_conformal_chart_free)
+
+/* On a freeform the conformal chart has no closed form: the harmonic chart
+ * (asph/lb.h), which is the conformal one on a surface of revolution. */
+static int harmonic_chart_points(const struct asph_surface *s, const double *xyz, size_t n,
+				 double *uv, struct asph_error *err)
+{
+	_cleanup_(asph_lb_chart_freep) struct asph_lb_chart *c = NULL;
+	double centre[2], R;
+	int r;
+
+	asph_surface_aperture_disk(s, centre, &R);
+	r = asph_lb_chart_alloc(s, R / FREEFORM_CHART_DIVISIONS, &c, err);
+	if (r < 0)
+		return r;
+	for (size_t i = 0; i < n; i++)
+		if (asph_lb_chart_map(c, xyz[3 * i], xyz[3 * i + 1], uv + 2 * i) < 0)
+			return asph_error_set(err, -EINVAL,
+					      "point %zu (%g, %g) mm is outside the aperture", i,
+					      xyz[3 * i], xyz[3 * i + 1]);
+	return 0;
+}
+
 /* Chart coordinates of every point; NaN (a point where the sag is not
  * defined) is refused with the point's index. */
 static int chart_points(const struct asph_surface *s, const double *xyz,
 			size_t n, enum asph_quality_chart chart, double *uv,
 			struct asph_error *err)
 {
-	struct asph_conformal_chart *c = NULL;
+	_cleanup_(asph_conformal_chart_freep) struct asph_conformal_chart *c = NULL;
 	int r = 0;
 
+	if (chart == ASPH_CHART_CONFORMAL && !asph_surface_is_rotational(s))
+		return harmonic_chart_points(s, xyz, n, uv, err);
 	if (chart == ASPH_CHART_CONFORMAL) {
 		r = asph_conformal_chart_alloc(s, &c, err);
 		if (r < 0)
@@ -125,7 +157,6 @@ static int chart_points(const struct asph_surface *s, const double *xyz,
 					   "point %zu (r = %g mm) is outside the surface's domain",
 					   i, hypot(xyz[3 * i], xyz[3 * i + 1]));
 	}
-	asph_conformal_chart_free(c);
 	return r;
 }
 

@@ -848,6 +848,12 @@ int asph_surface_contains(const struct asph_surface *s, double x, double y, doub
 	return aperture_contains(&s->ap, x, y, tol);
 }
 
+void asph_surface_aperture_edge(const struct asph_surface *s, double t, double p[2],
+				double dp[2])
+{
+	aperture_boundary(&s->ap, t, p, dp);
+}
+
 void asph_surface_bounds(const struct asph_surface *s, double box[4])
 {
 	aperture_bounds(&s->ap, box);

@@ -76,6 +76,46 @@ def scan_replay(tmp, lens):
             check(abs(d["dof"][k] - v) < 1e-7, f"scan: {k} = {d['dof'][k]!r}, injected {v}")
 
 
+def grid_plans(lens):
+    """ot and lb on the freeform: every point in the rectangle, as many
+    points as op (they move op's aperture grid)."""
+    counts = {}
+    for method in ("op", "ot", "lb"):
+        r = run(["plan", lens, "--method", method, "--points", "800"])
+        check(r.returncode == 0, f"plan {method}: {r.stderr}")
+        if r.returncode != 0:
+            continue
+        pts = [tuple(map(float, ln.split(","))) for ln in r.stdout.strip().split("\n")[1:]]
+        counts[method] = len(pts)
+        ap = LENS["aperture"]
+        check(all(abs(x - ap["offset"][0]) <= ap["width"] / 2 and
+                  abs(y - ap["offset"][1]) <= ap["height"] / 2 for x, y, _ in pts),
+              f"plan {method}: every point in the aperture")
+    check(len(set(counts.values())) == 1, f"op, ot and lb move one grid: {counts}")
+
+
+def plots(tmp, lens, points):
+    """asph plot draws a freeform's ot and cvt plans (PNGs of the plot's
+    size), asph quality judges them, and asph fit --map draws the residual
+    map."""
+    for method in ("ot", "cvt"):
+        png = os.path.join(tmp, f"{method}.png")
+        r = run(["plot", lens, "--method", method, "--points", "400", "-o", png])
+        check(r.returncode == 0, f"plot {method}: {r.stderr}")
+        if r.returncode == 0:
+            with open(png, "rb") as f:
+                head = f.read(24)
+            check(head[:8] == b"\x89PNG\r\n\x1a\n", f"plot {method}: a PNG")
+            w, h = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+            check((w, h) == (1800, 760), f"plot {method}: size {w} x {h}")
+        q = run(["quality", lens, "--method", method, "--points", "400", "--json"])
+        check(q.returncode == 0 and json.loads(q.stdout)["n_points"] > 350,
+              f"quality {method}: {q.stderr}")
+    png = os.path.join(tmp, "residuals.png")
+    r = run(["fit", lens, "-", "--dof", DOF, "--map", png], stdin=points)
+    check(r.returncode == 0 and os.path.getsize(png) > 1000, f"fit --map: {r.stderr}")
+
+
 def refusals(tmp, lens, points):
     r = run(["fit", "weak", "-", "--dof", DOF], stdin=points)
     check(r.returncode != 0 and "rz cannot be fitted" in r.stderr, f"rz on weak: {r.stderr}")
@@ -83,7 +123,7 @@ def refusals(tmp, lens, points):
     check(r.returncode != 0 and "R and k" in r.stderr, f"R on a freeform: {r.stderr}")
     r = run(["plan", lens, "--method", "ci", "--points", "100"])
     check(r.returncode != 0 and "rotationally symmetric" in r.stderr
-          and "use one of op, raster, concentric, spiral, fermat" in r.stderr, f"ci plan: {r.stderr}")
+          and "use one of op, ot, lb, raster, concentric, spiral, fermat, cvt" in r.stderr, f"ci plan: {r.stderr}")
     bad = os.path.join(tmp, "bad.json")
     with open(bad, "w") as f:
         f.write('{"type": "biconic", "Rx": 40, "Ry": 50,\n "kx": 60, "aperture_diameter": 20}')
@@ -102,6 +142,8 @@ def main():
         lens_show(lens)
         points = synth_fit(lens)
         scan_replay(tmp, lens)
+        grid_plans(lens)
+        plots(tmp, lens, points)
         refusals(tmp, lens, points)
     if FAILURES:
         print(f"{len(FAILURES)} failures")

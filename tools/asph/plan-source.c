@@ -48,7 +48,7 @@ int plan_source_option(struct plan_source *ps, int opt, const char *arg)
 	case PLAN_OPT_METHOD:
 		if (asph_plan_method_from_name(arg, &ps->method) < 0) {
 			fprintf(stderr, "asph: --method: unknown method '%s' (op, ot, lb, ci, raster, "
-					"concentric, spiral, fermat)\n", arg);
+					"concentric, spiral, fermat, cvt)\n", arg);
 			return -1;
 		}
 		ps->have_method = 1;

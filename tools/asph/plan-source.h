@@ -30,7 +30,7 @@ enum {
 #define PLAN_SOURCE_HELP                                                                  \
 	"  PLAN_FILE           points to judge (.csv x,y,z / .ply / .json), as asph plan writes\n" \
 	"  --method M          compute the plan instead: op, ot, lb, ci, raster, concentric,\n"  \
-	"                      spiral, fermat; with exactly one of\n"                             \
+	"                      spiral, fermat, cvt; with exactly one of\n"                             \
 	"  --h H               mean edge length / aperture radius (the paper's h)\n"             \
 	"  --spacing MM        mean point spacing on the surface, mm\n"                           \
 	"  --points N          approximate number of points\n"

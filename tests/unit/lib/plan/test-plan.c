@@ -556,7 +556,8 @@ static void test_bad_density(void **state)
 
 /*
  * CI, OT, LB: consecutive points at most 2.5 e apart on the surface (the
- * step onto the rim ring of OT and LB included). The vertex-plane patterns
+ * step onto the rim ring of OT and LB included); CVT, which moves OT's
+ * points by up to about half a pitch, 3 e. The vertex-plane patterns
  * and OP: at most 2 p apart in the x-y plane, except the documented line
  * changes of the raster (the next row starts on the rim).
  */
@@ -568,8 +569,10 @@ static void test_scan_order(void **state)
 		double a = asph_surface_aperture_radius(f->s[i]);
 		for (int m = 0; m < ASPH_PLAN_N_METHODS; m++) {
 			const struct asph_plan *p = f->plan[i][m];
-			int on_surface = m == ASPH_PLAN_CI || m == ASPH_PLAN_OT || m == ASPH_PLAN_LB;
-			double bound = on_surface ? 2.5 * p->spacing_mm : 2.0 * pitch_of(f->s[i], p);
+			int on_surface = m == ASPH_PLAN_CI || m == ASPH_PLAN_OT || m == ASPH_PLAN_LB ||
+					 m == ASPH_PLAN_CVT;
+			double bound = on_surface ? (m == ASPH_PLAN_CVT ? 3.0 : 2.5) * p->spacing_mm
+						  : 2.0 * pitch_of(f->s[i], p);
 			for (size_t k = 0; k + 1 < p->n; k++) {
 				const double *q = p->xyz + 3 * k, *q1 = q + 3;
 				double d = on_surface ? dist3(q, q1) : dist2(q, q1);
