@@ -29,6 +29,8 @@
 #include "rpc.h"
 #include "server.h"
 #include "settings.h"
+#include "tokens.h"
+#include "util-time.h"
 #include "util-mem.h"
 
 /* Exit codes, documented in docs/asphd.8.md. */
@@ -59,6 +61,9 @@ struct daemon {
 	struct jobs *jobs;
 	struct rpc *rpc;
 	struct server *server;
+	struct tokens *tokens;
+	sd_event_source *revalidate;    /* ends the sessions of revoked or expired tokens */
+	sd_event_source *token_expiry;  /* the next expiry of a token */
 	char status[128];               /* as systemd was last told */
 	bool stopping;
 	int exit_code;
@@ -317,6 +322,7 @@ static int on_reload(sd_event_source *s, const struct signalfd_siginfo *si, void
 		goto keep;
 	}
 	d->limits = next->limits;
+	access_set_tokens(access, d->tokens);
 	rpc_set_access(d->rpc, access);
 	access_free(d->access);
 	d->access = steal_ptr(access);
@@ -329,6 +335,84 @@ keep:
 	access_free(access);
 	settings_free(next);
 	sd_notify(0, "READY=1");
+	return 0;
+}
+
+/* ------------------------------------------------------------ tokens */
+
+/* After the answer that revoked a token: its sessions end, the calling
+ * one included, outside of the call. */
+static int on_revalidate(sd_event_source *s, void *data)
+{
+	struct daemon *d = data;
+
+	server_revalidate(d->server);
+	return 0;
+}
+
+static void tokens_changed(void *data)
+{
+	struct daemon *d = data;
+
+	sd_event_source_set_enabled(d->revalidate, SD_EVENT_ONESHOT);
+}
+
+static void arm_token_expiry(struct daemon *d);
+
+static int on_token_expiry(sd_event_source *s, uint64_t usec, void *data)
+{
+	struct daemon *d = data;
+
+	server_revalidate(d->server);
+	arm_token_expiry(d);
+	return 0;
+}
+
+/* The timer at the next expiry of a token: its sessions end then. */
+static void arm_token_expiry(struct daemon *d)
+{
+	int64_t now = now_realtime_ns(), next = tokens_next_expiry(d->tokens, now);
+
+	if (!next) {
+		sd_event_source_set_enabled(d->token_expiry, SD_EVENT_OFF);
+		return;
+	}
+	sd_event_source_set_time(d->token_expiry, (uint64_t)(next / 1000) + 1);
+	sd_event_source_set_enabled(d->token_expiry, SD_EVENT_ONESHOT);
+}
+
+static void tokens_changed_or_created(void *data)
+{
+	tokens_changed(data);
+	arm_token_expiry(data);
+}
+
+static int open_tokens(struct daemon *d)
+{
+	_cleanup_free_ char *path = NULL;
+	struct asph_error err;
+	char buf[1024];
+	int r;
+
+	asph_error_clear(&err);
+	if (asprintf(&path, "%s/jobs.sqlite", d->settings->state_dir) < 0)
+		return -ENOMEM;
+	r = tokens_open(path, &d->tokens, &err);
+	if (r < 0) {
+		log_error("%s", asph_error_format(&err, buf, sizeof(buf)));
+		return r;
+	}
+	tokens_set_changed(d->tokens, tokens_changed_or_created, d);
+	access_set_tokens(d->access, d->tokens);
+	r = sd_event_add_defer(d->event, &d->revalidate, on_revalidate, d);
+	if (r >= 0)
+		r = sd_event_source_set_enabled(d->revalidate, SD_EVENT_OFF);
+	if (r >= 0)
+		r = sd_event_add_time(d->event, &d->token_expiry, CLOCK_REALTIME, UINT64_MAX, 0,
+				      on_token_expiry, d);
+	if (r < 0)
+		return r;
+	arm_token_expiry(d);
 	return 0;
 }
 
@@ -353,10 +437,13 @@ static int start_modules(struct daemon *d)
 					       : strerror(-r));
 		return r;
 	}
+	r = open_tokens(d);
+	if (r < 0)
+		return r;
 	r = rpc_new(&(struct rpc_setup){
 			.event = d->event, .started_usec = d->started_usec, .jobs = d->jobs,
 			.instruments = d->instruments, .events = d->events, .access = d->access,
-			.limits = &d->limits,
+			.tokens = d->tokens, .limits = &d->limits,
 		    }, &d->rpc);
 	if (r == 0)
 		r = server_new(&(struct server_setup){
@@ -410,6 +497,9 @@ static void teardown(struct daemon *d)
 {
 	server_free(d->server);
 	rpc_free(d->rpc);
+	sd_event_source_disable_unref(d->revalidate);
+	sd_event_source_disable_unref(d->token_expiry);
+	tokens_free(d->tokens);
 	jobs_free(d->jobs);
 	events_free(d->events);
 	unload_configuration(d);
