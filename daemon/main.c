@@ -28,6 +28,7 @@
 #include "log.h"
 #include "rpc.h"
 #include "server.h"
+#include "web.h"
 #include "settings.h"
 #include "tokens.h"
 #include "util-time.h"
@@ -54,6 +55,7 @@ struct daemon {
 	struct instruments *instruments;
 	struct access *access;
 	struct addrinfo *tcp;           /* tcp_listen's addresses */
+	struct addrinfo *http;          /* http_listen's addresses */
 
 	sd_event *event;
 	uint64_t started_usec;
@@ -61,6 +63,7 @@ struct daemon {
 	struct jobs *jobs;
 	struct rpc *rpc;
 	struct server *server;
+	struct web *web;                /* NULL without http_listen */
 	struct tokens *tokens;
 	sd_event_source *revalidate;    /* ends the sessions of revoked or expired tokens */
 	sd_event_source *token_expiry;  /* the next expiry of a token */
@@ -80,18 +83,20 @@ static void report_config_error(const struct asph_error *err, void *data)
 
 /* --------------------------------------------------------- configuration */
 
-static int resolve_tcp(const struct settings *s, struct addrinfo **out,
-		       settings_error_fn report, void *data)
+/* The addresses of a listen setting (field: tcp_listen, http_listen). */
+static int resolve_listen(const struct settings *s, const char *field, const char *host,
+			  const char *port, struct addrinfo **out, settings_error_fn report,
+			  void *data)
 {
 	struct asph_error err;
 	int r;
 
-	if (!s->tcp_listen)
+	if (!host)
 		return 0;
 	asph_error_clear(&err);
-	r = server_resolve_tcp(s->tcp_host, s->tcp_port, out, &err);
+	r = server_resolve_tcp(host, port, out, &err);
 	if (r < 0) {
-		settings_locate(s, "tcp_listen", &err);
+		settings_locate(s, field, &err);
 		report(&err, data);
 	}
 	return r;
@@ -113,7 +118,10 @@ static int load_configuration(struct daemon *d)
 	if (instruments_load(d->settings, &d->instruments, &err) < 0)
 		report_config_error(&err, &n_errors);
 	access_load(d->settings, &d->access, report_config_error, &n_errors);
-	resolve_tcp(d->settings, &d->tcp, report_config_error, &n_errors);
+	resolve_listen(d->settings, "tcp_listen", d->settings->tcp_host, d->settings->tcp_port,
+		       &d->tcp, report_config_error, &n_errors);
+	resolve_listen(d->settings, "http_listen", d->settings->http_host,
+		       d->settings->http_port, &d->http, report_config_error, &n_errors);
 	return n_errors;
 }
 
@@ -122,6 +130,9 @@ static void unload_configuration(struct daemon *d)
 	if (d->tcp)
 		freeaddrinfo(d->tcp);
 	d->tcp = NULL;
+	if (d->http)
+		freeaddrinfo(d->http);
+	d->http = NULL;
 	access_free(d->access);
 	d->access = NULL;
 	instruments_free(d->instruments);
@@ -285,6 +296,10 @@ static void needs_restart(const struct daemon *d, const struct settings *next, c
 		append(why, size, "state_dir");
 	if (differ(next->instruments_json, now->instruments_json))
 		append(why, size, "instruments");
+	if (differ(next->http_listen, now->http_listen))
+		append(why, size, "http_listen");
+	if (differ(next->http_root, now->http_root))
+		append(why, size, "http_root");
 	if (server_check_reload(d->server, next, tcp, sizeof(tcp)) < 0)
 		append(why, size, tcp);
 }
@@ -328,6 +343,8 @@ static int on_reload(sd_event_source *s, const struct signalfd_siginfo *si, void
 	d->access = steal_ptr(access);
 	server_reload(d->server, next);
 	server_revalidate(d->server);
+	if (d->web)
+		web_revalidate(d->web);
 	settings_free(d->settings);
 	d->settings = steal_ptr(next);
 	log_info("configuration reloaded");
@@ -347,6 +364,8 @@ static int on_revalidate(sd_event_source *s, void *data)
 	struct daemon *d = data;
 
 	server_revalidate(d->server);
+	if (d->web)
+		web_revalidate(d->web);
 	return 0;
 }
 
@@ -455,6 +474,14 @@ static int start_modules(struct daemon *d)
 	r = events_watch_add(d->events, EVENT_ALL, server_notify, d->server, NULL);
 	if (r > 0)
 		r = events_watch_add(d->events, EVENT_ALL, status_watch, d, NULL);
+	if (r > 0 && d->http) {
+		r = web_new(&(struct web_setup){
+				.event = d->event, .rpc = d->rpc, .jobs = d->jobs,
+				.limits = &d->limits, .state_dir = d->settings->state_dir,
+			    }, &d->web);
+		if (r == 0)
+			r = events_watch_add(d->events, EVENT_ALL, web_notify, d->web, NULL);
+	}
 	return r < 0 ? r : 0;
 }
 
@@ -481,6 +508,14 @@ static int run(struct daemon *d)
 	r = start_modules(d);
 	if (r == 0)
 		r = server_listen(d->server, d->settings, d->tcp);
+	if (r == 0 && d->web) {
+		r = web_listen(d->web, d->http, d->settings->http_root ? d->settings->http_root
+								       : WEB_DIR);
+		if (r == 0)
+			log_info("web page at http://%s%s%s:%u/",
+				 d->http->ai_family == AF_INET6 ? "[" : "", d->settings->http_host,
+				 d->http->ai_family == AF_INET6 ? "]" : "", web_port(d->web));
+	}
 	if (r < 0)
 		return r;
 	log_info("listening on %s, state in %s, %zu instrument(s), queue %s",
@@ -495,6 +530,7 @@ static int run(struct daemon *d)
 
 static void teardown(struct daemon *d)
 {
+	web_free(d->web);
 	server_free(d->server);
 	rpc_free(d->rpc);
 	sd_event_source_disable_unref(d->revalidate);

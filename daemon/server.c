@@ -696,7 +696,7 @@ static void peer_groups(int fd, struct peer *p)
 }
 
 /* A TCP peer: its address, and its key (an IPv6 address by its /64). */
-static void tcp_identity(int fd, struct peer *p)
+void server_tcp_peer(int fd, struct peer *p)
 {
 	struct sockaddr_storage sa = { 0 };
 	socklen_t len = sizeof(sa);
@@ -734,7 +734,7 @@ static void peer_identity(int fd, bool tcp, struct peer *p)
 
 	p->tcp = tcp;
 	if (tcp) {
-		tcp_identity(fd, p);
+		server_tcp_peer(fd, p);
 		return;
 	}
 	if (getsockopt(fd, SOL_SOCKET, SO_PEERCRED, &cred, &len) < 0) {

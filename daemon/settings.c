@@ -91,6 +91,10 @@ void settings_free(struct settings *c)
 	free(c->tcp_host);
 	free(c->tcp_port);
 	free(c->token_file);
+	free(c->http_listen);
+	free(c->http_host);
+	free(c->http_port);
+	free(c->http_root);
 	free(c->state_dir);
 	free(c->instruments_json);
 	free(c->text);
@@ -250,21 +254,23 @@ static void check_limit_pairs(struct loader *ld, struct settings_limits *l)
 			 l->max_output_bytes / 2);
 }
 
-/* "HOST:PORT", "[IPV6]:PORT": a host and a port number (0 picks one). */
-static void take_listen(struct loader *ld, json_t *v, struct settings *c)
+/* "HOST:PORT", "[IPV6]:PORT": a host and a port number (0 picks one),
+ * of tcp_listen or http_listen (field) into *listen, *host_out, *port_out. */
+static void take_listen(struct loader *ld, json_t *v, const char *field, char **listen,
+			char **host_out, char **port_out)
 {
 	const char *text, *colon, *host;
 	size_t host_len;
 	char *end;
 	unsigned long port;
 
-	take_string(ld, v, "tcp_listen", &c->tcp_listen, false);
+	take_string(ld, v, field, listen, false);
 	text = json_string_value(v);
-	if (!c->tcp_listen || !text)
+	if (!*listen || !text)
 		return;
 	colon = strrchr(text, ':');
 	if (!colon) {
-		complain(ld, "tcp_listen", "must be HOST:PORT (a host name or address, a colon, "
+		complain(ld, field, "must be HOST:PORT (a host name or address, a colon, "
 			 "a port number)");
 		return;
 	}
@@ -277,14 +283,14 @@ static void take_listen(struct loader *ld, json_t *v, struct settings *c)
 	errno = 0;
 	port = strtoul(colon + 1, &end, 10);
 	if (host_len == 0 || colon[1] < '0' || colon[1] > '9' || *end || errno || port > 65535) {
-		complain(ld, "tcp_listen", "must be HOST:PORT with a host and a port number "
+		complain(ld, field, "must be HOST:PORT with a host and a port number "
 			 "from 0 to 65535, not \"%s\"", text);
 		return;
 	}
-	free(c->tcp_host);
-	free(c->tcp_port);
-	c->tcp_host = strndup(host, host_len);
-	c->tcp_port = strdup(colon + 1);
+	free(*host_out);
+	free(*port_out);
+	*host_out = strndup(host, host_len);
+	*port_out = strdup(colon + 1);
 }
 
 /*
@@ -458,7 +464,11 @@ static void take_member(struct loader *ld, struct settings *c,
 	else if (!strcmp(key, "operator_group"))
 		take_string(ld, v, key, &c->operator_group, false);
 	else if (!strcmp(key, "tcp_listen"))
-		take_listen(ld, v, c);
+		take_listen(ld, v, key, &c->tcp_listen, &c->tcp_host, &c->tcp_port);
+	else if (!strcmp(key, "http_listen"))
+		take_listen(ld, v, key, &c->http_listen, &c->http_host, &c->http_port);
+	else if (!strcmp(key, "http_root"))
+		take_string(ld, v, key, &c->http_root, true);
 	else if (!strcmp(key, "token_file"))
 		take_string(ld, v, key, &c->token_file, true);
 	else if (!strcmp(key, "state_dir"))

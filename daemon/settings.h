@@ -62,6 +62,9 @@ struct settings {
 	char *tcp_listen;               /* "HOST:PORT" or NULL (off), as written */
 	char *tcp_host, *tcp_port;      /* its parts ("[...]" of IPv6 taken off) */
 	char *token_file;
+	char *http_listen;              /* "HOST:PORT" or NULL (off), as written */
+	char *http_host, *http_port;    /* its parts */
+	char *http_root;                /* the web page's files (NULL: WEB_DIR) */
 	char *state_dir;
 	struct settings_limits limits;
 	struct settings_mqtt *mqtt;     /* NULL: no MQTT */
