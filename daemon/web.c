@@ -103,6 +103,14 @@ static void rearm(struct web *w)
 	sd_event_source_set_enabled(w->timer, SD_EVENT_ONESHOT);
 }
 
+/* Runs libmicrohttpd at the next turn of the loop: a resumed connection
+ * is taken up by MHD_run(), which its epoll descriptor may not ask for. */
+static void kick(struct web *w)
+{
+	sd_event_source_set_time(w->timer, 1);
+	sd_event_source_set_enabled(w->timer, SD_EVENT_ONESHOT);
+}
+
 static void run(struct web *w)
 {
 	MHD_run(w->mhd);
@@ -211,7 +219,7 @@ static void stream_wake(struct stream *st)
 	if (st->suspended) {
 		st->suspended = false;
 		MHD_resume_connection(st->conn);
-		rearm(st->web);
+		kick(st->web);
 	}
 }
 
@@ -388,6 +396,9 @@ static enum MHD_Result route_login(struct web *w, struct MHD_Connection *c,
 	info = MHD_get_connection_info(c, MHD_CONNECTION_INFO_CONNECTION_FD);
 	s->rpc.peer.tcp = true;
 	server_tcp_peer(info ? info->connect_fd : -1, &s->rpc.peer);
+	/* "http ADDRESS" in the log; the key stays the address's */
+	memmove(s->rpc.peer.name + 1, s->rpc.peer.name, sizeof(s->rpc.peer.name) - 1);
+	s->rpc.peer.name[sizeof(s->rpc.peer.name) - 1] = '\0';
 	memcpy(s->rpc.peer.name, "http", 4);
 	s->last_used_ns = now_realtime_ns();
 	rpc_session_open(w->rpc, &s->rpc);
@@ -408,7 +419,8 @@ static enum MHD_Result route_login(struct web *w, struct MHD_Connection *c,
 	free(a.text);
 	err = json_object_get(answer, "error");
 	if (err || !s->rpc.authenticated) {
-		const char *why = json_string_value(json_object_get(err, "message"));
+		json_t *detail = json_object_get(json_object_get(err, "data"), "detail");
+		const char *why = json_string_value(detail ? detail : json_object_get(err, "message"));
 		session_free(w, s);
 		return send_error(c, MHD_HTTP_UNAUTHORIZED, "%s", why ? why : "not authenticated");
 	}
