@@ -10,7 +10,7 @@ const $ = (id) => document.getElementById(id);
 let role = null;
 let rpcId = 0;
 let events = null;
-let live = { job: 0, points: [], next: 0, timer: 0, busy: false };
+let live = { job: 0, points: [], next: 0, timer: 0 };
 let history = { offset: 0, limit: 25, filter: {} };
 
 async function rpc(method, params = {}) {
@@ -108,8 +108,12 @@ function onEvent(msg) {
     if (p.job === live.job || !live.job) showProgress(p);
     return;
   }
-  if (msg.method === "job.state" && p.state === "completed" && p.job === live.job) {
-    fetchPoints().then(() => showResult(p.job));
+  if (msg.method === "job.state" && p.job === live.job &&
+      ["completed", "failed", "cancelled"].includes(p.state)) {
+    clearInterval(live.timer);
+    const job = live.job;
+    fetchPoints().then(() => (p.state === "completed" ? showResult(job) : null));
+    $("live-text").textContent = `Job ${job} ${p.state}${p.reason ? ": " + p.reason : ""}.`;
   }
   refresh();
 }
@@ -228,33 +232,41 @@ function showProgress(p) {
 }
 
 function startLive(job, progress) {
-  live = { job, points: [], next: 0, timer: 0, busy: false };
+  clearInterval(live.timer);
+  live = { job, points: [], next: 0, timer: 0 };
   $("live-job").textContent = `#${job}`;
   if (progress) showProgress({ ...progress, job });
-  clearInterval(live.timer);
   live.timer = setInterval(fetchPoints, 500);
   drawMap($("live-map"), [], $("live-scale"));
 }
 
 // The points arrive in batches: one request every half second takes all
-// those measured since the last (never one event per point).
-async function fetchPoints() {
-  if (!live.job || live.busy) return;
-  live.busy = true;
-  try {
-    for (;;) {
-      const r = await fetch(`/api/jobs/${live.job}/points?from=${live.next}`);
-      if (!r.ok) break;
-      const batch = await r.json();
-      live.points.push(...batch.points);
-      live.next += batch.points.length;
-      if (batch.points.length < 20000) break;
-    }
-    drawMap($("live-map"), live.points, $("live-scale"));
-    $("live-map").dataset.points = live.points.length;
-  } finally {
-    live.busy = false;
+// those measured since the last (never one event per point). Requests of
+// one job run one after the other; at most one waits behind the running one.
+function fetchPoints() {
+  const l = live;
+  if (!l.job) return Promise.resolve();
+  if (l.waiting) return l.chain;
+  l.waiting = true;
+  l.chain = (l.chain || Promise.resolve()).then(() => {
+    l.waiting = false;
+    return fetchBatches(l);
+  });
+  return l.chain;
+}
+
+async function fetchBatches(l) {
+  for (;;) {
+    const r = await fetch(`/api/jobs/${l.job}/points?from=${l.next}`);
+    if (!r.ok) break;
+    const batch = await r.json();
+    l.points.push(...batch.points);
+    l.next += batch.points.length;
+    if (batch.points.length < 20000) break;
   }
+  if (l !== live) return;
+  drawMap($("live-map"), l.points, $("live-scale"));
+  $("live-map").dataset.points = l.points.length;
 }
 
 // ------------------------------------------------------------- result
