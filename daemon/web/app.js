@@ -74,7 +74,7 @@ async function start() {
   events.onmessage = (m) => onEvent(JSON.parse(m.data));
   // A stream that ended (its buffer overflowed, or the daemon restarted):
   // the browser reconnects; the state is read afresh.
-  events.onopen = () => refresh();
+  events.onopen = () => scheduleRefresh();
   await refresh();
 }
 
@@ -115,7 +115,18 @@ function onEvent(msg) {
     fetchPoints().then(() => (p.state === "completed" ? showResult(job) : null));
     $("live-text").textContent = `Job ${job} ${p.state}${p.reason ? ": " + p.reason : ""}.`;
   }
-  refresh();
+  scheduleRefresh();
+}
+
+// Events come in bursts (a batch of submissions, a queue cancelled): the
+// state is read again at most four times a second, not once per event.
+let refreshTimer = 0;
+function scheduleRefresh() {
+  if (refreshTimer) return;
+  refreshTimer = setTimeout(() => {
+    refreshTimer = 0;
+    refresh().catch(() => {});
+  }, 250);
 }
 
 async function refresh() {
