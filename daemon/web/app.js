@@ -5,6 +5,7 @@
 // from /api/jobs/ID/files/NAME. The server checks every call; the role
 // only decides what the page offers.
 import { drawMap, colourScale } from "./map.js";
+import { zernikeBars, radialProfile } from "./charts.js";
 
 const $ = (id) => document.getElementById(id);
 let role = null;
@@ -219,6 +220,17 @@ $("submit-form").addEventListener("submit", async (e) => {
   e.preventDefault();
   const f = new FormData(e.target);
   const params = { lens: f.get("lens"), plan: { method: f.get("method"), [f.get("density")]: Number(f.get("value")) } };
+  const file = f.get("prescription");
+  if (file && file.size) {
+    try {
+      params.lens = JSON.parse(await file.text());
+    } catch (err) {
+      $("submit-error").textContent = `${file.name}: not JSON: ${err.message}`;
+      return;
+    }
+  }
+  params.fit = { dof: f.get("dof"), residual: f.get("residual"), robust: f.get("robust") === "on" };
+  if (f.get("zernike")) params.fit.zernike = Number(f.get("zernike"));
   for (const k of ["label", "part", "lot", "serial", "instrument"]) if (f.get(k)) params[k] = f.get(k);
   if (f.get("priority")) params.priority = Number(f.get("priority"));
   $("submit-error").textContent = "";
@@ -291,13 +303,26 @@ async function showResult(id) {
   const rows = [["lens", s.lens], ["points used", `${s.n_used} of ${s.n_points}`],
     ["RMS (nm)", fmt(s.rms_nm)], ["PV (nm)", fmt(s.pv_nm)], ["PVr (nm)", fmt(s.pvr_nm)],
     ["slope RMS (µrad)", fmt(s.slope_rms_urad)], ["converged", s.converged ? "yes" : "no"]];
-  if (s.verdict) rows.unshift(["verdict", typeof s.verdict === "string" ? s.verdict : JSON.stringify(s.verdict)]);
   const table = el("table", { id: "verdict" }, el("tbody", {}, ...rows.map(([k, v]) => el("tr", {}, el("th", {}, k), el("td", {}, v)))));
   const pose = el("table", { id: "pose" }, el("thead", {}, el("tr", {}, el("th", {}, "DOF"), el("th", {}, "value"), el("th", {}, "± u"))),
     el("tbody", {}, ...Object.entries(s.dof || {}).map(([k, v]) => el("tr", {}, el("td", {}, k), el("td", {}, fmt(v)), el("td", {}, fmt((s.uncertainty || {})[k]))))));
   const files = el("ul", { id: "downloads" }, ...Object.values(r.files).map((name) =>
     el("li", {}, el("a", { href: `/api/jobs/${id}/files/${encodeURIComponent(name)}`, download: `job${id}-${name}` }, name))));
-  const parts = [table, el("h3", {}, "Pose"), pose, el("h3", {}, "Downloads"), files];
+  const parts = [table];
+  if (s.verdict) {
+    // ISO 14253-1: each toleranced quantity with its value, U and limit
+    parts.push(el("h3", {}, `Verdict: ${s.verdict.overall}`), el("table", { id: "tolerances" },
+      el("thead", {}, el("tr", {}, ...["quantity", "value", "U", "limit", "verdict"].map((h) => el("th", {}, h)))),
+      el("tbody", {}, ...s.verdict.items.map((i) => el("tr", {}, el("td", {}, i.quantity), el("td", {}, fmt(i.value)),
+        el("td", {}, fmt(i.U)), el("td", {}, fmt(i.limit)), el("td", {}, i.verdict))))));
+  } else parts.push(el("p", {}, "No tolerance was given: no verdict."));
+  parts.push(el("h3", {}, "Pose"), pose);
+  if (s.zernike_nm) parts.push(el("h3", {}, "Zernike coefficients"), zernikeBars(s.zernike_nm));
+  if (r.files.residuals) {
+    const csv = await (await fetch(`/api/jobs/${id}/files/${r.files.residuals}`)).text();
+    parts.push(el("h3", {}, "Radial profile"), radialProfile(csv));
+  }
+  parts.push(el("h3", {}, "Downloads"), files);
   if (r.files.map) parts.splice(1, 0, el("img", { src: `/api/jobs/${id}/files/${r.files.map}`, alt: `residual map of job ${id}`, class: "residual-map" }));
   if (r.provenance) parts.push(el("h3", {}, "Provenance"), el("pre", {}, JSON.stringify(r.provenance, null, 1)));
   $("result").replaceChildren(...parts);
@@ -327,6 +352,17 @@ $("history-form").addEventListener("submit", (e) => {
   if (f.get("state")) history.filter.states = [f.get("state")];
   history.offset = 0;
   loadHistory();
+});
+// The filtered history as CSV (up to 1000 jobs, newest first).
+$("history-csv").addEventListener("click", async () => {
+  const list = await rpc("job.list", { limit: 1000, ...history.filter });
+  const cols = ["id", "state", "instrument", "label", "part", "lot", "serial", "submitted", "started", "finished", "reason"];
+  const quote = (v) => (v === null || v === undefined ? "" : /[",\n]/.test(String(v)) ? `"${String(v).replace(/"/g, '""')}"` : String(v));
+  const text = [cols.join(","), ...list.jobs.map((j) => cols.map((c) => quote(j[c])).join(","))].join("\n") + "\n";
+  const a = el("a", { href: URL.createObjectURL(new Blob([text], { type: "text/csv" })), download: "asphd-history.csv" });
+  document.body.append(a);
+  a.click();
+  a.remove();
 });
 $("history-prev").addEventListener("click", () => { history.offset = Math.max(0, history.offset - history.limit); loadHistory(); });
 $("history-next").addEventListener("click", () => { history.offset += history.limit; loadHistory(); });

@@ -83,13 +83,13 @@ try {
   await shot(page, "2-live");
 
   // Pause and resume from the queue.
-  await page.waitForSelector(`#queue tr[data-job="${job}"] button[data-action="job.pause"]`);
-  await page.click(`#queue tr[data-job="${job}"] button[data-action="job.pause"]`);
+  // (locators retry when a refresh of the queue replaced the row)
+  await page.locator(`#queue tr[data-job="${job}"] button[data-action="job.pause"]`).click();
   await page.waitForFunction((j) => document.querySelector(`#queue tr[data-job="${j}"] .state`)?.textContent === "paused", { timeout: 30000 }, job);
   ok((await stateOf(page, job)) === "paused", "paused");
   const pausedAt = Number(await page.$eval("#live-map", (e) => e.dataset.points));
   await shot(page, "3-paused");
-  await page.click(`#queue tr[data-job="${job}"] button[data-action="job.resume"]`);
+  await page.locator(`#queue tr[data-job="${job}"] button[data-action="job.resume"]`).click();
 
   // The result and its verdict table.
   await page.waitForSelector("#verdict", { visible: true, timeout: 120000 });
@@ -98,6 +98,9 @@ try {
   const verdict = await page.$eval("#verdict", (e) => e.textContent);
   ok(verdict.includes("RMS (nm)") && verdict.includes("2000 of 2000"), "the result's table");
   ok(await page.$eval("img.residual-map", (e) => e.complete && e.naturalWidth > 0), "the residual map is drawn");
+  await page.waitForFunction(() => document.querySelectorAll("#result svg.chart").length === 2);
+  const bars = await page.$$eval("#result svg.chart", (s) => [s[0].querySelectorAll("rect").length, s[1].querySelector("path").getAttribute("d").split("M").length - 1]);
+  ok(bars[0] === 36 && bars[1] === 2000, `the Zernike bars (${bars[0]}) and the radial profile (${bars[1]} points)`);
   const links = await page.$$eval("#downloads a", (as) => as.map((a) => a.getAttribute("href")));
   ok(links.some((h) => h.endsWith("residuals.csv")), "a download link for the CSV");
   await page.evaluate(() => document.querySelector("#result").scrollIntoView());
