@@ -369,6 +369,17 @@ static int new_session_id(char id[44])
 	return 0;
 }
 
+json_t *web_login_token(const char *body, size_t len, json_t **doc)
+{
+	json_t *token;
+
+	*doc = body ? json_loadb(body, len, JSON_REJECT_DUPLICATES, NULL) : NULL;
+	token = json_object_get(*doc, "token");
+	if (!json_is_string(token) || json_object_size(*doc) != 1)
+		return NULL;
+	return token;
+}
+
 static enum MHD_Result route_login(struct web *w, struct MHD_Connection *c,
 				   const struct request *req)
 {
@@ -380,9 +391,8 @@ static enum MHD_Result route_login(struct web *w, struct MHD_Connection *c,
 	json_t *token, *err;
 	char cookie[160];
 
-	body = req->body ? json_loadb(req->body, req->len, JSON_REJECT_DUPLICATES, NULL) : NULL;
-	token = json_object_get(body, "token");
-	if (!json_is_string(token) || json_object_size(body) != 1)
+	token = web_login_token(req->body, req->len, &body);
+	if (!token)
 		return send_error(c, MHD_HTTP_BAD_REQUEST, "the body must be {\"token\": TOKEN}");
 	expire_sessions(w);
 	if (w->n_sessions >= w->limits->max_clients)
@@ -575,8 +585,7 @@ static const char *content_type(const char *name)
 	return NULL;
 }
 
-/* A plain name: letters, digits, "._-", not starting with ".". */
-static bool plain_name(const char *name)
+bool web_plain_name(const char *name)
 {
 	if (!name[0] || name[0] == '.' || strlen(name) > 128)
 		return false;
@@ -590,7 +599,7 @@ static enum MHD_Result route_static(struct web *w, struct MHD_Connection *c, con
 	const char *type = content_type(name);
 	int fd;
 
-	if (!plain_name(name) || !type)
+	if (!web_plain_name(name) || !type)
 		return send_error(c, MHD_HTTP_NOT_FOUND, "no such page: %s", url);
 	fd = openat(w->root_fd, name, O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
 	if (fd < 0)
@@ -598,7 +607,7 @@ static enum MHD_Result route_static(struct web *w, struct MHD_Connection *c, con
 	return send_fd(c, fd, type, NULL);
 }
 
-static bool parse_id(const char *text, size_t len, int64_t *out)
+bool web_parse_count(const char *text, size_t len, int64_t *out)
 {
 	int64_t v = 0;
 
@@ -622,7 +631,7 @@ static enum MHD_Result route_file(struct web *w, struct MHD_Connection *c, int64
 	int fd, r;
 
 	asph_error_clear(&err);
-	if (!plain_name(name))
+	if (!web_plain_name(name))
 		return send_error(c, MHD_HTTP_NOT_FOUND, "no such file: %s", name);
 	r = jobs_result_file(w->jobs, id, name, &fd, &err);
 	if (r < 0)
@@ -647,7 +656,7 @@ static enum MHD_Result route_points(struct web *w, struct MHD_Connection *c, int
 	size_t n;
 	int r;
 
-	if (arg && strcmp(arg, "0") && !parse_id(arg, strlen(arg), &from))
+	if (arg && strcmp(arg, "0") && !web_parse_count(arg, strlen(arg), &from))
 		return send_error(c, MHD_HTTP_BAD_REQUEST, "from must be a count of points");
 	asph_error_clear(&err);
 	if (asprintf(&path, "%s/jobs/%" PRId64 "/" RUNNER_SCAN_FILE, w->state_dir, id) < 0 || !pts)
@@ -667,32 +676,35 @@ static enum MHD_Result route_points(struct web *w, struct MHD_Connection *c, int
 						   "points", pts), NULL);
 }
 
-static enum MHD_Result route_job(struct web *w, struct MHD_Connection *c, const char *rest)
+int web_job_route(const char *path, int64_t *id, const char **rest)
 {
-	const char *slash = strchr(rest, '/');
+	const char *slash = strchr(path, '/');
+
+	if (!slash || !web_parse_count(path, (size_t)(slash - path), id) || *id == 0)
+		return -ENOENT;
+	*rest = slash;
+	return 0;
+}
+
+static enum MHD_Result route_job(struct web *w, struct MHD_Connection *c, const char *path)
+{
+	const char *rest;
 	int64_t id;
 
-	if (!slash || !parse_id(rest, (size_t)(slash - rest), &id))
+	if (web_job_route(path, &id, &rest) < 0)
 		return send_error(c, MHD_HTTP_NOT_FOUND, "no such job");
-	if (!strcmp(slash, "/points"))
+	if (!strcmp(rest, "/points"))
 		return route_points(w, c, id);
-	if (!strncmp(slash, "/files/", 7))
-		return route_file(w, c, id, slash + 7);
+	if (!strncmp(rest, "/files/", 7))
+		return route_file(w, c, id, rest + 7);
 	return send_error(c, MHD_HTTP_NOT_FOUND, "no such route");
 }
 
 /* ------------------------------------------------------------ requests */
 
-/* Whether a POST comes from the page's own origin: its Origin names the
- * host it was sent to (over http, or https through a proxy); a browser
- * always sends Origin with a POST, and other clients may leave it out. */
-static bool same_origin(struct MHD_Connection *c)
+bool web_origin_allowed(const char *origin, const char *host, const char *fetch_site)
 {
-	const char *origin = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Origin");
-	const char *host = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Host");
-	const char *site = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Sec-Fetch-Site");
-
-	if (site && strcmp(site, "same-origin") && strcmp(site, "none"))
+	if (fetch_site && strcmp(fetch_site, "same-origin") && strcmp(fetch_site, "none"))
 		return false;
 	if (!origin)
 		return true;
@@ -705,6 +717,13 @@ static bool same_origin(struct MHD_Connection *c)
 	else
 		return false;
 	return !strcasecmp(origin, host);
+}
+
+static bool same_origin(struct MHD_Connection *c)
+{
+	return web_origin_allowed(MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Origin"),
+				  MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Host"),
+				  MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Sec-Fetch-Site"));
 }
 
 static bool json_body(struct MHD_Connection *c)

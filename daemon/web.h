@@ -28,6 +28,11 @@
 #define ASPHD_WEB_H
 
 #include <netdb.h>
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include <jansson.h>
 
 #include <systemd/sd-event.h>
 
@@ -62,5 +67,26 @@ void web_revalidate(struct web *w);
 /* The event watch (events_watch_add()): queues ev to each session's
  * stream that subscribed to it. data is the web listener. */
 void web_notify(const struct event *ev, void *data);
+
+/* --- the parts of a request the listener reads itself (HTTP is
+ * libmicrohttpd's); pure, unit-tested and fuzzed (tests/fuzz/fuzz-web.c) */
+
+/* Whether a POST may be served: Sec-Fetch-Site (may be NULL) says
+ * same-origin or none, and Origin (NULL: a client that is not a browser)
+ * is http:// or https:// and the Host header, without case. */
+bool web_origin_allowed(const char *origin, const char *host, const char *fetch_site);
+/* A count in decimal (1 to 18 digits, no sign, no leading zero): a job id,
+ * a point index. */
+bool web_parse_count(const char *text, size_t len, int64_t *out);
+/* "ID/REST" (after "/api/jobs/"): 0 with the job's id and *rest at the
+ * "/", or -ENOENT. */
+int web_job_route(const char *path, int64_t *id, const char **rest);
+/* A file name the listener serves: letters, digits, "._-", not starting
+ * with ".", at most 128 bytes. */
+bool web_plain_name(const char *name);
+/* The token of a login body {"token": TOKEN} (nothing else), borrowed from
+ * *doc, which the caller frees (json_decref); NULL when the body is not
+ * that. */
+json_t *web_login_token(const char *body, size_t len, json_t **doc);
 
 #endif
