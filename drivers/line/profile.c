@@ -195,15 +195,18 @@ static int serial_line(struct parser *ps, const struct words *w)
 		r = integer(ps, w, 1, 50, 4000000, &p->baud);
 	if (r == 0)
 		r = integer(ps, w, 2, 5, 8, &p->data_bits);
-	if (r == 0 && strcmp(w->w[3], "none") && strcmp(w->w[3], "even") && strcmp(w->w[3], "odd"))
+	if (r < 0)
+		return r;
+	if (strcmp(w->w[3], "none") && strcmp(w->w[3], "even") && strcmp(w->w[3], "odd"))
 		return fail(ps, w->col[3], "parity '%s': none, even or odd", w->w[3]);
 	p->parity = (char)toupper((unsigned char)w->w[3][0]);
-	if (r == 0)
-		r = integer(ps, w, 4, 1, 2, &p->stop_bits);
-	if (r == 0 && w->n == 6 && strcmp(w->w[5], "rtscts"))
+	r = integer(ps, w, 4, 1, 2, &p->stop_bits);
+	if (r < 0)
+		return r;
+	if (w->n == 6 && strcmp(w->w[5], "rtscts"))
 		return fail(ps, w->col[5], "'%s': the only flow control is rtscts", w->w[5]);
 	p->rtscts = w->n == 6;
-	return r;
+	return 0;
 }
 
 static int unit_line(struct parser *ps, const struct words *w)
