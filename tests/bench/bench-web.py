@@ -12,7 +12,6 @@ same run:
 Exit 77 where chromium or puppeteer-core is not installed."""
 import json
 import os
-import shutil
 import statistics
 import subprocess
 import sys
@@ -20,45 +19,11 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "integration"))
-from daemontest import Client, Daemon, poll_state  # noqa: E402
+from daemontest import Client, Daemon, browser_or_skip, web_port  # noqa: E402
 
 ROOT = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(HERE, "..", ".."))
-NODE_DIR = os.environ.get("ASPH_NODE_DIR", os.path.join(ROOT, "tests", "browser", "node"))
 POINTS = 60000
-chromium = shutil.which("chromium")
-if not chromium or not os.path.isdir(os.path.join(NODE_DIR, "node_modules", "puppeteer-core")):
-    print(f"SKIP: needs chromium and puppeteer-core in {NODE_DIR} (scripts/install-deps)")
-    sys.exit(77)
-
-
-def port_of(d):
-    import re
-    for _ in range(400):
-        m = re.search(r"web page at http://127\.0\.0\.1:(\d+)/", d.log_text())
-        if m:
-            return int(m.group(1))
-        time.sleep(0.05)
-    raise RuntimeError("no web page address")
-
-
-def scan_rate(c):
-    """The measured rate of one job: points over time between the first
-    and the last progress event while it measures (no plan, no fit)."""
-    c.call("events.subscribe", {"events": ["progress", "job"]})
-    job = c.call("job.submit", {"lens": "strong", "plan": {"method": "fermat", "points": POINTS}})["id"]
-    marks = []
-    while True:
-        msg = c.read_message()
-        if msg.get("method") == "job.progress" and msg["params"]["job"] == job:
-            p = msg["params"]
-            if 0 < p["done"] < p["total"] or (p["done"] == p["total"] and not marks[-1:] == [p["done"]]):
-                marks.append((time.monotonic(), p["done"]))
-        if msg.get("method") == "job.state" and msg["params"]["job"] == job and \
-                msg["params"]["state"] in ("completed", "failed", "cancelled"):
-            break
-    c.call("events.unsubscribe")
-    (t0, d0), (t1, d1) = marks[0], marks[-1]
-    return (d1 - d0) / (t1 - t0)
+chromium, NODE_DIR = browser_or_skip(ROOT)
 
 
 # time_factor 0.35 of a 20 kHz probe on a fast stage: about 20,000 points/s here.
@@ -70,7 +35,7 @@ d = Daemon([inst], extra={"http_listen": "127.0.0.1:0",
 failed = False
 try:
     d.start()
-    url = f"http://127.0.0.1:{port_of(d)}/"
+    url = f"http://127.0.0.1:{web_port(d)}/"
     c = Client(d.socket, timeout=300)
     token = c.call("token.create", {"name": "bench", "role": "operator"})["token"]
     env = dict(os.environ, ASPH_NODE_DIR=NODE_DIR, CHROMIUM=chromium)

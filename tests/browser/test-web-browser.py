@@ -14,28 +14,12 @@ import tempfile
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "integration"))
-from daemontest import Client, Daemon, expect, finish, mock_instrument  # noqa: E402
+from daemontest import Client, Daemon, browser_or_skip, expect, finish, mock_instrument, web_port  # noqa: E402
 
 ROOT = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(HERE, "..", ".."))
-NODE_DIR = os.environ.get("ASPH_NODE_DIR", os.path.join(ROOT, "tests", "browser", "node"))
 SHOTS = os.environ.get("ASPH_TEST_LOG_DIR") or tempfile.mkdtemp(prefix="asph-web-shots-")
-chromium = shutil.which("chromium")
+chromium, NODE_DIR = browser_or_skip(ROOT)
 node = shutil.which("node")
-if not chromium or not node or not os.path.isdir(os.path.join(NODE_DIR, "node_modules", "puppeteer-core")):
-    print(f"SKIP: needs chromium ({chromium}), node ({node}) and puppeteer-core in {NODE_DIR}"
-          " (scripts/install-deps installs them)")
-    sys.exit(77)
-
-
-def port_of(d):
-    import re
-    import time
-    for _ in range(400):
-        m = re.search(r"web page at http://127\.0\.0\.1:(\d+)/", d.log_text())
-        if m:
-            return int(m.group(1))
-        time.sleep(0.05)
-    raise RuntimeError("no web page address in the log")
 
 
 os.makedirs(SHOTS, exist_ok=True)
@@ -45,7 +29,7 @@ d = Daemon([mock_instrument(time_factor=0.1)],
            extra={"http_listen": "127.0.0.1:0", "http_root": os.path.join(ROOT, "daemon", "web")})
 try:
     d.start()
-    url = f"http://127.0.0.1:{port_of(d)}/"
+    url = f"http://127.0.0.1:{web_port(d)}/"
     admin = Client(d.socket)
     op = admin.call("token.create", {"name": "browser-operator", "role": "operator"})["token"]
     viewer = admin.call("token.create", {"name": "browser-viewer", "role": "viewer"})["token"]

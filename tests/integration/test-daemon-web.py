@@ -15,20 +15,10 @@ import sys
 import time
 
 sys.path.insert(0, os.path.dirname(__file__))
-from daemontest import Client, Daemon, expect, finish, mock_instrument, poll_state  # noqa: E402
+from daemontest import Client, Daemon, expect, finish, mock_instrument, web_port  # noqa: E402
 
 ROOT = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(os.path.dirname(__file__), "..", ".."))
 WEB_ROOT = os.path.join(ROOT, "daemon", "web")
-
-
-def web_port(d, timeout=20):
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        m = re.search(r"web page at http://127\.0\.0\.1:(\d+)/", d.log_text())
-        if m:
-            return int(m.group(1))
-        time.sleep(0.05)
-    raise RuntimeError("no web page address in the log:\n" + d.log_text())
 
 
 class Web:
