@@ -26,6 +26,28 @@ POINTS = 60000
 chromium, NODE_DIR = browser_or_skip(ROOT)
 
 
+def scan_rate(c):
+    """The measured rate of one job: points over time between the first
+    and the last progress event while it measures (no plan, no fit)."""
+    c.call("events.subscribe", {"events": ["progress", "job"]})
+    job = c.call("job.submit", {"lens": "strong", "plan": {"method": "fermat", "points": POINTS}})["id"]
+    marks = []
+    while True:
+        msg = c.read_message()
+        if msg.get("method") == "job.progress" and msg["params"]["job"] == job:
+            p = msg["params"]
+            # (the last point once: a repeated 100 % would add time, not points)
+            if 0 < p["done"] < p["total"] or \
+                    (p["done"] == p["total"] and (not marks or marks[-1][1] != p["total"])):
+                marks.append((time.monotonic(), p["done"]))
+        if msg.get("method") == "job.state" and msg["params"]["job"] == job and \
+                msg["params"]["state"] in ("completed", "failed", "cancelled"):
+            break
+    c.call("events.unsubscribe")
+    (t0, d0), (t1, d1) = marks[0], marks[-1]
+    return (d1 - d0) / (t1 - t0)
+
+
 # time_factor 0.35 of a 20 kHz probe on a fast stage: about 20,000 points/s here.
 inst = {"name": "mock", "stage": {"driver": "mock", "options": {"time_factor": 0.35, "speed": 2000}},
         "probe": {"driver": "mock", "options": {"time_factor": 0.35, "rate": 20000}}}
