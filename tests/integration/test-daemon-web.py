@@ -219,7 +219,10 @@ try:
     r, body = Web(port).login(tokens["operator"])
     expect(r.status == 401 and "revoked" in body.get("error", ""), f"a revoked token: 401 {body}")
     admin.close()
-    expect(d.stop() == 0, "asphd stops cleanly")
+    rc = d.stop()
+    expect(rc == 0, f"asphd stops cleanly ({rc})")
+    if rc != 0:
+        print(d.log_text()[-6000:])
 except Exception:
     print(d.log_text())
     raise
