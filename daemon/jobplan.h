@@ -13,15 +13,18 @@
 #include "asph/fit.h"
 #include "asph/plan.h"
 #include "asph/prescription.h"
+#include "asph/tolerance.h"
 
 struct job_plan {
 	struct asph_prescription prescription;
 	struct asph_surface *surface;
 	struct asph_plan *plan;
-	struct asph_fit_options fit;
+	struct asph_fit_options fit;   /* .tolerance: &tolerance when the job has one */
+	struct asph_tolerance tolerance;
 	char *prescription_json;
 	char *plan_json;        /* method, density, spacing, points */
 	char *fit_json;
+	char *tolerance_json;   /* as submitted, or NULL */
 	char *lens_name;        /* or NULL */
 };
 

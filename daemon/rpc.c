@@ -365,8 +365,8 @@ static int m_daemon_status(struct call *c, json_t *params, json_t **result)
 
 static int m_job_submit(struct call *c, json_t *params, json_t **result)
 {
-	static const char *const names[] = { "lens", "plan", "fit", "instrument", "priority",
-					     "label", "part", "lot", "serial", NULL };
+	static const char *const names[] = { "lens", "plan", "fit", "tolerance", "instrument",
+					     "priority", "label", "part", "lot", "serial", NULL };
 	struct job_submission sub = { 0 };
 	struct job_actor who = actor(c);
 	_cleanup_(json_decrefp) json_t *spec = NULL;
