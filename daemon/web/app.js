@@ -231,6 +231,16 @@ $("submit-form").addEventListener("submit", async (e) => {
   }
   params.fit = { dof: f.get("dof"), residual: f.get("residual"), robust: f.get("robust") === "on" };
   if (f.get("zernike")) params.fit.zernike = Number(f.get("zernike"));
+  const tol = f.get("tolerance").trim();
+  if (tol) {
+    // a call-out as text, or the whole tolerance as JSON (docs/characterization.md)
+    try {
+      params.tolerance = tol.startsWith("{") ? JSON.parse(tol) : tol;
+    } catch (err) {
+      $("submit-error").textContent = `tolerance: not JSON: ${err.message}`;
+      return;
+    }
+  }
   for (const k of ["label", "part", "lot", "serial", "instrument"]) if (f.get(k)) params[k] = f.get(k);
   if (f.get("priority")) params.priority = Number(f.get("priority"));
   $("submit-error").textContent = "";

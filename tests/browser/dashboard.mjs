@@ -70,6 +70,7 @@ try {
   await page.type("#submit-form input[name=part]", "AS-7");
   await page.type("#submit-form input[name=lot]", "L-9");
   await page.type("#submit-form input[name=serial]", "0001");
+  await page.type("#submit-form input[name=tolerance]", "3/2(0.5/0.3)");
   await page.click("#submit-form button[type=submit]");
   await page.waitForFunction(() => document.querySelector("#submit-form").dataset.lastJob);
   const job = Number(await page.$eval("#submit-form", (e) => e.dataset.lastJob));
@@ -97,6 +98,9 @@ try {
   ok(points === 2000 && points > pausedAt, `the map holds all 2000 points (${pausedAt} when paused)`);
   const verdict = await page.$eval("#verdict", (e) => e.textContent);
   ok(verdict.includes("RMS (nm)") && verdict.includes("2000 of 2000"), "the result's table");
+  const decision = await page.$eval("#result", (e) => [...e.querySelectorAll("h3")].map((h) => h.textContent).find((t) => t.startsWith("Verdict")));
+  const items = await page.$$eval("#tolerances tbody tr", (rows) => rows.length);
+  ok(/^Verdict: (pass|fail|undecided)$/.test(decision || "") && items >= 1, `the verdict and its table (${decision}, ${items} rows)`);
   ok(await page.$eval("img.residual-map", (e) => e.complete && e.naturalWidth > 0), "the residual map is drawn");
   await page.waitForFunction(() => document.querySelectorAll("#result svg.chart").length === 2);
   const bars = await page.$$eval("#result svg.chart", (s) => [s[0].querySelectorAll("rect").length, s[1].querySelector("path").getAttribute("d").split("M").length - 1]);
