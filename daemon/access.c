@@ -1,5 +1,5 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
-/* Event loop thread: the operator group and the TCP token. */
+/* Event loop thread: the operator group, the TCP tokens, the roles. */
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
@@ -12,8 +12,10 @@
 
 #include "access.h"
 #include "account.h"
+#include "log.h"
 #include "sha256.h"
 #include "util-mem.h"
+#include "util-time.h"
 
 /* The name of the one credential there is today. */
 #define TOKEN_FILE_CREDENTIAL "token_file"
@@ -21,8 +23,9 @@
 struct access {
 	bool have_operator_group;
 	gid_t operator_gid;
-	char *token;            /* TCP token, or NULL */
+	char *token;            /* token_file's, or NULL */
 	uint8_t token_digest[32];
+	const struct tokens *tokens;    /* the named ones, or NULL */
 };
 
 struct loader {
@@ -30,6 +33,7 @@ struct loader {
 	settings_error_fn report;
 	void *data;
 	int n_errors;
+	bool deprecated;        /* token_file is used */
 };
 
 static void complain(struct loader *ld, const char *field, int code, const char *fmt, ...)
@@ -142,6 +146,8 @@ static void load_token(struct loader *ld, struct access *a)
 	else
 		digest_of(a->token, a->token_digest);
 	explicit_bzero(buf, sizeof(buf));
+	if (a->token && ld->report)
+		ld->deprecated = true;
 }
 
 int access_load(const struct settings *s, struct access **out, settings_error_fn report,
@@ -158,8 +164,17 @@ int access_load(const struct settings *s, struct access **out, settings_error_fn
 		access_free(a);
 		return -EINVAL;
 	}
+	if (ld.deprecated)
+		log_warning("token_file is deprecated: its token is one admin token named "
+			    "\"token_file\"; make named tokens with `asphctl token create NAME "
+			    "--role ROLE` and remove token_file");
 	*out = a;
 	return 0;
+}
+
+void access_set_tokens(struct access *a, const struct tokens *t)
+{
+	a->tokens = t;
 }
 
 void access_free(struct access *a)
@@ -173,13 +188,8 @@ void access_free(struct access *a)
 	free(a);
 }
 
-bool access_is_operator(const struct access *a, const struct peer *p,
-			const struct access_grant *g)
+static bool in_operator_group(const struct access *a, const struct peer *p)
 {
-	if (p->tcp)
-		return g && g->valid && g->operator && access_grant_current(a, g);
-	if (p->uid == 0)
-		return true;
 	if (!a->have_operator_group)
 		return false;
 	if (p->gid == a->operator_gid)
@@ -190,33 +200,63 @@ bool access_is_operator(const struct access *a, const struct peer *p,
 	return false;
 }
 
-/* Constant time in the configured token's length: every byte of it is
- * compared whatever the client sent. */
-static bool token_equal(const char *mine, const char *theirs)
+enum access_role access_role_of(const struct access *a, const struct peer *p,
+				const struct access_grant *g)
 {
-	size_t n = strlen(mine), m = strlen(theirs);
-	unsigned diff = (unsigned)(n != m);
+	if (p->tcp)
+		return g && g->valid && access_grant_current(a, g) ? g->role : ROLE_NONE;
+	if (p->uid == 0)
+		return ROLE_ADMIN;
+	return in_operator_group(a, p) ? ROLE_OPERATOR : ROLE_VIEWER;
+}
 
-	for (size_t i = 0; i < n; i++)
-		diff |= (unsigned)(mine[i] ^ (i < m ? theirs[i] : 0));
-	return !diff;
+bool access_is_operator(const struct access *a, const struct peer *p,
+			const struct access_grant *g)
+{
+	return access_role_of(a, p, g) >= ROLE_OPERATOR;
 }
 
 int access_authenticate(const struct access *a, const char *token, struct access_grant *g)
 {
+	static const uint8_t none[32];
+	struct token_info named;
+	uint8_t digest[32];
+	bool file_match;
+	int r;
+
 	*g = (struct access_grant){ 0 };
-	if (!a->token || !token || !token_equal(a->token, token))
+	if (!token)
 		return -EACCES;
-	*g = (struct access_grant){ .valid = true, .operator = true };
-	snprintf(g->credential, sizeof(g->credential), "%s", TOKEN_FILE_CREDENTIAL);
-	memcpy(g->digest, a->token_digest, sizeof(g->digest));
+	/* Both comparisons run, each over whole digests (tokens_match()). */
+	digest_of(token, digest);
+	file_match = tokens_digest_equal(a->token ? a->token_digest : none, digest) && a->token;
+	r = a->tokens ? tokens_match(a->tokens, digest, &named) : -ENOENT;
+	if (file_match) {
+		*g = (struct access_grant){ .valid = true, .role = ROLE_ADMIN, .token_file = true };
+		snprintf(g->credential, sizeof(g->credential), "%s", TOKEN_FILE_CREDENTIAL);
+	} else if (r == 0) {
+		snprintf(g->credential, sizeof(g->credential), "%s", named.name);
+		if (named.revoked_ns)
+			return -EKEYREVOKED;
+		if (named.expires_ns && named.expires_ns <= now_realtime_ns())
+			return -EKEYEXPIRED;
+		*g = (struct access_grant){ .valid = true, .role = named.role };
+		snprintf(g->credential, sizeof(g->credential), "%s", named.name);
+	} else {
+		return -EACCES;
+	}
+	memcpy(g->digest, digest, sizeof(g->digest));
 	return 0;
 }
 
 bool access_grant_current(const struct access *a, const struct access_grant *g)
 {
-	return g->valid && a->token && !strcmp(g->credential, TOKEN_FILE_CREDENTIAL) &&
-	       !memcmp(g->digest, a->token_digest, sizeof(g->digest));
+	if (!g->valid)
+		return false;
+	if (g->token_file)
+		return a->token && tokens_digest_equal(g->digest, a->token_digest);
+	return a->tokens && tokens_current(a->tokens, g->credential, g->digest,
+					    now_realtime_ns());
 }
 
 bool access_has_token(const struct access *a)

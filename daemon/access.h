@@ -4,9 +4,9 @@
  * socket) or the transport (TCP) tells who it is. root and the members of
  * the operator group operate over the unix socket, with the groups the
  * kernel gave the peer when it connected; over TCP a peer operates with
- * what it proved in "hello": a grant for a credential (today the one token
- * of token_file; the named tokens of a later version are more
- * credentials, each with its role). A grant records which credential and
+ * what it proved in "hello": a grant for a credential (a named token of
+ * tokens.h with its role, or the deprecated token of token_file, an
+ * admin). A grant records which credential and
  * which secret it was, so that a rotated or removed token ends the
  * sessions that presented the old one. access_load() reads what this
  * needs from the settings (the operator group, the token file) and is the
@@ -22,6 +22,7 @@
 
 #include "ratelimit.h"
 #include "settings.h"
+#include "tokens.h"
 
 /* The shortest token a token file may hold, and the least strength
  * (access_token_strength()) it must have. */
@@ -44,8 +45,9 @@ struct peer {
 /* What a TCP peer proved with hello. */
 struct access_grant {
 	bool valid;
-	bool operator;                  /* the credential's role */
-	char credential[64];            /* its name: "token_file" */
+	enum access_role role;          /* the credential's */
+	bool token_file;                /* the deprecated token of token_file */
+	char credential[TOKENS_NAME_MAX + 1];   /* its name: a token's, "token_file" */
 	uint8_t digest[32];             /* SHA-256 of the secret presented */
 };
 
@@ -62,20 +64,34 @@ int access_load(const struct settings *s, struct access **out, settings_error_fn
 		void *data);
 void access_free(struct access *a);
 
-/* Whether p may call the mutating methods; g: what a TCP peer proved
- * (NULL or not valid: nothing). */
+/* The named tokens (they outlive a reload of the configuration: the
+ * same tokens are given to each new struct access). May be NULL. */
+void access_set_tokens(struct access *a, const struct tokens *t);
+
+/*
+ * What p may do: over the unix socket root is an admin, a member of the
+ * operator group an operator, everyone else a viewer; over TCP the role of
+ * the token it proved in hello (g; NULL or not valid: none), while that
+ * token stands.
+ */
+enum access_role access_role_of(const struct access *a, const struct peer *p,
+				const struct access_grant *g);
+/* Whether p may call the mutating methods (an operator or an admin). */
 bool access_is_operator(const struct access *a, const struct peer *p,
 			const struct access_grant *g);
 
 /*
- * Checks token against the credentials, in time that does not depend on
- * where they differ: 0 with *g filled, or -EACCES (no such token, or no
- * token configured).
+ * Checks token against every credential (the token file's and the named
+ * tokens): its SHA-256 is compared in full with each of theirs, whether
+ * or not one matched, so the time does not depend on which matches or
+ * where they differ. 0 with *g filled, -EACCES (no such token), -EKEYEXPIRED
+ * or -EKEYREVOKED (g names the token).
  */
 int access_authenticate(const struct access *a, const char *token, struct access_grant *g);
-/* Whether g still stands: its credential exists with the same secret. */
+/* Whether g still stands: its credential exists with the same secret,
+ * not revoked and not expired. */
 bool access_grant_current(const struct access *a, const struct access_grant *g);
-/* Whether a TCP token is configured at all. */
+/* Whether the deprecated token_file is configured. */
 bool access_has_token(const struct access *a);
 
 /*

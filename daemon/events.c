@@ -6,6 +6,7 @@
 #include <string.h>
 
 #include "events.h"
+#include "instruments.h"
 #include "util-mem.h"
 
 const char *const event_class_names[] = { "job", "progress", "instrument", "queue", NULL };
@@ -170,6 +171,16 @@ void events_instrument_fault(struct events *e, const char *instrument, int64_t i
 	notify(e, EVENT_INSTRUMENT, 0, "instrument.fault",
 	       json_pack("{s:s, s:I, s:s}", "instrument", instrument, "job", (json_int_t)id,
 			 "reason", reason));
+}
+
+void events_instrument_lock(struct events *e, const char *instrument,
+			    const struct instrument_lock *lock)
+{
+	if (!wanted(e, EVENT_INSTRUMENT))
+		return;
+	notify(e, EVENT_INSTRUMENT, 0, "instrument.lock",
+	       json_pack("{s:s, s:o}", "instrument", instrument,
+			 "lock", instrument_lock_to_json(lock)));
 }
 
 void events_queue_state(struct events *e, bool running)

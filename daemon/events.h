@@ -29,7 +29,7 @@
 enum event_class {
 	EVENT_JOB = 1u << 0,            /* job.state */
 	EVENT_PROGRESS = 1u << 1,       /* job.progress */
-	EVENT_INSTRUMENT = 1u << 2,     /* instrument.fault */
+	EVENT_INSTRUMENT = 1u << 2,     /* instrument.fault, instrument.lock */
 	EVENT_QUEUE = 1u << 3,          /* queue.state */
 };
 #define EVENT_ALL (EVENT_JOB | EVENT_PROGRESS | EVENT_INSTRUMENT | EVENT_QUEUE)
@@ -80,6 +80,10 @@ void events_job_progress(struct events *e, int64_t id, const char *instrument, i
 /* instrument.fault: a driver fault on instrument ended job id. */
 void events_instrument_fault(struct events *e, const char *instrument, int64_t id,
 			     const char *reason);
+/* instrument.lock: instrument was locked (lock) or unlocked (NULL). */
+struct instrument_lock;
+void events_instrument_lock(struct events *e, const char *instrument,
+			    const struct instrument_lock *lock);
 /* queue.state: the queue was started or stopped. */
 void events_queue_state(struct events *e, bool running);
 

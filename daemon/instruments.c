@@ -6,6 +6,7 @@
 
 #include "asph/instrument.h"
 #include "instruments.h"
+#include "util-time.h"
 #include "log.h"
 #include "util-mem.h"
 
@@ -132,12 +133,25 @@ json_t *instrument_to_json(const struct instrument *in, const struct instrument_
 		return NULL;
 	json_object_set_new(o, "job", a->job ? json_integer(a->job) : json_null());
 	json_object_set_new(o, "fault", a->fault ? json_string(a->fault) : json_null());
+	json_object_set_new(o, "lock", instrument_lock_to_json(a->lock));
 	if (a->job)
 		json_object_set_new(o, "progress",
 				    json_pack("{s:I, s:I, s:f, s:f}", "done", (json_int_t)a->done,
 					      "total", (json_int_t)a->total, "rate", a->rate,
 					      "eta_s", a->eta_s));
 	return o;
+}
+
+json_t *instrument_lock_to_json(const struct instrument_lock *l)
+{
+	char since[ISO8601_SIZE];
+
+	if (!l)
+		return json_null();
+	iso8601_utc(l->since_ns, 0, since, sizeof(since));
+	return json_pack("{s:s, s:I, s:s, s:s, s:b}", "holder", l->holder,
+			 "uid", (json_int_t)l->holder_uid, "reason", l->reason, "since", since,
+			 "pause", l->pause);
 }
 
 /* The registry as asph drivers --json describes it (drivers/describe.c). */

@@ -25,6 +25,20 @@ struct instrument {
 	const struct asph_instrument_config *config;
 };
 
+/* An operator's lock on an instrument (instrument.lock). */
+struct instrument_lock {
+	char *holder;           /* the user or token name */
+	int64_t holder_uid;     /* -1 over TCP */
+	char *reason;
+	int64_t since_ns;
+	bool pause;             /* its running job pauses while it holds */
+	int64_t paused_job;     /* the job it paused, 0: none */
+};
+
+/* The lock as the protocol shows it: holder, uid, reason, since, pause;
+ * null when l is NULL. */
+json_t *instrument_lock_to_json(const struct instrument_lock *l);
+
 /* What an instrument is doing: written by the job queue (jobs.c). */
 struct instrument_activity {
 	int64_t job;            /* running or paused job, 0 if none */
@@ -33,6 +47,7 @@ struct instrument_activity {
 	int64_t done, total;    /* live progress of that job */
 	double rate, eta_s;
 	const char *fault;      /* the last driver fault, or NULL */
+	const struct instrument_lock *lock;     /* NULL: not locked */
 };
 
 struct instruments;

@@ -33,6 +33,7 @@ struct slot {
 	char *fault;                    /* act.fault */
 	uint64_t last_progress_store_ns;
 	bool cancel;                    /* its job's cancel was accepted */
+	struct instrument_lock lock;    /* act.lock points here when locked */
 };
 
 struct jobs {
@@ -110,6 +111,88 @@ static int start_workers(struct jobs *jobs, const struct instruments *ins,
 	return 0;
 }
 
+/* ------------------------------------------------------------ locks */
+
+static void lock_release(struct slot *sl)
+{
+	free(sl->lock.holder);
+	free(sl->lock.reason);
+	sl->lock = (struct instrument_lock){ 0 };
+	sl->act.lock = NULL;
+}
+
+static int lock_take(struct slot *sl, const struct store_lock *l)
+{
+	struct instrument_lock lk = {
+		.holder = strdup(l->holder), .holder_uid = l->holder_uid,
+		.reason = strdup(l->reason), .since_ns = l->since_ns, .pause = l->pause,
+		.paused_job = l->paused_job,
+	};
+
+	if (!lk.holder || !lk.reason) {
+		free(lk.holder);
+		free(lk.reason);
+		return -ENOMEM;
+	}
+	lock_release(sl);
+	sl->lock = lk;
+	sl->act.lock = &sl->lock;
+	return 0;
+}
+
+static struct slot *slot_of_instrument(struct jobs *jobs, const char *name)
+{
+	for (size_t i = 0; i < jobs->n_slots; i++)
+		if (!strcmp(jobs->slots[i].in->name, name))
+			return &jobs->slots[i];
+	return NULL;
+}
+
+static int restore_lock(const struct store_lock *l, void *data)
+{
+	struct jobs *jobs = data;
+	struct slot *sl = slot_of_instrument(jobs, l->instrument);
+
+	if (!sl) {
+		log_warning("a lock on instrument %s, which is no longer configured, is ignored",
+			    l->instrument);
+		return 0;
+	}
+	log_notice("instrument %s is locked by %s since the last run: %s", l->instrument,
+		   l->holder, l->reason);
+	return lock_take(sl, l);
+}
+
+/* The locks outlive a restart. */
+static int load_locks(struct jobs *jobs, struct asph_error *err)
+{
+	int r = store_lock_list(jobs->store, restore_lock, jobs);
+
+	return r < 0 ? asph_error_set(err, r, "cannot read the instrument locks: %s",
+				      strerror(-r)) : 0;
+}
+
+static bool lock_held_by(const struct instrument_lock *l, const struct job_actor *who)
+{
+	return who && l->holder_uid == who->uid && !strcmp(l->holder, who->name);
+}
+
+/* -EBUSY when sl is locked by someone other than who: err says by whom and
+ * why, its field names the instrument. */
+static int check_lock(const struct slot *sl, const struct job_actor *who,
+		      struct asph_error *err)
+{
+	char since[ISO8601_SIZE];
+
+	if (!sl || !sl->act.lock || lock_held_by(&sl->lock, who))
+		return 0;
+	iso8601_utc(sl->lock.since_ns, 0, since, sizeof(since));
+	asph_error_set(err, -EBUSY, "instrument %s is locked by %s since %s: %s",
+		       sl->in->name, sl->lock.holder, since, sl->lock.reason);
+	asph_error_locate(err, NULL, 0, 0, sl->in->name);
+	return -EBUSY;
+}
+
 int jobs_new(const struct jobs_setup *setup, struct jobs **out, struct asph_error *err)
 {
 	struct jobs *jobs = calloc(1, sizeof(*jobs));
@@ -127,6 +210,8 @@ int jobs_new(const struct jobs_setup *setup, struct jobs **out, struct asph_erro
 		r = open_store(jobs, err);
 	if (r == 0)
 		r = start_workers(jobs, setup->instruments, err);
+	if (r == 0)
+		r = load_locks(jobs, err);
 	if (r == 0 && sd_event_add_time(jobs->event, &jobs->retry, CLOCK_MONOTONIC, UINT64_MAX,
 					0, retry_schedule, jobs) < 0)
 		r = asph_error_set(err, -ENOMEM, "out of memory");
@@ -145,6 +230,7 @@ void jobs_free(struct jobs *jobs)
 	for (size_t i = 0; i < jobs->n_slots; i++) {
 		runner_free(jobs->slots[i].runner);
 		free(jobs->slots[i].fault);
+		lock_release(&jobs->slots[i]);
 	}
 	free(jobs->slots);
 	sd_event_source_disable_unref(jobs->retry);
@@ -167,10 +253,7 @@ static struct slot *slot_of_job(struct jobs *jobs, int64_t id)
 
 static const struct slot *slot_of_instrument_name(const struct jobs *jobs, const char *name)
 {
-	for (size_t i = 0; i < jobs->n_slots; i++)
-		if (!strcmp(jobs->slots[i].in->name, name))
-			return &jobs->slots[i];
-	return NULL;
+	return slot_of_instrument((struct jobs *)jobs, name);
 }
 
 static const struct slot *slot_of_job_const(const struct jobs *jobs, int64_t id)
@@ -224,14 +307,15 @@ struct transition {
 	const struct job_record *j;
 	enum job_state state;
 	const char *reason;
-	int64_t actor;
+	const struct job_actor *who;    /* NULL: the daemon */
 };
 
 static int write_transition(struct store *s, const void *arg)
 {
 	const struct transition *t = arg;
 
-	return store_transition(s, t->j, t->state, t->reason, t->actor, now_realtime_ns());
+	return store_transition(s, t->j, t->state, t->reason, t->who ? t->who->uid : 0,
+				t->who ? t->who->name : NULL, now_realtime_ns());
 }
 
 /* The overall verdict of a completed job's result ("pass", "fail",
@@ -258,9 +342,9 @@ static const char *job_verdict(const struct job_record *j, char buf[16])
  * watchers. reason may be NULL.
  */
 static int transition(struct jobs *jobs, struct job_record *j, enum job_state s,
-		      const char *reason, int64_t actor, struct asph_error *err)
+		      const char *reason, const struct job_actor *who, struct asph_error *err)
 {
-	struct transition t = { .j = j, .state = s, .reason = reason, .actor = actor };
+	struct transition t = { .j = j, .state = s, .reason = reason, .who = who };
 	enum job_state old = j->state;
 	char what[64], verdict[16];
 	int r;
@@ -281,8 +365,9 @@ static int transition(struct jobs *jobs, struct job_record *j, enum job_state s,
 		free(j->reason);
 		j->reason = reason ? strdup(reason) : NULL;
 	}
-	log_job(s == JOB_FAILED ? LOG_WARNING : LOG_INFO, j->id, "%s -> %s%s%s",
-		job_state_name(old), job_state_name(s), reason ? ": " : "", reason ? reason : "");
+	log_job(s == JOB_FAILED ? LOG_WARNING : LOG_INFO, j->id, "%s -> %s%s%s%s%s",
+		job_state_name(old), job_state_name(s), reason ? ": " : "", reason ? reason : "",
+		who ? " by " : "", who ? who->name : "");
 	events_job_state(jobs->events, j->id, s, (int)old, reason, j->instrument,
 			 s == JOB_COMPLETED ? job_verdict(j, verdict) : NULL);
 	return 0;
@@ -368,7 +453,7 @@ static int fail_to_start(struct jobs *jobs, struct job_record *j, const char *re
 
 	log_job(LOG_ERR, j->id, "%s", reason);
 	j->finished_ns = now_realtime_ns();
-	r = transition(jobs, j, JOB_FAILED, reason, 0, NULL);
+	r = transition(jobs, j, JOB_FAILED, reason, NULL, NULL);
 	return r < 0 ? r : 1;
 }
 
@@ -451,7 +536,7 @@ static int start_job(struct jobs *jobs, struct slot *sl, struct job_record *j)
 	}
 	log_job(LOG_INFO, j->id, "starting on %s (attempt %" PRId64 "%s)", sl->in->name,
 		j->attempts, rj->resume ? ", resuming the recorded scan" : "");
-	return transition(jobs, j, JOB_RUNNING, NULL, 0, NULL);
+	return transition(jobs, j, JOB_RUNNING, NULL, NULL, NULL);
 }
 
 /*
@@ -464,7 +549,8 @@ static bool schedule_slot(struct jobs *jobs, struct slot *sl)
 {
 	int64_t tries = jobs->counts[JOB_QUEUED];
 
-	while (!sl->act.job && !runner_busy(sl->runner) && tries-- > 0) {
+	/* No job starts on a locked instrument. */
+	while (!sl->act.lock && !sl->act.job && !runner_busy(sl->runner) && tries-- > 0) {
 		struct job_record j;
 		int r = store_next(jobs->store, sl->in->name, &j);
 
@@ -597,7 +683,7 @@ static void job_done(struct slot *sl, const struct runner_report *rep)
 					: "the queue was stopped";
 		break;
 	}
-	transition(jobs, &j, next, reason, 0, NULL);
+	transition(jobs, &j, next, reason, NULL, NULL);
 	job_record_clear(&j);
 	if (jobs->stopping) {
 		if (!any_running(jobs) && jobs->stopped)
@@ -672,10 +758,13 @@ int jobs_submit(struct jobs *jobs, const struct job_submission *sub,
 		.state = JOB_QUEUED, .priority = sub->priority, .label = (char *)sub->label,
 		.instrument = (char *)instrument, .uid = who->uid, .user = (char *)who->name,
 		.spec = (char *)sub->spec, .points_total = sub->points,
+		.part = (char *)sub->part, .lot = (char *)sub->lot, .serial = (char *)sub->serial,
 	};
 	char why[320];
 	int r = jobs_check_submit(jobs, instrument, err);
 
+	if (r == 0)
+		r = check_lock(slot_of_instrument_name(jobs, instrument), who, err);
 	if (r < 0)
 		return r;
 	if (check_room(jobs, sub->points, why, sizeof(why)) < 0)
@@ -701,11 +790,14 @@ int jobs_cancel(struct jobs *jobs, int64_t id, const struct job_actor *who,
 
 	if (r < 0)
 		return r;
+	r = check_lock(slot_of_instrument(jobs, j.instrument), who, err);
+	if (r < 0)
+		return hand_over(&j, r, out);
 	switch (j.state) {
 	case JOB_QUEUED:
 	case JOB_INTERRUPTED:
 		j.finished_ns = now_realtime_ns();
-		r = transition(jobs, &j, JOB_CANCELLED, NULL, who->uid, err);
+		r = transition(jobs, &j, JOB_CANCELLED, NULL, who, err);
 		break;
 	case JOB_RUNNING:
 	case JOB_PAUSED:
@@ -731,15 +823,15 @@ static int requeue(struct jobs *jobs, struct job_record *j, bool restart,
 	if (restart)
 		j->resume = false;
 	j->finished_ns = 0;
-	return transition(jobs, j, JOB_QUEUED, NULL, who->uid, err);
+	return transition(jobs, j, JOB_QUEUED, NULL, who, err);
 }
 
 /* running <-> paused: recorded first, then the worker is told, so that a
  * change the store cannot keep does not happen. */
 static int set_paused(struct jobs *jobs, struct job_record *j, struct slot *sl, bool pause,
-		      const struct job_actor *who, struct asph_error *err)
+		      const char *reason, const struct job_actor *who, struct asph_error *err)
 {
-	int r = transition(jobs, j, pause ? JOB_PAUSED : JOB_RUNNING, NULL, who->uid, err);
+	int r = transition(jobs, j, pause ? JOB_PAUSED : JOB_RUNNING, reason, who, err);
 
 	if (r < 0)
 		return r;
@@ -763,9 +855,12 @@ static int pause_or_resume(struct jobs *jobs, int64_t id, bool pause,
 
 	if (r < 0)
 		return r;
+	r = check_lock(slot_of_instrument(jobs, j.instrument), who, err);
+	if (r < 0)
+		return hand_over(&j, r, out);
 	sl = slot_of_job(jobs, j.id);
 	if (sl && j.state == (pause ? JOB_RUNNING : JOB_PAUSED))
-		r = set_paused(jobs, &j, sl, pause, who, err);
+		r = set_paused(jobs, &j, sl, pause, NULL, who, err);
 	else if (!pause && j.state == JOB_INTERRUPTED)
 		r = requeue(jobs, &j, false, who, err);
 	else
@@ -795,6 +890,9 @@ int jobs_requeue(struct jobs *jobs, int64_t id, bool restart, const struct job_a
 
 	if (r < 0)
 		return r;
+	r = check_lock(slot_of_instrument(jobs, j.instrument), who, err);
+	if (r < 0)
+		return hand_over(&j, r, out);
 	if (j.state != JOB_FAILED && j.state != JOB_INTERRUPTED && j.state != JOB_CANCELLED &&
 	    !(j.state == JOB_COMPLETED && restart))
 		r = refuse_state(&j, j.state == JOB_COMPLETED ? " (re-queue it with restart)" : "",
@@ -878,6 +976,9 @@ int jobs_move(struct jobs *jobs, int64_t id, int64_t position, const struct job_
 
 	if (r < 0)
 		return r;
+	r = check_lock(slot_of_instrument(jobs, j.instrument), who, err);
+	if (r < 0)
+		goto out;
 	if (j.state != JOB_QUEUED) {
 		r = refuse_state(&j, ", not queued", err);
 		goto out;
@@ -943,6 +1044,136 @@ int jobs_queue_stop(struct jobs *jobs, bool abort, const struct job_actor *who,
 	return 0;
 }
 
+/* A lock that asks for it pauses the running job of sl (not one whose
+ * points are all recorded): 1 when it did. */
+static int pause_for_lock(struct jobs *jobs, struct slot *sl, const struct job_actor *who,
+			  struct asph_error *err)
+{
+	char reason[600];
+	struct job_record j;
+	int r;
+
+	if (!sl->act.job || sl->act.paused || sl->act.characterizing)
+		return 0;
+	r = load(jobs, sl->act.job, &j, err);
+	if (r < 0)
+		return r;
+	snprintf(reason, sizeof(reason), "instrument %s locked by %s: %s", sl->in->name,
+		 who->name, sl->lock.reason);
+	r = j.state == JOB_RUNNING ? set_paused(jobs, &j, sl, true, reason, who, err) : 0;
+	if (r == 0 && j.state == JOB_PAUSED)
+		r = 1;
+	job_record_clear(&j);
+	return r;
+}
+
+static int write_lock(struct jobs *jobs, struct slot *sl, struct asph_error *err)
+{
+	struct store_lock l = {
+		.instrument = sl->in->name, .holder = sl->lock.holder,
+		.holder_uid = sl->lock.holder_uid, .reason = sl->lock.reason,
+		.since_ns = sl->lock.since_ns, .pause = sl->lock.pause,
+		.paused_job = sl->lock.paused_job,
+	};
+	int r = store_lock_set(jobs->store, &l);
+
+	return r < 0 ? asph_error_set(err, r, "cannot record the lock of %s: %s", sl->in->name,
+				      strerror(-r)) : 0;
+}
+
+int jobs_lock(struct jobs *jobs, const char *instrument, const char *reason, bool pause,
+	      const struct job_actor *who, struct asph_error *err)
+{
+	struct slot *sl = slot_of_instrument(jobs, instrument);
+	bool renewed;
+	struct store_lock l = {
+		.instrument = instrument, .holder = who->name, .holder_uid = who->uid,
+		.reason = reason, .since_ns = now_realtime_ns(), .pause = pause,
+	};
+	int r;
+
+	if (!sl)
+		return asph_error_set(err, -ENODEV, "no instrument \"%s\"", instrument);
+	r = check_lock(sl, who, err);
+	if (r < 0)
+		return r;
+	renewed = sl->act.lock != NULL;
+	if (renewed) {
+		/* The holder changes the reason or the pause: the lock keeps its start. */
+		l.since_ns = sl->lock.since_ns;
+		l.paused_job = sl->lock.paused_job;
+	}
+	r = lock_take(sl, &l);
+	if (r < 0)
+		return asph_error_set(err, r, "out of memory");
+	r = write_lock(jobs, sl, err);
+	if (r < 0) {
+		lock_release(sl);
+		return r;
+	}
+	log_notice("instrument %s %slocked by %s%s: %s", instrument, renewed ? "re-" : "",
+		   who->name, pause ? " (pausing its job)" : "", reason);
+	if (pause) {
+		int64_t job = sl->act.job;
+		r = pause_for_lock(jobs, sl, who, err);
+		if (r < 0)
+			return r;
+		if (r > 0 && sl->lock.paused_job != job) {
+			sl->lock.paused_job = job;
+			write_lock(jobs, sl, NULL);
+		}
+	}
+	events_instrument_lock(jobs->events, instrument, &sl->lock);
+	return 0;
+}
+
+/* The job a lock paused runs again when the lock goes, if it still waits. */
+static void resume_after_lock(struct jobs *jobs, struct slot *sl, int64_t id,
+			      const struct job_actor *who)
+{
+	struct job_record j;
+
+	if (!id || sl->act.job != id || !sl->act.paused || load(jobs, id, &j, NULL) < 0)
+		return;
+	if (j.state == JOB_PAUSED)
+		set_paused(jobs, &j, sl, false, NULL, who, NULL);
+	job_record_clear(&j);
+}
+
+int jobs_unlock(struct jobs *jobs, const char *instrument, bool force,
+		const struct job_actor *who, struct asph_error *err)
+{
+	struct slot *sl = slot_of_instrument(jobs, instrument);
+	int64_t paused;
+	int r;
+
+	if (!sl)
+		return asph_error_set(err, -ENODEV, "no instrument \"%s\"", instrument);
+	if (!sl->act.lock)
+		return asph_error_set(err, -EINVAL, "instrument %s is not locked", instrument);
+	if (!force && (r = check_lock(sl, who, err)) < 0)
+		return r;
+	r = store_lock_clear(jobs->store, instrument);
+	if (r < 0)
+		return asph_error_set(err, r, "cannot record the end of the lock of %s: %s",
+				      instrument, strerror(-r));
+	log_notice("instrument %s unlocked by %s%s (locked by %s: %s)", instrument, who->name,
+		   lock_held_by(&sl->lock, who) ? "" : ", forced", sl->lock.holder, sl->lock.reason);
+	paused = sl->lock.paused_job;
+	lock_release(sl);
+	events_instrument_lock(jobs->events, instrument, NULL);
+	resume_after_lock(jobs, sl, paused, who);
+	jobs_schedule(jobs);
+	return 0;
+}
+
+const struct instrument_lock *jobs_lock_of(const struct jobs *jobs, const char *instrument)
+{
+	const struct slot *sl = slot_of_instrument_name(jobs, instrument);
+
+	return sl ? sl->act.lock : NULL;
+}
+
 /* ---------------------------------------------------------- reading */
 
 int jobs_get(struct jobs *jobs, int64_t id, struct job_record *out, struct asph_error *err)
@@ -1001,7 +1232,7 @@ json_t *jobs_job_to_json(const struct jobs *jobs, const struct job_record *j)
 	char verdict[16];
 
 	return json_pack("{s:I, s:s, s:s?, s:s, s:I, s:{s:I, s:s?}, s:O?, s:O?, s:O?, s:O?, s:s?,"
-			 " s:o, s:o, s:o, s:{s:I, s:I, s:f, s:f}, s:s?, s:I, s:b}",
+			 " s:o, s:o, s:o, s:{s:I, s:I, s:f, s:f}, s:s?, s:I, s:b, s:s?, s:s?, s:s?}",
 		"id", (json_int_t)j->id,
 		"state", job_state_name(j->state),
 		"label", j->label,
@@ -1020,7 +1251,8 @@ json_t *jobs_job_to_json(const struct jobs *jobs, const struct job_record *j)
 		"rate", a ? a->rate : 0.0, "eta_s", a ? a->eta_s : -1.0,
 		"reason", j->reason,
 		"attempts", (json_int_t)j->attempts,
-		"resumable", j->resume);
+		"resumable", j->resume,
+		"part", j->part, "lot", j->lot, "serial", j->serial);
 }
 
 int jobs_result(struct jobs *jobs, int64_t id, json_t **out, struct asph_error *err)

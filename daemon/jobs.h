@@ -17,6 +17,7 @@
  *             limits.min_free_disk_mb
  *   -ENODATA  the job has no result
  *   -EPERM    a file that is not one of the job's result
+ *   -EBUSY    the instrument is locked by another (jobs_lock())
  *   -ENOMEM   out of memory
  *   -EIO, -ENOSPC, -EROFS, ...: the store could not be read or written
  *
@@ -71,6 +72,7 @@ struct job_submission {
 	const char *instrument; /* NULL: the first configured */
 	int64_t priority;
 	const char *label;      /* may be NULL */
+	const char *part, *lot, *serial;        /* what is measured; each may be NULL */
 };
 
 /* Whether a job for instrument (NULL: the first) would be taken now: the
@@ -110,6 +112,25 @@ int jobs_queue_start(struct jobs *jobs, const struct job_actor *who, struct asph
  * point and their jobs become interrupted. */
 int jobs_queue_stop(struct jobs *jobs, bool abort, const struct job_actor *who,
 		    struct asph_error *err);
+
+/*
+ * The operator lock of an instrument: no job starts on it, and the
+ * mutating calls of anyone but its holder (the same name and uid) on it or
+ * its jobs fail with -EBUSY (err names the holder, the reason and since
+ * when; err->field the instrument). With pause, its running job pauses at
+ * the next point. The holder may lock again to change the reason or the
+ * pause. The lock is kept in the store and outlives a restart.
+ *   -ENODEV  no such instrument
+ *   -EBUSY   locked by another
+ */
+int jobs_lock(struct jobs *jobs, const char *instrument, const char *reason, bool pause,
+	      const struct job_actor *who, struct asph_error *err);
+/* Ends the lock (force: whoever holds it); the job it paused runs again.
+ * -EINVAL when it is not locked, -EBUSY when another holds it. */
+int jobs_unlock(struct jobs *jobs, const char *instrument, bool force,
+		const struct job_actor *who, struct asph_error *err);
+/* The lock of instrument, or NULL. */
+const struct instrument_lock *jobs_lock_of(const struct jobs *jobs, const char *instrument);
 
 /* Starts the first queued job of every idle instrument. */
 void jobs_schedule(struct jobs *jobs);

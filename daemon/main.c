@@ -28,7 +28,10 @@
 #include "log.h"
 #include "rpc.h"
 #include "server.h"
+#include "web.h"
 #include "settings.h"
+#include "tokens.h"
+#include "util-time.h"
 #include "util-mem.h"
 
 /* Exit codes, documented in docs/asphd.8.md. */
@@ -52,6 +55,7 @@ struct daemon {
 	struct instruments *instruments;
 	struct access *access;
 	struct addrinfo *tcp;           /* tcp_listen's addresses */
+	struct addrinfo *http;          /* http_listen's addresses */
 
 	sd_event *event;
 	uint64_t started_usec;
@@ -59,6 +63,10 @@ struct daemon {
 	struct jobs *jobs;
 	struct rpc *rpc;
 	struct server *server;
+	struct web *web;                /* NULL without http_listen */
+	struct tokens *tokens;
+	sd_event_source *revalidate;    /* ends the sessions of revoked or expired tokens */
+	sd_event_source *token_expiry;  /* the next expiry of a token */
 	char status[128];               /* as systemd was last told */
 	bool stopping;
 	int exit_code;
@@ -75,18 +83,20 @@ static void report_config_error(const struct asph_error *err, void *data)
 
 /* --------------------------------------------------------- configuration */
 
-static int resolve_tcp(const struct settings *s, struct addrinfo **out,
-		       settings_error_fn report, void *data)
+/* The addresses of a listen setting (field: tcp_listen, http_listen). */
+static int resolve_listen(const struct settings *s, const char *field, const char *host,
+			  const char *port, struct addrinfo **out, settings_error_fn report,
+			  void *data)
 {
 	struct asph_error err;
 	int r;
 
-	if (!s->tcp_listen)
+	if (!host)
 		return 0;
 	asph_error_clear(&err);
-	r = server_resolve_tcp(s->tcp_host, s->tcp_port, out, &err);
+	r = server_resolve_tcp(host, port, out, &err);
 	if (r < 0) {
-		settings_locate(s, "tcp_listen", &err);
+		settings_locate(s, field, &err);
 		report(&err, data);
 	}
 	return r;
@@ -108,7 +118,10 @@ static int load_configuration(struct daemon *d)
 	if (instruments_load(d->settings, &d->instruments, &err) < 0)
 		report_config_error(&err, &n_errors);
 	access_load(d->settings, &d->access, report_config_error, &n_errors);
-	resolve_tcp(d->settings, &d->tcp, report_config_error, &n_errors);
+	resolve_listen(d->settings, "tcp_listen", d->settings->tcp_host, d->settings->tcp_port,
+		       &d->tcp, report_config_error, &n_errors);
+	resolve_listen(d->settings, "http_listen", d->settings->http_host,
+		       d->settings->http_port, &d->http, report_config_error, &n_errors);
 	return n_errors;
 }
 
@@ -117,6 +130,9 @@ static void unload_configuration(struct daemon *d)
 	if (d->tcp)
 		freeaddrinfo(d->tcp);
 	d->tcp = NULL;
+	if (d->http)
+		freeaddrinfo(d->http);
+	d->http = NULL;
 	access_free(d->access);
 	d->access = NULL;
 	instruments_free(d->instruments);
@@ -280,6 +296,10 @@ static void needs_restart(const struct daemon *d, const struct settings *next, c
 		append(why, size, "state_dir");
 	if (differ(next->instruments_json, now->instruments_json))
 		append(why, size, "instruments");
+	if (differ(next->http_listen, now->http_listen))
+		append(why, size, "http_listen");
+	if (differ(next->http_root, now->http_root))
+		append(why, size, "http_root");
 	if (server_check_reload(d->server, next, tcp, sizeof(tcp)) < 0)
 		append(why, size, tcp);
 }
@@ -317,11 +337,14 @@ static int on_reload(sd_event_source *s, const struct signalfd_siginfo *si, void
 		goto keep;
 	}
 	d->limits = next->limits;
+	access_set_tokens(access, d->tokens);
 	rpc_set_access(d->rpc, access);
 	access_free(d->access);
 	d->access = steal_ptr(access);
 	server_reload(d->server, next);
 	server_revalidate(d->server);
+	if (d->web)
+		web_revalidate(d->web);
 	settings_free(d->settings);
 	d->settings = steal_ptr(next);
 	log_info("configuration reloaded");
@@ -329,6 +352,86 @@ keep:
 	access_free(access);
 	settings_free(next);
 	sd_notify(0, "READY=1");
+	return 0;
+}
+
+/* ------------------------------------------------------------ tokens */
+
+/* After the answer that revoked a token: its sessions end, the calling
+ * one included, outside of the call. */
+static int on_revalidate(sd_event_source *s, void *data)
+{
+	struct daemon *d = data;
+
+	server_revalidate(d->server);
+	if (d->web)
+		web_revalidate(d->web);
+	return 0;
+}
+
+static void tokens_changed(void *data)
+{
+	struct daemon *d = data;
+
+	sd_event_source_set_enabled(d->revalidate, SD_EVENT_ONESHOT);
+}
+
+static void arm_token_expiry(struct daemon *d);
+
+static int on_token_expiry(sd_event_source *s, uint64_t usec, void *data)
+{
+	struct daemon *d = data;
+
+	server_revalidate(d->server);
+	arm_token_expiry(d);
+	return 0;
+}
+
+/* The timer at the next expiry of a token: its sessions end then. */
+static void arm_token_expiry(struct daemon *d)
+{
+	int64_t now = now_realtime_ns(), next = tokens_next_expiry(d->tokens, now);
+
+	if (!next) {
+		sd_event_source_set_enabled(d->token_expiry, SD_EVENT_OFF);
+		return;
+	}
+	sd_event_source_set_time(d->token_expiry, (uint64_t)(next / 1000) + 1);
+	sd_event_source_set_enabled(d->token_expiry, SD_EVENT_ONESHOT);
+}
+
+static void tokens_changed_or_created(void *data)
+{
+	tokens_changed(data);
+	arm_token_expiry(data);
+}
+
+static int open_tokens(struct daemon *d)
+{
+	_cleanup_free_ char *path = NULL;
+	struct asph_error err;
+	char buf[1024];
+	int r;
+
+	asph_error_clear(&err);
+	if (asprintf(&path, "%s/jobs.sqlite", d->settings->state_dir) < 0)
+		return -ENOMEM;
+	r = tokens_open(path, &d->tokens, &err);
+	if (r < 0) {
+		log_error("%s", asph_error_format(&err, buf, sizeof(buf)));
+		return r;
+	}
+	tokens_set_changed(d->tokens, tokens_changed_or_created, d);
+	access_set_tokens(d->access, d->tokens);
+	r = sd_event_add_defer(d->event, &d->revalidate, on_revalidate, d);
+	if (r >= 0)
+		r = sd_event_source_set_enabled(d->revalidate, SD_EVENT_OFF);
+	if (r >= 0)
+		r = sd_event_add_time(d->event, &d->token_expiry, CLOCK_REALTIME, UINT64_MAX, 0,
+				      on_token_expiry, d);
+	if (r < 0)
+		return r;
+	arm_token_expiry(d);
 	return 0;
 }
 
@@ -353,10 +456,13 @@ static int start_modules(struct daemon *d)
 					       : strerror(-r));
 		return r;
 	}
+	r = open_tokens(d);
+	if (r < 0)
+		return r;
 	r = rpc_new(&(struct rpc_setup){
 			.event = d->event, .started_usec = d->started_usec, .jobs = d->jobs,
 			.instruments = d->instruments, .events = d->events, .access = d->access,
-			.limits = &d->limits,
+			.tokens = d->tokens, .limits = &d->limits,
 		    }, &d->rpc);
 	if (r == 0)
 		r = server_new(&(struct server_setup){
@@ -368,6 +474,14 @@ static int start_modules(struct daemon *d)
 	r = events_watch_add(d->events, EVENT_ALL, server_notify, d->server, NULL);
 	if (r > 0)
 		r = events_watch_add(d->events, EVENT_ALL, status_watch, d, NULL);
+	if (r > 0 && d->http) {
+		r = web_new(&(struct web_setup){
+				.event = d->event, .rpc = d->rpc, .jobs = d->jobs,
+				.limits = &d->limits, .state_dir = d->settings->state_dir,
+			    }, &d->web);
+		if (r == 0)
+			r = events_watch_add(d->events, EVENT_ALL, web_notify, d->web, NULL);
+	}
 	return r < 0 ? r : 0;
 }
 
@@ -394,6 +508,14 @@ static int run(struct daemon *d)
 	r = start_modules(d);
 	if (r == 0)
 		r = server_listen(d->server, d->settings, d->tcp);
+	if (r == 0 && d->web) {
+		r = web_listen(d->web, d->http, d->settings->http_root ? d->settings->http_root
+								       : WEB_DIR);
+		if (r == 0)
+			log_info("web page at http://%s%s%s:%u/",
+				 d->http->ai_family == AF_INET6 ? "[" : "", d->settings->http_host,
+				 d->http->ai_family == AF_INET6 ? "]" : "", web_port(d->web));
+	}
 	if (r < 0)
 		return r;
 	log_info("listening on %s, state in %s, %zu instrument(s), queue %s",
@@ -408,8 +530,12 @@ static int run(struct daemon *d)
 
 static void teardown(struct daemon *d)
 {
+	web_free(d->web);
 	server_free(d->server);
 	rpc_free(d->rpc);
+	sd_event_source_disable_unref(d->revalidate);
+	sd_event_source_disable_unref(d->token_expiry);
+	tokens_free(d->tokens);
 	jobs_free(d->jobs);
 	events_free(d->events);
 	unload_configuration(d);

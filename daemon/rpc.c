@@ -39,6 +39,7 @@ struct rpc {
 	const struct instruments *instruments;
 	struct events *events;
 	const struct access *access;
+	struct tokens *tokens;
 	const struct settings_limits *limits;
 	size_t n_sessions;
 	uint64_t requests;
@@ -50,6 +51,7 @@ struct call {
 	struct rpc *rpc;
 	struct rpc_session *s;
 	struct proto_why why;
+	json_t *data;           /* more members of an error's data, or NULL */
 };
 
 typedef int (*method_fn)(struct call *c, json_t *params, json_t **result);
@@ -63,7 +65,7 @@ int rpc_new(const struct rpc_setup *setup, struct rpc **out)
 	*rpc = (struct rpc){
 		.event = setup->event, .started_usec = setup->started_usec,
 		.jobs = setup->jobs, .instruments = setup->instruments, .events = setup->events,
-		.access = setup->access, .limits = setup->limits,
+		.access = setup->access, .tokens = setup->tokens, .limits = setup->limits,
 	};
 	if (ratelimit_new(HELLO_FAILURES_BURST, HELLO_FAILURE_INTERVAL_USEC, RATE_KEYS,
 			  &rpc->hello_failures) < 0 ||
@@ -158,6 +160,7 @@ static int job_error(struct call *c, int r, const struct asph_error *err)
 		{ -EDQUOT, PROTO_LIMIT_REACHED },
 		{ -ENODATA, PROTO_NO_RESULT },
 		{ -EPERM, PROTO_INVALID_PATH },
+		{ -EBUSY, PROTO_INSTRUMENT_LOCKED },
 		{ -ENOMEM, PROTO_INTERNAL_ERROR },
 	};
 	int code = PROTO_STORAGE_ERROR;
@@ -165,17 +168,32 @@ static int job_error(struct call *c, int r, const struct asph_error *err)
 	for (size_t i = 0; i < ARRAY_SIZE(map); i++)
 		if (map[i].errno_code == r)
 			code = map[i].code;
+	/* Who holds the lock and why, for a program to show. */
+	if (code == PROTO_INSTRUMENT_LOCKED && err->field[0])
+		c->data = json_pack("{s:s, s:o}", "instrument", err->field,
+				    "lock", instrument_lock_to_json(jobs_lock_of(c->rpc->jobs,
+										  err->field)));
 	return fail(c, code, "%s", err->message[0] ? err->message : strerror(-r));
+}
+
+static enum access_role role(const struct call *c)
+{
+	return access_role_of(c->rpc->access, &c->s->peer, &c->s->grant);
 }
 
 static bool is_operator(const struct call *c)
 {
-	return access_is_operator(c->rpc->access, &c->s->peer, &c->s->grant);
+	return role(c) >= ROLE_OPERATOR;
 }
 
+/* Who a change is recorded as: the user, or over TCP the token's name. */
 static struct job_actor actor(const struct call *c)
 {
-	return (struct job_actor){ .uid = (int64_t)(int)c->s->peer.uid, .name = c->s->peer.name };
+	const struct rpc_session *s = c->s;
+
+	if (s->peer.tcp && s->grant.valid)
+		return (struct job_actor){ .uid = -1, .name = s->grant.credential };
+	return (struct job_actor){ .uid = (int64_t)(int)s->peer.uid, .name = s->peer.name };
 }
 
 /* params: only the listed members, each checked by the handler. */
@@ -231,6 +249,7 @@ static int authenticate(struct call *c, const char *token)
 	struct rpc *rpc = c->rpc;
 	uint64_t now = loop_usec(rpc);
 	unsigned left_out = 0;
+	int r;
 
 	if (!ratelimit_allows(rpc->hello_failures, s->peer.key, now)) {
 		ratelimit_take(rpc->hello_failures, s->peer.key, now, NULL);
@@ -238,14 +257,25 @@ static int authenticate(struct call *c, const char *token)
 			    "again in %.1f s", s->peer.key,
 			    (double)ratelimit_wait(rpc->hello_failures, s->peer.key, now) / 1e6);
 	}
-	if (access_authenticate(rpc->access, token, &s->grant) < 0) {
+	r = access_authenticate(rpc->access, token, &s->grant);
+	if (r == -EKEYREVOKED || r == -EKEYEXPIRED) {
+		log_warning("%s token \"%s\" in hello from %s", r == -EKEYREVOKED ? "revoked"
+			    : "expired", s->grant.credential, s->peer.name);
+		return fail(c, PROTO_PERMISSION_DENIED, "the token \"%s\" is %s",
+			    s->grant.credential, r == -EKEYREVOKED ? "revoked" : "expired");
+	}
+	if (r < 0) {
 		ratelimit_take(rpc->hello_failures, s->peer.key, now, &left_out);
 		log_warning("wrong token in hello from %s (%u hello(s) refused unread before)",
 			    s->peer.name, left_out);
 		return fail(c, PROTO_PERMISSION_DENIED, "wrong token");
 	}
 	s->authenticated = true;
-	log_info("%s authenticated with %s", s->peer.name, s->grant.credential);
+	log_info("%s authenticated with %s (%s)", s->peer.name, s->grant.credential,
+		 access_role_name(s->grant.role));
+	if (s->grant.token_file)
+		log_notice("%s used the deprecated token_file: give it a named token "
+			   "(asphctl token create)", s->peer.name);
 	return 0;
 }
 
@@ -263,11 +293,12 @@ static int m_hello(struct call *c, json_t *params, json_t **result)
 		return PROTO_INVALID_PARAMS;
 	if (s->peer.tcp && !s->authenticated && (code = authenticate(c, token)))
 		return code;
-	*result = json_pack("{s:s, s:s, s:{s:i, s:i}, s:{s:I, s:s, s:b}}",
+	*result = json_pack("{s:s, s:s, s:{s:i, s:i}, s:{s:I, s:s, s:b, s:s, s:s?}}",
 		"server", "asphd", "version", ASPH_VERSION,
 		"protocol", "major", PROTO_VERSION_MAJOR, "minor", PROTO_VERSION_MINOR,
 		"peer", "uid", (json_int_t)(int)s->peer.uid, "name", s->peer.name,
-		"operator", is_operator(c));
+		"operator", is_operator(c), "role", access_role_name(role(c)),
+		"token", s->peer.tcp && s->grant.valid ? s->grant.credential : NULL);
 	return 0;
 }
 
@@ -300,10 +331,11 @@ static json_t *instrument_states_json(const struct rpc *rpc)
 
 	for (size_t i = 0; list && i < instruments_count(rpc->instruments); i++) {
 		const struct instrument_activity *a = jobs_activity(rpc->jobs, i);
-		json_array_append_new(list, json_pack("{s:s, s:s, s:o}",
+		json_array_append_new(list, json_pack("{s:s, s:s, s:o, s:o}",
 			"name", instruments_get(rpc->instruments, i)->name,
 			"state", instrument_state_name(a),
-			"job", a->job ? json_integer(a->job) : json_null()));
+			"job", a->job ? json_integer(a->job) : json_null(),
+			"lock", instrument_lock_to_json(a->lock)));
 	}
 	return list;
 }
@@ -350,7 +382,7 @@ static json_t *submit_estimate(struct call *c, const struct job_submission *sub)
 static int m_job_submit(struct call *c, json_t *params, json_t **result)
 {
 	static const char *const names[] = { "lens", "plan", "fit", "tolerance", "instrument",
-					     "priority", "label", NULL };
+					     "priority", "label", "part", "lot", "serial", NULL };
 	struct job_submission sub = { 0 };
 	struct job_actor who = actor(c);
 	_cleanup_(json_decrefp) json_t *spec = NULL;
@@ -369,7 +401,13 @@ static int m_job_submit(struct call *c, json_t *params, json_t **result)
 	    proto_param_string(params, "label", false, c->rpc->limits->max_label_bytes, &sub.label,
 			       &c->why) == -EINVAL ||
 	    proto_param_int(params, "priority", false, -1000, 1000, &sub.priority,
-			    &c->why) == -EINVAL)
+			    &c->why) == -EINVAL ||
+	    proto_param_string(params, "part", false, c->rpc->limits->max_label_bytes, &sub.part,
+			       &c->why) == -EINVAL ||
+	    proto_param_string(params, "lot", false, c->rpc->limits->max_label_bytes, &sub.lot,
+			       &c->why) == -EINVAL ||
+	    proto_param_string(params, "serial", false, c->rpc->limits->max_label_bytes,
+			       &sub.serial, &c->why) == -EINVAL)
 		return PROTO_INVALID_PARAMS;
 	/* The cheap refusals before the plan is computed. */
 	asph_error_clear(&err);
@@ -400,9 +438,9 @@ static int history_entry(const struct store_event *e, void *data)
 	char buf[32];
 
 	iso8601_utc(e->t_ns, 0, buf, sizeof(buf));
-	return json_array_append_new(list, json_pack("{s:s, s:s, s:s?, s:I}", "time", buf,
+	return json_array_append_new(list, json_pack("{s:s, s:s, s:s?, s:I, s:s?}", "time", buf,
 		"state", job_state_name(e->state), "reason", e->reason,
-		"actor_uid", (json_int_t)e->actor_uid)) < 0 ? -ENOMEM : 0;
+		"actor_uid", (json_int_t)e->actor_uid, "actor", e->actor)) < 0 ? -ENOMEM : 0;
 }
 
 static int m_job_get(struct call *c, json_t *params, json_t **result)
@@ -473,7 +511,7 @@ static const char *const state_list[] = {
 static int m_job_list(struct call *c, json_t *params, json_t **result)
 {
 	static const char *const names[] = { "states", "instrument", "label", "uid", "mine",
-					     "offset", "limit", NULL };
+					     "part", "lot", "serial", "offset", "limit", NULL };
 	struct store_filter f = { .uid = STORE_ANY_UID, .limit = 100 };
 	json_t *list;
 	bool mine = false;
@@ -487,11 +525,19 @@ static int m_job_list(struct call *c, json_t *params, json_t **result)
 	    proto_param_string(params, "label", false, 4096, &f.label, &c->why) == -EINVAL ||
 	    proto_param_int(params, "uid", false, 0, UINT32_MAX, &f.uid, &c->why) == -EINVAL ||
 	    proto_param_bool(params, "mine", false, &mine, &c->why) == -EINVAL ||
+	    proto_param_string(params, "part", false, 4096, &f.part, &c->why) == -EINVAL ||
+	    proto_param_string(params, "lot", false, 4096, &f.lot, &c->why) == -EINVAL ||
+	    proto_param_string(params, "serial", false, 4096, &f.serial, &c->why) == -EINVAL ||
 	    proto_param_int(params, "offset", false, 0, INT64_MAX, &f.offset, &c->why) == -EINVAL ||
 	    proto_param_int(params, "limit", false, 1, 1000, &f.limit, &c->why) == -EINVAL)
 		return PROTO_INVALID_PARAMS;
-	if (mine)
-		f.uid = (int64_t)(int)c->s->peer.uid;
+	if (mine) {
+		struct job_actor who = actor(c);
+		f.uid = who.uid;
+		/* Over TCP the token's jobs: the uid is every TCP peer's. */
+		if (c->s->peer.tcp)
+			f.user = who.name;
+	}
 	code = list_jobs(c, &f, &list, &total);
 	if (code)
 		return code;
@@ -713,6 +759,134 @@ static int m_driver_list(struct call *c, json_t *params, json_t **result)
 	return 0;
 }
 
+static int lock_result(struct call *c, const char *name, json_t **result)
+{
+	int i = instruments_find(c->rpc->instruments, name);
+
+	*result = i < 0 ? NULL : instrument_json(c->rpc, (size_t)i);
+	return 0;
+}
+
+static int m_instrument_lock(struct call *c, json_t *params, json_t **result)
+{
+	static const char *const names[] = { "name", "reason", "pause", NULL };
+	struct job_actor who = actor(c);
+	const char *name, *reason;
+	struct asph_error err;
+	bool pause = false;
+	int code = only(c, params, names), r;
+
+	if (code)
+		return code;
+	if (proto_param_string(params, "name", true, 63, &name, &c->why) < 0 ||
+	    proto_param_string(params, "reason", true, c->rpc->limits->max_label_bytes, &reason,
+			       &c->why) < 0 ||
+	    proto_param_bool(params, "pause", false, &pause, &c->why) == -EINVAL)
+		return PROTO_INVALID_PARAMS;
+	if (!reason[0])
+		return fail(c, PROTO_INVALID_PARAMS, "\"reason\" must say why the instrument is "
+			    "locked");
+	asph_error_clear(&err);
+	r = jobs_lock(c->rpc->jobs, name, reason, pause, &who, &err);
+	return r < 0 ? job_error(c, r, &err) : lock_result(c, name, result);
+}
+
+static int m_instrument_unlock(struct call *c, json_t *params, json_t **result)
+{
+	static const char *const names[] = { "name", "force", NULL };
+	struct job_actor who = actor(c);
+	struct asph_error err;
+	const char *name;
+	bool force = false;
+	int code = only(c, params, names), r;
+
+	if (code)
+		return code;
+	if (proto_param_string(params, "name", true, 63, &name, &c->why) < 0 ||
+	    proto_param_bool(params, "force", false, &force, &c->why) == -EINVAL)
+		return PROTO_INVALID_PARAMS;
+	if (force && role(c) < ROLE_ADMIN)
+		return fail(c, PROTO_PERMISSION_DENIED, "only an admin may end another's lock "
+			    "(force)");
+	asph_error_clear(&err);
+	r = jobs_unlock(c->rpc->jobs, name, force, &who, &err);
+	if (r == -EINVAL)
+		return fail(c, PROTO_INVALID_STATE, "%s", err.message);
+	return r < 0 ? job_error(c, r, &err) : lock_result(c, name, result);
+}
+
+/* ------------------------------------------------------------ tokens */
+
+static int token_error(struct call *c, int r, const struct asph_error *err)
+{
+	int code = r == -EINVAL || r == -EEXIST ? PROTO_INVALID_PARAMS
+		 : r == -ENOENT || r == -EALREADY ? PROTO_INVALID_STATE : PROTO_STORAGE_ERROR;
+
+	return fail(c, code, "%s", err->message);
+}
+
+static int m_token_create(struct call *c, json_t *params, json_t **result)
+{
+	static const char *const names[] = { "name", "role", "expires", NULL };
+	struct job_actor who = actor(c);
+	char secret[TOKENS_SECRET_SIZE];
+	const char *name, *role_name, *expires = NULL;
+	enum access_role r_role;
+	struct asph_error err;
+	int64_t expires_ns = 0;
+	int code = only(c, params, names), r;
+
+	if (code)
+		return code;
+	if (proto_param_string(params, "name", true, TOKENS_NAME_MAX + 1, &name, &c->why) < 0 ||
+	    proto_param_string(params, "role", true, 16, &role_name, &c->why) < 0 ||
+	    proto_param_string(params, "expires", false, 32, &expires, &c->why) == -EINVAL)
+		return PROTO_INVALID_PARAMS;
+	if (access_role_from_name(role_name, &r_role) < 0)
+		return fail(c, PROTO_INVALID_PARAMS, "\"role\" must be viewer, operator or admin");
+	if (expires && iso8601_parse_utc(expires, &expires_ns) < 0)
+		return fail(c, PROTO_INVALID_PARAMS, "\"expires\" must be a UTC time such as "
+			    "\"2027-01-31T12:00:00Z\" or a day such as \"2027-01-31\"");
+	asph_error_clear(&err);
+	r = tokens_create(c->rpc->tokens, name, r_role, expires_ns, who.name, secret, &err);
+	if (r < 0)
+		return token_error(c, r, &err);
+	*result = json_pack("{s:s, s:s, s:s?, s:s}", "name", name, "role", role_name,
+			    "expires", expires, "token", secret);
+	explicit_bzero(secret, sizeof(secret));
+	return 0;
+}
+
+static int m_token_list(struct call *c, json_t *params, json_t **result)
+{
+	static const char *const names[] = { NULL };
+	int code = only(c, params, names);
+
+	if (code)
+		return code;
+	*result = tokens_to_json(c->rpc->tokens);
+	return 0;
+}
+
+static int m_token_revoke(struct call *c, json_t *params, json_t **result)
+{
+	static const char *const names[] = { "name", NULL };
+	struct asph_error err;
+	const char *name;
+	int code = only(c, params, names), r;
+
+	if (code)
+		return code;
+	if (proto_param_string(params, "name", true, TOKENS_NAME_MAX + 1, &name, &c->why) < 0)
+		return PROTO_INVALID_PARAMS;
+	asph_error_clear(&err);
+	r = tokens_revoke(c->rpc->tokens, name, &err);
+	if (r < 0)
+		return token_error(c, r, &err);
+	*result = json_pack("{s:s, s:s}", "name", name, "state", "revoked");
+	return 0;
+}
+
 /* ------------------------------------------------------------ events */
 
 static int m_events_subscribe(struct call *c, json_t *params, json_t **result)
@@ -775,32 +949,38 @@ static int m_events_unsubscribe(struct call *c, json_t *params, json_t **result)
 
 /* ------------------------------------------------------------ table */
 
+/* Each method with the role it needs (proto/README.md, "Who may do what"). */
 static const struct method {
 	const char *name;
 	method_fn fn;
-	bool mutating;
+	enum access_role need;
 } methods[] = {
-	{ "hello", m_hello, false },
-	{ "version", m_version, false },
-	{ "daemon.status", m_daemon_status, false },
-	{ "job.submit", m_job_submit, true },
-	{ "job.get", m_job_get, false },
-	{ "job.list", m_job_list, false },
-	{ "job.cancel", m_job_cancel, true },
-	{ "job.pause", m_job_pause, true },
-	{ "job.resume", m_job_resume, true },
-	{ "job.requeue", m_job_requeue, true },
-	{ "job.result", m_job_result, false },
-	{ "job.file", m_job_file, false },
-	{ "queue.get", m_queue_get, false },
-	{ "queue.move", m_queue_move, true },
-	{ "queue.start", m_queue_start, true },
-	{ "queue.stop", m_queue_stop, true },
-	{ "instrument.list", m_instrument_list, false },
-	{ "instrument.status", m_instrument_status, false },
-	{ "driver.list", m_driver_list, false },
-	{ "events.subscribe", m_events_subscribe, false },
-	{ "events.unsubscribe", m_events_unsubscribe, false },
+	{ "hello", m_hello, ROLE_NONE },
+	{ "version", m_version, ROLE_VIEWER },
+	{ "daemon.status", m_daemon_status, ROLE_VIEWER },
+	{ "job.submit", m_job_submit, ROLE_OPERATOR },
+	{ "job.get", m_job_get, ROLE_VIEWER },
+	{ "job.list", m_job_list, ROLE_VIEWER },
+	{ "job.cancel", m_job_cancel, ROLE_OPERATOR },
+	{ "job.pause", m_job_pause, ROLE_OPERATOR },
+	{ "job.resume", m_job_resume, ROLE_OPERATOR },
+	{ "job.requeue", m_job_requeue, ROLE_OPERATOR },
+	{ "job.result", m_job_result, ROLE_VIEWER },
+	{ "job.file", m_job_file, ROLE_VIEWER },
+	{ "queue.get", m_queue_get, ROLE_VIEWER },
+	{ "queue.move", m_queue_move, ROLE_OPERATOR },
+	{ "queue.start", m_queue_start, ROLE_OPERATOR },
+	{ "queue.stop", m_queue_stop, ROLE_OPERATOR },
+	{ "instrument.list", m_instrument_list, ROLE_VIEWER },
+	{ "instrument.status", m_instrument_status, ROLE_VIEWER },
+	{ "instrument.lock", m_instrument_lock, ROLE_OPERATOR },
+	{ "instrument.unlock", m_instrument_unlock, ROLE_OPERATOR },
+	{ "driver.list", m_driver_list, ROLE_VIEWER },
+	{ "events.subscribe", m_events_subscribe, ROLE_VIEWER },
+	{ "events.unsubscribe", m_events_unsubscribe, ROLE_VIEWER },
+	{ "token.create", m_token_create, ROLE_ADMIN },
+	{ "token.list", m_token_list, ROLE_ADMIN },
+	{ "token.revoke", m_token_revoke, ROLE_ADMIN },
 };
 
 static const struct method *find_method(const char *name)
@@ -839,8 +1019,19 @@ static int dispatch(struct call *c, const struct proto_message *m, json_t **resu
 		return fail(c, PROTO_METHOD_NOT_FOUND, "no method \"%.64s\"", m->method);
 	if (!c->s->authenticated && meth->fn != m_hello)
 		return fail(c, PROTO_PERMISSION_DENIED, "send \"hello\" with the token first");
-	if (meth->mutating && !is_operator(c)) {
+	if (meth->need > ROLE_NONE && role(c) < meth->need) {
 		log_refusal(c, m->method);
+		if (p->tcp && c->s->grant.valid && !access_grant_current(c->rpc->access,
+									 &c->s->grant))
+			return fail(c, PROTO_PERMISSION_DENIED, "the token \"%s\" was revoked or "
+				    "has expired", c->s->grant.credential);
+		if (p->tcp)
+			return fail(c, PROTO_PERMISSION_DENIED, "%s needs the role %s: the token "
+				    "\"%s\" is a %s", m->method, access_role_name(meth->need),
+				    c->s->grant.credential, access_role_name(c->s->grant.role));
+		if (meth->need == ROLE_ADMIN)
+			return fail(c, PROTO_PERMISSION_DENIED, "%s needs an admin: root, or a "
+				    "TCP client with an admin token", m->method);
 		return fail(c, PROTO_PERMISSION_DENIED,
 			    "%s needs an operator: %s (uid %d) is not in the operator group",
 			    m->method, p->name, (int)p->uid);
@@ -870,6 +1061,10 @@ static json_t *handle(struct rpc *rpc, struct rpc_session *s, json_t *msg)
 		return proto_make_error(m.id, code, NULL, json_pack("{s:s}", "detail", c.why.text));
 	}
 	code = dispatch(&c, &m, &result);
+	if (m.kind == PROTO_KIND_NOTIFICATION || !code) {
+		json_decref(c.data);
+		c.data = NULL;
+	}
 	if (m.kind == PROTO_KIND_NOTIFICATION) {
 		json_decref(result);
 		return NULL;
@@ -877,7 +1072,7 @@ static json_t *handle(struct rpc *rpc, struct rpc_session *s, json_t *msg)
 	if (!code)
 		return proto_make_result(m.id, result);
 	json_decref(result);
-	data = json_object();
+	data = c.data ? c.data : json_object();
 	/* A name cut at 64 bytes may end inside a character. */
 	proto_utf8_clean(c.why.text);
 	if (c.why.text[0])

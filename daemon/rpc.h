@@ -4,8 +4,9 @@
  * at a time: a line in, the response out. Each method maps its parameters
  * in, calls the module that owns what it asks about (jobs.h,
  * instruments.h, events.h, access.h) and maps the outcome, or the error,
- * out. Mutating methods are refused before they run unless the peer is an
- * operator. The sessions are counted here (the "clients" of
+ * out. Each method needs a role (tokens.h: viewer, operator, admin; the
+ * table in rpc.c, documented in proto/README.md) and is refused before it
+ * runs to a peer without it. The sessions are counted here (the "clients" of
  * daemon.status), and the lines handled (its "requests").
  *
  * A transport (server.c) fills a session's peer, opens it, hands over its
@@ -44,6 +45,7 @@ struct rpc_setup {
 	const struct instruments *instruments;
 	struct events *events;
 	const struct access *access;
+	struct tokens *tokens;                  /* the named API tokens */
 	const struct settings_limits *limits;   /* read at each use: may change */
 };
 

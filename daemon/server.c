@@ -696,7 +696,7 @@ static void peer_groups(int fd, struct peer *p)
 }
 
 /* A TCP peer: its address, and its key (an IPv6 address by its /64). */
-static void tcp_identity(int fd, struct peer *p)
+void server_tcp_peer(int fd, struct peer *p)
 {
 	struct sockaddr_storage sa = { 0 };
 	socklen_t len = sizeof(sa);
@@ -734,7 +734,7 @@ static void peer_identity(int fd, bool tcp, struct peer *p)
 
 	p->tcp = tcp;
 	if (tcp) {
-		tcp_identity(fd, p);
+		server_tcp_peer(fd, p);
 		return;
 	}
 	if (getsockopt(fd, SOL_SOCKET, SO_PEERCRED, &cred, &len) < 0) {
@@ -1151,13 +1151,13 @@ static bool has_tcp(const struct server *srv, bool activated)
 	return false;
 }
 
-/* What a socket systemd passed is for: 0 the unix socket, 1 TCP (only
- * with a token to check), -1 nothing. */
+/* What a socket systemd passed is for: 0 the unix socket, 1 TCP (whose
+ * clients must show a token), -1 nothing. */
 static int passed_kind(const struct server *srv, const struct settings *s, int fd)
 {
 	if (sd_is_socket_unix(fd, SOCK_STREAM, 1, NULL, 0) > 0 && !has_unix(srv))
 		return 0;
-	if (sd_is_socket_inet(fd, AF_UNSPEC, SOCK_STREAM, 1, 0) > 0 && s->token_file)
+	if (sd_is_socket_inet(fd, AF_UNSPEC, SOCK_STREAM, 1, 0) > 0)
 		return 1;
 	return -1;
 }
@@ -1249,7 +1249,7 @@ static void close_tcp(struct server *srv)
 	}
 	free(srv->tcp_listen);
 	srv->tcp_listen = NULL;
-	log_info("TCP listener closed (tcp_listen and token_file removed)");
+	log_info("TCP listener closed (tcp_listen removed)");
 }
 
 void server_reload(struct server *srv, const struct settings *s)
@@ -1259,7 +1259,7 @@ void server_reload(struct server *srv, const struct settings *s)
 	else if (s->socket_group || s->socket_mode != 0660)
 		log_notice("socket_mode and socket_group apply to a socket asphd binds itself; "
 			   "systemd's (asphd.socket: SocketMode=, SocketGroup=) keeps its own");
-	if (!s->token_file && (has_tcp(srv, false) || has_tcp(srv, true)))
+	if (!s->tcp_listen && has_tcp(srv, false))
 		close_tcp(srv);
 }
 

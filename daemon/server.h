@@ -82,6 +82,10 @@ void server_notify(const struct event *ev, void *data);
 int server_resolve_tcp(const char *host, const char *port, struct addrinfo **out,
 		       struct asph_error *err);
 
+/* A TCP peer (of the connection fd): "tcp ADDRESS", its uid unknown, its
+ * key its address (an IPv6 address by its /64). The web listener's too. */
+void server_tcp_peer(int fd, struct peer *p);
+
 /* The descriptors asphd needs besides its clients' (listeners, the job
  * store, workers, devices, the log): what LimitNOFILE= must leave above
  * max_clients. */

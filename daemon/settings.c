@@ -91,10 +91,38 @@ void settings_free(struct settings *c)
 	free(c->tcp_host);
 	free(c->tcp_port);
 	free(c->token_file);
+	free(c->http_listen);
+	free(c->http_host);
+	free(c->http_port);
+	free(c->http_root);
 	free(c->state_dir);
 	free(c->instruments_json);
 	free(c->text);
+	settings_mqtt_free(c->mqtt);
+	settings_postgres_free(c->postgres);
 	free(c);
+}
+
+void settings_mqtt_free(struct settings_mqtt *m)
+{
+	if (!m)
+		return;
+	free(m->url);
+	free(m->host);
+	free(m->prefix);
+	free(m->client_id);
+	free(m->credentials_file);
+	free(m->ca_file);
+	free(m);
+}
+
+void settings_postgres_free(struct settings_postgres *p)
+{
+	if (!p)
+		return;
+	free(p->conninfo);
+	free(p->password_file);
+	free(p);
 }
 
 static void take_string(struct loader *ld, json_t *v, const char *field,
@@ -226,21 +254,23 @@ static void check_limit_pairs(struct loader *ld, struct settings_limits *l)
 			 l->max_output_bytes / 2);
 }
 
-/* "HOST:PORT", "[IPV6]:PORT": a host and a port number (0 picks one). */
-static void take_listen(struct loader *ld, json_t *v, struct settings *c)
+/* "HOST:PORT", "[IPV6]:PORT": a host and a port number (0 picks one),
+ * of tcp_listen or http_listen (field) into *listen, *host_out, *port_out. */
+static void take_listen(struct loader *ld, json_t *v, const char *field, char **listen,
+			char **host_out, char **port_out)
 {
 	const char *text, *colon, *host;
 	size_t host_len;
 	char *end;
 	unsigned long port;
 
-	take_string(ld, v, "tcp_listen", &c->tcp_listen, false);
+	take_string(ld, v, field, listen, false);
 	text = json_string_value(v);
-	if (!c->tcp_listen || !text)
+	if (!*listen || !text)
 		return;
 	colon = strrchr(text, ':');
 	if (!colon) {
-		complain(ld, "tcp_listen", "must be HOST:PORT (a host name or address, a colon, "
+		complain(ld, field, "must be HOST:PORT (a host name or address, a colon, "
 			 "a port number)");
 		return;
 	}
@@ -253,14 +283,173 @@ static void take_listen(struct loader *ld, json_t *v, struct settings *c)
 	errno = 0;
 	port = strtoul(colon + 1, &end, 10);
 	if (host_len == 0 || colon[1] < '0' || colon[1] > '9' || *end || errno || port > 65535) {
-		complain(ld, "tcp_listen", "must be HOST:PORT with a host and a port number "
+		complain(ld, field, "must be HOST:PORT with a host and a port number "
 			 "from 0 to 65535, not \"%s\"", text);
 		return;
 	}
-	free(c->tcp_host);
-	free(c->tcp_port);
-	c->tcp_host = strndup(host, host_len);
-	c->tcp_port = strdup(colon + 1);
+	free(*host_out);
+	free(*port_out);
+	*host_out = strndup(host, host_len);
+	*port_out = strdup(colon + 1);
+}
+
+/*
+ * "mqtt://HOST[:PORT]" or "mqtts://HOST[:PORT]" (an IPv6 address in
+ * brackets), nothing after the port: user and password come from the
+ * credentials file, never from the configuration.
+ */
+static void take_broker_url(struct loader *ld, json_t *v, struct settings_mqtt *m)
+{
+	const char *text, *host, *end, *p;
+	unsigned long port;
+	char *stop;
+
+	take_string(ld, v, "mqtt.url", &m->url, false);
+	if (!m->url)
+		return;
+	text = m->url;
+	if (!strncmp(text, "mqtt://", 7)) {
+		host = text + 7;
+	} else if (!strncmp(text, "mqtts://", 8)) {
+		host = text + 8;
+		m->tls = true;
+	} else {
+		complain(ld, "mqtt.url", "must start with mqtt:// or mqtts://, not \"%.64s\"", text);
+		return;
+	}
+	if (strchr(host, '@')) {
+		complain(ld, "mqtt.url", "must not hold a user or password: they go in "
+			 "mqtt.credentials_file");
+		return;
+	}
+	if (host[0] == '[') {
+		end = strchr(host, ']');
+		if (!end || end == host + 1) {
+			complain(ld, "mqtt.url", "an IPv6 address needs its closing ']'");
+			return;
+		}
+		m->host = strndup(host + 1, (size_t)(end - host - 1));
+		p = end + 1;
+	} else {
+		p = host + strcspn(host, ":/?#");
+		if (p == host) {
+			complain(ld, "mqtt.url", "has no host");
+			return;
+		}
+		m->host = strndup(host, (size_t)(p - host));
+	}
+	m->port = m->tls ? 8883 : 1883;
+	if (*p == ':') {
+		errno = 0;
+		port = strtoul(p + 1, &stop, 10);
+		if (p[1] < '0' || p[1] > '9' || errno || port < 1 || port > 65535) {
+			complain(ld, "mqtt.url", "the port must be a number from 1 to 65535");
+			return;
+		}
+		m->port = (int)port;
+		p = stop;
+	}
+	if (*p == '/')
+		p++;
+	if (*p)
+		complain(ld, "mqtt.url", "must end after the host and port, not with \"%.64s\"", p);
+}
+
+/* A topic prefix: topic levels without wildcards, not starting or ending
+ * with '/'. */
+static void take_prefix(struct loader *ld, json_t *v, struct settings_mqtt *m)
+{
+	const char *p;
+
+	take_string(ld, v, "mqtt.prefix", &m->prefix, false);
+	p = m->prefix;
+	if (!p)
+		return;
+	if (strpbrk(p, "+#") || p[0] == '/' || p[strlen(p) - 1] == '/' || strstr(p, "//") ||
+	    strlen(p) > 200)
+		complain(ld, "mqtt.prefix", "must be topic levels such as \"lab/asphd/bench1\": no "
+			 "'+' or '#', no empty level, at most 200 bytes");
+}
+
+static void take_mqtt(struct loader *ld, json_t *obj, struct settings *c)
+{
+	const char *key;
+	json_t *v;
+	char field[96];
+
+	if (!json_is_object(obj)) {
+		complain(ld, "mqtt", "must be an object");
+		return;
+	}
+	settings_mqtt_free(c->mqtt);
+	c->mqtt = calloc(1, sizeof(*c->mqtt));
+	if (!c->mqtt) {
+		complain(ld, "mqtt", "out of memory");
+		return;
+	}
+	c->mqtt->qos = 1;
+	json_object_foreach(obj, key, v) {
+		snprintf(field, sizeof(field), "mqtt.%.60s", key);
+		if (!strcmp(key, "url"))
+			take_broker_url(ld, v, c->mqtt);
+		else if (!strcmp(key, "prefix"))
+			take_prefix(ld, v, c->mqtt);
+		else if (!strcmp(key, "client_id")) {
+			take_string(ld, v, field, &c->mqtt->client_id, false);
+			if (c->mqtt->client_id && strlen(c->mqtt->client_id) > 128)
+				complain(ld, field, "must be at most 128 bytes");
+		} else if (!strcmp(key, "qos")) {
+			if (!json_is_integer(v) || json_integer_value(v) < 0 ||
+			    json_integer_value(v) > 2)
+				complain(ld, field, "must be 0, 1 or 2");
+			else
+				c->mqtt->qos = (int)json_integer_value(v);
+		} else if (!strcmp(key, "credentials_file"))
+			take_string(ld, v, field, &c->mqtt->credentials_file, true);
+		else if (!strcmp(key, "ca_file"))
+			take_string(ld, v, field, &c->mqtt->ca_file, true);
+		else
+			complain(ld, field, "unknown setting (mqtt takes url, prefix, client_id, "
+				 "qos, credentials_file, ca_file)");
+	}
+	if (!json_object_get(obj, "url"))
+		complain(ld, "mqtt", "needs \"url\", the broker's mqtt:// or mqtts:// address");
+	if (c->mqtt->ca_file && c->mqtt->url && !c->mqtt->tls)
+		complain(ld, "mqtt.ca_file", "is for an mqtts:// broker; the url is mqtt://");
+}
+
+static void take_postgres(struct loader *ld, json_t *obj, struct settings *c)
+{
+	const char *key;
+	json_t *v;
+	char field[96];
+
+	if (!json_is_object(obj)) {
+		complain(ld, "postgres", "must be an object");
+		return;
+	}
+	settings_postgres_free(c->postgres);
+	c->postgres = calloc(1, sizeof(*c->postgres));
+	if (!c->postgres) {
+		complain(ld, "postgres", "out of memory");
+		return;
+	}
+	json_object_foreach(obj, key, v) {
+		snprintf(field, sizeof(field), "postgres.%.60s", key);
+		if (!strcmp(key, "conninfo"))
+			take_string(ld, v, field, &c->postgres->conninfo, false);
+		else if (!strcmp(key, "password_file"))
+			take_string(ld, v, field, &c->postgres->password_file, true);
+		else
+			complain(ld, field, "unknown setting (postgres takes conninfo and "
+				 "password_file)");
+	}
+	if (!c->postgres->conninfo)
+		complain(ld, "postgres", "needs \"conninfo\", a libpq connection string such as "
+			 "\"host=db.lab dbname=asph user=asphd\"");
+	else if (strstr(c->postgres->conninfo, "password"))
+		complain(ld, "postgres.conninfo", "must not hold the password: it goes in "
+			 "postgres.password_file");
 }
 
 static void take_member(struct loader *ld, struct settings *c,
@@ -275,13 +464,21 @@ static void take_member(struct loader *ld, struct settings *c,
 	else if (!strcmp(key, "operator_group"))
 		take_string(ld, v, key, &c->operator_group, false);
 	else if (!strcmp(key, "tcp_listen"))
-		take_listen(ld, v, c);
+		take_listen(ld, v, key, &c->tcp_listen, &c->tcp_host, &c->tcp_port);
+	else if (!strcmp(key, "http_listen"))
+		take_listen(ld, v, key, &c->http_listen, &c->http_host, &c->http_port);
+	else if (!strcmp(key, "http_root"))
+		take_string(ld, v, key, &c->http_root, true);
 	else if (!strcmp(key, "token_file"))
 		take_string(ld, v, key, &c->token_file, true);
 	else if (!strcmp(key, "state_dir"))
 		take_string(ld, v, key, &c->state_dir, true);
 	else if (!strcmp(key, "limits"))
 		take_limits(ld, v, &c->limits);
+	else if (!strcmp(key, "mqtt"))
+		take_mqtt(ld, v, c);
+	else if (!strcmp(key, "postgres"))
+		take_postgres(ld, v, c);
 	else if (!strcmp(key, "instruments")) {
 		if (!json_is_array(v) || json_array_size(v) == 0) {
 			complain(ld, key, "must be a non-empty array");
@@ -355,9 +552,6 @@ int settings_load(const char *path, struct settings **out,
 			take_member(&ld, c, key, v);
 	json_decref(root);
 	check_limit_pairs(&ld, &c->limits);
-	if (c->tcp_listen && !c->token_file)
-		complain(&ld, "tcp_listen", "needs a token_file: TCP clients authenticate with "
-			 "its token");
 	if (ld.n_errors) {
 		settings_free(c);
 		return -EINVAL;

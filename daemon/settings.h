@@ -34,6 +34,25 @@ struct settings_limits {
 	uint32_t min_free_disk_mb;      /* kept free on the state directory */
 };
 
+/* The "mqtt" section: telemetry to a broker (docs/fleet.md). */
+struct settings_mqtt {
+	char *url;                      /* as written */
+	bool tls;                       /* mqtts:// */
+	char *host;                     /* its parts ("[...]" of IPv6 taken off) */
+	int port;
+	char *prefix;                   /* NULL: "asphd/<hostname>" */
+	char *client_id;                /* NULL: "asphd-<hostname>" */
+	int qos;                        /* 0, 1, 2 */
+	char *credentials_file;         /* NULL: none */
+	char *ca_file;                  /* NULL: the system's (mqtts) */
+};
+
+/* The "postgres" section: the central results store (docs/fleet.md). */
+struct settings_postgres {
+	char *conninfo;                 /* a libpq connection string */
+	char *password_file;            /* NULL: none (or ~/.pgpass, PGPASSWORD) */
+};
+
 struct settings {
 	char *source;                   /* the file, or NULL for defaults */
 	char *socket_path;
@@ -43,8 +62,13 @@ struct settings {
 	char *tcp_listen;               /* "HOST:PORT" or NULL (off), as written */
 	char *tcp_host, *tcp_port;      /* its parts ("[...]" of IPv6 taken off) */
 	char *token_file;
+	char *http_listen;              /* "HOST:PORT" or NULL (off), as written */
+	char *http_host, *http_port;    /* its parts */
+	char *http_root;                /* the web page's files (NULL: WEB_DIR) */
 	char *state_dir;
 	struct settings_limits limits;
+	struct settings_mqtt *mqtt;     /* NULL: no MQTT */
+	struct settings_postgres *postgres;     /* NULL: no central store */
 	/* Instruments: {"instruments": [...]} as JSON text for the drivers'
 	 * parser, or NULL for the default single "mock" instrument. */
 	char *instruments_json;
@@ -64,6 +88,9 @@ typedef void (*settings_error_fn)(const struct asph_error *err, void *data);
 int settings_load(const char *path, struct settings **out,
 		settings_error_fn report, void *data);
 void settings_free(struct settings *c);
+
+void settings_mqtt_free(struct settings_mqtt *m);
+void settings_postgres_free(struct settings_postgres *p);
 
 /* The defaults without a file. */
 int settings_defaults(struct settings **out);

@@ -12,7 +12,9 @@
 #include "store.h"
 #include "util-mem.h"
 
-#define SCHEMA_VERSION 1
+/* 2: part, lot and serial of jobs, the actor's name in the history, API
+ * tokens, instrument locks, the outbox. */
+#define SCHEMA_VERSION 2
 
 static const char *const state_names[JOB_N_STATES] = {
 	[JOB_QUEUED] = "queued",
@@ -53,6 +55,9 @@ void job_record_clear(struct job_record *j)
 	free(j->reason);
 	free(j->result);
 	free(j->scan_path);
+	free(j->part);
+	free(j->lot);
+	free(j->serial);
 	memset(j, 0, sizeof(*j));
 }
 
@@ -81,6 +86,27 @@ static const char schema[] =
 	" state INTEGER NOT NULL, reason TEXT, actor_uid INTEGER NOT NULL);"
 	"CREATE INDEX IF NOT EXISTS history_job ON history (job);";
 
+/* Schema 2 on top of 1 (a store of schema 1 is upgraded in place): the
+ * columns it adds, as table, column. */
+static const char *const schema_2_columns[][2] = {
+	{ "jobs", "part" }, { "jobs", "lot" }, { "jobs", "serial" }, { "history", "actor" },
+};
+
+static const char schema_2_tables[] =
+	"CREATE TABLE IF NOT EXISTS tokens ("
+	" name TEXT PRIMARY KEY, role INTEGER NOT NULL, digest BLOB NOT NULL,"
+	" created_ns INTEGER NOT NULL, expires_ns INTEGER NOT NULL,"
+	" revoked_ns INTEGER NOT NULL, created_by TEXT);"
+	"CREATE TABLE IF NOT EXISTS locks ("
+	" instrument TEXT PRIMARY KEY, holder TEXT NOT NULL, holder_uid INTEGER NOT NULL,"
+	" reason TEXT NOT NULL, since_ns INTEGER NOT NULL, pause INTEGER NOT NULL,"
+	" paused_job INTEGER NOT NULL);"
+	"CREATE TABLE IF NOT EXISTS outbox ("
+	" id INTEGER PRIMARY KEY AUTOINCREMENT, sink TEXT NOT NULL, topic TEXT,"
+	" payload TEXT NOT NULL, qos INTEGER NOT NULL, retain INTEGER NOT NULL,"
+	" message_id TEXT NOT NULL, created_ns INTEGER NOT NULL);"
+	"CREATE INDEX IF NOT EXISTS outbox_sink ON outbox (sink, id);";
+
 static int sql_error(struct store *s, struct asph_error *err, const char *what)
 {
 	return asph_error_set(err, -EIO, "%s: %s", what, sqlite3_errmsg(s->db));
@@ -106,6 +132,28 @@ static int exec(struct store *s, const char *sql)
 	return rc == SQLITE_OK ? 0 : sql_errno(rc);
 }
 
+/* The columns of schema 2 that the store lacks, added. */
+static int add_columns(struct store *s)
+{
+	for (size_t i = 0; i < ARRAY_SIZE(schema_2_columns); i++) {
+		char sql[160];
+		sqlite3_stmt *st;
+		bool have;
+
+		snprintf(sql, sizeof(sql), "SELECT 1 FROM pragma_table_info('%s') WHERE name = '%s'",
+			 schema_2_columns[i][0], schema_2_columns[i][1]);
+		if (sqlite3_prepare_v2(s->db, sql, -1, &st, NULL) != SQLITE_OK)
+			return -EIO;
+		have = sqlite3_step(st) == SQLITE_ROW;
+		sqlite3_finalize(st);
+		snprintf(sql, sizeof(sql), "ALTER TABLE %s ADD COLUMN %s TEXT",
+			 schema_2_columns[i][0], schema_2_columns[i][1]);
+		if (!have && exec(s, sql) < 0)
+			return -EIO;
+	}
+	return exec(s, "CREATE INDEX IF NOT EXISTS jobs_part ON jobs (part)");
+}
+
 static int check_version(struct store *s, struct asph_error *err)
 {
 	_cleanup_free_ char *v = NULL;
@@ -113,8 +161,10 @@ static int check_version(struct store *s, struct asph_error *err)
 	int r = store_meta_get(s, "schema", &v);
 
 	if (r == -ENOENT) {
+		/* A new store: the tables of every version are there. */
 		snprintf(buf, sizeof(buf), "%d", SCHEMA_VERSION);
-		return store_meta_set(s, "schema", buf);
+		return add_columns(s) < 0 ? sql_error(s, err, "creating the store")
+					  : store_meta_set(s, "schema", buf);
 	}
 	if (r < 0)
 		return sql_error(s, err, "reading the schema version");
@@ -130,6 +180,15 @@ static int check_version(struct store *s, struct asph_error *err)
 		return asph_error_set(err, -EPROTO,
 				      "the job store has schema %ld, newer than %d",
 				      version, SCHEMA_VERSION);
+	if (version == 1) {
+		snprintf(buf, sizeof(buf), "%d", SCHEMA_VERSION);
+		if (store_begin(s) < 0 || add_columns(s) < 0 ||
+		    store_meta_set(s, "schema", buf) < 0 || store_commit(s) < 0) {
+			r = sql_error(s, err, "upgrading the job store to schema 2");
+			store_rollback(s);
+			return r;
+		}
+	}
 	return 0;
 }
 
@@ -173,7 +232,7 @@ int store_open(const char *path, struct store **out, struct asph_error *err)
 	if (exec(s, "PRAGMA journal_mode=WAL;") < 0 ||
 	    exec(s, "PRAGMA synchronous=FULL;") < 0 ||
 	    exec(s, "PRAGMA foreign_keys=ON;") < 0 ||
-	    exec(s, schema) < 0) {
+	    exec(s, schema) < 0 || exec(s, schema_2_tables) < 0) {
 		r = sql_error(s, err, path);
 		store_close(s);
 		return r;
@@ -278,30 +337,34 @@ static char *column_text(sqlite3_stmt *st, int i)
 
 #define JOB_COLUMNS "id, state, priority, seq, label, instrument, uid, user, spec," \
 	" submitted_ns, started_ns, finished_ns, points_done, points_total," \
-	" reason, result, scan_path, resume, attempts"
+	" reason, result, scan_path, resume, attempts, part, lot, serial"
 
-static int read_job(sqlite3_stmt *st, struct job_record *j)
+/* The job's columns (JOB_COLUMNS) from column o on. */
+static int read_job_at(sqlite3_stmt *st, int o, struct job_record *j)
 {
 	memset(j, 0, sizeof(*j));
-	j->id = sqlite3_column_int64(st, 0);
-	j->state = (enum job_state)sqlite3_column_int(st, 1);
-	j->priority = sqlite3_column_int64(st, 2);
-	j->seq = sqlite3_column_int64(st, 3);
-	j->label = column_text(st, 4);
-	j->instrument = column_text(st, 5);
-	j->uid = sqlite3_column_int64(st, 6);
-	j->user = column_text(st, 7);
-	j->spec = column_text(st, 8);
-	j->submitted_ns = sqlite3_column_int64(st, 9);
-	j->started_ns = sqlite3_column_int64(st, 10);
-	j->finished_ns = sqlite3_column_int64(st, 11);
-	j->points_done = sqlite3_column_int64(st, 12);
-	j->points_total = sqlite3_column_int64(st, 13);
-	j->reason = column_text(st, 14);
-	j->result = column_text(st, 15);
-	j->scan_path = column_text(st, 16);
-	j->resume = sqlite3_column_int(st, 17) != 0;
-	j->attempts = sqlite3_column_int64(st, 18);
+	j->id = sqlite3_column_int64(st, o);
+	j->state = (enum job_state)sqlite3_column_int(st, o + 1);
+	j->priority = sqlite3_column_int64(st, o + 2);
+	j->seq = sqlite3_column_int64(st, o + 3);
+	j->label = column_text(st, o + 4);
+	j->instrument = column_text(st, o + 5);
+	j->uid = sqlite3_column_int64(st, o + 6);
+	j->user = column_text(st, o + 7);
+	j->spec = column_text(st, o + 8);
+	j->submitted_ns = sqlite3_column_int64(st, o + 9);
+	j->started_ns = sqlite3_column_int64(st, o + 10);
+	j->finished_ns = sqlite3_column_int64(st, o + 11);
+	j->points_done = sqlite3_column_int64(st, o + 12);
+	j->points_total = sqlite3_column_int64(st, o + 13);
+	j->reason = column_text(st, o + 14);
+	j->result = column_text(st, o + 15);
+	j->scan_path = column_text(st, o + 16);
+	j->resume = sqlite3_column_int(st, o + 17) != 0;
+	j->attempts = sqlite3_column_int64(st, o + 18);
+	j->part = column_text(st, o + 19);
+	j->lot = column_text(st, o + 20);
+	j->serial = column_text(st, o + 21);
 	if (!j->instrument || !j->spec) {
 		job_record_clear(j);
 		return -ENOMEM;
@@ -309,11 +372,17 @@ static int read_job(sqlite3_stmt *st, struct job_record *j)
 	return 0;
 }
 
+static int read_job(sqlite3_stmt *st, struct job_record *j)
+{
+	return read_job_at(st, 0, j);
+}
+
 static int add_history(struct store *s, int64_t id, enum job_state state,
-		       const char *reason, int64_t actor, int64_t now)
+		       const char *reason, int64_t actor_uid, const char *actor, int64_t now)
 {
 	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
-		"INSERT INTO history (job, t_ns, state, reason, actor_uid) VALUES (?,?,?,?,?)");
+		"INSERT INTO history (job, t_ns, state, reason, actor_uid, actor)"
+		" VALUES (?,?,?,?,?,?)");
 
 	if (!st)
 		return -EIO;
@@ -321,7 +390,8 @@ static int add_history(struct store *s, int64_t id, enum job_state state,
 	sqlite3_bind_int64(st, 2, now);
 	sqlite3_bind_int(st, 3, state);
 	bind_text(st, 4, reason);
-	sqlite3_bind_int64(st, 5, actor);
+	sqlite3_bind_int64(st, 5, actor_uid);
+	bind_text(st, 6, actor);
 	return step_done(st);
 }
 
@@ -335,8 +405,9 @@ int store_insert(struct store *s, struct job_record *j, int64_t now_ns)
 		return r;
 	st = prepare(s, "INSERT INTO jobs (state, priority, seq, label, instrument, uid,"
 		     " user, spec, submitted_ns, started_ns, finished_ns, points_done,"
-		     " points_total, reason, result, scan_path, resume, attempts)"
-		     " VALUES (?,?,(SELECT IFNULL(MAX(seq),0)+1 FROM jobs),?,?,?,?,?,?,0,0,0,?,NULL,NULL,?,0,0)");
+		     " points_total, reason, result, scan_path, resume, attempts, part, lot, serial)"
+		     " VALUES (?,?,(SELECT IFNULL(MAX(seq),0)+1 FROM jobs),?,?,?,?,?,?,0,0,0,?,NULL,NULL,?,0,0,"
+		     "?,?,?)");
 	if (!st) {
 		store_rollback(s);
 		return -EIO;
@@ -351,6 +422,9 @@ int store_insert(struct store *s, struct job_record *j, int64_t now_ns)
 	sqlite3_bind_int64(st, 8, now_ns);
 	sqlite3_bind_int64(st, 9, j->points_total);
 	bind_text(st, 10, j->scan_path);
+	bind_text(st, 11, j->part);
+	bind_text(st, 12, j->lot);
+	bind_text(st, 13, j->serial);
 	r = step_done(st);
 	if (r < 0) {
 		store_rollback(s);
@@ -358,7 +432,7 @@ int store_insert(struct store *s, struct job_record *j, int64_t now_ns)
 	}
 	j->id = sqlite3_last_insert_rowid(s->db);
 	j->submitted_ns = now_ns;
-	r = add_history(s, j->id, j->state, NULL, j->uid, now_ns);
+	r = add_history(s, j->id, j->state, NULL, j->uid, j->user, now_ns);
 	if (r < 0) {
 		store_rollback(s);
 		return r;
@@ -395,7 +469,7 @@ int store_get(struct store *s, int64_t id, struct job_record *out)
 
 /* The state change and its history entry, inside a transaction. */
 static int change_state(struct store *s, int64_t id, enum job_state state,
-			const char *reason, int64_t actor_uid, int64_t now_ns)
+			const char *reason, int64_t actor_uid, const char *actor, int64_t now_ns)
 {
 	/* A state change without a reason keeps the last one (a pause does
 	 * not explain away a fault), except a return to the queue: a re-queued
@@ -413,18 +487,18 @@ static int change_state(struct store *s, int64_t id, enum job_state state,
 	sqlite3_bind_int64(st, 3, id);
 	r = step_done(st);
 	if (r == 0)
-		r = add_history(s, id, state, reason, actor_uid, now_ns);
+		r = add_history(s, id, state, reason, actor_uid, actor, now_ns);
 	return r;
 }
 
 int store_set_state(struct store *s, int64_t id, enum job_state state,
-		    const char *reason, int64_t actor_uid, int64_t now_ns)
+		    const char *reason, int64_t actor_uid, const char *actor, int64_t now_ns)
 {
 	int r = store_begin(s);
 
 	if (r < 0)
 		return r;
-	r = change_state(s, id, state, reason, actor_uid, now_ns);
+	r = change_state(s, id, state, reason, actor_uid, actor, now_ns);
 	if (r == 0)
 		r = store_commit(s);
 	if (r < 0)
@@ -433,7 +507,7 @@ int store_set_state(struct store *s, int64_t id, enum job_state state,
 }
 
 int store_transition(struct store *s, const struct job_record *j, enum job_state state,
-		     const char *reason, int64_t actor_uid, int64_t now_ns)
+		     const char *reason, int64_t actor_uid, const char *actor, int64_t now_ns)
 {
 	int r = store_begin(s);
 
@@ -441,7 +515,7 @@ int store_transition(struct store *s, const struct job_record *j, enum job_state
 		return r;
 	r = store_update(s, j);
 	if (r == 0)
-		r = change_state(s, j->id, state, reason, actor_uid, now_ns);
+		r = change_state(s, j->id, state, reason, actor_uid, actor, now_ns);
 	if (r == 0)
 		r = store_commit(s);
 	if (r < 0)
@@ -508,6 +582,14 @@ static void filter_sql(const struct store_filter *f, char *sql, size_t size)
 		n += (size_t)snprintf(sql + n, size - n, " AND uid = ?");
 	if (f->label)
 		n += (size_t)snprintf(sql + n, size - n, " AND label = ?");
+	if (f->user)
+		n += (size_t)snprintf(sql + n, size - n, " AND user = ?");
+	if (f->part)
+		n += (size_t)snprintf(sql + n, size - n, " AND part = ?");
+	if (f->lot)
+		n += (size_t)snprintf(sql + n, size - n, " AND lot = ?");
+	if (f->serial)
+		n += (size_t)snprintf(sql + n, size - n, " AND serial = ?");
 	if (f->before_id > 0)
 		snprintf(sql + n, size - n, " AND id < ?");
 }
@@ -524,6 +606,14 @@ static int filter_bind(sqlite3_stmt *st, const struct store_filter *f)
 		sqlite3_bind_int64(st, i++, f->uid);
 	if (f->label)
 		bind_text(st, i++, f->label);
+	if (f->user)
+		bind_text(st, i++, f->user);
+	if (f->part)
+		bind_text(st, i++, f->part);
+	if (f->lot)
+		bind_text(st, i++, f->lot);
+	if (f->serial)
+		bind_text(st, i++, f->serial);
 	if (f->before_id > 0)
 		sqlite3_bind_int64(st, i++, f->before_id);
 	return i;
@@ -532,12 +622,12 @@ static int filter_bind(sqlite3_stmt *st, const struct store_filter *f)
 int store_list(struct store *s, const struct store_filter *f,
 	       store_job_fn fn, void *data, int64_t *total)
 {
-	char sql[512] = "SELECT " JOB_COLUMNS " FROM jobs";
+	char sql[768] = "SELECT " JOB_COLUMNS " FROM jobs";
 	_cleanup_stmt_ sqlite3_stmt *st = NULL;
 	int i, r;
 
 	if (total) {
-		char csql[256] = "SELECT COUNT(*) FROM jobs";
+		char csql[512] = "SELECT COUNT(*) FROM jobs";
 		_cleanup_stmt_ sqlite3_stmt *c = NULL;
 		filter_sql(f, csql, sizeof(csql));
 		c = prepare(s, csql);
@@ -590,7 +680,8 @@ int store_next(struct store *s, const char *instrument, struct job_record *out)
 int store_history(struct store *s, int64_t id, store_event_fn fn, void *data)
 {
 	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
-		"SELECT t_ns, state, reason, actor_uid FROM history WHERE job = ? ORDER BY rowid");
+		"SELECT t_ns, state, reason, actor_uid, actor FROM history WHERE job = ?"
+		" ORDER BY rowid");
 	int r;
 
 	if (!st)
@@ -602,6 +693,7 @@ int store_history(struct store *s, int64_t id, store_event_fn fn, void *data)
 			.state = (enum job_state)sqlite3_column_int(st, 1),
 			.reason = (const char *)sqlite3_column_text(st, 2),
 			.actor_uid = sqlite3_column_int64(st, 3),
+			.actor = (const char *)sqlite3_column_text(st, 4),
 		};
 		int k = fn(&e, data);
 		if (k < 0)
@@ -629,7 +721,7 @@ int store_recover(struct store *s, int64_t now_ns)
 		sqlite3_reset(sel);
 		for (int i = 0; i < n; i++) {
 			r = store_set_state(s, ids[i], JOB_INTERRUPTED,
-					    "the daemon stopped during the scan", 0, now_ns);
+					    "the daemon stopped during the scan", 0, NULL, now_ns);
 			if (r < 0)
 				return r;
 			_cleanup_stmt_ sqlite3_stmt *u = prepare(s,
@@ -703,4 +795,273 @@ int store_commit(struct store *s)
 void store_rollback(struct store *s)
 {
 	exec(s, "ROLLBACK");
+}
+
+/* ------------------------------------------------------------ tokens */
+
+int store_token_insert(struct store *s, const struct store_token *t)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
+		"INSERT INTO tokens (name, role, digest, created_ns, expires_ns, revoked_ns,"
+		" created_by) VALUES (?,?,?,?,?,0,?)");
+	int rc;
+
+	if (!st)
+		return -EIO;
+	bind_text(st, 1, t->name);
+	sqlite3_bind_int(st, 2, t->role);
+	sqlite3_bind_blob(st, 3, t->digest, 32, SQLITE_TRANSIENT);
+	sqlite3_bind_int64(st, 4, t->created_ns);
+	sqlite3_bind_int64(st, 5, t->expires_ns);
+	bind_text(st, 6, t->created_by);
+	rc = sqlite3_step(st);
+	if (rc == SQLITE_DONE)
+		return 0;
+	return (rc & 0xff) == SQLITE_CONSTRAINT ? -EEXIST : sql_errno(rc);
+}
+
+int store_token_list(struct store *s, store_token_fn fn, void *data)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
+		"SELECT name, role, digest, created_ns, expires_ns, revoked_ns, created_by"
+		" FROM tokens ORDER BY name");
+	int r;
+
+	if (!st)
+		return -EIO;
+	while ((r = sqlite3_step(st)) == SQLITE_ROW) {
+		struct store_token t = {
+			.name = (const char *)sqlite3_column_text(st, 0),
+			.role = sqlite3_column_int(st, 1),
+			.digest = sqlite3_column_blob(st, 2),
+			.created_ns = sqlite3_column_int64(st, 3),
+			.expires_ns = sqlite3_column_int64(st, 4),
+			.revoked_ns = sqlite3_column_int64(st, 5),
+			.created_by = (const char *)sqlite3_column_text(st, 6),
+		};
+		int k;
+		if (!t.name || !t.digest || sqlite3_column_bytes(st, 2) != 32)
+			continue;
+		k = fn(&t, data);
+		if (k < 0)
+			return k;
+	}
+	return r == SQLITE_DONE ? 0 : -EIO;
+}
+
+int store_token_revoke(struct store *s, const char *name, int64_t now_ns)
+{
+	_cleanup_stmt_ sqlite3_stmt *q = prepare(s, "SELECT revoked_ns FROM tokens WHERE name = ?");
+	_cleanup_stmt_ sqlite3_stmt *st = NULL;
+	int r;
+
+	if (!q)
+		return -EIO;
+	bind_text(q, 1, name);
+	r = step_row(q);
+	if (r < 0)
+		return r;
+	if (sqlite3_column_int64(q, 0) != 0)
+		return -EALREADY;
+	st = prepare(s, "UPDATE tokens SET revoked_ns = ? WHERE name = ?");
+	if (!st)
+		return -EIO;
+	sqlite3_bind_int64(st, 1, now_ns);
+	bind_text(st, 2, name);
+	return step_done(st);
+}
+
+/* ------------------------------------------------------------- locks */
+
+int store_lock_set(struct store *s, const struct store_lock *l)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
+		"INSERT INTO locks (instrument, holder, holder_uid, reason, since_ns, pause,"
+		" paused_job) VALUES (?,?,?,?,?,?,?) ON CONFLICT(instrument) DO UPDATE SET"
+		" holder = excluded.holder, holder_uid = excluded.holder_uid,"
+		" reason = excluded.reason, since_ns = excluded.since_ns,"
+		" pause = excluded.pause, paused_job = excluded.paused_job");
+
+	if (!st)
+		return -EIO;
+	bind_text(st, 1, l->instrument);
+	bind_text(st, 2, l->holder);
+	sqlite3_bind_int64(st, 3, l->holder_uid);
+	bind_text(st, 4, l->reason);
+	sqlite3_bind_int64(st, 5, l->since_ns);
+	sqlite3_bind_int(st, 6, l->pause);
+	sqlite3_bind_int64(st, 7, l->paused_job);
+	return step_done(st);
+}
+
+int store_lock_clear(struct store *s, const char *instrument)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "DELETE FROM locks WHERE instrument = ?");
+
+	if (!st)
+		return -EIO;
+	bind_text(st, 1, instrument);
+	return step_done(st);
+}
+
+int store_lock_list(struct store *s, store_lock_fn fn, void *data)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
+		"SELECT instrument, holder, holder_uid, reason, since_ns, pause, paused_job"
+		" FROM locks ORDER BY instrument");
+	int r;
+
+	if (!st)
+		return -EIO;
+	while ((r = sqlite3_step(st)) == SQLITE_ROW) {
+		struct store_lock l = {
+			.instrument = (const char *)sqlite3_column_text(st, 0),
+			.holder = (const char *)sqlite3_column_text(st, 1),
+			.holder_uid = sqlite3_column_int64(st, 2),
+			.reason = (const char *)sqlite3_column_text(st, 3),
+			.since_ns = sqlite3_column_int64(st, 4),
+			.pause = sqlite3_column_int(st, 5) != 0,
+			.paused_job = sqlite3_column_int64(st, 6),
+		};
+		int k;
+		if (!l.instrument || !l.holder || !l.reason)
+			return -ENOMEM;
+		k = fn(&l, data);
+		if (k < 0)
+			return k;
+	}
+	return r == SQLITE_DONE ? 0 : -EIO;
+}
+
+/* ------------------------------------------------------------ outbox */
+
+int store_outbox_add(struct store *s, struct store_outbox_item *it)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
+		"INSERT INTO outbox (sink, topic, payload, qos, retain, message_id, created_ns)"
+		" VALUES (?,?,?,?,?,?,?)");
+	int r;
+
+	if (!st)
+		return -EIO;
+	bind_text(st, 1, it->sink);
+	bind_text(st, 2, it->topic);
+	bind_text(st, 3, it->payload);
+	sqlite3_bind_int(st, 4, it->qos);
+	sqlite3_bind_int(st, 5, it->retain);
+	bind_text(st, 6, it->message_id);
+	sqlite3_bind_int64(st, 7, it->created_ns);
+	r = step_done(st);
+	if (r == 0)
+		it->id = sqlite3_last_insert_rowid(s->db);
+	return r;
+}
+
+int store_outbox_list(struct store *s, const char *sink, int64_t after, int64_t limit,
+		      store_outbox_fn fn, void *data)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
+		"SELECT id, sink, topic, payload, qos, retain, message_id, created_ns FROM outbox"
+		" WHERE sink = ? AND id > ? ORDER BY id LIMIT ?");
+	int r;
+
+	if (!st)
+		return -EIO;
+	bind_text(st, 1, sink);
+	sqlite3_bind_int64(st, 2, after);
+	sqlite3_bind_int64(st, 3, limit);
+	while ((r = sqlite3_step(st)) == SQLITE_ROW) {
+		struct store_outbox_item it = {
+			.id = sqlite3_column_int64(st, 0),
+			.sink = (const char *)sqlite3_column_text(st, 1),
+			.topic = (const char *)sqlite3_column_text(st, 2),
+			.payload = (const char *)sqlite3_column_text(st, 3),
+			.qos = sqlite3_column_int(st, 4),
+			.retain = sqlite3_column_int(st, 5) != 0,
+			.message_id = (const char *)sqlite3_column_text(st, 6),
+			.created_ns = sqlite3_column_int64(st, 7),
+		};
+		int k;
+		if (!it.sink || !it.payload || !it.message_id)
+			return -ENOMEM;
+		k = fn(&it, data);
+		if (k < 0)
+			return k;
+	}
+	return r == SQLITE_DONE ? 0 : -EIO;
+}
+
+int store_outbox_remove(struct store *s, int64_t id)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "DELETE FROM outbox WHERE id = ?");
+
+	if (!st)
+		return -EIO;
+	sqlite3_bind_int64(st, 1, id);
+	return step_done(st);
+}
+
+int store_outbox_count(struct store *s, const char *sink, int64_t *n)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "SELECT COUNT(*) FROM outbox WHERE sink = ?");
+
+	if (!st)
+		return -EIO;
+	bind_text(st, 1, sink);
+	if (sqlite3_step(st) != SQLITE_ROW)
+		return -EIO;
+	*n = sqlite3_column_int64(st, 0);
+	return 0;
+}
+
+int store_changes(struct store *s, int64_t after, int64_t limit, store_change_fn fn,
+		  void *data)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
+		"SELECT h.rowid, h.t_ns, h.state, h.reason, h.actor,"
+		" (SELECT p.state FROM history p WHERE p.job = h.job AND p.rowid < h.rowid"
+		"  ORDER BY p.rowid DESC LIMIT 1), jobs.id, jobs.state, priority, seq, label,"
+		" instrument, uid, user, spec, submitted_ns, started_ns, finished_ns, points_done,"
+		" points_total, jobs.reason, result, scan_path, resume, attempts, part, lot, serial"
+		" FROM history h JOIN jobs ON jobs.id = h.job WHERE h.rowid > ?"
+		" ORDER BY h.rowid LIMIT ?");
+	int r;
+
+	if (!st)
+		return -EIO;
+	sqlite3_bind_int64(st, 1, after);
+	sqlite3_bind_int64(st, 2, limit);
+	while ((r = sqlite3_step(st)) == SQLITE_ROW) {
+		struct job_record j;
+		struct store_change c = {
+			.rowid = sqlite3_column_int64(st, 0),
+			.t_ns = sqlite3_column_int64(st, 1),
+			.state = (enum job_state)sqlite3_column_int(st, 2),
+			.reason = (const char *)sqlite3_column_text(st, 3),
+			.actor = (const char *)sqlite3_column_text(st, 4),
+			.previous = sqlite3_column_type(st, 5) == SQLITE_NULL
+				    ? -1 : sqlite3_column_int(st, 5),
+			.job = &j,
+		};
+		int k = read_job_at(st, 6, &j);
+		if (k < 0)
+			return k;
+		k = fn(&c, data);
+		job_record_clear(&j);
+		if (k < 0)
+			return k;
+	}
+	return r == SQLITE_DONE ? 0 : -EIO;
+}
+
+int store_last_change(struct store *s, int64_t *rowid)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "SELECT IFNULL(MAX(rowid), 0) FROM history");
+
+	if (!st)
+		return -EIO;
+	if (sqlite3_step(st) != SQLITE_ROW)
+		return -EIO;
+	*rowid = sqlite3_column_int64(st, 0);
+	return 0;
 }

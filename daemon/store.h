@@ -45,6 +45,7 @@ struct job_record {
 	char *scan_path;        /* relative to the state directory */
 	bool resume;            /* the next run continues scan_path */
 	int64_t attempts;
+	char *part, *lot, *serial;      /* what was measured; NULL: not given */
 };
 
 void job_record_clear(struct job_record *j);
@@ -62,13 +63,14 @@ int store_insert(struct store *s, struct job_record *j, int64_t now_ns);
 /* -ENOENT when there is no such job. */
 int store_get(struct store *s, int64_t id, struct job_record *out);
 
-/* A state change with its history entry; reason may be NULL. */
+/* A state change with its history entry; reason may be NULL; actor names
+ * who caused it (a user, a token; NULL: the daemon). */
 int store_set_state(struct store *s, int64_t id, enum job_state state,
-		    const char *reason, int64_t actor_uid, int64_t now_ns);
+		    const char *reason, int64_t actor_uid, const char *actor, int64_t now_ns);
 /* A state change as store_set_state(), with every mutable column of j
  * written in the same transaction. */
 int store_transition(struct store *s, const struct job_record *j, enum job_state state,
-		     const char *reason, int64_t actor_uid, int64_t now_ns);
+		     const char *reason, int64_t actor_uid, const char *actor, int64_t now_ns);
 /* Writes every mutable column of j (state history is not touched). */
 int store_update(struct store *s, const struct job_record *j);
 int store_set_progress(struct store *s, int64_t id, int64_t done,
@@ -83,6 +85,8 @@ struct store_filter {
 	const char *instrument; /* or NULL */
 	int64_t uid;            /* STORE_ANY_UID = any */
 	const char *label;      /* exact, or NULL */
+	const char *user;       /* the submitter's name, exact, or NULL */
+	const char *part, *lot, *serial;        /* exact, or NULL */
 	int64_t before_id;      /* only ids below; 0 = no bound */
 	int64_t offset, limit;
 	bool queue_order;       /* priority, seq; else newest first */
@@ -104,6 +108,7 @@ struct store_event {
 	enum job_state state;
 	const char *reason;
 	int64_t actor_uid;
+	const char *actor;      /* NULL: the daemon, or a store of schema 1 */
 };
 typedef int (*store_event_fn)(const struct store_event *e, void *data);
 int store_history(struct store *s, int64_t id, store_event_fn fn, void *data);
@@ -128,6 +133,78 @@ int store_meta_set(struct store *s, const char *key, const char *value);
  */
 int store_renew_reserve(struct store *s);
 int store_release_reserve(struct store *s);
+
+/* --- API tokens (tokens.c): name, role, SHA-256 of the secret */
+
+struct store_token {
+	const char *name;
+	int role;
+	const uint8_t *digest;  /* 32 bytes */
+	int64_t created_ns, expires_ns, revoked_ns;     /* 0: never, not */
+	const char *created_by;
+};
+typedef int (*store_token_fn)(const struct store_token *t, void *data);
+/* -EEXIST when a token of that name exists (revoked or not). */
+int store_token_insert(struct store *s, const struct store_token *t);
+int store_token_list(struct store *s, store_token_fn fn, void *data);
+/* -ENOENT when there is no such token, -EALREADY when it is revoked. */
+int store_token_revoke(struct store *s, const char *name, int64_t now_ns);
+
+/* --- the operator locks of instruments (jobs.c) */
+
+struct store_lock {
+	const char *instrument;
+	const char *holder;     /* a user or token name */
+	int64_t holder_uid;
+	const char *reason;
+	int64_t since_ns;
+	bool pause;             /* a running job is paused while it holds */
+	int64_t paused_job;     /* the job the lock paused, 0: none */
+};
+typedef int (*store_lock_fn)(const struct store_lock *l, void *data);
+int store_lock_set(struct store *s, const struct store_lock *l);
+int store_lock_clear(struct store *s, const char *instrument);
+int store_lock_list(struct store *s, store_lock_fn fn, void *data);
+
+/* --- the outbox (outbox.c): what waits for a broker or a database */
+
+struct store_outbox_item {
+	int64_t id;             /* assigned by store_outbox_add() */
+	const char *sink;       /* "mqtt", "postgres" */
+	const char *topic;      /* MQTT; NULL for the database */
+	const char *payload;
+	int qos;
+	bool retain;
+	const char *message_id;
+	int64_t created_ns;
+};
+typedef int (*store_outbox_fn)(const struct store_outbox_item *it, void *data);
+int store_outbox_add(struct store *s, struct store_outbox_item *it);
+/* Items of sink with an id above after, oldest first, at most limit. */
+int store_outbox_list(struct store *s, const char *sink, int64_t after, int64_t limit,
+		      store_outbox_fn fn, void *data);
+/* Acknowledged: gone. 0 also when it was gone before. */
+int store_outbox_remove(struct store *s, int64_t id);
+/* Items waiting for sink. */
+int store_outbox_count(struct store *s, const char *sink, int64_t *n);
+
+/* A state change as history keeps it, with the job's fields the outbox
+ * tells: the rowid orders them. */
+struct store_change {
+	int64_t rowid;
+	int64_t t_ns;
+	const struct job_record *job;
+	enum job_state state;
+	int previous;           /* < 0: none (a new job) */
+	const char *reason;
+	const char *actor;
+};
+typedef int (*store_change_fn)(const struct store_change *c, void *data);
+/* The changes after rowid after, in order, at most limit. */
+int store_changes(struct store *s, int64_t after, int64_t limit, store_change_fn fn,
+		  void *data);
+/* The newest history rowid (0: none). */
+int store_last_change(struct store *s, int64_t *rowid);
 
 /* Runs several changes in one transaction. */
 int store_begin(struct store *s);

@@ -18,7 +18,7 @@
 /* Protocol version reported by `hello`; the minor part grows with
  * compatible additions. */
 #define PROTO_VERSION_MAJOR 1
-#define PROTO_VERSION_MINOR 1
+#define PROTO_VERSION_MINOR 2
 
 #define PROTO_DEFAULT_SOCKET "/run/asphd/asphd.sock"
 #define PROTO_DEFAULT_MAX_LINE (1u << 20)
@@ -51,6 +51,7 @@ enum proto_error_code {
 	PROTO_NO_RESULT = 107,
 	PROTO_STORAGE_ERROR = 108,
 	PROTO_INVALID_PATH = 109,
+	PROTO_INSTRUMENT_LOCKED = 110,
 };
 
 /* The short message of a code ("Parse error", "No such job", ...). */

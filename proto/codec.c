@@ -33,6 +33,7 @@ static const struct {
 	{ PROTO_NO_RESULT, "No result" },
 	{ PROTO_STORAGE_ERROR, "Storage error" },
 	{ PROTO_INVALID_PATH, "Invalid path" },
+	{ PROTO_INSTRUMENT_LOCKED, "Instrument locked" },
 };
 
 const char *proto_error_message(int code)

@@ -1,5 +1,7 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <errno.h>
 #include <stdio.h>
+#include <string.h>
 
 #include "util-time.h"
 
@@ -24,4 +26,24 @@ void iso8601_utc(int64_t ns, int digits, char *buf, size_t size)
 	for (int d = digits; d < 9; d++)
 		frac /= 10;
 	snprintf(buf, size, "%s.%0*ldZ", day, digits, frac);
+}
+
+int iso8601_parse_utc(const char *text, int64_t *ns)
+{
+	static const char *const forms[] = { "%Y-%m-%dT%H:%M:%SZ", "%Y-%m-%d" };
+	struct tm tm;
+
+	for (size_t i = 0; i < sizeof(forms) / sizeof(forms[0]); i++) {
+		const char *end;
+		memset(&tm, 0, sizeof(tm));
+		end = strptime(text, forms[i], &tm);
+		if (end && !*end) {
+			time_t t = timegm(&tm);
+			if (t == (time_t)-1 || t > INT64_MAX / NS_PER_SEC)
+				return -ERANGE;
+			*ns = (int64_t)t * NS_PER_SEC;
+			return 0;
+		}
+	}
+	return -EINVAL;
 }

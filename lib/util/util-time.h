@@ -76,4 +76,8 @@ static inline void msleep(unsigned ms)
  */
 void iso8601_utc(int64_t ns, int digits, char *buf, size_t size);
 
+/* "2027-01-31T12:00:00Z" or "2027-01-31" (midnight UTC) as realtime ns:
+ * 0, -EINVAL for any other text, -ERANGE for a time out of range. */
+int iso8601_parse_utc(const char *text, int64_t *ns);
+
 #endif

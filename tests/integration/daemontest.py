@@ -277,6 +277,32 @@ class Client:
         raise TimeoutError(f"job {job} did not reach {states}")
 
 
+def web_port(d, timeout=20):
+    """The port of d's web listener (http_listen 127.0.0.1:0), from its log."""
+    import re
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        m = re.search(r"web page at http://127\.0\.0\.1:(\d+)/", d.log_text())
+        if m:
+            return int(m.group(1))
+        time.sleep(0.05)
+    raise RuntimeError("no web page address in the log:\n" + d.log_text())
+
+
+def browser_or_skip(root):
+    """Debian's chromium and the directory where scripts/install-deps put
+    puppeteer-core (ASPH_NODE_DIR, else tests/browser/node): exits 77,
+    saying which is missing, when one is."""
+    node_dir = os.environ.get("ASPH_NODE_DIR", os.path.join(root, "tests", "browser", "node"))
+    chromium, node = shutil.which("chromium"), shutil.which("node")
+    if not chromium or not node or \
+            not os.path.isdir(os.path.join(node_dir, "node_modules", "puppeteer-core")):
+        print(f"SKIP: needs chromium ({chromium}), node ({node}) and puppeteer-core in "
+              f"{node_dir} (scripts/install-deps installs them)")
+        sys.exit(77)
+    return chromium, node_dir
+
+
 def free_port():
     """A TCP port on 127.0.0.1 that nothing listens on (for tcp_listen)."""
     s = socket.socket()

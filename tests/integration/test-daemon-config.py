@@ -108,10 +108,15 @@ try:
     d.proc = None
     cfg.pop("token_file")
     json.dump(cfg, open(d.config, "w"))
-    d.start(wait=False)
-    expect(d.proc.wait(timeout=30) == 3 and "needs a token_file" in d.log_text(),
-           "TCP without a token is refused (exit 3, a configuration error)")
-    d.proc = None
+    d.start()
+    t = socket.create_connection(("127.0.0.1", port), timeout=10)
+    tf = t.makefile("rw")
+    expect(tcall("hello", {"token": "Kq8vT2mXw9LpZr4bNc7YhGd3"}).get("error", {}).get("code") == 100,
+           "TCP without token_file: the old token is refused (named tokens only)")
+    expect(tcall("daemon.status").get("error", {}).get("code") == 100,
+           "TCP without a token: nothing but hello")
+    t.close()
+    expect(d.stop() == 0, "clean stop")
 
     # --- socket activation and the notify protocol, as systemd does them
     json.dump({"instruments": [mock_instrument()]}, open(d.config, "w"))

@@ -32,12 +32,16 @@ def as_user(path, calls, groups):
 
 
 def documented_methods():
-    """{method: operator?} from proto/README.md."""
+    """{method: role it needs} from proto/README.md's "## Methods": viewer,
+    or operator or admin for those marked **Operator.** or **Admin.**."""
     with open(os.path.join(ROOT, "proto", "README.md")) as f:
         text = f.read()
+    text = text[text.index("\n## Methods"):text.index("\n## Events")]
     methods = {}
-    for m in re.finditer(r"^### `([a-z.]+)`\n\n(.*?)(?=^### |^## )", text, re.M | re.S):
-        methods[m.group(1)] = m.group(2).lstrip().startswith("**Operator.**")
+    for m in re.finditer(r"^### `([a-z.]+)`\n\n(.*?)(?=^### |^## |\Z)", text, re.M | re.S):
+        body = m.group(2).lstrip()
+        methods[m.group(1)] = ("operator" if body.startswith("**Operator.**") else
+                               "admin" if body.startswith("**Admin.**") else "viewer")
     return methods
 
 
@@ -46,7 +50,11 @@ def params_for(method, job):
     return {"job.submit": SPEC, "job.get": {"id": job}, "job.cancel": {"id": job},
             "job.pause": {"id": job}, "job.resume": {"id": job}, "job.requeue": {"id": job},
             "job.result": {"id": job}, "queue.move": {"id": job, "position": 0},
-            "instrument.status": {"name": "mock"}, "queue.stop": {}}.get(method, {})
+            "instrument.status": {"name": "mock"}, "queue.stop": {},
+            "instrument.lock": {"name": "mock", "reason": "cleaning the probe"},
+            "instrument.unlock": {"name": "mock"},
+            "token.create": {"name": f"t{time.time_ns()}", "role": "viewer"},
+            "token.revoke": {"name": "none-such"}}.get(method, {})
 
 
 def inet_sockets(pid):
@@ -109,26 +117,32 @@ try:
 
     # --- every documented operator method, for a reader, an operator, root
     methods = documented_methods()
-    expect(len(methods) >= 19 and sum(methods.values()) >= 8,
-           f"proto/README.md documents {len(methods)} methods, {sum(methods.values())} for operators")
+    needs = {r: {m for m, n in methods.items() if n == r} for r in ("viewer", "operator", "admin")}
+    expect(len(methods) >= 24 and len(needs["operator"]) >= 10 and len(needs["admin"]) >= 3,
+           f"proto/README.md documents {len(methods)} methods, {len(needs['operator'])} for "
+           f"operators, {len(needs['admin'])} for admins")
     root = Client(d.socket)
     root.call("queue.stop")
     job = root.call("job.submit", SPEC)["id"]
     calls = [[m, params_for(m, job)] for m in sorted(methods)]
     reader = as_user(d.socket, calls, [])
     refused = {m for (m, _), r in zip(calls, reader) if r == 100}
-    expect(refused == {m for m, op in methods.items() if op},
-           f"a reader is refused exactly the operator methods ({sorted(refused)})")
+    expect(refused == needs["operator"] | needs["admin"],
+           f"a reader (viewer) is refused exactly the operator and admin methods ({sorted(refused)})")
     expect(root.call("job.get", {"id": job})["state"] == "queued", "the reader changed nothing")
-    for m in sorted(m for m, op in methods.items() if op):
-        r = as_user(d.socket, [[m, params_for(m, job)]], [OPERATORS.gr_gid])[0]
-        expect(r != 100, f"an operator may call {m} ({r})")
+    member = as_user(d.socket, calls, [OPERATORS.gr_gid])
+    refused = {m for (m, _), r in zip(calls, member) if r == 100}
+    expect(refused == needs["admin"],
+           f"a member of the operator group is refused exactly the admin methods ({sorted(refused)})")
+    root.call("instrument.unlock", {"name": "mock", "force": True}) \
+        if root.call("instrument.status", {"name": "mock"})["lock"] else None
+    for m in sorted(needs["operator"] | needs["admin"]):
         try:
             root.call(m, params_for(m, job))
             rr = "ok"
         except RpcError as e:
             rr = e.code
-        expect(rr != 100, f"root may call {m} ({rr})")
+        expect(rr != 100, f"root (an admin) may call {m} ({rr})")
     root.call("queue.start")
     root.close()
     expect(d.stop() == 0, "clean stop")

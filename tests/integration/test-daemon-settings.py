@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 # SPDX-License-Identifier: GPL-3.0-or-later
 """asphd --check-config says what the start says: each configuration the
-start refuses (tcp_listen without token_file; a token file that is missing,
+start refuses (a token file that is missing,
 empty, short, or readable by others; a tcp_listen that is not HOST:PORT or
 does not resolve; an operator group that does not exist), --check-config
 refuses with the same lines, each naming the setting and its place, and
@@ -38,8 +38,6 @@ try:
     # name, settings, files to write first (path, text, mode), the setting
     # named, what the message says
     cases = [
-        ("tcp_listen without token_file", dict(base, tcp_listen=f"127.0.0.1:{port}"), [],
-         "tcp_listen", "needs a token_file"),
         ("a token file that is missing", dict(tcp, token_file=token + ".none"), [],
          "token_file", "cannot read the token file"),
         ("an empty token file", tcp, [(token, "", 0o600)], "token_file", "is empty"),
@@ -62,6 +60,29 @@ try:
          "no-such-host.invalid"),
         ("an operator group that does not exist", dict(base, operator_group="no-such-group-asph"),
          [], "operator_group", "does not exist"),
+        ("an mqtt section without url", dict(base, mqtt={"prefix": "lab/a"}), [], "mqtt",
+         'needs "url"'),
+        ("an mqtt url of another scheme", dict(base, mqtt={"url": "http://127.0.0.1:1883"}), [],
+         "mqtt.url", "mqtt:// or mqtts://"),
+        ("an mqtt url with a password", dict(base, mqtt={"url": "mqtt://u:p@127.0.0.1"}), [],
+         "mqtt.url", "credentials_file"),
+        ("an mqtt port out of range", dict(base, mqtt={"url": "mqtt://127.0.0.1:0"}), [],
+         "mqtt.url", "from 1 to 65535"),
+        ("an mqtt qos of 3", dict(base, mqtt={"url": "mqtt://127.0.0.1", "qos": 3}), [],
+         "mqtt.qos", "0, 1 or 2"),
+        ("an mqtt prefix with a wildcard", dict(base, mqtt={"url": "mqtt://h", "prefix": "a/#"}),
+         [], "mqtt.prefix", "no '+' or '#'"),
+        ("an unknown mqtt setting", dict(base, mqtt={"url": "mqtt://h", "user": "u"}), [],
+         "mqtt.user", "unknown setting"),
+        ("a ca_file for mqtt://", dict(base, mqtt={"url": "mqtt://h", "ca_file": "/etc/hostname"}),
+         [], "mqtt.ca_file", "mqtts://"),
+        ("a postgres password in the conninfo",
+         dict(base, postgres={"conninfo": "host=db password=secret"}), [], "postgres.conninfo",
+         "password_file"),
+        ("a postgres section without conninfo", dict(base, postgres={}), [], "postgres",
+         'needs "conninfo"'),
+        ("an unknown postgres setting", dict(base, postgres={"conninfo": "host=db", "port": 5}),
+         [], "postgres.port", "unknown setting"),
         ("two errors at once", dict(tcp, operator_group="no-such-group-asph"),
          [(token, "", 0o600)], "operator_group", "does not exist"),
     ]

@@ -102,7 +102,8 @@ try:
     c.call("version")
     c.call("events.subscribe", {"events": ["job", "progress", "instrument", "queue"]})
     job = c.call("job.submit", {"lens": "strong", "plan": {"method": "ci", "h": 0.05}, "label": "L-17",
-                                "fit": {"dof": "tx,ty,tz,rx,ry", "residual": "normal"}})["id"]
+                                "fit": {"dof": "tx,ty,tz,rx,ry", "residual": "normal"},
+                                "part": "AS-2041", "lot": "L-17", "serial": "0042"})["id"]
     c.call("daemon.status")
     poll_state(c, job, ["completed"])
     c.call("job.get", {"id": job, "history": True})
@@ -128,6 +129,11 @@ try:
     c.call("instrument.list")
     c.call("instrument.status", {"name": "mock"})
     c.call("driver.list")
+    c.call("instrument.lock", {"name": "mock", "reason": "cleaning the probe"})
+    c.call("instrument.unlock", {"name": "mock"})
+    c.call("token.create", {"name": "wall-display", "role": "viewer", "expires": "2099-01-31"})
+    c.call("token.list")
+    c.call("token.revoke", {"name": "wall-display"})
     poll_state(c, j2, ["completed"])
     poll_state(c, j3, ["completed"])
     c.call("events.unsubscribe")

@@ -2,8 +2,8 @@
 /*
  * Who may do what (daemon/access.c): the strength rule that refuses
  * guessable tokens, the token file's checks, the grant a hello earns and
- * how a rotated or removed token takes it back, and the operator rule for
- * unix peers.
+ * how a rotated or removed token takes it back, the roles of unix peers,
+ * and the named tokens (daemon/tokens.c): made, matched, expired, revoked.
  */
 #include <errno.h>
 #include <setjmp.h>
@@ -19,6 +19,8 @@
 #include <cmocka.h>
 
 #include "access.h"
+#include "tokens.h"
+#include "util-time.h"
 
 static const char strong[] = "Kq8vT2mXw9LpZr4bNc7YhGd3";
 static const char rotated[] = "w7RmQ2zXc9VbLk4NpT8sYhJ6";
@@ -103,7 +105,8 @@ static void test_token_grants(void **state)
 	assert_false(access_is_operator(a, &tcp, &none));
 	assert_false(access_is_operator(a, &tcp, NULL));
 	assert_int_equal(access_authenticate(a, strong, &g), 0);
-	assert_true(g.valid && g.operator);
+	assert_true(g.valid && g.role == ROLE_ADMIN && g.token_file);
+	assert_int_equal(access_role_of(a, &tcp, &g), ROLE_ADMIN);
 	assert_string_equal(g.credential, "token_file");
 	assert_true(access_is_operator(a, &tcp, &g));
 	assert_true(access_grant_current(a, &g));
@@ -135,6 +138,8 @@ static void test_unix_operators(void **state)
 	assert_int_equal(settings_defaults(&s), 0);
 	assert_int_equal(access_load(s, &a, NULL, NULL), 0);
 	assert_true(access_is_operator(a, &root, NULL));
+	assert_int_equal(access_role_of(a, &root, NULL), ROLE_ADMIN);
+	assert_int_equal(access_role_of(a, &reader, NULL), ROLE_VIEWER);
 	assert_false(access_is_operator(a, &reader, NULL));
 	assert_false(access_is_operator(a, &member, NULL));
 	assert_false(access_has_token(a));
@@ -142,9 +147,93 @@ static void test_unix_operators(void **state)
 	s->operator_group = strdup("root");     /* gid 0 */
 	assert_int_equal(access_load(s, &a, NULL, NULL), 0);
 	assert_true(access_is_operator(a, &member, NULL));
+	assert_int_equal(access_role_of(a, &member, NULL), ROLE_OPERATOR);
 	assert_false(access_is_operator(a, &reader, NULL));
 	access_free(a);
 	settings_free(s);
+}
+
+static void test_named_tokens(void **state)
+{
+	char dir[] = "/tmp/test-tokens-XXXXXX", path[64], secret[TOKENS_SECRET_SIZE],
+	     other[TOKENS_SECRET_SIZE];
+	struct peer tcp = { .tcp = true, .uid = (uid_t)-1, .name = "tcp 192.0.2.7" };
+	struct access_grant g, v;
+	struct asph_error err;
+	struct settings *s;
+	struct tokens *t;
+	struct access *a = NULL;
+
+	assert_non_null(mkdtemp(dir));
+	snprintf(path, sizeof(path), "%s/jobs.sqlite", dir);
+	assert_int_equal(tokens_open(path, &t, &err), 0);
+	assert_int_equal(settings_defaults(&s), 0);
+	assert_int_equal(access_load(s, &a, NULL, NULL), 0);
+	access_set_tokens(a, t);
+	assert_int_equal(tokens_create(t, "line-3", ROLE_OPERATOR, 0, "root", secret, &err), 0);
+	assert_int_equal((int)strlen(secret), TOKENS_SECRET_SIZE - 1);
+	assert_true(access_token_strength(secret) >= ACCESS_TOKEN_MIN_BITS);
+	assert_int_equal(tokens_create(t, "line-3", ROLE_VIEWER, 0, "root", other, &err), -EEXIST);
+	assert_int_equal(tokens_create(t, "bad name", ROLE_VIEWER, 0, "root", other, &err), -EINVAL);
+	assert_int_equal(tokens_create(t, "token_file", ROLE_VIEWER, 0, "root", other, &err),
+			 -EINVAL);
+	assert_int_equal(tokens_create(t, "wall", ROLE_VIEWER, 0, "root", other, &err), 0);
+	assert_string_not_equal(secret, other);
+
+	assert_int_equal(access_authenticate(a, secret, &g), 0);
+	assert_string_equal(g.credential, "line-3");
+	assert_int_equal(access_role_of(a, &tcp, &g), ROLE_OPERATOR);
+	assert_int_equal(access_authenticate(a, other, &v), 0);
+	assert_int_equal(access_role_of(a, &tcp, &v), ROLE_VIEWER);
+	assert_false(access_is_operator(a, &tcp, &v));
+	/* One character off: no token. */
+	secret[10] ^= 1;
+	assert_int_equal(access_authenticate(a, secret, &v), -EACCES);
+	secret[10] ^= 1;
+
+	/* Revoked: the grant no longer stands and a new hello is refused. */
+	assert_int_equal(tokens_revoke(t, "line-3", &err), 0);
+	assert_int_equal(tokens_revoke(t, "line-3", &err), -EALREADY);
+	assert_int_equal(tokens_revoke(t, "nobody", &err), -ENOENT);
+	assert_false(access_grant_current(a, &g));
+	assert_int_equal(access_role_of(a, &tcp, &g), ROLE_NONE);
+	assert_int_equal(access_authenticate(a, secret, &v), -EKEYREVOKED);
+
+	/* Expired: the same, once its time has passed. */
+	assert_int_equal(tokens_create(t, "soon", ROLE_ADMIN, now_realtime_ns() + 150 * NS_PER_MS,
+				       "root", secret, &err), 0);
+	assert_true(tokens_next_expiry(t, now_realtime_ns()) > 0);
+	assert_int_equal(access_authenticate(a, secret, &g), 0);
+	assert_int_equal(access_role_of(a, &tcp, &g), ROLE_ADMIN);
+	msleep(200);
+	assert_int_equal(access_role_of(a, &tcp, &g), ROLE_NONE);
+	assert_int_equal(access_authenticate(a, secret, &v), -EKEYEXPIRED);
+	assert_int_equal(tokens_create(t, "past", ROLE_ADMIN, now_realtime_ns() - NS_PER_SEC, "root",
+				       secret, &err), -EINVAL);
+
+	/* The tokens are in the store: a new process finds them, hashed. */
+	tokens_free(t);
+	assert_int_equal(tokens_open(path, &t, &err), 0);
+	access_set_tokens(a, t);
+	assert_int_equal(access_authenticate(a, other, &v), 0);
+	assert_string_equal(v.credential, "wall");
+	{
+		json_t *list = tokens_to_json(t);
+		char *text = json_dumps(list, 0);
+		assert_null(strstr(text, other));
+		assert_non_null(strstr(text, "\"revoked\""));
+		assert_non_null(strstr(text, "\"expired\""));
+		free(text);
+		json_decref(list);
+	}
+	tokens_free(t);
+	access_free(a);
+	settings_free(s);
+	{
+		char cmd[128];
+		snprintf(cmd, sizeof(cmd), "rm -rf %s", dir);
+		assert_int_equal(system(cmd), 0);
+	}
 }
 
 int main(void)
@@ -153,6 +242,7 @@ int main(void)
 		cmocka_unit_test(test_strength),
 		cmocka_unit_test(test_token_grants),
 		cmocka_unit_test(test_unix_operators),
+		cmocka_unit_test(test_named_tokens),
 	};
 
 	return cmocka_run_group_tests(tests, NULL, NULL);

@@ -72,7 +72,7 @@ static void test_queue_order(void **state)
 	assert_int_equal(j.points_total, 4321);
 	assert_int_equal(j.submitted_ns, 1763700000123456789LL);
 	job_record_clear(&j);
-	assert_int_equal(store_set_state(f->s, b, JOB_RUNNING, NULL, 0, 5), 0);
+	assert_int_equal(store_set_state(f->s, b, JOB_RUNNING, NULL, 0, NULL, 5), 0);
 	assert_int_equal(store_next(f->s, "m1", &j), 0);
 	assert_int_equal(j.id, d);
 	job_record_clear(&j);
@@ -114,8 +114,8 @@ static void test_recover(void **state)
 	j.scan_path = strdup("jobs/1/scan.asphscan");
 	assert_int_equal(store_update(f->s, &j), 0);
 	job_record_clear(&j);
-	assert_int_equal(store_set_state(f->s, a, JOB_RUNNING, NULL, 77, 6), 0);
-	assert_int_equal(store_set_state(f->s, b, JOB_PAUSED, NULL, 77, 7), 0);
+	assert_int_equal(store_set_state(f->s, a, JOB_RUNNING, NULL, 77, NULL, 6), 0);
+	assert_int_equal(store_set_state(f->s, b, JOB_PAUSED, NULL, 77, NULL, 7), 0);
 	store_close(f->s);
 	assert_int_equal(store_open(f->path, &f->s, NULL), 0);
 	assert_int_equal(store_recover(f->s, 8), 2);
@@ -152,7 +152,7 @@ static void test_list(void **state)
 
 	for (int i = 0; i < 6; i++)
 		id[i] = add(f->s, i % 2 ? "m1" : "m2", 0, i < 3 ? "x" : "y");
-	assert_int_equal(store_set_state(f->s, id[4], JOB_FAILED, "stage fault", 0, 9), 0);
+	assert_int_equal(store_set_state(f->s, id[4], JOB_FAILED, "stage fault", 0, NULL, 9), 0);
 	/* newest first, paged */
 	assert_int_equal(store_list(f->s, &flt, collect, got, &total), 0);
 	assert_int_equal(total, 6);
@@ -173,12 +173,12 @@ static void test_list(void **state)
 
 	/* a pause keeps the reason of a fault; a re-queue starts afresh */
 	struct job_record j;
-	assert_int_equal(store_set_state(f->s, id[4], JOB_PAUSED, NULL, 0, 10), 0);
+	assert_int_equal(store_set_state(f->s, id[4], JOB_PAUSED, NULL, 0, NULL, 10), 0);
 	assert_int_equal(store_get(f->s, id[4], &j), 0);
 	assert_string_equal(j.reason, "stage fault");
 	job_record_clear(&j);
-	assert_int_equal(store_set_state(f->s, id[4], JOB_QUEUED, NULL, 0, 11), 0);
-	assert_int_equal(store_set_state(f->s, id[4], JOB_COMPLETED, NULL, 0, 12), 0);
+	assert_int_equal(store_set_state(f->s, id[4], JOB_QUEUED, NULL, 0, NULL, 11), 0);
+	assert_int_equal(store_set_state(f->s, id[4], JOB_COMPLETED, NULL, 0, NULL, 12), 0);
 	assert_int_equal(store_get(f->s, id[4], &j), 0);
 	assert_null(j.reason);
 	job_record_clear(&j);
@@ -226,14 +226,20 @@ static void test_schema_corrupt(void **state)
 		assert_null(s2);
 		assert_non_null(strstr(err.message, "is not a number from 1 on"));
 	}
-	/* the current version with leading zeros is still that version */
+	/* a version with leading zeros is still that version: 1 is upgraded */
 	assert_int_equal(store_meta_set(f->s, "schema", "001"), 0);
 	assert_int_equal(store_open(f->path, &s2, &err), 0);
 	store_close(s2);
 	s2 = NULL;
-	assert_int_equal(store_meta_set(f->s, "schema", "2"), 0);
+	{
+		char *v = NULL;
+		assert_int_equal(store_meta_get(f->s, "schema", &v), 0);
+		assert_string_equal(v, "2");
+		free(v);
+	}
+	assert_int_equal(store_meta_set(f->s, "schema", "3"), 0);
 	assert_int_equal(store_open(f->path, &s2, &err), -EPROTO);
-	assert_non_null(strstr(err.message, "schema 2, newer than 1"));
+	assert_non_null(strstr(err.message, "schema 3, newer than 2"));
 }
 
 /* A symlink in place of the store or of its write-ahead log: refused, and

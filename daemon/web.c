@@ -1,0 +1,922 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/*
+ * The web listener (web.h). libmicrohttpd runs in its "external" mode:
+ * no thread of its own; its epoll descriptor is watched by the event loop
+ * and MHD_run() is called from there, so every handler below runs on the
+ * event loop thread, the only one that may touch the jobs, the sessions
+ * and the events. A Server-Sent Events stream with nothing to send is
+ * suspended (MHD_suspend_connection) and resumed when an event is queued
+ * for it, so that an idle stream costs no turn of the loop.
+ */
+#include "config.h"
+
+#include <errno.h>
+#include <fcntl.h>
+#include <inttypes.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <strings.h>
+#include <sys/random.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <microhttpd.h>
+
+#include "asph-proto.h"
+#include "asph/scanfile.h"
+#include "log.h"
+#include "runner.h"
+#include "server.h"
+#include "util-mem.h"
+#include "util-time.h"
+#include "web.h"
+
+#define SESSION_COOKIE "asph_session"
+/* A session not used for this long ends (the page polls while open). */
+#define SESSION_IDLE_NS (12 * 3600 * (int64_t)1000000000)
+/* The most points one /points answer carries (the page asks again). */
+#define POINTS_MAX 20000
+
+/* Only the page's own origin: scripts, styles, images, connections. */
+#define CSP "default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data: blob:; " \
+	    "connect-src 'self'; object-src 'none'; base-uri 'none'; form-action 'self'; " \
+	    "frame-ancestors 'none'"
+
+struct stream;
+
+struct session {
+	struct session *next;
+	char id[44];                    /* base64url of 32 random bytes */
+	struct rpc_session rpc;
+	int64_t last_used_ns;
+	struct stream *stream;          /* the event stream, or NULL */
+};
+
+/* One Server-Sent Events response: what is queued for it and not sent. */
+struct stream {
+	struct web *web;
+	struct session *session;        /* NULL once the session ended */
+	struct MHD_Connection *conn;
+	bool suspended;
+	bool overflow;                  /* more queued than max_output_bytes: ends */
+	char *buf;
+	size_t len, sent, size;
+};
+
+/* One request's body as it arrives. */
+struct request {
+	char *body;
+	size_t len;
+	bool too_large;
+};
+
+struct web {
+	sd_event *event;
+	struct rpc *rpc;
+	struct jobs *jobs;
+	const struct settings_limits *limits;
+	char *state_dir;
+	struct MHD_Daemon *mhd;
+	sd_event_source *io, *timer;
+	int root_fd;
+	unsigned port;
+	struct session *sessions;
+	size_t n_sessions;
+};
+
+/* ------------------------------------------------------- the event loop */
+
+/* Arms the timer for libmicrohttpd's next timeout (0: work is waiting). */
+static void rearm(struct web *w)
+{
+	MHD_UNSIGNED_LONG_LONG ms;
+	uint64_t now;
+
+	if (!w->mhd || MHD_get_timeout(w->mhd, &ms) != MHD_YES) {
+		sd_event_source_set_enabled(w->timer, SD_EVENT_OFF);
+		return;
+	}
+	sd_event_now(w->event, CLOCK_MONOTONIC, &now);
+	sd_event_source_set_time(w->timer, ms ? now + ms * 1000 : 1);
+	sd_event_source_set_enabled(w->timer, SD_EVENT_ONESHOT);
+}
+
+/* Runs libmicrohttpd at the next turn of the loop: a resumed connection
+ * is taken up by MHD_run(), which its epoll descriptor may not ask for. */
+static void kick(struct web *w)
+{
+	sd_event_source_set_time(w->timer, 1);
+	sd_event_source_set_enabled(w->timer, SD_EVENT_ONESHOT);
+}
+
+static void run(struct web *w)
+{
+	MHD_run(w->mhd);
+	rearm(w);
+}
+
+static int on_io(sd_event_source *s, int fd, uint32_t revents, void *data)
+{
+	run(data);
+	return 0;
+}
+
+static int on_timer(sd_event_source *s, uint64_t usec, void *data)
+{
+	run(data);
+	return 0;
+}
+
+/* ---------------------------------------------------------- responses */
+
+static void secure_headers(struct MHD_Response *r)
+{
+	MHD_add_response_header(r, "Content-Security-Policy", CSP);
+	MHD_add_response_header(r, "X-Content-Type-Options", "nosniff");
+	MHD_add_response_header(r, "X-Frame-Options", "DENY");
+	MHD_add_response_header(r, "Referrer-Policy", "no-referrer");
+}
+
+static enum MHD_Result send_text(struct MHD_Connection *c, unsigned status, const char *type,
+				 const char *text, size_t len, const char *cookie)
+{
+	struct MHD_Response *r;
+	enum MHD_Result ret;
+
+	r = MHD_create_response_from_buffer(len, (void *)text, MHD_RESPMEM_MUST_COPY);
+	if (!r)
+		return MHD_NO;
+	secure_headers(r);
+	MHD_add_response_header(r, "Content-Type", type);
+	MHD_add_response_header(r, "Cache-Control", "no-store");
+	if (cookie)
+		MHD_add_response_header(r, "Set-Cookie", cookie);
+	ret = MHD_queue_response(c, status, r);
+	MHD_destroy_response(r);
+	return ret;
+}
+
+static enum MHD_Result send_json(struct MHD_Connection *c, unsigned status, json_t *v,
+				 const char *cookie)
+{
+	_cleanup_free_ char *text = json_dumps(v, JSON_COMPACT);
+
+	json_decref(v);
+	if (!text)
+		return MHD_NO;
+	return send_text(c, status, "application/json", text, strlen(text), cookie);
+}
+
+/* {"error": why} with status. */
+static enum MHD_Result __attribute__((format(printf, 3, 4)))
+send_error(struct MHD_Connection *c, unsigned status, const char *fmt, ...)
+{
+	char why[512];
+	va_list ap;
+
+	va_start(ap, fmt);
+	vsnprintf(why, sizeof(why), fmt, ap);
+	va_end(ap);
+	return send_json(c, status, json_pack("{s:s}", "error", why), NULL);
+}
+
+static enum MHD_Result send_fd(struct MHD_Connection *c, int fd, const char *type,
+			       const char *download)
+{
+	struct MHD_Response *r;
+	enum MHD_Result ret;
+	struct stat st;
+	char disposition[320];
+
+	if (fstat(fd, &st) < 0 || !S_ISREG(st.st_mode)) {
+		close(fd);
+		return send_error(c, MHD_HTTP_NOT_FOUND, "not a file");
+	}
+	r = MHD_create_response_from_fd((uint64_t)st.st_size, fd);
+	if (!r) {
+		close(fd);
+		return MHD_NO;
+	}
+	secure_headers(r);
+	MHD_add_response_header(r, "Content-Type", type);
+	if (download) {
+		snprintf(disposition, sizeof(disposition), "attachment; filename=\"%s\"", download);
+		MHD_add_response_header(r, "Content-Disposition", disposition);
+		MHD_add_response_header(r, "Cache-Control", "no-store");
+	} else
+		MHD_add_response_header(r, "Cache-Control", "no-cache");
+	ret = MHD_queue_response(c, MHD_HTTP_OK, r);
+	MHD_destroy_response(r);
+	return ret;
+}
+
+/* ----------------------------------------------------------- sessions */
+
+static void stream_wake(struct stream *st)
+{
+	if (st->suspended) {
+		st->suspended = false;
+		MHD_resume_connection(st->conn);
+		kick(st->web);
+	}
+}
+
+static void session_free(struct web *w, struct session *s)
+{
+	struct session **p;
+
+	for (p = &w->sessions; *p; p = &(*p)->next)
+		if (*p == s) {
+			*p = s->next;
+			break;
+		}
+	w->n_sessions--;
+	if (s->stream) {
+		s->stream->session = NULL;
+		stream_wake(s->stream);
+	}
+	rpc_session_close(w->rpc, &s->rpc);
+	free(s);
+}
+
+static void expire_sessions(struct web *w)
+{
+	int64_t now = now_realtime_ns();
+	struct session *s, *next;
+
+	for (s = w->sessions; s; s = next) {
+		next = s->next;
+		if (now - s->last_used_ns > SESSION_IDLE_NS)
+			session_free(w, s);
+	}
+}
+
+static struct session *find_session(struct web *w, struct MHD_Connection *c)
+{
+	const char *id = MHD_lookup_connection_value(c, MHD_COOKIE_KIND, SESSION_COOKIE);
+	struct session *s;
+
+	if (!id)
+		return NULL;
+	expire_sessions(w);
+	if (strlen(id) != sizeof(s->id) - 1)
+		return NULL;
+	for (s = w->sessions; s; s = s->next) {
+		unsigned diff = 0;
+		/* compared in full: the time says nothing of where they differ */
+		for (size_t i = 0; i < sizeof(s->id) - 1; i++)
+			diff |= (unsigned)(id[i] ^ s->id[i]);
+		if (!diff) {
+			s->last_used_ns = now_realtime_ns();
+			return s;
+		}
+	}
+	return NULL;
+}
+
+void web_revalidate(struct web *w)
+{
+	struct session *s, *next;
+
+	for (s = w->sessions; s; s = next) {
+		next = s->next;
+		if (!rpc_session_valid(w->rpc, &s->rpc)) {
+			log_info("web session of %s: its token was changed or removed: ended",
+				 s->rpc.peer.name);
+			session_free(w, s);
+		}
+	}
+}
+
+/* ------------------------------------------------------------- the RPC */
+
+struct answer {
+	char *text;
+	size_t len, size;
+};
+
+static int answer_write(const char *text, size_t len, void *data)
+{
+	struct answer *a = data;
+
+	if (a->len + len + 1 > a->size) {
+		size_t size = (a->len + len + 1) * 2;
+		char *p = realloc(a->text, size);
+		if (!p)
+			return -1;
+		a->text = p;
+		a->size = size;
+	}
+	memcpy(a->text + a->len, text, len);
+	a->len += len;
+	a->text[a->len] = '\0';
+	return 0;
+}
+
+/* The answer to one line of s, as the socket gives it (NULL text: none). */
+static int call_line(struct web *w, struct session *s, const char *text, size_t len,
+		     struct answer *a)
+{
+	struct rpc_line *line;
+	int r;
+
+	r = rpc_line_new(w->rpc, &s->rpc, text, len, &line);
+	if (r < 0)
+		return r;
+	while ((r = rpc_line_step(line, answer_write, a)) > 0)
+		;
+	rpc_line_free(line);
+	return r;
+}
+
+static enum MHD_Result route_rpc(struct web *w, struct MHD_Connection *c, struct session *s,
+				 const struct request *req)
+{
+	struct answer a = { 0 };
+	enum MHD_Result ret;
+	int r;
+
+	r = call_line(w, s, req->body ? req->body : "", req->len, &a);
+	if (r < 0) {
+		free(a.text);
+		return send_error(c, MHD_HTTP_INTERNAL_SERVER_ERROR, "%s", strerror(-r));
+	}
+	if (!a.text)    /* notifications only */
+		return send_text(c, MHD_HTTP_NO_CONTENT, "application/json", "", 0, NULL);
+	ret = send_text(c, MHD_HTTP_OK, "application/json", a.text, a.len, NULL);
+	free(a.text);
+	return ret;
+}
+
+/* ------------------------------------------------------------- login */
+
+static int new_session_id(char id[44])
+{
+	uint8_t bytes[32];
+	_cleanup_free_ char *b64 = NULL;
+
+	if (getrandom(bytes, sizeof(bytes), 0) != sizeof(bytes))
+		return -errno;
+	b64 = proto_base64_encode(bytes, sizeof(bytes));
+	if (!b64)
+		return -ENOMEM;
+	/* base64url, without padding: a cookie value needs no quoting */
+	for (size_t i = 0; i < 43; i++)
+		id[i] = b64[i] == '+' ? '-' : b64[i] == '/' ? '_' : b64[i];
+	id[43] = '\0';
+	return 0;
+}
+
+json_t *web_login_token(const char *body, size_t len, json_t **doc)
+{
+	json_t *token;
+
+	*doc = body ? json_loadb(body, len, JSON_REJECT_DUPLICATES, NULL) : NULL;
+	token = json_object_get(*doc, "token");
+	if (!json_is_string(token) || json_object_size(*doc) != 1)
+		return NULL;
+	return token;
+}
+
+static enum MHD_Result route_login(struct web *w, struct MHD_Connection *c,
+				   const struct request *req)
+{
+	_cleanup_(json_decrefp) json_t *body = NULL, *hello = NULL, *answer = NULL;
+	_cleanup_free_ char *line = NULL;
+	const union MHD_ConnectionInfo *info;
+	struct answer a = { 0 };
+	struct session *s;
+	json_t *token, *err;
+	char cookie[160];
+
+	token = web_login_token(req->body, req->len, &body);
+	if (!token)
+		return send_error(c, MHD_HTTP_BAD_REQUEST, "the body must be {\"token\": TOKEN}");
+	expire_sessions(w);
+	if (w->n_sessions >= w->limits->max_clients)
+		return send_error(c, MHD_HTTP_SERVICE_UNAVAILABLE, "too many sessions (limits."
+				  "max_clients, %u): log out elsewhere", w->limits->max_clients);
+	s = calloc(1, sizeof(*s));
+	if (!s || new_session_id(s->id) < 0) {
+		free(s);
+		return send_error(c, MHD_HTTP_INTERNAL_SERVER_ERROR, "no memory");
+	}
+	info = MHD_get_connection_info(c, MHD_CONNECTION_INFO_CONNECTION_FD);
+	s->rpc.peer.tcp = true;
+	server_tcp_peer(info ? info->connect_fd : -1, &s->rpc.peer);
+	/* "http ADDRESS" in the log; the key stays the address's */
+	memmove(s->rpc.peer.name + 1, s->rpc.peer.name, sizeof(s->rpc.peer.name) - 1);
+	s->rpc.peer.name[sizeof(s->rpc.peer.name) - 1] = '\0';
+	memcpy(s->rpc.peer.name, "http", 4);
+	s->last_used_ns = now_realtime_ns();
+	rpc_session_open(w->rpc, &s->rpc);
+	s->next = w->sessions;
+	w->sessions = s;
+	w->n_sessions++;
+
+	/* The same hello as over TCP: its checks, rate limit and log. */
+	hello = json_pack("{s:s, s:i, s:s, s:{s:O, s:s}}", "jsonrpc", "2.0", "id", 1, "method",
+			  "hello", "params", "token", token, "client", "web");
+	line = hello ? json_dumps(hello, JSON_COMPACT) : NULL;
+	if (!line || call_line(w, s, line, strlen(line), &a) < 0 || !a.text) {
+		free(a.text);
+		session_free(w, s);
+		return send_error(c, MHD_HTTP_INTERNAL_SERVER_ERROR, "no memory");
+	}
+	answer = json_loads(a.text, 0, NULL);
+	free(a.text);
+	err = json_object_get(answer, "error");
+	if (err || !s->rpc.authenticated) {
+		json_t *detail = json_object_get(json_object_get(err, "data"), "detail");
+		const char *why = json_string_value(detail ? detail : json_object_get(err, "message"));
+		session_free(w, s);
+		return send_error(c, MHD_HTTP_UNAUTHORIZED, "%s", why ? why : "not authenticated");
+	}
+	snprintf(cookie, sizeof(cookie), SESSION_COOKIE "=%s; Path=/; HttpOnly; SameSite=Strict",
+		 s->id);
+	return send_json(c, MHD_HTTP_OK, json_pack("{s:s, s:s}", "role",
+			 access_role_name(s->rpc.grant.role), "token", s->rpc.grant.credential),
+			 cookie);
+}
+
+static enum MHD_Result route_logout(struct web *w, struct MHD_Connection *c, struct session *s)
+{
+	session_free(w, s);
+	return send_text(c, MHD_HTTP_NO_CONTENT, "application/json", "", 0,
+			 SESSION_COOKIE "=; Path=/; HttpOnly; SameSite=Strict; Max-Age=0");
+}
+
+/* ------------------------------------------------------------ events */
+
+static void stream_queue(struct stream *st, const char *text, size_t len)
+{
+	size_t need;
+
+	if (st->overflow)
+		return;
+	if (st->sent == st->len)
+		st->sent = st->len = 0;
+	need = st->len + len;
+	if (need - st->sent > st->web->limits->max_output_bytes) {
+		/* Like a socket client that does not read: the stream ends, the
+		 * page reconnects and reads the state afresh. */
+		st->overflow = true;
+		stream_wake(st);
+		return;
+	}
+	if (need > st->size) {
+		char *p = realloc(st->buf, need * 2);
+		if (!p) {
+			st->overflow = true;
+			stream_wake(st);
+			return;
+		}
+		st->buf = p;
+		st->size = need * 2;
+	}
+	memcpy(st->buf + st->len, text, len);
+	st->len += len;
+	stream_wake(st);
+}
+
+void web_notify(const struct event *ev, void *data)
+{
+	struct web *w = data;
+	_cleanup_(json_decrefp) json_t *msg = NULL;
+	_cleanup_free_ char *text = NULL, *frame = NULL;
+	int n = 0;
+
+	for (struct session *s = w->sessions; s; s = s->next) {
+		if (!s->stream || !events_subscription_matches(&s->rpc.events, ev))
+			continue;
+		if (!frame) {
+			msg = proto_make_notification(ev->method, json_incref(ev->params));
+			text = msg ? json_dumps(msg, JSON_COMPACT) : NULL;
+			n = text ? asprintf(&frame, "data: %s\n\n", text) : -1;
+			if (n < 0) {
+				frame = NULL;
+				return;
+			}
+		}
+		stream_queue(s->stream, frame, (size_t)n);
+	}
+}
+
+static ssize_t stream_read(void *cls, uint64_t pos, char *buf, size_t max)
+{
+	struct stream *st = cls;
+	size_t n;
+
+	if (!st->session)
+		return MHD_CONTENT_READER_END_OF_STREAM;
+	if (st->overflow)
+		return MHD_CONTENT_READER_END_WITH_ERROR;
+	if (st->sent == st->len) {
+		st->suspended = true;
+		MHD_suspend_connection(st->conn);
+		return 0;
+	}
+	n = st->len - st->sent < max ? st->len - st->sent : max;
+	memcpy(buf, st->buf + st->sent, n);
+	st->sent += n;
+	return (ssize_t)n;
+}
+
+static void stream_free(void *cls)
+{
+	struct stream *st = cls;
+
+	if (st->session)
+		st->session->stream = NULL;
+	free(st->buf);
+	free(st);
+}
+
+static enum MHD_Result route_events(struct web *w, struct MHD_Connection *c, struct session *s)
+{
+	struct MHD_Response *r;
+	struct stream *st;
+	enum MHD_Result ret;
+
+	if (s->stream) {        /* one stream per session: the newest */
+		s->stream->session = NULL;
+		stream_wake(s->stream);
+		s->stream = NULL;
+	}
+	st = calloc(1, sizeof(*st));
+	if (!st)
+		return MHD_NO;
+	*st = (struct stream){ .web = w, .session = s, .conn = c };
+	r = MHD_create_response_from_callback(MHD_SIZE_UNKNOWN, 16384, stream_read, st,
+					      stream_free);
+	if (!r) {
+		free(st);
+		return MHD_NO;
+	}
+	s->stream = st;
+	/* A first comment, so that the page knows the stream is open. */
+	stream_queue(st, ": asphd\n\n", 9);
+	secure_headers(r);
+	MHD_add_response_header(r, "Content-Type", "text/event-stream");
+	MHD_add_response_header(r, "Cache-Control", "no-store");
+	MHD_add_response_header(r, "X-Accel-Buffering", "no");
+	ret = MHD_queue_response(c, MHD_HTTP_OK, r);
+	MHD_destroy_response(r);
+	return ret;
+}
+
+/* --------------------------------------------------------------- files */
+
+static const char *content_type(const char *name)
+{
+	static const char *const types[][2] = {
+		{ ".html", "text/html; charset=utf-8" }, { ".js", "text/javascript" },
+		{ ".css", "text/css" }, { ".svg", "image/svg+xml" }, { ".png", "image/png" },
+		{ ".csv", "text/csv" }, { ".json", "application/json" },
+		{ ".pdf", "application/pdf" }, { ".txt", "text/plain; charset=utf-8" },
+	};
+	const char *dot = strrchr(name, '.');
+
+	for (size_t i = 0; dot && i < sizeof(types) / sizeof(types[0]); i++)
+		if (!strcmp(dot, types[i][0]))
+			return types[i][1];
+	return NULL;
+}
+
+bool web_plain_name(const char *name)
+{
+	if (!name[0] || name[0] == '.' || strlen(name) > 128)
+		return false;
+	return strspn(name, "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789._-") ==
+	       strlen(name);
+}
+
+static enum MHD_Result route_static(struct web *w, struct MHD_Connection *c, const char *url)
+{
+	const char *name = strcmp(url, "/") ? url + 1 : "index.html";
+	const char *type = content_type(name);
+	int fd;
+
+	if (!web_plain_name(name) || !type)
+		return send_error(c, MHD_HTTP_NOT_FOUND, "no such page: %s", url);
+	fd = openat(w->root_fd, name, O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
+	if (fd < 0)
+		return send_error(c, MHD_HTTP_NOT_FOUND, "no such page: %s", url);
+	return send_fd(c, fd, type, NULL);
+}
+
+bool web_parse_count(const char *text, size_t len, int64_t *out)
+{
+	int64_t v = 0;
+
+	if (len == 0 || len > 18 || text[0] == '0')
+		return false;
+	for (size_t i = 0; i < len; i++) {
+		if (text[i] < '0' || text[i] > '9')
+			return false;
+		v = v * 10 + (text[i] - '0');
+	}
+	*out = v;
+	return true;
+}
+
+static enum MHD_Result route_file(struct web *w, struct MHD_Connection *c, int64_t id,
+				  const char *name)
+{
+	struct asph_error err;
+	char download[300];
+	const char *type;
+	int fd, r;
+
+	asph_error_clear(&err);
+	if (!web_plain_name(name))
+		return send_error(c, MHD_HTTP_NOT_FOUND, "no such file: %s", name);
+	r = jobs_result_file(w->jobs, id, name, &fd, &err);
+	if (r < 0)
+		return send_error(c, r == -ENOMEM ? MHD_HTTP_INTERNAL_SERVER_ERROR : MHD_HTTP_NOT_FOUND,
+				  "%s", err.message[0] ? err.message : strerror(-r));
+	type = content_type(name);
+	snprintf(download, sizeof(download), "job%" PRId64 "-%s", id, name);
+	return send_fd(c, fd, type ? type : "application/octet-stream", download);
+}
+
+/* The points measured so far from the from-th on (the live map): x, y in
+ * mm and the probe's reading, as the scan file holds them. */
+static enum MHD_Result route_points(struct web *w, struct MHD_Connection *c, int64_t id)
+{
+	const char *arg = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "from");
+	_cleanup_(json_decrefp) json_t *pts = json_array();
+	struct asph_scanfile_reader *rd = NULL;
+	const struct asph_scanfile_point *p;
+	struct asph_error err;
+	_cleanup_free_ char *path = NULL;
+	int64_t from = 0, index = 0;
+	size_t n;
+	int r;
+
+	if (arg && strcmp(arg, "0") && !web_parse_count(arg, strlen(arg), &from))
+		return send_error(c, MHD_HTTP_BAD_REQUEST, "from must be a count of points");
+	asph_error_clear(&err);
+	if (asprintf(&path, "%s/jobs/%" PRId64 "/" RUNNER_SCAN_FILE, w->state_dir, id) < 0 || !pts)
+		return MHD_NO;
+	r = asph_scanfile_reader_open(path, &rd, &err);
+	if (r == -ENOENT)
+		return send_error(c, MHD_HTTP_NOT_FOUND, "job %" PRId64 " has no scan (yet)", id);
+	if (r < 0)
+		return send_error(c, MHD_HTTP_CONFLICT, "%s", err.message);
+	while (json_array_size(pts) < POINTS_MAX && asph_scanfile_reader_next(rd, &p, &n, &err) > 0)
+		for (size_t i = 0; i < n && json_array_size(pts) < POINTS_MAX; i++, index++)
+			if (index >= from)
+				json_array_append_new(pts, json_pack("[f,f,f]", p[i].x, p[i].y,
+								     p[i].raw));
+	asph_scanfile_reader_free(rd);
+	return send_json(c, MHD_HTTP_OK, json_pack("{s:I, s:O}", "from", (json_int_t)from,
+						   "points", pts), NULL);
+}
+
+int web_job_route(const char *path, int64_t *id, const char **rest)
+{
+	const char *slash = strchr(path, '/');
+
+	if (!slash || !web_parse_count(path, (size_t)(slash - path), id) || *id == 0)
+		return -ENOENT;
+	*rest = slash;
+	return 0;
+}
+
+static enum MHD_Result route_job(struct web *w, struct MHD_Connection *c, const char *path)
+{
+	const char *rest;
+	int64_t id;
+
+	if (web_job_route(path, &id, &rest) < 0)
+		return send_error(c, MHD_HTTP_NOT_FOUND, "no such job");
+	if (!strcmp(rest, "/points"))
+		return route_points(w, c, id);
+	if (!strncmp(rest, "/files/", 7))
+		return route_file(w, c, id, rest + 7);
+	return send_error(c, MHD_HTTP_NOT_FOUND, "no such route");
+}
+
+/* ------------------------------------------------------------ requests */
+
+bool web_origin_allowed(const char *origin, const char *host, const char *fetch_site)
+{
+	if (fetch_site && strcmp(fetch_site, "same-origin") && strcmp(fetch_site, "none"))
+		return false;
+	if (!origin)
+		return true;
+	if (!host)
+		return false;
+	if (!strncmp(origin, "http://", 7))
+		origin += 7;
+	else if (!strncmp(origin, "https://", 8))
+		origin += 8;
+	else
+		return false;
+	return !strcasecmp(origin, host);
+}
+
+static bool same_origin(struct MHD_Connection *c)
+{
+	return web_origin_allowed(MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Origin"),
+				  MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Host"),
+				  MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Sec-Fetch-Site"));
+}
+
+static bool json_body(struct MHD_Connection *c)
+{
+	const char *type = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Content-Type");
+	size_t n = strlen("application/json");
+
+	return type && !strncasecmp(type, "application/json", n) && (!type[n] || type[n] == ';');
+}
+
+static enum MHD_Result route_post(struct web *w, struct MHD_Connection *c, const char *url,
+				  const struct request *req)
+{
+	struct session *s;
+
+	if (!same_origin(c))
+		return send_error(c, MHD_HTTP_FORBIDDEN, "cross-origin request refused");
+	if (req->too_large)
+		return send_error(c, MHD_HTTP_CONTENT_TOO_LARGE, "the body is over limits."
+				  "max_request_bytes (%u)", w->limits->max_request_bytes);
+	if (!json_body(c))
+		return send_error(c, MHD_HTTP_UNSUPPORTED_MEDIA_TYPE, "the body must be "
+				  "application/json");
+	if (!strcmp(url, "/api/login"))
+		return route_login(w, c, req);
+	s = find_session(w, c);
+	if (!s)
+		return send_error(c, MHD_HTTP_UNAUTHORIZED, "log in first");
+	if (!strcmp(url, "/api/rpc"))
+		return route_rpc(w, c, s, req);
+	return route_logout(w, c, s);
+}
+
+static enum MHD_Result route_get(struct web *w, struct MHD_Connection *c, const char *url)
+{
+	struct session *s;
+
+	if (strncmp(url, "/api/", 5))
+		return route_static(w, c, url);
+	s = find_session(w, c);
+	if (!s)
+		return send_error(c, MHD_HTTP_UNAUTHORIZED, "log in first");
+	if (!strcmp(url, "/api/events"))
+		return route_events(w, c, s);
+	if (!strncmp(url, "/api/jobs/", 10))
+		return route_job(w, c, url + 10);
+	return send_error(c, MHD_HTTP_NOT_FOUND, "no such route: %s", url);
+}
+
+static bool post_route(const char *url)
+{
+	return !strcmp(url, "/api/login") || !strcmp(url, "/api/logout") ||
+	       !strcmp(url, "/api/rpc");
+}
+
+static enum MHD_Result on_request(void *cls, struct MHD_Connection *c, const char *url,
+				  const char *method, const char *version,
+				  const char *upload, size_t *upload_size, void **con_cls)
+{
+	struct web *w = cls;
+	struct request *req = *con_cls;
+	bool get = !strcmp(method, "GET") || !strcmp(method, "HEAD");
+
+	if (!req) {
+		req = calloc(1, sizeof(*req));
+		if (!req)
+			return MHD_NO;
+		*con_cls = req;
+		return MHD_YES;
+	}
+	if (*upload_size) {     /* a piece of the body */
+		if (!req->too_large && req->len + *upload_size <= w->limits->max_request_bytes) {
+			char *p = realloc(req->body, req->len + *upload_size + 1);
+			if (!p)
+				return MHD_NO;
+			req->body = p;
+			memcpy(req->body + req->len, upload, *upload_size);
+			req->len += *upload_size;
+			req->body[req->len] = '\0';
+		} else
+			req->too_large = true;
+		*upload_size = 0;
+		return MHD_YES;
+	}
+	if (post_route(url)) {
+		if (strcmp(method, "POST"))
+			return send_error(c, MHD_HTTP_METHOD_NOT_ALLOWED, "%s takes POST", url);
+		return route_post(w, c, url, req);
+	}
+	if (!get)
+		return send_error(c, MHD_HTTP_METHOD_NOT_ALLOWED, "%s takes GET", url);
+	return route_get(w, c, url);
+}
+
+static void on_completed(void *cls, struct MHD_Connection *c, void **con_cls,
+			 enum MHD_RequestTerminationCode why)
+{
+	struct request *req = *con_cls;
+
+	if (req) {
+		free(req->body);
+		free(req);
+		*con_cls = NULL;
+	}
+}
+
+static void on_mhd_log(void *cls, const char *fmt, va_list ap)
+{
+	char text[512];
+
+	vsnprintf(text, sizeof(text), fmt, ap);
+	text[strcspn(text, "\n")] = '\0';
+	log_debug("http: %s", text);
+}
+
+/* -------------------------------------------------------------- setup */
+
+int web_new(const struct web_setup *setup, struct web **out)
+{
+	struct web *w = calloc(1, sizeof(*w));
+
+	if (!w)
+		return -ENOMEM;
+	w->event = setup->event;
+	w->rpc = setup->rpc;
+	w->jobs = setup->jobs;
+	w->limits = setup->limits;
+	w->root_fd = -1;
+	w->state_dir = strdup(setup->state_dir);
+	if (!w->state_dir) {
+		free(w);
+		return -ENOMEM;
+	}
+	*out = w;
+	return 0;
+}
+
+void web_free(struct web *w)
+{
+	if (!w)
+		return;
+	while (w->sessions)
+		session_free(w, w->sessions);
+	sd_event_source_disable_unref(w->io);
+	sd_event_source_disable_unref(w->timer);
+	if (w->mhd)
+		MHD_stop_daemon(w->mhd);
+	if (w->root_fd >= 0)
+		close(w->root_fd);
+	free(w->state_dir);
+	free(w);
+}
+
+int web_listen(struct web *w, const struct addrinfo *addr, const char *root)
+{
+	const union MHD_DaemonInfo *info;
+	unsigned timeout_s = (w->limits->request_timeout_ms + 999) / 1000;
+	int r;
+
+	w->root_fd = open(root, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+	if (w->root_fd < 0) {
+		r = -errno;
+		log_error("http_root %s: %s", root, strerror(-r));
+		return r;
+	}
+	w->mhd = MHD_start_daemon(MHD_USE_EPOLL | MHD_ALLOW_SUSPEND_RESUME | MHD_USE_ERROR_LOG |
+				  (addr->ai_family == AF_INET6 ? MHD_USE_IPv6 : 0),
+				  0, NULL, NULL, on_request, w,
+				  MHD_OPTION_SOCK_ADDR, addr->ai_addr,
+				  MHD_OPTION_CONNECTION_LIMIT, (unsigned)w->limits->max_clients,
+				  MHD_OPTION_PER_IP_CONNECTION_LIMIT,
+				  (unsigned)w->limits->max_clients_per_user,
+				  MHD_OPTION_CONNECTION_TIMEOUT, timeout_s,
+				  MHD_OPTION_NOTIFY_COMPLETED, on_completed, w,
+				  MHD_OPTION_EXTERNAL_LOGGER, on_mhd_log, w,
+				  MHD_OPTION_END);
+	if (!w->mhd) {
+		log_error("http_listen: cannot listen (in use, or no such address)");
+		return -EADDRINUSE;
+	}
+	info = MHD_get_daemon_info(w->mhd, MHD_DAEMON_INFO_EPOLL_FD);
+	r = info ? sd_event_add_io(w->event, &w->io, info->epoll_fd, EPOLLIN, on_io, w) : -EIO;
+	if (r >= 0)
+		r = sd_event_add_time(w->event, &w->timer, CLOCK_MONOTONIC, 1, 0, on_timer, w);
+	if (r < 0)
+		return r;
+	info = MHD_get_daemon_info(w->mhd, MHD_DAEMON_INFO_BIND_PORT);
+	w->port = info ? info->port : 0;
+	rearm(w);
+	return 0;
+}
+
+unsigned web_port(const struct web *w)
+{
+	return w ? w->port : 0;
+}

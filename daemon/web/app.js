@@ -1,0 +1,381 @@
+// SPDX-License-Identifier: GPL-3.0-or-later
+// The operator's page: the daemon's JSON-RPC methods over POST /api/rpc,
+// its notifications over Server-Sent Events (/api/events), the measured
+// points for the live map in batches (/api/jobs/ID/points), result files
+// from /api/jobs/ID/files/NAME. The server checks every call; the role
+// only decides what the page offers.
+import { drawMap, colourScale } from "./map.js";
+import { zernikeBars, radialProfile } from "./charts.js";
+
+const $ = (id) => document.getElementById(id);
+let role = null;
+let rpcId = 0;
+let events = null;
+let live = { job: 0, points: [], next: 0, timer: 0 };
+let history = { offset: 0, limit: 25, filter: {} };
+
+async function rpc(method, params = {}) {
+  const r = await fetch("/api/rpc", {
+    method: "POST",
+    headers: { "Content-Type": "application/json" },
+    body: JSON.stringify({ jsonrpc: "2.0", id: ++rpcId, method, params }),
+  });
+  if (r.status === 401) {
+    showLogin();
+    throw new Error("not logged in");
+  }
+  const answer = await r.json();
+  if (answer.error) {
+    const detail = answer.error.data && answer.error.data.detail;
+    throw new Error(answer.error.message + (detail ? ": " + detail : ""));
+  }
+  return answer.result;
+}
+
+function el(tag, attrs = {}, ...children) {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (k.startsWith("on")) e.addEventListener(k.slice(2), v);
+    else e.setAttribute(k, v);
+  }
+  for (const c of children) e.append(c instanceof Node ? c : String(c ?? ""));
+  return e;
+}
+
+function pls(j) {
+  return [j.part, j.lot, j.serial].map((x) => x ?? "–").join(" / ");
+}
+
+// ------------------------------------------------------------- login
+
+function showLogin() {
+  $("login-view").hidden = false;
+  $("dashboard").hidden = true;
+  $("logout").hidden = true;
+  $("who").textContent = "";
+  if (events) events.close();
+  events = null;
+}
+
+async function start() {
+  let hello;
+  try {
+    hello = await rpc("hello");
+  } catch {
+    return;
+  }
+  role = hello.peer.role;
+  document.body.dataset.role = role;
+  $("who").textContent = `${hello.peer.name}, ${role}`;
+  $("login-view").hidden = true;
+  $("dashboard").hidden = false;
+  $("logout").hidden = false;
+  await rpc("events.subscribe", { events: ["job", "progress", "instrument", "queue"] });
+  events = new EventSource("/api/events");
+  events.onmessage = (m) => onEvent(JSON.parse(m.data));
+  // A stream that ended (its buffer overflowed, or the daemon restarted):
+  // the browser reconnects; the state is read afresh.
+  events.onopen = () => scheduleRefresh();
+  await refresh();
+}
+
+$("login-form").addEventListener("submit", async (e) => {
+  e.preventDefault();
+  $("login-error").textContent = "";
+  const r = await fetch("/api/login", {
+    method: "POST",
+    headers: { "Content-Type": "application/json" },
+    body: JSON.stringify({ token: $("token").value }),
+  });
+  const body = await r.json().catch(() => ({}));
+  if (!r.ok) {
+    $("login-error").textContent = body.error || `login refused (${r.status})`;
+    return;
+  }
+  $("token").value = "";
+  await start();
+});
+
+$("logout").addEventListener("click", async () => {
+  await fetch("/api/logout", { method: "POST", headers: { "Content-Type": "application/json" }, body: "{}" });
+  showLogin();
+});
+
+// ------------------------------------------------------------ events
+
+function onEvent(msg) {
+  const p = msg.params;
+  if (msg.method === "job.progress") {
+    if (p.job === live.job || !live.job) showProgress(p);
+    return;
+  }
+  if (msg.method === "job.state" && p.job === live.job &&
+      ["completed", "failed", "cancelled"].includes(p.state)) {
+    clearInterval(live.timer);
+    const job = live.job;
+    fetchPoints().then(() => (p.state === "completed" ? showResult(job) : null));
+    $("live-text").textContent = `Job ${job} ${p.state}${p.reason ? ": " + p.reason : ""}.`;
+  }
+  scheduleRefresh();
+}
+
+// Events come in bursts (a batch of submissions, a queue cancelled): the
+// state is read again at most four times a second, not once per event.
+let refreshTimer = 0;
+function scheduleRefresh() {
+  if (refreshTimer) return;
+  refreshTimer = setTimeout(() => {
+    refreshTimer = 0;
+    refresh().catch(() => {});
+  }, 250);
+}
+
+async function refresh() {
+  const [inst, queue] = await Promise.all([rpc("instrument.list"), rpc("queue.get")]);
+  renderInstruments(inst.instruments);
+  renderQueue(queue);
+  await loadHistory();
+  const running = inst.instruments.find((i) => i.job && i.state !== "idle");
+  if (running && running.job !== live.job) startLive(running.job, running.progress);
+}
+
+// ------------------------------------------------------- instruments
+
+function renderInstruments(list) {
+  const tbody = $("instruments").tBodies[0];
+  tbody.replaceChildren();
+  const sel = document.querySelector("#submit-form select[name=instrument]");
+  const chosen = sel.value;
+  sel.replaceChildren(el("option", { value: "" }, "any"));
+  for (const i of list) {
+    const lock = i.lock ? `locked by ${i.lock.holder}${i.lock.reason ? ": " + i.lock.reason : ""}` : "free";
+    tbody.append(el("tr", {}, el("td", {}, i.name), el("td", { class: "state" }, i.state),
+      el("td", {}, i.job ?? "–"), el("td", {}, lock), el("td", { class: i.fault ? "error" : "" }, i.fault ?? "none")));
+    sel.append(el("option", { value: i.name }, i.name));
+  }
+  sel.value = chosen;
+}
+
+// -------------------------------------------------------------- queue
+
+async function act(method, params) {
+  $("action-error").textContent = "";
+  try {
+    await rpc(method, params);
+  } catch (e) {
+    $("action-error").textContent = `${method}: ${e.message}`;
+  }
+  await refresh();
+}
+
+function actions(j) {
+  const td = el("td", { class: "operator" });
+  if (role === "viewer") return td;   // the server refuses them anyway
+  const b = (label, method, params) =>
+    td.append(el("button", { type: "button", "data-action": method, onclick: () => act(method, params) }, label));
+  if (j.state === "running") b("Pause", "job.pause", { id: j.id });
+  if (j.state === "paused" || j.state === "interrupted") b("Resume", "job.resume", { id: j.id });
+  if (["queued", "running", "paused", "interrupted"].includes(j.state)) b("Cancel", "job.cancel", { id: j.id });
+  if (["failed", "cancelled", "interrupted"].includes(j.state)) b("Requeue", "job.requeue", { id: j.id });
+  return td;
+}
+
+let dragged = null;
+
+function renderQueue(q) {
+  $("queue-state").textContent = q.running ? "(running)" : "(stopped)";
+  const tbody = $("queue").tBodies[0];
+  tbody.replaceChildren();
+  q.jobs.forEach((j, position) => {
+    const p = j.progress;
+    const tr = el("tr", { "data-job": j.id },
+      el("td", {}, j.id), el("td", { class: "state" }, j.state), el("td", {}, typeof j.lens === "string" ? j.lens : "prescription"),
+      el("td", {}, `${j.plan.method} ${j.plan.density} ${j.plan.value}`), el("td", {}, pls(j)), el("td", {}, j.priority),
+      el("td", {}, `${p.done} / ${p.total}`), actions(j));
+    if (role !== "viewer" && j.state === "queued") {
+      // Reorder by drag, or with the keyboard: Alt+Up / Alt+Down.
+      tr.draggable = true;
+      tr.tabIndex = 0;
+      tr.addEventListener("dragstart", () => (dragged = j.id));
+      tr.addEventListener("dragover", (e) => e.preventDefault());
+      tr.addEventListener("drop", (e) => {
+        e.preventDefault();
+        if (dragged && dragged !== j.id) act("queue.move", { id: dragged, position });
+      });
+      tr.addEventListener("keydown", (e) => {
+        if (e.altKey && (e.key === "ArrowUp" || e.key === "ArrowDown"))
+          act("queue.move", { id: j.id, position: Math.max(0, position + (e.key === "ArrowUp" ? -1 : 1)) });
+      });
+    }
+    tbody.append(tr);
+  });
+}
+
+$("queue-start").addEventListener("click", () => act("queue.start", {}));
+$("queue-stop").addEventListener("click", () => act("queue.stop", {}));
+
+// ------------------------------------------------------------- submit
+
+$("submit-form").addEventListener("submit", async (e) => {
+  e.preventDefault();
+  const f = new FormData(e.target);
+  const params = { lens: f.get("lens"), plan: { method: f.get("method"), [f.get("density")]: Number(f.get("value")) } };
+  const file = f.get("prescription");
+  if (file && file.size) {
+    try {
+      params.lens = JSON.parse(await file.text());
+    } catch (err) {
+      $("submit-error").textContent = `${file.name}: not JSON: ${err.message}`;
+      return;
+    }
+  }
+  params.fit = { dof: f.get("dof"), residual: f.get("residual"), robust: f.get("robust") === "on" };
+  if (f.get("zernike")) params.fit.zernike = Number(f.get("zernike"));
+  const tol = f.get("tolerance").trim();
+  if (tol) {
+    // a call-out as text, or the whole tolerance as JSON (docs/characterization.md)
+    try {
+      params.tolerance = tol.startsWith("{") ? JSON.parse(tol) : tol;
+    } catch (err) {
+      $("submit-error").textContent = `tolerance: not JSON: ${err.message}`;
+      return;
+    }
+  }
+  for (const k of ["label", "part", "lot", "serial", "instrument"]) if (f.get(k)) params[k] = f.get(k);
+  if (f.get("priority")) params.priority = Number(f.get("priority"));
+  $("submit-error").textContent = "";
+  try {
+    const job = await rpc("job.submit", params);
+    $("submit-error").textContent = "";
+    e.target.dataset.lastJob = job.id;
+  } catch (err) {
+    $("submit-error").textContent = err.message;
+  }
+  await refresh();
+});
+
+// --------------------------------------------------------------- live
+
+function showProgress(p) {
+  if (p.job !== live.job) startLive(p.job, p);
+  $("live-progress").max = Math.max(1, p.total);
+  $("live-progress").value = p.done;
+  const eta = p.eta_s >= 0 ? `, about ${p.eta_s.toFixed(0)} s left` : "";
+  $("live-text").textContent = `${p.done} of ${p.total} points, ${p.rate.toFixed(0)} points/s${eta}`;
+}
+
+function startLive(job, progress) {
+  clearInterval(live.timer);
+  live = { job, points: [], next: 0, timer: 0 };
+  $("live-job").textContent = `#${job}`;
+  if (progress) showProgress({ ...progress, job });
+  live.timer = setInterval(fetchPoints, 500);
+  drawMap($("live-map"), [], $("live-scale"));
+}
+
+// The points arrive in batches: one request every half second takes all
+// those measured since the last (never one event per point). Requests of
+// one job run one after the other; at most one waits behind the running one.
+function fetchPoints() {
+  const l = live;
+  if (!l.job) return Promise.resolve();
+  if (l.waiting) return l.chain;
+  l.waiting = true;
+  l.chain = (l.chain || Promise.resolve()).then(() => {
+    l.waiting = false;
+    return fetchBatches(l);
+  });
+  return l.chain;
+}
+
+async function fetchBatches(l) {
+  for (;;) {
+    const r = await fetch(`/api/jobs/${l.job}/points?from=${l.next}`);
+    if (!r.ok) break;
+    const batch = await r.json();
+    l.points.push(...batch.points);
+    l.next += batch.points.length;
+    if (batch.points.length < 20000) break;
+  }
+  if (l !== live) return;
+  drawMap($("live-map"), l.points, $("live-scale"));
+  $("live-map").dataset.points = l.points.length;
+}
+
+// ------------------------------------------------------------- result
+
+const fmt = (v, digits = 3) => (typeof v === "number" ? v.toPrecision(digits) : v ?? "–");
+
+async function showResult(id) {
+  const r = await rpc("job.result", { id });
+  const s = r.summary;
+  $("result-job").textContent = `#${id}`;
+  const rows = [["lens", s.lens], ["points used", `${s.n_used} of ${s.n_points}`],
+    ["RMS (nm)", fmt(s.rms_nm)], ["PV (nm)", fmt(s.pv_nm)], ["PVr (nm)", fmt(s.pvr_nm)],
+    ["slope RMS (µrad)", fmt(s.slope_rms_urad)], ["converged", s.converged ? "yes" : "no"]];
+  const table = el("table", { id: "verdict" }, el("tbody", {}, ...rows.map(([k, v]) => el("tr", {}, el("th", {}, k), el("td", {}, v)))));
+  const pose = el("table", { id: "pose" }, el("thead", {}, el("tr", {}, el("th", {}, "DOF"), el("th", {}, "value"), el("th", {}, "± u"))),
+    el("tbody", {}, ...Object.entries(s.dof || {}).map(([k, v]) => el("tr", {}, el("td", {}, k), el("td", {}, fmt(v)), el("td", {}, fmt((s.uncertainty || {})[k]))))));
+  const files = el("ul", { id: "downloads" }, ...Object.values(r.files).map((name) =>
+    el("li", {}, el("a", { href: `/api/jobs/${id}/files/${encodeURIComponent(name)}`, download: `job${id}-${name}` }, name))));
+  const parts = [table];
+  if (s.verdict) {
+    // ISO 14253-1: each toleranced quantity with its value, U and limit
+    parts.push(el("h3", {}, `Verdict: ${s.verdict.overall}`), el("table", { id: "tolerances" },
+      el("thead", {}, el("tr", {}, ...["quantity", "value", "U", "limit", "verdict"].map((h) => el("th", {}, h)))),
+      el("tbody", {}, ...s.verdict.items.map((i) => el("tr", {}, el("td", {}, i.quantity), el("td", {}, fmt(i.value)),
+        el("td", {}, fmt(i.U)), el("td", {}, fmt(i.limit)), el("td", {}, i.verdict))))));
+  } else parts.push(el("p", {}, "No tolerance was given: no verdict."));
+  parts.push(el("h3", {}, "Pose"), pose);
+  if (s.zernike_nm) parts.push(el("h3", {}, "Zernike coefficients"), zernikeBars(s.zernike_nm));
+  if (r.files.residuals) {
+    const csv = await (await fetch(`/api/jobs/${id}/files/${r.files.residuals}`)).text();
+    parts.push(el("h3", {}, "Radial profile"), radialProfile(csv));
+  }
+  parts.push(el("h3", {}, "Downloads"), files);
+  if (r.files.map) parts.splice(1, 0, el("img", { src: `/api/jobs/${id}/files/${r.files.map}`, alt: `residual map of job ${id}`, class: "residual-map" }));
+  if (r.provenance) parts.push(el("h3", {}, "Provenance"), el("pre", {}, JSON.stringify(r.provenance, null, 1)));
+  $("result").replaceChildren(...parts);
+}
+
+// ------------------------------------------------------------ history
+
+async function loadHistory() {
+  const params = { offset: history.offset, limit: history.limit, ...history.filter };
+  const list = await rpc("job.list", params);
+  const tbody = $("history").tBodies[0];
+  tbody.replaceChildren();
+  for (const j of list.jobs) {
+    const show = j.state === "completed" ? el("button", { type: "button", onclick: () => showResult(j.id) }, "Result") : "";
+    tbody.append(el("tr", { "data-job": j.id }, el("td", {}, j.id), el("td", { class: "state" }, j.state),
+      el("td", {}, j.instrument), el("td", {}, j.label ?? ""), el("td", {}, pls(j)), el("td", {}, j.finished ?? ""), el("td", {}, show)));
+  }
+  $("history-prev").disabled = history.offset === 0;
+  $("history-next").disabled = list.jobs.length < history.limit;
+}
+
+$("history-form").addEventListener("submit", (e) => {
+  e.preventDefault();
+  const f = new FormData(e.target);
+  history.filter = {};
+  for (const k of ["instrument", "label", "part", "lot", "serial"]) if (f.get(k)) history.filter[k] = f.get(k);
+  if (f.get("state")) history.filter.states = [f.get("state")];
+  history.offset = 0;
+  loadHistory();
+});
+// The filtered history as CSV (up to 1000 jobs, newest first).
+$("history-csv").addEventListener("click", async () => {
+  const list = await rpc("job.list", { limit: 1000, ...history.filter });
+  const cols = ["id", "state", "instrument", "label", "part", "lot", "serial", "submitted", "started", "finished", "reason"];
+  const quote = (v) => (v === null || v === undefined ? "" : /[",\n]/.test(String(v)) ? `"${String(v).replace(/"/g, '""')}"` : String(v));
+  const text = [cols.join(","), ...list.jobs.map((j) => cols.map((c) => quote(j[c])).join(","))].join("\n") + "\n";
+  const a = el("a", { href: URL.createObjectURL(new Blob([text], { type: "text/csv" })), download: "asphd-history.csv" });
+  document.body.append(a);
+  a.click();
+  a.remove();
+});
+$("history-prev").addEventListener("click", () => { history.offset = Math.max(0, history.offset - history.limit); loadHistory(); });
+$("history-next").addEventListener("click", () => { history.offset += history.limit; loadHistory(); });
+
+export { colourScale };
+start().catch(() => showLogin());

@@ -1,0 +1,138 @@
+// SPDX-License-Identifier: GPL-3.0-or-later
+// The operator's page in headless Chromium (puppeteer-core, pointed at the
+// system's chromium): log in, submit a job, watch the live map fill,
+// pause and resume, see the result and its verdict, download the CSV;
+// then as a viewer: no mutating controls, and a forged call is refused.
+// Run by test-web-browser.py, which starts the daemon; prints one JSON
+// line of findings for it to compare, and exits 1 on the first failure.
+import { createRequire } from "node:module";
+import path from "node:path";
+
+// puppeteer-core as scripts/install-deps installed it (ASPH_NODE_DIR).
+const require = createRequire(path.join(process.env.ASPH_NODE_DIR, "package.json"));
+const puppeteer = require("puppeteer-core");
+
+const [url, opToken, viewerToken, shots] = process.argv.slice(2);
+const chromium = process.env.CHROMIUM || "/usr/bin/chromium";
+let n = 0;
+const ok = (cond, what) => {
+  n++;
+  console.log(`${cond ? "ok" : "not ok"} - ${what}`);
+  if (!cond) throw new Error(what);
+};
+const shot = (page, name) => page.screenshot({ path: path.join(shots, `${name}.png`) });
+
+// Pixels of the live map that differ from its background.
+const mapPixels = (page) => page.$eval("#live-map", (c) => {
+  const d = c.getContext("2d").getImageData(0, 0, c.width, c.height).data;
+  let k = 0;
+  for (let i = 0; i < d.length; i += 4)
+    if (Math.abs(d[i] - 0x20) + Math.abs(d[i + 1] - 0x24) + Math.abs(d[i + 2] - 0x28) > 30) k++;
+  return k;
+});
+
+const stateOf = (page, job) => page.$eval(`#queue tr[data-job="${job}"] .state`, (e) => e.textContent).catch(() => null);
+
+async function login(page, token) {
+  await page.goto(url, { waitUntil: "domcontentloaded" });
+  await page.waitForSelector("#login-form", { visible: true });
+  await page.type("#token", token);
+  await page.click("#login-form button[type=submit]");
+  await page.waitForSelector("#dashboard", { visible: true });
+}
+
+const browser = await puppeteer.launch({
+  executablePath: chromium,
+  headless: true,
+  args: ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"],
+});
+const findings = {};
+try {
+  const page = await browser.newPage();
+  await page.setViewport({ width: 1280, height: 800 });
+  const errors = [];
+  page.on("pageerror", (e) => errors.push(String(e)));
+  // (a 401 or 404 a fetch answers is the page's business, not an error)
+  page.on("console", (m) => m.type() === "error" && !m.text().startsWith("Failed to load resource") &&
+    errors.push(m.text()));
+
+  await login(page, opToken);
+  const who = await page.$eval("#who", (e) => e.textContent);
+  ok(who.includes("operator"), `logged in as operator (${who})`);
+  await page.waitForFunction(() => document.querySelector("#instruments tbody").textContent.includes("mock"));
+  ok(true, "the mock instrument is listed");
+  await shot(page, "1-dashboard");
+
+  // Submit: a Fermat spiral of 2000 points, measured for a few seconds.
+  await page.select("#submit-form select[name=method]", "fermat");
+  await page.select("#submit-form select[name=density]", "points");
+  await page.$eval("#submit-form input[name=value]", (e) => (e.value = "2000"));
+  await page.type("#submit-form input[name=part]", "AS-7");
+  await page.type("#submit-form input[name=lot]", "L-9");
+  await page.type("#submit-form input[name=serial]", "0001");
+  await page.type("#submit-form input[name=tolerance]", "3/2(0.5/0.3)");
+  await page.click("#submit-form button[type=submit]");
+  await page.waitForFunction(() => document.querySelector("#submit-form").dataset.lastJob);
+  const job = Number(await page.$eval("#submit-form", (e) => e.dataset.lastJob));
+  findings.job = job;
+  ok(job > 0, `job ${job} submitted`);
+
+  // The live map fills as the points arrive.
+  await page.waitForFunction(() => Number(document.querySelector("#live-map").dataset.points || 0) > 100, { timeout: 60000 });
+  const pixels = await mapPixels(page);
+  ok(pixels > 500, `the live map has ${pixels} non-background pixels`);
+  await shot(page, "2-live");
+
+  // Pause and resume from the queue.
+  // (locators retry when a refresh of the queue replaced the row)
+  await page.locator(`#queue tr[data-job="${job}"] button[data-action="job.pause"]`).click();
+  await page.waitForFunction((j) => document.querySelector(`#queue tr[data-job="${j}"] .state`)?.textContent === "paused", { timeout: 30000 }, job);
+  ok((await stateOf(page, job)) === "paused", "paused");
+  const pausedAt = Number(await page.$eval("#live-map", (e) => e.dataset.points));
+  await shot(page, "3-paused");
+  await page.locator(`#queue tr[data-job="${job}"] button[data-action="job.resume"]`).click();
+
+  // The result and its verdict table.
+  await page.waitForSelector("#verdict", { visible: true, timeout: 120000 });
+  const points = Number(await page.$eval("#live-map", (e) => e.dataset.points));
+  ok(points === 2000 && points > pausedAt, `the map holds all 2000 points (${pausedAt} when paused)`);
+  const verdict = await page.$eval("#verdict", (e) => e.textContent);
+  ok(verdict.includes("RMS (nm)") && verdict.includes("2000 of 2000"), "the result's table");
+  const decision = await page.$eval("#result", (e) => [...e.querySelectorAll("h3")].map((h) => h.textContent).find((t) => t.startsWith("Verdict")));
+  const items = await page.$$eval("#tolerances tbody tr", (rows) => rows.length);
+  ok(/^Verdict: (pass|fail|undecided)$/.test(decision || "") && items >= 1, `the verdict and its table (${decision}, ${items} rows)`);
+  ok(await page.$eval("img.residual-map", (e) => e.complete && e.naturalWidth > 0), "the residual map is drawn");
+  await page.waitForFunction(() => document.querySelectorAll("#result svg.chart").length === 2);
+  const bars = await page.$$eval("#result svg.chart", (s) => [s[0].querySelectorAll("rect").length, s[1].querySelector("path").getAttribute("d").split("M").length - 1]);
+  ok(bars[0] === 36 && bars[1] === 2000, `the Zernike bars (${bars[0]}) and the radial profile (${bars[1]} points)`);
+  const links = await page.$$eval("#downloads a", (as) => as.map((a) => a.getAttribute("href")));
+  ok(links.some((h) => h.endsWith("residuals.csv")), "a download link for the CSV");
+  await page.evaluate(() => document.querySelector("#result").scrollIntoView());
+  await shot(page, "4-result");
+  findings.csv = await page.evaluate(async (h) => (await fetch(h)).text(), links.find((h) => h.endsWith("residuals.csv")));
+
+  // Keyboard: the login field and buttons are reachable with Tab.
+  await page.setViewport({ width: 800, height: 1100, isMobile: true, hasTouch: true });
+  await shot(page, "5-tablet");
+  ok(await page.$eval("#dashboard", (e) => e.scrollWidth <= window.innerWidth + 1), "no sideways scrolling on a tablet");
+
+  // A viewer: no mutating controls; a forged call is refused by the server.
+  const ctx = await browser.createBrowserContext();
+  const vpage = await ctx.newPage();
+  await vpage.setViewport({ width: 1280, height: 800 });
+  await login(vpage, viewerToken);
+  ok((await vpage.$$("button[data-action]")).length === 0, "a viewer sees no job actions");
+  ok(await vpage.$eval("#submit-form", (e) => e.offsetParent === null), "a viewer sees no submit form");
+  ok(await vpage.$eval("#queue-start", (e) => e.offsetParent === null), "a viewer sees no queue controls");
+  const forged = await vpage.evaluate(async (id) => {
+    const r = await fetch("/api/rpc", { method: "POST", headers: { "Content-Type": "application/json" },
+      body: JSON.stringify({ jsonrpc: "2.0", id: 1, method: "job.requeue", params: { id } }) });
+    return r.json();
+  }, job);
+  ok(forged.error && forged.error.code === 100, `a viewer's forged job.requeue is refused (${JSON.stringify(forged.error)})`);
+  await shot(vpage, "6-viewer");
+  ok(errors.length === 0, `no errors in the page (${errors.join("; ")})`);
+} finally {
+  await browser.close();
+}
+console.log(JSON.stringify(findings));

@@ -1,0 +1,64 @@
+#!/usr/bin/env python3
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""The operator's page in a real browser: Debian's chromium, driven by
+dashboard.mjs (puppeteer-core, installed by scripts/install-deps), against
+asphd with the mock instrument. Screenshots go to the test's log
+directory. Skipped (77), saying why, only where chromium, node or
+puppeteer-core is not installed."""
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(HERE, "..", "integration"))
+from daemontest import Client, Daemon, browser_or_skip, expect, finish, mock_instrument, web_port  # noqa: E402
+
+ROOT = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(HERE, "..", ".."))
+SHOTS = os.environ.get("ASPH_TEST_LOG_DIR") or tempfile.mkdtemp(prefix="asph-web-shots-")
+chromium, NODE_DIR = browser_or_skip(ROOT)
+node = shutil.which("node")
+
+
+os.makedirs(SHOTS, exist_ok=True)
+# time_factor 0.1: about 200 points a second, so the 2000 points of the
+# job take long enough to see the map fill and to pause and resume.
+d = Daemon([mock_instrument(time_factor=0.1)],
+           extra={"http_listen": "127.0.0.1:0", "http_root": os.path.join(ROOT, "daemon", "web")})
+try:
+    d.start()
+    url = f"http://127.0.0.1:{web_port(d)}/"
+    admin = Client(d.socket)
+    op = admin.call("token.create", {"name": "browser-operator", "role": "operator"})["token"]
+    viewer = admin.call("token.create", {"name": "browser-viewer", "role": "viewer"})["token"]
+    env = dict(os.environ, ASPH_NODE_DIR=NODE_DIR, CHROMIUM=chromium)
+    p = subprocess.run([node, os.path.join(HERE, "dashboard.mjs"), url, op, viewer, SHOTS],
+                       env=env, capture_output=True, text=True, timeout=300,
+                       cwd=NODE_DIR)
+    # (the last line is the findings, the CSV among them)
+    sys.stdout.write("".join(p.stdout.splitlines(True)[:-1]))
+    sys.stderr.write(p.stderr[-4000:])
+    expect(p.returncode == 0, "the browser session passed")
+    findings = json.loads(p.stdout.strip().splitlines()[-1]) if p.returncode == 0 else {}
+    if findings:
+        job = findings["job"]
+        out = tempfile.mkdtemp(prefix="asph-web-result-")
+        d.ctl("result", str(job), "--out", out, check=0)
+        with open(os.path.join(out, "residuals.csv")) as f:
+            expect(findings["csv"] == f.read(), "the CSV downloaded in the browser is asphctl result's")
+        shutil.rmtree(out)
+        jobrec = admin.call("job.get", {"id": job})
+        expect((jobrec["part"], jobrec["lot"], jobrec["serial"]) == ("AS-7", "L-9", "0001"),
+               "the job carries the part, lot and serial typed in the page")
+    shots = sorted(os.listdir(SHOTS))
+    expect(len([s for s in shots if s.endswith(".png")]) >= 6, f"screenshots in {SHOTS}: {shots}")
+    admin.close()
+    d.stop()
+except Exception:
+    print(d.log_text())
+    raise
+finally:
+    d.cleanup()
+finish()

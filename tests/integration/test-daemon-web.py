@@ -1,0 +1,231 @@
+#!/usr/bin/env python3
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""The web listener (http_listen, docs/web.md) of a real asphd: the page
+and its headers, login with named tokens, the session cookie, JSON-RPC
+over POST with the socket's role checks, the event stream, result file
+downloads and live points; cross-origin POSTs, malformed requests and
+oversized bodies get their status code and the daemon serves on."""
+import base64
+import http.client
+import json
+import os
+import re
+import socket
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(__file__))
+from daemontest import Client, Daemon, expect, finish, mock_instrument, web_port  # noqa: E402
+
+ROOT = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(os.path.dirname(__file__), "..", ".."))
+WEB_ROOT = os.path.join(ROOT, "daemon", "web")
+
+
+class Web:
+    """One browser-like HTTP client: keeps the session cookie."""
+
+    def __init__(self, port):
+        self.port = port
+        self.cookie = None
+
+    def request(self, method, path, body=None, headers=None, raw=None):
+        c = http.client.HTTPConnection("127.0.0.1", self.port, timeout=30)
+        h = {"Host": f"127.0.0.1:{self.port}"}
+        if body is not None:
+            raw = json.dumps(body).encode()
+            h["Content-Type"] = "application/json"
+        if self.cookie:
+            h["Cookie"] = self.cookie
+        h.update(headers or {})
+        c.request(method, path, body=raw, headers=h)
+        r = c.getresponse()
+        data = r.read()
+        c.close()
+        return r, data
+
+    def login(self, token):
+        r, data = self.request("POST", "/api/login", {"token": token})
+        m = re.match(r"(asph_session=[^;]+)", r.getheader("Set-Cookie") or "")
+        if r.status == 200 and m:
+            self.cookie = m.group(1)
+        return r, json.loads(data or b"{}")
+
+    def rpc(self, method, params=None):
+        r, data = self.request("POST", "/api/rpc", {"jsonrpc": "2.0", "id": 1, "method": method,
+                                                    "params": params or {}})
+        return r.status, json.loads(data) if data else None
+
+
+d = Daemon([mock_instrument(time_factor=0.02)],
+           extra={"http_listen": "127.0.0.1:0", "http_root": WEB_ROOT})
+try:
+    d.start()
+    port = web_port(d)
+    admin = Client(d.socket)
+    tokens = {role: admin.call("token.create", {"name": f"web-{role}", "role": role})["token"]
+              for role in ("viewer", "operator")}
+
+    # --- the page and its headers
+    anon = Web(port)
+    r, body = anon.request("GET", "/")
+    csp = r.getheader("Content-Security-Policy") or ""
+    expect(r.status == 200 and b"<script type=\"module\" src=\"/app.js\">" in body, "GET / is the page")
+    expect("default-src 'self'" in csp and "script-src 'self'" in csp and "*" not in csp,
+           f"the page's CSP allows only its own origin ({csp})")
+    expect(r.getheader("X-Content-Type-Options") == "nosniff", "nosniff")
+    for name, kind in (("app.js", "text/javascript"), ("map.js", "text/javascript"),
+                       ("style.css", "text/css")):
+        r, _ = anon.request("GET", "/" + name)
+        expect(r.status == 200 and r.getheader("Content-Type") == kind, f"{name} as {kind}")
+    for path in ("/nothing.html", "/../asphd.conf", "/%2e%2e/asphd.conf", "/.hidden.js",
+                 "/web/app.js", "/asphd.conf"):
+        r, _ = anon.request("GET", path)
+        expect(r.status == 404, f"GET {path}: 404 ({r.status})")
+
+    # --- no session, wrong token, malformed login
+    expect(anon.rpc("version")[0] == 401, "an RPC without a session: 401")
+    r, _ = anon.request("GET", "/api/events")
+    expect(r.status == 401, "the event stream without a session: 401")
+    r, body = anon.login("asph_" + "x" * 43)
+    expect(r.status == 401 and "wrong token" in body.get("error", ""), f"a wrong token: 401 {body}")
+    for raw in (b"", b"{", b"[]", b'{"token": 5}', b'{"token": "a", "more": 1}'):
+        r, body = anon.request("POST", "/api/login", raw=raw,
+                               headers={"Content-Type": "application/json"})
+        expect(r.status == 400, f"login body {raw!r}: 400 ({r.status})")
+
+    # --- operator login and the cookie
+    op = Web(port)
+    r, body = op.login(tokens["operator"])
+    cookie = r.getheader("Set-Cookie") or ""
+    expect(r.status == 200 and body == {"role": "operator", "token": "web-operator"},
+           f"operator login {body}")
+    expect("HttpOnly" in cookie and "SameSite=Strict" in cookie and "Path=/" in cookie,
+           f"the cookie is HttpOnly and SameSite=Strict ({cookie})")
+    status, ans = op.rpc("hello")
+    expect(status == 200 and ans["result"]["peer"]["role"] == "operator", "hello says operator")
+
+    # --- cross-origin and malformed requests
+    for origin in ("http://evil.example", f"http://127.0.0.1:{port + 1}", "null"):
+        r, _ = op.request("POST", "/api/rpc", {"jsonrpc": "2.0", "id": 1, "method": "version"},
+                          headers={"Origin": origin})
+        expect(r.status == 403, f"a POST from origin {origin}: 403 ({r.status})")
+    r, _ = op.request("POST", "/api/rpc", {"jsonrpc": "2.0", "id": 1, "method": "version"},
+                      headers={"Sec-Fetch-Site": "cross-site"})
+    expect(r.status == 403, "a POST the browser calls cross-site: 403")
+    r, body = op.request("POST", "/api/rpc", {"jsonrpc": "2.0", "id": 1, "method": "version"},
+                         headers={"Origin": f"http://127.0.0.1:{port}"})
+    expect(r.status == 200 and "result" in json.loads(body), "a POST from the page's origin")
+    r, body = op.request("POST", "/api/rpc", raw=b'{"jsonrpc": "2.0", "id": 1, "method": "v',
+                         headers={"Content-Type": "application/json"})
+    ans = json.loads(body)
+    expect(r.status == 200 and ans["error"]["code"] == -32700, f"broken JSON: -32700 {ans}")
+    r, _ = op.request("POST", "/api/rpc", raw=b"method=version",
+                      headers={"Content-Type": "application/x-www-form-urlencoded"})
+    expect(r.status == 415, f"a form body: 415 ({r.status})")
+    big = b'{"jsonrpc": "2.0", "id": 1, "method": "version", "x": "' + b"a" * (1 << 20) + b'"}'
+    r, body = op.request("POST", "/api/rpc", raw=big, headers={"Content-Type": "application/json"})
+    expect(r.status == 413 and b"max_request_bytes" in body, f"a body over the limit: 413 ({r.status})")
+    for method in ("PUT", "DELETE"):
+        r, _ = op.request(method, "/api/rpc", raw=b"{}")
+        expect(r.status == 405, f"{method} /api/rpc: 405 ({r.status})")
+    r, _ = op.request("GET", "/api/rpc")
+    expect(r.status == 405, "GET /api/rpc: 405")
+    r, _ = op.request("POST", "/index.html", raw=b"{}", headers={"Content-Type": "application/json"})
+    expect(r.status == 405, "POST to the page: 405")
+    for path in ("/api/jobs/0/points", "/api/jobs/x/files/a", "/api/jobs/1/other",
+                 "/api/jobs/1/files/..%2Fjobs.sqlite", "/api/nothing"):
+        r, _ = op.request("GET", path)
+        expect(r.status == 404, f"GET {path}: 404 ({r.status})")
+    # A request line and headers beyond what the listener takes.
+    s = socket.create_connection(("127.0.0.1", port))
+    s.sendall(b"GET /" + b"a" * 100000 + b" HTTP/1.1\r\nHost: x\r\n\r\n")
+    reply = s.recv(100)
+    s.close()
+    expect(re.match(rb"HTTP/1\.1 (414|431|413)", reply), f"an overlong request line: {reply[:20]!r}")
+    s = socket.create_connection(("127.0.0.1", port))
+    s.sendall(b"NOT HTTP AT ALL\r\n\r\n")
+    reply = s.recv(100)
+    s.close()
+    expect(reply.startswith(b"HTTP/1.1 4"), f"garbage: a 4xx ({reply[:20]!r})")
+    expect(admin.call("daemon.status")["clients"] >= 1, "the daemon serves on")
+
+    # --- roles: a viewer reads, its mutating calls are refused by the server
+    viewer = Web(port)
+    r, body = viewer.login(tokens["viewer"])
+    expect(body.get("role") == "viewer", "viewer login")
+    status, ans = viewer.rpc("job.submit", {"lens": "weak", "plan": {"method": "fermat", "points": 50}})
+    expect(ans["error"]["code"] == 100, f"a viewer's job.submit: refused 100 {ans}")
+    status, ans = viewer.rpc("queue.stop")
+    expect(ans["error"]["code"] == 100, "a viewer's queue.stop: refused")
+    expect("result" in viewer.rpc("queue.get")[1], "a viewer reads the queue")
+    status, ans = op.rpc("token.list")
+    expect(ans["error"]["code"] == 100, "an operator's token.list: refused")
+
+    # --- events over SSE, a job, its points and its files
+    expect("result" in op.rpc("events.subscribe", {"events": ["job", "progress"]})[1], "subscribe")
+    stream = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
+    stream.request("GET", "/api/events", headers={"Cookie": op.cookie})
+    sr = stream.getresponse()
+    expect(sr.status == 200 and sr.getheader("Content-Type") == "text/event-stream", "the stream opens")
+    expect(sr.readline() == b": asphd\n", "the stream's first comment")
+    status, ans = op.rpc("job.submit", {"lens": "weak", "plan": {"method": "fermat", "points": 400},
+                                        "part": "P-1", "lot": "L-2", "serial": "S-3"})
+    job = ans["result"]["id"]
+    seen = []
+    while True:
+        line = sr.readline()
+        if line.startswith(b"data: "):
+            msg = json.loads(line[6:])
+            seen.append(msg["method"])
+            if msg["method"] == "job.state" and msg["params"]["state"] == "completed":
+                break
+            expect(msg["params"]["job"] == job, "events of the job") if len(seen) < 2 else None
+    expect("job.progress" in seen and seen.count("job.state") >= 3,
+           f"job.state and batched job.progress events ({len(seen)} in all)")
+    expect(seen.count("job.progress") < 400 / 4, "progress is batched, not one event per point")
+    stream.close()
+
+    r, body = op.request("GET", f"/api/jobs/{job}/points?from=0")
+    pts = json.loads(body)["points"]
+    expect(r.status == 200 and len(pts) == 400 and all(len(p) == 3 for p in pts), "400 measured points")
+    r, body = op.request("GET", f"/api/jobs/{job}/points?from=390")
+    expect(len(json.loads(body)["points"]) == 10, "points from the 390th: 10")
+    r, _ = op.request("GET", f"/api/jobs/{job}/points?from=-1")
+    expect(r.status == 400, "points from -1: 400")
+
+    files = admin.call("job.result", {"id": job})["files"]
+    for key, name in files.items():
+        r, data = viewer.request("GET", f"/api/jobs/{job}/files/{name}")
+        want = b""
+        offset = 0
+        while True:
+            chunk = admin.call("job.file", {"id": job, "name": name, "offset": offset})
+            want += base64.b64decode(chunk["data"])
+            offset = len(want)
+            if chunk["eof"]:
+                break
+        expect(r.status == 200 and data == want and
+               f'filename="job{job}-{name}"' in (r.getheader("Content-Disposition") or ""),
+               f"download {name}: as job.file gives it ({len(data)} bytes)")
+    r, _ = viewer.request("GET", f"/api/jobs/{job}/files/jobs.sqlite")
+    expect(r.status == 404, "a file the result does not list: 404")
+
+    # --- logout, revoked tokens
+    r, _ = viewer.request("POST", "/api/logout", raw=b"{}", headers={"Content-Type": "application/json"})
+    expect(r.status == 204 and viewer.rpc("version")[0] == 401, "logout ends the session")
+    admin.call("token.revoke", {"name": "web-operator"})
+    time.sleep(0.3)
+    expect(op.rpc("version")[0] == 401, "a revoked token's session ends")
+    r, body = Web(port).login(tokens["operator"])
+    expect(r.status == 401 and "revoked" in body.get("error", ""), f"a revoked token: 401 {body}")
+    admin.close()
+    rc = d.stop()
+    expect(rc == 0, f"asphd stops cleanly ({rc})")
+    if rc != 0:
+        print(d.log_text()[-6000:])
+except Exception:
+    print(d.log_text())
+    raise
+finally:
+    d.cleanup()
+finish()
