@@ -27,6 +27,9 @@ static const struct {
 	{ "queue", "show the queue; move a job; start or stop the queue", cmd_queue },
 	{ "instruments", "the instruments and their state", cmd_instruments },
 	{ "drivers", "the drivers the daemon has", cmd_drivers },
+	{ "lock", "lock an instrument for work at the machine", cmd_lock },
+	{ "unlock", "end an instrument's lock", cmd_unlock },
+	{ "token", "create, list or revoke API tokens (root)", cmd_token },
 };
 
 int ctl_fail(const struct ctl_error *e)
