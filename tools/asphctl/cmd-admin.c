@@ -1,11 +1,13 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
-/* asphctl lock, unlock, token. */
+/* asphctl lock, unlock, token, fleet. */
 #include <errno.h>
 #include <getopt.h>
 #include <limits.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+
+#include <libpq-fe.h>
 
 #include "asphctl.h"
 #include "util-mem.h"
@@ -261,4 +263,128 @@ int cmd_token(struct ctl *ctl, int argc, char **argv)
 	if (argc - optind == 2 && !strcmp(argv[optind], "revoke"))
 		return token_revoke(ctl, argv[optind + 1]);
 	return usage_error(usage);
+}
+
+/* ------------------------------------------------------------ fleet */
+
+/* The newest results across daemons, from the view of docs/fleet.md. */
+static const char fleet_query[] =
+	"SELECT to_char(finished_at AT TIME ZONE 'UTC', 'YYYY-MM-DD\"T\"HH24:MI:SS\"Z\"'), host,"
+	" instrument, job_id, state, verdict, part, lot, serial, label, rms_nm, pv_nm,"
+	" submitted_by, daemon_id"
+	" FROM asphd.fleet_results"
+	" WHERE ($1::text IS NULL OR host = $1) AND ($2::text IS NULL OR part = $2)"
+	" AND ($3::text IS NULL OR lot = $3) AND ($4::text IS NULL OR serial = $4)"
+	" AND ($5::text IS NULL OR verdict = $5)"
+	" ORDER BY finished_at DESC, host, job_id DESC LIMIT $6::bigint";
+
+static const char *const fleet_columns[] = {
+	"finished", "host", "instrument", "job", "state", "verdict", "part", "lot", "serial",
+	"label", "rms_nm", "pv_nm", "submitted_by", "daemon",
+};
+
+static json_t *fleet_json(const PGresult *res)
+{
+	json_t *rows = json_array();
+
+	for (int i = 0; rows && i < PQntuples(res); i++) {
+		json_t *o = json_object();
+		for (int k = 0; k < (int)ARRAY_SIZE(fleet_columns); k++) {
+			const char *v = PQgetisnull(res, i, k) ? NULL : PQgetvalue(res, i, k);
+			json_t *j = !v ? json_null()
+				  : k == 3 ? json_integer(strtoll(v, NULL, 10))
+				  : k == 10 || k == 11 ? json_real(strtod(v, NULL)) : json_string(v);
+			json_object_set_new(o, fleet_columns[k], j);
+		}
+		json_array_append_new(rows, o);
+	}
+	return json_pack("{s:o}", "results", rows);
+}
+
+static void fleet_print(const PGresult *res)
+{
+	printf("%-20s %-16s %-10s %6s %-9s %-9s %-12s %-10s %-10s %9s\n", "FINISHED", "HOST",
+	       "INSTRUMENT", "JOB", "STATE", "VERDICT", "PART", "LOT", "SERIAL", "RMS_NM");
+	for (int i = 0; i < PQntuples(res); i++) {
+		_cleanup_free_ char *host = ctl_escape(PQgetvalue(res, i, 1), false);
+		_cleanup_free_ char *part = ctl_escape(PQgetvalue(res, i, 6), false);
+		_cleanup_free_ char *lot = ctl_escape(PQgetvalue(res, i, 7), false);
+		_cleanup_free_ char *serial = ctl_escape(PQgetvalue(res, i, 8), false);
+		printf("%-20s %-16s %-10s %6s %-9s %-9s %-12s %-10s %-10s %9s\n", PQgetvalue(res, i, 0),
+		       host ? host : "", PQgetvalue(res, i, 2), PQgetvalue(res, i, 3),
+		       PQgetvalue(res, i, 4), PQgetisnull(res, i, 5) ? "-" : PQgetvalue(res, i, 5),
+		       PQgetisnull(res, i, 6) ? "-" : part, PQgetisnull(res, i, 7) ? "-" : lot,
+		       PQgetisnull(res, i, 8) ? "-" : serial,
+		       PQgetisnull(res, i, 10) ? "-" : PQgetvalue(res, i, 10));
+	}
+	printf("(%d result(s))\n", PQntuples(res));
+}
+
+int cmd_fleet(struct ctl *ctl, int argc, char **argv)
+{
+	static const struct option opts[] = {
+		{ "db", required_argument, NULL, 'd' },
+		{ "limit", required_argument, NULL, 'n' },
+		{ "host", required_argument, NULL, 'H' },
+		{ "part", required_argument, NULL, 'A' },
+		{ "lot", required_argument, NULL, 'L' },
+		{ "serial", required_argument, NULL, 'N' },
+		{ "verdict", required_argument, NULL, 'v' },
+		JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 },
+	};
+	static const char usage[] = "fleet list [--db CONNINFO] [--limit N] [--host H] [--part P]\n"
+				    "       [--lot L] [--serial S] [--verdict pass|fail|undecided] [--json]";
+	const char *params[6] = { NULL, NULL, NULL, NULL, NULL, "50" };
+	const char *conninfo = getenv("ASPHCTL_FLEET_DB");
+	long long limit;
+	PGconn *db;
+	PGresult *res;
+	int c, rc = CTL_EXIT_OK;
+
+	while ((c = getopt_long(argc, argv, "d:n:jh", opts, NULL)) != -1) {
+		switch (c) {
+		case 'd': conninfo = optarg; break;
+		case 'n':
+			if (ctl_parse_integer(optarg, 1, 100000, &limit) < 0) {
+				fprintf(stderr, "asphctl: --limit: '%s' is not a count from 1 to "
+					"100000\n", optarg);
+				return CTL_EXIT_USAGE;
+			}
+			params[5] = optarg;
+			break;
+		case 'H': params[0] = optarg; break;
+		case 'A': params[1] = optarg; break;
+		case 'L': params[2] = optarg; break;
+		case 'N': params[3] = optarg; break;
+		case 'v': params[4] = optarg; break;
+		case 'j': ctl->json = true; break;
+		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
+		default: return usage_error(usage);
+		}
+	}
+	if (argc - optind != 1 || strcmp(argv[optind], "list"))
+		return usage_error(usage);
+	/* Without --db or ASPHCTL_FLEET_DB, libpq's own (PGHOST, ~/.pgpass, ...). */
+	db = PQconnectdbParams((const char *const[]){ "dbname", "application_name", NULL },
+			       (const char *const[]){ conninfo ? conninfo : "", "asphctl", NULL }, 1);
+	if (PQstatus(db) != CONNECTION_OK) {
+		fprintf(stderr, "asphctl: cannot connect to the fleet's database: %s",
+			PQerrorMessage(db));
+		PQfinish(db);
+		return CTL_EXIT_UNREACHABLE;
+	}
+	res = PQexecParams(db, fleet_query, 6, NULL, params, NULL, NULL, 0);
+	if (PQresultStatus(res) != PGRES_TUPLES_OK) {
+		fprintf(stderr, "asphctl: %s", PQerrorMessage(db));
+		rc = CTL_EXIT_ERROR;
+	} else if (ctl->json) {
+		json_t *j = fleet_json(res);
+		ctl_print_json(j);
+		json_decref(j);
+	} else {
+		fleet_print(res);
+	}
+	PQclear(res);
+	PQfinish(db);
+	return rc;
 }

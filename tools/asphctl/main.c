@@ -30,6 +30,7 @@ static const struct {
 	{ "lock", "lock an instrument for work at the machine", cmd_lock },
 	{ "unlock", "end an instrument's lock", cmd_unlock },
 	{ "token", "create, list or revoke API tokens (root)", cmd_token },
+	{ "fleet", "the newest results across daemons, from the central database", cmd_fleet },
 };
 
 int ctl_fail(const struct ctl_error *e)
