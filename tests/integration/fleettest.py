@@ -107,7 +107,7 @@ class Subscriber:
     """mosquitto_sub on topic with QoS 1 and a persistent session (its
     messages wait in the broker while it is away), every message kept:
     .messages() is a list of {"topic", "payload" (parsed JSON), "retain",
-    "qos", "tst"}."""
+    "qos", "tst", "received" (time.time() when read)}."""
 
     def __init__(self, broker, topic, client_id=None, extra=()):
         self.bin = find_program("mosquitto_sub")
@@ -132,6 +132,7 @@ class Subscriber:
                     pass
             except ValueError:
                 continue
+            m["received"] = time.time()
             with self._lock:
                 self._lines.append(m)
 
