@@ -211,6 +211,10 @@ try:
                                                                                 "port=1")],
                        capture_output=True, text=True, timeout=60)
     expect(p.returncode == 3 and "cannot connect" in p.stderr, "no database: exit 3, said why")
+    p = subprocess.run([ASPHCTL, "fleet", "list", "--db", pg.conninfo, "--verdict", "maybe"],
+                       capture_output=True, text=True, timeout=60)
+    expect(p.returncode == 2 and "not pass, fail or undecided" in p.stderr,
+           f"an unknown verdict: a usage error ({p.stderr.strip()})")
     for c in clients:
         c.close()
     for d in daemons:

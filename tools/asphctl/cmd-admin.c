@@ -356,7 +356,15 @@ int cmd_fleet(struct ctl *ctl, int argc, char **argv)
 		case 'A': params[1] = optarg; break;
 		case 'L': params[2] = optarg; break;
 		case 'N': params[3] = optarg; break;
-		case 'v': params[4] = optarg; break;
+		case 'v':
+			if (strcmp(optarg, "pass") && strcmp(optarg, "fail") &&
+			    strcmp(optarg, "undecided")) {
+				fprintf(stderr, "asphctl: --verdict: '%s' is not pass, fail or "
+					"undecided\n", optarg);
+				return CTL_EXIT_USAGE;
+			}
+			params[4] = optarg;
+			break;
 		case 'j': ctl->json = true; break;
 		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
 		default: return usage_error(usage);
