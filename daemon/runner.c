@@ -30,7 +30,8 @@
 #define INSTRUMENT_TIMEOUT_MS 10000
 
 struct runner {
-	const struct asph_instrument_config *ic;
+	struct asph_config *own;        /* this worker's copy of the instrument */
+	struct asph_instrument_config *ic;    /* own's: its lens follows the job */
 	runner_report_fn fn;
 	void *data;
 	int efd;
@@ -214,6 +215,10 @@ static int measure(struct run *run)
 	struct asph_scan *scan = NULL;
 	int rc;
 
+	/* a simulated part is the lens the job measures, unless configured */
+	rc = asph_instrument_config_set_lens(r->ic, run->jp.prescription_json, &run->err);
+	if (rc < 0)
+		return rc;
 	rc = asph_instrument_open(r->ic, INSTRUMENT_TIMEOUT_MS, &run->inst, &run->err);
 	if (rc < 0)
 		return rc;
@@ -352,11 +357,17 @@ int runner_new(const struct asph_instrument_config *instrument,
 
 	if (!r)
 		return -ENOMEM;
-	r->ic = instrument;
-	r->fn = fn;
-	r->data = data;
+	r->efd = -1;
 	pthread_mutex_init(&r->lock, NULL);
 	pthread_cond_init(&r->cond, NULL);
+	rc = asph_instrument_config_copy(instrument, &r->own, NULL);
+	if (rc < 0) {
+		runner_free(r);
+		return rc;
+	}
+	r->ic = &r->own->instruments[0];
+	r->fn = fn;
+	r->data = data;
 	r->efd = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
 	if (r->efd < 0) {
 		rc = -errno;
@@ -398,6 +409,7 @@ void runner_free(struct runner *r)
 		close(r->efd);
 	pthread_cond_destroy(&r->cond);
 	pthread_mutex_destroy(&r->lock);
+	asph_config_free(r->own);
 	free(r);
 }
 

@@ -68,7 +68,8 @@ typedef void (*runner_report_fn)(const struct runner_report *rep, void *data);
 struct runner;
 
 /*
- * A worker for an instrument (the configuration must outlive it); reports
+ * A worker for an instrument; it works on its own copy of the
+ * configuration, whose simulated part follows each job's lens. Reports
  * are delivered on event's thread to fn.
  */
 int runner_new(const struct asph_instrument_config *instrument,

@@ -7,10 +7,25 @@
 #include <stddef.h>
 
 #include "asph/driver.h"
+#include "asph/instrument.h"
 
 #define ARRAY_LEN(a) (sizeof(a) / sizeof((a)[0]))
 
 extern const struct asph_driver *const builtin_drivers[];
 extern const size_t builtin_drivers_count;
+
+/* A built-in driver whose "profile" option names files found at run time
+ * lists them (a driver's meson.build adds its NAME to
+ * driver_profile_lists and defines NAME_profiles_list). */
+typedef int (*builtin_profiles_fn)(struct asph_driver_profile **out, size_t *n,
+				   struct asph_error *err);
+
+struct builtin_profile_list {
+	const struct asph_driver *driver;
+	builtin_profiles_fn list;
+};
+
+extern const struct builtin_profile_list builtin_profile_lists[];
+extern const size_t builtin_profile_lists_count;
 
 #endif

@@ -372,6 +372,47 @@ int asph_config_resolve(const struct asph_registry *reg, const char *arg,
 				 "no instrument '%s' in the configuration", hash + 1);
 }
 
+int asph_instrument_config_copy(const struct asph_instrument_config *c,
+				struct asph_config **out, struct asph_error *err)
+{
+	_cleanup_(asph_config_freep) struct asph_config *copy = NULL;
+	int r = config_alloc(1, &copy, err);
+
+	if (r < 0)
+		return r;
+	struct asph_instrument_config *ic = &copy->instruments[0];
+	*ic = (struct asph_instrument_config){ .stage_driver = c->stage_driver,
+					       .probe_driver = c->probe_driver };
+	memcpy(ic->name, c->name, sizeof(ic->name));
+	r = asph_options_copy(c->stage_options, &ic->stage_options, err);
+	if (r == 0)
+		r = asph_options_copy(c->probe_options, &ic->probe_options, err);
+	if (r < 0)
+		return r;
+	*out = steal_ptr(copy);
+	return 0;
+}
+
+static int lens_option(struct asph_options *o, const char *json, struct asph_error *err)
+{
+	int i = option_index(asph_options_driver(o), "lens");
+
+	if (i < 0 || asph_options_driver(o)->options[i].type != ASPH_OPTION_STRING)
+		return 0;
+	return asph_options_set_default(o, "lens", json, err);
+}
+
+int asph_instrument_config_set_lens(struct asph_instrument_config *c,
+				    const char *prescription_json,
+				    struct asph_error *err)
+{
+	int r = lens_option(c->stage_options, prescription_json, err);
+
+	if (r >= 0)
+		r = lens_option(c->probe_options, prescription_json, err);
+	return r < 0 ? r : 0;
+}
+
 static json_t *role_json(const struct asph_driver *drv, const struct asph_options *o,
 		 unsigned role)
 {

@@ -50,6 +50,34 @@ static json_t *option_json(const struct asph_option_desc *o)
 	return j;
 }
 
+static json_t *profile_json(const struct asph_driver_profile *p)
+{
+	json_t *j = json_object();
+
+	json_object_set_new(j, "name", json_string(p->name));
+	json_object_set_new(j, "roles", p->roles ? roles_json(p->roles) : json_array());
+	json_object_set_new(j, "description", json_string(p->description));
+	json_object_set_new(j, "reference", json_string(p->reference));
+	json_object_set_new(j, "path", json_string(p->path));
+	json_object_set_new(j, "error", p->error[0] ? json_string(p->error) : json_null());
+	return j;
+}
+
+/* The profiles the driver's "profile" option can name, as found now. */
+static int profiles_json(const struct asph_registry *reg, size_t i, json_t **out)
+{
+	_cleanup_free_ struct asph_driver_profile *v = NULL;
+	size_t n = 0;
+	int r = asph_registry_profiles(reg, i, &v, &n, NULL);
+
+	if (r < 0)
+		return r;
+	*out = json_array();
+	for (size_t k = 0; k < n; k++)
+		json_array_append_new(*out, profile_json(&v[k]));
+	return 0;
+}
+
 int asph_registry_to_json(const struct asph_registry *reg, bool pretty, char **out)
 {
 	_cleanup_(json_decrefp) json_t *root = json_object();
@@ -68,6 +96,11 @@ int asph_registry_to_json(const struct asph_registry *reg, bool pretty, char **o
 			json_array_append_new(opts, option_json(&d->options[k]));
 		json_object_set_new(j, "options", opts);
 		json_array_append_new(list, j);
+		json_t *profiles = NULL;
+		int r = profiles_json(reg, i, &profiles);
+		if (r < 0)
+			return r;
+		json_object_set_new(j, "profiles", profiles);
 	}
 	json_object_set_new(root, "drivers", list);
 	*out = json_dumps(root, (pretty ? JSON_INDENT(2) : JSON_COMPACT) | JSON_PRESERVE_ORDER |

@@ -7,11 +7,44 @@
 
 #include "executor-internal.h"
 
+/* Calls fn at the points of a 201 x 201 grid over a freeform's aperture. */
+static void freeform_grid(const struct asph_surface *s, void (*fn)(void *, const struct asph_sag *),
+			  void *ctx)
+{
+	double box[4];
+	struct asph_sag d;
+
+	asph_surface_bounds(s, box);
+	for (int i = 0; i <= 200; i++)
+		for (int j = 0; j <= 200; j++) {
+			double x = box[0] + (box[1] - box[0]) * i / 200.0;
+			double y = box[2] + (box[3] - box[2]) * j / 200.0;
+			if (!asph_surface_contains(s, x, y, 0))
+				continue;
+			asph_surface_derivs_xy(s, x, y, &d);
+			fn(ctx, &d);
+		}
+}
+
+/* Gershgorin's bound on the Hessian's eigenvalues. */
+static void curvature_at(void *ctx, const struct asph_sag *d)
+{
+	double *k = ctx;
+
+	*k = fmax(*k, fmax(fabs(d->zxx) + fabs(d->zxy), fabs(d->zxy) + fabs(d->zyy)));
+}
+
 /* max over the aperture of the surface's principal curvatures' bound,
- * max(|Z''|, |Z'/r|), with a margin for the sampling. */
+ * max(|Z''|, |Z'/r|) (a freeform: of its Hessian's), with a margin for the
+ * sampling. */
 double scan_curvature_bound(const struct asph_surface *s)
 {
 	double a = asph_surface_aperture_radius(s), k = 0, d[3];
+
+	if (!asph_surface_is_rotational(s)) {
+		freeform_grid(s, curvature_at, &k);
+		return 1.25 * k;
+	}
 
 	for (int j = 0; j <= 2000; j++) {
 		double r = a * j / 2000.0;
@@ -85,6 +118,14 @@ double scan_gap(const struct asph_scan *sc, const double c[3])
 {
 	double d[3];
 
+	if (!asph_surface_is_rotational(sc->surface)) {
+		struct asph_sag g;
+		asph_surface_derivs_xy(sc->surface, c[0], c[1], &g);
+		if (!isfinite(g.z))
+			return INFINITY;
+		return g.z - c[2] - sc->inst->probe_info.standoff -
+		       sc->tip * sqrt(1 + g.zx * g.zx + g.zy * g.zy);
+	}
 	asph_surface_sag_derivs(sc->surface, sqrt(c[0] * c[0] + c[1] * c[1]), d);
 	if (!isfinite(d[0]))
 		return INFINITY;
@@ -129,12 +170,34 @@ bool scan_path_clear(const struct asph_scan *sc, const double *a, const double *
 	return scan_path_clear_g(sc, a, NAN, b, NAN, min_gap);
 }
 
+struct lowest {
+	const struct asph_scan *sc;
+	double z;
+};
+
+static void lowest_at(void *ctx, const struct asph_sag *d)
+{
+	struct lowest *l = ctx;
+
+	l->z = fmin(l->z, d->z - l->sc->inst->probe_info.standoff -
+			  l->sc->tip * sqrt(1 + d->zx * d->zx + d->zy * d->zy) - l->sc->o.clearance);
+}
+
 /* The travel height: clearance above the whole part and every approach. */
 static double safe_height(struct asph_scan *sc, double min_approach_z)
 {
 	const struct asph_surface *s = sc->surface;
 	double a = asph_surface_aperture_radius(s), z = min_approach_z, d[3];
 
+	if (!asph_surface_is_rotational(s)) {
+		struct asph_surface_extent e;
+		struct lowest l = { sc, z };
+		freeform_grid(s, lowest_at, &l);
+		/* and the lowest sag anywhere, with the steepest slope */
+		asph_surface_extent(s, &e);
+		return fmin(l.z, e.sag_min - sc->inst->probe_info.standoff -
+				 sc->tip * sqrt(1 + e.max_slope * e.max_slope) - sc->o.clearance);
+	}
 	for (int j = 0; j <= 2000; j++) {
 		asph_surface_sag_derivs(s, a * j / 2000.0, d);
 		z = fmin(z, d[0] - sc->inst->probe_info.standoff -

@@ -12,8 +12,11 @@
 #include <time.h>
 
 #include "executor-internal.h"
+#include "options-internal.h"
 #include "util-mem.h"
 #include "util-time.h"
+
+#define DEFAULT_READ_TIMEOUT_MS 2000
 
 const char *asph_scan_state_name(enum asph_scan_state s)
 {
@@ -22,6 +25,21 @@ const char *asph_scan_state_name(enum asph_scan_state s)
 		"completed", "aborted", "failed",
 	};
 	return (unsigned)s < ARRAY_SIZE(names) ? names[s] : "unknown";
+}
+
+/* The longest wait for one reading: the probe driver's option named
+ * read_timeout (int, ms) when it gives one above 0, for a probe that
+ * needs longer than the host's default (a reading the operator triggers
+ * by hand). */
+static unsigned probe_read_timeout(const struct asph_instrument *inst)
+{
+	const struct asph_instrument_config *c = inst->config;
+	int i = c ? option_index(c->probe_driver, "read_timeout") : -1;
+
+	if (i < 0 || c->probe_driver->options[i].type != ASPH_OPTION_INT)
+		return DEFAULT_READ_TIMEOUT_MS;
+	int64_t ms = asph_options_values(c->probe_options)[i].i;
+	return ms > 0 && ms <= UINT_MAX ? (unsigned)ms : DEFAULT_READ_TIMEOUT_MS;
 }
 
 int asph_scan_new(struct asph_instrument *inst, const struct asph_surface *s,
@@ -39,7 +57,7 @@ int asph_scan_new(struct asph_instrument *inst, const struct asph_surface *s,
 	if (!sc->o.move_timeout_ms)
 		sc->o.move_timeout_ms = 60000;
 	if (!sc->o.read_timeout_ms)
-		sc->o.read_timeout_ms = 2000;
+		sc->o.read_timeout_ms = probe_read_timeout(inst);
 	if (!sc->o.home_timeout_ms)
 		sc->o.home_timeout_ms = 120000;
 	if (!sc->o.stream_batch || sc->o.stream_batch > RECORD_BATCH)

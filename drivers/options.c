@@ -174,26 +174,63 @@ int asph_options_new(const struct asph_driver *drv, struct asph_options **out,
 	return 0;
 }
 
-int asph_options_set(struct asph_options *o, const char *name,
-		     const char *text, struct asph_error *err)
+/* Parses text as option i's value and keeps it, set by the configuration
+ * or not. */
+static int store(struct asph_options *o, int i, const char *text, bool set,
+		 struct asph_error *err)
 {
-	int i = option_index(o->drv, name);
 	struct asph_option_value v = { 0 };
-
-	if (i < 0)
-		return asph_error_set_at(err, -ENOENT, NULL, 0, 0, name,
-					 "driver '%s' has no option '%s' (see asph drivers)",
-					 o->drv->name, name);
 	_cleanup_free_ char *copy = strdup(text);
+
 	if (!copy)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	int r = option_parse(&o->drv->options[i], copy, &v, err);
 	if (r < 0)
 		return r;
-	v.set = true;
+	v.set = set;
 	free(o->texts[i]);
 	o->texts[i] = steal_ptr(copy);
 	o->values[i] = v;
+	return 0;
+}
+
+int asph_options_set(struct asph_options *o, const char *name,
+		     const char *text, struct asph_error *err)
+{
+	int i = option_index(o->drv, name);
+
+	if (i < 0)
+		return asph_error_set_at(err, -ENOENT, NULL, 0, 0, name,
+					 "driver '%s' has no option '%s' (see asph drivers)",
+					 o->drv->name, name);
+	return store(o, i, text, true, err);
+}
+
+int asph_options_set_default(struct asph_options *o, const char *name,
+			     const char *text, struct asph_error *err)
+{
+	int i = option_index(o->drv, name);
+
+	if (i < 0 || o->values[i].set)
+		return 0;
+	int r = store(o, i, text, false, err);
+	return r < 0 ? r : 1;
+}
+
+int asph_options_copy(const struct asph_options *o, struct asph_options **out,
+		      struct asph_error *err)
+{
+	struct asph_options *c = NULL;
+	int r = asph_options_new(o->drv, &c, err);
+
+	for (size_t i = 0; r == 0 && i < o->drv->n_options; i++)
+		if (o->texts[i])
+			r = store(c, (int)i, o->texts[i], o->values[i].set, err);
+	if (r < 0) {
+		asph_options_free(c);
+		return r;
+	}
+	*out = c;
 	return 0;
 }
 

@@ -335,6 +335,21 @@ const char *asph_registry_origin(const struct asph_registry *r, size_t i)
 	return r->entries[i].origin ? r->entries[i].origin : "built-in";
 }
 
+int asph_registry_profiles(const struct asph_registry *r, size_t i,
+			   struct asph_driver_profile **out, size_t *n,
+			   struct asph_error *err)
+{
+	*out = NULL;
+	*n = 0;
+	if (i >= r->n)
+		return asph_error_set(err, -EINVAL, "no driver %zu in the registry", i);
+	/* a plugin's table is its own: only built-in drivers list files */
+	for (size_t k = 0; !r->entries[i].origin && k < builtin_profile_lists_count; k++)
+		if (builtin_profile_lists[k].driver == r->entries[i].driver)
+			return builtin_profile_lists[k].list(out, n, err);
+	return 0;
+}
+
 const struct asph_driver *asph_registry_find(const struct asph_registry *r,
 					     const char *name)
 {

@@ -18,6 +18,7 @@ struct transport {
 	int fd;
 	bool own;
 	int cancel_fd;          /* eventfd: readable once cancelled */
+	bool tty;               /* a serial line (or a pty), not a socket */
 	char name[128];         /* room for a unix socket path */
 };
 
@@ -50,6 +51,7 @@ int transport_new(int fd, bool own, const char *name, struct transport **out,
 	}
 	t->fd = fd;
 	t->own = own;
+	t->tty = isatty(fd);
 	snprintf(t->name, sizeof(t->name), "%s", name);
 	*out = t;
 	return 0;
@@ -104,7 +106,9 @@ static int wait_for(struct transport *t, short events, uint64_t deadline,
 static int io_error(struct transport *t, const char *what, struct asph_error *err)
 {
 	int e = errno;
-	if (e == EPIPE || e == ECONNRESET || e == ENXIO || e == ENODEV || e == ENETDOWN)
+	/* EIO: a terminal hung up (a serial adapter unplugged, a pty whose
+	 * other end closed) */
+	if (e == EPIPE || e == ECONNRESET || e == ENXIO || e == ENODEV || e == ENETDOWN || e == EIO)
 		return asph_error_set(err, -ENODEV, "%s: the device went away (%s)", t->name,
 				      strerror(e));
 	return asph_error_set(err, -EIO, "%s: %s failed: %s", t->name, what, strerror(e));
@@ -149,8 +153,9 @@ int transport_recv(struct transport *t, void *buf, size_t size, size_t *got,
 		if (n < 0)
 			return io_error(t, "receiving", err);
 		if (n == 0)
-			return asph_error_set(err, -ENODEV, "%s: the device closed the connection",
-					      t->name);
+			return asph_error_set(err, -ENODEV, t->tty
+					      ? "%s: the device went away (the line hung up)"
+					      : "%s: the device closed the connection", t->name);
 		*got = (size_t)n;
 		return 0;
 	}

@@ -76,7 +76,9 @@ struct asph_scan_options {
 	uint64_t start_index;           /* first plan point to measure */
 	double clearance;               /* mm above each point; 0 = 0.5 */
 	unsigned move_timeout_ms;       /* 0 = 60000 */
-	unsigned read_timeout_ms;       /* 0 = 2000 */
+	unsigned read_timeout_ms;       /* 0 = the probe's read_timeout option
+					 * when it sets one (docs/drivers.md),
+					 * else 2000 */
 	unsigned home_timeout_ms;       /* 0 = 120000 */
 	size_t stream_batch;            /* points per sweep; 0 = 4096 */
 	asph_scan_progress_fn progress; /* may be NULL */

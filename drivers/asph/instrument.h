@@ -67,6 +67,26 @@ const char *asph_registry_origin(const struct asph_registry *r, size_t i);
 const struct asph_driver *asph_registry_find(const struct asph_registry *r,
 					     const char *name);
 
+/* A profile a driver's "profile" option can name, found at run time in
+ * the profile directories (the line driver's profile files). */
+struct asph_driver_profile {
+	char name[64];
+	unsigned roles;         /* enum asph_driver_role; 0 when it does not load */
+	char description[128];
+	char reference[128];    /* the document it follows */
+	char path[512];         /* the file the name loads */
+	char error[512];        /* why it does not load, "" when it does */
+};
+
+/*
+ * The profiles driver i's "profile" option can name, as the profile
+ * directories hold them now, one per name, sorted. *n is 0 for a driver
+ * whose profiles are not files. The array is malloc'd (free() it).
+ */
+int asph_registry_profiles(const struct asph_registry *r, size_t i,
+			   struct asph_driver_profile **out, size_t *n,
+			   struct asph_error *err);
+
 /* Checks a driver table as the registry does (plugins are checked on
  * load). */
 int asph_driver_validate(const struct asph_driver *d, struct asph_error *err);
@@ -75,9 +95,12 @@ int asph_driver_validate(const struct asph_driver *d, struct asph_error *err);
  * it and asphd's driver.list answers: { "driver_abi": N, "drivers": [ {
  * "name", "description", "version", "origin", "roles", "options": [ {
  * "name", "type", "default", "unit", "min", "max", "choices", "roles",
- * "help" } ] } ] }. min and max only for a ranged option, choices only for
- * an enum; a text the driver leaves out is null; roles are always named
- * (an option of both roles has ["stage", "probe"]). malloc'd. */
+ * "help" } ], "profiles": [ { "name", "roles", "description", "reference",
+ * "path", "error" } ] } ] }. min and max only for a ranged option, choices
+ * only for an enum; a text the driver leaves out is null; roles are always
+ * named (an option of both roles has ["stage", "probe"]); profiles as
+ * asph_registry_profiles() finds them (empty for a driver without profile
+ * files; error null for one that loads). malloc'd. */
 int asph_registry_to_json(const struct asph_registry *r, bool pretty,
 			  char **out);
 
@@ -101,6 +124,19 @@ void asph_options_free(struct asph_options *o);
  */
 int asph_options_set(struct asph_options *o, const char *name,
 		     const char *text, struct asph_error *err);
+
+/*
+ * Gives option name the value text unless the configuration set it: the
+ * value stays "not set", so the next call replaces it. 1 when it was
+ * given, 0 when the driver has no such option or the configuration set
+ * it, else the error of asph_options_set().
+ */
+int asph_options_set_default(struct asph_options *o, const char *name,
+			     const char *text, struct asph_error *err);
+
+/* An independent copy of o: the same values, set or not. */
+int asph_options_copy(const struct asph_options *o, struct asph_options **out,
+		      struct asph_error *err);
 
 /* The values, parallel to the driver's option descriptors. */
 const struct asph_option_value *
@@ -157,6 +193,27 @@ void asph_config_free(struct asph_config *c);
 int asph_config_resolve(const struct asph_registry *reg, const char *arg,
 			struct asph_config **out, size_t *index,
 			struct asph_error *err);
+
+/*
+ * A configuration of one instrument that is a copy of c, options included:
+ * the caller's own to change (a worker sets the lens of each job on its
+ * copy while the loaded configuration stays as it was read).
+ * asph_config_free() frees it.
+ */
+int asph_instrument_config_copy(const struct asph_instrument_config *c,
+				struct asph_config **out, struct asph_error *err);
+
+/*
+ * The lens a job measures, for drivers that simulate the part: a string
+ * option named "lens" of the stage's or the probe's driver that the
+ * configuration leaves unset takes prescription_json (the lens's
+ * prescription as JSON text, asph_prescription_to_json()). One the
+ * configuration sets is kept: that is how a wrong part is simulated.
+ * Call it before each job's asph_instrument_open().
+ */
+int asph_instrument_config_set_lens(struct asph_instrument_config *c,
+				    const char *prescription_json,
+				    struct asph_error *err);
 
 /* The instrument as JSON text (drivers, versions, every option's value),
  * for the recorded scan's header. malloc'd. */

@@ -8,10 +8,13 @@
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
+#include <unistd.h>
 
 #include "asph/driver.h"
+#include "keyboard.h"
 #include "protocol.h"
 #include "std.h"
+#include "transport.h"
 #include "util-mem.h"
 #include "util-time.h"
 
@@ -21,11 +24,13 @@ enum {
 	OPT_SCALE, OPT_STATUS_OFFSET, OPT_VALID_MASK, OPT_RANGE_MASK, OPT_TOUCH_MASK,
 	OPT_ERROR_MASK, OPT_CMD_REQUEST, OPT_CMD_ZERO, OPT_CMD_HOLD, OPT_ZERO_ON_OPEN,
 	OPT_HOLD, OPT_OFFSET, OPT_PROBE, OPT_TIP_RADIUS, OPT_STANDOFF, OPT_RANGE, OPT_RATE,
+	OPT_GRAB, OPT_UNIT_SCALE, OPT_READ_TIMEOUT,
 	N_OPTIONS
 };
 
-/* the names of hid_builtin_profiles */
-static const char *const profiles[] = { "default", NULL };
+/* the names of hid_builtin_profiles, then the keyboard wedge */
+static const char *const profiles[] = { "default", "keyboard", NULL };
+enum { PROFILE_KEYBOARD = 1 };
 static const char *const byte_orders[] = { "little", "big", NULL };
 static const char *const probe_types[] = { "tactile", "optical", NULL };
 
@@ -43,7 +48,8 @@ static const struct asph_option_desc hid_options[N_OPTIONS] = {
 	[OPT_SERIAL] = { "serial", ASPH_OPTION_STRING, "",
 			 .help = "serial number, to choose among devices of one vendor_id:product_id" },
 	[OPT_PROFILE] = { "profile", ASPH_OPTION_ENUM, "default", .choices = profiles,
-			  .help = "report layout and commands (docs/driver-hid.md); the options below override it" },
+			  .help = "report layout and commands (docs/driver-hid.md); the options below override "
+				  "it; keyboard: a gauge that types its reading as keystrokes" },
 	[OPT_REPORT_ID] = { "report_id", ASPH_OPTION_INT, "1", RANGE(0, 255),
 			    .help = "id of the input report with the reading (0: unnumbered reports)" },
 	[OPT_VALUE_OFFSET] = { "value_offset", ASPH_OPTION_INT, "1", RANGE(0, 63), .unit = "bytes",
@@ -88,6 +94,17 @@ static const struct asph_option_desc hid_options[N_OPTIONS] = {
 			.help = "measuring range, centred on the standoff" },
 	[OPT_RATE] = { "rate", ASPH_OPTION_DOUBLE, "0", RANGE(0, 1e6), .unit = "Hz",
 		       .help = "readings per second (0: unknown)" },
+	[OPT_GRAB] = { "grab", ASPH_OPTION_BOOL, "true",
+		       .help = "keyboard: grab the gauge's evdev node (EVIOCGRAB) so that its keystrokes "
+			       "reach no other program" },
+	[OPT_UNIT_SCALE] = { "unit_scale", ASPH_OPTION_DOUBLE, "1", RANGE(-1e6, 1e6), .unit = "mm",
+			     .help = "keyboard: mm per typed unit (0.0254 for a gauge typing inches; "
+				     "negative when the value grows towards the probe)" },
+	[OPT_READ_TIMEOUT] = { "read_timeout", ASPH_OPTION_INT, "0", RANGE(0, 3600000), .unit = "ms",
+			       .help = "the longest the host waits for one reading (0: its default, "
+				       "2000 ms plus the reading's time at the rate); a keyboard gauge "
+				       "without a request: the time the operator has to press its data "
+				       "button or foot switch" },
 };
 
 #undef RANGE
@@ -96,6 +113,10 @@ struct asph_device {
 	atomic_bool stop;
 	struct hid_link *link;
 	struct hid_profile prof;
+	bool keyboard;
+	struct hid_kbd kbd;
+	int grab_fd;                    /* the grabbed evdev node, or -1 */
+	double unit_scale;
 	bool hold;
 	double offset;
 	struct asph_probe_info info;
@@ -138,6 +159,16 @@ static int build_profile(const struct asph_option_value *o, struct hid_profile *
 	return r < 0 ? r : hid_profile_check(p, err);
 }
 
+/* A keyboard wedge has no layout: its report id (0 unless set) and the
+ * request it may take (none unless set: the operator triggers). */
+static int keyboard_profile(const struct asph_option_value *o, struct hid_profile *p,
+			    struct asph_error *err)
+{
+	memset(p, 0, sizeof(*p));
+	p->report_id = o[OPT_REPORT_ID].set ? (uint8_t)o[OPT_REPORT_ID].i : 0;
+	return o[OPT_CMD_REQUEST].set ? hid_command_parse(o[OPT_CMD_REQUEST].s, &p->request, err) : 0;
+}
+
 static void fill_info(struct asph_device *d, const struct asph_option_value *o,
 		      const struct hid_link_info *li)
 {
@@ -154,6 +185,8 @@ static void probe_close(struct asph_device *d)
 {
 	if (!d)
 		return;
+	if (d->grab_fd >= 0)
+		close(d->grab_fd);      /* releases the grab */
 	hid_link_close(d->link);
 	free(d);
 }
@@ -173,13 +206,20 @@ static int probe_open(const struct asph_driver *drv, const struct asph_option_va
 	if (!d)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	atomic_init(&d->stop, false);
-	int r = build_profile(o, &d->prof, err);
+	d->grab_fd = -1;
+	d->keyboard = o[OPT_PROFILE].i == PROFILE_KEYBOARD;
+	int r = d->keyboard ? keyboard_profile(o, &d->prof, err) : build_profile(o, &d->prof, err);
 	if (r < 0)
 		return r;
 	r = hid_link_open(path, (unsigned)o[OPT_VENDOR_ID].i, (unsigned)o[OPT_PRODUCT_ID].i,
 			  o[OPT_SERIAL].s, &d->stop, &d->link, &li, err);
 	if (r < 0)
 		return r;
+	char node[300];
+	if (d->keyboard && o[OPT_GRAB].b && (r = hid_kbd_grab(li.path, &d->grab_fd, node,
+								  sizeof(node), err)) < 0)
+		return r;
+	d->unit_scale = o[OPT_UNIT_SCALE].d;
 	if (o[OPT_ZERO_ON_OPEN].b && (r = hid_link_send(d->link, &d->prof.zero, err)) < 0)
 		return r;
 	d->hold = o[OPT_HOLD].b;
@@ -210,6 +250,46 @@ static void to_reading(const struct asph_device *d, const struct hid_sample *s,
 		out->flags |= ASPH_READING_OUT_OF_RANGE;
 }
 
+/* A keyboard wedge: what it types until Enter, asked for by the request
+ * report when there is one, else typed when the operator presses the
+ * gauge's data button or foot switch. */
+static int keyboard_read(struct asph_device *d, struct asph_reading *out, unsigned timeout_ms,
+			 struct asph_error *err)
+{
+	uint8_t buf[HID_REPORT_MAX];
+	uint64_t deadline = transport_deadline(timeout_ms);
+	double v;
+
+	hid_kbd_reset(&d->kbd);
+	int r = hid_link_drain(d->link, err);
+	if (r == 0)
+		r = hid_link_send(d->link, &d->prof.request, err);
+	while (r == 0) {
+		unsigned left = transport_ms_left(deadline);
+		if (left == 0)
+			return asph_error_set(err, -ETIMEDOUT, "no reading typed within %u ms%s",
+					      timeout_ms, d->prof.request.kind == HID_COMMAND_NONE
+					      ? " (press the gauge's data button or foot switch; the "
+						"read_timeout option gives the operator longer)" : "");
+		r = hid_link_read(d->link, buf, sizeof(buf), left, err);
+		if (r == -ETIMEDOUT) {
+			r = 0;
+			continue;
+		}
+		if (r < 0)
+			return r;
+		r = hid_kbd_feed(&d->kbd, d->prof.report_id, buf, (size_t)r, &v, err);
+		if (r == 1) {
+			struct hid_sample s = { .mm = v * d->unit_scale };
+			out->t_ns = now_monotonic_ns();
+			to_reading(d, &s, out);
+			out->raw = v;   /* what the gauge typed, not counts */
+			return 0;
+		}
+	}
+	return r;
+}
+
 /* Asks for a reading (the reports queued before are stale) and decodes
  * the answer; a real probe has no use for the context. */
 static int probe_read(struct asph_device *d, const struct asph_probe_context *ctx,
@@ -221,6 +301,8 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 	memset(out, 0, sizeof(*out));
 	if (atomic_load(&d->stop))
 		return asph_error_set(err, -ECANCELED, "reading stopped");
+	if (d->keyboard)
+		return keyboard_read(d, out, timeout_ms, err);
 	int r = hid_link_drain(d->link, err);
 	if (r == 0 && d->hold)
 		r = hid_link_send(d->link, &d->prof.hold, err);

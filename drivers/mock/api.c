@@ -18,7 +18,7 @@
 enum {
 	OPT_LENS, OPT_PROBE, OPT_KINEMATICS, OPT_TIP_RADIUS, OPT_STANDOFF,
 	OPT_RANGE, OPT_MAX_SLOPE, OPT_SHIFT_X, OPT_SHIFT_Y, OPT_SHIFT_Z,
-	OPT_TILT_X, OPT_TILT_Y, OPT_FORM, OPT_NOISE, OPT_SEED, OPT_SPEED,
+	OPT_TILT_X, OPT_TILT_Y, OPT_CLOCKING, OPT_FORM, OPT_NOISE, OPT_SEED, OPT_SPEED,
 	OPT_RATE, OPT_TIME_FACTOR, OPT_TRAVEL_XY, OPT_TRAVEL_Z, OPT_STREAM,
 	OPT_FAIL_AFTER, OPT_TIMEOUT_AT, OPT_OUT_OF_RANGE_AT, N_OPTIONS
 };
@@ -31,8 +31,9 @@ static const char *const kinematics[] = { "xyz", "r-theta-z", NULL };
 #define RANGE(lo, hi) .ranged = true, .min = (lo), .max = (hi)
 
 static const struct asph_option_desc mock_options[N_OPTIONS] = {
-	[OPT_LENS] = { "lens", ASPH_OPTION_STRING, "strong", .roles = P,
-		       .help = "the part: a preset (weak, strong, turning-point) or a prescription file" },
+	[OPT_LENS] = { "lens", ASPH_OPTION_STRING, "", .roles = P,
+		       .help = "the part: a preset (weak, strong, turning-point) or a prescription file; "
+			       "unset, the lens being measured (strong without a job)" },
 	[OPT_PROBE] = { "probe", ASPH_OPTION_ENUM, "optical", .choices = probe_types, .roles = P,
 			.help = "probe type" },
 	[OPT_KINEMATICS] = { "kinematics", ASPH_OPTION_ENUM, "xyz", .choices = kinematics,
@@ -55,6 +56,9 @@ static const struct asph_option_desc mock_options[N_OPTIONS] = {
 			 .roles = P, .help = "part misalignment: rotation about x (rx of asph fit)" },
 	[OPT_TILT_Y] = { "tilt_y", ASPH_OPTION_DOUBLE, "0", RANGE(-50000, 50000), .unit = "urad",
 			 .roles = P, .help = "part misalignment: rotation about y (ry of asph fit)" },
+	[OPT_CLOCKING] = { "clocking", ASPH_OPTION_DOUBLE, "0", RANGE(-3141593, 3141593),
+			   .unit = "urad", .roles = P,
+			   .help = "part misalignment: rotation about its own axis, applied first (rz of asph fit)" },
 	[OPT_FORM] = { "form", ASPH_OPTION_STRING, "", .unit = "nm", .roles = P,
 		       .help = "form error as Zernike terms, NOLL:NM pairs separated by ';' (e.g. 4:30;9:-12)" },
 	[OPT_NOISE] = { "noise", ASPH_OPTION_DOUBLE, "0", RANGE(0, 1e6), .unit = "nm", .roles = P,
@@ -286,7 +290,8 @@ static int probe_open(const struct asph_driver *drv, const struct asph_option_va
 	struct mock_part_params pp = {
 		.lens = o[OPT_LENS].s,
 		.pose = { .t = { o[OPT_SHIFT_X].d, o[OPT_SHIFT_Y].d, o[OPT_SHIFT_Z].d },
-			  .rx = o[OPT_TILT_X].d * 1e-6, .ry = o[OPT_TILT_Y].d * 1e-6 },
+			  .rx = o[OPT_TILT_X].d * 1e-6, .ry = o[OPT_TILT_Y].d * 1e-6,
+			  .rz = o[OPT_CLOCKING].d * 1e-6 },
 		.form = o[OPT_FORM].s,
 		.noise_nm = o[OPT_NOISE].d,
 		.seed = (unsigned long)o[OPT_SEED].i,

@@ -67,7 +67,11 @@ int mock_part_new(const struct mock_part_params *pp, struct mock_part **out,
 	if (!p)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	p->seed = pp->seed;
-	r = asph_prescription_load(pp->lens, &pr, err);
+	/* the host hands the measured lens over as its prescription text */
+	if (pp->lens[0] == '{')
+		r = asph_prescription_parse(pp->lens, strlen(pp->lens), "the measured lens", &pr, err);
+	else
+		r = asph_prescription_load(*pp->lens ? pp->lens : "strong", &pr, err);
 	if (r == 0)
 		r = asph_surface_alloc(&pr, &p->surface, err);
 	if (r == 0)
@@ -78,12 +82,12 @@ int mock_part_new(const struct mock_part_params *pp, struct mock_part **out,
 	}
 	p->a = asph_surface_aperture_radius(p->surface);
 	p->pose = pp->pose;
-	p->rotation = (struct asph_pose){ .rx = pp->pose.rx, .ry = pp->pose.ry };
+	p->rotation = (struct asph_pose){ .rx = pp->pose.rx, .ry = pp->pose.ry, .rz = pp->pose.rz };
 	p->noise_mm = asph_nm_to_mm((asph_nm){ pp->noise_nm });
 	p->tip = pp->tip_radius;
 	p->nominal = p->n_coef == 0 && p->tip == 0 && pp->pose.rx == 0 &&
-		     pp->pose.ry == 0 && pp->pose.t[0] == 0 && pp->pose.t[1] == 0 &&
-		     pp->pose.t[2] == 0;
+		     pp->pose.ry == 0 && pp->pose.rz == 0 && pp->pose.t[0] == 0 &&
+		     pp->pose.t[1] == 0 && pp->pose.t[2] == 0;
 	*out = p;
 	return 0;
 }
@@ -93,14 +97,22 @@ int mock_part_new(const struct mock_part_params *pp, struct mock_part **out,
 static int contact(const struct mock_part *p, double u, double v, double c[3])
 {
 	double r = hypot(u, v), n[3], q[3], nn[3], e = 0;
-	double sag = asph_surface_sag(p->surface, r);
+	double sag = asph_surface_is_rotational(p->surface) ? asph_surface_sag(p->surface, r)
+							     : asph_surface_sag_xy(p->surface, u, v);
 
 	if (!isfinite(sag))
 		return -EDOM;
 	asph_surface_normal(p->surface, u, v, n);
-	if (p->n_coef)
+	if (p->n_coef && asph_surface_is_rotational(p->surface)) {
 		e = asph_nm_to_mm((asph_nm){ asph_zernike_series(p->coef, p->n_coef, r / p->a,
 								 atan2(v, u), NULL) });
+	} else if (p->n_coef) {
+		double o[2], R;
+		asph_surface_aperture_disk(p->surface, o, &R);
+		e = asph_nm_to_mm((asph_nm){ asph_zernike_series(p->coef, p->n_coef,
+								 hypot(u - o[0], v - o[1]) / R,
+								 atan2(v - o[1], u - o[0]), NULL) });
+	}
 	q[0] = u + e * n[0];
 	q[1] = v + e * n[1];
 	q[2] = sag + e * n[2];
@@ -162,7 +174,9 @@ int mock_part_probe_z(struct mock_part *p, double x, double y, uint64_t index, d
 	double c[3];
 
 	if (p->nominal) {
-		c[2] = asph_surface_sag(p->surface, sqrt(x * x + y * y));
+		c[2] = asph_surface_is_rotational(p->surface)
+			       ? asph_surface_sag(p->surface, sqrt(x * x + y * y))
+			       : asph_surface_sag_xy(p->surface, x, y);
 		if (!isfinite(c[2]))
 			return -EDOM;
 	} else if (solve_contact(p, x, y, c) < 0) {

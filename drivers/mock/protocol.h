@@ -1,7 +1,8 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
  * The mock instrument's "wire": a simulated part on the machine and the
- * pacing of motion and readings. The part is the nominal lens with a form
+ * pacing of motion and readings. The part is the nominal lens (any surface
+ * type, freeforms included) with a form
  * error e(u, v) = sum_j c_j Z_j (nm, along the nominal normal, as
  * asph_fit_synthesize() makes it) lying with a pose (lib/asph/fit.h's
  * convention), so that fitting what the mock measures returns the pose and
@@ -22,7 +23,9 @@
 struct mock_part;
 
 struct mock_part_params {
-	const char *lens;               /* preset or prescription file */
+	const char *lens;               /* preset, prescription file or the
+					 * prescription as JSON text ("{...}");
+					 * "" is strong */
 	struct asph_pose pose;
 	const char *form;               /* "j:nm;j:nm;..." or "" */
 	double noise_nm;                /* along the probe axis */

@@ -12,6 +12,7 @@
 
 #include "asph/driver.h"
 #include "protocol.h"
+#include "sensor.h"
 #include "stage.h"
 #include "std.h"
 #include "util-time.h"
@@ -28,8 +29,9 @@ enum {
 	OPT_BIT_ALM_RST, OPT_BIT_READY, OPT_BIT_BUSY, OPT_BIT_IN_POS, OPT_BIT_ALM,
 	OPT_BIT_HOME_END, OPT_IN_POSITION, OPT_POLL, OPT_RESET_ALARM,
 	/* the probe */
-	OPT_SLAVE, OPT_PROBE, OPT_TIP_RADIUS, OPT_STANDOFF, OPT_RANGE, OPT_RATE, OPT_TABLE,
-	OPT_REGISTER, OPT_TYPE, OPT_SCALE, OPT_OFFSET, OPT_VALID_REGISTER, OPT_VALID_BIT,
+	OPT_SLAVE, OPT_SENSOR_PROFILE, OPT_PROBE, OPT_TIP_RADIUS, OPT_STANDOFF, OPT_RANGE, OPT_RATE,
+	OPT_TABLE, OPT_REGISTER, OPT_TYPE, OPT_SCALE, OPT_OFFSET, OPT_VALID_REGISTER, OPT_VALID_BIT,
+	OPT_STATUS_REGISTER,
 	N_OPTIONS
 };
 
@@ -42,7 +44,7 @@ static const char *const starts[] = { "trigger", "start-bit", NULL };
 static const char *const word_sizes[] = { "32", "16", NULL };
 static const char *const probe_types[] = { "optical", "tactile", NULL };
 static const char *const tables[] = { "input", "holding", NULL };
-static const char *const value_types[] = { "s32", "u32", "s16", "u16", NULL };
+static const char *const value_types[] = { "s32", "u32", "s16", "u16", "f32", NULL };
 
 #define P ASPH_ROLE_PROBE
 #define S ASPH_ROLE_STAGE
@@ -125,6 +127,12 @@ static const struct asph_option_desc modbus_options[N_OPTIONS] = {
 
 	[OPT_SLAVE] = { "slave", ASPH_OPTION_INT, "1", RANGE(1, 247), .roles = P,
 			.help = "slave (RTU) or unit (TCP) id of the sensor" },
+	[OPT_SENSOR_PROFILE] = { "sensor_profile", ASPH_OPTION_ENUM, "custom",
+				 .choices = sensor_profile_names, .roles = P,
+				 .help = "the sensor's register map: custom (the options below), "
+					 "orbit-acs (Solartron Orbit ACS SI100/SI200: register and "
+					 "status_register from its parameter map) or rf60x (RIFTEK "
+					 "RF602/RF603, Acuity AR100); options set override it" },
 	[OPT_PROBE] = { "probe", ASPH_OPTION_ENUM, "optical", .choices = probe_types, .roles = P,
 			.help = "probe type" },
 	[OPT_TIP_RADIUS] = { "tip_radius", ASPH_OPTION_DOUBLE, "0.5", RANGE(0.001, 10), .unit = "mm",
@@ -140,7 +148,8 @@ static const struct asph_option_desc modbus_options[N_OPTIONS] = {
 	[OPT_REGISTER] = { "register", ASPH_OPTION_INT, "0", RANGE(0, 65535), .roles = P,
 			   .help = "address of the value (decimal)" },
 	[OPT_TYPE] = { "type", ASPH_OPTION_ENUM, "s32", .choices = value_types, .roles = P,
-		       .help = "value: signed or unsigned, 32 or 16 bits" },
+		       .help = "value: signed or unsigned, 32 or 16 bits, or an IEEE-754 float "
+			       "(f32, two registers in word_order)" },
 	[OPT_SCALE] = { "scale", ASPH_OPTION_DOUBLE, "0.0001", RANGE(-1e6, 1e6), .unit = "mm",
 			.roles = P, .help = "mm per count: reading = value * scale + offset" },
 	[OPT_OFFSET] = { "offset", ASPH_OPTION_DOUBLE, "0", RANGE(-1e6, 1e6), .unit = "mm",
@@ -149,6 +158,10 @@ static const struct asph_option_desc modbus_options[N_OPTIONS] = {
 				 .roles = P, .help = "register (same table) with the validity bit; -1 = none" },
 	[OPT_VALID_BIT] = { "valid_bit", ASPH_OPTION_INT, "0", RANGE(0, 15), .roles = P,
 			    .help = "bit of valid_register that is set while the value is valid" },
+	[OPT_STATUS_REGISTER] = { "status_register", ASPH_OPTION_INT, "-1", RANGE(-1, 65535),
+				  .roles = P,
+				  .help = "orbit-acs: address of the reading status parameter "
+					  "(0 valid, 18/19 under/over range, 246/247 no usable probe)" },
 };
 
 #undef P
@@ -162,10 +175,8 @@ struct asph_device {
 	struct stage stage;
 	/* probe */
 	struct asph_probe_info pinfo;
-	int unit, reg, valid_reg, valid_bit;
-	bool input, wide, is_signed;
+	struct sensor sensor;
 	enum mb_word_order order;
-	double scale, offset;
 };
 
 static int open_bus(const struct asph_option_value *o, struct mb_bus **out,
@@ -295,10 +306,38 @@ static void stage_fill_info(struct stage *s, const struct asph_option_value *o)
 	}
 }
 
+/* Speed, acceleration and current in the drive's units must fit its
+ * registers: refused here, before anything moves, never wrapped. */
+static int check_settings(const struct stage *s, const struct asph_option_value *o,
+			  struct asph_error *err)
+{
+	int r = 0;
+
+	for (int k = 0; r == 0 && k < 3; k++) {
+		bool rotary = s->info.kinematics == ASPH_KINEMATICS_RTZ && k == 1;
+		r = stage_check_setting(s, "speed", o[OPT_SPEED].d, rotary ? "rad/s" : "mm/s",
+					s->axes[k].speed, err);
+		if (r == 0)
+			r = stage_check_setting(s, "accel", o[OPT_ACCEL].d,
+						rotary ? "rad/s^2" : "mm/s^2", s->axes[k].accel, err);
+	}
+	if (r == 0)
+		r = stage_check_setting(s, "current", o[OPT_CURRENT].d, "%", o[OPT_CURRENT].d * 10,
+					err);
+	return r;
+}
+
 static int stage_open(const struct asph_driver *drv, const struct asph_option_value *o,
 		      unsigned timeout_ms, struct asph_device **out, struct asph_error *err)
 {
-	int r;
+	struct stage checked = { 0 };
+
+	/* the settings are checked before the bus is opened */
+	stage_map(o, &checked.map);
+	stage_fill_info(&checked, o);
+	int r = check_settings(&checked, o, err);
+	if (r < 0)
+		return r;
 	struct asph_device *d = dev_new(o, &r, err);
 
 	if (!d)
@@ -355,29 +394,53 @@ static int op_status(struct asph_device *d, struct asph_stage_status *out, unsig
 
 /* ------------------------------------------------------------ probe */
 
+static void sensor_config(const struct asph_option_value *o, enum mb_word_order order,
+			  struct sensor_config *c)
+{
+	enum sensor_profile_id id = (enum sensor_profile_id)o[OPT_SENSOR_PROFILE].i;
+
+	*c = (struct sensor_config){
+		.profile = id,
+		.unit = (int)o[OPT_SLAVE].i,
+		.input = o[OPT_TABLE].i == 0,
+		/* a profile that names no address takes none by default */
+		.reg = id == SENSOR_CUSTOM || o[OPT_REGISTER].set ? (int)o[OPT_REGISTER].i : -1,
+		.type = (enum sensor_type)o[OPT_TYPE].i,
+		.order = order,
+		.scale = o[OPT_SCALE].d,
+		.scale_set = o[OPT_SCALE].set,
+		.offset = o[OPT_OFFSET].d,
+		.valid_reg = (int)o[OPT_VALID_REGISTER].i,
+		.valid_bit = (int)o[OPT_VALID_BIT].i,
+		.status_reg = (int)o[OPT_STATUS_REGISTER].i,
+	};
+}
+
 static int probe_open(const struct asph_driver *drv, const struct asph_option_value *o,
 		      unsigned timeout_ms, struct asph_device **out, struct asph_error *err)
 {
+	struct sensor_config sc;
 	int r;
 	struct asph_device *d = dev_new(o, &r, err);
 
 	if (!d)
 		return r;
-	bool tactile = o[OPT_PROBE].i == 1;
+	sensor_config(o, d->order, &sc);
+	r = sensor_open(&d->sensor, d->bus, &sc, timeout_ms, err);
+	if (r < 0) {
+		dev_close(d);
+		return r;
+	}
+	/* a sensor that knows its range is measured within it, from the
+	 * start of the range, unless the configuration says otherwise */
+	double range = o[OPT_RANGE].set || !d->sensor.range_mm ? o[OPT_RANGE].d : d->sensor.range_mm;
+	double standoff = o[OPT_STANDOFF].set || !d->sensor.range_mm ? o[OPT_STANDOFF].d
+			  : d->sensor.range_mm / 2 + o[OPT_OFFSET].d;
 	struct asph_probe_info *pi = &d->pinfo;
-	std_probe_geometry(pi, tactile, o[OPT_TIP_RADIUS].d, o[OPT_STANDOFF].d, o[OPT_RANGE].d);
+	std_probe_geometry(pi, o[OPT_PROBE].i == 1, o[OPT_TIP_RADIUS].d, standoff, range);
 	pi->rate = o[OPT_RATE].d;
-	snprintf(pi->model, sizeof(pi->model), "Modbus displacement sensor");
-	snprintf(pi->serial, sizeof(pi->serial), "unit %lld", (long long)o[OPT_SLAVE].i);
-	d->unit = (int)o[OPT_SLAVE].i;
-	d->reg = (int)o[OPT_REGISTER].i;
-	d->input = o[OPT_TABLE].i == 0;
-	d->wide = o[OPT_TYPE].i <= 1;
-	d->is_signed = o[OPT_TYPE].i % 2 == 0;
-	d->scale = o[OPT_SCALE].d;
-	d->offset = o[OPT_OFFSET].d;
-	d->valid_reg = (int)o[OPT_VALID_REGISTER].i;
-	d->valid_bit = (int)o[OPT_VALID_BIT].i;
+	snprintf(pi->model, sizeof(pi->model), "%s", d->sensor.model);
+	snprintf(pi->serial, sizeof(pi->serial), "%s", d->sensor.serial);
 	/* one read proves the sensor answers and the map fits it */
 	struct asph_reading rd;
 	struct asph_probe_context ctx = { 0 };
@@ -396,38 +459,23 @@ static int probe_info(struct asph_device *d, struct asph_probe_info *out, struct
 	return 0;
 }
 
-static double raw_value(const struct asph_device *d, const uint16_t *w)
-{
-	if (d->wide) {
-		uint32_t v = mb_get32(w, d->order);
-		return d->is_signed ? (double)(int32_t)v : (double)v;
-	}
-	return d->is_signed ? (double)(int16_t)w[0] : (double)w[0];
-}
-
 static int probe_read(struct asph_device *d, const struct asph_probe_context *ctx,
 		      struct asph_reading *out, unsigned timeout_ms, struct asph_error *err)
 {
-	uint16_t w[2], flag = 0xffff;
+	bool oor;
 
 	if (atomic_load(&d->stop))
 		return asph_error_set(err, -ECANCELED, "reading stopped");
-	int r = mb_read_registers(d->bus, d->unit, d->input, d->reg, d->wide ? 2 : 1, w,
-				  timeout_ms, err);
-	if (r == 0 && d->valid_reg >= 0)
-		r = mb_read_registers(d->bus, d->unit, d->input, d->valid_reg, 1, &flag,
-				      timeout_ms, err);
+	memset(out, 0, sizeof(*out));
+	int r = sensor_read(&d->sensor, timeout_ms, &out->raw, &out->value, &oor, err);
 	if (r < 0)
 		return r;
-	memset(out, 0, sizeof(*out));
 	out->t_ns = now_monotonic_ns();
-	out->raw = raw_value(d, w);
-	if (!(flag >> d->valid_bit & 1)) {
+	if (oor) {
 		out->value = NAN;
 		out->flags = ASPH_READING_OUT_OF_RANGE;
 		return 0;
 	}
-	out->value = out->raw * d->scale + d->offset;
 	std_reading_check_range(out, &d->pinfo);
 	return 0;
 }

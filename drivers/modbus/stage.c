@@ -134,16 +134,56 @@ static int settled(struct stage *s, int k, uint32_t st, enum goal g, bool *done,
 	return r;
 }
 
-static int waited_out(struct stage *s, unsigned mask, enum goal g, unsigned timeout_ms,
-		      struct asph_error *err)
+/*
+ * A hint when the feedback position of axis k is far outside the travel
+ * while the same registers read in the other word order are inside it:
+ * the configured word_order is likely wrong, and so homing or a move
+ * never seems to end. Empty when there is nothing to say.
+ */
+static void word_order_hint(struct stage *s, int k, uint64_t deadline, char *hint, size_t size)
 {
-	for (int k = 0; k < 3; k++)
-		if (mask >> k & 1)
-			return asph_error_set(err, -ETIMEDOUT, "axis %s (unit %d): %s within %u ms",
-					      axis_name(s, k), s->axes[k].unit,
-					      g == GOAL_HOMED ? "homing did not finish"
-							      : "did not reach its target",
-					      timeout_ms);
+	const struct asph_axis_info *a = &s->info.axes[k];
+	uint16_t w[2] = { 0, 0 };
+	double span = a->max - a->min, c = s->axes[k].counts_per_unit;
+
+	hint[0] = '\0';
+	if (!s->map.wide || mb_read_registers(s->bus, s->axes[k].unit, false, s->map.reg_position,
+					      2, w, ms_left(deadline), NULL) < 0)
+		return;
+	enum mb_word_order other = s->map.order == MB_HIGH_WORD_FIRST ? MB_LOW_WORD_FIRST
+								       : MB_HIGH_WORD_FIRST;
+	double as_set = (int32_t)mb_get32(w, s->map.order) / c;
+	double swapped = (int32_t)mb_get32(w, other) / c;
+	bool inside = swapped >= a->min - span && swapped <= a->max + span;
+	if ((as_set < a->min - span || as_set > a->max + span) && inside)
+		snprintf(hint, size, "; its position reads %.6g %s, far outside the travel, and "
+			 "%.6g %s with the words swapped: check word_order (now %s)",
+			 as_set, a->unit, swapped, a->unit,
+			 s->map.order == MB_HIGH_WORD_FIRST ? "high-first" : "low-first");
+}
+
+/* The end of a wait kept for reading the position a timeout message
+ * reports on: a twentieth of the timeout, at most 50 ms. */
+static unsigned hint_reserve(unsigned timeout_ms)
+{
+	return timeout_ms / 20 < 50 ? timeout_ms / 20 : 50;
+}
+
+static int waited_out(struct stage *s, unsigned mask, enum goal g, uint64_t deadline,
+		      unsigned timeout_ms, struct asph_error *err)
+{
+	char hint[192];
+
+	for (int k = 0; k < 3; k++) {
+		if (!(mask >> k & 1))
+			continue;
+		word_order_hint(s, k, deadline, hint, sizeof(hint));
+		return asph_error_set(err, -ETIMEDOUT, "axis %s (unit %d): %s within %u ms%s",
+				      axis_name(s, k), s->axes[k].unit,
+				      g == GOAL_HOMED ? "homing did not finish"
+						      : "did not reach its target",
+				      timeout_ms, hint);
+	}
 	return 0;
 }
 
@@ -194,8 +234,8 @@ static int wait_axes(struct stage *s, unsigned mask, enum goal g, bool ack, uint
 			return 0;
 		if (atomic_load(s->stop))
 			return asph_error_set(err, -ECANCELED, "motion stopped");
-		if (ms_left(deadline) == 0)
-			return waited_out(s, mask, g, timeout_ms, err);
+		if (ms_left(deadline) <= hint_reserve(timeout_ms))
+			return waited_out(s, mask, g, deadline, timeout_ms, err);
 		nap(s->poll_ms, deadline);
 	}
 }
@@ -271,18 +311,38 @@ int stage_home(struct stage *s, unsigned timeout_ms, struct asph_error *err)
 	return finish(s, r);
 }
 
-static int32_t clamp32(double v)
+/* The largest value a register of the map holds: speed, acceleration
+ * and current are magnitudes (unsigned 16-bit, or a signed 32-bit pair
+ * as the drive reads its data block). */
+static double register_max(const struct stage_map *m)
 {
-	return v > INT32_MAX ? INT32_MAX : v < INT32_MIN ? INT32_MIN : (int32_t)llround(v);
+	return m->wide ? INT32_MAX : UINT16_MAX;
+}
+
+int stage_check_setting(const struct stage *s, const char *option, double value,
+			const char *unit, double counts, struct asph_error *err)
+{
+	double max = register_max(&s->map);
+
+	if (llround(counts) <= max)
+		return 0;
+	asph_error_set(err, -ERANGE,
+		       "option '%s': %g %s is %.0f drive units, which do not fit the drive's "
+		       "%d-bit register (at most %.0f); lower it or change counts_per_mm",
+		       option, value, unit, counts, s->map.wide ? 32 : 16, max);
+	asph_error_locate(err, NULL, 0, 0, option);
+	return -ERANGE;
 }
 
 static int start_axis(struct stage *s, int k, uint64_t deadline, struct asph_error *err)
 {
 	const struct stage_axis *a = &s->axes[k];
+	/* every value was checked against the register width when the stage
+	 * was opened (stage_check_setting) */
 	int32_t v[N_DATA] = {
-		0, s->map.operation_type, (int32_t)a->target, clamp32(a->speed),
-		clamp32(a->accel), clamp32(a->accel), clamp32(s->current * 10),
-		s->map.start_bit ? 0 : 1,
+		0, s->map.operation_type, (int32_t)a->target, (int32_t)llround(a->speed),
+		(int32_t)llround(a->accel), (int32_t)llround(a->accel),
+		(int32_t)llround(s->current * 10), s->map.start_bit ? 0 : 1,
 	};
 	uint16_t w[2 * N_DATA];
 	int n = words(s);

@@ -53,6 +53,11 @@ struct stage {
 	bool homed;
 };
 
+/* Refuses a setting whose value in drive units (counts) does not fit the
+ * map's registers: -ERANGE naming the option and the register width. */
+int stage_check_setting(const struct stage *s, const char *option, double value,
+			const char *unit, double counts, struct asph_error *err);
+
 /* Checks that every drive answers and releases its command bits. */
 int stage_connect(struct stage *s, unsigned timeout_ms, struct asph_error *err);
 int stage_home(struct stage *s, unsigned timeout_ms, struct asph_error *err);

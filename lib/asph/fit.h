@@ -21,17 +21,20 @@ extern "C" {
  * the form error that remains. docs/characterization.md states every
  * convention; the short version:
  *
- * Pose. A part lying with misalignment (tx, ty, tz, rx, ry) is measured at
- *     p = Ry(ry) Rx(rx) q + t
+ * Pose. A part lying with misalignment (tx, ty, tz, rx, ry, rz) is
+ * measured at
+ *     p = Ry(ry) Rx(rx) Rz(rz) q + t
  * where q is a point of the part in its own frame (vertex at the origin,
- * axis +z), Rx(a), Ry(b) are right-handed rotations about the machine x and
- * y axes (first rx, then ry), and t = (tx, ty, tz) is applied last. The fit
- * reports the pose in that same convention, so that fitting points made
- * with a pose returns that pose.
+ * axis +z), Rz(c) clocks the part about its own axis, Rx(a), Ry(b) are
+ * right-handed rotations about the machine x and y axes (first rz, then rx,
+ * then ry), and t = (tx, ty, tz) is applied last. The fit reports the pose
+ * in that same convention, so that fitting points made with a pose returns
+ * that pose. rz exists for freeform surfaces only: a rotationally symmetric
+ * one looks the same clocked.
  *
- * Residual. The signed distance of q = Rx(-rx) Ry(-ry) (p - t) from the
- * nominal surface along its normal (n_z > 0), positive on the +z side of the
- * surface ("normal"), or q_z - Z(|q_xy|) ("sag").
+ * Residual. The signed distance of q = Rz(-rz) Rx(-rx) Ry(-ry) (p - t) from
+ * the nominal surface along its normal (n_z > 0), positive on the +z side of
+ * the surface ("normal"), or q_z - S(q_x, q_y) ("sag").
  */
 
 enum asph_fit_dof {
@@ -42,16 +45,19 @@ enum asph_fit_dof {
 	ASPH_FIT_RY,
 	ASPH_FIT_R,             /* vertex radius, mm (absolute value fitted) */
 	ASPH_FIT_K,             /* conic constant */
+	ASPH_FIT_RZ,            /* clocking about the part's axis, rad */
 	ASPH_FIT_N_DOF
 };
 
 #define ASPH_FIT_DOF_BIT(d) (1u << (d))
 #define ASPH_FIT_DOF_RIGID 0x1fu   /* tx, ty, tz, rx, ry */
+/* All six rigid motions, for freeform surfaces. */
+#define ASPH_FIT_DOF_RIGID6 (ASPH_FIT_DOF_RIGID | ASPH_FIT_DOF_BIT(ASPH_FIT_RZ))
 
-/* "tx", "ty", "tz", "rx", "ry", "R", "k". */
+/* "tx", "ty", "tz", "rx", "ry", "R", "k", "rz". */
 const char *asph_fit_dof_name(enum asph_fit_dof d);
 
-/* Parses a comma-separated list such as "tx,ty,tz,rx,ry,R" into a mask.
+/* Parses a comma-separated list such as "tx,ty,tz,rx,ry,rz" into a mask.
  * -EINVAL for an unknown or repeated name, or an empty list. */
 int asph_fit_dof_parse(const char *list, unsigned *mask,
 		       struct asph_error *err);
@@ -61,12 +67,13 @@ int asph_fit_dof_parse(const char *list, unsigned *mask,
 struct asph_pose {
 	double t[3];            /* tx, ty, tz, mm */
 	double rx, ry;          /* rad */
+	double rz;              /* rad, clocking (freeform surfaces) */
 };
 
-/* p = Ry(ry) Rx(rx) q + t: from the part's frame to the machine's. */
+/* p = Ry(ry) Rx(rx) Rz(rz) q + t: from the part's frame to the machine's. */
 void asph_pose_apply(const struct asph_pose *pose, const double q[3],
 		     double p[3]);
-/* q = Rx(-rx) Ry(-ry) (p - t): the inverse. */
+/* q = Rz(-rz) Rx(-rx) Ry(-ry) (p - t): the inverse. */
 void asph_pose_apply_inverse(const struct asph_pose *pose, const double p[3],
 			     double q[3]);
 
@@ -77,16 +84,20 @@ struct asph_closest {
 	double normal[3];       /* unit normal there, n_z > 0 */
 	double distance;        /* (p - foot) . normal, mm */
 	double foot_radius;     /* |foot_xy|, mm */
-	int inside;             /* foot_radius <= aperture radius */
+	int inside;             /* the foot is in the aperture */
 	int iterations;         /* Newton steps taken */
 };
 
 /*
- * Orthogonal projection of p onto the surface of revolution (continued past
- * the aperture where the sag is defined): safeguarded Newton on the squared
- * distance in the meridian plane of p, started from the sag at p's radius.
- * -EDOM when there is no foot (p far outside the surface's domain, or no
- * convergence); a foot past the aperture is returned with inside = 0.
+ * Orthogonal projection of p onto the surface (continued past the aperture
+ * where the sag is defined). A surface of revolution: safeguarded Newton on
+ * the squared distance in the meridian plane of p, started from the sag at
+ * p's radius. Any other: safeguarded Newton in (x, y) on the squared
+ * distance to (x, y, S(x, y)), started below p, its Hessian replaced by
+ * Gauss-Newton's where it is not positive and its steps limited and halved
+ * until the distance falls. -EDOM when there is no foot (p far outside the
+ * surface's domain, or no convergence); a foot past the aperture is
+ * returned with inside = 0.
  */
 int asph_fit_closest_point(const struct asph_surface *s, const double p[3],
 			   struct asph_closest *out);
@@ -106,7 +117,9 @@ int asph_fit_residual_from_name(const char *name,
 #define ASPH_FIT_DEFAULT_ZERNIKE 36 /* Evans' PVr uses a 36-term fit */
 
 struct asph_fit_options {
-	unsigned dof;               /* mask; 0 = ASPH_FIT_DOF_RIGID */
+	unsigned dof;               /* mask; 0 = ASPH_FIT_DOF_RIGID; rz is
+				       refused for a rotationally symmetric
+				       surface, R and k for a freeform */
 	enum asph_fit_residual_kind residual;
 	int robust;                 /* Tukey biweight reweighting */
 	int max_iterations;         /* per pass; 0 = 200 */
@@ -273,10 +286,12 @@ struct asph_synth_options {
 };
 
 /*
- * A part with form error sum_j c_j Z_j(r/a, theta) (nm, along the surface
+ * A part with form error sum_j c_j Z_j(rho, theta) (nm, along the surface
  * normal at (x, y)) and noise, lying with the given pose, measured at the
  * nominal points xyz_nominal (on the surface; only their x, y are used):
- * xyz_out[i] = pose(S(x, y) + (e(x, y) + noise_i) n(x, y)). Deterministic
+ * xyz_out[i] = pose(S(x, y) + (e(x, y) + noise_i) n(x, y)); rho and theta
+ * are polar coordinates about the centre of asph_surface_aperture_disk(),
+ * rho over its radius (for a centred circle, r / a). Deterministic
  * for a seed (GSL's MT19937 and ziggurat Gaussian). xyz_out may equal
  * xyz_nominal. -EINVAL for a bad Noll index, a point outside the aperture.
  */

@@ -69,8 +69,11 @@ void asph_lens_import_surface(const struct asph_lens_import *im, size_t i,
  * prescription, named "BASE-sN" after the file (BASE: its name without
  * folders and extensions) and the surface. -ENOENT when the file has no such
  * surface (or, for -1, several); -EINVAL, with where, when the surface
- * cannot be a prescription (a type that is not imported, a plane, no
- * aperture, bad Q-type parameters).
+ * cannot be a prescription (a type that is not imported, a rotationally
+ * symmetric plane, no aperture, an aperture the type cannot take, bad
+ * Q-type parameters, a parameter or extra datum the type does not have).
+ * The freeform types (BICONICX, TOROIDAL, XPOLYNOM, SZERNSAG) become
+ * biconic, toroidal, xy_polynomial and zernike_sag prescriptions.
  */
 int asph_lens_import_prescription(const struct asph_lens_import *im, int number,
 				  struct asph_prescription *out,

@@ -4,10 +4,16 @@
 #ifndef ASPH_FIT_INTERNAL_H
 #define ASPH_FIT_INTERNAL_H
 
-#include <gsl/gsl_multifit_nlinear.h>
+#include <gsl/gsl_multilarge_nlinear.h>
 
 #include "asph/fit.h"
 #include "fit-model.h"
+
+/* J^T u and J^T J (its lower triangle) over the solver's y. */
+struct fit_sums {
+	double jtu[ASPH_FIT_N_DOF];
+	double jtj[ASPH_FIT_N_DOF][ASPH_FIT_N_DOF];
+};
 
 enum fit_phase {
 	FIT_PHASE_IDLE = 0,
@@ -29,7 +35,9 @@ struct asph_fit {
 
 	/* Per point. */
 	double *r_foot;     /* signed meridian foot, the next Newton start */
-	double *slope;      /* dZ/dr there (NaN: no foot) */
+	double *slope;      /* dZ/dr there (NaN: no foot; 0 on a freeform) */
+	/* freeform: the foot with S and its gradient there, the next start */
+	struct fit_surface_point *foot;
 	double *resid;      /* residual, mm (unweighted) */
 	double *weight;     /* robust weight */
 	double *scratch;    /* n, for f evaluations the solver does not own */
@@ -45,9 +53,13 @@ struct asph_fit {
 	double cached_y[ASPH_FIT_N_DOF];
 	int cache_valid;
 	int scratch_is_f;
+	/* J^T f and J^T J with that evaluation, f where it was written */
+	struct fit_sums sums;
+	const double *sums_f;
+	size_t sums_fs;
 
-	gsl_multifit_nlinear_workspace *solver;
-	gsl_multifit_nlinear_fdf fdf;
+	gsl_multilarge_nlinear_workspace *solver;
+	gsl_multilarge_nlinear_fdf fdf;
 	gsl_vector *x0;
 	gsl_matrix *covar;
 

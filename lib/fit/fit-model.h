@@ -16,6 +16,7 @@
  */
 struct fit_model {
 	const struct asph_surface *s;
+	int rotational;         /* else a freeform: the (x, y) kernel, no conic change */
 	double a;               /* aperture radius */
 	int conic_changed;
 	double c0, K0;          /* nominal */
@@ -48,6 +49,31 @@ struct fit_foot {
  * q's radius. Returns 0, or -EDOM when there is no foot. */
 int fit_foot(const struct fit_model *m, const double q[3], double r0,
 	     struct fit_foot *f);
+
+/* A point of a freeform surface with the gradient of S there: where the
+ * search for a foot stands. nz = 1 / sqrt(1 + |grad S|^2), the unit
+ * normal's z component, where known (else NaN). */
+struct fit_surface_point {
+	double x, y, z;
+	double zx, zy;
+	double nz;
+};
+#define FIT_NO_POINT ((struct fit_surface_point){ NAN, NAN, NAN, NAN, NAN, NAN })
+
+/* The fit's tolerance on the foot, mm: fit_foot_xy() with this (times
+ * 1 + a) leaves the distance off by less than 1e-13 mm. */
+#define FIT_FOOT_TOL 1e-7
+
+/*
+ * Foot of q on a freeform, found in (x, y). at: in, the start (the
+ * previous foot: with its z and gradient it costs no evaluation; with only
+ * x and y finite it is evaluated there; x NaN starts below q); out, the
+ * foot, a point of the surface within about tol (mm) of the exact foot.
+ * *dist is the signed distance along the normal there. Returns 0, or
+ * -EDOM when there is no foot.
+ */
+int fit_foot_xy(const struct fit_model *m, const double q[3], double tol,
+		struct fit_surface_point *at, double *dist, int *iterations);
 
 /* Unit normal at the foot of q, n_z > 0. */
 void fit_foot_normal(const struct fit_foot *f, const double q[3], double n[3]);

@@ -19,10 +19,20 @@ void fit_point_polar(const struct asph_fit *w, size_t i, double *rho,
 {
 	struct asph_pose pose = {
 		{ w->full[0], w->full[1], w->full[2] },
-		w->full[ASPH_FIT_RX], w->full[ASPH_FIT_RY],
+		w->full[ASPH_FIT_RX], w->full[ASPH_FIT_RY], w->full[ASPH_FIT_RZ],
 	};
 	double q[3], r = w->r_foot[i], rq;
 
+	if (!w->model.rotational) {
+		/* the foot itself (or the point, for sag residuals), over the
+		 * disk about the aperture's centre */
+		const struct fit_surface_point *f = &w->foot[i];
+		double c[2], R;
+		asph_surface_aperture_disk(w->model.s, c, &R);
+		*rho = hypot(f->x - c[0], f->y - c[1]) / R;
+		*theta = atan2(f->y - c[1], f->x - c[0]);
+		return;
+	}
 	asph_pose_apply_inverse(&pose, w->xyz + 3 * i, q);
 	rq = hypot(q[0], q[1]);
 	if (w->opt.residual == ASPH_FIT_RESIDUAL_SAG || !(rq > 0)) {
@@ -60,8 +70,7 @@ static void count_points(const struct asph_fit *w, struct asph_fit_result *out)
  * weighted as in the last pass, s^2 = chi^2 / (points counted - DOF). */
 static void uncertainties(struct asph_fit *w, struct asph_fit_result *out)
 {
-	gsl_vector *f = gsl_multifit_nlinear_residual(w->solver);
-	gsl_matrix *J = gsl_multifit_nlinear_jac(w->solver);
+	gsl_vector *f = gsl_multilarge_nlinear_residual(w->solver);
 	size_t counted = 0;
 	double chi2 = 0, s2;
 
@@ -72,7 +81,7 @@ static void uncertainties(struct asph_fit *w, struct asph_fit_result *out)
 	s2 = counted > (size_t)w->p ? chi2 / (double)(counted - (size_t)w->p) : NAN;
 	out->sigma_mm = sqrt(s2);
 	/* J is over the solver's y = T^-1 (x - xref): Cov(x) = T Cov(y) T^T. */
-	gsl_multifit_nlinear_covar(J, 0.0, w->covar);
+	gsl_multilarge_nlinear_covar(w->covar, w->solver);
 	for (int d = 0; d < ASPH_FIT_N_DOF; d++)
 		out->uncertainty[d] = 0.0;
 	for (int k = 0; k < w->p; k++) {
@@ -177,9 +186,10 @@ static int zernike_stats(const struct asph_fit *w, const struct field *f,
 {
 	_cleanup_free_ double *zf = malloc(w->n * sizeof(double) + 1);
 	_cleanup_free_ double *g = malloc(2 * w->n * sizeof(double) + 1);
-	double lo = INFINITY, hi = -INFINITY, left2 = 0, slope2 = 0;
+	double lo = INFINITY, hi = -INFINITY, left2 = 0, slope2 = 0, centre[2], disk_r;
 	size_t m = 0;
 
+	asph_surface_aperture_disk(w->model.s, centre, &disk_r);
 	if (!zf || !g)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	asph_zernike_series_many(coef, out->n_zernike, f->rho, f->theta, w->n, zf, g);
@@ -189,9 +199,9 @@ static int zernike_stats(const struct asph_fit *w, const struct field *f,
 		lo = fmin(lo, zf[i]);
 		hi = fmax(hi, zf[i]);
 		left2 += (f->val[i] - zf[i]) * (f->val[i] - zf[i]);
-		/* nm per unit rho -> mm per mm of the aperture radius */
+		/* nm per unit rho -> mm per mm of the disk's radius */
 		slope2 += (g[2 * i] * g[2 * i] + g[2 * i + 1] * g[2 * i + 1]) * 1e-12 /
-			  (w->model.a * w->model.a);
+			  (disk_r * disk_r);
 		m++;
 	}
 	out->zernike_fit_rms_left.v = sqrt(left2 / (double)m);

@@ -37,8 +37,10 @@ int asph_fit_synthesize(const struct asph_surface *s,
 			struct asph_error *err)
 {
 	_cleanup_(gsl_rng_freep) gsl_rng *rng = gsl_rng_alloc(gsl_rng_mt19937);
-	double coef[ASPH_ZERNIKE_MAX_J], a = asph_surface_aperture_radius(s);
-	int n_coef, r;
+	double coef[ASPH_ZERNIKE_MAX_J], a = asph_surface_aperture_radius(s), c[2], disk_r;
+	int n_coef, r, rot = asph_surface_is_rotational(s);
+
+	asph_surface_aperture_disk(s, c, &disk_r);
 
 	if (!rng)
 		return asph_error_set(err, -ENOMEM, "out of memory");
@@ -50,12 +52,18 @@ int asph_fit_synthesize(const struct asph_surface *s,
 		double x = xyz_nominal[3 * i], y = xyz_nominal[3 * i + 1];
 		double rr = hypot(x, y), nrm[3], q[3], e_nm = 0;
 
-		if (!(rr <= a * (1 + 1e-12)))
+		if (rot && !(rr <= a * (1 + 1e-12)))
 			return asph_error_set(err, -EINVAL,
 					      "point %zu at radius %.17g mm is outside the aperture (%.17g mm)",
 					      i + 1, rr, a);
+		if (!rot && !asph_surface_contains(s, x, y, 1e-12 * a))
+			return asph_error_set(err, -EINVAL,
+					      "point %zu at (%.17g, %.17g) mm is outside the aperture",
+					      i + 1, x, y);
 		if (n_coef > 0)
-			e_nm = asph_zernike_series(coef, n_coef, rr / a, atan2(y, x), NULL);
+			e_nm = rot ? asph_zernike_series(coef, n_coef, rr / a, atan2(y, x), NULL)
+				   : asph_zernike_series(coef, n_coef, hypot(x - c[0], y - c[1]) / disk_r,
+							 atan2(y - c[1], x - c[0]), NULL);
 		/* One draw per point at any noise level: a seed gives the same
 		 * sequence whatever the level. */
 		e_nm += opts->noise_nm * gsl_ran_gaussian_ziggurat(rng, 1.0);
@@ -63,7 +71,7 @@ int asph_fit_synthesize(const struct asph_surface *s,
 		double e = asph_nm_to_mm((asph_nm){ e_nm });
 		q[0] = x + e * nrm[0];
 		q[1] = y + e * nrm[1];
-		q[2] = asph_surface_sag(s, rr) + e * nrm[2];
+		q[2] = (rot ? asph_surface_sag(s, rr) : asph_surface_sag_xy(s, x, y)) + e * nrm[2];
 		asph_pose_apply(&opts->pose, q, xyz_out + 3 * i);
 	}
 	return 0;

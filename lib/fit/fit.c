@@ -26,10 +26,12 @@
 #define DEFAULT_MAX_OUTSIDE 0.5
 /* Step test: |dx_k| <= xtol (|x_k| + XSCALE); see docs/characterization.md. */
 #define XSCALE 1e-3
-/* Cost test: a step that lowers chi^2 by less than this fraction, and is
- * itself small (LOOSE_XTOL), ends a pass. At that point the parameters are
- * within about sqrt(COST_TOL) of their statistical uncertainty of the
- * optimum: further iterations only move rounding. */
+/* Cost test: a step that lowers chi^2 by less than this fraction, or the
+ * prediction that the next one would (the Gauss-Newton decrement
+ * g^T (J^T J)^-1 g, g = J^T f), with the step itself small (LOOSE_XTOL),
+ * ends a pass. At that point the parameters are within about
+ * sqrt(COST_TOL) of their statistical uncertainty of the optimum: further
+ * iterations only move rounding. */
 #define COST_TOL 1e-10
 #define LOOSE_XTOL 1e-4
 #define MAX_EXCLUSION_PASSES 5
@@ -46,8 +48,9 @@
 /* The pose as cosines and sines, computed once per evaluation. */
 struct frame {
 	double t[3];
-	double cx, sx, cy, sy;
-	double R[3][3];          /* Ry(ry) Rx(rx) */
+	double cx, sx, cy, sy, cz, sz;
+	int clocked;             /* rz != 0 */
+	double R[3][3];          /* Ry(ry) Rx(rx) Rz(rz) */
 };
 
 static void frame_init(struct frame *fr, const double *full)
@@ -64,6 +67,14 @@ static void frame_init(struct frame *fr, const double *full)
 		{ -fr->sy, fr->cy * fr->sx, fr->cy * fr->cx },
 	};
 	memcpy(fr->R, m, sizeof(m));
+	fr->clocked = full[ASPH_FIT_RZ] != 0;
+	fr->cz = cos(full[ASPH_FIT_RZ]);
+	fr->sz = sin(full[ASPH_FIT_RZ]);
+	if (fr->clocked)
+		for (int k = 0; k < 3; k++) {
+			fr->R[k][0] = fr->cz * m[k][0] + fr->sz * m[k][1];
+			fr->R[k][1] = -fr->sz * m[k][0] + fr->cz * m[k][1];
+		}
 }
 
 /* q = Rx(-rx) Ry(-ry) (p - t); w = Ry(-ry) (p - t) on the way. */
@@ -78,6 +89,11 @@ static void frame_to_part(const struct frame *fr, const double *p,
 	q[0] = wv[0];
 	q[1] = fr->cx * wv[1] + fr->sx * wv[2];
 	q[2] = -fr->sx * wv[1] + fr->cx * wv[2];
+	if (fr->clocked) {
+		double q0 = q[0];
+		q[0] = fr->cz * q0 + fr->sz * q[1];
+		q[1] = -fr->sz * q0 + fr->cz * q[1];
+	}
 }
 
 /* The solver works on y, whitened coordinates: x = xref + T y (see
@@ -102,17 +118,44 @@ static void set_full_from_vector(struct asph_fit *w, const gsl_vector *y)
 	set_full_from_y(w, yy);
 }
 
+/* point_eval() on a freeform: the foot in (x, y), the aperture by shape. */
+static int point_eval_xy(struct asph_fit *w, const double q[3], size_t i, double *res)
+{
+	struct fit_surface_point *f = &w->foot[i];
+	const double tol = w->opt.aperture_tolerance;
+	int it;
+
+	if (w->opt.residual == ASPH_FIT_RESIDUAL_SAG) {
+		double g[3];
+		asph_surface_sag_grad_xy(w->model.s, q[0], q[1], g);
+		*res = q[2] - g[0];
+		*f = (struct fit_surface_point){ q[0], q[1], g[0], g[1], g[2], NAN };
+		w->slope[i] = isfinite(*res) ? 0.0 : NAN;
+		if (!isfinite(*res))
+			return -1;
+		return !asph_surface_contains(w->model.s, q[0], q[1], tol);
+	}
+	if (fit_foot_xy(&w->model, q, FIT_FOOT_TOL * (1.0 + w->model.a), f, res, &it) < 0) {
+		*f = FIT_NO_POINT;
+		w->slope[i] = NAN;
+		*res = NAN;
+		return -1;
+	}
+	w->slope[i] = 0.0;
+	return !asph_surface_contains(w->model.s, f->x, f->y, tol);
+}
+
 /*
- * Residual of point i at the current parameters; refreshes its foot.
+ * Residual of point i, at q in the part frame; refreshes its foot.
  * Returns 0 inside, 1 when the foot is past the aperture, -1 when there is
  * no foot.
  */
-static int point_eval(struct asph_fit *w, const struct frame *fr, size_t i,
-		      double *res)
+static int point_eval(struct asph_fit *w, const double q[3], size_t i, double *res)
 {
-	double q[3], wv[3], lim = w->model.a + w->opt.aperture_tolerance;
+	double lim = w->model.a + w->opt.aperture_tolerance;
 
-	frame_to_part(fr, w->xyz + 3 * i, q, wv);
+	if (!w->model.rotational)
+		return point_eval_xy(w, q, i, res);
 	if (w->opt.residual == ASPH_FIT_RESIDUAL_SAG) {
 		double rho = sqrt(q[0] * q[0] + q[1] * q[1]), d[3];
 		fit_model_derivs(&w->model, rho, d);
@@ -140,23 +183,162 @@ static int point_counts(const struct asph_fit *w, size_t i)
 	return w->status[i] != ASPH_FIT_POINT_OUTSIDE && w->weight[i] > 0;
 }
 
-/* Weighted residuals into f (stride fs) at the current parameters, which
- * are y in the solver's coordinates. */
+/*
+ * One row of the Jacobian. v is the normal at the foot (normal residuals)
+ * or the unnormalized gradient (-Z' u, 1) of q_z - Z at q (sag residuals),
+ * vz its z component, rr the radius where the conic partials are taken.
+ *   d/dt  = -R v               (dq/dt = -R^T)
+ *   d/drx = v_y q_z - v_z q_y  (dq/drx = -e_x x q)
+ *   d/dry = -((Rx v)_x w_z - (Rx v)_z w_x)   (dq/dry = -Rx(-rx) (e_y x w))
+ *   d/dR  = -vz dZ/dR,  d/dk = -vz dZ/dk     (the surface moves along z)
+ */
+static void jacobian_row(const struct asph_fit *w, const struct frame *fr, size_t i,
+			 const double q[3], const double wv[3], double sw, double *row)
+{
+	double v[3], d[ASPH_FIT_N_DOF], rr, vz, dzr = 0, dzk = 0;
+	double s = w->slope[i], rho;
+
+	rho = sqrt(q[0] * q[0] + q[1] * q[1]);
+	double ux = rho > 0 ? q[0] / rho : 1.0, uy = rho > 0 ? q[1] / rho : 0.0;
+	double inv = w->opt.residual == ASPH_FIT_RESIDUAL_SAG ? 1.0 : 1.0 / sqrt(1.0 + s * s);
+	v[0] = -s * ux * inv;
+	v[1] = -s * uy * inv;
+	v[2] = vz = inv;
+	rr = fabs(w->r_foot[i]);
+	for (int k = 0; k < 3; k++)
+		d[k] = -(fr->R[k][0] * v[0] + fr->R[k][1] * v[1] + fr->R[k][2] * v[2]);
+	d[ASPH_FIT_RX] = v[1] * q[2] - v[2] * q[1];
+	double mx = v[0], mz = fr->sx * v[1] + fr->cx * v[2];
+	d[ASPH_FIT_RY] = -(mx * wv[2] - mz * wv[0]);
+	if (w->opt.dof & (ASPH_FIT_DOF_BIT(ASPH_FIT_R) | ASPH_FIT_DOF_BIT(ASPH_FIT_K)))
+		fit_model_conic_partials(&w->model, rr, &dzr, &dzk);
+	d[ASPH_FIT_R] = -vz * dzr;
+	d[ASPH_FIT_K] = -vz * dzk;
+	for (int k = 0; k < w->p; k++)
+		row[k] = sw * d[w->idx[k]];
+}
+
+/*
+ * jacobian_row() on a freeform, with clocking: v the normal at the foot (or
+ * (-S_x, -S_y, 1) for sag residuals) and c = q x v; a rotation by theta
+ * about an axis that is a in the part frame moves q by -a x q, so
+ *   d/drx = -a_x . c,  a_x = Rz(-rz) e_x
+ *   d/dry = -a_y . c,  a_y = Rz(-rz) Rx(-rx) e_y
+ *   d/drz = -c_z
+ */
+static void jacobian_row_xy(const struct asph_fit *w, const struct frame *fr, size_t i,
+			    const double q[3], double sw, double *row)
+{
+	const struct fit_surface_point *f = &w->foot[i];
+	double v[3], c[3], d[ASPH_FIT_N_DOF] = { 0 };
+	double inv = w->opt.residual == ASPH_FIT_RESIDUAL_SAG ? 1.0 : f->nz;
+
+	v[0] = -f->zx * inv;
+	v[1] = -f->zy * inv;
+	v[2] = inv;
+	for (int k = 0; k < 3; k++)
+		d[k] = -(fr->R[k][0] * v[0] + fr->R[k][1] * v[1] + fr->R[k][2] * v[2]);
+	c[0] = q[1] * v[2] - q[2] * v[1];
+	c[1] = q[2] * v[0] - q[0] * v[2];
+	c[2] = q[0] * v[1] - q[1] * v[0];
+	d[ASPH_FIT_RX] = -(fr->cz * c[0] - fr->sz * c[1]);
+	d[ASPH_FIT_RY] = -(fr->sz * fr->cx * c[0] + fr->cz * fr->cx * c[1] - fr->sx * c[2]);
+	d[ASPH_FIT_RZ] = -c[2];
+	for (int k = 0; k < w->p; k++)
+		row[k] = sw * d[w->idx[k]];
+}
+
+/* Row of dr/dy = (dr/dx) T (T upper triangular) for point i at q, its
+ * weight's square root sw applied. */
+static void solver_row(const struct asph_fit *w, const struct frame *fr, size_t i,
+		       const double q[3], const double wv[3], double sw, double *ry)
+{
+	double rx[ASPH_FIT_N_DOF];
+
+	if (w->model.rotational)
+		jacobian_row(w, fr, i, q, wv, sw, rx);
+	else
+		jacobian_row_xy(w, fr, i, q, sw, rx);
+	for (int j = 0; j < w->p; j++) {
+		double v = 0;
+		for (int k = 0; k <= j; k++)
+			v += rx[k] * w->T[k][j];
+		ry[j] = v;
+	}
+}
+
+/* The square root of point i's weight (1 outside robust fits). */
+static double sqrt_weight(const struct asph_fit *w, size_t i)
+{
+	return w->weight[i] == 1.0 ? 1.0 : sqrt(w->weight[i]);
+}
+
+/* The sums over x (T = I) carried over to y: J_y = J_x T, so
+ * J_y^T u = T^T J_x^T u and J_y^T J_y = T^T (J_x^T J_x) T. */
+static void sums_to_solver(struct asph_fit *w)
+{
+	struct fit_sums x = w->sums, y = { 0 };
+	const int p = w->p;
+
+	for (int k = 0; k < p; k++)
+		for (int j = k + 1; j < p; j++)
+			x.jtj[k][j] = x.jtj[j][k];
+	for (int a = 0; a < p; a++) {
+		for (int k = 0; k <= a; k++)
+			y.jtu[a] += w->T[k][a] * x.jtu[k];
+		for (int b = 0; b <= a; b++)
+			for (int k = 0; k <= a; k++)
+				for (int j = 0; j <= b; j++)
+					y.jtj[a][b] += w->T[k][a] * x.jtj[k][j] * w->T[j][b];
+	}
+	w->sums = y;
+}
+
+/* sums->jtu += row u, sums->jtj += row row^T (its lower triangle). */
+static void sums_add(struct fit_sums *sums, int p, const double *row, double u)
+{
+	for (int k = 0; k < p; k++) {
+		sums->jtu[k] += row[k] * u;
+		for (int j = 0; j <= k; j++)
+			sums->jtj[k][j] += row[k] * row[j];
+	}
+}
+
+/*
+ * Weighted residuals into f (stride fs) at the current parameters, which
+ * are y in the solver's coordinates; and in the same pass, from the feet
+ * just found, J^T f and J^T J there (w->sums), which the solver asks for
+ * next when it takes the step.
+ */
 static void eval_weighted(struct asph_fit *w, const double *y, double *f,
 			  size_t fs)
 {
 	struct frame fr;
+	double row[ASPH_FIT_N_DOF];
 
 	frame_init(&fr, w->full);
+	memset(&w->sums, 0, sizeof(w->sums));
 	for (size_t i = 0; i < w->n; i++) {
-		double res = 0;
-		if (point_counts(w, i) && point_eval(w, &fr, i, &res) < 0)
+		double res = 0, q[3], wv[3], sw;
+		if (!point_counts(w, i)) {
+			f[i * fs] = 0.0;
+			continue;
+		}
+		frame_to_part(&fr, w->xyz + 3 * i, q, wv);
+		if (point_eval(w, q, i, &res) < 0)
 			res = 0;    /* lost its foot in a trial step */
-		f[i * fs] = point_counts(w, i) ? sqrt(w->weight[i]) * res : 0.0;
+		sw = sqrt_weight(w, i);
+		f[i * fs] = sw * res;
+		if (!isfinite(w->slope[i]))
+			continue;
+		solver_row(w, &fr, i, q, wv, sw, row);
+		sums_add(&w->sums, w->p, row, sw * res);
 	}
 	memcpy(w->cached_y, y, (size_t)w->p * sizeof(double));
 	w->cache_valid = 1;
 	w->scratch_is_f = (f == w->scratch);
+	w->sums_f = f;
+	w->sums_fs = fs;
 }
 
 static int y_matches_cache(const struct asph_fit *w, const gsl_vector *y)
@@ -193,76 +375,63 @@ static int cb_f(const gsl_vector *y, void *params, gsl_vector *f)
 	return GSL_SUCCESS;
 }
 
+/* Whether u holds the weighted residuals the last evaluation wrote. */
+static int is_last_f(const struct asph_fit *w, const gsl_vector *u)
+{
+	for (size_t i = 0; i < w->n; i++)
+		if (gsl_vector_get(u, i) != w->sums_f[i * w->sums_fs])
+			return 0;
+	return 1;
+}
+
 /*
- * One row of the Jacobian. v is the normal at the foot (normal residuals)
- * or the unnormalized gradient (-Z' u, 1) of q_z - Z at q (sag residuals),
- * vz its z component, rr the radius where the conic partials are taken.
- *   d/dt  = -R v               (dq/dt = -R^T)
- *   d/drx = v_y q_z - v_z q_y  (dq/drx = -e_x x q)
- *   d/dry = -((Rx v)_x w_z - (Rx v)_z w_x)   (dq/dry = -Rx(-rx) (e_y x w))
- *   d/dR  = -vz dZ/dR,  d/dk = -vz dZ/dk     (the surface moves along z)
+ * v = J^T u (or J u), and J^T J into JTJ when it is not NULL, at y. The
+ * solver asks for J^T f and J^T J where it last evaluated f: those sums
+ * came with that evaluation. Anything else takes a pass over the points
+ * that builds each row of J from the stored foot. J itself is never
+ * stored, nor read again to form J^T J.
  */
-static void jacobian_row(const struct asph_fit *w, const struct frame *fr,
-			 size_t i, double sw, double *row)
-{
-	double q[3], wv[3], v[3], d[ASPH_FIT_N_DOF], rr, vz, dzr = 0, dzk = 0;
-	double s = w->slope[i], rho;
-
-	frame_to_part(fr, w->xyz + 3 * i, q, wv);
-	rho = sqrt(q[0] * q[0] + q[1] * q[1]);
-	double ux = rho > 0 ? q[0] / rho : 1.0, uy = rho > 0 ? q[1] / rho : 0.0;
-	double inv = w->opt.residual == ASPH_FIT_RESIDUAL_SAG ? 1.0 : 1.0 / sqrt(1.0 + s * s);
-	v[0] = -s * ux * inv;
-	v[1] = -s * uy * inv;
-	v[2] = vz = inv;
-	rr = fabs(w->r_foot[i]);
-	for (int k = 0; k < 3; k++)
-		d[k] = -(fr->R[k][0] * v[0] + fr->R[k][1] * v[1] + fr->R[k][2] * v[2]);
-	d[ASPH_FIT_RX] = v[1] * q[2] - v[2] * q[1];
-	double mx = v[0], mz = fr->sx * v[1] + fr->cx * v[2];
-	d[ASPH_FIT_RY] = -(mx * wv[2] - mz * wv[0]);
-	if (w->opt.dof & (ASPH_FIT_DOF_BIT(ASPH_FIT_R) | ASPH_FIT_DOF_BIT(ASPH_FIT_K)))
-		fit_model_conic_partials(&w->model, rr, &dzr, &dzk);
-	d[ASPH_FIT_R] = -vz * dzr;
-	d[ASPH_FIT_K] = -vz * dzk;
-	for (int k = 0; k < w->p; k++)
-		row[k] = sw * d[w->idx[k]];
-}
-
-/* Row of dr/dy = (dr/dx) T; T is upper triangular. */
-static void row_to_solver(const struct asph_fit *w, const double *rx, double *ry)
-{
-	for (int j = 0; j < w->p; j++) {
-		double v = 0;
-		for (int k = 0; k <= j; k++)
-			v += rx[k] * w->T[k][j];
-		ry[j] = v;
-	}
-}
-
-static int cb_df(const gsl_vector *y, void *params, gsl_matrix *J)
+static int cb_df(CBLAS_TRANSPOSE_t trans, const gsl_vector *y, const gsl_vector *u,
+		 void *params, gsl_vector *v, gsl_matrix *JTJ)
 {
 	struct asph_fit *w = params;
+	struct fit_sums sums = { 0 };
 	struct frame fr;
-	double rx[ASPH_FIT_N_DOF], ya[ASPH_FIT_N_DOF];
+	double row[ASPH_FIT_N_DOF], ya[ASPH_FIT_N_DOF];
+	const int p = w->p;
 
 	set_full_from_vector(w, y);
-	/* The solver asks for J where it last evaluated f, whose feet are
-	 * stored; anywhere else the feet are found first. */
 	if (!y_matches_cache(w, y)) {
 		vector_to_array(w, y, ya);
 		eval_weighted(w, ya, w->scratch, 1);
 	}
-	frame_init(&fr, w->full);
-	for (size_t i = 0; i < w->n; i++) {
-		double *row = gsl_matrix_ptr(J, i, 0);
-		if (!point_counts(w, i) || !isfinite(w->slope[i])) {
-			memset(row, 0, (size_t)w->p * sizeof(double));
-			continue;
+	if (trans == CblasTrans && is_last_f(w, u)) {
+		sums = w->sums;
+	} else {
+		frame_init(&fr, w->full);
+		for (size_t i = 0; i < w->n; i++) {
+			double q[3], wv[3], s = 0;
+			if (point_counts(w, i) && isfinite(w->slope[i])) {
+				frame_to_part(&fr, w->xyz + 3 * i, q, wv);
+				solver_row(w, &fr, i, q, wv, sqrt_weight(w, i), row);
+				if (trans == CblasTrans) {
+					sums_add(&sums, p, row, gsl_vector_get(u, i));
+					continue;
+				}
+				for (int k = 0; k < p; k++)
+					s += row[k] * gsl_vector_get(u, (size_t)k);
+			}
+			if (trans == CblasNoTrans)
+				gsl_vector_set(v, i, s);
 		}
-		jacobian_row(w, &fr, i, sqrt(w->weight[i]), rx);
-		row_to_solver(w, rx, row);
 	}
+	for (int k = 0; k < p && trans == CblasTrans; k++)
+		gsl_vector_set(v, (size_t)k, sums.jtu[k]);
+	for (int k = 0; k < p && JTJ; k++)
+		for (int j = 0; j <= k; j++) {
+			gsl_matrix_set(JTJ, (size_t)k, (size_t)j, sums.jtj[k][j]);
+			gsl_matrix_set(JTJ, (size_t)j, (size_t)k, sums.jtj[k][j]);
+		}
 	return GSL_SUCCESS;
 }
 
@@ -274,7 +443,9 @@ size_t fit_evaluate_all(struct asph_fit *w)
 	frame_init(&fr, w->full);
 	w->n_status_changes = 0;
 	for (size_t i = 0; i < w->n; i++) {
-		int st = point_eval(w, &fr, i, &w->resid[i]);
+		double q[3], wv[3];
+		frame_to_part(&fr, w->xyz + 3 * i, q, wv);
+		int st = point_eval(w, q, i, &w->resid[i]);
 		w->n_status_changes += (st != 0) != (w->status[i] == ASPH_FIT_POINT_OUTSIDE);
 		if (st != 0) {
 			w->status[i] = ASPH_FIT_POINT_OUTSIDE;
@@ -329,7 +500,7 @@ static int options_resolve(struct asph_fit_options *o, struct asph_error *err)
 	for (int k = 0; k < 3; k++)
 		if (!isfinite(o->start.t[k]))
 			return asph_error_set(err, -EINVAL, "fit options: start pose is not finite");
-	if (!isfinite(o->start.rx) || !isfinite(o->start.ry))
+	if (!isfinite(o->start.rx) || !isfinite(o->start.ry) || !isfinite(o->start.rz))
 		return asph_error_set(err, -EINVAL, "fit options: start pose is not finite");
 	return 0;
 }
@@ -355,6 +526,20 @@ int asph_fit_alloc(const struct asph_surface *s, size_t n_max,
 		return asph_error_set(err, -EINVAL,
 				      "a %s surface has no conic constant: k cannot be fitted (R can)",
 				      asph_surface_type_name(type));
+	int rotational = asph_surface_is_rotational(s);
+	if ((w->opt.dof & ASPH_FIT_DOF_BIT(ASPH_FIT_RZ)) && rotational)
+		return asph_error_set(err, -EINVAL,
+				      "surface type %s is rotationally symmetric: it looks the same "
+				      "clocked, so rz cannot be fitted",
+				      asph_surface_type_name(type));
+	if ((w->opt.dof & (ASPH_FIT_DOF_BIT(ASPH_FIT_R) | ASPH_FIT_DOF_BIT(ASPH_FIT_K))) && !rotational)
+		return asph_error_set(err, -EINVAL,
+				      "R and k are fitted on rotationally symmetric surfaces only; "
+				      "surface type %s takes the rigid motions tx, ty, tz, rx, ry, rz",
+				      asph_surface_type_name(type));
+	if (rotational && w->opt.start.rz != 0)
+		return asph_error_set(err, -EINVAL, "fit options: a start rz on a rotationally "
+				      "symmetric surface");
 	fit_model_init(&w->model, s);
 	for (int d = 0; d < ASPH_FIT_N_DOF; d++)
 		if (w->opt.dof & ASPH_FIT_DOF_BIT(d))
@@ -367,6 +552,11 @@ int asph_fit_alloc(const struct asph_surface *s, size_t n_max,
 	w->scratch = malloc(n_max * sizeof(double) + 1);
 	w->status = calloc(n_max + 1, 1);
 	w->left = w->opt.robust ? malloc(n_max * sizeof(double) + 1) : NULL;
+	if (!rotational) {
+		w->foot = malloc(n_max * sizeof(*w->foot) + 1);
+		if (!w->foot)
+			return asph_error_set(err, -ENOMEM, "out of memory for %zu points", n_max);
+	}
 	w->x0 = gsl_vector_alloc((size_t)w->p);
 	w->covar = gsl_matrix_alloc((size_t)w->p, (size_t)w->p);
 	if (!w->r_foot || !w->slope || !w->resid || !w->weight || !w->scratch ||
@@ -381,7 +571,7 @@ void asph_fit_free(struct asph_fit *w)
 	if (!w)
 		return;
 	if (w->solver)
-		gsl_multifit_nlinear_free(w->solver);
+		gsl_multilarge_nlinear_free(w->solver);
 	gsl_vector_free(w->x0);
 	gsl_matrix_free(w->covar);
 	free(w->r_foot);
@@ -390,6 +580,7 @@ void asph_fit_free(struct asph_fit *w)
 	free(w->weight);
 	free(w->scratch);
 	free(w->left);
+	free(w->foot);
 	free(w->status);
 	free(w);
 }
@@ -454,10 +645,8 @@ static double chi2_now(const struct asph_fit *w)
  */
 static int whiten(struct asph_fit *w, struct asph_error *err)
 {
-	double A[ASPH_FIT_N_DOF][ASPH_FIT_N_DOF] = { { 0 } }, rx[ASPH_FIT_N_DOF];
 	double y0[ASPH_FIT_N_DOF] = { 0 }, dinv[ASPH_FIT_N_DOF];
 	gsl_matrix_view L = gsl_matrix_submatrix(w->covar, 0, 0, (size_t)w->p, (size_t)w->p);
-	struct frame fr;
 	int p = w->p;
 
 	memset(w->T, 0, sizeof(w->T));
@@ -466,16 +655,9 @@ static int whiten(struct asph_fit *w, struct asph_error *err)
 		w->T[k][k] = 1.0;
 	}
 	set_full_from_y(w, y0);
+	/* with T = I the evaluation's J^T J is A, over x */
 	eval_weighted(w, y0, w->scratch, 1);
-	frame_init(&fr, w->full);
-	for (size_t i = 0; i < w->n; i++) {
-		if (!point_counts(w, i) || !isfinite(w->slope[i]))
-			continue;
-		jacobian_row(w, &fr, i, sqrt(w->weight[i]), rx);
-		for (int k = 0; k < p; k++)
-			for (int j = 0; j <= k; j++)
-				A[k][j] += rx[k] * rx[j];
-	}
+	double (*A)[ASPH_FIT_N_DOF] = w->sums.jtj;
 	for (int k = 0; k < p; k++) {
 		if (!(A[k][k] > 0) || !isfinite(A[k][k]))
 			return asph_error_set(err, -EDOM,
@@ -503,6 +685,7 @@ static int whiten(struct asph_fit *w, struct asph_error *err)
 	for (int k = 0; k < p; k++)
 		for (int j = k; j < p; j++)
 			w->T[k][j] = dinv[k] * gsl_matrix_get(&L.matrix, (size_t)j, (size_t)k);
+	sums_to_solver(w);
 	return 0;
 }
 
@@ -513,7 +696,7 @@ static int start_pass(struct asph_fit *w, struct asph_error *err)
 	if (st < 0)
 		return st;
 	gsl_vector_set_zero(w->x0);
-	st = gsl_multifit_nlinear_init(w->x0, &w->fdf, w->solver);
+	st = gsl_multilarge_nlinear_init(w->x0, &w->fdf, w->solver);
 	if (st)
 		return asph_error_set(err, -ERANGE, "fit: solver init failed: %s", gsl_strerror(st));
 	w->pass++;
@@ -524,19 +707,20 @@ static int start_pass(struct asph_fit *w, struct asph_error *err)
 
 static int solver_setup(struct asph_fit *w, size_t n, struct asph_error *err)
 {
-	gsl_multifit_nlinear_parameters par = gsl_multifit_nlinear_default_parameters();
+	gsl_multilarge_nlinear_parameters par = gsl_multilarge_nlinear_default_parameters();
 
-	if (w->solver && w->solver->fdf && gsl_multifit_nlinear_residual(w->solver)->size == n)
+	if (w->solver && w->solver->n == n)
 		return 0;
 	if (w->solver)
-		gsl_multifit_nlinear_free(w->solver);
-	par.trs = gsl_multifit_nlinear_trs_lm;
-	/* Normal equations: p is at most 7 and the columns are scaled. */
-	par.solver = gsl_multifit_nlinear_solver_cholesky;
+		gsl_multilarge_nlinear_free(w->solver);
+	par.trs = gsl_multilarge_nlinear_trs_lm;
+	/* Normal equations: p is at most 7 and the columns are scaled. The
+	 * solver for large systems takes J^T J from cb_df() and never holds J. */
+	par.solver = gsl_multilarge_nlinear_solver_cholesky;
 	/* Near the optimum the problem is almost linear: let the damping fall
 	 * fast so that the steps become Gauss-Newton's. */
 	par.factor_down = 10.0;
-	w->solver = gsl_multifit_nlinear_alloc(gsl_multifit_nlinear_trust, &par, n, (size_t)w->p);
+	w->solver = gsl_multilarge_nlinear_alloc(gsl_multilarge_nlinear_trust, &par, n, (size_t)w->p);
 	if (!w->solver)
 		return asph_error_set(err, -ENOMEM, "out of memory for the solver (%zu points)", n);
 	return 0;
@@ -558,9 +742,12 @@ int asph_fit_init(struct asph_fit *w, const double *xyz, size_t n,
 	memcpy(w->full, w->opt.start.t, 3 * sizeof(double));
 	w->full[ASPH_FIT_RX] = w->opt.start.rx;
 	w->full[ASPH_FIT_RY] = w->opt.start.ry;
+	w->full[ASPH_FIT_RZ] = w->opt.start.rz;
 	w->full[ASPH_FIT_R] = pr->R;
 	w->full[ASPH_FIT_K] = pr->k;
 	fit_model_set_conic(&w->model, pr->R, pr->k);
+	for (size_t i = 0; i < n && w->foot; i++)
+		w->foot[i] = FIT_NO_POINT;
 	for (size_t i = 0; i < n; i++) {
 		w->r_foot[i] = NAN;
 		w->slope[i] = NAN;
@@ -568,7 +755,7 @@ int asph_fit_init(struct asph_fit *w, const double *xyz, size_t n,
 		w->weight[i] = 1.0;
 		w->status[i] = ASPH_FIT_POINT_USED;
 	}
-	w->fdf = (gsl_multifit_nlinear_fdf){
+	w->fdf = (gsl_multilarge_nlinear_fdf){
 		.f = cb_f, .df = cb_df, .fvv = NULL, .n = n, .p = (size_t)w->p, .params = w,
 	};
 	if (w->robust_done)
@@ -596,6 +783,24 @@ static int step_below(const struct asph_fit *w, double xtol)
 			return 0;
 	}
 	return 1;
+}
+
+/* What a Gauss-Newton step from here would take off chi^2:
+ * g^T (J^T J)^-1 g at the solver's current point; infinite when J^T J is
+ * not positive definite. */
+static double gauss_newton_decrement(const struct asph_fit *w)
+{
+	double a[ASPH_FIT_N_DOF * ASPH_FIT_N_DOF], z[ASPH_FIT_N_DOF], dec = 0;
+	const size_t p = (size_t)w->p;
+	gsl_matrix_view A = gsl_matrix_view_array(a, p, p);
+	gsl_vector_view Z = gsl_vector_view_array(z, p);
+
+	gsl_matrix_memcpy(&A.matrix, w->solver->JTJ);
+	if (gsl_linalg_cholesky_decomp1(&A.matrix) != 0 ||
+	    gsl_linalg_cholesky_solve(&A.matrix, w->solver->g, &Z.vector) != 0)
+		return INFINITY;
+	gsl_blas_ddot(w->solver->g, &Z.vector, &dec);
+	return dec;
 }
 
 /*
@@ -696,7 +901,7 @@ int asph_fit_iterate(struct asph_fit *w, struct asph_error *err)
 
 	if (w->phase != FIT_PHASE_RUNNING)
 		return w->phase == FIT_PHASE_DONE ? 0 : asph_error_set(err, -EINVAL, "fit not initialized");
-	st = gsl_multifit_nlinear_iterate(w->solver);
+	st = gsl_multilarge_nlinear_iterate(w->solver);
 	w->iter++;
 	w->total_iter++;
 	set_full_from_vector(w, w->solver->x);
@@ -712,12 +917,13 @@ int asph_fit_iterate(struct asph_fit *w, struct asph_error *err)
 		done = 1;
 		w->converged = 1;
 		snprintf(w->reason, sizeof(w->reason), "step below xtol = %g", w->opt.xtol);
-	} else if (w->iter > 1 && w->chi2 - chi2 <= COST_TOL * chi2 &&
+	} else if (((w->iter > 1 && w->chi2 - chi2 <= COST_TOL * chi2) ||
+		    gauss_newton_decrement(w) <= COST_TOL * chi2) &&
 		   step_below(w, LOOSE_XTOL)) {
 		done = 1;
 		w->converged = 1;
 		snprintf(w->reason, sizeof(w->reason),
-			 "relative decrease of chi^2 below %g", COST_TOL);
+			 "relative decrease of chi^2, made or predicted, below %g", COST_TOL);
 	} else if (w->iter >= w->opt.max_iterations) {
 		done = 1;
 		w->converged = 0;
@@ -741,7 +947,7 @@ void asph_fit_get_progress(const struct asph_fit *w,
 	out->iteration = w->iter;
 	out->total_iterations = w->total_iter;
 	if (w->solver && w->n > 0) {
-		double nrm = gsl_blas_dnrm2(gsl_multifit_nlinear_residual(w->solver));
+		double nrm = gsl_blas_dnrm2(gsl_multilarge_nlinear_residual(w->solver));
 		rms = nrm / sqrt((double)w->n);
 	}
 	out->rms_mm = rms;

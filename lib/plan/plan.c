@@ -39,17 +39,63 @@ struct plan_method {
 	/* NULL: the points are on the surface already */
 	int (*lift)(const struct asph_surface *s, double *xyz, size_t n,
 		    struct asph_error *err);
+	/* The method on a freeform surface; NULL: it has none yet, and
+	 * resolve() refuses it there with a message. */
+	const struct plan_freeform *freeform;
+};
+
+/*
+ * A method on a freeform surface, where the radial maps of surfaces of
+ * revolution do not apply: the exact count at pitch p, and the plan's
+ * points on the surface (fill allocates plan->xyz and sets plan->n). Both
+ * may use the method's own count and fill for its planar pattern.
+ */
+struct plan_freeform {
+	size_t (*count)(const struct asph_surface *s, const struct plan_method *meth,
+			double p);
+	int (*fill)(const struct asph_surface *s, const struct plan_method *meth,
+		    double p, struct asph_plan *plan, struct asph_error *err);
 };
 
 static const struct plan_method *method_of(enum asph_plan_method m);
 
-/* The area the method's lattice covers. */
+/* The area the method's lattice covers: on a freeform, the aperture (or
+ * the surface over it, for a lattice laid on the surface). */
 static double pattern_area(const struct asph_surface *s,
 			   const struct plan_method *meth)
 {
 	double a = asph_surface_aperture_radius(s);
 
+	if (!asph_surface_is_rotational(s))
+		return meth->on_surface ? asph_surface_total_area(s)
+					: asph_surface_projected_area(s);
 	return meth->on_surface ? asph_surface_area(s, a) : M_PI * a * a;
+}
+
+/* The disk that circumscribes the aperture about its centre. */
+static double freeform_radius(const struct asph_surface *s)
+{
+	double c[2], R;
+
+	asph_surface_aperture_disk(s, c, &R);
+	return R;
+}
+
+static int refuse_on_freeform(const struct asph_surface *s, enum asph_plan_method m,
+			      struct asph_error *err)
+{
+	char known[128] = "";
+	size_t len = 0;
+
+	for (unsigned i = 0; i < ASPH_PLAN_N_METHODS; i++)
+		if (method_of(i)->freeform && len < sizeof(known))
+			len += (size_t)snprintf(known + len, sizeof(known) - len, "%s%s",
+						len ? ", " : "", method_of(i)->name);
+	return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "method",
+				 "the %s plan is for rotationally symmetric surfaces; on a %s "
+				 "surface use one of %s",
+				 asph_plan_method_name(m),
+				 asph_surface_type_name(asph_surface_prescription(s)->type), known);
 }
 
 /* ---- density ------------------------------------------------------------- */
@@ -97,6 +143,8 @@ static size_t pattern_count(const struct asph_surface *s,
 	const struct plan_method *meth = method_of(m);
 	double a = asph_surface_aperture_radius(s);
 
+	if (!asph_surface_is_rotational(s))
+		return meth->freeform->count(s, meth, p);
 	/* The exact counters loop over rows and rings: screen absurd sizes
 	 * first so they never run for long. */
 	if (!(pattern_area(s, meth) / (p * p) < 2.0 * (double)PLAN_MAX_POINTS))
@@ -144,6 +192,11 @@ static int resolve(const struct asph_surface *s, enum asph_plan_method m,
 	if ((unsigned)m >= ASPH_PLAN_N_METHODS)
 		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "method", "unknown method %d",
 					 m);
+	if (!asph_surface_is_rotational(s)) {
+		if (!method_of(m)->freeform)
+			return refuse_on_freeform(s, m, err);
+		a = freeform_radius(s);
+	}
 	if (!isfinite(d.value) || d.value <= 0)
 		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
 					 "must be positive and finite (got %g)", d.value);
@@ -421,19 +474,26 @@ static int compute_points(const struct asph_surface *s, struct asph_plan *plan,
 			  struct asph_error *err)
 {
 	const struct plan_method *meth = method_of(plan->method);
+	bool freeform = !asph_surface_is_rotational(s);
 	int r;
 
 	plan->n = sz->n;
-	r = meth->fill(s, asph_surface_aperture_radius(s), sz->p, plan, err);
+	if (freeform)
+		r = meth->freeform->fill(s, meth, sz->p, plan, err);
+	else
+		r = meth->fill(s, asph_surface_aperture_radius(s), sz->p, plan, err);
 	if (r < 0)
 		return r;
+	/* The mesh of the disk grid, before a radial lift moves its points */
 	if (meth->mesh && !(flags & ASPH_PLAN_NO_MESH)) {
 		r = plan_disk_mesh(plan->xyz, plan->n, &plan->triangles,
 				   &plan->n_triangles, err);
 		if (r < 0)
 			return r;
 	}
-	return meth->lift ? meth->lift(s, plan->xyz, plan->n, err) : 0;
+	if (freeform || !meth->lift)
+		return 0;
+	return meth->lift(s, plan->xyz, plan->n, err);
 }
 
 int asph_plan_compute_opts(const struct asph_surface *s,
@@ -559,6 +619,73 @@ static int fermat_fill(const struct asph_surface *s, double a, double p,
 	return planar(plan, a, p, plan_fermat_fill, err);
 }
 
+/* ---- freeform surfaces ----------------------------------------------------- */
+
+/* The pattern's points moved to the aperture's centre and kept where they
+ * fall inside the aperture, in place, lifted with z = S(x, y) if lift;
+ * returns how many are kept. */
+static size_t keep_in_aperture(const struct asph_surface *s, const double centre[2],
+			       double *xyz, size_t n, bool lift)
+{
+	size_t k = 0;
+
+	for (size_t i = 0; i < n; i++) {
+		double x = xyz[3 * i] + centre[0], y = xyz[3 * i + 1] + centre[1];
+		if (!asph_surface_contains(s, x, y, 0))
+			continue;
+		xyz[3 * k] = x;
+		xyz[3 * k + 1] = y;
+		xyz[3 * k + 2] = lift ? asph_surface_sag_xy(s, x, y) : 0;
+		k++;
+	}
+	return k;
+}
+
+/* The method's planar pattern over the disk about the aperture, clipped to
+ * the aperture and lifted if lift. */
+static int clipped_pattern(const struct asph_surface *s, const struct plan_method *meth,
+			   double p, bool lift, struct asph_plan *plan, struct asph_error *err)
+{
+	double c[2], R;
+	int r;
+
+	asph_surface_aperture_disk(s, c, &R);
+	plan->n = meth->count(s, R, p);
+	r = meth->fill(s, R, p, plan, err);
+	if (r < 0)
+		return r;
+	plan->n = keep_in_aperture(s, c, plan->xyz, plan->n, lift);
+	return 0;
+}
+
+static size_t clipped_count(const struct asph_surface *s, const struct plan_method *meth,
+			    double p)
+{
+	double R = freeform_radius(s);
+	struct asph_plan plan = { 0 };
+
+	/* The pattern covers the whole disk: screen absurd sizes as
+	 * pattern_count() does. */
+	if (!(M_PI * R * R / (p * p) < 2.0 * (double)PLAN_MAX_POINTS))
+		return SIZE_MAX;
+	if (clipped_pattern(s, meth, p, false, &plan, NULL) < 0) {
+		free(plan.xyz);
+		return SIZE_MAX;
+	}
+	free(plan.xyz);
+	return plan.n;
+}
+
+static int clipped_fill(const struct asph_surface *s, const struct plan_method *meth,
+			double p, struct asph_plan *plan, struct asph_error *err)
+{
+	return clipped_pattern(s, meth, p, true, plan, err);
+}
+
+/* The plans of the vertex plane (op and the classic patterns): laid over
+ * the disk about the aperture, kept inside it, lifted with S(x, y). */
+static const struct plan_freeform clipped_to_aperture = { clipped_count, clipped_fill };
+
 /*
  * Lattices measured on flat patterns of 1.26e5 points on the unit disk
  * (Delaunay triangulation, mean edge length; points per area),
@@ -567,7 +694,8 @@ static int fermat_fill(const struct asph_surface *s, double a, double p,
  */
 static const struct plan_method methods[ASPH_PLAN_N_METHODS] = {
 	[ASPH_PLAN_OP] = { "op", { 1.0, 1.099 }, false, true,
-			   disk_grid_count, disk_grid_fill, lift_projected },
+			   disk_grid_count, disk_grid_fill, lift_projected,
+			   &clipped_to_aperture },
 	[ASPH_PLAN_OT] = { "ot", { 1.0, 1.099 }, false, true,
 			   disk_grid_count, disk_grid_fill, lift_ot },
 	[ASPH_PLAN_LB] = { "lb", { 1.0, 1.099 }, false, true,
@@ -575,13 +703,17 @@ static const struct plan_method methods[ASPH_PLAN_N_METHODS] = {
 	[ASPH_PLAN_CI] = { "ci", { 1.0, 1.099 }, true, false,
 			   ci_count, ci_fill, NULL },
 	[ASPH_PLAN_RASTER] = { "raster", { 1.0, 1.138 } /* (2 + sqrt 2) / 3 */, false, false,
-			       raster_count, raster_fill, lift_projected },
+			       raster_count, raster_fill, lift_projected,
+			       &clipped_to_aperture },
 	[ASPH_PLAN_CONCENTRIC] = { "concentric", { 1.0, 1.098 }, false, false,
-				   concentric_count, concentric_fill, lift_projected },
+				   concentric_count, concentric_fill, lift_projected,
+				   &clipped_to_aperture },
 	[ASPH_PLAN_SPIRAL] = { "spiral", { 1.0, 1.099 }, false, false,
-			       spiral_count, spiral_fill, lift_projected },
+			       spiral_count, spiral_fill, lift_projected,
+			       &clipped_to_aperture },
 	[ASPH_PLAN_FERMAT] = { "fermat", { 1.0, 1.114 }, false, false,
-			       fermat_count, fermat_fill, lift_projected },
+			       fermat_count, fermat_fill, lift_projected,
+			       &clipped_to_aperture },
 };
 
 /* m is checked by the callers (resolve); an unknown one reads as OP. */

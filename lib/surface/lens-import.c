@@ -16,21 +16,10 @@
 
 #include "asph/lens-import.h"
 #include "fileio.h"
+#include "lens-import-zmx.h"
 #include "util-mem.h"
 
-#define MAX_PARM 40
 #define MAX_SURFACES 1024
-
-struct zsurf {
-	int number;
-	int line;                 /* of its SURF line */
-	char type[32];
-	int type_line, type_col;
-	double curv, coni, diam;
-	int has_diam;
-	double parm[MAX_PARM + 1];
-	int parm_line[MAX_PARM + 1];
-};
 
 struct csv_rows {
 	struct asph_prescription *p;
@@ -42,7 +31,7 @@ struct asph_lens_import {
 	char *name;
 	enum asph_lens_format format;
 	struct zsurf *surf;
-	size_t n_surf;
+	size_t n_surf, cap_surf;
 	struct csv_rows rows;
 	/* while parsing */
 	struct asph_error *err;
@@ -185,7 +174,7 @@ static int parse_double(const char *s, double *out)
 	return s[0] && !*end && !errno && isfinite(*out) ? 0 : -EINVAL;
 }
 
-/* A keyword's numeric argument (the first after the keyword). */
+/* A keyword's next numeric argument. */
 static int number_arg(const struct asph_lens_import *im, const char **p, const char *ls, int line,
 		      const char *kw, double *out)
 {
@@ -197,6 +186,65 @@ static int number_arg(const struct asph_lens_import *im, const char **p, const c
 		return fail(im, line, (int)strlen(ls) + 1, kw, "%s without a value", kw);
 	if (parse_double(t, out) < 0)
 		return fail(im, line, col, kw, "'%s' is not a finite number", t);
+	return 0;
+}
+
+/* The next numeric argument as a value with where it stands. */
+static int value_arg(const struct asph_lens_import *im, const char **p, const char *ls, int line,
+		     const char *kw, struct zmx_value *out)
+{
+	const char *s = *p;
+
+	while (*s == ' ' || *s == '\t')
+		s++;
+	out->line = line;
+	out->col = (int)(s - ls) + 1;
+	return number_arg(im, p, ls, line, kw, &out->v);
+}
+
+/* PARM i v and XDAT i v ...: a whole index in [lo, max], then the value. */
+static int indexed_arg(const struct asph_lens_import *im, const char **p, const char *ls,
+		       int line, const char *kw, const char *what, int lo, int max,
+		       struct zmx_value *table)
+{
+	double idx;
+	int r = number_arg(im, p, ls, line, kw, &idx);
+
+	if (r < 0)
+		return r;
+	if (idx != floor(idx) || idx < lo || idx > max)
+		return fail(im, line, 0, kw, "%s number %g is not %d..%d", what, idx, lo, max);
+	return value_arg(im, p, ls, line, kw, &table[(int)idx]);
+}
+
+/* SQAP, ELAP, CLAP: the aperture and its two sizes; UDAD: a user-defined
+ * aperture; OBDC: the aperture's centre. */
+static int aperture_line(const struct asph_lens_import *im, struct zsurf *z, const char *p,
+			 const char *ls, int line, const char *kw)
+{
+	static const struct { const char *kw; enum zmx_aperture_kind kind; } kinds[] = {
+		{ "CLAP", ZMX_APERTURE_CIRCULAR }, { "SQAP", ZMX_APERTURE_RECTANGULAR },
+		{ "ELAP", ZMX_APERTURE_ELLIPTICAL }, { "UDAD", ZMX_APERTURE_USER },
+	};
+	int r;
+
+	if (!strcmp(kw, "OBDC")) {
+		if ((r = value_arg(im, &p, ls, line, kw, &z->decenter[0])) < 0)
+			return r;
+		return value_arg(im, &p, ls, line, kw, &z->decenter[1]);
+	}
+	for (size_t i = 0; i < ARRAY_SIZE(kinds); i++) {
+		if (strcmp(kw, kinds[i].kw))
+			continue;
+		z->aperture = kinds[i].kind;
+		z->aperture_lines++;
+		z->aperture_size[0].line = line;
+		if (kinds[i].kind == ZMX_APERTURE_USER)
+			return 0;
+		if ((r = value_arg(im, &p, ls, line, kw, &z->aperture_size[0])) < 0)
+			return r;
+		return value_arg(im, &p, ls, line, kw, &z->aperture_size[1]);
+	}
 	return 0;
 }
 
@@ -218,27 +266,18 @@ static int zmx_surface_line(struct asph_lens_import *im, struct zsurf *z, const 
 		return 0;
 	}
 	if (!strcmp(kw, "CURV"))
-		return number_arg(im, &p, ls, line, kw, &z->curv);
+		return value_arg(im, &p, ls, line, kw, &z->curv);
 	if (!strcmp(kw, "CONI"))
-		return number_arg(im, &p, ls, line, kw, &z->coni);
+		return value_arg(im, &p, ls, line, kw, &z->coni);
 	if (!strcmp(kw, "DIAM")) {
-		z->has_diam = 1;
-		return number_arg(im, &p, ls, line, kw, &z->diam);
+		return value_arg(im, &p, ls, line, kw, &z->diam);
 	}
-	if (!strcmp(kw, "PARM")) {
-		double idx, v;
-		int r = number_arg(im, &p, ls, line, kw, &idx);
-		if (r < 0)
-			return r;
-		if (idx != floor(idx) || idx < 0 || idx > MAX_PARM)
-			return fail(im, line, 0, "PARM", "parameter number %g is not 0..%d", idx,
-				    MAX_PARM);
-		if ((r = number_arg(im, &p, ls, line, kw, &v)) < 0)
-			return r;
-		z->parm[(int)idx] = v;
-		z->parm_line[(int)idx] = line;
-	}
-	return 0;
+	if (!strcmp(kw, "PARM"))
+		return indexed_arg(im, &p, ls, line, kw, "parameter", 0, ZMX_MAX_PARM, z->parm);
+	if (!strcmp(kw, "XDAT"))
+		return indexed_arg(im, &p, ls, line, kw, "extra data", 1, ZMX_MAX_XDAT,
+				   z->xdat);
+	return aperture_line(im, z, p, ls, line, kw);
 }
 
 static int zmx_unit(struct asph_lens_import *im, const char *p, const char *ls, int line)
@@ -253,15 +292,27 @@ static int zmx_unit(struct asph_lens_import *im, const char *p, const char *ls, 
 	return 0;
 }
 
+/* Room for one more surface, zeroed. */
+static int grow_surfaces(struct asph_lens_import *im)
+{
+	if (im->n_surf == im->cap_surf) {
+		size_t cap = im->cap_surf ? 2 * im->cap_surf : 8;
+		struct zsurf *s = realloc(im->surf, cap * sizeof(*s));
+		if (!s)
+			return asph_error_set(im->err, -ENOMEM, "out of memory");
+		im->surf = s;
+		im->cap_surf = cap;
+	}
+	memset(&im->surf[im->n_surf], 0, sizeof(*im->surf));
+	return 0;
+}
+
 static int zmx_parse(struct asph_lens_import *im)
 {
 	char *rest = im->text, *l;
 	int line = 0, nl = 1;
 	struct zsurf *cur = NULL;
 
-	im->surf = calloc(MAX_SURFACES, sizeof(*im->surf));
-	if (!im->surf)
-		return asph_error_set(im->err, -ENOMEM, "out of memory");
 	while ((l = next_line(&rest, &nl))) {
 		int col = 0, indented = (*l == ' ' || *l == '\t');
 		const char *ls = l, *p = l, *kw;
@@ -287,6 +338,8 @@ static int zmx_parse(struct asph_lens_import *im)
 			if (im->n_surf == MAX_SURFACES)
 				return fail(im, line, col, "SURF", "more than %d surfaces",
 					    MAX_SURFACES);
+			if ((r = grow_surfaces(im)) < 0)
+				return r;
 			cur = &im->surf[im->n_surf++];
 			cur->number = (int)num;
 			cur->line = line;
@@ -309,7 +362,7 @@ static int zmx_parse(struct asph_lens_import *im)
 	return 0;
 }
 
-enum ztype { Z_STANDARD, Z_EVENASPH, Z_ODDASPH, Z_QTYPE, Z_UNKNOWN };
+enum ztype { Z_STANDARD, Z_EVENASPH, Z_ODDASPH, Z_QTYPE, Z_FREEFORM, Z_UNKNOWN };
 
 static enum ztype ztype_of(const char *t)
 {
@@ -321,7 +374,16 @@ static enum ztype ztype_of(const char *t)
 		return Z_ODDASPH;
 	if (!strcmp(t, "QTYPEASPH") || !strcmp(t, "QTYPE"))
 		return Z_QTYPE;
+	if (zmx_type_is_freeform(t))
+		return Z_FREEFORM;
 	return Z_UNKNOWN;
+}
+
+/* A parameter's line and column, or the TYPE line's when it is absent. */
+static void parm_where(const struct zsurf *z, int i, int *line, int *col)
+{
+	*line = z->parm[i].line ? z->parm[i].line : z->type_line;
+	*col = z->parm[i].line ? z->parm[i].col : z->type_col;
 }
 
 /* Q type: PARM 1 family (0 Qbfs, 1 Qcon), PARM 2 normalization radius,
@@ -329,21 +391,25 @@ static enum ztype ztype_of(const char *t)
 static int zmx_qtype(struct asph_lens_import *im, const struct zsurf *z,
 		     struct asph_prescription *p)
 {
-	double fam = z->parm[1], n = z->parm[3];
-	int line = z->parm_line[1] ? z->parm_line[1] : z->type_line;
+	double fam = z->parm[1].v, n = z->parm[3].v;
+	int line, col;
 
-	if (fam != 0 && fam != 1)
-		return fail(im, line, 0, "PARM 1",
+	if (fam != 0 && fam != 1) {
+		parm_where(z, 1, &line, &col);
+		return fail(im, line, col, "PARM 1",
 			    "surface %d: Q family %g (0 is Qbfs, 1 is Qcon)", z->number, fam);
+	}
 	p->type = fam == 0 ? ASPH_SURFACE_QBFS : ASPH_SURFACE_QCON;
-	p->norm_radius = z->parm[2];
-	if (n != floor(n) || n < 1 || n > ASPH_SURFACE_MAX_Q + 1 || 3 + n > MAX_PARM)
-		return fail(im, z->parm_line[3] ? z->parm_line[3] : z->type_line, 0, "PARM 3",
+	p->norm_radius = z->parm[2].v;
+	if (n != floor(n) || n < 1 || n > ASPH_SURFACE_MAX_Q + 1 || 3 + n > ZMX_MAX_PARM) {
+		parm_where(z, 3, &line, &col);
+		return fail(im, line, col, "PARM 3",
 			    "surface %d: %g Q terms (1..%d)", z->number, n, ASPH_SURFACE_MAX_Q + 1);
+	}
 	for (int m = 0; m < (int)n; m++)
-		p->Q[m] = z->parm[4 + m];
+		p->Q[m] = z->parm[4 + m].v;
 	if (p->type == ASPH_SURFACE_QBFS && p->k != 0)
-		return fail(im, z->line, 1, "CONI",
+		return fail(im, z->coni.line, z->coni.col, "CONI",
 			    "surface %d: a Qbfs surface has no conic constant (CONI %g)",
 			    z->number, p->k);
 	if (p->type == ASPH_SURFACE_QBFS)
@@ -351,28 +417,113 @@ static int zmx_qtype(struct asph_lens_import *im, const struct zsurf *z,
 	return 0;
 }
 
+static const char *const aperture_keywords[] = {
+	[ZMX_APERTURE_CIRCULAR] = "CLAP", [ZMX_APERTURE_RECTANGULAR] = "SQAP",
+	[ZMX_APERTURE_ELLIPTICAL] = "ELAP", [ZMX_APERTURE_USER] = "UDAD",
+};
+
+/* A circular clear aperture CLAP r_min r_max: r_min > 0 is a hole. */
+static int zmx_clap(struct asph_lens_import *im, const struct zsurf *z, int freeform,
+		    struct asph_prescription *p)
+{
+	const struct zmx_value *lo = &z->aperture_size[0], *hi = &z->aperture_size[1];
+	int centred = z->decenter[0].v == 0 && z->decenter[1].v == 0;
+
+	if (lo->v != 0)
+		return fail(im, lo->line, lo->col, "CLAP",
+			    "surface %d: the clear aperture has a hole (minimum radius %g mm), "
+			    "which a prescription cannot hold", z->number, lo->v);
+	if (!(hi->v > 0))
+		return fail(im, hi->line, hi->col, "CLAP",
+			    "surface %d: the clear aperture's radius must be positive", z->number);
+	if (!centred && !freeform)
+		return fail(im, z->decenter[0].line, z->decenter[0].col, "OBDC",
+			    "surface %d: an off-centre aperture needs a freeform type; a %s surface "
+			    "is measured over a centred circle", z->number, z->type);
+	if (centred) {
+		p->aperture_diameter = 2.0 * hi->v;
+		return 0;
+	}
+	p->aperture = (struct asph_aperture){ ASPH_APERTURE_CIRCULAR, 2.0 * hi->v, 2.0 * hi->v,
+					      { z->decenter[0].v, z->decenter[1].v } };
+	return 0;
+}
+
+/*
+ * The clear aperture: SQAP and ELAP (half widths) for a rectangle or an
+ * ellipse, CLAP for a circle, each centred at OBDC; without one, the
+ * semi-diameter DIAM. Only the freeform types take the non-circular or
+ * off-centre ones.
+ */
+static int zmx_aperture(struct asph_lens_import *im, const struct zsurf *z, int freeform,
+			struct asph_prescription *p)
+{
+	const struct zmx_value *w = &z->aperture_size[0], *h = &z->aperture_size[1];
+	const char *kw = aperture_keywords[z->aperture];
+
+	if (z->aperture_lines > 1)
+		return fail(im, w->line, 1, kw, "surface %d has %d aperture lines (SQAP, ELAP, "
+			    "CLAP, UDAD): one aperture is read", z->number, z->aperture_lines);
+	switch (z->aperture) {
+	case ZMX_APERTURE_NONE:
+		if (!(z->diam.v > 0))
+			return fail(im, z->diam.line ? z->diam.line : z->line,
+				    z->diam.line ? z->diam.col : 1, "DIAM",
+				    "surface %d has no positive semi-diameter (DIAM)", z->number);
+		p->aperture_diameter = 2.0 * z->diam.v;
+		return 0;
+	case ZMX_APERTURE_USER:
+		return fail(im, w->line, 1, kw, "surface %d: a user-defined aperture is not "
+			    "imported; give the part's aperture in the prescription", z->number);
+	case ZMX_APERTURE_CIRCULAR:
+		return zmx_clap(im, z, freeform, p);
+	case ZMX_APERTURE_RECTANGULAR:
+	case ZMX_APERTURE_ELLIPTICAL:
+		break;
+	}
+	if (!freeform)
+		return fail(im, w->line, 1, kw, "surface %d: a %s aperture needs a freeform type; "
+			    "a %s surface is measured over a centred circle", z->number,
+			    z->aperture == ZMX_APERTURE_RECTANGULAR ? "rectangular" : "elliptical",
+			    z->type);
+	if (!(w->v > 0) || !(h->v > 0))
+		return fail(im, !(w->v > 0) ? w->line : h->line, !(w->v > 0) ? w->col : h->col, kw,
+			    "surface %d: the aperture's half widths must be positive", z->number);
+	p->aperture = (struct asph_aperture){
+		z->aperture == ZMX_APERTURE_RECTANGULAR ? ASPH_APERTURE_RECTANGULAR
+							: ASPH_APERTURE_ELLIPTICAL,
+		2.0 * w->v, 2.0 * h->v, { z->decenter[0].v, z->decenter[1].v } };
+	return 0;
+}
+
 static int zmx_convert(struct asph_lens_import *im, const struct zsurf *z,
 		       struct asph_prescription *p)
 {
 	enum ztype t = ztype_of(z->type);
+	int r;
 
 	if (t == Z_UNKNOWN)
 		return fail(im, z->type_line, z->type_col, "TYPE",
-			    "surface %d has type %s, which is not imported "
-			    "(STANDARD, EVENASPH, ODDASPH, QTYPEASPH are)", z->number, z->type);
-	if (z->curv == 0)
-		return fail(im, z->line, 1, "CURV",
+			    "surface %d has type %s, which is not imported (STANDARD, EVENASPH, "
+			    "ODDASPH, QTYPEASPH, BICONICX, TOROIDAL, XPOLYNOM, SZERNSAG are)",
+			    z->number, z->type);
+	if (t == Z_FREEFORM) {
+		if ((r = zmx_aperture(im, z, 1, p)) < 0)
+			return r;
+		return zmx_freeform(z, im->name, p, im->err);
+	}
+	if (z->curv.v == 0)
+		return fail(im, z->curv.line ? z->curv.line : z->line, z->curv.line ? z->curv.col : 1,
+			    "CURV",
 			    "surface %d is flat (CURV 0): a prescription needs a radius", z->number);
-	if (!z->has_diam || !(z->diam > 0))
-		return fail(im, z->line, 1, "DIAM",
-			    "surface %d has no positive semi-diameter (DIAM)", z->number);
-	p->R = 1.0 / z->curv;
-	p->k = z->coni;
-	p->aperture_diameter = 2.0 * z->diam;
+	if ((r = zmx_aperture(im, z, 0, p)) < 0)
+		return r;
+	p->R = 1.0 / z->curv.v;
+	p->k = z->coni.v;
 	p->type = t == Z_ODDASPH ? ASPH_SURFACE_ODD_ASPHERE : ASPH_SURFACE_EVEN_ASPHERE;
 	/* EVENASPH: PARM i multiplies r^(2i); ODDASPH: r^i; i = 1..8. */
 	for (int i = 1; i <= 8 && t != Z_QTYPE && t != Z_STANDARD; i++)
-		p->A[t == Z_EVENASPH ? 2 * i : i] = z->parm[i];
+		p->A[t == Z_EVENASPH ? 2 * i : i] = z->parm[i].v;
 	if (t == Z_QTYPE)
 		return zmx_qtype(im, z, p);
 	return 0;
@@ -582,9 +733,9 @@ void asph_lens_import_surface(const struct asph_lens_import *im, size_t i,
 	const struct zsurf *z = &im->surf[i];
 	out->number = z->number;
 	snprintf(out->type, sizeof(out->type), "%s", z->type);
-	out->R = z->curv == 0 ? INFINITY : 1.0 / z->curv;
-	out->k = z->coni;
-	out->aperture_diameter = z->has_diam ? 2.0 * z->diam : 0;
+	out->R = z->curv.v == 0 ? INFINITY : 1.0 / z->curv.v;
+	out->k = z->coni.v;
+	out->aperture_diameter = 2.0 * z->diam.v;
 	out->line = z->line;
 }
 
@@ -604,6 +755,66 @@ static int check(struct asph_lens_import *im, const struct asph_prescription *p,
 	if (asph_prescription_check(p, &e) == 0)
 		return 0;
 	return fail(im, line, 0, e.field[0] ? e.field : NULL, "%s", e.message);
+}
+
+/* The keyword and datum of the surface that give a prescription's member
+ * (a field of asph_prescription_check()); NULL where none does. */
+static const struct zmx_value *zmx_source(const struct zsurf *z, const char *field,
+					  char kw[16])
+{
+	enum ztype t = ztype_of(z->type);
+	int i, j, parm = -1, xdat = -1;
+
+	if (!strcmp(field, "R") || !strcmp(field, "Ry"))
+		return snprintf(kw, 16, "CURV"), &z->curv;
+	if (!strcmp(field, "k") || !strcmp(field, "ky"))
+		return snprintf(kw, 16, "CONI"), &z->coni;
+	if (!strncmp(field, "aperture", 8) && z->aperture != ZMX_APERTURE_NONE)
+		return snprintf(kw, 16, "%s", aperture_keywords[z->aperture]), &z->aperture_size[0];
+	if (!strncmp(field, "aperture", 8))
+		return snprintf(kw, 16, "DIAM"), &z->diam;
+	if (!strcmp(field, "Rx") || !strcmp(field, "R_rotation"))
+		parm = 1;
+	else if (!strcmp(field, "kx"))
+		parm = 2;
+	else if (!strcmp(field, "norm_radius") && t == Z_QTYPE)
+		parm = 2;
+	else if (!strcmp(field, "norm_radius"))
+		xdat = 2;
+	else if (sscanf(field, "a.[%d]", &i) == 1)
+		parm = 4 + i;
+	else if (sscanf(field, "A.%d", &i) == 1)
+		/* r^i is PARM i (ODDASPH), i/2 (EVENASPH, SZERNSAG), y^i i/2 + 1 (TOROIDAL) */
+		parm = t == Z_ODDASPH ? i : !strcmp(z->type, "TOROIDAL") ? i / 2 + 1 : i / 2;
+	else if (sscanf(field, "zernike.[%d]", &i) == 1)
+		xdat = 3 + i;
+	else if (sscanf(field, "c.x%dy%d", &i, &j) == 2)
+		xdat = 2 + asph_xy_index(i, j);
+	if (parm >= 0 && parm <= ZMX_MAX_PARM)
+		return snprintf(kw, 16, "PARM %d", parm), &z->parm[parm];
+	if (xdat >= 1 && xdat <= ZMX_MAX_XDAT)
+		return snprintf(kw, 16, "XDAT %d", xdat), &z->xdat[xdat];
+	return NULL;
+}
+
+/* The prescription's own checks, said in the file's terms: the keyword
+ * and line that give the member, the member and what is wrong. */
+static int zmx_check(struct asph_lens_import *im, const struct zsurf *z,
+		     const struct asph_prescription *p)
+{
+	const struct zmx_value *v;
+	struct asph_error e;
+	char kw[16];
+
+	asph_error_clear(&e);
+	if (asph_prescription_check(p, &e) == 0)
+		return 0;
+	v = e.field[0] ? zmx_source(z, e.field, kw) : NULL;
+	if (!v)
+		return fail(im, z->line, 0, e.field[0] ? e.field : NULL, "surface %d: %s",
+			    z->number, e.message);
+	return fail(im, v->line ? v->line : z->type_line, v->line ? v->col : z->type_col, kw,
+		    "surface %d: %s: %s", z->number, e.field, e.message);
 }
 
 static int zmx_prescription(struct asph_lens_import *im, int want,
@@ -626,7 +837,7 @@ static int zmx_prescription(struct asph_lens_import *im, int want,
 	if ((r = zmx_convert(im, z, p)) < 0)
 		return r;
 	name_from(p, im->name, z->number);
-	return check(im, p, z->line);
+	return zmx_check(im, z, p);
 }
 
 static int csv_prescription(struct asph_lens_import *im, int want,

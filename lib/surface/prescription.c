@@ -11,6 +11,7 @@
 #include "asph/prescription.h"
 #include "fileio.h"
 #include "jsonpos.h"
+#include "prescription-json.h"
 #include "util-mem.h"
 
 
@@ -56,13 +57,8 @@ int asph_prescription_preset(const char *name, struct asph_prescription *out)
 	return -ENOENT;
 }
 
-struct parse_ctx {
-	struct json_source src;
-	struct asph_error *err;
-};
-
-static int get_number(const struct parse_ctx *c, json_t *v, const char *field,
-		      double *out)
+int get_number(const struct parse_ctx *c, json_t *v, const char *field,
+	       double *out)
 {
 	if (!json_is_number(v))
 		return json_error_set_at(c->err, -EINVAL, &c->src, field, "expected a number");
@@ -142,6 +138,18 @@ static const char *type_members(enum asph_surface_type t)
 		return "type, name, R, norm_radius, a, aperture_diameter";
 	case ASPH_SURFACE_QCON:
 		return "type, name, R, k, norm_radius, a, aperture_diameter";
+	case ASPH_SURFACE_BICONIC:
+		return "type, name, Rx, Ry, kx, ky, A, aperture_diameter, aperture";
+	case ASPH_SURFACE_TOROIDAL:
+		return "type, name, R, k, A, R_rotation, norm_radius, zernike, aperture_diameter, "
+		       "aperture";
+	case ASPH_SURFACE_XY_POLYNOMIAL:
+		return "type, name, R, k, norm_radius, c, aperture_diameter, aperture";
+	case ASPH_SURFACE_ZERNIKE_SAG:
+		return "type, name, R, k, A, norm_radius, zernike, zernike_decenter, "
+		       "aperture_diameter, aperture";
+	case ASPH_SURFACE_Q2D:
+		return "type, name, R, norm_radius, a, a_m, b_m, aperture_diameter, aperture";
 	case ASPH_SURFACE_EVEN_ASPHERE:
 	case ASPH_SURFACE_ODD_ASPHERE:
 		break;
@@ -174,7 +182,8 @@ static int parse_type(const struct parse_ctx *c, json_t *root,
 		return json_error_set_at(c->err, -EINVAL, &c->src, "type", "expected a string");
 	if (asph_surface_type_from_name(json_string_value(v), &out->type) < 0)
 		return json_error_set_at(c->err, -EINVAL, &c->src, "type",
-					 "unknown surface type '%s' (known: even_asphere, odd_asphere, qbfs, qcon)",
+					 "unknown surface type '%s' (known: even_asphere, odd_asphere, qbfs, qcon, "
+					 "biconic, toroidal, xy_polynomial, zernike_sag, q2d)",
 					 json_string_value(v));
 	return 0;
 }
@@ -212,10 +221,11 @@ static int parse_members(const struct parse_ctx *c, json_t *root,
 	}
 
 	v = json_object_get(root, "R");
-	if (!v)
+	if (!v && is_member_of("R", members))
 		return json_error_set_at(c->err, -EINVAL, &c->src, NULL,
 					 "missing member \"R\" (vertex radius of curvature, mm)");
-	if ((r = get_number(c, v, "R", &out->R)) < 0)
+	if (v && (r = asph_surface_type_is_rotational(out->type) ? get_number(c, v, "R", &out->R)
+								 : get_radius(c, v, "R", &out->R)) < 0)
 		return r;
 	if ((r = parse_optional_number(c, root, "k", &out->k)) < 0)
 		return r;
@@ -225,7 +235,9 @@ static int parse_members(const struct parse_ctx *c, json_t *root,
 		return r;
 
 	if (is_member_of("norm_radius", members)) {
-		if (!json_object_get(root, "norm_radius"))
+		/* a toroid's Zernike terms are optional, and their radius with them */
+		int required = out->type != ASPH_SURFACE_TOROIDAL || json_object_get(root, "zernike");
+		if (required && !json_object_get(root, "norm_radius"))
 			return json_error_set_at(c->err, -EINVAL, &c->src, NULL,
 						 "missing member \"norm_radius\" (normalization radius, mm)");
 		if ((r = parse_optional_number(c, root, "norm_radius", &out->norm_radius)) < 0)
@@ -235,10 +247,16 @@ static int parse_members(const struct parse_ctx *c, json_t *root,
 	if (v && (r = parse_q_coefficients(c, v, out)) < 0)
 		return r;
 
+	if (!asph_surface_type_is_rotational(out->type) &&
+	    (r = parse_freeform_members(c, root, out)) < 0)
+		return r;
 	v = json_object_get(root, "aperture_diameter");
+	if (!v && json_object_get(root, "aperture"))
+		return 0;
 	if (!v)
 		return json_error_set_at(c->err, -EINVAL, &c->src, NULL,
-					 "missing member \"aperture_diameter\" (mm)");
+					 "missing member \"aperture_diameter\" (mm)%s",
+					 asph_surface_type_is_rotational(out->type) ? "" : " or \"aperture\"");
 	if ((r = get_number(c, v, "aperture_diameter", &out->aperture_diameter)) < 0)
 		return r;
 	return 0;
@@ -309,7 +327,7 @@ int asph_prescription_load(const char *name_or_path,
 	return r;
 }
 
-static json_t *q_array(const struct asph_prescription *p)
+json_t *q_array(const struct asph_prescription *p)
 {
 	json_t *arr = json_array();
 	int n = 0;
@@ -322,7 +340,7 @@ static json_t *q_array(const struct asph_prescription *p)
 	return arr;
 }
 
-static json_t *power_object(const struct asph_prescription *p)
+json_t *power_object(const struct asph_prescription *p)
 {
 	json_t *coeffs = json_object();
 
@@ -339,7 +357,14 @@ static json_t *power_object(const struct asph_prescription *p)
 int asph_prescription_to_json(const struct asph_prescription *p, char **out)
 {
 	const int q = p->type == ASPH_SURFACE_QBFS || p->type == ASPH_SURFACE_QCON;
-	_cleanup_(json_decrefp) json_t *root = json_object();
+	_cleanup_(json_decrefp) json_t *root = NULL;
+
+	if (!asph_surface_type_is_rotational(p->type)) {
+		root = freeform_to_json(p);
+		*out = root ? json_dumps(root, JSON_REAL_PRECISION(17) | JSON_PRESERVE_ORDER) : NULL;
+		return *out ? 0 : -ENOMEM;
+	}
+	root = json_object();
 	json_t *coeffs = q ? q_array(p) : power_object(p);
 
 	if (!root || !coeffs) {

@@ -35,4 +35,32 @@ void qbfs_sum(const struct qbfs_coef *c, const double *a, int n, double x,
 	      double s[3]);
 void qcon_sum(const double *a, int n, double x, double s[3]);
 
+/*
+ * Forbes' freeform Q polynomials Q_n^m, m >= 1 (Opt. Express 20, 2483
+ * (2012), Appendix A): the functions u^m Q_n^m(u^2) cos(m theta) (and sin)
+ * have gradients orthonormal in
+ *   <f, g> = (1/pi^2) int_0^2pi int_0^1 grad f . grad g / sqrt(1 - u^2) du dtheta.
+ * Evaluated by the paper's recurrences: the auxiliary P_n^m by the
+ * three-term recurrence (A.3) and Q_n^m = (P_n^m - g_{n-1} Q_{n-1}^m) / f_n
+ * (A.18), with f, g from the Gram entries F, G (A.13, A.15).
+ */
+#define Q2D_MAX_N 20
+
+struct q2d_coef {
+	int m;
+	double f[Q2D_MAX_N + 1], g[Q2D_MAX_N + 1], inv_f[Q2D_MAX_N + 1];
+	/* P_n = (A[n] + B[n] x) P_{n-1} - C[n] P_{n-2} */
+	double A[Q2D_MAX_N + 1], B[Q2D_MAX_N + 1], C[Q2D_MAX_N + 1];
+};
+
+/* m in 1 .. Q2D_MAX_N (the tables hold n = 0 .. Q2D_MAX_N). */
+void q2d_coef_init(struct q2d_coef *c, int m);
+
+/* q[n][0..2] = Q_n^m(x) and its first two derivatives, n = 0 .. count-1. */
+void q2d_eval(const struct q2d_coef *c, int count, double x, double (*q)[3]);
+
+/* s[0..2] = sum a_n Q_n^m(x), n < count, and its derivatives in x. */
+void q2d_sum(const struct q2d_coef *c, const double *a, int count, double x,
+	     double s[3]);
+
 #endif

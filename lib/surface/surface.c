@@ -9,7 +9,9 @@
 #include <gsl/gsl_integration.h>
 
 #include "asph/surface.h"
+#include "aperture.h"
 #include "chebyshev.h"
+#include "freeform.h"
 #include "numeric/newton.h"
 #include "qpoly.h"
 #include "util-mem.h"
@@ -48,6 +50,11 @@ struct asph_surface {
 	struct cheb_table area_inv_ratio; /* r(q)/q, q = sqrt(A/pi), [0, q(a)] */
 	double arc_a, area_a;
 	double max_slope, r_max_slope;
+	int rotational;
+	struct asph_aperture ap;          /* resolved */
+	double total_area;
+	struct asph_surface_extent extent;
+	struct freeform ff;               /* freeform types */
 };
 
 static const char *const type_names[] = {
@@ -55,6 +62,11 @@ static const char *const type_names[] = {
 	[ASPH_SURFACE_QBFS] = "qbfs",
 	[ASPH_SURFACE_QCON] = "qcon",
 	[ASPH_SURFACE_ODD_ASPHERE] = "odd_asphere",
+	[ASPH_SURFACE_BICONIC] = "biconic",
+	[ASPH_SURFACE_TOROIDAL] = "toroidal",
+	[ASPH_SURFACE_XY_POLYNOMIAL] = "xy_polynomial",
+	[ASPH_SURFACE_ZERNIKE_SAG] = "zernike_sag",
+	[ASPH_SURFACE_Q2D] = "q2d",
 };
 
 const char *asph_surface_type_name(enum asph_surface_type type)
@@ -77,7 +89,19 @@ int asph_surface_type_from_name(const char *name, enum asph_surface_type *out)
 
 int asph_surface_type_has_conic(enum asph_surface_type type)
 {
-	return type != ASPH_SURFACE_QBFS;
+	return type != ASPH_SURFACE_QBFS && type != ASPH_SURFACE_Q2D &&
+	       type != ASPH_SURFACE_BICONIC;
+}
+
+int asph_surface_type_is_rotational(enum asph_surface_type type)
+{
+	return type == ASPH_SURFACE_EVEN_ASPHERE || type == ASPH_SURFACE_QBFS ||
+	       type == ASPH_SURFACE_QCON || type == ASPH_SURFACE_ODD_ASPHERE;
+}
+
+int asph_surface_is_rotational(const struct asph_surface *s)
+{
+	return s->rotational;
 }
 
 static int is_q_type(enum asph_surface_type type)
@@ -154,6 +178,10 @@ void asph_surface_sag_derivs(const struct asph_surface *s, double r,
 {
 	double dep[3] = { 0, 0, 0 };
 
+	if (!s->rotational) {
+		d[0] = d[1] = d[2] = NAN;
+		return;
+	}
 	r = fabs(r);
 	conic_derivs(s->c, 1.0 + s->p.k, r, d);
 	if (is_q_type(s->p.type)) {
@@ -174,11 +202,81 @@ double asph_surface_sag(const struct asph_surface *s, double r)
 	return d[0];
 }
 
+/* The graph of Z(r): the gradient Z' (x, y)/r and the Hessian
+ * Z'' u u^T + (Z'/r) (I - u u^T), u = (x, y)/r; at r = 0, Z''(0) I. */
+static void rotational_derivs_xy(const struct asph_surface *s, double x, double y,
+				 struct asph_sag *o)
+{
+	double r = sqrt(x * x + y * y), d[3];
+
+	asph_surface_sag_derivs(s, r, d);
+	o->z = d[0];
+	if (!(r > 0)) {
+		o->zx = o->zy = o->zxy = 0;
+		o->zxx = o->zyy = d[2];
+		return;
+	}
+	double ux = x / r, uy = y / r, t = d[1] / r;
+	o->zx = d[1] * ux;
+	o->zy = d[1] * uy;
+	o->zxx = d[2] * ux * ux + t * uy * uy;
+	o->zxy = (d[2] - t) * ux * uy;
+	o->zyy = d[2] * uy * uy + t * ux * ux;
+}
+
+void asph_surface_derivs_xy(const struct asph_surface *s, double x, double y,
+			    struct asph_sag *out)
+{
+	if (s->rotational)
+		rotational_derivs_xy(s, x, y, out);
+	else
+		freeform_eval(&s->ff, x, y, out);
+}
+
+void asph_surface_sag_grad_xy(const struct asph_surface *s, double x, double y,
+			      double g[3])
+{
+	double r = sqrt(x * x + y * y), d[3];
+
+	if (!s->rotational) {
+		freeform_sag_grad(&s->ff, x, y, g);
+		return;
+	}
+	asph_surface_sag_derivs(s, r, d);
+	g[0] = d[0];
+	g[1] = r > 0 ? d[1] * x / r : 0;
+	g[2] = r > 0 ? d[1] * y / r : 0;
+}
+
+double asph_surface_sag_xy(const struct asph_surface *s, double x, double y)
+{
+	if (s->rotational)
+		return asph_surface_sag(s, sqrt(x * x + y * y));
+	return freeform_sag(&s->ff, x, y);
+}
+
+double asph_surface_area_element(const struct asph_surface *s, double x, double y)
+{
+	struct asph_sag d;
+
+	asph_surface_derivs_xy(s, x, y, &d);
+	return sqrt(1.0 + d.zx * d.zx + d.zy * d.zy);
+}
+
 void asph_surface_normal(const struct asph_surface *s, double x, double y,
 			 double n[3])
 {
 	double r = hypot(x, y), d[3];
 
+	if (!s->rotational) {
+		struct asph_sag g;
+		freeform_eval(&s->ff, x, y, &g);
+		double inv = 1.0 / sqrt(1.0 + g.zx * g.zx + g.zy * g.zy);
+		n[0] = -g.zx * inv;
+		n[1] = -g.zy * inv;
+		n[2] = inv;
+		return;
+	}
 	asph_surface_sag_derivs(s, r, d);
 	double inv = 1.0 / sqrt(1.0 + d[1] * d[1]);
 	if (r > 0) {
@@ -395,6 +493,52 @@ static void find_max_slope(struct asph_surface *s)
 	s->r_max_slope = best_r;
 }
 
+/* The lowest and highest Z over [0, a], on the +x meridian: sampled, then
+ * an interior extremum refined by bisection on Z' = 0. */
+static double refine_sag_extremum(const struct asph_surface *s, double r, double h)
+{
+	double lo = fmax(0, r - h), hi = fmin(s->a, r + h), dlo[3], dhi[3];
+
+	asph_surface_sag_derivs(s, lo, dlo);
+	asph_surface_sag_derivs(s, hi, dhi);
+	if (!(r > 0 && r < s->a && dlo[1] * dhi[1] < 0))
+		return r;
+	for (int it = 0; it < 200 && hi - lo > 1e-15 * s->a; it++) {
+		double mid = 0.5 * (lo + hi), dm[3];
+		asph_surface_sag_derivs(s, mid, dm);
+		if ((dm[1] < 0) == (dlo[1] < 0))
+			lo = mid;
+		else
+			hi = mid;
+	}
+	return 0.5 * (lo + hi);
+}
+
+static void rotational_extent(struct asph_surface *s)
+{
+	const int n = 4096;
+	struct asph_surface_extent *e = &s->extent;
+	double r_lo = 0, r_hi = 0, z_lo = INFINITY, z_hi = -INFINITY;
+
+	for (int i = 0; i <= n; i++) {
+		double r = s->a * i / n, z = asph_surface_sag(s, r);
+		if (z < z_lo)
+			z_lo = z, r_lo = r;
+		if (z > z_hi)
+			z_hi = z, r_hi = r;
+	}
+	r_lo = refine_sag_extremum(s, r_lo, s->a / n);
+	r_hi = refine_sag_extremum(s, r_hi, s->a / n);
+	e->sag_min = fmin(z_lo, asph_surface_sag(s, r_lo));
+	e->sag_max = fmax(z_hi, asph_surface_sag(s, r_hi));
+	e->sag_min_at[0] = r_lo;
+	e->sag_max_at[0] = r_hi;
+	e->sag_min_at[1] = e->sag_max_at[1] = 0;
+	e->max_slope = s->max_slope;
+	e->max_slope_at[0] = s->r_max_slope;
+	e->max_slope_at[1] = 0;
+}
+
 /* The power coefficients a type allows: none (Q types), A2..A20 even
  * (even asphere), A1..A20 (odd asphere). A0 would move the vertex. */
 static int check_powers(const struct asph_prescription *p,
@@ -461,9 +605,11 @@ int asph_prescription_check(const struct asph_prescription *p,
 {
 	int r;
 
-	if ((unsigned)p->type >= ARRAY_SIZE(type_names))
+	if ((unsigned)p->type >= ARRAY_SIZE(type_names) || !type_names[p->type])
 		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "type",
 					 "unknown surface type %d", (int)p->type);
+	if (!asph_surface_type_is_rotational(p->type))
+		return freeform_check(p, err);
 	if (!isfinite(p->R))
 		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "R",
 					 "R must be a finite number");
@@ -479,6 +625,11 @@ int asph_prescription_check(const struct asph_prescription *p,
 					 "k must be a finite number");
 	if ((r = check_powers(p, err)) < 0 || (r = check_q(p, err)) < 0)
 		return r;
+	if (p->aperture.shape != ASPH_APERTURE_FROM_DIAMETER)
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture",
+					 "a %s surface takes aperture_diameter (a centred circle); "
+					 "other apertures are for the freeform types",
+					 asph_surface_type_name(p->type));
 	if (!(p->aperture_diameter > 0) || !isfinite(p->aperture_diameter))
 		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture_diameter",
 					 "aperture_diameter must be a positive number of mm");
@@ -528,6 +679,32 @@ static int build_tables(struct asph_surface *s)
 	return 0;
 }
 
+/* A freeform has no radial tables: its area is a 2-D integral, its extent
+ * a search over the aperture. */
+static int freeform_alloc(struct asph_surface *s, struct asph_surface **out,
+			  struct asph_error *err)
+{
+	freeform_init(&s->ff, &s->p);
+	s->a = aperture_max_radius(&s->ap);
+	s->gl = gsl_integration_glfixed_table_alloc(GL_ORDER);
+	if (!s->gl) {
+		asph_surface_free(s);
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	}
+	s->total_area = freeform_area(&s->ff, &s->ap, s->gl);
+	if (!isfinite(s->total_area)) {
+		asph_surface_free(s);
+		return asph_error_set(err, -EINVAL, "the surface is too steep to sample: its "
+				      "area over the aperture overflows");
+	}
+	freeform_extent(&s->ff, &s->ap, &s->extent);
+	s->max_slope = s->extent.max_slope;
+	s->r_max_slope = hypot(s->extent.max_slope_at[0], s->extent.max_slope_at[1]);
+	s->arc_a = s->area_a = NAN;
+	*out = s;
+	return 0;
+}
+
 int asph_surface_alloc(const struct asph_prescription *p,
 		       struct asph_surface **out, struct asph_error *err)
 {
@@ -539,6 +716,10 @@ int asph_surface_alloc(const struct asph_prescription *p,
 	if (!s)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	s->p = *p;
+	s->rotational = asph_surface_type_is_rotational(p->type);
+	aperture_resolve(p, &s->ap);
+	if (!s->rotational)
+		return freeform_alloc(s, out, err);
 	s->a = 0.5 * p->aperture_diameter;
 	s->c = 1.0 / p->R;
 	for (int i = 1; i <= ASPH_SURFACE_MAX_POWER; i++)
@@ -567,6 +748,8 @@ int asph_surface_alloc(const struct asph_prescription *p,
 		return asph_error_set(err, r, "out of memory");
 	}
 	find_max_slope(s);
+	s->total_area = s->area_a;
+	rotational_extent(s);
 	*out = s;
 	return 0;
 }
@@ -599,6 +782,8 @@ double asph_surface_aperture_radius(const struct asph_surface *s)
 
 double asph_surface_arc_length(const struct asph_surface *s, double r)
 {
+	if (!s->rotational)
+		return NAN;
 	r = fabs(r);
 	if (r > s->a)
 		return s->arc_a + (arc_exact(s, r) - arc_exact(s, s->a));
@@ -608,6 +793,8 @@ double asph_surface_arc_length(const struct asph_surface *s, double r)
 double asph_surface_radius_at_arc_length(const struct asph_surface *s,
 					 double arc)
 {
+	if (!s->rotational)
+		return NAN;
 	if (arc <= 0)
 		return 0;
 	if (arc > s->arc_a)
@@ -617,6 +804,8 @@ double asph_surface_radius_at_arc_length(const struct asph_surface *s,
 
 double asph_surface_area(const struct asph_surface *s, double r)
 {
+	if (!s->rotational)
+		return NAN;
 	r = fabs(r);
 	if (r > s->a)
 		return area_exact(s, r);
@@ -625,6 +814,8 @@ double asph_surface_area(const struct asph_surface *s, double r)
 
 double asph_surface_radius_at_area(const struct asph_surface *s, double area)
 {
+	if (!s->rotational)
+		return NAN;
 	if (area <= 0)
 		return 0;
 	double q = sqrt(area / M_PI);
@@ -642,5 +833,47 @@ double asph_surface_max_slope(const struct asph_surface *s, double *r_at)
 
 double asph_surface_gamma(const struct asph_surface *s)
 {
-	return s->area_a / (M_PI * s->a * s->a);
+	if (s->rotational)
+		return s->area_a / (M_PI * s->a * s->a);
+	return s->total_area / aperture_area(&s->ap);
+}
+
+void asph_surface_aperture(const struct asph_surface *s, struct asph_aperture *out)
+{
+	*out = s->ap;
+}
+
+int asph_surface_contains(const struct asph_surface *s, double x, double y, double tol)
+{
+	return aperture_contains(&s->ap, x, y, tol);
+}
+
+void asph_surface_bounds(const struct asph_surface *s, double box[4])
+{
+	aperture_bounds(&s->ap, box);
+}
+
+double asph_surface_projected_area(const struct asph_surface *s)
+{
+	return aperture_area(&s->ap);
+}
+
+double asph_surface_total_area(const struct asph_surface *s)
+{
+	return s->total_area;
+}
+
+void asph_surface_extent(const struct asph_surface *s, struct asph_surface_extent *out)
+{
+	*out = s->extent;
+}
+
+void asph_surface_aperture_disk(const struct asph_surface *s, double centre[2], double *radius)
+{
+	centre[0] = s->ap.offset[0];
+	centre[1] = s->ap.offset[1];
+	if (s->ap.shape == ASPH_APERTURE_RECTANGULAR)
+		*radius = 0.5 * hypot(s->ap.width, s->ap.height);
+	else
+		*radius = 0.5 * fmax(s->ap.width, s->ap.height);
 }

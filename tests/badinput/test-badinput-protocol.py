@@ -253,9 +253,10 @@ class Run:
         new, self.log_seen = text[self.log_seen:], len(text)
         if SANITIZER.search(new):
             return "sanitizer report:\n" + new[-3000:]
-        if self.valgrind_log and os.path.exists(self.valgrind_log) and os.path.getsize(self.valgrind_log):
-            with open(self.valgrind_log, errors="replace") as f:
-                return "valgrind report:\n" + f.read()[-3000:]
+        report = sys.modules["sitecustomize"].report_text(self.valgrind_log) \
+            if self.valgrind_log else ""
+        if report:
+            return "valgrind report:\n" + report[-3000:]
         if after_input:
             self.victim.tick(st)
         return None

@@ -49,6 +49,7 @@ struct mbsim {
 	modbus_t *ctx;
 	struct drive drives[3];
 	modbus_mapping_t *sensor;
+	int orbit_forced;               /* a status set by the test, or -1 */
 	struct fault faults[N_FAULTS];
 	struct mbsim_stats stats;
 };
@@ -201,6 +202,71 @@ static void drive_written(struct mbsim *s, int k, int addr, int n, uint64_t t)
 
 /* ----------------------------------------------------------- sensor */
 
+enum { RF_TYPE = 1, RF_FIRMWARE, RF_SERIAL, RF_BASE, RF_RANGE, RF_VALUE };
+#define RF_FULL_SCALE 16384
+#define ORBIT_FLOAT_IMAGE 8000
+
+/* RF60x: D normalised to the range, at its ends where the target is
+ * beyond them (the detector's last pixel). */
+static void rf60x_publish(struct mbsim *s, const double *pos)
+{
+	uint16_t *in = s->sensor->tab_input_registers;  /* address 1 first */
+	double mm = -1;
+
+	if (!s->c.sense_mm(s->c.sense_data, pos, &mm))
+		mm = -1;
+	double d = round(mm / s->c.rf_range_mm * RF_FULL_SCALE);
+	in[RF_TYPE - 1] = 63;
+	in[RF_FIRMWARE - 1] = 40;
+	in[RF_SERIAL - 1] = 19999;
+	in[RF_BASE - 1] = (uint16_t)s->c.rf_base_mm;
+	in[RF_RANGE - 1] = (uint16_t)s->c.rf_range_mm;
+	in[RF_VALUE - 1] = (uint16_t)(d < 0 ? 0 : d > RF_FULL_SCALE ? RF_FULL_SCALE : d);
+}
+
+static void put_float(uint16_t *w, float f, enum mb_word_order order)
+{
+	uint32_t v;
+
+	memcpy(&v, &f, sizeof(v));
+	mb_put32(w, v, order);
+}
+
+/* Orbit ACS: the probe's reading and its status, as integers and as
+ * their float images, in both tables. */
+static void orbit_publish(struct mbsim *s, const double *pos)
+{
+	double mm = 0;
+	bool valid = s->c.sense_mm(s->c.sense_data, pos, &mm);
+	int status = !valid || mm > s->c.orbit_range_mm ? 19 : mm < 0 ? 18 : 0;
+
+	if (s->orbit_forced >= 0)
+		status = s->orbit_forced;
+	for (int tab = 0; tab < 2; tab++) {
+		uint16_t *r = tab ? s->sensor->tab_registers : s->sensor->tab_input_registers;
+		mb_put32(r + s->c.orbit_reading, (uint32_t)(int32_t)llround(mm * 1e4),
+			 MB_HIGH_WORD_FIRST);
+		put_float(r + s->c.orbit_reading + ORBIT_FLOAT_IMAGE, (float)mm, s->c.orbit_order);
+		r[s->c.orbit_status] = (uint16_t)status;
+		put_float(r + s->c.orbit_status + ORBIT_FLOAT_IMAGE, (float)status, s->c.orbit_order);
+	}
+}
+
+/* Orbit ACS: a read that takes part of a two-register parameter. */
+static bool orbit_splits(const struct mbsim *s, int addr, int n)
+{
+	const int two[] = { s->c.orbit_reading, s->c.orbit_reading + ORBIT_FLOAT_IMAGE,
+			    s->c.orbit_status + ORBIT_FLOAT_IMAGE };
+
+	for (size_t i = 0; i < sizeof(two) / sizeof(two[0]); i++) {
+		bool first = addr <= two[i] && two[i] < addr + n;
+		bool second = addr <= two[i] + 1 && two[i] + 1 < addr + n;
+		if (first != second)
+			return true;
+	}
+	return false;
+}
+
 static void sensor_publish(struct mbsim *s, uint64_t t)
 {
 	double pos[3] = { 0, 0, 0 };
@@ -210,6 +276,14 @@ static void sensor_publish(struct mbsim *s, uint64_t t)
 		if (s->drives[k].map)
 			pos[k] = (double)llround(drive_position(&s->drives[k], t)) /
 				 s->c.counts_per_unit[k];
+	if (s->c.sensor_kind == MBSIM_SENSOR_RF60X) {
+		rf60x_publish(s, pos);
+		return;
+	}
+	if (s->c.sensor_kind == MBSIM_SENSOR_ORBIT_ACS) {
+		orbit_publish(s, pos);
+		return;
+	}
 	int32_t v = s->c.sense(s->c.sense_data, pos, &valid);
 	for (int tab = 0; tab < 2; tab++) {
 		uint16_t *r = tab ? s->sensor->tab_registers : s->sensor->tab_input_registers;
@@ -307,7 +381,10 @@ static void handle(struct mbsim *s, const uint8_t *req, int len)
 			drive_publish(s, &s->drives[i], t);
 	if (m == s->sensor)
 		sensor_publish(s, t);
-	if (f && f->kind == MBSIM_EXCEPTION)
+	if (m == s->sensor && s->c.sensor_kind == MBSIM_SENSOR_ORBIT_ACS && (fn == 3 || fn == 4) &&
+	    orbit_splits(s, addr, n) && !f)
+		modbus_reply_exception(s->ctx, req, MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
+	else if (f && f->kind == MBSIM_EXCEPTION)
 		modbus_reply_exception(s->ctx, req, (unsigned)f->code);
 	else if (f && f->kind == MBSIM_GARBLE && s->c.rtu)
 		send_garbled(s, req, m);
@@ -476,8 +553,16 @@ int mbsim_start(const struct mbsim_config *c, struct mbsim **out, char *address,
 		if (c->drive_units[k])
 			s->drives[k].map = modbus_mapping_new_start_address(0, 0, 0, 0, 0, N_REGS, 0, 0);
 	}
-	if (c->sensor_unit)
+	s->orbit_forced = -1;
+	if (c->sensor_unit && c->sensor_kind == MBSIM_SENSOR_RF60X) {
+		s->sensor = modbus_mapping_new_start_address(0, 0, 0, 0, 10, 32, RF_TYPE, 6);
+	} else if (c->sensor_unit && c->sensor_kind == MBSIM_SENSOR_ORBIT_ACS) {
+		int top = (c->orbit_reading > c->orbit_status ? c->orbit_reading : c->orbit_status) +
+			  ORBIT_FLOAT_IMAGE + 2;
+		s->sensor = modbus_mapping_new_start_address(0, 0, 0, 0, 0, top, 0, top);
+	} else if (c->sensor_unit) {
 		s->sensor = modbus_mapping_new_start_address(0, 0, 0, 0, 0, 16, 0, 16);
+	}
 	if (pipe(s->wake) < 0)
 		return -errno;
 	if (c->rtu) {
@@ -547,6 +632,13 @@ void mbsim_inject(struct mbsim *s, int unit, enum mbsim_fault fault, int code, i
 			s->faults[i] = (struct fault){ unit, code, count, reg, fault };
 			break;
 		}
+	pthread_mutex_unlock(&s->lock);
+}
+
+void mbsim_orbit_status(struct mbsim *s, int status)
+{
+	pthread_mutex_lock(&s->lock);
+	s->orbit_forced = status;
 	pthread_mutex_unlock(&s->lock);
 }
 

@@ -25,6 +25,25 @@ enum { MBSIM_SENSOR_VALUE = 0, MBSIM_SENSOR_STATUS = 2 };
  * false for no reading. */
 typedef int32_t (*mbsim_sense_fn)(void *data, const double *pos, bool *valid);
 
+/* The sensor's register map. */
+enum mbsim_sensor_kind {
+	MBSIM_SENSOR_GENERIC = 0,       /* MBSIM_SENSOR_VALUE, _STATUS above */
+	/* RIFTEK RF60x (RF602 Series User's manual, rev. 1.2.0, 11.7.7 and
+	 * 11.8): input registers 1..6 only (6: the measured value D, 4000h
+	 * the whole range), holding registers 10..41 */
+	MBSIM_SENSOR_RF60X,
+	/* Solartron Orbit ACS SI100/SI200 (503110 Orbit ACS Manual, issue 9):
+	 * the reading parameter at orbit_reading (s32, 4 decimal places of a
+	 * mm) and its status at orbit_status, each with its float image at
+	 * address + 8000; a request for part of a parameter of two registers
+	 * is refused (exception 2) */
+	MBSIM_SENSOR_ORBIT_ACS,
+};
+
+/* The reading in mm (RF60x: from the start of its range; Orbit: the
+ * probe's travel) from the drives' positions; false for no target. */
+typedef bool (*mbsim_sense_mm_fn)(void *data, const double *pos, double *mm);
+
 struct mbsim_config {
 	bool rtu;
 	struct stage_map map;           /* what the drives speak */
@@ -34,6 +53,13 @@ struct mbsim_config {
 	mbsim_sense_fn sense;
 	void *sense_data;
 	double time_scale;              /* real seconds per simulated one */
+	/* a sensor other than the generic one */
+	enum mbsim_sensor_kind sensor_kind;
+	mbsim_sense_mm_fn sense_mm;
+	double rf_range_mm, rf_base_mm; /* RF60x: integers, as its registers hold them */
+	int orbit_reading, orbit_status;/* Orbit ACS: the parameters' addresses */
+	enum mb_word_order orbit_order; /* of the float images */
+	double orbit_range_mm;          /* the probe's travel: beyond it 18/19 */
 };
 
 enum mbsim_fault {
@@ -58,6 +84,10 @@ void mbsim_stop(struct mbsim *s);
 void mbsim_inject(struct mbsim *s, int unit, enum mbsim_fault fault,
 		  int code, int count, int reg);
 void mbsim_clear_faults(struct mbsim *s);
+
+/* Orbit ACS: the reading status from now on (246: incompatible probe,
+ * 247: no probe); -1: the status of the reading again. */
+void mbsim_orbit_status(struct mbsim *s, int status);
 
 /* What the simulation did, for the tests' checks. */
 struct mbsim_stats {

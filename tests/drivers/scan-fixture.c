@@ -56,3 +56,46 @@ struct asph_scanfile *read_scan(const char *path)
 		fail_msg("%s: %s", path, err.message);
 	return s;
 }
+
+int fixture_scan(struct scan_fixture *f, const struct asph_instrument_config *ic,
+		 const double *xyz, size_t n, const char *path, struct asph_error *err,
+		 bool open_may_fail)
+{
+	struct asph_scanfile_header_info info = { "{\"name\":\"strong\"}", "{\"method\":\"fermat\"}",
+						  "{\"name\":\"bench\"}", NULL };
+	struct asph_scanfile_writer *w;
+	struct asph_instrument *inst;
+	struct asph_scan *sc;
+
+	int r = asph_instrument_open(ic, 2000, &inst, err);
+	if (r < 0 && open_may_fail)
+		return r;
+	if (r < 0)
+		fail_msg("open: %s", err->message);
+	assert_int_equal(asph_scan_new(inst, f->s, xyz, n, NULL, &sc, NULL), 0);
+	assert_int_equal(asph_scanfile_writer_create(path, &info, NULL, &w, NULL), 0);
+	r = asph_scan_run(sc, w, err);
+	asph_scan_free(sc);
+	asph_instrument_close(inst);
+	return r;
+}
+
+void fixture_fit_rigid(const struct scan_fixture *f, const char *path, size_t n,
+		       struct asph_fit_result *res)
+{
+	struct asph_scanfile *s = read_scan(path);
+	struct asph_points *pts;
+	struct asph_fit *w;
+	struct asph_error err;
+	struct asph_fit_options fo = { .dof = ASPH_FIT_DOF_RIGID };
+
+	assert_int_equal(s->report.outcome, ASPH_SCANFILE_COMPLETED);
+	assert_int_equal(s->n, n);
+	assert_int_equal(asph_scanfile_to_points(s, 0, &pts, NULL), 0);
+	assert_int_equal(asph_fit_alloc(f->s, pts->n, &fo, &w, NULL), 0);
+	if (asph_fit_run(w, pts->xyz, pts->n, res, &err) < 0)
+		fail_msg("fit: %s", err.message);
+	asph_fit_free(w);
+	asph_points_free(pts);
+	asph_scanfile_free(s);
+}

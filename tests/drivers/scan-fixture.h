@@ -8,9 +8,11 @@
 #ifndef ASPH_TEST_SCAN_FIXTURE_H
 #define ASPH_TEST_SCAN_FIXTURE_H
 
+#include <stdbool.h>
 #include <stddef.h>
 
 #include "asph/executor.h"
+#include "asph/fit.h"
 #include "asph/plan.h"
 
 struct scan_fixture {
@@ -32,5 +34,19 @@ const char *new_path(struct scan_fixture *f, char *buf, size_t size);
 
 /* The scan file at path, read whole (the test fails when it cannot be). */
 struct asph_scanfile *read_scan(const char *path);
+
+/*
+ * Measures the n points xyz of f's surface with instrument ic into path,
+ * the executor's defaults. -errno of the scan; an instrument that does
+ * not open fails the test unless open_may_fail (then its code).
+ */
+int fixture_scan(struct scan_fixture *f, const struct asph_instrument_config *ic,
+		 const double *xyz, size_t n, const char *path, struct asph_error *err,
+		 bool open_may_fail);
+
+/* The rigid-body fit to f's surface of the completed scan at path, which
+ * must hold n points. */
+void fixture_fit_rigid(const struct scan_fixture *f, const char *path, size_t n,
+		       struct asph_fit_result *res);
 
 #endif

@@ -145,6 +145,30 @@ static const struct asph_option_value *spec_value(const struct asph_config *c,
 	return NULL;
 }
 
+/* The mock's part is the lens being measured unless the configuration
+ * names another; each job replaces the last job's lens. */
+static void test_lens_follows_job(void **state)
+{
+	struct fixture *f = *state;
+	struct asph_config *c;
+	struct asph_error err;
+
+	assert_int_equal(asph_instrument_spec_parse(f->reg, "mock", &c, &err), 0);
+	assert_string_equal(spec_value(c, "lens")->s, "");
+	assert_int_equal(asph_instrument_config_set_lens(&c->instruments[0], "{\"a\":1}", &err), 0);
+	assert_string_equal(spec_value(c, "lens")->s, "{\"a\":1}");
+	assert_false(spec_value(c, "lens")->set);
+	assert_int_equal(asph_instrument_config_set_lens(&c->instruments[0], "{\"b\":2}", &err), 0);
+	assert_string_equal(spec_value(c, "lens")->s, "{\"b\":2}");
+	asph_config_free(c);
+
+	assert_int_equal(asph_instrument_spec_parse(f->reg, "mock:lens=weak", &c, &err), 0);
+	assert_int_equal(asph_instrument_config_set_lens(&c->instruments[0], "{\"a\":1}", &err), 0);
+	assert_string_equal(spec_value(c, "lens")->s, "weak");
+	assert_true(spec_value(c, "lens")->set);
+	asph_config_free(c);
+}
+
 static void test_spec(void **state)
 {
 	struct fixture *f = *state;
@@ -447,6 +471,7 @@ int main(void)
 		cmocka_unit_test_setup_teardown(test_builtin, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_validate_refuses, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_options, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_lens_follows_job, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_spec, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_config_file, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_config_refusals, setup, teardown),

@@ -13,6 +13,7 @@
  */
 #include <errno.h>
 #include <linux/hidraw.h>
+#include <linux/input.h>
 #include <math.h>
 #include <pthread.h>
 #include <setjmp.h>
@@ -32,6 +33,7 @@
 #include "asph/fit.h"
 #include "asph/plan.h"
 #include "asph/prescription.h"
+#include "hid/keyboard.h"
 #include "hid/protocol.h"
 #include "mock/protocol.h"
 #include "umockdev-util.h"
@@ -840,6 +842,298 @@ static void test_strong_end_to_end(void **state)
 	asph_surface_free(s);
 }
 
+/* ------------------------------------------------- keyboard wedge */
+
+/* A boot-protocol keyboard (what a gauge's keyboard cable is): input
+ * reports of 8 bytes, an LED output report. */
+static const uint8_t kbd_descriptor[] = {
+	0x05, 0x01, 0x09, 0x06, 0xa1, 0x01, 0x05, 0x07, 0x19, 0xe0, 0x29, 0xe7, 0x15, 0x00,
+	0x25, 0x01, 0x75, 0x01, 0x95, 0x08, 0x81, 0x02, 0x95, 0x01, 0x75, 0x08, 0x81, 0x01,
+	0x95, 0x05, 0x75, 0x01, 0x05, 0x08, 0x19, 0x01, 0x29, 0x05, 0x91, 0x02, 0x95, 0x01,
+	0x75, 0x03, 0x91, 0x01, 0x95, 0x06, 0x75, 0x08, 0x15, 0x00, 0x25, 0x65, 0x05, 0x07,
+	0x19, 0x00, 0x29, 0x65, 0x81, 0x00, 0xc0,
+};
+
+struct keyboard {
+	pthread_mutex_t lock;
+	uint8_t queue[64][8];
+	int head, tail;
+	int grabs;                      /* EVIOCGRAB 1 seen */
+	int requests;                   /* output reports (the data request) */
+	const char *on_request;         /* typed when asked */
+};
+
+/* Key codes of usage page 7 for a character, with shift when asked. */
+static void press(struct keyboard *kb, uint8_t mod, uint8_t code)
+{
+	uint8_t down[8] = { mod, 0, code }, up[8] = { 0 };
+
+	memcpy(kb->queue[kb->tail++ % 64], down, 8);
+	memcpy(kb->queue[kb->tail++ % 64], up, 8);
+}
+
+static void type(struct keyboard *kb, const char *text, bool keypad, bool shifted)
+{
+	pthread_mutex_lock(&kb->lock);
+	for (const char *c = text; *c; c++) {
+		uint8_t code = 0, mod = shifted ? 0x02 : 0;
+		if (*c >= '1' && *c <= '9')
+			code = (uint8_t)((keypad ? 0x59 : 0x1e) + (*c - '1'));
+		else if (*c == '0')
+			code = keypad ? 0x62 : 0x27;
+		else if (*c == '-')
+			code = keypad ? 0x56 : 0x2d, mod = 0;
+		else if (*c == '.')
+			code = keypad ? 0x63 : 0x37, mod = 0;
+		else if (*c == ',')
+			code = 0x36, mod = 0;
+		else if (*c == '\n')
+			code = keypad ? 0x58 : 0x28, mod = 0;
+		else if (*c == 'q')
+			code = 0x14, mod = 0;
+		press(kb, mod, code);
+	}
+	pthread_mutex_unlock(&kb->lock);
+}
+
+static gboolean kbd_read(UMockdevIoctlBase *h, UMockdevIoctlClient *c, gpointer data)
+{
+	struct keyboard *kb = data;
+	size_t len, n = 0;
+	uint8_t *buf = umt_arg(c, &len);
+
+	pthread_mutex_lock(&kb->lock);
+	if (kb->head != kb->tail) {
+		n = len < 8 ? len : 8;
+		memcpy(buf, kb->queue[kb->head++ % 64], n);
+	}
+	pthread_mutex_unlock(&kb->lock);
+	umockdev_ioctl_client_complete(c, n ? (glong)n : -1, n ? 0 : EAGAIN);
+	return TRUE;
+}
+
+static gboolean kbd_write(UMockdevIoctlBase *h, UMockdevIoctlClient *c, gpointer data)
+{
+	struct keyboard *kb = data;
+	size_t len;
+
+	umt_arg(c, &len);
+	pthread_mutex_lock(&kb->lock);
+	kb->requests++;
+	const char *t = kb->on_request;
+	pthread_mutex_unlock(&kb->lock);
+	if (t)
+		type(kb, t, false, false);
+	umockdev_ioctl_client_complete(c, (glong)len, 0);
+	return TRUE;
+}
+
+static gboolean kbd_ioctl(UMockdevIoctlBase *h, UMockdevIoctlClient *c, gpointer data)
+{
+	unsigned long req = umockdev_ioctl_client_get_request(c);
+	UMockdevIoctlData *d;
+
+	if (req == HIDIOCGRDESCSIZE) {
+		d = umt_arg_resolve(c, 0, sizeof(int));
+		*(int *)d->data = (int)sizeof(kbd_descriptor);
+	} else if (req == HIDIOCGRDESC) {
+		d = umt_arg_resolve(c, 0, sizeof(struct hidraw_report_descriptor));
+		struct hidraw_report_descriptor *r = (void *)d->data;
+		r->size = sizeof(kbd_descriptor);
+		memcpy(r->value, kbd_descriptor, sizeof(kbd_descriptor));
+	} else {
+		return FALSE;
+	}
+	g_object_unref(d);
+	umockdev_ioctl_client_complete(c, 0, 0);
+	return TRUE;
+}
+
+static gboolean evdev_ioctl(UMockdevIoctlBase *h, UMockdevIoctlClient *c, gpointer data)
+{
+	struct keyboard *kb = data;
+
+	if (umockdev_ioctl_client_get_request(c) != EVIOCGRAB)
+		return FALSE;
+	pthread_mutex_lock(&kb->lock);
+	kb->grabs++;
+	pthread_mutex_unlock(&kb->lock);
+	umockdev_ioctl_client_complete(c, 0, 0);
+	return TRUE;
+}
+
+#define KBD_TEXT \
+	"P: /devices/pci0000:00/0000:00:14.0/usb1/1-5\n" \
+	"E: SUBSYSTEM=usb\nE: DEVTYPE=usb_device\n" \
+	"A: idVendor=0fe7\nA: idProduct=4001\nA: serial=KBD-0001\n" \
+	"A: manufacturer=Mitutoyo\nA: product=USB-ITN\n\n" \
+	"P: /devices/pci0000:00/0000:00:14.0/usb1/1-5/0003:0FE7:4001.0005\n" \
+	"E: SUBSYSTEM=hid\nE: HID_ID=0003:00000FE7:00004001\n" \
+	"E: HID_NAME=Mitutoyo USB-ITN\nE: HID_UNIQ=KBD-0001\n\n" \
+	"P: /devices/pci0000:00/0000:00:14.0/usb1/1-5/0003:0FE7:4001.0005/hidraw/hidraw4\n" \
+	"N: hidraw4=00\n" \
+	"E: SUBSYSTEM=hidraw\nE: DEVNAME=/dev/hidraw4\nE: MAJOR=241\nE: MINOR=4\n" \
+	"A: dev=241:4\nL: device=../..\n\n" \
+	"P: /devices/pci0000:00/0000:00:14.0/usb1/1-5/0003:0FE7:4001.0005/input/input9\n" \
+	"E: SUBSYSTEM=input\nE: NAME=\"Mitutoyo USB-ITN\"\n\n" \
+	"P: /devices/pci0000:00/0000:00:14.0/usb1/1-5/0003:0FE7:4001.0005/input/input9/event9\n" \
+	"N: input/event9=00\n" \
+	"E: SUBSYSTEM=input\nE: DEVNAME=/dev/input/event9\nE: MAJOR=13\nE: MINOR=73\n" \
+	"A: dev=13:73\n"
+
+static UMockdevTestbed *keyboard_add(struct keyboard *kb)
+{
+	UMockdevTestbed *tb = umt_testbed_new();
+	UMockdevIoctlBase *h = umockdev_ioctl_base_new(), *ev = umockdev_ioctl_base_new();
+
+	memset(kb, 0, sizeof(*kb));
+	pthread_mutex_init(&kb->lock, NULL);
+	umt_add(tb, KBD_TEXT);
+	umockdev_testbed_set_attribute_binary(tb,
+		"/sys/devices/pci0000:00/0000:00:14.0/usb1/1-5/0003:0FE7:4001.0005",
+		"report_descriptor", (guint8 *)kbd_descriptor, sizeof(kbd_descriptor));
+	g_signal_connect(h, "handle-ioctl", G_CALLBACK(kbd_ioctl), kb);
+	g_signal_connect(h, "handle-read", G_CALLBACK(kbd_read), kb);
+	g_signal_connect(h, "handle-write", G_CALLBACK(kbd_write), kb);
+	umt_attach(tb, "/dev/hidraw4", h);
+	g_signal_connect(ev, "handle-ioctl", G_CALLBACK(evdev_ioctl), kb);
+	umt_attach(tb, "/dev/input/event9", ev);
+	g_object_unref(h);
+	g_object_unref(ev);
+	return tb;
+}
+
+/* The decoder alone, against readings typed key by key. */
+static void test_keyboard_decode(void **state)
+{
+	struct keyboard kb;
+	struct hid_kbd k;
+	struct asph_error err;
+	double v = 0;
+	static const struct {
+		const char *text;
+		bool keypad, shifted;
+		double want;
+	} cases[] = {
+		{ "-12.345\n", false, false, -12.345 }, { "0.0071\n", true, false, 0.0071 },
+		{ "983,25\n", false, true, 983.25 }, { "-0.5\n", true, false, -0.5 },
+		{ "1122.3003\n", false, false, 1122.3003 },     /* repeated keys */
+	};
+
+	memset(&kb, 0, sizeof(kb));
+	pthread_mutex_init(&kb.lock, NULL);
+	hid_kbd_reset(&k);
+	for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
+		type(&kb, cases[i].text, cases[i].keypad, cases[i].shifted);
+		int r = 0;
+		while (kb.head != kb.tail && r == 0)
+			r = hid_kbd_feed(&k, 0, kb.queue[kb.head++ % 64], 8, &v, &err);
+		assert_int_equal(r, 1);
+		assert_true(v == cases[i].want);
+		/* Enter's release */
+		assert_int_equal(hid_kbd_feed(&k, 0, kb.queue[kb.head++ % 64], 8, &v, &err), 0);
+		assert_int_equal(kb.head, kb.tail);
+	}
+	/* two keys in one report (roll-over), then one held over */
+	uint8_t two[8] = { 0, 0, 0x1f, 0x20 }, held[8] = { 0, 0, 0x20, 0x28 };
+	assert_int_equal(hid_kbd_feed(&k, 0, two, 8, &v, &err), 0);
+	assert_int_equal(hid_kbd_feed(&k, 0, held, 8, &v, &err), 1);
+	assert_true(v == 23);
+	/* refusals, each starting afresh */
+	uint8_t letter[8] = { 0, 0, 0x14 }, over[8] = { 0, 0, 0x01, 0x01, 0x01 };
+	assert_int_equal(hid_kbd_feed(&k, 0, letter, 8, &v, &err), -EPROTO);
+	assert_non_null(strstr(err.message, "key 0x14"));
+	assert_int_equal(hid_kbd_feed(&k, 0, over, 8, &v, &err), -EPROTO);
+	assert_non_null(strstr(err.message, "roll-over"));
+	assert_int_equal(hid_kbd_feed(&k, 0, over, 7, &v, &err), -EPROTO);
+	assert_int_equal(hid_kbd_feed(&k, 3, over, 8, &v, &err), -EPROTO);
+	type(&kb, "1.2.3\n", false, false);
+	int r = 0;
+	while (kb.head != kb.tail && r == 0)
+		r = hid_kbd_feed(&k, 0, kb.queue[kb.head++ % 64], 8, &v, &err);
+	assert_int_equal(r, -EPROTO);
+	assert_non_null(strstr(err.message, "'1.2.3', which is not a number"));
+	pthread_mutex_destroy(&kb.lock);
+}
+
+struct typist {
+	struct keyboard *kb;
+	const char *text;
+	bool keypad;
+};
+
+/* The operator, a moment after the driver started waiting. */
+static void *type_later(void *data)
+{
+	struct typist *t = data;
+	struct timespec ts = { 0, 50000000 };
+
+	nanosleep(&ts, NULL);
+	type(t->kb, t->text, t->keypad, false);
+	return NULL;
+}
+
+static int read_typed(struct env *e, struct asph_device *d, struct keyboard *kb, const char *text,
+		      bool keypad, struct asph_reading *rd, unsigned timeout_ms, struct asph_error *err)
+{
+	struct typist t = { kb, text, keypad };
+	pthread_t th;
+
+	assert_int_equal(pthread_create(&th, NULL, type_later, &t), 0);
+	int r = read_once(e, d, rd, timeout_ms, err);
+	pthread_join(th, NULL);
+	return r;
+}
+
+/* Opening grabs the evdev node; readings asked for by the request report
+ * and typed by the operator (within the timeout); a reading split over
+ * reports, shifted and keypad digits. */
+static void test_keyboard_device(void **state)
+{
+	struct keyboard kb;
+	UMockdevTestbed *tb = keyboard_add(&kb);
+	struct env e = { .tb = tb };
+	struct asph_device *d;
+	struct asph_reading rd;
+	struct asph_error err;
+
+	assert_int_equal(asph_registry_new(&e.reg, NULL), 0);
+	e.hid = asph_registry_find(e.reg, "hid");
+	if (open_hid(&e, "path=/dev/hidraw4,profile=keyboard,probe=optical,standoff=0,range=100", &d,
+		     &err) < 0)
+		fail_msg("open: %s", err.message);
+	assert_int_equal(kb.grabs, 1);
+	/* what was typed before the reading is stale */
+	type(&kb, "7.5\n", false, false);
+	/* the operator presses the data button: typed with the keypad */
+	if (read_typed(&e, d, &kb, "-12.0875\n", true, &rd, 2000, &err) < 0)
+		fail_msg("read: %s", err.message);
+	assert_true(fabs(rd.value + 12.0875) < 1e-12);
+	assert_false(rd.flags & ASPH_READING_OUT_OF_RANGE);
+	/* nobody presses: the reading times out, saying what to do */
+	assert_int_equal(read_once(&e, d, &rd, 80, &err), -ETIMEDOUT);
+	assert_non_null(strstr(err.message, "press the gauge's data button or foot switch"));
+	/* a key that has no place in a reading */
+	assert_int_equal(read_typed(&e, d, &kb, "1q\n", false, &rd, 2000, &err), -EPROTO);
+	assert_non_null(strstr(err.message, "key 0x14"));
+	e.hid->probe->close(d);
+
+	/* with a data request (an output report) and shifted digits */
+	kb.on_request = "3,141\n";
+	if (open_hid(&e, "path=/dev/hidraw4,profile=keyboard,cmd_request=output:02,grab=false,"
+		     "probe=optical,standoff=0,range=100,unit_scale=0.0254", &d, &err) < 0)
+		fail_msg("open: %s", err.message);
+	assert_int_equal(kb.grabs, 1);
+	if (read_once(&e, d, &rd, 1000, &err) < 0)
+		fail_msg("read: %s", err.message);
+	assert_int_equal(kb.requests, 1);
+	assert_true(fabs(rd.value - 3.141 * 0.0254) < 1e-12);
+	e.hid->probe->close(d);
+	asph_registry_free(e.reg);
+	g_object_unref(tb);
+	pthread_mutex_destroy(&kb.lock);
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -853,6 +1147,8 @@ int main(void)
 		cmocka_unit_test_setup_teardown(test_faults, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_stop, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_strong_end_to_end, setup, teardown),
+		cmocka_unit_test(test_keyboard_decode),
+		cmocka_unit_test(test_keyboard_device),
 	};
 
 	return cmocka_run_group_tests(tests, NULL, NULL);

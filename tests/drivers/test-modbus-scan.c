@@ -80,47 +80,38 @@ static int teardown(void **state)
 /* Measures the plan with the first instrument of c into path. */
 static int scan(struct env *e, struct asph_config *c, const char *path, struct asph_error *err)
 {
-	struct asph_scanfile_header_info info = { "{\"name\":\"strong\"}", "{\"method\":\"fermat\"}",
-						  "{\"name\":\"bench\"}", NULL };
-	struct asph_scanfile_writer *w;
-	struct asph_instrument *inst;
-	struct asph_scan *sc;
-	struct asph_error oerr;
-
-	if (asph_instrument_open(&c->instruments[0], 2000, &inst, &oerr) < 0)
-		fail_msg("open: %s", oerr.message);
-	assert_int_equal(asph_scan_new(inst, e->fx.s, e->fx.plan->xyz, e->fx.plan->n, NULL, &sc,
-				       NULL), 0);
-	assert_int_equal(asph_scanfile_writer_create(path, &info, NULL, &w, NULL), 0);
-	int r = asph_scan_run(sc, w, err);
-	asph_scan_free(sc);
-	asph_instrument_close(inst);
-	return r;
+	return fixture_scan(&e->fx, &c->instruments[0], e->fx.plan->xyz, e->fx.plan->n, path, err,
+			    false);
 }
 
 static void fit(struct env *e, const char *path, struct asph_fit_result *res)
 {
-	struct asph_scanfile *s = read_scan(path);
-	struct asph_points *pts;
-	struct asph_fit *w;
-	struct asph_error err;
-	struct asph_fit_options fo = { .dof = ASPH_FIT_DOF_RIGID };
-
-	assert_int_equal(s->report.outcome, ASPH_SCANFILE_COMPLETED);
-	assert_int_equal(s->n, e->fx.plan->n);
-	assert_int_equal(asph_scanfile_to_points(s, 0, &pts, NULL), 0);
-	assert_int_equal(asph_fit_alloc(e->fx.s, pts->n, &fo, &w, NULL), 0);
-	if (asph_fit_run(w, pts->xyz, pts->n, res, &err) < 0)
-		fail_msg("fit: %s", err.message);
-	asph_fit_free(w);
-	asph_points_free(pts);
-	asph_scanfile_free(s);
+	fixture_fit_rigid(&e->fx, path, e->fx.plan->n, res);
 }
 
-/* The Modbus bench: address is the simulator's TCP port or pty. */
-static struct asph_config *bench(struct env *e, bool rtu, const char *address)
+/* The sensor of a profile sees the part from the stage too: the depth
+ * below the probe in mm. */
+static bool sense_mm(void *data, const double *pos, double *mm)
 {
-	char text[1024], conn[300];
+	struct env *e = data;
+	double z;
+
+	if (mock_part_probe_z(e->part, pos[0], pos[1], 0, &z) < 0)
+		return false;
+	*mm = z - pos[2];
+	return true;
+}
+
+/* The generic sensor's map in the configuration. */
+#define GENERIC_PROBE "\"slave\": 9, \"scale\": 1e-8, \"standoff\": 2, \"range\": 1, " \
+	"\"valid_register\": 2"
+
+/* The Modbus bench with the probe's options: address is the simulator's
+ * TCP port or pty. */
+static struct asph_config *bench_probe(struct env *e, bool rtu, const char *address,
+				       const char *probe)
+{
+	char text[1536], conn[300];
 	struct asph_config *c;
 	struct asph_error err;
 
@@ -132,20 +123,27 @@ static struct asph_config *bench(struct env *e, bool rtu, const char *address)
 		 "{ \"instruments\": [ { \"name\": \"bench\",\n"
 		 "  \"stage\": { \"driver\": \"modbus\", \"options\": { %s,\n"
 		 "    \"counts_per_mm\": %g, \"speed\": 20, \"timeout\": 100 } },\n"
-		 "  \"probe\": { \"driver\": \"modbus\", \"options\": { %s, \"slave\": 9,\n"
-		 "    \"scale\": %g, \"standoff\": 2, \"range\": 1, \"valid_register\": 2 } } } ] }\n",
-		 conn, COUNTS_PER_MM, conn, SENSOR_SCALE);
+		 "  \"probe\": { \"driver\": \"modbus\", \"options\": { %s,\n    %s } } } ] }\n",
+		 conn, COUNTS_PER_MM, conn, probe);
 	if (asph_config_parse(e->fx.reg, text, strlen(text), "bench.json", &c, &err) < 0)
 		fail_msg("%s", err.message);
 	return c;
 }
 
-static struct mbsim *sim_start(struct env *e, bool rtu, char *address, size_t size)
+static struct asph_config *bench(struct env *e, bool rtu, const char *address)
+{
+	return bench_probe(e, rtu, address, GENERIC_PROBE);
+}
+
+static struct mbsim *sim_start_kind(struct env *e, bool rtu, enum mbsim_sensor_kind kind,
+				    char *address, size_t size)
 {
 	struct mbsim_config sc = {
 		.rtu = rtu, .map = stage_profiles[0], .drive_units = { 1, 2, 3 },
 		.counts_per_unit = { COUNTS_PER_MM, COUNTS_PER_MM, COUNTS_PER_MM },
 		.sensor_unit = 9, .sense = sense, .sense_data = e, .time_scale = 1e-4,
+		.sensor_kind = kind, .sense_mm = sense_mm, .rf_range_mm = 2, .rf_base_mm = 30,
+		.orbit_reading = 40, .orbit_status = 42, .orbit_range_mm = 2,
 	};
 	struct mbsim *sim;
 
@@ -153,14 +151,21 @@ static struct mbsim *sim_start(struct env *e, bool rtu, char *address, size_t si
 	return sim;
 }
 
-/* Measures the plan with the Modbus bench on the simulators; the fit. */
-static void measure_modbus(struct env *e, bool rtu, struct asph_fit_result *res)
+static struct mbsim *sim_start(struct env *e, bool rtu, char *address, size_t size)
+{
+	return sim_start_kind(e, rtu, MBSIM_SENSOR_GENERIC, address, size);
+}
+
+/* Measures the plan with the Modbus bench, its sensor of kind read with
+ * the probe options given, on the simulators; the fit. */
+static void measure_sensor(struct env *e, bool rtu, enum mbsim_sensor_kind kind, const char *probe,
+			   struct asph_fit_result *res)
 {
 	struct asph_error err;
 	char path[128], address[128];
 
-	struct mbsim *sim = sim_start(e, rtu, address, sizeof(address));
-	struct asph_config *c = bench(e, rtu, address);
+	struct mbsim *sim = sim_start_kind(e, rtu, kind, address, sizeof(address));
+	struct asph_config *c = bench_probe(e, rtu, address, probe);
 	if (scan(e, c, new_path(&e->fx, path, sizeof(path)), &err) < 0)
 		fail_msg("modbus %s: %s", rtu ? "rtu" : "tcp", err.message);
 	asph_config_free(c);
@@ -168,37 +173,46 @@ static void measure_modbus(struct env *e, bool rtu, struct asph_fit_result *res)
 	fit(e, path, res);
 }
 
-static void assert_same_fit(const struct asph_fit_result *bus, const struct asph_fit_result *mock)
+static void measure_modbus(struct env *e, bool rtu, struct asph_fit_result *res)
 {
-	/*
-	 * Both measure the same part without noise; the Modbus sensor rounds
-	 * each reading to 1e-8 mm (at most 5e-9 mm off) and measures where
-	 * the drives are (10 nm counts), which is on the same surface. So the
-	 * pose agrees far below the tolerances of characterization, and each
-	 * Zernike term within a few thousandths of a nm.
-	 */
+	measure_sensor(e, rtu, MBSIM_SENSOR_GENERIC, GENERIC_PROBE, res);
+}
+
+static void assert_close_fit(const char *what, const struct asph_fit_result *a,
+			     const struct asph_fit_result *b, double shift, double tilt, double nm)
+{
 	for (int k = 0; k < 3; k++)
-		if (fabs(bus->value[ASPH_FIT_TX + k] - mock->value[ASPH_FIT_TX + k]) > 1e-8)
-			fail_msg("t%d: modbus %.12g, mock %.12g", k, bus->value[ASPH_FIT_TX + k],
-				 mock->value[ASPH_FIT_TX + k]);
+		if (fabs(a->value[ASPH_FIT_TX + k] - b->value[ASPH_FIT_TX + k]) > shift)
+			fail_msg("%s t%d: %.12g, mock %.12g", what, k, a->value[ASPH_FIT_TX + k],
+				 b->value[ASPH_FIT_TX + k]);
 	for (int k = 0; k < 2; k++)
-		if (fabs(bus->value[ASPH_FIT_RX + k] - mock->value[ASPH_FIT_RX + k]) > 1e-9)
-			fail_msg("r%d: modbus %.12g, mock %.12g", k, bus->value[ASPH_FIT_RX + k],
-				 mock->value[ASPH_FIT_RX + k]);
+		if (fabs(a->value[ASPH_FIT_RX + k] - b->value[ASPH_FIT_RX + k]) > tilt)
+			fail_msg("%s r%d: %.12g, mock %.12g", what, k, a->value[ASPH_FIT_RX + k],
+				 b->value[ASPH_FIT_RX + k]);
 	static const int terms[] = { 5, 9, 12 };
 	for (size_t k = 0; k < 3; k++) {
-		double a = bus->zernike[terms[k] - 1].v, b = mock->zernike[terms[k] - 1].v;
-		if (fabs(a - b) > 0.005)
-			fail_msg("Z%d: modbus %.6f nm, mock %.6f nm", terms[k], a, b);
+		double za = a->zernike[terms[k] - 1].v, zb = b->zernike[terms[k] - 1].v;
+		if (fabs(za - zb) > nm)
+			fail_msg("%s Z%d: %.6f nm, mock %.6f nm", what, terms[k], za, zb);
 	}
+}
+
+/*
+ * Both measure the same part without noise; the Modbus sensor rounds each
+ * reading to 1e-8 mm (at most 5e-9 mm off) and measures where the drives
+ * are (10 nm counts), which is on the same surface. So the pose agrees
+ * far below the tolerances of characterization, and each Zernike term
+ * within a few thousandths of a nm.
+ */
+static void assert_same_fit(const struct asph_fit_result *bus, const struct asph_fit_result *mock)
+{
+	assert_close_fit("modbus", bus, mock, 1e-8, 1e-9, 0.005);
 	assert_true(fabs(bus->rms.v - mock->rms.v) < 0.005);
 }
 
-/* Over TCP, and over RTU with the drives and the sensor on one line. */
-static void test_same_as_mock(void **state)
+/* The mock's fit of the part. */
+static void mock_fit(struct env *e, struct asph_fit_result *mock)
 {
-	struct env *e = *state;
-	struct asph_fit_result mock, bus;
 	struct asph_config *c;
 	struct asph_error err;
 	char path[128];
@@ -208,10 +222,65 @@ static void test_same_as_mock(void **state)
 	if (scan(e, c, new_path(&e->fx, path, sizeof(path)), &err) < 0)
 		fail_msg("mock: %s", err.message);
 	asph_config_free(c);
-	fit(e, path, &mock);
+	fit(e, path, mock);
+}
+
+/* Over TCP, and over RTU with the drives and the sensor on one line. */
+static void test_same_as_mock(void **state)
+{
+	struct env *e = *state;
+	struct asph_fit_result mock, bus;
+
+	mock_fit(e, &mock);
 	for (int rtu = 0; rtu < 2; rtu++) {
 		measure_modbus(e, rtu, &bus);
 		assert_same_fit(&bus, &mock);
+	}
+}
+
+/*
+ * A sensor of coarse resolution: its rounding adds to the fit's
+ * uncertainty of each degree of freedom what the fit itself estimates
+ * from the residuals, u_q = sqrt(u_sensor^2 - u_mock^2) (the rest is the
+ * part's form error, the same in both); each may differ from the mock's
+ * by three times that. The Zernike terms by nm.
+ */
+static void assert_within_quantization(const char *what, const struct asph_fit_result *a,
+				       const struct asph_fit_result *b, double nm)
+{
+	for (int k = ASPH_FIT_TX; k <= ASPH_FIT_RY; k++) {
+		double uq = sqrt(fmax(a->uncertainty[k] * a->uncertainty[k] -
+				      b->uncertainty[k] * b->uncertainty[k], 0));
+		if (!(fabs(a->value[k] - b->value[k]) <= 3 * uq))
+			fail_msg("%s dof %d: %.12g, mock %.12g, 3 u_q %.3g", what, k, a->value[k],
+				 b->value[k], 3 * uq);
+	}
+	assert_close_fit(what, a, b, INFINITY, INFINITY, nm);
+}
+
+/*
+ * The sensor profiles through the executor, over TCP and RTU. Orbit ACS
+ * sends its reading as a float: each rounded by at most half an ulp of
+ * 2 mm (1.2e-7 mm), so the pose agrees to 1e-7 mm and 1e-8 rad, and the
+ * Zernike terms to 0.05 nm. The RF60x sends 14 bits over its 2 mm range:
+ * steps of 1.22e-4 mm, a rounding spread of 3.5e-5 mm (35 nm) a reading;
+ * over 150 readings a Zernike term's is some 5 nm (allowed 20), and the
+ * pose within what the rounding adds to its uncertainty.
+ */
+static void test_sensor_profiles(void **state)
+{
+	struct env *e = *state;
+	struct asph_fit_result mock, bus;
+
+	mock_fit(e, &mock);
+	for (int rtu = 0; rtu < 2; rtu++) {
+		measure_sensor(e, rtu, MBSIM_SENSOR_ORBIT_ACS, "\"slave\": 9, \"sensor_profile\": "
+			       "\"orbit-acs\", \"register\": 40, \"status_register\": 42, "
+			       "\"table\": \"holding\", \"standoff\": 1, \"range\": 2", &bus);
+		assert_close_fit("orbit-acs", &bus, &mock, 1e-7, 1e-8, 0.05);
+		measure_sensor(e, rtu, MBSIM_SENSOR_RF60X, "\"slave\": 9, \"sensor_profile\": "
+			       "\"rf60x\"", &bus);
+		assert_within_quantization("rf60x", &bus, &mock, 20);
 	}
 }
 
@@ -246,6 +315,7 @@ int main(void)
 {
 	const struct CMUnitTest tests[] = {
 		cmocka_unit_test(test_same_as_mock),
+		cmocka_unit_test(test_sensor_profiles),
 		cmocka_unit_test(test_alarm_ends_scan),
 	};
 	return cmocka_run_group_tests(tests, setup, teardown);

@@ -245,7 +245,7 @@ static void must(int r, const struct asph_error *err)
 static void expect(int r, int code, const struct asph_error *err, const char *words)
 {
 	if (r != code || !strstr(err->message, words))
-		fail_msg("expected %d '%s', got %d '%s'", code, words, r, err->message);
+		fail_msg("expected %d '%s', got %d '%s'", code, words ? words : "", r, err->message);
 }
 
 static void assert_at(struct env *e, struct dev *st, const double *t)
@@ -372,10 +372,68 @@ static void test_stage_custom_map(void **state)
 	};
 
 	sim_start(e, false, &m, 1e-3);
-	exercise_stage(e, "word_size=16,word_order=low-first,start=start-bit,reg_data=256,"
+	/* 100 mm/s^2 would be 100000 counts/s^2: more than a 16-bit register */
+	exercise_stage(e, "accel=60,word_size=16,word_order=low-first,start=start-bit,reg_data=256,"
 		       "reg_command=16,reg_status=17,reg_position=18,reg_alarm=19,bit_start=0,"
 		       "bit_zhome=1,bit_stop=2,bit_alm_rst=3,bit_ready=8,bit_busy=9,bit_in_pos=10,"
 		       "bit_alm=11,bit_home_end=12");
+	sim_stop(e);
+}
+
+/* Values that do not fit the map's registers are refused when the stage
+ * is opened, naming the option and the width; nothing is written. */
+static void test_settings_fit(void **state)
+{
+	static const struct {
+		const char *opts, *words;
+	} cases[] = {
+		{ "word_size=16,speed=66", "option 'speed': 66 mm/s is 66000 drive units, which do "
+					   "not fit the drive's 16-bit register (at most 65535)" },
+		{ "word_size=16,speed=10,accel=100", "option 'accel': 100 mm/s^2 is 100000 drive "
+						     "units, which do not fit the drive's 16-bit" },
+		{ "counts_per_mm=1e7,speed=300,accel=1", "option 'speed': 300 mm/s is 3000000000 drive "
+							 "units, which do not fit the drive's 32-bit "
+							 "register (at most 2147483647)" },
+		{ "kinematics=r-theta-z,counts_per_rad=1e6,word_size=16,speed=0.1,accel=0.05",
+		  "option 'speed': 0.1 rad/s is 100000 drive units" },
+	};
+	struct env *e = *state;
+	struct asph_error err;
+	struct mbsim_stats sim;
+	struct dev st;
+
+	sim_start(e, false, NULL, 1e-3);
+	for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
+		expect(dev_open(e, true, cases[i].opts, &st, &err), -ERANGE, &err, cases[i].words);
+		assert_string_equal(err.field, strstr(cases[i].words, "'accel'") ? "accel" : "speed");
+	}
+	mbsim_stats(e->sim, &sim);
+	assert_int_equal(sim.requests, 0);
+	/* the largest that fit: 65535 counts/s */
+	must(dev_open(e, true, "word_size=16,speed=65.535,accel=65.535", &st, &err), &err);
+	dev_close(e, &st);
+	sim_stop(e);
+}
+
+/* A stage configured with the wrong word order: homing does not end, and
+ * the timeout says what the position looks like either way. */
+static void test_word_order_hint(void **state)
+{
+	struct env *e = *state;
+	struct asph_error err;
+	struct dev st;
+	double t[3] = { 12.345, -3.21, 4.5 };
+
+	sim_start(e, false, NULL, 1e-3);
+	homed_stage(e, "", &st);
+	must(e->drv->stage->move_to(st.d, t, 2000, &err), &err);
+	dev_close(e, &st);
+	must(dev_open(e, true, "word_order=low-first", &st, &err), &err);
+	expect(e->drv->stage->home(st.d, 300, &err), -ETIMEDOUT, &err,
+	       "axis z (unit 3): homing did not finish within 300 ms; its position reads 294912 mm, "
+	       "far outside the travel, and 4.5 mm with the words swapped: check word_order (now "
+	       "low-first)");
+	dev_close(e, &st);
 	sim_stop(e);
 }
 
@@ -833,6 +891,145 @@ static void test_probe_formats(void **state)
 	sim_stop(e);
 }
 
+/* ------------------------------------------------------ sensor profiles */
+
+/* The sensors of the profiles see what the generic one does, in mm. */
+static bool sense_mm(void *data, const double *pos, double *mm)
+{
+	*mm = 2.0 + 0.013 * pos[0] - pos[2];
+	return pos[1] < 40;
+}
+
+static void sensor_sim_start(struct env *e, bool rtu, enum mbsim_sensor_kind kind)
+{
+	e->cfg = (struct mbsim_config){
+		.rtu = rtu, .map = stage_profiles[0],
+		.drive_units = { 1, 2, 3 }, .counts_per_unit = { 1000, 1000, 1000 },
+		.sensor_unit = 9, .time_scale = 1e-3, .sensor_kind = kind, .sense_mm = sense_mm,
+		.rf_range_mm = 5, .rf_base_mm = 30,
+		.orbit_reading = 100, .orbit_status = 102, .orbit_order = MB_HIGH_WORD_FIRST,
+		.orbit_range_mm = 2.5,
+	};
+	assert_int_equal(mbsim_start(&e->cfg, &e->sim, e->address, sizeof(e->address)), 0);
+}
+
+/* Reads once with the stage at t. */
+static void read_at(struct env *e, struct dev *st, struct dev *pr, double x, double z,
+		    struct asph_reading *rd)
+{
+	struct asph_probe_context ctx = { 0 };
+	struct asph_error err;
+	double t[3] = { x, 1.5, z };
+
+	must(e->drv->stage->move_to(st->d, t, 2000, &err), &err);
+	must(e->drv->probe->read(pr->d, &ctx, rd, 1000, &err), &err);
+}
+
+/*
+ * RIFTEK RF60x: the range and base distance come from the sensor, the
+ * value is D * S / 4000h from the start of the range, and the ends of the
+ * range (where D saturates) are out of range. The sensor holds its
+ * measured value in an input register only: a map that reads it as a
+ * holding register is refused by the sensor at once.
+ */
+static void test_sensor_rf60x(void **state)
+{
+	struct env *e = *state;
+	struct asph_error err;
+	struct asph_reading rd;
+	struct asph_probe_info pi;
+	struct dev st, pr;
+
+	for (int rtu = 0; rtu < 2; rtu++) {
+		sensor_sim_start(e, rtu, MBSIM_SENSOR_RF60X);
+		homed_stage(e, "", &st);
+		must(dev_open(e, false, "slave=9,sensor_profile=rf60x", &pr, &err), &err);
+		must(e->drv->probe->info(pr.d, &pi, &err), &err);
+		assert_true(pi.range_min == 0 && pi.range_max == 5 && pi.standoff == 2.5);
+		assert_non_null(strstr(pi.model, "RF60x, 5 mm from 30 mm"));
+		assert_string_equal(pi.serial, "19999");
+		read_at(e, &st, &pr, 7.25, -0.375, &rd);
+		double mm = 2.0 + 0.013 * 7.25 + 0.375, d = round(mm / 5 * 16384);
+		assert_true(rd.raw == d && fabs(rd.value - d * 5 / 16384) < 1e-12 && rd.flags == 0);
+		/* beyond the range's ends the value saturates: not a reading */
+		read_at(e, &st, &pr, 0, -3.5, &rd);
+		assert_true(rd.raw == 16384 && (rd.flags & ASPH_READING_OUT_OF_RANGE) && isnan(rd.value));
+		read_at(e, &st, &pr, 0, 2.5, &rd);
+		assert_true(rd.raw == 0 && (rd.flags & ASPH_READING_OUT_OF_RANGE));
+		dev_close(e, &pr);
+		/* a scale the configuration sets replaces the range's */
+		must(dev_open(e, false, "slave=9,sensor_profile=rf60x,scale=0.0003,offset=-1",
+			      &pr, &err), &err);
+		read_at(e, &st, &pr, 7.25, -0.375, &rd);
+		assert_true(fabs(rd.value - (d * 0.0003 - 1)) < 1e-12);
+		dev_close(e, &pr);
+		expect(dev_open(e, false, "slave=9,table=holding,register=6,type=u16", &pr, &err),
+		       -EPROTO, &err, "illegal data address");
+		dev_close(e, &st);
+		sim_stop(e);
+	}
+}
+
+/*
+ * Solartron Orbit ACS: the reading's float image (its address + 8000) and
+ * the reading status; the addresses come from the configuration (the
+ * parameter map, document 503116), and a profile without them is
+ * refused naming the option. The SI refuses a read of half a parameter.
+ */
+static void test_sensor_orbit(void **state)
+{
+	struct env *e = *state;
+	struct asph_error err;
+	struct asph_reading rd;
+	struct dev st, pr;
+
+	for (int rtu = 0; rtu < 2; rtu++) {
+		sensor_sim_start(e, rtu, MBSIM_SENSOR_ORBIT_ACS);
+		homed_stage(e, "", &st);
+		expect(dev_open(e, false, "slave=9,sensor_profile=orbit-acs,status_register=102", &pr,
+				&err), -EINVAL, &err, "option 'register' must give the reading "
+		       "parameter's address (document 503116)");
+		assert_string_equal(err.field, "register");
+		expect(dev_open(e, false, "slave=9,sensor_profile=orbit-acs,register=100", &pr, &err),
+		       -EINVAL, &err, "status_register");
+		must(dev_open(e, false, "slave=9,sensor_profile=orbit-acs,register=100,"
+			      "status_register=102,table=holding,standoff=1.25,range=2.5", &pr, &err),
+		     &err);
+		read_at(e, &st, &pr, 7.25, 0.375, &rd);
+		double mm = 2.0 + 0.013 * 7.25 - 0.375;
+		assert_true(rd.raw == (double)(float)mm && rd.value == rd.raw && rd.flags == 0);
+		/* the probe beyond its travel: the SI says under or over range */
+		read_at(e, &st, &pr, 0, 2.5, &rd);
+		assert_true((rd.flags & ASPH_READING_OUT_OF_RANGE) && isnan(rd.value));
+		read_at(e, &st, &pr, 0, -1, &rd);
+		assert_true(rd.flags & ASPH_READING_OUT_OF_RANGE);
+		/* no usable probe: an error with the SI's reason */
+		struct asph_probe_context ctx = { 0 };
+		mbsim_orbit_status(e->sim, 247);
+		expect(e->drv->probe->read(pr.d, &ctx, &rd, 1000, &err), -EPROTO, &err,
+		       "reading status 247: no probe is connected");
+		mbsim_orbit_status(e->sim, 246);
+		expect(e->drv->probe->read(pr.d, &ctx, &rd, 1000, &err), -EPROTO, &err,
+		       "an incompatible probe");
+		mbsim_orbit_status(e->sim, 77);
+		expect(e->drv->probe->read(pr.d, &ctx, &rd, 1000, &err), -EPROTO, &err,
+		       "status 77, which the manual (503110, 9.4.3) does not list");
+		mbsim_orbit_status(e->sim, -1);
+		dev_close(e, &pr);
+		/* the integer parameter, 4 decimal places, as a custom map */
+		must(dev_open(e, false, "slave=9,table=holding,register=100,type=s32,scale=0.0001,"
+			      "standoff=1.25,range=2.5", &pr, &err), &err);
+		read_at(e, &st, &pr, 7.25, 0.375, &rd);
+		assert_true(rd.raw == (double)llround(mm * 1e4));
+		dev_close(e, &pr);
+		/* half of the float image */
+		expect(dev_open(e, false, "slave=9,table=holding,register=8101,type=u16", &pr, &err),
+		       -EPROTO, &err, "illegal data address");
+		dev_close(e, &st);
+		sim_stop(e);
+	}
+}
+
 /* The driver is listed, valid, and its options are what docs describe. */
 static void test_listed(void **state)
 {
@@ -855,10 +1052,14 @@ int main(void)
 		cmocka_unit_test(test_decode_tcp),
 		cmocka_unit_test(test_words),
 		cmocka_unit_test(test_listed),
+		cmocka_unit_test(test_sensor_rf60x),
+		cmocka_unit_test(test_sensor_orbit),
 		cmocka_unit_test(test_stage_tcp),
 		cmocka_unit_test(test_stage_rtheta),
 		cmocka_unit_test(test_stage_custom_map),
 		cmocka_unit_test(test_stage_rtu),
+		cmocka_unit_test(test_settings_fit),
+		cmocka_unit_test(test_word_order_hint),
 		cmocka_unit_test(test_exceptions),
 		cmocka_unit_test(test_silent),
 		cmocka_unit_test(test_garbled),

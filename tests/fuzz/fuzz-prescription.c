@@ -11,16 +11,26 @@
 #include "asph/prescription.h"
 #include "fuzz.h"
 
+static bool same_numbers(const double *a, const double *b, size_t n)
+{
+	for (size_t i = 0; i < n; i++)
+		if (a[i] != b[i])
+			return false;
+	return true;
+}
+
+#define SAME(f) same_numbers((const double *)&a->f, (const double *)&b->f, \
+			     sizeof(a->f) / sizeof(double))
+
 /* Equal as numbers (a coefficient of -0 is written as none). */
 static bool same(const struct asph_prescription *a, const struct asph_prescription *b)
 {
-	if (a->type != b->type || strcmp(a->name, b->name) || a->R != b->R || a->k != b->k ||
-	    a->aperture_diameter != b->aperture_diameter)
+	if (a->type != b->type || strcmp(a->name, b->name) || a->aperture.shape != b->aperture.shape)
 		return false;
-	for (size_t i = 0; i < sizeof(a->A) / sizeof(a->A[0]); i++)
-		if (a->A[i] != b->A[i])
-			return false;
-	return true;
+	return SAME(R) && SAME(k) && SAME(A) && SAME(aperture_diameter) && SAME(norm_radius) &&
+	       SAME(Q) && SAME(Rx) && SAME(Ry) && SAME(kx) && SAME(ky) && SAME(R_rotation) &&
+	       SAME(C) && SAME(Zernike) && SAME(zernike_decenter) && SAME(q2d_a) && SAME(q2d_b) &&
+	       SAME(aperture.width) && SAME(aperture.height) && SAME(aperture.offset);
 }
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)

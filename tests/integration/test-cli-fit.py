@@ -175,7 +175,7 @@ def bad_input(tmp):
         check(r.stderr.startswith("asph") and len(r.stderr.strip()) > 10,
               f"{name}: no clear message: {r.stderr!r}")
         check(r.stdout == "", f"{name}: printed a result")
-    for args in (["fit"], ["fit", "weak"], ["fit", "weak", "x.csv", "--dof", "tx,rz"],
+    for args in (["fit"], ["fit", "weak"], ["fit", "weak", "x.csv", "--dof", "tx,rw"],
                  ["fit", "weak", "x.csv", "--residual", "radial"],
                  ["synth", "weak"], ["synth", "weak", "--method", "op", "--h", "0.05",
                                      "--shift", "1,2"],

@@ -90,9 +90,39 @@ with tempfile.TemporaryDirectory() as d:
         expect(code == 0 and all(abs(dof[k] - v) < 1e-9 for k, v in want.items()),
                f"surface {surf}: the misalignment is recovered ({err.strip()[:200]})")
 
+    # The freeform types (the unit test checks each sag against OpticStudio's
+    # formula); here the command line, UTF-8 and UTF-16 alike.
+    FF = os.path.join(DATA, "lens-freeform.zmx")
+    code, out, err = run("lens", "import", FF)
+    rows = [line.split() for line in out.splitlines()[1:]]
+    expect(code == 0 and [r[1] for r in rows] == ["STANDARD", "BICONICX", "TOROIDAL", "XPOLYNOM", "SZERNSAG", "STANDARD"],
+           "freeform surfaces are listed with their types")
+    for path in (FF, os.path.join(DATA, "lens-freeform-utf16.zmx")):
+        name = os.path.basename(path)
+        kinds = [imported(path, s).get("type") for s in ("1", "2", "3", "4")]
+        expect(kinds == ["biconic", "toroidal", "xy_polynomial", "zernike_sag"], f"{name}: the four freeform types")
+        p = imported(path, 3)
+        expect(p.get("aperture", {}).get("shape") == "elliptical" and p["aperture"]["offset"] == [1.3, -2.1] and
+               p.get("c", {}).get("x2y2") == -0.0033, f"{name}: XPOLYNOM term 12 is x^2 y^2; ELAP about OBDC")
+    p = imported(os.path.join(DATA, "lens-toroidal.zmx"), "1")
+    expect(p.get("type") == "toroidal" and p.get("R_rotation") == "infinity" and p.get("R") == 40,
+           "a toroid with radius of rotation 0 is a cylinder")
+    out = os.path.join(d, "xy.json")
+    run("lens", "import", FF, "--surface", "3", "-o", out, check=0)
+    code, show, err = run("lens", "show", out, "--json")
+    expect(code == 0 and json.loads(show).get("prescription", {}).get("type") == "xy_polynomial",
+           f"the imported part builds ({err.strip()})")
+    grid = os.path.join(d, "grid.zmx")
+    with open(grid, "w") as f:
+        f.write("UNIT MM\nSURF 1\n  TYPE GRID_SAG\n  CURV 0.02\n  DIAM 5\n")
+    extra = os.path.join(d, "extra.zmx")
+    with open(extra, "w") as f:
+        f.write("SURF 1\n  TYPE BICONICX\n  CURV 0.02\n  PARM 1 40\n  PARM 3 1.5e-3\n  DIAM 5\n")
+
     # Refusals, each with file:line:column.
     cases = {
-        "unknown": (os.path.join(DATA, "lens-toroidal.zmx"), "1", ":9:8: TYPE: surface 1 has type TOROIDAL"),
+        "unknown": (grid, "1", ":3:8: TYPE: surface 1 has type GRID_SAG"),
+        "unsupported term": (extra, None, ":5:10: PARM 3: surface 1: the Biconic surface has no parameter 3"),
         "truncated": (os.path.join(DATA, "lens-truncated.zmx"), None, "truncated"),
         "flat": (ZMX, "6", "flat"),
         "missing": (ZMX, "9", "no surface 9"),

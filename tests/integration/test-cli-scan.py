@@ -94,6 +94,15 @@ info = scaninfo(path("lim.asph"))
 expect(rc == 1 and "outside its travel" in err and info["points"] == 0,
        "a plan outside the travel is refused before anything moves")
 
+# --- the mock's part is the lens being measured -----------------------------
+tp = ["scan", "turning-point", "--method", "fermat", "--points", "200", "--quiet"]
+rc, _, err = run(*tp, "--instrument", "mock:time_factor=0", "-o", path("tp.asph"))
+expect(rc == 0 and scaninfo(path("tp.asph"))["points"] == 200,
+       "the mock measures the lens of the scan (turning-point) by default")
+rc, _, err = run(*tp, "--instrument", "mock:time_factor=0,lens=strong", "-o", path("wrong.asph"))
+expect(rc != 0 and "out of range" in err and scaninfo(path("wrong.asph"))["outcome"] == "failed",
+       "lens= still puts a different part on the machine")
+
 # --- SIGKILL half-way: the reader recovers what was flushed -----------------
 def first_block_written(scan):
     """Whether the scan file holds a block after its header

@@ -42,6 +42,32 @@ static void print_option(const struct asph_option_desc *o)
 	printf("    %-16s %s\n", "", o->help);
 }
 
+static const char *roles_text(unsigned roles)
+{
+	if ((roles & ASPH_ROLE_STAGE) && (roles & ASPH_ROLE_PROBE))
+		return "stage, probe";
+	return roles & ASPH_ROLE_STAGE ? "stage" : roles & ASPH_ROLE_PROBE ? "probe" : "-";
+}
+
+/* The profile files the driver's "profile" option can name, found now. */
+static void print_profiles(const struct asph_registry *reg, size_t i)
+{
+	_cleanup_free_ struct asph_driver_profile *v = NULL;
+	size_t n = 0;
+
+	if (asph_registry_profiles(reg, i, &v, &n, NULL) < 0 || n == 0)
+		return;
+	printf("  Profiles (option profile), as found in the profile directories:\n");
+	for (size_t k = 0; k < n; k++) {
+		if (v[k].error[0]) {
+			printf("    %-16s does not load: %s\n", v[k].name, v[k].error);
+			continue;
+		}
+		printf("    %-16s %-7s %s\n", v[k].name, roles_text(v[k].roles), v[k].description);
+		printf("    %-16s %-7s %s\n", "", "", v[k].path);
+	}
+}
+
 static void print_text(const struct asph_registry *reg)
 {
 	printf("Driver ABI %d\n", ASPH_DRIVER_ABI_VERSION);
@@ -57,13 +83,15 @@ static void print_text(const struct asph_registry *reg)
 			printf("  Options:\n");
 		for (size_t k = 0; k < d->n_options; k++)
 			print_option(&d->options[k]);
+		print_profiles(reg, i);
 	}
 }
 
 static void usage(FILE *out)
 {
 	fprintf(out, "Usage: asph drivers [--json] [--plugin-dir DIR]\n\n"
-		     "Lists the instrument drivers (built in and plugins) with their roles and options.\n"
+		     "Lists the instrument drivers (built in and plugins) with their roles and options,\n"
+		     "and the profile files a driver's profile option can name, as found now.\n"
 		     "  --json             one JSON object\n"
 		     "  --plugin-dir DIR   load plugins from DIR instead of $ASPH_DRIVER_PATH or the\n"
 		     "                     installed plugin directory\n");

@@ -177,6 +177,12 @@ static int scan(const struct scan_args *a)
 		tool_print_error("instrument", &err);
 		return EXIT_USAGE;
 	}
+	_cleanup_free_ char *lens_json = NULL;
+	if (asph_prescription_to_json(asph_surface_prescription(s), &lens_json) < 0 ||
+	    asph_instrument_config_set_lens(&cfg->instruments[idx], lens_json, &err) < 0) {
+		tool_print_error("instrument", &err);
+		return EXIT_FAILURE_RUN;
+	}
 	if (asph_plan_compute_opts(s, a->ps.method, a->ps.density, &po, &plan, &err) < 0) {
 		tool_print_error("plan", &err);
 		return EXIT_FAILURE_RUN;

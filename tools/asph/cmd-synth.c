@@ -20,6 +20,7 @@ DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
 enum {
 	OPT_SHIFT = 0x100,
 	OPT_TILT,
+	OPT_CLOCKING,
 	OPT_ZERNIKE,
 	OPT_NOISE,
 	OPT_SEED,
@@ -41,14 +42,18 @@ static void usage(FILE *out)
 		"Test data: the points of a sampling plan as a part with the given misalignment,\n"
 		"form error and noise would be measured. The part's surface is the nominal one\n"
 		"plus the form error along its normal; noise is added along the normal too; the\n"
-		"part is then moved: p = Ry(ry) Rx(rx) q + (x, y, z) (docs/characterization.md).\n"
-		"asph fit LENS on the output reports the shift and tilt back.\n\n"
+		"part is then moved: p = Ry(ry) Rx(rx) Rz(rz) q + (x, y, z)\n"
+		"(docs/characterization.md). asph fit LENS on the output reports the shift,\n"
+		"tilt and clocking back.\n\n"
 		"  --method M          op, ot, lb, ci, raster, concentric, spiral, fermat\n"
 		"  --h H               mean edge length / aperture radius (the paper's h)\n"
 		"  --spacing MM        mean point spacing on the surface, mm\n"
 		"  --points N          approximate number of points\n"
 		"  --shift X,Y,Z       shift of the part, mm (default 0,0,0)\n"
 		"  --tilt RX,RY        tilt about the machine x then y axis, rad (default 0,0)\n"
+		"  --clocking RZ       rotation about the part's own axis, applied first, rad\n"
+		"                      (default 0; a rotationally symmetric part shows it only\n"
+		"                      through its form error)\n"
 		"  --zernike J=NM,...  form error: Noll index = coefficient in nm over r / a\n"
 		"  --noise NM          Gaussian noise, standard deviation in nm (default 0)\n"
 		"  --seed S            random seed (default 1); same seed, same points\n"
@@ -123,6 +128,11 @@ static int take_option(struct synth_cli *c, int opt, const char *arg)
 		c->so.pose.rx = v[0];
 		c->so.pose.ry = v[1];
 		return 0;
+	case OPT_CLOCKING:
+		if (parse_list(arg, "clocking", v, 1) < 0)
+			return -1;
+		c->so.pose.rz = v[0];
+		return 0;
 	case OPT_ZERNIKE:
 		return parse_terms(c, arg);
 	case OPT_NOISE:
@@ -155,6 +165,7 @@ static int parse_args(struct synth_cli *c, int argc, char **argv, const char **l
 		PLAN_SOURCE_LONG_OPTIONS,
 		{ "shift", required_argument, NULL, OPT_SHIFT },
 		{ "tilt", required_argument, NULL, OPT_TILT },
+		{ "clocking", required_argument, NULL, OPT_CLOCKING },
 		{ "zernike", required_argument, NULL, OPT_ZERNIKE },
 		{ "noise", required_argument, NULL, OPT_NOISE },
 		{ "seed", required_argument, NULL, OPT_SEED },

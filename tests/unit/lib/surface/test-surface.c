@@ -275,6 +275,97 @@ static void test_refusals(void **state)
 	expect_refusal(p, "", "too steep");
 }
 
+
+/* The graph of a sphere, S = R - sqrt(R^2 - x^2 - y^2): gradient (x, y)/w
+ * and Hessian (R^2 I - (y^2, -xy; -xy, x^2)) / w^3, w = sqrt(R^2 - r^2). */
+static void test_sphere_xy(void **state)
+{
+	const double Rs[] = { 37.31, -23.77 };
+	const double pts[][2] = { { 0, 0 }, { 1e-7, -3e-8 }, { 3.17, -2.09 }, { -9.41, 6.02 },
+				  { 0.0, 12.7 } };
+	for (size_t j = 0; j < 2; j++) {
+		double R = Rs[j], sg = copysign(1, R);
+		struct asph_surface *s = make(R, 0, 27.4);
+		for (size_t i = 0; i < sizeof(pts) / sizeof(pts[0]); i++) {
+			double x = pts[i][0], y = pts[i][1], r2 = x * x + y * y;
+			double w = sqrt(R * R - r2), w3 = w * w * w;
+			struct asph_sag d;
+			asph_surface_derivs_xy(s, x, y, &d);
+			assert_rel(d.z, sg * r2 / (fabs(R) + w), 1e-14);
+			assert_rel(asph_surface_sag_xy(s, x, y), d.z, 0);
+			assert_rel(d.zx, sg * x / w, 1e-13);
+			assert_rel(d.zy, sg * y / w, 1e-13);
+			/* Hessian entries relative to its norm: zxy is a difference
+			 * of two curvatures near the vertex. */
+			double hn = fabs(R) / w3 * R;
+			assert_true(fabs(d.zxx - sg * (R * R - y * y) / w3) <= 1e-13 * fabs(hn));
+			assert_true(fabs(d.zxy - sg * x * y / w3) <= 1e-13 * fabs(hn));
+			assert_true(fabs(d.zyy - sg * (R * R - x * x) / w3) <= 1e-13 * fabs(hn));
+			assert_rel(asph_surface_area_element(s, x, y), fabs(R) / w, 1e-14);
+		}
+		asph_surface_free(s);
+	}
+}
+
+static void test_aperture_of_rotational(void **state)
+{
+	struct asph_surface *s = make(37.31, -0.7, 27.4);
+	struct asph_aperture ap;
+	double box[4];
+
+	assert_true(asph_surface_is_rotational(s));
+	asph_surface_aperture(s, &ap);
+	assert_int_equal(ap.shape, ASPH_APERTURE_CIRCULAR);
+	assert_rel(ap.width, 27.4, 0);
+	assert_true(asph_surface_contains(s, 13.7, 0, 0));
+	assert_true(asph_surface_contains(s, 0, -13.7, 0));
+	assert_false(asph_surface_contains(s, 9.7, 9.7, 0));
+	assert_true(asph_surface_contains(s, 9.7, 9.7, 0.02));
+	asph_surface_bounds(s, box);
+	assert_rel(box[0], -13.7, 0);
+	assert_rel(box[3], 13.7, 0);
+	assert_rel(asph_surface_projected_area(s), M_PI * 13.7 * 13.7, 1e-15);
+	assert_rel(asph_surface_total_area(s), asph_surface_area(s, 13.7), 1e-14);
+	asph_surface_free(s);
+}
+
+/* The turning-point lens rises and falls again: its extreme sag is inside
+ * the aperture, where Z' = 0. */
+static void test_extent(void **state)
+{
+	struct asph_prescription p;
+	struct asph_surface *s = NULL;
+	struct asph_surface_extent e;
+	struct asph_error err;
+	double d[3], r_slope;
+
+	assert_int_equal(asph_prescription_preset("turning-point", &p), 0);
+	assert_int_equal(asph_surface_alloc(&p, &s, &err), 0);
+	asph_surface_extent(s, &e);
+	for (int i = 0; i <= 1000; i++) {
+		double z = asph_surface_sag(s, 30.0 * i / 1000);
+		assert_true(z <= e.sag_max && z >= e.sag_min);
+	}
+	assert_true(e.sag_max_at[0] > 0 && e.sag_max_at[0] < 30);
+	asph_surface_sag_derivs(s, e.sag_max_at[0], d);
+	assert_true(fabs(d[1]) < 1e-12);
+	assert_rel(e.sag_max, d[0], 0);
+	assert_rel(e.max_slope, asph_surface_max_slope(s, &r_slope), 0);
+	assert_rel(e.max_slope_at[0], r_slope, 0);
+	asph_surface_free(s);
+}
+
+static void test_rotational_refuses_other_apertures(void **state)
+{
+	struct asph_prescription p = { .type = ASPH_SURFACE_EVEN_ASPHERE, .R = 30,
+				       .aperture = { ASPH_APERTURE_RECTANGULAR, 10, 8, { 0, 0 } } };
+	struct asph_error err;
+
+	asph_error_clear(&err);
+	assert_int_equal(asph_prescription_check(&p, &err), -EINVAL);
+	assert_string_equal(err.field, "aperture");
+}
+
 int main(void)
 {
 	gsl_set_error_handler_off();
@@ -287,6 +378,10 @@ int main(void)
 		cmocka_unit_test(test_presets_gamma),
 		cmocka_unit_test(test_arc_length_monotone_and_outside),
 		cmocka_unit_test(test_refusals),
+		cmocka_unit_test(test_sphere_xy),
+		cmocka_unit_test(test_aperture_of_rotational),
+		cmocka_unit_test(test_extent),
+		cmocka_unit_test(test_rotational_refuses_other_apertures),
 	};
 	return cmocka_run_group_tests(tests, NULL, NULL);
 }
