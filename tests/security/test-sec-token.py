@@ -160,7 +160,9 @@ try:
     mine_tcp = r["result"]["id"]
     ids = [j["id"] for j in t.call("job.list", {"mine": True})["result"]["jobs"]]
     expect(ids == [mine_tcp], f"job.list mine over TCP: the TCP jobs only ({ids}, not {mine_local})")
-    expect(r["result"]["submitter"]["name"] == "tcp 127.0.0.1", "a TCP job names its address")
+    expect(r["result"]["submitter"]["name"] == "token_file",
+           f"a TCP job names its token (token_file's), not the address "
+           f"({r['result']['submitter']['name']})")
 
     # --- reload: the token rotated
     write_token(ROTATED)
