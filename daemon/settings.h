@@ -41,7 +41,7 @@ struct settings_mqtt {
 	char *host;                     /* its parts ("[...]" of IPv6 taken off) */
 	int port;
 	char *prefix;                   /* NULL: "asphd/<hostname>" */
-	char *client_id;                /* NULL: "asphd-<hostname>" */
+	char *client_id;                /* NULL: "asphd-<hostname>-<daemon id, 8>" */
 	int qos;                        /* 0, 1, 2 */
 	char *credentials_file;         /* NULL: none */
 	char *ca_file;                  /* NULL: the system's (mqtts) */
