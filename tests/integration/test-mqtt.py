@@ -11,6 +11,7 @@ password."""
 import hashlib
 import json
 import os
+import signal
 import sqlite3
 import subprocess
 import sys
@@ -150,6 +151,22 @@ try:
     expect(inst["lock"]["holder"] == "root" and inst["lock"]["reason"] == "cleaning the probe",
            "the lock shows in the retained instrument state")
     c.call("instrument.unlock", {"name": "mock"})
+
+    # --- a reload that changes the mqtt section is refused, naming it
+    with open(d.config) as f:
+        cfg = json.load(f)
+    cfg["mqtt"]["prefix"] = "lab/other"
+    with open(d.config, "w") as f:
+        json.dump(cfg, f)
+    mark = len(d.log_text())
+    d.proc.send_signal(signal.SIGHUP)
+    wait(lambda: "reload" in d.log_text()[mark:], 30, "the reload's answer")
+    said = d.log_text()[mark:]
+    expect("reload refused" in said and "mqtt" in said,
+           f"a changed mqtt section needs a restart: the reload is refused ({said.strip()[-160:]})")
+    cfg["mqtt"]["prefix"] = PREFIX
+    with open(d.config, "w") as f:
+        json.dump(cfg, f)
 
     # --- the broker killed during a job, then started again
     job2 = c.call("job.submit", {"lens": "strong", "plan": {"method": "fermat", "points": 1500}})["id"]
