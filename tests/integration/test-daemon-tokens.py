@@ -10,16 +10,15 @@ revoke."""
 import hashlib
 import json
 import os
-import re
 import socket
 import sqlite3
 import subprocess
 import time
 from datetime import datetime, timedelta, timezone
 
-from daemontest import ASPHCTL, Client, Daemon, RpcError, expect, finish, free_port
+from daemontest import (ASPHCTL, Client, Daemon, RpcError, documented_methods, expect, finish,
+                        free_port, method_params)
 
-ROOT = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(os.path.dirname(__file__), "..", ".."))
 SPEC = {"lens": "strong", "plan": {"method": "fermat", "points": 300}}
 
 
@@ -31,32 +30,6 @@ class TcpClient(Client):
         self.buf = b""
         self.next_id = 0
         self.events = []
-
-
-def documented_methods():
-    """{method: role} from proto/README.md's "## Methods"."""
-    with open(os.path.join(ROOT, "proto", "README.md")) as f:
-        text = f.read()
-    text = text[text.index("\n## Methods"):text.index("\n## Events")]
-    methods = {}
-    for m in re.finditer(r"^### `([a-z.]+)`\n\n(.*?)(?=^### |^## |\Z)", text, re.M | re.S):
-        body = m.group(2).lstrip()
-        methods[m.group(1)] = ("operator" if body.startswith("**Operator.**") else
-                               "admin" if body.startswith("**Admin.**") else "viewer")
-    return methods
-
-
-def params_for(method, job):
-    """Valid parameters, so that a refusal can only be the permission."""
-    return {"job.submit": SPEC, "job.get": {"id": job}, "job.cancel": {"id": job},
-            "job.pause": {"id": job}, "job.resume": {"id": job}, "job.requeue": {"id": job},
-            "job.result": {"id": job}, "job.file": {"id": job, "name": "result.json"},
-            "queue.move": {"id": job, "position": 0},
-            "instrument.status": {"name": "mock"}, "queue.stop": {},
-            "instrument.lock": {"name": "mock", "reason": "cleaning the probe"},
-            "instrument.unlock": {"name": "mock"},
-            "token.create": {"name": f"t{time.time_ns()}", "role": "viewer"},
-            "token.revoke": {"name": "none-such"}}.get(method, {})
 
 
 def connect(port, token):
@@ -123,7 +96,7 @@ try:
         for m in sorted(methods):
             if m == "hello":
                 continue
-            if c.call_error(m, params_for(m, job)) == 100:
+            if c.call_error(m, method_params(m, job, SPEC)) == 100:
                 refused.add(m)
         expect(refused == refusable[role],
                f"the {role}'s token is refused exactly {sorted(refusable[role]) or 'nothing'} "
