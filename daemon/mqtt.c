@@ -52,18 +52,12 @@ static void complain(struct checker *ck, const char *field, int code, const char
 
 static void complain(struct checker *ck, const char *field, int code, const char *fmt, ...)
 {
-	struct asph_error e;
 	va_list ap;
 
-	asph_error_clear(&e);
-	e.code = code;
 	va_start(ap, fmt);
-	vsnprintf(e.message, sizeof(e.message), fmt, ap);
+	settings_vreport(ck->s, field, code, ck->report, ck->data, fmt, ap);
 	va_end(ap);
-	settings_locate(ck->s, field, &e);
 	ck->n++;
-	if (ck->report)
-		ck->report(&e, ck->data);
 }
 
 static void check_readable(struct checker *ck, const char *field, const char *what,

@@ -7,6 +7,7 @@
 #ifndef ASPHD_SETTINGS_H
 #define ASPHD_SETTINGS_H
 
+#include <stdarg.h>
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
@@ -99,5 +100,12 @@ int settings_defaults(struct settings **out);
  * group, the token file, the instruments' drivers).
  */
 void settings_locate(const struct settings *s, const char *field, struct asph_error *err);
+
+/* An error found after loading, about field: made (code, the message from
+ * fmt), located as settings_locate() does and handed to report (which may
+ * be NULL). */
+void settings_vreport(const struct settings *s, const char *field, int code,
+		      settings_error_fn report, void *data, const char *fmt, va_list ap)
+	__attribute__((format(printf, 6, 0)));
 
 #endif
