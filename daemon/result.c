@@ -21,6 +21,7 @@
 #include "result.h"
 #include "runner.h"
 #include "sha256.h"
+#include "uncertainty.h"
 #include "util-fs.h"
 #include "util-time.h"
 #include "util-mem.h"
@@ -244,12 +245,15 @@ int result_build(const struct result_source *job, const struct job_plan *jp,
 {
 	struct characterized c = { 0 };
 	_cleanup_(json_decrefp) json_t *result = NULL;
-	json_t *files;
+	_cleanup_(json_decrefp) json_t *mc = NULL;
+	json_t *files, *summary;
 	char sha[65];
 	_cleanup_free_ char *text = NULL;
 	int r;
 
 	r = characterize(job, jp, &c, err);
+	if (r == 0)
+		r = result_uncertainty(job, jp, ic, c.points, &c.res, &mc, err);
 	if (r < 0)
 		goto out;
 	if (job->cancelled && job->cancelled(job->cancelled_data)) {
@@ -263,9 +267,12 @@ int result_build(const struct result_source *job, const struct job_plan *jp,
 		json_decref(files);
 		goto out;
 	}
+	summary = summary_json(&c.res, jp->lens_name ? jp->lens_name : jp->prescription.name,
+			       jp->fit.robust);
+	if (summary && mc)
+		json_object_update_recursive(summary, mc);
 	result = json_pack("{s:I, s:o, s:o, s:o, s:o}", "job", (json_int_t)job->job,
-			   "summary", summary_json(&c.res, jp->lens_name ? jp->lens_name
-							 : jp->prescription.name, jp->fit.robust),
+			   "summary", summary,
 			   "provenance", provenance(job, jp, ic, &c, sha),
 			   "hashes", file_hashes(job, files, sha),
 			   "files", files);

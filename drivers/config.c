@@ -229,6 +229,43 @@ static int json_role(const struct json_source *src, const struct asph_registry *
 	return o ? json_options(src, o, *opts, dotted, err) : 0;
 }
 
+/* "uncertainty": { "probe_noise_nm": 5, ... }, every member a number >= 0
+ * named as asph_uncertainty_model_fields() lists them. */
+static int json_uncertainty(const struct json_source *src, json_t *obj, const char *path,
+			    struct asph_instrument_config *ic, struct asph_error *err)
+{
+	char dotted[256];
+	const char *key;
+	json_t *v;
+	int r;
+
+	if (!json_is_object(obj))
+		return json_error_set_at(err, -EINVAL, src, path,
+					 "uncertainty must be an object of contributions");
+	asph_uncertainty_model_init(&ic->uncertainty);
+	json_object_foreach(obj, key, v) {
+		snprintf(dotted, sizeof(dotted), "%s.%s", path, key);
+		if (!json_is_number(v))
+			return json_error_set_at(err, -EINVAL, src, dotted,
+						 "'%s' must be a number", key);
+		r = asph_uncertainty_model_set(&ic->uncertainty, key, json_number_value(v), err);
+		if (r < 0)
+			return json_error_locate(err, r, src, dotted);
+	}
+	struct asph_error why;
+	asph_error_clear(&why);
+	r = asph_uncertainty_model_check(&ic->uncertainty, &why);
+	if (r < 0) {
+		/* at the member at fault when it is written, else the section */
+		if (!json_object_get(obj, why.field) ||
+		    snprintf(dotted, sizeof(dotted), "%s.%s", path, why.field) >= (int)sizeof(dotted))
+			snprintf(dotted, sizeof(dotted), "%s", path);
+		return json_error_set_at(err, r, src, dotted, "%s", why.message);
+	}
+	ic->has_uncertainty = 1;
+	return 0;
+}
+
 static int json_instrument(const struct json_source *src,
 			   const struct asph_registry *reg, json_t *obj,
 			   size_t idx, struct asph_instrument_config *ic,
@@ -243,10 +280,12 @@ static int json_instrument(const struct json_source *src,
 		return json_error_set_at(err, -EINVAL, src, path,
 					 "an instrument must be an object");
 	json_object_foreach(obj, key, v) {
-		if (strcmp(key, "name") && strcmp(key, "stage") && strcmp(key, "probe")) {
+		if (strcmp(key, "name") && strcmp(key, "stage") && strcmp(key, "probe") &&
+		    strcmp(key, "uncertainty")) {
 			snprintf(dotted, sizeof(dotted), "%s.%s", path, key);
 			return json_error_set_at(err, -EINVAL, src, dotted,
-						 "unknown member '%s' (name, stage, probe)", key);
+						 "unknown member '%s' (name, stage, probe, uncertainty)",
+						 key);
 		}
 	}
 	json_t *name = json_object_get(obj, "name");
@@ -267,8 +306,13 @@ static int json_instrument(const struct json_source *src,
 	if (r < 0)
 		return r;
 	snprintf(dotted, sizeof(dotted), "%s.probe", path);
-	return json_role(src, reg, json_object_get(obj, "probe"), ASPH_ROLE_PROBE,
-			 dotted, &ic->probe_driver, &ic->probe_options, err);
+	r = json_role(src, reg, json_object_get(obj, "probe"), ASPH_ROLE_PROBE,
+		      dotted, &ic->probe_driver, &ic->probe_options, err);
+	json_t *u = json_object_get(obj, "uncertainty");
+	snprintf(dotted, sizeof(dotted), "%s.uncertainty", path);
+	if (r == 0 && u)
+		r = json_uncertainty(src, u, dotted, ic, err);
+	return r;
 }
 
 static int check_names(const struct json_source *src, const struct asph_config *c,
@@ -384,6 +428,8 @@ int asph_instrument_config_copy(const struct asph_instrument_config *c,
 	*ic = (struct asph_instrument_config){ .stage_driver = c->stage_driver,
 					       .probe_driver = c->probe_driver };
 	memcpy(ic->name, c->name, sizeof(ic->name));
+	ic->has_uncertainty = c->has_uncertainty;
+	ic->uncertainty = c->uncertainty;
 	r = asph_options_copy(c->stage_options, &ic->stage_options, err);
 	if (r == 0)
 		r = asph_options_copy(c->probe_options, &ic->probe_options, err);
@@ -446,6 +492,12 @@ int asph_instrument_config_to_json(const struct asph_instrument_config *c,
 	json_object_set_new(root, "driver_abi", json_integer(ASPH_DRIVER_ABI_VERSION));
 	json_object_set_new(root, "stage", role_json(c->stage_driver, c->stage_options, ASPH_ROLE_STAGE));
 	json_object_set_new(root, "probe", role_json(c->probe_driver, c->probe_options, ASPH_ROLE_PROBE));
+	if (c->has_uncertainty) {
+		_cleanup_free_ char *u = NULL;
+		if (asph_uncertainty_model_to_json(&c->uncertainty, &u) < 0)
+			return -ENOMEM;
+		json_object_set_new(root, "uncertainty", json_loads(u, 0, NULL));
+	}
 	*out = json_dumps(root, JSON_COMPACT | JSON_PRESERVE_ORDER | JSON_REAL_PRECISION(17));
 	return *out ? 0 : -ENOMEM;
 }

@@ -7,6 +7,7 @@
 
 #include "asph/driver.h"
 #include "asph/error.h"
+#include "asph/uncertainty.h"
 
 #ifdef __cplusplus
 extern "C" {
@@ -155,6 +156,11 @@ struct asph_instrument_config {
 	const struct asph_driver *probe_driver;
 	struct asph_options *stage_options;
 	struct asph_options *probe_options;
+	/* The instrument's declared uncertainty contributions (the optional
+	 * "uncertainty" section of a configuration file, docs/drivers.md);
+	 * has_uncertainty 0 when it declares none. */
+	int has_uncertainty;
+	struct asph_uncertainty_model uncertainty;
 };
 
 struct asph_config {

@@ -229,7 +229,48 @@ static void test_config_file(void **state)
 	assert_non_null(strstr(json, "\"kinematics\":\"r-theta-z\""));
 	/* stage-only options stay out of the probe's part */
 	assert_null(strstr(strstr(json, "\"probe\""), "kinematics"));
+	assert_null(strstr(json, "uncertainty"));
+	assert_false(c->instruments[0].has_uncertainty);
 	free(json);
+	asph_config_free(c);
+}
+
+static const char uncertainty_json[] =
+	"{\"instruments\": [\n"
+	" {\"stage\": {\"driver\": \"mock\"}, \"probe\": {\"driver\": \"mock\"},\n"
+	"  \"uncertainty\": {\"probe_noise_nm\": 4.5, \"position_noise_um\": 0.25,\n"
+	"    \"position_resolution_um\": 0.05, \"latency_us\": 30, \"scan_speed_mm_s\": 8,\n"
+	"    \"drift_residual_nm\": 6, \"tip_radius_um\": 0.4}}]}\n";
+
+/* The instrument's declared uncertainty contributions: read, recorded in
+ * the instrument's JSON (the scan header) and kept by a copy. */
+static void test_config_uncertainty(void **state)
+{
+	struct fixture *f = *state;
+	struct asph_config *c, *copy;
+	struct asph_error err;
+	char *json;
+
+	assert_int_equal(asph_config_parse(f->reg, uncertainty_json, strlen(uncertainty_json),
+					   "u.json", &c, &err), 0);
+	const struct asph_instrument_config *ic = &c->instruments[0];
+	assert_true(ic->has_uncertainty);
+	assert_true(ic->uncertainty.probe_noise_nm == 4.5);
+	assert_true(ic->uncertainty.position_noise_um == 0.25);
+	assert_true(ic->uncertainty.position_resolution_um == 0.05);
+	assert_true(ic->uncertainty.latency_us == 30);
+	assert_true(ic->uncertainty.scan_speed_mm_s == 8);
+	assert_true(ic->uncertainty.drift_residual_nm == 6);
+	assert_true(ic->uncertainty.tip_radius_um == 0.4);
+	assert_int_equal(asph_instrument_config_copy(ic, &copy, &err), 0);
+	assert_true(copy->instruments[0].has_uncertainty);
+	assert_memory_equal(&copy->instruments[0].uncertainty, &ic->uncertainty,
+			    sizeof(ic->uncertainty));
+	assert_int_equal(asph_instrument_config_to_json(&copy->instruments[0], &json), 0);
+	assert_non_null(strstr(json, "\"uncertainty\":{\"probe_noise_nm\":4.5,"));
+	assert_non_null(strstr(json, "\"tip_radius_um\":0.40000000000000002"));
+	free(json);
+	asph_config_free(copy);
 	asph_config_free(c);
 }
 
@@ -259,6 +300,18 @@ static void test_config_refusals(void **state)
 		  -EINVAL, 2, 36, "", "expected" },
 		{ "{\"instruments\": [\n {\"stage\": {\"driver\": \"mock\", \"options\": {\"stream\": 1}}, \"probe\": {\"driver\": \"mock\"}}]}",
 		  -EINVAL, 2, 43, "instruments.[0].stage.options.stream", "true or false" },
+		{ "{\"instruments\": [\n {\"stage\": {\"driver\": \"mock\"}, \"probe\": {\"driver\": \"mock\"},\n  \"uncertainty\": {\"probe_noise\": 4}}]}",
+		  -ENOENT, 3, 19, "instruments.[0].uncertainty.probe_noise", "probe_noise_nm" },
+		{ "{\"instruments\": [\n {\"stage\": {\"driver\": \"mock\"}, \"probe\": {\"driver\": \"mock\"},\n  \"uncertainty\": {\"tip_radius_um\": -0.1}}]}",
+		  -EINVAL, 3, 19, "instruments.[0].uncertainty.tip_radius_um", ">= 0" },
+		{ "{\"instruments\": [\n {\"stage\": {\"driver\": \"mock\"}, \"probe\": {\"driver\": \"mock\"},\n  \"uncertainty\": {\"latency_us\": \"20\"}}]}",
+		  -EINVAL, 3, 19, "instruments.[0].uncertainty.latency_us", "must be a number" },
+		{ "{\"instruments\": [\n {\"stage\": {\"driver\": \"mock\"}, \"probe\": {\"driver\": \"mock\"},\n  \"uncertainty\": {\"latency_us\": 20}}]}",
+		  -EINVAL, 3, 3, "instruments.[0].uncertainty", "scan_speed_mm_s" },
+		{ "{\"instruments\": [\n {\"stage\": {\"driver\": \"mock\"}, \"probe\": {\"driver\": \"mock\"},\n  \"uncertainty\": {\"latency_us\": 20,\n   \"scan_speed_mm_s\": 0}}]}",
+		  -EINVAL, 4, 4, "instruments.[0].uncertainty.scan_speed_mm_s", "scan_speed_mm_s > 0" },
+		{ "{\"instruments\": [\n {\"stage\": {\"driver\": \"mock\"}, \"probe\": {\"driver\": \"mock\"},\n  \"uncertainty\": [1]}]}",
+		  -EINVAL, 3, 3, "instruments.[0].uncertainty", "an object of contributions" },
 	};
 	struct fixture *f = *state;
 
@@ -475,6 +528,7 @@ int main(void)
 		cmocka_unit_test_setup_teardown(test_spec, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_config_file, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_config_refusals, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_config_uncertainty, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_resolve, setup, teardown),
 		cmocka_unit_test(test_plugins),
 		cmocka_unit_test(test_plugin_dir),

@@ -20,6 +20,7 @@
 #include "fileio.h"
 #include "asph/points.h"
 #include "asph-tool.h"
+#include "fit-uncertainty.h"
 #include "util-mem.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_surface *, asph_surface_free)
@@ -66,6 +67,7 @@ struct fit_cli {
 	double grid_spacing;
 	struct asph_correction_options correction;
 	const char *report_out, *part, *lot, *serial, *scan;
+	struct fit_mc_cli mc;
 };
 
 static void usage(FILE *out)
@@ -111,6 +113,7 @@ static void usage(FILE *out)
 		"    --part P, --lot L, --serial S          what was measured\n"
 		"    --scan SCAN                            the recorded scan the points come from\n"
 		"                                           (its plan and instrument are reported)\n"
+		FIT_MC_HELP
 		"  --json              one JSON object (n_points, dof, uncertainty, iterations,\n"
 		"                      converged, rms_nm, pv_nm, pvr_nm, zernike_nm, form, slope,\n"
 		"                      radius, uncertainty_k2, verdict...)\n"
@@ -239,6 +242,13 @@ static int take_option(struct fit_cli *c, int opt, const char *arg)
 	case OPT_SCAN:
 		c->scan = arg;
 		return 0;
+	case OPT_MC_UNCERTAINTY:
+	case OPT_MC_INSTRUMENT:
+	case OPT_MC_TRIALS:
+	case OPT_MC_FIXED:
+	case OPT_MC_THREADS:
+	case OPT_MC_SEED:
+		return fit_mc_take_option(&c->mc, opt, arg);
 	default:
 		return take_correction_option(c, opt, arg);
 	}
@@ -340,6 +350,7 @@ static int parse_args(struct fit_cli *c, int argc, char **argv)
 		{ "lot", required_argument, NULL, OPT_LOT },
 		{ "serial", required_argument, NULL, OPT_SERIAL },
 		{ "scan", required_argument, NULL, OPT_SCAN },
+		FIT_MC_LONGOPTS,
 		{ "help", no_argument, NULL, 'h' },
 		{ NULL, 0, NULL, 0 },
 	};
@@ -361,18 +372,21 @@ static int parse_args(struct fit_cli *c, int argc, char **argv)
 	}
 	c->lens = argv[optind];
 	c->points = argv[optind + 1];
+	if (fit_mc_check(&c->mc) != EXIT_OK)
+		return EXIT_USAGE;
 	return check_tolerance(c);
 }
 
 static int show_json(const struct fit_cli *c, const struct asph_surface *s,
-		     const struct asph_fit_result *r)
+		     const struct asph_fit_result *r, const struct asph_mc_result *mc)
 {
 	_cleanup_free_ char *text = NULL;
 	_cleanup_(json_decrefp) json_t *root = NULL;
 
 	if (asph_fit_result_to_json(r, asph_surface_prescription(s)->name,
 				    c->opts.robust, &text) < 0 ||
-	    !(root = json_loads(text, 0, NULL))) {
+	    !(root = json_loads(text, 0, NULL)) ||
+	    (mc && fit_mc_json(root, mc, r->form.wavelength_nm) < 0)) {
 		fprintf(stderr, "asph fit: out of memory\n");
 		return EXIT_FAILURE_RUN;
 	}
@@ -605,6 +619,7 @@ int cmd_fit(int argc, char **argv)
 	_cleanup_(asph_fit_freep) struct asph_fit *w = NULL;
 	struct fit_cli c = { 0 };
 	struct asph_fit_result res;
+	struct asph_mc_result mc;
 	struct asph_error err;
 	int r = parse_args(&c, argc, argv);
 
@@ -622,12 +637,23 @@ int cmd_fit(int argc, char **argv)
 		tool_print_error(c.points, &err);
 		return EXIT_FAILURE_RUN;
 	}
+	if (c.mc.enabled) {
+		if (!res.converged) {
+			fprintf(stderr, "asph fit: the fit did not converge: %s\n", res.reason);
+			return EXIT_FAILURE_RUN;
+		}
+		r = fit_mc_run(&c.mc, c.scan, s, pts, &c.opts, c.opts.tolerance, &res, &mc);
+		if (r != EXIT_OK)
+			return r;
+	}
 	if (c.json) {
-		r = show_json(&c, s, &res);
+		r = show_json(&c, s, &res, c.mc.enabled ? &mc : NULL);
 		if (r != EXIT_OK)
 			return r;
 	} else {
 		show_text(&c, s, &res);
+		if (c.mc.enabled)
+			fit_mc_show(&mc);
 	}
 	r = write_outputs(&c, s, pts, w);
 	if (r == EXIT_OK)

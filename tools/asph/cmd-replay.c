@@ -25,7 +25,8 @@ static void usage(FILE *out)
 		     "Characterizes a recorded scan: the best fit of its points to the lens in its\n"
 		     "header, exactly as `asph fit LENS points.csv` on the points `asph export SCAN\n"
 		     "-o points.csv` writes. FIT OPTIONS are those of asph fit (--json, --dof,\n"
-		     "--residual, --robust, --residuals OUT, --map OUT.png); see asph fit --help.\n"
+		     "--residual, --robust, --residuals OUT, --map OUT.png, --uncertainty with the\n"
+		     "contributions the scan's instrument declares); see asph fit --help.\n"
 		     "A scan that did not complete is characterized on the points it kept; a note\n"
 		     "on standard error says so.\n");
 }
@@ -92,15 +93,19 @@ int cmd_replay(int argc, char **argv)
 	snprintf(lens, sizeof(lens), "%s/lens.json", dir);
 	snprintf(csv, sizeof(csv), "%s/points.csv", dir);
 	if (write_lens(argv[1], lens) == 0 && export_points(argv[1], csv) == 0) {
-		_cleanup_free_ char **fit_argv = calloc((size_t)argc + 2, sizeof(char *));
+		_cleanup_free_ char **fit_argv = calloc((size_t)argc + 4, sizeof(char *));
 		if (fit_argv) {
+			/* --scan: the report's provenance and --uncertainty's
+			 * instrument come from the scan itself */
 			fit_argv[0] = (char *)"fit";
 			fit_argv[1] = lens;
 			fit_argv[2] = csv;
+			fit_argv[3] = (char *)"--scan";
+			fit_argv[4] = argv[1];
 			for (int i = 2; i < argc; i++)
-				fit_argv[i + 1] = argv[i];
+				fit_argv[i + 3] = argv[i];
 			optind = 0;   /* asph fit parses its own options from scratch */
-			r = cmd_fit(argc + 1, fit_argv);
+			r = cmd_fit(argc + 3, fit_argv);
 		}
 	}
 	nftw(dir, remove_entry, 8, FTW_DEPTH | FTW_PHYS);

@@ -1,0 +1,50 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* Worker thread: the Monte Carlo uncertainty of a job's characterization. */
+#include <errno.h>
+#include <unistd.h>
+
+#include "asph/instrument.h"
+#include "asph/uncertainty.h"
+#include "uncertainty.h"
+#include "util-mem.h"
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_mc *, asph_mc_free)
+
+/* Between trials: a non-zero answer stops the run. */
+static int job_cancelled(void *data, size_t done, size_t planned)
+{
+	const struct result_source *job = data;
+
+	return job->cancelled && job->cancelled(job->cancelled_data);
+}
+
+int result_uncertainty(const struct result_source *job, const struct job_plan *jp,
+		       const struct asph_instrument_config *ic,
+		       const struct asph_points *points, struct asph_fit_result *res,
+		       json_t **add, struct asph_error *err)
+{
+	_cleanup_(asph_mc_freep) struct asph_mc *mc = NULL;
+	_cleanup_free_ char *text = NULL;
+	struct asph_mc_result out;
+	long cpus = sysconf(_SC_NPROCESSORS_ONLN);
+	struct asph_mc_options o = {
+		.seed = 1, .n_threads = cpus > 0 ? (int)(cpus < 256 ? cpus : 256) : 1,
+		.progress = job_cancelled, .progress_data = (void *)job,
+	};
+	int r;
+
+	*add = NULL;
+	if (!ic->has_uncertainty || !res->converged)
+		return 0;
+	r = asph_mc_alloc(jp->surface, points->xyz, points->n, &jp->fit, res, &ic->uncertainty,
+			  &o, &mc, err);
+	if (r == 0)
+		r = asph_mc_run(mc, &out, err);
+	if (r < 0)
+		return r;
+	asph_mc_apply(&out, jp->fit.tolerance, res);
+	if (asph_mc_result_to_json(&out, res->form.wavelength_nm, &text) < 0 ||
+	    !(*add = json_loads(text, 0, NULL)))
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	return 0;
+}

@@ -1,0 +1,225 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#ifndef ASPH_UNCERTAINTY_H
+#define ASPH_UNCERTAINTY_H
+
+#include <stddef.h>
+
+#include "asph/error.h"
+#include "asph/fit.h"
+#include "asph/form.h"
+#include "asph/surface.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/*
+ * Task-specific measurement uncertainty by Monte Carlo (GUM Supplement 1)
+ * on the instrument model (docs/characterization.md, "Measurement
+ * uncertainty by Monte Carlo").
+ *
+ * The recorded points, in scan order, are the best estimate of where the
+ * surface is: the fitted surface in the fitted pose plus the residual the
+ * characterization found. Each trial adds to them one draw of every
+ * contribution of the instrument model below, re-runs the whole
+ * characterization (best fit from the reference pose, residual statistics,
+ * ISO 14999-4 quantities, slope, R when fitted) and keeps every reported
+ * quantity. Their standard deviation over the trials is the standard
+ * uncertainty u; the expanded uncertainty is U = 2 u (k = 2).
+ */
+
+/* ------------------------------------------------------- instrument model */
+
+/*
+ * What the instrument declares about itself. Every member is a standard
+ * uncertainty (or a step), >= 0; 0 leaves that contribution out.
+ */
+struct asph_uncertainty_model {
+	/* Probe reading noise, nm: independent per point, Gaussian, along
+	 * the probe's measuring axis (machine z). */
+	double probe_noise_nm;
+	/* Stage position noise, um: independent per point and per axis (x,
+	 * y), Gaussian. */
+	double position_noise_um;
+	/* Encoder resolution (quantization step) of x and y, um: an error
+	 * uniform on +-step/2, independent per point and axis. */
+	double position_resolution_um;
+	/* Residual latency between the position latch and the probe
+	 * reading, us: one Gaussian draw per trial, shared by the whole
+	 * scan; with scan_speed_mm_s it displaces every point by
+	 * speed x latency along the scan direction (the path between its
+	 * neighbours in scan order). */
+	double latency_us;
+	double scan_speed_mm_s;     /* speed along the path, mm/s (not an
+				       uncertainty: the latency's lever) */
+	/* Drift left after the drift correction, nm: a ramp in z from 0 at
+	 * the first point to d at the last, d one Gaussian draw per trial. */
+	double drift_residual_nm;
+	/* Tip radius uncertainty, um: one Gaussian draw per trial, every
+	 * point displaced by it along the fitted surface's normal. */
+	double tip_radius_um;
+};
+
+/* All contributions 0. */
+void asph_uncertainty_model_init(struct asph_uncertainty_model *m);
+
+/* 1 when no contribution is declared (every member 0). */
+int asph_uncertainty_model_is_empty(const struct asph_uncertainty_model *m);
+
+/* The members by name (the JSON keys of the instrument configuration's
+ * "uncertainty" section): name, unit and a line of help, in declaration
+ * order. */
+struct asph_uncertainty_field {
+	const char *name;       /* "probe_noise_nm", ... */
+	const char *unit;       /* "nm", "um", "us", "mm/s" */
+	const char *help;
+};
+const struct asph_uncertainty_field *asph_uncertainty_model_fields(size_t *n);
+
+/*
+ * Sets the member `name` to v. -ENOENT for an unknown name (err lists the
+ * known ones), -EINVAL for a value that is negative or not finite, or a
+ * latency without a scan speed (checked by asph_uncertainty_model_check).
+ */
+int asph_uncertainty_model_set(struct asph_uncertainty_model *m,
+			       const char *name, double v,
+			       struct asph_error *err);
+
+/* -EINVAL with the member named in err->field when a value is negative or
+ * not finite, or when latency_us > 0 and scan_speed_mm_s is 0. */
+int asph_uncertainty_model_check(const struct asph_uncertainty_model *m,
+				 struct asph_error *err);
+
+/* The model as a JSON object text (malloc'd), every member by name. */
+int asph_uncertainty_model_to_json(const struct asph_uncertainty_model *m,
+				   char **out);
+
+/* ------------------------------------------------------------ quantities */
+
+/* The quantities a trial yields; the first ASPH_FIT_N_DOF are the fit's
+ * degrees of freedom in enum asph_fit_dof order. */
+enum asph_mc_quantity {
+	ASPH_MC_RMS = ASPH_FIT_N_DOF,  /* residual RMS, nm */
+	ASPH_MC_PV,                    /* nm */
+	ASPH_MC_PVR,                   /* nm */
+	ASPH_MC_A, ASPH_MC_B, ASPH_MC_C,             /* nm */
+	ASPH_MC_RMS_T, ASPH_MC_RMS_I, ASPH_MC_RMS_A, /* nm */
+	ASPH_MC_SLOPE_RMS, ASPH_MC_SLOPE_MAX,        /* urad */
+	ASPH_MC_N_QUANTITIES
+};
+
+/* The JSON summary's key of a quantity: "tx", "ty", "tz", "rx", "ry",
+ * "R_mm", "k", "rz", "rms_nm", "pv_nm", "pvr_nm", "A_nm", "B_nm", "C_nm",
+ * "rms_t_nm", "rms_i_nm", "rms_a_nm", "rms_urad", "max_urad". */
+const char *asph_mc_quantity_key(enum asph_mc_quantity q);
+
+/* -------------------------------------------------------------- the run */
+
+#define ASPH_MC_DEFAULT_TRIALS 200
+#define ASPH_MC_DEFAULT_BLOCK 50
+#define ASPH_MC_DEFAULT_MAX_TRIALS 2000
+#define ASPH_MC_COVERAGE_FACTOR 2.0
+
+/*
+ * Progress, called on the thread that runs asph_mc_run() (never on a
+ * worker) after trials complete: done of planned (planned grows when the
+ * adaptive stop asks for another block). A non-zero return cancels the run
+ * before its next trial.
+ */
+typedef int (*asph_mc_progress_fn)(void *data, size_t done, size_t planned);
+
+struct asph_mc_options {
+	size_t n_trials;        /* 0 = ASPH_MC_DEFAULT_TRIALS */
+	/* 1: exactly n_trials. 0: GUM S1 section 7.9's adaptive procedure
+	 * (docs/characterization.md): blocks of block_size trials, tested
+	 * from n_trials on after every block, until stable or max_trials. */
+	int fixed;
+	size_t block_size;      /* 0 = ASPH_MC_DEFAULT_BLOCK */
+	size_t max_trials;      /* 0 = ASPH_MC_DEFAULT_MAX_TRIALS */
+	int significant_digits; /* n_dig of the numerical tolerance; 0 = 1 */
+	unsigned long seed;     /* trial t draws from a seed made of (seed, t):
+				   the result does not depend on n_threads */
+	int n_threads;          /* workers; 0 = 1 */
+	asph_mc_progress_fn progress;
+	void *progress_data;
+};
+
+struct asph_mc_result {
+	size_t n_trials;        /* trials run */
+	size_t n_failed;        /* trials whose fit failed (left out) */
+	int fixed;
+	int stable;             /* the adaptive stop's criterion was met */
+	size_t block_size;
+	int significant_digits;
+	unsigned long seed;
+	double coverage_factor; /* k = 2 */
+	struct asph_uncertainty_model model;
+	/* Per quantity: covered (1 when the characterization reports it),
+	 * the reference value, the mean over the trials, the standard (u)
+	 * and expanded (U = k u) uncertainty; NaN where not covered. */
+	int covered[ASPH_MC_N_QUANTITIES];
+	double value[ASPH_MC_N_QUANTITIES];
+	double mean[ASPH_MC_N_QUANTITIES];
+	double u[ASPH_MC_N_QUANTITIES];
+	double U[ASPH_MC_N_QUANTITIES];
+};
+
+struct asph_mc;
+
+/*
+ * The run's workspace: one fit workspace, point buffer and generator per
+ * worker thread, allocated here once, and room for the values of up to
+ * max_trials (n_trials when fixed) trials. xyz (3 n, machine frame, mm, in
+ * scan order) is copied; fit_opts are those of the reference fit (its
+ * tolerance is not used), ref its result. The surface must outlive the
+ * workspace. -EINVAL: bad options or model, a reference fit without a
+ * converged pose; -ENOMEM.
+ */
+int asph_mc_alloc(const struct asph_surface *s, const double *xyz, size_t n,
+		  const struct asph_fit_options *fit_opts,
+		  const struct asph_fit_result *ref,
+		  const struct asph_uncertainty_model *model,
+		  const struct asph_mc_options *opts, struct asph_mc **out,
+		  struct asph_error *err);
+void asph_mc_free(struct asph_mc *mc);
+
+/*
+ * Runs the trials on opts->n_threads threads (the caller's thread only
+ * waits and reports progress). A program using it turns GSL's abort
+ * handler off, as for the fit. -ECANCELED when the progress callback
+ * cancelled (out then holds the statistics of the trials done), -EDOM when
+ * more than half of the trials failed, -EAGAIN when a thread could not be
+ * started.
+ */
+int asph_mc_run(struct asph_mc *mc, struct asph_mc_result *out,
+		struct asph_error *err);
+
+/* After a run: the values of trial t, quantity q at
+ * values[t * ASPH_MC_N_QUANTITIES + q] (NaN where not covered or the trial
+ * failed), for the *n_trials trials run. */
+const double *asph_mc_values(const struct asph_mc *mc, size_t *n_trials);
+
+/*
+ * The expanded uncertainties into the fit's result: its uncertainty_k2
+ * (method MONTE_CARLO; fringes at the form's wavelength) and its verdict,
+ * decided again with them when the result carries one for tolerance t.
+ */
+void asph_mc_apply(const struct asph_mc_result *mc,
+		   const struct asph_tolerance *t,
+		   struct asph_fit_result *fit);
+
+/*
+ * JSON text (malloc'd) of an object with "uncertainty_k2" (U of every
+ * covered quantity under its summary key, fringes included),
+ * "uncertainty_standard" (u, the same keys) and "uncertainty_model" (the
+ * contributions, trials, failures, seed, stability, k): to be merged into
+ * the fit's JSON summary. wavelength_nm converts A, B, C to fringes.
+ */
+int asph_mc_result_to_json(const struct asph_mc_result *mc,
+			   double wavelength_nm, char **out);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif

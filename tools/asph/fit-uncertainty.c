@@ -1,0 +1,237 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* asph fit --uncertainty: the Monte Carlo on the instrument's model, its
+ * options, its summary and its keys in the JSON. */
+#include <errno.h>
+#include <limits.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include <jansson.h>
+
+#include "acquire-tool.h"
+#include "asph/scanfile.h"
+#include "asph-tool.h"
+#include "fit-uncertainty.h"
+#include "util-mem.h"
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_registry *, asph_registry_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_config *, asph_config_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile *, asph_scanfile_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_mc *, asph_mc_free)
+
+static int parse_count(const char *arg, const char *name, unsigned long lo, unsigned long hi,
+		       unsigned long *out)
+{
+	char *end;
+	unsigned long v;
+
+	errno = 0;
+	v = strtoul(arg, &end, 10);
+	if (errno || end == arg || *end || arg[0] == '-' || v < lo || v > hi) {
+		fprintf(stderr, "asph fit: --%s: '%s' is not a whole number in %lu..%lu\n", name,
+			arg, lo, hi);
+		return -1;
+	}
+	*out = v;
+	return 0;
+}
+
+int fit_mc_take_option(struct fit_mc_cli *c, int opt, const char *arg)
+{
+	unsigned long v;
+
+	switch (opt) {
+	case OPT_MC_UNCERTAINTY:
+		c->enabled = 1;
+		return 0;
+	case OPT_MC_INSTRUMENT:
+		c->instrument = arg;
+		return 0;
+	case OPT_MC_FIXED:
+		c->opts.fixed = 1;
+		return 0;
+	case OPT_MC_TRIALS:
+		if (parse_count(arg, "trials", 2, ASPH_MC_DEFAULT_MAX_TRIALS, &v) < 0)
+			return -1;
+		c->opts.n_trials = v;
+		return 0;
+	case OPT_MC_THREADS:
+		if (parse_count(arg, "threads", 1, 256, &v) < 0)
+			return -1;
+		c->opts.n_threads = (int)v;
+		return 0;
+	case OPT_MC_SEED:
+		if (parse_count(arg, "seed", 0, 4294967295ul, &v) < 0)
+			return -1;
+		c->opts.seed = v;
+		c->seed_set = 1;
+		return 0;
+	default:
+		return -1;
+	}
+}
+
+int fit_mc_check(const struct fit_mc_cli *c)
+{
+	const struct asph_mc_options *o = &c->opts;
+
+	if (!c->enabled && (c->instrument || o->n_trials || o->fixed || o->n_threads || c->seed_set)) {
+		fprintf(stderr, "asph fit: --instrument, --trials, --fixed-trials, --threads and "
+			"--seed go with --uncertainty\n");
+		return EXIT_USAGE;
+	}
+	if (c->enabled && !o->fixed && o->n_trials && o->n_trials % ASPH_MC_DEFAULT_BLOCK) {
+		fprintf(stderr, "asph fit: --trials %zu: the adaptive stop runs blocks of %d, so a "
+			"multiple of %d (or --fixed-trials)\n", o->n_trials, ASPH_MC_DEFAULT_BLOCK,
+			ASPH_MC_DEFAULT_BLOCK);
+		return EXIT_USAGE;
+	}
+	return EXIT_OK;
+}
+
+/* The "uncertainty" member of an instrument's JSON (a scan header's). */
+static int model_from_scan(const char *scan, struct asph_uncertainty_model *m)
+{
+	_cleanup_(asph_scanfile_freep) struct asph_scanfile *sf = NULL;
+	struct asph_error err;
+	json_error_t jerr;
+	const char *key;
+	json_t *v;
+
+	asph_error_clear(&err);
+	if (asph_scanfile_read(scan, &sf, &err) < 0) {
+		tool_print_error("fit: --scan", &err);
+		return -1;
+	}
+	_cleanup_(json_decrefp) json_t *root = sf->header.instrument ?
+		json_loads(sf->header.instrument, 0, &jerr) : NULL;
+	json_t *u = json_object_get(root, "uncertainty");
+	if (!json_is_object(u)) {
+		fprintf(stderr, "asph fit: --uncertainty: the instrument recorded in %s declares no "
+			"uncertainty contributions (give --instrument CONFIG)\n", scan);
+		return -1;
+	}
+	asph_uncertainty_model_init(m);
+	json_object_foreach(u, key, v) {
+		if (!json_is_number(v) ||
+		    asph_uncertainty_model_set(m, key, json_number_value(v), &err) < 0) {
+			fprintf(stderr, "asph fit: %s: instrument.uncertainty.%s: %s\n", scan, key,
+				err.message[0] ? err.message : "not a number");
+			return -1;
+		}
+	}
+	if (asph_uncertainty_model_check(m, &err) < 0) {
+		fprintf(stderr, "asph fit: %s: instrument.uncertainty.%s: %s\n", scan, err.field,
+			err.message);
+		return -1;
+	}
+	return 0;
+}
+
+static int model_from_config(const char *arg, struct asph_uncertainty_model *m)
+{
+	_cleanup_(asph_registry_freep) struct asph_registry *reg = NULL;
+	_cleanup_(asph_config_freep) struct asph_config *cfg = NULL;
+	struct asph_error err;
+	size_t idx;
+
+	asph_error_clear(&err);
+	if (tool_registry_new(NULL, &reg) < 0)
+		return -1;
+	if (asph_config_resolve(reg, arg, &cfg, &idx, &err) < 0) {
+		tool_print_error("fit: --instrument", &err);
+		return -1;
+	}
+	if (!cfg->instruments[idx].has_uncertainty) {
+		fprintf(stderr, "asph fit: --instrument %s: the instrument '%s' declares no "
+			"uncertainty contributions (an \"uncertainty\" section, docs/drivers.md)\n",
+			arg, cfg->instruments[idx].name);
+		return -1;
+	}
+	*m = cfg->instruments[idx].uncertainty;
+	return 0;
+}
+
+struct progress {
+	int tty;
+};
+
+static int show_progress(void *data, size_t done, size_t planned)
+{
+	struct progress *p = data;
+
+	if (p->tty)
+		fprintf(stderr, "\rMonte Carlo: %zu/%zu trials", done, planned);
+	return 0;
+}
+
+int fit_mc_run(const struct fit_mc_cli *c, const char *scan, const struct asph_surface *s,
+	       const struct asph_points *pts, const struct asph_fit_options *fo,
+	       const struct asph_tolerance *t, struct asph_fit_result *res,
+	       struct asph_mc_result *out)
+{
+	_cleanup_(asph_mc_freep) struct asph_mc *mc = NULL;
+	struct asph_uncertainty_model model;
+	struct asph_mc_options o = c->opts;
+	struct progress p = { .tty = isatty(STDERR_FILENO) };
+	struct asph_error err;
+	int r;
+
+	if (c->instrument ? model_from_config(c->instrument, &model) < 0
+			  : !scan ? (fprintf(stderr, "asph fit: --uncertainty needs --instrument "
+						     "CONFIG or --scan SCAN (whose instrument "
+						     "declares the contributions)\n"), -1)
+				  : model_from_scan(scan, &model) < 0)
+		return EXIT_FAILURE_RUN;
+	if (o.n_threads == 0) {
+		long cpus = sysconf(_SC_NPROCESSORS_ONLN);
+		o.n_threads = cpus > 0 ? (int)(cpus < 256 ? cpus : 256) : 1;
+	}
+	if (!c->seed_set)
+		o.seed = 1;
+	o.progress = show_progress;
+	o.progress_data = &p;
+	asph_error_clear(&err);
+	r = asph_mc_alloc(s, pts->xyz, pts->n, fo, res, &model, &o, &mc, &err);
+	if (r == 0)
+		r = asph_mc_run(mc, out, &err);
+	if (p.tty)
+		fputc('\n', stderr);
+	if (r < 0) {
+		tool_print_error("fit: --uncertainty", &err);
+		return EXIT_FAILURE_RUN;
+	}
+	asph_mc_apply(out, t, res);
+	return EXIT_OK;
+}
+
+int fit_mc_json(json_t *root, const struct asph_mc_result *mc, double wavelength_nm)
+{
+	_cleanup_free_ char *text = NULL;
+	_cleanup_(json_decrefp) json_t *add = NULL;
+
+	if (asph_mc_result_to_json(mc, wavelength_nm, &text) < 0 || !(add = json_loads(text, 0, NULL)))
+		return -ENOMEM;
+	return json_object_update_recursive(root, add) < 0 ? -ENOMEM : 0;
+}
+
+void fit_mc_show(const struct asph_mc_result *mc)
+{
+	const struct asph_uncertainty_model *m = &mc->model;
+
+	printf("Monte Carlo (GUM S1): %zu trials%s%s, %zu failed, seed %lu\n", mc->n_trials,
+	       mc->fixed ? "" : ", adaptive stop ", mc->fixed ? "" : mc->stable ? "stable" : "NOT stable",
+	       mc->n_failed, mc->seed);
+	printf("  model: probe %g nm, position %g um (step %g um), latency %g us at %g mm/s,\n"
+	       "         drift %g nm, tip radius %g um\n", m->probe_noise_nm, m->position_noise_um,
+	       m->position_resolution_um, m->latency_us, m->scan_speed_mm_s, m->drift_residual_nm,
+	       m->tip_radius_um);
+	for (int q = 0; q < ASPH_MC_N_QUANTITIES; q++)
+		if (mc->covered[q])
+			printf("  %-9s %+.9g  u %.4g  U(k=2) %.4g\n",
+			       asph_mc_quantity_key((enum asph_mc_quantity)q), mc->value[q], mc->u[q],
+			       mc->U[q]);
+}

@@ -1,0 +1,70 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/* asph fit --uncertainty: the Monte Carlo on the instrument's model. */
+#ifndef ASPH_TOOL_FIT_UNCERTAINTY_H
+#define ASPH_TOOL_FIT_UNCERTAINTY_H
+
+#include <jansson.h>
+
+#include "asph/fit.h"
+#include "asph/points.h"
+#include "asph/uncertainty.h"
+
+struct fit_mc_cli {
+	int enabled;
+	const char *instrument;   /* FILE or FILE#NAME, else the scan's */
+	int seed_set;
+	struct asph_mc_options opts;
+};
+
+enum {
+	OPT_MC_UNCERTAINTY = 0x200,
+	OPT_MC_INSTRUMENT,
+	OPT_MC_TRIALS,
+	OPT_MC_FIXED,
+	OPT_MC_THREADS,
+	OPT_MC_SEED,
+};
+
+#define FIT_MC_LONGOPTS \
+	{ "uncertainty", no_argument, NULL, OPT_MC_UNCERTAINTY }, \
+	{ "instrument", required_argument, NULL, OPT_MC_INSTRUMENT }, \
+	{ "trials", required_argument, NULL, OPT_MC_TRIALS }, \
+	{ "fixed-trials", no_argument, NULL, OPT_MC_FIXED }, \
+	{ "threads", required_argument, NULL, OPT_MC_THREADS }, \
+	{ "seed", required_argument, NULL, OPT_MC_SEED }
+
+/* Takes one of the options above: 0, or -1 after saying what is wrong. */
+int fit_mc_take_option(struct fit_mc_cli *c, int opt, const char *arg);
+
+/* After all options: the options that need --uncertainty have it.
+ * EXIT_OK or EXIT_USAGE. */
+int fit_mc_check(const struct fit_mc_cli *c);
+#define FIT_MC_HELP \
+	"  --uncertainty       the measurement uncertainty by Monte Carlo (GUM S1) on the\n" \
+	"                      instrument's declared contributions: U (k = 2) of every\n" \
+	"                      quantity into uncertainty_k2 and the verdict, with:\n" \
+	"    --instrument CONFIG   the configuration (FILE or FILE#NAME) that declares them\n" \
+	"                          (default: the instrument recorded in --scan)\n" \
+	"    --trials N            trials (default 200); more in blocks of 50 until the\n" \
+	"                          adaptive stop (GUM S1 7.9) finds them stable, at most 2000\n" \
+	"    --fixed-trials        exactly N trials, no adaptive stop\n" \
+	"    --threads N           worker threads (default: the online processors)\n" \
+	"    --seed S              of the trials' draws (default 1)\n"
+
+/*
+ * Runs the Monte Carlo for the fit res of pts and puts its expanded
+ * uncertainties and the verdict they decide into res. scan is --scan (may
+ * be NULL). EXIT_OK or the exit code.
+ */
+int fit_mc_run(const struct fit_mc_cli *c, const char *scan, const struct asph_surface *s,
+	       const struct asph_points *pts, const struct asph_fit_options *fo,
+	       const struct asph_tolerance *t, struct asph_fit_result *res,
+	       struct asph_mc_result *out);
+
+/* Merges the Monte Carlo's keys into the JSON summary. -ENOMEM. */
+int fit_mc_json(json_t *root, const struct asph_mc_result *mc, double wavelength_nm);
+
+/* The text summary of the Monte Carlo. */
+void fit_mc_show(const struct asph_mc_result *mc);
+
+#endif
