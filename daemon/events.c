@@ -140,16 +140,16 @@ static void notify(struct events *e, enum event_class class, int64_t job, const 
 }
 
 void events_job_state(struct events *e, int64_t id, enum job_state state, int previous,
-		      const char *reason, const char *instrument)
+		      const char *reason, const char *instrument, const char *verdict)
 {
 	if (!wanted(e, EVENT_JOB))
 		return;
 	notify(e, EVENT_JOB, id, "job.state",
-	       json_pack("{s:I, s:s, s:o, s:s?, s:s}", "job", (json_int_t)id,
+	       json_pack("{s:I, s:s, s:o, s:s?, s:s, s:s?}", "job", (json_int_t)id,
 			 "state", job_state_name(state),
 			 "previous", previous < 0 ? json_null()
 				     : json_string(job_state_name((enum job_state)previous)),
-			 "reason", reason, "instrument", instrument));
+			 "reason", reason, "instrument", instrument, "verdict", verdict));
 }
 
 void events_job_progress(struct events *e, int64_t id, const char *instrument, int64_t done,

@@ -70,9 +70,10 @@ int events_watch_remove(struct events *e, int id);
 /* --- the builders, one per notification */
 
 /* job.state: job id went from previous (< 0: a new job) to state, on
- * instrument; reason may be NULL. */
+ * instrument; reason may be NULL; verdict ("pass", "fail", "undecided")
+ * is NULL unless a completed job had a tolerance. */
 void events_job_state(struct events *e, int64_t id, enum job_state state, int previous,
-		      const char *reason, const char *instrument);
+		      const char *reason, const char *instrument, const char *verdict);
 /* job.progress of job id on instrument; eta_s < 0 when not known. */
 void events_job_progress(struct events *e, int64_t id, const char *instrument, int64_t done,
 			 int64_t total, double rate, double eta_s);

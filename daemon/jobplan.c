@@ -6,8 +6,27 @@
 
 #include <jansson.h>
 
+#include "asph/executor.h"
 #include "jobplan.h"
 #include "util-mem.h"
+
+/* The job's tolerance, checked when it was submitted. */
+static int plan_tolerance(json_t *tol, struct job_plan *jp, struct asph_error *err)
+{
+	_cleanup_free_ char *text = NULL;
+
+	if (!tol)
+		return 0;
+	text = json_dumps(tol, JSON_ENCODE_ANY | JSON_COMPACT);
+	if (!text)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	if (asph_tolerance_parse_json(text, strlen(text), "the stored tolerance", &jp->tolerance,
+				      err) < 0)
+		return err->code;
+	jp->fit.tolerance = &jp->tolerance;
+	jp->tolerance_json = steal_ptr(text);
+	return 0;
+}
 
 int job_plan_build(const char *spec_text, uint64_t max_points, struct job_plan *jp,
 		   struct asph_error *err)
@@ -59,7 +78,7 @@ int job_plan_build(const char *spec_text, uint64_t max_points, struct job_plan *
 		return asph_error_set(err, r, "the stored fit options are damaged");
 	jp->fit.robust = json_is_true(json_object_get(fit, "robust"));
 	jp->fit.n_zernike = (int)json_integer_value(json_object_get(fit, "zernike"));
-	return 0;
+	return plan_tolerance(json_object_get(spec, "tolerance"), jp, err);
 }
 
 void job_plan_release(struct job_plan *jp)
@@ -69,6 +88,29 @@ void job_plan_release(struct job_plan *jp)
 	free(jp->prescription_json);
 	free(jp->plan_json);
 	free(jp->fit_json);
+	free(jp->tolerance_json);
 	free(jp->lens_name);
 	memset(jp, 0, sizeof(*jp));
+}
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_config *, asph_config_free)
+
+int job_plan_estimate(const char *spec, uint64_t max_points,
+		      const struct asph_instrument_config *c, double *seconds,
+		      struct asph_error *err)
+{
+	_cleanup_(asph_config_freep) struct asph_config *own = NULL;
+	struct asph_scan_options so = { .flags = ASPH_SCAN_STREAM };
+	struct job_plan jp;
+	int r = job_plan_build(spec, max_points, &jp, err);
+
+	if (r == 0)
+		r = asph_instrument_config_copy(c, &own, err);
+	if (r == 0)
+		r = asph_instrument_config_set_lens(&own->instruments[0], jp.prescription_json, err);
+	if (r == 0)
+		r = asph_scan_estimate(&own->instruments[0], jp.surface, jp.plan->xyz, jp.plan->n,
+				       &so, seconds, err);
+	job_plan_release(&jp);
+	return r;
 }

@@ -11,17 +11,21 @@
 
 #include "asph/error.h"
 #include "asph/fit.h"
+#include "asph/instrument.h"
 #include "asph/plan.h"
 #include "asph/prescription.h"
+#include "asph/tolerance.h"
 
 struct job_plan {
 	struct asph_prescription prescription;
 	struct asph_surface *surface;
 	struct asph_plan *plan;
-	struct asph_fit_options fit;
+	struct asph_fit_options fit;   /* .tolerance: &tolerance when the job has one */
+	struct asph_tolerance tolerance;
 	char *prescription_json;
 	char *plan_json;        /* method, density, spacing, points */
 	char *fit_json;
+	char *tolerance_json;   /* as submitted, or NULL */
 	char *lens_name;        /* or NULL */
 };
 
@@ -30,5 +34,12 @@ struct job_plan {
 int job_plan_build(const char *spec, uint64_t max_points, struct job_plan *jp,
 		   struct asph_error *err);
 void job_plan_release(struct job_plan *jp);
+
+/* The predicted measuring time of the job spec on instrument c (the
+ * daemon measures streamed where it can): asph_scan_estimate() on a copy
+ * of c carrying the job's lens. */
+int job_plan_estimate(const char *spec, uint64_t max_points,
+		      const struct asph_instrument_config *c, double *seconds,
+		      struct asph_error *err);
 
 #endif

@@ -321,6 +321,24 @@ static int write_transition(struct store *s, const void *arg)
 				t->who ? t->who->name : NULL, now_realtime_ns());
 }
 
+/* The overall verdict of a completed job's result ("pass", "fail",
+ * "undecided") in buf, or NULL when it had no tolerance. */
+static const char *job_verdict(const struct job_record *j, char buf[16])
+{
+	_cleanup_(json_decrefp) json_t *res = NULL;
+	const char *v;
+
+	if (j->state != JOB_COMPLETED || !j->result)
+		return NULL;
+	res = json_loads(j->result, 0, NULL);
+	v = json_string_value(json_object_get(json_object_get(json_object_get(res, "summary"),
+							      "verdict"), "overall"));
+	if (!v)
+		return NULL;
+	snprintf(buf, 16, "%s", v);
+	return buf;
+}
+
 /*
  * The one place a job changes state: j (with its other columns as they
  * are in j) is recorded in the new state, counted, logged and told to the
@@ -331,7 +349,7 @@ static int transition(struct jobs *jobs, struct job_record *j, enum job_state s,
 {
 	struct transition t = { .j = j, .state = s, .reason = reason, .who = who };
 	enum job_state old = j->state;
-	char what[64];
+	char what[64], verdict[16];
 	int r;
 
 	snprintf(what, sizeof(what), "the state %s", job_state_name(s));
@@ -353,7 +371,8 @@ static int transition(struct jobs *jobs, struct job_record *j, enum job_state s,
 	log_job(s == JOB_FAILED ? LOG_WARNING : LOG_INFO, j->id, "%s -> %s%s%s%s%s",
 		job_state_name(old), job_state_name(s), reason ? ": " : "", reason ? reason : "",
 		who ? " by " : "", who ? who->name : "");
-	events_job_state(jobs->events, j->id, s, (int)old, reason, j->instrument);
+	events_job_state(jobs->events, j->id, s, (int)old, reason, j->instrument,
+			 s == JOB_COMPLETED ? job_verdict(j, verdict) : NULL);
 	return 0;
 }
 
@@ -763,7 +782,7 @@ int jobs_submit(struct jobs *jobs, const struct job_submission *sub,
 	jobs->counts[JOB_QUEUED]++;
 	log_job(LOG_INFO, j.id, "submitted by %s (uid %" PRId64 ") for %s", who->name, who->uid,
 		instrument);
-	events_job_state(jobs->events, j.id, JOB_QUEUED, -1, NULL, instrument);
+	events_job_state(jobs->events, j.id, JOB_QUEUED, -1, NULL, instrument, NULL);
 	r = out ? load(jobs, j.id, out, err) : 0;
 	jobs_schedule(jobs);
 	return r;
@@ -1220,8 +1239,9 @@ json_t *jobs_job_to_json(const struct jobs *jobs, const struct job_record *j)
 	int64_t done = a ? a->done : j->points_done;
 	int64_t total = a && a->total ? a->total : j->points_total;
 	json_t *lens = json_object_get(spec, "lens");
+	char verdict[16];
 
-	return json_pack("{s:I, s:s, s:s?, s:s, s:I, s:{s:I, s:s?}, s:O?, s:O?, s:O?,"
+	return json_pack("{s:I, s:s, s:s?, s:s, s:I, s:{s:I, s:s?}, s:O?, s:O?, s:O?, s:O?, s:s?,"
 			 " s:o, s:o, s:o, s:{s:I, s:I, s:f, s:f}, s:s?, s:I, s:b, s:s?, s:s?, s:s?}",
 		"id", (json_int_t)j->id,
 		"state", job_state_name(j->state),
@@ -1232,6 +1252,8 @@ json_t *jobs_job_to_json(const struct jobs *jobs, const struct job_record *j)
 		"lens", json_object_get(lens, "name"),
 		"plan", json_object_get(spec, "plan"),
 		"fit", json_object_get(spec, "fit"),
+		"tolerance", json_object_get(spec, "tolerance"),
+		"verdict", job_verdict(j, verdict),
 		"submitted", time_json(j->submitted_ns),
 		"started", time_json(j->started_ns),
 		"finished", time_json(j->finished_ns),

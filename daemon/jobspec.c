@@ -2,12 +2,14 @@
 /* Event loop thread: job.submit's parameters into a job specification. */
 #include <errno.h>
 #include <inttypes.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "asph/fit.h"
 #include "asph/prescription.h"
+#include "asph/tolerance.h"
 #include "jobspec.h"
 #include "util-mem.h"
 
@@ -166,6 +168,69 @@ static int spec_fit(json_t *params, json_t *spec, struct proto_why *why)
 	return 0;
 }
 
+/*
+ * Where a tolerance is wrong: its member, and for a call-out the column in
+ * the call-out as a JSON string ("3/2(0.5" -> column 9: missing ')'), as
+ * asph fit --tolerance counts it.
+ */
+static int tolerance_why(json_t *tol, const struct asph_error *err, struct proto_why *why)
+{
+	json_t *co = json_is_string(tol) ? tol : json_object_get(tol, "iso10110_5");
+	bool in_callout = json_is_string(tol) || !strcmp(err->field, "iso10110_5");
+	_cleanup_free_ char *text = NULL;
+	struct asph_tolerance t;
+	struct asph_error cerr;
+
+	asph_error_clear(&cerr);
+	if (in_callout && json_is_string(co) && (text = json_dumps(co, JSON_ENCODE_ANY)) &&
+	    asph_tolerance_parse_json(text, strlen(text), "tolerance", &t, &cerr) < 0 &&
+	    cerr.column > 0) {
+		snprintf(why->text, sizeof(why->text), "\"tolerance%s\": column %d: %.150s",
+			 json_is_string(tol) ? "" : ".iso10110_5", cerr.column, cerr.message);
+		return PROTO_INVALID_PARAMS;
+	}
+	snprintf(why->text, sizeof(why->text), "\"tolerance%s%.60s\": %.150s",
+		 err->field[0] ? "." : "", err->field, err->message);
+	return PROTO_INVALID_PARAMS;
+}
+
+/*
+ * The tolerance (docs/characterization.md): kept as the client wrote it,
+ * checked here so that a job that cannot be decided is refused at once.
+ * An R_mm limit needs R among the fitted degrees of freedom.
+ */
+static int spec_tolerance(json_t *params, json_t *spec, struct proto_why *why)
+{
+	json_t *tol = json_object_get(params, "tolerance");
+	struct asph_tolerance t;
+	struct asph_error err;
+	_cleanup_free_ char *text = NULL;
+	unsigned mask = 0;
+
+	if (!tol || json_is_null(tol))
+		return 0;
+	if (!json_is_object(tol) && !json_is_string(tol)) {
+		snprintf(why->text, sizeof(why->text),
+			 "\"tolerance\" must be an object or an ISO 10110-5 call-out string");
+		return PROTO_INVALID_PARAMS;
+	}
+	text = json_dumps(tol, JSON_ENCODE_ANY | JSON_COMPACT);
+	if (!text)
+		return PROTO_INTERNAL_ERROR;
+	asph_error_clear(&err);
+	if (asph_tolerance_parse_json(text, strlen(text), "tolerance", &t, &err) < 0)
+		return tolerance_why(tol, &err, why);
+	asph_fit_dof_parse(json_string_value(json_object_get(json_object_get(spec, "fit"), "dof")),
+			   &mask, &err);
+	if (!isnan(t.R_mm) && !(mask & ASPH_FIT_DOF_BIT(ASPH_FIT_R))) {
+		snprintf(why->text, sizeof(why->text),
+			 "\"tolerance.R_mm\" needs R among the degrees of freedom (\"fit.dof\")");
+		return PROTO_INVALID_PARAMS;
+	}
+	json_object_set(spec, "tolerance", tol);
+	return 0;
+}
+
 int jobspec_from_params(json_t *params, uint64_t max_points, json_t **out,
 		     uint64_t *points, struct proto_why *why)
 {
@@ -180,6 +245,8 @@ int jobspec_from_params(json_t *params, uint64_t max_points, json_t **out,
 		code = spec_plan(params, spec, &p, max_points, points, why);
 	if (!code)
 		code = spec_fit(params, spec, why);
+	if (!code)
+		code = spec_tolerance(params, spec, why);
 	if (code) {
 		json_decref(spec);
 		return code;

@@ -2,6 +2,7 @@
 /* Worker thread: characterization of a recorded scan, and the result files. */
 #include <errno.h>
 #include <fcntl.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -11,10 +12,14 @@
 
 #include <jansson.h>
 
+#include "asph/areal.h"
+#include "asph/drift.h"
 #include "asph/instrument.h"
 #include "asph/plot.h"
 #include "asph/points.h"
+#include "asph/report.h"
 #include "asph/scanfile.h"
+#include "asph/x3p.h"
 #include "asph-proto.h"
 #include "config.h"
 #include "dirs.h"
@@ -75,6 +80,7 @@ struct characterized {
 	struct asph_points *points;
 	struct asph_fit *fit;
 	struct asph_fit_result res;
+	char *acquisition;      /* the acquisition's account, JSON */
 };
 
 static void characterized_release(struct characterized *c)
@@ -82,13 +88,17 @@ static void characterized_release(struct characterized *c)
 	asph_fit_free(c->fit);
 	asph_points_free(c->points);
 	asph_scanfile_free(c->scan);
+	free(c->acquisition);
 	unmap(&c->map);
 }
 
+/* The points as asph export writes them and asph replay fits them: the
+ * drift the references measured corrected. */
 static int characterize(const struct result_source *job, const struct job_plan *jp,
 			struct characterized *c, struct asph_error *err)
 {
 	_cleanup_free_ char *path = NULL;
+	struct asph_drift_summary sum;
 	int r = map_scan(job, &c->map, err);
 
 	if (r < 0)
@@ -98,9 +108,11 @@ static int characterize(const struct result_source *job, const struct job_plan *
 	r = asph_scanfile_read_memory(c->map.data, c->map.len, path, &c->scan, err);
 	if (r < 0)
 		return r;
-	r = asph_scanfile_to_points(c->scan, 0, &c->points, err);
+	r = asph_drift_scanfile_points(c->scan, path, 0, 0, &c->points, &sum, err);
 	if (r < 0)
 		return r;
+	if (asph_drift_report_json(c->scan, &sum, 1, &c->acquisition) < 0)
+		return asph_error_set(err, -ENOMEM, "out of memory");
 	r = asph_fit_alloc(jp->surface, c->points->n, &jp->fit, &c->fit, err);
 	if (r < 0)
 		return r;
@@ -149,26 +161,134 @@ static int write_residuals(const struct result_source *job, struct characterized
 	return 0;
 }
 
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scatter *, asph_scatter_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_grid *, asph_grid_free)
+
+/* The residual grid of the X3P file: the points' own spacing, but no finer
+ * than a thousandth of the aperture's diameter (8 MB of data at most). */
+#define X3P_MIN_NODES_ACROSS 1000.0
+
+struct export_source {
+	const struct result_source *job;
+	const struct job_plan *jp;
+	const struct characterized *c;
+	const char *instrument_json;
+	const struct asph_scatter *scatter;
+	const struct asph_grid *grid;
+	const double *xy, *residual_nm;
+	size_t n;
+};
+
+static int write_x3p(FILE *f, void *data, struct asph_error *err)
+{
+	const struct export_source *e = data;
+	char comment[256];
+	struct asph_x3p_info info = { .creator = "asphd " ASPH_VERSION, .comment = comment };
+
+	snprintf(comment, sizeof(comment), "%s residual of %s after the best fit (z in m), job %lld",
+		 asph_fit_residual_name(e->c->res.residual), e->jp->prescription.name,
+		 (long long)e->job->job);
+	return asph_x3p_write_grid_stream(f, "residual.x3p", e->grid, &info, err);
+}
+
+static const char *meta_string(const json_t *meta, const char *key)
+{
+	return json_string_value(json_object_get(meta, key));
+}
+
+static int write_report(FILE *f, void *data, struct asph_error *err)
+{
+	const struct export_source *e = data;
+	_cleanup_(json_decrefp) json_t *meta = json_loads(e->job->metadata, 0, NULL);
+	const struct asph_report r = {
+		.part = meta_string(meta, "part"), .lot = meta_string(meta, "lot"),
+		.serial = meta_string(meta, "serial"),
+		.lens_name = e->jp->lens_name ? e->jp->lens_name : e->jp->prescription.name,
+		.lens_json = e->jp->prescription_json, .plan_json = e->jp->plan_json,
+		.instrument_json = e->instrument_json, .data_name = RUNNER_SCAN_FILE,
+		.data = e->c->map.data, .data_len = e->c->map.len,
+		.software = "asphd " ASPH_VERSION, .fit = &e->c->res,
+		.tolerance = e->jp->fit.tolerance,
+		.xy = e->xy, .residual_nm = e->residual_nm, .n = e->n,
+		.scatter = e->scatter, .radius = asph_surface_aperture_radius(e->jp->surface),
+	};
+
+	return asph_report_write_pdf_stream(f, "report.pdf", &r, err);
+}
+
+/*
+ * residual.x3p (the residual map resampled on a grid, ISO 25178-72 matrix
+ * layout) and report.pdf (without cairo, none). A scan too sparse for a
+ * map of the part has neither; only a failure to write fails the result.
+ */
+static int write_exports(const struct result_source *job, const struct job_plan *jp,
+			 const char *instrument_json, const struct characterized *c,
+			 json_t *files, struct asph_error *err)
+{
+	_cleanup_(asph_scatter_freep) struct asph_scatter *sc = NULL;
+	_cleanup_(asph_grid_freep) struct asph_grid *g = NULL;
+	_cleanup_free_ double *xy = malloc(2 * c->res.n_used * sizeof(double) + 1);
+	_cleanup_free_ double *v = malloc(c->res.n_used * sizeof(double) + 1);
+	double radius = asph_surface_aperture_radius(jp->surface);
+	struct export_source e = { .job = job, .jp = jp, .c = c, .instrument_json = instrument_json,
+				   .xy = xy, .residual_nm = v };
+	struct asph_error perr;
+	int r;
+
+	if (!xy || !v)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	e.n = asph_fit_residual_map(c->fit, xy, v);
+	asph_error_clear(&perr);
+	r = asph_fit_residual_scatter(c->fit, &sc, &perr);
+	if (r == 0)
+		r = asph_grid_resample(sc, radius, fmax(asph_scatter_median_edge(sc),
+							2 * radius / X3P_MIN_NODES_ACROSS), &g, &perr);
+	/* Too few points, or all on a line, for a map of the part: the
+	 * result stands without the map's exports. */
+	if (r == -EDOM || r == -EINVAL)
+		return 0;
+	if (r < 0) {
+		*err = perr;
+		return r;
+	}
+	e.scatter = sc;
+	e.grid = g;
+	r = fs_write_file_at(job->dir_fd, "residual.x3p", DIRS_FILE_MODE, write_x3p, &e, err);
+	if (r < 0)
+		return r;
+	json_object_set_new(files, "x3p", json_string("residual.x3p"));
+	asph_error_clear(&perr);
+	r = fs_write_file_at(job->dir_fd, "report.pdf", DIRS_FILE_MODE, write_report, &e, &perr);
+	/* Without cairo, or a map too sparse to draw: no report. */
+	if (r == -ENOTSUP || r == -EDOM || r == -EINVAL)
+		return 0;
+	if (r < 0) {
+		*err = perr;
+		return r;
+	}
+	json_object_set_new(files, "report", json_string("report.pdf"));
+	return 0;
+}
+
 static json_t *provenance(const struct result_source *job, const struct job_plan *jp,
-			  const struct asph_instrument_config *ic,
-			  const struct characterized *c, const char *sha)
+			  const char *inst, const struct characterized *c, const char *sha)
 {
 	_cleanup_(json_decrefp) json_t *meta = json_loads(job->metadata, 0, NULL);
-	_cleanup_free_ char *inst = NULL;
 	char started[32] = "", finished[32];
 	json_t *p;
 
-	asph_instrument_config_to_json(ic, &inst);
 	json_int_t st = json_integer_value(json_object_get(meta, "started_ns"));
 	if (st > 0)
 		iso8601_utc(st, 0, started, sizeof(started));
 	iso8601_utc(now_realtime_ns(), 0, finished, sizeof(finished));
-	p = json_pack("{s:s?, s:o, s:o, s:o, s:o?, s:{s:s, s:s, s:s}, s:O?, s:O?, s:O?,"
+	p = json_pack("{s:s?, s:o, s:o, s:o, s:o?, s:o?, s:{s:s, s:s, s:s}, s:O?, s:O?, s:O?,"
 		      " s:s?, s:s, s:{s:s, s:s, s:I, s:i, s:s}}",
 		"lens_name", jp->lens_name,
 		"prescription", json_loads(jp->prescription_json, 0, NULL),
 		"plan", json_loads(jp->plan_json, 0, NULL),
 		"fit_options", json_loads(jp->fit_json, 0, NULL),
+		"tolerance", jp->tolerance_json
+			? json_loads(jp->tolerance_json, JSON_DECODE_ANY, NULL) : NULL,
 		"instrument", inst ? json_loads(inst, 0, NULL) : NULL,
 		"software", "asphd", ASPH_VERSION, "libasph", ASPH_VERSION, "protocol", PROTOCOL_VERSION,
 		"submitted_by", json_object_get(meta, "submitted_by"),
@@ -179,6 +299,8 @@ static json_t *provenance(const struct result_source *job, const struct job_plan
 		"scan", "file", RUNNER_SCAN_FILE, "sha256", sha,
 		"points", (json_int_t)c->scan->n, "resumes", (int)c->scan->report.n_resumes,
 		"created", c->scan->header.created ? c->scan->header.created : "");
+	if (p)
+		json_object_set_new(p, "acquisition", json_loads(c->acquisition, 0, NULL));
 	return p;
 }
 
@@ -228,15 +350,18 @@ static json_t *file_hashes(const struct result_source *job, json_t *files, const
 	return out;
 }
 
-/* The fit's summary as asph fit --json prints it; NULL on ENOMEM. */
+/* The fit's summary as asph replay --json prints it; NULL on ENOMEM. */
 static json_t *summary_json(const struct asph_fit_result *res, const char *lens,
-			    int robust)
+			    int robust, const char *acquisition)
 {
 	_cleanup_free_ char *text = NULL;
 
 	if (asph_fit_result_to_json(res, lens, robust, &text) < 0)
 		return NULL;
-	return json_loads(text, 0, NULL);
+	json_t *s = json_loads(text, 0, NULL);
+	if (s)
+		json_object_set_new(s, "acquisition", json_loads(acquisition, 0, NULL));
+	return s;
 }
 
 int result_build(const struct result_source *job, const struct job_plan *jp,
@@ -246,6 +371,7 @@ int result_build(const struct result_source *job, const struct job_plan *jp,
 	struct characterized c = { 0 };
 	_cleanup_(json_decrefp) json_t *result = NULL;
 	_cleanup_(json_decrefp) json_t *mc = NULL;
+	_cleanup_free_ char *inst = NULL;
 	json_t *files, *summary;
 	char sha[65];
 	_cleanup_free_ char *text = NULL;
@@ -262,18 +388,21 @@ int result_build(const struct result_source *job, const struct job_plan *jp,
 	}
 	sha256_hex(c.map.data, c.map.len, sha);
 	files = json_pack("{s:s, s:s}", "scan", RUNNER_SCAN_FILE, "result", "result.json");
+	asph_instrument_config_to_json(ic, &inst);
 	r = write_residuals(job, &c, files, err);
+	if (r == 0)
+		r = write_exports(job, jp, inst, &c, files, err);
 	if (r < 0) {
 		json_decref(files);
 		goto out;
 	}
 	summary = summary_json(&c.res, jp->lens_name ? jp->lens_name : jp->prescription.name,
-			       jp->fit.robust);
+			       jp->fit.robust, c.acquisition);
 	if (summary && mc)
 		json_object_update_recursive(summary, mc);
 	result = json_pack("{s:I, s:o, s:o, s:o, s:o}", "job", (json_int_t)job->job,
 			   "summary", summary,
-			   "provenance", provenance(job, jp, ic, &c, sha),
+			   "provenance", provenance(job, jp, inst, &c, sha),
 			   "hashes", file_hashes(job, files, sha),
 			   "files", files);
 	text = result ? json_dumps(result, JSON_INDENT(2)) : NULL;

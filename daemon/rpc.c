@@ -13,6 +13,7 @@
 
 #include "asph-proto.h"
 #include "config.h"
+#include "jobplan.h"
 #include "jobspec.h"
 #include "log.h"
 #include "ratelimit.h"
@@ -363,10 +364,25 @@ static int m_daemon_status(struct call *c, json_t *params, json_t **result)
 
 /* -------------------------------------------------------------- jobs */
 
+/* The predicted measuring time of a submitted job on its instrument, or
+ * null when its drivers cannot describe themselves without a device. */
+static json_t *submit_estimate(struct call *c, const struct job_submission *sub)
+{
+	int i = sub->instrument ? instruments_find(c->rpc->instruments, sub->instrument) : 0;
+	struct asph_error err;
+	double t;
+
+	if (i < 0 || (size_t)i >= instruments_count(c->rpc->instruments) ||
+	    job_plan_estimate(sub->spec, c->rpc->limits->max_plan_points,
+			      instruments_get(c->rpc->instruments, (size_t)i)->config, &t, &err) < 0)
+		return json_null();
+	return json_real(t);
+}
+
 static int m_job_submit(struct call *c, json_t *params, json_t **result)
 {
-	static const char *const names[] = { "lens", "plan", "fit", "instrument", "priority",
-					     "label", "part", "lot", "serial", NULL };
+	static const char *const names[] = { "lens", "plan", "fit", "tolerance", "instrument",
+					     "priority", "label", "part", "lot", "serial", NULL };
 	struct job_submission sub = { 0 };
 	struct job_actor who = actor(c);
 	_cleanup_(json_decrefp) json_t *spec = NULL;
@@ -408,7 +424,12 @@ static int m_job_submit(struct call *c, json_t *params, json_t **result)
 	sub.spec = text;
 	sub.points = (int64_t)points;
 	r = jobs_submit(c->rpc->jobs, &sub, &who, &j, &err);
-	return r < 0 ? job_error(c, r, &err) : job_result(c, &j, result);
+	if (r < 0)
+		return job_error(c, r, &err);
+	code = job_result(c, &j, result);
+	if (code == 0)
+		json_object_set_new(*result, "estimate_s", submit_estimate(c, &sub));
+	return code;
 }
 
 static int history_entry(const struct store_event *e, void *data)

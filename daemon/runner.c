@@ -138,6 +138,7 @@ struct run {
 	struct runner_job *job;
 	struct job_plan jp;             /* parsed spec, surface, plan */
 	struct asph_instrument *inst;
+	struct asph_scanfile *recovered;        /* a resumed scan as it was */
 	struct asph_error err;
 	struct runner_report *final;
 };
@@ -179,7 +180,7 @@ static int open_writer(struct run *run, uint64_t *start,
 	if (job->resume && exists) {
 		wo.flags = ASPH_SCANFILE_REOPEN_ENDED;
 		r = asph_scan_reopen_at(job->dir_fd, RUNNER_SCAN_FILE, run->jp.plan, &wo, w, start,
-					&run->err);
+					&run->recovered, &run->err);
 		if (r < 0)
 			return r;
 		log_job(LOG_INFO, job->id, "resuming the scan at plan point %" PRIu64, *start);
@@ -232,6 +233,7 @@ static int measure(struct run *run)
 	}
 	if (rc < 0)
 		return rc;
+	so.recovered = run->recovered;
 	rc = asph_scan_new(run->inst, run->jp.surface, run->jp.plan->xyz, run->jp.plan->n,
 			   &so, &scan, &run->err);
 	if (rc < 0) {
@@ -304,6 +306,7 @@ static void run_job(struct runner *r, struct runner_job *job, struct runner_repo
 	post(r, &rep);
 	rc = measure(&run);
 	asph_instrument_close(run.inst);
+	asph_scanfile_free(run.recovered);
 	pthread_mutex_lock(&r->lock);
 	stop = r->want_stop;
 	pthread_mutex_unlock(&r->lock);

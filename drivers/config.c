@@ -39,6 +39,8 @@ static int config_alloc(size_t n, struct asph_config **out, struct asph_error *e
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	}
 	c->n = n;
+	for (size_t i = 0; i < n; i++)
+		asph_acquisition_defaults(&c->instruments[i].acquisition);
 	*out = c;
 	return 0;
 }
@@ -64,7 +66,10 @@ static int spec_option(struct asph_instrument_config *ic, char *kv,
 	if (!eq || eq == kv)
 		return asph_error_set(err, -EINVAL, "'%s' is not key=value", kv);
 	*eq = '\0';
-	int r = asph_options_set(ic->stage_options, kv, eq + 1, err);
+	int r = asph_acquisition_set(&ic->acquisition, kv, eq + 1, err);
+	if (r != -ENOENT)
+		return r;
+	r = asph_options_set(ic->stage_options, kv, eq + 1, err);
 	if (r == 0)
 		r = asph_options_set(ic->probe_options, kv, eq + 1, err);
 	return r;
@@ -229,6 +234,59 @@ static int json_role(const struct json_source *src, const struct asph_registry *
 	return o ? json_options(src, o, *opts, dotted, err) : 0;
 }
 
+/* The acquisition settings of an instrument: each as its text. */
+static int json_acquisition(const struct json_source *src, json_t *obj, const char *path,
+			    struct asph_acquisition *a, struct asph_error *err)
+{
+	char dotted[256], buf[64];
+	const char *key;
+	json_t *v;
+
+	if (!json_is_object(obj))
+		return json_error_set_at(err, -EINVAL, src, path, "acquisition must be an object");
+	json_object_foreach(obj, key, v) {
+		_cleanup_free_ char *list = NULL;
+		const char *text = buf;
+		snprintf(dotted, sizeof(dotted), "%s.%s", path, key);
+		if (json_is_number(v)) {
+			snprintf(buf, sizeof(buf), "%.17g", json_number_value(v));
+			if (!strcmp(key, "drift_interval"))
+				strcat(buf, "s");
+		} else if (json_is_string(v)) {
+			text = json_string_value(v);
+		} else if (json_is_array(v) && !strcmp(key, "drift_references")) {
+			/* [[x, y], ...] as X:Y;X:Y */
+			size_t i;
+			json_t *xy;
+			list = calloc(json_array_size(v) * 64 + 1, 1);
+			if (!list)
+				return asph_error_set(err, -ENOMEM, "out of memory");
+			json_array_foreach(v, i, xy) {
+				if (!json_is_array(xy) || json_array_size(xy) != 2 ||
+				    !json_is_number(json_array_get(xy, 0)) ||
+				    !json_is_number(json_array_get(xy, 1)))
+					return json_error_set_at(err, -EINVAL, src, dotted,
+								 "drift_references: each an [x, y] pair of numbers (mm)");
+				snprintf(list + strlen(list), 64, "%s%.17g:%.17g", i ? ";" : "",
+					 json_number_value(json_array_get(xy, 0)),
+					 json_number_value(json_array_get(xy, 1)));
+			}
+			text = list;
+		} else {
+			return json_error_set_at(err, -EINVAL, src, dotted,
+						 "'%s' expects a number or a string", key);
+		}
+		int r = asph_acquisition_set(a, key, text, err);
+		if (r == -ENOENT)
+			return json_error_set_at(err, -EINVAL, src, dotted,
+						 "unknown member '%s' (settle_window, settle_dwell, "
+						 "drift_interval, drift_references, retries)", key);
+		if (r < 0)
+			return json_error_locate(err, r, src, dotted);
+	}
+	return 0;
+}
+
 /* "uncertainty": { "probe_noise_nm": 5, ... }, every member a number >= 0
  * named as asph_uncertainty_model_fields() lists them. */
 static int json_uncertainty(const struct json_source *src, json_t *obj, const char *path,
@@ -281,10 +339,11 @@ static int json_instrument(const struct json_source *src,
 					 "an instrument must be an object");
 	json_object_foreach(obj, key, v) {
 		if (strcmp(key, "name") && strcmp(key, "stage") && strcmp(key, "probe") &&
-		    strcmp(key, "uncertainty")) {
+		    strcmp(key, "acquisition") && strcmp(key, "uncertainty")) {
 			snprintf(dotted, sizeof(dotted), "%s.%s", path, key);
 			return json_error_set_at(err, -EINVAL, src, dotted,
-						 "unknown member '%s' (name, stage, probe, uncertainty)",
+						 "unknown member '%s' (name, stage, probe, acquisition, "
+						 "uncertainty)",
 						 key);
 		}
 	}
@@ -308,6 +367,10 @@ static int json_instrument(const struct json_source *src,
 	snprintf(dotted, sizeof(dotted), "%s.probe", path);
 	r = json_role(src, reg, json_object_get(obj, "probe"), ASPH_ROLE_PROBE,
 		      dotted, &ic->probe_driver, &ic->probe_options, err);
+	json_t *acq = json_object_get(obj, "acquisition");
+	snprintf(dotted, sizeof(dotted), "%s.acquisition", path);
+	if (r == 0 && acq)
+		r = json_acquisition(src, acq, dotted, &ic->acquisition, err);
 	json_t *u = json_object_get(obj, "uncertainty");
 	snprintf(dotted, sizeof(dotted), "%s.uncertainty", path);
 	if (r == 0 && u)
@@ -426,7 +489,8 @@ int asph_instrument_config_copy(const struct asph_instrument_config *c,
 		return r;
 	struct asph_instrument_config *ic = &copy->instruments[0];
 	*ic = (struct asph_instrument_config){ .stage_driver = c->stage_driver,
-					       .probe_driver = c->probe_driver };
+					       .probe_driver = c->probe_driver,
+					       .acquisition = c->acquisition };
 	memcpy(ic->name, c->name, sizeof(ic->name));
 	ic->has_uncertainty = c->has_uncertainty;
 	ic->uncertainty = c->uncertainty;
@@ -464,9 +528,11 @@ static json_t *role_json(const struct asph_driver *drv, const struct asph_option
 {
 	json_t *obj = json_object(), *opts = json_object();
 	const struct asph_option_value *v = asph_options_values(o);
+	char abi[24];
 
 	json_object_set_new(obj, "driver", json_string(drv->name));
 	json_object_set_new(obj, "version", json_string(drv->version ? drv->version : ""));
+	json_object_set_new(obj, "abi", json_string(asph_driver_abi_text(drv->abi_version, abi, sizeof(abi))));
 	for (size_t i = 0; i < drv->n_options; i++) {
 		json_t *j = NULL;
 		if (drv->options[i].roles && !(drv->options[i].roles & role))
@@ -483,15 +549,35 @@ static json_t *role_json(const struct asph_driver *drv, const struct asph_option
 	return obj;
 }
 
+static json_t *acquisition_json(const struct asph_acquisition *a)
+{
+	json_t *refs = json_array();
+	char interval[48] = "off";
+
+	for (size_t i = 0; i < a->n_references; i++)
+		json_array_append_new(refs, json_pack("[f, f]", a->references[i][0],
+						      a->references[i][1]));
+	if (a->drift_interval_s > 0)
+		snprintf(interval, sizeof(interval), "%.17gs", a->drift_interval_s);
+	else if (a->drift_interval_points > 0)
+		snprintf(interval, sizeof(interval), "%llupoints",
+			 (unsigned long long)a->drift_interval_points);
+	return json_pack("{s:f, s:f, s:s, s:o, s:i}", "settle_window_um", a->settle_window * 1e3,
+			 "settle_dwell_s", a->settle_dwell, "drift_interval", interval,
+			 "drift_references", refs, "retries", (int)a->retries);
+}
+
 int asph_instrument_config_to_json(const struct asph_instrument_config *c,
 				   char **out)
 {
 	_cleanup_(json_decrefp) json_t *root = json_object();
 
 	json_object_set_new(root, "name", json_string(c->name));
-	json_object_set_new(root, "driver_abi", json_integer(ASPH_DRIVER_ABI_VERSION));
+	json_object_set_new(root, "driver_abi", json_integer(ASPH_DRIVER_ABI_MAJOR));
+	json_object_set_new(root, "driver_abi_minor", json_integer(ASPH_DRIVER_ABI_MINOR));
 	json_object_set_new(root, "stage", role_json(c->stage_driver, c->stage_options, ASPH_ROLE_STAGE));
 	json_object_set_new(root, "probe", role_json(c->probe_driver, c->probe_options, ASPH_ROLE_PROBE));
+	json_object_set_new(root, "acquisition", acquisition_json(&c->acquisition));
 	if (c->has_uncertainty) {
 		_cleanup_free_ char *u = NULL;
 		if (asph_uncertainty_model_to_json(&c->uncertainty, &u) < 0)

@@ -3,6 +3,7 @@
  * and the daemon's driver.list. Every member is present; what a driver
  * table leaves out is null, and roles are always named. */
 #include <errno.h>
+#include <stdio.h>
 
 #include <jansson.h>
 
@@ -50,6 +51,13 @@ static json_t *option_json(const struct asph_option_desc *o)
 	return j;
 }
 
+const char *asph_driver_abi_text(uint32_t version, char *buf, size_t size)
+{
+	snprintf(buf, size, "%u.%u", ASPH_DRIVER_ABI_MAJOR_OF(version),
+		 ASPH_DRIVER_ABI_MINOR_OF(version));
+	return buf;
+}
+
 static json_t *profile_json(const struct asph_driver_profile *p)
 {
 	json_t *j = json_object();
@@ -83,14 +91,17 @@ int asph_registry_to_json(const struct asph_registry *reg, bool pretty, char **o
 	_cleanup_(json_decrefp) json_t *root = json_object();
 	json_t *list = json_array();
 
-	json_object_set_new(root, "driver_abi", json_integer(ASPH_DRIVER_ABI_VERSION));
+	json_object_set_new(root, "driver_abi", json_integer(ASPH_DRIVER_ABI_MAJOR));
+	json_object_set_new(root, "driver_abi_minor", json_integer(ASPH_DRIVER_ABI_MINOR));
 	for (size_t i = 0; i < asph_registry_count(reg); i++) {
 		const struct asph_driver *d = asph_registry_get(reg, i);
+		char abi[24];
 		json_t *j = json_object(), *opts = json_array();
 		json_object_set_new(j, "name", json_string(d->name));
 		json_object_set_new(j, "description", text_or_null(d->description));
 		json_object_set_new(j, "version", text_or_null(d->version));
 		json_object_set_new(j, "origin", json_string(asph_registry_origin(reg, i)));
+		json_object_set_new(j, "abi", json_string(asph_driver_abi_text(d->abi_version, abi, sizeof(abi))));
 		json_object_set_new(j, "roles", roles_json(d->roles));
 		for (size_t k = 0; k < d->n_options; k++)
 			json_array_append_new(opts, option_json(&d->options[k]));

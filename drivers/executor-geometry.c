@@ -92,8 +92,11 @@ void scan_to_cartesian(const struct asph_scan *sc, const double m[3], double c[3
  * looks along +z, so "before" and "above" are -z. */
 void scan_target(struct asph_scan *sc, size_t i, bool need_normal, struct target *t)
 {
-	const double *p = sc->xyz + 3 * i;
+	scan_target_at(sc, sc->xyz + 3 * i, need_normal, t);
+}
 
+void scan_target_at(struct asph_scan *sc, const double p[3], bool need_normal, struct target *t)
+{
 	/* the normal costs as much as the rest: only when it is used */
 	if (need_normal || sc->tip > 0)
 		asph_surface_normal(sc->surface, p[0], p[1], t->normal);
@@ -254,6 +257,28 @@ static int check_point(struct asph_scan *sc, size_t i, const double *lo, const d
 	return 0;
 }
 
+/* A drift reference: on the part, where the stage and the probe reach. */
+static int check_reference(struct asph_scan *sc, size_t k, const double *lo, const double *hi,
+			   double *min_z, struct asph_error *err)
+{
+	const double *xy = sc->acq.references[k];
+	double p[3] = { xy[0], xy[1], 0 };
+	struct target t;
+
+	if (!asph_surface_contains(sc->surface, xy[0], xy[1], 0))
+		return asph_error_set_at(err, -ERANGE, NULL, 0, 0, "drift_references",
+					 "drift reference %zu (%g, %g) lies outside the part's aperture",
+					 k, xy[0], xy[1]);
+	p[2] = asph_surface_sag_xy(sc->surface, xy[0], xy[1]);
+	scan_target_at(sc, p, false, &t);
+	if (!inside(t.machine, lo, hi) || !inside(t.approach, lo, hi))
+		return asph_error_set_at(err, -ERANGE, NULL, 0, 0, "drift_references",
+					 "drift reference %zu (%g, %g) is outside the stage's travel",
+					 k, xy[0], xy[1]);
+	*min_z = fmin(*min_z, t.approach[2]);
+	return 0;
+}
+
 static int check_probe(const struct asph_scan *sc, struct asph_error *err)
 {
 	const struct asph_probe_info *pi = &sc->inst->probe_info;
@@ -283,6 +308,9 @@ int asph_scan_check(struct asph_scan *sc, struct asph_error *err)
 	sc->theta_prev = 0;
 	for (size_t i = sc->o.start_index; r == 0 && i < sc->n; i++)
 		r = check_point(sc, i, lo, hi, &min_z, err);
+	for (size_t k = 0; r == 0 && asph_acquisition_drift(&sc->acq) &&
+			   k < sc->acq.n_references; k++)
+		r = check_reference(sc, k, lo, hi, &min_z, err);
 	sc->theta_prev = 0;
 	if (r < 0)
 		return r;

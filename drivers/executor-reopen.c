@@ -41,15 +41,15 @@ static int check_plan(int dirfd, const char *path, const struct asph_plan *plan,
 int asph_scan_reopen(const char *path, const struct asph_plan *plan,
 		     const struct asph_scanfile_writer_options *opts,
 		     struct asph_scanfile_writer **w, uint64_t *start_index,
-		     struct asph_error *err)
+		     struct asph_scanfile **recovered, struct asph_error *err)
 {
-	return asph_scan_reopen_at(AT_FDCWD, path, plan, opts, w, start_index, err);
+	return asph_scan_reopen_at(AT_FDCWD, path, plan, opts, w, start_index, recovered, err);
 }
 
 int asph_scan_reopen_at(int dirfd, const char *path, const struct asph_plan *plan,
 			const struct asph_scanfile_writer_options *opts,
 			struct asph_scanfile_writer **w, uint64_t *start_index,
-			struct asph_error *err)
+			struct asph_scanfile **recovered, struct asph_error *err)
 {
 	_cleanup_(asph_scanfile_freep) struct asph_scanfile *rec = NULL;
 	int ret = check_plan(dirfd, path, plan, err);
@@ -62,5 +62,7 @@ int asph_scan_reopen_at(int dirfd, const char *path, const struct asph_plan *pla
 	for (size_t i = 0; i < rec->n; i++)
 		if (rec->points[i].plan_index + 1 > *start_index)
 			*start_index = rec->points[i].plan_index + 1;
+	if (recovered)
+		*recovered = steal_ptr(rec);
 	return 0;
 }

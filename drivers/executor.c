@@ -1,6 +1,8 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /* The scan executor: a plan measured point by point (or swept and
- * streamed), every point recorded, faults ending the file with a reason. */
+ * streamed), every point recorded with the position the stage measured,
+ * drift references measured as the instrument says, dropouts measured
+ * again, faults ending the file with a reason. */
 #include <errno.h>
 #include <limits.h>
 #include <math.h>
@@ -76,11 +78,21 @@ int asph_scan_new(struct asph_instrument *inst, const struct asph_surface *s,
 	sc->surface = s;
 	sc->xyz = xyz;
 	sc->n = n;
+	sc->acq = inst->config->acquisition;
+	/* the default reference, the vertex, on a part that does not hold it
+	 * (an off-axis segment): the centre of its aperture instead */
+	if (sc->acq.n_references == 1 && sc->acq.references[0][0] == 0 &&
+	    sc->acq.references[0][1] == 0 && !asph_surface_contains(s, 0, 0, 0)) {
+		double r;
+		asph_surface_aperture_disk(s, sc->acq.references[0], &r);
+	}
 	sc->tactile = inst->probe_info.type == ASPH_PROBE_TACTILE;
 	sc->tip = sc->tactile ? inst->probe_info.tip_radius : 0;
+	sc->latency = inst->probe_info.latency > 0 ? inst->probe_info.latency : 0;
 	sc->stream = (sc->o.flags & ASPH_SCAN_STREAM) && !sc->tactile &&
 		     inst->probe_info.can_stream && inst->probe_driver->probe->stream &&
-		     inst->stage_driver->stage->sweep;
+		     (inst->stage_driver->stage->sweep || inst->stage_ops.sweep_pvt);
+	sc->pvt = sc->stream && inst->stage_ops.sweep_pvt;
 	atomic_init(&sc->paused, false);
 	atomic_init(&sc->aborted, false);
 	pthread_mutex_init(&sc->lock, NULL);
@@ -97,6 +109,9 @@ void asph_scan_free(struct asph_scan *sc)
 {
 	if (!sc)
 		return;
+	scan_stream_fini(sc);
+	free(sc->invalid);
+	free(sc->invalid_attempts);
 	pthread_mutex_destroy(&sc->lock);
 	pthread_cond_destroy(&sc->wake);
 	free(sc);
@@ -104,17 +119,18 @@ void asph_scan_free(struct asph_scan *sc)
 
 /* --------------------------------------------------------- progress */
 
-static void publish(struct asph_scan *sc, enum asph_scan_state state, uint64_t done,
-		    uint64_t measured, bool force)
+void scan_publish(struct asph_scan *sc, enum asph_scan_state state, uint64_t done, bool force)
 {
 	uint64_t t = now_monotonic_ns();
 
 	if (!force && t - sc->last_report_ns < sc->o.progress_interval_ns)
 		return;
 	struct asph_scan_progress p = {
-		.state = state, .done = done, .total = sc->n, .measured = measured,
+		.state = state, .done = done, .total = sc->n, .measured = sc->measured,
 		.elapsed_s = (double)(t - sc->t0_ns) * 1e-9, .eta_s = -1,
 	};
+	uint64_t it = asph_instrument_clock(sc->inst);
+	p.instrument_s = it > sc->clock0 ? (double)(it - sc->clock0) * 1e-9 : 0;
 	/* the rate over the last interval long enough to say */
 	double dt = (double)(t - sc->rate_t_ns) * 1e-9;
 	p.rate = sc->rate;
@@ -170,7 +186,7 @@ void asph_scan_abort(struct asph_scan *sc)
 
 /* ---------------------------------------------------------- records */
 
-static int flush_records(struct asph_scan *sc, struct asph_error *err)
+int scan_flush(struct asph_scan *sc, struct asph_error *err)
 {
 	int r = 0;
 
@@ -180,42 +196,53 @@ static int flush_records(struct asph_scan *sc, struct asph_error *err)
 	return r;
 }
 
-/* The scan's clock now, and CLOCK_MONOTONIC now: a reading's timestamp
- * becomes the scan time it was taken at. */
-struct stamp {
-	uint64_t scan_ns, mono_ns;
-};
-
-static struct stamp stamp_now(const struct asph_scan *sc)
+uint64_t scan_time(const struct asph_scan *sc, uint64_t instrument_ns)
 {
-	return (struct stamp){ asph_scanfile_writer_elapsed_ns(sc->w), now_monotonic_ns() };
+	return instrument_ns > sc->clock0 ? sc->scan0 + (instrument_ns - sc->clock0) : sc->scan0;
 }
 
-static uint64_t reading_time(const struct stamp *st, uint64_t t_ns)
+/* The instant the probe sampled, on the instrument's clock. */
+static uint64_t sample_instant(const struct asph_scan *sc, const struct asph_reading *rd)
 {
-	if (t_ns && t_ns <= st->mono_ns && st->mono_ns - t_ns <= st->scan_ns)
-		return st->scan_ns - (st->mono_ns - t_ns);
-	return st->scan_ns;
+	if (rd->t_ns && sc->inst->shared_timebase)
+		return rd->t_ns + (uint64_t)llround(sc->latency * 1e9);
+	return asph_instrument_clock(sc->inst);
 }
 
-/* The measured point of a reading: the stage's cartesian position plus
- * the reading along +z, then the tip radius back along the normal. A
- * sweep has no normals (NULL): streaming is for optical probes only
- * (asph_scan_alloc), which have no tip. */
-static int record(struct asph_scan *sc, size_t i, const double cart[3],
-		  const double normal[3], const struct asph_reading *rd,
-		  const struct stamp *st, struct asph_error *err)
+/*
+ * The point of a reading: the stage's position (cartesian) plus the
+ * reading along +z, then a tactile probe's tip radius back along the
+ * normal; or the point a recording gives whole.
+ */
+static int fill_point(struct asph_scan *sc, struct asph_scanfile_point *pt,
+		      const struct pending *m, const struct placed *pl, const double normal[3],
+		      const struct asph_reading *rd, struct asph_error *err)
 {
-	struct asph_scanfile_point *pt = &sc->rec[sc->n_rec++];
+	double cart[3];
 
-	pt->plan_index = i;
+	pt->plan_index = m->index;
 	pt->raw = rd->raw;
-	pt->t_ns = reading_time(st, rd->t_ns);
-	pt->flags = 0;
+	pt->t_ns = scan_time(sc, sample_instant(sc, rd));
+	if (rd->flags & ASPH_READING_ABSOLUTE) {
+		/* a point given whole, with its own account of the position */
+		pt->position_source = rd->position_source;
+		if (rd->position_source != ASPH_POSITION_NONE)
+			memcpy(pt->stage, rd->position, sizeof(pt->stage));
+		else
+			pt->stage[0] = pt->stage[1] = pt->stage[2] = NAN;
+	} else {
+		pt->position_source = pl->source;
+		memcpy(pt->stage, pl->machine, sizeof(pt->stage));
+	}
 	if (rd->flags & ASPH_READING_LOW_SIGNAL)
 		pt->flags |= ASPH_SCANFILE_POINT_LOW_SIGNAL;
 	if (rd->flags & ASPH_READING_OUT_OF_RANGE) {
 		pt->flags |= ASPH_SCANFILE_POINT_OUT_OF_RANGE;
+		pt->x = pt->y = pt->z = NAN;
+		return 0;
+	}
+	if (rd->flags & ASPH_READING_INVALID) {
+		pt->flags |= ASPH_SCANFILE_POINT_INVALID;
 		pt->x = pt->y = pt->z = NAN;
 		return 0;
 	}
@@ -225,8 +252,11 @@ static int record(struct asph_scan *sc, size_t i, const double cart[3],
 		pt->z = rd->xyz[2];
 		if (rd->flags & ASPH_READING_TIP_COMPENSATED)
 			pt->flags |= ASPH_SCANFILE_POINT_TIP_COMPENSATED;
+		if (rd->flags & ASPH_READING_COMMANDED)
+			pt->flags |= ASPH_SCANFILE_POINT_COMMANDED;
 		return 0;
 	}
+	scan_to_cartesian(sc, pl->machine, cart);
 	pt->x = cart[0];
 	pt->y = cart[1];
 	pt->z = cart[2] + rd->value;
@@ -236,16 +266,41 @@ static int record(struct asph_scan *sc, size_t i, const double cart[3],
 		pt->z += sc->tip * normal[2];
 		pt->flags |= ASPH_SCANFILE_POINT_TIP_COMPENSATED;
 	}
-	if (!isfinite(pt->x) || !isfinite(pt->y) || !isfinite(pt->z)) {
-		sc->n_rec--;
-		return asph_error_set(err, -EPROTO, "plan point %zu: the probe's reading is not a number", i);
-	}
+	if (!isfinite(pt->x) || !isfinite(pt->y) || !isfinite(pt->z))
+		return asph_error_set(err, -EPROTO, "plan point %llu: the probe's reading is not a number",
+				      (unsigned long long)m->index);
 	return 0;
 }
 
-/* An out-of-range reading fails the scan unless told to go on. */
-static int check_reading(struct asph_scan *sc, size_t i, const struct asph_reading *rd,
-			 struct asph_error *err)
+int scan_record(struct asph_scan *sc, const struct pending *m, const struct placed *pl,
+		const double normal[3], const struct asph_reading *rd, uint32_t extra_flags,
+		struct asph_error *err)
+{
+	struct asph_scanfile_point pt = { .flags = extra_flags };
+
+	if (pl->source == ASPH_POSITION_COMMANDED && !(rd->flags & ASPH_READING_ABSOLUTE))
+		pt.flags |= ASPH_SCANFILE_POINT_COMMANDED;
+	int r = fill_point(sc, &pt, m, pl, normal, rd, err);
+	if (r < 0)
+		return r;
+	sc->rec_last_flags = pt.flags;
+	if (m->kind == ASPH_MEASURE_REFERENCE) {
+		sc->refs[m->index] = pt;
+		return 0;
+	}
+	if (pt.flags & ASPH_SCANFILE_POINT_COMMANDED)
+		sc->commanded++;
+	sc->rec[sc->n_rec++] = pt;
+	sc->measured++;
+	sc->points_since_round++;
+	r = scan_note_reading(sc, m->index, m->attempt, pt.flags & ASPH_SCANFILE_POINT_INVALID);
+	if (r < 0)
+		return asph_error_set(err, r, "out of memory");
+	return sc->n_rec == RECORD_BATCH ? scan_flush(sc, err) : 0;
+}
+
+int scan_check_reading(struct asph_scan *sc, size_t i, const struct asph_reading *rd,
+		       struct asph_error *err)
 {
 	if (!(rd->flags & ASPH_READING_OUT_OF_RANGE) || (sc->o.flags & ASPH_SCAN_SKIP_OUT_OF_RANGE))
 		return 0;
@@ -256,7 +311,7 @@ static int check_reading(struct asph_scan *sc, size_t i, const struct asph_readi
 
 /* ----------------------------------------------------------- motion */
 
-static int prefixed(int r, const char *who, size_t i, struct asph_error *err)
+int scan_prefixed(int r, const char *who, size_t i, struct asph_error *err)
 {
 	if (r >= 0 || !err)
 		return r;
@@ -265,65 +320,175 @@ static int prefixed(int r, const char *who, size_t i, struct asph_error *err)
 	return asph_error_set(err, r, "plan point %zu: %s: %s", i, who, msg);
 }
 
-/* Seconds the stage needs from a to b at its axes' speeds (0: unknown). */
+/* Seconds the stage needs from a to b: its motion profile at its limits. */
 static double motion_s(const struct asph_scan *sc, const double *a, const double *b)
 {
-	double t = 0;
+	struct asph_motion_move mv;
 
-	for (unsigned k = 0; k < 3; k++) {
-		double v = sc->inst->stage_info.axes[k].max_speed;
-		if (v > 0)
-			t = fmax(t, fabs(b[k] - a[k]) / v);
-	}
-	return t;
+	if (!(sc->lim.speed[0] > 0))
+		return 0;
+	asph_motion_move_plan(a, b, &sc->lim, &mv);
+	return mv.profile.duration;
 }
 
-/* The base timeout plus twice what the operation should take. */
-static unsigned scaled_timeout(unsigned base_ms, double expected_s)
+unsigned scan_timeout(unsigned base_ms, double expected_s)
 {
 	double ms = base_ms + 2000.0 * expected_s;
 	return ms >= (double)UINT_MAX ? UINT_MAX : (unsigned)ms;
 }
 
-static int stage_move(struct asph_scan *sc, const double *m, size_t i, struct asph_error *err)
+int scan_stage_move(struct asph_scan *sc, const double *m, size_t i, struct asph_error *err)
 {
 	struct asph_instrument *in = sc->inst;
-	unsigned timeout = scaled_timeout(sc->o.move_timeout_ms, motion_s(sc, sc->pos, m));
+	unsigned timeout = scan_timeout(sc->o.move_timeout_ms, motion_s(sc, sc->pos, m));
 	int r = in->stage_driver->stage->move_to(in->stage, m, timeout, err);
 
 	if (r == 0)
 		memcpy(sc->pos, m, sizeof(sc->pos));
-	return prefixed(r, "stage", i, err);
+	return scan_prefixed(r, "stage", i, err);
 }
 
 /* Moves to m straight when that keeps min_gap all the way, else up to the
  * travel height, across, and down. Moving up (-z) is always away from the
  * part. */
-static int move_clear(struct asph_scan *sc, const double *m, double min_gap, size_t i,
-		      struct asph_error *err)
+int scan_move_clear(struct asph_scan *sc, const double *m, double min_gap, size_t i,
+		    struct asph_error *err)
 {
 	if (scan_path_clear(sc, sc->pos, m, min_gap))
-		return stage_move(sc, m, i, err);
+		return scan_stage_move(sc, m, i, err);
 	double up[3] = { sc->pos[0], sc->pos[1], fmin(sc->z_safe, sc->pos[2]) };
 	double over[3] = { m[0], m[1], up[2] };
-	int r = stage_move(sc, up, i, err);
+	int r = scan_stage_move(sc, up, i, err);
 	if (r == 0)
-		r = stage_move(sc, over, i, err);
+		r = scan_stage_move(sc, over, i, err);
 	if (r == 0)
-		r = stage_move(sc, m, i, err);
+		r = scan_stage_move(sc, m, i, err);
 	return r;
 }
 
+int scan_aborted(struct asph_scan *sc, struct asph_error *err)
+{
+	if (!atomic_load_explicit(&sc->aborted, memory_order_relaxed))
+		return 0;
+	return asph_error_set(err, -ECANCELED, "aborted");
+}
+
+/* How far a read-back position is from the target, in mm. */
+static double off_target(const struct asph_scan *sc, const double a[3], const double b[3])
+{
+	double ca[3], cb[3];
+
+	scan_to_cartesian(sc, a, ca);
+	scan_to_cartesian(sc, b, cb);
+	return sqrt((ca[0] - cb[0]) * (ca[0] - cb[0]) + (ca[1] - cb[1]) * (ca[1] - cb[1]) +
+		    (ca[2] - cb[2]) * (ca[2] - cb[2]));
+}
+
+int scan_settle(struct asph_scan *sc, const double target[3], size_t i, double out[3],
+		struct asph_error *err)
+{
+	struct asph_instrument *in = sc->inst;
+	uint64_t deadline = now_monotonic_ns() + (uint64_t)sc->o.move_timeout_ms * NS_PER_MS;
+	uint64_t inside_since = 0;
+	bool inside = false;
+
+	for (;;) {
+		int r = scan_prefixed(in->stage_driver->stage->position(in->stage, out,
+									sc->o.move_timeout_ms, err),
+				      "stage", i, err);
+		if (r < 0)
+			return r;
+		double off = off_target(sc, out, target);
+		if (!(sc->acq.settle_window > 0))
+			return 0;
+		uint64_t t = asph_instrument_clock(in);
+		if (off <= sc->acq.settle_window) {
+			if (!inside)
+				inside_since = t;
+			inside = true;
+			if ((double)(t - inside_since) * 1e-9 >= sc->acq.settle_dwell)
+				return 0;
+		} else {
+			inside = false;
+		}
+		if (now_monotonic_ns() > deadline)
+			return asph_error_set(err, -ETIMEDOUT,
+					      "plan point %zu: stage: not settled within %.3g um of its target for %.3g s in %u ms (%.3g um off at the last reading)",
+					      i, sc->acq.settle_window * 1e3, sc->acq.settle_dwell,
+					      sc->o.move_timeout_ms, off * 1e3);
+		if ((r = scan_aborted(sc, err)) < 0)
+			return r;
+	}
+}
+
+/* ------------------------------------------------ step and measure */
+
+int scan_measure_at(struct asph_scan *sc, const struct target *t, const struct pending *m,
+		    uint32_t extra_flags, bool *recorded, struct asph_error *err)
+{
+	struct asph_instrument *in = sc->inst;
+	size_t i = (size_t)m->index;
+	struct asph_probe_context ctx = { .plan_index = m->index, .kind = m->kind,
+					  .attempt = m->attempt };
+	struct asph_reading rd;
+	struct placed pl = { .source = ASPH_POSITION_READ_BACK };
+
+	*recorded = false;
+	int r = scan_move_clear(sc, t->approach, sc->o.clearance / 2, i, err);
+	if (r == 0)
+		r = scan_stage_move(sc, t->machine, i, err);
+	if (r == 0)
+		r = scan_settle(sc, t->machine, i, pl.machine, err);
+	if (r < 0)
+		return r;
+	if (sc->o.flags & ASPH_SCAN_COMMANDED) {
+		memcpy(pl.machine, t->machine, sizeof(pl.machine));
+		pl.source = ASPH_POSITION_COMMANDED;
+	}
+	memcpy(ctx.machine, pl.machine, sizeof(ctx.machine));
+	scan_to_cartesian(sc, ctx.machine, ctx.xyz);
+	double rate = in->probe_info.rate;
+	r = scan_prefixed(asph_instrument_read(in, &ctx, &rd,
+					       scan_timeout(sc->o.read_timeout_ms,
+							    (rate > 0 ? 1 / rate : 0) + sc->latency),
+					       err),
+			  "probe", i, err);
+	if (r == 0 && rd.position_source != ASPH_POSITION_NONE &&
+	    !(sc->o.flags & ASPH_SCAN_COMMANDED)) {
+		/* the probe knows where it was */
+		memcpy(pl.machine, rd.position, sizeof(pl.machine));
+		pl.source = rd.position_source;
+	}
+	if (r == 0)
+		r = scan_record(sc, m, &pl, t->normal, &rd, extra_flags, err);
+	if (r == 0 && m->kind == ASPH_MEASURE_PLAN)
+		r = scan_flush(sc, err);
+	*recorded = r == 0;
+	if (r == 0)
+		r = scan_check_reading(sc, i, &rd, err);
+	if (r == 0)
+		r = scan_stage_move(sc, t->approach, i, err);
+	return r;
+}
+
+static int measure_point(struct asph_scan *sc, size_t i, bool *recorded, struct asph_error *err)
+{
+	struct target t;
+	struct pending m = { .index = i, .kind = ASPH_MEASURE_PLAN };
+
+	scan_target(sc, i, false, &t);
+	return scan_measure_at(sc, &t, &m, 0, recorded, err);
+}
+
 /* Waits while paused, keeping the file's flush policy. */
-static int wait_paused(struct asph_scan *sc, uint64_t done, uint64_t measured,
-		       struct asph_error *err)
+static int wait_paused(struct asph_scan *sc, uint64_t done, struct asph_error *err)
 {
 	if (!atomic_load_explicit(&sc->paused, memory_order_relaxed))
 		return 0;
-	int r = flush_records(sc, err);
+	int r = scan_flush(sc, err);
 	if (r == 0)
 		r = asph_scanfile_writer_flush(sc->w, err);
-	publish(sc, ASPH_SCAN_PAUSED, done, measured, true);
+	scan_publish(sc, ASPH_SCAN_PAUSED, done, true);
 	pthread_mutex_lock(&sc->lock);
 	while (r == 0 && atomic_load(&sc->paused) && !atomic_load(&sc->aborted)) {
 		/* the condition variable's clock is CLOCK_REALTIME */
@@ -335,154 +500,45 @@ static int wait_paused(struct asph_scan *sc, uint64_t done, uint64_t measured,
 	}
 	pthread_mutex_unlock(&sc->lock);
 	sc->last_report_ns = 0;
-	publish(sc, ASPH_SCAN_MEASURING, done, measured, true);
+	scan_publish(sc, ASPH_SCAN_MEASURING, done, true);
 	return r;
-}
-
-static int aborted(struct asph_scan *sc, struct asph_error *err)
-{
-	if (!atomic_load_explicit(&sc->aborted, memory_order_relaxed))
-		return 0;
-	return asph_error_set(err, -ECANCELED, "aborted");
-}
-
-/* *recorded: the point is in the file, even when the move away after it
- * failed. */
-static int measure_point(struct asph_scan *sc, size_t i, bool *recorded, struct asph_error *err)
-{
-	struct asph_instrument *in = sc->inst;
-	struct asph_probe_context ctx = { .plan_index = i };
-	struct asph_reading rd;
-	struct target t;
-	double cart[3];
-
-	scan_target(sc, i, false, &t);
-	int r = move_clear(sc, t.approach, sc->o.clearance / 2, i, err);
-	if (r == 0)
-		r = stage_move(sc, t.machine, i, err);
-	if (r == 0)
-		r = prefixed(in->stage_driver->stage->position(in->stage, ctx.machine,
-							       sc->o.move_timeout_ms, err),
-			     "stage", i, err);
-	if (r < 0)
-		return r;
-	scan_to_cartesian(sc, ctx.machine, ctx.xyz);
-	memcpy(cart, ctx.xyz, sizeof(cart));
-	double rate = in->probe_info.rate;
-	r = prefixed(in->probe_driver->probe->read(in->probe, &ctx, &rd,
-						   scaled_timeout(sc->o.read_timeout_ms,
-								  rate > 0 ? 1 / rate : 0), err),
-		     "probe", i, err);
-	struct stamp st = stamp_now(sc);
-	if (r == 0)
-		r = record(sc, i, cart, t.normal, &rd, &st, err);
-	if (r == 0)
-		r = flush_records(sc, err);
-	*recorded = r == 0;
-	if (r == 0)
-		r = check_reading(sc, i, &rd, err);
-	if (r == 0)
-		r = stage_move(sc, t.approach, i, err);
-	return r;
-}
-
-/* One sweep of up to stream_batch points from i; *done gets how many were
- * measured and recorded. */
-static int measure_sweep(struct asph_scan *sc, size_t i, size_t *done, struct asph_error *err)
-{
-	struct asph_instrument *in = sc->inst;
-	size_t max = sc->n - i < sc->o.stream_batch ? sc->n - i : sc->o.stream_batch, n = 0, got = 0;
-	double rate = in->probe_info.rate, motion = 0, reading = 0;
-	const double *prev = sc->pos;
-	struct target t;
-
-	/* along a sweep the probe may come closer than on the measuring
-	 * positions by half its standoff or half the clearance */
-	double sweep_gap = -fmax(in->probe_info.standoff, sc->o.clearance) / 2;
-	int r;
-
-	*done = 0;
-	scan_target(sc, i, false, &t);
-	if (!scan_path_clear(sc, sc->pos, t.machine, sweep_gap)) {
-		r = move_clear(sc, t.approach, sc->o.clearance / 2, i, err);
-		if (r == 0)
-			r = stage_move(sc, t.machine, i, err);
-		if (r < 0)
-			return r;
-	}
-	double g_prev = NAN;
-	while (n < max && (n == 0 || fmax(motion, reading) < SWEEP_SECONDS)) {
-		if (n > 0) {
-			scan_target(sc, i + n, false, &t);
-			/* a segment too close to the part ends the sweep; the next
-			 * one starts over the part */
-			double g = scan_gap(sc, t.cart);
-			if (!scan_path_clear_g(sc, prev, g_prev, t.machine, g, sweep_gap))
-				break;
-			g_prev = g;
-		}
-		motion += motion_s(sc, prev, t.machine);
-		reading += rate > 0 ? 1 / rate : 0;
-		memcpy(sc->path + 3 * n, t.machine, sizeof(t.machine));
-		memcpy(sc->ctx[n].machine, t.machine, sizeof(t.machine));
-		memcpy(sc->ctx[n].xyz, t.cart, sizeof(t.cart));
-		sc->ctx[n].plan_index = i + n;
-		prev = sc->path + 3 * n++;
-	}
-	r = in->stage_driver->stage->sweep(in->stage, sc->path, n,
-					       scaled_timeout(sc->o.move_timeout_ms, motion), err);
-	if (r < 0)
-		return prefixed(r, "stage", i, err);
-	memcpy(sc->pos, sc->path + 3 * (n - 1), sizeof(sc->pos));
-	r = in->probe_driver->probe->stream(in->probe, sc->ctx, n, sc->readings, &got,
-					    scaled_timeout(sc->o.read_timeout_ms, reading), err);
-	if (r < 0)
-		r = prefixed(r, "probe", i + got, err);
-	struct stamp st = stamp_now(sc);
-	int rr = 0;
-	for (size_t k = 0; k < got && rr == 0; k++) {
-		rr = record(sc, i + k, sc->ctx[k].xyz, NULL, &sc->readings[k], &st, err);
-		if (rr == 0)
-			rr = check_reading(sc, i + k, &sc->readings[k], err);
-		if (rr == 0 || rr == -ERANGE)
-			*done = k + 1;
-	}
-	int fr = flush_records(sc, rr < 0 ? NULL : err);
-	if (rr < 0)
-		return rr;
-	return r < 0 ? r : fr;
 }
 
 static int scan_loop(struct asph_scan *sc, struct asph_error *err)
 {
-	uint64_t measured = 0;
 	size_t i = sc->o.start_index;
 	int r = 0;
 
 	sc->measure_t0_ns = now_monotonic_ns();
 	sc->measure_done0 = i;
 	while (r == 0 && i < sc->n) {
-		r = wait_paused(sc, i, measured, err);
+		r = wait_paused(sc, i, err);
 		if (r == 0)
-			r = aborted(sc, err);
+			r = scan_aborted(sc, err);
+		if (r == 0 && scan_round_due(sc))
+			r = scan_reference_round(sc, err);
 		if (r < 0)
 			break;
 		if (sc->stream) {
 			size_t done = 0;
-			r = measure_sweep(sc, i, &done, err);
+			r = scan_stream(sc, i, &done, err);
 			i += done;
-			measured += done;
 		} else {
 			bool recorded = false;
 			r = measure_point(sc, i, &recorded, err);
 			if (recorded)
-				i++, measured++;
+				i++;
 		}
-		publish(sc, ASPH_SCAN_MEASURING, i, measured, false);
+		scan_publish(sc, ASPH_SCAN_MEASURING, i, false);
 	}
 	if (r == 0)
-		r = aborted(sc, err);
-	publish(sc, ASPH_SCAN_MEASURING, i, measured, true);
+		r = scan_second_pass(sc, err);
+	/* the last round closes the drift model */
+	if (r == 0 && asph_acquisition_drift(&sc->acq))
+		r = scan_reference_round(sc, err);
+	if (r == 0)
+		r = scan_aborted(sc, err);
+	scan_publish(sc, ASPH_SCAN_MEASURING, i, true);
 	return r;
 }
 
@@ -508,7 +564,7 @@ static int finish(struct asph_scan *sc, int r, struct asph_error *err)
 	else if (r < 0)
 		snprintf(reason, sizeof(reason), "%s", strerror(-r));
 	asph_error_clear(&ferr);
-	int rf = flush_records(sc, &ferr);
+	int rf = scan_flush(sc, &ferr);
 	if (state == ASPH_SCAN_ABORTED && (sc->o.flags & ASPH_SCAN_ABORT_RESUMABLE))
 		fr = asph_scanfile_writer_close(sc->w, &ferr);
 	else
@@ -523,7 +579,7 @@ static int finish(struct asph_scan *sc, int r, struct asph_error *err)
 	pthread_mutex_lock(&sc->lock);
 	sc->progress.state = state;
 	pthread_mutex_unlock(&sc->lock);
-	publish(sc, state, sc->progress.done, sc->progress.measured, true);
+	scan_publish(sc, state, sc->progress.done, true);
 	if (r == 0 && fr < 0) {
 		if (err)
 			*err = ferr;
@@ -542,20 +598,30 @@ int asph_scan_run(struct asph_scan *sc, struct asph_scanfile_writer *w,
 	sc->w = w;
 	sc->n_rec = 0;
 	sc->t0_ns = now_monotonic_ns();
+	sc->clock0 = asph_instrument_clock(in);
+	/* a new scan's times are the instrument's from here, so that a
+	 * simulated one is the same to the bit each time; a resumed one's go
+	 * on from the time the file has lived */
+	sc->scan0 = sc->o.start_index == 0 && !sc->o.recovered ? 0
+								: asph_scanfile_writer_elapsed_ns(w);
 	sc->last_report_ns = 0;
-	publish(sc, ASPH_SCAN_CHECKING, sc->o.start_index, 0, true);
-	r = asph_scan_check(sc, err);
+	scan_publish(sc, ASPH_SCAN_CHECKING, sc->o.start_index, true);
+	r = scan_stream_init(sc, err);
+	if (r == 0)
+		r = scan_resume_state(sc, err);
+	if (r == 0)
+		r = asph_scan_check(sc, err);
 	if (r == 0 && !(sc->o.flags & ASPH_SCAN_NO_HOME)) {
-		publish(sc, ASPH_SCAN_HOMING, sc->o.start_index, 0, true);
+		scan_publish(sc, ASPH_SCAN_HOMING, sc->o.start_index, true);
 		r = in->stage_driver->stage->home(in->stage, sc->o.home_timeout_ms, err);
-		r = prefixed(r, "stage", sc->o.start_index, err);
+		r = scan_prefixed(r, "stage", sc->o.start_index, err);
 	}
 	if (r == 0)
-		r = prefixed(in->stage_driver->stage->position(in->stage, sc->pos,
-							       sc->o.move_timeout_ms, err),
-			     "stage", sc->o.start_index, err);
+		r = scan_prefixed(in->stage_driver->stage->position(in->stage, sc->pos,
+								    sc->o.move_timeout_ms, err),
+				  "stage", sc->o.start_index, err);
 	if (r == 0)
-		r = aborted(sc, err);
+		r = scan_aborted(sc, err);
 	if (r == 0)
 		r = scan_loop(sc, err);
 	if (r < 0)

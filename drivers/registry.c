@@ -60,14 +60,24 @@ static int validate_ops(const struct asph_driver *d, struct asph_error *err)
 	return 0;
 }
 
+/* Whether a driver of ABI version v can be loaded: the same major
+ * version, a minor version up to ours. */
+static bool abi_loadable(uint32_t v)
+{
+	return ASPH_DRIVER_ABI_MAJOR_OF(v) == ASPH_DRIVER_ABI_MAJOR &&
+	       ASPH_DRIVER_ABI_MINOR_OF(v) <= ASPH_DRIVER_ABI_MINOR;
+}
+
 int asph_driver_validate(const struct asph_driver *d, struct asph_error *err)
 {
 	if (!d)
 		return asph_error_set(err, -EINVAL, "driver table has a NULL entry");
-	if (d->abi_version != ASPH_DRIVER_ABI_VERSION)
+	if (!abi_loadable(d->abi_version))
 		return asph_error_set(err, -EPROTO,
-				      "driver built for driver ABI %u, this program has ABI %u",
-				      (unsigned)d->abi_version, ASPH_DRIVER_ABI_VERSION);
+				      "driver built for driver ABI %u.%u, this program has ABI %u.%u",
+				      ASPH_DRIVER_ABI_MAJOR_OF(d->abi_version),
+				      ASPH_DRIVER_ABI_MINOR_OF(d->abi_version),
+				      ASPH_DRIVER_ABI_MAJOR, ASPH_DRIVER_ABI_MINOR);
 	if (!valid_name(d->name))
 		return asph_error_set(err, -EINVAL,
 				      "driver name '%s' is not valid ([a-z0-9_-]+)",
@@ -175,10 +185,11 @@ static int load_table(struct asph_registry *r, void *h, const char *path,
 		return asph_error_set(err, -ENOEXEC, "not a driver plugin: no symbol %s",
 				      ASPH_DRIVER_PLUGIN_SYMBOL);
 	const struct asph_driver *const *table = fn(&abi, &n);
-	if (abi != ASPH_DRIVER_ABI_VERSION)
+	if (!abi_loadable(abi))
 		return asph_error_set(err, -EPROTO,
-				      "plugin built for driver ABI %u, this program has ABI %u: rebuild it against this version's asph/driver.h",
-				      (unsigned)abi, ASPH_DRIVER_ABI_VERSION);
+				      "plugin built for driver ABI %u.%u, this program has ABI %u.%u: rebuild it against this version's asph/driver.h",
+				      ASPH_DRIVER_ABI_MAJOR_OF(abi), ASPH_DRIVER_ABI_MINOR_OF(abi),
+				      ASPH_DRIVER_ABI_MAJOR, ASPH_DRIVER_ABI_MINOR);
 	if (!table || n == 0)
 		return asph_error_set(err, -EINVAL, "plugin has no drivers");
 	for (size_t i = 0; i < n; i++) {

@@ -36,9 +36,27 @@ extern "C" {
  * library symbol (struct asph_error may be filled directly).
  */
 
-/* Bumped on any incompatible change of the structures below, including
- * struct asph_error of asph/error.h, which drivers fill. */
-#define ASPH_DRIVER_ABI_VERSION 1
+/*
+ * The ABI's version: the major number grows on any incompatible change of
+ * the structures below (including struct asph_error of asph/error.h, which
+ * drivers fill), the minor number when members are appended to them. A
+ * driver records the version it was built with; the host loads drivers of
+ * its major version and of any minor version up to its own, and reads
+ * nothing a driver's minor version does not have (docs/drivers.md).
+ *
+ *   1.0  the first version
+ *   1.1  measured positions with their source in readings, timed (PVT)
+ *        sweeps with the positions a stage latched or sampled, the device
+ *        clock, the probe's latency, attach() of a probe to its stage,
+ *        invalid readings, the attempt and kind of a measurement, axis
+ *        accelerations and jerks, and describe() without opening
+ */
+#define ASPH_DRIVER_ABI_MAJOR 1
+#define ASPH_DRIVER_ABI_MINOR 1
+#define ASPH_DRIVER_ABI(major, minor) ((uint32_t)(major) | (uint32_t)(minor) << 16)
+#define ASPH_DRIVER_ABI_VERSION ASPH_DRIVER_ABI(ASPH_DRIVER_ABI_MAJOR, ASPH_DRIVER_ABI_MINOR)
+#define ASPH_DRIVER_ABI_MAJOR_OF(v) ((uint32_t)(v) & 0xffffu)
+#define ASPH_DRIVER_ABI_MINOR_OF(v) ((uint32_t)(v) >> 16)
 
 #define ASPH_DRIVER_MAX_AXES 3
 
@@ -105,6 +123,9 @@ struct asph_stage_info {
 	struct asph_axis_info axes[ASPH_DRIVER_MAX_AXES];
 	char model[64];
 	char serial[64];
+	/* 1.1: per axis, unit per s^2 and s^3; 0 = unknown */
+	double max_accel[ASPH_DRIVER_MAX_AXES];
+	double max_jerk[ASPH_DRIVER_MAX_AXES];
 };
 
 enum asph_stage_state {
@@ -125,6 +146,52 @@ struct asph_stage_status {
 
 struct asph_device;             /* each driver defines its own */
 struct asph_driver;
+
+/*
+ * Where a measured position came from (1.1). The executor records it with
+ * every point; a point whose position is COMMANDED is flagged as such.
+ */
+enum asph_position_source {
+	ASPH_POSITION_NONE = 0,         /* not known here */
+	/* the controller captured its encoders on the probe's trigger
+	 * (position capture, touch-probe latch) */
+	ASPH_POSITION_LATCHED,
+	/* asked for after the stage settled */
+	ASPH_POSITION_READ_BACK,
+	/* positions sampled by time, interpolated to the reading's instant
+	 * on the device timebase */
+	ASPH_POSITION_INTERPOLATED,
+	/* nothing better: the position the stage was sent to */
+	ASPH_POSITION_COMMANDED,
+};
+
+/*
+ * A knot of a timed sweep (1.1): the stage passes position at t with
+ * velocity, following the cubic Hermite curve between knots (PVT mode).
+ * t is in seconds from the end of the previous timed sweep when the stage
+ * is still moving along it, else from the start of the call. A knot with
+ * trigger fires the probe's trigger as the command passes it.
+ */
+struct asph_pvt {
+	double t;
+	double position[ASPH_DRIVER_MAX_AXES];  /* the stage's axes */
+	double velocity[ASPH_DRIVER_MAX_AXES];  /* per s */
+	uint32_t trigger;                       /* 1: a reading is taken here */
+	uint32_t reserved;                      /* 0 */
+};
+
+/*
+ * A position the stage measured during its last sweep (1.1): LATCHED at
+ * its trigger-th trigger (0 for the first of the sweep), or READ_BACK at
+ * t_ns, a sample by time (the executor interpolates between samples to a
+ * reading's instant: INTERPOLATED). t_ns is on the device's timebase.
+ */
+struct asph_position_sample {
+	uint64_t t_ns;
+	double position[ASPH_DRIVER_MAX_AXES];
+	uint32_t source;                        /* enum asph_position_source */
+	uint32_t trigger;
+};
 
 struct asph_stage_ops {
 	int (*open)(const struct asph_driver *drv,
@@ -150,6 +217,24 @@ struct asph_stage_ops {
 		      unsigned timeout_ms, struct asph_error *err);
 	/* Any thread; stops motion at once. */
 	int (*stop)(struct asph_device *dev, struct asph_error *err);
+
+	/* ---- 1.1: each optional (NULL); a 1.0 driver does not have them */
+
+	/* A timed sweep through n knots (PVT); returns when the stage has
+	 * passed the last one. The trigger knots fire the probe's trigger. */
+	int (*sweep_pvt)(struct asph_device *dev, const struct asph_pvt *knots, size_t n,
+			 unsigned timeout_ms, struct asph_error *err);
+	/* The positions measured during the last sweep (either kind), in
+	 * order: at most max into out, *n of them. */
+	int (*sweep_trace)(struct asph_device *dev, struct asph_position_sample *out,
+			   size_t max, size_t *n, unsigned timeout_ms, struct asph_error *err);
+	/* The device's timebase now, ns: what its timestamps and an attached
+	 * probe's count in. Without it: CLOCK_MONOTONIC. */
+	int (*clock)(struct asph_device *dev, uint64_t *t_ns);
+	/* The info as the options describe it, without a device (for
+	 * estimates before anything is opened). */
+	int (*describe)(const struct asph_driver *drv, const struct asph_option_value *options,
+			struct asph_stage_info *out, struct asph_error *err);
 };
 
 /* ------------------------------------------------------------- probe */
@@ -178,6 +263,9 @@ struct asph_probe_info {
 	bool can_stream;
 	char model[64];
 	char serial[64];
+	/* 1.1: s from the trigger (the reading's t_ns) to the instant the
+	 * probe samples the surface; the executor compensates it */
+	double latency;
 };
 
 /*
@@ -188,10 +276,21 @@ struct asph_probe_info {
  * recorded one looks the reading up by plan index. This keeps the probe
  * independent of which stage driver carries it.
  */
+enum asph_measurement_kind {
+	ASPH_MEASURE_PLAN = 0,          /* a plan point: plan_index */
+	ASPH_MEASURE_REFERENCE,         /* a drift reference: plan_index is its
+					   number in the scan's reference set */
+};
+
 struct asph_probe_context {
 	uint64_t plan_index;
 	double machine[ASPH_DRIVER_MAX_AXES];   /* the stage's axes */
 	double xyz[3];          /* the same in the cartesian frame, mm */
+	/* 1.1 */
+	uint32_t kind;          /* enum asph_measurement_kind */
+	uint32_t attempt;       /* earlier measurements of this point in the
+				   scan (a re-measurement, a reference's
+				   round) */
 };
 
 enum asph_reading_flags {
@@ -201,14 +300,26 @@ enum asph_reading_flags {
 	 * compensated): a recorded scan played back. */
 	ASPH_READING_ABSOLUTE = 1u << 2,
 	ASPH_READING_TIP_COMPENSATED = 1u << 3, /* with ABSOLUTE */
+	/* 1.1: the probe got no valid sample (too little light, a steep
+	 * slope): value is not a measurement; the point is measured again */
+	ASPH_READING_INVALID = 1u << 4,
+	/* 1.1: ABSOLUTE, recorded with a commanded position */
+	ASPH_READING_COMMANDED = 1u << 5,
 };
 
 struct asph_reading {
 	double value;           /* mm along the probe axis */
 	double raw;             /* the probe's own number, its units */
 	double xyz[3];          /* ASPH_READING_ABSOLUTE only */
-	uint64_t t_ns;          /* CLOCK_MONOTONIC, 0 = unknown */
+	uint64_t t_ns;          /* the trigger's instant: CLOCK_MONOTONIC, or
+				   the stage's clock for an attached probe;
+				   0 = unknown */
 	uint32_t flags;         /* enum asph_reading_flags */
+	/* 1.1: where the stage was, if the probe knows (encoder inputs of
+	 * its own); the executor fills what it measured otherwise */
+	uint32_t position_source;               /* enum asph_position_source */
+	double position[ASPH_DRIVER_MAX_AXES];  /* the stage's axes */
+	uint64_t position_t_ns;
 };
 
 struct asph_probe_ops {
@@ -232,12 +343,24 @@ struct asph_probe_ops {
 		      unsigned timeout_ms, struct asph_error *err);
 	/* Any thread; interrupts read and stream. */
 	int (*stop)(struct asph_device *dev, struct asph_error *err);
+
+	/* ---- 1.1: each optional (NULL) */
+
+	/* The probe is mounted on this stage (called once both are open;
+	 * the stage outlives the probe). 1 when the probe is wired to it:
+	 * the stage's trigger fires it and its timestamps count in the
+	 * stage's clock; 0 when it is not; or a negative errno. */
+	int (*attach)(struct asph_device *dev, const struct asph_driver *stage_driver,
+		      struct asph_device *stage);
+	/* The info as the options describe it, without a device. */
+	int (*describe)(const struct asph_driver *drv, const struct asph_option_value *options,
+			struct asph_probe_info *out, struct asph_error *err);
 };
 
 /* ------------------------------------------------------------ driver */
 
 struct asph_driver {
-	uint32_t abi_version;           /* ASPH_DRIVER_ABI_VERSION */
+	uint32_t abi_version;           /* ASPH_DRIVER_ABI_VERSION it was built with */
 	const char *name;               /* [a-z0-9_-]+, unique */
 	const char *description;
 	const char *version;
@@ -252,8 +375,8 @@ struct asph_driver {
  * Drivers built outside the tree are shared objects in the plugin
  * directory that export this function. It stores the ABI version the
  * plugin was built with in *abi_version and returns its drivers (*n of
- * them); the host refuses a plugin whose version differs from its own
- * before touching the table.
+ * them); the host refuses a plugin of another major version, or of a minor
+ * version newer than its own, before touching the table.
  */
 #define ASPH_DRIVER_PLUGIN_SYMBOL "asph_driver_plugin"
 

@@ -31,6 +31,12 @@ extern "C" {
  * get_progress() from any thread, while the scan and its instrument exist.
  * abort() calls the drivers' stop(), which latches: the instrument is
  * reopened for the next scan.
+ *
+ * Every point records the position the stage measured (latched on the
+ * probe's trigger, read back after settling, interpolated in time) with
+ * the probe's latency compensated; a point paired with a commanded position
+ * is flagged so. The instrument's acquisition settings (asph/instrument.h)
+ * decide the settling, the drift references and the retries of dropouts.
  */
 
 enum asph_scan_state {
@@ -53,6 +59,8 @@ struct asph_scan_progress {
 	uint64_t total;         /* plan points */
 	uint64_t measured;      /* readings taken by this run */
 	double elapsed_s;       /* since run() started, pauses included */
+	double instrument_s;    /* the same on the instrument's clock (a
+				   simulated instrument's simulated time) */
 	double rate;            /* points per second over the last interval */
 	double eta_s;           /* remaining at the mean rate; < 0 unknown */
 };
@@ -69,6 +77,9 @@ enum asph_scan_flags {
 	ASPH_SCAN_NO_HOME = 1u << 2,
 	/* On abort, close the file without an end block (resumable). */
 	ASPH_SCAN_ABORT_RESUMABLE = 1u << 3,
+	/* Pair every reading with the commanded position (each point is
+	 * flagged commanded-position): to see what measured positions save. */
+	ASPH_SCAN_COMMANDED = 1u << 4,
 };
 
 struct asph_scan_options {
@@ -84,6 +95,9 @@ struct asph_scan_options {
 	asph_scan_progress_fn progress; /* may be NULL */
 	void *progress_data;
 	uint64_t progress_interval_ns;  /* 0 = 100 ms */
+	/* A resumed scan as asph_scan_reopen() recovered it (or NULL): its
+	 * reference rounds and the points still invalid go on from there. */
+	const struct asph_scanfile *recovered;
 };
 
 struct asph_scan;
@@ -127,18 +141,48 @@ int asph_scan_run(struct asph_scan *sc, struct asph_scanfile_writer *w,
  * point count, as its header says in either shape
  * asph_plan_info_from_json() reads), else -EINVAL and the file is left as
  * it was: points of two plans never share a file. opts and the other
- * refusals are asph_scanfile_writer_resume()'s.
+ * refusals are asph_scanfile_writer_resume()'s. recovered (may be NULL)
+ * receives the scan as read, for asph_scan_options.recovered.
  */
 int asph_scan_reopen(const char *path, const struct asph_plan *plan,
 		     const struct asph_scanfile_writer_options *opts,
 		     struct asph_scanfile_writer **w, uint64_t *start_index,
-		     struct asph_error *err);
+		     struct asph_scanfile **recovered, struct asph_error *err);
 /* The same with path relative to the directory dirfd, never opened
  * through a symbolic link (asph_scanfile_writer_resume_at()). */
 int asph_scan_reopen_at(int dirfd, const char *path, const struct asph_plan *plan,
 			const struct asph_scanfile_writer_options *opts,
 			struct asph_scanfile_writer **w, uint64_t *start_index,
-			struct asph_error *err);
+			struct asph_scanfile **recovered, struct asph_error *err);
+
+/*
+ * The predicted measuring time in s of the n plan points xyz on surface s
+ * with instrument c and options so (may be NULL), before anything is
+ * opened (asph_instrument_describe()): streamed, the feed-rate planner's
+ * time along the path; point by point, the moves, the settling dwell and
+ * the readings; and the drift references' rounds. Homing and a stage's
+ * ringing are not included. -ENOTSUP when a driver cannot describe itself.
+ */
+int asph_scan_estimate(const struct asph_instrument_config *c, const struct asph_surface *s,
+		       const double *xyz, size_t n, const struct asph_scan_options *so,
+		       double *seconds, struct asph_error *err);
+
+/*
+ * Re-simulation for a Monte Carlo evaluation: the points instrument c (a
+ * simulated one: the mock and its physical model, time_factor=0) measures
+ * for the n plan points xyz of surface s, streamed where it can, as
+ * characterization takes them from a recorded scan (the drift references'
+ * correction applied, drift receives its size; may be NULL), in *out
+ * (asph_points_free()). The recording is a temporary file in dir, removed
+ * before the call returns. Each draw of the model's contributions is a
+ * configuration: its options (seed, noise, misalignment, form, the bench's
+ * errors) decide the readings, and the same configuration gives the same
+ * points to the bit. 0 or -errno.
+ */
+struct asph_drift_summary;
+int asph_scan_simulate(const struct asph_instrument_config *c, const struct asph_surface *s,
+		       const double *xyz, size_t n, const char *dir, struct asph_points **out,
+		       struct asph_drift_summary *drift, struct asph_error *err);
 
 /* Any thread. Pause takes effect before the next point; abort stops the
  * stage and the probe at once. */

@@ -4,6 +4,7 @@
 
 #include <stdbool.h>
 #include <stddef.h>
+#include <stdint.h>
 
 #include "asph/driver.h"
 #include "asph/error.h"
@@ -105,6 +106,9 @@ int asph_driver_validate(const struct asph_driver *d, struct asph_error *err);
 int asph_registry_to_json(const struct asph_registry *r, bool pretty,
 			  char **out);
 
+/* "MAJOR.MINOR" of a driver ABI version, in buf (returned). */
+const char *asph_driver_abi_text(uint32_t version, char *buf, size_t size);
+
 const char *asph_option_type_name(enum asph_option_type t);
 const char *asph_kinematics_name(enum asph_kinematics k);
 const char *asph_probe_type_name(enum asph_probe_type t);
@@ -148,6 +152,46 @@ const struct asph_driver *asph_options_driver(const struct asph_options *o);
 const char *asph_option_value_format(const struct asph_option_value *v,
 				     char *buf, size_t size);
 
+/* ----------------------------------------------------- acquisition */
+
+#define ASPH_MAX_REFERENCES 16
+
+/*
+ * How the executor acquires with an instrument, whatever its drivers
+ * (docs/scanning.md): the settling window and time of step and measure,
+ * drift control (how often, and where the reference points are), and how
+ * often a dropout is measured again.
+ */
+struct asph_acquisition {
+	double settle_window;           /* mm; the read-back's distance to the target */
+	double settle_dwell;            /* s inside the window before the reading */
+	/* references every drift_interval_s of instrument time or every
+	 * drift_interval_points points, whichever comes first; neither: no
+	 * drift control */
+	double drift_interval_s;
+	uint64_t drift_interval_points;
+	size_t n_references;
+	double references[ASPH_MAX_REFERENCES][2];      /* x, y on the nominal surface, mm */
+	unsigned retries;               /* further tries of a point read invalid */
+};
+
+/* The defaults: window 1 um, no dwell, references at the vertex every 60 s,
+ * 3 retries. */
+void asph_acquisition_defaults(struct asph_acquisition *a);
+
+/*
+ * Sets one setting from text, as a spec or a configuration gives it:
+ * settle_window (um), settle_dwell (s), drift_interval ("60s", "5000points",
+ * "off"), drift_references ("vertex" or "X:Y;X:Y;..." in mm), retries.
+ * -ENOENT when name is none of them, -EINVAL or -ERANGE for a bad value
+ * (err names the setting).
+ */
+int asph_acquisition_set(struct asph_acquisition *a, const char *name, const char *text,
+			 struct asph_error *err);
+
+/* Whether drift control is on. */
+bool asph_acquisition_drift(const struct asph_acquisition *a);
+
 /* ----------------------------------------------------- instruments */
 
 struct asph_instrument_config {
@@ -156,6 +200,7 @@ struct asph_instrument_config {
 	const struct asph_driver *probe_driver;
 	struct asph_options *stage_options;
 	struct asph_options *probe_options;
+	struct asph_acquisition acquisition;
 	/* The instrument's declared uncertainty contributions (the optional
 	 * "uncertainty" section of a configuration file, docs/drivers.md);
 	 * has_uncertainty 0 when it declares none. */
@@ -171,7 +216,8 @@ struct asph_config {
 /*
  * A spec in the style of sigrok-cli: NAME[:key=value,...]. The driver NAME
  * plays both roles (so it must have both) and the options apply to each
- * role that uses them. The instrument is named NAME.
+ * role that uses them; the acquisition settings (asph_acquisition_set())
+ * go to the instrument. The instrument is named NAME.
  */
 int asph_instrument_spec_parse(const struct asph_registry *reg,
 			       const char *spec,
@@ -181,7 +227,7 @@ int asph_instrument_spec_parse(const struct asph_registry *reg,
 /*
  * A JSON configuration file (format in docs/drivers.md):
  *   { "instruments": [ { "name": ..., "stage": { "driver": ...,
- *     "options": { ... } }, "probe": { ... } } ] }
+ *     "options": { ... } }, "probe": { ... }, "acquisition": { ... } } ] }
  * Errors carry the file, line, column and the dotted field.
  */
 int asph_config_load(const struct asph_registry *reg, const char *path,
@@ -221,26 +267,65 @@ int asph_instrument_config_set_lens(struct asph_instrument_config *c,
 				    const char *prescription_json,
 				    struct asph_error *err);
 
-/* The instrument as JSON text (drivers, versions, every option's value),
- * for the recorded scan's header. malloc'd. */
+/* The instrument as JSON text (drivers, versions, every option's value,
+ * the acquisition settings), for the recorded scan's header. malloc'd. */
 int asph_instrument_config_to_json(const struct asph_instrument_config *c,
 				   char **out);
 
-/* An instrument with its devices open. */
+/*
+ * An instrument with its devices open. stage_ops and probe_ops are the
+ * drivers' operations as this program may call them: those a driver of an
+ * older ABI minor version does not have are NULL. Readings go through
+ * asph_instrument_read() and asph_instrument_stream(), which also take
+ * them from drivers of ABI 1.0 (whose structures are shorter).
+ */
 struct asph_instrument {
 	const struct asph_instrument_config *config;
 	const struct asph_driver *stage_driver, *probe_driver;
 	struct asph_device *stage, *probe;
 	struct asph_stage_info stage_info;
 	struct asph_probe_info probe_info;
+	struct asph_stage_ops stage_ops;
+	struct asph_probe_ops probe_ops;
+	/* the probe is wired to the stage: triggered by its sweeps, its
+	 * timestamps in the stage's clock */
+	bool attached;
+	/* a probe's reading timestamps count in the instrument's clock */
+	bool shared_timebase;
+	void *scratch;          /* for readings of ABI 1.0 probes */
+	size_t scratch_n;
 };
 
-/* Opens the stage, then the probe, and reads their info. c must outlive
- * the instrument. */
+/* Opens the stage, then the probe, reads their info and attaches the probe
+ * to the stage. c must outlive the instrument. */
 int asph_instrument_open(const struct asph_instrument_config *c,
 			 unsigned timeout_ms, struct asph_instrument **out,
 			 struct asph_error *err);
 void asph_instrument_close(struct asph_instrument *inst);
+
+/* The probe's read and stream, for a driver of any ABI minor version; the
+ * members a probe's version does not have come back 0. */
+int asph_instrument_read(struct asph_instrument *inst, const struct asph_probe_context *ctx,
+			 struct asph_reading *out, unsigned timeout_ms, struct asph_error *err);
+int asph_instrument_stream(struct asph_instrument *inst, const struct asph_probe_context *ctx,
+			   size_t n, struct asph_reading *out, size_t *n_done,
+			   unsigned timeout_ms, struct asph_error *err);
+
+/* The instrument's clock, ns: the stage's when it has one (a simulated
+ * instrument counts simulated time), else CLOCK_MONOTONIC. */
+uint64_t asph_instrument_clock(struct asph_instrument *inst);
+
+/*
+ * The info of c's stage and probe as their options describe them, without
+ * opening anything (for estimates). -ENOTSUP when a driver cannot say
+ * (err names it).
+ */
+int asph_instrument_describe(const struct asph_instrument_config *c,
+			     struct asph_stage_info *stage, struct asph_probe_info *probe,
+			     struct asph_error *err);
+
+/* The ABI minor version a driver was built with. */
+unsigned asph_driver_abi_minor(const struct asph_driver *d);
 
 #ifdef __cplusplus
 }

@@ -204,3 +204,13 @@ int mock_wait(atomic_bool *stop, double seconds, unsigned timeout_ms)
 	}
 	return timed_out ? -ETIMEDOUT : 0;
 }
+
+double mock_part_slope(const struct mock_part *p, double x, double y)
+{
+	double d[3];
+
+	/* the nominal surface where the part lies: its slope changes with the
+	 * tilt by far less than the bias this feeds */
+	asph_surface_sag_derivs(p->surface, hypot(x - p->pose.t[0], y - p->pose.t[1]), d);
+	return atan(fabs(d[1]));
+}

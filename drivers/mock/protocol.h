@@ -46,6 +46,9 @@ void mock_part_free(struct mock_part *p);
 int mock_part_probe_z(struct mock_part *p, double x, double y, uint64_t index,
 		      double *z);
 
+/* The angle of the part's surface to the probe axis at (x, y), rad. */
+double mock_part_slope(const struct mock_part *p, double x, double y);
+
 /* Parses "4:30;9:-12.5" into coef[0 .. *n-1] (Noll order, nm). */
 int mock_parse_form(const char *text, double *coef, int *n,
 		    struct asph_error *err);

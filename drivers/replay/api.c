@@ -32,8 +32,11 @@ struct asph_device {
 	bool homed;
 	/* probe */
 	struct asph_scanfile *scan;
-	size_t *by_index;       /* plan index -> point + 1, 0 = none */
+	size_t *by_index;       /* plan index -> its first point + 1, 0 = none */
+	size_t *next;           /* point -> the next of its plan index + 1 */
 	size_t n_index;
+	size_t *ref_first, *ref_next;   /* the same for the references */
+	size_t n_ref_index;
 	double time_factor;
 	uint64_t last_t_ns;
 };
@@ -56,6 +59,9 @@ static void dev_close(struct asph_device *d)
 		return;
 	asph_scanfile_free(d->scan);
 	free(d->by_index);
+	free(d->next);
+	free(d->ref_first);
+	free(d->ref_next);
 	free(d);
 }
 
@@ -129,18 +135,56 @@ static int dev_stop(struct asph_device *d, struct asph_error *err)
 	return 0;
 }
 
-/* The last point recorded for each plan index wins (a retried point). */
+/* For each index, the records of it in the order measured: the first,
+ * and from each the next (+ 1; 0 = none). */
+static int chain(const struct asph_scanfile_point *p, size_t n, size_t **first, size_t **next,
+		 size_t *n_index)
+{
+	*n_index = 0;
+	for (size_t i = 0; i < n; i++)
+		if (p[i].plan_index >= *n_index)
+			*n_index = p[i].plan_index + 1;
+	*first = calloc(*n_index ? *n_index : 1, sizeof(**first));
+	*next = calloc(n ? n : 1, sizeof(**next));
+	size_t *last = calloc(*n_index ? *n_index : 1, sizeof(*last));
+	if (!*first || !*next || !last) {
+		free(last);
+		return -ENOMEM;
+	}
+	for (size_t i = 0; i < n; i++) {
+		uint64_t k = p[i].plan_index;
+		if (last[k])
+			(*next)[last[k] - 1] = i + 1;
+		else
+			(*first)[k] = i + 1;
+		last[k] = i + 1;
+	}
+	free(last);
+	return 0;
+}
+
 static int build_index(struct asph_device *d, struct asph_error *err)
 {
-	for (size_t i = 0; i < d->scan->n; i++)
-		if (d->scan->points[i].plan_index >= d->n_index)
-			d->n_index = d->scan->points[i].plan_index + 1;
-	d->by_index = calloc(d->n_index ? d->n_index : 1, sizeof(*d->by_index));
-	if (!d->by_index)
+	if (chain(d->scan->points, d->scan->n, &d->by_index, &d->next, &d->n_index) < 0 ||
+	    chain(d->scan->references, d->scan->n_references, &d->ref_first, &d->ref_next,
+		  &d->n_ref_index) < 0)
 		return asph_error_set(err, -ENOMEM, "out of memory");
-	for (size_t i = 0; i < d->scan->n; i++)
-		d->by_index[d->scan->points[i].plan_index] = i + 1;
 	return 0;
+}
+
+/* The attempt-th record of index (the last when there are fewer). */
+static const struct asph_scanfile_point *nth(const struct asph_scanfile_point *p,
+					     const size_t *first, const size_t *next, size_t n_index,
+					     uint64_t index, uint32_t attempt, bool exact)
+{
+	size_t k = index < n_index ? first[index] : 0;
+
+	for (uint32_t a = 0; k && a < attempt; a++) {
+		if (!next[k - 1])
+			return exact ? NULL : &p[k - 1];
+		k = next[k - 1];
+	}
+	return k ? &p[k - 1] : NULL;
 }
 
 static int probe_open(const struct asph_driver *drv, const struct asph_option_value *o,
@@ -193,12 +237,24 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 	int r = cancelled(d, err);
 	if (r < 0)
 		return r;
-	size_t k = ctx->plan_index < d->n_index ? d->by_index[ctx->plan_index] : 0;
-	if (!k)
-		return asph_error_set(err, -ENODATA,
-				      "the recording has no point for plan point %llu (was it recorded with this plan?)",
-				      (unsigned long long)ctx->plan_index);
-	const struct asph_scanfile_point *p = &d->scan->points[k - 1];
+	const struct asph_scanfile_point *p;
+	if (ctx->kind == ASPH_MEASURE_REFERENCE) {
+		p = nth(d->scan->references, d->ref_first, d->ref_next, d->n_ref_index,
+			ctx->plan_index, ctx->attempt, true);
+		if (!p)
+			return asph_error_set(err, -ENODATA,
+					      "the recording has no round %u of drift reference %llu "
+					      "(record again with the drift_interval it had, or off)",
+					      ctx->attempt, (unsigned long long)ctx->plan_index);
+	} else {
+		/* a point measured again: its record of that attempt */
+		p = nth(d->scan->points, d->by_index, d->next, d->n_index, ctx->plan_index,
+			ctx->attempt, false);
+		if (!p)
+			return asph_error_set(err, -ENODATA,
+					      "the recording has no point for plan point %llu (was it recorded with this plan?)",
+					      (unsigned long long)ctx->plan_index);
+	}
 	pace(d, p->t_ns);
 	memset(out, 0, sizeof(*out));
 	out->flags = ASPH_READING_ABSOLUTE;
@@ -208,6 +264,14 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 		out->flags |= ASPH_READING_OUT_OF_RANGE;
 	if (p->flags & ASPH_SCANFILE_POINT_LOW_SIGNAL)
 		out->flags |= ASPH_READING_LOW_SIGNAL;
+	if (p->flags & ASPH_SCANFILE_POINT_INVALID)
+		out->flags |= ASPH_READING_INVALID;
+	if (p->flags & ASPH_SCANFILE_POINT_COMMANDED)
+		out->flags |= ASPH_READING_COMMANDED;
+	/* where the recording says the stage was, and how it knew */
+	out->position_source = p->position_source;
+	if (p->position_source != ASPH_POSITION_NONE)
+		memcpy(out->position, p->stage, sizeof(out->position));
 	out->xyz[0] = p->x;
 	out->xyz[1] = p->y;
 	out->xyz[2] = p->z;
@@ -216,7 +280,8 @@ static int probe_read(struct asph_device *d, const struct asph_probe_context *ct
 	return 0;
 }
 
-/* The recording's readings belong to their plan points, moving or not. */
+/* The recording's readings belong to their plan points, moving or not.
+ * (The record's time is its own: the replay does not stamp readings.) */
 static int probe_stream(struct asph_device *d, const struct asph_probe_context *ctx,
 			size_t n, struct asph_reading *out, size_t *n_done,
 			unsigned timeout_ms, struct asph_error *err)

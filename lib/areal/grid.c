@@ -212,9 +212,11 @@ int asph_gaussian_areal(const struct asph_grid *g, double cutoff,
 	if (out->nx != nx || out->ny != ny)
 		return asph_error_set(err, -EINVAL, "the output grid is not the input's size");
 	k = gaussian_kernel(g->dx, cutoff, &half);
-	tmp = malloc(nx * ny * sizeof(double));
-	line = malloc(big * sizeof(double));
-	mask = malloc(nx * ny * sizeof(double));
+	/* Zeroed, though every element is set below: the analyzer cannot
+	 * follow nx * ny elements set by one loop and read by two. */
+	tmp = calloc(nx * ny, sizeof(double));
+	line = calloc(big, sizeof(double));
+	mask = calloc(nx * ny, sizeof(double));
 	if (!k || !tmp || !line || !mask)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	/*

@@ -79,7 +79,7 @@ static int check_args(double radius, double L, double spacing, struct asph_error
 	if (!(radius > 0) || !isfinite(radius) || !(L > 0) || !isfinite(L) || L > 2 * radius)
 		return asph_error_set(err, -EINVAL,
 				      "evaluation length %g mm is not in (0, %g] mm", L, 2 * radius);
-	if (!(spacing > 0) || !isfinite(spacing) || radius / spacing > ASPH_GRID_MAX_NODES / 2)
+	if (!(spacing > 0) || !isfinite(spacing) || 2 * (radius / spacing) + 1 > ASPH_GRID_MAX_NODES)
 		return asph_error_set(err, -EINVAL, "slope positions every %g mm: out of range",
 				      spacing);
 	return 0;

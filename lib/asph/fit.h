@@ -269,6 +269,12 @@ const double *asph_fit_weights(const struct asph_fit *w);
 size_t asph_fit_residual_map(const struct asph_fit *w, double *xy,
 			     double *value_nm);
 
+struct asph_scatter;
+/* After the fit: that map as the interpolant over the part (areal.h), for
+ * the gridded exports, the correction tables and the report. */
+int asph_fit_residual_scatter(const struct asph_fit *w, struct asph_scatter **out,
+			      struct asph_error *err);
+
 /* --- Synthetic measurements (tests, the mock instrument) ----------------- */
 
 struct asph_synth_term {

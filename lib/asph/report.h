@@ -3,6 +3,7 @@
 #define ASPH_REPORT_H
 
 #include <stddef.h>
+#include <stdio.h>
 
 #include "asph/areal.h"
 #include "asph/error.h"
@@ -43,6 +44,9 @@ struct asph_report {
 
 int asph_report_write_pdf(const char *path, const struct asph_report *r,
 			  struct asph_error *err);
+/* The same written to f (name for messages); f is flushed, not closed. */
+int asph_report_write_pdf_stream(FILE *f, const char *name, const struct asph_report *r,
+				 struct asph_error *err);
 
 #ifdef __cplusplus
 }

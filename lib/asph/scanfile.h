@@ -25,10 +25,12 @@ extern "C" {
  */
 
 #define ASPH_SCANFILE_VERSION_MAJOR 1
-#define ASPH_SCANFILE_VERSION_MINOR 0
+#define ASPH_SCANFILE_VERSION_MINOR 1
 
-/* Bytes of one point record in version 1.0. */
-#define ASPH_SCANFILE_RECORD_SIZE 56
+/* Bytes of one point record as this version writes it (1.1); version 1.0
+ * wrote the first 56 of them. */
+#define ASPH_SCANFILE_RECORD_SIZE 88
+#define ASPH_SCANFILE_RECORD_SIZE_1_0 56
 
 /* Limits every reader enforces on untrusted files. */
 #define ASPH_SCANFILE_MAX_HEADER (1u << 20)        /* header JSON bytes */
@@ -38,7 +40,7 @@ extern "C" {
 /* Writer flush policy defaults and the largest block a writer makes. */
 #define ASPH_SCANFILE_DEFAULT_BLOCK_POINTS 10000u
 #define ASPH_SCANFILE_DEFAULT_SYNC_NS 1000000000ull
-#define ASPH_SCANFILE_MAX_BLOCK_POINTS 65536u
+#define ASPH_SCANFILE_MAX_BLOCK_POINTS 47662u  /* 4 MiB of 88-byte records */
 
 /* Per-point status flags. */
 enum asph_scanfile_point_flags {
@@ -51,23 +53,52 @@ enum asph_scanfile_point_flags {
 	ASPH_SCANFILE_POINT_LOW_SIGNAL = 1u << 2,
 	/* Measured again after a failed attempt at the same plan point. */
 	ASPH_SCANFILE_POINT_RETRIED = 1u << 3,
+	/* 1.1: the position is the one the stage was sent to, not one it
+	 * measured (a driver without measured positions). */
+	ASPH_SCANFILE_POINT_COMMANDED = 1u << 4,
+	/* 1.1: the probe got no valid reading (a dropout): x, y, z are not a
+	 * measurement (they may be NaN); export leaves the point out. */
+	ASPH_SCANFILE_POINT_INVALID = 1u << 5,
 };
 
-/* "tip-compensated", "out-of-range", "low-signal", "retried"; NULL for a
- * bit that is not a known flag. */
+/* The flags whose points are not measurements. */
+#define ASPH_SCANFILE_NOT_MEASURED (ASPH_SCANFILE_POINT_OUT_OF_RANGE | ASPH_SCANFILE_POINT_INVALID)
+
+/* Where a point's position came from (1.1; the values of the driver ABI's
+ * enum asph_position_source). */
+enum asph_scanfile_position_source {
+	ASPH_SCANFILE_POSITION_UNKNOWN = 0,     /* a 1.0 file, or a replayed point */
+	ASPH_SCANFILE_POSITION_LATCHED,
+	ASPH_SCANFILE_POSITION_READ_BACK,
+	ASPH_SCANFILE_POSITION_INTERPOLATED,
+	ASPH_SCANFILE_POSITION_COMMANDED,
+};
+
+/* "unknown", "latched", "read-back", "interpolated", "commanded"; NULL
+ * past them. */
+const char *asph_scanfile_position_source_name(uint32_t source);
+
+/* "tip-compensated", "out-of-range", "low-signal", "retried",
+ * "commanded-position", "invalid"; NULL for a bit that is not a known
+ * flag. */
 const char *asph_scanfile_flag_name(uint32_t flag);
 /* A comma-separated list of those names to a mask; -EINVAL names the
  * unknown one in err. */
 int asph_scanfile_flags_parse(const char *list, uint32_t *out,
 			      struct asph_error *err);
 
-/* One measured point. */
+/* One measured point, or one measurement of a drift reference (whose
+ * plan_index is its number in the header's reference set). */
 struct asph_scanfile_point {
 	uint64_t plan_index;   /* index of the plan point it measures */
 	double x, y, z;        /* mm, in the frame of the plan points */
 	double raw;            /* the probe's own reading (probe units) */
 	uint64_t t_ns;         /* ns since the scan started */
 	uint32_t flags;        /* enum asph_scanfile_point_flags */
+	/* 1.1 (a 1.0 file reads as NaN and UNKNOWN) */
+	uint32_t position_source;       /* enum asph_scanfile_position_source */
+	double stage[3];       /* the stage's position the point was
+				  computed from, in its axes */
 };
 
 enum asph_scanfile_outcome {
@@ -179,6 +210,14 @@ int asph_scanfile_writer_resume_at(int dirfd, const char *path,
 				   struct asph_error *err);
 
 /*
+ * Appends n measurements of drift references (1.1): the points pending are
+ * written first, then the references as a block of their own, synced.
+ */
+int asph_scanfile_writer_append_references(struct asph_scanfile_writer *w,
+					   const struct asph_scanfile_point *refs, size_t n,
+					   struct asph_error *err);
+
+/*
  * Appends n points. They are buffered; a block is written and synced when
  * block_points are pending or sync_interval_ns has passed since the last
  * sync (the clock is read once per call). -EINVAL for a point without the
@@ -245,6 +284,7 @@ struct asph_scanfile_report {
 	uint64_t stop_offset;      /* where reading stopped */
 	char stop_detail[192];     /* e.g. "checksum mismatch in block 12 at
 				    * offset 560468"; "" for a clean end */
+	uint64_t n_references;     /* reference measurements recovered */
 	bool ended;                /* the end block was present */
 	enum asph_scanfile_outcome outcome;
 	const char *reason;        /* of the end block, or NULL */
@@ -284,6 +324,11 @@ int asph_scanfile_reader_next(struct asph_scanfile_reader *r,
 			      const struct asph_scanfile_point **pts,
 			      size_t *n, struct asph_error *err);
 
+/* The reference measurements read so far (valid until the next call of
+ * next()). */
+size_t asph_scanfile_reader_references(const struct asph_scanfile_reader *r,
+				       const struct asph_scanfile_point **refs);
+
 /* The resume records read so far (JSON texts, valid while r lives). */
 size_t asph_scanfile_reader_events(const struct asph_scanfile_reader *r,
 				   const char *const **events);
@@ -300,6 +345,8 @@ struct asph_scanfile {
 	struct asph_scanfile_header header;
 	size_t n;
 	struct asph_scanfile_point *points;   /* in recording order */
+	size_t n_references;
+	struct asph_scanfile_point *references; /* drift references, in order */
 	struct asph_scanfile_report report;
 	size_t n_events;
 	char **events;     /* JSON text of each resume record, in order */
@@ -314,8 +361,8 @@ void asph_scanfile_free(struct asph_scanfile *s);
 
 /*
  * The measured points as a point set, in recording order, leaving out the
- * points with any of exclude_flags (ASPH_SCANFILE_POINT_OUT_OF_RANGE is
- * always left out). -EBADMSG (err names the point) for a kept point whose
+ * points with any of exclude_flags (the points that are no measurement,
+ * out of range or invalid, are always left out). -EBADMSG (err names the point) for a kept point whose
  * coordinates are not finite. This is the one conversion export and replay
  * share, so both see the same points.
  */

@@ -4,6 +4,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 
 #include "asph/areal.h"
 #include "asph/error.h"
@@ -44,6 +45,11 @@ int asph_x3p_write_points(const char *path, const double *xyz, size_t n,
 int asph_x3p_write_grid(const char *path, const struct asph_grid *g,
 			const struct asph_x3p_info *info,
 			struct asph_error *err);
+/* The same container written to f (name for messages); f is flushed, not
+ * closed. */
+int asph_x3p_write_grid_stream(FILE *f, const char *name, const struct asph_grid *g,
+			       const struct asph_x3p_info *info,
+			       struct asph_error *err);
 
 #ifdef __cplusplus
 }

@@ -73,7 +73,7 @@ static int check_options(struct table *t, struct asph_error *err)
 		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "step", "%g mm is not a positive spacing",
 					 o->step_mm);
 	t->step = o->step_mm > 0 ? o->step_mm : asph_scatter_median_edge(t->res);
-	if (!(t->step > 0) || (t->a + o->extend_mm) / t->step > MAX_TABLE_NODES / 2)
+	if (!(t->step > 0) || 2 * ((t->a + o->extend_mm) / t->step) + 1 > MAX_TABLE_NODES)
 		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "step",
 					 "%g mm gives more than %d values across the part", t->step,
 					 MAX_TABLE_NODES);
@@ -232,7 +232,9 @@ static double grid_extension(const struct table *t, double x, double y)
 	uint32_t hint = 0;
 	int m = 0;
 
-	for (double r = t->a; r > 0 && m < 3; r -= t->step) {
+	/* Steps counted, not summed: the radii stay exact multiples. */
+	for (int k = 0; t->a - k * t->step > 0 && m < 3; k++) {
+		double r = t->a - k * t->step;
 		if (asph_scatter_eval(t->res, r * ux, r * uy, &hint, &v[m], NULL, NULL) == 0)
 			v[m] = convert(t, r, v[m]), m++;
 		else if (m)

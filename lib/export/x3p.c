@@ -167,41 +167,98 @@ static int container_add(zip_t *z, const char *name, const void *data, size_t le
 	return 0;
 }
 
-static int write_container(const char *path, const struct layout *L, const uint8_t *data,
-			   size_t len, const struct asph_x3p_info *info,
-			   struct asph_error *err)
+/* The three members into z; on failure z is discarded. */
+static int fill_container(zip_t *z, const struct layout *L, const uint8_t *data, size_t len,
+			  const struct asph_x3p_info *info, const char *path,
+			  struct asph_error *err)
 {
 	char data_md5[33], xml_md5[33], hexfile[64];
 	xmlChar *xml = NULL;
-	int xml_len = 0, zerr = 0, r;
-	zip_t *z;
+	int xml_len = 0, r;
 
 	md5_hex(data, len, data_md5);
-	if (main_xml(L, data_md5, info, &xml, &xml_len) < 0)
+	if (main_xml(L, data_md5, info, &xml, &xml_len) < 0) {
+		zip_discard(z);
 		return asph_error_set(err, -ENOMEM, "out of memory");
+	}
 	md5_hex(xml, (size_t)xml_len, xml_md5);
 	snprintf(hexfile, sizeof(hexfile), "%s *main.xml\n", xml_md5);
-	z = zip_open(path, ZIP_CREATE | ZIP_TRUNCATE, &zerr);
-	if (!z) {
-		zip_error_t ze;
-		zip_error_init_with_code(&ze, zerr);
-		r = asph_error_set(err, -EIO, "cannot create %s: %s", path, zip_error_strerror(&ze));
-		zip_error_fini(&ze);
-		xmlFree(xml);
-		return r;
-	}
 	r = container_add(z, "main.xml", xml, (size_t)xml_len, path, err);
 	if (r == 0)
 		r = container_add(z, DATA_NAME, data, len, path, err);
 	if (r == 0)
 		r = container_add(z, "md5checksum.hex", hexfile, strlen(hexfile), path, err);
-	/* zip_close writes a temporary file and renames it: a failure leaves
-	 * no half-written container at path. */
+	/* zip_close writes (a temporary file renamed over path, or the
+	 * buffer): a failure leaves no half-written container. */
 	if (r == 0 && zip_close(z) < 0)
 		r = asph_error_set(err, -EIO, "cannot write %s: %s", path, zip_strerror(z));
 	if (r < 0)
 		zip_discard(z);
 	xmlFree(xml);
+	return r;
+}
+
+static int zip_failed(int code, const char *what, const char *path, struct asph_error *err)
+{
+	zip_error_t ze;
+	int r;
+
+	zip_error_init_with_code(&ze, code);
+	r = asph_error_set(err, code == ZIP_ER_MEMORY ? -ENOMEM : -EIO, "cannot %s %s: %s", what,
+			   path, zip_error_strerror(&ze));
+	zip_error_fini(&ze);
+	return r;
+}
+
+static int write_container(const char *path, const struct layout *L, const uint8_t *data,
+			   size_t len, const struct asph_x3p_info *info,
+			   struct asph_error *err)
+{
+	int zerr = 0;
+	zip_t *z = zip_open(path, ZIP_CREATE | ZIP_TRUNCATE, &zerr);
+
+	if (!z)
+		return zip_failed(zerr, "create", path, err);
+	return fill_container(z, L, data, len, info, path, err);
+}
+
+/* The container built in memory, then copied to f. */
+static int stream_container(FILE *f, const char *name, const struct layout *L,
+			    const uint8_t *data, size_t len, const struct asph_x3p_info *info,
+			    struct asph_error *err)
+{
+	zip_error_t ze;
+	zip_source_t *buf;
+	zip_t *z;
+	uint8_t chunk[65536];
+	zip_int64_t n;
+	int r;
+
+	zip_error_init(&ze);
+	buf = zip_source_buffer_create(NULL, 0, 0, &ze);
+	zip_error_fini(&ze);
+	if (!buf)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	zip_source_keep(buf);
+	zip_error_init(&ze);
+	z = zip_open_from_source(buf, ZIP_TRUNCATE, &ze);
+	r = z ? 0 : zip_failed(zip_error_code_zip(&ze), "create", name, err);
+	zip_error_fini(&ze);
+	if (r == 0)
+		r = fill_container(z, L, data, len, info, name, err);
+	if (r == 0 && zip_source_open(buf) < 0)
+		r = asph_error_set(err, -EIO, "cannot read back %s", name);
+	if (r == 0) {
+		while ((n = zip_source_read(buf, chunk, sizeof(chunk))) > 0)
+			if (fwrite(chunk, 1, (size_t)n, f) != (size_t)n)
+				break;
+		if (n < 0)
+			r = asph_error_set(err, -EIO, "cannot read back %s", name);
+		else if (n > 0 || fflush(f) != 0)
+			r = asph_error_set(err, -errno, "cannot write %s: %s", name, strerror(errno));
+		zip_source_close(buf);
+	}
+	zip_source_free(buf);
 	return r;
 }
 
@@ -225,21 +282,46 @@ int asph_x3p_write_points(const char *path, const double *xyz, size_t n,
 	return write_container(path, &L, data, 24 * n, info, err);
 }
 
+/* The matrix layout's binary data: X fastest, then Y, as the grid. */
+static int grid_data(const char *name, const struct asph_grid *g, struct layout *L,
+		     uint8_t **out, struct asph_error *err)
+{
+	size_t m = g->nx * g->ny;
+	uint8_t *data;
+
+	if (m == 0 || !(g->dx > 0) || !isfinite(g->dx))
+		return asph_error_set(err, -EINVAL, "%s: an empty grid or a bad spacing", name);
+	*L = (struct layout){ .feature = "SUR", .incremental_xy = 1, .dx = g->dx * MM_TO_M,
+			      .nx = g->nx, .ny = g->ny };
+	data = malloc(8 * m);
+	if (!data)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	for (size_t i = 0; i < m; i++)
+		put_le_double(data + 8 * i, isnan(g->z[i]) ? NAN : g->z[i] * NM_TO_M);
+	*out = data;
+	return 0;
+}
+
 int asph_x3p_write_grid(const char *path, const struct asph_grid *g,
 			const struct asph_x3p_info *info, struct asph_error *err)
 {
 	_cleanup_free_ uint8_t *data = NULL;
-	struct layout L = { .feature = "SUR", .incremental_xy = 1, .dx = g->dx * MM_TO_M,
-			    .nx = g->nx, .ny = g->ny };
-	size_t m = g->nx * g->ny;
+	struct layout L;
+	int r = grid_data(path, g, &L, &data, err);
 
-	if (m == 0 || !(g->dx > 0) || !isfinite(g->dx))
-		return asph_error_set(err, -EINVAL, "%s: an empty grid or a bad spacing", path);
-	data = malloc(8 * m);
-	if (!data)
-		return asph_error_set(err, -ENOMEM, "out of memory");
-	/* X fastest, then Y: the order of the grid. */
-	for (size_t i = 0; i < m; i++)
-		put_le_double(data + 8 * i, isnan(g->z[i]) ? NAN : g->z[i] * NM_TO_M);
-	return write_container(path, &L, data, 8 * m, info, err);
+	if (r < 0)
+		return r;
+	return write_container(path, &L, data, 8 * g->nx * g->ny, info, err);
+}
+
+int asph_x3p_write_grid_stream(FILE *f, const char *name, const struct asph_grid *g,
+			       const struct asph_x3p_info *info, struct asph_error *err)
+{
+	_cleanup_free_ uint8_t *data = NULL;
+	struct layout L;
+	int r = grid_data(name, g, &L, &data, err);
+
+	if (r < 0)
+		return r;
+	return stream_container(f, name, &L, data, 8 * g->nx * g->ny, info, err);
 }

@@ -33,6 +33,23 @@ size_t asph_fit_residual_map(const struct asph_fit *w, double *xy,
 	return m;
 }
 
+int asph_fit_residual_scatter(const struct asph_fit *w, struct asph_scatter **out,
+			      struct asph_error *err)
+{
+	_cleanup_free_ double *xy = NULL;
+	_cleanup_free_ double *v = NULL;
+	size_t m = 0;
+
+	for (size_t i = 0; i < w->n; i++)
+		m += w->status[i] == ASPH_FIT_POINT_USED;
+	xy = malloc(2 * m * sizeof(double) + 1);
+	v = malloc(m * sizeof(double) + 1);
+	if (!xy || !v)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	m = asph_fit_residual_map(w, xy, v);
+	return asph_scatter_alloc(xy, v, m, NULL, out, err);
+}
+
 /* The point-to-point noise: what the Zernike fit leaves, with its degrees
  * of freedom (docs/characterization.md); the fit's sigma without one. */
 static double noise_nm(const struct asph_fit_result *r)

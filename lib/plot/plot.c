@@ -441,8 +441,8 @@ void plot_draw_panel(cairo_t *cr, const struct asph_plot_panel *p,
 		draw_colour_bar(cr, &f, &cs, p->opts.colour_label);
 }
 
-static cairo_status_t write_to_file(void *closure, const unsigned char *data,
-				    unsigned int length)
+cairo_status_t plot_write_to_file(void *closure, const unsigned char *data,
+				  unsigned int length)
 {
 	return fwrite(data, 1, length, closure) == length ? CAIRO_STATUS_SUCCESS
 							  : CAIRO_STATUS_WRITE_ERROR;
@@ -477,7 +477,7 @@ static int write_png(cairo_surface_t *surface, FILE *f, const char *name,
 	cairo_status_t st;
 
 	errno = 0;
-	st = cairo_surface_write_to_png_stream(surface, write_to_file, f);
+	st = cairo_surface_write_to_png_stream(surface, plot_write_to_file, f);
 	if (st == CAIRO_STATUS_SUCCESS && fflush(f) != 0)
 		st = CAIRO_STATUS_WRITE_ERROR;
 	if (st != CAIRO_STATUS_SUCCESS)

@@ -1,6 +1,7 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /* The measurement report as a PDF page (cairo's PDF surface). */
 #include <errno.h>
+#include <float.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -158,15 +159,22 @@ struct chart {
 	int logx, logy;
 };
 
+/* v on a logarithmic axis; a log axis has no place for v <= 0, which is
+ * pinned to the smallest positive double (far below any axis). */
+static double axis_value(int lg, double v)
+{
+	return lg ? log10(fmax(v, DBL_MIN)) : v;
+}
+
 static double chart_u(const struct chart *c, double v)
 {
-	double t = c->logx ? (log10(v) - c->x0) / (c->x1 - c->x0) : (v - c->x0) / (c->x1 - c->x0);
+	double t = (axis_value(c->logx, v) - c->x0) / (c->x1 - c->x0);
 	return c->x + t * c->w;
 }
 
 static double chart_v(const struct chart *c, double v)
 {
-	double t = c->logy ? (log10(v) - c->y0) / (c->y1 - c->y0) : (v - c->y0) / (c->y1 - c->y0);
+	double t = (axis_value(c->logy, v) - c->y0) / (c->y1 - c->y0);
 	return c->y + c->h - t * c->h;
 }
 
@@ -185,7 +193,11 @@ static void chart_frame(cairo_t *cr, const struct chart *c, const char *title,
 		double lo = axis ? c->y0 : c->x0, hi = axis ? c->y1 : c->x1;
 		int lg = axis ? c->logy : c->logx;
 		double step = lg ? 1 : plot_nice_step(hi - lo, 5);
-		for (double t = ceil(lo / step - 1e-9) * step; t <= hi + 1e-9 * step; t += step) {
+		/* Ticks counted, not summed: each an exact multiple of step. */
+		double first = ceil(lo / step - 1e-9);
+		int n_ticks = (int)(floor(hi / step + 1e-9) - first) + 1;
+		for (int i = 0; i < n_ticks; i++) {
+			double t = (first + i) * step;
 			double v = lg ? pow(10, t) : t;
 			if (lg)
 				snprintf(buf, sizeof(buf), "%.0e", v);
@@ -414,20 +426,16 @@ static double header_block(cairo_t *cr, const struct asph_report *r)
 	return y + 10;
 }
 
-int asph_report_write_pdf(const char *path, const struct asph_report *r,
-			  struct asph_error *err)
+/* Draws the page on surface (a PDF surface of name) and finishes it. */
+static int draw_report(cairo_surface_t *surface, const char *name, const struct asph_report *r,
+		       struct asph_error *err)
 {
-	_cleanup_(cairo_surface_destroyp) cairo_surface_t *surface = NULL;
-	_cleanup_(cairo_destroyp) cairo_t *cr = NULL;
+	_cleanup_(cairo_destroyp) cairo_t *cr = cairo_create(surface);
 	double y, cw = (PAGE_W - 2 * MARGIN - 60) / 2, ch = 150;
 	cairo_status_t st;
 
-	if (!r->fit || !r->scatter || !r->xy || !r->residual_nm || r->n == 0 || !(r->radius > 0))
-		return asph_error_set(err, -EINVAL, "a report needs a fit and its residual map");
-	surface = cairo_pdf_surface_create(path, PAGE_W, PAGE_H);
-	cr = cairo_create(surface);
 	if (cairo_status(cr) != CAIRO_STATUS_SUCCESS)
-		return asph_error_set(err, -EIO, "cannot create %s: %s", path,
+		return asph_error_set(err, -EIO, "cannot create %s: %s", name,
 				      cairo_status_to_string(cairo_status(cr)));
 	cairo_pdf_surface_set_metadata(surface, CAIRO_PDF_METADATA_TITLE, "Form measurement report");
 	cairo_pdf_surface_set_metadata(surface, CAIRO_PDF_METADATA_CREATOR, "asphd");
@@ -447,8 +455,42 @@ int asph_report_write_pdf(const char *path, const struct asph_report *r,
 	cairo_surface_finish(surface);
 	st = cairo_surface_status(surface);
 	if (st != CAIRO_STATUS_SUCCESS)
-		return asph_error_set(err, -EIO, "cannot write %s: %s", path, cairo_status_to_string(st));
+		return asph_error_set(err, -EIO, "cannot write %s: %s", name, cairo_status_to_string(st));
 	return 0;
+}
+
+static int check_report(const struct asph_report *r, struct asph_error *err)
+{
+	if (!r->fit || !r->scatter || !r->xy || !r->residual_nm || r->n == 0 || !(r->radius > 0))
+		return asph_error_set(err, -EINVAL, "a report needs a fit and its residual map");
+	return 0;
+}
+
+int asph_report_write_pdf(const char *path, const struct asph_report *r,
+			  struct asph_error *err)
+{
+	_cleanup_(cairo_surface_destroyp) cairo_surface_t *surface = NULL;
+	int rc = check_report(r, err);
+
+	if (rc < 0)
+		return rc;
+	surface = cairo_pdf_surface_create(path, PAGE_W, PAGE_H);
+	return draw_report(surface, path, r, err);
+}
+
+int asph_report_write_pdf_stream(FILE *f, const char *name, const struct asph_report *r,
+				 struct asph_error *err)
+{
+	_cleanup_(cairo_surface_destroyp) cairo_surface_t *surface = NULL;
+	int rc = check_report(r, err);
+
+	if (rc < 0)
+		return rc;
+	surface = cairo_pdf_surface_create_for_stream(plot_write_to_file, f, PAGE_W, PAGE_H);
+	rc = draw_report(surface, name, r, err);
+	if (rc == 0 && fflush(f) != 0)
+		return asph_error_set(err, -errno, "cannot write %s: %s", name, strerror(errno));
+	return rc;
 }
 
 #else /* !HAVE_CAIRO */
@@ -458,6 +500,12 @@ int asph_report_write_pdf(const char *path, const struct asph_report *r,
 {
 	return asph_error_set(err, -ENOTSUP,
 			      "the PDF report needs cairo, and this libasph was built without it");
+}
+
+int asph_report_write_pdf_stream(FILE *f, const char *name, const struct asph_report *r,
+				 struct asph_error *err)
+{
+	return asph_report_write_pdf(name, r, err);
 }
 
 #endif

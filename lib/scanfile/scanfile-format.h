@@ -33,6 +33,7 @@ enum block_type {
 	BLOCK_POINTS = 1,
 	BLOCK_END = 2,
 	BLOCK_RESUME = 3,
+	BLOCK_REFERENCES = 4,   /* 1.1: measurements of drift references */
 };
 
 struct block_header {
@@ -101,7 +102,10 @@ static inline double get_f64(const uint8_t *p)
 
 void scanfile_point_encode(const struct asph_scanfile_point *pt,
 			   uint8_t *out);
-void scanfile_point_decode(const uint8_t *in, struct asph_scanfile_point *pt);
+/* Decodes a record of record_size bytes (56 in 1.0; newer sizes append
+ * fields, of which this reader takes the ones it knows). */
+void scanfile_point_decode(const uint8_t *in, uint16_t record_size,
+			   struct asph_scanfile_point *pt);
 
 void block_header_encode(const struct block_header *h, uint8_t *out);
 /* false when the magic is wrong */
@@ -139,6 +143,8 @@ struct asph_scanfile_reader {
 	size_t buf_size;
 	struct asph_scanfile_point *pts;
 	size_t pts_cap;
+	struct asph_scanfile_point *refs;     /* every reference read */
+	size_t n_refs, refs_cap;
 	struct asph_scanfile_report report;
 	char *reason;
 	char **events;

@@ -204,7 +204,8 @@ static enum block_status check_block_header(const struct block_header *h,
 	}
 	switch (h->type) {
 	case BLOCK_POINTS:
-		if (h->record_size < ASPH_SCANFILE_RECORD_SIZE ||
+	case BLOCK_REFERENCES:
+		if (h->record_size < ASPH_SCANFILE_RECORD_SIZE_1_0 ||
 		    h->record_size > ASPH_SCANFILE_MAX_RECORD_SIZE || h->count == 0 ||
 		    (uint64_t)h->count * h->record_size != h->payload_len) {
 			snprintf(detail, dsize,
@@ -397,9 +398,34 @@ static int decode_points(struct asph_scanfile_reader *r, const struct block_head
 		r->pts_cap = h->count;
 	}
 	for (uint32_t i = 0; i < h->count; i++)
-		scanfile_point_decode(p + (size_t)i * h->record_size, &r->pts[i]);
+		scanfile_point_decode(p + (size_t)i * h->record_size, h->record_size, &r->pts[i]);
 	r->last_t_ns = r->pts[h->count - 1].t_ns;
 	r->report.n_points += h->count;
+	return 0;
+}
+
+/* A block of reference measurements: kept all (a scan holds few). */
+static int decode_references(struct asph_scanfile_reader *r, const struct block_header *h)
+{
+	const uint8_t *p = r->buf + BLOCK_HEADER_SIZE;
+
+	if (r->n_refs + h->count > r->refs_cap) {
+		size_t cap = r->refs_cap ? r->refs_cap : 64;
+		while (cap < r->n_refs + h->count)
+			cap *= 2;
+		struct asph_scanfile_point *np = realloc(r->refs, cap * sizeof(*np));
+		if (!np)
+			return -ENOMEM;
+		r->refs = np;
+		r->refs_cap = cap;
+	}
+	for (uint32_t i = 0; i < h->count; i++)
+		scanfile_point_decode(p + (size_t)i * h->record_size, h->record_size,
+				      &r->refs[r->n_refs + i]);
+	r->n_refs += h->count;
+	r->last_t_ns = r->refs[r->n_refs - 1].t_ns > r->last_t_ns ? r->refs[r->n_refs - 1].t_ns
+								  : r->last_t_ns;
+	r->report.n_references += h->count;
 	return 0;
 }
 
@@ -421,6 +447,8 @@ static int accept_block(struct asph_scanfile_reader *r, const struct block_heade
 	}
 	if (h->type == BLOCK_POINTS)
 		ret = decode_points(r, h);
+	else if (h->type == BLOCK_REFERENCES)
+		ret = decode_references(r, h);
 	else if (h->type == BLOCK_END)
 		ret = parse_end(r, payload, h->payload_len, detail, dsize);
 	else if (h->type == BLOCK_RESUME)
@@ -560,6 +588,13 @@ asph_scanfile_reader_header(const struct asph_scanfile_reader *r)
 	return &r->header;
 }
 
+size_t asph_scanfile_reader_references(const struct asph_scanfile_reader *r,
+				       const struct asph_scanfile_point **refs)
+{
+	*refs = r->refs;
+	return r->n_refs;
+}
+
 size_t asph_scanfile_reader_events(const struct asph_scanfile_reader *r,
 				   const char *const **events)
 {
@@ -589,6 +624,7 @@ void asph_scanfile_reader_free(struct asph_scanfile_reader *r)
 	header_clear(&r->header);
 	free(r->buf);
 	free(r->pts);
+	free(r->refs);
 	free(r->reason);
 	free_events(r->events, r->n_events);
 	free(r);
@@ -638,6 +674,9 @@ int scanfile_collect(struct asph_scanfile_reader *r, struct asph_scanfile **out,
 	s->report = r->report;
 	r->reason = NULL;
 	r->report.reason = NULL;
+	s->references = steal_ptr(r->refs);
+	s->n_references = r->n_refs;
+	r->n_refs = r->refs_cap = 0;
 	s->events = steal_ptr(r->events);
 	s->n_events = r->n_events;
 	r->n_events = 0;
@@ -669,6 +708,7 @@ void asph_scanfile_free(struct asph_scanfile *s)
 		return;
 	header_clear(&s->header);
 	free(s->points);
+	free(s->references);
 	free((char *)s->report.reason);
 	free_events(s->events, s->n_events);
 	free(s);

@@ -220,12 +220,12 @@ static int check_points(const struct asph_scanfile_writer *w,
 {
 	for (size_t i = 0; i < n; i++) {
 		const struct asph_scanfile_point *p = &pts[i];
-		if (p->flags & ASPH_SCANFILE_POINT_OUT_OF_RANGE)
+		if (p->flags & ASPH_SCANFILE_NOT_MEASURED)
 			continue;
 		if (!isfinite(p->x) || !isfinite(p->y) || !isfinite(p->z))
 			return asph_error_set_at(err, -EINVAL, w->path, 0, 0, NULL,
 						 "point %zu (plan index %llu) has non-finite coordinates "
-						 "and is not flagged out of range",
+						 "and is not flagged out of range or invalid",
 						 i, (unsigned long long)p->plan_index);
 	}
 	return 0;
@@ -249,6 +249,41 @@ int asph_scanfile_writer_append(struct asph_scanfile_writer *w,
 			return r;
 	}
 	return sync_due(w) ? write_pending(w, err) : 0;
+}
+
+int asph_scanfile_writer_append_references(struct asph_scanfile_writer *w,
+					   const struct asph_scanfile_point *refs, size_t n,
+					   struct asph_error *err)
+{
+	int r;
+
+	if (w->error)
+		return asph_error_set_at(err, w->error, w->path, 0, 0, NULL, "%s", w->error_msg);
+	if (n == 0)
+		return 0;
+	if (n > ASPH_SCANFILE_MAX_BLOCK_POINTS)
+		return asph_error_set_at(err, -EINVAL, w->path, 0, 0, NULL,
+					 "%zu reference measurements in one block: at most %u", n,
+					 ASPH_SCANFILE_MAX_BLOCK_POINTS);
+	if ((r = check_points(w, refs, n, err)) < 0)
+		return r;
+	/* in the order measured: the points before them first */
+	if ((r = write_pending(w, err)) < 0)
+		return r;
+	_cleanup_free_ uint8_t *block = malloc(BLOCK_OVERHEAD + n * ASPH_SCANFILE_RECORD_SIZE);
+	if (!block)
+		return asph_error_set_at(err, -ENOMEM, w->path, 0, 0, NULL, "out of memory");
+	for (size_t i = 0; i < n; i++)
+		scanfile_point_encode(&refs[i], block + BLOCK_HEADER_SIZE + i * ASPH_SCANFILE_RECORD_SIZE);
+	struct block_header h = {
+		.type = BLOCK_REFERENCES,
+		.record_size = ASPH_SCANFILE_RECORD_SIZE,
+		.seq = w->seq,
+		.first_point = w->n_points,
+		.count = (uint32_t)n,
+		.payload_len = (uint32_t)(n * ASPH_SCANFILE_RECORD_SIZE),
+	};
+	return emit(w, block, block_seal(block, &h), 0, err);
 }
 
 int asph_scanfile_writer_flush(struct asph_scanfile_writer *w, struct asph_error *err)
@@ -579,10 +614,12 @@ static int write_resume_record(struct asph_scanfile_writer *w, const struct asph
 	return write_json_block(w, BLOCK_RESUME, ev, err);
 }
 
-/* Times continue from the later of the last point and the wall clock. */
-static uint64_t resumed_time_base(const struct asph_scanfile_reader *r)
+/* Times continue from the later of the last point and the wall clock
+ * since the scan was created. */
+static uint64_t resumed_time_base(const struct asph_scanfile_reader *r,
+				  const struct asph_scanfile *s)
 {
-	int64_t since = now_realtime_ns() - r->header.created_ns;
+	int64_t since = now_realtime_ns() - s->header.created_ns;
 
 	return since > 0 && (uint64_t)since > r->last_t_ns ? (uint64_t)since : r->last_t_ns;
 }
@@ -624,7 +661,7 @@ static int writer_resume(int dirfd, const char *path,
 	w->offset = r->resume_offset;
 	w->seq = r->resume_seq;
 	w->n_points = w->n_synced = s->report.n_points;
-	w->t_base = resumed_time_base(r);
+	w->t_base = resumed_time_base(r, s);
 	w->t_start = w->last_sync = now(w);
 	if ((ret = write_resume_record(w, s, cut, err)) < 0)
 		return ret;

@@ -42,8 +42,18 @@ int asph_scanfile_outcome_from_name(const char *name,
 }
 
 static const char *const flag_names[] = {
-	"tip-compensated", "out-of-range", "low-signal", "retried",
+	"tip-compensated", "out-of-range", "low-signal", "retried", "commanded-position",
+	"invalid",
 };
+
+static const char *const source_names[] = {
+	"unknown", "latched", "read-back", "interpolated", "commanded",
+};
+
+const char *asph_scanfile_position_source_name(uint32_t source)
+{
+	return source < ARRAY_SIZE(source_names) ? source_names[source] : NULL;
+}
 
 const char *asph_scanfile_flag_name(uint32_t flag)
 {
@@ -66,7 +76,8 @@ int asph_scanfile_flags_parse(const char *list, uint32_t *out,
 			i++;
 		if (i == ARRAY_SIZE(flag_names))
 			return asph_error_set(err, -EINVAL, "unknown point flag '%.*s' (known: "
-					      "tip-compensated, out-of-range, low-signal, retried)",
+					      "tip-compensated, out-of-range, low-signal, retried, "
+					      "commanded-position, invalid)",
 					      (int)len, p);
 		mask |= 1u << i;
 		p += len + (p[len] == ',');
@@ -89,8 +100,10 @@ const char *asph_scanfile_stop_name(enum asph_scanfile_stop s)
 	return stop_names[s];
 }
 
-/* Record layout (version 1.0), all little-endian:
- * plan index u64, x y z raw f64, t_ns u64, flags u32, reserved u32 (0). */
+/* Record layout (version 1.1), all little-endian:
+ * plan index u64, x y z raw f64, t_ns u64, flags u32, position source u32,
+ * then the stage's position f64 x 3. Version 1.0 wrote the first 56 bytes,
+ * with 0 where the source is. */
 void scanfile_point_encode(const struct asph_scanfile_point *pt, uint8_t *out)
 {
 	put_le64(out + 0, pt->plan_index);
@@ -100,10 +113,15 @@ void scanfile_point_encode(const struct asph_scanfile_point *pt, uint8_t *out)
 	put_f64(out + 32, pt->raw);
 	put_le64(out + 40, pt->t_ns);
 	put_le32(out + 48, pt->flags);
-	put_le32(out + 52, 0);
+	put_le32(out + 52, pt->position_source);
+	put_f64(out + 56, pt->stage[0]);
+	put_f64(out + 64, pt->stage[1]);
+	put_f64(out + 72, pt->stage[2]);
+	put_le64(out + 80, 0);
 }
 
-void scanfile_point_decode(const uint8_t *in, struct asph_scanfile_point *pt)
+void scanfile_point_decode(const uint8_t *in, uint16_t record_size,
+			   struct asph_scanfile_point *pt)
 {
 	pt->plan_index = get_le64(in + 0);
 	pt->x = get_f64(in + 8);
@@ -112,6 +130,16 @@ void scanfile_point_decode(const uint8_t *in, struct asph_scanfile_point *pt)
 	pt->raw = get_f64(in + 32);
 	pt->t_ns = get_le64(in + 40);
 	pt->flags = get_le32(in + 48);
+	if (record_size < ASPH_SCANFILE_RECORD_SIZE) {
+		/* 1.0: the word after the flags was reserved (0) */
+		pt->position_source = ASPH_SCANFILE_POSITION_UNKNOWN;
+		pt->stage[0] = pt->stage[1] = pt->stage[2] = NAN;
+		return;
+	}
+	pt->position_source = get_le32(in + 52);
+	pt->stage[0] = get_f64(in + 56);
+	pt->stage[1] = get_f64(in + 64);
+	pt->stage[2] = get_f64(in + 72);
 }
 
 void block_header_encode(const struct block_header *h, uint8_t *out)
@@ -189,7 +217,7 @@ int scanfile_source_size(const struct scanfile_source *src, uint64_t *size)
 
 static bool point_kept(const struct asph_scanfile_point *pt, uint32_t exclude)
 {
-	return !(pt->flags & (exclude | ASPH_SCANFILE_POINT_OUT_OF_RANGE));
+	return !(pt->flags & (exclude | ASPH_SCANFILE_NOT_MEASURED));
 }
 
 int asph_scanfile_to_points(const struct asph_scanfile *s,
@@ -205,7 +233,7 @@ int asph_scanfile_to_points(const struct asph_scanfile *s,
 		if (!isfinite(pt->x) || !isfinite(pt->y) || !isfinite(pt->z))
 			return asph_error_set(err, -EBADMSG,
 					      "point %zu (plan index %llu) has non-finite coordinates "
-					      "but is not flagged out of range",
+					      "but is not flagged out of range or invalid",
 					      i, (unsigned long long)pt->plan_index);
 		n++;
 	}

@@ -95,7 +95,7 @@ static int accept_dash(struct cursor *c)
 /* An unsigned decimal number > 0 (no exponent: drawings write none). */
 static int number(struct cursor *c, double *out, const char *what)
 {
-	size_t start = c->pos, digits = 0;
+	size_t start, digits = 0;
 	char buf[64], f[24];
 
 	skip_blanks(c);

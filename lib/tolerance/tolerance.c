@@ -124,8 +124,10 @@ static int string_column(const struct json_source *src, long q, int qcol, int de
 
 	while (out < decoded && pos < src->len && src->text[pos] != '"') {
 		if (src->text[pos] == '\\' && pos + 1 < src->len && src->text[pos + 1] == 'u') {
-			unsigned cp = 0;
-			sscanf(src->text + pos + 2, "%4x", &cp);
+			char hex[5] = "";
+			size_t avail = src->len - (pos + 2);
+			memcpy(hex, src->text + pos + 2, avail < 4 ? avail : 4);
+			unsigned cp = (unsigned)strtoul(hex, NULL, 16);
 			out += cp < 0x80 ? 1 : cp < 0x800 ? 2 : (cp >= 0xd800 && cp < 0xdc00) ? 4 : 3;
 			pos += (cp >= 0xd800 && cp < 0xdc00) ? 12 : 6;
 		} else {

@@ -42,10 +42,10 @@ def scan_info(path):
 
 
 def scan_points(path, out):
-    """The measured points of a scan as CSV lines (asph export), [] when
-    none can be read."""
-    p = subprocess.run([ASPH, "export", path, "-o", out], capture_output=True, text=True,
-                       timeout=300)
+    """The measured points of a scan as recorded, CSV lines (asph export
+    --raw), [] when none can be read."""
+    p = subprocess.run([ASPH, "export", path, "-o", out, "--raw"], capture_output=True,
+                       text=True, timeout=300)
     if p.returncode != 0:
         return []
     with open(out) as f:

@@ -106,8 +106,9 @@ def disk_full():
         expect(wait_final(c, first)["state"] == "completed", "disk full: a job completes before")
         before = recorded(c, d, first)
 
-        # Leave 640 kB: the big job's scan (about 3 MB) cannot fit.
-        filler = fill(d.state, 640 * 1024)
+        # Leave 1000 kB: a block of 10,000 points (880 kB) fits, the big
+        # job's scan (about 3 MB) cannot.
+        filler = fill(d.state, 1000 * 1024)
         big = c.call("job.submit", dict(BIG, instrument="paced"))["id"]
         j = wait_final(c, big)
         expect(j["state"] == "failed" and "No space left on device" in (j["reason"] or ""),

@@ -1,9 +1,11 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
  * A driver built outside the tree: only asph/driver.h, no library symbol.
- * A probe that reads a constant height above whatever stage carries it.
- * Built twice: as a good plugin, and with PLUGIN_ABI set to another
- * version to test the refusal. Its constructor leaves a mark where
+ * A probe that reads a constant height above whatever stage carries it, one
+ * reading at a time or streamed along a sweep. Built against this tree's
+ * header, against the ABI 1.0 header (tests/drivers/abi-1.0: plugins of an
+ * older minor version must load and measure), and with PLUGIN_ABI set to
+ * versions the host refuses. Its constructor leaves a mark where
  * $ASPH_TEST_PLUGIN_MARK says, so that a test can tell whether any of its
  * code ran (a plugin that is refused must not run at all).
  */
@@ -62,7 +64,7 @@ static int echo_info(struct asph_device *d, struct asph_probe_info *out,
 		     struct asph_error *err)
 {
 	*out = (struct asph_probe_info){ .type = ASPH_PROBE_OPTICAL, .range_min = -1,
-					 .range_max = 1, .standoff = 0 };
+					 .range_max = 1, .standoff = 0, .can_stream = true };
 	snprintf(out->model, sizeof(out->model), "echo");
 	return 0;
 }
@@ -71,6 +73,18 @@ static int echo_read(struct asph_device *d, const struct asph_probe_context *ctx
 		     struct asph_reading *out, unsigned timeout_ms, struct asph_error *err)
 {
 	*out = (struct asph_reading){ .value = d->height, .raw = d->height };
+	return 0;
+}
+
+static int echo_stream(struct asph_device *d, const struct asph_probe_context *ctx, size_t n,
+		       struct asph_reading *out, size_t *n_done, unsigned timeout_ms,
+		       struct asph_error *err)
+{
+	/* each reading says which plan point it was for: its raw number */
+	for (size_t i = 0; i < n; i++)
+		out[i] = (struct asph_reading){ .value = d->height,
+						.raw = (double)ctx[i].plan_index };
+	*n_done = n;
 	return 0;
 }
 
@@ -86,7 +100,7 @@ static const struct asph_option_desc echo_options[] = {
 
 static const struct asph_probe_ops echo_probe = {
 	.open = echo_open, .close = echo_close, .info = echo_info,
-	.read = echo_read, .stop = echo_stop,
+	.read = echo_read, .stream = echo_stream, .stop = echo_stop,
 };
 
 static const struct asph_driver echo_driver = {

@@ -967,6 +967,28 @@ static void test_scan_end_to_end(void **state)
 	scan_config(&e, json, can_path);
 	can_sim_free(sim);
 	close(sv[0]);
+	/* each point rests on the drives' position actual value (0x6064),
+	 * read back after the move: whole counts of each axis, not the
+	 * commanded target */
+	struct asph_scanfile *rec;
+	static const double counts[3] = { 8192, 12500, 20480 };
+	if (asph_scanfile_read(can_path, &rec, NULL) < 0)
+		fail_msg("%s: not readable", can_path);
+	size_t off_grid = 0;
+	for (size_t i = 0; i < rec->n; i++) {
+		const struct asph_scanfile_point *pt = &rec->points[i];
+		assert_int_equal(pt->position_source, ASPH_SCANFILE_POSITION_READ_BACK);
+		assert_false(pt->flags & ASPH_SCANFILE_POINT_COMMANDED);
+		for (int k = 0; k < 3; k++) {
+			double c = pt->stage[k] * counts[k];
+			assert_true(fabs(c - nearbyint(c)) < 1e-6);
+		}
+		/* the plan's own x is off the count grid almost everywhere */
+		double cx = e.plan->xyz[3 * pt->plan_index] * counts[0];
+		off_grid += fabs(cx - nearbyint(cx)) > 1e-3;
+	}
+	assert_true(off_grid > rec->n / 2);
+	asph_scanfile_free(rec);
 	snprintf(json, sizeof(json),
 		 "{\"instruments\": [{\"stage\": {\"driver\": \"mock\", \"options\": "
 		 "{\"time_factor\": 0}}, %s}]}", probe);

@@ -169,6 +169,28 @@ static void test_lens_follows_job(void **state)
 	asph_config_free(c);
 }
 
+/* A worker's copy of an instrument is the whole instrument: its options and
+ * its acquisition settings. */
+static void test_config_copy(void **state)
+{
+	struct fixture *f = *state;
+	struct asph_config *c, *copy;
+	struct asph_error err;
+
+	assert_int_equal(asph_instrument_spec_parse(f->reg, "mock:rate=2500,settle_dwell=0.03,"
+		"drift_interval=900points,drift_references=1:2;-3:4,retries=5", &c, &err), 0);
+	assert_int_equal(asph_instrument_config_copy(&c->instruments[0], &copy, &err), 0);
+	const struct asph_acquisition *a = &copy->instruments[0].acquisition;
+	assert_true(spec_value(copy, "rate")->d == 2500);
+	assert_true(a->settle_dwell == 0.03);
+	assert_int_equal(a->drift_interval_points, 900);
+	assert_int_equal(a->n_references, 2);
+	assert_true(a->references[1][0] == -3 && a->references[1][1] == 4);
+	assert_int_equal(a->retries, 5);
+	asph_config_free(copy);
+	asph_config_free(c);
+}
+
 static void test_spec(void **state)
 {
 	struct fixture *f = *state;
@@ -401,6 +423,76 @@ static void test_plugins(void **state)
 	asph_registry_free(reg);
 }
 
+/* A plugin built against the ABI 1.0 header loads, reads and streams
+ * through this host (its shorter structures converted), and says where it
+ * was; one of a newer minor version than the host's is refused. */
+static void test_plugin_abi_1_0(void **state)
+{
+	const char *old = getenv("ASPH_TEST_PLUGIN_ABI10");
+	const char *newer = getenv("ASPH_TEST_PLUGIN_NEWER");
+	struct asph_registry *reg;
+	struct asph_error err;
+	struct asph_config *c;
+	char want[64];
+
+	if (!old || !newer)
+		skip();
+	assert_int_equal(asph_registry_new(&reg, NULL), 0);
+	assert_int_equal(asph_registry_load_plugin(reg, newer, &err), -EPROTO);
+	snprintf(want, sizeof(want), "ABI %d.%d, this program has ABI %d.%d", ASPH_DRIVER_ABI_MAJOR,
+		 ASPH_DRIVER_ABI_MINOR + 1, ASPH_DRIVER_ABI_MAJOR, ASPH_DRIVER_ABI_MINOR);
+	if (!strstr(err.message, want))
+		fail_msg("%s", err.message);
+	assert_int_equal(asph_registry_load_plugin(reg, old, &err), 0);
+	const struct asph_driver *echo = asph_registry_find(reg, "echo");
+	assert_non_null(echo);
+	assert_int_equal(echo->abi_version, 1);
+	assert_int_equal(asph_driver_abi_minor(echo), 0);
+
+	static const char conf[] =
+		"{\"instruments\": [{\"stage\": {\"driver\": \"mock\"},"
+		" \"probe\": {\"driver\": \"echo\", \"options\": {\"height\": -0.375}}}]}";
+	assert_int_equal(asph_config_parse(reg, conf, strlen(conf), "p.json", &c, &err), 0);
+	char *json;
+	assert_int_equal(asph_instrument_config_to_json(&c->instruments[0], &json), 0);
+	assert_non_null(strstr(json, "\"driver\":\"echo\",\"version\":\"0.1\",\"abi\":\"1.0\""));
+	free(json);
+	struct asph_instrument *inst;
+	assert_int_equal(asph_instrument_open(&c->instruments[0], 1000, &inst, &err), 0);
+	/* what 1.0 does not have is not called, and 0 */
+	assert_null(inst->probe_ops.attach);
+	assert_false(inst->attached);
+	assert_true(inst->probe_info.can_stream);
+	assert_true(inst->probe_info.latency == 0);
+	struct asph_probe_context ctx[5];
+	struct asph_reading rd[5];
+	memset(ctx, 0, sizeof(ctx));
+	memset(rd, 0x5a, sizeof(rd));
+	assert_int_equal(asph_instrument_read(inst, ctx, rd, 100, &err), 0);
+	assert_true(rd[0].value == -0.375);
+	assert_int_equal(rd[0].position_source, ASPH_POSITION_NONE);
+	/* a stream: the plugin writes readings of the 1.0 size */
+	for (int i = 0; i < 5; i++) {
+		ctx[i].plan_index = 40 + (uint64_t)i;
+		ctx[i].kind = ASPH_MEASURE_REFERENCE;
+		ctx[i].attempt = 3;
+	}
+	size_t done;
+	memset(rd, 0x5a, sizeof(rd));
+	assert_int_equal(asph_instrument_stream(inst, ctx, 5, rd, &done, 100, &err), 0);
+	assert_int_equal(done, 5);
+	for (int i = 0; i < 5; i++) {
+		assert_true(rd[i].value == -0.375);
+		assert_true(rd[i].raw == 40 + i);
+		assert_int_equal(rd[i].flags, 0);
+		assert_int_equal(rd[i].position_source, ASPH_POSITION_NONE);
+		assert_true(rd[i].position[0] == 0 && rd[i].position_t_ns == 0);
+	}
+	asph_instrument_close(inst);
+	asph_config_free(c);
+	asph_registry_free(reg);
+}
+
 static int warnings;
 
 static void count_warning(const struct asph_error *err, void *data)
@@ -525,6 +617,7 @@ int main(void)
 		cmocka_unit_test_setup_teardown(test_validate_refuses, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_options, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_lens_follows_job, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_config_copy, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_spec, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_config_file, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_config_refusals, setup, teardown),
@@ -532,6 +625,7 @@ int main(void)
 		cmocka_unit_test_setup_teardown(test_resolve, setup, teardown),
 		cmocka_unit_test(test_plugins),
 		cmocka_unit_test(test_plugin_dir),
+		cmocka_unit_test(test_plugin_abi_1_0),
 		cmocka_unit_test(test_plugin_trust),
 	};
 	return cmocka_run_group_tests(tests, NULL, NULL);

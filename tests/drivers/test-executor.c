@@ -20,6 +20,7 @@
 
 #include "asph/executor.h"
 #include "asph/fit.h"
+#include "asph/motion.h"
 #include "asph/plan.h"
 #include "asph/prescription.h"
 #include "scan-fixture.h"
@@ -84,11 +85,26 @@ struct fault_case {
 static void test_faults(void **state)
 {
 	static const struct fault_case cases[] = {
-		{ "mock:time_factor=0,fail_after=233", -ENODEV, 233, "disconnected after 233" },
-		{ "mock:time_factor=0,timeout_at=171", -ETIMEDOUT, 170, "did not answer reading 171" },
-		{ "mock:time_factor=0,out_of_range_at=97", -ERANGE, 97, "out of range" },
-		{ "mock:time_factor=0,fail_after=233,stream=false", -ENODEV, 233, "plan point 233: probe" },
-		{ "mock:time_factor=0,timeout_at=171,probe=tactile", -ETIMEDOUT, 170, "plan point 170" },
+		/* faults by the number of the reading: no drift references */
+		{ "mock:time_factor=0,drift_interval=off,fail_after=233", -ENODEV, 233,
+		  "disconnected after 233" },
+		{ "mock:time_factor=0,drift_interval=off,timeout_at=171", -ETIMEDOUT, 170,
+		  "did not answer reading 171" },
+		{ "mock:time_factor=0,drift_interval=off,out_of_range_at=97", -ERANGE, 97, "out of range" },
+		{ "mock:time_factor=0,drift_interval=off,fail_after=233,stream=false", -ENODEV, 233,
+		  "plan point 233: probe" },
+		{ "mock:time_factor=0,drift_interval=off,timeout_at=171,probe=tactile", -ETIMEDOUT, 170,
+		  "plan point 170" },
+		/* the first reading is the vertex's, as a drift reference */
+		{ "mock:time_factor=0,fail_after=233", -ENODEV, 232, "disconnected after 233" },
+		{ "mock:time_factor=0,timeout_at=1", -ETIMEDOUT, 0, "drift reference 0 (0, 0)" },
+		/* the bench of a good instrument fails the same way */
+		{ "mock:time_factor=0,bench=realistic,drift_interval=off,fail_after=233", -ENODEV, 233,
+		  "disconnected after 233" },
+		{ "mock:time_factor=0,bench=realistic,drift_interval=off,out_of_range_at=97", -ERANGE, 97,
+		  "out of range" },
+		{ "mock:time_factor=0,bench=realistic,drift_interval=off,timeout_at=171,stream=false",
+		  -ETIMEDOUT, 170, "plan point 170" },
 	};
 	struct scan_fixture *e = *state;
 	char path[128];
@@ -121,7 +137,7 @@ static void test_skip_out_of_range(void **state)
 	struct asph_scan_options so = { .flags = ASPH_SCAN_SKIP_OUT_OF_RANGE };
 	char path[128];
 
-	assert_int_equal(scan_with(e, e->reg, "mock:time_factor=0,out_of_range_at=55",
+	assert_int_equal(scan_with(e, e->reg, "mock:time_factor=0,drift_interval=off,out_of_range_at=55",
 				   new_path(e, path, sizeof(path)), &so, NULL), 0);
 	struct asph_scanfile *s = read_scan(path);
 	assert_int_equal(s->n, e->plan->n);
@@ -187,8 +203,8 @@ static void test_failed_retreat(void **state)
 	spy.probe = &probe_ops;
 	atomic_store(&n_readings, 0);
 	atomic_store(&fail_at_reading, 37);
-	assert_int_equal(asph_instrument_spec_parse(e->reg, "mock:time_factor=0,stream=false", &c,
-						    NULL), 0);
+	assert_int_equal(asph_instrument_spec_parse(e->reg, "mock:time_factor=0,stream=false,"
+						    "drift_interval=off", &c, NULL), 0);
 	c->instruments[0].stage_driver = &spy;
 	c->instruments[0].probe_driver = &spy;
 	assert_int_equal(asph_instrument_open(&c->instruments[0], 1000, &inst, NULL), 0);
@@ -233,6 +249,13 @@ static int spy_sweep(struct asph_device *d, const double *p, size_t n, unsigned 
 	return mock_stage->sweep(d, p, n, t, err);
 }
 
+static int spy_sweep_pvt(struct asph_device *d, const struct asph_pvt *k, size_t n, unsigned t,
+			 struct asph_error *err)
+{
+	atomic_fetch_add(&n_motions, 1);
+	return mock_stage->sweep_pvt(d, k, n, t, err);
+}
+
 static void test_limits_before_motion(void **state)
 {
 	struct scan_fixture *e = *state;
@@ -256,6 +279,7 @@ static void test_limits_before_motion(void **state)
 	spy_ops.home = spy_home;
 	spy_ops.move_to = spy_move;
 	spy_ops.sweep = spy_sweep;
+	spy_ops.sweep_pvt = spy_sweep_pvt;
 	spy = *mock;
 	spy.stage = &spy_ops;
 	for (size_t i = 0; i < sizeof(specs) / sizeof(specs[0]); i++) {
@@ -296,6 +320,9 @@ static void trail_add(const double *p)
 	memcpy(trail + 3 * n_trail++, p, 3 * sizeof(double));
 }
 
+/* Where the command last was, at rest or moving. */
+static struct asph_pvt last_knot;
+
 static int trail_home(struct asph_device *d, unsigned t, struct asph_error *err)
 {
 	static const double zero[3];
@@ -306,6 +333,8 @@ static int trail_home(struct asph_device *d, unsigned t, struct asph_error *err)
 static int trail_move(struct asph_device *d, const double *p, unsigned t, struct asph_error *err)
 {
 	trail_add(p);
+	memset(&last_knot, 0, sizeof(last_knot));
+	memcpy(last_knot.position, p, sizeof(last_knot.position));
 	return mock_stage->move_to(d, p, t, err);
 }
 
@@ -315,6 +344,28 @@ static int trail_sweep(struct asph_device *d, const double *p, size_t n, unsigne
 	for (size_t i = 0; i < n; i++)
 		trail_add(p + 3 * i);
 	return mock_stage->sweep(d, p, n, t, err);
+}
+
+/* A timed sweep: its knots, and the Hermite curve between them at 8 points
+ * each (the command the stage follows). */
+static int trail_sweep_pvt(struct asph_device *d, const struct asph_pvt *k, size_t n,
+			   unsigned t, struct asph_error *err)
+{
+	for (size_t i = 0; i < n; i++) {
+		struct asph_motion_knot a = { .t = 0 }, b = { .t = k[i].t };
+		memcpy(a.position, last_knot.position, sizeof(a.position));
+		memcpy(a.velocity, last_knot.velocity, sizeof(a.velocity));
+		memcpy(b.position, k[i].position, sizeof(b.position));
+		memcpy(b.velocity, k[i].velocity, sizeof(b.velocity));
+		for (int s = 1; s <= 8 && k[i].t > 0; s++) {
+			double p[3];
+			asph_motion_knot_eval(&a, &b, k[i].t * s / 8, p, NULL, NULL, NULL);
+			trail_add(p);
+		}
+		last_knot = k[i];
+		last_knot.t = 0;
+	}
+	return mock_stage->sweep_pvt(d, k, n, t, err);
 }
 
 /* The gap of the probe at cartesian c, computed here from the sag alone. */
@@ -383,6 +434,7 @@ static void test_clearance(void **state)
 	ops.home = trail_home;
 	ops.move_to = trail_move;
 	ops.sweep = trail_sweep;
+	ops.sweep_pvt = trail_sweep_pvt;
 	spy = *mock;
 	spy.stage = &ops;
 	for (size_t c = 0; c < sizeof(cases) / sizeof(cases[0]); c++) {
@@ -623,7 +675,8 @@ static void test_resume(void **state)
 	struct scan_fixture *e = *state;
 	char whole[128], cut[128];
 	struct asph_scan_options so = { .flags = ASPH_SCAN_STREAM, .stream_batch = 64 };
-	const char *base = "mock:time_factor=0,tilt_x=77.7,form=8:-19.5,noise=1.5,seed=909";
+	const char *base = "mock:time_factor=0,drift_interval=off,tilt_x=77.7,form=8:-19.5,"
+			   "noise=1.5,seed=909";
 	char faulty[160];
 
 	assert_int_equal(scan_with(e, e->reg, base, new_path(e, whole, sizeof(whole)), &so, NULL), 0);
@@ -707,10 +760,10 @@ static void test_reopen(void **state)
 	write_cut_scan(new_path(e, before, sizeof(before)), old_json, 57);
 	free(plan_json);
 
-	assert_int_equal(asph_scan_reopen(now, p, NULL, &w, &start, &err), 0);
+	assert_int_equal(asph_scan_reopen(now, p, NULL, &w, &start, NULL, &err), 0);
 	assert_int_equal(start, 41);
 	assert_int_equal(asph_scanfile_writer_close(w, NULL), 0);
-	assert_int_equal(asph_scan_reopen(before, p, NULL, &w, &start, &err), 0);
+	assert_int_equal(asph_scan_reopen(before, p, NULL, &w, &start, NULL, &err), 0);
 	assert_int_equal(start, 58);
 	assert_int_equal(asph_scanfile_writer_close(w, NULL), 0);
 	struct asph_scanfile *rec = read_scan(before);
@@ -725,7 +778,7 @@ static void test_reopen(void **state)
 	long size = file_size(now);
 	asph_error_clear(&err);
 	w = NULL;
-	assert_int_equal(asph_scan_reopen(now, other, NULL, &w, &start, &err), -EINVAL);
+	assert_int_equal(asph_scan_reopen(now, other, NULL, &w, &start, NULL, &err), -EINVAL);
 	assert_null(w);
 	assert_string_equal(err.field, "plan");
 	assert_string_equal(err.source, now);
@@ -736,7 +789,7 @@ static void test_reopen(void **state)
 	/* a header whose plan says nothing usable */
 	char bare[128];
 	write_cut_scan(new_path(e, bare, sizeof(bare)), "{\"method\":\"fermat\"}", 5);
-	assert_int_equal(asph_scan_reopen(bare, p, NULL, &w, &start, &err), -EINVAL);
+	assert_int_equal(asph_scan_reopen(bare, p, NULL, &w, &start, NULL, &err), -EINVAL);
 	assert_string_equal(err.field, "plan.density");
 }
 

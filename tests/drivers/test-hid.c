@@ -793,7 +793,8 @@ static void test_strong_end_to_end(void **state)
 	static const char hid_json[] =
 		"{\"instruments\": [{\"stage\": {\"driver\": \"mock\", \"options\": {\"time_factor\": 0}},"
 		" \"probe\": {\"driver\": \"hid\", \"options\": {\"vendor_id\": 4617, \"product_id\": 1,"
-		" \"serial\": \"IND-0002\", \"probe\": \"optical\", \"scale\": 1e-8}}}]}";
+		" \"serial\": \"IND-0002\", \"probe\": \"optical\", \"scale\": 1e-8}},"
+		" \"acquisition\": {\"drift_interval\": \"off\"}}]}";
 	struct env *e = *state;
 	struct indicator *ind = &e->ind[1];
 	struct mock_part_params pp = {

@@ -52,7 +52,23 @@ static struct asph_surface *strong(void)
 	return s;
 }
 
-/* The measured point at machine (x, y), stage z = zs. */
+/* Moves the stage to (x, y, zs), homing it first when it is not. */
+static void move(struct mock *m, double x, double y, double zs)
+{
+	const double t[3] = { x, y, zs };
+	struct asph_stage_status st;
+	struct asph_error err;
+	const struct asph_stage_ops *ops = m->inst->stage_driver->stage;
+
+	assert_int_equal(ops->status(m->inst->stage, &st, 100, NULL), 0);
+	if (!st.homed)
+		assert_int_equal(ops->home(m->inst->stage, 100, NULL), 0);
+	if (ops->move_to(m->inst->stage, t, 100, &err) < 0)
+		fail_msg("move: %s", err.message);
+}
+
+/* The measured point with the stage at machine (x, y), z = zs: the probe on
+ * the mock stage reads where the stage is. */
 static void read_at(struct mock *m, double x, double y, double zs, uint64_t index,
 		    double p[3])
 {
@@ -60,6 +76,7 @@ static void read_at(struct mock *m, double x, double y, double zs, uint64_t inde
 	struct asph_reading rd;
 	struct asph_error err;
 
+	move(m, x, y, zs);
 	if (m->inst->probe_driver->probe->read(m->inst->probe, &ctx, &rd, 100, &err) < 0)
 		fail_msg("read: %s", err.message);
 	assert_false(rd.flags & ASPH_READING_OUT_OF_RANGE);
@@ -243,6 +260,7 @@ static void test_faults(void **state)
 
 	ctx.xyz[2] = asph_surface_sag(s, hypot(1.5, 2.5)) - 2.0;
 	mock_open(&m, "mock:time_factor=0,fail_after=3,out_of_range_at=2");
+	move(&m, 1.5, 2.5, ctx.xyz[2]);
 	const struct asph_probe_ops *pr = m.inst->probe_driver->probe;
 	assert_int_equal(pr->read(m.inst->probe, &ctx, &rd, 100, NULL), 0);
 	assert_false(rd.flags & ASPH_READING_OUT_OF_RANGE);
@@ -256,6 +274,7 @@ static void test_faults(void **state)
 	/* a surface outside the range is flagged, not clipped */
 	mock_open(&m, "mock:time_factor=0,range=0.2");
 	ctx.xyz[2] -= 0.15;
+	move(&m, 1.5, 2.5, ctx.xyz[2]);
 	assert_int_equal(m.inst->probe_driver->probe->read(m.inst->probe, &ctx, &rd, 100, NULL), 0);
 	assert_true(rd.flags & ASPH_READING_OUT_OF_RANGE);
 	mock_close(&m);

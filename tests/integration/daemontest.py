@@ -35,13 +35,17 @@ def finish():
     sys.exit(1 if failures else 0)
 
 
-def mock_instrument(name="mock", time_factor=0.02, **probe):
+def mock_instrument(name="mock", time_factor=0.02, acquisition=None, **probe):
     """An instrument entry for the configuration: the mock with its time
-    scaled (time_factor 0.02 measures about a thousand points a second)."""
+    scaled (time_factor 0.02 measures about a thousand points a second),
+    and the acquisition settings given (docs/drivers.md)."""
     stage = {"time_factor": time_factor}
     probe = dict({"time_factor": time_factor}, **probe)
-    return {"name": name, "stage": {"driver": "mock", "options": stage},
+    inst = {"name": name, "stage": {"driver": "mock", "options": stage},
             "probe": {"driver": "mock", "options": probe}}
+    if acquisition:
+        inst["acquisition"] = acquisition
+    return inst
 
 
 class Daemon:

@@ -213,6 +213,57 @@ def points_export(tmp):
         check(len(comps) > 0, "Gwyddion read an empty container")
 
 
+def band_rms(tmp):
+    """asph fit --bands: spherical aberration lies in the form band, the
+    bands add up in quadrature to the total, and the total is the windowed
+    mean square of the grid (Parseval), computed here in the space domain
+    from the X3P of the same grid read by the second reader."""
+    pts = os.path.join(tmp, "z11.csv")
+    x3p = os.path.join(tmp, "z11.x3p")
+    r = asph("synth", "weak", "--method", "concentric", "--h", "0.08", "--zernike", "11=30",
+             "--seed", "1", "-o", pts)
+    check(r.returncode == 0, f"synth: {r.stderr}")
+    r = asph("fit", "weak", pts, "--json", "--bands", "5,0.5", "--grid-spacing", "0.25",
+             "--x3p", x3p)
+    check(r.returncode == 0, f"fit --bands: {r.stderr}")
+    b = json.loads(r.stdout)["band_rms"]
+    check(set(b) == {"form_mm", "high_mm", "grid_spacing_mm", "form_nm", "mid_nm", "high_nm",
+                     "total_nm"}, f"band_rms keys {sorted(b)}")
+    check(b["form_mm"] == 5 and b["high_mm"] == 0.5 and b["grid_spacing_mm"] == 0.25, f"bands {b}")
+    quad = math.sqrt(b["form_nm"] ** 2 + b["mid_nm"] ** 2 + b["high_nm"] ** 2)
+    check(abs(quad - b["total_nm"]) <= 1e-9 * b["total_nm"], f"bands in quadrature {quad} != {b}")
+    check(b["form_nm"] > 0.99 * b["total_nm"] and b["mid_nm"] + b["high_nm"] < 0.05 * b["total_nm"],
+          f"Z11 (wavelengths of the aperture's size) outside the form band: {b}")
+    xpath, values = second_reader(x3p, tmp)
+    nx, ny = int(xpath("/*/Record3/MatrixDimension/SizeX")), int(xpath("/*/Record3/MatrixDimension/SizeY"))
+    valid = [v for v in values if not math.isnan(v)]
+    mean = sum(valid) / len(valid)
+
+    def hann(k, n):
+        return math.sin(math.pi * (k + 0.5) / n) ** 2
+
+    sb = sb2 = wsum = 0.0
+    for j in range(ny):
+        for i in range(nx):
+            v = values[j * nx + i]
+            if math.isnan(v):
+                continue
+            w = hann(i, nx) * hann(j, ny)
+            sb += w * (v - mean) * 1e9
+            sb2 += (w * (v - mean) * 1e9) ** 2
+            wsum += w * w
+    # All but the mean: the zero-frequency bin holds (sum b)^2 / (Nfx Nfy),
+    # with the padded sizes at least nx, ny.
+    hi = math.sqrt(sb2 / wsum)
+    lo = math.sqrt((sb2 - sb * sb / (nx * ny)) / wsum)
+    check(lo * (1 - 1e-9) <= b["total_nm"] <= hi * (1 + 1e-9),
+          f"band total {b['total_nm']} nm, the windowed grid's {lo}..{hi} nm")
+    for bad, why in (("5", "expected ','"), ("0.5,5", "need 0 < HIGH_MM"), ("5,x", "column 3"),
+                     ("5,0.5,1", "unexpected text")):
+        r = asph("fit", "weak", pts, "--bands", bad)
+        check(r.returncode == 2 and why in r.stderr, f"--bands {bad}: exit {r.returncode}: {r.stderr}")
+
+
 def correction_tables(tmp):
     pts = os.path.join(tmp, "tp.csv")
     asph("synth", "strong", "--method", "concentric", "--h", "0.06", "--zernike", "11=-20",
@@ -329,6 +380,7 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         grid_export(tmp)
         points_export(tmp)
+        band_rms(tmp)
         correction_tables(tmp)
         verdict_exit(tmp)
         report(tmp)

@@ -96,10 +96,38 @@ def check_errors():
     expect(code == 0 and "--method" in out, "--help")
 
 
+def check_estimate(tmp):
+    """--estimate INSTRUMENT: the predicted measuring time, on stdout with -o
+    (the points in the file), on stderr without; bad instruments refused."""
+    out_csv = os.path.join(tmp, "p.csv")
+    inst = "mock:time_factor=0,drift_interval=off"
+    code, out, err = run("plan", "strong", "--method", "fermat", "--points", "300",
+                         "--estimate", inst, "-o", out_csv, "-q", check=0)
+    expect(code == 0 and out.startswith("estimate: ") and f"300 points on {inst}" in out,
+           f"--estimate prints the prediction on stdout with -o ({out.strip()!r}, {err.strip()!r})")
+    with open(out_csv) as f:
+        expect(f.readline().strip() == "x,y,z", "the points still go to the file")
+    # a probe of 2 readings per second sets the pace: at least 299 / 2 s
+    # between the first reading and the last
+    code, out, _ = run("plan", "strong", "--method", "fermat", "--points", "300",
+                       "--estimate", inst + ",rate=2", "-o", out_csv, "-q", check=0)
+    t = float(out.split()[1]) if code == 0 else 0
+    expect(299 / 2 <= t <= 1.2 * 299 / 2, f"a 2 Hz probe paces the scan ({t} s)")
+    code, out, err = run("plan", "strong", "--method", "fermat", "--points", "300",
+                         "--estimate", inst, check=0)
+    expect(code == 0 and out.startswith("x,y,z") and "estimate: " in err,
+           "without -o the points go to stdout and the estimate to stderr")
+    code, out, err = run("plan", "strong", "--method", "fermat", "--points", "300",
+                         "--estimate", "nosuchdriver")
+    expect(code == 2 and "nosuchdriver" in err and not out,
+           f"an unknown instrument: exit 2 before any point is written ({err.strip()!r})")
+
+
 def main():
     check_csv_plan()
     with tempfile.TemporaryDirectory() as tmp:
         check_ply_and_json(tmp)
+        check_estimate(tmp)
     check_errors()
     finish()
 

@@ -84,7 +84,9 @@ expect(rc == 1 and "exists" in err.lower(), "an existing scan is not overwritten
 for spec, words in (("fail_after=150", "disconnected"), ("timeout_at=150", "did not answer"),
                     ("out_of_range_at=151", "out of range")):
     scan = path(spec.split("=")[0] + ".asph")
-    rc, _, err = run(*base, "--instrument", "mock:time_factor=0," + spec, "-o", scan)
+    # faults by reading number: without drift references in between
+    rc, _, err = run(*base, "--instrument", "mock:time_factor=0,drift_interval=off," + spec,
+                     "-o", scan)
     info = scaninfo(scan)
     expect(rc == 1 and words in err and info["outcome"] == "failed" and words in info["reason"]
            and 149 <= info["points"] <= 151, f"fault {spec}: clear reason, readable file")
@@ -105,16 +107,23 @@ expect(rc != 0 and "out of range" in err and scaninfo(path("wrong.asph"))["outco
 
 # --- SIGKILL half-way: the reader recovers what was flushed -----------------
 def first_block_written(scan):
-    """Whether the scan file holds a block after its header
+    """Whether the scan file holds a block of points after its header
     (docs/scan-format.md: a 20-byte prefix with the header's length at
-    offset 12, the header, then blocks that start with "ASPB")."""
+    offset 12, the header, then blocks that start with "ASPB", their type
+    (1: points) and their payload's length at offset 28)."""
     try:
         with open(scan, "rb") as f:
             prefix = f.read(20)
             if len(prefix) < 20:
                 return False
             f.seek(20 + struct.unpack_from("<I", prefix, 12)[0])
-            return f.read(4) == b"ASPB"
+            while True:
+                head = f.read(32)
+                if len(head) < 32 or head[:4] != b"ASPB":
+                    return False
+                if struct.unpack_from("<H", head, 4)[0] == 1:
+                    return True
+                f.seek(struct.unpack_from("<I", head, 28)[0] + 4, 1)
     except OSError:
         return False
 
@@ -157,10 +166,17 @@ rc, _, _ = run("fit", "--help")
 if rc == 0:
     rc1, replay_out, err1 = run("replay", good, "--json")
     rc2, fit_out, err2 = run("fit", "strong", path("good.csv"), "--json")
-    expect(rc1 == 0 and rc2 == 0 and replay_out == fit_out and json.loads(replay_out),
-           "asph replay --json is asph fit --json on the exported points")
+    replayed = json.loads(replay_out) if rc1 == 0 else {}
+    acq = replayed.pop("acquisition", None)
+    expect(rc1 == 0 and rc2 == 0 and replayed == json.loads(fit_out) and acq
+           and acq["positions"]["latched"] == replayed["n_points"] and acq["drift"]["rounds"] >= 2,
+           "asph replay --json is asph fit --json on the exported points, with the acquisition")
     _, again_out, _ = run("replay", again, "--json")
-    expect(again_out == replay_out, "replaying the re-measured recording gives the same result")
+    again_json = json.loads(again_out)
+    again_acq = again_json.pop("acquisition")
+    expect(again_json == replayed and again_acq["positions"] == acq["positions"]
+           and again_acq["drift"]["max_nm"] == acq["drift"]["max_nm"],
+           "replaying the re-measured recording gives the same result")
 else:
     print("ok - # skip asph fit is not built")
 

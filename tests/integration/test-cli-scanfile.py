@@ -48,7 +48,8 @@ HEADER = {
     "metadata": {"job": "j-7"},
 }
 
-TIP, OUT_OF_RANGE, LOW_SIGNAL, RETRIED = 1, 2, 4, 8
+TIP, OUT_OF_RANGE, LOW_SIGNAL, RETRIED, COMMANDED, INVALID = 1, 2, 4, 8, 16, 32
+LATCHED, READ_BACK, INTERPOLATED, COMMANDED_SOURCE = 1, 2, 3, 4
 
 
 def points(n):
@@ -86,6 +87,35 @@ def scan_bytes(pts, per_block, end=None):
         payload = json.dumps({"outcome": end[0], "reason": end[1], "points": len(pts)}).encode()
         out += block(2, seq, len(pts), 0, payload)
     return out
+
+
+def record_1_1(p, source, stage):
+    """Version 1.1's 88-byte record: 1.0's, the position source in the
+    word 1.0 reserved, the stage's position, 8 reserved bytes."""
+    return struct.pack("<QddddQII", *p, source) + struct.pack("<dddQ", *stage, 0)
+
+
+def scan_bytes_1_1(pts, refs):
+    """Points with their sources and stage positions, and blocks of drift
+    references (type 4) between them: refs maps a point count to the
+    references measured before that point."""
+    text = json.dumps(HEADER).encode()
+    prefix = b"ASPHSCAN" + struct.pack("<HHI", 1, 1, len(text))
+    out = prefix + struct.pack("<I", crc32c(text, crc32c(prefix))) + text
+    seq = 0
+    sources = (LATCHED, READ_BACK, INTERPOLATED, COMMANDED_SOURCE)
+    for k in range(0, len(pts), 10):
+        if k in refs:
+            payload = b"".join(record_1_1(r, READ_BACK, (0.0, 0.0, -2.0)) for r in refs[k])
+            out += block(4, seq, k, len(refs[k]), payload, 88)
+            seq += 1
+        chunk = pts[k:k + 10]
+        payload = b"".join(record_1_1(p, sources[(k + i) % 4], (p[1], p[2], p[3] - 2.0))
+                           for i, p in enumerate(chunk))
+        out += block(1, seq, k, len(chunk), payload, 88)
+        seq += 1
+    payload = json.dumps({"outcome": "completed", "reason": None, "points": len(pts)}).encode()
+    return out + block(2, seq, len(pts), 0, payload)
 
 
 def run(*args, expect=0):
@@ -178,6 +208,43 @@ def main():
         info = json.loads(run("scaninfo", torn, "--json").stdout)
         check(info["points"] == 16 and info["recovery"]["stop"] == "checksum", "checksum stop")
         check(info["recovery"]["stop_offset"] == start, "checksum offset")
+
+        # version 1.1: position sources, flags for commanded positions and
+        # invalid readings, reference blocks
+        pts11 = []
+        for i, p in enumerate(points(40)):
+            flags = p[6] & ~OUT_OF_RANGE
+            z = p[3] if p[3] == p[3] else 0.25
+            if i % 4 == 3:
+                flags |= COMMANDED
+            if i in (7, 21):
+                flags |= INVALID
+                z = float("nan")
+            pts11.append((p[0], p[1], p[2], z, p[4], p[5], flags))
+        ref = (0, 0.0, 0.0, 0.0, 2.0, 0, 0)
+        v11 = os.path.join(tmp, "v11.scan")
+        with open(v11, "wb") as f:
+            f.write(scan_bytes_1_1(pts11, {0: [ref], 20: [ref, ref], 30: [ref]}))
+        info = json.loads(run("scaninfo", v11, "--json").stdout)
+        check(info["format_version"] == "1.1", "1.1: version")
+        check(info["points"] == 40 and info["references"] == 4, "1.1: points and references")
+        check(info["flags"]["invalid"] == 2 and info["flags"]["commanded-position"] == 10,
+              "1.1: flag counts")
+        check(info["positions"] == {"unknown": 0, "latched": 10, "read-back": 10,
+                                    "interpolated": 10, "commanded": 10}, "1.1: sources")
+        check(info["recovery"]["stop"] == "end", "1.1: clean end")
+        run("export", v11, "-o", csv)
+        with open(csv) as f:
+            rows = [r for r in f.read().split("\n")[1:] if r]
+        kept11 = [p for p in pts11 if not p[6] & INVALID]
+        check(len(rows) == len(kept11), "1.1: invalid points left out")
+        for r, p in zip(rows, kept11):
+            vals = [float(v) for v in r.split(",")]
+            check(all(same_float(a, b) for a, b in zip(vals, p[1:4])), "1.1: bit-identical " + r)
+        run("export", v11, "-o", csv, "--exclude", "commanded-position")
+        with open(csv) as f:
+            n = len([r for r in f.read().split("\n")[1:] if r])
+        check(n == len([p for p in kept11 if not p[6] & COMMANDED]), "--exclude commanded-position")
 
         garbage = os.path.join(tmp, "g.scan")
         with open(garbage, "wb") as f:

@@ -7,6 +7,7 @@ provenance, and the documented exit codes."""
 import hashlib
 import json
 import os
+import re
 import subprocess
 import time
 
@@ -43,6 +44,16 @@ try:
                                 "label": "first", "priority": 1})
     jid = job["id"]
     expect(job["state"] == "queued" and job["progress"]["total"] > 1000, "job.submit queues a job with its plan size")
+    # estimate_s: the prediction asph plan --estimate makes for the same
+    # plan on the same configured instrument
+    est = subprocess.run([os.environ.get("ASPH_BIN", "asph"), "plan", "strong", "--method", "ci",
+                          "--h", "0.04", "--estimate", d.config + "#mock", "-o",
+                          os.path.join(d.top, "plan.csv"), "-q"],
+                         capture_output=True, text=True)
+    said = float(est.stdout.split()[1]) if est.returncode == 0 else None
+    expect(isinstance(job.get("estimate_s"), float) and said is not None
+           and abs(job["estimate_s"] - said) <= 0.05 + 1e-9,
+           f"job.submit's estimate_s is asph plan --estimate's ({job.get('estimate_s')}, {said}, {est.stderr.strip()})")
     relays = [d.relay("job.get") for _ in range(2)]
     watchers = [subprocess.Popen([ASPHCTL, "--socket", r.path, "watch", str(jid)],
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -66,7 +77,9 @@ try:
     dones = [x[1] for x in progress]
     expect(len(dones) >= 2 and dones == sorted(dones), f"progress events rise ({len(dones)} of them)")
     span = progress[-1][0] - progress[0][0] if progress else 0
-    expect(len(progress) <= span / 0.25 + 3, f"progress events are rate-limited ({len(progress)} in {span:.2f} s)")
+    # one per interval, and one at each change of the scan's state (started,
+    # checking, homing, the end of measuring, its outcome)
+    expect(len(progress) <= span / 0.25 + 5, f"progress events are rate-limited ({len(progress)} in {span:.2f} s)")
     outs = [w.communicate(timeout=60) for w in watchers]
     expect(all(w.returncode == 0 for w in watchers), "both asphctl watchers exit 0")
     expect(all("completed" in o[0].splitlines()[-1] for o in outs), "both watchers saw the end")
@@ -86,13 +99,22 @@ try:
     with open(os.path.join(res["dir"], "result.json")) as f:
         expect(json.load(f)["summary"] == res["summary"], "result.json holds the same summary")
 
-    # The summary is what `asph fit --json` says about the recorded points.
+    # The summary is what `asph fit --json` says about the recorded points
+    # (the drift corrected as `asph export` writes them), with the
+    # acquisition's account; `asph replay --json` says the same.
     asph = os.environ.get("ASPH_BIN", "asph")
     pts = os.path.join(d.top, "points.csv")
     subprocess.run([asph, "export", scan, "-o", pts], check=True, capture_output=True)
     fit = json.loads(subprocess.run([asph, "fit", "strong", pts, "--json"], check=True,
                                     capture_output=True, text=True).stdout)
-    expect(fit == res["summary"], "the summary equals asph fit --json on the exported points")
+    summary = dict(res["summary"])
+    acquisition = summary.pop("acquisition", None)
+    expect(fit == summary, "the summary equals asph fit --json on the exported points")
+    replay = json.loads(subprocess.run([asph, "replay", scan, "--json"], check=True,
+                                       capture_output=True, text=True).stdout)
+    expect(replay == res["summary"] and acquisition == prov.get("acquisition")
+           and acquisition["commanded_points"] == 0 and acquisition["drift"]["rounds"] >= 2,
+           "asph replay --json is the summary; the provenance has the acquisition's account")
 
     out = os.path.join(d.top, "copy")
     rc, text, _ = d.ctl("result", jid, "--out", out)
@@ -195,6 +217,9 @@ try:
     expect(p.returncode == 3, "no daemon: exit 3")
     rc, out, _ = d.ctl("submit", "strong", "--method", "fermat", "--points", "300", "--wait")
     expect(rc == 0 and "completed" in out, "asphctl submit --wait follows the job to its end")
+    rc, out, _ = d.ctl("submit", "strong", "--method", "fermat", "--points", "300")
+    expect(rc == 0 and re.search(r"queued \(300 points, about \d+ min \d\d s to measure\)", out),
+           f"asphctl submit shows the estimate ({out.strip()!r})")
     rc, out, err = d.ctl("submit", "strong", "--method", "ci", "--h", "0.03", "--instrument", "nope")
     expect(rc == 1 and "No such instrument" in err, "unknown instrument: exit 1 with the reason")
     try:

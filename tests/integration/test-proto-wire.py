@@ -92,12 +92,15 @@ try:
               "provenance.plan": res["provenance"]["plan"],
               "provenance.software": res["provenance"]["software"],
               "provenance.submitted_by": res["provenance"]["submitted_by"],
-              "provenance.scan": res["provenance"]["scan"], "files": res["files"]}
+              "provenance.scan": res["provenance"]["scan"], "files": res["files"],
+              "summary.acquisition": res["summary"]["acquisition"],
+              "summary.acquisition.positions": res["summary"]["acquisition"]["positions"],
+              "summary.acquisition.drift": res["summary"]["acquisition"]["drift"]}
     returned = {k for obj in levels.values() for k in obj}
     with open(os.path.join(PROTO, "README.md")) as f:
         readme = f.read()
     section = re.search(r"^### `job\.result`\n(.*?)^### ", readme, re.S | re.M).group(1)
-    documented = set(re.findall(r"`([a-z][a-z0-9_]*)`", section))
+    documented = set(re.findall(r"`([a-z][a-z0-9_-]*)`", section))
     expect(returned <= documented, f"the README documents every member job.result returns "
                                    f"(missing: {sorted(returned - documented)})")
     # the params (id) and the file names' descriptions aside, nothing more;

@@ -61,7 +61,7 @@ static void test_order_and_classes(void **state)
 	assert_true(events_watch_add(e, EVENT_QUEUE, told, &b, destroyed) > 0);
 	assert_true(events_watch_add(e, EVENT_JOB | EVENT_PROGRESS, told, &c, NULL) > 0);
 	events_queue_state(e, true);
-	events_job_state(e, 3, JOB_RUNNING, JOB_QUEUED, NULL, "m");
+	events_job_state(e, 3, JOB_RUNNING, JOB_QUEUED, NULL, "m", NULL);
 	events_job_progress(e, 3, "m", 1, 2, 3.0, 4.0);
 	events_instrument_fault(e, "m", 3, "why");
 	assert_string_equal(log.text, "a:queue.state b:queue.state a:job.state c:job.state "
@@ -151,15 +151,18 @@ static void test_builders(void **state)
 
 	assert_int_equal(events_new(&e), 0);
 	assert_true(events_watch_add(e, EVENT_ALL, keep, &class, NULL) > 0);
-	json_t *want = json_pack("{s:i, s:s, s:n, s:n, s:s}", "job", 7, "state", "queued",
-				 "previous", "reason", "instrument", "bench");
+	json_t *want = json_pack("{s:i, s:s, s:n, s:n, s:s, s:n}", "job", 7, "state", "queued",
+				 "previous", "reason", "instrument", "bench", "verdict");
 
-	events_job_state(e, 7, JOB_QUEUED, -1, NULL, "bench");
+	events_job_state(e, 7, JOB_QUEUED, -1, NULL, "bench", NULL);
 	assert_true(json_equal(kept, want));
 	json_decref(want);
-	events_job_state(e, 7, JOB_FAILED, JOB_RUNNING, "stalled", "bench");
+	events_job_state(e, 7, JOB_FAILED, JOB_RUNNING, "stalled", "bench", NULL);
 	assert_string_equal(json_string_value(json_object_get(kept, "previous")), "running");
 	assert_string_equal(json_string_value(json_object_get(kept, "reason")), "stalled");
+	assert_true(json_is_null(json_object_get(kept, "verdict")));
+	events_job_state(e, 7, JOB_COMPLETED, JOB_RUNNING, NULL, "bench", "undecided");
+	assert_string_equal(json_string_value(json_object_get(kept, "verdict")), "undecided");
 	class = EVENT_PROGRESS;
 	events_job_progress(e, 7, "bench", 10, 40, 2.5, -1);
 	assert_int_equal(json_integer_value(json_object_get(kept, "done")), 10);

@@ -5,19 +5,28 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "asph/drift.h"
 #include "asph/scanfile.h"
 #include "asph-tool.h"
+#include "util-mem.h"
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile *, asph_scanfile_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
 
 static void usage(FILE *out)
 {
-	fprintf(out, "Usage: asph export SCAN -o FILE [--exclude FLAGS]\n\n"
+	fprintf(out, "Usage: asph export SCAN -o FILE [--exclude FLAGS] [--raw]\n\n"
 		     "Writes the measured points of a recorded scan, in recording order and at\n"
-		     "full precision, as CSV, PLY or JSON by FILE's extension (\"-\": CSV on stdout).\n"
-		     "Points flagged out of range are left out; a damaged or cut-off scan gives\n"
-		     "the points recovered from it, with a warning.\n\n"
+		     "full precision, as CSV, PLY or JSON by FILE's extension (\"-\": CSV on stdout):\n"
+		     "the points characterization sees, corrected for the drift the scan's\n"
+		     "references measured (docs/characterization.md). Points flagged out of range\n"
+		     "or invalid are left out; a damaged or cut-off scan gives the points\n"
+		     "recovered from it, with a warning.\n\n"
 		     "  -o, --output FILE   where to write the points\n"
-		     "  --exclude FLAGS     also leave out points with any of these flags\n"
-		     "                      (comma separated: low-signal, retried, tip-compensated)\n");
+		     "  --exclude FLAGS     also leave out points with any of these flags (comma\n"
+		     "                      separated: low-signal, retried, tip-compensated,\n"
+		     "                      commanded-position)\n"
+		     "  --raw               the points as recorded, without the drift correction\n");
 }
 
 static void warn_damage(const char *path, const struct asph_scanfile_report *rep)
@@ -33,6 +42,7 @@ static void warn_damage(const char *path, const struct asph_scanfile_report *rep
 
 struct export_args {
 	const char *output, *exclude;
+	int raw;
 };
 
 static int take(int opt, const char *arg, void *data)
@@ -41,6 +51,8 @@ static int take(int opt, const char *arg, void *data)
 
 	if (opt == 'o')
 		a->output = arg;
+	else if (opt == 'r')
+		a->raw = 1;
 	else
 		a->exclude = arg;
 	return 0;
@@ -51,11 +63,15 @@ int cmd_export(int argc, char **argv)
 	static const struct option options[] = {
 		{ "output", required_argument, NULL, 'o' },
 		{ "exclude", required_argument, NULL, 'x' },
+		{ "raw", no_argument, NULL, 'r' },
 		{ "help", no_argument, NULL, 'h' },
 		{ 0 }
 	};
 	struct export_args a = { .exclude = "" };
-	struct asph_scanfile_report rep;
+	_cleanup_(asph_scanfile_freep) struct asph_scanfile *s = NULL;
+	_cleanup_(asph_points_freep) struct asph_points *pts = NULL;
+	/* precision 0: 17 significant digits, which read back bit for bit */
+	const struct asph_points_write_options wo = { 0 };
 	struct asph_error err;
 	uint32_t mask;
 	int code = tool_getopt(argc, argv, "o:h", options, usage, take, &a);
@@ -71,10 +87,11 @@ int cmd_export(int argc, char **argv)
 		tool_print_error("--exclude", &err);
 		return EXIT_USAGE;
 	}
-	if (asph_scanfile_export(argv[optind], a.output, mask, &rep, &err) < 0) {
+	if (asph_drift_scan_points(argv[optind], mask, a.raw, &s, &pts, NULL, &err) < 0 ||
+	    asph_points_write(a.output, pts, &wo, &err) < 0) {
 		tool_print_error(NULL, &err);
 		return EXIT_FAILURE_RUN;
 	}
-	warn_damage(argv[optind], &rep);
+	warn_damage(argv[optind], &s->report);
 	return EXIT_OK;
 }

@@ -20,6 +20,7 @@
 #include "fileio.h"
 #include "asph/points.h"
 #include "asph-tool.h"
+#include "fit-tool.h"
 #include "fit-uncertainty.h"
 #include "util-mem.h"
 
@@ -56,18 +57,16 @@ enum {
 	OPT_LOT,
 	OPT_SERIAL,
 	OPT_SCAN,
+	OPT_BANDS,
 };
 
-struct fit_cli {
-	const char *lens, *points, *residuals_out, *map_out, *tolerance_arg;
-	struct asph_fit_options opts;
-	struct asph_tolerance tolerance;
-	int json;
-	const char *x3p_out, *correction_out;
-	double grid_spacing;
-	struct asph_correction_options correction;
-	const char *report_out, *part, *lot, *serial, *scan;
-	struct fit_mc_cli mc;
+
+/* Band-limited RMS of the residual (--bands), from the areal PSD of the
+ * residual grid. */
+struct band_result {
+	int valid;
+	double spacing_mm;
+	struct asph_band_rms rms;
 };
 
 static void usage(FILE *out)
@@ -99,7 +98,12 @@ static void usage(FILE *out)
 		"                      tolerance's, else 1)\n"
 		"  --x3p OUT.x3p       the residual resampled on a grid (ISO 25178-72 matrix layout)\n"
 		"  --grid-spacing MM   spacing of that grid (default: the median point spacing)\n"
-		"  --correction OUT    a correction table of the residual (CSV, conventions in its\n"
+		"  --bands FORM,HIGH   band-limited RMS of the residual from the areal PSD of\n"
+		"                      that grid, by spatial wavelength in mm: form (longer\n"
+		"                      than FORM), mid-spatial (HIGH to FORM), high (shorter\n"
+		"                      than HIGH); JSON key band_rms\n"
+		, ASPH_FIT_MAX_ZERNIKE);
+	fputs("  --correction OUT    a correction table of the residual (CSV, conventions in its\n"
 		"                      header), with:\n"
 		"    --correction-kind radial|grid          z(r) of a turned part (default) or XY\n"
 		"    --correction-sign height-error|material-to-remove   (default height-error)\n"
@@ -120,8 +124,7 @@ static void usage(FILE *out)
 		"  -h, --help          this text\n\n"
 		"Exit status: 0 done (and the part passes its tolerance), 1 refused input or no\n"
 		"convergence, 2 bad command line, 3 the part fails its tolerance, 4 the verdict\n"
-		"is undecided.\n",
-		ASPH_FIT_MAX_ZERNIKE);
+		"is undecided.\n", out);
 }
 
 static int parse_int(const char *arg, const char *name, int lo, int hi, int *out)
@@ -174,6 +177,36 @@ static int parse_nonnegative(const char *arg, const char *name, double *out)
 
 static int take_correction_option(struct fit_cli *c, int opt, const char *arg);
 
+/* --bands FORM_MM,HIGH_MM, with 0 < HIGH < FORM. */
+static int parse_bands(const char *arg, struct fit_cli *c)
+{
+	char *end, *mid;
+	double form, high;
+
+	errno = 0;
+	form = strtod(arg, &mid);
+	if (errno || mid == arg || *mid != ',') {
+		fprintf(stderr, "asph fit: --bands: '%s': expected FORM_MM,HIGH_MM (column %d: %s)\n",
+			arg, (int)(mid - arg) + 1, mid == arg ? "not a number" : "expected ','");
+		return -1;
+	}
+	high = strtod(mid + 1, &end);
+	if (errno || end == mid + 1 || *end) {
+		fprintf(stderr, "asph fit: --bands: '%s': column %d: %s\n", arg,
+			(int)(end - arg) + 1, end == mid + 1 ? "HIGH_MM is not a number"
+							     : "unexpected text after HIGH_MM");
+		return -1;
+	}
+	if (!(high > 0) || !(form > high) || !isfinite(form)) {
+		fprintf(stderr, "asph fit: --bands: '%s': need 0 < HIGH_MM (%g) < FORM_MM (%g), "
+			"both finite\n", arg, high, form);
+		return -1;
+	}
+	c->bands = (struct asph_bands){ .form_mm = form, .high_mm = high };
+	c->bands_given = 1;
+	return 0;
+}
+
 /* 0 taken, -1 bad value (message printed). */
 static int take_option(struct fit_cli *c, int opt, const char *arg)
 {
@@ -224,6 +257,8 @@ static int take_option(struct fit_cli *c, int opt, const char *arg)
 		return 0;
 	case OPT_GRID_SPACING:
 		return parse_positive(arg, "grid-spacing", 1e-6, 1e6, &c->grid_spacing);
+	case OPT_BANDS:
+		return parse_bands(arg, c);
 	case OPT_CORRECTION:
 		c->correction_out = arg;
 		return 0;
@@ -320,8 +355,8 @@ static int check_tolerance(struct fit_cli *c)
 	return EXIT_OK;
 }
 
-/* EXIT_OK, or the exit code to leave with; -1 for --help. */
-static int parse_args(struct fit_cli *c, int argc, char **argv)
+int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
+		  void (*usage_fn)(FILE *out))
 {
 	static const struct option longopts[] = {
 		{ "dof", required_argument, NULL, OPT_DOF },
@@ -336,6 +371,7 @@ static int parse_args(struct fit_cli *c, int argc, char **argv)
 		{ "slope-length", required_argument, NULL, OPT_SLOPE_LENGTH },
 		{ "x3p", required_argument, NULL, OPT_X3P },
 		{ "grid-spacing", required_argument, NULL, OPT_GRID_SPACING },
+		{ "bands", required_argument, NULL, OPT_BANDS },
 		{ "correction", required_argument, NULL, OPT_CORRECTION },
 		{ "correction-kind", required_argument, NULL, OPT_CORRECTION_KIND },
 		{ "correction-sign", required_argument, NULL, OPT_CORRECTION_SIGN },
@@ -360,25 +396,37 @@ static int parse_args(struct fit_cli *c, int argc, char **argv)
 	optind = 0;
 	while ((opt = getopt_long(argc, argv, "h", longopts, NULL)) != -1) {
 		if (opt == 'h') {
-			usage(stdout);
+			usage_fn(stdout);
 			return -1;
 		}
 		if (opt == '?' || take_option(c, opt, optarg) < 0)
 			return EXIT_USAGE;
 	}
-	if (argc - optind != 2) {
-		fprintf(stderr, "asph fit: need LENS and POINTS_FILE (see --help)\n");
+	if (argc - optind != operands) {
+		fprintf(stderr, "asph %s: need %s (see --help)\n", argv[0],
+			operands == 2 ? "LENS and POINTS_FILE" : "SCAN");
 		return EXIT_USAGE;
 	}
-	c->lens = argv[optind];
-	c->points = argv[optind + 1];
+	c->lens = operands == 2 ? argv[optind] : NULL;
+	c->points = argv[optind + operands - 1];
 	if (fit_mc_check(&c->mc) != EXIT_OK)
 		return EXIT_USAGE;
 	return check_tolerance(c);
 }
 
+static json_t *bands_json(const struct fit_cli *c, const struct band_result *b)
+{
+	if (!b->valid)
+		return json_null();
+	return json_pack("{s:f, s:f, s:f, s:f, s:f, s:f, s:f}",
+			 "form_mm", c->bands.form_mm, "high_mm", c->bands.high_mm,
+			 "grid_spacing_mm", b->spacing_mm, "form_nm", b->rms.form,
+			 "mid_nm", b->rms.mid, "high_nm", b->rms.high, "total_nm", b->rms.total);
+}
+
 static int show_json(const struct fit_cli *c, const struct asph_surface *s,
-		     const struct asph_fit_result *r, const struct asph_mc_result *mc)
+		     const struct asph_fit_result *r, const struct asph_mc_result *mc,
+		     const struct band_result *b, const char *acquisition)
 {
 	_cleanup_free_ char *text = NULL;
 	_cleanup_(json_decrefp) json_t *root = NULL;
@@ -390,6 +438,10 @@ static int show_json(const struct fit_cli *c, const struct asph_surface *s,
 		fprintf(stderr, "asph fit: out of memory\n");
 		return EXIT_FAILURE_RUN;
 	}
+	if (c->bands_given)
+		json_object_set_new(root, "band_rms", bands_json(c, b));
+	if (acquisition)
+		json_object_set_new(root, "acquisition", json_loads(acquisition, 0, NULL));
 	json_dumpf(root, stdout, JSON_INDENT(2) | JSON_PRESERVE_ORDER | JSON_REAL_PRECISION(17));
 	fputc('\n', stdout);
 	return EXIT_OK;
@@ -422,6 +474,16 @@ static void show_form(const struct asph_fit_result *r)
 		printf("  %-16s %12.6g  U %-10.4g limit %-10.6g %s\n", it->quantity, it->value, it->U,
 		       it->limit, asph_verdict_name(it->verdict));
 	}
+}
+
+static void show_bands(const struct fit_cli *c, const struct band_result *b)
+{
+	if (!c->bands_given || !b->valid)
+		return;
+	printf("Band-limited RMS (areal PSD, grid %g mm): form (> %g mm) %.4f nm, mid (%g..%g mm) "
+	       "%.4f nm, high (< %g mm) %.4f nm, total %.4f nm\n", b->spacing_mm,
+	       c->bands.form_mm, b->rms.form, c->bands.high_mm, c->bands.form_mm, b->rms.mid,
+	       c->bands.high_mm, b->rms.high, b->rms.total);
 }
 
 static void show_text(const struct fit_cli *c, const struct asph_surface *s,
@@ -483,19 +545,6 @@ static int residual_points(const struct asph_points *pts, const struct asph_fit 
 	return 0;
 }
 
-/* The residual of the used points as the interpolant on the part. */
-static int residual_scatter(const struct asph_fit *w, size_t n_used,
-			    struct asph_scatter **out, struct asph_error *err)
-{
-	_cleanup_free_ double *xy = malloc(2 * n_used * sizeof(double) + 1);
-	_cleanup_free_ double *v = malloc(n_used * sizeof(double) + 1);
-
-	if (!xy || !v)
-		return asph_error_set(err, -ENOMEM, "out of memory");
-	size_t m = asph_fit_residual_map(w, xy, v);
-	return asph_scatter_alloc(xy, v, m, NULL, out, err);
-}
-
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile *, asph_scanfile_free)
 
 /* --report: the provenance from the scan when there is one. */
@@ -538,6 +587,34 @@ static int write_report(const struct fit_cli *c, const struct asph_surface *s,
 	return EXIT_OK;
 }
 
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_psd2 *, asph_psd2_free)
+
+/* --bands: the residual on the grid of --grid-spacing (default the median
+ * point spacing), its areal PSD, and the RMS in each band. */
+static int compute_bands(const struct fit_cli *c, const struct asph_surface *s,
+			 const struct asph_fit *w, struct band_result *out)
+{
+	_cleanup_(asph_scatter_freep) struct asph_scatter *sc = NULL;
+	_cleanup_(asph_grid_freep) struct asph_grid *g = NULL;
+	_cleanup_(asph_psd2_freep) struct asph_psd2 *p = NULL;
+	struct asph_error err;
+
+	if (!c->bands_given)
+		return EXIT_OK;
+	asph_error_clear(&err);
+	if (asph_fit_residual_scatter(w, &sc, &err) < 0)
+		goto fail;
+	out->spacing_mm = c->grid_spacing > 0 ? c->grid_spacing : asph_scatter_median_edge(sc);
+	if (asph_grid_resample(sc, asph_surface_aperture_radius(s), out->spacing_mm, &g, &err) < 0 ||
+	    asph_psd_areal(g, &p, &err) < 0 || asph_band_rms(p, &c->bands, &out->rms, &err) < 0)
+		goto fail;
+	out->valid = 1;
+	return EXIT_OK;
+fail:
+	tool_print_error("fit: --bands", &err);
+	return err.code == -EINVAL ? EXIT_USAGE : EXIT_FAILURE_RUN;
+}
+
 /* --x3p, --correction and --report. */
 static int write_exports(const struct fit_cli *c, const struct asph_surface *s,
 			 const struct asph_fit *w, const struct asph_fit_result *res)
@@ -551,7 +628,7 @@ static int write_exports(const struct fit_cli *c, const struct asph_surface *s,
 	if (!c->x3p_out && !c->correction_out && !c->report_out)
 		return EXIT_OK;
 	asph_error_clear(&err);
-	if (residual_scatter(w, res->n_used, &sc, &err) < 0) {
+	if (asph_fit_residual_scatter(w, &sc, &err) < 0) {
 		tool_print_error("fit: the residual map", &err);
 		return EXIT_FAILURE_RUN;
 	}
@@ -612,16 +689,67 @@ static int write_outputs(const struct fit_cli *c, const struct asph_surface *s,
 	return EXIT_OK;
 }
 
+int fit_cli_run(const struct fit_cli *c, const struct asph_surface *s,
+		const struct asph_points *pts, const char *acquisition,
+		void (*more_text)(void *data), void *data)
+{
+	_cleanup_(asph_fit_freep) struct asph_fit *w = NULL;
+	struct asph_fit_result res;
+	struct asph_mc_result mc;
+	struct band_result bands = { 0 };
+	struct asph_error err;
+	int r;
+
+	asph_error_clear(&err);
+	if (asph_fit_alloc(s, pts->n, &c->opts, &w, &err) < 0 ||
+	    asph_fit_run(w, pts->xyz, pts->n, &res, &err) < 0) {
+		tool_print_error(c->points, &err);
+		return EXIT_FAILURE_RUN;
+	}
+	if (c->mc.enabled) {
+		if (!res.converged) {
+			fprintf(stderr, "asph fit: the fit did not converge: %s\n", res.reason);
+			return EXIT_FAILURE_RUN;
+		}
+		r = fit_mc_run(&c->mc, c->scan, s, pts, &c->opts, c->opts.tolerance, &res, &mc);
+		if (r != EXIT_OK)
+			return r;
+	}
+	r = compute_bands(c, s, w, &bands);
+	if (r != EXIT_OK)
+		return r;
+	if (c->json) {
+		r = show_json(c, s, &res, c->mc.enabled ? &mc : NULL, &bands, acquisition);
+		if (r != EXIT_OK)
+			return r;
+	} else {
+		show_text(c, s, &res);
+		if (c->mc.enabled)
+			fit_mc_show(&mc);
+		show_bands(c, &bands);
+		if (more_text)
+			more_text(data);
+	}
+	r = write_outputs(c, s, pts, w);
+	if (r == EXIT_OK)
+		r = write_exports(c, s, w, &res);
+	if (r == EXIT_OK && !res.converged) {
+		fprintf(stderr, "asph fit: the fit did not converge: %s\n", res.reason);
+		r = EXIT_FAILURE_RUN;
+	}
+	if (r == EXIT_OK && res.verdict.present && res.verdict.overall != ASPH_VERDICT_PASS)
+		r = res.verdict.overall == ASPH_VERDICT_FAIL ? EXIT_VERDICT_FAIL
+							     : EXIT_VERDICT_UNDECIDED;
+	return r;
+}
+
 int cmd_fit(int argc, char **argv)
 {
 	_cleanup_(asph_surface_freep) struct asph_surface *s = NULL;
 	_cleanup_(asph_points_freep) struct asph_points *pts = NULL;
-	_cleanup_(asph_fit_freep) struct asph_fit *w = NULL;
 	struct fit_cli c = { 0 };
-	struct asph_fit_result res;
-	struct asph_mc_result mc;
 	struct asph_error err;
-	int r = parse_args(&c, argc, argv);
+	int r = fit_cli_parse(&c, argc, argv, 2, usage);
 
 	if (r != EXIT_OK)
 		return r < 0 ? EXIT_OK : r;
@@ -632,38 +760,5 @@ int cmd_fit(int argc, char **argv)
 		tool_print_error(NULL, &err);
 		return EXIT_FAILURE_RUN;
 	}
-	if (asph_fit_alloc(s, pts->n, &c.opts, &w, &err) < 0 ||
-	    asph_fit_run(w, pts->xyz, pts->n, &res, &err) < 0) {
-		tool_print_error(c.points, &err);
-		return EXIT_FAILURE_RUN;
-	}
-	if (c.mc.enabled) {
-		if (!res.converged) {
-			fprintf(stderr, "asph fit: the fit did not converge: %s\n", res.reason);
-			return EXIT_FAILURE_RUN;
-		}
-		r = fit_mc_run(&c.mc, c.scan, s, pts, &c.opts, c.opts.tolerance, &res, &mc);
-		if (r != EXIT_OK)
-			return r;
-	}
-	if (c.json) {
-		r = show_json(&c, s, &res, c.mc.enabled ? &mc : NULL);
-		if (r != EXIT_OK)
-			return r;
-	} else {
-		show_text(&c, s, &res);
-		if (c.mc.enabled)
-			fit_mc_show(&mc);
-	}
-	r = write_outputs(&c, s, pts, w);
-	if (r == EXIT_OK)
-		r = write_exports(&c, s, w, &res);
-	if (r == EXIT_OK && !res.converged) {
-		fprintf(stderr, "asph fit: the fit did not converge: %s\n", res.reason);
-		r = EXIT_FAILURE_RUN;
-	}
-	if (r == EXIT_OK && res.verdict.present && res.verdict.overall != ASPH_VERDICT_PASS)
-		r = res.verdict.overall == ASPH_VERDICT_FAIL ? EXIT_VERDICT_FAIL
-							     : EXIT_VERDICT_UNDECIDED;
-	return r;
+	return fit_cli_run(&c, s, pts, NULL, NULL, NULL);
 }

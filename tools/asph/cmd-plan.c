@@ -1,12 +1,16 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 #include <errno.h>
+#include <math.h>
 #include <getopt.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
+#include "acquire-tool.h"
+#include "asph/executor.h"
 #include "asph/plan.h"
 #include "asph/points.h"
+#include "asph/prescription.h"
 #include "asph-tool.h"
 #include "plan-source.h"
 #include "util-mem.h"
@@ -18,10 +22,13 @@
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_surface *, asph_surface_free)
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_plan *, asph_plan_free)
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_registry *, asph_registry_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_config *, asph_config_free)
 
 enum {
 	OPT_MAX_POINTS = 0x2000,
 	OPT_NO_MESH,
+	OPT_ESTIMATE,
 };
 
 static void usage(FILE *out)
@@ -37,6 +44,10 @@ static void usage(FILE *out)
 		"  -o, --output FILE   .csv (x,y,z), .ply (with faces for op, ot, lb) or .json;\n"
 		"                      default: CSV on standard output\n"
 		"  --no-mesh           leave the mesh of op, ot, lb out\n"
+		"  --estimate INSTRUMENT  print the predicted measuring time of the plan on\n"
+		"                      INSTRUMENT (a configuration file or a driver spec, as\n"
+		"                      asph scan takes it), streamed where the instrument can:\n"
+		"                      on standard output with -o, else on standard error\n"
 		"  --max-points N      refuse plans with more points (default %d)\n"
 		"  -q, --quiet         no summary line on standard error\n"
 		"  -h, --help          this help\n\n"
@@ -47,7 +58,7 @@ static void usage(FILE *out)
 
 struct plan_args {
 	struct plan_source src;
-	const char *lens, *output;
+	const char *lens, *output, *estimate;
 	struct asph_plan_options opts;
 	int quiet;
 };
@@ -75,6 +86,7 @@ static int parse_args(int argc, char **argv, struct plan_args *a)
 		{ "output", required_argument, NULL, 'o' },
 		{ "max-points", required_argument, NULL, OPT_MAX_POINTS },
 		{ "no-mesh", no_argument, NULL, OPT_NO_MESH },
+		{ "estimate", required_argument, NULL, OPT_ESTIMATE },
 		{ "quiet", no_argument, NULL, 'q' },
 		{ "help", no_argument, NULL, 'h' },
 		{ NULL, 0, NULL, 0 },
@@ -106,6 +118,9 @@ static int parse_args(int argc, char **argv, struct plan_args *a)
 			break;
 		case OPT_NO_MESH:
 			a->opts.flags |= ASPH_PLAN_NO_MESH;
+			break;
+		case OPT_ESTIMATE:
+			a->estimate = optarg;
 			break;
 		case ':':
 			fprintf(stderr, "asph: plan: %s needs a value\n", argv[optind - 1]);
@@ -146,6 +161,45 @@ static void summary(const struct plan_args *a, const struct asph_plan *p)
 	fprintf(stderr, " -> %s\n", a->output ? a->output : "stdout");
 }
 
+/* The instrument --estimate names, resolved before any work is done. */
+static int resolve_estimate(const struct plan_args *a, struct asph_registry **reg,
+			    struct asph_config **cfg, size_t *idx)
+{
+	struct asph_error err;
+
+	asph_error_clear(&err);
+	if (tool_registry_new(NULL, reg) < 0)
+		return EXIT_FAILURE_RUN;
+	if (asph_config_resolve(*reg, a->estimate, cfg, idx, &err) < 0) {
+		tool_print_error("estimate", &err);
+		return EXIT_USAGE;
+	}
+	return EXIT_OK;
+}
+
+/* The predicted measuring time of plan on instrument ic, as asph scan
+ * would measure it (streamed where it can). */
+static int print_estimate(const struct plan_args *a, const struct asph_surface *s,
+			  const struct asph_plan *plan, struct asph_instrument_config *ic)
+{
+	_cleanup_free_ char *lens_json = NULL;
+	struct asph_scan_options so = { .flags = ASPH_SCAN_STREAM };
+	struct asph_error err;
+	double t;
+
+	asph_error_clear(&err);
+	if (asph_prescription_to_json(asph_surface_prescription(s), &lens_json) < 0 ||
+	    asph_instrument_config_set_lens(ic, lens_json, &err) < 0 ||
+	    asph_scan_estimate(ic, s, plan->xyz, plan->n, &so, &t, &err) < 0) {
+		tool_print_error("estimate", &err);
+		return EXIT_FAILURE_RUN;
+	}
+	fprintf(a->output ? stdout : stderr,
+		"estimate: %.1f s (%d min %02d s) to measure %zu points on %s\n", t,
+		(int)(t / 60), (int)fmod(round(t), 60), plan->n, a->estimate);
+	return EXIT_OK;
+}
+
 int cmd_plan(int argc, char **argv)
 {
 	struct plan_args a = { 0 };
@@ -156,8 +210,14 @@ int cmd_plan(int argc, char **argv)
 	struct asph_error err;
 	int r = parse_args(argc, argv, &a);
 
+	_cleanup_(asph_registry_freep) struct asph_registry *reg = NULL;
+	_cleanup_(asph_config_freep) struct asph_config *cfg = NULL;
+	size_t idx = 0;
+
 	if (r)
 		return r == EXIT_OK + 1000 ? EXIT_OK : r;
+	if (a.estimate && (r = resolve_estimate(&a, &reg, &cfg, &idx)) != EXIT_OK)
+		return r;
 	if (tool_load_surface(a.lens, &s) < 0)
 		return EXIT_FAILURE_RUN;
 	asph_error_clear(&err);
@@ -178,5 +238,5 @@ int cmd_plan(int argc, char **argv)
 	}
 	if (!a.quiet)
 		summary(&a, plan);
-	return EXIT_OK;
+	return a.estimate ? print_estimate(&a, s, plan, &cfg->instruments[idx]) : EXIT_OK;
 }

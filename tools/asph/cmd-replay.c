@@ -1,113 +1,112 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
- * asph replay: characterization of a recorded scan. It is `asph fit` run
- * on the lens of the scan's header and on the points `asph export` writes
- * (the same conversion, asph_scanfile_export), so the two agree by
- * construction, to the byte.
+ * asph replay: characterization of a recorded scan, as asphd makes it at
+ * the end of a job: the lens of the scan's header, the points `asph
+ * export` writes (the drift model fitted to the scan's references and
+ * applied, asph_drift_scan_points()), the fit of asph fit; and the
+ * acquisition's account (position sources, commanded points, the drift
+ * correction and its size).
  */
-#include <ftw.h>
 #include <getopt.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <unistd.h>
+
+#include <jansson.h>
 
 #include "asph-tool.h"
+#include "asph/drift.h"
 #include "asph/prescription.h"
 #include "asph/scanfile.h"
+#include "fit-tool.h"
 #include "util-mem.h"
 
-DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile_reader *, asph_scanfile_reader_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile *, asph_scanfile_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_surface *, asph_surface_free)
 
 static void usage(FILE *out)
 {
 	fprintf(out, "Usage: asph replay SCAN [FIT OPTIONS...]\n\n"
-		     "Characterizes a recorded scan: the best fit of its points to the lens in its\n"
-		     "header, exactly as `asph fit LENS points.csv` on the points `asph export SCAN\n"
-		     "-o points.csv` writes. FIT OPTIONS are those of asph fit (--json, --dof,\n"
-		     "--residual, --robust, --residuals OUT, --map OUT.png, --uncertainty with the\n"
-		     "contributions the scan's instrument declares); see asph fit --help.\n"
-		     "A scan that did not complete is characterized on the points it kept; a note\n"
-		     "on standard error says so.\n");
+		     "Characterizes a recorded scan as asphd does: the best fit of its points,\n"
+		     "corrected for the drift its references measured, to the lens in its header;\n"
+		     "exactly `asph fit LENS points.csv` on the points `asph export SCAN -o\n"
+		     "points.csv` writes, with the acquisition's account added (where the\n"
+		     "positions came from, commanded points, the drift correction and its size).\n"
+		     "FIT OPTIONS are those of asph fit (--json, --dof, --residual, --robust,\n"
+		     "--residuals OUT, --map OUT.png, --uncertainty with the contributions the\n"
+		     "scan's instrument declares); see asph fit --help. A scan that did not\n"
+		     "complete is characterized on the points it kept; a note on standard error\n"
+		     "says so.\n");
 }
 
-/* The header's prescription as a file asph fit can load. */
-static int write_lens(const char *scan, const char *path)
+static void show_acquisition(void *data)
 {
-	_cleanup_(asph_scanfile_reader_freep) struct asph_scanfile_reader *r = NULL;
-	struct asph_error err;
+	_cleanup_(json_decrefp) json_t *a = json_loads(data, 0, NULL);
+	json_t *d = json_object_get(a, "drift");
+	json_t *p = json_object_get(a, "positions");
+	const char *key;
+	json_t *v;
+	size_t i;
 
-	asph_error_clear(&err);
-	if (asph_scanfile_reader_open(scan, &r, &err) < 0) {
-		tool_print_error(NULL, &err);
-		return -1;
-	}
-	const char *json = asph_scanfile_reader_header(r)->prescription;
-	_cleanup_fclose_ FILE *f = fopen(path, "we");
-	if (!f || fputs(json, f) < 0 || fflush(f) != 0) {
-		fprintf(stderr, "asph replay: cannot write %s\n", path);
-		return -1;
-	}
-	return 0;
-}
-
-static int export_points(const char *scan, const char *path)
-{
-	struct asph_scanfile_report rep;
-	struct asph_error err;
-
-	asph_error_clear(&err);
-	if (asph_scanfile_export(scan, path, 0, &rep, &err) < 0) {
-		tool_print_error(NULL, &err);
-		return -1;
-	}
-	if (!rep.ended || rep.outcome != ASPH_SCANFILE_COMPLETED)
-		fprintf(stderr, "asph replay: note: the scan did not complete (%s); characterizing the %llu points it kept\n",
-			asph_scanfile_outcome_name(rep.ended ? rep.outcome : ASPH_SCANFILE_UNFINISHED),
-			(unsigned long long)rep.n_points);
-	return 0;
-}
-
-static int remove_entry(const char *path, const struct stat *st, int flag, struct FTW *ftw)
-{
-	return remove(path);
+	printf("Positions      ");
+	json_object_foreach(p, key, v)
+		if (json_integer_value(v))
+			printf(" %lld %s", (long long)json_integer_value(v), key);
+	printf("\n");
+	if (json_is_true(json_object_get(d, "corrected")))
+		printf("Drift corrected: %lld rounds of %lld references (%s), max %.3f nm, RMS %.3f nm\n",
+		       (long long)json_integer_value(json_object_get(d, "rounds")),
+		       (long long)json_integer_value(json_object_get(d, "references")),
+		       json_string_value(json_object_get(d, "components")),
+		       json_number_value(json_object_get(d, "max_nm")),
+		       json_number_value(json_object_get(d, "rms_nm")));
+	else
+		printf("Drift not corrected: the scan has no drift references to model it\n");
+	json_array_foreach(json_object_get(a, "warnings"), i, v)
+		printf("Warning: %s\n", json_string_value(v));
 }
 
 int cmd_replay(int argc, char **argv)
 {
-	char dir[] = "/tmp/asph-replay-XXXXXX", lens[64], csv[64];
-	int r = EXIT_FAILURE_RUN;
+	_cleanup_(asph_scanfile_freep) struct asph_scanfile *s = NULL;
+	_cleanup_(asph_points_freep) struct asph_points *pts = NULL;
+	_cleanup_(asph_surface_freep) struct asph_surface *surf = NULL;
+	_cleanup_free_ char *acq = NULL;
+	struct asph_drift_summary sum;
+	struct asph_prescription p;
+	struct fit_cli c = { 0 };
+	struct asph_error err;
 
-	if (argc < 2 || !strcmp(argv[1], "--help") || !strcmp(argv[1], "-h")) {
-		usage(argc < 2 ? stderr : stdout);
-		return argc < 2 ? EXIT_USAGE : EXIT_OK;
-	}
-	if (argv[1][0] == '-') {
+	if (argc >= 2 && argv[1][0] == '-' && strcmp(argv[1], "--help") && strcmp(argv[1], "-h")) {
 		fprintf(stderr, "asph replay: SCAN comes first (see --help)\n");
 		return EXIT_USAGE;
 	}
-	if (!mkdtemp(dir)) {
-		perror("asph replay: temporary directory");
+	int r = fit_cli_parse(&c, argc, argv, 1, usage);
+	if (r != EXIT_OK)
+		return r < 0 ? EXIT_OK : r;
+	/* the report's provenance and --uncertainty's instrument: the scan's */
+	if (!c.scan)
+		c.scan = c.points;
+	asph_error_clear(&err);
+	if (asph_drift_scan_points(c.points, 0, 0, &s, &pts, &sum, &err) < 0) {
+		tool_print_error(NULL, &err);
 		return EXIT_FAILURE_RUN;
 	}
-	snprintf(lens, sizeof(lens), "%s/lens.json", dir);
-	snprintf(csv, sizeof(csv), "%s/points.csv", dir);
-	if (write_lens(argv[1], lens) == 0 && export_points(argv[1], csv) == 0) {
-		_cleanup_free_ char **fit_argv = calloc((size_t)argc + 4, sizeof(char *));
-		if (fit_argv) {
-			/* --scan: the report's provenance and --uncertainty's
-			 * instrument come from the scan itself */
-			fit_argv[0] = (char *)"fit";
-			fit_argv[1] = lens;
-			fit_argv[2] = csv;
-			fit_argv[3] = (char *)"--scan";
-			fit_argv[4] = argv[1];
-			for (int i = 2; i < argc; i++)
-				fit_argv[i + 3] = argv[i];
-			optind = 0;   /* asph fit parses its own options from scratch */
-			r = cmd_fit(argc + 3, fit_argv);
-		}
+	const char *text = s->header.prescription;
+	if (asph_prescription_parse(text, strlen(text), c.points, &p, &err) < 0 ||
+	    asph_surface_alloc(&p, &surf, &err) < 0) {
+		tool_print_error(NULL, &err);
+		return EXIT_FAILURE_RUN;
 	}
-	nftw(dir, remove_entry, 8, FTW_DEPTH | FTW_PHYS);
-	return r;
+	if (!s->report.ended || s->report.outcome != ASPH_SCANFILE_COMPLETED)
+		fprintf(stderr, "asph replay: note: the scan did not complete (%s); characterizing the %zu points it kept\n",
+			asph_scanfile_outcome_name(s->report.ended ? s->report.outcome
+								    : ASPH_SCANFILE_UNFINISHED),
+			s->n);
+	if (asph_drift_report_json(s, &sum, 1, &acq) < 0) {
+		fprintf(stderr, "asph replay: out of memory\n");
+		return EXIT_FAILURE_RUN;
+	}
+	return fit_cli_run(&c, surf, pts, acq, show_acquisition, acq);
 }

@@ -91,14 +91,15 @@ static void *sigwatch_run(void *data)
 
 static int open_writer(const struct scan_args *a, const struct asph_surface *s,
 		       const struct asph_plan *plan, const struct asph_instrument_config *ic,
-		       struct asph_scanfile_writer **w, uint64_t *start, struct asph_error *err)
+		       struct asph_scanfile_writer **w, uint64_t *start,
+		       struct asph_scanfile **recovered, struct asph_error *err)
 {
 	_cleanup_free_ char *pj = NULL, *plj = NULL, *ij = NULL;
 	struct asph_scanfile_writer_options wo = { .flags = a->force ? ASPH_SCANFILE_OVERWRITE : 0 };
 
 	*start = 0;
 	if (a->resume)
-		return asph_scan_reopen(a->output, plan, NULL, w, start, err);
+		return asph_scan_reopen(a->output, plan, NULL, w, start, recovered, err);
 	if (asph_prescription_to_json(asph_surface_prescription(s), &pj) < 0 ||
 	    asph_plan_to_json(plan, &plj) < 0 || asph_instrument_config_to_json(ic, &ij) < 0)
 		return asph_error_set(err, -ENOMEM, "out of memory");
@@ -108,7 +109,8 @@ static int open_writer(const struct scan_args *a, const struct asph_surface *s,
 
 static int run_scan(const struct scan_args *a, struct asph_instrument *inst,
 		    const struct asph_surface *s, const struct asph_plan *plan,
-		    struct asph_scanfile_writer *w, uint64_t start)
+		    struct asph_scanfile_writer *w, uint64_t start,
+		    const struct asph_scanfile *recovered)
 {
 	struct bar bar = { .tty = isatty(STDERR_FILENO), .quiet = a->quiet };
 	struct asph_scan_options so = {
@@ -118,6 +120,7 @@ static int run_scan(const struct scan_args *a, struct asph_instrument *inst,
 		.clearance = a->clearance,
 		.progress = progress_cb,
 		.progress_data = &bar,
+		.recovered = recovered,
 	};
 	_cleanup_(asph_scan_freep) struct asph_scan *scan = NULL;
 	struct sigwatch sw;
@@ -166,6 +169,7 @@ static int scan(const struct scan_args *a)
 	_cleanup_(asph_instrument_closep) struct asph_instrument *inst = NULL;
 	struct asph_plan_options po = { .flags = ASPH_PLAN_NO_MESH };
 	struct asph_scanfile_writer *w = NULL;
+	_cleanup_(asph_scanfile_freep) struct asph_scanfile *recovered = NULL;
 	struct asph_error err;
 	size_t idx = 0;
 	uint64_t start = 0;
@@ -191,11 +195,11 @@ static int scan(const struct scan_args *a)
 		tool_print_error("instrument", &err);
 		return EXIT_FAILURE_RUN;
 	}
-	if (open_writer(a, s, plan, &cfg->instruments[idx], &w, &start, &err) < 0) {
+	if (open_writer(a, s, plan, &cfg->instruments[idx], &w, &start, &recovered, &err) < 0) {
 		tool_print_error(a->output, &err);
 		return EXIT_FAILURE_RUN;
 	}
-	return run_scan(a, inst, s, plan, w, start);
+	return run_scan(a, inst, s, plan, w, start, recovered);
 }
 
 static void usage(FILE *out)

@@ -13,7 +13,7 @@
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile_reader *, asph_scanfile_reader_free)
 
-#define N_FLAGS 4
+#define N_FLAGS 6
 
 /* What the points say, gathered block by block. */
 struct scan_stats {
@@ -21,6 +21,7 @@ struct scan_stats {
 	uint64_t index_min, index_max;
 	uint64_t t_first, t_last;
 	uint64_t flags[N_FLAGS];
+	uint64_t sources[ASPH_SCANFILE_POSITION_COMMANDED + 1];
 };
 
 static void stats_add(struct scan_stats *st, const struct asph_scanfile_point *p, size_t n)
@@ -35,6 +36,8 @@ static void stats_add(struct scan_stats *st, const struct asph_scanfile_point *p
 		st->t_last = p[i].t_ns;
 		for (int b = 0; b < N_FLAGS; b++)
 			st->flags[b] += (p[i].flags >> b) & 1;
+		if (p[i].position_source <= ASPH_SCANFILE_POSITION_COMMANDED)
+			st->sources[p[i].position_source]++;
 	}
 }
 
@@ -55,6 +58,15 @@ static json_t *flags_json(const struct scan_stats *st)
 	for (int b = 0; b < N_FLAGS; b++)
 		json_object_set_new(o, asph_scanfile_flag_name(1u << b),
 				    json_integer((json_int_t)st->flags[b]));
+	return o;
+}
+
+static json_t *sources_json(const struct scan_stats *st)
+{
+	json_t *o = json_object();
+	for (uint32_t k = 0; k <= ASPH_SCANFILE_POSITION_COMMANDED; k++)
+		json_object_set_new(o, asph_scanfile_position_source_name(k),
+				    json_integer((json_int_t)st->sources[k]));
 	return o;
 }
 
@@ -98,6 +110,8 @@ static int show_json(const char *path, const struct asph_scanfile_reader *r,
 	for (size_t i = 0; i < n_ev; i++)
 		json_array_append_new(events, member_json(ev[i]));
 	json_object_set_new(root, "events", events);
+	json_object_set_new(root, "positions", sources_json(st));
+	json_object_set_new(root, "references", json_integer((json_int_t)rep->n_references));
 	json_dumpf(root, stdout, JSON_INDENT(2) | JSON_REAL_PRECISION(17));
 	fputc('\n', stdout);
 	return EXIT_OK;
@@ -128,6 +142,14 @@ static void show_text(const char *path, const struct asph_scanfile_reader *r,
 	for (int b = 0; b < N_FLAGS; b++)
 		if (st->flags[b])
 			printf("  %-18s%" PRIu64 "\n", asph_scanfile_flag_name(1u << b), st->flags[b]);
+	printf("Positions      ");
+	for (uint32_t k = 0; k <= ASPH_SCANFILE_POSITION_COMMANDED; k++)
+		if (st->sources[k])
+			printf(" %" PRIu64 " %s", st->sources[k], asph_scanfile_position_source_name(k));
+	printf("%s\n", st->n ? "" : " none");
+	if (rep->n_references)
+		printf("References      %" PRIu64 " measurements of drift references\n",
+		       rep->n_references);
 	if (st->n)
 		printf("Plan indices    %" PRIu64 " .. %" PRIu64 "\n", st->index_min, st->index_max);
 	printf("Duration        %.3f s (first to last point)\n", duration_s(st));

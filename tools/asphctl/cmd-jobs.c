@@ -3,6 +3,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <getopt.h>
+#include <libgen.h>
 #include <limits.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -79,6 +80,10 @@ static void print_job(const json_t *job)
 			printf("  %-11s %s\n", *k, str(job, *k));
 	if (json_is_string(json_object_get(job, "reason")))
 		printf("  reason      %s\n", str(job, "reason"));
+	if (json_is_string(json_object_get(job, "verdict")))
+		printf("  verdict     %s\n", str(job, "verdict"));
+	else if (json_object_get(job, "tolerance") && !json_is_null(json_object_get(job, "tolerance")))
+		printf("  verdict     (toleranced; decided when the job completes)\n");
 }
 
 /* LENS: a file the client reads (sent as the prescription), else a
@@ -123,11 +128,51 @@ static bool set_real(json_t *obj, const char *key, const char *arg)
 	return true;
 }
 
+/* --tolerance: JSON text (starting with '{' or '"') or a file holding it,
+ * read here and sent as it is; the daemon checks it. */
+static json_t *tolerance_param(const char *arg)
+{
+	const char *p = arg + strspn(arg, " \t\r\n");
+	json_error_t e;
+	json_t *j;
+
+	if (*p == '{' || *p == '"')
+		j = json_loads(arg, JSON_DECODE_ANY | JSON_REJECT_DUPLICATES, &e);
+	else
+		j = json_load_file(arg, JSON_DECODE_ANY | JSON_REJECT_DUPLICATES, &e);
+	if (!j)
+		fprintf(stderr, "asphctl: --tolerance: %s:%d:%d: %s\n",
+			*p == '{' || *p == '"' ? "<tolerance>" : arg, e.line, e.column, e.text);
+	return j;
+}
+
 static const char submit_usage[] =
 	"submit LENS --method M (--h H | --spacing MM | --points N)\n"
 	"       [--instrument NAME] [--priority P] [--label TEXT] [--dof LIST]\n"
-	"       [--residual normal|sag] [--robust] [--zernike N]\n"
+	"       [--residual normal|sag] [--robust] [--zernike N] [--tolerance T]\n"
 	"       [--part P] [--lot L] [--serial S] [--wait] [--json]";
+
+/* "job 12 queued (700 points, about 1 min 15 s to measure)". */
+static void print_queued(const json_t *job, json_int_t id)
+{
+	json_t *est = json_object_get(job, "estimate_s");
+	long long n = (long long)json_integer_value(json_object_get(json_object_get(job, "progress"),
+								     "total"));
+
+	if (json_is_number(est)) {
+		double t = json_number_value(est);
+		long long s = (long long)(t + 0.5);
+		if (s >= 3600)
+			printf("job %lld queued (%lld points, about %lld h %02lld min to measure)\n",
+			       (long long)id, n, s / 3600, s / 60 % 60);
+		else
+			printf("job %lld queued (%lld points, about %lld min %02lld s to measure)\n",
+			       (long long)id, n, s / 60, s % 60);
+	} else {
+		printf("job %lld queued (%lld points; no estimate of the measuring time)\n",
+		       (long long)id, n);
+	}
+}
 
 int cmd_submit(struct ctl *ctl, int argc, char **argv)
 {
@@ -146,6 +191,7 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 		{ "part", required_argument, NULL, 'A' },
 		{ "lot", required_argument, NULL, 'L' },
 		{ "serial", required_argument, NULL, 'N' },
+		{ "tolerance", required_argument, NULL, 't' },
 		{ "wait", no_argument, NULL, 'w' },
 		JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 },
 	};
@@ -173,6 +219,13 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 		case 'A': json_object_set_new(params, "part", json_string(optarg)); break;
 		case 'L': json_object_set_new(params, "lot", json_string(optarg)); break;
 		case 'N': json_object_set_new(params, "serial", json_string(optarg)); break;
+		case 't': {
+			json_t *t = tolerance_param(optarg);
+			ok = t != NULL;
+			if (t)
+				json_object_set_new(params, "tolerance", t);
+			break;
+		}
 		case 'w': wait = true; break;
 		case 'j': ctl->json = true; break;
 		case 'h': printf("Usage: asphctl %s\n", submit_usage); json_decref(fit); return CTL_EXIT_OK;
@@ -202,9 +255,7 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 	if (ctl->json && !wait)
 		ctl_print_json(result);
 	else if (!ctl->json)
-		printf("job %lld queued (%lld points)\n", (long long)id,
-		       (long long)json_integer_value(json_object_get(json_object_get(result, "progress"),
-								     "total")));
+		print_queued(result, id);
 	fflush(stdout);
 	return wait ? ctl_watch_job(ctl, id, ctl->json) : CTL_EXIT_OK;
 }
@@ -364,6 +415,96 @@ int cmd_status(struct ctl *ctl, int argc, char **argv)
 	return CTL_EXIT_OK;
 }
 
+/* One CSV field (RFC 4180): quoted when it holds a comma, a quote or a
+ * line break, control characters escaped as ctl_escape() does. */
+static void csv_field(const char *s, bool last)
+{
+	_cleanup_free_ char *e = ctl_escape(s ? s : "", false);
+	const char *t = e ? e : "";
+
+	if (strpbrk(t, ",\"\r\n")) {
+		putchar('"');
+		for (const char *c = t; *c; c++) {
+			if (*c == '"')
+				putchar('"');
+			putchar(*c);
+		}
+		putchar('"');
+	} else {
+		fputs(t, stdout);
+	}
+	putchar(last ? '\n' : ',');
+}
+
+static void csv_number(const json_t *v, bool last)
+{
+	char buf[32] = "";
+
+	if (json_is_integer(v))
+		snprintf(buf, sizeof(buf), "%lld", (long long)json_integer_value(v));
+	else if (json_is_number(v))
+		snprintf(buf, sizeof(buf), "%.17g", json_number_value(v));
+	csv_field(buf, last);
+}
+
+static const char csv_header[] =
+	"id,state,verdict,instrument,lens,method,density,value,priority,points_done,"
+	"points_total,submitted,started,finished,submitter_uid,submitter,label,reason\n";
+
+static void csv_job(const json_t *job)
+{
+	const json_t *plan = json_object_get(job, "plan"), *p = json_object_get(job, "progress");
+	const json_t *sub = json_object_get(job, "submitter");
+
+	csv_number(json_object_get(job, "id"), false);
+	csv_field(json_string_value(json_object_get(job, "state")), false);
+	csv_field(json_string_value(json_object_get(job, "verdict")), false);
+	csv_field(json_string_value(json_object_get(job, "instrument")), false);
+	csv_field(json_string_value(json_object_get(job, "lens")), false);
+	csv_field(json_string_value(json_object_get(plan, "method")), false);
+	csv_field(json_string_value(json_object_get(plan, "density")), false);
+	csv_number(json_object_get(plan, "value"), false);
+	csv_number(json_object_get(job, "priority"), false);
+	csv_number(json_object_get(p, "done"), false);
+	csv_number(json_object_get(p, "total"), false);
+	csv_field(json_string_value(json_object_get(job, "submitted")), false);
+	csv_field(json_string_value(json_object_get(job, "started")), false);
+	csv_field(json_string_value(json_object_get(job, "finished")), false);
+	csv_number(json_object_get(sub, "uid"), false);
+	csv_field(json_string_value(json_object_get(sub, "name")), false);
+	csv_field(json_string_value(json_object_get(job, "label")), false);
+	csv_field(json_string_value(json_object_get(job, "reason")), true);
+}
+
+/* --csv without --limit: every matching job, a page at a time. */
+static int list_csv(struct ctl *ctl, json_t *params, bool all)
+{
+	json_int_t offset = json_integer_value(json_object_get(params, "offset"));
+
+	fputs(csv_header, stdout);
+	for (;;) {
+		_cleanup_(json_decrefp) json_t *result = NULL;
+		json_t *jobs, *job;
+		size_t i;
+		int r;
+
+		if (all) {
+			json_object_set_new(params, "offset", json_integer(offset));
+			json_object_set_new(params, "limit", json_integer(1000));
+		}
+		r = ctl_call(ctl, "job.list", json_incref(params), &result);
+		if (r)
+			return r;
+		jobs = json_object_get(result, "jobs");
+		json_array_foreach(jobs, i, job)
+			csv_job(job);
+		offset += (json_int_t)json_array_size(jobs);
+		if (!all || json_array_size(jobs) == 0 ||
+		    offset >= json_integer_value(json_object_get(result, "total")))
+			return CTL_EXIT_OK;
+	}
+}
+
 int cmd_list(struct ctl *ctl, int argc, char **argv)
 {
 	static const struct option opts[] = {
@@ -376,13 +517,15 @@ int cmd_list(struct ctl *ctl, int argc, char **argv)
 		{ "serial", required_argument, NULL, 'N' },
 		{ "limit", required_argument, NULL, 'n' },
 		{ "offset", required_argument, NULL, 'o' },
+		{ "csv", no_argument, NULL, 'c' },
 		JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 },
 	};
 	static const char usage[] = "list [--state S[,S...]] [--instrument NAME] [--label TEXT]\n"
 				    "       [--part P] [--lot L] [--serial S] [--mine] [--limit N]\n"
-				    "       [--offset N] [--json]";
+				    "       [--offset N] [--json | --csv]";
 	_cleanup_(json_decrefp) json_t *params = json_object();
 	_cleanup_(json_decrefp) json_t *result = NULL;
+	bool csv = false;
 	int c, r;
 
 	while ((c = getopt_long(argc, argv, "s:i:l:mn:o:jh", opts, NULL)) != -1) {
@@ -412,13 +555,16 @@ int cmd_list(struct ctl *ctl, int argc, char **argv)
 			json_object_set_new(params, c == 'n' ? "limit" : "offset", json_integer(v));
 			break;
 		}
+		case 'c': csv = true; break;
 		case 'j': ctl->json = true; break;
 		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
 		default: return usage_error(usage);
 		}
 	}
-	if (optind != argc)
+	if (optind != argc || (csv && ctl->json))
 		return usage_error(usage);
+	if (csv)
+		return list_csv(ctl, params, !json_object_get(params, "limit"));
 	r = ctl_call(ctl, "job.list", json_incref(params), &result);
 	if (r)
 		return r;
@@ -509,6 +655,99 @@ static int copy_files(struct ctl *ctl, int64_t id, const json_t *files, const ch
 	return CTL_EXIT_OK;
 }
 
+/* Where the points' positions came from, the drift correction and its
+ * size, and the warnings (commanded positions, points left invalid). */
+static void print_acquisition(const json_t *a)
+{
+	json_t *d = json_object_get(a, "drift"), *v;
+	const char *key;
+	size_t i;
+
+	if (!json_is_object(a))
+		return;
+	printf("  positions  ");
+	json_object_foreach(json_object_get(a, "positions"), key, v)
+		if (json_integer_value(v))
+			printf(" %lld %s", (long long)json_integer_value(v), key);
+	printf("\n");
+	if (json_is_true(json_object_get(d, "corrected")))
+		printf("  drift       corrected from %lld rounds of references over %.0f s: "
+		       "max %.2f nm, RMS %.2f nm\n",
+		       (long long)json_integer_value(json_object_get(d, "rounds")),
+		       json_number_value(json_object_get(d, "span_s")),
+		       json_number_value(json_object_get(d, "max_nm")),
+		       json_number_value(json_object_get(d, "rms_nm")));
+	else
+		printf("  drift       not corrected (no drift references)\n");
+	json_array_foreach(json_object_get(a, "warnings"), i, v)
+		printf("  warning     %s\n", json_string_value(v));
+}
+
+/* The result's file under key (e.g. "report") written to the path out,
+ * as copy_files() writes each file. */
+static int copy_file_to(struct ctl *ctl, int64_t id, const json_t *files, const char *key,
+			const char *out)
+{
+	_cleanup_free_ char *dcopy = strdup(out), *bcopy = strdup(out);
+	_cleanup_close_ int dir = -1;
+	struct fetch fe = { .ctl = ctl, .id = id,
+			    .name = json_string_value(json_object_get(files, key)) };
+	struct asph_error err;
+	char buf[600];
+
+	if (!fe.name) {
+		fprintf(stderr, "asphctl: job %lld has no %s (a result without one: built without "
+			"cairo, or before the daemon wrote one)\n", (long long)id, key);
+		return CTL_EXIT_ERROR;
+	}
+	if (!dcopy || !bcopy)
+		return CTL_EXIT_ERROR;
+	dir = open(dirname(dcopy), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+	if (dir < 0) {
+		fprintf(stderr, "asphctl: %s: %s\n", out, strerror(errno));
+		return CTL_EXIT_ERROR;
+	}
+	asph_error_clear(&err);
+	if (fs_write_file_at(dir, basename(bcopy), 0666, fetch_chunks, &fe, &err) < 0) {
+		if (fe.code)
+			return fe.code;
+		fprintf(stderr, "asphctl: %s: %s\n", out, asph_error_format(&err, buf, sizeof(buf)));
+		return CTL_EXIT_ERROR;
+	}
+	return CTL_EXIT_OK;
+}
+
+static void print_form(const json_t *s)
+{
+	const json_t *f = json_object_get(s, "form"), *sl = json_object_get(s, "slope");
+	const json_t *v = json_object_get(s, "verdict"), *it;
+	size_t i;
+
+	if (json_is_object(f) && json_is_number(json_object_get(f, "A_nm")))
+		printf("  ISO 14999-4 A %.2f nm, B %.2f nm, C %.2f nm (lambda %g nm); RMSt %.2f, "
+		       "RMSi %.2f, RMSa %.2f nm\n",
+		       json_number_value(json_object_get(f, "A_nm")),
+		       json_number_value(json_object_get(f, "B_nm")),
+		       json_number_value(json_object_get(f, "C_nm")),
+		       json_number_value(json_object_get(f, "wavelength_nm")),
+		       json_number_value(json_object_get(f, "rms_t_nm")),
+		       json_number_value(json_object_get(f, "rms_i_nm")),
+		       json_number_value(json_object_get(f, "rms_a_nm")));
+	if (json_is_object(sl) && json_is_number(json_object_get(sl, "rms_urad")))
+		printf("  slope over %g mm: RMS %.2f urad, max %.2f urad\n",
+		       json_number_value(json_object_get(sl, "length_mm")),
+		       json_number_value(json_object_get(sl, "rms_urad")),
+		       json_number_value(json_object_get(sl, "max_urad")));
+	if (!json_is_object(v))
+		return;
+	printf("  verdict     %s (ISO 14253-1, U for k = 2)\n", str(v, "overall"));
+	json_array_foreach(json_object_get(v, "items"), i, it)
+		printf("    %-16s %12.6g  U %-10.4g limit %-10.6g %s\n", str(it, "quantity"),
+		       json_number_value(json_object_get(it, "value")),
+		       json_number_value(json_object_get(it, "U")),
+		       json_number_value(json_object_get(it, "limit")), str(it, "verdict"));
+}
+
 static void print_summary(const json_t *res)
 {
 	json_t *s = json_object_get(res, "summary"), *dof, *unc, *v;
@@ -534,6 +773,8 @@ static void print_summary(const json_t *res)
 		       json_number_value(json_object_get(unc, key)) * scale,
 		       angle ? "urad" : shift ? "um" : key[0] == 'R' ? "mm" : "");
 	}
+	print_form(s);
+	print_acquisition(json_object_get(s, "acquisition"));
 	printf("  scan sha256 %s\n", str(json_object_get(prov, "scan"), "sha256"));
 	printf("  files in %s\n", str(res, "dir"));
 }
@@ -541,18 +782,20 @@ static void print_summary(const json_t *res)
 int cmd_result(struct ctl *ctl, int argc, char **argv)
 {
 	static const struct option opts[] = {
-		{ "out", required_argument, NULL, 'o' }, JSON_OPTION, HELP_OPTION,
+		{ "out", required_argument, NULL, 'o' },
+		{ "report", required_argument, NULL, 'r' }, JSON_OPTION, HELP_OPTION,
 		{ NULL, 0, NULL, 0 },
 	};
-	static const char usage[] = "result JOB [--out DIR] [--json]";
+	static const char usage[] = "result JOB [--out DIR] [--report OUT.pdf] [--json]";
 	_cleanup_(json_decrefp) json_t *result = NULL;
-	const char *out = NULL;
+	const char *out = NULL, *report = NULL;
 	int64_t id;
 	int c, r;
 
 	while ((c = getopt_long(argc, argv, "o:jh", opts, NULL)) != -1) {
 		switch (c) {
 		case 'o': out = optarg; break;
+		case 'r': report = optarg; break;
 		case 'j': ctl->json = true; break;
 		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
 		default: return usage_error(usage);
@@ -565,11 +808,16 @@ int cmd_result(struct ctl *ctl, int argc, char **argv)
 		return r;
 	if (out && (r = copy_files(ctl, id, json_object_get(result, "files"), out)))
 		return r;
+	if (report &&
+	    (r = copy_file_to(ctl, id, json_object_get(result, "files"), "report", report)))
+		return r;
 	if (ctl->json)
 		ctl_print_json(result);
 	else
 		print_summary(result);
 	if (out && !ctl->json)
 		printf("  copied to %s\n", out);
+	if (report && !ctl->json)
+		printf("  report written to %s\n", report);
 	return CTL_EXIT_OK;
 }

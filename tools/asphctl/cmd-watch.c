@@ -84,6 +84,9 @@ static int finish(struct ctl *ctl, struct view *v)
 		return r;
 	if (ctl->json)
 		ctl_print_json(job);
+	else if (!v->quiet && json_is_string(json_object_get(job, "verdict")))
+		printf("job %lld: verdict %s\n", (long long)v->id,
+		       json_string_value(json_object_get(job, "verdict")));
 	return strcmp(json_string_value(json_object_get(job, "state")), "completed")
 		? CTL_EXIT_JOB_FAILED : CTL_EXIT_OK;
 }

@@ -28,7 +28,7 @@
 #include "asph/scanfile.h"
 #include "crc32c.h"
 
-#define RECORD 56
+#define RECORD 88
 #define BLOCK_OVERHEAD 36
 
 static char tmpdir[64];
@@ -72,6 +72,8 @@ static struct asph_scanfile_point pattern(uint64_t i)
 		.raw = 1e-3 * sqrt((double)i + 0.5),
 		.t_ns = 1000003 * i + 17,
 		.flags = i % 3 == 1 ? ASPH_SCANFILE_POINT_TIP_COMPENSATED : 0,
+		.position_source = (uint32_t)(i % 5),
+		.stage = { 1.25 * (double)i, -0.5 * (double)i - 0.125, 3e-7 * (double)i },
 	};
 	if (i % 97 == 5) {
 		p.x = -0.0;
@@ -98,6 +100,9 @@ static void assert_point_eq(const struct asph_scanfile_point *a,
 	assert_int_equal(bits(a->raw), bits(b->raw));
 	assert_int_equal(a->t_ns, b->t_ns);
 	assert_int_equal(a->flags, b->flags);
+	assert_int_equal(a->position_source, b->position_source);
+	for (int k = 0; k < 3; k++)
+		assert_int_equal(bits(a->stage[k]), bits(b->stage[k]));
 }
 
 static void assert_pattern(const struct asph_scanfile *s, size_t n)
@@ -308,7 +313,7 @@ static void test_round_trip(void **state)
 	assert_pattern(s, n);
 	const struct asph_scanfile_header *h = &s->header;
 	assert_int_equal(h->version_major, 1);
-	assert_int_equal(h->version_minor, 0);
+	assert_int_equal(h->version_minor, 1);
 	assert_json_same(h->prescription, prescription);
 	assert_json_same(h->plan, plan);
 	assert_json_same(h->instrument, instrument);
@@ -347,6 +352,8 @@ static void test_layout(void **state)
 		.plan_index = 0x0102030405060708ull, .x = 1.5, .y = -2.25, .z = 0.1,
 		.raw = 3e-3, .t_ns = 123456789012ull,
 		.flags = ASPH_SCANFILE_POINT_LOW_SIGNAL | ASPH_SCANFILE_POINT_RETRIED,
+		.position_source = ASPH_SCANFILE_POSITION_INTERPOLATED,
+		.stage = { -7.5, 0.375, 2.0625 },
 	};
 	size_t len;
 
@@ -358,7 +365,7 @@ static void test_layout(void **state)
 
 	assert_memory_equal(b, "ASPHSCAN", 8);
 	assert_int_equal(b[8] | b[9] << 8, 1);
-	assert_int_equal(b[10] | b[11] << 8, 0);
+	assert_int_equal(b[10] | b[11] << 8, 1);
 	uint32_t hl = le32(b + 12);
 	assert_int_equal(le32(b + 16), crc32c(crc32c(0, b, 16), b + 20, hl));
 	assert_int_equal(b[20], '{');
@@ -379,7 +386,11 @@ static void test_layout(void **state)
 	assert_int_equal(le64(rec + 32), bits(3e-3));
 	assert_int_equal(le64(rec + 40), 123456789012ull);
 	assert_int_equal(le32(rec + 48), 0xc);
-	assert_int_equal(le32(rec + 52), 0);
+	assert_int_equal(le32(rec + 52), 3);            /* interpolated */
+	assert_int_equal(le64(rec + 56), bits(-7.5));
+	assert_int_equal(le64(rec + 64), bits(0.375));
+	assert_int_equal(le64(rec + 72), bits(2.0625));
+	assert_int_equal(le64(rec + 80), 0);            /* reserved */
 	assert_int_equal(le32(k + 32 + RECORD), crc32c(0, k, 32 + RECORD));
 
 	const uint8_t *e = k + BLOCK_OVERHEAD + RECORD;
@@ -652,7 +663,7 @@ static void test_bad_files(void **state)
 	memcpy(c, b, len);
 	c[8] = 2;
 	reseal_header(c);
-	expect_open_error(c, len, -ENOTSUP, "format version 2.0 is newer");
+	expect_open_error(c, len, -ENOTSUP, "format version 2.1 is newer");
 
 	memcpy(c, b, len);
 	c[8] = 0;
@@ -1265,6 +1276,116 @@ static int teardown(void **state)
 	return rmdir(tmpdir);
 }
 
+/* Reference measurements (1.1): blocks of their own, in measurement order
+ * between the points, not counted as points; a resumed scan keeps them. */
+static void test_references(void **state)
+{
+	const char *path = tmp_path("refs.scan");
+	struct asph_scanfile_writer *w;
+	struct asph_scanfile *s;
+	struct asph_error err;
+	struct asph_scanfile_point ref[3];
+
+	for (int i = 0; i < 3; i++)
+		ref[i] = pattern(900 + (uint64_t)i);
+	ref[1].flags = ASPH_SCANFILE_POINT_INVALID;
+	ref[1].z = NAN;
+	assert_int_equal(asph_scanfile_writer_create(path, &info, NULL, &w, &err), 0);
+	assert_int_equal(asph_scanfile_writer_append_references(w, ref, 1, &err), 0);
+	append_pattern(w, 0, 17);
+	assert_int_equal(asph_scanfile_writer_append_references(w, ref + 1, 2, &err), 0);
+	append_pattern(w, 17, 5);
+	assert_int_equal(asph_scanfile_writer_close(w, &err), 0);
+	/* resumed: the references stay, and more come */
+	assert_int_equal(asph_scanfile_writer_resume(path, NULL, &s, &w, &err), 0);
+	assert_int_equal(s->n_references, 3);
+	asph_scanfile_free(s);
+	assert_int_equal(asph_scanfile_writer_append_references(w, ref, 1, &err), 0);
+	assert_int_equal(asph_scanfile_writer_finish(w, ASPH_SCANFILE_COMPLETED, NULL, &err), 0);
+
+	assert_int_equal(asph_scanfile_read(path, &s, &err), 0);
+	assert_pattern(s, 22);
+	assert_int_equal(s->report.n_points, 22);
+	assert_int_equal(s->report.n_references, 4);
+	assert_int_equal(s->n_references, 4);
+	assert_point_eq(&s->references[0], &ref[0]);
+	assert_point_eq(&s->references[2], &ref[2]);
+	assert_point_eq(&s->references[3], &ref[0]);
+	assert_true(isnan(s->references[1].z));
+	assert_true(s->report.ended);
+	asph_scanfile_free(s);
+
+	/* a measured reference without coordinates is refused */
+	ref[0].x = NAN;
+	assert_int_equal(asph_scanfile_writer_create(path, &info,
+		&(struct asph_scanfile_writer_options){ .flags = ASPH_SCANFILE_OVERWRITE }, &w, &err), 0);
+	assert_int_equal(asph_scanfile_writer_append_references(w, ref, 1, &err), -EINVAL);
+	asph_scanfile_writer_close(w, NULL);
+	unlink(path);
+}
+
+/* Scans the 1.0 writer wrote (tests/data/scan-1.0) read: 56-byte records,
+ * no position source, no stage position. */
+static void test_version_1_0_files(void **state)
+{
+	static const struct {
+		const char *name;
+		size_t n;
+		unsigned resumes;
+		uint32_t flags_of_11;   /* the tactile one: reading 12 out of range */
+	} files[] = {
+		{ "v10-completed.asphscan", 60, 0, 0 },
+		{ "v10-tactile.asphscan", 40, 0, ASPH_SCANFILE_POINT_OUT_OF_RANGE },
+		{ "v10-resumed.asphscan", 50, 1, 0 },
+	};
+	const char *data = getenv("ASPH_TEST_DATA");
+	char path[512];
+
+	if (!data)
+		skip();
+	for (size_t i = 0; i < sizeof(files) / sizeof(files[0]); i++) {
+		struct asph_scanfile *s;
+		struct asph_error err;
+		snprintf(path, sizeof(path), "%s/scan-1.0/%s", data, files[i].name);
+		if (asph_scanfile_read(path, &s, &err) < 0)
+			fail_msg("%s: %s", path, err.message);
+		assert_int_equal(s->header.version_major, 1);
+		assert_int_equal(s->header.version_minor, 0);
+		assert_int_equal(s->n, files[i].n);
+		assert_int_equal(s->report.n_resumes, files[i].resumes);
+		assert_int_equal(s->report.stop, ASPH_SCANFILE_STOP_END);
+		assert_int_equal(s->report.outcome, ASPH_SCANFILE_COMPLETED);
+		assert_int_equal(s->n_references, 0);
+		assert_int_equal(s->points[11].flags, files[i].flags_of_11);
+		for (size_t k = 0; k < s->n; k++) {
+			assert_int_equal(s->points[k].position_source, ASPH_SCANFILE_POSITION_UNKNOWN);
+			assert_true(isnan(s->points[k].stage[0]) && isnan(s->points[k].stage[2]));
+		}
+		asph_scanfile_free(s);
+	}
+}
+
+/* A resumed scan's times go on from the scan's start, not from 1970. */
+static void test_resumed_times(void **state)
+{
+	const char *path = tmp_path("times.scan");
+	struct asph_scanfile_writer *w;
+	struct asph_scanfile *s;
+	struct asph_error err;
+
+	assert_int_equal(asph_scanfile_writer_create(path, &info, NULL, &w, &err), 0);
+	append_pattern(w, 0, 3);
+	assert_int_equal(asph_scanfile_writer_close(w, &err), 0);
+	assert_int_equal(asph_scanfile_writer_resume(path, NULL, &s, &w, &err), 0);
+	/* the pattern's last point is at 2.000006 ms; the file is younger
+	 * than a minute */
+	uint64_t t = asph_scanfile_writer_elapsed_ns(w);
+	assert_true(t >= s->points[2].t_ns && t < 60 * (uint64_t)1000000000);
+	asph_scanfile_free(s);
+	assert_int_equal(asph_scanfile_writer_close(w, &err), 0);
+	unlink(path);
+}
+
 /* Relative to a directory descriptor: the same file, and never through a
  * symlink planted at the name (to a file the test cares about). */
 static void test_at_no_symlinks(void **state)
@@ -1330,6 +1451,9 @@ int main(void)
 		cmocka_unit_test(test_unknown_block_skipped),
 		cmocka_unit_test(test_reader_blocks),
 		cmocka_unit_test(test_prescription_through_header),
+		cmocka_unit_test(test_references),
+		cmocka_unit_test(test_version_1_0_files),
+		cmocka_unit_test(test_resumed_times),
 	};
 	return cmocka_run_group_tests(tests, setup, teardown);
 }
