@@ -120,6 +120,17 @@ try:
            int(prov[2]) == r0["summary"]["n_points"] and prov[3] == "t" and prov[4] == "t",
            "and the provenance, the scan's hash, the summary, the uncertainty and the files' hashes")
 
+    # --- a job with a tolerance: its verdict in the row
+    tol_job = clients[0].call("job.submit", {"lens": "strong", "plan": {"method": "fermat",
+                                                                       "points": 200},
+                                             "tolerance": {"rms_nm": {"t": 1}}})["id"]
+    wait(lambda: rows(pg, f"daemon_id = '{ids[0]}' AND job_id = {tol_job}"), 120,
+         "the row of the job with a tolerance")
+    verdict = clients[0].call("job.get", {"id": tol_job})["verdict"]
+    row = rows(pg, f"daemon_id = '{ids[0]}' AND job_id = {tol_job}")[0]
+    expect(verdict in ("pass", "fail", "undecided") and row[6] == verdict,
+           f"a job with a tolerance: the row's verdict is the job's ({row[6]}, {verdict})")
+
     # --- the database down during a job, then back
     c = clients[1]
     c.call("events.subscribe", {"events": ["job"]})

@@ -115,7 +115,7 @@ try:
            f"the status is retained: online, with the instruments and the queue ({st})")
     job = c.call("job.submit", {"lens": "strong", "plan": {"method": "fermat", "points": 1200},
                                 "part": "AS-2041", "lot": "L-17", "serial": "0042",
-                                "label": "first"})["id"]
+                                "label": "first", "tolerance": {"rms_nm": {"t": 1}}})["id"]
     c.wait_state(job, ["completed"])
     sub.wait_for(lambda ms: any(m["topic"].endswith(f"/job/{job}/result") for m in ms),
                  what="result")
@@ -125,6 +125,9 @@ try:
     jr = c.call("job.result", {"id": job})
     expect(result["summary"] == jr["summary"] and result["part"] == "AS-2041" and
            result["serial"] == "0042", "the result message holds the job's summary and part/serial")
+    verdict = c.call("job.get", {"id": job})["verdict"]
+    expect(verdict in ("pass", "fail", "undecided") and result["verdict"] == verdict,
+           f"and the job's verdict ({result['verdict']}, {verdict})")
     files_ok = all(hashlib.sha256(open(os.path.join(jr["dir"], name), "rb").read()).hexdigest() == h
                    for name, h in result["provenance"]["files"].items())
     expect(files_ok and "result.json" in result["provenance"]["files"] and
