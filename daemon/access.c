@@ -41,18 +41,12 @@ static void complain(struct loader *ld, const char *field, int code, const char 
 
 static void complain(struct loader *ld, const char *field, int code, const char *fmt, ...)
 {
-	struct asph_error e;
 	va_list ap;
 
-	asph_error_clear(&e);
-	e.code = code;
 	va_start(ap, fmt);
-	vsnprintf(e.message, sizeof(e.message), fmt, ap);
+	settings_vreport(ld->s, field, code, ld->report, ld->data, fmt, ap);
 	va_end(ap);
-	settings_locate(ld->s, field, &e);
 	ld->n_errors++;
-	if (ld->report)
-		ld->report(&e, ld->data);
 }
 
 static void load_group(struct loader *ld, struct access *a)

@@ -33,6 +33,8 @@ struct slot {
 	char *fault;                    /* act.fault */
 	uint64_t last_progress_store_ns;
 	bool cancel;                    /* its job's cancel was accepted */
+	int64_t cancel_uid;             /* by whom: the history's actor */
+	char *cancel_by;
 	struct instrument_lock lock;    /* act.lock points here when locked */
 };
 
@@ -230,6 +232,7 @@ void jobs_free(struct jobs *jobs)
 	for (size_t i = 0; i < jobs->n_slots; i++) {
 		runner_free(jobs->slots[i].runner);
 		free(jobs->slots[i].fault);
+		free(jobs->slots[i].cancel_by);
 		lock_release(&jobs->slots[i]);
 	}
 	free(jobs->slots);
@@ -646,6 +649,8 @@ static void job_done(struct slot *sl, const struct runner_report *rep)
 	struct jobs *jobs = sl->jobs;
 	struct job_record j;
 	enum job_state next = job_end(sl, rep->outcome);
+	_cleanup_free_ char *cancel_by = steal_ptr(sl->cancel_by);
+	struct job_actor canceller = { .uid = sl->cancel_uid, .name = cancel_by };
 	const char *reason = NULL;
 
 	sl->act.job = 0;
@@ -683,7 +688,9 @@ static void job_done(struct slot *sl, const struct runner_report *rep)
 					: "the queue was stopped";
 		break;
 	}
-	transition(jobs, &j, next, reason, NULL, NULL);
+	/* A cancel is the canceller's, though the worker's report ends it. */
+	transition(jobs, &j, next, reason, next == JOB_CANCELLED && cancel_by ? &canceller : NULL,
+		   NULL);
 	job_record_clear(&j);
 	if (jobs->stopping) {
 		if (!any_running(jobs) && jobs->stopped)
@@ -806,6 +813,9 @@ int jobs_cancel(struct jobs *jobs, int64_t id, const struct job_actor *who,
 		sl = slot_of_job(jobs, j.id);
 		if (sl) {
 			sl->cancel = true;
+			sl->cancel_uid = who->uid;
+			free(sl->cancel_by);
+			sl->cancel_by = who->name ? strdup(who->name) : NULL;
 			runner_abort(sl->runner);
 		}
 		log_job(LOG_INFO, j.id, "cancel requested by %s", who->name);

@@ -23,13 +23,17 @@
 #include "config.h"
 #include "devices.h"
 #include "events.h"
+#include "fleetdb.h"
 #include "instruments.h"
 #include "jobs.h"
 #include "log.h"
+#include "mqtt.h"
+#include "outbox.h"
 #include "rpc.h"
 #include "server.h"
 #include "web.h"
 #include "settings.h"
+#include "telemetry.h"
 #include "tokens.h"
 #include "util-time.h"
 #include "util-mem.h"
@@ -56,6 +60,8 @@ struct daemon {
 	struct access *access;
 	struct addrinfo *tcp;           /* tcp_listen's addresses */
 	struct addrinfo *http;          /* http_listen's addresses */
+	struct mqtt_credentials mqtt_credentials;
+	char *pg_password;              /* postgres.password_file's */
 
 	sd_event *event;
 	uint64_t started_usec;
@@ -65,6 +71,15 @@ struct daemon {
 	struct server *server;
 	struct web *web;                /* NULL without http_listen */
 	struct tokens *tokens;
+	/* What leaves the PC (docs/fleet.md): NULL without mqtt/postgres. */
+	char host[256];
+	struct outbox *outbox;
+	struct telemetry *telemetry;
+	struct mqtt *mqtt;
+	struct fleetdb *fleetdb;
+	bool mqtt_up, fleetdb_up;
+	char fleetdb_down[256];         /* why, as last logged */
+	int watch_outbox, watch_telemetry;
 	sd_event_source *revalidate;    /* ends the sessions of revoked or expired tokens */
 	sd_event_source *token_expiry;  /* the next expiry of a token */
 	char status[128];               /* as systemd was last told */
@@ -122,6 +137,8 @@ static int load_configuration(struct daemon *d)
 		       &d->tcp, report_config_error, &n_errors);
 	resolve_listen(d->settings, "http_listen", d->settings->http_host,
 		       d->settings->http_port, &d->http, report_config_error, &n_errors);
+	mqtt_credentials_load(d->settings, &d->mqtt_credentials, report_config_error, &n_errors);
+	fleetdb_password_load(d->settings, &d->pg_password, report_config_error, &n_errors);
 	return n_errors;
 }
 
@@ -135,6 +152,11 @@ static void unload_configuration(struct daemon *d)
 	d->http = NULL;
 	access_free(d->access);
 	d->access = NULL;
+	mqtt_credentials_clear(&d->mqtt_credentials);
+	if (d->pg_password)
+		explicit_bzero(d->pg_password, strlen(d->pg_password));
+	free(d->pg_password);
+	d->pg_password = NULL;
 	instruments_free(d->instruments);
 	d->instruments = NULL;
 	settings_free(d->settings);
@@ -281,6 +303,27 @@ static void append(char *buf, size_t size, const char *what)
 	snprintf(buf + n, size - n, "%s%s", n ? ", " : "", what);
 }
 
+/* A section of the configuration as the file has it (JSON text, static;
+ * NULL when absent), to tell whether a reload changes it. */
+static const char *section_text(const struct settings *s, const char *name)
+{
+	static char buf[2][4096];
+	static int k;
+	json_t *root = s->text ? json_loadb(s->text, s->text_len, 0, NULL) : NULL;
+	json_t *v = json_object_get(root, name);
+	char *t = v ? json_dumps(v, JSON_COMPACT | JSON_SORT_KEYS) : NULL;
+	const char *out = NULL;
+
+	if (t) {
+		k ^= 1;
+		snprintf(buf[k], sizeof(buf[k]), "%s", t);
+		out = buf[k];
+	}
+	free(t);
+	json_decref(root);
+	return out;
+}
+
 /* What next changes that only a restart applies: named into why (empty
  * when nothing). */
 static void needs_restart(const struct daemon *d, const struct settings *next, char *why,
@@ -300,6 +343,10 @@ static void needs_restart(const struct daemon *d, const struct settings *next, c
 		append(why, size, "http_listen");
 	if (differ(next->http_root, now->http_root))
 		append(why, size, "http_root");
+	if (differ(section_text(next, "mqtt"), section_text(now, "mqtt")))
+		append(why, size, "mqtt");
+	if (differ(section_text(next, "postgres"), section_text(now, "postgres")))
+		append(why, size, "postgres");
 	if (server_check_reload(d->server, next, tcp, sizeof(tcp)) < 0)
 		append(why, size, tcp);
 }
@@ -435,6 +482,230 @@ static int open_tokens(struct daemon *d)
 	return 0;
 }
 
+/* ------------------------------------------------------------ fleet */
+
+static int mqtt_send(void *data, const struct store_outbox_item *it)
+{
+	struct daemon *d = data;
+
+	return mqtt_publish(d->mqtt, it->topic, it->payload, it->qos, it->retain, it->id);
+}
+
+static void mqtt_acked(void *data, int64_t tag)
+{
+	struct daemon *d = data;
+
+	outbox_done(d->outbox, OUTBOX_MQTT, tag);
+}
+
+static void mqtt_link(void *data, bool up, const char *why)
+{
+	struct daemon *d = data;
+
+	if (up) {
+		log_info("mqtt: connected to %s (%" PRId64 " message(s) waiting)",
+			 d->settings->mqtt->url, outbox_waiting(d->outbox, OUTBOX_MQTT));
+		telemetry_link_up(d->telemetry);
+		outbox_reset(d->outbox, OUTBOX_MQTT);
+		outbox_pump(d->outbox, OUTBOX_MQTT);
+	} else {
+		log_warning("mqtt: %s %s: %s; trying again (the job states and results wait in "
+			    "the outbox)", d->mqtt_up ? "lost the connection to" : "cannot connect to",
+			    d->settings->mqtt->url, why);
+	}
+	d->mqtt_up = up;
+}
+
+static int fleetdb_send_item(void *data, const struct store_outbox_item *it)
+{
+	struct daemon *d = data;
+
+	return fleetdb_send(d->fleetdb, it->id, it->payload);
+}
+
+static void fleetdb_acked(void *data, int64_t id)
+{
+	struct daemon *d = data;
+
+	outbox_done(d->outbox, OUTBOX_POSTGRES, id);
+}
+
+static void fleetdb_link(void *data, bool up, const char *why)
+{
+	struct daemon *d = data;
+
+	if (up && !d->fleetdb_up)
+		log_info("postgres: connected (%" PRId64 " row(s) waiting)",
+			 outbox_waiting(d->outbox, OUTBOX_POSTGRES));
+	if (!up && (d->fleetdb_up || strcmp(why, d->fleetdb_down)))
+		log_warning("postgres: %s; trying again (the rows wait in the outbox)", why);
+	if (!up)
+		snprintf(d->fleetdb_down, sizeof(d->fleetdb_down), "%s", why);
+	d->fleetdb_up = up;
+}
+
+/* Every job change: its messages into the outbox. */
+static void outbox_watch(const struct event *ev, void *data)
+{
+	struct daemon *d = data;
+
+	if (!strcmp(ev->method, "job.state"))
+		outbox_catch_up(d->outbox);
+}
+
+static int start_mqtt(struct daemon *d, char **prefix)
+{
+	const struct settings_mqtt *cfg = d->settings->mqtt;
+	_cleanup_free_ char *client_id = NULL, *will = NULL;
+	struct asph_error err;
+	char buf[1024];
+	int r;
+
+	asph_error_clear(&err);
+	r = telemetry_new(&(struct telemetry_setup){
+			.prefix = *prefix, .daemon_id = outbox_daemon_id(d->outbox), .host = d->host,
+			.qos = cfg->qos, .started_ns = now_realtime_ns(), .jobs = d->jobs,
+			.instruments = d->instruments,
+		}, &d->telemetry);
+	if (r < 0)
+		return r;
+	if (cfg->client_id)
+		client_id = strdup(cfg->client_id);
+	else if (asprintf(&client_id, "asphd-%.64s-%.8s", d->host, outbox_daemon_id(d->outbox)) < 0)
+		client_id = NULL;
+	will = telemetry_offline(d->telemetry);
+	if (!client_id || !will)
+		return -ENOMEM;
+	r = mqtt_new(&(struct mqtt_setup){
+			.event = d->event, .cfg = cfg, .credentials = &d->mqtt_credentials,
+			.client_id = client_id, .will_topic = telemetry_status_topic(d->telemetry),
+			.will_payload = will, .acked = mqtt_acked, .link = mqtt_link, .data = d,
+		}, &d->mqtt, &err);
+	if (r < 0) {
+		log_error("%s", asph_error_format(&err, buf, sizeof(buf)));
+		return r;
+	}
+	telemetry_set_mqtt(d->telemetry, d->mqtt);
+	outbox_set_sink(d->outbox, OUTBOX_MQTT, &(struct outbox_sink){
+				.send = mqtt_send, .data = d, .window = 32 });
+	d->watch_telemetry = events_watch_add(d->events, EVENT_ALL, telemetry_watch, d->telemetry,
+					      NULL);
+	log_info("mqtt: publishing to %s under %s as %s", cfg->url, *prefix, client_id);
+	return d->watch_telemetry < 0 ? d->watch_telemetry : 0;
+}
+
+static int start_fleetdb(struct daemon *d)
+{
+	struct asph_error err;
+	char buf[1024];
+	int r;
+
+	asph_error_clear(&err);
+	r = fleetdb_new(&(struct fleetdb_setup){
+			.event = d->event, .cfg = d->settings->postgres, .password = d->pg_password,
+			.acked = fleetdb_acked, .link = fleetdb_link, .data = d,
+		}, &d->fleetdb, &err);
+	if (r < 0) {
+		log_error("%s", asph_error_format(&err, buf, sizeof(buf)));
+		return r;
+	}
+	outbox_set_sink(d->outbox, OUTBOX_POSTGRES, &(struct outbox_sink){
+				.send = fleetdb_send_item, .data = d, .window = 64 });
+	return 0;
+}
+
+/* The outbox and its sinks, with a mqtt or a postgres section. */
+static int start_fleet(struct daemon *d)
+{
+	const struct settings *s = d->settings;
+	_cleanup_free_ char *path = NULL, *prefix = NULL;
+	struct asph_error err;
+	char buf[1024];
+	int r;
+
+	if (!s->mqtt && !s->postgres)
+		return 0;
+	if (gethostname(d->host, sizeof(d->host) - 1) < 0)
+		snprintf(d->host, sizeof(d->host), "localhost");
+	if (s->mqtt) {
+		if (s->mqtt->prefix)
+			prefix = strdup(s->mqtt->prefix);
+		else if (asprintf(&prefix, "asphd/%s", d->host) < 0)
+			prefix = NULL;
+		if (!prefix)
+			return -ENOMEM;
+	}
+	if (asprintf(&path, "%s/jobs.sqlite", s->state_dir) < 0)
+		return -ENOMEM;
+	asph_error_clear(&err);
+	r = outbox_new(&(struct outbox_setup){
+			.store_path = path, .host = d->host, .mqtt_prefix = prefix,
+			.mqtt_qos = s->mqtt ? s->mqtt->qos : 1, .postgres = s->postgres != NULL,
+		}, &d->outbox, &err);
+	if (r < 0) {
+		log_error("%s", asph_error_format(&err, buf, sizeof(buf)));
+		return r;
+	}
+	if (s->mqtt && (r = start_mqtt(d, &prefix)) < 0)
+		return r;
+	if (s->postgres && (r = start_fleetdb(d)) < 0)
+		return r;
+	d->watch_outbox = events_watch_add(d->events, EVENT_JOB, outbox_watch, d, NULL);
+	if (d->watch_outbox < 0)
+		return d->watch_outbox;
+	/* What changed while the daemon was not running (the jobs it found
+	 * interrupted), or before a crash, is taken now. */
+	outbox_catch_up(d->outbox);
+	return 0;
+}
+
+static void stop_fleet(struct daemon *d)
+{
+	_cleanup_free_ char *goodbye = d->telemetry ? telemetry_offline(d->telemetry) : NULL;
+
+	if (d->watch_telemetry > 0)
+		events_watch_remove(d->events, d->watch_telemetry);
+	if (d->watch_outbox > 0)
+		events_watch_remove(d->events, d->watch_outbox);
+	d->watch_telemetry = d->watch_outbox = 0;
+	mqtt_free(d->mqtt, goodbye);
+	d->mqtt = NULL;
+	fleetdb_free(d->fleetdb);
+	d->fleetdb = NULL;
+	telemetry_free(d->telemetry);
+	d->telemetry = NULL;
+	outbox_free(d->outbox);
+	d->outbox = NULL;
+}
+
+/* asphd --db-migrate: the central database's schema, made or migrated. */
+static int db_migrate(struct daemon *d)
+{
+	struct asph_error err;
+	char buf[1024];
+	int n_errors = 0, r;
+
+	if (settings_load(d->config_path, &d->settings, report_config_error, &n_errors) < 0)
+		return ASPHD_EXIT_CONFIG;
+	if (!d->settings->postgres) {
+		fprintf(stderr, "asphd: %s has no \"postgres\" section: nothing to migrate\n",
+			d->config_path ? d->config_path : "the configuration");
+		unload_configuration(d);
+		return ASPHD_EXIT_CONFIG;
+	}
+	if (fleetdb_password_load(d->settings, &d->pg_password, report_config_error,
+				  &n_errors) < 0) {
+		unload_configuration(d);
+		return ASPHD_EXIT_CONFIG;
+	}
+	asph_error_clear(&err);
+	r = fleetdb_migrate(d->settings->postgres, d->pg_password, stdout, &err);
+	if (r < 0)
+		fprintf(stderr, "asphd: %s\n", asph_error_format(&err, buf, sizeof(buf)));
+	unload_configuration(d);
+	return r < 0 ? ASPHD_EXIT_FAILURE : ASPHD_EXIT_OK;
+}
+
 /* ------------------------------------------------------------ running */
 
 static int start_modules(struct daemon *d)
@@ -482,6 +753,8 @@ static int start_modules(struct daemon *d)
 		if (r == 0)
 			r = events_watch_add(d->events, EVENT_ALL, web_notify, d->web, NULL);
 	}
+	if (r > 0)
+		r = start_fleet(d);
 	return r < 0 ? r : 0;
 }
 
@@ -533,6 +806,7 @@ static void teardown(struct daemon *d)
 	web_free(d->web);
 	server_free(d->server);
 	rpc_free(d->rpc);
+	stop_fleet(d);
 	sd_event_source_disable_unref(d->revalidate);
 	sd_event_source_disable_unref(d->token_expiry);
 	tokens_free(d->tokens);
@@ -550,6 +824,8 @@ static void usage(FILE *f)
 		   "  -s, --socket PATH     unix socket (default %s)\n"
 		   "  -d, --state-dir DIR   jobs, scans and results (default /var/lib/asphd)\n"
 		   "      --check-config    check the configuration, name every error, exit\n"
+		   "      --db-migrate      create or migrate the central database's schema\n"
+		   "                        (the configuration's postgres section), exit\n"
 		   "      --device-policy=systemd|udev\n"
 		   "                        print the devices and hosts the instruments need,\n"
 		   "                        as a systemd drop-in or as udev rules, exit\n"
@@ -565,6 +841,7 @@ int main(int argc, char **argv)
 		{ "socket", required_argument, NULL, 's' },
 		{ "state-dir", required_argument, NULL, 'd' },
 		{ "check-config", no_argument, NULL, 'C' },
+		{ "db-migrate", no_argument, NULL, 'M' },
 		{ "device-policy", required_argument, NULL, 'D' },
 		{ "verbose", no_argument, NULL, 'v' },
 		{ "version", no_argument, NULL, 'V' },
@@ -573,7 +850,7 @@ int main(int argc, char **argv)
 	};
 	struct daemon d = { 0 };
 	const char *policy = NULL;
-	bool check = false, verbose = false;
+	bool check = false, verbose = false, migrate = false;
 	int c, r, n_errors = 0;
 
 	gsl_set_error_handler_off();
@@ -586,6 +863,7 @@ int main(int argc, char **argv)
 		case 's': d.socket_override = optarg; break;
 		case 'd': d.state_override = optarg; break;
 		case 'C': check = true; break;
+		case 'M': migrate = true; break;
 		case 'D': policy = optarg; break;
 		case 'v': verbose = true; break;
 		case 'V': printf("asphd %s\n", ASPH_VERSION); return ASPHD_EXIT_OK;
@@ -601,6 +879,8 @@ int main(int argc, char **argv)
 		d.config_path = DEFAULT_CONFIG;
 	if (check)
 		return check_config(&d);
+	if (migrate)
+		return db_migrate(&d);
 	if (policy)
 		return device_policy(&d, policy);
 	log_setup(verbose ? LOG_DEBUG : LOG_INFO);

@@ -304,6 +304,52 @@ static json_t *provenance(const struct result_source *job, const struct job_plan
 	return p;
 }
 
+/* The SHA-256 of a file of the job's folder, read beneath it. */
+static int hash_file(int dir_fd, const char *name, char hex[65])
+{
+	_cleanup_close_ int fd = fs_open_beneath(dir_fd, name, O_RDONLY, 0);
+	static const char digits[] = "0123456789abcdef";
+	uint8_t buf[65536], digest[32];
+	struct sha256 h;
+	ssize_t n;
+
+	if (fd < 0)
+		return fd;
+	sha256_init(&h);
+	while ((n = read(fd, buf, sizeof(buf))) > 0)
+		sha256_update(&h, buf, (size_t)n);
+	if (n < 0)
+		return -errno;
+	sha256_final(&h, digest);
+	for (int i = 0; i < 32; i++) {
+		hex[2 * i] = digits[digest[i] >> 4];
+		hex[2 * i + 1] = digits[digest[i] & 15];
+	}
+	hex[64] = '\0';
+	return 0;
+}
+
+/* "hashes": the SHA-256 of every file the result lists but result.json
+ * (which cannot hold its own), by file name; the provenance of a result
+ * that leaves the PC (MQTT, the central database). */
+static json_t *file_hashes(const struct result_source *job, json_t *files, const char *scan_sha)
+{
+	json_t *out = json_object(), *v;
+	const char *key;
+	char hex[65];
+
+	json_object_foreach(files, key, v) {
+		const char *name = json_string_value(v);
+		if (!name || !strcmp(key, "result"))
+			continue;
+		if (!strcmp(key, "scan"))
+			json_object_set_new(out, name, json_string(scan_sha));
+		else if (hash_file(job->dir_fd, name, hex) == 0)
+			json_object_set_new(out, name, json_string(hex));
+	}
+	return out;
+}
+
 /* The fit's summary as asph replay --json prints it; NULL on ENOMEM. */
 static json_t *summary_json(const struct asph_fit_result *res, const char *lens,
 			    int robust, const char *acquisition)
@@ -354,9 +400,10 @@ int result_build(const struct result_source *job, const struct job_plan *jp,
 			       jp->fit.robust, c.acquisition);
 	if (summary && mc)
 		json_object_update_recursive(summary, mc);
-	result = json_pack("{s:I, s:o, s:o, s:o}", "job", (json_int_t)job->job,
+	result = json_pack("{s:I, s:o, s:o, s:o, s:o}", "job", (json_int_t)job->job,
 			   "summary", summary,
 			   "provenance", provenance(job, jp, inst, &c, sha),
+			   "hashes", file_hashes(job, files, sha),
 			   "files", files);
 	text = result ? json_dumps(result, JSON_INDENT(2)) : NULL;
 	if (!text) {

@@ -568,3 +568,16 @@ void settings_locate(const struct settings *s, const char *field, struct asph_er
 
 	json_error_locate(err, 0, &src, field);
 }
+
+void settings_vreport(const struct settings *s, const char *field, int code,
+		      settings_error_fn report, void *data, const char *fmt, va_list ap)
+{
+	struct asph_error e;
+
+	asph_error_clear(&e);
+	e.code = code;
+	vsnprintf(e.message, sizeof(e.message), fmt, ap);
+	settings_locate(s, field, &e);
+	if (report)
+		report(&e, data);
+}

@@ -7,6 +7,7 @@
 #ifndef ASPHD_SETTINGS_H
 #define ASPHD_SETTINGS_H
 
+#include <stdarg.h>
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
@@ -41,7 +42,7 @@ struct settings_mqtt {
 	char *host;                     /* its parts ("[...]" of IPv6 taken off) */
 	int port;
 	char *prefix;                   /* NULL: "asphd/<hostname>" */
-	char *client_id;                /* NULL: "asphd-<hostname>" */
+	char *client_id;                /* NULL: "asphd-<hostname>-<daemon id, 8>" */
 	int qos;                        /* 0, 1, 2 */
 	char *credentials_file;         /* NULL: none */
 	char *ca_file;                  /* NULL: the system's (mqtts) */
@@ -102,5 +103,12 @@ int settings_defaults(struct settings **out);
  * group, the token file, the instruments' drivers).
  */
 void settings_locate(const struct settings *s, const char *field, struct asph_error *err);
+
+/* An error found after loading, about field: made (code, the message from
+ * fmt), located as settings_locate() does and handed to report (which may
+ * be NULL). */
+void settings_vreport(const struct settings *s, const char *field, int code,
+		      settings_error_fn report, void *data, const char *fmt, va_list ap)
+	__attribute__((format(printf, 6, 0)));
 
 #endif

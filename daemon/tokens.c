@@ -108,7 +108,8 @@ void tokens_free(struct tokens *t)
 		return;
 	for (size_t i = 0; i < t->n; i++)
 		free(t->v[i].created_by);
-	explicit_bzero(t->v, t->cap * sizeof(*t->v));
+	if (t->v)
+		explicit_bzero(t->v, t->cap * sizeof(*t->v));
 	free(t->v);
 	store_close(t->store);
 	free(t);

@@ -4,6 +4,7 @@ raw JSON-RPC client and asphctl (python3 stdlib only)."""
 import grp
 import json
 import os
+import re
 import shutil
 import signal
 import socket
@@ -301,6 +302,35 @@ def browser_or_skip(root):
               f"{node_dir} (scripts/install-deps installs them)")
         sys.exit(77)
     return chromium, node_dir
+
+
+def documented_methods():
+    """{method: role it needs} from proto/README.md's "## Methods": viewer,
+    or operator or admin for those marked **Operator.** or **Admin.**."""
+    root = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(os.path.dirname(__file__), "..", ".."))
+    with open(os.path.join(root, "proto", "README.md")) as f:
+        text = f.read()
+    text = text[text.index("\n## Methods"):text.index("\n## Events")]
+    methods = {}
+    for m in re.finditer(r"^### `([a-z.]+)`\n\n(.*?)(?=^### |^## |\Z)", text, re.M | re.S):
+        body = m.group(2).lstrip()
+        methods[m.group(1)] = ("operator" if body.startswith("**Operator.**") else
+                               "admin" if body.startswith("**Admin.**") else "viewer")
+    return methods
+
+
+def method_params(method, job, spec):
+    """Valid parameters of method for job (spec: a job.submit's), so that
+    a refusal can only be the permission."""
+    return {"job.submit": spec, "job.get": {"id": job}, "job.cancel": {"id": job},
+            "job.pause": {"id": job}, "job.resume": {"id": job}, "job.requeue": {"id": job},
+            "job.result": {"id": job}, "job.file": {"id": job, "name": "result.json"},
+            "queue.move": {"id": job, "position": 0},
+            "instrument.status": {"name": "mock"}, "queue.stop": {},
+            "instrument.lock": {"name": "mock", "reason": "cleaning the probe"},
+            "instrument.unlock": {"name": "mock"},
+            "token.create": {"name": f"t{time.time_ns()}", "role": "viewer"},
+            "token.revoke": {"name": "none-such"}}.get(method, {})
 
 
 def free_port():

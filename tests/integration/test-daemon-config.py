@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""asphd --check-config names every error with its place; SIGHUP reloads
+"""asphd --check-config names every error with its place (the mqtt and
+postgres sections and the files they name included); SIGHUP reloads
 the limits; the TCP listener needs a token file and a hello with the token;
 a state directory writable by everyone is refused."""
 import json
@@ -40,6 +41,66 @@ try:
         f.write('{"instruments": [ {"name": "m", "stage": {"driver": "nosuch"}}]}')
     rc, _, err = check(bad)
     expect(rc == 3 and "nosuch" in err, "an unknown driver is named")
+
+    # The mqtt and postgres sections: each error named with its place
+    cred = os.path.join(d.top, "mqtt-credentials.json")
+    with open(cred, "w") as f:
+        f.write('{"password": "x", "colour": 1}\n')
+    os.chmod(cred, 0o644)
+    with open(bad, "w") as f:
+        f.write('{\n  "mqtt": {\n    "url": "http://broker:1883",\n    "prefix": "lab/#",\n'
+                '    "qos": 3,\n    "retain": true,\n'
+                f'    "credentials_file": "{cred}",\n'
+                '    "ca_file": "/nonexistent/ca.pem"\n  },\n'
+                '  "postgres": {\n    "conninfo": "host=db password=secret",\n'
+                '    "password_file": "/nonexistent/pw"\n  }\n}\n')
+    rc, _, err = check(bad)
+    lines = err.strip().splitlines()
+    for line_no, field, what in ((3, "mqtt.url", "mqtt:// or mqtts://"),
+                                 (4, "mqtt.prefix", "'#'"),
+                                 (5, "mqtt.qos", "qos"),
+                                 (6, "mqtt.retain", "unknown setting"),
+                                 (11, "postgres.conninfo", "password")):
+        expect(rc == 3 and any(f"{bad}:{line_no}:" in x and field in x and what in x.lower() + x
+                               for x in lines),
+               f"{field}: named at line {line_no} ({[x for x in lines if field in x][:1]})")
+    # the files the sections name, once the sections themselves are right
+    with open(bad, "w") as f:
+        json.dump({"mqtt": {"url": "mqtts://broker.example", "credentials_file": cred,
+                            "ca_file": "/nonexistent/ca.pem"},
+                   "postgres": {"conninfo": "host=db", "password_file": "/nonexistent/pw"}},
+                  f, indent=2)
+    rc, _, err = check(bad)
+    expect(rc == 3 and "mqtt.credentials_file" in err and "readable by its owner only" in err,
+           f"a credentials file others can read is refused ({err.strip()})")
+    expect("mqtt.ca_file" in err and "/nonexistent/ca.pem" in err and
+           "postgres.password_file" in err and "/nonexistent/pw" in err,
+           "a missing CA file and password file are named")
+    os.chmod(cred, 0o600)
+    with open(bad, "w") as f:
+        json.dump({"mqtt": {"url": "mqtt://[::1]:1883", "credentials_file": cred}}, f, indent=2)
+    rc, _, err = check(bad)
+    expect(rc == 3 and "unknown member \"colour\"" in err and "a password needs a username" in err,
+           f"the credentials file's members are checked ({err.strip()})")
+    with open(bad, "w") as f:
+        json.dump({"mqtt": {"url": "mqtt://[::1:1883"}}, f, indent=2)
+    rc, _, err = check(bad)
+    expect(rc == 3 and "closing ']'" in err, "an IPv6 address without its ']' is refused")
+    with open(bad, "w") as f:
+        json.dump({"mqtt": {"prefix": "a/b"}, "postgres": {}}, f)
+    rc, _, err = check(bad)
+    expect(rc == 3 and "needs \"url\"" in err and "needs \"conninfo\"" in err,
+           "mqtt without url and postgres without conninfo are refused")
+    with open(bad, "w") as f:
+        json.dump({"mqtt": {"url": "mqtts://broker.example:8883", "prefix": "lab/bench-7",
+                            "client_id": "bench-7", "qos": 2},
+                   "postgres": {"conninfo": "host=db.example dbname=asph user=asphd"}}, f)
+    rc, out, err = check(bad)
+    expect(rc == 0, f"a valid mqtt and postgres section pass ({err.strip()})")
+    p = subprocess.run([ASPHD, "--db-migrate", "--config", d.config], capture_output=True,
+                       text=True)
+    expect(p.returncode == 3 and "no \"postgres\" section" in p.stderr,
+           f"--db-migrate without a postgres section: exit 3 ({p.stderr.strip()})")
 
     # A JOURNAL_STREAM that is not DEVICE:INODE (decimal) is said; the log
     # stays text on stderr. The configuration error stops asphd right after.

@@ -18,43 +18,17 @@ import stat
 import subprocess
 import time
 
-from daemontest import Client, Daemon, RpcError, Unprivileged, expect, finish, poll_state
+from daemontest import (Client, Daemon, RpcError, Unprivileged, documented_methods, expect, finish,
+                        method_params, poll_state)
 
 U = Unprivileged("to run clients under other uids and to own files as others")
 NOBODY, NOGROUP, OPERATORS = U.uid, U.gid, U.operators
-ROOT = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(os.path.dirname(__file__), "..", ".."))
 SPEC = {"lens": "strong", "plan": {"method": "fermat", "points": 300}}
 
 
 def as_user(path, calls, groups):
     """Each call's error code, or "ok"."""
     return [a["error"] if "error" in a else "ok" for a in U.calls(path, calls, groups)]
-
-
-def documented_methods():
-    """{method: role it needs} from proto/README.md's "## Methods": viewer,
-    or operator or admin for those marked **Operator.** or **Admin.**."""
-    with open(os.path.join(ROOT, "proto", "README.md")) as f:
-        text = f.read()
-    text = text[text.index("\n## Methods"):text.index("\n## Events")]
-    methods = {}
-    for m in re.finditer(r"^### `([a-z.]+)`\n\n(.*?)(?=^### |^## |\Z)", text, re.M | re.S):
-        body = m.group(2).lstrip()
-        methods[m.group(1)] = ("operator" if body.startswith("**Operator.**") else
-                               "admin" if body.startswith("**Admin.**") else "viewer")
-    return methods
-
-
-def params_for(method, job):
-    """Valid parameters, so that a refusal can only be the permission."""
-    return {"job.submit": SPEC, "job.get": {"id": job}, "job.cancel": {"id": job},
-            "job.pause": {"id": job}, "job.resume": {"id": job}, "job.requeue": {"id": job},
-            "job.result": {"id": job}, "queue.move": {"id": job, "position": 0},
-            "instrument.status": {"name": "mock"}, "queue.stop": {},
-            "instrument.lock": {"name": "mock", "reason": "cleaning the probe"},
-            "instrument.unlock": {"name": "mock"},
-            "token.create": {"name": f"t{time.time_ns()}", "role": "viewer"},
-            "token.revoke": {"name": "none-such"}}.get(method, {})
 
 
 def inet_sockets(pid):
@@ -124,7 +98,7 @@ try:
     root = Client(d.socket)
     root.call("queue.stop")
     job = root.call("job.submit", SPEC)["id"]
-    calls = [[m, params_for(m, job)] for m in sorted(methods)]
+    calls = [[m, method_params(m, job, SPEC)] for m in sorted(methods)]
     reader = as_user(d.socket, calls, [])
     refused = {m for (m, _), r in zip(calls, reader) if r == 100}
     expect(refused == needs["operator"] | needs["admin"],
@@ -138,7 +112,7 @@ try:
         if root.call("instrument.status", {"name": "mock"})["lock"] else None
     for m in sorted(needs["operator"] | needs["admin"]):
         try:
-            root.call(m, params_for(m, job))
+            root.call(m, method_params(m, job, SPEC))
             rr = "ok"
         except RpcError as e:
             rr = e.code

@@ -89,6 +89,10 @@ int cmd_result(struct ctl *ctl, int argc, char **argv);
 int cmd_queue(struct ctl *ctl, int argc, char **argv);
 int cmd_instruments(struct ctl *ctl, int argc, char **argv);
 int cmd_drivers(struct ctl *ctl, int argc, char **argv);
+int cmd_lock(struct ctl *ctl, int argc, char **argv);
+int cmd_unlock(struct ctl *ctl, int argc, char **argv);
+int cmd_token(struct ctl *ctl, int argc, char **argv);
+int cmd_fleet(struct ctl *ctl, int argc, char **argv);
 
 /* Watches job until it ends (used by watch and submit --wait). */
 int ctl_watch_job(struct ctl *ctl, int64_t id, bool quiet);

@@ -75,6 +75,9 @@ static void print_job(const json_t *job)
 	printf("  finished    %s\n", str(job, "finished"));
 	if (json_is_string(json_object_get(job, "label")))
 		printf("  label       %s\n", str(job, "label"));
+	for (const char *const *k = (const char *const[]){ "part", "lot", "serial", NULL }; *k; k++)
+		if (json_is_string(json_object_get(job, *k)))
+			printf("  %-11s %s\n", *k, str(job, *k));
 	if (json_is_string(json_object_get(job, "reason")))
 		printf("  reason      %s\n", str(job, "reason"));
 	if (json_is_string(json_object_get(job, "verdict")))
@@ -147,7 +150,7 @@ static const char submit_usage[] =
 	"submit LENS --method M (--h H | --spacing MM | --points N)\n"
 	"       [--instrument NAME] [--priority P] [--label TEXT] [--dof LIST]\n"
 	"       [--residual normal|sag] [--robust] [--zernike N] [--tolerance T]\n"
-	"       [--wait] [--json]";
+	"       [--part P] [--lot L] [--serial S] [--wait] [--json]";
 
 /* "job 12 queued (700 points, about 1 min 15 s to measure)". */
 static void print_queued(const json_t *job, json_int_t id)
@@ -185,6 +188,9 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 		{ "residual", required_argument, NULL, 'r' },
 		{ "robust", no_argument, NULL, 'R' },
 		{ "zernike", required_argument, NULL, 'z' },
+		{ "part", required_argument, NULL, 'A' },
+		{ "lot", required_argument, NULL, 'L' },
+		{ "serial", required_argument, NULL, 'N' },
 		{ "tolerance", required_argument, NULL, 't' },
 		{ "wait", no_argument, NULL, 'w' },
 		JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 },
@@ -210,6 +216,9 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 		case 'r': json_object_set_new(fit, "residual", json_string(optarg)); break;
 		case 'R': json_object_set_new(fit, "robust", json_true()); break;
 		case 'z': ok = set_integer(fit, "zernike", optarg); break;
+		case 'A': json_object_set_new(params, "part", json_string(optarg)); break;
+		case 'L': json_object_set_new(params, "lot", json_string(optarg)); break;
+		case 'N': json_object_set_new(params, "serial", json_string(optarg)); break;
 		case 't': {
 			json_t *t = tolerance_param(optarg);
 			ok = t != NULL;
@@ -363,7 +372,8 @@ int cmd_status(struct ctl *ctl, int argc, char **argv)
 		size_t i;
 		json_t *h;
 		json_array_foreach(json_object_get(result, "history"), i, h)
-			printf("  %s  %-11s %s\n", str(h, "time"), str(h, "state"),
+			printf("  %s  %-11s %-16s %s\n", str(h, "time"), str(h, "state"),
+			       json_is_string(json_object_get(h, "actor")) ? str(h, "actor") : "-",
 			       json_is_string(json_object_get(h, "reason")) ? str(h, "reason") : "");
 		return CTL_EXIT_OK;
 	}
@@ -393,9 +403,13 @@ int cmd_status(struct ctl *ctl, int argc, char **argv)
 	       (long long)json_integer_value(json_object_get(jobs, "failed")),
 	       (long long)json_integer_value(json_object_get(jobs, "cancelled")));
 	json_array_foreach(json_object_get(result, "instruments"), i, in) {
+		json_t *lock = json_object_get(in, "lock");
 		printf("instrument %s: %s", str(in, "name"), str(in, "state"));
 		if (json_is_integer(json_object_get(in, "job")))
 			printf(" (job %lld)", (long long)json_integer_value(json_object_get(in, "job")));
+		if (json_is_object(lock))
+			printf(", locked by %s since %s: %s", str(lock, "holder"), str(lock, "since"),
+			       str(lock, "reason"));
 		printf("\n");
 	}
 	return CTL_EXIT_OK;
@@ -498,13 +512,17 @@ int cmd_list(struct ctl *ctl, int argc, char **argv)
 		{ "instrument", required_argument, NULL, 'i' },
 		{ "label", required_argument, NULL, 'l' },
 		{ "mine", no_argument, NULL, 'm' },
+		{ "part", required_argument, NULL, 'A' },
+		{ "lot", required_argument, NULL, 'L' },
+		{ "serial", required_argument, NULL, 'N' },
 		{ "limit", required_argument, NULL, 'n' },
 		{ "offset", required_argument, NULL, 'o' },
 		{ "csv", no_argument, NULL, 'c' },
 		JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 },
 	};
 	static const char usage[] = "list [--state S[,S...]] [--instrument NAME] [--label TEXT]\n"
-				    "       [--mine] [--limit N] [--offset N] [--json | --csv]";
+				    "       [--part P] [--lot L] [--serial S] [--mine] [--limit N]\n"
+				    "       [--offset N] [--json | --csv]";
 	_cleanup_(json_decrefp) json_t *params = json_object();
 	_cleanup_(json_decrefp) json_t *result = NULL;
 	bool csv = false;
@@ -524,6 +542,9 @@ int cmd_list(struct ctl *ctl, int argc, char **argv)
 		case 'i': json_object_set_new(params, "instrument", json_string(optarg)); break;
 		case 'l': json_object_set_new(params, "label", json_string(optarg)); break;
 		case 'm': json_object_set_new(params, "mine", json_true()); break;
+		case 'A': json_object_set_new(params, "part", json_string(optarg)); break;
+		case 'L': json_object_set_new(params, "lot", json_string(optarg)); break;
+		case 'N': json_object_set_new(params, "serial", json_string(optarg)); break;
 		case 'n':
 		case 'o': {
 			long long v;

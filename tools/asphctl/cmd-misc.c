@@ -132,6 +132,14 @@ int cmd_instruments(struct ctl *ctl, int argc, char **argv)
 			printf(", job %lld", (long long)json_integer_value(json_object_get(in, "job")));
 		if (json_is_string(json_object_get(in, "fault")))
 			printf(", last fault: %s", json_string_value(json_object_get(in, "fault")));
+		if (json_is_object(json_object_get(in, "lock"))) {
+			json_t *lock = json_object_get(in, "lock");
+			printf(", locked by %s since %s%s: %s",
+			       json_string_value(json_object_get(lock, "holder")),
+			       json_string_value(json_object_get(lock, "since")),
+			       json_is_true(json_object_get(lock, "pause")) ? " (pausing)" : "",
+			       json_string_value(json_object_get(lock, "reason")));
+		}
 		printf("\n");
 		for (const char *const *role = (const char *const[]){ "stage", "probe", NULL };
 		     *role; role++) {

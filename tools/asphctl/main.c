@@ -27,6 +27,10 @@ static const struct {
 	{ "queue", "show the queue; move a job; start or stop the queue", cmd_queue },
 	{ "instruments", "the instruments and their state", cmd_instruments },
 	{ "drivers", "the drivers the daemon has", cmd_drivers },
+	{ "lock", "lock an instrument for work at the machine", cmd_lock },
+	{ "unlock", "end an instrument's lock", cmd_unlock },
+	{ "token", "create, list or revoke API tokens (root)", cmd_token },
+	{ "fleet", "the newest results across daemons, from the central database", cmd_fleet },
 };
 
 int ctl_fail(const struct ctl_error *e)
