@@ -747,10 +747,20 @@ static int queue_length(const struct jobs *jobs)
 		     jobs->counts[JOB_PAUSED] + jobs->counts[JOB_INTERRUPTED]);
 }
 
-int jobs_check_submit(const struct jobs *jobs, const char *instrument, struct asph_error *err)
+int jobs_check_instrument(const struct jobs *jobs, const char *instrument,
+			  struct asph_error *err)
 {
 	if (instrument && !slot_of_instrument_name(jobs, instrument))
 		return asph_error_set(err, -ENODEV, "no instrument \"%s\"", instrument);
+	return 0;
+}
+
+int jobs_check_submit(const struct jobs *jobs, const char *instrument, struct asph_error *err)
+{
+	int r = jobs_check_instrument(jobs, instrument, err);
+
+	if (r < 0)
+		return r;
 	if (queue_length(jobs) >= (int)jobs->limits->max_queue)
 		return asph_error_set(err, -ENOBUFS, "the queue holds %u jobs, its limit",
 				      jobs->limits->max_queue);

@@ -75,6 +75,11 @@ struct job_submission {
 	const char *part, *lot, *serial;        /* what is measured; each may be NULL */
 };
 
+/* Whether instrument (NULL: the first) names one of the daemon's
+ * instruments: 0 or -ENODEV. */
+int jobs_check_instrument(const struct jobs *jobs, const char *instrument,
+			  struct asph_error *err);
+
 /* Whether a job for instrument (NULL: the first) would be taken now: the
  * instrument exists and the queue has room. jobs_submit() checks it
  * again. */

@@ -379,10 +379,46 @@ static json_t *submit_estimate(struct call *c, const struct job_submission *sub)
 	return json_real(t);
 }
 
-static int m_job_submit(struct call *c, json_t *params, json_t **result)
+/* The parameters job.submit and job.estimate share, read into sub; the
+ * job specification (owned by the caller through spec) and its point count.
+ * check is the refusal to give before the plan is computed. */
+static int submission_from_params(struct call *c, json_t *params,
+				  int (*check)(const struct jobs *, const char *,
+					       struct asph_error *),
+				  struct job_submission *sub, json_t **spec, uint64_t *points)
 {
 	static const char *const names[] = { "lens", "plan", "fit", "tolerance", "instrument",
 					     "priority", "label", "part", "lot", "serial", NULL };
+	const struct settings_limits *lim = c->rpc->limits;
+	struct asph_error err;
+	int code = only(c, params, names), r;
+
+	if (code)
+		return code;
+	if (!params || !json_object_get(params, "lens"))
+		return fail(c, PROTO_INVALID_PARAMS, "missing parameter \"lens\"");
+	if (proto_param_string(params, "instrument", false, 63, &sub->instrument,
+			       &c->why) == -EINVAL ||
+	    proto_param_string(params, "label", false, lim->max_label_bytes, &sub->label,
+			       &c->why) == -EINVAL ||
+	    proto_param_int(params, "priority", false, -1000, 1000, &sub->priority,
+			    &c->why) == -EINVAL ||
+	    proto_param_string(params, "part", false, lim->max_label_bytes, &sub->part,
+			       &c->why) == -EINVAL ||
+	    proto_param_string(params, "lot", false, lim->max_label_bytes, &sub->lot,
+			       &c->why) == -EINVAL ||
+	    proto_param_string(params, "serial", false, lim->max_label_bytes, &sub->serial,
+			       &c->why) == -EINVAL)
+		return PROTO_INVALID_PARAMS;
+	asph_error_clear(&err);
+	r = check(c->rpc->jobs, sub->instrument, &err);
+	if (r < 0)
+		return job_error(c, r, &err);
+	return jobspec_from_params(params, lim->max_plan_points, spec, points, &c->why);
+}
+
+static int m_job_submit(struct call *c, json_t *params, json_t **result)
+{
 	struct job_submission sub = { 0 };
 	struct job_actor who = actor(c);
 	_cleanup_(json_decrefp) json_t *spec = NULL;
@@ -390,32 +426,11 @@ static int m_job_submit(struct call *c, json_t *params, json_t **result)
 	struct asph_error err;
 	struct job_record j;
 	uint64_t points = 0;
-	int code = only(c, params, names), r;
+	int code, r;
 
-	if (code)
-		return code;
-	if (!params || !json_object_get(params, "lens"))
-		return fail(c, PROTO_INVALID_PARAMS, "missing parameter \"lens\"");
-	if (proto_param_string(params, "instrument", false, 63, &sub.instrument,
-			       &c->why) == -EINVAL ||
-	    proto_param_string(params, "label", false, c->rpc->limits->max_label_bytes, &sub.label,
-			       &c->why) == -EINVAL ||
-	    proto_param_int(params, "priority", false, -1000, 1000, &sub.priority,
-			    &c->why) == -EINVAL ||
-	    proto_param_string(params, "part", false, c->rpc->limits->max_label_bytes, &sub.part,
-			       &c->why) == -EINVAL ||
-	    proto_param_string(params, "lot", false, c->rpc->limits->max_label_bytes, &sub.lot,
-			       &c->why) == -EINVAL ||
-	    proto_param_string(params, "serial", false, c->rpc->limits->max_label_bytes,
-			       &sub.serial, &c->why) == -EINVAL)
-		return PROTO_INVALID_PARAMS;
-	/* The cheap refusals before the plan is computed. */
-	asph_error_clear(&err);
-	r = jobs_check_submit(c->rpc->jobs, sub.instrument, &err);
-	if (r < 0)
-		return job_error(c, r, &err);
-	code = jobspec_from_params(params, c->rpc->limits->max_plan_points, &spec, &points,
-				   &c->why);
+	/* The cheap refusals (unknown instrument, full queue) come before the
+	 * plan is computed. */
+	code = submission_from_params(c, params, jobs_check_submit, &sub, &spec, &points);
 	if (code)
 		return code;
 	text = json_dumps(spec, JSON_COMPACT);
@@ -423,6 +438,7 @@ static int m_job_submit(struct call *c, json_t *params, json_t **result)
 		return PROTO_INTERNAL_ERROR;
 	sub.spec = text;
 	sub.points = (int64_t)points;
+	asph_error_clear(&err);
 	r = jobs_submit(c->rpc->jobs, &sub, &who, &j, &err);
 	if (r < 0)
 		return job_error(c, r, &err);
@@ -430,6 +446,28 @@ static int m_job_submit(struct call *c, json_t *params, json_t **result)
 	if (code == 0)
 		json_object_set_new(*result, "estimate_s", submit_estimate(c, &sub));
 	return code;
+}
+
+/* What job.submit would predict for the same parameters, queuing nothing:
+ * a full queue or a locked instrument does not stop a look ahead. */
+static int m_job_estimate(struct call *c, json_t *params, json_t **result)
+{
+	struct job_submission sub = { 0 };
+	_cleanup_(json_decrefp) json_t *spec = NULL;
+	_cleanup_free_ char *text = NULL;
+	uint64_t points = 0;
+	int code;
+
+	code = submission_from_params(c, params, jobs_check_instrument, &sub, &spec, &points);
+	if (code)
+		return code;
+	text = json_dumps(spec, JSON_COMPACT);
+	if (!text)
+		return PROTO_INTERNAL_ERROR;
+	sub.spec = text;
+	*result = json_pack("{s:o, s:I}", "estimate_s", submit_estimate(c, &sub),
+			    "points", (json_int_t)points);
+	return *result ? 0 : PROTO_INTERNAL_ERROR;
 }
 
 static int history_entry(const struct store_event *e, void *data)
@@ -959,6 +997,7 @@ static const struct method {
 	{ "version", m_version, ROLE_VIEWER },
 	{ "daemon.status", m_daemon_status, ROLE_VIEWER },
 	{ "job.submit", m_job_submit, ROLE_OPERATOR },
+	{ "job.estimate", m_job_estimate, ROLE_VIEWER },
 	{ "job.get", m_job_get, ROLE_VIEWER },
 	{ "job.list", m_job_list, ROLE_VIEWER },
 	{ "job.cancel", m_job_cancel, ROLE_OPERATOR },

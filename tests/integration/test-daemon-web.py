@@ -161,6 +161,31 @@ try:
     status, ans = op.rpc("token.list")
     expect(ans["error"]["code"] == 100, "an operator's token.list: refused")
 
+    # --- job.estimate: what job.submit predicts, for a viewer, queuing nothing
+    spec = {"lens": "weak", "plan": {"method": "fermat", "points": 400},
+            "part": "P-1", "lot": "L-2", "serial": "S-3"}
+    jobs_before = admin.call("job.list")["total"]
+    status, ans = viewer.rpc("job.estimate", spec)
+    estimate = ans.get("result", {})
+    expect(status == 200 and estimate.get("points") == 400 and
+           isinstance(estimate.get("estimate_s"), float) and estimate["estimate_s"] > 0,
+           f"a viewer's job.estimate: the plan's points and a time {ans}")
+    plan = {"method": "fermat", "points": 50}
+    for bad in ({"plan": plan}, {"lens": "weak"}, {"lens": "no-such-lens", "plan": plan},
+                {"lens": "weak", "plan": {"method": "fermat", "points": 0}},
+                {"lens": "weak", "plan": {"method": "nope", "points": 50}},
+                {"lens": "weak", "plan": plan, "fit": {"zernike": 99}},
+                {"lens": "weak", "plan": plan, "tolerance": {"sag_pv_um": -1}},
+                {"lens": "weak", "plan": plan, "instrument": "nowhere"},
+                {"lens": "weak", "plan": plan, "priority": 5000},
+                {"lens": "weak", "plan": plan, "colour": "red"}):
+        e_est = viewer.rpc("job.estimate", bad)[1].get("error")
+        e_sub = op.rpc("job.submit", bad)[1].get("error")
+        expect(e_est is not None and e_est == e_sub,
+               f"job.estimate refuses {json.dumps(bad)} as job.submit does ({e_est})")
+    expect(admin.call("job.list")["total"] == jobs_before and not admin.call("queue.get")["jobs"],
+           "job.estimate queued nothing")
+
     # --- events over SSE, a job, its points and its files
     expect("result" in op.rpc("events.subscribe", {"events": ["job", "progress"]})[1], "subscribe")
     stream = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
@@ -168,9 +193,10 @@ try:
     sr = stream.getresponse()
     expect(sr.status == 200 and sr.getheader("Content-Type") == "text/event-stream", "the stream opens")
     expect(sr.readline() == b": asphd\n", "the stream's first comment")
-    status, ans = op.rpc("job.submit", {"lens": "weak", "plan": {"method": "fermat", "points": 400},
-                                        "part": "P-1", "lot": "L-2", "serial": "S-3"})
+    status, ans = op.rpc("job.submit", spec)
     job = ans["result"]["id"]
+    expect(ans["result"]["estimate_s"] == estimate["estimate_s"],
+           f"job.submit's estimate_s is job.estimate's ({ans['result']['estimate_s']})")
     seen = []
     while True:
         line = sr.readline()

@@ -101,6 +101,9 @@ try:
     c.call("hello", {"client": "example"})
     c.call("version")
     c.call("events.subscribe", {"events": ["job", "progress", "instrument", "queue"]})
+    c.call("job.estimate", {"lens": "strong", "plan": {"method": "ci", "h": 0.05}, "label": "L-17",
+                            "fit": {"dof": "tx,ty,tz,rx,ry", "residual": "normal"},
+                            "part": "AS-2041", "lot": "L-17", "serial": "0042"})
     job = c.call("job.submit", {"lens": "strong", "plan": {"method": "ci", "h": 0.05}, "label": "L-17",
                                 "fit": {"dof": "tx,ty,tz,rx,ry", "residual": "normal"},
                                 "part": "AS-2041", "lot": "L-17", "serial": "0042"})["id"]
