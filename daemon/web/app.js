@@ -77,6 +77,7 @@ async function start() {
   // the browser reconnects; the state is read afresh.
   events.onopen = () => scheduleRefresh();
   await refresh();
+  if (role !== "viewer") scheduleEstimate();
 }
 
 $("login-form").addEventListener("submit", async (e) => {
@@ -216,17 +217,17 @@ $("queue-stop").addEventListener("click", () => act("queue.stop", {}));
 
 // ------------------------------------------------------------- submit
 
-$("submit-form").addEventListener("submit", async (e) => {
-  e.preventDefault();
-  const f = new FormData(e.target);
+// The form as job.submit's parameters; throws an Error saying which field
+// does not read.
+async function submitParams(form) {
+  const f = new FormData(form);
   const params = { lens: f.get("lens"), plan: { method: f.get("method"), [f.get("density")]: Number(f.get("value")) } };
   const file = f.get("prescription");
   if (file && file.size) {
     try {
       params.lens = JSON.parse(await file.text());
     } catch (err) {
-      $("submit-error").textContent = `${file.name}: not JSON: ${err.message}`;
-      return;
+      throw new Error(`${file.name}: not JSON: ${err.message}`);
     }
   }
   params.fit = { dof: f.get("dof"), residual: f.get("residual"), robust: f.get("robust") === "on" };
@@ -237,16 +238,59 @@ $("submit-form").addEventListener("submit", async (e) => {
     try {
       params.tolerance = tol.startsWith("{") ? JSON.parse(tol) : tol;
     } catch (err) {
-      $("submit-error").textContent = `tolerance: not JSON: ${err.message}`;
-      return;
+      throw new Error(`tolerance: not JSON: ${err.message}`);
     }
   }
   for (const k of ["label", "part", "lot", "serial", "instrument"]) if (f.get(k)) params[k] = f.get(k);
   if (f.get("priority")) params.priority = Number(f.get("priority"));
+  return params;
+}
+
+function duration(s) {
+  const t = Math.round(s);
+  if (t < 60) return `${t} s`;
+  if (t < 3600) return `${Math.floor(t / 60)} min ${t % 60} s`;
+  const m = Math.round(s / 60);
+  return `${Math.floor(m / 60)} h ${m % 60} min`;
+}
+
+// The measuring time before submitting (job.estimate queues nothing): asked
+// again 400 ms after the form last changed, and an answer that a later
+// change has overtaken is dropped.
+let estimateTimer = 0;
+let estimateSeq = 0;
+async function showEstimate() {
+  const seq = ++estimateSeq;
+  const out = $("submit-estimate");
+  let text;
+  try {
+    const e = await rpc("job.estimate", await submitParams($("submit-form")));
+    text = e.estimate_s === null
+      ? `${e.points} points; the instrument gives no time estimate without its device`
+      : `Estimated measuring time: ${duration(e.estimate_s)} for ${e.points} points`;
+    out.dataset.estimate = e.estimate_s ?? "";
+    out.classList.remove("error");
+  } catch (err) {
+    text = `No estimate: ${err.message}`;
+    out.dataset.estimate = "";
+    out.classList.add("error");
+  }
+  if (seq === estimateSeq) out.textContent = text;
+}
+
+function scheduleEstimate() {
+  clearTimeout(estimateTimer);
+  estimateTimer = setTimeout(() => showEstimate().catch(() => {}), 400);
+}
+
+$("submit-form").addEventListener("input", scheduleEstimate);
+$("submit-form").addEventListener("change", scheduleEstimate);
+
+$("submit-form").addEventListener("submit", async (e) => {
+  e.preventDefault();
   $("submit-error").textContent = "";
   try {
-    const job = await rpc("job.submit", params);
-    $("submit-error").textContent = "";
+    const job = await rpc("job.submit", await submitParams(e.target));
     e.target.dataset.lastJob = job.id;
   } catch (err) {
     $("submit-error").textContent = err.message;

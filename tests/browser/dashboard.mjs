@@ -66,11 +66,27 @@ try {
   // Submit: a Fermat spiral of 2000 points, measured for a few seconds.
   await page.select("#submit-form select[name=method]", "fermat");
   await page.select("#submit-form select[name=density]", "points");
-  await page.$eval("#submit-form input[name=value]", (e) => (e.value = "2000"));
+  // The estimate follows the form before anything is submitted.
+  const estimateFor = async (value) => {
+    await page.$eval("#submit-form input[name=value]", (e, v) => {
+      e.value = v;
+      e.dispatchEvent(new Event("input", { bubbles: true }));
+    }, value);
+    await page.waitForFunction((v) => document.querySelector("#submit-estimate").textContent.endsWith(`for ${v} points`),
+      { timeout: 30000 }, value);
+    return page.$eval("#submit-estimate", (e) => [e.textContent, Number(e.dataset.estimate)]);
+  };
+  const [text500, t500] = await estimateFor("500");
+  const [text2000, t2000] = await estimateFor("2000");
+  ok(/^Estimated measuring time: \S+/.test(text2000) && t2000 > t500 && t500 > 0,
+    `the estimate follows the form (${text500}; ${text2000})`);
   await page.type("#submit-form input[name=part]", "AS-7");
   await page.type("#submit-form input[name=lot]", "L-9");
   await page.type("#submit-form input[name=serial]", "0001");
   await page.type("#submit-form input[name=tolerance]", "3/2(0.5/0.3)");
+  await page.waitForFunction(() => document.querySelector("#submit-estimate").textContent.startsWith("Estimated"));
+  findings.estimate_s = Number(await page.$eval("#submit-estimate", (e) => e.dataset.estimate));
+  await shot(page, "1b-estimate");
   await page.click("#submit-form button[type=submit]");
   await page.waitForFunction(() => document.querySelector("#submit-form").dataset.lastJob);
   const job = Number(await page.$eval("#submit-form", (e) => e.dataset.lastJob));

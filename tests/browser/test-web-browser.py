@@ -50,6 +50,9 @@ try:
             expect(findings["csv"] == f.read(), "the CSV downloaded in the browser is asphctl result's")
         shutil.rmtree(out)
         jobrec = admin.call("job.get", {"id": job})
+        want = admin.call("job.estimate", {"lens": "strong", "plan": {"method": "fermat", "points": 2000}})
+        expect(findings["estimate_s"] == want["estimate_s"],
+               f"the page showed job.estimate's time ({findings['estimate_s']} s) before submitting")
         expect((jobrec["part"], jobrec["lot"], jobrec["serial"]) == ("AS-7", "L-9", "0001"),
                "the job carries the part, lot and serial typed in the page")
     shots = sorted(os.listdir(SHOTS))
