@@ -13,6 +13,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <inttypes.h>
+#include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -25,7 +26,9 @@
 #include <microhttpd.h>
 
 #include "asph-proto.h"
+#include "asph/prescription.h"
 #include "asph/scanfile.h"
+#include "asph/surface.h"
 #include "log.h"
 #include "runner.h"
 #include "server.h"
@@ -84,6 +87,10 @@ struct web {
 	unsigned port;
 	struct session *sessions;
 	size_t n_sessions;
+	/* The surface of the job whose points were asked for last: the live
+	 * map asks twice a second, and a surface's tables take time to build. */
+	int64_t surface_job;
+	struct asph_surface *surface;
 };
 
 /* ------------------------------------------------------- the event loop */
@@ -642,14 +649,62 @@ static enum MHD_Result route_file(struct web *w, struct MHD_Connection *c, int64
 	return send_fd(c, fd, type ? type : "application/octet-stream", download);
 }
 
-/* The points measured so far from the from-th on (the live map): x, y in
- * mm and the probe's reading, as the scan file holds them. */
+/* The nominal surface of job id, from its scan's header (the prescription
+ * the job measures), or NULL when it does not build. Job ids are never
+ * reused, so the one kept stays the job's. */
+static const struct asph_surface *job_surface(struct web *w, int64_t id,
+					      const struct asph_scanfile_header *h)
+{
+	struct asph_prescription pr;
+	struct asph_surface *s = NULL;
+	struct asph_error err;
+
+	if (w->surface_job == id)
+		return w->surface;         /* (NULL: said once already) */
+	asph_surface_free(w->surface);
+	w->surface = NULL;
+	w->surface_job = id;
+	asph_error_clear(&err);
+	if (!h->prescription ||
+	    asph_prescription_parse(h->prescription, strlen(h->prescription), "the scan's header",
+				    &pr, &err) < 0 ||
+	    asph_surface_alloc(&pr, &s, &err) < 0) {
+		log_job(LOG_WARNING, id, "the live map has no nominal surface: %s",
+			err.message[0] ? err.message : "the scan names no prescription");
+		return NULL;
+	}
+	w->surface = s;
+	return s;
+}
+
+static json_t *json_number_or_null(double v)
+{
+	return isfinite(v) ? json_real(v) : json_null();
+}
+
+/* One point of the live map: x, y (mm), the probe's reading, and the
+ * measured z minus the nominal sag at the measured (x, y), in mm: null for
+ * a point that is no measurement, or off the surface (past a conic's root). */
+static json_t *live_point(const struct asph_scanfile_point *p, const struct asph_surface *s)
+{
+	double dz = NAN;
+
+	if (s && !(p->flags & ASPH_SCANFILE_NOT_MEASURED))
+		dz = p->z - asph_surface_sag_xy(s, p->x, p->y);
+	return json_pack("[o,o,o,o]", json_number_or_null(p->x), json_number_or_null(p->y),
+			 json_number_or_null(p->raw), json_number_or_null(dz));
+}
+
+/* The points measured so far from the from-th on (the live map), at most
+ * POINTS_MAX an answer: the sag is evaluated for those sent only, so one
+ * request costs the loop at most POINTS_MAX evaluations. */
 static enum MHD_Result route_points(struct web *w, struct MHD_Connection *c, int64_t id)
 {
 	const char *arg = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "from");
 	_cleanup_(json_decrefp) json_t *pts = json_array();
 	struct asph_scanfile_reader *rd = NULL;
 	const struct asph_scanfile_point *p;
+	const struct asph_surface *surface;
 	struct asph_error err;
 	_cleanup_free_ char *path = NULL;
 	int64_t from = 0, index = 0;
@@ -666,11 +721,13 @@ static enum MHD_Result route_points(struct web *w, struct MHD_Connection *c, int
 		return send_error(c, MHD_HTTP_NOT_FOUND, "job %" PRId64 " has no scan (yet)", id);
 	if (r < 0)
 		return send_error(c, MHD_HTTP_CONFLICT, "%s", err.message);
+	surface = job_surface(w, id, asph_scanfile_reader_header(rd));
 	while (json_array_size(pts) < POINTS_MAX && asph_scanfile_reader_next(rd, &p, &n, &err) > 0)
 		for (size_t i = 0; i < n && json_array_size(pts) < POINTS_MAX; i++, index++)
-			if (index >= from)
-				json_array_append_new(pts, json_pack("[f,f,f]", p[i].x, p[i].y,
-								     p[i].raw));
+			if (index >= from && json_array_append_new(pts, live_point(&p[i], surface)) < 0) {
+				asph_scanfile_reader_free(rd);
+				return MHD_NO;
+			}
 	asph_scanfile_reader_free(rd);
 	return send_json(c, MHD_HTTP_OK, json_pack("{s:I, s:O}", "from", (json_int_t)from,
 						   "points", pts), NULL);
@@ -873,6 +930,7 @@ void web_free(struct web *w)
 		MHD_stop_daemon(w->mhd);
 	if (w->root_fd >= 0)
 		close(w->root_fd);
+	asph_surface_free(w->surface);
 	free(w->state_dir);
 	free(w);
 }

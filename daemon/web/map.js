@@ -1,8 +1,10 @@
 // SPDX-License-Identifier: GPL-3.0-or-later
 // The live map: the measured points on the aperture, seen from above,
-// coloured by the probe's reading relative to the mean of those measured,
-// with a colour bar whose ends and middle are labelled in numbers (the
-// map reads without colour alone).
+// coloured by the measured z minus the nominal sag at the measured (x, y),
+// as the daemon computes it for each point ([x, y, reading, dz]), with a
+// colour bar whose ends and middle are labelled in numbers (the map reads
+// without colour alone). A point without a deviation (no measurement, or
+// off the nominal surface) is drawn grey.
 
 // A diverging scale: blue (below) to white to red (above), t in [-1, 1].
 export function colourScale(t) {
@@ -20,23 +22,25 @@ export function drawMap(canvas, points, scale) {
     scale.textContent = "no points yet";
     return;
   }
-  let rmax = 0, mean = 0;
-  for (const [x, y, v] of points) {
+  let rmax = 0, dev = 0;
+  for (const [x, y, , dz] of points) {
+    if (x === null || y === null) continue;
     rmax = Math.max(rmax, Math.hypot(x, y));
-    mean += v;
+    if (dz !== null) dev = Math.max(dev, Math.abs(dz));
   }
-  mean /= points.length;
-  let dev = 0;
-  for (const p of points) dev = Math.max(dev, Math.abs(p[2] - mean));
+  // At least 1 nm at the ends of the bar: a part on its nominal would
+  // otherwise show its rounding noise at full colour.
+  dev = Math.max(dev, 1e-6);
   const k = (Math.min(w, h) / 2 - 4) / (rmax || 1);
   const size = Math.max(2, Math.min(6, (Math.min(w, h) / Math.sqrt(points.length)) * 0.8));
-  for (const [x, y, v] of points) {
-    ctx.fillStyle = colourScale(dev > 0 ? (v - mean) / dev : 0);
+  for (const [x, y, , dz] of points) {
+    if (x === null || y === null) continue;
+    ctx.fillStyle = dz === null ? "#8a8f94" : colourScale(dz / dev);
     ctx.fillRect(w / 2 + x * k - size / 2, h / 2 - y * k - size / 2, size, size);
   }
   const unit = (d) => (Math.abs(d) < 1e-3 ? `${(d * 1e6).toPrecision(3)} nm` : `${(d * 1e3).toPrecision(3)} µm`);
-  scale.replaceChildren();
-  for (const [t, label] of [[1, `+${unit(dev)}`], [0, `mean ${mean.toPrecision(6)}`], [-1, `−${unit(dev)}`]]) {
+  scale.replaceChildren("measured z − nominal sag");
+  for (const [t, label] of [[1, `+${unit(dev)}`], [0, "0 (nominal)"], [-1, `−${unit(dev)}`]]) {
     const row = document.createElement("div");
     const swatch = document.createElement("span");
     swatch.className = "swatch";
@@ -44,5 +48,7 @@ export function drawMap(canvas, points, scale) {
     row.append(swatch, " ", label);
     scale.append(row);
   }
-  scale.append(`${points.length} points, radius ${rmax.toFixed(2)} mm`);
+  const foot = document.createElement("div");
+  foot.textContent = `${points.length} points, radius ${rmax.toFixed(2)} mm`;
+  scale.append(foot);
 }

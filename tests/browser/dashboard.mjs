@@ -97,6 +97,9 @@ try {
   await page.waitForFunction(() => Number(document.querySelector("#live-map").dataset.points || 0) > 100, { timeout: 60000 });
   const pixels = await mapPixels(page);
   ok(pixels > 500, `the live map has ${pixels} non-background pixels`);
+  const legend = await page.$eval("#live-scale", (e) => e.textContent);
+  ok(legend.includes("nominal sag") && /[+−][0-9.]+ (nm|µm)/.test(legend),
+    `the map's colour bar: deviations from the nominal, in numbers (${legend})`);
   await shot(page, "2-live");
 
   // Pause and resume from the queue.

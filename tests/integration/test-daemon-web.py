@@ -6,11 +6,14 @@ over POST with the socket's role checks, the event stream, result file
 downloads and live points; cross-origin POSTs, malformed requests and
 oversized bodies get their status code and the daemon serves on."""
 import base64
+import csv
 import http.client
 import json
+import math
 import os
 import re
 import socket
+import subprocess
 import sys
 import time
 
@@ -19,6 +22,19 @@ from daemontest import Client, Daemon, expect, finish, mock_instrument, web_port
 
 ROOT = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(os.path.dirname(__file__), "..", ".."))
 WEB_ROOT = os.path.join(ROOT, "daemon", "web")
+ASPH = os.environ.get("ASPH_BIN", "asph")
+
+# The weak lens of Table 1 (docs/prescriptions.md): an even asphere.
+WEAK_R, WEAK_K = 40.6193, 0.0
+WEAK_A = {4: -6.79375e-7, 6: -4.85203e-10, 8: -2.05223e-13, 10: -6.2324e-17, 12: -4.4857e-20}
+
+
+def weak_sag(x, y):
+    """z = c r^2 / (1 + sqrt(1 - (1 + k) c^2 r^2)) + sum A_i r^i."""
+    r2 = x * x + y * y
+    c = 1 / WEAK_R
+    z = c * r2 / (1 + math.sqrt(1 - (1 + WEAK_K) * c * c * r2))
+    return z + sum(a * r2 ** (i // 2) for i, a in WEAK_A.items())
 
 
 class Web:
@@ -56,7 +72,9 @@ class Web:
         return r.status, json.loads(data) if data else None
 
 
-d = Daemon([mock_instrument(time_factor=0.02)],
+# The part sits 12 um off the axis, and the probe has 2 nm of noise: the
+# live map's deviations from the nominal are not zero.
+d = Daemon([mock_instrument(time_factor=0.02, noise=2, shift_x=0.012)],
            extra={"http_listen": "127.0.0.1:0", "http_root": WEB_ROOT})
 try:
     d.start()
@@ -213,7 +231,27 @@ try:
 
     r, body = op.request("GET", f"/api/jobs/{job}/points?from=0")
     pts = json.loads(body)["points"]
-    expect(r.status == 200 and len(pts) == 400 and all(len(p) == 3 for p in pts), "400 measured points")
+    expect(r.status == 200 and len(pts) == 400 and all(len(p) == 4 for p in pts), "400 measured points")
+    # Each point's dz is its measured z minus the nominal sag at its
+    # measured (x, y): against the closed form of the weak lens (Table 1 of
+    # the paper, docs/prescriptions.md) and the z the scan file holds.
+    scan_csv = os.path.join(d.top, "points.csv")
+    subprocess.run([ASPH, "export", os.path.join(d.state, "jobs", str(job), "scan.asphscan"),
+                    "--raw", "-o", scan_csv], check=True, capture_output=True)
+    with open(scan_csv) as f:
+        rows = [r for r in csv.reader(f) if r and not r[0].startswith("#")]
+    head = [h.strip() for h in rows[0]]
+    recorded = [dict(zip(head, map(float, r))) for r in rows[1:]]
+    worst = max((abs(p[3] - (q["z"] - weak_sag(q["x"], q["y"]))) for p, q in zip(pts, recorded)),
+                default=math.inf)
+    spread = max(p[3] for p in pts) - min(p[3] for p in pts)
+    expect(len(recorded) == 400 and all(abs(p[0] - q["x"]) < 1e-12 and abs(p[1] - q["y"]) < 1e-12
+                                        for p, q in zip(pts, recorded)),
+           "the points are the scan's, in its order")
+    # 1e-9 mm: far below the probe's noise, far above double rounding of a
+    # 5 mm sag.
+    expect(worst < 1e-9, f"dz is z minus the nominal sag (worst {worst:.2e} mm)")
+    expect(1e-4 < spread < 0.05, f"dz spreads over the part's misalignment ({spread * 1e3:.3f} um)")
     r, body = op.request("GET", f"/api/jobs/{job}/points?from=390")
     expect(len(json.loads(body)["points"]) == 10, "points from the 390th: 10")
     r, _ = op.request("GET", f"/api/jobs/{job}/points?from=-1")
