@@ -322,7 +322,7 @@ def documented_methods():
 def method_params(method, job, spec):
     """Valid parameters of method for job (spec: a job.submit's), so that
     a refusal can only be the permission."""
-    return {"job.submit": spec, "job.get": {"id": job}, "job.cancel": {"id": job},
+    return {"job.submit": spec, "job.estimate": spec, "job.get": {"id": job}, "job.cancel": {"id": job},
             "job.pause": {"id": job}, "job.resume": {"id": job}, "job.requeue": {"id": job},
             "job.result": {"id": job}, "job.file": {"id": job, "name": "result.json"},
             "queue.move": {"id": job, "position": 0},
