@@ -182,6 +182,39 @@ static void test_job_errors(void **state)
 	assert_int_equal(error_of(f, &f->root, text, "is cancelled"), PROTO_INVALID_STATE);
 }
 
+#define ESTIMATE "{\"jsonrpc\": \"2.0\", \"id\": 7, \"method\": \"job.estimate\", \"params\": " \
+	"{\"lens\": \"strong\", \"plan\": {\"method\": \"fermat\", \"points\": %d}%s}}"
+
+/* job.estimate: a reader's look ahead, queuing nothing, not stopped by a
+ * full queue, refused as job.submit is. */
+static void test_job_estimate(void **state)
+{
+	struct fixture *f = *state;
+	char text[256];
+	json_t *est, *list;
+
+	snprintf(text, sizeof(text), SUBMIT, "");
+	json_decref(result_of(f, &f->root, text));
+	json_decref(result_of(f, &f->root, text));
+	assert_int_equal(error_of(f, &f->root, text, "its limit"), PROTO_LIMIT_REACHED);
+	snprintf(text, sizeof(text), ESTIMATE, 200, "");
+	est = result_of(f, &f->reader, text);
+	assert_int_equal(json_integer_value(json_object_get(est, "points")), 200);
+	assert_true(json_is_number(json_object_get(est, "estimate_s")) ||
+		    json_is_null(json_object_get(est, "estimate_s")));
+	json_decref(est);
+	list = result_of(f, &f->root, "{\"jsonrpc\": \"2.0\", \"id\": 8, \"method\": "
+			 "\"queue.get\"}");
+	assert_int_equal(json_array_size(json_object_get(list, "jobs")), 2);
+	json_decref(list);
+	/* The plan's limit (4000 points) and an unknown instrument, as for a submit. */
+	snprintf(text, sizeof(text), ESTIMATE, 5000, "");
+	assert_int_equal(error_of(f, &f->reader, text, "4000"), PROTO_LIMIT_REACHED);
+	snprintf(text, sizeof(text), ESTIMATE, 200, ", \"instrument\": \"nosuch\"");
+	assert_int_equal(error_of(f, &f->reader, text, "no instrument \"nosuch\""),
+			 PROTO_NO_SUCH_INSTRUMENT);
+}
+
 static void test_sessions_and_requests(void **state)
 {
 	struct fixture *f = *state;
@@ -364,6 +397,7 @@ int main(void)
 {
 	const struct CMUnitTest tests[] = {
 		cmocka_unit_test_setup_teardown(test_job_errors, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_job_estimate, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_sessions_and_requests, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_subscriptions, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_batch_budget, setup, teardown),
