@@ -107,10 +107,12 @@ expect(rc != 0 and "out of range" in err and scaninfo(path("wrong.asph"))["outco
 
 # --- SIGKILL half-way: the reader recovers what was flushed -----------------
 def first_block_written(scan):
-    """Whether the scan file holds a block of points after its header
+    """Whether the scan file holds a whole block of points after its header
     (docs/scan-format.md: a 20-byte prefix with the header's length at
     offset 12, the header, then blocks that start with "ASPB", their type
-    (1: points) and their payload's length at offset 28)."""
+    (1: points) and their payload's length at offset 28, followed by the
+    payload and a 4-byte checksum). A block whose end is not yet on disk
+    does not count: the kill could land inside it and leave nothing."""
     try:
         with open(scan, "rb") as f:
             prefix = f.read(20)
@@ -121,9 +123,10 @@ def first_block_written(scan):
                 head = f.read(32)
                 if len(head) < 32 or head[:4] != b"ASPB":
                     return False
+                rest = struct.unpack_from("<I", head, 28)[0] + 4
                 if struct.unpack_from("<H", head, 4)[0] == 1:
-                    return True
-                f.seek(struct.unpack_from("<I", head, 28)[0] + 4, 1)
+                    return len(f.read(rest)) == rest
+                f.seek(rest, 1)
     except OSError:
         return False
 
