@@ -1,9 +1,9 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /* Worker thread: the Monte Carlo uncertainty of a job's characterization. */
 #include <errno.h>
-#include <unistd.h>
 
 #include "asph/instrument.h"
+#include "asph/mc-runner.h"
 #include "asph/uncertainty.h"
 #include "uncertainty.h"
 #include "util-mem.h"
@@ -26,11 +26,8 @@ int result_uncertainty(const struct result_source *job, const struct job_plan *j
 	_cleanup_(asph_mc_freep) struct asph_mc *mc = NULL;
 	_cleanup_free_ char *text = NULL;
 	struct asph_mc_result out;
-	long cpus = sysconf(_SC_NPROCESSORS_ONLN);
-	struct asph_mc_options o = {
-		.seed = 1, .n_threads = cpus > 0 ? (int)(cpus < 256 ? cpus : 256) : 1,
-		.progress = job_cancelled, .progress_data = (void *)job,
-	};
+	struct asph_mc_options o = { .seed = 1 };
+	struct asph_mc_threads th = { .progress = job_cancelled, .progress_data = (void *)job };
 	int r;
 
 	*add = NULL;
@@ -39,7 +36,7 @@ int result_uncertainty(const struct result_source *job, const struct job_plan *j
 	r = asph_mc_alloc(jp->surface, points->xyz, points->n, &jp->fit, res, &ic->uncertainty,
 			  &o, &mc, err);
 	if (r == 0)
-		r = asph_mc_run(mc, &out, err);
+		r = asph_mc_run_threads(mc, &th, &out, err);
 	if (r < 0)
 		return r;
 	asph_mc_apply(&out, jp->fit.tolerance, res);

@@ -120,14 +120,6 @@ const char *asph_mc_quantity_key(enum asph_mc_quantity q);
 #define ASPH_MC_DEFAULT_MAX_TRIALS 2000
 #define ASPH_MC_COVERAGE_FACTOR 2.0
 
-/*
- * Progress, called on the thread that runs asph_mc_run() (never on a
- * worker) after trials complete: done of planned (planned grows when the
- * adaptive stop asks for another block). A non-zero return cancels the run
- * before its next trial.
- */
-typedef int (*asph_mc_progress_fn)(void *data, size_t done, size_t planned);
-
 struct asph_mc_options {
 	size_t n_trials;        /* 0 = ASPH_MC_DEFAULT_TRIALS */
 	/* 1: exactly n_trials. 0: GUM S1 section 7.9's adaptive procedure
@@ -138,10 +130,8 @@ struct asph_mc_options {
 	size_t max_trials;      /* 0 = ASPH_MC_DEFAULT_MAX_TRIALS */
 	int significant_digits; /* n_dig of the numerical tolerance; 0 = 1 */
 	unsigned long seed;     /* trial t draws from a seed made of (seed, t):
-				   the result does not depend on n_threads */
-	int n_threads;          /* workers; 0 = 1 */
-	asph_mc_progress_fn progress;
-	void *progress_data;
+				   the result does not depend on which worker
+				   runs which trial, nor in what order */
 };
 
 struct asph_mc_result {
@@ -167,13 +157,12 @@ struct asph_mc_result {
 struct asph_mc;
 
 /*
- * The run's workspace: one fit workspace, point buffer and generator per
- * worker thread, allocated here once, and room for the values of up to
- * max_trials (n_trials when fixed) trials. xyz (3 n, machine frame, mm, in
- * scan order) is copied; fit_opts are those of the reference fit (its
- * tolerance is not used), ref its result. The surface must outlive the
- * workspace. -EINVAL: bad options or model, a reference fit without a
- * converged pose; -ENOMEM.
+ * The run's workspace: the best estimate of the points, the reference
+ * values and room for the values of up to max_trials (n_trials when fixed)
+ * trials. xyz (3 n, machine frame, mm, in scan order) is copied; fit_opts
+ * are those of the reference fit (its tolerance is not used), ref its
+ * result. The surface must outlive the workspace. -EINVAL: bad options or
+ * model, a reference fit without a converged pose; -ENOMEM.
  */
 int asph_mc_alloc(const struct asph_surface *s, const double *xyz, size_t n,
 		  const struct asph_fit_options *fit_opts,
@@ -184,17 +173,62 @@ int asph_mc_alloc(const struct asph_surface *s, const double *xyz, size_t n,
 void asph_mc_free(struct asph_mc *mc);
 
 /*
- * Runs the trials on opts->n_threads threads (the caller's thread only
- * waits and reports progress). A program using it turns GSL's abort
- * handler off, as for the fit. -ECANCELED when the progress callback
- * cancelled (out then holds the statistics of the trials done), -EDOM when
- * more than half of the trials failed, -EAGAIN when a thread could not be
- * started.
+ * A run is driven by its caller, who may share the trials among threads of
+ * its own (the library starts none):
+ *
+ *	done = 0;
+ *	while (asph_mc_next_block(mc, done, &first, &count)) {
+ *		run trials [first, first + count) with asph_mc_run_trials(),
+ *		on any workers in any order;
+ *		done = first + count;
+ *	}
+ *	asph_mc_finish(mc, done, cancelled, &result, &err);
+ *
+ * Trial t always draws the same numbers, so the result is the same bit for
+ * bit whoever runs it.
  */
-int asph_mc_run(struct asph_mc *mc, struct asph_mc_result *out,
-		struct asph_error *err);
 
-/* After a run: the values of trial t, quantity q at
+/* One worker's state: a fit workspace, a point buffer and a generator.
+ * Allocate one per thread, once, before the first trial. -ENOMEM. */
+struct asph_mc_worker;
+int asph_mc_worker_alloc(const struct asph_mc *mc, struct asph_mc_worker **out,
+			 struct asph_error *err);
+void asph_mc_worker_free(struct asph_mc_worker *w);
+
+/*
+ * Runs trials [first, first + count) on the worker w (of this mc) and
+ * stores their values in their own slots of mc. Re-entrant: different
+ * workers may run disjoint ranges at the same time; nothing else of mc may
+ * change meanwhile. A program using it turns GSL's abort handler off, as
+ * for the fit. -EINVAL when the range exceeds the workspace's capacity or
+ * w belongs to another run.
+ */
+int asph_mc_run_trials(struct asph_mc *mc, struct asph_mc_worker *w, size_t first,
+		       size_t count);
+
+/*
+ * The next trials to run, given that trials [0, done) have run: 1 with
+ * [*first, *first + *count) to run, 0 when the run is complete. done = 0
+ * starts (or restarts) the run with the first n_trials; after that the
+ * adaptive stop (not when fixed) tests the trials done and asks for
+ * another block until they are stable or max_trials is reached. When done
+ * falls short of what was asked, the rest is asked again.
+ */
+int asph_mc_next_block(struct asph_mc *mc, size_t done, size_t *first, size_t *count);
+
+/* The trials asked for so far (what a progress display counts towards). */
+size_t asph_mc_planned(const struct asph_mc *mc);
+
+/*
+ * The statistics of trials [0, done) into out. -ECANCELED when cancelled
+ * is set or done falls short of what was asked (out then holds the
+ * statistics of the trials done), -EDOM when more than half of the trials
+ * failed.
+ */
+int asph_mc_finish(struct asph_mc *mc, size_t done, int cancelled,
+		   struct asph_mc_result *out, struct asph_error *err);
+
+/* After asph_mc_finish(): the values of trial t, quantity q at
  * values[t * ASPH_MC_N_QUANTITIES + q] (NaN where not covered or the trial
  * failed), for the *n_trials trials run. */
 const double *asph_mc_values(const struct asph_mc *mc, size_t *n_trials);

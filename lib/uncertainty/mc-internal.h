@@ -1,5 +1,5 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
-/* The Monte Carlo's statistics, apart from its threads. Internal header. */
+/* The Monte Carlo's statistics, apart from its trials. Internal header. */
 #ifndef ASPH_MC_INTERNAL_H
 #define ASPH_MC_INTERNAL_H
 

@@ -3,7 +3,6 @@
  * measurements, each characterized as the measurement was. */
 #include <errno.h>
 #include <math.h>
-#include <pthread.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
@@ -15,14 +14,12 @@
 #include "mc-internal.h"
 #include "util-mem.h"
 
-/* One worker's own state, allocated once per run's workspace. */
-struct mc_worker {
-	struct asph_mc *mc;
+/* One worker's own state, allocated once per run. */
+struct asph_mc_worker {
+	const struct asph_mc *mc;
 	struct asph_fit *fit;
 	gsl_rng *rng;
 	double *xyz;            /* the trial's measured points */
-	pthread_t thread;
-	int started;
 };
 
 struct asph_mc {
@@ -39,15 +36,9 @@ struct asph_mc {
 	size_t capacity;        /* trials the values can hold */
 	double *values;         /* capacity x ASPH_MC_N_QUANTITIES */
 	double *block_stats;    /* 2 capacity / block: the adaptive stop's */
-	size_t n_run;
-	int n_workers;
-	struct mc_worker *workers;
-
-	/* The block being run, shared with the workers under lock. */
-	pthread_mutex_t lock;
-	pthread_cond_t work, done;
-	size_t next, end, finished;
-	int quit, cancel;
+	size_t planned;         /* trials asked for so far */
+	size_t n_run;           /* trials of the last finish */
+	int stable;             /* the adaptive stop's last answer */
 };
 
 static const char *const quantity_keys[ASPH_MC_N_QUANTITIES] = {
@@ -130,9 +121,8 @@ static void simulate(const struct asph_mc *mc, gsl_rng *rng, double *xyz)
 	}
 }
 
-static void run_trial(struct mc_worker *w, size_t t)
+static void run_trial(struct asph_mc *mc, struct asph_mc_worker *w, size_t t)
 {
-	struct asph_mc *mc = w->mc;
 	double *q = mc->values + t * ASPH_MC_N_QUANTITIES;
 	struct asph_fit_result r;
 	struct asph_error err;
@@ -151,26 +141,14 @@ static void run_trial(struct mc_worker *w, size_t t)
 			q[i] = NAN;
 }
 
-static void *worker_main(void *data)
+int asph_mc_run_trials(struct asph_mc *mc, struct asph_mc_worker *w, size_t first,
+		       size_t count)
 {
-	struct mc_worker *w = data;
-	struct asph_mc *mc = w->mc;
-
-	pthread_mutex_lock(&mc->lock);
-	for (;;) {
-		while (!mc->quit && (mc->cancel || mc->next >= mc->end))
-			pthread_cond_wait(&mc->work, &mc->lock);
-		if (mc->quit)
-			break;
-		size_t t = mc->next++;
-		pthread_mutex_unlock(&mc->lock);
-		run_trial(w, t);
-		pthread_mutex_lock(&mc->lock);
-		mc->finished++;
-		pthread_cond_signal(&mc->done);
-	}
-	pthread_mutex_unlock(&mc->lock);
-	return NULL;
+	if (w->mc != mc || first > mc->capacity || count > mc->capacity - first)
+		return -EINVAL;
+	for (size_t t = first; t < first + count; t++)
+		run_trial(mc, w, t);
+	return 0;
 }
 
 /* ------------------------------------------------------------ workspace */
@@ -221,8 +199,6 @@ static int check_options(struct asph_mc_options *o, struct asph_error *err)
 		o->max_trials = o->fixed ? o->n_trials : ASPH_MC_DEFAULT_MAX_TRIALS;
 	if (o->significant_digits == 0)
 		o->significant_digits = 1;
-	if (o->n_threads == 0)
-		o->n_threads = 1;
 	if (o->n_trials < 2 || o->n_trials > (size_t)1 << 24)
 		return asph_error_set(err, -EINVAL, "the number of trials must be 2..%zu",
 				      (size_t)1 << 24);
@@ -238,29 +214,38 @@ static int check_options(struct asph_mc_options *o, struct asph_error *err)
 				      "block size, %zu and %zu are not", o->n_trials, o->block_size);
 	if (o->significant_digits < 1 || o->significant_digits > 4)
 		return asph_error_set(err, -EINVAL, "significant_digits must be 1..4");
-	if (o->n_threads < 1 || o->n_threads > 256)
-		return asph_error_set(err, -EINVAL, "n_threads must be 1..256");
 	return 0;
 }
 
-static int workers_alloc(struct asph_mc *mc, struct asph_error *err)
+void asph_mc_worker_free(struct asph_mc_worker *w)
 {
-	mc->workers = calloc((size_t)mc->opt.n_threads, sizeof(*mc->workers));
-	if (!mc->workers)
+	if (!w)
+		return;
+	asph_fit_free(w->fit);
+	gsl_rng_free(w->rng);
+	free(w->xyz);
+	free(w);
+}
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_mc_worker *, asph_mc_worker_free)
+
+int asph_mc_worker_alloc(const struct asph_mc *mc, struct asph_mc_worker **out,
+			 struct asph_error *err)
+{
+	_cleanup_(asph_mc_worker_freep) struct asph_mc_worker *w = calloc(1, sizeof(*w));
+	int r;
+
+	if (!w)
 		return asph_error_set(err, -ENOMEM, "out of memory");
-	mc->n_workers = mc->opt.n_threads;
-	for (int i = 0; i < mc->n_workers; i++) {
-		struct mc_worker *w = &mc->workers[i];
-		int r;
-		w->mc = mc;
-		w->rng = gsl_rng_alloc(gsl_rng_mt19937);
-		w->xyz = malloc(3 * mc->n * sizeof(double));
-		if (!w->rng || !w->xyz)
-			return asph_error_set(err, -ENOMEM, "out of memory");
-		r = asph_fit_alloc(mc->s, mc->n, &mc->fit_opts, &w->fit, err);
-		if (r < 0)
-			return r;
-	}
+	w->mc = mc;
+	w->rng = gsl_rng_alloc(gsl_rng_mt19937);
+	w->xyz = malloc(3 * mc->n * sizeof(double) + 1);
+	if (!w->rng || !w->xyz)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	r = asph_fit_alloc(mc->s, mc->n, &mc->fit_opts, &w->fit, err);
+	if (r < 0)
+		return r;
+	*out = steal_ptr(w);
 	return 0;
 }
 
@@ -290,9 +275,6 @@ int asph_mc_alloc(const struct asph_surface *s, const double *xyz, size_t n,
 	mc = calloc(1, sizeof(*mc));
 	if (!mc)
 		return asph_error_set(err, -ENOMEM, "out of memory");
-	pthread_mutex_init(&mc->lock, NULL);
-	pthread_cond_init(&mc->work, NULL);
-	pthread_cond_init(&mc->done, NULL);
 	mc->s = s;
 	mc->n = n;
 	mc->model = *model;
@@ -317,9 +299,6 @@ int asph_mc_alloc(const struct asph_surface *s, const double *xyz, size_t n,
 	memcpy(mc->truth, xyz, 3 * n * sizeof(double));
 	scan_directions(mc);
 	normals(mc, &mc->fit_opts.start);
-	r = workers_alloc(mc, err);
-	if (r < 0)
-		return r;
 	*out = steal_ptr(mc);
 	return 0;
 }
@@ -328,15 +307,6 @@ void asph_mc_free(struct asph_mc *mc)
 {
 	if (!mc)
 		return;
-	for (int i = 0; mc->workers && i < mc->n_workers; i++) {
-		asph_fit_free(mc->workers[i].fit);
-		gsl_rng_free(mc->workers[i].rng);
-		free(mc->workers[i].xyz);
-	}
-	free(mc->workers);
-	pthread_cond_destroy(&mc->work);
-	pthread_cond_destroy(&mc->done);
-	pthread_mutex_destroy(&mc->lock);
 	free(mc->truth);
 	free(mc->direction);
 	free(mc->normal);
@@ -353,93 +323,54 @@ const double *asph_mc_values(const struct asph_mc *mc, size_t *n_trials)
 
 /* ------------------------------------------------------------------ run */
 
-/* Hands trials [mc->finished, end) to the workers and waits for them,
- * reporting progress. 1 when cancelled, else 0. */
-static int run_block(struct asph_mc *mc, size_t end, size_t planned)
-{
-	pthread_mutex_lock(&mc->lock);
-	mc->end = end;
-	pthread_cond_broadcast(&mc->work);
-	while (mc->finished < mc->next || (mc->next < mc->end && !mc->cancel)) {
-		size_t done;
-		pthread_cond_wait(&mc->done, &mc->lock);
-		done = mc->finished;
-		if (mc->opt.progress) {
-			/* the callback runs unlocked: it may take its time */
-			pthread_mutex_unlock(&mc->lock);
-			int stop = mc->opt.progress(mc->opt.progress_data, done, planned);
-			pthread_mutex_lock(&mc->lock);
-			if (stop)
-				mc->cancel = 1;
-		}
-	}
-	int cancelled = mc->cancel;
-	mc->n_run = mc->finished;
-	pthread_mutex_unlock(&mc->lock);
-	return cancelled;
-}
-
-static void stop_workers(struct asph_mc *mc)
-{
-	pthread_mutex_lock(&mc->lock);
-	mc->quit = 1;
-	pthread_cond_broadcast(&mc->work);
-	pthread_mutex_unlock(&mc->lock);
-	for (int i = 0; i < mc->n_workers; i++)
-		if (mc->workers[i].started)
-			pthread_join(mc->workers[i].thread, NULL);
-	for (int i = 0; i < mc->n_workers; i++)
-		mc->workers[i].started = 0;
-}
-
-static int start_workers(struct asph_mc *mc, struct asph_error *err)
-{
-	mc->next = mc->end = mc->finished = 0;
-	mc->quit = mc->cancel = 0;
-	mc->n_run = 0;
-	for (int i = 0; i < mc->n_workers; i++) {
-		if (pthread_create(&mc->workers[i].thread, NULL, worker_main, &mc->workers[i])) {
-			stop_workers(mc);
-			return asph_error_set(err, -EAGAIN, "cannot start a worker thread");
-		}
-		mc->workers[i].started = 1;
-	}
-	return 0;
-}
-
-int asph_mc_run(struct asph_mc *mc, struct asph_mc_result *out,
-		struct asph_error *err)
+int asph_mc_next_block(struct asph_mc *mc, size_t done, size_t *first, size_t *count)
 {
 	const struct asph_mc_options *o = &mc->opt;
-	size_t end = o->n_trials;
-	int cancelled, stable = 0;
-	int r = start_workers(mc, err);
 
-	if (r < 0)
-		return r;
-	for (;;) {
-		cancelled = run_block(mc, end, end);
-		if (cancelled)
-			break;
-		if (o->fixed)
-			break;
-		stable = mc_stable(mc->values, mc->n_run, mc->covered, o->block_size,
-				   o->significant_digits, mc->block_stats);
-		if (stable || end + o->block_size > o->max_trials)
-			break;
-		end += o->block_size;
+	if (done == 0) {
+		mc->planned = o->n_trials;
+		mc->stable = 0;
+	} else if (done > mc->planned) {
+		done = mc->planned;
 	}
-	stop_workers(mc);
-	mc_summarize(mc->values, mc->n_run, mc->covered, mc->value, out);
+	if (done == mc->planned) {
+		if (o->fixed)
+			return 0;
+		mc->stable = mc_stable(mc->values, done, mc->covered, o->block_size,
+				       o->significant_digits, mc->block_stats);
+		if (mc->stable || mc->planned + o->block_size > o->max_trials)
+			return 0;
+		mc->planned += o->block_size;
+	}
+	*first = done;
+	*count = mc->planned - done;
+	return 1;
+}
+
+size_t asph_mc_planned(const struct asph_mc *mc)
+{
+	return mc->planned;
+}
+
+int asph_mc_finish(struct asph_mc *mc, size_t done, int cancelled,
+		   struct asph_mc_result *out, struct asph_error *err)
+{
+	const struct asph_mc_options *o = &mc->opt;
+
+	if (done > mc->planned)
+		done = mc->planned;
+	cancelled |= done < mc->planned;
+	mc->n_run = done;
+	mc_summarize(mc->values, done, mc->covered, mc->value, out);
 	out->fixed = o->fixed;
-	out->stable = stable;
+	out->stable = !o->fixed && !cancelled && mc->stable;
 	out->block_size = o->block_size;
 	out->significant_digits = o->significant_digits;
 	out->seed = o->seed;
 	out->model = mc->model;
 	if (cancelled)
 		return asph_error_set(err, -ECANCELED, "cancelled after %zu of %zu trials",
-				      mc->n_run, end);
+				      done, mc->planned);
 	if (out->n_failed * 2 > out->n_trials)
 		return asph_error_set(err, -EDOM, "%zu of %zu trials could not be characterized",
 				      out->n_failed, out->n_trials);

@@ -12,6 +12,7 @@
 #include <gsl/gsl_errno.h>
 
 #include "asph/fit.h"
+#include "asph/mc-runner.h"
 #include "asph/prescription.h"
 #include "asph/surface.h"
 #include "asph/uncertainty.h"
@@ -26,6 +27,7 @@ struct ctx {
 	struct asph_fit *w;
 	struct asph_fit_result res;
 	struct asph_mc *mc;
+	struct asph_mc_threads threads;
 	struct asph_mc_result mcres;
 	int failed;
 };
@@ -46,7 +48,7 @@ static void monte_carlo(void *p)
 	struct ctx *c = p;
 	struct asph_error err;
 
-	if (asph_mc_run(c->mc, &c->mcres, &err) < 0) {
+	if (asph_mc_run_threads(c->mc, &c->threads, &c->mcres, &err) < 0) {
 		fprintf(stderr, "Monte Carlo failed: %s\n", err.message);
 		c->failed = 1;
 	}
@@ -99,10 +101,11 @@ int main(void)
 	};
 	long cpus = sysconf(_SC_NPROCESSORS_ONLN);
 	int cores = cpus > 0 ? (int)cpus : 1;
-	struct asph_mc_options o = { .n_trials = TRIALS, .fixed = 1, .seed = 1, .n_threads = cores };
+	struct asph_mc_options o = { .n_trials = TRIALS, .fixed = 1, .seed = 1 };
 	struct asph_error err;
 
 	gsl_set_error_handler_off();
+	c.threads.n_threads = cores;
 	c.n = bench_size(10000);
 	if (asph_prescription_preset("weak", &p) < 0 || asph_surface_alloc(&p, &s, NULL) < 0)
 		return 1;

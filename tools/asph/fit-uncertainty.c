@@ -12,6 +12,7 @@
 #include <jansson.h>
 
 #include "acquire-tool.h"
+#include "asph/mc-runner.h"
 #include "asph/scanfile.h"
 #include "asph-tool.h"
 #include "fit-uncertainty.h"
@@ -61,7 +62,7 @@ int fit_mc_take_option(struct fit_mc_cli *c, int opt, const char *arg)
 	case OPT_MC_THREADS:
 		if (parse_count(arg, "threads", 1, 256, &v) < 0)
 			return -1;
-		c->opts.n_threads = (int)v;
+		c->threads = (int)v;
 		return 0;
 	case OPT_MC_SEED:
 		if (parse_count(arg, "seed", 0, 4294967295ul, &v) < 0)
@@ -78,7 +79,7 @@ int fit_mc_check(const struct fit_mc_cli *c)
 {
 	const struct asph_mc_options *o = &c->opts;
 
-	if (!c->enabled && (c->instrument || o->n_trials || o->fixed || o->n_threads || c->seed_set)) {
+	if (!c->enabled && (c->instrument || o->n_trials || o->fixed || c->threads || c->seed_set)) {
 		fprintf(stderr, "asph fit: --instrument, --trials, --fixed-trials, --threads and "
 			"--seed go with --uncertainty\n");
 		return EXIT_USAGE;
@@ -177,6 +178,8 @@ int fit_mc_run(const struct fit_mc_cli *c, const char *scan, const struct asph_s
 	struct asph_uncertainty_model model;
 	struct asph_mc_options o = c->opts;
 	struct progress p = { .tty = isatty(STDERR_FILENO) };
+	struct asph_mc_threads th = { .n_threads = c->threads, .progress = show_progress,
+				      .progress_data = &p };
 	struct asph_error err;
 	int r;
 
@@ -186,18 +189,12 @@ int fit_mc_run(const struct fit_mc_cli *c, const char *scan, const struct asph_s
 						     "declares the contributions)\n"), -1)
 				  : model_from_scan(scan, &model) < 0)
 		return EXIT_FAILURE_RUN;
-	if (o.n_threads == 0) {
-		long cpus = sysconf(_SC_NPROCESSORS_ONLN);
-		o.n_threads = cpus > 0 ? (int)(cpus < 256 ? cpus : 256) : 1;
-	}
 	if (!c->seed_set)
 		o.seed = 1;
-	o.progress = show_progress;
-	o.progress_data = &p;
 	asph_error_clear(&err);
 	r = asph_mc_alloc(s, pts->xyz, pts->n, fo, res, &model, &o, &mc, &err);
 	if (r == 0)
-		r = asph_mc_run(mc, out, &err);
+		r = asph_mc_run_threads(mc, &th, out, &err);
 	if (p.tty)
 		fputc('\n', stderr);
 	if (r < 0) {

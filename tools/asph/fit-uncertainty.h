@@ -13,6 +13,7 @@ struct fit_mc_cli {
 	int enabled;
 	const char *instrument;   /* FILE or FILE#NAME, else the scan's */
 	int seed_set;
+	int threads;              /* --threads; 0 = the online processors */
 	struct asph_mc_options opts;
 };
 

@@ -19,6 +19,7 @@
 #include <jansson.h>
 
 #include "asph/fit.h"
+#include "asph/mc-runner.h"
 #include "asph/prescription.h"
 #include "asph/surface.h"
 #include "asph/tolerance.h"
@@ -105,14 +106,46 @@ static void reference_fit(struct run *r)
 	asph_fit_free(w);
 }
 
-static int run_mc(struct run *r, const struct asph_uncertainty_model *m,
-		  const struct asph_mc_options *o)
+/* The trials on this thread through libasph's pieces alone: blocks as the
+ * run asks for them, each in two halves, the later half first (any order
+ * gives the same values). */
+static int run_serial(struct asph_mc *mc, struct asph_mc_result *res)
 {
+	struct asph_mc_worker *w = NULL;
+	struct asph_error err;
+	size_t done = 0, first, count;
+
+	asph_error_clear(&err);
+	assert_int_equal(asph_mc_worker_alloc(mc, &w, &err), 0);
+	while (asph_mc_next_block(mc, done, &first, &count)) {
+		size_t half = count / 2;
+		assert_int_equal(asph_mc_run_trials(mc, w, first + half, count - half), 0);
+		assert_int_equal(asph_mc_run_trials(mc, w, first, half), 0);
+		done = first + count;
+	}
+	assert_int_equal(asph_mc_run_trials(mc, w, asph_mc_planned(mc), 1 << 30), -EINVAL);
+	asph_mc_worker_free(w);
+	return asph_mc_finish(mc, done, 0, res, &err);
+}
+
+/* threads 0: run_serial(); else the threaded runner on that many. */
+static int run_mc_threads(struct run *r, const struct asph_uncertainty_model *m,
+			  const struct asph_mc_options *o, int threads)
+{
+	struct asph_mc_threads th = { .n_threads = threads };
 	struct asph_error err;
 
 	asph_error_clear(&err);
 	assert_int_equal(asph_mc_alloc(r->s, r->xyz, r->n, &r->fo, &r->ref, m, o, &r->mc, &err), 0);
-	return asph_mc_run(r->mc, &r->res, &err);
+	if (threads == 0)
+		return run_serial(r->mc, &r->res);
+	return asph_mc_run_threads(r->mc, &th, &r->res, &err);
+}
+
+static int run_mc(struct run *r, const struct asph_uncertainty_model *m,
+		  const struct asph_mc_options *o)
+{
+	return run_mc_threads(r, m, o, 0);
 }
 
 static void run_free(struct run *r)
@@ -137,7 +170,7 @@ static void test_piston_probe_noise(void **state)
 {
 	struct run r = { .n = N_POINTS };
 	struct asph_uncertainty_model m;
-	struct asph_mc_options o = { .n_trials = trials(), .fixed = 1, .seed = 11, .n_threads = 2 };
+	struct asph_mc_options o = { .n_trials = trials(), .fixed = 1, .seed = 11 };
 	const double sigma_nm = 37.0;
 
 	(void)state;
@@ -171,7 +204,7 @@ static void test_linear_covariance(void **state)
 {
 	struct run r = { .n = N_POINTS };
 	struct asph_uncertainty_model m;
-	struct asph_mc_options o = { .n_trials = trials(), .fixed = 1, .seed = 5, .n_threads = 2 };
+	struct asph_mc_options o = { .n_trials = trials(), .fixed = 1, .seed = 5 };
 	const double sigma_nm = 23.0;
 	gsl_matrix *jtj = gsl_matrix_calloc(3, 3);
 
@@ -208,7 +241,7 @@ static void test_tip_radius_sphere(void **state)
 {
 	struct run r = { .n = N_POINTS };
 	struct asph_uncertainty_model m;
-	struct asph_mc_options o = { .n_trials = trials(), .fixed = 1, .seed = 3, .n_threads = 2 };
+	struct asph_mc_options o = { .n_trials = trials(), .fixed = 1, .seed = 3 };
 	const double R = 37.9, sigma_um = 0.8;
 	size_t nt;
 
@@ -240,7 +273,7 @@ static void test_drift_piston(void **state)
 {
 	struct run r = { .n = N_POINTS };
 	struct asph_uncertainty_model m;
-	struct asph_mc_options o = { .n_trials = trials(), .fixed = 1, .seed = 8, .n_threads = 1 };
+	struct asph_mc_options o = { .n_trials = trials(), .fixed = 1, .seed = 8 };
 	const double sigma_nm = 120;
 
 	(void)state;
@@ -270,30 +303,38 @@ static void full_run(struct run *r, int threads, size_t trials, unsigned long se
 		.latency_us = 40, .scan_speed_mm_s = 4, .drift_residual_nm = 5,
 		.tip_radius_um = 0.3,
 	};
-	struct asph_mc_options o = { .n_trials = trials, .fixed = 1, .seed = seed,
-				     .n_threads = threads };
+	struct asph_mc_options o = { .n_trials = trials, .fixed = 1, .seed = seed };
 
 	r->n = 400;
 	r->s = lens("weak");
 	r->xyz = spiral(r->s, r->n, 0);
 	assert_int_equal(asph_fit_synthesize(r->s, r->xyz, r->n, &so, r->xyz, NULL), 0);
 	reference_fit(r);
-	assert_int_equal(run_mc(r, &m, &o), 0);
+	assert_int_equal(run_mc_threads(r, &m, &o, threads), 0);
 }
 
-/* The result does not depend on how many threads ran the trials. */
+/* The result does not depend on how many threads ran the trials: the
+ * runner on 1 and on 3 threads and the library's pieces on this thread
+ * alone give the same values bit for bit. */
 static void test_thread_independence(void **state)
 {
-	struct run a = { 0 }, b = { 0 };
-	size_t na, nb;
+	struct run a = { 0 }, b = { 0 }, c = { 0 };
+	size_t na, nb, nc;
 
 	(void)state;
 	full_run(&a, 1, 24, 77);
 	full_run(&b, 3, 24, 77);
+	full_run(&c, 0, 24, 77);
 	const double *va = asph_mc_values(a.mc, &na), *vb = asph_mc_values(b.mc, &nb);
+	const double *vc = asph_mc_values(c.mc, &nc);
+	assert_int_equal(na, 24);
 	assert_int_equal(na, nb);
+	assert_int_equal(na, nc);
 	assert_memory_equal(va, vb, na * ASPH_MC_N_QUANTITIES * sizeof(double));
+	assert_memory_equal(va, vc, na * ASPH_MC_N_QUANTITIES * sizeof(double));
 	assert_memory_equal(a.res.u, b.res.u, sizeof(a.res.u));
+	assert_memory_equal(a.res.u, c.res.u, sizeof(a.res.u));
+	run_free(&c);
 	/* every quantity of the summary is covered, with a positive u */
 	int want[] = { ASPH_FIT_TX, ASPH_FIT_TY, ASPH_FIT_TZ, ASPH_FIT_RX, ASPH_FIT_RY,
 		       ASPH_MC_RMS, ASPH_MC_PV, ASPH_MC_PVR, ASPH_MC_A, ASPH_MC_B, ASPH_MC_C,
@@ -425,7 +466,7 @@ static void test_adaptive_stop(void **state)
 	struct run r = { .n = N_POINTS };
 	struct asph_uncertainty_model m;
 	struct asph_mc_options o = { .n_trials = 40, .block_size = 20, .max_trials = 1200,
-				     .seed = 21, .n_threads = 2 };
+				     .seed = 21 };
 	size_t nt;
 
 	(void)state;
@@ -445,6 +486,22 @@ static void test_adaptive_stop(void **state)
 	assert_true(criterion(v, nt, 20, r.res.covered));
 	if (nt > 40)
 		assert_false(criterion(v, nt - 20, 20, r.res.covered));
+	/* the runner's blocks on 2 threads stop at the same trial with the
+	 * same values */
+	struct asph_mc_threads th = { .n_threads = 2 };
+	struct asph_mc_result res2;
+	struct asph_error err;
+	double *v1 = malloc(nt * ASPH_MC_N_QUANTITIES * sizeof(double));
+	size_t nt2;
+	assert_non_null(v1);
+	memcpy(v1, v, nt * ASPH_MC_N_QUANTITIES * sizeof(double));
+	assert_int_equal(asph_mc_run_threads(r.mc, &th, &res2, &err), 0);
+	const double *v2 = asph_mc_values(r.mc, &nt2);
+	assert_int_equal(nt2, nt);
+	assert_true(res2.stable);
+	assert_memory_equal(v1, v2, nt * ASPH_MC_N_QUANTITIES * sizeof(double));
+	assert_memory_equal(r.res.u, res2.u, sizeof(res2.u));
+	free(v1);
 	run_free(&r);
 }
 
@@ -470,8 +527,9 @@ static void test_progress_cancel(void **state)
 	struct run r = { .n = N_POINTS };
 	struct asph_uncertainty_model m;
 	struct progress p = { .monotonic = 1 };
-	struct asph_mc_options o = { .n_trials = 60, .fixed = 1, .seed = 1, .n_threads = 2,
-				     .progress = on_progress, .progress_data = &p };
+	struct asph_mc_options o = { .n_trials = 60, .fixed = 1, .seed = 1 };
+	struct asph_mc_threads th = { .n_threads = 2, .progress = on_progress,
+				      .progress_data = &p };
 	struct asph_error err;
 	size_t nt;
 
@@ -483,14 +541,16 @@ static void test_progress_cancel(void **state)
 	reference_fit(&r);
 	asph_uncertainty_model_init(&m);
 	m.probe_noise_nm = 10;
-	assert_int_equal(run_mc(&r, &m, &o), 0);
+	asph_error_clear(&err);
+	assert_int_equal(asph_mc_alloc(r.s, r.xyz, r.n, &r.fo, &r.ref, &m, &o, &r.mc, &err), 0);
+	assert_int_equal(asph_mc_run_threads(r.mc, &th, &r.res, &err), 0);
 	assert_true(p.calls >= 1 && p.monotonic);
 	assert_int_equal(p.last_done, 60);
 
 	/* again with the same workspace, cancelled after 10 */
 	p = (struct progress){ .monotonic = 1, .cancel_at = 10 };
 	asph_error_clear(&err);
-	assert_int_equal(asph_mc_run(r.mc, &r.res, &err), -ECANCELED);
+	assert_int_equal(asph_mc_run_threads(r.mc, &th, &r.res, &err), -ECANCELED);
 	asph_mc_values(r.mc, &nt);
 	assert_true(nt >= 10 && nt < 60);
 	assert_int_equal(r.res.n_trials, nt);
@@ -558,8 +618,16 @@ static void test_bad_options(void **state)
 	assert_int_equal(asph_mc_alloc(r.s, r.xyz, r.n, &r.fo, &r.ref, &m, &o, &mc, &err), -EINVAL);
 	o = (struct asph_mc_options){ .n_trials = 200, .max_trials = 100 };
 	assert_int_equal(asph_mc_alloc(r.s, r.xyz, r.n, &r.fo, &r.ref, &m, &o, &mc, &err), -EINVAL);
-	o = (struct asph_mc_options){ .n_threads = -2 };
-	assert_int_equal(asph_mc_alloc(r.s, r.xyz, r.n, &r.fo, &r.ref, &m, &o, &mc, &err), -EINVAL);
+	/* the runner refuses a bad number of threads before any trial */
+	struct asph_mc_threads th = { .n_threads = -2 };
+	struct asph_mc_result res;
+	m.probe_noise_nm = 1;
+	assert_int_equal(asph_mc_alloc(r.s, r.xyz, r.n, &r.fo, &r.ref, &m, NULL, &mc, &err), 0);
+	assert_int_equal(asph_mc_run_threads(mc, &th, &res, &err), -EINVAL);
+	th.n_threads = 257;
+	assert_int_equal(asph_mc_run_threads(mc, &th, &res, &err), -EINVAL);
+	asph_mc_free(mc);
+	mc = NULL;
 	m.probe_noise_nm = -1;
 	assert_int_equal(asph_mc_alloc(r.s, r.xyz, r.n, &r.fo, &r.ref, &m, NULL, &mc, &err), -EINVAL);
 	m.probe_noise_nm = 1;
