@@ -34,8 +34,10 @@ extern "C" {
  *   and jerk grow as v^2 and v^3, may take 0.4 of each axis' limits; the
  *   acceleration along the path takes the other 0.6. The accelerations are
  *   then made jerk-limited by a moving average of the path parameter over
- *   T = 2 a / j, which bounds its jerk by j; the speed limits are taken as
- *   the lowest within the average's reach, and a point that the average
+ *   T = 2 a / j, which bounds its jerk by j; a point's speed limit is
+ *   the lowest within the average's reach, where a point at a distance d
+ *   limits it to no less than d / (0.6 T) (at that speed the average
+ *   reads back just to it), and a point that the average
  *   still passes over a hard limit (the whole acceleration or jerk of an
  *   axis, the speed, the rate) is planned slower until none is.
  */

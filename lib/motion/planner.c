@@ -441,11 +441,25 @@ static bool window_in(const struct asph_motion_planner *p, size_t g)
 	return p->g_raw > 0 && p->s[R(p, p->g_raw - 1)] > p->s[R(p, g)] + w;
 }
 
+/* What node h's own limit makes of the limit of a node d away: no less
+ * than the speed at which the moving average reads back just to h. */
+static double limit_at(const struct asph_motion_planner *p, size_t h, double d)
+{
+	double v = p->vraw[R(p, h)];
+
+	return d > 0 && p->T > 0 ? fmax(v, d / (0.6 * p->T)) : v;
+}
+
 /*
  * The limit of node g: the lowest own limit within the reach of its moving
  * average on both sides. An average passes a node no faster than the
  * motion anywhere in its window, which then keeps the node's limit (a dip
- * of the limit would otherwise be averaged over).
+ * of the limit would otherwise be averaged over). A node at a distance d
+ * limits it to no less than d / (0.6 T): at that speed the average reads
+ * back just to the node. Ahead of a turnaround the limit so rises with
+ * the distance instead of staying at the turn's speed over the whole reach
+ * of the speed before it; the repair catches what the average still
+ * passes too fast.
  */
 static void node_limit(struct asph_motion_planner *p, size_t g)
 {
@@ -453,9 +467,9 @@ static void node_limit(struct asph_motion_planner *p, size_t g)
 	double v = p->vraw[r], w = reach_at(p, v), sg = p->s[r];
 
 	for (size_t h = g; h-- > p->g_keep && p->s[R(p, h)] >= sg - w;)
-		v = fmin(v, p->vraw[R(p, h)]);
+		v = fmin(v, limit_at(p, h, sg - p->s[R(p, h)]));
 	for (size_t h = g + 1; h < p->g_raw && p->s[R(p, h)] <= sg + w; h++)
-		v = fmin(v, p->vraw[R(p, h)]);
+		v = fmin(v, limit_at(p, h, p->s[R(p, h)] - sg));
 	p->vcap[r] = v;
 	/* at rest at the ends */
 	p->vlim[r] = g == 0 || g + 1 == p->n_nodes ? 0 : v;

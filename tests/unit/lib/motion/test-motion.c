@@ -333,6 +333,53 @@ static void test_corners(void **state)
 	free(pts);
 }
 
+static void test_raster_turnarounds(void **state)
+{
+	/* a serpentine raster over a sloped part, as a raster plan has it:
+	 * rows 0.17 mm apart ending on a rim point closer than the pitch, z
+	 * following the slope; the stage turns back at every row end */
+	const size_t per_row = 40, rows = 10, n = per_row * rows;
+	const double pitch = 0.17, v = 20, a = 1000, j = 5e4;
+	double *pts = malloc(3 * n * sizeof(double));
+	struct asph_motion_limits lim = { { v, v, v }, { a, a, a }, { j, j, j }, 1000 };
+	size_t nk;
+
+	assert_non_null(pts);
+	for (size_t r = 0; r < rows; r++)
+		for (size_t i = 0; i < per_row; i++) {
+			size_t q = r * per_row + i, c = r % 2 ? per_row - 1 - i : i;
+			double x = c + 1 == per_row ? pitch * (double)(per_row - 2) + 0.12
+						    : pitch * (double)c;
+			pts[3 * q] = x;
+			pts[3 * q + 1] = pitch * (double)r;
+			pts[3 * q + 2] = 0.45 * x;
+		}
+	struct asph_motion_knot *k = plan_all(pts, n, &lim, 0, &nk);
+	assert_int_equal(nk, n);
+	struct worst w = sample_knots(k, n, &lim);
+	if (w.v > 1.005 || w.a > 1.05 || w.j > 1.3 || w.dt < 1 - 1e-9)
+		fail_msg("worst ratios: speed %.4f accel %.4f jerk %.4f, point spacing in time * rate %.4f",
+			 w.v, w.a, w.j, w.dt);
+	/* each turnaround reverses the x velocity: between the knots two
+	 * points before the row's end and two after the next row's start no
+	 * faster than the S-curve that takes the x axis from +vx to -vx
+	 * (closed form: 2 vx / a + a / j, or 2 sqrt(2 vx / j) when a is not
+	 * reached), vx the slower of the two */
+	for (size_t r = 0; r + 1 < rows; r++) {
+		size_t in = r * per_row + per_row - 3, out = in + 5;
+		double vx = fmin(fabs(k[in].velocity[0]), fabs(k[out].velocity[0]));
+		double dv = 2 * vx, t_rev = dv * j >= a * a ? dv / a + a / j : 2 * sqrt(dv / j);
+		double dt = k[out].t - k[in].t;
+		/* cruising mid-row */
+		assert_true(fabs(k[in - per_row / 2].velocity[0]) > 0.9 * v / sqrt(1 + 0.45 * 0.45));
+		assert_true(vx > 0);
+		if (dt < t_rev)
+			fail_msg("turnaround %zu: %.6f s, the x axis needs %.6f s", r, dt, t_rev);
+	}
+	free(k);
+	free(pts);
+}
+
 static void test_stop(void **state)
 {
 	const size_t n = 800;
@@ -413,6 +460,7 @@ int main(void)
 		cmocka_unit_test(test_spiral_limits),
 		cmocka_unit_test(test_window_independent),
 		cmocka_unit_test(test_corners),
+		cmocka_unit_test(test_raster_turnarounds),
 		cmocka_unit_test(test_stop),
 		cmocka_unit_test(test_bad_limits),
 	};
