@@ -79,6 +79,7 @@ int asph_scan_new(struct asph_instrument *inst, const struct asph_surface *s,
 	sc->xyz = xyz;
 	sc->n = n;
 	sc->acq = inst->config->acquisition;
+	asph_acquisition_advised(&sc->acq, &inst->stage_info);
 	/* the default reference, the vertex, on a part that does not hold it
 	 * (an off-axis segment): the centre of its aperture instead */
 	if (sc->acq.n_references == 1 && sc->acq.references[0][0] == 0 &&

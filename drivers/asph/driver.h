@@ -50,9 +50,10 @@ extern "C" {
  *        clock, the probe's latency, attach() of a probe to its stage,
  *        invalid readings, the attempt and kind of a measurement, axis
  *        accelerations and jerks, and describe() without opening
+ *   1.2  the settling a stage advises for step and measure
  */
 #define ASPH_DRIVER_ABI_MAJOR 1
-#define ASPH_DRIVER_ABI_MINOR 1
+#define ASPH_DRIVER_ABI_MINOR 2
 #define ASPH_DRIVER_ABI(major, minor) ((uint32_t)(major) | (uint32_t)(minor) << 16)
 #define ASPH_DRIVER_ABI_VERSION ASPH_DRIVER_ABI(ASPH_DRIVER_ABI_MAJOR, ASPH_DRIVER_ABI_MINOR)
 #define ASPH_DRIVER_ABI_MAJOR_OF(v) ((uint32_t)(v) & 0xffffu)
@@ -126,6 +127,12 @@ struct asph_stage_info {
 	/* 1.1: per axis, unit per s^2 and s^3; 0 = unknown */
 	double max_accel[ASPH_DRIVER_MAX_AXES];
 	double max_jerk[ASPH_DRIVER_MAX_AXES];
+	/* 1.2: the settling the stage advises for step and measure, used
+	 * where the instrument sets none (docs/scanning.md): read once the
+	 * read-back has stayed within settle_window (mm) of the target for
+	 * settle_dwell (s); 0 = no advice */
+	double settle_window;
+	double settle_dwell;
 };
 
 enum asph_stage_state {

@@ -297,6 +297,7 @@ static void describe_stage(const struct mock_stage_params *sp, double travel_z,
 		out->max_accel[k] = sp->lim.accel[k];
 		out->max_jerk[k] = sp->lim.jerk[k];
 	}
+	mock_stage_settling(sp, &out->settle_window, &out->settle_dwell);
 	snprintf(out->model, sizeof(out->model), "mock stage");
 	snprintf(out->serial, sizeof(out->serial), "MOCK-0001");
 }

@@ -13,6 +13,12 @@
  * peak speed (1 um at 20 mm/s), decaying to RING_END at settle_time. */
 #define RING_PER_SPEED 5e-5
 #define RING_END 1e-6
+/* The ringing's period, in settle times. */
+#define RING_PERIOD 0.25
+/* The settling window the stage advises when it rings (mm): 10 nm, ten
+ * steps of a 1 nm encoder, a hundredth of the ringing after a move at
+ * 20 mm/s. */
+#define SETTLE_WINDOW 1e-5
 /* Below this (mm) the ringing is no more: a millionth of a nanometre, far
  * below any encoder step, and then not worth its exp() and cos() per
  * position. */
@@ -101,6 +107,16 @@ void mock_bench_target(const struct mock_bench *b, double m[3])
 }
 
 /* ------------------------------------------------------------ physics */
+
+void mock_stage_settling(const struct mock_stage_params *sp, double *window, double *dwell)
+{
+	bool rings = sp->settle_time > 0;
+
+	*window = rings ? SETTLE_WINDOW : 0;
+	/* inside the window for a whole period of the ringing: a read-back
+	 * near one of its zero crossings does not pass for a settled stage */
+	*dwell = rings ? sp->settle_time * RING_PERIOD : 0;
+}
 
 void mock_drift(const struct mock_probe_params *pp, double t, double d[3])
 {
@@ -499,7 +515,7 @@ double mock_bench_move(struct mock_bench *b, const double target[3])
 			b->ring.on = true;
 			b->ring.t0 = b->t;
 			b->ring.tau = b->sp.settle_time / log(amp / RING_END);
-			b->ring.period = b->sp.settle_time / 4;
+			b->ring.period = b->sp.settle_time * RING_PERIOD;
 			b->ring.t_end = b->t + b->ring.tau * log(amp / RING_NONE);
 			for (int k = 0; k < 3; k++)
 				b->ring.amp[k] = amp * mv.dir[k];

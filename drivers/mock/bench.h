@@ -123,6 +123,11 @@ size_t mock_bench_trace(struct mock_bench *b, struct asph_position_sample *out, 
 
 /* ------------------------------------------------------------ physics */
 
+/* The settling a stage with these parameters advises for step and
+ * measure (mm, s): when it rings after moves, 10 nm for a period of the
+ * ringing; else none (0). */
+void mock_stage_settling(const struct mock_stage_params *sp, double *window, double *dwell);
+
 /* The drift of the part against the probe at t: along x, y, z (mm). */
 void mock_drift(const struct mock_probe_params *pp, double t, double d[3]);
 

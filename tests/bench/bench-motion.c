@@ -27,7 +27,7 @@
 #include "asph/prescription.h"
 #include "bench-common.h"
 
-#define SPEC "mock:time_factor=0,bench=realistic,settle_window=0.01"
+#define SPEC "mock:time_factor=0,bench=realistic"
 
 /* The limits the executor's planner gets from the described instrument. */
 static void limits_of(const struct asph_stage_info *si, const struct asph_probe_info *pi,

@@ -17,6 +17,7 @@
 #include <unistd.h>
 
 #include <cmocka.h>
+#include <jansson.h>
 
 #include "asph/executor.h"
 #include "asph/fit.h"
@@ -654,6 +655,95 @@ static void test_recovery(void **state)
 	}
 }
 
+/* --------------------------------------------------------- settling */
+
+/* The settling in effect for spec: the instrument's account of its
+ * acquisition (mm, s). */
+static void settling_of(const struct asph_instrument_config *ic, double *window, double *dwell)
+{
+	char *text;
+
+	assert_int_equal(asph_instrument_config_to_json(ic, &text), 0);
+	json_t *root = json_loads(text, 0, NULL);
+	assert_non_null(root);
+	json_t *acq = json_object_get(root, "acquisition");
+	*window = json_number_value(json_object_get(acq, "settle_window_um")) * 1e-3;
+	*dwell = json_number_value(json_object_get(acq, "settle_dwell_s"));
+	json_decref(root);
+	free(text);
+}
+
+/* Step and measure over the first n plan points; the largest distance of
+ * a point's read-back position from its target (mm). */
+static double settled_off(struct scan_fixture *e, const char *spec, size_t n, double *window,
+			  double *dwell)
+{
+	struct asph_config *c;
+	struct asph_instrument *inst;
+	struct asph_scan *sc;
+	struct asph_scan_options so = { 0 };
+	char path[128];
+
+	assert_int_equal(asph_instrument_spec_parse(e->reg, spec, &c, NULL), 0);
+	settling_of(&c->instruments[0], window, dwell);
+	assert_int_equal(asph_instrument_open(&c->instruments[0], 1000, &inst, NULL), 0);
+	double standoff = inst->probe_info.standoff;
+	assert_int_equal(asph_scan_new(inst, e->s, e->plan->xyz, n, &so, &sc, NULL), 0);
+	assert_int_equal(asph_scan_run(sc, new_writer(new_path(e, path, sizeof(path))), NULL), 0);
+	asph_scan_free(sc);
+	asph_instrument_close(inst);
+	asph_config_free(c);
+
+	struct asph_scanfile *f = read_scan(path);
+	double off = 0;
+	assert_int_equal(f->n, n);
+	for (size_t k = 0; k < f->n; k++) {
+		const struct asph_scanfile_point *p = &f->points[k];
+		const double *t = e->plan->xyz + 3 * p->plan_index;
+		assert_int_equal(p->position_source, ASPH_POSITION_READ_BACK);
+		off = fmax(off, hypot(hypot(p->stage[0] - t[0], p->stage[1] - t[1]),
+				      p->stage[2] - (t[2] - standoff)));
+	}
+	asph_scanfile_free(f);
+	return off;
+}
+
+/* bench=realistic's stage rings after a move and advises its settling: a
+ * window of 10 nm kept for a period of the ringing (settle_time / 4). It
+ * applies where the instrument sets none, and the points are read back
+ * within it; an instrument's own window and dwell win, and with a window
+ * of 1 um the readings are taken on the ringing. */
+static void test_settling_advised(void **state)
+{
+	struct scan_fixture *e = *state;
+	const size_t n = 40;
+	double window, dwell;
+
+	double off = settled_off(e, "mock:time_factor=0,bench=realistic,drift_interval=off", n,
+				 &window, &dwell);
+	assert_true(fabs(window - 1e-5) <= 1e-15);
+	assert_true(fabs(dwell - 0.02 / 4) <= 1e-15);
+	assert_true(off <= 1e-5);
+
+	off = settled_off(e, "mock:time_factor=0,bench=realistic,drift_interval=off,"
+			     "settle_window=1,settle_dwell=0", n, &window, &dwell);
+	assert_true(fabs(window - 1e-3) <= 1e-15);
+	assert_true(dwell == 0);
+	/* the ringing after a move at up to 20 mm/s starts at 1 um */
+	assert_true(off > 1e-4 && off <= 1e-3);
+
+	/* only the window given: the dwell stays the stage's */
+	settled_off(e, "mock:time_factor=0,bench=realistic,drift_interval=off,settle_window=0.5", 1,
+		    &window, &dwell);
+	assert_true(fabs(window - 5e-4) <= 1e-15);
+	assert_true(fabs(dwell - 0.005) <= 1e-15);
+
+	/* a stage that does not ring advises nothing: the defaults */
+	settled_off(e, "mock:time_factor=0,drift_interval=off", 1, &window, &dwell);
+	assert_true(fabs(window - 1e-3) <= 1e-15);
+	assert_true(dwell == 0);
+}
+
 /* ------------------------------------------------ resume and replay */
 
 static void assert_same_points(const struct asph_scanfile *a, const struct asph_scanfile *b)
@@ -862,6 +952,7 @@ int main(void)
 		cmocka_unit_test(test_recovery),
 		cmocka_unit_test(test_tip_on_surface),
 		cmocka_unit_test(test_resume),
+		cmocka_unit_test(test_settling_advised),
 		cmocka_unit_test(test_reopen),
 		cmocka_unit_test(test_replay_identical),
 	};
