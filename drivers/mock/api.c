@@ -411,6 +411,12 @@ static int stage_clock(struct asph_device *d, uint64_t *t_ns)
 	return 0;
 }
 
+static int stage_clock_align(struct asph_device *d, uint64_t t_ns, struct asph_error *err)
+{
+	mock_bench_align(d->bench, (double)t_ns * 1e-9);
+	return 0;
+}
+
 static int stage_position(struct asph_device *d, double *pos, unsigned timeout_ms,
 			  struct asph_error *err)
 {
@@ -674,6 +680,7 @@ static const struct asph_stage_ops mock_stage = {
 	.sweep_trace = stage_trace,
 	.clock = stage_clock,
 	.describe = stage_describe,
+	.clock_align = stage_clock_align,
 };
 
 static const struct asph_probe_ops mock_probe = {

@@ -35,7 +35,8 @@ struct piece {
 
 struct ring {
 	double t0, amp[3], tau, period;
-	double t_end;           /* from here on below RING_NONE: none */
+	double life;            /* from t0 until below RING_NONE */
+	double t_end;           /* t0 + life: from here on none */
 	bool on;
 };
 
@@ -99,6 +100,39 @@ bool mock_bench_has_probe(const struct mock_bench *b)
 double mock_bench_now(const struct mock_bench *b)
 {
 	return b->t;
+}
+
+/* An instant of the past at the same age from t as it is from now. */
+static double aged(const struct mock_bench *b, double t, double then)
+{
+	return t - (b->t - then);
+}
+
+void mock_bench_align(struct mock_bench *b, double t)
+{
+	if (b->ring.on) {
+		b->ring.t0 = aged(b, t, b->ring.t0);
+		b->ring.t_end = b->ring.t0 + b->ring.life;
+	}
+	if (isfinite(b->last_trigger))
+		b->last_trigger = aged(b, t, b->last_trigger);
+	b->next_log = t;
+	for (size_t i = 0; i < b->trig_n; i++) {
+		struct mock_trigger *tr = &b->trig[b->trig_head + i];
+		tr->t = aged(b, t, tr->t);
+		tr->sample.t = aged(b, t, tr->sample.t);
+	}
+	for (size_t i = 0; i < b->trace_n; i++) {
+		struct asph_position_sample *s = &b->trace[b->trace_head + i];
+		s->t_ns = (uint64_t)llround(aged(b, t, (double)s->t_ns * 1e-9) * 1e9);
+	}
+	/* what is left of the servo's error after settling is far below any
+	 * length the bench resolves; at rest it is gone, so that the stage's
+	 * state is the same whatever motion came before */
+	for (int k = 0; k < 3 && b->vel[0] == 0 && b->vel[1] == 0 && b->vel[2] == 0; k++)
+		if (fabs(b->x[k] - b->cmd[k]) <= RING_NONE)
+			b->x[k] = b->cmd[k];
+	b->t = t;
 }
 
 void mock_bench_target(const struct mock_bench *b, double m[3])
@@ -516,7 +550,8 @@ double mock_bench_move(struct mock_bench *b, const double target[3])
 			b->ring.t0 = b->t;
 			b->ring.tau = b->sp.settle_time / log(amp / RING_END);
 			b->ring.period = b->sp.settle_time * RING_PERIOD;
-			b->ring.t_end = b->t + b->ring.tau * log(amp / RING_NONE);
+			b->ring.life = b->ring.tau * log(amp / RING_NONE);
+			b->ring.t_end = b->t + b->ring.life;
 			for (int k = 0; k < 3; k++)
 				b->ring.amp[k] = amp * mv.dir[k];
 		}

@@ -76,6 +76,9 @@ bool mock_bench_has_probe(const struct mock_bench *b);
 
 /* Simulated seconds since the bench was made. */
 double mock_bench_now(const struct mock_bench *b);
+/* The clock set to t, every state keeping its age; the axes at rest on
+ * their command once within RING_NONE of it. */
+void mock_bench_align(struct mock_bench *b, double t);
 /* Lets time pass at rest (the probe waiting for its sample). */
 void mock_bench_idle(struct mock_bench *b, double seconds);
 

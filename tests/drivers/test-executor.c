@@ -655,6 +655,113 @@ static void test_recovery(void **state)
 	}
 }
 
+/* Every field of two points the same to the bit. */
+static void assert_same_point(const struct asph_scanfile_point *p, const struct asph_scanfile_point *q)
+{
+	assert_int_equal(p->plan_index, q->plan_index);
+	assert_int_equal(p->flags, q->flags);
+	assert_int_equal(p->t_ns, q->t_ns);
+	assert_int_equal(p->position_source, q->position_source);
+	assert_memory_equal(&p->x, &q->x, sizeof(double));
+	assert_memory_equal(&p->y, &q->y, sizeof(double));
+	assert_memory_equal(&p->z, &q->z, sizeof(double));
+	assert_memory_equal(&p->raw, &q->raw, sizeof(double));
+	assert_memory_equal(p->stage, q->stage, sizeof(p->stage));
+}
+
+/* A scan of the first n plan points with spec, going on with the scan at
+ * path when resume (from the point after its last, with what the file
+ * recovered, as asph scan --resume and asphd do), else into a new one;
+ * -errno of the scan. */
+static int scan_part(struct scan_fixture *e, const char *spec, size_t n, const char *path,
+		     bool stream, bool resume, uint64_t *start)
+{
+	struct asph_config *c;
+	struct asph_instrument *inst;
+	struct asph_scan *sc;
+	struct asph_scan_options so = { .flags = stream ? ASPH_SCAN_STREAM : 0 };
+	struct asph_scanfile *rec = NULL;
+	struct asph_scanfile_writer *w;
+
+	if (resume) {
+		/* as asph_scan_reopen() does after checking the header's plan */
+		struct asph_scanfile_writer_options wo = { .flags = ASPH_SCANFILE_REOPEN_ENDED };
+		assert_int_equal(asph_scanfile_writer_resume(path, &wo, &rec, &w, NULL), 0);
+		*start = 0;
+		for (size_t i = 0; i < rec->n; i++)
+			if (rec->points[i].plan_index + 1 > *start)
+				*start = rec->points[i].plan_index + 1;
+		so.start_index = *start;
+		so.recovered = rec;
+	} else {
+		w = new_writer(path);
+	}
+	assert_int_equal(asph_instrument_spec_parse(e->reg, spec, &c, NULL), 0);
+	assert_int_equal(asph_instrument_open(&c->instruments[0], 1000, &inst, NULL), 0);
+	assert_int_equal(asph_scan_new(inst, e->s, e->plan->xyz, n, &so, &sc, NULL), 0);
+	int r = asph_scan_run(sc, w, NULL);
+	asph_scan_free(sc);
+	asph_instrument_close(inst);
+	asph_config_free(c);
+	asph_scanfile_free(rec);
+	return r;
+}
+
+/* bench=realistic: a scan cut off by the probe and resumed with a fresh
+ * instrument equals the uninterrupted scan to the bit: points, measured
+ * positions, times and drift references. The resumed scan takes up the
+ * interrupted one's motion after its last round of references, with the
+ * clock that one had (streamed, the cut inside a sweep; and point by
+ * point). */
+static void test_resume_realistic(void **state)
+{
+	struct scan_fixture *e = *state;
+	static const struct {
+		bool stream;
+		size_t n;
+		unsigned cut;           /* readings before the probe fails */
+	} cases[] = { { true, 700, 430 }, { false, 60, 41 } };
+
+	for (size_t c = 0; c < sizeof(cases) / sizeof(cases[0]); c++) {
+		char whole[128], cut[128], spec[256];
+		const char *base = cases[c].stream ? "mock:time_factor=0,bench=realistic,noise=1.5,"
+						     "seed=909,drift_interval=150points"
+						   : "mock:time_factor=0,bench=realistic,noise=1.5,"
+						     "seed=909,drift_interval=15points";
+		uint64_t start = 0;
+
+		assert_int_equal(scan_part(e, base, cases[c].n, new_path(e, whole, sizeof(whole)),
+					   cases[c].stream, false, NULL), 0);
+		snprintf(spec, sizeof(spec), "%s,fail_after=%u", base, cases[c].cut);
+		assert_int_equal(scan_part(e, spec, cases[c].n, new_path(e, cut, sizeof(cut)),
+					   cases[c].stream, false, NULL), -ENODEV);
+		assert_int_equal(scan_part(e, base, cases[c].n, cut, cases[c].stream, true, &start), 0);
+		/* cut after a round of references and inside the points after it */
+		assert_true(start > 0 && start < cases[c].n);
+
+		struct asph_scanfile *a = read_scan(whole), *b = read_scan(cut);
+		assert_int_equal(b->report.outcome, ASPH_SCANFILE_COMPLETED);
+		assert_int_equal(b->report.n_resumes, 1);
+		assert_int_equal(a->n, cases[c].n);
+		assert_int_equal(a->n, b->n);
+		for (size_t i = 0; i < a->n; i++)
+			assert_same_point(&a->points[i], &b->points[i]);
+		assert_true(a->n_references >= 4);
+		assert_int_equal(a->n_references, b->n_references);
+		for (size_t i = 0; i < a->n_references; i++)
+			assert_same_point(&a->references[i], &b->references[i]);
+		/* the bench's following error and drift are in what is compared */
+		size_t latched = 0;
+		for (size_t i = 0; i < a->n; i++)
+			latched += a->points[i].position_source ==
+				   (cases[c].stream ? ASPH_POSITION_LATCHED : ASPH_POSITION_READ_BACK);
+		assert_int_equal(latched, a->n);
+		assert_true(a->references[a->n_references - 1].raw != a->references[0].raw);
+		asph_scanfile_free(a);
+		asph_scanfile_free(b);
+	}
+}
+
 /* --------------------------------------------------------- settling */
 
 /* The settling in effect for spec: the instrument's account of its
@@ -952,6 +1059,7 @@ int main(void)
 		cmocka_unit_test(test_recovery),
 		cmocka_unit_test(test_tip_on_surface),
 		cmocka_unit_test(test_resume),
+		cmocka_unit_test(test_resume_realistic),
 		cmocka_unit_test(test_settling_advised),
 		cmocka_unit_test(test_reopen),
 		cmocka_unit_test(test_replay_identical),
