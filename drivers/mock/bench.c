@@ -45,6 +45,7 @@ struct mock_bench {
 	struct mock_probe_params pp;
 	bool probe;
 	double omega;           /* servo bandwidth, rad/s; 0 = ideal */
+	double inv_omega;       /* 1 / omega, s (a product costs less than a quotient) */
 	double t;               /* simulated now */
 	double x[3];            /* the axes' true positions (servo output) */
 	double cmd[3], vel[3];  /* the command's end and its velocity */
@@ -71,6 +72,7 @@ int mock_bench_new(const struct mock_stage_params *sp, struct mock_bench **out)
 		return -ENOMEM;
 	b->sp = *sp;
 	b->omega = sp->servo_bandwidth > 0 ? 2 * M_PI * sp->servo_bandwidth : 0;
+	b->inv_omega = b->omega > 0 ? 1 / b->omega : 0;
 	b->last_trigger = -INFINITY;
 	*out = b;
 	return 0;
@@ -230,15 +232,15 @@ struct servo_piece {
 static void servo_start(const struct mock_bench *b, const struct piece *p, const double x0[3],
 			struct servo_piece *sp)
 {
-	double w = b->omega;
+	double iw = b->inv_omega;
 
 	sp->p = p;
-	if (w == 0)
+	if (b->omega == 0)
 		return;
 	for (int k = 0; k < 3; k++) {
 		/* dc/dt = q0 + q1 tau + q2 tau^2 */
 		double q0 = p->c[1][k], q1 = 2 * p->c[2][k], q2 = 3 * p->c[3][k];
-		double a2 = q2 / w, a1 = (q1 - 2 * a2) / w, a0 = (q0 - a1) / w;
+		double a2 = q2 * iw, a1 = (q1 - 2 * a2) * iw, a0 = (q0 - a1) * iw;
 		sp->a[k][0] = a0;
 		sp->a[k][1] = a1;
 		sp->a[k][2] = a2;
@@ -634,14 +636,15 @@ int mock_bench_sweep_pvt(struct mock_bench *b, const struct asph_pvt *k, size_t 
 			continue;
 		}
 		struct piece *q = &p[m++];
+		double id = 1 / dt;
 		q->d = dt;
 		q->trigger = k[i].trigger != 0;
 		for (int a = 0; a < 3; a++) {
 			double p0 = pos[a], p1 = k[i].position[a], v0 = vel[a], v1 = k[i].velocity[a];
 			q->c[0][a] = p0;
 			q->c[1][a] = v0;
-			q->c[2][a] = (3 * (p1 - p0) / dt - 2 * v0 - v1) / dt;
-			q->c[3][a] = (2 * (p0 - p1) / dt + v0 + v1) / (dt * dt);
+			q->c[2][a] = (3 * (p1 - p0) * id - 2 * v0 - v1) * id;
+			q->c[3][a] = (2 * (p0 - p1) * id + v0 + v1) * (id * id);
 			q->end[a] = p1;
 		}
 		memcpy(pos, k[i].position, sizeof(pos));
