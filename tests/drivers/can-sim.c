@@ -80,6 +80,7 @@ struct can_sim {
 	unsigned n_pending;
 	/* the trigger line: driven from outside or by a drive's output */
 	bool line_external, line_output, line;
+	bool bounce;            /* each rise of the output bounces once */
 	struct can_sim_edge *edges;
 	size_t n_edges;
 };
@@ -280,8 +281,8 @@ static void trigger_edge(struct can_sim *s, bool rising)
 {
 	uint64_t now = now_monotonic_ns();
 
-	if (s->n_edges < MAX_EDGES) {
-		struct can_sim_edge *e = &s->edges[s->n_edges++];
+	if (s->n_edges++ < MAX_EDGES) {
+		struct can_sim_edge *e = &s->edges[s->n_edges - 1];
 		e->t_ns = now;
 		e->rising = rising;
 		for (unsigned i = 0; i < s->cfg.n_nodes; i++) {
@@ -318,6 +319,10 @@ static void update_line(struct can_sim *s)
 	if (level != s->line) {
 		s->line = level;
 		trigger_edge(s, level);
+		if (level && s->bounce && s->line_output && !s->line_external) {
+			trigger_edge(s, false);
+			trigger_edge(s, true);
+		}
 	}
 }
 
@@ -876,11 +881,20 @@ void can_sim_trigger(struct can_sim *s, bool level)
 	wake(s);
 }
 
+void can_sim_bounce(struct can_sim *s, bool on)
+{
+	pthread_mutex_lock(&s->lock);
+	s->bounce = on;
+	pthread_mutex_unlock(&s->lock);
+}
+
 size_t can_sim_edges(struct can_sim *s, struct can_sim_edge *out, size_t max)
 {
 	pthread_mutex_lock(&s->lock);
 	size_t n = s->n_edges;
-	memcpy(out, s->edges, (n < max ? n : max) * sizeof(*out));
+	size_t kept = n < MAX_EDGES ? n : MAX_EDGES;
+	if (out && max)
+		memcpy(out, s->edges, (kept < max ? kept : max) * sizeof(*out));
 	pthread_mutex_unlock(&s->lock);
 	return n;
 }

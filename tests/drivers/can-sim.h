@@ -90,6 +90,8 @@ void can_sim_heal(struct can_sim *s);
 
 /* Drives the trigger line from outside (the probe's own trigger). */
 void can_sim_trigger(struct can_sim *s, bool level);
+/* Each rise the trigger output gives bounces once (rise, fall, rise). */
+void can_sim_bounce(struct can_sim *s, bool on);
 
 /* An edge of the trigger line: its instant, and every drive's encoder
  * (position actual value) and set-point target at that instant. */
@@ -99,8 +101,8 @@ struct can_sim_edge {
 	int32_t encoder[CAN_SIM_MAX_NODES];     /* in the order of the config's nodes */
 	int32_t goal[CAN_SIM_MAX_NODES];
 };
-/* The edges since the start (at most max into out); returns how many
- * there were. */
+/* The edges since the start (the first 8192 are kept; at most max into
+ * out); returns how many there were in all. */
 size_t can_sim_edges(struct can_sim *s, struct can_sim_edge *out, size_t max);
 
 struct can_sim_node {

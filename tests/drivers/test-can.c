@@ -1259,8 +1259,17 @@ static void test_sweep_faults(void **state)
 	can_sim_abort(r.sim, node_id[2], CIA402_TOUCH_PROBE_FUNCTION, 0, 0x08000022);
 	expect_error(can_driver.stage->sweep(r.dev, p, 3, 10000, &err), -EPROTO, &err,
 		     "z (node 12) refused the write of 0x60b8:00: SDO abort 0x08000022");
-	/* a target off the travel is refused before anything moves */
+	/* a bouncing trigger line: two latches for one trigger */
 	can_sim_abort(r.sim, node_id[2], 0, 0, 0);
+	if (can_driver.stage->home(r.dev, 5000, &err) < 0)       /* out of the quick stop */
+		fail_msg("%s", err.message);
+	can_sim_bounce(r.sim, true);
+	p[3] = 1.6;
+	expect_error(can_driver.stage->sweep(r.dev, p, 3, 10000, &err), -EPROTO, &err,
+		     "the touch probe latched 2 edges for one trigger (a bouncing or noisy trigger "
+		     "line)");
+	can_sim_bounce(r.sim, false);
+	/* a target off the travel is refused before anything moves */
 	p[3] = 400;
 	expect_error(can_driver.stage->sweep(r.dev, p, 3, 10000, &err), -ERANGE, &err,
 		     "axis x: target 400.000000 mm is outside");
