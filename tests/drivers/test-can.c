@@ -1273,6 +1273,24 @@ static void test_sweep_faults(void **state)
 	p[3] = 400;
 	expect_error(can_driver.stage->sweep(r.dev, p, 3, 10000, &err), -ERANGE, &err,
 		     "axis x: target 400.000000 mm is outside");
+	/* stopped from another thread in the middle: at once, quick stops */
+	if (can_driver.stage->home(r.dev, 5000, &err) < 0)
+		fail_msg("%s", err.message);
+	double far[3 * 4];
+	zigzag(far, 4);
+	for (size_t k = 0; k < 4; k++)
+		far[3 * k] *= 10;
+	pthread_t th;
+	struct stopper st = { r.dev, 60 };
+	struct timespec t0;
+	assert_int_equal(pthread_create(&th, NULL, stop_later, &st), 0);
+	clock_gettime(CLOCK_MONOTONIC, &t0);
+	expect_error(can_driver.stage->sweep(r.dev, far, 4, 10000, &err), -ECANCELED, &err,
+		     "sweep stopped");
+	assert_true(ms_since(&t0) < 800);
+	pthread_join(th, NULL);
+	for (int k = 0; k < 3; k++)
+		assert_true(quick_stops(r.sim, node_id[k], 1) >= 1);
 	rig_stop(&r);
 }
 
