@@ -1476,7 +1476,7 @@ static void test_scan_streamed(void **state)
 			 "{\"instruments\": [{\"stage\": {\"driver\": \"can\", \"options\": {"
 			 "\"interface\": \"fd:%d\", \"x_node\": 5, \"y_node\": 9, \"z_node\": 12, "
 			 "\"x_counts_per_mm\": 8192, \"y_counts_per_mm\": 12500, "
-			 "\"z_counts_per_mm\": 20480, \"speed\": 100, \"heartbeat\": 20, "
+			 "\"z_counts_per_mm\": 20480, \"speed\": 300, \"heartbeat\": 20, "
 			 "\"heartbeat_timeout\": 2000, \"sdo_timeout\": 500}}, %s}]}", sv[0], probe);
 		scan_config_opts(&e, json, path, &so);
 		size_t rising = 0;
