@@ -65,11 +65,12 @@ class Daemon:
         with open(self.config, "w") as f:
             json.dump(cfg, f, indent=1)
         self.proc = None
+        self.prefix = []        # a command that execs the daemon (unshare, ...)
 
     def start(self, wait=True):
         logf = open(self.log, "a")
-        self.proc = subprocess.Popen([ASPHD, "--config", self.config, "--socket", self.socket,
-                                      "--state-dir", self.state],
+        self.proc = subprocess.Popen([*self.prefix, ASPHD, "--config", self.config,
+                                      "--socket", self.socket, "--state-dir", self.state],
                                      stdout=logf, stderr=logf, stdin=subprocess.DEVNULL)
         logf.close()
         if wait:
