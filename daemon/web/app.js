@@ -371,7 +371,7 @@ async function showResult(id) {
         el("td", {}, fmt(i.U)), el("td", {}, fmt(i.limit)), el("td", {}, i.verdict))))));
   } else parts.push(el("p", {}, "No tolerance was given: no verdict."));
   parts.push(el("h3", {}, "Pose"), pose);
-  if (s.zernike_nm) parts.push(el("h3", {}, "Zernike coefficients"), zernikeBars(s.zernike_nm));
+  if (s.zernike_nm) parts.push(el("h3", { id: "zernike-h" }, "Zernike coefficients"), zernikeBars(s.zernike_nm));
   if (r.files.residuals) {
     const csv = await (await fetch(`/api/jobs/${id}/files/${r.files.residuals}`)).text();
     parts.push(el("h3", {}, "Radial profile"), radialProfile(csv));

@@ -22,13 +22,17 @@ const ok = (cond, what) => {
 };
 const shot = (page, name) => page.screenshot({ path: path.join(shots, `${name}.png`) });
 // A part of the page for docs/web (scripts/web-screenshots copies them):
-// the box of selector, at most maxHeight pixels of it.
-const docShot = async (page, selector, name, maxHeight = 900) => {
+// the box of selector, from the top of the element `from` inside it (or
+// its own) to the bottom of `to` (or its own), at most maxHeight pixels.
+const docShot = async (page, selector, name, { from, to, maxHeight = 1000 } = {}) => {
   const e = await page.$(selector);
-  await e.scrollIntoView();
-  const b = await e.boundingBox();
-  await page.screenshot({ path: path.join(shots, `docs-${name}.png`),
-    clip: { x: b.x, y: b.y, width: b.width, height: Math.min(b.height, maxHeight) } });
+  const clip = await e.evaluate((n, from, to, maxHeight) => {
+    const r = n.getBoundingClientRect();
+    const top = from ? n.querySelector(from).getBoundingClientRect().top - r.top : 0;
+    const bottom = to ? n.querySelector(to).getBoundingClientRect().bottom - r.top : r.height;
+    return { x: 0, y: top, width: r.width, height: Math.min(bottom - top, maxHeight) };
+  }, from, to, maxHeight);
+  await e.screenshot({ path: path.join(shots, `docs-${name}.png`), clip });
 };
 
 // Pixels of the live map that differ from its background.
@@ -57,7 +61,9 @@ const psdLinePixels = (page) => page.$eval("#psd-chart", async (s) => {
   let k = 0;
   for (let i = 0; i < d.length; i += 4)
     if (Math.abs(d[i] - 0x1d) + Math.abs(d[i + 1] - 0x35) + Math.abs(d[i + 2] - 0x57) < 40) k++;
-  return k;
+  // the line's width across: it has at least a pixel in most columns
+  const xs = [...s.querySelector("path.psd-line").getAttribute("d").matchAll(/[ML]([-0-9.]+),/g)].map((m) => Number(m[1]));
+  return [k, Math.max(...xs) - Math.min(...xs)];
 });
 
 // The PSD as the chart plots it: each vertex of its line taken back
@@ -177,11 +183,16 @@ try {
   ok(psd.labels.includes("spatial frequency (1/mm)") && psd.labels.includes("PSD (nm² mm)") &&
     psd.pts.length > 10 && psd.tabindex === "0" && /^Power spectral density/.test(psd.aria),
   `the PSD chart: labelled axes, ${psd.pts.length} frequencies, focusable (${psd.aria})`);
-  const linePixels = await psdLinePixels(page);
-  ok(linePixels > 200, `the PSD line is drawn (${linePixels} pixels of its colour)`);
-  await page.focus("#psd-chart");
-  ok(await page.evaluate(() => document.activeElement.id === "psd-chart"), "the PSD chart takes the focus");
+  const [linePixels, lineWidth] = await psdLinePixels(page);
+  ok(linePixels > 0.8 * lineWidth && lineWidth > 100,
+    `the PSD line is drawn (${linePixels} pixels of its colour over ${lineWidth.toFixed(0)} across)`);
+  // Tab order: the chart, then its table's disclosure.
   await page.focus("#psd-values summary");
+  await page.keyboard.down("Shift");
+  await page.keyboard.press("Tab");
+  await page.keyboard.up("Shift");
+  ok(await page.evaluate(() => document.activeElement.id === "psd-chart"), "Shift+Tab from the table reaches the PSD chart");
+  await page.keyboard.press("Tab");
   await page.keyboard.press("Enter");
   ok(await page.$eval("#psd-values", (e) => e.open), "Enter opens the PSD's table of values");
   findings.psd_plotted = psd.pts;
@@ -189,21 +200,10 @@ try {
   findings.psd_table = await page.$$eval("#psd-values tbody tr", (rows) => rows.map((r) => [...r.cells].map((c) => Number(c.textContent))));
   await page.$eval("#psd-chart", (e) => e.scrollIntoView({ block: "center" }));
   await shot(page, "4b-psd");
-  await docShot(page, "section:has(#result)", "result", 1100);
-  // the charts: from the Zernike bars to the PSD's table
   await page.$eval("#psd-values", (e) => { e.open = false; });
-  await page.evaluate(() => {
-    const box = document.createElement("div");
-    box.id = "docs-charts";
-    const from = [...document.querySelectorAll("#result h3")].find((h) => h.textContent.startsWith("Zernike"));
-    const to = document.querySelector("#psd-values");
-    const r0 = from.getBoundingClientRect(), r1 = to.getBoundingClientRect();
-    Object.assign(box.style, { position: "absolute", left: `${r0.left + scrollX}px`, top: `${r0.top + scrollY}px`,
-      width: `${Math.max(r0.width, r1.width)}px`, height: `${r1.bottom - r0.top}px`, pointerEvents: "none" });
-    document.body.append(box);
-  });
-  await docShot(page, "#docs-charts", "charts", 1400);
-  await page.$eval("#docs-charts", (e) => e.remove());
+  await page.evaluate(() => document.activeElement.blur());
+  await docShot(page, "section:has(#result)", "result", { maxHeight: 1000 });
+  await docShot(page, "#result", "charts", { from: "#zernike-h", to: "#psd-values", maxHeight: 1400 });
   const links = await page.$$eval("#downloads a", (as) => as.map((a) => a.getAttribute("href")));
   ok(links.some((h) => h.endsWith("psd.csv")), "a download link for the PSD");
   ok(links.some((h) => h.endsWith("residuals.csv")), "a download link for the CSV");

@@ -42,13 +42,15 @@ def check_psd(findings, path):
     expect(worst_f < 1e-3 and worst_p < 1e-3,
            f"the plotted PSD is psd.csv's (worst {worst_f:.1e} in f, {worst_p:.1e} in PSD)")
     worst_t = max((max(rel(t[0], r[0]), rel(t[1], r[1])) for t, r in zip(table, rows)), default=1)
-    expect(worst_t < 5e-4, f"the PSD table is psd.csv's to 4 digits (worst {worst_t:.1e})")
+    expect(worst_t < 5.001e-4, f"the PSD table is psd.csv's to 4 digits (worst {worst_t:.1e})")
 
 
 os.makedirs(SHOTS, exist_ok=True)
 # time_factor 0.1: about 200 points a second, so the 2000 points of the
-# job take long enough to see the map fill and to pause and resume.
-d = Daemon([mock_instrument(time_factor=0.1)],
+# job take long enough to see the map fill and to pause and resume. The
+# part has spherical form error and the probe 2 nm of noise: the residual,
+# its charts and its PSD show something.
+d = Daemon([mock_instrument(time_factor=0.1, form="9:-40;11:25", noise=2)],
            extra={"http_listen": "127.0.0.1:0", "http_root": os.path.join(ROOT, "daemon", "web")})
 try:
     d.start()
