@@ -375,6 +375,15 @@ try:
         expect(r.status == 200 and data == want and
                f'filename="job{job}-{name}"' in (r.getheader("Content-Disposition") or ""),
                f"download {name}: as job.file gives it ({len(data)} bytes)")
+    # psd.csv: the header, then f = k df (k = 1, 2, ...) and a PSD >= 0
+    expect(files.get("psd") == "psd.csv", f"the result lists psd.csv ({files})")
+    r, data = viewer.request("GET", f"/api/jobs/{job}/files/psd.csv")
+    lines = data.decode().splitlines()
+    rows = [tuple(map(float, line.split(","))) for line in lines[1:]]
+    df = rows[0][0] if rows else 0
+    expect(lines[0] == "f_per_mm,psd_nm2_mm" and len(rows) > 10 and df > 0 and
+           all(abs(f - (k + 1) * df) < 1e-9 * f and p >= 0 for k, (f, p) in enumerate(rows)),
+           f"psd.csv: {len(rows)} frequencies k df (df {df:.4g}/mm), PSD >= 0")
     r, _ = viewer.request("GET", f"/api/jobs/{job}/files/jobs.sqlite")
     expect(r.status == 404, "a file the result does not list: 404")
 
