@@ -69,8 +69,10 @@ class Daemon:
 
     def start(self, wait=True):
         logf = open(self.log, "a")
-        self.proc = subprocess.Popen([*self.prefix, ASPHD, "--config", self.config,
-                                      "--socket", self.socket, "--state-dir", self.state],
+        cmd = [ASPHD, "--config", self.config, "--socket", self.socket, "--state-dir", self.state]
+        if self.prefix:     # (valgrindpy's wrapper goes after the prefix)
+            cmd = [*self.prefix, *getattr(sys.modules.get("sitecustomize"), "wrapped", list)(cmd)]
+        self.proc = subprocess.Popen(cmd,
                                      stdout=logf, stderr=logf, stdin=subprocess.DEVNULL)
         logf.close()
         if wait:
