@@ -256,7 +256,7 @@ struct row {
 	char *payload;
 };
 
-enum note_kind { NOTE_ACK, NOTE_UP, NOTE_DOWN };
+enum note_kind { NOTE_ACK, NOTE_UP, NOTE_DOWN, NOTE_REFUSED };
 
 struct note {
 	enum note_kind kind;
@@ -271,6 +271,7 @@ struct fleetdb {
 	int efd;
 	void (*acked)(void *data, int64_t id);
 	void (*link)(void *data, bool up, const char *why);
+	void (*refused)(void *data, int64_t id, const char *why);
 	void *data;
 	pthread_t thread;
 	bool thread_started;
@@ -382,19 +383,35 @@ static PGconn *open_writer(struct fleetdb *f)
 	return c;
 }
 
+/*
+ * Whether the server refused the row for what it holds, so that sending it
+ * again cannot help: a data exception (SQLSTATE class 22, e.g. a value out
+ * of a column's range) or an integrity constraint (class 23, e.g. a CHECK
+ * an administrator added). Anything else (privileges, a schema not
+ * migrated, a server shutting down, a serialization failure) concerns
+ * every row and is waited out.
+ */
+static bool refused_for_good(const PGresult *res)
+{
+	const char *state = PQresultErrorField(res, PG_DIAG_SQLSTATE);
+
+	return state && (!strncmp(state, "22", 2) || !strncmp(state, "23", 2));
+}
+
 /* Writes one row: 0, -EAGAIN (the connection is gone), -EIO (the server
- * refused it: said why). */
+ * refused it: said why), -EBADMSG (refused for good: said why). */
 static int write_row(struct fleetdb *f, PGconn *c, const struct row *row)
 {
 	const char *params[] = { row->payload };
 	PGresult *res = PQexecParams(c, upsert, 1, NULL, params, NULL, NULL, 0);
 	int r = PQresultStatus(res) == PGRES_COMMAND_OK ? 0
-		: PQstatus(c) != CONNECTION_OK ? -EAGAIN : -EIO;
+		: PQstatus(c) != CONNECTION_OK ? -EAGAIN
+		: refused_for_good(res) ? -EBADMSG : -EIO;
 
-	if (r == -EIO) {
+	if (r == -EIO || r == -EBADMSG) {
 		char why[256];
 		snprintf(why, sizeof(why), "row %" PRId64 " refused: %s", row->id, pq_message(c));
-		post(f, NOTE_DOWN, 0, why);
+		post(f, r == -EIO ? NOTE_DOWN : NOTE_REFUSED, row->id, why);
 	}
 	PQclear(res);
 	return r;
@@ -414,9 +431,10 @@ static void *writer_thread(void *data)
 			c = open_writer(f);
 		if (c)
 			r = write_row(f, c, &row);
-		if (r == 0) {
+		if (r == 0 || r == -EBADMSG) {
 			drop_first(f, row.id);
-			post(f, NOTE_ACK, row.id, NULL);
+			if (r == 0)
+				post(f, NOTE_ACK, row.id, NULL);
 			delay = 1;
 		} else {
 			if (r == -EAGAIN && c) {
@@ -455,7 +473,9 @@ static int on_wake(sd_event_source *s, int fd, uint32_t revents, void *data)
 	for (size_t i = 0; i < n; i++) {
 		if (notes[i].kind == NOTE_ACK && f->acked)
 			f->acked(f->data, notes[i].id);
-		else if (notes[i].kind != NOTE_ACK && f->link)
+		else if (notes[i].kind == NOTE_REFUSED && f->refused)
+			f->refused(f->data, notes[i].id, notes[i].why);
+		else if (notes[i].kind != NOTE_ACK && notes[i].kind != NOTE_REFUSED && f->link)
 			f->link(f->data, notes[i].kind == NOTE_UP, notes[i].why);
 	}
 	free(notes);
@@ -474,6 +494,7 @@ int fleetdb_new(const struct fleetdb_setup *setup, struct fleetdb **out, struct 
 	pthread_cond_init(&f->cond, NULL);
 	f->acked = setup->acked;
 	f->link = setup->link;
+	f->refused = setup->refused;
 	f->data = setup->data;
 	f->cfg.conninfo = strdup(setup->cfg->conninfo);
 	f->password = setup->password ? strdup(setup->password) : NULL;
