@@ -301,7 +301,8 @@ double mb_path_bound(const double *m, size_t n, const struct mb_axis ax[3], doub
 		/* weighted interval scheduling: best[i] over the first i windows
 		 * by their end; a window may follow one that ends where it
 		 * begins */
-		qsort(c.w, c.nw, sizeof(*c.w), by_end);
+		if (c.nw > 0)
+			qsort(c.w, c.nw, sizeof(*c.w), by_end);
 		for (size_t i = 0; i < c.nw; i++) {
 			size_t lo = 0, hi = i;  /* windows [0, lo) end at or before w[i].a */
 			while (lo < hi) {
