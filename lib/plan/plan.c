@@ -718,6 +718,31 @@ static int cvt_freeform_map(const struct asph_surface *s, double p, double *xyz,
 static const struct plan_freeform cvt_freeform = { aperture_count, aperture_fill,
 						   cvt_freeform_map };
 
+/* CI: the involute by geodesics on the surface (asph/involute.h). Its
+ * count is the plan's own, so counting computes the plan; a failure counts
+ * 0 points, and fill then says why. */
+static size_t ci_freeform_count(const struct asph_surface *s, const struct plan_method *meth,
+				double p)
+{
+	double *xyz = NULL;
+	size_t n = 0;
+
+	if (!(asph_surface_total_area(s) / (p * p) < 2.0 * (double)PLAN_MAX_POINTS))
+		return SIZE_MAX;
+	if (asph_involute_points_geodesic(s, p, PLAN_MAX_POINTS, &xyz, &n, NULL) < 0)
+		return 0;
+	free(xyz);
+	return n;
+}
+
+static int ci_freeform_fill(const struct asph_surface *s, const struct plan_method *meth,
+			    double p, struct asph_plan *plan, struct asph_error *err)
+{
+	return asph_involute_points_geodesic(s, p, PLAN_MAX_POINTS, &plan->xyz, &plan->n, err);
+}
+
+static const struct plan_freeform ci_freeform = { ci_freeform_count, ci_freeform_fill, NULL };
+
 /*
  * Lattices measured on flat patterns of 1.26e5 points on the unit disk
  * (Delaunay triangulation, mean edge length; points per area),
@@ -733,7 +758,7 @@ static const struct plan_method methods[ASPH_PLAN_N_METHODS] = {
 	[ASPH_PLAN_LB] = { "lb", ASPH_PLAN_OP, { 1.0, 1.099 }, false, true,
 			   disk_grid_count, disk_grid_fill, lift_lb, &lb_freeform },
 	[ASPH_PLAN_CI] = { "ci", ASPH_PLAN_CI, { 1.0, 1.099 }, true, false,
-			   ci_count, ci_fill, NULL },
+			   ci_count, ci_fill, NULL, &ci_freeform },
 	[ASPH_PLAN_RASTER] = { "raster", ASPH_PLAN_RASTER, { 1.0, 1.138 } /* (2 + sqrt 2) / 3 */, false, false,
 			       raster_count, raster_fill, lift_projected,
 			       &over_aperture },
