@@ -255,13 +255,26 @@ static void legendre_fit(const struct involute *w, const double f[N_NODES], doub
 	}
 }
 
+/* The recurrence (n + 1) P_n+1 = (2 n + 1) x P_n - n P_n-1 as
+ * P_n+1 = A[n] x P_n - B[n] P_n-1, and 1 / (2 n + 1) for the integrals. */
+#define LEG(n) (2.0 * (n) + 1) / ((n) + 1.0)
+#define LEGB(n) (double)(n) / ((n) + 1.0)
+static const double leg_a[N_NODES] = { 1, LEG(1), LEG(2), LEG(3), LEG(4), LEG(5), LEG(6),
+				       LEG(7), LEG(8), LEG(9), LEG(10), LEG(11) };
+static const double leg_b[N_NODES] = { 0, LEGB(1), LEGB(2), LEGB(3), LEGB(4), LEGB(5),
+				       LEGB(6), LEGB(7), LEGB(8), LEGB(9), LEGB(10), LEGB(11) };
+static const double leg_i[N_NODES] = { 1, 1 / 3.0, 1 / 5.0, 1 / 7.0, 1 / 9.0, 1 / 11.0,
+				       1 / 13.0, 1 / 15.0, 1 / 17.0, 1 / 19.0, 1 / 21.0,
+				       1 / 23.0 };
+_Static_assert(N_NODES == 12, "the Legendre tables are for 12 nodes");
+
 /* P_0 .. P_N_NODES at x. */
 static void legendre_at(double x, double P[N_NODES + 1])
 {
 	P[0] = 1;
 	P[1] = x;
 	for (int n = 1; n < N_NODES; n++)
-		P[n + 1] = ((2 * n + 1) * x * P[n] - n * P[n - 1]) / (n + 1);
+		P[n + 1] = leg_a[n] * x * P[n] - leg_b[n] * P[n - 1];
 }
 
 static double series(const double c[N_NODES], const double P[N_NODES + 1])
@@ -279,15 +292,18 @@ static double series_integral(const double c[N_NODES], double x, const double P[
 	double sum = c[0] * (x + 1);
 
 	for (int n = 1; n < N_NODES; n++)
-		sum += c[n] * (P[n + 1] - P[n - 1]) / (2 * n + 1);
+		sum += c[n] * (P[n + 1] - P[n - 1]) * leg_i[n];
 	return sum;
 }
 
 /* x in [-1, 1] where (half the panel width) * int_-1^x speed = len
- * (increasing): Newton, kept in a shrinking bracket. */
-static double solve_length(const double c[N_NODES], double scale, double len)
+ * (increasing), from the guess x: Newton, kept in a shrinking bracket,
+ * until the length is met to 1e-14 of the spacing. P gets the Legendre
+ * polynomials at the x returned. */
+static double solve_length(const double c[N_NODES], double scale, double len, double tol,
+			   double x, double P[N_NODES + 1])
 {
-	double lo = -1, hi = 1, x = -1 + 2 * len / (scale * 2 * c[0]), P[N_NODES + 1];
+	double lo = -1, hi = 1;
 
 	if (!(x > -1))
 		x = -1;
@@ -296,8 +312,8 @@ static double solve_length(const double c[N_NODES], double scale, double len)
 	for (int it = 0; it < 100; it++) {
 		legendre_at(x, P);
 		double f = scale * series_integral(c, x, P) - len;
-		if (f == 0)
-			return x;
+		if (fabs(f) <= tol)
+			break;
 		if (f > 0)
 			hi = x;
 		else
@@ -305,8 +321,8 @@ static double solve_length(const double c[N_NODES], double scale, double len)
 		double next = x - f / (scale * series(c, P));
 		if (!(next > lo && next < hi))
 			next = 0.5 * (lo + hi);
-		if (fabs(next - x) <= 2e-16)
-			return next;
+		if (next == x)
+			break;
 		x = next;
 	}
 	return x;
@@ -352,10 +368,14 @@ static int sample_turn(struct involute *w, double *len, size_t *next, struct asp
 		legendre_fit(w, fx, cx);
 		legendre_fit(w, fy, cy);
 		legendre_fit(w, fs, cs);
-		double end = *len + scale * 2 * cs[0];
+		double end = *len + scale * 2 * cs[0], x = -1, speed = 0;
 		for (; (double)*next * w->spacing <= end; ++*next) {
-			double x = solve_length(cs, scale, (double)*next * w->spacing - *len);
-			legendre_at(x, P);
+			double target = (double)*next * w->spacing - *len;
+			/* from the last point, a step of spacing at its speed */
+			double guess = speed > 0 ? x + w->spacing / (scale * speed)
+						 : -1 + 2 * target / (end - *len);
+			x = solve_length(cs, scale, target, 1e-14 * w->spacing, guess, P);
+			speed = series(cs, P);
 			double px = series(cx, P), py = series(cy, P);
 			if (!asph_surface_contains(w->surf, px, py, 0))
 				continue;
