@@ -24,12 +24,16 @@
  * Jacobi field j of the family, whose size is the involute's speed
  * |dP/du| (j(0) = 0, j'(0) = -kappa_g(C)): the arc length along a turn is
  * then a quadrature over theta, with no differencing. theta runs over
- * N_PANELS panels of N_NODES Gauss-Legendre nodes: every function of a
- * turn (x, y, speed) is a Legendre series on each panel.
+ * panels of N_NODES Gauss-Legendre nodes: every function of a turn (x, y,
+ * speed) is the polynomial through its nodes on each panel. The panels
+ * start at MIN_PANELS and double, the plan started anew, while a turn's
+ * polynomials are not resolved: the last Legendre coefficient of x, y (or
+ * of the arc length over the panel) above TAIL spacings.
  */
-#define N_PANELS 16
+#define MIN_PANELS 12
+#define MAX_PANELS 768
 #define N_NODES 12
-#define N_GEO (N_PANELS * N_NODES)
+#define TAIL 1e-9
 #define GL_C 20                 /* Gauss-Legendre order for C's length */
 /* Step control of the geodesics, per step: position to TOL spacings,
  * direction and the Jacobi field to TOL relative. */
@@ -48,8 +52,10 @@ struct involute {
 	const struct asph_surface *surf;
 	double centre[2], R, spacing, rho, L;
 	double gx[N_NODES], gw[N_NODES];        /* nodes, weights on [-1, 1] */
-	double leg[N_NODES][N_NODES];           /* P_n(gx[i]) */
-	struct geodesic g[N_GEO];
+	double fit[N_NODES][N_NODES];           /* build_fit() */
+	int np;                                 /* panels */
+	struct geodesic *g;                     /* np * N_NODES */
+	double tail[N_NODES];                   /* the last Legendre coefficient */
 	gsl_odeiv2_step *step;
 	gsl_odeiv2_system sys;
 	double *xyz;
@@ -172,14 +178,14 @@ static double curve_length(const struct involute *w, const gsl_integration_glfix
 	return sum;
 }
 
-static double panel_width(void)
+static double panel_width(const struct involute *w)
 {
-	return 2 * M_PI / N_PANELS;
+	return 2 * M_PI / w->np;
 }
 
 static double node_theta(const struct involute *w, int p, int i)
 {
-	return panel_width() * (p + 0.5 * (w->gx[i] + 1));
+	return panel_width(w) * (p + 0.5 * (w->gx[i] + 1));
 }
 
 /* The circle about the centre whose 3-D length is the spacing (on a
@@ -196,8 +202,8 @@ static int start_geodesics(struct involute *w, struct asph_error *err)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	for (int it = 0; it < 60; it++) {
 		L = 0;
-		for (int p = 0; p < N_PANELS; p++)
-			L += curve_length(w, t, rho, p * panel_width(), (p + 1) * panel_width());
+		for (int p = 0; p < w->np; p++)
+			L += curve_length(w, t, rho, p * panel_width(w), (p + 1) * panel_width(w));
 		if (!isfinite(L))
 			break;
 		if (fabs(L - w->spacing) <= 1e-15 * w->spacing)
@@ -214,8 +220,8 @@ static int start_geodesics(struct involute *w, struct asph_error *err)
 	w->rho = rho;
 	w->L = L;
 	double u0 = 0;
-	for (int p = 0; p < N_PANELS; p++) {
-		double a = p * panel_width();
+	for (int p = 0; p < w->np; p++) {
+		double a = p * panel_width(w);
 		for (int i = 0; i < N_NODES; i++) {
 			struct geodesic *g = &w->g[p * N_NODES + i];
 			double P[3], d1[3], d2[3], n[3];
@@ -237,71 +243,95 @@ static int start_geodesics(struct involute *w, struct asph_error *err)
 			g->y[Y_J] = 0;
 			g->y[Y_DJ] = -kg;
 		}
-		u0 += curve_length(w, t, rho, a, a + panel_width());
+		u0 += curve_length(w, t, rho, a, a + panel_width(w));
 	}
 	gsl_integration_glfixed_table_free(t);
 	return 0;
 }
 
-/* Legendre coefficients of the values f at the nodes (exact for degree <
- * N_NODES). */
-static void legendre_fit(const struct involute *w, const double f[N_NODES], double c[N_NODES])
-{
-	for (int n = 0; n < N_NODES; n++) {
-		double sum = 0;
-		for (int i = 0; i < N_NODES; i++)
-			sum += w->gw[i] * f[i] * w->leg[n][i];
-		c[n] = 0.5 * (2 * n + 1) * sum;
-	}
-}
-
-/* The recurrence (n + 1) P_n+1 = (2 n + 1) x P_n - n P_n-1 as
- * P_n+1 = A[n] x P_n - B[n] P_n-1, and 1 / (2 n + 1) for the integrals. */
-#define LEG(n) (2.0 * (n) + 1) / ((n) + 1.0)
-#define LEGB(n) (double)(n) / ((n) + 1.0)
-static const double leg_a[N_NODES] = { 1, LEG(1), LEG(2), LEG(3), LEG(4), LEG(5), LEG(6),
-				       LEG(7), LEG(8), LEG(9), LEG(10), LEG(11) };
-static const double leg_b[N_NODES] = { 0, LEGB(1), LEGB(2), LEGB(3), LEGB(4), LEGB(5),
-				       LEGB(6), LEGB(7), LEGB(8), LEGB(9), LEGB(10), LEGB(11) };
-static const double leg_i[N_NODES] = { 1, 1 / 3.0, 1 / 5.0, 1 / 7.0, 1 / 9.0, 1 / 11.0,
-				       1 / 13.0, 1 / 15.0, 1 / 17.0, 1 / 19.0, 1 / 21.0,
-				       1 / 23.0 };
-_Static_assert(N_NODES == 12, "the Legendre tables are for 12 nodes");
-
-/* P_0 .. P_N_NODES at x. */
-static void legendre_at(double x, double P[N_NODES + 1])
+/* The recurrence (n + 1) P_n+1 = (2 n + 1) x P_n - n P_n-1. */
+static void legendre_at(double x, double P[N_NODES])
 {
 	P[0] = 1;
 	P[1] = x;
-	for (int n = 1; n < N_NODES; n++)
-		P[n + 1] = leg_a[n] * x * P[n] - leg_b[n] * P[n - 1];
+	for (int n = 1; n + 1 < N_NODES; n++)
+		P[n + 1] = ((2 * n + 1) * x * P[n] - n * P[n - 1]) / (n + 1);
 }
 
-static double series(const double c[N_NODES], const double P[N_NODES + 1])
+/* fit[k][i]: the monomial coefficient of x^k in the Legendre series
+ * through the nodes (exact for degree < N_NODES), per unit value at node
+ * i: Gauss-Legendre projection onto P_0 .. P_11, then each P_n's monomial
+ * coefficients. The series are smooth over [-1, 1], so their monomial form
+ * loses a few bits only, and Horner's rule is what the resampling needs. */
+static void build_fit(struct involute *w)
+{
+	double mono[N_NODES][N_NODES] = { { 0 } }, P[N_NODES];
+
+	mono[0][0] = 1;
+	mono[1][1] = 1;
+	for (int n = 1; n + 1 < N_NODES; n++)
+		for (int k = 0; k < N_NODES; k++)
+			mono[n + 1][k] = ((2 * n + 1) * (k ? mono[n][k - 1] : 0) -
+					  n * mono[n - 1][k]) / (n + 1);
+	for (int k = 0; k < N_NODES; k++)
+		for (int i = 0; i < N_NODES; i++)
+			w->fit[k][i] = 0;
+	for (int i = 0; i < N_NODES; i++) {
+		legendre_at(w->gx[i], P);
+		w->tail[i] = 0.5 * (2 * N_NODES - 1) * w->gw[i] * P[N_NODES - 1];
+		for (int n = 0; n < N_NODES; n++)
+			for (int k = 0; k <= n; k++)
+				w->fit[k][i] += mono[n][k] * 0.5 * (2 * n + 1) * w->gw[i] * P[n];
+	}
+}
+
+static double tail(const struct involute *w, const double f[N_NODES])
 {
 	double sum = 0;
 
-	for (int n = N_NODES - 1; n >= 0; n--)
-		sum += c[n] * P[n];
-	return sum;
+	for (int i = 0; i < N_NODES; i++)
+		sum += w->tail[i] * f[i];
+	return fabs(sum);
 }
 
-/* int_-1^x of the series. */
-static double series_integral(const double c[N_NODES], double x, const double P[N_NODES + 1])
+/* The polynomial (monomial coefficients) through the values f at the
+ * nodes. */
+static void fit_poly(const struct involute *w, const double f[N_NODES], double m[N_NODES])
 {
-	double sum = c[0] * (x + 1);
-
-	for (int n = 1; n < N_NODES; n++)
-		sum += c[n] * (P[n + 1] - P[n - 1]) * leg_i[n];
-	return sum;
+	for (int k = 0; k < N_NODES; k++) {
+		double sum = 0;
+		for (int i = 0; i < N_NODES; i++)
+			sum += w->fit[k][i] * f[i];
+		m[k] = sum;
+	}
 }
 
-/* x in [-1, 1] where (half the panel width) * int_-1^x speed = len
- * (increasing), from the guess x: Newton, kept in a shrinking bracket,
- * until the length is met to 1e-14 of the spacing. P gets the Legendre
- * polynomials at the x returned. */
-static double solve_length(const double c[N_NODES], double scale, double len, double tol,
-			   double x, double P[N_NODES + 1])
+static double horner(const double *m, int n, double x)
+{
+	double v = m[n - 1];
+
+	for (int k = n - 2; k >= 0; k--)
+		v = v * x + m[k];
+	return v;
+}
+
+/* F = int_-1^x of the polynomial m. */
+static void antiderivative(const double m[N_NODES], double F[N_NODES + 1])
+{
+	double at_minus1 = 0;
+
+	for (int k = 0; k < N_NODES; k++) {
+		F[k + 1] = m[k] / (k + 1);
+		at_minus1 += (k % 2 ? F[k + 1] : -F[k + 1]);
+	}
+	F[0] = -at_minus1;
+}
+
+/* x in [-1, 1] where scale * F(x) = len (F increasing, F' = m), from the
+ * guess x: Newton, kept in a shrinking bracket, until the length is met to
+ * tol. */
+static double solve_length(const double m[N_NODES], const double F[N_NODES + 1], double scale,
+			   double len, double tol, double x)
 {
 	double lo = -1, hi = 1;
 
@@ -310,15 +340,14 @@ static double solve_length(const double c[N_NODES], double scale, double len, do
 	if (x > 1)
 		x = 1;
 	for (int it = 0; it < 100; it++) {
-		legendre_at(x, P);
-		double f = scale * series_integral(c, x, P) - len;
+		double f = scale * horner(F, N_NODES + 1, x) - len;
 		if (fabs(f) <= tol)
 			break;
 		if (f > 0)
 			hi = x;
 		else
 			lo = x;
-		double next = x - f / (scale * series(c, P));
+		double next = x - f / (scale * horner(m, N_NODES, x));
 		if (!(next > lo && next < hi))
 			next = 0.5 * (lo + hi);
 		if (next == x)
@@ -351,32 +380,59 @@ static int emit(struct involute *w, double x, double y, struct asph_error *err)
 
 /* Samples one turn, whose geodesics stand at its points: the points of
  * arc length next * spacing that fall on it, kept inside the aperture.
- * *len is the arc length at the turn's start, then at its end. */
+ * *len is the arc length at the turn's start, then at its end. -EAGAIN
+ * when the panels do not resolve the turn. */
+/* Whether a panel of a turn lies wholly outside the aperture: every node
+ * farther out than twice the largest gap between nodes (the curve between
+ * them, and out to the panel's ends, is within that), so that its points
+ * need not be found. */
+static bool panel_outside(const struct involute *w, const double fx[N_NODES],
+			  const double fy[N_NODES])
+{
+	double gap = 0;
+
+	for (int i = 0; i + 1 < N_NODES; i++)
+		gap = fmax(gap, hypot(fx[i + 1] - fx[i], fy[i + 1] - fy[i]));
+	for (int i = 0; i < N_NODES; i++)
+		if (asph_surface_contains(w->surf, fx[i], fy[i], 2 * gap))
+			return false;
+	return true;
+}
+
 static int sample_turn(struct involute *w, double *len, size_t *next, struct asph_error *err)
 {
-	const double scale = 0.5 * panel_width();
+	const double scale = 0.5 * panel_width(w);
 
-	for (int p = 0; p < N_PANELS; p++) {
+	for (int p = 0; p < w->np; p++) {
 		double fx[N_NODES], fy[N_NODES], fs[N_NODES];
-		double cx[N_NODES], cy[N_NODES], cs[N_NODES], P[N_NODES + 1];
+		double mx[N_NODES], my[N_NODES], ms[N_NODES], F[N_NODES + 1];
 		for (int i = 0; i < N_NODES; i++) {
 			const struct geodesic *g = &w->g[p * N_NODES + i];
 			fx[i] = g->y[Y_X];
 			fy[i] = g->y[Y_Y];
 			fs[i] = fabs(g->y[Y_J]) * g->cspeed;
 		}
-		legendre_fit(w, fx, cx);
-		legendre_fit(w, fy, cy);
-		legendre_fit(w, fs, cs);
-		double end = *len + scale * 2 * cs[0], x = -1, speed = 0;
+		if (tail(w, fx) > TAIL * w->spacing || tail(w, fy) > TAIL * w->spacing ||
+		    scale * tail(w, fs) > TAIL * w->spacing)
+			return -EAGAIN;
+		fit_poly(w, fs, ms);
+		antiderivative(ms, F);
+		double end = *len + scale * horner(F, N_NODES + 1, 1), x = -1, speed = 0;
+		if (panel_outside(w, fx, fy)) {
+			*next = (size_t)floor(end / w->spacing) + 1;
+			*len = end;
+			continue;
+		}
+		fit_poly(w, fx, mx);
+		fit_poly(w, fy, my);
 		for (; (double)*next * w->spacing <= end; ++*next) {
 			double target = (double)*next * w->spacing - *len;
 			/* from the last point, a step of spacing at its speed */
 			double guess = speed > 0 ? x + w->spacing / (scale * speed)
 						 : -1 + 2 * target / (end - *len);
-			x = solve_length(cs, scale, target, 1e-14 * w->spacing, guess, P);
-			speed = series(cs, P);
-			double px = series(cx, P), py = series(cy, P);
+			x = solve_length(ms, F, scale, target, 1e-14 * w->spacing, guess);
+			speed = horner(ms, N_NODES, x);
+			double px = horner(mx, N_NODES, x), py = horner(my, N_NODES, x);
 			if (!asph_surface_contains(w->surf, px, py, 0))
 				continue;
 			int r = emit(w, px, py, err);
@@ -402,7 +458,7 @@ static int run(struct involute *w, struct asph_error *err)
 					      "the involute does not leave the aperture after "
 					      "%zu turns", k);
 		bool out = true;
-		for (int i = 0; i < N_GEO; i++) {
+		for (int i = 0; i < w->np * N_NODES; i++) {
 			struct geodesic *g = &w->g[i];
 			if (advance(w, g, g->u + (double)k * w->L) < 0)
 				return asph_error_set(err, -ERANGE,
@@ -415,6 +471,28 @@ static int run(struct involute *w, struct asph_error *err)
 		int r = sample_turn(w, &len, &next, err);
 		if (r < 0 || out)
 			return r;
+	}
+}
+
+/* The plan, with panels doubled until every turn is resolved. */
+static int panels_as_needed(struct involute *w, struct asph_error *err)
+{
+	for (w->np = MIN_PANELS;; w->np *= 2) {
+		free(w->g);
+		w->g = malloc((size_t)w->np * N_NODES * sizeof(*w->g));
+		if (!w->g)
+			return asph_error_set(err, -ENOMEM, "out of memory");
+		w->n = 0;
+		int r = start_geodesics(w, err);
+		if (r == 0)
+			r = run(w, err);
+		if (r != -EAGAIN)
+			return r;
+		if (2 * w->np > MAX_PANELS)
+			return asph_error_set(err, -ERANGE,
+					      "the involute's turns vary too fast around the "
+					      "centre to be resolved by %d panels of %d geodesics",
+					      w->np, N_NODES);
 	}
 }
 
@@ -442,23 +520,18 @@ int asph_involute_points_geodesic(const struct asph_surface *s, double spacing_m
 				   "spacing %g mm is too coarse: the generating circle "
 				   "(3-D length spacing) must lie inside the aperture's "
 				   "disk of radius %g mm", spacing_mm, w->R);
-	for (int i = 0; i < N_NODES; i++) {
+	for (int i = 0; i < N_NODES; i++)
 		gsl_integration_glfixed_point(-1, 1, (size_t)i, &w->gx[i], &w->gw[i], t);
-		double P[N_NODES + 1];
-		legendre_at(w->gx[i], P);
-		for (int k = 0; k < N_NODES; k++)
-			w->leg[k][i] = P[k];
-	}
+	build_fit(w);
 	gsl_integration_glfixed_table_free(t);
 	w->sys = (gsl_odeiv2_system){ geodesic_rhs, NULL, N_Y, (void *)s };
 	if (r == 0 && !(w->step = gsl_odeiv2_step_alloc(gsl_odeiv2_step_rk8pd, N_Y)))
 		r = asph_error_set(err, -ENOMEM, "out of memory");
 	if (r == 0)
-		r = start_geodesics(w, err);
-	if (r == 0)
-		r = run(w, err);
+		r = panels_as_needed(w, err);
 	if (w->step)
 		gsl_odeiv2_step_free(w->step);
+	free(w->g);
 	if (r < 0) {
 		free(w->xyz);
 		return r;
