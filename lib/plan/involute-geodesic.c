@@ -329,7 +329,7 @@ static void antiderivative(const double m[N_NODES], double F[N_NODES + 1])
 
 /* x in [-1, 1] where scale * F(x) = len (F increasing, F' = m), from the
  * guess x: Newton, kept in a shrinking bracket, until the length is met to
- * tol. */
+ * tol (or the step is below rounding). */
 static double solve_length(const double m[N_NODES], const double F[N_NODES + 1], double scale,
 			   double len, double tol, double x)
 {
@@ -350,8 +350,8 @@ static double solve_length(const double m[N_NODES], const double F[N_NODES + 1],
 		double next = x - f / (scale * horner(m, N_NODES, x));
 		if (!(next > lo && next < hi))
 			next = 0.5 * (lo + hi);
-		if (next == x)
-			break;
+		if (fabs(next - x) <= 1e-15)
+			return next;
 		x = next;
 	}
 	return x;
@@ -430,7 +430,9 @@ static int sample_turn(struct involute *w, double *len, size_t *next, struct asp
 			/* from the last point, a step of spacing at its speed */
 			double guess = speed > 0 ? x + w->spacing / (scale * speed)
 						 : -1 + 2 * target / (end - *len);
-			x = solve_length(ms, F, scale, target, 1e-14 * w->spacing, guess);
+			/* 1e-12 spacings: well above the rounding of a panel's
+			 * length (up to ~100 spacings), far below the plan's 1e-6 */
+			x = solve_length(ms, F, scale, target, 1e-12 * w->spacing, guess);
 			speed = horner(ms, N_NODES, x);
 			double px = horner(mx, N_NODES, x), py = horner(my, N_NODES, x);
 			if (!asph_surface_contains(w->surf, px, py, 0))

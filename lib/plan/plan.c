@@ -65,6 +65,9 @@ struct plan_freeform {
 		    double p, struct asph_plan *plan, struct asph_error *err);
 	int (*map)(const struct asph_surface *s, double p, double *xyz, size_t n,
 		   struct asph_error *err);
+	/* count computes the plan: --points corrects the pitch once, not
+	 * twice */
+	bool count_is_plan;
 };
 
 static const struct plan_method *method_of(enum asph_plan_method m);
@@ -189,8 +192,9 @@ static double pitch_for_points(const struct asph_surface *s,
 {
 	const struct plan_method *meth = method_of(m);
 	double p = sqrt(pattern_area(s, meth) / (meth->lattice.area_per_pitch2 * n_req));
+	bool costly = !asph_surface_is_rotational(s) && meth->freeform->count_is_plan;
 
-	for (int it = 0; it < 2; it++) {
+	for (int it = 0; it < (costly ? 1 : 2); it++) {
 		size_t n = pattern_count(s, m, p, NULL);
 		/* n == n_req would leave p as it is */
 		if (n == 0 || n > PLAN_MAX_POINTS || (double)n == n_req)
@@ -757,7 +761,8 @@ static int ci_freeform_fill(const struct asph_surface *s, const struct plan_meth
 	return asph_involute_points_geodesic(s, p, PLAN_MAX_POINTS, &plan->xyz, &plan->n, err);
 }
 
-static const struct plan_freeform ci_freeform = { ci_freeform_count, ci_freeform_fill, NULL };
+static const struct plan_freeform ci_freeform = { ci_freeform_count, ci_freeform_fill, NULL,
+						  true };
 
 /*
  * Lattices measured on flat patterns of 1.26e5 points on the unit disk

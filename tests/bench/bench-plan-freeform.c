@@ -6,11 +6,14 @@
  * polynomial over an off-centre rectangle and a Zernike sag over an
  * off-centre circle (those of the plan tests). The plans are timed without
  * their mesh; cvt (no target set) and lb are shown for information.
+ * ASPH_BENCH_METHODS (e.g. "ot,ci") times only the methods it names: cvt
+ * and lb take minutes.
  */
 #include <math.h>
 #include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "asph/plan.h"
 #include "asph/prescription.h"
@@ -90,6 +93,20 @@ static struct asph_surface *freeform(int which)
 	return s;
 }
 
+/* Whether ASPH_BENCH_METHODS, if set, names m. */
+static bool selected(enum asph_plan_method m)
+{
+	const char *list = getenv("ASPH_BENCH_METHODS"), *name = asph_plan_method_name(m);
+	size_t len = strlen(name);
+
+	if (!list)
+		return true;
+	for (const char *p = list; (p = strstr(p, name)); p += len)
+		if ((p == list || p[-1] == ',') && (p[len] == ',' || p[len] == '\0'))
+			return true;
+	return false;
+}
+
 int main(void)
 {
 	const char *names[] = { "xy polynomial, rectangle", "Zernike sag, off-centre circle" };
@@ -102,6 +119,8 @@ int main(void)
 		struct asph_surface *s = freeform(k);
 		printf("freeform plan benchmark, %s, %zu points\n", names[k], n);
 		for (size_t m = 0; m < sizeof(methods) / sizeof(methods[0]); m++) {
+			if (!selected(methods[m]))
+				continue;
 			struct plan_ctx c = { s, methods[m], n, NULL };
 			/* cvt and lb, for information, once: they take minutes */
 			bool once = methods[m] == ASPH_PLAN_LB || methods[m] == ASPH_PLAN_CVT;
