@@ -61,8 +61,9 @@ static struct asph_surface *biconic_ellipse(void)
 	return alloc_surface(&p);
 }
 
-/* A Zernike freeform over an off-centre circle. */
-static struct asph_surface *zernike_offset(void)
+/* A Zernike freeform over an off-centre circle, plus Z231 (azimuthal
+ * order 20) times ripple mm. */
+static struct asph_surface *zernike_with(double ripple)
 {
 	struct asph_prescription p = {
 		.type = ASPH_SURFACE_ZERNIKE_SAG, .R = 48.3, .k = -0.61, .norm_radius = 12,
@@ -71,23 +72,20 @@ static struct asph_surface *zernike_offset(void)
 
 	for (int j = 4; j <= 22; j++)
 		p.Zernike[j - 1] = 2e-3 * (j % 2 ? 1 : -1) / j;
+	p.Zernike[230] = ripple;
 	return alloc_surface(&p);
 }
 
-/* The Zernike freeform with a term of azimuthal order 20 (Noll 231, 5 um):
- * the involute's turns ripple 20 times around, more than its first panels
- * resolve. */
+static struct asph_surface *zernike_offset(void)
+{
+	return zernike_with(0);
+}
+
+/* Rippled by 5 um of Z231: the involute's turns ripple 20 times around,
+ * more than its first panels resolve. */
 static struct asph_surface *zernike_rippled(void)
 {
-	struct asph_prescription p = {
-		.type = ASPH_SURFACE_ZERNIKE_SAG, .R = 48.3, .k = -0.61, .norm_radius = 12,
-		.aperture = { ASPH_APERTURE_CIRCULAR, 22, 22, { -0.9, 1.3 } },
-	};
-
-	for (int j = 4; j <= 22; j++)
-		p.Zernike[j - 1] = 2e-3 * (j % 2 ? 1 : -1) / j;
-	p.Zernike[230] = 5e-3;
-	return alloc_surface(&p);
+	return zernike_with(5e-3);
 }
 
 /* The even asphere of a preset written as an xy polynomial: the same conic
