@@ -49,11 +49,13 @@ int asph_involute_points(const struct asph_surface *s, double spacing_mm,
  * the first turn that lies wholly outside the aperture's disk; those in
  * the aperture are kept (asph_surface_contains()), with z = S(x, y). On a
  * surface of revolution with a centred circular aperture they are
- * asph_involute_points()' (to 1e-6 of the spacing, seen 1e-9).
+ * asph_involute_points()' (to 1e-6 of the spacing, seen 1e-10).
  *
  * spacing_mm: finite, > 0, and spacing / (2 pi) less than the aperture
  * disk's radius. -ERANGE where a turn would leave the domain of the
- * surface; -E2BIG past max_points (0: no limit). *xyz (3 n doubles,
+ * surface, or where the turns vary too fast around the centre to be
+ * resolved (768 panels of 12 geodesics); -E2BIG past max_points (0: no
+ * limit). *xyz (3 n doubles,
  * malloc'd) is the caller's to free.
  */
 int asph_involute_points_geodesic(const struct asph_surface *s, double spacing_mm,
