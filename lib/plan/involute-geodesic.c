@@ -350,7 +350,8 @@ static double solve_length(const double m[N_NODES], const double F[N_NODES + 1],
 		double next = x - f / (scale * horner(m, N_NODES, x));
 		if (!(next > lo && next < hi))
 			next = 0.5 * (lo + hi);
-		if (fabs(next - x) <= 1e-15)
+		/* the polynomial's rounding: below that, steps wander */
+		if (fabs(next - x) <= 1e-13)
 			return next;
 		x = next;
 	}
