@@ -65,8 +65,9 @@ struct plan_freeform {
 		    double p, struct asph_plan *plan, struct asph_error *err);
 	int (*map)(const struct asph_surface *s, double p, double *xyz, size_t n,
 		   struct asph_error *err);
-	/* count computes the plan: --points corrects the pitch once, not
-	 * twice */
+	/* count computes the plan: --points takes the pitch of one point per
+	 * area_per_pitch2 p^2 as it is, uncorrected (CI: one point per p^2 of
+	 * surface, which the involute meets to its edge) */
 	bool count_is_plan;
 };
 
@@ -186,7 +187,8 @@ static double pitch_per_spacing(const struct asph_surface *s,
 }
 
 /* --points N: the pitch whose exact count is closest to N, from the
- * lattice's area per point and two secant-like refinements. */
+ * lattice's area per point and two secant-like refinements (none where
+ * counting is computing the plan). */
 static double pitch_for_points(const struct asph_surface *s,
 			       enum asph_plan_method m, double n_req)
 {
@@ -194,7 +196,7 @@ static double pitch_for_points(const struct asph_surface *s,
 	double p = sqrt(pattern_area(s, meth) / (meth->lattice.area_per_pitch2 * n_req));
 	bool costly = !asph_surface_is_rotational(s) && meth->freeform->count_is_plan;
 
-	for (int it = 0; it < (costly ? 1 : 2); it++) {
+	for (int it = 0; it < 2 && !costly; it++) {
 		size_t n = pattern_count(s, m, p, NULL);
 		/* n == n_req would leave p as it is */
 		if (n == 0 || n > PLAN_MAX_POINTS || (double)n == n_req)
