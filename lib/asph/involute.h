@@ -37,6 +37,31 @@ int asph_involute_points(const struct asph_surface *s, double spacing_mm,
 			 size_t max_points, double **xyz, size_t *n,
 			 struct asph_error *err);
 
+/*
+ * The circle involute on any surface, rotationally symmetric or freeform,
+ * by geodesics integrated on the smooth surface (docs/circle-involute.md,
+ * "On any surface"): the string is unwound from the circle about the
+ * aperture's centre (asph_surface_aperture_disk()) whose 3-D length on the
+ * surface is the spacing; consecutive turns are spacing apart along the
+ * geodesics normal to them, and consecutive points spacing apart in 3-D arc
+ * length. The points run outward in spiral order (counter-clockwise seen
+ * from +z) from the start of the unwinding, on the circle at angle 0, to
+ * the first turn that lies wholly outside the aperture's disk; those in
+ * the aperture are kept (asph_surface_contains()), with z = S(x, y). On a
+ * surface of revolution with a centred circular aperture they are
+ * asph_involute_points()' (to 1e-6 of the spacing, seen 1e-10).
+ *
+ * spacing_mm: finite, > 0, and spacing / (2 pi) less than the aperture
+ * disk's radius. -ERANGE where a turn would leave the domain of the
+ * surface, or where the turns vary too fast around the centre to be
+ * resolved (768 panels of 12 geodesics); -E2BIG past max_points (0: no
+ * limit). *xyz (3 n doubles,
+ * malloc'd) is the caller's to free.
+ */
+int asph_involute_points_geodesic(const struct asph_surface *s, double spacing_mm,
+				  size_t max_points, double **xyz, size_t *n,
+				  struct asph_error *err);
+
 #ifdef __cplusplus
 }
 #endif

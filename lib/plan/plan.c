@@ -50,7 +50,9 @@ struct plan_method {
 
 /*
  * A method on a freeform surface, where the radial maps of surfaces of
- * revolution do not apply: the exact count at pitch p; the plan's points
+ * revolution do not apply: the exact count at pitch p (a method whose
+ * count computes the plan leaves its points in *keep when keep is not
+ * NULL, for fill to take); the plan's points
  * (fill allocates plan->xyz and sets plan->n), in the aperture for a
  * method with a map (the mesh is made of them), else on the surface; and
  * the map onto the surface (plan-freeform.h), NULL for the lift
@@ -58,11 +60,15 @@ struct plan_method {
  */
 struct plan_freeform {
 	size_t (*count)(const struct asph_surface *s, const struct plan_method *meth,
-			double p);
+			double p, double **keep);
 	int (*fill)(const struct asph_surface *s, const struct plan_method *meth,
 		    double p, struct asph_plan *plan, struct asph_error *err);
 	int (*map)(const struct asph_surface *s, double p, double *xyz, size_t n,
 		   struct asph_error *err);
+	/* count computes the plan: --points takes the pitch of one point per
+	 * area_per_pitch2 p^2 as it is, uncorrected (CI: one point per p^2 of
+	 * surface, which the involute meets to its edge) */
+	bool count_is_plan;
 };
 
 static const struct plan_method *method_of(enum asph_plan_method m);
@@ -141,18 +147,25 @@ struct plan_size {
 	double e;       /* surface spacing, mm */
 	double p;       /* the method's lattice pitch, mm */
 	size_t n;       /* points */
+	double *xyz;    /* the points, when counting computed them (freeform CI) */
 };
+
+static void plan_size_clear(struct plan_size *sz)
+{
+	free(sz->xyz);
+	sz->xyz = NULL;
+}
 
 /* Exact point count of the method's pattern at pitch p. SIZE_MAX for
  * anything far too large. */
 static size_t pattern_count(const struct asph_surface *s,
-			    enum asph_plan_method m, double p)
+			    enum asph_plan_method m, double p, double **keep)
 {
 	const struct plan_method *meth = method_of(m);
 	double a = asph_surface_aperture_radius(s);
 
 	if (!asph_surface_is_rotational(s))
-		return meth->freeform->count(s, meth, p);
+		return meth->freeform->count(s, meth, p, keep);
 	/* The exact counters loop over rows and rings: screen absurd sizes
 	 * first so they never run for long. */
 	if (!(pattern_area(s, meth) / (p * p) < 2.0 * (double)PLAN_MAX_POINTS))
@@ -174,16 +187,19 @@ static double pitch_per_spacing(const struct asph_surface *s,
 }
 
 /* --points N: the pitch whose exact count is closest to N, from the
- * lattice's area per point and two secant-like refinements. */
+ * lattice's area per point and two secant-like refinements (none where
+ * counting is computing the plan). */
 static double pitch_for_points(const struct asph_surface *s,
 			       enum asph_plan_method m, double n_req)
 {
 	const struct plan_method *meth = method_of(m);
 	double p = sqrt(pattern_area(s, meth) / (meth->lattice.area_per_pitch2 * n_req));
+	bool costly = !asph_surface_is_rotational(s) && meth->freeform->count_is_plan;
 
-	for (int it = 0; it < 2; it++) {
-		size_t n = pattern_count(s, m, p);
-		if (n == 0 || n > PLAN_MAX_POINTS)
+	for (int it = 0; it < 2 && !costly; it++) {
+		size_t n = pattern_count(s, m, p, NULL);
+		/* n == n_req would leave p as it is */
+		if (n == 0 || n > PLAN_MAX_POINTS || (double)n == n_req)
 			break;
 		p *= sqrt((double)n / n_req);
 	}
@@ -231,7 +247,8 @@ static int resolve(const struct asph_surface *s, enum asph_plan_method m,
 					 "%g is too coarse: it gives a spacing of %.6g mm, "
 					 "more than the aperture radius %.6g mm (h > 1)",
 					 d.value, out->e, a);
-	out->n = pattern_count(s, m, out->p);
+	out->xyz = NULL;
+	out->n = pattern_count(s, m, out->p, &out->xyz);
 	if (out->n > PLAN_MAX_POINTS)
 		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
 					 "%g gives more than %zu points, the most a plan can hold",
@@ -243,7 +260,7 @@ int asph_plan_resolve(const struct asph_surface *s, enum asph_plan_method m,
 		      struct asph_plan_density density, double *spacing_mm,
 		      size_t *n_points, struct asph_error *err)
 {
-	struct plan_size sz;
+	_cleanup_(plan_size_clear) struct plan_size sz = { 0 };
 	int r = resolve(s, m, density, &sz, err);
 
 	if (r < 0)
@@ -498,7 +515,7 @@ int asph_plan_to_points(const struct asph_plan *p, struct asph_points **out)
 }
 
 static int compute_points(const struct asph_surface *s, struct asph_plan *plan,
-			  const struct plan_size *sz, unsigned flags,
+			  struct plan_size *sz, unsigned flags,
 			  struct asph_error *err)
 {
 	const struct plan_method *meth = method_of(plan->method);
@@ -506,10 +523,14 @@ static int compute_points(const struct asph_surface *s, struct asph_plan *plan,
 	int r;
 
 	plan->n = sz->n;
-	if (freeform)
+	if (freeform && sz->xyz) {
+		plan->xyz = steal_ptr(sz->xyz);
+		r = 0;
+	} else if (freeform) {
 		r = meth->freeform->fill(s, meth, sz->p, plan, err);
-	else
+	} else {
 		r = meth->fill(s, asph_surface_aperture_radius(s), sz->p, plan, err);
+	}
 	if (r < 0)
 		return r;
 	/* The mesh of the disk grid, before a map moves its points */
@@ -539,7 +560,7 @@ int asph_plan_compute_opts(const struct asph_surface *s,
 	size_t max_points = opts ? opts->max_points : 0;
 	unsigned flags = opts ? opts->flags : 0;
 	_cleanup_(asph_plan_freep) struct asph_plan *plan = NULL;
-	struct plan_size sz;
+	_cleanup_(plan_size_clear) struct plan_size sz = { 0 };
 	int r = resolve(s, m, density, &sz, err);
 
 	if (r < 0)
@@ -665,7 +686,7 @@ static bool aperture_too_dense(const struct asph_surface *s, double p)
 }
 
 static size_t aperture_count(const struct asph_surface *s, const struct plan_method *meth,
-			     double p)
+			     double p, double **keep)
 {
 	struct plan_points pp = { 0 };
 	size_t n = SIZE_MAX;
@@ -718,6 +739,33 @@ static int cvt_freeform_map(const struct asph_surface *s, double p, double *xyz,
 static const struct plan_freeform cvt_freeform = { aperture_count, aperture_fill,
 						   cvt_freeform_map };
 
+/* CI: the involute by geodesics on the surface (asph/involute.h). Its
+ * count is the plan's own, so counting computes the plan and keeps it for
+ * fill; a failure counts 0 points, and fill then says why. */
+static size_t ci_freeform_count(const struct asph_surface *s, const struct plan_method *meth,
+				double p, double **keep)
+{
+	_cleanup_free_ double *xyz = NULL;
+	size_t n = 0;
+
+	if (!(asph_surface_total_area(s) / (p * p) < 2.0 * (double)PLAN_MAX_POINTS))
+		return SIZE_MAX;
+	if (asph_involute_points_geodesic(s, p, PLAN_MAX_POINTS, &xyz, &n, NULL) < 0)
+		return 0;
+	if (keep)
+		*keep = steal_ptr(xyz);
+	return n;
+}
+
+static int ci_freeform_fill(const struct asph_surface *s, const struct plan_method *meth,
+			    double p, struct asph_plan *plan, struct asph_error *err)
+{
+	return asph_involute_points_geodesic(s, p, PLAN_MAX_POINTS, &plan->xyz, &plan->n, err);
+}
+
+static const struct plan_freeform ci_freeform = { ci_freeform_count, ci_freeform_fill, NULL,
+						  true };
+
 /*
  * Lattices measured on flat patterns of 1.26e5 points on the unit disk
  * (Delaunay triangulation, mean edge length; points per area),
@@ -733,7 +781,7 @@ static const struct plan_method methods[ASPH_PLAN_N_METHODS] = {
 	[ASPH_PLAN_LB] = { "lb", ASPH_PLAN_OP, { 1.0, 1.099 }, false, true,
 			   disk_grid_count, disk_grid_fill, lift_lb, &lb_freeform },
 	[ASPH_PLAN_CI] = { "ci", ASPH_PLAN_CI, { 1.0, 1.099 }, true, false,
-			   ci_count, ci_fill, NULL },
+			   ci_count, ci_fill, NULL, &ci_freeform },
 	[ASPH_PLAN_RASTER] = { "raster", ASPH_PLAN_RASTER, { 1.0, 1.138 } /* (2 + sqrt 2) / 3 */, false, false,
 			       raster_count, raster_fill, lift_projected,
 			       &over_aperture },

@@ -5,6 +5,7 @@ asph synth with a 6-DOF misalignment | asph fit --dof ...,rz, asph scan with
 the mock instrument and asph replay; the refusals name what is wrong."""
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -94,6 +95,29 @@ def grid_plans(lens):
     check(len(set(counts.values())) == 1, f"op, ot and lb move one grid: {counts}")
 
 
+def involute(lens):
+    """ci on the freeform: the involute drawn by geodesics on the surface,
+    as many points as asked within 1 %, all in the rectangle, and most
+    consecutive ones one step apart in 3-D (the step: about
+    sqrt(408 mm^2 / 800); the chords near the centre and the jumps over
+    what the rectangle cuts off are the rest)."""
+    r = run(["plan", lens, "--method", "ci", "--points", "800"])
+    check(r.returncode == 0, f"plan ci: {r.stderr}")
+    if r.returncode != 0:
+        return
+    pts = [tuple(map(float, ln.split(","))) for ln in r.stdout.strip().split("\n")[1:]]
+    check(abs(len(pts) - 800) <= 8, f"plan ci: {len(pts)} points for 800")
+    ap = LENS["aperture"]
+    check(all(abs(x - ap["offset"][0]) <= ap["width"] / 2 and
+              abs(y - ap["offset"][1]) <= ap["height"] / 2 for x, y, _ in pts),
+          "plan ci: every point in the aperture")
+    steps = sorted(math.dist(a, b) for a, b in zip(pts, pts[1:]))
+    med = steps[len(steps) // 2]
+    even = sum(abs(d - med) <= 0.02 * med for d in steps)
+    check(0.6 < med < 0.8 and even >= 0.8 * len(steps),
+          f"plan ci: median step {med} mm, {even} of {len(steps)} within 2 % of it")
+
+
 def plots(tmp, lens, points):
     """asph plot draws a freeform's ot and cvt plans (PNGs of the plot's
     size), asph quality judges them, and asph fit --map draws the residual
@@ -121,9 +145,9 @@ def refusals(tmp, lens, points):
     check(r.returncode != 0 and "rz cannot be fitted" in r.stderr, f"rz on weak: {r.stderr}")
     r = run(["fit", lens, "-", "--dof", "tx,ty,R"], stdin=points)
     check(r.returncode != 0 and "R and k" in r.stderr, f"R on a freeform: {r.stderr}")
-    r = run(["plan", lens, "--method", "ci", "--points", "100"])
-    check(r.returncode != 0 and "rotationally symmetric" in r.stderr
-          and "use one of op, ot, lb, raster, concentric, spiral, fermat, cvt" in r.stderr, f"ci plan: {r.stderr}")
+    r = run(["plan", lens, "--method", "ci", "--spacing", "40"])
+    check(r.returncode != 0 and "spacing: 40 is too coarse" in r.stderr,
+          f"ci plan, too coarse: {r.stderr}")
     bad = os.path.join(tmp, "bad.json")
     with open(bad, "w") as f:
         f.write('{"type": "biconic", "Rx": 40, "Ry": 50,\n "kx": 60, "aperture_diameter": 20}')
@@ -143,6 +167,7 @@ def main():
         points = synth_fit(lens)
         scan_replay(tmp, lens)
         grid_plans(lens)
+        involute(lens)
         plots(tmp, lens, points)
         refusals(tmp, lens, points)
     if FAILURES:

@@ -3,6 +3,7 @@
 #include <errno.h>
 #include <math.h>
 #include <setjmp.h>
+#include <stdbool.h>
 #include <stdarg.h>
 #include <stdbool.h>
 #include <stddef.h>
@@ -12,7 +13,10 @@
 #include <string.h>
 
 #include <cmocka.h>
+#include <gsl/gsl_errno.h>
+#include <gsl/gsl_odeiv2.h>
 
+#include "asph/involute.h"
 #include "asph/ot.h"
 #include "asph/plan.h"
 #include "asph/prescription.h"
@@ -58,8 +62,9 @@ static struct asph_surface *biconic_ellipse(void)
 	return alloc_surface(&p);
 }
 
-/* A Zernike freeform over an off-centre circle. */
-static struct asph_surface *zernike_offset(void)
+/* A Zernike freeform over an off-centre circle, plus Z231 (azimuthal
+ * order 20) times ripple mm. */
+static struct asph_surface *zernike_with(double ripple)
 {
 	struct asph_prescription p = {
 		.type = ASPH_SURFACE_ZERNIKE_SAG, .R = 48.3, .k = -0.61, .norm_radius = 12,
@@ -68,7 +73,20 @@ static struct asph_surface *zernike_offset(void)
 
 	for (int j = 4; j <= 22; j++)
 		p.Zernike[j - 1] = 2e-3 * (j % 2 ? 1 : -1) / j;
+	p.Zernike[230] = ripple;
 	return alloc_surface(&p);
+}
+
+static struct asph_surface *zernike_offset(void)
+{
+	return zernike_with(0);
+}
+
+/* Rippled by 5 um of Z231: the involute's turns ripple 20 times around,
+ * more than its first panels resolve. */
+static struct asph_surface *zernike_rippled(void)
+{
+	return zernike_with(5e-3);
 }
 
 /* The even asphere of a preset written as an xy polynomial: the same conic
@@ -596,6 +614,359 @@ static void test_quality_freeform_chart(void **state)
 	}
 }
 
+/* ---- CI ------------------------------------------------------------------------------- */
+
+/* A surface of revolution given as a Zernike sag: the conic, Z4 and Z11
+ * (Noll: sqrt(3) (2 u^2 - 1), sqrt(5) (6 u^4 - 6 u^2 + 1)) with their
+ * constants cancelling, and the even asphere it equals. */
+static void zernike_symmetric(struct asph_surface **zs, struct asph_surface **ea)
+{
+	const double rho = 14, c11 = 2.5e-3, c4 = sqrt(5.0 / 3.0) * c11;
+	struct asph_prescription z = {
+		.type = ASPH_SURFACE_ZERNIKE_SAG, .R = 52.4, .k = -0.7, .norm_radius = rho,
+		.aperture_diameter = 26,
+	};
+	struct asph_prescription e = {
+		.type = ASPH_SURFACE_EVEN_ASPHERE, .R = 52.4, .k = -0.7, .aperture_diameter = 26,
+	};
+
+	z.A[4] = -3e-6;
+	z.Zernike[3] = c4;
+	z.Zernike[10] = c11;
+	e.A[2] = (2 * sqrt(3.0) * c4 - 6 * sqrt(5.0) * c11) / (rho * rho);
+	e.A[4] = -3e-6 + 6 * sqrt(5.0) * c11 / pow(rho, 4);
+	*zs = alloc_surface(&z);
+	*ea = alloc_surface(&e);
+}
+
+/* The involute by geodesics on the smooth surface reproduces the Clairaut
+ * plan point for point, to 1e-6 of the spacing (seen ~1e-9), on surfaces
+ * of revolution given as freeforms (the presets as xy polynomials, a
+ * Zernike sag) and on the rotational surface itself: the same code, no
+ * special case. Through the plan API as well (ci on the xy polynomial). */
+static void test_ci_freeform_is_rotational(void **state)
+{
+	const char *names[] = { "strong", "turning-point", NULL };
+
+	for (int k = 0; k < 3; k++) {
+		struct asph_surface *rot, *ff;
+		if (names[k]) {
+			rot = preset(names[k]);
+			ff = preset_as_xy(names[k]);
+		} else {
+			zernike_symmetric(&ff, &rot);
+		}
+		/* valgrind: a third of the points */
+		const double h = getenv("ASPH_UNDER_VALGRIND") ? 0.075 : 0.043;
+		double a = asph_surface_aperture_radius(rot), e = h * a;
+		double *p = NULL, *q = NULL, *g = NULL;
+		size_t np = 0, nq = 0, ng = 0;
+		struct asph_error err;
+		assert_int_equal(asph_involute_points(rot, e, 0, &p, &np, &err), 0);
+		if (asph_involute_points_geodesic(ff, e, 0, &q, &nq, &err) < 0)
+			fail_msg("%s", err.message);
+		assert_int_equal(asph_involute_points_geodesic(rot, e, 0, &g, &ng, &err), 0);
+		assert_int_equal(np, nq);
+		assert_int_equal(np, ng);
+		double worst = 0, worst_rot = 0;
+		for (size_t i = 0; i < np; i++) {
+			worst = fmax(worst, sqrt(pow(p[3 * i] - q[3 * i], 2) +
+						 pow(p[3 * i + 1] - q[3 * i + 1], 2) +
+						 pow(p[3 * i + 2] - q[3 * i + 2], 2)));
+			worst_rot = fmax(worst_rot, sqrt(pow(p[3 * i] - g[3 * i], 2) +
+							 pow(p[3 * i + 1] - g[3 * i + 1], 2) +
+							 pow(p[3 * i + 2] - g[3 * i + 2], 2)));
+		}
+		print_message("CI %s: %zu points, geodesic involute within %.2g (freeform) and "
+			      "%.2g (rotational) of the spacing\n", names[k] ? names[k] : "zernike",
+			      np, worst / e, worst_rot / e);
+		assert_true(worst <= 1e-6 * e);
+		assert_true(worst_rot <= 1e-6 * e);
+		if (names[k]) {
+			struct asph_plan *pp = plan_of(rot, ASPH_PLAN_CI, h);
+			struct asph_plan *pq = plan_of(ff, ASPH_PLAN_CI, h);
+			assert_true(fabs(pp->spacing_mm - pq->spacing_mm) <= 1e-12 * e);
+			assert_true(plan_distance(pp, pq) <= 1e-6 * e);
+			asph_plan_free(pp);
+			asph_plan_free(pq);
+		}
+		free(p);
+		free(q);
+		free(g);
+		asph_surface_free(rot);
+		asph_surface_free(ff);
+	}
+}
+
+/* The test's own geodesic: the 3-D curve X(s) on z = S(x, y) whose
+ * acceleration is along the normal, X'' = II(X', X') n (n = (-S_x, -S_y,
+ * 1) / sqrt(W), II(v, v) = v_xy^T Hess v_xy / sqrt(W)), integrated by
+ * GSL's driver (Cash-Karp), unlike the plan's. */
+static int geo3d_rhs(double t, const double y[], double f[], void *ctx)
+{
+	struct asph_sag d;
+
+	(void)t;
+	asph_surface_derivs_xy(ctx, y[0], y[1], &d);
+	double W = 1 + d.zx * d.zx + d.zy * d.zy;
+	double II = (d.zxx * y[3] * y[3] + 2 * d.zxy * y[3] * y[4] + d.zyy * y[4] * y[4]) /
+		    sqrt(W);
+	double n[3] = { -d.zx / sqrt(W), -d.zy / sqrt(W), 1 / sqrt(W) };
+	for (int k = 0; k < 3; k++) {
+		f[k] = y[3 + k];
+		f[3 + k] = II * n[k];
+	}
+	return GSL_SUCCESS;
+}
+
+/* The end of the geodesic of length len from X0 with unit tangent v0. */
+static void shoot(const struct asph_surface *s, const double X0[3], const double v0[3],
+		  double len, double X1[3])
+{
+	gsl_odeiv2_system sys = { geo3d_rhs, NULL, 6, (void *)s };
+	gsl_odeiv2_driver *d = gsl_odeiv2_driver_alloc_y_new(&sys, gsl_odeiv2_step_rkck,
+							     1e-3 * len, 1e-14, 1e-14);
+	double y[6] = { X0[0], X0[1], X0[2], v0[0], v0[1], v0[2] }, t = 0;
+
+	assert_int_equal(gsl_odeiv2_driver_apply(d, &t, len, y), GSL_SUCCESS);
+	gsl_odeiv2_driver_free(d);
+	for (int k = 0; k < 3; k++)
+		X1[k] = y[k];
+}
+
+/* Point t (and its derivative) of the quintic through plan points
+ * i - 2 .. i + 3 at t = -2 .. 3: the curve between points i and i + 1,
+ * which are one arc-length step apart. */
+static void stencil_at(const double *xyz, size_t i, double t, double X[3], double dX[3])
+{
+	for (int c = 0; c < 3; c++)
+		X[c] = dX[c] = 0;
+	for (int a = -2; a <= 3; a++) {
+		double l = 1, dl = 0;
+		for (int b = -2; b <= 3; b++) {
+			if (b == a)
+				continue;
+			dl = dl * (t - b) / (a - b) + l / (a - b);
+			l *= (t - b) / (a - b);
+		}
+		for (int c = 0; c < 3; c++) {
+			X[c] += l * xyz[3 * (i + a) + c];
+			dX[c] += dl * xyz[3 * (i + a) + c];
+		}
+	}
+}
+
+/* Whether points i - 2 .. i + 3 follow each other on the curve (none of the
+ * steps between them skips points left outside the aperture). */
+static int stencil_ok(const double *xyz, size_t n, size_t i, double e)
+{
+	if (i < 2 || i + 3 >= n)
+		return 0;
+	for (size_t k = i - 2; k < i + 3; k++) {
+		const double *a = xyz + 3 * k, *b = a + 3;
+		double d = sqrt(pow(b[0] - a[0], 2) + pow(b[1] - a[1], 2) + pow(b[2] - a[2], 2));
+		if (!(d > 0.99 * e && d <= e))
+			return 0;
+	}
+	return 1;
+}
+
+/* 3-D distance from X to the plan's curve near point j (the stencils at
+ * j - 1 and j, t in [0, 1] each, golden-section search). */
+static double distance_to_curve(const double *xyz, size_t n, size_t j, double e,
+				const double X[3])
+{
+	double best = INFINITY;
+
+	for (size_t i = j - 1; i <= j; i++) {
+		if (!stencil_ok(xyz, n, i, e))
+			return INFINITY;
+		double lo = 0, hi = 1, g = 0.5 * (sqrt(5.0) - 1);
+		for (int it = 0; it < 80; it++) {
+			double t1 = hi - g * (hi - lo), t2 = lo + g * (hi - lo), P[3], dP[3];
+			stencil_at(xyz, i, t1, P, dP);
+			double d1 = pow(P[0] - X[0], 2) + pow(P[1] - X[1], 2) + pow(P[2] - X[2], 2);
+			stencil_at(xyz, i, t2, P, dP);
+			double d2 = pow(P[0] - X[0], 2) + pow(P[1] - X[1], 2) + pow(P[2] - X[2], 2);
+			if (d1 < d2)
+				hi = t2;
+			else
+				lo = t1;
+		}
+		double P[3], dP[3];
+		stencil_at(xyz, i, 0.5 * (lo + hi), P, dP);
+		best = fmin(best, sqrt(pow(P[0] - X[0], 2) + pow(P[1] - X[1], 2) +
+				       pow(P[2] - X[2], 2)));
+	}
+	return best;
+}
+
+/* CI on two freeforms (an xy polynomial over an off-centre rectangle, a
+ * Zernike sag over an off-centre circle) and on the Zernike sag rippled by
+ * a term of azimuthal order 20 (which the plan's first panels do not
+ * resolve, so that they double), checked by geodesics of the test's own: the geodesic of length spacing normal to the curve at a
+ * point ends on the next turn, and the curve between neighbours is
+ * spacing long, both to 1e-6 of the spacing (seen 1.7e-7 and 6e-8: what
+ * the test's 6-point interpolation of the turns between plan points
+ * resolves, which is why points within 6 spacings of the centre, where the
+ * turns bend most, are left out, and 30 on the rippled surface, where the
+ * test's steps are 0.1 mm; seen 1e-7 there). Every point is in the aperture and on
+ * the surface; the aperture is covered (no point of it farther than 0.75
+ * spacing from the plan, 1 spacing within 1 spacing of the edge, where
+ * the edge cuts the turns); one point per spacing^2 of surface area
+ * (within 3 %). */
+static void test_ci_freeform(void **state)
+{
+	struct asph_surface *s[3] = { segment(), zernike_offset(), zernike_rippled() };
+	const int every = getenv("ASPH_UNDER_VALGRIND") ? 29 : 7;
+
+	/* The ripples need finer steps and more points per turn (farther out)
+	 * for the test's interpolation: 38000 points, which valgrind would
+	 * take minutes over; there the rippled surface is left out. */
+	const bool valgrind = getenv("ASPH_UNDER_VALGRIND") != NULL;
+	const double spacing[3] = { 0.66, 0.66, 0.11 }, min_radius[3] = { 6, 6, 30 };
+
+	for (int k = 0; k < (valgrind ? 2 : 3); k++) {
+		struct asph_plan *pl = NULL;
+		struct asph_error err;
+		if (asph_plan_compute(s[k], ASPH_PLAN_CI,
+				      (struct asph_plan_density){ ASPH_DENSITY_SPACING, spacing[k] },
+				      0, &pl, &err) < 0)
+			fail_msg("%s", err.message);
+		/* the involute's step: the plan's spacing is its mean edge */
+		const double e = pl->spacing_mm / plan_lattice_of(ASPH_PLAN_CI)->edge_per_pitch;
+		const double *xyz = pl->xyz;
+		const size_t n = pl->n;
+		double c[2], R, worst_turn = 0, worst_step = 0, worst_cover = 0, worst_edge = 0;
+		size_t checked = 0;
+		asph_surface_aperture_disk(s[k], c, &R);
+		for (size_t i = 0; i < n; i++) {
+			assert_true(asph_surface_contains(s[k], xyz[3 * i], xyz[3 * i + 1], 0));
+			assert_true(xyz[3 * i + 2] ==
+				    asph_surface_sag_xy(s[k], xyz[3 * i], xyz[3 * i + 1]));
+		}
+		for (size_t i = 2; i + 3 < n; i += (size_t)every) {
+			if (!stencil_ok(xyz, n, i, e) ||
+			    hypot(xyz[3 * i] - c[0], xyz[3 * i + 1] - c[1]) < min_radius[k] * e)
+				continue;
+			/* the step to the next point: Gauss-Legendre on the stencil */
+			static const double gx[5] = { -0.9061798459386640, -0.5384693101056831, 0,
+						      0.5384693101056831, 0.9061798459386640 };
+			static const double gw[5] = { 0.2369268850561891, 0.4786286704993665,
+						      0.5688888888888889, 0.4786286704993665,
+						      0.2369268850561891 };
+			double len = 0, X[3], T[3], nrm[3], N[3], Y[3];
+			for (int q = 0; q < 5; q++) {
+				stencil_at(xyz, i, 0.5 * (gx[q] + 1), X, T);
+				len += 0.5 * gw[q] * sqrt(T[0] * T[0] + T[1] * T[1] + T[2] * T[2]);
+			}
+			worst_step = fmax(worst_step, fabs(len - e) / e);
+			/* the normal geodesic, on the side away from the centre */
+			stencil_at(xyz, i, 0, X, T);
+			asph_surface_normal(s[k], X[0], X[1], nrm);
+			N[0] = T[1] * nrm[2] - T[2] * nrm[1];
+			N[1] = T[2] * nrm[0] - T[0] * nrm[2];
+			N[2] = T[0] * nrm[1] - T[1] * nrm[0];
+			double nn = sqrt(N[0] * N[0] + N[1] * N[1] + N[2] * N[2]);
+			if (N[0] * (X[0] - c[0]) + N[1] * (X[1] - c[1]) < 0)
+				nn = -nn;
+			for (int q = 0; q < 3; q++)
+				N[q] /= nn;
+			shoot(s[k], X, N, e, Y);
+			if (!asph_surface_contains(s[k], Y[0], Y[1], -e))
+				continue;
+			size_t j = 0;
+			double dj = INFINITY;
+			for (size_t m = i + 1; m < n; m++) {
+				double d = pow(xyz[3 * m] - Y[0], 2) + pow(xyz[3 * m + 1] - Y[1], 2) +
+					   pow(xyz[3 * m + 2] - Y[2], 2);
+				if (d < dj) {
+					dj = d;
+					j = m;
+				}
+			}
+			double d = distance_to_curve(xyz, n, j, e, Y);
+			if (!isfinite(d))
+				continue;
+			worst_turn = fmax(worst_turn, d / e);
+			checked++;
+		}
+		/* coverage, on a lattice over the aperture's bounding box */
+		double box[4];
+		asph_surface_bounds(s[k], box);
+		for (int a = 0; a <= 24; a++)
+			for (int b = 0; b <= 24; b++) {
+				double x = box[0] + (box[1] - box[0]) * (a + 0.31) / 25.0;
+				double y = box[2] + (box[3] - box[2]) * (b + 0.57) / 25.0;
+				if (!asph_surface_contains(s[k], x, y, 0))
+					continue;
+				bool inner = asph_surface_contains(s[k], x, y, -e);
+				double z = asph_surface_sag_xy(s[k], x, y), best = INFINITY;
+				for (size_t i = 0; i < n; i++)
+					best = fmin(best, pow(xyz[3 * i] - x, 2) +
+							  pow(xyz[3 * i + 1] - y, 2) +
+							  pow(xyz[3 * i + 2] - z, 2));
+				if (inner)
+					worst_cover = fmax(worst_cover, sqrt(best) / e);
+				else
+					worst_edge = fmax(worst_edge, sqrt(best) / e);
+			}
+		double per_area = asph_surface_total_area(s[k]) / (e * e);
+		print_message("CI freeform %d: %zu points (area / spacing^2 %.1f), %zu turn "
+			      "spacings checked: next turn within %.2g, steps within %.2g of the "
+			      "spacing; coverage %.3f spacing (%.3f at the edge)\n", k, n, per_area,
+			      checked, worst_turn, worst_step, worst_cover, worst_edge);
+		assert_true(checked >= (valgrind ? 15u : 100u));
+		assert_true(worst_turn <= 1e-6);
+		assert_true(worst_step <= 1e-6);
+		assert_true(worst_cover <= 0.75);
+		assert_true(worst_edge <= 1);
+		assert_true(fabs((double)n - per_area) <= 0.03 * per_area);
+		asph_plan_free(pl);
+	}
+	for (int k = 0; k < 3; k++)
+		asph_surface_free(s[k]);
+}
+
+/* --points on a freeform: the count asph_plan_resolve() promises is the
+ * plan's, within 0.5 % of the request (the involute has one point per
+ * step^2 of surface but for the edge). */
+static void test_ci_freeform_counts(void **state)
+{
+	struct asph_surface *s[2] = { segment(), zernike_offset() };
+
+	for (int i = 0; i < 2; i++) {
+		struct asph_plan_density d = { ASPH_DENSITY_POINTS, 1500 };
+		struct asph_plan *p = NULL;
+		double e = 0;
+		size_t n = 0;
+		assert_int_equal(asph_plan_resolve(s[i], ASPH_PLAN_CI, d, &e, &n, NULL), 0);
+		assert_int_equal(asph_plan_compute(s[i], ASPH_PLAN_CI, d, 0, &p, NULL), 0);
+		assert_int_equal(p->n, n);
+		assert_true(p->spacing_mm == e);
+		print_message("CI freeform %d: %zu points for 1500\n", i, n);
+		assert_true(fabs((double)n - 1500) <= 7.5);
+		asph_plan_free(p);
+		asph_surface_free(s[i]);
+	}
+}
+
+/* The involute refuses what it cannot draw, with a message. */
+static void test_ci_freeform_refuses(void **state)
+{
+	struct asph_surface *s = segment();
+	struct asph_error err;
+	double *xyz = NULL;
+	size_t n = 0;
+
+	assert_int_equal(asph_involute_points_geodesic(s, -1, 0, &xyz, &n, &err), -EINVAL);
+	assert_int_equal(asph_involute_points_geodesic(s, NAN, 0, &xyz, &n, &err), -EINVAL);
+	assert_int_equal(asph_involute_points_geodesic(s, 200, 0, &xyz, &n, &err), -EINVAL);
+	assert_int_equal(asph_involute_points_geodesic(s, 0.5, 100, &xyz, &n, &err), -E2BIG);
+	assert_non_null(strstr(err.message, "100"));
+	asph_surface_free(s);
+}
+
 /* ---- CVT ------------------------------------------------------------------------------ */
 
 /* The centroid of site i's Voronoi cell restricted to the surface, by its
@@ -720,8 +1091,14 @@ int main(void)
 		cmocka_unit_test(test_ot_plan_area),
 		cmocka_unit_test(test_ot_map_refuses),
 		cmocka_unit_test(test_quality_freeform_chart),
+		cmocka_unit_test(test_ci_freeform_is_rotational),
+		cmocka_unit_test(test_ci_freeform),
+		cmocka_unit_test(test_ci_freeform_counts),
+		cmocka_unit_test(test_ci_freeform_refuses),
 		cmocka_unit_test(test_cvt),
 	};
 
+	if (getenv("ASPH_TEST_FILTER"))
+		cmocka_set_test_filter(getenv("ASPH_TEST_FILTER"));
 	return cmocka_run_group_tests(tests, NULL, NULL);
 }
