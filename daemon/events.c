@@ -152,15 +152,19 @@ void events_job_state(struct events *e, int64_t id, enum job_state state, int pr
 			 "reason", reason, "instrument", instrument, "verdict", verdict));
 }
 
-void events_job_progress(struct events *e, int64_t id, const char *instrument, int64_t done,
-			 int64_t total, double rate, double eta_s)
+void events_job_progress(struct events *e, int64_t id, const char *instrument,
+			 const struct instrument_activity *a)
 {
+	json_t *params;
+
 	if (!wanted(e, EVENT_PROGRESS))
 		return;
-	notify(e, EVENT_PROGRESS, id, "job.progress",
-	       json_pack("{s:I, s:s, s:I, s:I, s:f, s:f}", "job", (json_int_t)id,
-			 "instrument", instrument, "done", (json_int_t)done,
-			 "total", (json_int_t)total, "rate", rate, "eta_s", eta_s));
+	params = json_pack("{s:I, s:s}", "job", (json_int_t)id, "instrument", instrument);
+	if (params && json_object_update_new(params, activity_progress_to_json(a)) < 0) {
+		json_decref(params);
+		params = NULL;
+	}
+	notify(e, EVENT_PROGRESS, id, "job.progress", params);
 }
 
 void events_instrument_fault(struct events *e, const char *instrument, int64_t id,

@@ -74,9 +74,11 @@ int events_watch_remove(struct events *e, int id);
  * is NULL unless a completed job had a tolerance. */
 void events_job_state(struct events *e, int64_t id, enum job_state state, int previous,
 		      const char *reason, const char *instrument, const char *verdict);
-/* job.progress of job id on instrument; eta_s < 0 when not known. */
-void events_job_progress(struct events *e, int64_t id, const char *instrument, int64_t done,
-			 int64_t total, double rate, double eta_s);
+/* job.progress of job id on instrument, doing a (its progress object:
+ * activity_progress_to_json()). */
+struct instrument_activity;
+void events_job_progress(struct events *e, int64_t id, const char *instrument,
+			 const struct instrument_activity *a);
 /* instrument.fault: a driver fault on instrument ended job id. */
 void events_instrument_fault(struct events *e, const char *instrument, int64_t id,
 			     const char *reason);

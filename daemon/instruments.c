@@ -135,11 +135,28 @@ json_t *instrument_to_json(const struct instrument *in, const struct instrument_
 	json_object_set_new(o, "fault", a->fault ? json_string(a->fault) : json_null());
 	json_object_set_new(o, "lock", instrument_lock_to_json(a->lock));
 	if (a->job)
-		json_object_set_new(o, "progress",
-				    json_pack("{s:I, s:I, s:f, s:f}", "done", (json_int_t)a->done,
-					      "total", (json_int_t)a->total, "rate", a->rate,
-					      "eta_s", a->eta_s));
+		json_object_set_new(o, "progress", activity_progress_to_json(a));
 	return o;
+}
+
+const char *activity_phase(const struct instrument_activity *a)
+{
+	if (!a->characterizing)
+		return "measuring";
+	return a->trials_planned > 0 ? "uncertainty" : "characterizing";
+}
+
+json_t *activity_progress_to_json(const struct instrument_activity *a)
+{
+	const char *phase = activity_phase(a);
+	json_t *trials = a->characterizing && a->trials_planned > 0
+		? json_pack("{s:I, s:I, s:f}", "done", (json_int_t)a->trials_done,
+			    "planned", (json_int_t)a->trials_planned, "rate", a->trials_rate)
+		: json_null();
+
+	return json_pack("{s:I, s:I, s:f, s:f, s:s, s:o}", "done", (json_int_t)a->done,
+			 "total", (json_int_t)a->total, "rate", a->rate, "eta_s", a->eta_s,
+			 "phase", phase, "trials", trials);
 }
 
 json_t *instrument_lock_to_json(const struct instrument_lock *l)

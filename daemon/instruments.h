@@ -44,8 +44,13 @@ struct instrument_activity {
 	int64_t job;            /* running or paused job, 0 if none */
 	bool paused;
 	bool characterizing;    /* its scan is recorded, the result being made */
-	int64_t done, total;    /* live progress of that job */
-	double rate, eta_s;
+	int64_t done, total;    /* live progress of that job: plan points */
+	double rate, eta_s;     /* points/s; s left of the phase, -1: unknown */
+	/* The Monte Carlo uncertainty of the characterization, once it runs
+	 * (trials_planned > 0): trials done of those planned so far, the
+	 * trials per second since it started. */
+	int64_t trials_done, trials_planned;
+	double trials_rate;
 	const char *fault;      /* the last driver fault, or NULL */
 	const struct instrument_lock *lock;     /* NULL: not locked */
 };
@@ -67,6 +72,12 @@ int instruments_find(const struct instruments *ins, const char *name);
 
 /* "idle", "measuring", "paused" or "fault". */
 const char *instrument_state_name(const struct instrument_activity *a);
+/* The phase of a's job: "measuring" (paused included), "characterizing",
+ * "uncertainty" (the Monte Carlo of the characterization runs). */
+const char *activity_phase(const struct instrument_activity *a);
+/* The progress object of proto/README.md for a's running job: done,
+ * total, rate, eta_s, phase and trials (null but in phase "uncertainty"). */
+json_t *activity_progress_to_json(const struct instrument_activity *a);
 /* The instrument object of proto/README.md. */
 json_t *instrument_to_json(const struct instrument *in, const struct instrument_activity *a);
 /* driver.list's result: the registry as asph drivers --json prints it. */

@@ -610,8 +610,25 @@ static void job_progress(struct slot *sl, const struct runner_report *rep)
 		store_set_progress(jobs->store, rep->job, sl->act.done, sl->act.total);
 		sl->last_progress_store_ns = now;
 	}
-	events_job_progress(jobs->events, rep->job, sl->in->name, sl->act.done, sl->act.total,
-			    sl->act.rate, sl->act.eta_s);
+	events_job_progress(jobs->events, rep->job, sl->in->name, &sl->act);
+}
+
+/* The recorded scan is being characterized: no points move any more;
+ * then its Monte Carlo, if any, counts trials. */
+static void job_characterizing(struct slot *sl, const struct runner_report *rep)
+{
+	struct instrument_activity *a = &sl->act;
+
+	a->characterizing = true;
+	a->rate = 0;
+	a->eta_s = -1;
+	if (rep->kind == RUNNER_UNCERTAINTY) {
+		a->trials_done = (int64_t)rep->done;
+		a->trials_planned = (int64_t)rep->total;
+		a->trials_rate = rep->rate;
+		a->eta_s = rep->eta_s;
+	}
+	events_job_progress(sl->jobs->events, rep->job, sl->in->name, a);
 }
 
 static bool any_running(const struct jobs *jobs)
@@ -711,8 +728,9 @@ static void on_report(const struct runner_report *rep, void *data)
 			job_progress(sl, rep);
 		break;
 	case RUNNER_CHARACTERIZING:
+	case RUNNER_UNCERTAINTY:
 		if (rep->job == sl->act.job)
-			sl->act.characterizing = true;
+			job_characterizing(sl, rep);
 		break;
 	case RUNNER_PAUSED:
 	case RUNNER_RESUMED:
@@ -1249,10 +1267,23 @@ json_t *jobs_job_to_json(const struct jobs *jobs, const struct job_record *j)
 	int64_t done = a ? a->done : j->points_done;
 	int64_t total = a && a->total ? a->total : j->points_total;
 	json_t *lens = json_object_get(spec, "lens");
+	json_t *progress;
 	char verdict[16];
 
+	/* a job that does not run has no phase */
+	if (a) {
+		struct instrument_activity now = *a;
+		now.done = done;
+		now.total = total;
+		progress = activity_progress_to_json(&now);
+	} else {
+		progress = json_pack("{s:I, s:I, s:f, s:f, s:n, s:n}", "done", (json_int_t)done,
+				     "total", (json_int_t)total, "rate", 0.0, "eta_s", -1.0,
+				     "phase", "trials");
+	}
+
 	return json_pack("{s:I, s:s, s:s?, s:s, s:I, s:{s:I, s:s?}, s:O?, s:O?, s:O?, s:O?, s:s?,"
-			 " s:o, s:o, s:o, s:{s:I, s:I, s:f, s:f}, s:s?, s:I, s:b, s:s?, s:s?, s:s?}",
+			 " s:o, s:o, s:o, s:o, s:s?, s:I, s:b, s:s?, s:s?, s:s?}",
 		"id", (json_int_t)j->id,
 		"state", job_state_name(j->state),
 		"label", j->label,
@@ -1267,8 +1298,7 @@ json_t *jobs_job_to_json(const struct jobs *jobs, const struct job_record *j)
 		"submitted", time_json(j->submitted_ns),
 		"started", time_json(j->started_ns),
 		"finished", time_json(j->finished_ns),
-		"progress", "done", (json_int_t)done, "total", (json_int_t)total,
-		"rate", a ? a->rate : 0.0, "eta_s", a ? a->eta_s : -1.0,
+		"progress", progress,
 		"reason", j->reason,
 		"attempts", (json_int_t)j->attempts,
 		"resumable", j->resume,
@@ -1371,6 +1401,9 @@ void jobs_status_text(const struct jobs *jobs, char *buf, size_t size)
 				      n ? ", " : "", a->paused ? "paused"
 				      : a->characterizing ? "characterizing" : "measuring", a->job,
 				      a->total > 0 ? (int)(100 * a->done / a->total) : 0);
+		if (n < size && a->characterizing && a->trials_planned > 0)
+			n += (size_t)snprintf(buf + n, size - n, ", uncertainty %" PRId64 "/%" PRId64
+					      " trials", a->trials_done, a->trials_planned);
 	}
 	if (!buf[0])
 		snprintf(buf, size, "%s", jobs->stopping ? "stopping"

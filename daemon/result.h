@@ -7,6 +7,7 @@
 #define ASPHD_RESULT_H
 
 #include <stdbool.h>
+#include <stddef.h>
 #include <stdint.h>
 
 #include "asph/error.h"
@@ -24,6 +25,10 @@ struct result_source {
 	 * is written. May be NULL. */
 	bool (*cancelled)(void *data);
 	void *cancelled_data;
+	/* The Monte Carlo's progress: done of planned trials; last is set
+	 * once, when it has completed (done == planned). May be NULL. */
+	void (*trials)(void *data, size_t done, size_t planned, bool last);
+	void *trials_data;
 };
 
 /*

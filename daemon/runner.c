@@ -26,6 +26,7 @@
 #include "result.h"
 #include "runner.h"
 #include "util-mem.h"
+#include "util-time.h"
 
 #define INSTRUMENT_TIMEOUT_MS 10000
 
@@ -71,8 +72,8 @@ static void post(struct runner *r, const struct runner_report *rep)
 
 	pthread_mutex_lock(&r->lock);
 	/* Only the newest progress matters to the loop. */
-	if (rep->kind == RUNNER_PROGRESS && r->n_queue > 0 &&
-	    r->queue[r->n_queue - 1].kind == RUNNER_PROGRESS) {
+	if ((rep->kind == RUNNER_PROGRESS || rep->kind == RUNNER_UNCERTAINTY) && r->n_queue > 0 &&
+	    r->queue[r->n_queue - 1].kind == rep->kind) {
 		r->queue[r->n_queue - 1] = *rep;
 	} else {
 		if (r->n_queue == r->cap_queue) {
@@ -141,6 +142,7 @@ struct run {
 	struct asph_scanfile *recovered;        /* a resumed scan as it was */
 	struct asph_error err;
 	struct runner_report *final;
+	uint64_t trials_start_ns, trials_post_ns;       /* the Monte Carlo's */
 };
 
 /* The final report is posted by the worker once the runner is idle again,
@@ -269,12 +271,39 @@ static bool abort_wanted(void *data)
 	return yes;
 }
 
+/* The Monte Carlo's progress, at most every progress_interval_ms as the
+ * scan's, its start and its end always. */
+static void on_trials(void *data, size_t done, size_t planned, bool last)
+{
+	struct run *run = data;
+	uint64_t now = now_monotonic_ns();
+	uint64_t interval = (uint64_t)run->job->progress_interval_ms * 1000000u;
+	struct runner_report rep = {
+		.kind = RUNNER_UNCERTAINTY, .job = run->job->id, .done = done, .total = planned,
+		.eta_s = -1,
+	};
+	double elapsed;
+
+	if (done == 0 && !last)
+		run->trials_start_ns = now;
+	else if (!last && now - run->trials_post_ns < interval)
+		return;
+	run->trials_post_ns = now;
+	elapsed = (double)(now - run->trials_start_ns) * 1e-9;
+	if (done > 0 && elapsed > 0) {
+		rep.rate = (double)done / elapsed;
+		rep.eta_s = (double)(planned - done) / rep.rate;
+	}
+	post(run->r, &rep);
+}
+
 static void characterize(struct run *run)
 {
 	struct runner_job *job = run->job;
 	struct result_source src = {
 		.job = job->id, .dir_fd = job->dir_fd, .dir = job->result_dir,
 		.metadata = job->metadata, .cancelled = abort_wanted, .cancelled_data = run->r,
+		.trials = on_trials, .trials_data = run,
 	};
 	struct runner_report rep = { .kind = RUNNER_CHARACTERIZING, .job = job->id, .eta_s = -1 };
 	char *result = NULL;

@@ -3,8 +3,9 @@
  * One worker thread per instrument runs one job at a time: it computes the
  * sampling plan, runs the scan through the executor into the job's scan
  * file, characterizes the recorded points and writes the result. Reports
- * come back to the event loop thread through an eventfd; progress is
- * coalesced (only the newest is kept) and rate-limited by the worker.
+ * come back to the event loop thread through an eventfd; progress (of the
+ * scan and of the Monte Carlo uncertainty) is coalesced (only the newest
+ * is kept) and rate-limited by the worker.
  */
 #ifndef ASPHD_RUNNER_H
 #define ASPHD_RUNNER_H
@@ -39,6 +40,7 @@ enum runner_report_kind {
 	RUNNER_STARTED,         /* the plan is computed; total is known */
 	RUNNER_PROGRESS,
 	RUNNER_CHARACTERIZING,  /* the scan is recorded; the result is being made */
+	RUNNER_UNCERTAINTY,     /* its Monte Carlo: done of total (planned) trials */
 	RUNNER_PAUSED,          /* the scan stopped at a point and waits */
 	RUNNER_RESUMED,
 	RUNNER_DONE,
@@ -54,8 +56,8 @@ enum runner_outcome {
 struct runner_report {
 	enum runner_report_kind kind;
 	int64_t job;
-	uint64_t done, total;   /* plan points */
-	double rate;            /* points per second */
+	uint64_t done, total;   /* plan points (RUNNER_UNCERTAINTY: trials) */
+	double rate;            /* points (trials) per second */
 	double eta_s;           /* < 0 when not known */
 	enum runner_outcome outcome;      /* RUNNER_DONE */
 	char reason[512];                 /* RUNNER_DONE: failure reason */

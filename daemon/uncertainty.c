@@ -10,11 +10,13 @@
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_mc *, asph_mc_free)
 
-/* Between trials: a non-zero answer stops the run. */
-static int job_cancelled(void *data, size_t done, size_t planned)
+/* Between trials: tells the progress; a non-zero answer stops the run. */
+static int on_progress(void *data, size_t done, size_t planned)
 {
 	const struct result_source *job = data;
 
+	if (job->trials)
+		job->trials(job->trials_data, done, planned, false);
 	return job->cancelled && job->cancelled(job->cancelled_data);
 }
 
@@ -27,7 +29,7 @@ int result_uncertainty(const struct result_source *job, const struct job_plan *j
 	_cleanup_free_ char *text = NULL;
 	struct asph_mc_result out;
 	struct asph_mc_options o = { .seed = 1 };
-	struct asph_mc_threads th = { .progress = job_cancelled, .progress_data = (void *)job };
+	struct asph_mc_threads th = { .progress = on_progress, .progress_data = (void *)job };
 	int r;
 
 	*add = NULL;
@@ -35,10 +37,16 @@ int result_uncertainty(const struct result_source *job, const struct job_plan *j
 		return 0;
 	r = asph_mc_alloc(jp->surface, points->xyz, points->n, &jp->fit, res, &ic->uncertainty,
 			  &o, &mc, err);
-	if (r == 0)
+	if (r == 0) {
+		/* the first block: what the run plans before its adaptive stop */
+		if (job->trials)
+			job->trials(job->trials_data, 0, ASPH_MC_DEFAULT_TRIALS, false);
 		r = asph_mc_run_threads(mc, &th, &out, err);
+	}
 	if (r < 0)
 		return r;
+	if (job->trials)
+		job->trials(job->trials_data, out.n_trials, out.n_trials, true);
 	asph_mc_apply(&out, jp->fit.tolerance, res);
 	if (asph_mc_result_to_json(&out, res->form.wavelength_nm, &text) < 0 ||
 	    !(*add = json_loads(text, 0, NULL)))

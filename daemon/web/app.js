@@ -302,10 +302,15 @@ $("submit-form").addEventListener("submit", async (e) => {
 
 function showProgress(p) {
   if (p.job !== live.job) startLive(p.job, p);
-  $("live-progress").max = Math.max(1, p.total);
-  $("live-progress").value = p.done;
+  // In phase "uncertainty" the bar counts the Monte Carlo's trials.
+  const t = p.trials;
+  $("live-progress").max = Math.max(1, t ? t.planned : p.total);
+  $("live-progress").value = t ? t.done : p.done;
   const eta = p.eta_s >= 0 ? `, about ${p.eta_s.toFixed(0)} s left` : "";
-  $("live-text").textContent = `${p.done} of ${p.total} points, ${p.rate.toFixed(0)} points/s${eta}`;
+  $("live-text").textContent = t
+    ? `Uncertainty: ${t.done} of ${t.planned} trials, ${t.rate.toFixed(1)} trials/s${eta}`
+    : p.phase === "characterizing" ? `Characterizing ${p.done} points`
+    : `${p.done} of ${p.total} points, ${p.rate.toFixed(0)} points/s${eta}`;
 }
 
 function startLive(job, progress) {

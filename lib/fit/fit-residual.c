@@ -8,6 +8,8 @@
 
 #include <gsl/gsl_blas.h>
 #include <gsl/gsl_errno.h>
+#include <gsl/gsl_linalg.h>
+#include <gsl/gsl_matrix.h>
 
 #include "asph/fit.h"
 #include "asph/zernike.h"
@@ -80,10 +82,21 @@ static void uncertainties(struct asph_fit *w, struct asph_fit_result *out)
 	gsl_blas_ddot(f, f, &chi2);
 	s2 = counted > (size_t)w->p ? chi2 / (double)(counted - (size_t)w->p) : NAN;
 	out->sigma_mm = sqrt(s2);
-	/* J is over the solver's y = T^-1 (x - xref): Cov(x) = T Cov(y) T^T. */
-	gsl_multilarge_nlinear_covar(w->covar, w->solver);
+	/* J is over the solver's y = T^-1 (x - xref): Cov(x) = T Cov(y) T^T.
+	 * Cov(y) = (J^T J)^-1 from the solver's J^T J (its lower triangle),
+	 * inverted here rather than by gsl_multilarge_nlinear_covar(), which
+	 * swaps GSL's process-wide error handler around its factorization:
+	 * fits run in parallel threads (the Monte Carlo) must not write it. */
 	for (int d = 0; d < ASPH_FIT_N_DOF; d++)
 		out->uncertainty[d] = 0.0;
+	gsl_matrix_tricpy(CblasLower, CblasNonUnit, w->covar, w->solver->JTJ);
+	if (gsl_linalg_cholesky_decomp1(w->covar) != GSL_SUCCESS ||
+	    gsl_linalg_cholesky_invert(w->covar) != GSL_SUCCESS) {
+		/* J^T J singular: the DOF are not determined */
+		for (int k = 0; k < w->p; k++)
+			out->uncertainty[w->idx[k]] = NAN;
+		return;
+	}
 	for (int k = 0; k < w->p; k++) {
 		double v = 0;
 		for (int i = 0; i < w->p; i++)

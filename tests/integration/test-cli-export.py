@@ -204,9 +204,11 @@ def points_export(tmp):
     check(worst <= 1e-18, f"list values differ from the CSV by {worst} m")
     comps, why = gwyddion_read(x3p, tmp)
     if comps is None:
-        # Gwyddion 2.62 reads matrix data only; it must say so, not fail
-        # on the file.
-        check("FeatureType" in why or "Only type I" in why,
+        # Gwyddion 2.62 reads heights on a grid only (opengps.c refuses
+        # FeatureType PCL, then any absolute X axis: docs/characterization.md,
+        # "Why Gwyddion reads no point list"); it must say so, not fail on
+        # the file.
+        check("Record1/FeatureType' is invalid or unsupported" in why,
               f"Gwyddion refuses the list export for another reason: {why}")
         print("note: Gwyddion reads no X3P point list (", why.splitlines()[-1], ")")
     else:

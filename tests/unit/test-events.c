@@ -17,6 +17,7 @@
 #include <cmocka.h>
 
 #include "events.h"
+#include "instruments.h"
 
 struct log {
 	char text[512];
@@ -62,7 +63,9 @@ static void test_order_and_classes(void **state)
 	assert_true(events_watch_add(e, EVENT_JOB | EVENT_PROGRESS, told, &c, NULL) > 0);
 	events_queue_state(e, true);
 	events_job_state(e, 3, JOB_RUNNING, JOB_QUEUED, NULL, "m", NULL);
-	events_job_progress(e, 3, "m", 1, 2, 3.0, 4.0);
+	events_job_progress(e, 3, "m",
+			    &(struct instrument_activity){ .job = 3, .done = 1, .total = 2,
+							   .rate = 3.0, .eta_s = 4.0 });
 	events_instrument_fault(e, "m", 3, "why");
 	assert_string_equal(log.text, "a:queue.state b:queue.state a:job.state c:job.state "
 			    "a:job.progress c:job.progress a:instrument.fault ");
@@ -164,11 +167,32 @@ static void test_builders(void **state)
 	events_job_state(e, 7, JOB_COMPLETED, JOB_RUNNING, NULL, "bench", "undecided");
 	assert_string_equal(json_string_value(json_object_get(kept, "verdict")), "undecided");
 	class = EVENT_PROGRESS;
-	events_job_progress(e, 7, "bench", 10, 40, 2.5, -1);
+	struct instrument_activity act = { .job = 7, .done = 10, .total = 40, .rate = 2.5,
+					   .eta_s = -1 };
+	events_job_progress(e, 7, "bench", &act);
+	assert_int_equal(json_integer_value(json_object_get(kept, "job")), 7);
+	assert_string_equal(json_string_value(json_object_get(kept, "instrument")), "bench");
 	assert_int_equal(json_integer_value(json_object_get(kept, "done")), 10);
 	assert_int_equal(json_integer_value(json_object_get(kept, "total")), 40);
 	assert_true(json_real_value(json_object_get(kept, "rate")) == 2.5);
 	assert_true(json_real_value(json_object_get(kept, "eta_s")) == -1);
+	assert_string_equal(json_string_value(json_object_get(kept, "phase")), "measuring");
+	assert_true(json_is_null(json_object_get(kept, "trials")));
+	/* the recorded scan characterized, then its Monte Carlo */
+	act.characterizing = true;
+	events_job_progress(e, 7, "bench", &act);
+	assert_string_equal(json_string_value(json_object_get(kept, "phase")), "characterizing");
+	assert_true(json_is_null(json_object_get(kept, "trials")));
+	act.trials_done = 50;
+	act.trials_planned = 250;
+	act.trials_rate = 12.5;
+	events_job_progress(e, 7, "bench", &act);
+	assert_string_equal(json_string_value(json_object_get(kept, "phase")), "uncertainty");
+	json_t *trials = json_object_get(kept, "trials");
+	assert_int_equal(json_integer_value(json_object_get(trials, "done")), 50);
+	assert_int_equal(json_integer_value(json_object_get(trials, "planned")), 250);
+	assert_true(json_real_value(json_object_get(trials, "rate")) == 12.5);
+	assert_int_equal(json_object_size(kept), 8);
 	class = EVENT_INSTRUMENT;
 	events_instrument_fault(e, "bench", 7, "stalled");
 	assert_int_equal(json_object_size(kept), 3);

@@ -61,6 +61,12 @@ static void print_job(const json_t *job)
 	printf("  points      %lld of %lld\n",
 	       (long long)json_integer_value(json_object_get(p, "done")),
 	       (long long)json_integer_value(json_object_get(p, "total")));
+	if (json_is_object(json_object_get(p, "trials")))
+		printf("  uncertainty %lld of %lld trials\n",
+		       (long long)json_integer_value(json_object_get(json_object_get(p, "trials"),
+								     "done")),
+		       (long long)json_integer_value(json_object_get(json_object_get(p, "trials"),
+								     "planned")));
 	printf("  submitted   %s by %s\n", str(job, "submitted"), str(sub, "name"));
 	printf("  started     %s\n", str(job, "started"));
 	printf("  finished    %s\n", str(job, "finished"));

@@ -15,6 +15,7 @@ struct view {
 	int64_t id;
 	bool tty, quiet;
 	int last_percent;
+	bool last_mc;           /* the last progress counted trials */
 	bool bar_drawn;
 };
 
@@ -28,31 +29,41 @@ static void format_eta(double s, char *buf, size_t size)
 		snprintf(buf, size, "%d:%02d:%02d", (int)s / 3600, (int)s / 60 % 60, (int)s % 60);
 }
 
-static void show_progress(struct view *v, json_int_t done, json_int_t total, double rate,
-			  double eta)
+/* The progress of a job.progress event: plan points while measuring,
+ * trials during its Monte Carlo uncertainty (phase "uncertainty"). */
+static void show_progress(struct view *v, const json_t *p)
 {
+	const json_t *trials = json_object_get(p, "trials");
+	bool mc = json_is_object(trials);
+	const json_t *src = mc ? trials : p;
+	json_int_t done = json_integer_value(json_object_get(src, "done"));
+	json_int_t total = json_integer_value(json_object_get(src, mc ? "planned" : "total"));
+	double rate = json_number_value(json_object_get(src, "rate"));
 	double frac = total > 0 ? (double)done / (double)total : 0;
 	int percent = (int)(100 * frac);
+	const char *unit = mc ? "trials" : "points";
 	char eta_text[32];
 
 	if (v->quiet)
 		return;
-	format_eta(eta, eta_text, sizeof(eta_text));
+	format_eta(json_number_value(json_object_get(p, "eta_s")), eta_text, sizeof(eta_text));
 	if (v->tty) {
 		char bar[BAR_WIDTH + 1];
 		int fill = (int)(frac * BAR_WIDTH);
 		for (int i = 0; i < BAR_WIDTH; i++)
 			bar[i] = i < fill ? '#' : '.';
 		bar[BAR_WIDTH] = '\0';
-		printf("\r\033[Kjob %lld [%s] %5.1f %%  %lld/%lld  %.1f pt/s  ETA %s",
-		       (long long)v->id, bar, 100 * frac, (long long)done, (long long)total, rate,
-		       eta_text);
+		printf("\r\033[Kjob %lld %s[%s] %5.1f %%  %lld/%lld  %.1f %s/s  ETA %s",
+		       (long long)v->id, mc ? "uncertainty " : "", bar, 100 * frac, (long long)done,
+		       (long long)total, rate, mc ? "trials" : "pt", eta_text);
 		v->bar_drawn = true;
-	} else if (percent != v->last_percent) {
-		printf("job %lld: %lld/%lld points (%d %%), %.1f points/s, ETA %s\n",
-		       (long long)v->id, (long long)done, (long long)total, percent, rate, eta_text);
+	} else if (percent != v->last_percent || mc != v->last_mc) {
+		printf("job %lld: %s%lld/%lld %s (%d %%), %.1f %s/s, ETA %s\n", (long long)v->id,
+		       mc ? "uncertainty " : "", (long long)done, (long long)total, unit, percent,
+		       rate, unit, eta_text);
 	}
 	v->last_percent = percent;
+	v->last_mc = mc;
 	fflush(stdout);
 }
 
@@ -128,10 +139,7 @@ int ctl_watch_job(struct ctl *ctl, int64_t id, bool quiet)
 		if (json_integer_value(json_object_get(p, "job")) != id)
 			continue;
 		if (!strcmp(method, "job.progress")) {
-			show_progress(&v, json_integer_value(json_object_get(p, "done")),
-				      json_integer_value(json_object_get(p, "total")),
-				      json_number_value(json_object_get(p, "rate")),
-				      json_number_value(json_object_get(p, "eta_s")));
+			show_progress(&v, p);
 		} else if (!strcmp(method, "job.state")) {
 			state = json_string_value(json_object_get(p, "state"));
 			show_state(&v, state, json_string_value(json_object_get(p, "reason")));
