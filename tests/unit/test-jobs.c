@@ -23,6 +23,7 @@
 #include "jobs.h"
 #include "jobspec.h"
 #include "log.h"
+#include "rmtree.h"
 #include "util-mem.h"
 
 /* fast and faulty measure without waiting (faulty fails at its tenth
@@ -122,15 +123,12 @@ static int setup(void **state)
 static int teardown(void **state)
 {
 	struct fixture *f = *state;
-	char cmd[128];
-
 	jobs_free(f->jobs);
 	events_free(f->events);
 	instruments_free(f->ins);
 	settings_free(f->settings);
 	sd_event_unref(f->event);
-	snprintf(cmd, sizeof(cmd), "rm -rf '%s'", f->dir);
-	assert_int_equal(system(cmd), 0);
+	assert_int_equal(rmtree(f->dir), 0);
 	free(f);
 	return 0;
 }

@@ -3,6 +3,7 @@
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
+#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -33,6 +34,13 @@ static const char *const presets[N_PRESETS] = { "weak", "strong", "turning-point
 static double plan_h(enum asph_plan_method m)
 {
 	return m == ASPH_PLAN_CVT ? PLAN_H_CVT : PLAN_H;
+}
+
+/* Set by the test setups valgrind and valgrindpy (tests/meson.build). */
+static bool under_valgrind(void)
+{
+	const char *v = getenv("ASPH_UNDER_VALGRIND");
+	return v && *v && strcmp(v, "0") != 0;
 }
 
 struct fixture {
@@ -426,13 +434,17 @@ static void test_no_folding(void **state)
 
 /* ---- density --------------------------------------------------------------- */
 
+/* 3137 points, a count no pattern meets by chance. CVT's Lloyd iterations
+ * at that count take most of this program's time under valgrind (two
+ * minutes), where CVT is asked for 800 points: the same resolution and
+ * plan code, which meets either count exactly. */
 static void test_density_points(void **state)
 {
 	struct fixture *f = *state;
 
 	for (int i = 0; i < N_PRESETS; i++) {
 		for (int m = 0; m < ASPH_PLAN_N_METHODS; m++) {
-			const double want = 3137;
+			const double want = m == ASPH_PLAN_CVT && under_valgrind() ? 800 : 3137;
 			size_t n;
 			double e;
 			assert_int_equal(asph_plan_resolve(f->s[i], (enum asph_plan_method)m,
