@@ -242,12 +242,15 @@ static void test_op_on_surface(void **state)
 	}
 }
 
-/* A(r) by composite 20-point Gauss-Legendre on 3000 panels, independent
- * of the surface's own tables. */
+/* A(r) by composite 20-point Gauss-Legendre on 300 panels, independent
+ * of the surface's own tables. The map is checked to 1e-12 against it:
+ * its worst residual on the three presets is rounding, 4e-14 on
+ * turning-point, the same with 100 or 3000 panels (3000, once used, made
+ * this test most of the program's time under valgrind). */
 static double area_quad(const struct asph_surface *s, double r)
 {
 	gsl_integration_glfixed_table *gl = gsl_integration_glfixed_table_alloc(20);
-	const int panels = 3000;
+	const int panels = 300;
 	double sum = 0;
 
 	for (int i = 0; i < panels; i++) {
