@@ -8,7 +8,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/eventfd.h>
 #include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
@@ -17,6 +16,7 @@
 
 #include "fleetdb.h"
 #include "log.h"
+#include "mailbox.h"
 #include "util-mem.h"
 #include "util-time.h"
 
@@ -256,7 +256,7 @@ struct row {
 	char *payload;
 };
 
-enum note_kind { NOTE_ACK, NOTE_UP, NOTE_DOWN };
+enum note_kind { NOTE_ACK, NOTE_UP, NOTE_DOWN, NOTE_REFUSED };
 
 struct note {
 	enum note_kind kind;
@@ -267,10 +267,10 @@ struct note {
 struct fleetdb {
 	struct settings_postgres cfg;
 	char *password;
-	sd_event_source *wake;
-	int efd;
+	struct mailbox *mailbox;        /* notes for the loop */
 	void (*acked)(void *data, int64_t id);
 	void (*link)(void *data, bool up, const char *why);
+	void (*refused)(void *data, int64_t id, const char *why);
 	void *data;
 	pthread_t thread;
 	bool thread_started;
@@ -280,32 +280,16 @@ struct fleetdb {
 	bool stopping;
 	struct row *rows;               /* to write, oldest first */
 	size_t n_rows, cap_rows;
-	struct note *notes;
-	size_t n_notes, cap_notes;
 };
 
 static void post(struct fleetdb *f, enum note_kind kind, int64_t id, const char *why)
 {
-	uint64_t one = 1;
+	struct note n = { .kind = kind, .id = id };
 
-	pthread_mutex_lock(&f->lock);
-	if (f->n_notes == f->cap_notes) {
-		size_t cap = f->cap_notes ? 2 * f->cap_notes : 64;
-		struct note *n = realloc(f->notes, cap * sizeof(*n));
-		if (!n) {
-			pthread_mutex_unlock(&f->lock);
-			return;         /* the row is written again after a restart */
-		}
-		f->notes = n;
-		f->cap_notes = cap;
-	}
-	f->notes[f->n_notes] = (struct note){ .kind = kind, .id = id };
-	snprintf(f->notes[f->n_notes].why, sizeof(f->notes[0].why), "%s", why ? why : "");
-	f->n_notes++;
-	pthread_mutex_unlock(&f->lock);
-	if (write(f->efd, &one, sizeof(one)) < 0) {
-		/* the counter is full: the loop is woken already */
-	}
+	/* cut to a line of the log */
+	snprintf(n.why, sizeof(n.why), "%.*s", (int)sizeof(n.why) - 1, why ? why : "");
+	/* Lost when memory is out: the row is written again after a restart. */
+	mailbox_post(f->mailbox, &n);
 }
 
 /* Waits for a row or the end: the oldest row (copied), or false. */
@@ -382,19 +366,35 @@ static PGconn *open_writer(struct fleetdb *f)
 	return c;
 }
 
+/*
+ * Whether the server refused the row for what it holds, so that sending it
+ * again cannot help: a data exception (SQLSTATE class 22, e.g. a value out
+ * of a column's range) or an integrity constraint (class 23, e.g. a CHECK
+ * an administrator added). Anything else (privileges, a schema not
+ * migrated, a server shutting down, a serialization failure) concerns
+ * every row and is waited out.
+ */
+static bool refused_for_good(const PGresult *res)
+{
+	const char *state = PQresultErrorField(res, PG_DIAG_SQLSTATE);
+
+	return state && (!strncmp(state, "22", 2) || !strncmp(state, "23", 2));
+}
+
 /* Writes one row: 0, -EAGAIN (the connection is gone), -EIO (the server
- * refused it: said why). */
+ * refused it: said why), -EBADMSG (refused for good: said why). */
 static int write_row(struct fleetdb *f, PGconn *c, const struct row *row)
 {
 	const char *params[] = { row->payload };
 	PGresult *res = PQexecParams(c, upsert, 1, NULL, params, NULL, NULL, 0);
 	int r = PQresultStatus(res) == PGRES_COMMAND_OK ? 0
-		: PQstatus(c) != CONNECTION_OK ? -EAGAIN : -EIO;
+		: PQstatus(c) != CONNECTION_OK ? -EAGAIN
+		: refused_for_good(res) ? -EBADMSG : -EIO;
 
-	if (r == -EIO) {
+	if (r == -EIO || r == -EBADMSG) {
 		char why[256];
 		snprintf(why, sizeof(why), "row %" PRId64 " refused: %s", row->id, pq_message(c));
-		post(f, NOTE_DOWN, 0, why);
+		post(f, r == -EIO ? NOTE_DOWN : NOTE_REFUSED, row->id, why);
 	}
 	PQclear(res);
 	return r;
@@ -414,9 +414,10 @@ static void *writer_thread(void *data)
 			c = open_writer(f);
 		if (c)
 			r = write_row(f, c, &row);
-		if (r == 0) {
+		if (r == 0 || r == -EBADMSG) {
 			drop_first(f, row.id);
-			post(f, NOTE_ACK, row.id, NULL);
+			if (r == 0)
+				post(f, NOTE_ACK, row.id, NULL);
 			delay = 1;
 		} else {
 			if (r == -EAGAIN && c) {
@@ -438,28 +439,26 @@ static void *writer_thread(void *data)
 
 /* ------------------------------------------------------------ the loop's side */
 
-static int on_wake(sd_event_source *s, int fd, uint32_t revents, void *data)
+static void on_note(void *msg, void *data)
 {
 	struct fleetdb *f = data;
-	struct note *notes;
-	uint64_t count;
-	size_t n;
+	const struct note *n = msg;
 
-	if (read(f->efd, &count, sizeof(count)) < 0 && errno != EAGAIN)
-		log_warning("postgres: cannot read its eventfd: %s", strerror(errno));
-	pthread_mutex_lock(&f->lock);
-	notes = steal_ptr(f->notes);
-	n = f->n_notes;
-	f->n_notes = f->cap_notes = 0;
-	pthread_mutex_unlock(&f->lock);
-	for (size_t i = 0; i < n; i++) {
-		if (notes[i].kind == NOTE_ACK && f->acked)
-			f->acked(f->data, notes[i].id);
-		else if (notes[i].kind != NOTE_ACK && f->link)
-			f->link(f->data, notes[i].kind == NOTE_UP, notes[i].why);
+	switch (n->kind) {
+	case NOTE_ACK:
+		if (f->acked)
+			f->acked(f->data, n->id);
+		break;
+	case NOTE_REFUSED:
+		if (f->refused)
+			f->refused(f->data, n->id, n->why);
+		break;
+	case NOTE_UP:
+	case NOTE_DOWN:
+		if (f->link)
+			f->link(f->data, n->kind == NOTE_UP, n->why);
+		break;
 	}
-	free(notes);
-	return 0;
 }
 
 int fleetdb_new(const struct fleetdb_setup *setup, struct fleetdb **out, struct asph_error *err)
@@ -469,21 +468,22 @@ int fleetdb_new(const struct fleetdb_setup *setup, struct fleetdb **out, struct 
 
 	if (!f)
 		return asph_error_set(err, -ENOMEM, "out of memory");
-	f->efd = -1;
 	pthread_mutex_init(&f->lock, NULL);
 	pthread_cond_init(&f->cond, NULL);
 	f->acked = setup->acked;
 	f->link = setup->link;
+	f->refused = setup->refused;
 	f->data = setup->data;
 	f->cfg.conninfo = strdup(setup->cfg->conninfo);
 	f->password = setup->password ? strdup(setup->password) : NULL;
 	if (!f->cfg.conninfo || (setup->password && !f->password))
 		r = asph_error_set(err, -ENOMEM, "out of memory");
 	if (r == 0) {
-		f->efd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
-		if (f->efd < 0 || sd_event_add_io(setup->event, &f->wake, f->efd, EPOLLIN, on_wake,
-						  f) < 0)
-			r = asph_error_set(err, -errno, "postgres: %s", strerror(errno));
+		r = mailbox_new(&(struct mailbox_setup){
+				.event = setup->event, .size = sizeof(struct note),
+				.deliver = on_note, .data = f }, &f->mailbox);
+		if (r < 0)
+			asph_error_set(err, r, "postgres: %s", strerror(-r));
 	}
 	if (r == 0) {
 		r = -pthread_create(&f->thread, NULL, writer_thread, f);
@@ -522,15 +522,13 @@ void fleetdb_free(struct fleetdb *f)
 			joined = false;
 		}
 	}
-	sd_event_source_disable_unref(f->wake);
+	mailbox_close(f->mailbox);
 	if (!joined)
 		return;
-	if (f->efd >= 0)
-		close(f->efd);
+	mailbox_free(f->mailbox);
 	for (size_t i = 0; i < f->n_rows; i++)
 		free(f->rows[i].payload);
 	free(f->rows);
-	free(f->notes);
 	if (f->password) {
 		explicit_bzero(f->password, strlen(f->password));
 		free(f->password);

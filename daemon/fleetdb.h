@@ -11,8 +11,10 @@
  * connects (with a growing delay, 1 s doubling to 30 s, after a failure),
  * checks the schema's version, and writes the rows handed to it one by
  * one, each in its own transaction, telling the loop (through an eventfd)
- * which were committed. A row whose write failed is tried again; nothing
- * here blocks the event loop.
+ * which were committed. A row whose write failed is tried again, unless the
+ * server refused it for what it holds (a data exception or a constraint):
+ * that one is handed back as refused, and the rows behind it go on.
+ * Nothing here blocks the event loop.
  *
  * Event loop thread (the writer thread excepted).
  */
@@ -51,9 +53,11 @@ struct fleetdb_setup {
 	const struct settings_postgres *cfg;
 	const char *password;           /* may be NULL */
 	/* On the loop's thread: row id was committed; the link went up or
-	 * down (why). */
+	 * down (why); row id was refused for what it holds (why), and the
+	 * writer went on with the rows behind it. */
 	void (*acked)(void *data, int64_t id);
 	void (*link)(void *data, bool up, const char *why);
+	void (*refused)(void *data, int64_t id, const char *why);
 	void *data;
 };
 

@@ -530,6 +530,13 @@ static void fleetdb_acked(void *data, int64_t id)
 	outbox_done(d->outbox, OUTBOX_POSTGRES, id);
 }
 
+static void fleetdb_refused(void *data, int64_t id, const char *why)
+{
+	struct daemon *d = data;
+
+	outbox_hold(d->outbox, OUTBOX_POSTGRES, id, why);
+}
+
 static void fleetdb_link(void *data, bool up, const char *why)
 {
 	struct daemon *d = data;
@@ -603,7 +610,8 @@ static int start_fleetdb(struct daemon *d)
 	asph_error_clear(&err);
 	r = fleetdb_new(&(struct fleetdb_setup){
 			.event = d->event, .cfg = d->settings->postgres, .password = d->pg_password,
-			.acked = fleetdb_acked, .link = fleetdb_link, .data = d,
+			.acked = fleetdb_acked, .link = fleetdb_link,
+			.refused = fleetdb_refused, .data = d,
 		}, &d->fleetdb, &err);
 	if (r < 0) {
 		log_error("%s", asph_error_format(&err, buf, sizeof(buf)));

@@ -7,7 +7,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/eventfd.h>
 #include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
@@ -16,6 +15,7 @@
 #include <mosquitto.h>
 
 #include "log.h"
+#include "mailbox.h"
 #include "mqtt.h"
 #include "util-mem.h"
 #include "util-time.h"
@@ -170,8 +170,7 @@ struct inflight {
 };
 
 struct mqtt {
-	sd_event_source *wake;          /* the eventfd's source */
-	int efd;
+	struct mailbox *mailbox;        /* notes for the loop */
 	struct mosquitto *mosq;
 	char *host;
 	int port;
@@ -189,8 +188,6 @@ struct mqtt {
 	pthread_mutex_t lock;           /* what follows */
 	pthread_cond_t cond;
 	bool stopping;
-	struct note *notes;
-	size_t n_notes, cap_notes;
 	int goodbye_mid;                /* > 0: mqtt_free() waits for it */
 	bool goodbye_done;
 };
@@ -198,30 +195,17 @@ struct mqtt {
 /* On libmosquitto's thread: a note for the loop. */
 static void post(struct mqtt *m, enum note_kind kind, int mid, const char *why)
 {
-	uint64_t one = 1;
+	struct note n = { .kind = kind, .mid = mid };
 
 	pthread_mutex_lock(&m->lock);
 	if (kind == NOTE_ACK && mid == m->goodbye_mid && mid > 0) {
 		m->goodbye_done = true;
 		pthread_cond_broadcast(&m->cond);
 	}
-	if (m->n_notes == m->cap_notes) {
-		size_t cap = m->cap_notes ? 2 * m->cap_notes : 64;
-		struct note *n = realloc(m->notes, cap * sizeof(*n));
-		if (!n) {
-			pthread_mutex_unlock(&m->lock);
-			return;         /* an unacknowledged message is sent again */
-		}
-		m->notes = n;
-		m->cap_notes = cap;
-	}
-	m->notes[m->n_notes] = (struct note){ .kind = kind, .mid = mid };
-	snprintf(m->notes[m->n_notes].why, sizeof(m->notes[m->n_notes].why), "%s", why ? why : "");
-	m->n_notes++;
 	pthread_mutex_unlock(&m->lock);
-	if (write(m->efd, &one, sizeof(one)) < 0) {
-		/* the counter is full: the loop is woken already */
-	}
+	snprintf(n.why, sizeof(n.why), "%s", why ? why : "");
+	/* Lost when memory is out: an unacknowledged message is sent again. */
+	mailbox_post(m->mailbox, &n);
 }
 
 static void on_connect(struct mosquitto *mosq, void *data, int rc)
@@ -316,45 +300,31 @@ static void take_ack(struct mqtt *m, int mid)
 	}
 }
 
-static int on_wake(sd_event_source *s, int fd, uint32_t revents, void *data)
+static void on_note(void *msg, void *data)
 {
 	struct mqtt *m = data;
-	struct note *notes;
-	size_t n;
-	uint64_t count;
+	const struct note *nt = msg;
 
-	if (read(m->efd, &count, sizeof(count)) < 0 && errno != EAGAIN)
-		log_warning("mqtt: cannot read its eventfd: %s", strerror(errno));
-	pthread_mutex_lock(&m->lock);
-	notes = steal_ptr(m->notes);
-	n = m->n_notes;
-	m->n_notes = m->cap_notes = 0;
-	pthread_mutex_unlock(&m->lock);
-	for (size_t i = 0; i < n; i++) {
-		const struct note *nt = &notes[i];
-		switch (nt->kind) {
-		case NOTE_ACK:
-			take_ack(m, nt->mid);
-			break;
-		case NOTE_UP:
-			m->up = true;
-			m->told_down = false;
-			forget_unconfirmed(m);
-			if (m->link)
-				m->link(m->data, true, NULL);
-			break;
-		case NOTE_DOWN:
-			/* Once per outage, not at every try to reconnect. */
-			if ((m->up || !m->told_down) && m->link)
-				m->link(m->data, false, nt->why);
-			m->told_down = true;
-			m->up = false;
-			forget_unconfirmed(m);
-			break;
-		}
+	switch (nt->kind) {
+	case NOTE_ACK:
+		take_ack(m, nt->mid);
+		break;
+	case NOTE_UP:
+		m->up = true;
+		m->told_down = false;
+		forget_unconfirmed(m);
+		if (m->link)
+			m->link(m->data, true, NULL);
+		break;
+	case NOTE_DOWN:
+		/* Once per outage, not at every try to reconnect. */
+		if ((m->up || !m->told_down) && m->link)
+			m->link(m->data, false, nt->why);
+		m->told_down = true;
+		m->up = false;
+		forget_unconfirmed(m);
+		break;
 	}
-	free(notes);
-	return 0;
 }
 
 static int setup_client(struct mqtt *m, const struct mqtt_setup *setup, struct asph_error *err)
@@ -398,7 +368,6 @@ int mqtt_new(const struct mqtt_setup *setup, struct mqtt **out, struct asph_erro
 
 	if (!m)
 		return asph_error_set(err, -ENOMEM, "out of memory");
-	m->efd = -1;
 	pthread_mutex_init(&m->lock, NULL);
 	pthread_cond_init(&m->cond, NULL);
 	m->acked = setup->acked;
@@ -410,10 +379,11 @@ int mqtt_new(const struct mqtt_setup *setup, struct mqtt **out, struct asph_erro
 	mosquitto_lib_init();
 	r = m->host && m->will_topic ? setup_client(m, setup, err) : asph_error_set(err, -ENOMEM, "out of memory");
 	if (r == 0) {
-		m->efd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
-		if (m->efd < 0 || sd_event_add_io(setup->event, &m->wake, m->efd, EPOLLIN, on_wake,
-						  m) < 0)
-			r = asph_error_set(err, -errno, "mqtt: %s", strerror(errno));
+		r = mailbox_new(&(struct mailbox_setup){
+				.event = setup->event, .size = sizeof(struct note),
+				.deliver = on_note, .data = m }, &m->mailbox);
+		if (r < 0)
+			asph_error_set(err, r, "mqtt: %s", strerror(-r));
 	}
 	if (r == 0) {
 		r = -pthread_create(&m->thread, NULL, mqtt_thread, m);
@@ -482,15 +452,12 @@ void mqtt_free(struct mqtt *m, const char *goodbye)
 		}
 		stop_thread(m);
 	}
-	sd_event_source_disable_unref(m->wake);
-	if (m->efd >= 0)
-		close(m->efd);
+	mailbox_free(m->mailbox);
 	if (m->mosq)
 		mosquitto_destroy(m->mosq);
 	mosquitto_lib_cleanup();
 	pthread_mutex_destroy(&m->lock);
 	pthread_cond_destroy(&m->cond);
-	free(m->notes);
 	free(m->inflight);
 	free(m->will_topic);
 	free(m->host);

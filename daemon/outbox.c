@@ -16,6 +16,8 @@
 #include "util-time.h"
 
 static const char *const sink_names[OUTBOX_N_SINKS] = { "mqtt", "postgres" };
+/* Where the items a sink refused for good wait for the next start. */
+static const char *const held_names[OUTBOX_N_SINKS] = { "mqtt-held", "postgres-held" };
 
 /* Changes taken from the history per transaction. */
 #define CATCH_UP_BATCH 256
@@ -95,6 +97,23 @@ static int load_cursor(struct outbox *o)
 	return store_meta_set(o->store, "outbox.after", buf);
 }
 
+/* A refusal may have been mended (a constraint dropped, a column widened)
+ * since the last run: what was held is tried once more, in its place. */
+static void release_held(struct outbox *o)
+{
+	for (int k = 0; k < OUTBOX_N_SINKS; k++) {
+		int64_t n = 0;
+		int r = store_outbox_move_all(o->store, held_names[k], sink_names[k], &n);
+
+		if (r < 0)
+			log_warning("outbox: cannot release the messages %s refused before: %s",
+				    sink_names[k], strerror(-r));
+		else if (n)
+			log_info("outbox: %" PRId64 " message(s) that %s refused before are tried "
+				 "again", n, sink_names[k]);
+	}
+}
+
 int outbox_new(const struct outbox_setup *setup, struct outbox **out, struct asph_error *err)
 {
 	struct outbox *o = calloc(1, sizeof(*o));
@@ -115,6 +134,8 @@ int outbox_new(const struct outbox_setup *setup, struct outbox **out, struct asp
 		asph_error_set(err, r, "cannot read or make the daemon's id: %s", strerror(-r));
 	if (r == 0 && (r = load_cursor(o)) < 0)
 		asph_error_set(err, r, "cannot read the outbox's place: %s", strerror(-r));
+	if (r == 0)
+		release_held(o);
 	if (r < 0) {
 		outbox_free(o);
 		return r;
@@ -418,6 +439,34 @@ void outbox_done(struct outbox *o, enum outbox_sink_kind k, int64_t id)
 		log_warning("outbox: cannot delete message %" PRId64 " (%s): it will be sent "
 			    "again after a restart", id, strerror(-r));
 	outbox_pump(o, k);
+}
+
+void outbox_hold(struct outbox *o, enum outbox_sink_kind k, int64_t id, const char *why)
+{
+	struct sink_state *ss = &o->sinks[k];
+	int r;
+
+	for (unsigned i = 0; i < ss->n_handed; i++)
+		if (ss->handed[i] == id) {
+			ss->handed[i] = ss->handed[--ss->n_handed];
+			break;
+		}
+	r = store_outbox_move(o->store, id, held_names[k]);
+	if (r < 0)
+		log_error("%s: message %" PRId64 " refused (%s), and it cannot be set aside (%s): "
+			  "it is sent again after a restart", sink_names[k], id, why, strerror(-r));
+	else
+		log_error("%s: message %" PRId64 " refused for good: %s; it is kept in the outbox "
+			  "(%s) and tried again at the next start", sink_names[k], id, why,
+			  held_names[k]);
+	outbox_pump(o, k);
+}
+
+int64_t outbox_held(struct outbox *o, enum outbox_sink_kind k)
+{
+	int64_t n = 0;
+
+	return store_outbox_count(o->store, held_names[k], &n) < 0 ? -1 : n;
 }
 
 void outbox_reset(struct outbox *o, enum outbox_sink_kind k)

@@ -17,7 +17,8 @@
  * time, oldest first; it says when one is acknowledged (outbox_done(),
  * which deletes it) and when it lost its connection (outbox_reset(): the
  * messages it held are handed again once it is back). Nothing is dropped
- * here: what a sink cannot take waits in the store.
+ * here: what a sink cannot take waits in the store, and what it refuses
+ * for good (outbox_hold()) waits there too, set aside, until the next start.
  *
  * Event loop thread.
  */
@@ -74,6 +75,11 @@ int outbox_catch_up(struct outbox *o);
 void outbox_pump(struct outbox *o, enum outbox_sink_kind k);
 /* Item id was acknowledged by sink k: it is deleted, and the next handed. */
 void outbox_done(struct outbox *o, enum outbox_sink_kind k, int64_t id);
+/* Sink k refused item id for good (why): it is set aside, kept in the
+ * store, so that the items behind it go on; the next start hands it again. */
+void outbox_hold(struct outbox *o, enum outbox_sink_kind k, int64_t id, const char *why);
+/* Items sink k refused, waiting for the next start. */
+int64_t outbox_held(struct outbox *o, enum outbox_sink_kind k);
 /* Sink k lost what it held: hand it all again from the oldest. */
 void outbox_reset(struct outbox *o, enum outbox_sink_kind k);
 /* Items waiting for sink k (in the store, handed or not). */

@@ -1001,6 +1001,32 @@ int store_outbox_remove(struct store *s, int64_t id)
 	return step_done(st);
 }
 
+int store_outbox_move(struct store *s, int64_t id, const char *to)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "UPDATE outbox SET sink = ? WHERE id = ?");
+
+	if (!st)
+		return -EIO;
+	bind_text(st, 1, to);
+	sqlite3_bind_int64(st, 2, id);
+	return step_done(st);
+}
+
+int store_outbox_move_all(struct store *s, const char *from, const char *to, int64_t *n)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "UPDATE outbox SET sink = ? WHERE sink = ?");
+	int r;
+
+	if (!st)
+		return -EIO;
+	bind_text(st, 1, to);
+	bind_text(st, 2, from);
+	r = step_done(st);
+	if (r == 0 && n)
+		*n = sqlite3_changes(s->db);
+	return r;
+}
+
 int store_outbox_count(struct store *s, const char *sink, int64_t *n)
 {
 	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "SELECT COUNT(*) FROM outbox WHERE sink = ?");

@@ -187,6 +187,11 @@ int store_outbox_list(struct store *s, const char *sink, int64_t after, int64_t 
 int store_outbox_remove(struct store *s, int64_t id);
 /* Items waiting for sink. */
 int store_outbox_count(struct store *s, const char *sink, int64_t *n);
+/* Moves item id (any sink) to sink to, keeping its id and text: 0, also
+ * when it was gone. */
+int store_outbox_move(struct store *s, int64_t id, const char *to);
+/* Moves every item of sink from to sink to; *n: how many (may be NULL). */
+int store_outbox_move_all(struct store *s, const char *from, const char *to, int64_t *n);
 
 /* A state change as history keeps it, with the job's fields the outbox
  * tells: the rowid orders them. */

@@ -39,12 +39,12 @@ def rows(pg, where="true"):
                    "ORDER BY daemon_id, job_id")
 
 
-def outbox(d):
-    """The daemon's outbox rows for the database."""
+def outbox(d, sink="postgres"):
+    """The daemon's outbox rows for the database (or those it refused)."""
     db = sqlite3.connect(os.path.join(d.state, "jobs.sqlite"))
     try:
         return db.execute("SELECT id, sink, topic, payload, qos, retain, message_id, created_ns "
-                          "FROM outbox WHERE sink = 'postgres' ORDER BY id").fetchall()
+                          "FROM outbox WHERE sink = ? ORDER BY id", (sink,)).fetchall()
     finally:
         db.close()
 
@@ -204,6 +204,37 @@ try:
     expect(pg.psql(f"SELECT job_id, updated_at, message_id FROM asphd.results WHERE {where} "
                    "ORDER BY job_id") == stamps and len(stamps) == 2,
            "the same rows delivered twice: acknowledged, and the rows are as they were")
+
+    # --- a row the database refuses for what it holds (a constraint an
+    # administrator added): set aside in the outbox, the rows behind it go
+    # on, and the next start tries it again
+    pg.psql("ALTER TABLE asphd.results ADD CONSTRAINT no_scrap CHECK (part IS DISTINCT FROM "
+            "'SCRAP')")
+    c = clients[1]
+    c.call("events.subscribe", {"events": ["job"]})
+    scrap = submit(c, 1, part="SCRAP", serial="0101")[0]
+    c.wait_state(scrap, ["completed"])
+    behind = submit(c, 1, part="AS-2041", serial="0102")[0]
+    wait(lambda: rows(pg, f"daemon_id = '{ids[1]}' AND job_id = {behind}"), 120,
+         "the row behind the refused one")
+    wait(lambda: outbox(daemons[1], "postgres-held"), 30, "the refused row set aside")
+    held = outbox(daemons[1], "postgres-held")
+    log = daemons[1].log_text()
+    expect(len(held) == 1 and json.loads(held[0][3]).get("job") == scrap and
+           not outbox(daemons[1]) and not rows(pg, f"daemon_id = '{ids[1]}' AND job_id = {scrap}"),
+           f"a refused row is kept aside in the outbox, and the row behind it arrives "
+           f"({[json.loads(h[3]).get('job') for h in held]})")
+    expect("refused for good" in log and "no_scrap" in log,
+           "the log says which row was refused and the server's reason")
+    pg.psql("ALTER TABLE asphd.results DROP CONSTRAINT no_scrap")
+    c.close()
+    expect(daemons[1].stop() == 0, "clean stop")
+    daemons[1].start()
+    clients[1] = Client(daemons[1].socket)
+    wait(lambda: rows(pg, f"daemon_id = '{ids[1]}' AND job_id = {scrap}"), 120,
+         "the refused row, once the constraint is gone and the daemon started again")
+    expect(not outbox(daemons[1], "postgres-held") and not outbox(daemons[1]),
+           "after the restart the refused row is delivered and the outbox is empty")
 
     # --- the view and asphctl fleet list
     view = pg.psql("SELECT host, job_id, verdict, part FROM asphd.fleet_results LIMIT 3")

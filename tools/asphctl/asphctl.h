@@ -70,6 +70,30 @@ void ctl_escape_json(json_t *j);
  * a real that is not finite. */
 int ctl_parse_integer(const char *arg, long long min, long long max, long long *v);
 int ctl_parse_real(const char *arg, double *v);
+/* --- the options (options.c) */
+struct option;
+#define CTL_JSON_OPTION { "json", no_argument, NULL, 'j' }
+#define CTL_HELP_OPTION { "help", no_argument, NULL, 'h' }
+enum { CTL_OPTIONS_END = -1, CTL_OPTIONS_HELP = -2, CTL_OPTIONS_BAD = -3 };
+/* Prints "Usage: asphctl USAGE" on stderr: CTL_EXIT_USAGE. */
+int ctl_usage_error(const char *usage);
+/*
+ * The next option of a command (getopt_long() over opts, which hold
+ * CTL_JSON_OPTION and CTL_HELP_OPTION, and shortopts without "jh"). --json
+ * and --help are taken here. Returns the option's character for the
+ * command, or CTL_OPTIONS_END when the options are over, CTL_OPTIONS_HELP
+ * after printing the usage, CTL_OPTIONS_BAD after an unknown option or a
+ * missing argument (the usage went to stderr).
+ */
+int ctl_option(struct ctl *ctl, int argc, char **argv, const char *shortopts,
+	       const struct option *opts, const char *usage);
+/* The exit code once ctl_option() returned c < 0: -1 when the command goes
+ * on (CTL_OPTIONS_END). */
+int ctl_options_exit(int c);
+/* For a command whose only options are --json and --help: -1 to go on, or
+ * the exit code. */
+int ctl_common_options(struct ctl *ctl, int argc, char **argv, const char *usage);
+
 /* Parses a job id argument; -1 (after printing) when it is not one. */
 int64_t ctl_job_id(const char *arg);
 /* The one operand after the options, a job id; -1 (after printing usage,

@@ -13,15 +13,6 @@
 #include "util-mem.h"
 #include "util-time.h"
 
-#define JSON_OPTION { "json", no_argument, NULL, 'j' }
-#define HELP_OPTION { "help", no_argument, NULL, 'h' }
-
-static int usage_error(const char *usage)
-{
-	fprintf(stderr, "Usage: asphctl %s\n", usage);
-	return CTL_EXIT_USAGE;
-}
-
 static const char *str(const json_t *o, const char *key)
 {
 	const char *s = json_string_value(json_object_get(o, key));
@@ -47,7 +38,7 @@ static void print_lock(const json_t *in)
 int cmd_lock(struct ctl *ctl, int argc, char **argv)
 {
 	static const struct option opts[] = {
-		{ "pause", no_argument, NULL, 'p' }, JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 },
+		{ "pause", no_argument, NULL, 'p' }, CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
 	};
 	static const char usage[] = "lock INSTRUMENT REASON... [--pause] [--json]";
 	_cleanup_(json_decrefp) json_t *result = NULL;
@@ -56,16 +47,15 @@ int cmd_lock(struct ctl *ctl, int argc, char **argv)
 	size_t len = 0;
 	int c, r;
 
-	while ((c = getopt_long(argc, argv, "pjh", opts, NULL)) != -1) {
+	while ((c = ctl_option(ctl, argc, argv, "p", opts, usage)) > 0) {
 		switch (c) {
 		case 'p': pause = true; break;
-		case 'j': ctl->json = true; break;
-		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
-		default: return usage_error(usage);
 		}
 	}
+	if (c != CTL_OPTIONS_END)
+		return ctl_options_exit(c);
 	if (argc - optind < 2)
-		return usage_error(usage);
+		return ctl_usage_error(usage);
 	/* The reason is the rest of the line, as typed. */
 	for (int i = optind + 1; i < argc; i++)
 		len += strlen(argv[i]) + 1;
@@ -91,23 +81,22 @@ int cmd_lock(struct ctl *ctl, int argc, char **argv)
 int cmd_unlock(struct ctl *ctl, int argc, char **argv)
 {
 	static const struct option opts[] = {
-		{ "force", no_argument, NULL, 'f' }, JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 },
+		{ "force", no_argument, NULL, 'f' }, CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
 	};
 	static const char usage[] = "unlock INSTRUMENT [--force] [--json]";
 	_cleanup_(json_decrefp) json_t *result = NULL;
 	bool force = false;
 	int c, r;
 
-	while ((c = getopt_long(argc, argv, "fjh", opts, NULL)) != -1) {
+	while ((c = ctl_option(ctl, argc, argv, "f", opts, usage)) > 0) {
 		switch (c) {
 		case 'f': force = true; break;
-		case 'j': ctl->json = true; break;
-		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
-		default: return usage_error(usage);
 		}
 	}
+	if (c != CTL_OPTIONS_END)
+		return ctl_options_exit(c);
 	if (argc - optind != 1)
-		return usage_error(usage);
+		return ctl_usage_error(usage);
 	r = ctl_call(ctl, "instrument.unlock", json_pack("{s:s, s:b}", "name", argv[optind],
 							 "force", force), &result);
 	if (r)
@@ -161,7 +150,7 @@ static int token_create(struct ctl *ctl, int argc, char **argv)
 	static const struct option opts[] = {
 		{ "role", required_argument, NULL, 'r' },
 		{ "expires", required_argument, NULL, 'e' },
-		JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 },
+		CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
 	};
 	static const char usage[] = "token create NAME --role viewer|operator|admin "
 				    "[--expires 90d|12h|2027-01-31] [--json]";
@@ -170,7 +159,7 @@ static int token_create(struct ctl *ctl, int argc, char **argv)
 	char when[ISO8601_SIZE];
 	int c, r;
 
-	while ((c = getopt_long(argc, argv, "r:e:jh", opts, NULL)) != -1) {
+	while ((c = ctl_option(ctl, argc, argv, "r:e:", opts, usage)) > 0) {
 		switch (c) {
 		case 'r': json_object_set_new(params, "role", json_string(optarg)); break;
 		case 'e':
@@ -182,13 +171,12 @@ static int token_create(struct ctl *ctl, int argc, char **argv)
 			}
 			json_object_set_new(params, "expires", json_string(when));
 			break;
-		case 'j': ctl->json = true; break;
-		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
-		default: return usage_error(usage);
 		}
 	}
+	if (c != CTL_OPTIONS_END)
+		return ctl_options_exit(c);
 	if (argc - optind != 1 || !json_object_get(params, "role"))
-		return usage_error(usage);
+		return ctl_usage_error(usage);
 	json_object_set_new(params, "name", json_string(argv[optind]));
 	r = ctl_call(ctl, "token.create", json_incref(params), &result);
 	if (r)
@@ -246,23 +234,17 @@ int cmd_token(struct ctl *ctl, int argc, char **argv)
 	static const char usage[] = "token create NAME --role viewer|operator|admin [--expires WHEN]\n"
 				    "       token list [--json]\n"
 				    "       token revoke NAME [--json]";
-	static const struct option opts[] = { JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 } };
 	int c;
 
 	if (argc >= 2 && !strcmp(argv[1], "create"))
 		return token_create(ctl, argc - 1, argv + 1);
-	while ((c = getopt_long(argc, argv, "jh", opts, NULL)) != -1) {
-		switch (c) {
-		case 'j': ctl->json = true; break;
-		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
-		default: return usage_error(usage);
-		}
-	}
+	if ((c = ctl_common_options(ctl, argc, argv, usage)) >= 0)
+		return c;
 	if (argc - optind == 1 && !strcmp(argv[optind], "list"))
 		return token_list(ctl);
 	if (argc - optind == 2 && !strcmp(argv[optind], "revoke"))
 		return token_revoke(ctl, argv[optind + 1]);
-	return usage_error(usage);
+	return ctl_usage_error(usage);
 }
 
 /* ------------------------------------------------------------ fleet */
@@ -330,7 +312,7 @@ int cmd_fleet(struct ctl *ctl, int argc, char **argv)
 		{ "lot", required_argument, NULL, 'L' },
 		{ "serial", required_argument, NULL, 'N' },
 		{ "verdict", required_argument, NULL, 'v' },
-		JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 },
+		CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
 	};
 	static const char usage[] = "fleet list [--db CONNINFO] [--limit N] [--host H] [--part P]\n"
 				    "       [--lot L] [--serial S] [--verdict pass|fail|undecided] [--json]";
@@ -341,7 +323,7 @@ int cmd_fleet(struct ctl *ctl, int argc, char **argv)
 	PGresult *res;
 	int c, rc = CTL_EXIT_OK;
 
-	while ((c = getopt_long(argc, argv, "d:n:jh", opts, NULL)) != -1) {
+	while ((c = ctl_option(ctl, argc, argv, "d:n:", opts, usage)) > 0) {
 		switch (c) {
 		case 'd': conninfo = optarg; break;
 		case 'n':
@@ -365,13 +347,12 @@ int cmd_fleet(struct ctl *ctl, int argc, char **argv)
 			}
 			params[4] = optarg;
 			break;
-		case 'j': ctl->json = true; break;
-		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
-		default: return usage_error(usage);
 		}
 	}
+	if (c != CTL_OPTIONS_END)
+		return ctl_options_exit(c);
 	if (argc - optind != 1 || strcmp(argv[optind], "list"))
-		return usage_error(usage);
+		return ctl_usage_error(usage);
 	/* Without --db or ASPHCTL_FLEET_DB, libpq's own (PGHOST, ~/.pgpass, ...). */
 	db = PQconnectdbParams((const char *const[]){ "dbname", "application_name", NULL },
 			       (const char *const[]){ conninfo ? conninfo : "", "asphctl", NULL }, 1);

@@ -15,15 +15,6 @@
 #include "util-fs.h"
 #include "util-mem.h"
 
-#define JSON_OPTION { "json", no_argument, NULL, 'j' }
-#define HELP_OPTION { "help", no_argument, NULL, 'h' }
-
-static int usage_error(const char *usage)
-{
-	fprintf(stderr, "Usage: asphctl %s\n", usage);
-	return CTL_EXIT_USAGE;
-}
-
 static const char *str(const json_t *o, const char *key)
 {
 	const char *s = json_string_value(json_object_get(o, key));
@@ -193,7 +184,7 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 		{ "serial", required_argument, NULL, 'N' },
 		{ "tolerance", required_argument, NULL, 't' },
 		{ "wait", no_argument, NULL, 'w' },
-		JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 },
+		CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
 	};
 	_cleanup_(json_decrefp) json_t *params = json_object();
 	_cleanup_(json_decrefp) json_t *result = NULL;
@@ -202,7 +193,7 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 	int c, r;
 
 	json_object_set_new(params, "plan", plan);
-	while ((c = getopt_long(argc, argv, "m:i:p:l:jh", opts, NULL)) != -1) {
+	while ((c = ctl_option(ctl, argc, argv, "m:i:p:l:", opts, submit_usage)) > 0) {
 		bool ok = true;
 		switch (c) {
 		case 'm': json_object_set_new(plan, "method", json_string(optarg)); break;
@@ -227,18 +218,19 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 			break;
 		}
 		case 'w': wait = true; break;
-		case 'j': ctl->json = true; break;
-		case 'h': printf("Usage: asphctl %s\n", submit_usage); json_decref(fit); return CTL_EXIT_OK;
-		default: json_decref(fit); return usage_error(submit_usage);
 		}
 		if (!ok) {
 			json_decref(fit);
 			return CTL_EXIT_USAGE;
 		}
 	}
+	if (c != CTL_OPTIONS_END) {
+		json_decref(fit);
+		return ctl_options_exit(c);
+	}
 	if (optind + 1 != argc) {
 		json_decref(fit);
-		return usage_error(submit_usage);
+		return ctl_usage_error(submit_usage);
 	}
 	if (json_object_size(fit))
 		json_object_set_new(params, "fit", fit);
@@ -264,18 +256,12 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 static int simple_job_command(struct ctl *ctl, int argc, char **argv, const char *method,
 			      const char *usage, const char *done)
 {
-	static const struct option opts[] = { JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 } };
 	_cleanup_(json_decrefp) json_t *result = NULL;
 	int64_t id;
 	int c, r;
 
-	while ((c = getopt_long(argc, argv, "jh", opts, NULL)) != -1) {
-		switch (c) {
-		case 'j': ctl->json = true; break;
-		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
-		default: return usage_error(usage);
-		}
-	}
+	if ((c = ctl_common_options(ctl, argc, argv, usage)) >= 0)
+		return c;
 	if ((id = ctl_job_operand(argc, argv, usage)) < 0)
 		return CTL_EXIT_USAGE;
 	r = ctl_call(ctl, method, json_pack("{s:I}", "id", (json_int_t)id), &result);
@@ -307,7 +293,7 @@ int cmd_resume(struct ctl *ctl, int argc, char **argv)
 int cmd_requeue(struct ctl *ctl, int argc, char **argv)
 {
 	static const struct option opts[] = {
-		{ "restart", no_argument, NULL, 'r' }, JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 },
+		{ "restart", no_argument, NULL, 'r' }, CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
 	};
 	static const char usage[] = "requeue JOB [--restart] [--json]";
 	_cleanup_(json_decrefp) json_t *result = NULL;
@@ -315,14 +301,13 @@ int cmd_requeue(struct ctl *ctl, int argc, char **argv)
 	int64_t id;
 	int c, r;
 
-	while ((c = getopt_long(argc, argv, "rjh", opts, NULL)) != -1) {
+	while ((c = ctl_option(ctl, argc, argv, "r", opts, usage)) > 0) {
 		switch (c) {
 		case 'r': restart = true; break;
-		case 'j': ctl->json = true; break;
-		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
-		default: return usage_error(usage);
 		}
 	}
+	if (c != CTL_OPTIONS_END)
+		return ctl_options_exit(c);
 	if ((id = ctl_job_operand(argc, argv, usage)) < 0)
 		return CTL_EXIT_USAGE;
 	r = ctl_call(ctl, "job.requeue",
@@ -341,21 +326,20 @@ int cmd_requeue(struct ctl *ctl, int argc, char **argv)
 int cmd_status(struct ctl *ctl, int argc, char **argv)
 {
 	static const struct option opts[] = {
-		{ "history", no_argument, NULL, 'H' }, JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 },
+		{ "history", no_argument, NULL, 'H' }, CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
 	};
 	static const char usage[] = "status [JOB [--history]] [--json]";
 	_cleanup_(json_decrefp) json_t *result = NULL;
 	bool history = false;
 	int c, r;
 
-	while ((c = getopt_long(argc, argv, "jh", opts, NULL)) != -1) {
+	while ((c = ctl_option(ctl, argc, argv, "", opts, usage)) > 0) {
 		switch (c) {
 		case 'H': history = true; break;
-		case 'j': ctl->json = true; break;
-		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
-		default: return usage_error(usage);
 		}
 	}
+	if (c != CTL_OPTIONS_END)
+		return ctl_options_exit(c);
 	if (optind + 1 == argc) {
 		int64_t id = ctl_job_id(argv[optind]);
 		if (id < 0)
@@ -378,7 +362,7 @@ int cmd_status(struct ctl *ctl, int argc, char **argv)
 		return CTL_EXIT_OK;
 	}
 	if (optind != argc)
-		return usage_error(usage);
+		return ctl_usage_error(usage);
 	r = ctl_call(ctl, "daemon.status", NULL, &result);
 	if (r)
 		return r;
@@ -518,7 +502,7 @@ int cmd_list(struct ctl *ctl, int argc, char **argv)
 		{ "limit", required_argument, NULL, 'n' },
 		{ "offset", required_argument, NULL, 'o' },
 		{ "csv", no_argument, NULL, 'c' },
-		JSON_OPTION, HELP_OPTION, { NULL, 0, NULL, 0 },
+		CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
 	};
 	static const char usage[] = "list [--state S[,S...]] [--instrument NAME] [--label TEXT]\n"
 				    "       [--part P] [--lot L] [--serial S] [--mine] [--limit N]\n"
@@ -528,7 +512,7 @@ int cmd_list(struct ctl *ctl, int argc, char **argv)
 	bool csv = false;
 	int c, r;
 
-	while ((c = getopt_long(argc, argv, "s:i:l:mn:o:jh", opts, NULL)) != -1) {
+	while ((c = ctl_option(ctl, argc, argv, "s:i:l:mn:o:", opts, usage)) > 0) {
 		switch (c) {
 		case 's': {
 			json_t *states = json_array();
@@ -556,13 +540,12 @@ int cmd_list(struct ctl *ctl, int argc, char **argv)
 			break;
 		}
 		case 'c': csv = true; break;
-		case 'j': ctl->json = true; break;
-		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
-		default: return usage_error(usage);
 		}
 	}
+	if (c != CTL_OPTIONS_END)
+		return ctl_options_exit(c);
 	if (optind != argc || (csv && ctl->json))
-		return usage_error(usage);
+		return ctl_usage_error(usage);
 	if (csv)
 		return list_csv(ctl, params, !json_object_get(params, "limit"));
 	r = ctl_call(ctl, "job.list", json_incref(params), &result);
@@ -783,7 +766,7 @@ int cmd_result(struct ctl *ctl, int argc, char **argv)
 {
 	static const struct option opts[] = {
 		{ "out", required_argument, NULL, 'o' },
-		{ "report", required_argument, NULL, 'r' }, JSON_OPTION, HELP_OPTION,
+		{ "report", required_argument, NULL, 'r' }, CTL_JSON_OPTION, CTL_HELP_OPTION,
 		{ NULL, 0, NULL, 0 },
 	};
 	static const char usage[] = "result JOB [--out DIR] [--report OUT.pdf] [--json]";
@@ -792,15 +775,14 @@ int cmd_result(struct ctl *ctl, int argc, char **argv)
 	int64_t id;
 	int c, r;
 
-	while ((c = getopt_long(argc, argv, "o:jh", opts, NULL)) != -1) {
+	while ((c = ctl_option(ctl, argc, argv, "o:", opts, usage)) > 0) {
 		switch (c) {
 		case 'o': out = optarg; break;
 		case 'r': report = optarg; break;
-		case 'j': ctl->json = true; break;
-		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
-		default: return usage_error(usage);
 		}
 	}
+	if (c != CTL_OPTIONS_END)
+		return ctl_options_exit(c);
 	if ((id = ctl_job_operand(argc, argv, usage)) < 0)
 		return CTL_EXIT_USAGE;
 	r = ctl_call(ctl, "job.result", json_pack("{s:I}", "id", (json_int_t)id), &result);

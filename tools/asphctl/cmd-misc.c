@@ -9,23 +9,20 @@
 #include "asphctl.h"
 #include "util-mem.h"
 
+/* --json, --help and --abort: the flags (1: --abort), or < 0 with the exit
+ * code negated minus one. */
 static int parse_json_flag(struct ctl *ctl, int argc, char **argv, const char *usage)
 {
 	static const struct option opts[] = {
-		{ "json", no_argument, NULL, 'j' }, { "help", no_argument, NULL, 'h' },
-		{ "abort", no_argument, NULL, 'a' }, { NULL, 0, NULL, 0 },
+		CTL_JSON_OPTION, CTL_HELP_OPTION, { "abort", no_argument, NULL, 'a' },
+		{ NULL, 0, NULL, 0 },
 	};
 	int c, flags = 0;
 
-	while ((c = getopt_long(argc, argv, "jha", opts, NULL)) != -1) {
-		switch (c) {
-		case 'j': ctl->json = true; break;
-		case 'a': flags |= 1; break;
-		case 'h': printf("Usage: asphctl %s\n", usage); return -1;
-		default: fprintf(stderr, "Usage: asphctl %s\n", usage); return -2;
-		}
-	}
-	return flags;
+	while ((c = ctl_option(ctl, argc, argv, "a", opts, usage)) > 0)
+		if (c == 'a')
+			flags |= 1;
+	return c == CTL_OPTIONS_END ? flags : -1 - ctl_options_exit(c);
 }
 
 static void print_queue(const json_t *q)
@@ -49,7 +46,7 @@ int cmd_queue(struct ctl *ctl, int argc, char **argv)
 	char **args = argv + optind;
 
 	if (flags < 0)
-		return flags == -1 ? CTL_EXIT_OK : CTL_EXIT_USAGE;
+		return -1 - flags;
 	if (rest == 0 || (rest == 1 && !strcmp(args[0], "show"))) {
 		method = "queue.get";
 	} else if (rest == 3 && !strcmp(args[0], "move")) {
@@ -101,7 +98,7 @@ int cmd_instruments(struct ctl *ctl, int argc, char **argv)
 	json_t *in;
 
 	if (flags < 0)
-		return flags == -1 ? CTL_EXIT_OK : CTL_EXIT_USAGE;
+		return -1 - flags;
 	if (argc - optind > 1) {
 		fprintf(stderr, "Usage: asphctl %s\n", usage);
 		return CTL_EXIT_USAGE;
@@ -163,7 +160,7 @@ int cmd_drivers(struct ctl *ctl, int argc, char **argv)
 	json_t *d, *o;
 
 	if (flags < 0)
-		return flags == -1 ? CTL_EXIT_OK : CTL_EXIT_USAGE;
+		return -1 - flags;
 	if (argc != optind) {
 		fprintf(stderr, "Usage: asphctl %s\n", usage);
 		return CTL_EXIT_USAGE;

@@ -143,21 +143,12 @@ int ctl_watch_job(struct ctl *ctl, int64_t id, bool quiet)
 
 int cmd_watch(struct ctl *ctl, int argc, char **argv)
 {
-	static const struct option opts[] = {
-		{ "json", no_argument, NULL, 'j' }, { "help", no_argument, NULL, 'h' },
-		{ NULL, 0, NULL, 0 },
-	};
 	static const char usage[] = "watch JOB [--json]";
 	int64_t id;
 	int c;
 
-	while ((c = getopt_long(argc, argv, "jh", opts, NULL)) != -1) {
-		switch (c) {
-		case 'j': ctl->json = true; break;
-		case 'h': printf("Usage: asphctl %s\n", usage); return CTL_EXIT_OK;
-		default: fprintf(stderr, "Usage: asphctl %s\n", usage); return CTL_EXIT_USAGE;
-		}
-	}
+	if ((c = ctl_common_options(ctl, argc, argv, usage)) >= 0)
+		return c;
 	if ((id = ctl_job_operand(argc, argv, usage)) < 0)
 		return CTL_EXIT_USAGE;
 	return ctl_watch_job(ctl, id, ctl->json);
