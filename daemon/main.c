@@ -790,12 +790,13 @@ static int run(struct daemon *d)
 	if (r == 0)
 		r = server_listen(d->server, d->settings, d->tcp);
 	if (r == 0 && d->web) {
-		r = web_listen(d->web, d->http, d->settings->http_root ? d->settings->http_root
-								       : WEB_DIR);
+		r = web_listen(d->web, d->http, d->settings->http_listen,
+			       d->settings->http_root ? d->settings->http_root : WEB_DIR);
 		if (r == 0)
-			log_info("web page at http://%s%s%s:%u/",
-				 d->http->ai_family == AF_INET6 ? "[" : "", d->settings->http_host,
-				 d->http->ai_family == AF_INET6 ? "]" : "", web_port(d->web));
+			log_info("web page at http://%s%s%s:%u/ (%zu address%s)",
+				 strchr(d->settings->http_host, ':') ? "[" : "", d->settings->http_host,
+				 strchr(d->settings->http_host, ':') ? "]" : "", web_port(d->web),
+				 web_listeners(d->web), web_listeners(d->web) == 1 ? "" : "es");
 	}
 	if (r < 0)
 		return r;

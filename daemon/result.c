@@ -216,9 +216,49 @@ static int write_report(FILE *f, void *data, struct asph_error *err)
 	return asph_report_write_pdf_stream(f, "report.pdf", &r, err);
 }
 
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_psd *, asph_psd_free)
+
+/* psd.csv: the frequencies past 0 (the mean is removed before the
+ * transform), with the digits to give each double back. */
+static int write_psd(FILE *f, void *data, struct asph_error *err)
+{
+	const struct asph_psd *p = data;
+
+	fputs("f_per_mm,psd_nm2_mm\n", f);
+	for (size_t k = 1; k < p->n; k++)
+		fprintf(f, "%.17g,%.17g\n", (double)k * p->df, p->psd[k]);
+	if (ferror(f))
+		return asph_error_set(err, -EIO, "psd.csv: cannot write");
+	return 0;
+}
+
+/* psd.csv: the PSD of the residual the report draws (asph_psd_residual()).
+ * A map with too few samples for a spectrum has none. */
+static int write_psd_file(const struct result_source *job, const struct asph_scatter *sc,
+			  double radius, json_t *files, struct asph_error *err)
+{
+	_cleanup_(asph_psd_freep) struct asph_psd *p = NULL;
+	struct asph_error perr;
+	int r;
+
+	asph_error_clear(&perr);
+	r = asph_psd_residual(sc, radius, &p, &perr);
+	if (r == -EDOM || r == -EINVAL)
+		return 0;
+	if (r < 0) {
+		*err = perr;
+		return r;
+	}
+	r = fs_write_file_at(job->dir_fd, "psd.csv", DIRS_FILE_MODE, write_psd, p, err);
+	if (r < 0)
+		return r;
+	json_object_set_new(files, "psd", json_string("psd.csv"));
+	return 0;
+}
+
 /*
  * residual.x3p (the residual map resampled on a grid, ISO 25178-72 matrix
- * layout) and report.pdf (without cairo, none). A scan too sparse for a
+ * layout), psd.csv and report.pdf (without cairo, none). A scan too sparse for a
  * map of the part has neither; only a failure to write fails the result.
  */
 static int write_exports(const struct result_source *job, const struct job_plan *jp,
@@ -257,6 +297,9 @@ static int write_exports(const struct result_source *job, const struct job_plan 
 	if (r < 0)
 		return r;
 	json_object_set_new(files, "x3p", json_string("residual.x3p"));
+	r = write_psd_file(job, sc, radius, files, err);
+	if (r < 0)
+		return r;
 	asph_error_clear(&perr);
 	r = fs_write_file_at(job->dir_fd, "report.pdf", DIRS_FILE_MODE, write_report, &e, &perr);
 	/* Without cairo, or a map too sparse to draw: no report. */

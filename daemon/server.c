@@ -700,11 +700,22 @@ void server_tcp_peer(int fd, struct peer *p)
 {
 	struct sockaddr_storage sa = { 0 };
 	socklen_t len = sizeof(sa);
+
+	if (getpeername(fd, (struct sockaddr *)&sa, &len) < 0)
+		sa.ss_family = AF_UNSPEC;
+	server_addr_peer((const struct sockaddr *)&sa, p);
+}
+
+void server_addr_peer(const struct sockaddr *addr, struct peer *p)
+{
+	struct sockaddr_storage sa = { 0 };
 	char host[INET6_ADDRSTRLEN] = "?";
 
 	p->uid = (uid_t)-1;
 	p->gid = (gid_t)-1;
-	if (getpeername(fd, (struct sockaddr *)&sa, &len) == 0) {
+	if (addr->sa_family == AF_INET6 || addr->sa_family == AF_INET) {
+		memcpy(&sa, addr, addr->sa_family == AF_INET6 ? sizeof(struct sockaddr_in6)
+							      : sizeof(struct sockaddr_in));
 		if (sa.ss_family == AF_INET6) {
 			struct in6_addr a = ((struct sockaddr_in6 *)&sa)->sin6_addr;
 			if (IN6_IS_ADDR_V4MAPPED(&a)) {
@@ -1078,61 +1089,124 @@ static bool seen_before(const struct addrinfo *list, const struct addrinfo *ai)
 	return false;
 }
 
-/* Whether bind_tcp()'s error means this host has no such address (a name
+/* Whether a bind's error means this host has no such address (a name
  * that resolves to an IPv6 address on a host without IPv6). */
 static bool address_unavailable(int r)
 {
 	return r == -EADDRNOTAVAIL || r == -EAFNOSUPPORT;
 }
 
-static int bind_tcp(struct server *srv, const struct settings *s, const struct addrinfo *ai)
+static in_port_t *port_of(struct sockaddr_storage *sa)
+{
+	return sa->ss_family == AF_INET6 ? &((struct sockaddr_in6 *)sa)->sin6_port
+					 : &((struct sockaddr_in *)sa)->sin_port;
+}
+
+/* A listening socket on sa (an IPv6 one for IPv6 only). */
+static int bind_address(const struct sockaddr_storage *sa, socklen_t len, int *out)
 {
 	_cleanup_close_ int fd = -1;
-	char where[INET6_ADDRSTRLEN + 8];
-	int one = 1, r;
+	int one = 1;
 
-	if (getnameinfo(ai->ai_addr, ai->ai_addrlen, where, sizeof(where), NULL, 0,
-			NI_NUMERICHOST) != 0)
-		snprintf(where, sizeof(where), "?");
-	fd = socket(ai->ai_family, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
+	fd = socket(sa->ss_family, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
 	if (fd < 0 || setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof(one)) < 0 ||
-	    (ai->ai_family == AF_INET6 &&
+	    (sa->ss_family == AF_INET6 &&
 	     setsockopt(fd, IPPROTO_IPV6, IPV6_V6ONLY, &one, sizeof(one)) < 0) ||
-	    bind(fd, ai->ai_addr, ai->ai_addrlen) < 0 || listen(fd, 128) < 0) {
-		r = -errno;
-		log_job(address_unavailable(r) ? LOG_WARNING : LOG_ERR, 0,
-			"tcp_listen %s: cannot listen on %s: %s", s->tcp_listen, where,
-			strerror(-r));
-		return r;
-	}
-	if (!add_listener(srv, fd, true, false)) {
-		log_error("tcp_listen %s: more than %d addresses", s->tcp_listen,
-			  MAX_TCP_LISTENERS);
-		return -E2BIG;
-	}
-	log_debug("tcp_listen %s: listening on %s", s->tcp_listen, where);
-	steal_fd(fd);
+	    bind(fd, (const struct sockaddr *)sa, len) < 0 || listen(fd, 128) < 0)
+		return -errno;
+	*out = steal_fd(fd);
 	return 0;
 }
 
-/* Every address of tcp_listen; one this host does not have is left out
- * while another is there to listen on. */
+/* One pass of server_listen_tcp(): the sockets into fds, their number
+ * into *n (closed again on an error). */
+static int bind_each(const struct addrinfo *list, const char *field, const char *text,
+		     int *fds, size_t max, size_t *n)
+{
+	struct sockaddr_storage sa;
+	char where[INET6_ADDRSTRLEN + 8];
+	in_port_t port = 0;
+	int r = 0;
+
+	*n = 0;
+	for (const struct addrinfo *ai = list; ai; ai = ai->ai_next) {
+		if (seen_before(list, ai) || ai->ai_addrlen > sizeof(sa) ||
+		    (ai->ai_family != AF_INET && ai->ai_family != AF_INET6))
+			continue;
+		memcpy(&sa, ai->ai_addr, ai->ai_addrlen);
+		if (getnameinfo(ai->ai_addr, ai->ai_addrlen, where, sizeof(where), NULL, 0,
+				NI_NUMERICHOST) != 0)
+			snprintf(where, sizeof(where), "?");
+		/* port 0: the one chosen at the first address, for all */
+		if (*port_of(&sa) == 0)
+			*port_of(&sa) = port;
+		if (*n == max) {
+			log_error("%s %s: more than %zu addresses", field, text, max);
+			r = -E2BIG;
+			break;
+		}
+		r = bind_address(&sa, ai->ai_addrlen, &fds[*n]);
+		if (r < 0) {
+			log_job(address_unavailable(r) ? LOG_WARNING : LOG_ERR, 0,
+				"%s %s: cannot listen on %s: %s", field, text, where, strerror(-r));
+			if (!address_unavailable(r))
+				break;
+			r = 0;
+			continue;
+		}
+		if (!port) {
+			socklen_t len = sizeof(sa);
+			getsockname(fds[*n], (struct sockaddr *)&sa, &len);
+			port = *port_of(&sa);
+		}
+		log_debug("%s %s: listening on %s port %u", field, text, where, ntohs(port));
+		(*n)++;
+	}
+	if (r < 0)
+		while (*n)
+			close(fds[--*n]);
+	return r;
+}
+
+static bool port_zero(const struct addrinfo *ai)
+{
+	struct sockaddr_storage sa = { 0 };
+
+	memcpy(&sa, ai->ai_addr, ai->ai_addrlen <= sizeof(sa) ? ai->ai_addrlen : 0);
+	return *port_of(&sa) == 0;
+}
+
+int server_listen_tcp(const struct addrinfo *list, const char *field, const char *text,
+		      int *fds, size_t max, size_t *n)
+{
+	int r;
+
+	/* A port 0 chose at the first address may be taken at another: a
+	 * few more tries pick another. */
+	for (int tries = 0;; tries++) {
+		r = bind_each(list, field, text, fds, max, n);
+		if (r != -EADDRINUSE || tries == 8 || !port_zero(list))
+			break;
+	}
+	if (r < 0)
+		return r;
+	if (*n)
+		return 0;
+	log_error("%s %s: no address of it is on this host", field, text);
+	return -EADDRNOTAVAIL;
+}
+
+/* Every address of tcp_listen. */
 static int bind_tcp_all(struct server *srv, const struct settings *s, const struct addrinfo *tcp)
 {
-	int r = 0, bound = 0;
+	int fds[MAX_TCP_LISTENERS];
+	size_t n;
+	int r = server_listen_tcp(tcp, "tcp_listen", s->tcp_listen, fds,
+				  MAX_TCP_LISTENERS, &n);
 
-	for (const struct addrinfo *ai = tcp; ai; ai = ai->ai_next) {
-		if (seen_before(tcp, ai))
-			continue;
-		r = bind_tcp(srv, s, ai);
-		if (r < 0 && !address_unavailable(r))
-			return r;
-		bound += r == 0;
-	}
-	if (bound)
-		return 0;
-	log_error("tcp_listen %s: no address of it is on this host", s->tcp_listen);
-	return -EADDRNOTAVAIL;
+	for (size_t i = 0; r == 0 && i < n; i++)
+		add_listener(srv, fds[i], true, false);
+	return r;
 }
 
 static bool has_unix(const struct server *srv)

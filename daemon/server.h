@@ -85,6 +85,20 @@ int server_resolve_tcp(const char *host, const char *port, struct addrinfo **out
 /* A TCP peer (of the connection fd): "tcp ADDRESS", its uid unknown, its
  * key its address (an IPv6 address by its /64). The web listener's too. */
 void server_tcp_peer(int fd, struct peer *p);
+/* The same from the peer's address (AF_INET or AF_INET6; another: "tcp ?"). */
+void server_addr_peer(const struct sockaddr *addr, struct peer *p);
+
+/*
+ * Listening sockets (non-blocking, close-on-exec) on every address of
+ * list, the addresses of the setting field ("tcp_listen", "http_listen")
+ * whose text is text, into fds (at most max), their number into *n. An
+ * address this host does not have (an IPv6 one without IPv6) is left out,
+ * with a warning, while another is there; a port of 0 is chosen at the
+ * first address and kept for the others, so that the name has one port.
+ * 0, or -errno having logged why (nothing left open).
+ */
+int server_listen_tcp(const struct addrinfo *list, const char *field, const char *text,
+		      int *fds, size_t max, size_t *n);
 
 /* The descriptors asphd needs besides its clients' (listeners, the job
  * store, workers, devices, the log): what LimitNOFILE= must leave above

@@ -13,6 +13,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <inttypes.h>
+#include <limits.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -41,6 +42,12 @@
 #define SESSION_IDLE_NS (12 * 3600 * (int64_t)1000000000)
 /* The most points one /points answer carries (the page asks again). */
 #define POINTS_MAX 20000
+/* The most addresses http_listen listens on. */
+#define WEB_MAX_LISTENERS 16
+/* libmicrohttpd's own ceiling on connections: the limits are ours
+ * (on_accept()), read at each connection; this is the largest
+ * limits.max_clients. */
+#define MHD_CONNECTIONS_CEILING 65536
 
 /* Only the page's own origin: scripts, styles, images, connections. */
 #define CSP "default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data: blob:; " \
@@ -75,16 +82,34 @@ struct request {
 	bool too_large;
 };
 
+/* One address of http_listen: a libmicrohttpd daemon of its own. */
+struct listener {
+	struct web *web;
+	struct MHD_Daemon *mhd;
+	sd_event_source *io;
+};
+
+/* One open connection, from libmicrohttpd's connection notice to its
+ * close: what the limits count. */
+struct conn {
+	struct conn *next, *prev;
+	char key[RATELIMIT_KEY_MAX];    /* the peer's address (an IPv6 one by its /64) */
+};
+
 struct web {
 	sd_event *event;
 	struct rpc *rpc;
 	struct jobs *jobs;
 	const struct settings_limits *limits;
 	char *state_dir;
-	struct MHD_Daemon *mhd;
-	sd_event_source *io, *timer;
+	struct listener listeners[WEB_MAX_LISTENERS];
+	size_t n_listeners;
+	sd_event_source *timer;
 	int root_fd;
 	unsigned port;
+	struct conn *conns;
+	size_t n_conns;
+	int64_t refused_logged_ns;      /* the last refusal logged (one a second) */
 	struct session *sessions;
 	size_t n_sessions;
 	/* The surface of the job whose points were asked for last: the live
@@ -95,18 +120,22 @@ struct web {
 
 /* ------------------------------------------------------- the event loop */
 
-/* Arms the timer for libmicrohttpd's next timeout (0: work is waiting). */
+/* Arms the timer for the nearest of the listeners' next timeouts (0:
+ * work is waiting). */
 static void rearm(struct web *w)
 {
-	MHD_UNSIGNED_LONG_LONG ms;
+	MHD_UNSIGNED_LONG_LONG ms, nearest = ULLONG_MAX;
 	uint64_t now;
 
-	if (!w->mhd || MHD_get_timeout(w->mhd, &ms) != MHD_YES) {
+	for (size_t i = 0; i < w->n_listeners; i++)
+		if (MHD_get_timeout(w->listeners[i].mhd, &ms) == MHD_YES && ms < nearest)
+			nearest = ms;
+	if (nearest == ULLONG_MAX) {
 		sd_event_source_set_enabled(w->timer, SD_EVENT_OFF);
 		return;
 	}
 	sd_event_now(w->event, CLOCK_MONOTONIC, &now);
-	sd_event_source_set_time(w->timer, ms ? now + ms * 1000 : 1);
+	sd_event_source_set_time(w->timer, nearest ? now + nearest * 1000 : 1);
 	sd_event_source_set_enabled(w->timer, SD_EVENT_ONESHOT);
 }
 
@@ -118,21 +147,23 @@ static void kick(struct web *w)
 	sd_event_source_set_enabled(w->timer, SD_EVENT_ONESHOT);
 }
 
-static void run(struct web *w)
-{
-	MHD_run(w->mhd);
-	rearm(w);
-}
-
 static int on_io(sd_event_source *s, int fd, uint32_t revents, void *data)
 {
-	run(data);
+	struct listener *l = data;
+
+	MHD_run(l->mhd);
+	rearm(l->web);
 	return 0;
 }
 
+/* A timeout, or a resumed stream: every listener has its turn. */
 static int on_timer(sd_event_source *s, uint64_t usec, void *data)
 {
-	run(data);
+	struct web *w = data;
+
+	for (size_t i = 0; i < w->n_listeners; i++)
+		MHD_run(w->listeners[i].mhd);
+	rearm(w);
 	return 0;
 }
 
@@ -924,10 +955,11 @@ void web_free(struct web *w)
 		return;
 	while (w->sessions)
 		session_free(w, w->sessions);
-	sd_event_source_disable_unref(w->io);
 	sd_event_source_disable_unref(w->timer);
-	if (w->mhd)
-		MHD_stop_daemon(w->mhd);
+	for (size_t i = 0; i < w->n_listeners; i++) {
+		sd_event_source_disable_unref(w->listeners[i].io);
+		MHD_stop_daemon(w->listeners[i].mhd);   /* (closes its socket) */
+	}
 	if (w->root_fd >= 0)
 		close(w->root_fd);
 	asph_surface_free(w->surface);
@@ -935,10 +967,128 @@ void web_free(struct web *w)
 	free(w);
 }
 
-int web_listen(struct web *w, const struct addrinfo *addr, const char *root)
+/* --------------------------------------------------------- connections */
+
+static size_t conns_of(const struct web *w, const char *key)
 {
+	size_t n = 0;
+
+	for (const struct conn *c = w->conns; c; c = c->next)
+		n += !strcmp(c->key, key);
+	return n;
+}
+
+/*
+ * Whether a connection from addr may be taken: the limits as they are now
+ * (a reload may have changed them), limits.max_clients connections in all
+ * and limits.max_clients_per_user from one address. One over is closed
+ * at once, before anything is read from it.
+ */
+static enum MHD_Result on_accept(void *cls, const struct sockaddr *addr, socklen_t len)
+{
+	struct web *w = cls;
+	const struct settings_limits *l = w->limits;
+	struct peer p = { 0 };
+	char why[128] = "";
+	int64_t now;
+
+	server_addr_peer(addr, &p);
+	if (w->n_conns >= l->max_clients)
+		snprintf(why, sizeof(why), "%zu connections, limits.max_clients", w->n_conns);
+	else if (conns_of(w, p.key) >= l->max_clients_per_user)
+		snprintf(why, sizeof(why), "%s has %u connections, limits.max_clients_per_user",
+			 p.key, l->max_clients_per_user);
+	if (!why[0])
+		return MHD_YES;
+	now = now_realtime_ns();
+	if (now - w->refused_logged_ns >= 1000000000) {
+		w->refused_logged_ns = now;
+		log_notice("http: connection refused: %s", why);
+	}
+	return MHD_NO;
+}
+
+/* A connection opens or closes: counted, and given the idle timeout the
+ * limits say now. */
+static void on_connection(void *cls, struct MHD_Connection *c, void **socket_context,
+			  enum MHD_ConnectionNotificationCode what)
+{
+	struct web *w = cls;
+	const union MHD_ConnectionInfo *info;
+	struct conn *conn = *socket_context;
+	struct peer p = { 0 };
+
+	if (what == MHD_CONNECTION_NOTIFY_CLOSED) {
+		if (!conn)
+			return;
+		if (conn->prev)
+			conn->prev->next = conn->next;
+		else
+			w->conns = conn->next;
+		if (conn->next)
+			conn->next->prev = conn->prev;
+		w->n_conns--;
+		free(conn);
+		*socket_context = NULL;
+		return;
+	}
+	MHD_set_connection_option(c, MHD_CONNECTION_OPTION_TIMEOUT,
+				  (unsigned)(w->limits->request_timeout_ms + 999) / 1000);
+	info = MHD_get_connection_info(c, MHD_CONNECTION_INFO_CLIENT_ADDRESS);
+	conn = calloc(1, sizeof(*conn));
+	if (!conn)
+		return;         /* (not counted: the limits err on the open side) */
+	if (info && info->client_addr)
+		server_addr_peer(info->client_addr, &p);
+	else
+		snprintf(p.key, sizeof(p.key), "tcp ?");
+	snprintf(conn->key, sizeof(conn->key), "%s", p.key);
+	conn->next = w->conns;
+	if (w->conns)
+		w->conns->prev = conn;
+	w->conns = conn;
+	w->n_conns++;
+	*socket_context = conn;
+}
+
+/* -------------------------------------------------------------- setup */
+
+static int listen_on(struct web *w, int fd)
+{
+	struct listener *l = &w->listeners[w->n_listeners];
 	const union MHD_DaemonInfo *info;
-	unsigned timeout_s = (w->limits->request_timeout_ms + 999) / 1000;
+	struct sockaddr_storage sa = { 0 };
+	socklen_t len = sizeof(sa);
+
+	getsockname(fd, (struct sockaddr *)&sa, &len);
+	l->web = w;
+	l->mhd = MHD_start_daemon(MHD_USE_EPOLL | MHD_ALLOW_SUSPEND_RESUME | MHD_USE_ERROR_LOG |
+				  (sa.ss_family == AF_INET6 ? MHD_USE_IPv6 : 0),
+				  0, on_accept, w, on_request, w,
+				  MHD_OPTION_LISTEN_SOCKET, fd,
+				  MHD_OPTION_CONNECTION_LIMIT, (unsigned)MHD_CONNECTIONS_CEILING,
+				  MHD_OPTION_CONNECTION_TIMEOUT,
+				  (unsigned)(w->limits->request_timeout_ms + 999) / 1000,
+				  MHD_OPTION_NOTIFY_COMPLETED, on_completed, w,
+				  MHD_OPTION_NOTIFY_CONNECTION, on_connection, w,
+				  MHD_OPTION_EXTERNAL_LOGGER, on_mhd_log, w,
+				  MHD_OPTION_END);
+	if (!l->mhd) {
+		close(fd);
+		log_error("http_listen: libmicrohttpd does not start");
+		return -EIO;
+	}
+	w->n_listeners++;
+	info = MHD_get_daemon_info(l->mhd, MHD_DAEMON_INFO_EPOLL_FD);
+	if (!info)
+		return -EIO;
+	return sd_event_add_io(w->event, &l->io, info->epoll_fd, EPOLLIN, on_io, l);
+}
+
+int web_listen(struct web *w, const struct addrinfo *addr, const char *text, const char *root)
+{
+	int fds[WEB_MAX_LISTENERS];
+	size_t n = 0;
 	int r;
 
 	w->root_fd = open(root, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
@@ -947,29 +1097,26 @@ int web_listen(struct web *w, const struct addrinfo *addr, const char *root)
 		log_error("http_root %s: %s", root, strerror(-r));
 		return r;
 	}
-	w->mhd = MHD_start_daemon(MHD_USE_EPOLL | MHD_ALLOW_SUSPEND_RESUME | MHD_USE_ERROR_LOG |
-				  (addr->ai_family == AF_INET6 ? MHD_USE_IPv6 : 0),
-				  0, NULL, NULL, on_request, w,
-				  MHD_OPTION_SOCK_ADDR, addr->ai_addr,
-				  MHD_OPTION_CONNECTION_LIMIT, (unsigned)w->limits->max_clients,
-				  MHD_OPTION_PER_IP_CONNECTION_LIMIT,
-				  (unsigned)w->limits->max_clients_per_user,
-				  MHD_OPTION_CONNECTION_TIMEOUT, timeout_s,
-				  MHD_OPTION_NOTIFY_COMPLETED, on_completed, w,
-				  MHD_OPTION_EXTERNAL_LOGGER, on_mhd_log, w,
-				  MHD_OPTION_END);
-	if (!w->mhd) {
-		log_error("http_listen: cannot listen (in use, or no such address)");
-		return -EADDRINUSE;
-	}
-	info = MHD_get_daemon_info(w->mhd, MHD_DAEMON_INFO_EPOLL_FD);
-	r = info ? sd_event_add_io(w->event, &w->io, info->epoll_fd, EPOLLIN, on_io, w) : -EIO;
-	if (r >= 0)
-		r = sd_event_add_time(w->event, &w->timer, CLOCK_MONOTONIC, 1, 0, on_timer, w);
+	r = server_listen_tcp(addr, "http_listen", text, fds, WEB_MAX_LISTENERS, &n);
 	if (r < 0)
 		return r;
-	info = MHD_get_daemon_info(w->mhd, MHD_DAEMON_INFO_BIND_PORT);
-	w->port = info ? info->port : 0;
+	{       /* one port for all (server_listen_tcp()) */
+		struct sockaddr_storage sa = { 0 };
+		socklen_t len = sizeof(sa);
+		if (getsockname(fds[0], (struct sockaddr *)&sa, &len) == 0)
+			w->port = ntohs(sa.ss_family == AF_INET6
+					? ((struct sockaddr_in6 *)&sa)->sin6_port
+					: ((struct sockaddr_in *)&sa)->sin_port);
+	}
+	r = sd_event_add_time(w->event, &w->timer, CLOCK_MONOTONIC, 1, 0, on_timer, w);
+	for (size_t i = 0; i < n; i++) {
+		if (r >= 0)
+			r = listen_on(w, fds[i]);
+		else
+			close(fds[i]);
+	}
+	if (r < 0)
+		return r;
 	rearm(w);
 	return 0;
 }
@@ -977,4 +1124,9 @@ int web_listen(struct web *w, const struct addrinfo *addr, const char *root)
 unsigned web_port(const struct web *w)
 {
 	return w ? w->port : 0;
+}
+
+size_t web_listeners(const struct web *w)
+{
+	return w ? w->n_listeners : 0;
 }

@@ -20,8 +20,10 @@
  * A session is an rpc_session of a peer that proved a token (a named
  * token's role, as over TCP); its cookie is HttpOnly and SameSite=Strict.
  * A POST whose Origin is not the page's own is refused (403). Bodies over
- * limits.max_request_bytes are refused (413); sessions are bounded by
- * limits.max_clients, a stream's unsent events by limits.max_output_bytes.
+ * limits.max_request_bytes are refused (413); connections are bounded by
+ * limits.max_clients and limits.max_clients_per_user (of one address),
+ * sessions by limits.max_clients, a stream's unsent events by
+ * limits.max_output_bytes; all read at each use, so that a reload applies.
  * Event loop thread.
  */
 #ifndef ASPHD_WEB_H
@@ -55,11 +57,14 @@ int web_new(const struct web_setup *setup, struct web **out);
 /* Ends every session and stops listening. */
 void web_free(struct web *w);
 
-/* Listens on addr (from server_resolve_tcp()) and serves the files of
- * root. 0, or -errno having logged why. */
-int web_listen(struct web *w, const struct addrinfo *addr, const char *root);
+/* Listens on every address of addr (from server_resolve_tcp(); text is
+ * http_listen's, for messages), all on one port (server_listen_tcp()),
+ * and serves the files of root. 0, or -errno having logged why. */
+int web_listen(struct web *w, const struct addrinfo *addr, const char *text, const char *root);
 /* The port listened on (after web_listen()), 0 when not listening. */
 unsigned web_port(const struct web *w);
+/* The number of addresses listened on. */
+size_t web_listeners(const struct web *w);
 
 /* Ends the sessions whose token no longer stands (rpc_session_valid()). */
 void web_revalidate(struct web *w);

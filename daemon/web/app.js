@@ -5,7 +5,7 @@
 // from /api/jobs/ID/files/NAME. The server checks every call; the role
 // only decides what the page offers.
 import { drawMap, colourScale } from "./map.js";
-import { zernikeBars, radialProfile } from "./charts.js";
+import { zernikeBars, radialProfile, psdChart, psdTable, parsePsd } from "./charts.js";
 
 const $ = (id) => document.getElementById(id);
 let role = null;
@@ -371,10 +371,14 @@ async function showResult(id) {
         el("td", {}, fmt(i.U)), el("td", {}, fmt(i.limit)), el("td", {}, i.verdict))))));
   } else parts.push(el("p", {}, "No tolerance was given: no verdict."));
   parts.push(el("h3", {}, "Pose"), pose);
-  if (s.zernike_nm) parts.push(el("h3", {}, "Zernike coefficients"), zernikeBars(s.zernike_nm));
+  if (s.zernike_nm) parts.push(el("h3", { id: "zernike-h" }, "Zernike coefficients"), zernikeBars(s.zernike_nm));
   if (r.files.residuals) {
     const csv = await (await fetch(`/api/jobs/${id}/files/${r.files.residuals}`)).text();
     parts.push(el("h3", {}, "Radial profile"), radialProfile(csv));
+  }
+  if (r.files.psd) {
+    const rows = parsePsd(await (await fetch(`/api/jobs/${id}/files/${r.files.psd}`)).text());
+    parts.push(el("h3", {}, "Power spectral density"), psdChart(rows), psdTable(rows, el));
   }
   parts.push(el("h3", {}, "Downloads"), files);
   if (r.files.map) parts.splice(1, 0, el("img", { src: `/api/jobs/${id}/files/${r.files.map}`, alt: `residual map of job ${id}`, class: "residual-map" }));

@@ -24,6 +24,7 @@ enum {
 	OPT_X_MIN, OPT_X_MAX, OPT_Y_MIN, OPT_Y_MAX, OPT_Z_MIN, OPT_Z_MAX,
 	OPT_SPEED, OPT_ACCELERATION, OPT_HOMING_METHOD, OPT_HOMING_SPEED,
 	OPT_HEARTBEAT, OPT_HEARTBEAT_TIMEOUT, OPT_SDO_TIMEOUT, OPT_NMT_RESET, OPT_FAULT_RESET,
+	OPT_TOUCH_PROBE, OPT_TRIGGER_NODE, OPT_TRIGGER_OUTPUT,
 	OPT_PROBE_NODE, OPT_PROBE_INDEX, OPT_PROBE_SUBINDEX, OPT_PROBE_FORMAT, OPT_PROBE_SCALE,
 	OPT_PROBE_OFFSET, OPT_PROBE_KIND, OPT_PROBE_TIP_RADIUS, OPT_PROBE_STANDOFF,
 	OPT_PROBE_RANGE, N_OPTIONS
@@ -32,6 +33,8 @@ enum {
 static const char *const nmt_resets[] = { "communication", "node", "none", NULL };
 static const char *const formats[] = { "i16", "u16", "i32", "u32", "i8", "u8", NULL };
 static const char *const kinds[] = { "optical", "tactile", NULL };
+enum { TOUCH_PROBE_AUTO, TOUCH_PROBE_ON, TOUCH_PROBE_OFF };
+static const char *const touch_probes[] = { "auto", "on", "off", NULL };
 
 #define P ASPH_ROLE_PROBE
 #define S ASPH_ROLE_STAGE
@@ -89,6 +92,19 @@ static const struct asph_option_desc can_options[N_OPTIONS] = {
 	[OPT_FAULT_RESET] = { "fault_reset", ASPH_OPTION_BOOL, "true", .roles = S,
 			      .help = "homing clears a drive fault (fault reset) before enabling; "
 				      "false: a drive in fault refuses" },
+	[OPT_TOUCH_PROBE] = { "touch_probe", ASPH_OPTION_ENUM, "auto", .choices = touch_probes,
+			      .roles = S,
+			      .help = "positions during sweeps latched by the drives' touch probe "
+				      "(0x60B8) on the probe's trigger: auto where every axis' drive "
+				      "has one (else read back, flagged), on: refuse a drive without, "
+				      "off: read back" },
+	[OPT_TRIGGER_NODE] = { "trigger_node", ASPH_OPTION_INT, "0", RANGE(0, 127), .roles = S,
+			       .help = "the axis drive whose digital output fires the probe's "
+				       "trigger line (wired to every axis' touch probe 1 input); 0: "
+				       "the first axis' drive" },
+	[OPT_TRIGGER_OUTPUT] = { "trigger_output", ASPH_OPTION_INT, "16", RANGE(0, 31), .roles = S,
+				 .help = "bit of its digital outputs (0x60FE:01, 16..31) wired to the "
+					 "trigger line; 0: no trigger wiring (no latching)" },
 	[OPT_PROBE_NODE] = { "probe_node", ASPH_OPTION_INT, "4", RANGE(1, 127), .roles = P,
 			     .help = "CANopen node id of the probe" },
 	[OPT_PROBE_INDEX] = { "probe_index", ASPH_OPTION_INT, "28976", RANGE(0x1000, 0xffff), .roles = P,
@@ -127,6 +143,8 @@ struct axis {
 	bool pp;                /* profile position mode and its parameters set */
 	bool target_valid;      /* target is where the drive was last sent */
 	int32_t target;
+	enum { TP_NONE, TP_SINGLE, TP_CONTINUOUS } tp;  /* its touch probe 1 */
+	uint16_t tp_count;      /* 0x60D5 after the last latch */
 };
 
 struct asph_device {
@@ -142,6 +160,12 @@ struct asph_device {
 	double speed, acceleration, homing_speed;
 	int homing_method;
 	bool fault_reset;
+	/* sweeps: the trigger line, the positions measured */
+	int touch_probe;
+	uint8_t trigger_node, trigger_bit;      /* bit 0: no trigger wiring */
+	uint32_t outputs;                       /* 0x60FE:01 of trigger_node */
+	struct asph_position_sample *trace;
+	size_t trace_n, trace_read, trace_cap;
 	/* probe */
 	uint16_t p_index;
 	uint8_t p_sub;
@@ -289,6 +313,7 @@ static void dev_close(struct asph_device *d)
 	if (!d)
 		return;
 	can_bus_free(d->bus);
+	free(d->trace);
 	free(d->iface);
 	free(d);
 }
@@ -305,6 +330,149 @@ static int dev_stop(struct asph_device *d, struct asph_error *err)
 					  CIA402_CONTROLWORD, 0, CIA402_CW_QUICK_STOP, 2);
 	can_bus_cancel(d->bus, f, n);
 	return 0;
+}
+
+/* ----------------------------------------------------- touch probe */
+
+#define ABORT_NO_OBJECT 0x06020000u
+
+static int trigger_options(struct asph_device *d, const struct asph_option_value *o,
+			   struct asph_error *err)
+{
+	unsigned node = (unsigned)o[OPT_TRIGGER_NODE].i, bit = (unsigned)o[OPT_TRIGGER_OUTPUT].i;
+	bool axis = false;
+
+	d->touch_probe = (int)o[OPT_TOUCH_PROBE].i;
+	if (bit >= 1 && bit <= 15)
+		return asph_error_set(err, -EINVAL, "trigger_output: bit %u of 0x60FE:01 is not an "
+				      "output (0: the brake, 1..15: reserved by CiA 402; 16..31: "
+				      "the drive's own outputs)", bit);
+	if (!bit && d->touch_probe == TOUCH_PROBE_ON)
+		return asph_error_set(err, -EINVAL, "touch_probe=on needs the trigger wiring "
+				      "(trigger_output 16..31)");
+	for (int k = 0; k < 3; k++)
+		axis = axis || (node && d->ax[k].node == node);
+	if (node && !axis)
+		return asph_error_set(err, -EINVAL, "trigger_node %u is not one of the axes' drives",
+				      node);
+	d->trigger_bit = (uint8_t)bit;
+	d->trigger_node = (uint8_t)node;
+	for (int k = 0; k < 3 && !d->trigger_node; k++)
+		d->trigger_node = d->ax[k].node;
+	return 0;
+}
+
+/* Whether a's drive has a touch probe (0x60B8), and its edge counter
+ * (0x60D5) for the continuous mode: an SDO abort "object does not exist"
+ * says it has not. */
+static int detect_touch_probe(struct asph_device *d, struct axis *a, uint64_t deadline,
+			      struct asph_error *err)
+{
+	uint32_t v;
+
+	a->tp = TP_NONE;
+	if (d->touch_probe == TOUCH_PROBE_OFF || !d->trigger_bit)
+		return 0;
+	int r = can_bus_sdo_upload(d->bus, a->node, CIA402_TOUCH_PROBE_FUNCTION, 0, &v,
+				   sdo_time(d, deadline), err);
+	if (r == -EPROTO && can_bus_last_abort(d->bus) == ABORT_NO_OBJECT) {
+		if (d->touch_probe == TOUCH_PROBE_ON)
+			return asph_error_set(err, -EPROTO, "%s has no touch probe (0x60B8 does not "
+					      "exist): touch_probe=on needs one in every axis' drive",
+					      name(d, a));
+		return 0;
+	}
+	if (r < 0)
+		return r;
+	r = can_bus_sdo_upload(d->bus, a->node, CIA402_TOUCH_PROBE1_POS_COUNT, 0, &v,
+			       sdo_time(d, deadline), err);
+	if (r == -EPROTO && can_bus_last_abort(d->bus) == ABORT_NO_OBJECT) {
+		a->tp = TP_SINGLE;
+		return 0;
+	}
+	a->tp = TP_CONTINUOUS;
+	return r;
+}
+
+/* Every axis latches: positions during sweeps are the drives' own. */
+static bool latching(const struct asph_device *d)
+{
+	for (int k = 0; k < 3; k++)
+		if (d->ax[k].node && d->ax[k].tp == TP_NONE)
+			return false;
+	return d->trigger_bit != 0;
+}
+
+static int write_tp(struct asph_device *d, const struct axis *a, uint16_t f, uint64_t deadline,
+		    struct asph_error *err)
+{
+	return write_obj(d, a->node, CIA402_TOUCH_PROBE_FUNCTION, 0, f, 2, deadline, err);
+}
+
+/* Touch probe 1 on the rising edge of its input, switched off first (a
+ * drive refuses a change of mode while it is on); every edge in the
+ * continuous mode, else the first one after each arming. */
+static int arm_touch_probe(struct asph_device *d, struct axis *a, uint64_t deadline,
+			   struct asph_error *err)
+{
+	uint16_t f = CIA402_TP_ENABLE | CIA402_TP_POSITIVE_EDGE, st = 0;
+	uint32_t count;
+
+	if (a->tp == TP_CONTINUOUS)
+		f |= CIA402_TP_CONTINUOUS;
+	int r = write_tp(d, a, 0, deadline, err);
+	if (r == 0)
+		r = write_tp(d, a, f, deadline, err);
+	if (r == 0)
+		r = read_u16(d, a->node, CIA402_TOUCH_PROBE_STATUS, &st, deadline, err);
+	if (r == 0 && (!(st & CIA402_TPS_ENABLED) || (st & CIA402_TPS_POSITIVE_STORED)))
+		return asph_error_set(err, -EPROTO, "%s: the touch probe did not arm (0x60B9 = "
+				      "0x%04x after 0x60B8 = 0x%04x)", name(d, a), st, f);
+	if (r == 0 && a->tp == TP_CONTINUOUS) {
+		r = can_bus_sdo_upload(d->bus, a->node, CIA402_TOUCH_PROBE1_POS_COUNT, 0, &count,
+				       sdo_time(d, deadline), err);
+		a->tp_count = (uint16_t)count;
+	}
+	return r;
+}
+
+/* The position a's drive latched on the trigger just fired, counts. */
+static int read_latch(struct asph_device *d, struct axis *a, int32_t *at, uint64_t deadline,
+		      struct asph_error *err)
+{
+	uint32_t v;
+	uint16_t st, edges = 1;
+	int r;
+
+	if (a->tp == TP_CONTINUOUS) {
+		r = can_bus_sdo_upload(d->bus, a->node, CIA402_TOUCH_PROBE1_POS_COUNT, 0, &v,
+				       sdo_time(d, deadline), err);
+		if (r < 0)
+			return r;
+		edges = (uint16_t)(v - a->tp_count);
+		a->tp_count = (uint16_t)v;
+	} else {
+		r = read_u16(d, a->node, CIA402_TOUCH_PROBE_STATUS, &st, deadline, err);
+		if (r < 0)
+			return r;
+		edges = (st & CIA402_TPS_POSITIVE_STORED) != 0;
+	}
+	if (edges == 0)
+		return asph_error_set(err, -EPROTO, "%s: the touch probe latched no edge of the "
+				      "trigger: check the wiring of output %u of node %u to its touch "
+				      "probe 1 input", name(d, a), d->trigger_bit, d->trigger_node);
+	if (edges > 1)
+		return asph_error_set(err, -EPROTO, "%s: the touch probe latched %u edges for one "
+				      "trigger (a bouncing or noisy trigger line)", name(d, a), edges);
+	r = can_bus_sdo_upload(d->bus, a->node, CIA402_TOUCH_PROBE1_POSITIVE, 0, &v,
+			       sdo_time(d, deadline), err);
+	*at = (int32_t)v;
+	/* first-event mode: a rising edge of bit 4 arms it again */
+	if (r == 0 && a->tp == TP_SINGLE)
+		r = write_tp(d, a, CIA402_TP_ENABLE, deadline, err);
+	if (r == 0 && a->tp == TP_SINGLE)
+		r = write_tp(d, a, CIA402_TP_ENABLE | CIA402_TP_POSITIVE_EDGE, deadline, err);
+	return r;
 }
 
 /* ----------------------------------------------------------- stage */
@@ -346,12 +514,18 @@ static int stage_open(const struct asph_driver *drv, const struct asph_option_va
 	d->homing_method = (int)o[OPT_HOMING_METHOD].i;
 	d->homing_speed = o[OPT_HOMING_SPEED].d;
 	d->fault_reset = o[OPT_FAULT_RESET].b;
-	int r = can_bus_open(d->iface, d->nodes, d->n_nodes, &d->bus, err);
+	int r = trigger_options(d, o, err);
+	if (r == 0)
+		r = can_bus_open(d->iface, d->nodes, d->n_nodes, &d->bus, err);
 	for (int k = 0; k < 3 && r == 0; k++)
 		if (d->ax[k].node)
 			can_bus_label(d->bus, d->ax[k].node, axis_names[k]);
 	if (r == 0)
 		r = bring_up(d, true, timeout_ms, err);
+	uint64_t deadline = transport_deadline(timeout_ms);
+	for (int k = 0; k < 3 && r == 0; k++)
+		if (d->ax[k].node)
+			r = detect_touch_probe(d, &d->ax[k], deadline, err);
 	if (r < 0) {
 		dev_close(d);
 		return r;
@@ -588,13 +762,15 @@ static int send_set_point(struct asph_device *d, struct axis *a, int32_t target,
 	return write_cw(d, a, CIA402_CW_ENABLE_OPERATION, deadline, err);
 }
 
-/* 1 when the axis is at its target, 0 while it moves. */
-static int axis_arrived(struct asph_device *d, const struct axis *a, uint64_t deadline,
-			struct asph_error *err)
+/* The statusword of an axis in motion, which must not have a following
+ * error or a limit. */
+static int motion_sw(struct asph_device *d, const struct axis *a, uint16_t *out,
+		     uint64_t deadline, struct asph_error *err)
 {
 	uint16_t sw;
 	int r = enabled_sw(d, a, &sw, deadline, err);
 
+	*out = sw;
 	if (r < 0)
 		return r;
 	if (sw & CIA402_SW_BIT13)
@@ -603,6 +779,18 @@ static int axis_arrived(struct asph_device *d, const struct axis *a, uint64_t de
 	if (sw & CIA402_SW_INTERNAL_LIMIT)
 		return asph_error_set(err, -ERANGE, "%s: internal limit active (a limit switch or the "
 				      "drive's software limits)", name(d, a));
+	return 0;
+}
+
+/* 1 when the axis is at its target, 0 while it moves. */
+static int axis_arrived(struct asph_device *d, const struct axis *a, uint64_t deadline,
+			struct asph_error *err)
+{
+	uint16_t sw;
+	int r = motion_sw(d, a, &sw, deadline, err);
+
+	if (r < 0)
+		return r;
 	return (sw & CIA402_SW_TARGET_REACHED) && !(sw & CIA402_SW_BIT12);
 }
 
@@ -642,6 +830,230 @@ static int stage_move(struct asph_device *d, const double *t, unsigned timeout_m
 			: asph_error_set(err, -ETIMEDOUT, "move did not finish within %u ms", timeout_ms);
 	}
 	return finish(d, r, "motion", err);
+}
+
+/* ----------------------------------------------------------- sweeps */
+
+/*
+ * A sweep is profile position mode with buffered set points: each axis
+ * gets the next target while it runs to the one before (controlword bit 5
+ * low: after the one in process; bit 9: through its target without
+ * stopping). Statusword bit 12 stays up while a set point waits in the
+ * buffer, so its fall says the axis passed the target before. Once every
+ * axis passed point k, the trigger line fires (a digital output of one
+ * drive, 0x60FE, wired to the probe's trigger input and every axis' touch
+ * probe 1 input): each drive latches its encoder at that edge, and the
+ * probe takes reading k there. docs/driver-can.md.
+ */
+
+#define SWEEP_CW (CIA402_CW_ENABLE_OPERATION | CIA402_CW_CHANGE_ON_SET_POINT)
+
+/* Waits until a's set-point buffer is free: the targets sent before the
+ * last one are passed. */
+static int buffer_free(struct asph_device *d, const struct axis *a, uint64_t deadline,
+		       struct asph_error *err)
+{
+	for (;;) {
+		uint16_t sw;
+		int r = motion_sw(d, a, &sw, deadline, err);
+		if (r < 0 || !(sw & CIA402_SW_BIT12))
+			return r;
+		if (transport_ms_left(deadline) == 0)
+			return asph_error_set(err, -ETIMEDOUT, "%s: the sweep did not pass its set "
+					      "points in time", name(d, a));
+		r = can_bus_idle(d->bus, 1, err);
+		if (r < 0)
+			return r;
+	}
+}
+
+/* The set-point handshake of a buffered target. */
+static int queue_set_point(struct asph_device *d, struct axis *a, int32_t target,
+			   uint64_t deadline, struct asph_error *err)
+{
+	uint16_t sw;
+	int r = write_obj(d, a->node, CIA402_TARGET_POSITION, 0, (uint32_t)target, 4, deadline, err);
+
+	a->target_valid = false;
+	if (r == 0)
+		r = write_cw(d, a, SWEEP_CW | CIA402_CW_NEW_SET_POINT, deadline, err);
+	while (r == 0) {
+		r = motion_sw(d, a, &sw, deadline, err);
+		if (r < 0 || (sw & CIA402_SW_BIT12))
+			break;
+		if (transport_ms_left(deadline) == 0)
+			return asph_error_set(err, -ETIMEDOUT, "%s did not acknowledge the new set point "
+					      "in time", name(d, a));
+		r = can_bus_idle(d->bus, 1, err);
+	}
+	if (r == 0)
+		r = write_cw(d, a, SWEEP_CW, deadline, err);
+	a->target = target;
+	return r;
+}
+
+static int write_outputs(struct asph_device *d, uint32_t v, uint64_t deadline,
+			 struct asph_error *err)
+{
+	int r = write_obj(d, d->trigger_node, CIA402_DIGITAL_OUTPUTS, 1, v, 4, deadline, err);
+	if (r == 0)
+		d->outputs = v;
+	return r;
+}
+
+/* Every axis in profile position mode; the touch probes armed; the
+ * trigger output enabled (0x60FE:02) and low, the other outputs kept. */
+static int sweep_prepare(struct asph_device *d, uint64_t deadline, struct asph_error *err)
+{
+	uint32_t mask, bit = 1u << d->trigger_bit;
+	int r = 0;
+
+	for (int k = 0; k < 3 && r == 0; k++)
+		if (d->ax[k].node)
+			r = axis_pp(d, &d->ax[k], deadline, err);
+	for (int k = 0; k < 3 && r == 0 && latching(d); k++)
+		if (d->ax[k].node)
+			r = arm_touch_probe(d, &d->ax[k], deadline, err);
+	if (r < 0 || !d->trigger_bit)
+		return r;
+	r = can_bus_sdo_upload(d->bus, d->trigger_node, CIA402_DIGITAL_OUTPUTS, 2, &mask,
+			       sdo_time(d, deadline), err);
+	if (r == 0 && !(mask & bit))
+		r = write_obj(d, d->trigger_node, CIA402_DIGITAL_OUTPUTS, 2, mask | bit, 4, deadline,
+			      err);
+	if (r == 0)
+		r = can_bus_sdo_upload(d->bus, d->trigger_node, CIA402_DIGITAL_OUTPUTS, 1,
+				       &d->outputs, sdo_time(d, deadline), err);
+	if (r == 0 && (d->outputs & bit))
+		r = write_outputs(d, d->outputs & ~bit, deadline, err);
+	return r;
+}
+
+/* Fires the trigger for point k and records where the axes were: latched
+ * by the drives, else read back right after (at the instant of the reads). */
+static int fire(struct asph_device *d, size_t k, uint64_t deadline, struct asph_error *err)
+{
+	struct asph_position_sample *s = &d->trace[d->trace_n];
+	uint32_t bit = 1u << d->trigger_bit;
+	bool latch = latching(d);
+	int r = 0;
+
+	memset(s, 0, sizeof(*s));
+	s->trigger = (uint32_t)k;
+	uint64_t t0 = now_monotonic_ns();
+	if (d->trigger_bit) {
+		r = write_outputs(d, d->outputs | bit, deadline, err);
+		/* the edge is somewhere within the write's exchange */
+		s->t_ns = t0 + (now_monotonic_ns() - t0) / 2;
+		if (r == 0)
+			r = write_outputs(d, d->outputs & ~bit, deadline, err);
+		t0 = now_monotonic_ns();
+	}
+	for (int a = 0; a < 3 && r == 0; a++) {
+		struct axis *ax = &d->ax[a];
+		int32_t c = 0;
+		uint32_t v;
+		if (!ax->node)
+			continue;
+		if (latch) {
+			r = read_latch(d, ax, &c, deadline, err);
+		} else {
+			r = can_bus_sdo_upload(d->bus, ax->node, CIA402_POSITION_ACTUAL, 0, &v,
+					       sdo_time(d, deadline), err);
+			c = (int32_t)v;
+		}
+		s->position[a] = c / ax->counts_per_mm;
+	}
+	if (r < 0)
+		return r;
+	s->source = latch ? ASPH_POSITION_LATCHED : ASPH_POSITION_READ_BACK;
+	if (!latch)
+		s->t_ns = t0 + (now_monotonic_ns() - t0) / 2;
+	d->trace_n++;
+	return 0;
+}
+
+static int sweep_run(struct asph_device *d, const double *p, size_t n, uint64_t deadline,
+		     struct asph_error *err)
+{
+	int r = 0;
+
+	for (size_t k = 0; k < n && r == 0; k++) {
+		for (int a = 0; a < 3 && r == 0; a++) {
+			struct axis *ax = &d->ax[a];
+			if (!ax->node)
+				continue;
+			if (k == 0)
+				r = buffer_free(d, ax, deadline, err);
+			if (r == 0)
+				r = queue_set_point(d, ax, counts(ax, p[3 * k + a]), deadline, err);
+		}
+		/* point k - 1 is passed once every buffer took point k */
+		for (int a = 0; a < 3 && r == 0 && k > 0; a++)
+			if (d->ax[a].node)
+				r = buffer_free(d, &d->ax[a], deadline, err);
+		if (r == 0 && k > 0)
+			r = fire(d, k - 1, deadline, err);
+	}
+	for (int a = 0; a < 3 && r == 0; a++) {
+		struct axis *ax = &d->ax[a];
+		int there = 0;
+		while (ax->node && r == 0 && there == 0) {
+			there = axis_arrived(d, ax, deadline, err);
+			r = there < 0 ? there : 0;
+			if (r == 0 && there == 0)
+				r = transport_ms_left(deadline) ? can_bus_idle(d->bus, 1, err)
+					: asph_error_set(err, -ETIMEDOUT, "%s: the sweep did not "
+							 "end in time", name(d, ax));
+		}
+	}
+	if (r == 0)
+		r = fire(d, n - 1, deadline, err);
+	return r;
+}
+
+static int stage_sweep(struct asph_device *d, const double *p, size_t n, unsigned timeout_ms,
+		       struct asph_error *err)
+{
+	uint64_t deadline = transport_deadline(timeout_ms);
+	int r = check_stopped(d, err);
+
+	d->trace_n = d->trace_read = 0;
+	for (size_t k = 0; k < n && r == 0; k++)
+		r = check_target(d, p + 3 * k, err);
+	if (r < 0 || n == 0)
+		return r;
+	if (n > d->trace_cap) {
+		struct asph_position_sample *t = realloc(d->trace, n * sizeof(*t));
+		if (!t)
+			return asph_error_set(err, -ENOMEM, "out of memory");
+		d->trace = t;
+		d->trace_cap = n;
+	}
+	r = sweep_prepare(d, deadline, err);
+	if (r == 0)
+		r = sweep_run(d, p, n, deadline, err);
+	for (int a = 0; a < 3 && r == 0; a++) {
+		struct axis *ax = &d->ax[a];
+		ax->target_valid = ax->node != 0;
+		if (ax->node && latching(d))
+			r = write_tp(d, ax, 0, deadline, err);
+	}
+	return finish(d, r, "sweep", err);
+}
+
+/* The positions of the last sweep, one per trigger, each handed out once. */
+static int stage_trace(struct asph_device *d, struct asph_position_sample *out, size_t max,
+		       size_t *n, unsigned timeout_ms, struct asph_error *err)
+{
+	size_t k = d->trace_n - d->trace_read;
+
+	if (k > max)
+		k = max;
+	memcpy(out, d->trace + d->trace_read, k * sizeof(*out));
+	d->trace_read += k;
+	*n = k;
+	return 0;
 }
 
 static int stage_position(struct asph_device *d, double *pos, unsigned timeout_ms,
@@ -775,9 +1187,11 @@ static const struct asph_stage_ops can_stage = {
 	.info = stage_info,
 	.home = stage_home,
 	.move_to = stage_move,
+	.sweep = stage_sweep,
 	.position = stage_position,
 	.status = stage_status,
 	.stop = dev_stop,
+	.sweep_trace = stage_trace,
 };
 
 static const struct asph_probe_ops can_probe = {
@@ -792,8 +1206,9 @@ const struct asph_driver can_driver = {
 	.abi_version = ASPH_DRIVER_ABI_VERSION,
 	.name = "can",
 	.description = "CANopen CiA 402 drives on SocketCAN (one node per axis, profile position "
-		       "mode), and a probe read over SDO",
-	.version = "1.0",
+		       "mode; sweeps with positions latched by the drives' touch probes), and a "
+		       "probe read over SDO",
+	.version = "1.1",
 	.roles = ASPH_ROLE_STAGE | ASPH_ROLE_PROBE,
 	.options = can_options,
 	.n_options = N_OPTIONS,

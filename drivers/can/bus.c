@@ -43,6 +43,7 @@ struct can_bus {
 	bool bus_fault;
 	char fault[200];
 	char warning[160];      /* the last harmless error frame, for hints */
+	uint32_t last_abort;    /* of the last SDO transfer; 0: none */
 	struct node nodes[CANOPEN_NODE_MAX + 1];
 };
 
@@ -503,6 +504,7 @@ static int sdo_abort_error(struct can_bus *b, uint8_t node, const struct canopen
 {
 	const char *text = canopen_abort_text(s->abort_code);
 
+	b->last_abort = s->abort_code;
 	return asph_error_set(err, -EPROTO, "%s refused the %s of 0x%04x:%02x: SDO abort 0x%08x (%s)",
 			      b->nodes[node].name, kind == SDO_UPLOAD ? "read" : "write",
 			      s->index, s->subindex, s->abort_code,
@@ -520,6 +522,7 @@ static int sdo_exchange(struct can_bus *b, uint8_t node, const struct can_frame 
 	bool stale = false;
 	int r = drain(b, err);
 
+	b->last_abort = 0;
 	if (r == 0)
 		r = transport_send(b->t, req, sizeof(*req), timeout_ms, err);
 	while (r == 0) {
@@ -582,6 +585,11 @@ int can_bus_sdo_download(struct can_bus *b, uint8_t node, uint16_t index, uint8_
 
 	canopen_sdo_frame(&req, node, true, SDO_DOWNLOAD, index, sub, value, size);
 	return sdo_exchange(b, node, &req, SDO_DOWNLOAD, index, sub, &s, timeout_ms, err);
+}
+
+uint32_t can_bus_last_abort(const struct can_bus *b)
+{
+	return b->last_abort;
 }
 
 int can_bus_sdo_download_all(struct can_bus *b, const uint8_t *nodes, unsigned n,

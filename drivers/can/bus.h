@@ -49,6 +49,9 @@ int can_bus_sdo_download(struct can_bus *b, uint8_t node, uint16_t index, uint8_
 			 uint32_t value, uint8_t size, unsigned timeout_ms,
 			 struct asph_error *err);
 
+/* The abort code of the last transfer the node refused (0: it did not). */
+uint32_t can_bus_last_abort(const struct can_bus *b);
+
 /* Writes index:sub of each of nodes[0 .. n-1] at once, without checking
  * for earlier faults (a quick stop after one), and collects the answers
  * for at most timeout_ms. Returns how many nodes confirmed. */

@@ -132,6 +132,15 @@ const char *canopen_bus_error_text(const struct can_event *ev, bool *fatal,
 #define CIA402_HOMING_METHOD 0x6098
 #define CIA402_HOMING_SPEEDS 0x6099     /* :01 switch search, :02 zero search */
 #define CIA402_HOMING_ACCELERATION 0x609a
+/* touch probe (CiA 402-2, IEC 61800-7-201): the drive latches its
+ * position actual value on an edge of its touch probe input */
+#define CIA402_TOUCH_PROBE_FUNCTION 0x60b8
+#define CIA402_TOUCH_PROBE_STATUS 0x60b9
+#define CIA402_TOUCH_PROBE1_POSITIVE 0x60ba     /* position at the rising edge */
+#define CIA402_TOUCH_PROBE1_NEGATIVE 0x60bb     /* position at the falling edge */
+#define CIA402_TOUCH_PROBE1_POS_COUNT 0x60d5    /* rising edges latched, modulo 2^16 */
+#define CIA402_TOUCH_PROBE1_NEG_COUNT 0x60d6
+#define CIA402_DIGITAL_OUTPUTS 0x60fe           /* :01 physical outputs, :02 bit mask */
 #define CANOPEN_DEVICE_TYPE 0x1000
 #define CANOPEN_HEARTBEAT_TIME 0x1017
 
@@ -147,6 +156,22 @@ const char *canopen_bus_error_text(const struct can_event *ev, bool *fatal,
 #define CIA402_CW_FAULT_RESET 0x0080
 #define CIA402_CW_NEW_SET_POINT 0x0010  /* pp: bit 4; homing: start */
 #define CIA402_CW_RELATIVE 0x0040       /* pp: bit 6 */
+#define CIA402_CW_CHANGE_IMMEDIATELY 0x0020     /* pp: bit 5; 0: the set point is buffered */
+#define CIA402_CW_CHANGE_ON_SET_POINT 0x0200    /* pp: bit 9; pass a buffered set point's
+						 * target without stopping */
+
+/* 0x60B8 touch probe function, touch probe 1 (bits 8..15: touch probe 2) */
+#define CIA402_TP_ENABLE 0x0001                 /* bit 0: switched on */
+#define CIA402_TP_CONTINUOUS 0x0002             /* bit 1: 0 first event only, 1 every event */
+#define CIA402_TP_SOURCE_MASK 0x000c            /* bits 2-3: 00 touch probe 1 input,
+						 * 01 encoder zero impulse, 10 per 0x60D0,
+						 * 11 reserved */
+#define CIA402_TP_POSITIVE_EDGE 0x0010          /* bit 4: latch on the rising edge */
+#define CIA402_TP_NEGATIVE_EDGE 0x0020          /* bit 5: latch on the falling edge */
+/* 0x60B9 touch probe status, touch probe 1 */
+#define CIA402_TPS_ENABLED 0x0001               /* bit 0 */
+#define CIA402_TPS_POSITIVE_STORED 0x0002       /* bit 1: 0x60BA holds a latch */
+#define CIA402_TPS_NEGATIVE_STORED 0x0004       /* bit 2: 0x60BB holds a latch */
 
 /* statusword bits beyond the state */
 #define CIA402_SW_WARNING 0x0080

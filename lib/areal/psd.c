@@ -220,6 +220,16 @@ int asph_psd_radial(const struct asph_scatter *s, double radius, double ds,
 	return 0;
 }
 
+int asph_psd_residual(const struct asph_scatter *s, double radius,
+		      struct asph_psd **out, struct asph_error *err)
+{
+	/* Half the points' spacing resolves what they carry; the floor keeps
+	 * a dense scan's profiles to a few thousand samples. */
+	double ds = fmax(asph_scatter_median_edge(s) / 2, radius / 2000);
+
+	return asph_psd_radial(s, radius, ds, ASPH_PSD_DIAMETERS, out, err);
+}
+
 /* The grid, mean removed, times the 2-D Hann window and the mask, into the
  * zero-padded complex buffer; returns the window power sum(w^2 m). */
 static double load_windowed(const struct asph_grid *g, size_t nfx, double *buf)

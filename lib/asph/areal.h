@@ -161,6 +161,19 @@ int asph_psd_radial(const struct asph_scatter *s, double radius, double ds,
 		    int n_profiles, struct asph_psd **out,
 		    struct asph_error *err);
 
+/* The diameters asph_psd_residual() averages. */
+#define ASPH_PSD_DIAMETERS 18
+
+/*
+ * The PSD of a residual map, the one the report draws and the daemon's
+ * psd.csv holds: asph_psd_radial() over ASPH_PSD_DIAMETERS diameters,
+ * sampled at half the median edge of the points, no finer than
+ * radius / 2000. Its errors: asph_psd_radial()'s (-EDOM: no diameter
+ * holds enough measured samples).
+ */
+int asph_psd_residual(const struct asph_scatter *s, double radius,
+		      struct asph_psd **out, struct asph_error *err);
+
 /* The areal PSD of a grid (2-D FFT), fx fastest, frequencies wrapped as
  * an FFT returns them: psd2[l * nfx + k] at (kk dfx, ll dfy), kk = k for
  * k < nfx / 2 else k - nfx (the same for l). */

@@ -20,7 +20,6 @@
 #define PAGE_W 595.0     /* A4, points */
 #define PAGE_H 842.0
 #define MARGIN 36.0
-#define PSD_PROFILES 18
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(cairo_t *, cairo_destroy)
 DEFINE_TRIVIAL_CLEANUP_FUNC(cairo_surface_t *, cairo_surface_destroy)
@@ -322,10 +321,10 @@ static void psd_chart(cairo_t *cr, const struct chart *box, const struct asph_re
 {
 	_cleanup_(asph_psd_freep) struct asph_psd *p = NULL;
 	struct chart c = *box;
-	double ds = fmax(asph_scatter_median_edge(r->scatter) / 2, r->radius / 2000);
 	double lo = INFINITY, hi = -INFINITY;
+	char title[64];
 
-	if (asph_psd_radial(r->scatter, r->radius, ds, PSD_PROFILES, &p, NULL) < 0 || p->n < 3) {
+	if (asph_psd_residual(r->scatter, r->radius, &p, NULL) < 0) {
 		chart_frame(cr, &c, "PSD: not enough data", "", "");
 		return;
 	}
@@ -341,12 +340,13 @@ static void psd_chart(cairo_t *cr, const struct chart *box, const struct asph_re
 	}
 	c.logx = c.logy = 1;
 	c.x0 = floor(log10(p->df));
-	c.x1 = ceil(log10(f[p->n - 1]));
+	c.x1 = ceil(log10((double)(p->n - 1) * p->df));
 	c.y0 = isfinite(lo) ? floor(log10(lo)) : 0;
 	c.y1 = isfinite(hi) ? ceil(log10(hi)) : 1;
 	if (c.y1 - c.y0 > 12)
 		c.y0 = c.y1 - 12;
-	chart_frame(cr, &c, "PSD, mean of 18 diameters (Hann)", "f (1/mm)", "PSD (nm^2 mm)");
+	snprintf(title, sizeof(title), "PSD, mean of %zu diameters (Hann)", p->n_profiles);
+	chart_frame(cr, &c, title, "f (1/mm)", "PSD (nm^2 mm)");
 	polyline(cr, &c, f + 1, p->psd + 1, p->n - 1, 0.1, 0.1, 0.1);
 }
 

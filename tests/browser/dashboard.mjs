@@ -21,6 +21,19 @@ const ok = (cond, what) => {
   if (!cond) throw new Error(what);
 };
 const shot = (page, name) => page.screenshot({ path: path.join(shots, `${name}.png`) });
+// A part of the page for docs/web (scripts/web-screenshots copies them):
+// the box of selector, from the top of the element `from` inside it (or
+// its own) to the bottom of `to` (or its own), at most maxHeight pixels.
+const docShot = async (page, selector, name, { from, to, maxHeight = 1000 } = {}) => {
+  const e = await page.$(selector);
+  const clip = await e.evaluate((n, from, to, maxHeight) => {
+    const r = n.getBoundingClientRect();
+    const top = from ? n.querySelector(from).getBoundingClientRect().top - r.top : 0;
+    const bottom = to ? n.querySelector(to).getBoundingClientRect().bottom - r.top : r.height;
+    return { x: 0, y: top, width: r.width, height: Math.min(bottom - top, maxHeight) };
+  }, from, to, maxHeight);
+  await e.screenshot({ path: path.join(shots, `docs-${name}.png`), clip });
+};
 
 // Pixels of the live map that differ from its background.
 const mapPixels = (page) => page.$eval("#live-map", (c) => {
@@ -29,6 +42,44 @@ const mapPixels = (page) => page.$eval("#live-map", (c) => {
   for (let i = 0; i < d.length; i += 4)
     if (Math.abs(d[i] - 0x20) + Math.abs(d[i + 1] - 0x24) + Math.abs(d[i + 2] - 0x28) > 30) k++;
   return k;
+});
+
+// The PSD chart rasterised as the page shows it: the pixels of its line's
+// colour (#1d3557; the grid, frame and labels are other colours).
+const psdLinePixels = (page) => page.$eval("#psd-chart", async (s) => {
+  const url = URL.createObjectURL(new Blob([new XMLSerializer().serializeToString(s)], { type: "image/svg+xml" }));
+  const img = new Image();
+  await new Promise((resolve, reject) => { img.onload = resolve; img.onerror = reject; img.src = url; });
+  const c = document.createElement("canvas");
+  [c.width, c.height] = [560, 260];
+  const g = c.getContext("2d");
+  g.fillStyle = "#fff";
+  g.fillRect(0, 0, c.width, c.height);
+  g.drawImage(img, 0, 0, c.width, c.height);
+  URL.revokeObjectURL(url);
+  const d = g.getImageData(0, 0, c.width, c.height).data;
+  let k = 0;
+  for (let i = 0; i < d.length; i += 4)
+    if (Math.abs(d[i] - 0x1d) + Math.abs(d[i + 1] - 0x35) + Math.abs(d[i + 2] - 0x57) < 40) k++;
+  // the line's width across: it has at least a pixel in most columns
+  const xs = [...s.querySelector("path.psd-line").getAttribute("d").matchAll(/[ML]([-0-9.]+),/g)].map((m) => Number(m[1]));
+  return [k, Math.max(...xs) - Math.min(...xs)];
+});
+
+// The PSD as the chart plots it: each vertex of its line taken back
+// through the axes (the decade ticks' positions), and the floor below
+// which the chart clips.
+const psdPlotted = (page) => page.$eval("#psd-chart", (s) => {
+  const axis = (cls, coord, shift) => {
+    const t = [...s.querySelectorAll(`text.${cls}`)].map((e) => [Number(e.dataset.log), Number(e.getAttribute(coord)) - shift]);
+    const [[k0, p0], [k1, p1]] = [t[0], t[t.length - 1]];
+    return { back: (p) => 10 ** (k0 + (p - p0) * (k1 - k0) / (p1 - p0)), lo: Math.min(k0, k1) };
+  };
+  const x = axis("xtick", "x", 0), y = axis("ytick", "y", 4);
+  const pts = [...s.querySelector("path.psd-line").getAttribute("d").matchAll(/[ML]([-0-9.]+),([-0-9.]+)/g)]
+    .map((m) => [x.back(Number(m[1])), y.back(Number(m[2]))]);
+  const labels = [...s.querySelectorAll("text")].map((e) => e.textContent);
+  return { pts, floor: 10 ** y.lo, labels, tabindex: s.getAttribute("tabindex"), aria: s.getAttribute("aria-label") };
 });
 
 const stateOf = (page, job) => page.$eval(`#queue tr[data-job="${job}"] .state`, (e) => e.textContent).catch(() => null);
@@ -87,6 +138,7 @@ try {
   await page.waitForFunction(() => document.querySelector("#submit-estimate").textContent.startsWith("Estimated"));
   findings.estimate_s = Number(await page.$eval("#submit-estimate", (e) => e.dataset.estimate));
   await shot(page, "1b-estimate");
+  await docShot(page, "section:has(#submit-form)", "submit");
   await page.click("#submit-form button[type=submit]");
   await page.waitForFunction(() => document.querySelector("#submit-form").dataset.lastJob);
   const job = Number(await page.$eval("#submit-form", (e) => e.dataset.lastJob));
@@ -101,6 +153,7 @@ try {
   ok(legend.includes("nominal sag") && /[+−][0-9.]+ (nm|µm)/.test(legend),
     `the map's colour bar: deviations from the nominal, in numbers (${legend})`);
   await shot(page, "2-live");
+  await docShot(page, "section:has(#live-map)", "live");
 
   // Pause and resume from the queue.
   // (locators retry when a refresh of the queue replaced the row)
@@ -121,10 +174,38 @@ try {
   const items = await page.$$eval("#tolerances tbody tr", (rows) => rows.length);
   ok(/^Verdict: (pass|fail|undecided)$/.test(decision || "") && items >= 1, `the verdict and its table (${decision}, ${items} rows)`);
   ok(await page.$eval("img.residual-map", (e) => e.complete && e.naturalWidth > 0), "the residual map is drawn");
-  await page.waitForFunction(() => document.querySelectorAll("#result svg.chart").length === 2);
+  await page.waitForFunction(() => document.querySelectorAll("#result svg.chart").length === 3);
   const bars = await page.$$eval("#result svg.chart", (s) => [s[0].querySelectorAll("rect").length, s[1].querySelector("path").getAttribute("d").split("M").length - 1]);
   ok(bars[0] === 36 && bars[1] === 2000, `the Zernike bars (${bars[0]}) and the radial profile (${bars[1]} points)`);
+  // The PSD: a log-log chart with labelled axes, its numbers in a table
+  // the keyboard opens; the values are compared with psd.csv by the caller.
+  const psd = await psdPlotted(page);
+  ok(psd.labels.includes("spatial frequency (1/mm)") && psd.labels.includes("PSD (nm² mm)") &&
+    psd.pts.length > 10 && psd.tabindex === "0" && /^Power spectral density/.test(psd.aria),
+  `the PSD chart: labelled axes, ${psd.pts.length} frequencies, focusable (${psd.aria})`);
+  const [linePixels, lineWidth] = await psdLinePixels(page);
+  ok(linePixels > 0.8 * lineWidth && lineWidth > 100,
+    `the PSD line is drawn (${linePixels} pixels of its colour over ${lineWidth.toFixed(0)} across)`);
+  // Tab order: the chart, then its table's disclosure.
+  await page.focus("#psd-values summary");
+  await page.keyboard.down("Shift");
+  await page.keyboard.press("Tab");
+  await page.keyboard.up("Shift");
+  ok(await page.evaluate(() => document.activeElement.id === "psd-chart"), "Shift+Tab from the table reaches the PSD chart");
+  await page.keyboard.press("Tab");
+  await page.keyboard.press("Enter");
+  ok(await page.$eval("#psd-values", (e) => e.open), "Enter opens the PSD's table of values");
+  findings.psd_plotted = psd.pts;
+  findings.psd_floor = psd.floor;
+  findings.psd_table = await page.$$eval("#psd-values tbody tr", (rows) => rows.map((r) => [...r.cells].map((c) => Number(c.textContent))));
+  await page.$eval("#psd-chart", (e) => e.scrollIntoView({ block: "center" }));
+  await shot(page, "4b-psd");
+  await page.$eval("#psd-values", (e) => { e.open = false; });
+  await page.evaluate(() => document.activeElement.blur());
+  await docShot(page, "section:has(#result)", "result", { maxHeight: 1000 });
+  await docShot(page, "#result", "charts", { from: "#zernike-h", to: "#psd-values", maxHeight: 1400 });
   const links = await page.$$eval("#downloads a", (as) => as.map((a) => a.getAttribute("href")));
+  ok(links.some((h) => h.endsWith("psd.csv")), "a download link for the PSD");
   ok(links.some((h) => h.endsWith("residuals.csv")), "a download link for the CSV");
   await page.evaluate(() => document.querySelector("#result").scrollIntoView());
   await shot(page, "4-result");
@@ -133,6 +214,7 @@ try {
   // Keyboard: the login field and buttons are reachable with Tab.
   await page.setViewport({ width: 800, height: 1100, isMobile: true, hasTouch: true });
   await shot(page, "5-tablet");
+  await page.screenshot({ path: path.join(shots, "docs-tablet.png") });
   ok(await page.$eval("#dashboard", (e) => e.scrollWidth <= window.innerWidth + 1), "no sideways scrolling on a tablet");
 
   // A viewer: no mutating controls; a forged call is refused by the server.
@@ -150,6 +232,7 @@ try {
   }, job);
   ok(forged.error && forged.error.code === 100, `a viewer's forged job.requeue is refused (${JSON.stringify(forged.error)})`);
   await shot(vpage, "6-viewer");
+  await vpage.screenshot({ path: path.join(shots, "docs-viewer.png") });
   ok(errors.length === 0, `no errors in the page (${errors.join("; ")})`);
 } finally {
   await browser.close();

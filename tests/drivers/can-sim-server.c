@@ -23,8 +23,14 @@
  * connections, faults and stop commands as JSON lines.
  *
  *   can-sim-server --socket PATH [--nodes 1,2,3] [--heartbeat MS]
- *                  [--speed-factor F] [--fault KIND --at N [--node ID]
- *                  [--code HEX] [--garbage KIND]] [--seed S] [--log FILE]
+ *                  [--speed-factor F] [--trigger NODE:BIT]
+ *                  [--touch-probe NODE:full|no-counter|none] [--fault KIND
+ *                  --at N [--node ID] [--code HEX] [--garbage KIND]]
+ *                  [--seed S] [--log FILE]
+ *
+ * The trigger line is wired to output BIT of 0x60FE:01 of NODE (by
+ * default bit 16 of the first node, as the driver's defaults expect; 0:0
+ * unwired) and to every drive's touch probe input.
  */
 #include <errno.h>
 #include <getopt.h>
@@ -80,6 +86,9 @@ struct server {
 	struct can_sim_node before[CAN_SIM_MAX_NODES];  /* at the fault */
 	char line[512];
 	size_t n_line;
+	bool trigger_set;
+	uint8_t tp_node[CAN_SIM_MAX_NODES], tp_kind[CAN_SIM_MAX_NODES];
+	unsigned n_tp;
 };
 
 static uint32_t rnd(struct server *sv)
@@ -330,7 +339,7 @@ static void status(struct server *sv)
 	       sv->dropped, sv->withheld);
 	for (int g = 0; g < G_MIXED; g++)
 		printf("%s\"%s\": %llu", g ? ", " : "", garbage_names[g], sv->garbage_sent[g]);
-	printf("}, \"nodes\": [");
+	printf("}, \"trigger_edges\": %zu, \"nodes\": [", can_sim_edges(sv->sim, NULL, 0));
 	for (unsigned i = 0; i < sv->cfg.n_nodes; i++) {
 		struct can_sim_node n, *b = &sv->before[i];
 		can_sim_get(sv->sim, sv->cfg.nodes[i], &n);
@@ -426,9 +435,11 @@ static bool from_stdin(struct server *sv)
 static void usage(FILE *f)
 {
 	fprintf(f, "usage: can-sim-server --socket PATH [--nodes 1,2,3] [--heartbeat MS]\n"
-		   "         [--speed-factor F] [--fault disconnect|stall|garbage|drive-fault --at N\n"
+		   "         [--speed-factor F] [--trigger NODE:BIT] [--touch-probe NODE:KIND]\n"
+		   "         [--fault disconnect|stall|garbage|drive-fault --at N\n"
 		   "         [--node ID] [--code HEX] [--garbage KIND]] [--seed S] [--log FILE]\n"
 		   "garbage kinds: length, cob-id, sdo-index, sdo-command, dlc, error-frame, mixed\n"
+		   "touch probe kinds: full, no-counter, none\n"
 		   "commands on stdin: fault KIND [NODE [CODE]], heal, status, quit\n");
 }
 
@@ -448,6 +459,51 @@ static int parse_nodes(struct can_sim_config *c, const char *list)
 	return c->n_nodes ? 0 : -1;
 }
 
+/* NODE:BIT of the trigger output */
+static int parse_trigger(struct can_sim_config *c, const char *arg)
+{
+	unsigned node, bit;
+	char tail;
+
+	if (sscanf(arg, "%u:%u%c", &node, &bit, &tail) != 2 || node > CANOPEN_NODE_MAX || bit > 31)
+		return -1;
+	c->trigger_node = (uint8_t)node;
+	c->trigger_bit = (uint8_t)bit;
+	return 0;
+}
+
+/* NODE:KIND of a drive's touch probe, applied once the nodes are known */
+static int parse_touch_probe(struct server *sv, const char *arg)
+{
+	static const char *const kinds[] = { "full", "no-counter", "none" };
+	unsigned node;
+	int at = 0;
+
+	if (sscanf(arg, "%u:%n", &node, &at) != 1 || !at || node > CANOPEN_NODE_MAX ||
+	    sv->n_tp == CAN_SIM_MAX_NODES)
+		return -1;
+	for (uint8_t k = 0; k < 3; k++)
+		if (!strcmp(arg + at, kinds[k])) {
+			sv->tp_node[sv->n_tp] = (uint8_t)node;
+			sv->tp_kind[sv->n_tp++] = k;
+			return 0;
+		}
+	return -1;
+}
+
+static int apply_touch_probes(struct server *sv)
+{
+	for (unsigned t = 0; t < sv->n_tp; t++) {
+		unsigned i = 0;
+		while (i < sv->cfg.n_nodes && sv->cfg.nodes[i] != sv->tp_node[t])
+			i++;
+		if (i == sv->cfg.n_nodes)
+			return -1;
+		sv->cfg.touch_probe[i] = sv->tp_kind[t];
+	}
+	return 0;
+}
+
 static int parse_args(struct server *sv, int argc, char **argv)
 {
 	static const struct option opts[] = {
@@ -458,6 +514,8 @@ static int parse_args(struct server *sv, int argc, char **argv)
 		{ "node", required_argument, NULL, 'N' }, { "code", required_argument, NULL, 'c' },
 		{ "garbage", required_argument, NULL, 'g' }, { "seed", required_argument, NULL, 'r' },
 		{ "log", required_argument, NULL, 'l' }, { "help", no_argument, NULL, 'h' },
+		{ "trigger", required_argument, NULL, 't' },
+		{ "touch-probe", required_argument, NULL, 'p' },
 		{ 0 }
 	};
 	int c, k;
@@ -471,6 +529,15 @@ static int parse_args(struct server *sv, int argc, char **argv)
 			break;
 		case 'b': sv->cfg.heartbeat_ms = (unsigned)atoi(optarg); break;
 		case 'v': sv->cfg.speed_factor = atof(optarg); break;
+		case 't':
+			if (parse_trigger(&sv->cfg, optarg) < 0)
+				return -1;
+			sv->trigger_set = true;
+			break;
+		case 'p':
+			if (parse_touch_probe(sv, optarg) < 0)
+				return -1;
+			break;
 		case 'f':
 			if ((k = parse_fault(optarg)) < 0)
 				return -1;
@@ -496,8 +563,13 @@ static int parse_args(struct server *sv, int argc, char **argv)
 		default: return -1;
 		}
 	}
-	if (!sv->path || optind != argc || (sv->scheduled != FAULT_NONE && sv->at == 0))
+	if (!sv->path || optind != argc || (sv->scheduled != FAULT_NONE && sv->at == 0) ||
+	    apply_touch_probes(sv) < 0)
 		return -1;
+	if (!sv->trigger_set) {
+		sv->cfg.trigger_node = sv->cfg.nodes[0];
+		sv->cfg.trigger_bit = 16;
+	}
 	return 0;
 }
 

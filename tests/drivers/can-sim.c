@@ -44,6 +44,16 @@ struct sim_node {
 	uint32_t velocity, accel, decel, homing_speed[2], homing_accel;
 	bool ack, reached, moving, homing, attained, homing_failed;
 	double goal;            /* where the motion goes */
+	bool buffered;          /* a set point waits behind the one in process */
+	double buffered_goal;
+	unsigned buffered_set_points;
+	/* touch probe 1 and the digital outputs */
+	uint8_t tp_kind;        /* enum can_sim_touch_probe */
+	uint16_t tp_function, tp_status;
+	int32_t tp_positive, tp_negative;
+	uint16_t tp_positive_count, tp_negative_count;
+	bool tp_armed_positive, tp_armed_negative;
+	uint32_t outputs, output_mask;
 	uint16_t fault_on_move;
 	uint64_t fault_at_ns;
 	int16_t probe;
@@ -68,7 +78,14 @@ struct can_sim {
 	struct sim_node nodes[CAN_SIM_MAX_NODES];
 	struct can_frame pending[8];    /* error frames to send */
 	unsigned n_pending;
+	/* the trigger line: driven from outside or by a drive's output */
+	bool line_external, line_output, line;
+	bool bounce;            /* each rise of the output bounces once */
+	struct can_sim_edge *edges;
+	size_t n_edges;
 };
+
+#define MAX_EDGES 8192
 
 static struct sim_node *find(struct can_sim *s, uint8_t id)
 {
@@ -120,8 +137,11 @@ static void reset_node(struct can_sim *s, struct sim_node *n, bool application)
 		n->cw = 0;
 		n->mode = 0;
 		n->error_code = 0;
-		n->moving = n->homing = n->ack = false;
+		n->moving = n->homing = n->ack = n->buffered = false;
 		n->homed = n->attained = false;
+		n->tp_function = n->tp_status = 0;
+		n->tp_armed_positive = n->tp_armed_negative = false;
+		n->outputs = n->output_mask = 0;
 	}
 	canopen_heartbeat_frame(&f, n->id, CANOPEN_STATE_BOOTUP);
 	send_frame(s, &f, true);
@@ -172,7 +192,7 @@ static void controlword(struct can_sim *s, struct sim_node *n, uint16_t cw)
 	}
 	n->state = cia402_next_state(n->state, prev, cw, !n->fault_persistent);
 	if (n->state != CIA402_OPERATION_ENABLED) {
-		n->moving = n->homing = false;
+		n->moving = n->homing = n->buffered = false;
 		n->reached = true;
 		if (was == CIA402_OPERATION_ENABLED)
 			n->ack = false;
@@ -180,11 +200,20 @@ static void controlword(struct can_sim *s, struct sim_node *n, uint16_t cw)
 	}
 	bool rise = (cw & 0x10) && !(prev & 0x10), fall = !(cw & 0x10) && (prev & 0x10);
 	if (n->mode == CIA402_MODE_PROFILE_POSITION) {
-		if (fall)
+		/* bit 12 stays up while a set point waits in the buffer: the
+		 * drive cannot take another one */
+		if (fall && !n->buffered)
 			n->ack = false;
 		if (rise && !n->ack) {
 			n->ack = true;
 			n->set_points++;
+			if (n->moving && !(cw & CIA402_CW_CHANGE_IMMEDIATELY)) {
+				/* after the one in process (relative: to its target) */
+				n->buffered = true;
+				n->buffered_set_points++;
+				n->buffered_goal = (cw & 0x40) ? n->goal + n->target : n->target;
+				return;
+			}
 			n->goal = (cw & 0x40) ? n->pos + n->target : n->target;
 			n->reached = false;
 			n->moving = true;
@@ -214,18 +243,177 @@ static void step(struct can_sim *s, struct sim_node *n, double dt, uint64_t now)
 		bool instant = s->cfg.speed_factor == 0 ||
 			       (n->homing && (n->method == 35 || n->method == 37));
 		double d = goal - n->pos, stepv = v * dt;
-		if (instant || fabs(d) <= stepv) {
-			n->pos = goal;
-			if (n->homing) {
+		if (n->homing) {
+			if (instant || fabs(d) <= stepv)
 				finish_homing(n);
-			} else {
+			else
+				n->pos += d > 0 ? stepv : -stepv;
+			return;
+		}
+		/* through a buffered set point's target at the same speed (no
+		 * acceleration is simulated, so bit 9 changes nothing here) */
+		for (;;) {
+			d = n->goal - n->pos;
+			if (!instant && fabs(d) > stepv) {
+				n->pos += d > 0 ? stepv : -stepv;
+				return;
+			}
+			stepv -= fabs(d);
+			n->pos = n->goal;
+			if (!n->buffered) {
 				n->moving = false;
 				n->reached = true;
+				return;
 			}
-		} else {
-			n->pos += d > 0 ? stepv : -stepv;
+			n->goal = n->buffered_goal;
+			n->buffered = false;
+			if (!(n->cw & CIA402_CW_NEW_SET_POINT))
+				n->ack = false;
 		}
 	}
+}
+
+/* ------------------------------------------------------ touch probe */
+
+/* An edge of the trigger line: each drive whose touch probe is armed for
+ * it latches its encoder as it is at this instant. */
+static void trigger_edge(struct can_sim *s, bool rising)
+{
+	uint64_t now = now_monotonic_ns();
+
+	if (s->n_edges++ < MAX_EDGES) {
+		struct can_sim_edge *e = &s->edges[s->n_edges - 1];
+		e->t_ns = now;
+		e->rising = rising;
+		for (unsigned i = 0; i < s->cfg.n_nodes; i++) {
+			e->encoder[i] = (int32_t)lround(s->nodes[i].pos);
+			e->goal[i] = (int32_t)lround(s->nodes[i].goal);
+		}
+	}
+	for (unsigned i = 0; i < s->cfg.n_nodes; i++) {
+		struct sim_node *n = &s->nodes[i];
+		uint16_t f = n->tp_function;
+		if (n->tp_kind == CAN_SIM_TP_NONE || !(f & CIA402_TP_ENABLE))
+			continue;
+		bool continuous = f & CIA402_TP_CONTINUOUS;
+		int32_t at = (int32_t)lround(n->pos);
+		if (rising && (f & CIA402_TP_POSITIVE_EDGE) && n->tp_armed_positive) {
+			n->tp_positive = at;
+			n->tp_status |= CIA402_TPS_POSITIVE_STORED;
+			n->tp_positive_count++;
+			n->tp_armed_positive = continuous;
+		}
+		if (!rising && (f & CIA402_TP_NEGATIVE_EDGE) && n->tp_armed_negative) {
+			n->tp_negative = at;
+			n->tp_status |= CIA402_TPS_NEGATIVE_STORED;
+			n->tp_negative_count++;
+			n->tp_armed_negative = continuous;
+		}
+	}
+}
+
+static void update_line(struct can_sim *s)
+{
+	bool level = s->line_external || s->line_output;
+
+	if (level != s->line) {
+		s->line = level;
+		trigger_edge(s, level);
+		if (level && s->bounce && s->line_output && !s->line_external) {
+			trigger_edge(s, false);
+			trigger_edge(s, true);
+		}
+	}
+}
+
+static void set_outputs(struct can_sim *s, struct sim_node *n)
+{
+	if (!s->cfg.trigger_node || n->id != s->cfg.trigger_node)
+		return;
+	uint32_t bit = 1u << s->cfg.trigger_bit;
+	s->line_output = (n->outputs & n->output_mask & bit) != 0;
+	update_line(s);
+}
+
+/*
+ * A write of 0x60B8. Refused: bits the drive does not have (touch probe
+ * 2, the user-defined bits 6-7), a source other than the touch probe 1
+ * input (the simulated encoder has no zero impulse, 0x60D0 does not
+ * exist, 11 is reserved), and a change of mode or source while the probe
+ * stays switched on (it must be switched off first). Arming: a rising edge
+ * of bit 4 (or 5), or of bit 0 with it set, arms the latch and clears the
+ * stored flag; in first-event mode one edge disarms it again.
+ */
+static uint32_t touch_probe_function(struct sim_node *n, uint16_t f)
+{
+	uint16_t old = n->tp_function;
+
+	if (f & 0xffc0)
+		return ABORT_VALUE;
+	if (f & CIA402_TP_SOURCE_MASK)
+		return ABORT_VALUE;
+	if ((old & CIA402_TP_ENABLE) && (f & CIA402_TP_ENABLE) &&
+	    ((old ^ f) & (CIA402_TP_CONTINUOUS | CIA402_TP_SOURCE_MASK)))
+		return ABORT_STATE;
+	n->tp_function = f;
+	if (!(f & CIA402_TP_ENABLE)) {
+		n->tp_status = 0;
+		n->tp_armed_positive = n->tp_armed_negative = false;
+		return 0;
+	}
+	n->tp_status |= CIA402_TPS_ENABLED;
+	bool was_on = old & CIA402_TP_ENABLE;
+	if (!(f & CIA402_TP_POSITIVE_EDGE)) {
+		n->tp_armed_positive = false;
+		n->tp_status &= (uint16_t)~CIA402_TPS_POSITIVE_STORED;
+	} else if (!was_on || !(old & CIA402_TP_POSITIVE_EDGE)) {
+		n->tp_armed_positive = true;
+		n->tp_status &= (uint16_t)~CIA402_TPS_POSITIVE_STORED;
+	}
+	if (!(f & CIA402_TP_NEGATIVE_EDGE)) {
+		n->tp_armed_negative = false;
+		n->tp_status &= (uint16_t)~CIA402_TPS_NEGATIVE_STORED;
+	} else if (!was_on || !(old & CIA402_TP_NEGATIVE_EDGE)) {
+		n->tp_armed_negative = true;
+		n->tp_status &= (uint16_t)~CIA402_TPS_NEGATIVE_STORED;
+	}
+	return 0;
+}
+
+static bool tp_object(uint16_t index)
+{
+	return index == CIA402_TOUCH_PROBE_FUNCTION || index == CIA402_TOUCH_PROBE_STATUS ||
+	       index == CIA402_TOUCH_PROBE1_POSITIVE || index == CIA402_TOUCH_PROBE1_NEGATIVE ||
+	       index == CIA402_TOUCH_PROBE1_POS_COUNT || index == CIA402_TOUCH_PROBE1_NEG_COUNT;
+}
+
+/* The touch probe objects and 0x60FE: 0 with the value, or an abort code. */
+static uint32_t od_read_io(struct sim_node *n, uint16_t index, uint8_t sub, uint32_t *v,
+			   uint8_t *size)
+{
+	if (index == CIA402_DIGITAL_OUTPUTS) {
+		if (sub > 2)
+			return ABORT_NO_SUBINDEX;
+		*size = sub ? 4 : 1;
+		*v = sub == 0 ? 2 : sub == 1 ? n->outputs : n->output_mask;
+		return 0;
+	}
+	if (n->tp_kind == CAN_SIM_TP_NONE ||
+	    (n->tp_kind == CAN_SIM_TP_NO_COUNTER && (index == CIA402_TOUCH_PROBE1_POS_COUNT ||
+						     index == CIA402_TOUCH_PROBE1_NEG_COUNT)))
+		return ABORT_NO_OBJECT;
+	if (sub != 0)
+		return ABORT_NO_SUBINDEX;
+	*size = 2;
+	switch (index) {
+	case CIA402_TOUCH_PROBE_FUNCTION: *v = n->tp_function; break;
+	case CIA402_TOUCH_PROBE_STATUS: *v = n->tp_status; break;
+	case CIA402_TOUCH_PROBE1_POSITIVE: *v = (uint32_t)n->tp_positive; *size = 4; break;
+	case CIA402_TOUCH_PROBE1_NEGATIVE: *v = (uint32_t)n->tp_negative; *size = 4; break;
+	case CIA402_TOUCH_PROBE1_POS_COUNT: *v = n->tp_positive_count; break;
+	default: *v = n->tp_negative_count; break;
+	}
+	return 0;
 }
 
 static void tick(struct can_sim *s)
@@ -269,6 +457,8 @@ static uint16_t statusword(const struct sim_node *n)
 static uint32_t od_read(struct sim_node *n, uint16_t index, uint8_t sub, uint32_t *v, uint8_t *size)
 {
 	*size = 4;
+	if (tp_object(index) || index == CIA402_DIGITAL_OUTPUTS)
+		return od_read_io(n, index, sub, v, size);
 	if (index == CIA402_HOMING_SPEEDS) {
 		if (sub > 2)
 			return ABORT_NO_SUBINDEX;
@@ -325,11 +515,14 @@ static uint32_t od_write(struct can_sim *s, struct sim_node *n, uint16_t index, 
 	switch (index) {
 	case CANOPEN_DEVICE_TYPE: case CIA402_STATUSWORD: case CIA402_MODE_DISPLAY:
 	case CIA402_POSITION_ACTUAL: case CIA402_ERROR_CODE: case 0x7130:
+	case CIA402_TOUCH_PROBE_STATUS: case CIA402_TOUCH_PROBE1_POSITIVE:
+	case CIA402_TOUCH_PROBE1_NEGATIVE: case CIA402_TOUCH_PROBE1_POS_COUNT:
+	case CIA402_TOUCH_PROBE1_NEG_COUNT:
 		return ABORT_READ_ONLY;
 	default:
 		break;
 	}
-	if (index == CIA402_HOMING_SPEEDS && sub == 0)
+	if ((index == CIA402_HOMING_SPEEDS || index == CIA402_DIGITAL_OUTPUTS) && sub == 0)
 		return ABORT_READ_ONLY;
 	if (size && size != want)
 		return size > want ? ABORT_LENGTH_HIGH : ABORT_LENGTH_LOW;
@@ -358,6 +551,17 @@ static uint32_t od_write(struct can_sim *s, struct sim_node *n, uint16_t index, 
 		break;
 	case CIA402_HOMING_SPEEDS: n->homing_speed[sub - 1] = v; break;
 	case CIA402_HOMING_ACCELERATION: n->homing_accel = v; break;
+	case CIA402_TOUCH_PROBE_FUNCTION: return touch_probe_function(n, (uint16_t)v);
+	case CIA402_DIGITAL_OUTPUTS:
+		/* bit 0 is the brake, bits 1..15 are reserved */
+		if (sub == 1 && (v & 0xfffe))
+			return ABORT_VALUE;
+		if (sub == 1)
+			n->outputs = v;
+		else
+			n->output_mask = v;
+		set_outputs(s, n);
+		break;
 	default: return ABORT_LENGTH;
 	}
 	return 0;
@@ -505,6 +709,12 @@ int can_sim_new(int fd, const struct can_sim_config *c, struct can_sim **out)
 		n->state = CIA402_SWITCH_ON_DISABLED;
 		n->reached = true;
 		n->velocity = 1000;
+		n->tp_kind = c->touch_probe[i];
+	}
+	s->edges = calloc(MAX_EDGES, sizeof(*s->edges));
+	if (!s->edges) {
+		can_sim_free(s);
+		return -ENOMEM;
 	}
 	*out = s;
 	return 0;
@@ -535,6 +745,7 @@ void can_sim_free(struct can_sim *s)
 	pthread_mutex_destroy(&s->lock);
 	close(s->wake);
 	close(s->fd);
+	free(s->edges);
 	free(s);
 }
 
@@ -653,5 +864,37 @@ void can_sim_get(struct can_sim *s, uint8_t node, struct can_sim_node *out)
 		  out->fault_resets = n->fault_resets; out->set_points = n->set_points;
 		  out->homings = n->homings; out->resets = n->resets; out->homed = n->homed;
 		  out->disable_ops = n->disable_ops; out->link_stops = n->link_stops;
-		  out->moving = n->moving || n->homing);
+		  out->moving = n->moving || n->homing;
+		  out->tp_function = n->tp_function; out->tp_status = n->tp_status;
+		  out->tp_positive = n->tp_positive; out->tp_negative = n->tp_negative;
+		  out->tp_positive_count = n->tp_positive_count;
+		  out->buffered_set_points = n->buffered_set_points);
+}
+
+void can_sim_trigger(struct can_sim *s, bool level)
+{
+	pthread_mutex_lock(&s->lock);
+	tick(s);
+	s->line_external = level;
+	update_line(s);
+	pthread_mutex_unlock(&s->lock);
+	wake(s);
+}
+
+void can_sim_bounce(struct can_sim *s, bool on)
+{
+	pthread_mutex_lock(&s->lock);
+	s->bounce = on;
+	pthread_mutex_unlock(&s->lock);
+}
+
+size_t can_sim_edges(struct can_sim *s, struct can_sim_edge *out, size_t max)
+{
+	pthread_mutex_lock(&s->lock);
+	size_t n = s->n_edges;
+	size_t kept = n < MAX_EDGES ? n : MAX_EDGES;
+	if (out && max)
+		memcpy(out, s->edges, (kept < max ? kept : max) * sizeof(*out));
+	pthread_mutex_unlock(&s->lock);
+	return n;
 }

@@ -4,14 +4,18 @@
  * descriptor carrying one struct can_frame per message: each node has its
  * NMT state and heartbeat producer, an expedited SDO server with the CiA 301
  * abort codes, the CiA 402 state machine, profile position motion following
- * the set-point handshake (bits 4 and 12, target reached on bit 10) and
- * homing, with faults to inject. can_sim_feed() handles one frame without a
+ * the set-point handshake (bits 4 and 12, target reached on bit 10, one
+ * buffered set point), homing, the touch probe (0x60B8..0x60BB, 0x60D5,
+ * 0x60D6) latching the encoder on the edges of a trigger line, and the
+ * digital outputs (0x60FE) of which one may drive that line; with faults
+ * to inject. can_sim_feed() handles one frame without a
  * thread (for fuzzing); can_sim_run() serves the descriptor on a thread.
  */
 #ifndef ASPH_TEST_CAN_SIM_H
 #define ASPH_TEST_CAN_SIM_H
 
 #include <stdbool.h>
+#include <stddef.h>
 #include <stdint.h>
 
 #include "can/protocol.h"
@@ -29,6 +33,19 @@ struct can_sim_config {
 	 * reached the moment it is accepted */
 	double speed_factor;
 	int32_t home_switch[CAN_SIM_MAX_NODES];         /* counts, for methods != 35/37 */
+	/* what each drive has of the touch probe (enum can_sim_touch_probe) */
+	uint8_t touch_probe[CAN_SIM_MAX_NODES];
+	/* the trigger line, wired to every drive's touch probe 1 input (and to
+	 * the probe's trigger input), is driven by output trigger_bit of
+	 * 0x60FE:01 of node trigger_node (0: by no output, only by
+	 * can_sim_trigger()) */
+	uint8_t trigger_node, trigger_bit;
+};
+
+enum can_sim_touch_probe {
+	CAN_SIM_TP_FULL = 0,            /* 0x60B8..0x60BB and the edge counters */
+	CAN_SIM_TP_NO_COUNTER,          /* without 0x60D5 / 0x60D6 */
+	CAN_SIM_TP_NONE,                /* no touch probe: 0x60B8.. do not exist */
 };
 
 /* The sim owns fd. */
@@ -71,6 +88,23 @@ void can_sim_link_lost(struct can_sim *s);
  * nodes answer, no aborts, garbling, homing errors or pending faults. */
 void can_sim_heal(struct can_sim *s);
 
+/* Drives the trigger line from outside (the probe's own trigger). */
+void can_sim_trigger(struct can_sim *s, bool level);
+/* Each rise the trigger output gives bounces once (rise, fall, rise). */
+void can_sim_bounce(struct can_sim *s, bool on);
+
+/* An edge of the trigger line: its instant, and every drive's encoder
+ * (position actual value) and set-point target at that instant. */
+struct can_sim_edge {
+	uint64_t t_ns;
+	bool rising;
+	int32_t encoder[CAN_SIM_MAX_NODES];     /* in the order of the config's nodes */
+	int32_t goal[CAN_SIM_MAX_NODES];
+};
+/* The edges since the start (the first 8192 are kept; at most max into
+ * out); returns how many there were in all. */
+size_t can_sim_edges(struct can_sim *s, struct can_sim_edge *out, size_t max);
+
 struct can_sim_node {
 	enum cia402_state state;
 	uint8_t nmt;
@@ -84,6 +118,10 @@ struct can_sim_node {
 	unsigned link_stops;    /* quick stops of can_sim_link_lost() */
 	bool homed;
 	bool moving;            /* a motion or homing under way */
+	uint16_t tp_function, tp_status;        /* 0x60B8, 0x60B9 */
+	int32_t tp_positive, tp_negative;       /* 0x60BA, 0x60BB */
+	uint16_t tp_positive_count;             /* 0x60D5 */
+	unsigned buffered_set_points;           /* set points taken into the buffer */
 };
 /* A snapshot of node. */
 void can_sim_get(struct can_sim *s, uint8_t node, struct can_sim_node *out);

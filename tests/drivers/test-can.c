@@ -5,8 +5,10 @@
  * malformed answers, heartbeat loss (and heartbeats waiting for a busy
  * client), a drive that never answers, bus-off and error passive, stop
  * from another thread, the probe, a real interface on a kernel without
- * CAN, a gateway on a unix socket, and a whole scan through the executor
- * compared with the mock instrument's.
+ * CAN, a gateway on a unix socket, the touch probe's objects, sweeps
+ * with positions latched at the trigger (and read back where a drive has
+ * no touch probe), and whole scans through the executor, stepped (compared
+ * with the mock instrument's) and streamed.
  */
 #include <errno.h>
 #include <math.h>
@@ -31,6 +33,7 @@
 #include "asph/plan.h"
 #include "asph/prescription.h"
 #include "can-sim.h"
+#include "can/bus.h"
 
 extern const struct asph_driver can_driver;
 
@@ -879,6 +882,418 @@ static void test_unix_gateway(void **state)
 	asph_options_free(o);
 }
 
+
+/* ----------------------------------------------- touch probe, sweeps */
+
+static uint64_t now_ns(void)
+{
+	struct timespec t;
+	clock_gettime(CLOCK_MONOTONIC, &t);
+	return (uint64_t)t.tv_sec * 1000000000u + (uint64_t)t.tv_nsec;
+}
+
+/* A raw CANopen client on a simulated drive, for the objects themselves. */
+struct raw {
+	struct can_sim *sim;
+	struct can_bus *bus;
+	int fd;
+};
+
+static void raw_start(struct raw *w, const struct can_sim_config *sc)
+{
+	int sv[2];
+
+	assert_int_equal(socketpair(AF_UNIX, SOCK_SEQPACKET | SOCK_CLOEXEC, 0, sv), 0);
+	w->fd = sv[0];
+	assert_int_equal(can_sim_new(sv[1], sc, &w->sim), 0);
+	assert_int_equal(can_sim_run(w->sim), 0);
+	char iface[32];
+	snprintf(iface, sizeof(iface), "fd:%d", sv[0]);
+	assert_int_equal(can_bus_open(iface, sc->nodes, sc->n_nodes, &w->bus, NULL), 0);
+}
+
+static void raw_stop(struct raw *w)
+{
+	can_bus_free(w->bus);
+	can_sim_free(w->sim);
+	close(w->fd);
+}
+
+static void raw_write(struct raw *w, uint8_t node, uint16_t index, uint8_t sub, uint32_t v,
+		      uint8_t size)
+{
+	struct asph_error err;
+
+	if (can_bus_sdo_download(w->bus, node, index, sub, v, size, 500, &err) < 0)
+		fail_msg("0x%04x:%02x = 0x%x: %s", index, sub, v, err.message);
+}
+
+static uint32_t raw_read(struct raw *w, uint8_t node, uint16_t index, uint8_t sub)
+{
+	struct asph_error err;
+	uint32_t v = 0;
+
+	if (can_bus_sdo_upload(w->bus, node, index, sub, &v, 500, &err) < 0)
+		fail_msg("0x%04x:%02x: %s", index, sub, err.message);
+	return v;
+}
+
+/* The write (size > 0) or read is refused with this abort code. */
+static void raw_refused(struct raw *w, uint8_t node, uint16_t index, uint8_t sub, uint32_t v,
+			uint8_t size, uint32_t code)
+{
+	struct asph_error err;
+	uint32_t got;
+	int r = size ? can_bus_sdo_download(w->bus, node, index, sub, v, size, 500, &err)
+		     : can_bus_sdo_upload(w->bus, node, index, sub, &got, 500, &err);
+
+	if (r != -EPROTO || can_bus_last_abort(w->bus) != code)
+		fail_msg("0x%04x:%02x (0x%x, %u bytes): expected abort 0x%08x, got %d (0x%08x)",
+			 index, sub, v, size, code, r, can_bus_last_abort(w->bus));
+}
+
+/* The drive enabled in profile position mode, a set point reached at once. */
+static void raw_move(struct raw *w, uint8_t node, int32_t target)
+{
+	raw_write(w, node, CIA402_TARGET_POSITION, 0, (uint32_t)target, 4);
+	raw_write(w, node, CIA402_CONTROLWORD, 0, 0x1f, 2);
+	raw_write(w, node, CIA402_CONTROLWORD, 0, 0x0f, 2);
+}
+
+static void test_touch_probe_objects(void **state)
+{
+	struct can_sim_config sc;
+	struct raw w;
+	const uint8_t n = node_id[0];
+
+	sim_config(&sc, 0);
+	sc.touch_probe[1] = CAN_SIM_TP_NO_COUNTER;
+	sc.touch_probe[2] = CAN_SIM_TP_NONE;
+	sc.trigger_node = n;
+	sc.trigger_bit = 17;
+	raw_start(&w, &sc);
+	raw_write(&w, n, CIA402_CONTROLWORD, 0, CIA402_CW_SHUTDOWN, 2);
+	raw_write(&w, n, CIA402_CONTROLWORD, 0, CIA402_CW_SWITCH_ON, 2);
+	raw_write(&w, n, CIA402_CONTROLWORD, 0, CIA402_CW_ENABLE_OPERATION, 2);
+	raw_write(&w, n, CIA402_MODE, 0, CIA402_MODE_PROFILE_POSITION, 1);
+
+	/* refusals, with the abort codes of CiA 301 */
+	raw_refused(&w, n, CIA402_TOUCH_PROBE_FUNCTION, 0, 0x11, 4, 0x06070012);
+	raw_refused(&w, n, CIA402_TOUCH_PROBE_FUNCTION, 0, 0x11, 1, 0x06070013);
+	raw_refused(&w, n, CIA402_TOUCH_PROBE_FUNCTION, 1, 0x11, 2, 0x06090011);
+	raw_refused(&w, n, CIA402_TOUCH_PROBE_FUNCTION, 0, 0x0015, 2, 0x06090030); /* zero impulse */
+	raw_refused(&w, n, CIA402_TOUCH_PROBE_FUNCTION, 0, 0x0019, 2, 0x06090030); /* 0x60D0 */
+	raw_refused(&w, n, CIA402_TOUCH_PROBE_FUNCTION, 0, 0x001d, 2, 0x06090030); /* reserved */
+	raw_refused(&w, n, CIA402_TOUCH_PROBE_FUNCTION, 0, 0x0111, 2, 0x06090030); /* probe 2 */
+	raw_refused(&w, n, CIA402_TOUCH_PROBE_FUNCTION, 0, 0x0051, 2, 0x06090030); /* bit 6 */
+	raw_refused(&w, n, CIA402_TOUCH_PROBE_STATUS, 0, 0, 2, 0x06010002);
+	raw_refused(&w, n, CIA402_TOUCH_PROBE1_POSITIVE, 0, 0, 4, 0x06010002);
+	raw_refused(&w, n, CIA402_TOUCH_PROBE1_NEGATIVE, 0, 0, 4, 0x06010002);
+	raw_refused(&w, n, CIA402_TOUCH_PROBE1_POS_COUNT, 0, 0, 2, 0x06010002);
+	raw_refused(&w, n, CIA402_DIGITAL_OUTPUTS, 0, 2, 1, 0x06010002);
+	raw_refused(&w, n, CIA402_DIGITAL_OUTPUTS, 1, 1u << 3, 4, 0x06090030); /* reserved bit */
+	raw_refused(&w, n, CIA402_DIGITAL_OUTPUTS, 3, 0, 0, 0x06090011);
+	raw_refused(&w, node_id[2], CIA402_TOUCH_PROBE_FUNCTION, 0, 0, 0, 0x06020000);
+	raw_refused(&w, node_id[2], CIA402_TOUCH_PROBE_FUNCTION, 0, 0x11, 2, 0x06020000);
+	raw_refused(&w, node_id[1], CIA402_TOUCH_PROBE1_POS_COUNT, 0, 0, 0, 0x06020000);
+	assert_int_equal(raw_read(&w, node_id[1], CIA402_TOUCH_PROBE_FUNCTION, 0), 0);
+
+	/* switched off, or on without an edge: nothing is latched */
+	raw_move(&w, n, 777);
+	can_sim_trigger(w.sim, true);
+	can_sim_trigger(w.sim, false);
+	assert_int_equal(raw_read(&w, n, CIA402_TOUCH_PROBE_STATUS, 0), 0);
+	raw_write(&w, n, CIA402_TOUCH_PROBE_FUNCTION, 0, CIA402_TP_ENABLE, 2);
+	assert_int_equal(raw_read(&w, n, CIA402_TOUCH_PROBE_STATUS, 0), CIA402_TPS_ENABLED);
+	can_sim_trigger(w.sim, true);
+	can_sim_trigger(w.sim, false);
+	assert_int_equal(raw_read(&w, n, CIA402_TOUCH_PROBE_STATUS, 0), CIA402_TPS_ENABLED);
+	assert_int_equal(raw_read(&w, n, CIA402_TOUCH_PROBE1_POS_COUNT, 0), 0);
+
+	/* first event: one rising edge latches, later ones do not */
+	raw_write(&w, n, CIA402_TOUCH_PROBE_FUNCTION, 0, 0x0011, 2);
+	raw_move(&w, n, 1234);
+	can_sim_trigger(w.sim, true);
+	assert_int_equal(raw_read(&w, n, CIA402_TOUCH_PROBE_STATUS, 0), 0x0003);
+	assert_int_equal((int32_t)raw_read(&w, n, CIA402_TOUCH_PROBE1_POSITIVE, 0), 1234);
+	raw_move(&w, n, -2000);
+	can_sim_trigger(w.sim, false);
+	can_sim_trigger(w.sim, true);
+	assert_int_equal((int32_t)raw_read(&w, n, CIA402_TOUCH_PROBE1_POSITIVE, 0), 1234);
+	assert_int_equal(raw_read(&w, n, CIA402_TOUCH_PROBE1_POS_COUNT, 0), 1);
+	/* no change of mode while switched on */
+	raw_refused(&w, n, CIA402_TOUCH_PROBE_FUNCTION, 0, 0x0013, 2, 0x08000022);
+	/* a rising edge of bit 4 arms it again and clears the stored flag */
+	raw_write(&w, n, CIA402_TOUCH_PROBE_FUNCTION, 0, 0x0001, 2);
+	raw_write(&w, n, CIA402_TOUCH_PROBE_FUNCTION, 0, 0x0011, 2);
+	assert_int_equal(raw_read(&w, n, CIA402_TOUCH_PROBE_STATUS, 0), 0x0001);
+	can_sim_trigger(w.sim, false);
+	can_sim_trigger(w.sim, true);
+	assert_int_equal((int32_t)raw_read(&w, n, CIA402_TOUCH_PROBE1_POSITIVE, 0), -2000);
+	assert_int_equal(raw_read(&w, n, CIA402_TOUCH_PROBE_STATUS, 0), 0x0003);
+
+	/* both edges, first event each: the falling one into 0x60BB */
+	raw_write(&w, n, CIA402_TOUCH_PROBE_FUNCTION, 0, 0, 2);
+	assert_int_equal(raw_read(&w, n, CIA402_TOUCH_PROBE_STATUS, 0), 0);
+	raw_write(&w, n, CIA402_TOUCH_PROBE_FUNCTION, 0, 0x0031, 2);
+	raw_move(&w, n, 3000);
+	can_sim_trigger(w.sim, false);
+	assert_int_equal(raw_read(&w, n, CIA402_TOUCH_PROBE_STATUS, 0), 0x0005);
+	assert_int_equal((int32_t)raw_read(&w, n, CIA402_TOUCH_PROBE1_NEGATIVE, 0), 3000);
+	raw_move(&w, n, 3500);
+	can_sim_trigger(w.sim, true);
+	assert_int_equal(raw_read(&w, n, CIA402_TOUCH_PROBE_STATUS, 0), 0x0007);
+	assert_int_equal((int32_t)raw_read(&w, n, CIA402_TOUCH_PROBE1_POSITIVE, 0), 3500);
+	assert_int_equal((int32_t)raw_read(&w, n, CIA402_TOUCH_PROBE1_NEGATIVE, 0), 3000);
+
+	/* continuous: every rising edge overwrites and counts */
+	raw_write(&w, n, CIA402_TOUCH_PROBE_FUNCTION, 0, 0, 2);
+	raw_write(&w, n, CIA402_TOUCH_PROBE_FUNCTION, 0, 0x0013, 2);
+	uint32_t c0 = raw_read(&w, n, CIA402_TOUCH_PROBE1_POS_COUNT, 0);
+	for (int32_t k = 1; k <= 3; k++) {
+		raw_move(&w, n, 100 * k);
+		can_sim_trigger(w.sim, false);
+		can_sim_trigger(w.sim, true);
+		assert_int_equal((int32_t)raw_read(&w, n, CIA402_TOUCH_PROBE1_POSITIVE, 0), 100 * k);
+		assert_int_equal(raw_read(&w, n, CIA402_TOUCH_PROBE1_POS_COUNT, 0), c0 + (uint32_t)k);
+		assert_int_equal(raw_read(&w, n, CIA402_TOUCH_PROBE_STATUS, 0), 0x0003);
+	}
+	raw_write(&w, n, CIA402_TOUCH_PROBE_FUNCTION, 0, 0, 2);
+	assert_int_equal(raw_read(&w, n, CIA402_TOUCH_PROBE_STATUS, 0), 0);
+
+	/* the trigger output: only an enabled output (0x60FE:02) drives the line */
+	can_sim_trigger(w.sim, false);
+	struct can_sim_edge e[64];
+	size_t before = can_sim_edges(w.sim, e, 64);
+	raw_write(&w, n, CIA402_DIGITAL_OUTPUTS, 1, 1u << 17, 4);
+	assert_int_equal(can_sim_edges(w.sim, e, 64), before);
+	raw_write(&w, n, CIA402_DIGITAL_OUTPUTS, 2, 1u << 17, 4);
+	assert_int_equal(can_sim_edges(w.sim, e, 64), before + 1);
+	assert_true(e[before].rising);
+	raw_write(&w, n, CIA402_DIGITAL_OUTPUTS, 1, 1u << 16, 4);
+	assert_int_equal(can_sim_edges(w.sim, e, 64), before + 2);
+	assert_false(e[before + 1].rising);
+	raw_write(&w, node_id[1], CIA402_DIGITAL_OUTPUTS, 2, 1u << 17, 4);
+	raw_write(&w, node_id[1], CIA402_DIGITAL_OUTPUTS, 1, 1u << 17, 4);
+	assert_int_equal(can_sim_edges(w.sim, e, 64), before + 2);    /* not wired */
+	raw_stop(&w);
+}
+
+/* A zigzag of n points from the origin, 0.8 mm apart in x. */
+static void zigzag(double *p, size_t n)
+{
+	for (size_t k = 0; k < n; k++) {
+		p[3 * k] = 0.8 * (double)(k + 1);
+		p[3 * k + 1] = (k % 2 ? 0.3 : -0.2);
+		p[3 * k + 2] = -0.05 * (double)k;
+	}
+}
+
+/* The sweep's trace against the simulator's edges: one latched position
+ * per trigger, each the encoders at that rising edge, to the count. */
+static size_t check_latched(struct rig *r, const double *p, size_t n)
+{
+	struct asph_position_sample tr[32];
+	struct can_sim_edge e[64];
+	size_t got = 0, moving = 0, m = 0;
+
+	assert_int_equal(can_driver.stage->sweep_trace(r->dev, tr, 32, &got, 100, NULL), 0);
+	assert_int_equal(got, n);
+	size_t ne = can_sim_edges(r->sim, e, 64);
+	for (size_t k = 0; k < ne; k++)
+		if (e[k].rising)
+			e[m++] = e[k];
+	assert_int_equal(m, n);
+	for (size_t k = 0; k < n; k++) {
+		assert_int_equal(tr[k].source, ASPH_POSITION_LATCHED);
+		assert_int_equal(tr[k].trigger, k);
+		bool off = false;
+		for (int a = 0; a < 3; a++) {
+			double c = tr[k].position[a] * cpm[a];
+			if (fabs(c - (double)e[k].encoder[a]) > 1e-6)
+				fail_msg("trigger %zu axis %d: latched %.3f counts, encoder %d", k, a, c,
+					 e[k].encoder[a]);
+			off = off || fabs(c - nearbyint(p[3 * k + a] * cpm[a])) > 2;
+		}
+		moving += off;
+	}
+	/* the last trigger fires at rest, on the last point */
+	for (int a = 0; a < 3; a++)
+		assert_true(fabs(tr[n - 1].position[a] * cpm[a] -
+				 nearbyint(p[3 * (n - 1) + a] * cpm[a])) < 1e-6);
+	assert_int_equal(can_driver.stage->sweep_trace(r->dev, tr, 32, &got, 100, NULL), 0);
+	assert_int_equal(got, 0);
+	return moving;
+}
+
+static void sweep_rig(struct rig *r, uint8_t tp_y, const char *options)
+{
+	struct can_sim_config sc;
+	struct asph_error err;
+
+	sim_config(&sc, 1);
+	sc.touch_probe[1] = tp_y;
+	sc.trigger_node = node_id[0];
+	sc.trigger_bit = 16;
+	rig_start(r, &sc, options);
+	if (rig_open(r, 2000, &err) < 0 || can_driver.stage->home(r->dev, 5000, &err) < 0)
+		fail_msg("%s", err.message);
+}
+
+static void test_sweep_latched(void **state)
+{
+	struct rig r;
+	struct asph_error err;
+	struct can_sim_node sn;
+	double p[3 * 8];
+
+	/* continuous mode (every drive counts its edges), then the first-event
+	 * mode re-armed after each trigger where y's drive has no counter */
+	for (int pass = 0; pass < 2; pass++) {
+		sweep_rig(&r, pass ? CAN_SIM_TP_NO_COUNTER : CAN_SIM_TP_FULL, "speed=20");
+		zigzag(p, 8);
+		if (can_driver.stage->sweep(r.dev, p, 8, 10000, &err) < 0)
+			fail_msg("%s", err.message);
+		/* the axes ran on past each point (but the last) when it fired */
+		assert_true(check_latched(&r, p, 8) >= 4);
+		can_sim_get(r.sim, node_id[0], &sn);
+		assert_true(sn.buffered_set_points >= 4);
+		assert_int_equal(sn.tp_function, 0);   /* switched off after the sweep */
+		can_sim_get(r.sim, node_id[1], &sn);
+		assert_int_equal(sn.position, (int32_t)nearbyint(p[3 * 7 + 1] * cpm[1]));
+		/* a move after it starts from where the sweep left the stage */
+		const double t[3] = { 1, 1, 0 };
+		assert_int_equal(can_driver.stage->move_to(r.dev, t, 5000, NULL), 0);
+		rig_stop(&r);
+	}
+}
+
+static void test_sweep_fallback(void **state)
+{
+	struct rig r;
+	struct asph_error err;
+	struct asph_position_sample tr[16];
+	struct can_sim_edge e[64];
+	struct can_sim_config sc;
+	double p[3 * 4];
+	size_t got;
+
+	/* y's drive has no touch probe: positions read back right after each
+	 * trigger, by time (the probe is still triggered) */
+	sweep_rig(&r, CAN_SIM_TP_NONE, "speed=20");
+	zigzag(p, 4);
+	uint64_t t0 = now_ns();
+	if (can_driver.stage->sweep(r.dev, p, 4, 10000, &err) < 0)
+		fail_msg("%s", err.message);
+	assert_int_equal(can_driver.stage->sweep_trace(r.dev, tr, 16, &got, 100, NULL), 0);
+	assert_int_equal(got, 4);
+	size_t ne = can_sim_edges(r.sim, e, 64);
+	assert_int_equal(ne, 8);
+	for (size_t k = 0; k < 4; k++) {
+		assert_int_equal(tr[k].source, ASPH_POSITION_READ_BACK);
+		assert_true(tr[k].t_ns > (k ? tr[k - 1].t_ns : t0));
+		/* read after the edge: x at or past where it was then */
+		assert_true(tr[k].position[0] * cpm[0] >= e[2 * k].encoder[0] - 1e-6);
+		for (int a = 0; a < 3; a++)
+			assert_true(fabs(tr[k].position[a] * cpm[a] - nearbyint(tr[k].position[a] * cpm[a])) < 1e-6);
+	}
+	rig_stop(&r);
+
+	/* touch_probe=on refuses a drive without one; off never latches */
+	sim_config(&sc, 1);
+	sc.touch_probe[1] = CAN_SIM_TP_NONE;
+	rig_start(&r, &sc, "touch_probe=on");
+	expect_error(rig_open(&r, 2000, &err), -EPROTO, &err,
+		     "y (node 9) has no touch probe (0x60B8 does not exist)");
+	rig_stop(&r);
+	sweep_rig(&r, CAN_SIM_TP_FULL, "touch_probe=off,speed=20");
+	if (can_driver.stage->sweep(r.dev, p, 2, 10000, &err) < 0)
+		fail_msg("%s", err.message);
+	assert_int_equal(can_driver.stage->sweep_trace(r.dev, tr, 16, &got, 100, NULL), 0);
+	assert_int_equal(got, 2);
+	assert_int_equal(tr[0].source, ASPH_POSITION_READ_BACK);
+	rig_stop(&r);
+	/* no trigger wiring: no edges at all */
+	sweep_rig(&r, CAN_SIM_TP_FULL, "trigger_output=0,speed=20");
+	if (can_driver.stage->sweep(r.dev, p, 2, 10000, &err) < 0)
+		fail_msg("%s", err.message);
+	assert_int_equal(can_sim_edges(r.sim, e, 64), 0);
+	assert_int_equal(can_driver.stage->sweep_trace(r.dev, tr, 16, &got, 100, NULL), 0);
+	assert_int_equal(tr[1].source, ASPH_POSITION_READ_BACK);
+	rig_stop(&r);
+}
+
+static void test_sweep_faults(void **state)
+{
+	struct rig r;
+	struct asph_error err;
+	struct can_sim_config sc;
+	double p[3 * 3];
+
+	zigzag(p, 3);
+	/* the options */
+	static const char *const bad[][2] = {
+		{ "trigger_output=7", "bit 7 of 0x60FE:01 is not an output" },
+		{ "trigger_node=77", "trigger_node 77 is not one of the axes' drives" },
+		{ "touch_probe=on,trigger_output=0", "touch_probe=on needs the trigger wiring" },
+	};
+	sim_config(&sc, 0);
+	for (size_t i = 0; i < 3; i++) {
+		rig_start(&r, &sc, bad[i][0]);
+		expect_error(rig_open(&r, 2000, &err), -EINVAL, &err, bad[i][1]);
+		rig_stop(&r);
+	}
+	/* the output is not wired to the touch probes: no edge latched, the
+	 * axes stopped */
+	sim_config(&sc, 1);
+	rig_start(&r, &sc, "speed=20");
+	if (rig_open(&r, 2000, &err) < 0 || can_driver.stage->home(r.dev, 5000, &err) < 0)
+		fail_msg("%s", err.message);
+	expect_error(can_driver.stage->sweep(r.dev, p, 3, 10000, &err), -EPROTO, &err,
+		     "x (node 5): the touch probe latched no edge of the trigger: check the wiring "
+		     "of output 16 of node 5");
+	assert_true(quick_stops(r.sim, node_id[1], 1) >= 1);
+	rig_stop(&r);
+	/* a drive refusing its touch probe function mid-scan */
+	sweep_rig(&r, CAN_SIM_TP_FULL, "speed=20");
+	can_sim_abort(r.sim, node_id[2], CIA402_TOUCH_PROBE_FUNCTION, 0, 0x08000022);
+	expect_error(can_driver.stage->sweep(r.dev, p, 3, 10000, &err), -EPROTO, &err,
+		     "z (node 12) refused the write of 0x60b8:00: SDO abort 0x08000022");
+	/* a bouncing trigger line: two latches for one trigger */
+	can_sim_abort(r.sim, node_id[2], 0, 0, 0);
+	if (can_driver.stage->home(r.dev, 5000, &err) < 0)       /* out of the quick stop */
+		fail_msg("%s", err.message);
+	can_sim_bounce(r.sim, true);
+	p[3] = 1.6;
+	expect_error(can_driver.stage->sweep(r.dev, p, 3, 10000, &err), -EPROTO, &err,
+		     "the touch probe latched 2 edges for one trigger (a bouncing or noisy trigger "
+		     "line)");
+	can_sim_bounce(r.sim, false);
+	/* a target off the travel is refused before anything moves */
+	p[3] = 400;
+	expect_error(can_driver.stage->sweep(r.dev, p, 3, 10000, &err), -ERANGE, &err,
+		     "axis x: target 400.000000 mm is outside");
+	/* stopped from another thread in the middle: at once, quick stops */
+	if (can_driver.stage->home(r.dev, 5000, &err) < 0)
+		fail_msg("%s", err.message);
+	double far[3 * 4];
+	zigzag(far, 4);
+	for (size_t k = 0; k < 4; k++)
+		far[3 * k] *= 10;
+	pthread_t th;
+	struct stopper st = { r.dev, 60 };
+	struct timespec t0;
+	assert_int_equal(pthread_create(&th, NULL, stop_later, &st), 0);
+	clock_gettime(CLOCK_MONOTONIC, &t0);
+	expect_error(can_driver.stage->sweep(r.dev, far, 4, 10000, &err), -ECANCELED, &err,
+		     "sweep stopped");
+	assert_true(ms_since(&t0) < 800);
+	pthread_join(th, NULL);
+	for (int k = 0; k < 3; k++)
+		assert_true(quick_stops(r.sim, node_id[k], 1) >= 1);
+	rig_stop(&r);
+}
+
 /* ------------------------------------------------- end to end */
 
 struct scan_env {
@@ -908,7 +1323,8 @@ static void fit_file(struct scan_env *e, const char *path, struct asph_fit_resul
 	asph_scanfile_free(sf);
 }
 
-static void scan_config(struct scan_env *e, const char *json, const char *path)
+static void scan_config_opts(struct scan_env *e, const char *json, const char *path,
+			     const struct asph_scan_options *so)
 {
 	struct asph_config *c = NULL;
 	struct asph_instrument *inst = NULL;
@@ -921,13 +1337,18 @@ static void scan_config(struct scan_env *e, const char *json, const char *path)
 	if (asph_config_parse(e->reg, json, strlen(json), "<test>", &c, &err) < 0 ||
 	    asph_instrument_open(&c->instruments[0], 2000, &inst, &err) < 0)
 		fail_msg("%s", err.message);
-	assert_int_equal(asph_scan_new(inst, e->s, e->plan->xyz, e->plan->n, NULL, &sc, NULL), 0);
+	assert_int_equal(asph_scan_new(inst, e->s, e->plan->xyz, e->plan->n, so, &sc, NULL), 0);
 	assert_int_equal(asph_scanfile_writer_create(path, &hi, NULL, &w, NULL), 0);
 	if (asph_scan_run(sc, w, &err) < 0)
 		fail_msg("scan: %s", err.message);
 	asph_scan_free(sc);
 	asph_instrument_close(inst);
 	asph_config_free(c);
+}
+
+static void scan_config(struct scan_env *e, const char *json, const char *path)
+{
+	scan_config_opts(e, json, path, NULL);
 }
 
 static void test_scan_end_to_end(void **state)
@@ -1018,6 +1439,95 @@ static void test_scan_end_to_end(void **state)
 	asph_registry_free(e.reg);
 }
 
+/* A streamed scan: every point on the position the drives latched at its
+ * trigger; where a drive has no touch probe, none is latched and each is
+ * interpolated or flagged commanded. */
+static void test_scan_streamed(void **state)
+{
+	static const char probe[] =
+		"\"probe\": {\"driver\": \"mock\", \"options\": {\"time_factor\": 0, "
+		"\"rate\": 100000}}";
+	struct scan_env e = { 0 };
+	struct asph_prescription p;
+	struct asph_scan_options so = { .flags = ASPH_SCAN_STREAM };
+	char json[1024], path[128];
+
+	assert_int_equal(asph_registry_new(&e.reg, NULL), 0);
+	assert_int_equal(asph_prescription_preset("strong", &p), 0);
+	assert_int_equal(asph_surface_alloc(&p, &e.s, NULL), 0);
+	struct asph_plan_density d = { ASPH_DENSITY_POINTS, 40 };
+	struct asph_plan_options po = { .flags = ASPH_PLAN_NO_MESH };
+	assert_int_equal(asph_plan_compute_opts(e.s, ASPH_PLAN_FERMAT, d, &po, &e.plan, NULL), 0);
+	snprintf(e.dir, sizeof(e.dir), "/tmp/asph-test-can-XXXXXX");
+	assert_non_null(mkdtemp(e.dir));
+	snprintf(path, sizeof(path), "%s/stream.asph", e.dir);
+	for (int pass = 0; pass < 2; pass++) {
+		struct can_sim_config sc;
+		struct can_sim *sim;
+		int sv[2];
+		sim_config(&sc, 1);
+		sc.trigger_node = node_id[0];
+		sc.trigger_bit = 16;
+		sc.touch_probe[2] = pass ? CAN_SIM_TP_NONE : CAN_SIM_TP_FULL;
+		assert_int_equal(socketpair(AF_UNIX, SOCK_SEQPACKET | SOCK_CLOEXEC, 0, sv), 0);
+		assert_int_equal(can_sim_new(sv[1], &sc, &sim), 0);
+		assert_int_equal(can_sim_run(sim), 0);
+		snprintf(json, sizeof(json),
+			 "{\"instruments\": [{\"stage\": {\"driver\": \"can\", \"options\": {"
+			 "\"interface\": \"fd:%d\", \"x_node\": 5, \"y_node\": 9, \"z_node\": 12, "
+			 "\"x_counts_per_mm\": 8192, \"y_counts_per_mm\": 12500, "
+			 "\"z_counts_per_mm\": 20480, \"speed\": 300, \"heartbeat\": 20, "
+			 "\"heartbeat_timeout\": 2000, \"sdo_timeout\": 500}}, %s}]}", sv[0], probe);
+		scan_config_opts(&e, json, path, &so);
+		size_t rising = 0;
+		struct can_sim_edge *edges = calloc(4096, sizeof(*edges));
+		assert_non_null(edges);
+		size_t ne = can_sim_edges(sim, edges, 4096);
+		for (size_t k = 0; k < ne; k++)
+			if (edges[k].rising)
+				edges[rising++] = edges[k];
+		can_sim_free(sim);
+		close(sv[0]);
+
+		struct asph_scanfile *rec;
+		if (asph_scanfile_read(path, &rec, NULL) < 0)
+			fail_msg("%s: not readable", path);
+		assert_int_equal(rec->n, e.plan->n);
+		/* one trigger per point */
+		assert_int_equal(rising, rec->n);
+		size_t latched = 0, interpolated = 0, commanded = 0;
+		for (size_t i = 0; i < rec->n; i++) {
+			const struct asph_scanfile_point *pt = &rec->points[i];
+			bool flagged = pt->flags & ASPH_SCANFILE_POINT_COMMANDED;
+			latched += pt->position_source == ASPH_SCANFILE_POSITION_LATCHED;
+			interpolated += pt->position_source == ASPH_SCANFILE_POSITION_INTERPOLATED;
+			commanded += pt->position_source == ASPH_SCANFILE_POSITION_COMMANDED;
+			/* commanded, and only commanded, is flagged */
+			assert_int_equal(flagged, pt->position_source == ASPH_SCANFILE_POSITION_COMMANDED);
+			/* the encoders at the point's trigger, in the order measured */
+			for (int a = 0; a < 3 && pass == 0 && i < rising; a++) {
+				double c = pt->stage[a] * cpm[a];
+				if (fabs(c - edges[i].encoder[a]) > 1e-6)
+					fail_msg("point %zu axis %d: %.3f counts, the encoder %d at its "
+						 "trigger", i, a, c, edges[i].encoder[a]);
+			}
+		}
+		free(edges);
+		if (pass == 0) {
+			assert_int_equal(latched, rec->n);
+		} else {
+			assert_int_equal(latched, 0);
+			assert_int_equal(interpolated + commanded, rec->n);
+		}
+		asph_scanfile_free(rec);
+		unlink(path);
+	}
+	rmdir(e.dir);
+	asph_plan_free(e.plan);
+	asph_surface_free(e.s);
+	asph_registry_free(e.reg);
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -1038,7 +1548,12 @@ int main(void)
 		cmocka_unit_test(test_probe),
 		cmocka_unit_test(test_real_interface),
 		cmocka_unit_test(test_unix_gateway),
+		cmocka_unit_test(test_touch_probe_objects),
+		cmocka_unit_test(test_sweep_latched),
+		cmocka_unit_test(test_sweep_fallback),
+		cmocka_unit_test(test_sweep_faults),
 		cmocka_unit_test(test_scan_end_to_end),
+		cmocka_unit_test(test_scan_streamed),
 	};
 	return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -65,11 +65,14 @@ class Daemon:
         with open(self.config, "w") as f:
             json.dump(cfg, f, indent=1)
         self.proc = None
+        self.prefix = []        # a command that execs the daemon (unshare, ...)
 
     def start(self, wait=True):
         logf = open(self.log, "a")
-        self.proc = subprocess.Popen([ASPHD, "--config", self.config, "--socket", self.socket,
-                                      "--state-dir", self.state],
+        cmd = [ASPHD, "--config", self.config, "--socket", self.socket, "--state-dir", self.state]
+        if self.prefix:     # (valgrindpy's wrapper goes after the prefix)
+            cmd = [*self.prefix, *getattr(sys.modules.get("sitecustomize"), "wrapped", list)(cmd)]
+        self.proc = subprocess.Popen(cmd,
                                      stdout=logf, stderr=logf, stdin=subprocess.DEVNULL)
         logf.close()
         if wait:

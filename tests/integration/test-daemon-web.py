@@ -12,6 +12,7 @@ import json
 import math
 import os
 import re
+import signal
 import socket
 import subprocess
 import sys
@@ -71,6 +72,109 @@ class Web:
                                                     "params": params or {}})
         return r.status, json.loads(data) if data else None
 
+
+def served(port, host="127.0.0.1"):
+    """A keep-alive connection that got the page (it stays open, and
+    counts against the limits), or None when the listener closed it."""
+    c = http.client.HTTPConnection(host, port, timeout=10)
+    try:
+        c.request("GET", "/style.css", headers={"Host": f"{host}:{port}"})
+        r = c.getresponse()
+        r.read()
+        return c if r.status == 200 else None
+    except (ConnectionError, http.client.HTTPException, OSError):
+        c.close()
+        return None
+
+
+def reload_with(d, **limits):
+    with open(d.config) as f:
+        cfg = json.load(f)
+    cfg["limits"] = limits
+    with open(d.config, "w") as f:
+        json.dump(cfg, f)
+    n = d.log_text().count("configuration reloaded")
+    d.proc.send_signal(signal.SIGHUP)
+    deadline = time.time() + 30
+    while d.log_text().count("configuration reloaded") == n and time.time() < deadline:
+        time.sleep(0.05)
+
+
+def check_limits_follow_reload():
+    """The web listener's connection limits are the socket's: read at each
+    connection, so that a reload changes them for the listener too."""
+    d = Daemon([mock_instrument()], extra={
+        "http_listen": "127.0.0.1:0", "http_root": WEB_ROOT,
+        "limits": {"max_clients": 16, "max_clients_per_user": 2}})
+    try:
+        d.start()
+        port = web_port(d)
+        held = [served(port), served(port)]
+        expect(all(held), "two connections of one address: served")
+        expect(served(port) is None, "a third of the same address (limits.max_clients_per_user 2): closed")
+        expect("limits.max_clients_per_user" in d.log_text(), "the log says which limit refused it")
+        reload_with(d, max_clients=16, max_clients_per_user=3)
+        third = served(port)
+        expect(third is not None, "after a reload to max_clients_per_user 3: the third is served")
+        held.append(third)
+        expect(served(port) is None, "and a fourth is closed")
+        reload_with(d, max_clients=4, max_clients_per_user=8)
+        held.append(served(port))
+        expect(held[-1] is not None and served(port) is None,
+               "after a reload to max_clients 4: the fourth is served, a fifth closed")
+        for c in held:
+            if c:
+                c.close()
+        time.sleep(0.3)
+        expect(served(port) is not None, "connections closed: served again")
+        expect(d.stop() == 0, "asphd stops cleanly")
+    except Exception:
+        print(d.log_text())
+        raise
+    finally:
+        d.cleanup()
+
+
+def check_every_address():
+    """http_listen of a name that resolves to 127.0.0.1 and ::1 listens on
+    both, on one port. The name resolves through /etc/hosts: the daemon
+    runs in a mount namespace of its own where /etc/hosts says so."""
+    hosts = None
+    d = Daemon([mock_instrument()], extra={"http_listen": "dual-stack.test:0",
+                                           "http_root": WEB_ROOT})
+    hosts = os.path.join(d.top, "hosts")
+    with open(hosts, "w") as f:
+        f.write("127.0.0.1 localhost\n127.0.0.1 dual-stack.test\n::1 dual-stack.test\n")
+    probe = subprocess.run(["unshare", "-m", "--", "sh", "-c", 'mount --bind "$0" /etc/hosts', hosts],
+                           capture_output=True, text=True)
+    if probe.returncode != 0:
+        print(f"# SKIP listening on every address: no mount namespace here ({probe.stderr.strip()})")
+        d.cleanup()
+        return
+    d.prefix = ["unshare", "-m", "--", "sh", "-c", 'mount --bind "$0" /etc/hosts && exec "$@"', hosts]
+    try:
+        d.start()
+        deadline = time.time() + 20
+        while time.time() < deadline and not re.search(r"web page at http://dual-stack\.test:\d+/", d.log_text()):
+            time.sleep(0.05)
+        m = re.search(r"web page at http://dual-stack\.test:(\d+)/ \((\d+) address", d.log_text())
+        expect(m and m.group(2) == "2", f"http_listen dual-stack.test:0: two addresses ({m and m.group(0)})")
+        port = int(m.group(1)) if m else 0
+        for host in ("127.0.0.1", "::1"):
+            c = served(port, host)
+            expect(c is not None, f"the page on {host} port {port}")
+            if c:
+                c.close()
+        expect(d.stop() == 0, "asphd stops cleanly")
+    except Exception:
+        print(d.log_text())
+        raise
+    finally:
+        d.cleanup()
+
+
+check_limits_follow_reload()
+check_every_address()
 
 # The part sits 12 um off the axis, and the probe has 2 nm of noise: the
 # live map's deviations from the nominal are not zero.
@@ -271,6 +375,15 @@ try:
         expect(r.status == 200 and data == want and
                f'filename="job{job}-{name}"' in (r.getheader("Content-Disposition") or ""),
                f"download {name}: as job.file gives it ({len(data)} bytes)")
+    # psd.csv: the header, then f = k df (k = 1, 2, ...) and a PSD >= 0
+    expect(files.get("psd") == "psd.csv", f"the result lists psd.csv ({files})")
+    r, data = viewer.request("GET", f"/api/jobs/{job}/files/psd.csv")
+    lines = data.decode().splitlines()
+    rows = [tuple(map(float, line.split(","))) for line in lines[1:]]
+    df = rows[0][0] if rows else 0
+    expect(lines[0] == "f_per_mm,psd_nm2_mm" and len(rows) > 10 and df > 0 and
+           all(abs(f - (k + 1) * df) < 1e-9 * f and p >= 0 for k, (f, p) in enumerate(rows)),
+           f"psd.csv: {len(rows)} frequencies k df (df {df:.4g}/mm), PSD >= 0")
     r, _ = viewer.request("GET", f"/api/jobs/{job}/files/jobs.sqlite")
     expect(r.status == 404, "a file the result does not list: 404")
 

@@ -217,7 +217,10 @@ try:
     behind = submit(c, 1, part="AS-2041", serial="0102")[0]
     wait(lambda: rows(pg, f"daemon_id = '{ids[1]}' AND job_id = {behind}"), 120,
          "the row behind the refused one")
-    wait(lambda: outbox(daemons[1], "postgres-held"), 30, "the refused row set aside")
+    # the row behind is in the database before its acknowledgement has
+    # emptied the outbox
+    wait(lambda: outbox(daemons[1], "postgres-held") and not outbox(daemons[1]), 30,
+         "the refused row set aside, the row behind it acknowledged")
     held = outbox(daemons[1], "postgres-held")
     log = daemons[1].log_text()
     expect(len(held) == 1 and json.loads(held[0][3]).get("job") == scrap and

@@ -42,6 +42,12 @@ _UNKNOWN_OPENAT2 = re.compile(
     r"(--\d+-- [^\n]*\n){4}")
 
 
+def wrapped(args):
+    """args as the wrapper runs them: for a command that starts ours
+    through another (unshare, sh -c 'exec "$@"'), which Popen cannot see."""
+    return [*_ARGS, *args] if _ARGS and args and _ours(args[0]) else list(args)
+
+
 def report_text(log):
     """What a valgrind log says that is an error of the program's: its
     text without the openat2() notice, empty when clean or absent."""

@@ -310,6 +310,46 @@ static void test_psd_radial_and_profiles(void **state)
 	free(xy);
 }
 
+static double ripple_x(double x, double y)
+{
+	return 5.0 * cos(2 * M_PI * x / 2.0);     /* 5 nm, wavelength 2 mm */
+}
+
+/* The residual's PSD (the report's, the daemon's psd.csv) is the radial
+ * PSD of ASPH_PSD_DIAMETERS diameters at half the median spacing; a
+ * ripple along x of wavelength L puts no power above 1 / L (each diameter
+ * sees it at cos(angle) / L), and the spectrum holds the ripple's mean
+ * square A^2 / 2 on the 17 diameters not across it. */
+static void test_psd_residual(void **state)
+{
+	double *xy;
+	size_t n = hex_points(10, 0.2, 0, 0, 0, &xy);
+	struct asph_scatter *s = scatter_of(xy, n, ripple_x);
+	struct asph_psd *p = NULL, *q = NULL;
+	double ds = asph_scatter_median_edge(s) / 2, total = 0, above = 0;
+
+	assert_true(fabs(ds - 0.1) < 1e-6);
+	assert_int_equal(asph_psd_residual(s, 10, &p, NULL), 0);
+	assert_int_equal(asph_psd_radial(s, 10, ds, ASPH_PSD_DIAMETERS, &q, NULL), 0);
+	assert_int_equal(p->n, q->n);
+	assert_int_equal(p->n_profiles, ASPH_PSD_DIAMETERS);
+	assert_memory_equal(p->psd, q->psd, p->n * sizeof(double));
+	/* 201 samples padded to 216 = 2^3 3^3 */
+	assert_true(fabs(p->df - 1 / (216 * 0.1)) < 1e-12);
+	for (size_t k = 0; k < p->n; k++) {
+		total += p->psd[k] * p->df;
+		if (k * p->df > 0.5 + 3 * p->df)
+			above += p->psd[k] * p->df;
+	}
+	assert_true(above < 1e-3 * total);
+	/* linear interpolation at 10 points a wavelength loses a few percent */
+	assert_true(fabs(total - 17.0 / 18 * 12.5) < 0.1 * 12.5);
+	asph_psd_free(p);
+	asph_psd_free(q);
+	asph_scatter_free(s);
+	free(xy);
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -321,6 +361,7 @@ int main(void)
 		cmocka_unit_test(test_psd_profile),
 		cmocka_unit_test(test_psd_areal_bands),
 		cmocka_unit_test(test_psd_radial_and_profiles),
+		cmocka_unit_test(test_psd_residual),
 	};
 
 	gsl_set_error_handler_off();
