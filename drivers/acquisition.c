@@ -17,6 +17,16 @@ void asph_acquisition_defaults(struct asph_acquisition *a)
 	a->retries = 3;
 }
 
+void asph_acquisition_advised(struct asph_acquisition *a, const struct asph_stage_info *si)
+{
+	if (!(a->set & ASPH_ACQUISITION_SET_SETTLE_WINDOW) && si->settle_window > 0 &&
+	    isfinite(si->settle_window))
+		a->settle_window = si->settle_window;
+	if (!(a->set & ASPH_ACQUISITION_SET_SETTLE_DWELL) && si->settle_dwell > 0 &&
+	    isfinite(si->settle_dwell))
+		a->settle_dwell = si->settle_dwell;
+}
+
 bool asph_acquisition_drift(const struct asph_acquisition *a)
 {
 	return (a->drift_interval_s > 0 || a->drift_interval_points > 0) && a->n_references > 0;
@@ -119,6 +129,7 @@ int asph_acquisition_set(struct asph_acquisition *a, const char *name, const cha
 						 "settle_window '%s' is not a distance in um, 0 .. 10^6",
 						 text);
 		a->settle_window = v * 1e-3;
+		a->set |= ASPH_ACQUISITION_SET_SETTLE_WINDOW;
 		return 0;
 	}
 	if (!strcmp(name, "settle_dwell")) {
@@ -127,6 +138,7 @@ int asph_acquisition_set(struct asph_acquisition *a, const char *name, const cha
 			return asph_error_set_at(err, r, NULL, 0, 0, name,
 						 "settle_dwell '%s' is not a time in s, 0 .. 60", text);
 		a->settle_dwell = v;
+		a->set |= ASPH_ACQUISITION_SET_SETTLE_DWELL;
 		return 0;
 	}
 	if (!strcmp(name, "retries")) {

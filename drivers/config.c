@@ -577,7 +577,14 @@ int asph_instrument_config_to_json(const struct asph_instrument_config *c,
 	json_object_set_new(root, "driver_abi_minor", json_integer(ASPH_DRIVER_ABI_MINOR));
 	json_object_set_new(root, "stage", role_json(c->stage_driver, c->stage_options, ASPH_ROLE_STAGE));
 	json_object_set_new(root, "probe", role_json(c->probe_driver, c->probe_options, ASPH_ROLE_PROBE));
-	json_object_set_new(root, "acquisition", acquisition_json(&c->acquisition));
+	/* the settling in effect: the stage's advice where the instrument
+	 * sets none */
+	struct asph_acquisition acq = c->acquisition;
+	struct asph_stage_info si;
+	struct asph_probe_info pi;
+	if (asph_instrument_describe(c, &si, &pi, NULL) == 0)
+		asph_acquisition_advised(&acq, &si);
+	json_object_set_new(root, "acquisition", acquisition_json(&acq));
 	if (c->has_uncertainty) {
 		_cleanup_free_ char *u = NULL;
 		if (asph_uncertainty_model_to_json(&c->uncertainty, &u) < 0)

@@ -40,8 +40,9 @@ int scan_reference_round(struct asph_scan *sc, struct asph_error *err)
 
 	for (size_t k = 0; k < a->n_references && r == 0; k++) {
 		struct target t;
+		/* the file's last round again: its number */
 		struct pending m = { .index = k, .kind = ASPH_MEASURE_REFERENCE,
-				     .attempt = (uint32_t)sc->round };
+				     .attempt = (uint32_t)(sc->round - (sc->replay_round && sc->round)) };
 		bool recorded;
 		double p[3] = { a->references[k][0], a->references[k][1], 0 };
 		p[2] = asph_surface_sag_xy(sc->surface, p[0], p[1]);
@@ -56,11 +57,15 @@ int scan_reference_round(struct asph_scan *sc, struct asph_error *err)
 				       tail && tail != msg ? tail + 2 : msg);
 		}
 	}
-	if (r == 0)
+	if (r == 0 && !sc->replay_round)
 		r = asph_scanfile_writer_append_references(sc->w, sc->refs, a->n_references, err);
+	if (r == 0)
+		r = scan_align_clock(sc, err);
 	if (r < 0)
 		return r;
-	sc->round++;
+	if (!sc->replay_round)
+		sc->round++;
+	sc->replay_round = false;
 	sc->last_round_ns = asph_instrument_clock(sc->inst);
 	sc->points_since_round = 0;
 	return 0;
@@ -122,6 +127,60 @@ int scan_second_pass(struct asph_scan *sc, struct asph_error *err)
 
 /* ---------------------------------------------------------- resume */
 
+/*
+ * A simulated stage goes on with the interrupted scan's time: the
+ * measuring starts again after the file's last round of references (or
+ * from the first plan point without one), that round measured again to
+ * put the stage where it was and then the clock set to the file's time.
+ * From there the motion, the clock and so every reading are those of the
+ * uninterrupted scan; the plan points the file has are measured again but
+ * not recorded.
+ */
+static void replay_from_round(struct asph_scan *sc, const struct asph_scanfile *s, size_t per)
+{
+	uint64_t t_round = 0;   /* none: nothing comes before it */
+	size_t from = 0;
+
+	if (asph_acquisition_drift(&sc->acq) && s->n_references >= per) {
+		t_round = s->references[s->n_references - per].t_ns;
+		sc->replay_ref_ns = s->references[s->n_references - 1].t_ns;
+		sc->replay_round = true;
+	}
+	for (size_t k = 0; k < s->n; k++) {
+		const struct asph_scanfile_point *p = &s->points[k];
+		if (!(p->flags & ASPH_SCANFILE_POINT_RETRIED) && p->t_ns < t_round &&
+		    p->plan_index + 1 > from)
+			from = (size_t)p->plan_index + 1;
+	}
+	sc->loop_from = from < sc->o.start_index ? from : sc->o.start_index;
+	sc->replay_below = sc->o.start_index;
+	/* the scan's time is the instrument's, as when it began */
+	sc->scan0 = 0;
+}
+
+int scan_align_clock(struct asph_scan *sc, struct asph_error *err)
+{
+	const struct asph_stage_ops *ops = &sc->inst->stage_ops;
+
+	if (!ops->clock_align)
+		return 0;
+	int64_t t = (int64_t)scan_time(sc, asph_instrument_clock(sc->inst));
+	if (sc->replay_round) {
+		/* where the file's round ended: as long after its last
+		 * reference as this one after the same */
+		t += (int64_t)sc->replay_ref_ns -
+		     (int64_t)sc->refs[sc->acq.n_references - 1].t_ns;
+	}
+	/* the next whole millisecond: a few nanoseconds of rounding in the
+	 * file's times do not move it */
+	int64_t ms = (int64_t)NS_PER_MS, e = (t + ms - 1) / ms * ms;
+	if (e < 0)
+		e = 0;
+	uint64_t instr = (uint64_t)e - sc->scan0 + sc->clock0;
+	return scan_prefixed(ops->clock_align(sc->inst->stage, instr, err), "stage",
+			     sc->loop_from, err);
+}
+
 int scan_resume_state(struct asph_scan *sc, struct asph_error *err)
 {
 	const struct asph_scanfile *s = sc->o.recovered;
@@ -132,6 +191,8 @@ int scan_resume_state(struct asph_scan *sc, struct asph_error *err)
 		return 0;
 	/* the reference rounds so far: the next one is numbered after them */
 	sc->round = (s->n_references + per - 1) / per;
+	if (sc->o.start_index > 0 && sc->inst->stage_ops.clock_align)
+		replay_from_round(sc, s, per);
 	for (size_t k = 0; k < s->n && !any; k++)
 		any = s->points[k].flags & ASPH_SCANFILE_POINT_INVALID;
 	if (!any)

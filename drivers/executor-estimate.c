@@ -80,7 +80,8 @@ int asph_scan_estimate(const struct asph_instrument_config *c, const struct asph
 	struct asph_stage_info si;
 	struct asph_probe_info pi;
 	struct asph_motion_limits lim;
-	const struct asph_acquisition *a = &c->acquisition;
+	struct asph_acquisition acq = c->acquisition;
+	const struct asph_acquisition *a = &acq;
 	unsigned flags = so ? so->flags : 0;
 	double clearance = so && so->clearance > 0 ? so->clearance : 0.5, theta = 0;
 	int r = asph_instrument_describe(c, &si, &pi, err);
@@ -90,6 +91,7 @@ int asph_scan_estimate(const struct asph_instrument_config *c, const struct asph
 		return r;
 	if (n == 0)
 		return 0;
+	asph_acquisition_advised(&acq, &si);
 	scan_motion_limits(&si, &pi, &lim);
 	double *m = malloc(3 * n * sizeof(double));
 	if (!m)

@@ -306,7 +306,9 @@ int asph_scan_check(struct asph_scan *sc, struct asph_error *err)
 	}
 	double min_z = INFINITY;
 	sc->theta_prev = 0;
-	for (size_t i = sc->o.start_index; r == 0 && i < sc->n; i++)
+	/* a scan going on with the interrupted one's motion checks what that
+	 * one did: the same travel height */
+	for (size_t i = sc->replay_below ? 0 : sc->o.start_index; r == 0 && i < sc->n; i++)
 		r = check_point(sc, i, lo, hi, &min_z, err);
 	for (size_t k = 0; r == 0 && asph_acquisition_drift(&sc->acq) &&
 			   k < sc->acq.n_references; k++)

@@ -92,6 +92,16 @@ struct asph_scan {
 	uint64_t points_since_round;
 	struct asph_scanfile_point refs[ASPH_MAX_REFERENCES];
 
+	/* resuming on a simulated stage (clock_align): the measuring starts
+	 * again after the file's last round of references, that round
+	 * measured again without being recorded, the clock then aligned with
+	 * the file's; the plan points below replay_below are in the file and
+	 * are measured again without being recorded */
+	size_t loop_from;
+	uint64_t replay_below;
+	bool replay_round;
+	uint64_t replay_ref_ns;         /* the file's last reference, scan time */
+
 	/* dropouts: points whose last reading was invalid */
 	uint64_t *invalid;
 	uint32_t *invalid_attempts;
@@ -185,7 +195,12 @@ int scan_reference_round(struct asph_scan *sc, struct asph_error *err);
 int scan_note_reading(struct asph_scan *sc, uint64_t index, uint32_t attempt, bool invalid);
 /* The invalid points measured again, each up to the retries. */
 int scan_second_pass(struct asph_scan *sc, struct asph_error *err);
-/* What the recovered scan says: reference rounds done, invalid points. */
+/* What the recovered scan says: reference rounds done, invalid points;
+ * on a simulated stage, where the measuring starts again. */
 int scan_resume_state(struct asph_scan *sc, struct asph_error *err);
+/* A simulated stage's clock set to the next whole millisecond of the
+ * scan's time (of the file's time when a round is measured again), after
+ * a round of references. */
+int scan_align_clock(struct asph_scan *sc, struct asph_error *err);
 
 #endif

@@ -79,6 +79,7 @@ int asph_scan_new(struct asph_instrument *inst, const struct asph_surface *s,
 	sc->xyz = xyz;
 	sc->n = n;
 	sc->acq = inst->config->acquisition;
+	asph_acquisition_advised(&sc->acq, &inst->stage_info);
 	/* the default reference, the vertex, on a part that does not hold it
 	 * (an off-axis segment): the centre of its aperture instead */
 	if (sc->acq.n_references == 1 && sc->acq.references[0][0] == 0 &&
@@ -286,6 +287,11 @@ int scan_record(struct asph_scan *sc, const struct pending *m, const struct plac
 	sc->rec_last_flags = pt.flags;
 	if (m->kind == ASPH_MEASURE_REFERENCE) {
 		sc->refs[m->index] = pt;
+		return 0;
+	}
+	if (m->attempt == 0 && m->index < sc->replay_below) {
+		/* in the file already: measured again for the motion's sake */
+		sc->points_since_round++;
 		return 0;
 	}
 	if (pt.flags & ASPH_SCANFILE_POINT_COMMANDED)
@@ -506,7 +512,7 @@ static int wait_paused(struct asph_scan *sc, uint64_t done, struct asph_error *e
 
 static int scan_loop(struct asph_scan *sc, struct asph_error *err)
 {
-	size_t i = sc->o.start_index;
+	size_t i = sc->loop_from;
 	int r = 0;
 
 	sc->measure_t0_ns = now_monotonic_ns();
@@ -605,6 +611,9 @@ int asph_scan_run(struct asph_scan *sc, struct asph_scanfile_writer *w,
 	sc->scan0 = sc->o.start_index == 0 && !sc->o.recovered ? 0
 								: asph_scanfile_writer_elapsed_ns(w);
 	sc->last_report_ns = 0;
+	sc->loop_from = sc->o.start_index;
+	sc->replay_below = 0;
+	sc->replay_round = false;
 	scan_publish(sc, ASPH_SCAN_CHECKING, sc->o.start_index, true);
 	r = scan_stream_init(sc, err);
 	if (r == 0)

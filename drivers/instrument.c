@@ -63,9 +63,11 @@ static void callable_ops(struct asph_instrument *in)
 
 	memset(&in->stage_ops, 0, sizeof(in->stage_ops));
 	memset(&in->probe_ops, 0, sizeof(in->probe_ops));
+	unsigned sm = asph_driver_abi_minor(s);
 	memcpy(&in->stage_ops, s->stage,
-	       asph_driver_abi_minor(s) >= 1 ? sizeof(in->stage_ops)
-					     : offsetof(struct asph_stage_ops, sweep_pvt));
+	       sm >= 2   ? sizeof(in->stage_ops)
+	       : sm == 1 ? offsetof(struct asph_stage_ops, clock_align)
+			 : offsetof(struct asph_stage_ops, sweep_pvt));
 	memcpy(&in->probe_ops, p->probe,
 	       asph_driver_abi_minor(p) >= 1 ? sizeof(in->probe_ops)
 					     : offsetof(struct asph_probe_ops, attach));

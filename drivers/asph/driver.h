@@ -50,9 +50,11 @@ extern "C" {
  *        clock, the probe's latency, attach() of a probe to its stage,
  *        invalid readings, the attempt and kind of a measurement, axis
  *        accelerations and jerks, and describe() without opening
+ *   1.2  the settling a stage advises for step and measure, the clock of a
+ *        simulated stage aligned (clock_align)
  */
 #define ASPH_DRIVER_ABI_MAJOR 1
-#define ASPH_DRIVER_ABI_MINOR 1
+#define ASPH_DRIVER_ABI_MINOR 2
 #define ASPH_DRIVER_ABI(major, minor) ((uint32_t)(major) | (uint32_t)(minor) << 16)
 #define ASPH_DRIVER_ABI_VERSION ASPH_DRIVER_ABI(ASPH_DRIVER_ABI_MAJOR, ASPH_DRIVER_ABI_MINOR)
 #define ASPH_DRIVER_ABI_MAJOR_OF(v) ((uint32_t)(v) & 0xffffu)
@@ -126,6 +128,12 @@ struct asph_stage_info {
 	/* 1.1: per axis, unit per s^2 and s^3; 0 = unknown */
 	double max_accel[ASPH_DRIVER_MAX_AXES];
 	double max_jerk[ASPH_DRIVER_MAX_AXES];
+	/* 1.2: the settling the stage advises for step and measure, used
+	 * where the instrument sets none (docs/scanning.md): read once the
+	 * read-back has stayed within settle_window (mm) of the target for
+	 * settle_dwell (s); 0 = no advice */
+	double settle_window;
+	double settle_dwell;
 };
 
 enum asph_stage_state {
@@ -235,6 +243,14 @@ struct asph_stage_ops {
 	 * estimates before anything is opened). */
 	int (*describe)(const struct asph_driver *drv, const struct asph_option_value *options,
 			struct asph_stage_info *out, struct asph_error *err);
+	/* ---- 1.2: optional (NULL); a driver of 1.0 or 1.1 does not have it */
+	/* A simulated stage, at rest: its clock reads t_ns from now on, and
+	 * whatever it simulates keeps its age (a move that ended a moment ago
+	 * still ended a moment ago). The executor aligns the clock after every
+	 * round of drift references, so that a resumed scan goes on with the
+	 * time of the interrupted one (docs/scanning.md, "Resuming"). A stage
+	 * on the world's time has none. */
+	int (*clock_align)(struct asph_device *dev, uint64_t t_ns, struct asph_error *err);
 };
 
 /* ------------------------------------------------------------- probe */

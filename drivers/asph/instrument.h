@@ -173,6 +173,14 @@ struct asph_acquisition {
 	size_t n_references;
 	double references[ASPH_MAX_REFERENCES][2];      /* x, y on the nominal surface, mm */
 	unsigned retries;               /* further tries of a point read invalid */
+	unsigned set;                   /* enum asph_acquisition_set: given, not defaults */
+};
+
+/* The settings an instrument gives itself (asph_acquisition_set()), which
+ * no advice of its stage replaces. */
+enum asph_acquisition_set {
+	ASPH_ACQUISITION_SET_SETTLE_WINDOW = 1u << 0,
+	ASPH_ACQUISITION_SET_SETTLE_DWELL = 1u << 1,
 };
 
 /* The defaults: window 1 um, no dwell, references at the vertex every 60 s,
@@ -188,6 +196,10 @@ void asph_acquisition_defaults(struct asph_acquisition *a);
  */
 int asph_acquisition_set(struct asph_acquisition *a, const char *name, const char *text,
 			 struct asph_error *err);
+
+/* The settling the stage advises (stage info, driver ABI 1.2) where the
+ * instrument did not set its own. */
+void asph_acquisition_advised(struct asph_acquisition *a, const struct asph_stage_info *si);
 
 /* Whether drift control is on. */
 bool asph_acquisition_drift(const struct asph_acquisition *a);

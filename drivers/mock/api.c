@@ -173,6 +173,7 @@ struct asph_device {
 	struct mock_bench *bench;       /* the stage's; a mounted probe shares it */
 	struct mock_stage_params sp;
 	double travel_z;
+	struct asph_stage_info info;    /* as described: the axes' ranges */
 	bool homed;
 	/* probe */
 	struct mock_part *part;
@@ -234,6 +235,9 @@ static void stage_params(const struct asph_option_value *o, struct mock_stage_pa
 	sp->capture = (enum mock_capture)o[OPT_CAPTURE].i;
 }
 
+static void describe_stage(const struct mock_stage_params *sp, double travel_z,
+			   struct asph_stage_info *out);
+
 static int stage_open(const struct asph_driver *drv, const struct asph_option_value *o,
 		      unsigned timeout_ms, struct asph_device **out, struct asph_error *err)
 {
@@ -243,6 +247,7 @@ static int stage_open(const struct asph_driver *drv, const struct asph_option_va
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	stage_params(o, &d->sp);
 	d->travel_z = o[OPT_TRAVEL_Z].d;
+	describe_stage(&d->sp, d->travel_z, &d->info);
 	if (mock_bench_new(&d->sp, &d->bench) < 0) {
 		free(d);
 		return asph_error_set(err, -ENOMEM, "out of memory");
@@ -292,6 +297,7 @@ static void describe_stage(const struct mock_stage_params *sp, double travel_z,
 		out->max_accel[k] = sp->lim.accel[k];
 		out->max_jerk[k] = sp->lim.jerk[k];
 	}
+	mock_stage_settling(sp, &out->settle_window, &out->settle_dwell);
 	snprintf(out->model, sizeof(out->model), "mock stage");
 	snprintf(out->serial, sizeof(out->serial), "MOCK-0001");
 }
@@ -299,7 +305,7 @@ static void describe_stage(const struct mock_stage_params *sp, double travel_z,
 static int stage_info(struct asph_device *d, struct asph_stage_info *out,
 		      struct asph_error *err)
 {
-	describe_stage(&d->sp, d->travel_z, out);
+	*out = d->info;
 	return 0;
 }
 
@@ -329,15 +335,13 @@ static int stage_home(struct asph_device *d, unsigned timeout_ms, struct asph_er
 
 static int check_target(const struct asph_device *d, const double *t, struct asph_error *err)
 {
-	struct asph_stage_info info;
+	const struct asph_axis_info *ax = d->info.axes;
 
-	describe_stage(&d->sp, d->travel_z, &info);
 	for (int k = 0; k < 3; k++)
-		if (!(t[k] >= info.axes[k].min && t[k] <= info.axes[k].max))
+		if (!(t[k] >= ax[k].min && t[k] <= ax[k].max))
 			return asph_error_set(err, -ERANGE,
 					      "axis %s: target %.6f %s is outside %.6g .. %.6g",
-					      info.axes[k].name, t[k], info.axes[k].unit,
-					      info.axes[k].min, info.axes[k].max);
+					      ax[k].name, t[k], ax[k].unit, ax[k].min, ax[k].max);
 	return 0;
 }
 
@@ -404,6 +408,12 @@ static int stage_trace(struct asph_device *d, struct asph_position_sample *out, 
 static int stage_clock(struct asph_device *d, uint64_t *t_ns)
 {
 	*t_ns = (uint64_t)llround(mock_bench_now(d->bench) * 1e9);
+	return 0;
+}
+
+static int stage_clock_align(struct asph_device *d, uint64_t t_ns, struct asph_error *err)
+{
+	mock_bench_align(d->bench, (double)t_ns * 1e-9);
 	return 0;
 }
 
@@ -670,6 +680,7 @@ static const struct asph_stage_ops mock_stage = {
 	.sweep_trace = stage_trace,
 	.clock = stage_clock,
 	.describe = stage_describe,
+	.clock_align = stage_clock_align,
 };
 
 static const struct asph_probe_ops mock_probe = {

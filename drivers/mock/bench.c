@@ -13,6 +13,16 @@
  * peak speed (1 um at 20 mm/s), decaying to RING_END at settle_time. */
 #define RING_PER_SPEED 5e-5
 #define RING_END 1e-6
+/* The ringing's period, in settle times. */
+#define RING_PERIOD 0.25
+/* The settling window the stage advises when it rings (mm): 10 nm, ten
+ * steps of a 1 nm encoder, a hundredth of the ringing after a move at
+ * 20 mm/s. */
+#define SETTLE_WINDOW 1e-5
+/* Below this (mm) the ringing is no more: a millionth of a nanometre, far
+ * below any encoder step, and then not worth its exp() and cos() per
+ * position. */
+#define RING_NONE 1e-15
 
 /* The command over a piece of time: c(tau) = c[0] + c[1] tau + c[2] tau^2 +
  * c[3] tau^3 per axis, tau in [0, d]. */
@@ -25,6 +35,8 @@ struct piece {
 
 struct ring {
 	double t0, amp[3], tau, period;
+	double life;            /* from t0 until below RING_NONE */
+	double t_end;           /* t0 + life: from here on none */
 	bool on;
 };
 
@@ -33,15 +45,17 @@ struct mock_bench {
 	struct mock_probe_params pp;
 	bool probe;
 	double omega;           /* servo bandwidth, rad/s; 0 = ideal */
+	double inv_omega;       /* 1 / omega, s (a product costs less than a quotient) */
 	double t;               /* simulated now */
 	double x[3];            /* the axes' true positions (servo output) */
 	double cmd[3], vel[3];  /* the command's end and its velocity */
 	struct ring ring;
 	double last_trigger;    /* time of the last trigger, -inf: none */
 	double next_log;        /* next encoder log (capture by time) */
-	/* triggers not yet taken by the probe */
+	/* triggers not yet taken by the probe; those before trig_unsampled
+	 * have their sample (samples come in the order of their triggers) */
 	struct mock_trigger *trig;
-	size_t trig_head, trig_n, trig_cap;
+	size_t trig_head, trig_n, trig_cap, trig_unsampled;
 	/* positions measured during sweeps, not yet handed out */
 	struct asph_position_sample *trace;
 	size_t trace_head, trace_n, trace_cap;
@@ -58,6 +72,7 @@ int mock_bench_new(const struct mock_stage_params *sp, struct mock_bench **out)
 		return -ENOMEM;
 	b->sp = *sp;
 	b->omega = sp->servo_bandwidth > 0 ? 2 * M_PI * sp->servo_bandwidth : 0;
+	b->inv_omega = b->omega > 0 ? 1 / b->omega : 0;
 	b->last_trigger = -INFINITY;
 	*out = b;
 	return 0;
@@ -89,12 +104,55 @@ double mock_bench_now(const struct mock_bench *b)
 	return b->t;
 }
 
+/* An instant of the past at the same age from t as it is from now. */
+static double aged(const struct mock_bench *b, double t, double then)
+{
+	return t - (b->t - then);
+}
+
+void mock_bench_align(struct mock_bench *b, double t)
+{
+	if (b->ring.on) {
+		b->ring.t0 = aged(b, t, b->ring.t0);
+		b->ring.t_end = b->ring.t0 + b->ring.life;
+	}
+	if (isfinite(b->last_trigger))
+		b->last_trigger = aged(b, t, b->last_trigger);
+	b->next_log = t;
+	for (size_t i = 0; i < b->trig_n; i++) {
+		struct mock_trigger *tr = &b->trig[b->trig_head + i];
+		tr->t = aged(b, t, tr->t);
+		tr->sample.t = aged(b, t, tr->sample.t);
+	}
+	for (size_t i = 0; i < b->trace_n; i++) {
+		struct asph_position_sample *s = &b->trace[b->trace_head + i];
+		s->t_ns = (uint64_t)llround(aged(b, t, (double)s->t_ns * 1e-9) * 1e9);
+	}
+	/* what is left of the servo's error after settling is far below any
+	 * length the bench resolves; at rest it is gone, so that the stage's
+	 * state is the same whatever motion came before */
+	for (int k = 0; k < 3 && b->vel[0] == 0 && b->vel[1] == 0 && b->vel[2] == 0; k++)
+		if (fabs(b->x[k] - b->cmd[k]) <= RING_NONE)
+			b->x[k] = b->cmd[k];
+	b->t = t;
+}
+
 void mock_bench_target(const struct mock_bench *b, double m[3])
 {
 	memcpy(m, b->cmd, 3 * sizeof(double));
 }
 
 /* ------------------------------------------------------------ physics */
+
+void mock_stage_settling(const struct mock_stage_params *sp, double *window, double *dwell)
+{
+	bool rings = sp->settle_time > 0;
+
+	*window = rings ? SETTLE_WINDOW : 0;
+	/* inside the window for a whole period of the ringing: a read-back
+	 * near one of its zero crossings does not pass for a settled stage */
+	*dwell = rings ? sp->settle_time * RING_PERIOD : 0;
+}
 
 void mock_drift(const struct mock_probe_params *pp, double t, double d[3])
 {
@@ -158,15 +216,44 @@ double mock_uniform(uint64_t seed, uint32_t kind, uint64_t index, uint32_t attem
 /* ------------------------------------------------------------- servo */
 
 /*
- * The axes after tau of piece p from x0: each follows its command through a
+ * The axes through piece p from x0: each follows its command through a
  * first-order loop, dx/dt = omega (c - x), so that at a steady speed v it
  * lags by v / omega, and by v / omega - a / omega^2 + ... in general. For a
  * cubic command the error e = c - x is a quadratic plus e^(-omega t) times
- * what it started with beyond it.
+ * what it started with beyond it. The quadratic and the start are the
+ * piece's, worked out once for all the instants taken in it.
  */
-static void servo(const struct mock_bench *b, const struct piece *p, const double x0[3],
-		  double tau, double x[3])
+struct servo_piece {
+	const struct piece *p;
+	double a[3][3];         /* per axis: the error's quadratic a0 + a1 tau + a2 tau^2 */
+	double e0[3];           /* the error at the start beyond it */
+};
+
+static void servo_start(const struct mock_bench *b, const struct piece *p, const double x0[3],
+			struct servo_piece *sp)
 {
+	double iw = b->inv_omega;
+
+	sp->p = p;
+	if (b->omega == 0)
+		return;
+	for (int k = 0; k < 3; k++) {
+		/* dc/dt = q0 + q1 tau + q2 tau^2 */
+		double q0 = p->c[1][k], q1 = 2 * p->c[2][k], q2 = 3 * p->c[3][k];
+		double a2 = q2 * iw, a1 = (q1 - 2 * a2) * iw, a0 = (q0 - a1) * iw;
+		sp->a[k][0] = a0;
+		sp->a[k][1] = a1;
+		sp->a[k][2] = a2;
+		sp->e0[k] = (p->c[0][k] - x0[k]) - a0;
+	}
+}
+
+/* The axes after tau of the piece. */
+static void servo(const struct mock_bench *b, const struct servo_piece *sp, double tau,
+		  double x[3])
+{
+	const struct piece *p = sp->p;
+
 	if (b->omega == 0) {
 		/* on the command; at a piece's end exactly where it ends */
 		for (int k = 0; k < 3; k++)
@@ -174,14 +261,11 @@ static void servo(const struct mock_bench *b, const struct piece *p, const doubl
 					   : p->c[0][k] + tau * (p->c[1][k] + tau * (p->c[2][k] + tau * p->c[3][k]));
 		return;
 	}
-	double w = b->omega, decay = exp(-w * tau);
+	double decay = exp(-b->omega * tau);
 	for (int k = 0; k < 3; k++) {
-		/* dc/dt = q0 + q1 tau + q2 tau^2 */
-		double q0 = p->c[1][k], q1 = 2 * p->c[2][k], q2 = 3 * p->c[3][k];
-		double a2 = q2 / w, a1 = (q1 - 2 * a2) / w, a0 = (q0 - a1) / w;
-		double e0 = p->c[0][k] - x0[k];
+		const double *a = sp->a[k];
 		double c = p->c[0][k] + tau * (p->c[1][k] + tau * (p->c[2][k] + tau * p->c[3][k]));
-		double e = a0 + tau * (a1 + tau * a2) + (e0 - a0) * decay;
+		double e = a[0] + tau * (a[1] + tau * a[2]) + sp->e0[k] * decay;
 		x[k] = c - e;
 	}
 }
@@ -189,7 +273,7 @@ static void servo(const struct mock_bench *b, const struct piece *p, const doubl
 static void ring_at(const struct mock_bench *b, double t, double r[3])
 {
 	r[0] = r[1] = r[2] = 0;
-	if (!b->ring.on || t < b->ring.t0)
+	if (!b->ring.on || t < b->ring.t0 || t >= b->ring.t_end)
 		return;
 	double s = t - b->ring.t0;
 	double f = exp(-s / b->ring.tau) * cos(2 * M_PI * s / b->ring.period);
@@ -281,6 +365,7 @@ static struct mock_trigger *push_trigger(struct mock_bench *b)
 {
 	if (b->trig_head + b->trig_n == b->trig_cap && b->trig_head > 0) {
 		memmove(b->trig, b->trig + b->trig_head, b->trig_n * sizeof(*b->trig));
+		b->trig_unsampled = b->trig_unsampled > b->trig_head ? b->trig_unsampled - b->trig_head : 0;
 		b->trig_head = 0;
 	}
 	if (grow((void **)&b->trig, &b->trig_cap, b->trig_head + b->trig_n + 1,
@@ -289,32 +374,45 @@ static struct mock_trigger *push_trigger(struct mock_bench *b)
 	return &b->trig[b->trig_head + b->trig_n++];
 }
 
-/* Samples of pending triggers that fall in [t0, t0 + p->d], from x0. */
-static void take_samples(struct mock_bench *b, const struct piece *p, double t0, const double x0[3])
+/* Samples of pending triggers that fall in [t0, t0 + p->d]. The samples
+ * lie in the order of their triggers: the search starts at the first one
+ * not taken and ends at the first one past the piece. */
+static void take_samples(struct mock_bench *b, const struct servo_piece *sp, double t0)
 {
-	for (size_t i = 0; i < b->trig_n; i++) {
-		struct mock_trigger *tr = &b->trig[b->trig_head + i];
+	const struct piece *p = sp->p;
+	size_t end = b->trig_head + b->trig_n;
+
+	if (b->trig_unsampled < b->trig_head)
+		b->trig_unsampled = b->trig_head;
+	for (size_t i = b->trig_unsampled; i < end; i++) {
+		struct mock_trigger *tr = &b->trig[i];
 		if (tr->sampled)
 			continue;
 		double tau = tr->sample.t - t0;
-		if (tau < 0 || tau > p->d)
+		if (tau > p->d)
+			break;
+		if (tau < 0)
 			continue;
 		double m[3];
-		servo(b, p, x0, tau, m);
+		servo(b, sp, tau, m);
 		cartesian(b, m, tr->sample.t, tr->sample.pos);
 		tr->sampled = true;
 	}
+	while (b->trig_unsampled < end && b->trig[b->trig_unsampled].sampled)
+		b->trig_unsampled++;
 }
 
-static int log_encoders(struct mock_bench *b, const struct piece *p, double t0, const double x0[3])
+static int log_encoders(struct mock_bench *b, const struct servo_piece *sp, double t0)
 {
+	const struct piece *p = sp->p;
+
 	if (b->sp.capture != MOCK_CAPTURE_SAMPLED || !b->probe)
 		return 0;
 	if (b->next_log < t0)
 		b->next_log = t0;
 	while (b->next_log <= t0 + p->d) {
 		double m[3], e[3];
-		servo(b, p, x0, b->next_log - t0, m);
+		servo(b, sp, b->next_log - t0, m);
 		encoders(b, m, b->next_log, e);
 		if (push_trace(b, b->next_log, e, ASPH_POSITION_READ_BACK, 0) < 0)
 			return -ENOMEM;
@@ -356,12 +454,12 @@ static int fire(struct mock_bench *b, struct asph_error *err)
 static int run(struct mock_bench *b, const struct piece *p, size_t n, struct asph_error *err)
 {
 	for (size_t i = 0; i < n; i++) {
-		double x1[3];
-		take_samples(b, &p[i], b->t, b->x);
-		if (log_encoders(b, &p[i], b->t, b->x) < 0)
+		struct servo_piece sp;
+		servo_start(b, &p[i], b->x, &sp);
+		take_samples(b, &sp, b->t);
+		if (log_encoders(b, &sp, b->t) < 0)
 			return asph_error_set(err, -ENOMEM, "out of memory");
-		servo(b, &p[i], b->x, p[i].d, x1);
-		memcpy(b->x, x1, sizeof(x1));
+		servo(b, &sp, p[i].d, b->x);
 		b->t += p[i].d;
 		if (p[i].trigger) {
 			int r = fire(b, err);
@@ -453,7 +551,9 @@ double mock_bench_move(struct mock_bench *b, const double target[3])
 			b->ring.on = true;
 			b->ring.t0 = b->t;
 			b->ring.tau = b->sp.settle_time / log(amp / RING_END);
-			b->ring.period = b->sp.settle_time / 4;
+			b->ring.period = b->sp.settle_time * RING_PERIOD;
+			b->ring.life = b->ring.tau * log(amp / RING_NONE);
+			b->ring.t_end = b->t + b->ring.life;
 			for (int k = 0; k < 3; k++)
 				b->ring.amp[k] = amp * mv.dir[k];
 		}
@@ -536,14 +636,15 @@ int mock_bench_sweep_pvt(struct mock_bench *b, const struct asph_pvt *k, size_t 
 			continue;
 		}
 		struct piece *q = &p[m++];
+		double id = 1 / dt;
 		q->d = dt;
 		q->trigger = k[i].trigger != 0;
 		for (int a = 0; a < 3; a++) {
 			double p0 = pos[a], p1 = k[i].position[a], v0 = vel[a], v1 = k[i].velocity[a];
 			q->c[0][a] = p0;
 			q->c[1][a] = v0;
-			q->c[2][a] = (3 * (p1 - p0) / dt - 2 * v0 - v1) / dt;
-			q->c[3][a] = (2 * (p0 - p1) / dt + v0 + v1) / (dt * dt);
+			q->c[2][a] = (3 * (p1 - p0) * id - 2 * v0 - v1) * id;
+			q->c[3][a] = (2 * (p0 - p1) * id + v0 + v1) * (id * id);
 			q->end[a] = p1;
 		}
 		memcpy(pos, k[i].position, sizeof(pos));
@@ -596,8 +697,10 @@ int mock_bench_take_triggers(struct mock_bench *b, size_t n, struct mock_trigger
 	memcpy(out, b->trig + b->trig_head, n * sizeof(*out));
 	b->trig_head += n;
 	b->trig_n -= n;
+	if (b->trig_unsampled < b->trig_head)
+		b->trig_unsampled = b->trig_head;
 	if (b->trig_n == 0)
-		b->trig_head = 0;
+		b->trig_head = b->trig_unsampled = 0;
 	return 0;
 }
 

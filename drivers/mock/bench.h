@@ -76,6 +76,9 @@ bool mock_bench_has_probe(const struct mock_bench *b);
 
 /* Simulated seconds since the bench was made. */
 double mock_bench_now(const struct mock_bench *b);
+/* The clock set to t, every state keeping its age; the axes at rest on
+ * their command once within RING_NONE of it. */
+void mock_bench_align(struct mock_bench *b, double t);
 /* Lets time pass at rest (the probe waiting for its sample). */
 void mock_bench_idle(struct mock_bench *b, double seconds);
 
@@ -122,6 +125,11 @@ void mock_bench_trigger_now(struct mock_bench *b, struct mock_trigger *out);
 size_t mock_bench_trace(struct mock_bench *b, struct asph_position_sample *out, size_t max);
 
 /* ------------------------------------------------------------ physics */
+
+/* The settling a stage with these parameters advises for step and
+ * measure (mm, s): when it rings after moves, 10 nm for a period of the
+ * ringing; else none (0). */
+void mock_stage_settling(const struct mock_stage_params *sp, double *window, double *dwell);
 
 /* The drift of the part against the probe at t: along x, y, z (mm). */
 void mock_drift(const struct mock_probe_params *pp, double t, double d[3]);

@@ -30,10 +30,12 @@ extern "C" {
  *   points to come (a backward pass from where the motion must be slow,
  *   a forward pass from where it is). The speed at a point is limited by
  *   the axes' speeds along the path, the probe's rate for the spacing, and
- *   the turn: the Hermite curve the stage follows there, whose acceleration
- *   and jerk grow as v^2 and v^3, may take 0.4 of each axis' limits; the
- *   acceleration along the path takes the other 0.6. The accelerations are
- *   then made jerk-limited by a moving average of the path parameter over
+ *   the turn: the Hermite curve the stage follows there (with the path's
+ *   direction at a point the bisector of its two segments' directions),
+ *   whose acceleration and jerk grow as v^2 and v^3, may take 0.4 of each
+ *   axis' acceleration and 0.25 of its jerk; the motion along the path
+ *   takes the other 0.6 and 0.75. The accelerations a are then made
+ *   jerk-limited by a moving average of the path parameter over
  *   T = 2 a / j, which bounds its jerk by j; a point's speed limit is
  *   the lowest within the average's reach, where a point at a distance d
  *   limits it to no less than d / (0.6 T) (at that speed the average

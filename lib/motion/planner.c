@@ -40,11 +40,17 @@
 
 #include "asph/motion.h"
 
-/* Shares of each axis' acceleration and jerk for the motion along the path
- * and for the turn of its direction; together they keep every axis inside
- * its limits. */
+/* Shares of each axis' acceleration and of its jerk for the motion along
+ * the path and for the turn of its direction; together they keep every
+ * axis inside its limits. The jerk's share along the path is the larger:
+ * it sets the moving average's width, which every change of speed pays
+ * (a turnaround twice), while a turn's jerk grows only as v^3 and binds at
+ * the short, sharp turns that are passed slowly anyway (bench-motion
+ * measured the shares). */
 #define TANGENTIAL 0.6
 #define CENTRIPETAL 0.4
+#define TANGENTIAL_JERK 0.75
+#define CENTRIPETAL_JERK 0.25
 
 /* Phases per segment: acceleration, cruise, deceleration. */
 #define PHASES_PER_NODE 3
@@ -295,7 +301,7 @@ int asph_motion_planner_start_path(struct asph_motion_planner *p, asph_motion_po
 	p->a_t = TANGENTIAL * a;
 	if (!isfinite(p->a_t) && isfinite(j))
 		p->a_t = sqrt(p->v_top * TANGENTIAL * j);  /* what a ramp to v_top peaks at */
-	p->T = isfinite(j) && isfinite(p->a_t) ? 2 * p->a_t / (TANGENTIAL * j) : 0;
+	p->T = isfinite(j) && isfinite(p->a_t) ? 2 * p->a_t / (TANGENTIAL_JERK * j) : 0;
 	p->d_stop = isfinite(p->a_t) ? p->v_top * p->v_top / (2 * p->a_t) : 0;
 	p->last_t = 0;
 	p->unrepaired = 0;
@@ -320,14 +326,28 @@ static bool filled_all(const struct asph_motion_planner *p)
 	return p->g_fill == p->n_nodes;
 }
 
-/* The unit direction of the path at node g: from its neighbours, once
- * they are in. */
+/*
+ * The unit direction of the path at node g, once its neighbours are in: the
+ * bisector of the directions of the segments before and after it. It
+ * splits a turn evenly between the two segments' shapes; the chord from
+ * neighbour to neighbour would lean to the longer segment and bend the
+ * shorter one hard (the short step between a raster's rows at a rim). On a
+ * smooth, evenly sampled path the two agree. A reversal onto itself, a
+ * point given twice and the ends take the chord.
+ */
 static void compute_tangent(struct asph_motion_planner *p, size_t g)
 {
-	const double *a = node_pos(p, g > 0 ? g - 1 : g);
+	const double *a = node_pos(p, g > 0 ? g - 1 : g), *c = node_pos(p, g);
 	const double *b = node_pos(p, g + 1 < p->n_nodes ? g + 1 : g);
-	double *u = p->tan3 + 3 * R(p, g);
+	double *u = p->tan3 + 3 * R(p, g), u0[3], u1[3], m[3];
+	static const double zero[3] = { 0, 0, 0 };
 
+	if (dist(a, c, u0) > 0 && dist(c, b, u1) > 0) {
+		for (int k = 0; k < 3; k++)
+			m[k] = u0[k] + u1[k];
+		if (dist(zero, m, u) > 1e-9)
+			return;
+	}
 	if (!(dist(a, b, u) > 0))
 		u[0] = u[1] = u[2] = 0;
 }
@@ -405,7 +425,7 @@ static double turn_limit(const struct asph_motion_planner *p, size_t g)
 	if (h > 0)
 		v = sqrt(CENTRIPETAL / h);
 	if (hj > 0)
-		v = fmin(v, cbrt(CENTRIPETAL / hj));
+		v = fmin(v, cbrt(CENTRIPETAL_JERK / hj));
 	return v;
 }
 

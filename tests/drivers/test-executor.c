@@ -17,6 +17,7 @@
 #include <unistd.h>
 
 #include <cmocka.h>
+#include <jansson.h>
 
 #include "asph/executor.h"
 #include "asph/fit.h"
@@ -654,6 +655,202 @@ static void test_recovery(void **state)
 	}
 }
 
+/* Every field of two points the same to the bit. */
+static void assert_same_point(const struct asph_scanfile_point *p, const struct asph_scanfile_point *q)
+{
+	assert_int_equal(p->plan_index, q->plan_index);
+	assert_int_equal(p->flags, q->flags);
+	assert_int_equal(p->t_ns, q->t_ns);
+	assert_int_equal(p->position_source, q->position_source);
+	assert_memory_equal(&p->x, &q->x, sizeof(double));
+	assert_memory_equal(&p->y, &q->y, sizeof(double));
+	assert_memory_equal(&p->z, &q->z, sizeof(double));
+	assert_memory_equal(&p->raw, &q->raw, sizeof(double));
+	assert_memory_equal(p->stage, q->stage, sizeof(p->stage));
+}
+
+/* A scan of the first n plan points with spec, going on with the scan at
+ * path when resume (from the point after its last, with what the file
+ * recovered, as asph scan --resume and asphd do), else into a new one;
+ * -errno of the scan. */
+static int scan_part(struct scan_fixture *e, const char *spec, size_t n, const char *path,
+		     bool stream, bool resume, uint64_t *start)
+{
+	struct asph_config *c;
+	struct asph_instrument *inst;
+	struct asph_scan *sc;
+	struct asph_scan_options so = { .flags = stream ? ASPH_SCAN_STREAM : 0 };
+	struct asph_scanfile *rec = NULL;
+	struct asph_scanfile_writer *w;
+
+	if (resume) {
+		/* as asph_scan_reopen() does after checking the header's plan */
+		struct asph_scanfile_writer_options wo = { .flags = ASPH_SCANFILE_REOPEN_ENDED };
+		assert_int_equal(asph_scanfile_writer_resume(path, &wo, &rec, &w, NULL), 0);
+		*start = 0;
+		for (size_t i = 0; i < rec->n; i++)
+			if (rec->points[i].plan_index + 1 > *start)
+				*start = rec->points[i].plan_index + 1;
+		so.start_index = *start;
+		so.recovered = rec;
+	} else {
+		w = new_writer(path);
+	}
+	assert_int_equal(asph_instrument_spec_parse(e->reg, spec, &c, NULL), 0);
+	assert_int_equal(asph_instrument_open(&c->instruments[0], 1000, &inst, NULL), 0);
+	assert_int_equal(asph_scan_new(inst, e->s, e->plan->xyz, n, &so, &sc, NULL), 0);
+	int r = asph_scan_run(sc, w, NULL);
+	asph_scan_free(sc);
+	asph_instrument_close(inst);
+	asph_config_free(c);
+	asph_scanfile_free(rec);
+	return r;
+}
+
+/* bench=realistic: a scan cut off by the probe and resumed with a fresh
+ * instrument equals the uninterrupted scan to the bit: points, measured
+ * positions, times and drift references. The resumed scan takes up the
+ * interrupted one's motion after its last round of references, with the
+ * clock that one had (streamed, the cut inside a sweep; and point by
+ * point). */
+static void test_resume_realistic(void **state)
+{
+	struct scan_fixture *e = *state;
+	static const struct {
+		bool stream;
+		size_t n;
+		unsigned cut;           /* readings before the probe fails */
+	} cases[] = { { true, 700, 430 }, { false, 60, 41 } };
+
+	for (size_t c = 0; c < sizeof(cases) / sizeof(cases[0]); c++) {
+		char whole[128], cut[128], spec[256];
+		const char *base = cases[c].stream ? "mock:time_factor=0,bench=realistic,noise=1.5,"
+						     "seed=909,drift_interval=150points"
+						   : "mock:time_factor=0,bench=realistic,noise=1.5,"
+						     "seed=909,drift_interval=15points";
+		uint64_t start = 0;
+
+		assert_int_equal(scan_part(e, base, cases[c].n, new_path(e, whole, sizeof(whole)),
+					   cases[c].stream, false, NULL), 0);
+		snprintf(spec, sizeof(spec), "%s,fail_after=%u", base, cases[c].cut);
+		assert_int_equal(scan_part(e, spec, cases[c].n, new_path(e, cut, sizeof(cut)),
+					   cases[c].stream, false, NULL), -ENODEV);
+		assert_int_equal(scan_part(e, base, cases[c].n, cut, cases[c].stream, true, &start), 0);
+		/* cut after a round of references and inside the points after it */
+		assert_true(start > 0 && start < cases[c].n);
+
+		struct asph_scanfile *a = read_scan(whole), *b = read_scan(cut);
+		assert_int_equal(b->report.outcome, ASPH_SCANFILE_COMPLETED);
+		assert_int_equal(b->report.n_resumes, 1);
+		assert_int_equal(a->n, cases[c].n);
+		assert_int_equal(a->n, b->n);
+		for (size_t i = 0; i < a->n; i++)
+			assert_same_point(&a->points[i], &b->points[i]);
+		assert_true(a->n_references >= 4);
+		assert_int_equal(a->n_references, b->n_references);
+		for (size_t i = 0; i < a->n_references; i++)
+			assert_same_point(&a->references[i], &b->references[i]);
+		/* the bench's following error and drift are in what is compared */
+		size_t latched = 0;
+		for (size_t i = 0; i < a->n; i++)
+			latched += a->points[i].position_source ==
+				   (cases[c].stream ? ASPH_POSITION_LATCHED : ASPH_POSITION_READ_BACK);
+		assert_int_equal(latched, a->n);
+		assert_true(a->references[a->n_references - 1].raw != a->references[0].raw);
+		asph_scanfile_free(a);
+		asph_scanfile_free(b);
+	}
+}
+
+/* --------------------------------------------------------- settling */
+
+/* The settling in effect for spec: the instrument's account of its
+ * acquisition (mm, s). */
+static void settling_of(const struct asph_instrument_config *ic, double *window, double *dwell)
+{
+	char *text;
+
+	assert_int_equal(asph_instrument_config_to_json(ic, &text), 0);
+	json_t *root = json_loads(text, 0, NULL);
+	assert_non_null(root);
+	json_t *acq = json_object_get(root, "acquisition");
+	*window = json_number_value(json_object_get(acq, "settle_window_um")) * 1e-3;
+	*dwell = json_number_value(json_object_get(acq, "settle_dwell_s"));
+	json_decref(root);
+	free(text);
+}
+
+/* Step and measure over the first n plan points; the largest distance of
+ * a point's read-back position from its target (mm). */
+static double settled_off(struct scan_fixture *e, const char *spec, size_t n, double *window,
+			  double *dwell)
+{
+	struct asph_config *c;
+	struct asph_instrument *inst;
+	struct asph_scan *sc;
+	struct asph_scan_options so = { 0 };
+	char path[128];
+
+	assert_int_equal(asph_instrument_spec_parse(e->reg, spec, &c, NULL), 0);
+	settling_of(&c->instruments[0], window, dwell);
+	assert_int_equal(asph_instrument_open(&c->instruments[0], 1000, &inst, NULL), 0);
+	double standoff = inst->probe_info.standoff;
+	assert_int_equal(asph_scan_new(inst, e->s, e->plan->xyz, n, &so, &sc, NULL), 0);
+	assert_int_equal(asph_scan_run(sc, new_writer(new_path(e, path, sizeof(path))), NULL), 0);
+	asph_scan_free(sc);
+	asph_instrument_close(inst);
+	asph_config_free(c);
+
+	struct asph_scanfile *f = read_scan(path);
+	double off = 0;
+	assert_int_equal(f->n, n);
+	for (size_t k = 0; k < f->n; k++) {
+		const struct asph_scanfile_point *p = &f->points[k];
+		const double *t = e->plan->xyz + 3 * p->plan_index;
+		assert_int_equal(p->position_source, ASPH_POSITION_READ_BACK);
+		off = fmax(off, hypot(hypot(p->stage[0] - t[0], p->stage[1] - t[1]),
+				      p->stage[2] - (t[2] - standoff)));
+	}
+	asph_scanfile_free(f);
+	return off;
+}
+
+/* bench=realistic's stage rings after a move and advises its settling: a
+ * window of 10 nm kept for a period of the ringing (settle_time / 4). It
+ * applies where the instrument sets none, and the points are read back
+ * within it; an instrument's own window and dwell win, and with a window
+ * of 1 um the readings are taken on the ringing. */
+static void test_settling_advised(void **state)
+{
+	struct scan_fixture *e = *state;
+	const size_t n = 40;
+	double window, dwell;
+
+	double off = settled_off(e, "mock:time_factor=0,bench=realistic,drift_interval=off", n,
+				 &window, &dwell);
+	assert_true(fabs(window - 1e-5) <= 1e-15);
+	assert_true(fabs(dwell - 0.02 / 4) <= 1e-15);
+	assert_true(off <= 1e-5);
+
+	off = settled_off(e, "mock:time_factor=0,bench=realistic,drift_interval=off,"
+			     "settle_window=1,settle_dwell=0", n, &window, &dwell);
+	assert_true(fabs(window - 1e-3) <= 1e-15);
+	assert_true(dwell == 0);
+	/* the ringing after a move at up to 20 mm/s starts at 1 um */
+	assert_true(off > 1e-4 && off <= 1e-3);
+
+	/* only the window given: the dwell stays the stage's */
+	settled_off(e, "mock:time_factor=0,bench=realistic,drift_interval=off,settle_window=0.5", 1,
+		    &window, &dwell);
+	assert_true(fabs(window - 5e-4) <= 1e-15);
+	assert_true(fabs(dwell - 0.005) <= 1e-15);
+
+	/* a stage that does not ring advises nothing: the defaults */
+	settled_off(e, "mock:time_factor=0,drift_interval=off", 1, &window, &dwell);
+	assert_true(fabs(window - 1e-3) <= 1e-15);
+	assert_true(dwell == 0);
+}
+
 /* ------------------------------------------------ resume and replay */
 
 static void assert_same_points(const struct asph_scanfile *a, const struct asph_scanfile *b)
@@ -862,6 +1059,8 @@ int main(void)
 		cmocka_unit_test(test_recovery),
 		cmocka_unit_test(test_tip_on_surface),
 		cmocka_unit_test(test_resume),
+		cmocka_unit_test(test_resume_realistic),
+		cmocka_unit_test(test_settling_advised),
 		cmocka_unit_test(test_reopen),
 		cmocka_unit_test(test_replay_identical),
 	};

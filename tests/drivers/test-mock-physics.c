@@ -394,6 +394,63 @@ static void test_settling(void **state)
 	vi_close(&m);
 }
 
+/* clock_align (driver ABI 1.2): the clock jumps, every state keeps its
+ * age. Two benches make the same move; one then has its clock set 7.25 s
+ * on. Their read-backs through the ringing agree to the rounding of times
+ * 7 s apart (1e-12 mm, the ringing's amplitude being 1e-3 mm), its clock
+ * goes on from the time set, and the drift follows that clock (closed
+ * form as in test_drift). */
+static void test_clock_align(void **state)
+{
+	const double r = 23.7, shift = 7.25;
+	const char *spec = "mock:time_factor=0,settle_time=0.03,servo_bandwidth=80,drift_z=23.7,rate=0.01";
+	struct vi a, b;
+	struct asph_probe_context ctx = { .kind = ASPH_MEASURE_REFERENCE };
+	struct asph_reading ra, rb;
+	uint64_t ta, tb, t;
+
+	vi_open(&a, spec);
+	vi_open(&b, spec);
+	move(&a, 0, 0, -2);
+	move(&a, 12, 3, -2);
+	move(&b, 0, 0, -2);
+	move(&b, 12, 3, -2);
+	assert_non_null(b.st->clock_align);
+	assert_int_equal(a.st->clock(a.inst->stage, &ta), 0);
+	assert_int_equal(b.st->clock(b.inst->stage, &tb), 0);
+	assert_int_equal(ta, tb);
+	uint64_t set = tb + (uint64_t)llround(shift * 1e9);
+	assert_int_equal(b.st->clock_align(b.inst->stage, set, NULL), 0);
+	assert_int_equal(b.st->clock(b.inst->stage, &t), 0);
+	assert_int_equal(t, set);
+	double first = 0;
+	for (int i = 0; i < 40; i++) {
+		double pa[3], pb[3];
+		assert_int_equal(a.st->position(a.inst->stage, pa, 100, NULL), 0);
+		assert_int_equal(b.st->position(b.inst->stage, pb, 100, NULL), 0);
+		for (int k = 0; k < 3; k++)
+			if (fabs(pa[k] - pb[k]) > 1e-12)
+				fail_msg("read-back %d, axis %d: %.17g and %.17g", i, k, pa[k], pb[k]);
+		if (i == 0)
+			first = fabs(pa[0] - 12);
+	}
+	/* the ringing and the servo's lag were there to compare */
+	assert_true(first > 1e-5);
+	assert_int_equal(b.st->clock(b.inst->stage, &t), 0);
+	assert_int_equal(a.st->clock(a.inst->stage, &ta), 0);
+	assert_true(fabs((double)(t - ta) * 1e-9 - shift) < 1e-6);
+	/* a reading: the drift at the clock set, not at the bench's age */
+	assert_int_equal(asph_instrument_read(a.inst, &ctx, &ra, 100, NULL), 0);
+	assert_int_equal(asph_instrument_read(b.inst, &ctx, &rb, 100, NULL), 0);
+	double sa = (double)ra.t_ns * 1e-9, sb = (double)rb.t_ns * 1e-9;
+	double da = r * 1e-6 / 60 * (sa + 60 * sin(2 * M_PI * sa / 1200));
+	double db = r * 1e-6 / 60 * (sb + 60 * sin(2 * M_PI * sb / 1200));
+	assert_true(fabs(sb - sa - shift) < 1e-6);
+	assert_true(fabs((rb.value - ra.value) - (db - da)) < 1e-13);
+	vi_close(&a);
+	vi_close(&b);
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -405,6 +462,7 @@ int main(void)
 		cmocka_unit_test(test_encoders_and_guides),
 		cmocka_unit_test(test_dropout),
 		cmocka_unit_test(test_settling),
+		cmocka_unit_test(test_clock_align),
 	};
 	return cmocka_run_group_tests(tests, strong_setup, strong_teardown);
 }

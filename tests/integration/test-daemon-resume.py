@@ -126,4 +126,43 @@ except Exception:
     raise
 finally:
     d.cleanup()
+
+# --- bench=realistic: the physics follows the simulated clock, which the
+# resumed scan takes up from the file, so a SIGKILL and job.resume still
+# give the uninterrupted result (test-executor compares the points bit for
+# bit; here the daemon's whole path)
+real = mock_instrument(bench="realistic", noise=1.5, **PART)
+real["stage"]["options"]["bench"] = "realistic"
+real["acquisition"] = {"drift_interval": "400points"}
+d = Daemon(instruments=[real])
+try:
+    d.start()
+    c = Client(d.socket)
+    ref = c.call("job.submit", SPEC)["id"]
+    poll_state(c, ref, ["completed", "failed"])
+    ref_res = c.call("job.result", {"id": ref})
+    tx = ref_res["summary"]["dof"]["tx"]
+    expect(abs(tx - 0.009) < 1e-5, f"realistic: the reference run finds the shift ({tx})")
+    job = c.call("job.submit", SPEC)["id"]
+    wait_points(c, job, 0.5)
+    c.close()
+    d.kill()
+    d.start()
+    c = Client(d.socket)
+    expect(c.call("job.get", {"id": job})["state"] == "interrupted", "realistic: interrupted by SIGKILL")
+    c.call("job.resume", {"id": job})
+    j = poll_state(c, job, ["completed", "failed"])
+    expect(j["state"] == "completed", "realistic: the resumed job completes")
+    res = c.call("job.result", {"id": job})
+    a, b = ref_res["summary"], res["summary"]
+    expect(a == b, f"realistic: the resumed result equals the uninterrupted one exactly "
+                   f"({same_summary(a, b)})")
+    expect(res["provenance"]["scan"]["resumes"] == 1, "realistic: one resumption")
+    c.close()
+    expect(d.stop() == 0, "realistic: clean stop")
+except Exception:
+    print(d.log_text())
+    raise
+finally:
+    d.cleanup()
 finish()

@@ -172,7 +172,7 @@ static void test_straight_line(void **state)
 {
 	/* a straight line: the trapezoid at the tangential share of the
 	 * acceleration (0.6 a), delayed by the moving average's width
-	 * T = 2 a_t / (0.6 j) */
+	 * T = 2 a_t / (0.75 j), the tangential share of the jerk */
 	const size_t n = 1201;
 	const double h = 0.0211, v = 17.3, a = 811, j = 37900;
 	double *pts = malloc(3 * n * sizeof(double));
@@ -186,7 +186,7 @@ static void test_straight_line(void **state)
 		pts[3 * i + 2] = 0;
 	}
 	struct asph_motion_knot *k = plan_all(pts, n, &lim, 0, &nk);
-	double at = 0.6 * a, T = 2 * at / (0.6 * j), len = h * (double)(n - 1);
+	double at = 0.6 * a, T = 2 * at / (0.75 * j), len = h * (double)(n - 1);
 	double want = len / v + v / at + T;
 	assert_int_equal(nk, n);
 	if (fabs(k[n - 1].t - want) > 1e-9 * want)
@@ -198,6 +198,38 @@ static void test_straight_line(void **state)
 	}
 	free(k);
 	free(pts);
+}
+
+static void test_corner_direction(void **state)
+{
+	/* a right-angle corner between a segment of 0.2 and one of 0.03: the
+	 * stage passes the corner along the bisector of the two directions,
+	 * (1, 1) / sqrt 2, whatever the segments' lengths; elsewhere on the
+	 * straight parts along the lines */
+	const double xs[] = { 0, 0.2, 0.4, 0.6, 0.8, 1.0, 1.0, 1.0, 1.0, 1.0 };
+	const double ys[] = { 0, 0, 0, 0, 0, 0, 0.03, 0.23, 0.43, 0.63 };
+	const size_t n = sizeof(xs) / sizeof(xs[0]), corner = 5;
+	struct asph_motion_limits lim = { { 20, 20, 20 }, { 1000, 1000, 1000 },
+					  { 5e4, 5e4, 5e4 }, 0 };
+	double pts[3 * 10];
+	size_t nk;
+
+	for (size_t i = 0; i < n; i++) {
+		pts[3 * i] = xs[i];
+		pts[3 * i + 1] = ys[i];
+		pts[3 * i + 2] = 0;
+	}
+	struct asph_motion_knot *k = plan_all(pts, n, &lim, 0, &nk);
+	assert_int_equal(nk, n);
+	const double *v = k[corner].velocity;
+	assert_true(v[0] > 0);
+	if (fabs(v[0] - v[1]) > 1e-12 * v[0] || v[2] != 0)
+		fail_msg("corner velocity (%.15g, %.15g, %.15g): not along (1, 1, 0)", v[0], v[1], v[2]);
+	for (size_t i = 1; i < corner; i++)
+		assert_true(fabs(k[i].velocity[1]) <= 1e-12 * fabs(k[i].velocity[0]));
+	for (size_t i = corner + 2; i + 1 < n; i++)
+		assert_true(fabs(k[i].velocity[0]) <= 1e-12 * fabs(k[i].velocity[1]));
+	free(k);
 }
 
 /* Samples the Hermite command between the knots: speed, acceleration and
@@ -457,6 +489,7 @@ int main(void)
 		cmocka_unit_test(test_move),
 		cmocka_unit_test(test_knot_cubic),
 		cmocka_unit_test(test_straight_line),
+		cmocka_unit_test(test_corner_direction),
 		cmocka_unit_test(test_spiral_limits),
 		cmocka_unit_test(test_window_independent),
 		cmocka_unit_test(test_corners),
