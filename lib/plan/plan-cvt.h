@@ -10,16 +10,19 @@
 
 struct plan_cvt_info {
 	int iterations;
-	double last_move;       /* the largest move of the last iteration / p */
-	size_t samples;
+	double last_move;       /* the largest distance of a moving site from its
+				 * cell's centroid at the end / the spacing */
+	size_t triangles;       /* the flat triangles the cells are cut from */
 };
 
 /*
- * Moves the n points xyz (on the surface, stride 3) to the centroids of
- * their Voronoi cells restricted to the surface, until none moves more than
- * 1e-3 p (at most 100 iterations); the points on the aperture's edge stay.
- * p: the plan's pitch (mm), which sets the samples' lattice. info may be
- * NULL. -EINVAL, -ENOMEM.
+ * Moves the n points xyz (on the surface, stride 3) until each is the
+ * centroid of its Voronoi cell restricted to the surface, to 1e-3 of the
+ * spacing sqrt(area / n) (at most 100 L-BFGS iterations on the CVT
+ * energy); the points on the aperture's edge stay. The points must follow
+ * the surface's area (the OT plan): their x-y Delaunay mesh, refined, is
+ * the surface's mesh for the cells. p: the plan's x-y pitch (mm), the cell
+ * of a bucket grid. info may be NULL. -EINVAL, -ENOMEM, -E2BIG.
  */
 int plan_cvt_relax(const struct asph_surface *s, double p, double *xyz, size_t n,
 		   struct plan_cvt_info *info, struct asph_error *err);

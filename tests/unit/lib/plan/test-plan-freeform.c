@@ -4,6 +4,7 @@
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
+#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -654,29 +655,35 @@ static void cell_centroid(const struct asph_surface *s, const struct asph_plan *
 
 /* The CVT plan is centroidal: every site away from the edge is within
  * 0.05 p of the centroid of its cell on the surface (checked by a sampling
- * of its own, on every 7th site; seen 0.02 to 0.03 p). Its triangles are
- * better shaped than those of OT, where it starts, on all five surfaces,
- * and than CI's on weak and strong (the fraction q > 0.9 in the conformal
- * chart, seen 0.89 and 0.87 against CI's 0.84 and 0.83), but not on
- * turning-point (0.72 against 0.83); and their areas vary more than CI's
- * (the interquartile range of A_i/mean is 0.057 on weak and strong, 0.135
- * on turning-point, against CI's 0.015 and 0.003): the tessellation's equal
- * cell areas do not make equal Delaunay triangles. 900 points; 500 under
- * valgrind (ASPH_UNDER_VALGRIND), where this test took half of the
- * program's two minutes (seen: centroids within 0.023 to 0.038 p, every
- * comparison holding). */
+ * of its own, on every 7th site; seen 0.003 to 0.03 p, the sampling's own
+ * error included). Its triangles are better shaped than those of OT, where
+ * it starts, on all five surfaces, and than CI's on the three paper lenses
+ * (the fraction q > 0.9 in the conformal chart, seen 0.98, 0.98 and 0.93
+ * against CI's 0.84, 0.83 and 0.83 at 900 points; 0.98 on both freeforms
+ * against OT's 0.78 and 0.80). The areas of its triangles are not more
+ * uniform than CI's or OT's (interquartile range of A_i/mean seen 0.06 to
+ * 0.08 against CI's 0.015 and 0.003, docs/sampling-plans.md): a CVT makes
+ * Voronoi cells of near-equal energy, not Delaunay triangles of equal area,
+ * so that criterion is not asserted. Under valgrind: two surfaces, 250
+ * points. */
 static void test_cvt(void **state)
 {
+	const bool scaled = getenv("ASPH_UNDER_VALGRIND") != NULL;
+	const char *names[5] = { "weak", "strong", "turning-point", "xy polynomial", "Zernike" };
 	struct asph_surface *s[5] = { preset("weak"), preset("strong"), preset("turning-point"),
 				      segment(), zernike_offset() };
-	const char *valgrind = getenv("ASPH_UNDER_VALGRIND");
-	const double points = valgrind && *valgrind && strcmp(valgrind, "0") ? 500 : 900;
 
+	if (scaled)
+		print_message("under valgrind: turning-point and the Zernike freeform, 250 points\n");
 	for (int i = 0; i < 5; i++) {
-		struct asph_plan_density d = { ASPH_DENSITY_POINTS, points };
+		struct asph_plan_density d = { ASPH_DENSITY_POINTS, scaled ? 250 : 900 };
 		struct asph_plan *cvt = NULL, *ot = NULL, *ci = NULL;
 		double R, centre[2], worst = 0;
 
+		if (scaled && i != 2 && i != 4) {
+			asph_surface_free(s[i]);
+			continue;
+		}
 		assert_int_equal(asph_plan_compute(s[i], ASPH_PLAN_CVT, d, 0, &cvt, NULL), 0);
 		assert_int_equal(asph_plan_compute(s[i], ASPH_PLAN_OT, d, 0, &ot, NULL), 0);
 		asph_surface_aperture_disk(s[i], centre, &R);
@@ -693,16 +700,19 @@ static void test_cvt(void **state)
 		}
 		struct asph_quality *a = quality_of(s[i], cvt, ASPH_CHART_CONFORMAL);
 		struct asph_quality *b = quality_of(s[i], ot, ASPH_CHART_CONFORMAL);
-		print_message("cvt %d: %zu points, centroid within %.3g p; q > 0.9 %.3f (ot %.3f), "
-			      "IQR of A_i/mean %.4f (ot %.4f)\n", i, cvt->n, worst, a->q_frac_gt_0_9,
-			      b->q_frac_gt_0_9, a->area_stats.p75 - a->area_stats.p25,
+		print_message("cvt %s: %zu points, centroid within %.3g p; q > 0.9 %.3f (ot %.3f), "
+			      "IQR of A_i/mean %.4f (ot %.4f)\n", names[i], cvt->n, worst,
+			      a->q_frac_gt_0_9, b->q_frac_gt_0_9,
+			      a->area_stats.p75 - a->area_stats.p25,
 			      b->area_stats.p75 - b->area_stats.p25);
 		assert_true(worst <= 0.05);
 		assert_true(a->q_frac_gt_0_9 > b->q_frac_gt_0_9);
 		asph_quality_free(b);
-		if (i < 2) {
+		if (i < 3) {
 			assert_int_equal(asph_plan_compute(s[i], ASPH_PLAN_CI, d, 0, &ci, NULL), 0);
 			b = quality_of(s[i], ci, ASPH_CHART_CONFORMAL);
+			print_message("  ci: q > 0.9 %.3f, IQR of A_i/mean %.4f\n", b->q_frac_gt_0_9,
+				      b->area_stats.p75 - b->area_stats.p25);
 			assert_true(a->q_frac_gt_0_9 > b->q_frac_gt_0_9);
 			asph_quality_free(b);
 			asph_plan_free(ci);
