@@ -152,10 +152,13 @@ static int integer(struct parser *ps, const struct words *w, int i, double lo, d
 	double x;
 	int r = number(ps, w, i, lo, hi, &x);
 
-	if (r == 0 && x != floor(x))
+	/* x is only set, and only fits an int, when number() took it */
+	if (r < 0)
+		return r;
+	if (x != floor(x))
 		return fail(ps, w->col[i], "'%s' is not a whole number", w->w[i]);
 	*out = (int)x;
-	return r;
+	return 0;
 }
 
 static int want(struct parser *ps, const struct words *w, int lo, int hi)

@@ -19,6 +19,7 @@
 #include <cmocka.h>
 
 #include "access.h"
+#include "rmtree.h"
 #include "tokens.h"
 #include "util-time.h"
 
@@ -229,11 +230,7 @@ static void test_named_tokens(void **state)
 	tokens_free(t);
 	access_free(a);
 	settings_free(s);
-	{
-		char cmd[128];
-		snprintf(cmd, sizeof(cmd), "rm -rf %s", dir);
-		assert_int_equal(system(cmd), 0);
-	}
+	assert_int_equal(rmtree(dir), 0);
 }
 
 int main(void)

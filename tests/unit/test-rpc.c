@@ -20,6 +20,7 @@
 
 #include "asph-proto.h"
 #include "log.h"
+#include "rmtree.h"
 #include "rpc.h"
 
 struct fixture {
@@ -84,7 +85,6 @@ static int setup(void **state)
 static int teardown(void **state)
 {
 	struct fixture *f = *state;
-	char cmd[128];
 
 	rpc_session_close(f->rpc, &f->root);
 	rpc_session_close(f->rpc, &f->reader);
@@ -95,8 +95,7 @@ static int teardown(void **state)
 	events_free(f->events);
 	settings_free(f->settings);
 	sd_event_unref(f->event);
-	snprintf(cmd, sizeof(cmd), "rm -rf '%s'", f->dir);
-	assert_int_equal(system(cmd), 0);
+	assert_int_equal(rmtree(f->dir), 0);
 	free(f);
 	return 0;
 }

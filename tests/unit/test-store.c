@@ -11,6 +11,7 @@
 
 #include <cmocka.h>
 
+#include "rmtree.h"
 #include "store.h"
 
 struct fixture {
@@ -36,11 +37,8 @@ static int setup(void **state)
 static int teardown(void **state)
 {
 	struct fixture *f = *state;
-	char cmd[160];
-
 	store_close(f->s);
-	snprintf(cmd, sizeof(cmd), "rm -rf %s", f->dir);
-	if (system(cmd) != 0)
+	if (rmtree(f->dir) < 0)
 		return -1;
 	free(f);
 	return 0;

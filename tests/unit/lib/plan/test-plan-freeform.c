@@ -535,17 +535,31 @@ static struct asph_quality *quality_of(const struct asph_surface *s, const struc
 }
 
 /* Triangles of a shared by b (as vertex sets; both CCW from the same
- * chart orientation, so a rotation of the three indices). */
+ * chart orientation, so a rotation of the three indices). Each of a's is
+ * looked for among b's triangles at its first vertex (b's triangles listed
+ * by vertex), not among all of b's: under valgrind the comparison of every
+ * pair took minutes. */
 static size_t shared_triangles(const struct asph_quality *a, const struct asph_quality *b)
 {
-	size_t same = 0;
+	size_t nv = 0, same = 0, *start, *at, *list;
 
+	for (size_t j = 0; j < 3 * b->n_triangles; j++)
+		nv = b->triangles[j] >= nv ? (size_t)b->triangles[j] + 1 : nv;
+	start = calloc(nv + 1, sizeof(*start));
+	at = calloc(nv + 1, sizeof(*at));
+	list = malloc((3 * b->n_triangles + 1) * sizeof(*list));
+	assert_true(start && at && list);
+	for (size_t j = 0; j < 3 * b->n_triangles; j++)
+		start[b->triangles[j] + 1]++;
+	for (size_t v = 0; v < nv; v++)
+		start[v + 1] += start[v];
+	memcpy(at, start, (nv + 1) * sizeof(*at));
+	for (size_t j = 0; j < 3 * b->n_triangles; j++)
+		list[at[b->triangles[j]]++] = j / 3;
 	for (size_t i = 0; i < a->n_triangles; i++) {
 		const uint32_t *u = a->triangles + 3 * i;
-		for (size_t j = 0; j < b->n_triangles; j++) {
-			const uint32_t *v = b->triangles + 3 * j;
-			if (v[0] != u[0] && v[1] != u[0] && v[2] != u[0])
-				continue;
+		for (size_t l = u[0] < nv ? start[u[0]] : 0; u[0] < nv && l < start[u[0] + 1]; l++) {
+			const uint32_t *v = b->triangles + 3 * list[l];
 			int k = v[0] == u[0] ? 0 : v[1] == u[0] ? 1 : 2;
 			if (v[(k + 1) % 3] == u[1] && v[(k + 2) % 3] == u[2]) {
 				same++;
@@ -553,6 +567,9 @@ static size_t shared_triangles(const struct asph_quality *a, const struct asph_q
 			}
 		}
 	}
+	free(list);
+	free(at);
+	free(start);
 	return same;
 }
 

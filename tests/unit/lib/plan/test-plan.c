@@ -3,6 +3,7 @@
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
+#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -33,6 +34,13 @@ static const char *const presets[N_PRESETS] = { "weak", "strong", "turning-point
 static double plan_h(enum asph_plan_method m)
 {
 	return m == ASPH_PLAN_CVT ? PLAN_H_CVT : PLAN_H;
+}
+
+/* Set by the test setups valgrind and valgrindpy (tests/meson.build). */
+static bool under_valgrind(void)
+{
+	const char *v = getenv("ASPH_UNDER_VALGRIND");
+	return v && *v && strcmp(v, "0") != 0;
 }
 
 struct fixture {
@@ -234,12 +242,15 @@ static void test_op_on_surface(void **state)
 	}
 }
 
-/* A(r) by composite 20-point Gauss-Legendre on 3000 panels, independent
- * of the surface's own tables. */
+/* A(r) by composite 20-point Gauss-Legendre on 300 panels, independent
+ * of the surface's own tables. The map is checked to 1e-12 against it:
+ * its worst residual on the three presets is rounding, 4e-14 on
+ * turning-point, the same with 100 or 3000 panels (3000, once used, made
+ * this test most of the program's time under valgrind). */
 static double area_quad(const struct asph_surface *s, double r)
 {
 	gsl_integration_glfixed_table *gl = gsl_integration_glfixed_table_alloc(20);
-	const int panels = 3000;
+	const int panels = 300;
 	double sum = 0;
 
 	for (int i = 0; i < panels; i++) {
@@ -426,13 +437,17 @@ static void test_no_folding(void **state)
 
 /* ---- density --------------------------------------------------------------- */
 
+/* 3137 points, a count no pattern meets by chance. CVT's Lloyd iterations
+ * at that count take most of this program's time under valgrind (two
+ * minutes), where CVT is asked for 800 points: the same resolution and
+ * plan code, which meets either count exactly. */
 static void test_density_points(void **state)
 {
 	struct fixture *f = *state;
 
 	for (int i = 0; i < N_PRESETS; i++) {
 		for (int m = 0; m < ASPH_PLAN_N_METHODS; m++) {
-			const double want = 3137;
+			const double want = m == ASPH_PLAN_CVT && under_valgrind() ? 800 : 3137;
 			size_t n;
 			double e;
 			assert_int_equal(asph_plan_resolve(f->s[i], (enum asph_plan_method)m,

@@ -16,6 +16,7 @@
 #include "asph/plot.h"
 #include "colormap.h"
 #include "plot-layout.h"
+#include "rmtree.h"
 
 #if HAVE_CAIRO
 #include <cairo.h>
@@ -36,10 +37,7 @@ static int setup_dir(void **state)
 
 static int remove_dir(void **state)
 {
-	char cmd[128];
-
-	snprintf(cmd, sizeof(cmd), "rm -rf '%s'", tmpdir);
-	return system(cmd) == 0 ? 0 : -1;
+	return rmtree(tmpdir);
 }
 
 static void png_path(char *buf, size_t size, const char *name)

@@ -12,6 +12,7 @@
 #include <cmocka.h>
 
 #include "asph/points.h"
+#include "rmtree.h"
 
 static char dir[] = "/tmp/asph-test-points-XXXXXX";
 
@@ -22,9 +23,7 @@ static int setup(void **state)
 
 static int teardown(void **state)
 {
-	char cmd[128];
-	snprintf(cmd, sizeof(cmd), "rm -rf '%s'", dir);
-	return system(cmd) == 0 ? 0 : -1;
+	return rmtree(dir);
 }
 
 static struct asph_points *sample(size_t n, int with_value, int with_mesh)

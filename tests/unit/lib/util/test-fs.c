@@ -21,6 +21,7 @@
 #include <cmocka.h>
 
 #include "util-fs.h"
+#include "rmtree.h"
 
 #define OTHER_UID 65534
 
@@ -45,11 +46,8 @@ static int setup(void **state)
 static int teardown(void **state)
 {
 	struct fixture *f = *state;
-	char cmd[128];
-
 	close(f->fd);
-	snprintf(cmd, sizeof(cmd), "rm -rf '%s'", f->dir);
-	assert_int_equal(system(cmd), 0);
+	assert_int_equal(rmtree(f->dir), 0);
 	free(f);
 	return 0;
 }
