@@ -2,8 +2,8 @@
 /*
  * The worker thread of one instrument. It owns the instrument's devices
  * while a job runs; the event loop only flips controls (under the lock)
- * and receives reports through the eventfd. worker() and what it calls
- * run on the worker thread; runner_new(), the controls and on_reports()
+ * and receives reports through a mailbox. worker() and what it calls
+ * run on the worker thread; runner_new(), the controls and on_report()
  * on the event loop thread.
  */
 #include <errno.h>
@@ -12,7 +12,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/eventfd.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -22,6 +21,7 @@
 #include "asph/prescription.h"
 #include "asph/scanfile.h"
 #include "log.h"
+#include "mailbox.h"
 #include "jobplan.h"
 #include "result.h"
 #include "runner.h"
@@ -35,8 +35,7 @@ struct runner {
 	struct asph_instrument_config *ic;    /* own's: its lens follows the job */
 	runner_report_fn fn;
 	void *data;
-	int efd;
-	sd_event_source *src;
+	struct mailbox *mailbox;        /* reports for the loop */
 	pthread_t thread;
 	bool thread_started;
 
@@ -47,8 +46,6 @@ struct runner {
 	bool running, quit;
 	bool want_pause, want_abort, want_stop;
 	struct asph_scan *scan;
-	struct runner_report *queue;    /* reports for the loop */
-	size_t n_queue, cap_queue;
 };
 
 void runner_job_free(struct runner_job *j)
@@ -66,53 +63,34 @@ void runner_job_free(struct runner_job *j)
 
 /* ------------------------------------------------------------ reports */
 
-static void post(struct runner *r, const struct runner_report *rep)
+static void post(struct runner *r, struct runner_report *rep)
 {
-	uint64_t one = 1;
-
-	pthread_mutex_lock(&r->lock);
-	/* Only the newest progress matters to the loop. */
-	if ((rep->kind == RUNNER_PROGRESS || rep->kind == RUNNER_UNCERTAINTY) && r->n_queue > 0 &&
-	    r->queue[r->n_queue - 1].kind == rep->kind) {
-		r->queue[r->n_queue - 1] = *rep;
-	} else {
-		if (r->n_queue == r->cap_queue) {
-			size_t cap = r->cap_queue ? 2 * r->cap_queue : 8;
-			struct runner_report *q = realloc(r->queue, cap * sizeof(*q));
-			if (!q) {
-				pthread_mutex_unlock(&r->lock);
-				free(rep->result);
-				return;
-			}
-			r->queue = q;
-			r->cap_queue = cap;
-		}
-		r->queue[r->n_queue++] = *rep;
-	}
-	pthread_mutex_unlock(&r->lock);
-	if (write(r->efd, &one, sizeof(one)) < 0 && errno != EAGAIN)
-		log_warning("eventfd: %s", strerror(errno));
+	/* When memory is out the report is lost (its result freed), as it
+	 * was when the loop could not hold it. */
+	mailbox_post(r->mailbox, rep);
 }
 
-static int on_reports(sd_event_source *s, int fd, uint32_t revents, void *data)
+static void on_report(void *msg, void *data)
 {
 	struct runner *r = data;
-	struct runner_report *q;
-	uint64_t v;
-	size_t n;
 
-	if (read(r->efd, &v, sizeof(v)) < 0 && errno != EAGAIN)
-		return 0;
-	pthread_mutex_lock(&r->lock);
-	q = r->queue;
-	n = r->n_queue;
-	r->queue = NULL;
-	r->n_queue = r->cap_queue = 0;
-	pthread_mutex_unlock(&r->lock);
-	for (size_t i = 0; i < n; i++)
-		r->fn(&q[i], r->data);
-	free(q);
-	return 0;
+	r->fn(msg, r->data);
+}
+
+/* Reports nobody will read: free what they own. */
+static void drop_report(void *msg, void *data)
+{
+	struct runner_report *rep = msg;
+
+	free(rep->result);
+}
+
+/* Only the newest progress matters to the loop. */
+static bool replaces(const void *last, const void *msg)
+{
+	const struct runner_report *a = last, *b = msg;
+
+	return (b->kind == RUNNER_PROGRESS || b->kind == RUNNER_UNCERTAINTY) && a->kind == b->kind;
 }
 
 static void on_progress(const struct asph_scan_progress *p, void *data)
@@ -389,7 +367,6 @@ int runner_new(const struct asph_instrument_config *instrument,
 
 	if (!r)
 		return -ENOMEM;
-	r->efd = -1;
 	pthread_mutex_init(&r->lock, NULL);
 	pthread_cond_init(&r->cond, NULL);
 	rc = asph_instrument_config_copy(instrument, &r->own, NULL);
@@ -400,13 +377,10 @@ int runner_new(const struct asph_instrument_config *instrument,
 	r->ic = &r->own->instruments[0];
 	r->fn = fn;
 	r->data = data;
-	r->efd = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
-	if (r->efd < 0) {
-		rc = -errno;
-		runner_free(r);
-		return rc;
-	}
-	rc = sd_event_add_io(event, &r->src, r->efd, EPOLLIN, on_reports, r);
+	rc = mailbox_new(&(struct mailbox_setup){
+			.event = event, .size = sizeof(struct runner_report),
+			.deliver = on_report, .drop = drop_report, .replaces = replaces,
+			.data = r }, &r->mailbox);
 	if (rc >= 0) {
 		rc = -pthread_create(&r->thread, NULL, worker, r);
 		r->thread_started = rc == 0;
@@ -431,14 +405,8 @@ void runner_free(struct runner *r)
 		pthread_mutex_unlock(&r->lock);
 		pthread_join(r->thread, NULL);
 	}
-	/* Reports nobody will read: free what they own. */
-	for (size_t i = 0; i < r->n_queue; i++)
-		free(r->queue[i].result);
-	free(r->queue);
+	mailbox_free(r->mailbox);
 	runner_job_free(r->job);
-	sd_event_source_disable_unref(r->src);
-	if (r->efd >= 0)
-		close(r->efd);
 	pthread_cond_destroy(&r->cond);
 	pthread_mutex_destroy(&r->lock);
 	asph_config_free(r->own);
