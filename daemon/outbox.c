@@ -424,16 +424,22 @@ void outbox_pump(struct outbox *o, enum outbox_sink_kind k)
 			  strerror(-r));
 }
 
+/* Item id is no longer the sink's to acknowledge. */
+static void forget_handed(struct sink_state *ss, int64_t id)
+{
+	for (unsigned i = 0; i < ss->n_handed; i++)
+		if (ss->handed[i] == id) {
+			ss->handed[i] = ss->handed[--ss->n_handed];
+			return;
+		}
+}
+
 void outbox_done(struct outbox *o, enum outbox_sink_kind k, int64_t id)
 {
 	struct sink_state *ss = &o->sinks[k];
 	int r;
 
-	for (unsigned i = 0; i < ss->n_handed; i++)
-		if (ss->handed[i] == id) {
-			ss->handed[i] = ss->handed[--ss->n_handed];
-			break;
-		}
+	forget_handed(ss, id);
 	r = store_outbox_remove(o->store, id);
 	if (r < 0)
 		log_warning("outbox: cannot delete message %" PRId64 " (%s): it will be sent "
@@ -446,11 +452,7 @@ void outbox_hold(struct outbox *o, enum outbox_sink_kind k, int64_t id, const ch
 	struct sink_state *ss = &o->sinks[k];
 	int r;
 
-	for (unsigned i = 0; i < ss->n_handed; i++)
-		if (ss->handed[i] == id) {
-			ss->handed[i] = ss->handed[--ss->n_handed];
-			break;
-		}
+	forget_handed(ss, id);
 	r = store_outbox_move(o->store, id, held_names[k]);
 	if (r < 0)
 		log_error("%s: message %" PRId64 " refused (%s), and it cannot be set aside (%s): "

@@ -33,6 +33,7 @@
 #include "asph/plan.h"
 #include "asph/prescription.h"
 #include "can-sim.h"
+#include "scan-fixture.h"
 #include "can/bus.h"
 
 extern const struct asph_driver can_driver;
@@ -1296,34 +1297,7 @@ static void test_sweep_faults(void **state)
 
 /* ------------------------------------------------- end to end */
 
-struct scan_env {
-	struct asph_registry *reg;
-	struct asph_surface *s;
-	struct asph_plan *plan;
-	char dir[64];
-};
-
-static void fit_file(struct scan_env *e, const char *path, struct asph_fit_result *res)
-{
-	struct asph_scanfile *sf;
-	struct asph_points *pts;
-	struct asph_fit *w;
-	struct asph_error err;
-	struct asph_fit_options fo = { .dof = ASPH_FIT_DOF_RIGID };
-
-	if (asph_scanfile_read(path, &sf, &err) < 0)
-		fail_msg("%s: %s", path, err.message);
-	assert_int_equal(sf->n, e->plan->n);
-	assert_int_equal(asph_scanfile_to_points(sf, 0, &pts, NULL), 0);
-	assert_int_equal(asph_fit_alloc(e->s, pts->n, &fo, &w, NULL), 0);
-	if (asph_fit_run(w, pts->xyz, pts->n, res, &err) < 0)
-		fail_msg("fit: %s", err.message);
-	asph_fit_free(w);
-	asph_points_free(pts);
-	asph_scanfile_free(sf);
-}
-
-static void scan_config_opts(struct scan_env *e, const char *json, const char *path,
+static void scan_config_opts(struct scan_fixture *e, const char *json, const char *path,
 			     const struct asph_scan_options *so)
 {
 	struct asph_config *c = NULL;
@@ -1346,7 +1320,7 @@ static void scan_config_opts(struct scan_env *e, const char *json, const char *p
 	asph_config_free(c);
 }
 
-static void scan_config(struct scan_env *e, const char *json, const char *path)
+static void scan_config(struct scan_fixture *e, const char *json, const char *path)
 {
 	scan_config_opts(e, json, path, NULL);
 }
@@ -1357,23 +1331,15 @@ static void test_scan_end_to_end(void **state)
 		"\"probe\": {\"driver\": \"mock\", \"options\": {\"time_factor\": 0, "
 		"\"shift_x\": 0.0371, \"shift_y\": -0.0213, \"shift_z\": 0.0119, "
 		"\"tilt_x\": 231.7, \"tilt_y\": -148.3, \"form\": \"5:41.3;9:-23.7\"}}";
-	struct scan_env e = { 0 };
-	struct asph_prescription p;
+	struct scan_fixture e;
 	struct can_sim_config sc;
 	struct can_sim *sim;
 	char json[1024], can_path[128], mock_path[128];
 	int sv[2];
 
-	assert_int_equal(asph_registry_new(&e.reg, NULL), 0);
-	assert_int_equal(asph_prescription_preset("strong", &p), 0);
-	assert_int_equal(asph_surface_alloc(&p, &e.s, NULL), 0);
-	struct asph_plan_density d = { ASPH_DENSITY_POINTS, 300 };
-	struct asph_plan_options po = { .flags = ASPH_PLAN_NO_MESH };
-	assert_int_equal(asph_plan_compute_opts(e.s, ASPH_PLAN_FERMAT, d, &po, &e.plan, NULL), 0);
-	snprintf(e.dir, sizeof(e.dir), "/tmp/asph-test-can-XXXXXX");
-	assert_non_null(mkdtemp(e.dir));
-	snprintf(can_path, sizeof(can_path), "%s/can.asph", e.dir);
-	snprintf(mock_path, sizeof(mock_path), "%s/mock.asph", e.dir);
+	scan_fixture_init(&e, 300, "can");
+	new_path(&e, can_path, sizeof(can_path));
+	new_path(&e, mock_path, sizeof(mock_path));
 
 	sim_config(&sc, 0);
 	assert_int_equal(socketpair(AF_UNIX, SOCK_SEQPACKET | SOCK_CLOEXEC, 0, sv), 0);
@@ -1419,8 +1385,8 @@ static void test_scan_end_to_end(void **state)
 	 * position the stage reports, which the drives' counts quantize): the
 	 * same pose and form error */
 	struct asph_fit_result a, b;
-	fit_file(&e, can_path, &a);
-	fit_file(&e, mock_path, &b);
+	fixture_fit_rigid(&e, can_path, e.plan->n, &a);
+	fixture_fit_rigid(&e, mock_path, e.plan->n, &b);
 	for (int k = 0; k < 3; k++)
 		if (fabs(a.value[ASPH_FIT_TX + k] - b.value[ASPH_FIT_TX + k]) > 1e-9)
 			fail_msg("t%d: %.12g vs %.12g", k, a.value[ASPH_FIT_TX + k], b.value[ASPH_FIT_TX + k]);
@@ -1431,12 +1397,7 @@ static void test_scan_end_to_end(void **state)
 	assert_true(fabs(a.zernike[8].v - b.zernike[8].v) < 0.01);
 	assert_true(fabs(a.rms.v - b.rms.v) < 0.01);
 
-	unlink(can_path);
-	unlink(mock_path);
-	rmdir(e.dir);
-	asph_plan_free(e.plan);
-	asph_surface_free(e.s);
-	asph_registry_free(e.reg);
+	scan_fixture_fini(&e);
 }
 
 /* A streamed scan: every point on the position the drives latched at its
@@ -1447,21 +1408,13 @@ static void test_scan_streamed(void **state)
 	static const char probe[] =
 		"\"probe\": {\"driver\": \"mock\", \"options\": {\"time_factor\": 0, "
 		"\"rate\": 100000}}";
-	struct scan_env e = { 0 };
-	struct asph_prescription p;
+	struct scan_fixture e;
 	struct asph_scan_options so = { .flags = ASPH_SCAN_STREAM };
 	char json[1024], path[128];
 
-	assert_int_equal(asph_registry_new(&e.reg, NULL), 0);
-	assert_int_equal(asph_prescription_preset("strong", &p), 0);
-	assert_int_equal(asph_surface_alloc(&p, &e.s, NULL), 0);
-	struct asph_plan_density d = { ASPH_DENSITY_POINTS, 40 };
-	struct asph_plan_options po = { .flags = ASPH_PLAN_NO_MESH };
-	assert_int_equal(asph_plan_compute_opts(e.s, ASPH_PLAN_FERMAT, d, &po, &e.plan, NULL), 0);
-	snprintf(e.dir, sizeof(e.dir), "/tmp/asph-test-can-XXXXXX");
-	assert_non_null(mkdtemp(e.dir));
-	snprintf(path, sizeof(path), "%s/stream.asph", e.dir);
+	scan_fixture_init(&e, 40, "can");
 	for (int pass = 0; pass < 2; pass++) {
+		new_path(&e, path, sizeof(path));
 		struct can_sim_config sc;
 		struct can_sim *sim;
 		int sv[2];
@@ -1520,12 +1473,8 @@ static void test_scan_streamed(void **state)
 			assert_int_equal(interpolated + commanded, rec->n);
 		}
 		asph_scanfile_free(rec);
-		unlink(path);
 	}
-	rmdir(e.dir);
-	asph_plan_free(e.plan);
-	asph_surface_free(e.s);
-	asph_registry_free(e.reg);
+	scan_fixture_fini(&e);
 }
 
 int main(void)

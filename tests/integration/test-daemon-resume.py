@@ -40,23 +40,35 @@ def same_summary(a, b):
     return None
 
 
+def reference_run(c, what):
+    """An uninterrupted run of SPEC: its result, which found the shift."""
+    ref = c.call("job.submit", SPEC)["id"]
+    poll_state(c, ref, ["completed", "failed"])
+    res = c.call("job.result", {"id": ref})
+    tx = res["summary"]["dof"]["tx"]
+    expect(abs(tx - 0.009) < 1e-5, f"{what}the reference run finds the shift ({tx})")
+    return res
+
+
+def kill_mid_scan(d, c, fraction):
+    """A job of SPEC, asphd SIGKILLed once fraction of its points are in and
+    started again: the job's id and a client of the new daemon."""
+    job = c.call("job.submit", SPEC)["id"]
+    wait_points(c, job, fraction)
+    c.close()
+    d.kill()
+    d.start()
+    return job, Client(d.socket)
+
+
 d = Daemon(instruments=[mock_instrument(**PART)])
 try:
     d.start()
     c = Client(d.socket)
-    ref = c.call("job.submit", SPEC)["id"]
-    poll_state(c, ref, ["completed", "failed"])
-    ref_res = c.call("job.result", {"id": ref})
-    tx = ref_res["summary"]["dof"]["tx"]
-    expect(abs(tx - 0.009) < 1e-5, f"the reference run finds the shift ({tx})")
+    ref_res = reference_run(c, "")
 
     # --- SIGKILL in the middle of a scan
-    job = c.call("job.submit", SPEC)["id"]
-    wait_points(c, job, 0.4)
-    c.close()
-    d.kill()
-    d.start()
-    c = Client(d.socket)
+    job, c = kill_mid_scan(d, c, 0.4)
     j = c.call("job.get", {"id": job})
     expect(j["state"] == "interrupted" and j["resumable"], "after SIGKILL the job is interrupted and resumable")
     expect("stopped" in (j["reason"] or ""), f"with a reason ({j['reason']})")
@@ -138,17 +150,8 @@ d = Daemon(instruments=[real])
 try:
     d.start()
     c = Client(d.socket)
-    ref = c.call("job.submit", SPEC)["id"]
-    poll_state(c, ref, ["completed", "failed"])
-    ref_res = c.call("job.result", {"id": ref})
-    tx = ref_res["summary"]["dof"]["tx"]
-    expect(abs(tx - 0.009) < 1e-5, f"realistic: the reference run finds the shift ({tx})")
-    job = c.call("job.submit", SPEC)["id"]
-    wait_points(c, job, 0.5)
-    c.close()
-    d.kill()
-    d.start()
-    c = Client(d.socket)
+    ref_res = reference_run(c, "realistic: ")
+    job, c = kill_mid_scan(d, c, 0.5)
     expect(c.call("job.get", {"id": job})["state"] == "interrupted", "realistic: interrupted by SIGKILL")
     c.call("job.resume", {"id": job})
     j = poll_state(c, job, ["completed", "failed"])
