@@ -261,6 +261,18 @@ static struct worst sample_knots(const struct asph_motion_knot *k, size_t n,
 	return w;
 }
 
+/* The command between knots is a Hermite curve, not the planner's own
+ * profile: a few per cent over on acceleration and jerk. */
+static void assert_within_limits(const struct asph_motion_knot *k, size_t n,
+				 const struct asph_motion_limits *lim)
+{
+	struct worst w = sample_knots(k, n, lim);
+
+	if (w.v > 1.005 || w.a > 1.05 || w.j > 1.3 || w.dt < 1 - 1e-9)
+		fail_msg("worst ratios: speed %.4f accel %.4f jerk %.4f, point spacing in time * rate %.4f",
+			 w.v, w.a, w.j, w.dt);
+}
+
 /* An Archimedean spiral in x, y with z following a sag, as a circle
  * involute plan and a streamed scan have it. */
 static double *spiral(size_t n, double pitch, double step)
@@ -289,12 +301,7 @@ static void test_spiral_limits(void **state)
 	struct asph_motion_knot *k = plan_all(pts, n, &lim, 0, &nk);
 
 	assert_int_equal(nk, n);
-	struct worst w = sample_knots(k, n, &lim);
-	/* the command between knots is a Hermite curve, not the planner's own
-	 * profile: a few per cent over on acceleration and jerk */
-	if (w.v > 1.005 || w.a > 1.05 || w.j > 1.3 || w.dt < 1 - 1e-9)
-		fail_msg("worst ratios: speed %.4f accel %.4f jerk %.4f, point spacing in time * rate %.4f",
-			 w.v, w.a, w.j, w.dt);
+	assert_within_limits(k, n, &lim);
 	/* it moves at the speed limit on most of the way: at least 20 mm/s
 	 * along x or y somewhere */
 	double vmax = 0;
@@ -388,10 +395,7 @@ static void test_raster_turnarounds(void **state)
 		}
 	struct asph_motion_knot *k = plan_all(pts, n, &lim, 0, &nk);
 	assert_int_equal(nk, n);
-	struct worst w = sample_knots(k, n, &lim);
-	if (w.v > 1.005 || w.a > 1.05 || w.j > 1.3 || w.dt < 1 - 1e-9)
-		fail_msg("worst ratios: speed %.4f accel %.4f jerk %.4f, point spacing in time * rate %.4f",
-			 w.v, w.a, w.j, w.dt);
+	assert_within_limits(k, n, &lim);
 	/* each turnaround reverses the x velocity: between the knots two
 	 * points before the row's end and two after the next row's start no
 	 * faster than the S-curve that takes the x axis from +vx to -vx
