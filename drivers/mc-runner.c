@@ -66,6 +66,8 @@ static void *worker_main(void *data)
  * cancelled, else 0. */
 static int run_block(struct pool *p, size_t end, const struct asph_mc_threads *o)
 {
+	size_t told = (size_t)-1;
+
 	pthread_mutex_lock(&p->lock);
 	p->end = end;
 	pthread_cond_broadcast(&p->work);
@@ -77,12 +79,18 @@ static int run_block(struct pool *p, size_t end, const struct asph_mc_threads *o
 			pthread_mutex_unlock(&p->lock);
 			int stop = o->progress(o->progress_data, done, end);
 			pthread_mutex_lock(&p->lock);
+			told = done;
 			if (stop)
 				p->cancel = 1;
 		}
 	}
+	/* The last trials may have finished while the callback ran: the last
+	 * count is always told. */
+	size_t done = p->finished;
 	int cancelled = p->cancel;
 	pthread_mutex_unlock(&p->lock);
+	if (o->progress && !cancelled && told != done)
+		o->progress(o->progress_data, done, end);
 	return cancelled;
 }
 
