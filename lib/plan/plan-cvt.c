@@ -33,6 +33,7 @@
 #include <string.h>
 
 #include "asph/delaunay.h"
+#include "plan-aperture.h"
 #include "plan-cvt.h"
 #include "util-mem.h"
 
@@ -750,5 +751,298 @@ int plan_cvt_relax(const struct asph_surface *s, double p, double *xyz, size_t n
 	if (r < 0)
 		return asph_error_set(err, r, "cvt: %s", r == -ENOMEM ? "out of memory" :
 							 "a site left the aperture");
+	return 0;
+}
+
+/* ---- the starting sites --------------------------------------------------- */
+
+/* The aperture's outline as a fine closed polygon: its length in x-y and
+ * lifted onto the surface. The edge's
+ * parameter puts a rectangle's corners at multiples of 1/4, which the
+ * polygon has as vertices. */
+#define CVT_OUTLINE_STEPS 4096
+
+static void outline_measure(const struct asph_surface *s, double *len_xy, double *len_3d)
+{
+	double p[2], q[2], dp[2], zp, zq;
+
+	*len_xy = *len_3d = 0;
+	asph_surface_aperture_edge(s, 0, p, dp);
+	zp = asph_surface_sag_xy(s, p[0], p[1]);
+	for (int k = 1; k <= CVT_OUTLINE_STEPS; k++) {
+		asph_surface_aperture_edge(s, (double)(k % CVT_OUTLINE_STEPS) / CVT_OUTLINE_STEPS,
+					   q, dp);
+		zq = asph_surface_sag_xy(s, q[0], q[1]);
+		*len_xy += hypot(q[0] - p[0], q[1] - p[1]);
+		*len_3d += sqrt(pow(q[0] - p[0], 2) + pow(q[1] - p[1], 2) + pow(zq - zp, 2));
+		p[0] = q[0];
+		p[1] = q[1];
+		zp = zq;
+	}
+}
+
+double plan_cvt_edge_step(const struct asph_surface *s, size_t n)
+{
+	double len_xy, len_3d;
+	double step = sqrt(2.0 * asph_surface_total_area(s) / (sqrt(3.0) * (double)n));
+
+	outline_measure(s, &len_xy, &len_3d);
+	double m = fmax(3.0, round(len_3d / step));
+	/* the x-y step that divides the outline into m samples, a hair
+	 * longer than the exact quotient so that rounding cannot add one;
+	 * longer still where so few sites would leave none inside */
+	double edge_step = len_xy / m * (1 + 1e-12);
+	while (plan_outline_count(s, edge_step) + 1 > n && plan_outline_count(s, edge_step) > 4)
+		edge_step *= 1.01;
+	return edge_step;
+}
+
+/* A hexagonal lattice point (x, y) with its depth inside the aperture
+ * (found to 1e-6 of the step) and its place on the spiral. */
+struct seed_point {
+	double x, y, depth, key;
+};
+
+static int by_depth(const void *a, const void *b)
+{
+	const struct seed_point *u = a, *v = b;
+
+	if (u->depth != v->depth)
+		return u->depth > v->depth ? -1 : 1;
+	return u->key < v->key ? -1 : u->key > v->key;
+}
+
+static int by_key(const void *a, const void *b)
+{
+	const struct seed_point *u = a, *v = b;
+
+	return u->key < v->key ? -1 : u->key > v->key;
+}
+
+static double depth_inside(const struct asph_surface *s, double x, double y, double reach,
+			   double resolution)
+{
+	double lo = 0, hi = reach;
+
+	if (!asph_surface_contains(s, x, y, 0))
+		return -1;
+	while (hi - lo > resolution) {
+		double mid = 0.5 * (lo + hi);
+		if (asph_surface_contains(s, x, y, -mid))
+			lo = mid;
+		else
+			hi = mid;
+	}
+	return lo;
+}
+
+/* The position of (x, y) along the Archimedean spiral of turn spacing
+ * `turn` about c: the turn it lies in, plus the fraction of a turn. */
+static double spiral_key(double x, double y, const double c[2], double turn)
+{
+	double th = atan2(y - c[1], x - c[0]);
+	double f = (th < 0 ? th + 2 * M_PI : th) / (2 * M_PI);
+
+	return floor(hypot(x - c[0], y - c[1]) / turn - f + 0.5) + f;
+}
+
+int plan_cvt_seed(const struct asph_surface *s, size_t n, double *xyz, struct asph_error *err)
+{
+	double c[2], R, box[4], area_xy = asph_surface_projected_area(s);
+	double edge_step = plan_cvt_edge_step(s, n);
+	size_t n_edge = plan_outline_count(s, edge_step);
+
+	asph_surface_aperture_disk(s, c, &R);
+	asph_surface_bounds(s, box);
+	if (n_edge + 1 > n)
+		return asph_error_set(err, -EINVAL, "cvt: %zu points do not fill the aperture", n);
+	/* the lattice of the OT map's source: one site per (sqrt 3 / 2) h^2 */
+	double h = sqrt(2.0 * area_xy / (sqrt(3.0) * (double)n)), row = 0.5 * sqrt(3.0) * h;
+	long nj = (long)ceil((box[3] - box[2]) / (2 * row)) + 1;
+	long ni = (long)ceil((box[1] - box[0]) / (2 * h)) + 2;
+	size_t cap = (size_t)(2 * ni + 1) * (size_t)(2 * nj + 1), m = 0;
+	_cleanup_free_ struct seed_point *pts = malloc(cap * sizeof(*pts));
+	struct plan_points edge = { 0 };
+
+	if (!pts)
+		return asph_error_set(err, -ENOMEM, "cvt: out of memory (%zu points)", n);
+	for (long j = -nj; j <= nj; j++)
+		for (long i = -ni; i <= ni; i++) {
+			/* rows alternate by half a step, so that the site at the
+			 * aperture's centre has six neighbours at h */
+			double x = c[0] + ((double)i + 0.5 * (double)(j & 1)) * h;
+			double y = c[1] + (double)j * row;
+			double d = depth_inside(s, x, y, R, 1e-6 * h);
+			if (d < 0)
+				continue;
+			pts[m++] = (struct seed_point){ x, y, d, spiral_key(x, y, c, row) };
+		}
+	if (m < n - n_edge)
+		return asph_error_set(err, -EINVAL, "cvt: %zu points do not fill the aperture", n);
+	/* the deepest sites inside, then the outline at the lattice's step */
+	qsort(pts, m, sizeof(*pts), by_depth);
+	qsort(pts, n - n_edge, sizeof(*pts), by_key);
+	for (size_t k = 0; k < n - n_edge; k++) {
+		xyz[3 * k] = pts[k].x;
+		xyz[3 * k + 1] = pts[k].y;
+		xyz[3 * k + 2] = hypot(pts[k].x - c[0], pts[k].y - c[1]);
+	}
+	const double *last = xyz + 3 * (n - n_edge - 1);
+	if (plan_outline_append(s, edge_step, last[0], last[1], &edge) < 0 || edge.n != n_edge) {
+		plan_points_clear(&edge);
+		return asph_error_set(err, -ENOMEM, "cvt: out of memory (%zu points)", n);
+	}
+	for (size_t k = 0; k < n_edge; k++) {
+		double *q = xyz + 3 * (n - n_edge + k);
+		q[0] = edge.xyz[3 * k];
+		q[1] = edge.xyz[3 * k + 1];
+		q[2] = R;
+	}
+	plan_points_clear(&edge);
+	return 0;
+}
+
+/* The distance from the aperture's centre on the surface: along the
+ * meridian on a surface of revolution, the 3-D chord from the point above
+ * the centre on a freeform. */
+static double surface_radius(const struct asph_surface *s, const double c[3], const double *q)
+{
+	if (asph_surface_is_rotational(s))
+		return asph_surface_arc_length(s, hypot(q[0], q[1]));
+	return sqrt(dist2(c, q));
+}
+
+/* The cheapest place for site p in the list (next/prev, SIZE_MAX at the
+ * ends) beside one of its listed neighbours; SIZE_MAX if it has none.
+ * *before: p goes before the site returned, else after it. */
+static size_t cheapest_place(const struct buckets *b, const double *xyz, const size_t *next,
+			     const size_t *prev, const bool *listed, size_t p, double reach,
+			     bool *before)
+{
+	const double *q = xyz + 3 * p;
+	int cx = bucket_of(b, q[0], b->x0, b->nx), cy = bucket_of(b, q[1], b->y0, b->ny);
+	size_t best = SIZE_MAX;
+	double cost = INFINITY;
+
+	for (int j = cy - 2; j <= cy + 2; j++)
+		for (int i = cx - 2; i <= cx + 2; i++) {
+			if (i < 0 || j < 0 || i >= b->nx || j >= b->ny)
+				continue;
+			size_t bk = (size_t)j * (size_t)b->nx + (size_t)i;
+			for (size_t t = b->start[bk]; t < b->start[bk + 1]; t++) {
+				size_t k = b->index[t];
+				if (!listed[k] || dist2(q, xyz + 3 * k) > 4 * reach * reach)
+					continue;
+				double dk = sqrt(dist2(q, xyz + 3 * k));
+				for (int side = 0; side < 2; side++) {
+					size_t o = side ? prev[k] : next[k];
+					/* the path grows at its tail, so that it ends
+					 * where the spiral does */
+					double c = o == SIZE_MAX ? (side ? dk : dk - reach) :
+						   dk + sqrt(dist2(q, xyz + 3 * o)) -
+						   sqrt(dist2(xyz + 3 * k, xyz + 3 * o));
+					if (c < cost) {
+						cost = c;
+						best = k;
+						*before = side;
+					}
+				}
+			}
+		}
+	return best;
+}
+
+/* The path through the n sites taken in the order given (walk, which it
+ * overwrites), each put where it lengthens the path least beside one of
+ * its neighbours already on it, or after the last. */
+static int path_by_insertion(const struct buckets *b, const double *xyz, size_t *walk, size_t n,
+			     double reach)
+{
+	_cleanup_free_ size_t *next = malloc(n * sizeof(size_t)), *prev = malloc(n * sizeof(size_t));
+	_cleanup_free_ bool *listed = calloc(n, sizeof(bool));
+	size_t head = walk[0], tail = walk[0];
+
+	if (!next || !prev || !listed)
+		return -ENOMEM;
+	next[head] = prev[head] = SIZE_MAX;
+	listed[head] = true;
+	for (size_t k = 1; k < n; k++) {
+		size_t p = walk[k];
+		bool before = false;
+		size_t at = cheapest_place(b, xyz, next, prev, listed, p, reach, &before);
+		if (at == SIZE_MAX)
+			at = tail, before = false;
+		size_t a = before ? prev[at] : at, c = before ? at : next[at];
+		prev[p] = a;
+		next[p] = c;
+		if (a == SIZE_MAX)
+			head = p;
+		else
+			next[a] = p;
+		if (c == SIZE_MAX)
+			tail = p;
+		else
+			prev[c] = p;
+		listed[p] = true;
+	}
+	for (size_t m = 0, v = head; m < n; m++, v = next[v])
+		walk[m] = v;
+	return 0;
+}
+
+/* A site's neighbours in the relaxed lattice lie within this many of its
+ * steps (a hexagonal lattice's second ring is sqrt 3 steps away). */
+#define CVT_ORDER_REACH 1.6
+
+int plan_cvt_order(const struct asph_surface *s, double *xyz, size_t n, struct asph_error *err)
+{
+	size_t n_edge = plan_outline_count(s, plan_cvt_edge_step(s, n)), n_in = n - n_edge;
+	double c[3], R, box[4];
+	_cleanup_free_ struct seed_point *pts = malloc(n_in * sizeof(*pts));
+	_cleanup_free_ double *copy = malloc(3 * n * sizeof(double));
+	_cleanup_free_ size_t *walk = malloc((n_in + 1) * sizeof(size_t));
+	_cleanup_(buckets_clear) struct buckets b = { 0 };
+
+	if (!pts || !copy || !walk)
+		return asph_error_set(err, -ENOMEM, "cvt: out of memory (%zu points)", n);
+	asph_surface_aperture_disk(s, c, &R);
+	asph_surface_bounds(s, box);
+	c[2] = asph_surface_sag_xy(s, c[0], c[1]);
+	double step = sqrt(2.0 * asph_surface_total_area(s) / (sqrt(3.0) * (double)n));
+	double row = 0.5 * sqrt(3.0) * step;
+	for (size_t k = 0; k < n_in; k++) {
+		const double *q = xyz + 3 * k;
+		double th = atan2(q[1] - c[1], q[0] - c[0]);
+		double f = (th < 0 ? th + 2 * M_PI : th) / (2 * M_PI);
+		/* the spiral's turns one row of the lattice apart */
+		pts[k] = (struct seed_point){ .x = (double)k,
+					      .key = floor(surface_radius(s, c, q) / row - f + 0.5) + f };
+	}
+	qsort(pts, n_in, sizeof(*pts), by_key);
+	if (n_in && buckets_fill(&b, box, CVT_ORDER_REACH * step, xyz, n_in) < 0)
+		return asph_error_set(err, -ENOMEM, "cvt: out of memory (%zu points)", n);
+	/* A spiral's band of one row crosses the lattice's rows at a slant
+	 * and leaves gaps in places; the sites taken in the spiral's order
+	 * and each put in the path where it costs least close them. */
+	for (size_t m = 0; m < n_in; m++)
+		walk[m] = (size_t)pts[m].x;
+	if (n_in && path_by_insertion(&b, xyz, walk, n_in, CVT_ORDER_REACH * step) < 0)
+		return asph_error_set(err, -ENOMEM, "cvt: out of memory (%zu points)", n);
+	memcpy(copy, xyz, 3 * n * sizeof(double));
+	for (size_t k = 0; k < n_in; k++)
+		memcpy(xyz + 3 * k, copy + 3 * walk[k], 3 * sizeof(double));
+	/* the outline from its sample nearest to the last inner site on */
+	size_t start = 0;
+	double best = INFINITY;
+	for (size_t k = 0; k < n_edge && n_in; k++) {
+		double d = dist2(xyz + 3 * (n_in - 1), copy + 3 * (n_in + k));
+		if (d < best) {
+			best = d;
+			start = k;
+		}
+	}
+	for (size_t k = 0; k < n_edge; k++)
+		memcpy(xyz + 3 * (n_in + k), copy + 3 * (n_in + (start + k) % n_edge),
+		       3 * sizeof(double));
 	return 0;
 }

@@ -27,4 +27,32 @@ struct plan_cvt_info {
 int plan_cvt_relax(const struct asph_surface *s, double p, double *xyz, size_t n,
 		   struct plan_cvt_info *info, struct asph_error *err);
 
+/*
+ * The step (x-y) at which the CVT's starting sites sample the aperture's
+ * outline for n sites: the outline lifted onto the surface divided into
+ * steps as long as the lattice's, sqrt(2 area / (sqrt 3 n)).
+ */
+double plan_cvt_edge_step(const struct asph_surface *s, size_t n);
+
+/*
+ * The CVT's n starting sites in the x-y plane, in scan order, for the OT
+ * map to move onto the surface: the n - m points of a hexagonal lattice
+ * (one per n-th of the aperture's area) deepest inside the aperture, in
+ * spiral order about its centre, then the m = plan_outline_count(s,
+ * plan_cvt_edge_step(s, n)) samples of its outline. The third slot holds
+ * the distance from the aperture's centre (the radius of the aperture on
+ * the edge). -EINVAL when n is too small to fill the aperture, -ENOMEM.
+ */
+int plan_cvt_seed(const struct asph_surface *s, size_t n, double *xyz, struct asph_error *err);
+
+/*
+ * The scan order of the n relaxed sites xyz (on the surface) that
+ * plan_cvt_seed() started: the inner sites along a spiral about the
+ * aperture's centre whose turns are a row of the lattice apart on the
+ * surface (the distance from the centre measured along the meridian on a
+ * surface of revolution, as the 3-D chord on a freeform), then the outline
+ * from its sample nearest to the last of them. -ENOMEM.
+ */
+int plan_cvt_order(const struct asph_surface *s, double *xyz, size_t n, struct asph_error *err);
+
 #endif

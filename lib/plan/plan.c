@@ -406,8 +406,20 @@ static int lift_ot(const struct asph_surface *s, double *xyz, size_t n,
 	return 0;
 }
 
-/* CVT: Lloyd's iterations from the OT plan. The disk grid has one point
- * per p^2 of the disk, which gives p back. */
+/* CVT: its starting sites, a hexagonal lattice and the rim
+ * (plan-cvt.h), for OT to move onto the surface. */
+static int cvt_fill(const struct asph_surface *s, double a, double p,
+		    struct asph_plan *plan, struct asph_error *err)
+{
+	plan->xyz = malloc(3 * plan->n * sizeof(*plan->xyz));
+	if (!plan->xyz)
+		return asph_error_set(err, -ENOMEM, "out of memory (%zu points)", plan->n);
+	return plan_cvt_seed(s, plan->n, plan->xyz, err);
+}
+
+/* CVT: Lloyd's iterations from the OT map of its starting sites. The
+ * count is the disk grid's, one point per p^2 of the disk, which gives p
+ * back. */
 static int lift_cvt(const struct asph_surface *s, double *xyz, size_t n,
 		    struct asph_error *err)
 {
@@ -416,7 +428,8 @@ static int lift_cvt(const struct asph_surface *s, double *xyz, size_t n,
 
 	if (r < 0)
 		return r;
-	return plan_cvt_relax(s, a * sqrt(M_PI / (double)n), xyz, n, NULL, err);
+	r = plan_cvt_relax(s, a * sqrt(M_PI / (double)n), xyz, n, NULL, err);
+	return r < 0 ? r : plan_cvt_order(s, xyz, n, err);
 }
 
 static int lift_lb(const struct asph_surface *s, double *xyz, size_t n,
@@ -727,16 +740,27 @@ static const struct plan_freeform lb_freeform = { aperture_count, aperture_fill,
 static const struct plan_freeform ot_freeform = { aperture_count, aperture_fill,
 						  plan_ot_freeform_map };
 
+static int cvt_aperture_fill(const struct asph_surface *s, const struct plan_method *meth,
+			     double p, struct asph_plan *plan, struct asph_error *err)
+{
+	return cvt_fill(s, 0, p, plan, err);
+}
+
+/* The starting sites' outline has its own step (plan-cvt.h), which tells
+ * the map which points are on the edge. */
 static int cvt_freeform_map(const struct asph_surface *s, double p, double *xyz, size_t n,
 			    struct asph_error *err)
 {
-	int r = plan_ot_freeform_map(s, p, xyz, n, err);
+	int r = plan_ot_freeform_map(s, plan_cvt_edge_step(s, n), xyz, n, err);
 
-	return r < 0 ? r : plan_cvt_relax(s, p, xyz, n, NULL, err);
+	if (r == 0)
+		r = plan_cvt_relax(s, p, xyz, n, NULL, err);
+	return r < 0 ? r : plan_cvt_order(s, xyz, n, err);
 }
 
-/* CVT: the OT plan relaxed by Lloyd's iterations on the surface. */
-static const struct plan_freeform cvt_freeform = { aperture_count, aperture_fill,
+/* CVT: the OT map of a hexagonal lattice relaxed by Lloyd's iterations on
+ * the surface, with the count of the op pattern. */
+static const struct plan_freeform cvt_freeform = { aperture_count, cvt_aperture_fill,
 						   cvt_freeform_map };
 
 /* CI: the involute by geodesics on the surface (asph/involute.h). Its
@@ -795,7 +819,7 @@ static const struct plan_method methods[ASPH_PLAN_N_METHODS] = {
 			       fermat_count, fermat_fill, lift_projected,
 			       &over_aperture },
 	[ASPH_PLAN_CVT] = { "cvt", ASPH_PLAN_OP, { 1.0, 1.099 }, false, false,
-			    disk_grid_count, disk_grid_fill, lift_cvt, &cvt_freeform },
+			    disk_grid_count, cvt_fill, lift_cvt, &cvt_freeform },
 };
 
 /* m is checked by the callers (resolve); an unknown one reads as OP. */
