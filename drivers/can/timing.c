@@ -148,7 +148,8 @@ double can_sweep_time(const struct can_timing *t, const double from[3], const do
 
 	if (n == 0)
 		return 0;
-	/* sweep_prepare(): the touch probes armed, the outputs read */
+	/* sweep_prepare(): the touch probes armed, the outputs read (the
+	 * trigger output's enable, written once after the open, left out) */
 	now = (axes * arm[t->latch] + (t->trigger ? 2 : 0)) * t->sdo_s;
 	for (size_t k = 0; k < n; k++) {
 		for (int a = 0; a < 3; a++) {

@@ -48,6 +48,7 @@ struct sim_node {
 	double buffered_goal;
 	unsigned buffered_set_points;
 	uint64_t first_set_point_ns;    /* the first set point taken in profile position */
+	unsigned sdo_requests;          /* SDO requests it answered */
 	/* touch probe 1 and the digital outputs */
 	uint8_t tp_kind;        /* enum can_sim_touch_probe */
 	uint16_t tp_function, tp_status;
@@ -636,8 +637,10 @@ void can_sim_feed(struct can_sim *s, const struct can_frame *f)
 			nmt(s, n, ev.u.nmt.command);
 		/* SDO is served in pre-operational and operational only */
 		if (ev.type == CAN_EV_SDO_REQUEST && ev.node == n->id &&
-		    n->nmt != CANOPEN_STATE_STOPPED)
+		    n->nmt != CANOPEN_STATE_STOPPED) {
+			n->sdo_requests++;
 			answer(s, n, &ev.u.sdo);
+		}
 	}
 	pthread_mutex_unlock(&s->lock);
 }
@@ -933,7 +936,8 @@ void can_sim_get(struct can_sim *s, uint8_t node, struct can_sim_node *out)
 		  out->tp_positive = n->tp_positive; out->tp_negative = n->tp_negative;
 		  out->tp_positive_count = n->tp_positive_count;
 		  out->buffered_set_points = n->buffered_set_points;
-		  out->first_set_point_ns = n->first_set_point_ns);
+		  out->first_set_point_ns = n->first_set_point_ns;
+		  out->sdo_requests = n->sdo_requests);
 }
 
 void can_sim_trigger(struct can_sim *s, bool level)

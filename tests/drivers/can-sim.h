@@ -129,6 +129,7 @@ struct can_sim_node {
 	/* CLOCK_MONOTONIC when it took its first set point in profile
 	 * position mode (the first move after homing); 0: none yet */
 	uint64_t first_set_point_ns;
+	unsigned sdo_requests;                  /* SDO requests it answered */
 };
 /* A snapshot of node. */
 void can_sim_get(struct can_sim *s, uint8_t node, struct can_sim_node *out);

@@ -1,10 +1,12 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
  * The predicted measuring time of a CAN instrument (asph_scan_estimate
- * with the driver's motion_time): its model against closed forms, and the
- * prediction against the same plan measured on the simulated CiA 402
- * drives (can-sim.c, on CLOCK_MONOTONIC), streamed through buffered set
- * points with touch-probe latching and point by point.
+ * with the driver's motion_time): its model against closed forms, its
+ * SDO exchanges against those the driver makes (counted by the simulated
+ * drives), and the prediction against the same plan measured on the
+ * simulated CiA 402 drives (can-sim.c, on CLOCK_MONOTONIC, a bus of 500
+ * kbit/s), streamed through buffered set points with touch-probe latching
+ * and point by point.
  */
 #include <math.h>
 #include <setjmp.h>
@@ -86,7 +88,9 @@ struct sim {
 	int fd;
 };
 
-static void sim_start(struct sim *s, bool trigger)
+/* Simulated drives on a bus of 500 kbit/s; moving at their profile
+ * velocity, or at their target the moment they take it (instant). */
+static void sim_start(struct sim *s, bool trigger, bool instant)
 {
 	struct can_sim_config c;
 	int sv[2];
@@ -95,8 +99,8 @@ static void sim_start(struct sim *s, bool trigger)
 	c.n_nodes = 3;
 	memcpy(c.nodes, node_id, 3);
 	c.heartbeat_ms = 20;
-	c.speed_factor = 1;
-	c.bitrate = 500000;
+	c.speed_factor = instant ? 0 : 1;
+	c.bitrate = instant ? 0 : 500000;
 	if (trigger) {
 		c.trigger_node = node_id[0];
 		c.trigger_bit = 16;
@@ -196,7 +200,7 @@ static void test_streamed(void **state)
 	double est;
 
 	scan_fixture_init(&e, vg ? 12 : 30, "can-estimate");
-	sim_start(&s, true);
+	sim_start(&s, true, false);
 	instrument_json(json, sizeof(json), s.fd, vg ? 40 : 150);
 	double t = measure(&e, &s, json, &so, &est);
 	check("streamed", est, t, tolerance());
@@ -212,10 +216,80 @@ static void test_point_by_point(void **state)
 	double est;
 
 	scan_fixture_init(&e, vg ? 6 : 12, "can-estimate");
-	sim_start(&s, false);
+	sim_start(&s, false, false);
 	instrument_json(json, sizeof(json), s.fd, vg ? 40 : 150);
 	double t = measure(&e, &s, json, NULL, &est);
 	check("point by point", est, t, tolerance());
+	scan_fixture_fini(&e);
+}
+
+/* The SDO requests the drives answered so far, all nodes. */
+static unsigned sdo_requests(struct can_sim *sim)
+{
+	unsigned n = 0;
+
+	for (int k = 0; k < 3; k++) {
+		struct can_sim_node sn;
+		can_sim_get(sim, node_id[k], &sn);
+		n += sn.sdo_requests;
+	}
+	return n;
+}
+
+/* The model makes the exchanges the driver makes: with motion that takes
+ * no time (the simulated drives at their target the moment they take it)
+ * and exchanges of 1 s without polls between, the predicted time is the
+ * number of exchanges, which the drives count as they answer them. */
+static void test_exchanges(void **state)
+{
+	struct scan_fixture e;
+	struct sim s;
+	struct asph_config *c = NULL;
+	struct asph_instrument *inst = NULL;
+	struct asph_error err;
+	char json[1024];
+	struct can_timing t = { .axis = { true, true, true }, .counts_per_mm = { 1e4, 1e4, 1e4 },
+				.speed = 1e12, .acceleration = 1e30, .sdo_s = 1,
+				.latch = CAN_LATCH_CONTINUOUS, .trigger = true };
+	double from[3] = { 0, 0, 0 }, p[5 * 3];
+
+	scan_fixture_init(&e, 5, "can-estimate");
+	sim_start(&s, true, true);
+	instrument_json(json, sizeof(json), s.fd, 10);
+	if (asph_config_parse(e.reg, json, strlen(json), "<test>", &c, &err) < 0 ||
+	    asph_instrument_open(&c->instruments[0], 2000, &inst, &err) < 0)
+		fail_msg("%s", err.message);
+	const struct asph_stage_ops *ops = inst->stage_driver->stage;
+	if (ops->home(inst->stage, 5000, &err) < 0)
+		fail_msg("%s", err.message);
+	/* the first move puts the drives in profile position mode: then a
+	 * move of two axes, one that keeps still */
+	assert_int_equal(ops->move_to(inst->stage, from, 5000, NULL), 0);
+	unsigned n0 = sdo_requests(s.sim);
+	double to[3] = { 1.5, -2.25, 0 };
+	assert_int_equal(ops->move_to(inst->stage, to, 5000, NULL), 0);
+	unsigned moved = sdo_requests(s.sim) - n0;
+	assert_int_equal(moved, (unsigned)lround(can_move_time(&t, from, to)));
+	/* a sweep from there, every axis latched at every point; after a first
+	 * one, which also enables the trigger output (0x60FE:02) once for
+	 * the open */
+	if (ops->sweep(inst->stage, to, 1, 5000, &err) < 0)
+		fail_msg("%s", err.message);
+	for (int k = 0; k < 5; k++) {
+		p[3 * k] = 1.5 + 0.5 * k;
+		p[3 * k + 1] = -2.25 + 0.25 * k * k;
+		p[3 * k + 2] = -0.1 * k;
+	}
+	n0 = sdo_requests(s.sim);
+	if (ops->sweep(inst->stage, p, 5, 5000, &err) < 0)
+		fail_msg("%s", err.message);
+	unsigned swept = sdo_requests(s.sim) - n0;
+	print_message("exchanges: move %u, sweep of 5 points %u\n", moved, swept);
+	assert_int_equal(swept, (unsigned)lround(can_sweep_time(&t, to, p, 5)));
+	asph_instrument_close(inst);
+	asph_config_free(c);
+	can_sim_free(s.sim);
+	close(s.fd);
 	scan_fixture_fini(&e);
 }
 
@@ -223,6 +297,7 @@ int main(void)
 {
 	const struct CMUnitTest tests[] = {
 		cmocka_unit_test(test_model_closed_forms),
+		cmocka_unit_test(test_exchanges),
 		cmocka_unit_test(test_streamed),
 		cmocka_unit_test(test_point_by_point),
 	};
