@@ -81,6 +81,66 @@ static void test_model_closed_forms(void **state)
 	assert_true(fast >= (14 + 5 * 12 + 3 + 5 * 8 + 15 + 3) * 1e-3 - 1e-12);
 }
 
+/* A CAN stage on fd, the mock probe; extra: more stage options. */
+static void instrument_json(char *buf, size_t size, int fd, double speed, const char *extra)
+{
+	snprintf(buf, size,
+		 "{\"instruments\": [{\"stage\": {\"driver\": \"can\", \"options\": {"
+		 "\"interface\": \"fd:%d\", \"x_node\": 5, \"y_node\": 9, \"z_node\": 12, "
+		 "\"speed\": %g, \"acceleration\": 1000000, \"heartbeat\": 20, "
+		 "\"heartbeat_timeout\": 2000, \"sdo_timeout\": 500%s}}, "
+		 "\"probe\": {\"driver\": \"mock\", \"options\": {\"time_factor\": 0, "
+		 "\"rate\": 100000}}}]}", fd, speed, extra);
+}
+
+/* The driver's motion_time() takes the model from its options: the
+ * profile, the bus at bitrate, what is latched at a trigger. */
+static void test_options(void **state)
+{
+	static const struct {
+		const char *options;
+		enum can_latch latch;
+		bool trigger;
+		double bitrate;
+	} cases[] = {
+		{ "", CAN_LATCH_CONTINUOUS, true, 500000 },
+		{ ", \"touch_probe\": \"off\"", CAN_LATCH_NONE, true, 500000 },
+		{ ", \"trigger_output\": 0", CAN_LATCH_NONE, false, 500000 },
+		{ ", \"bitrate\": 125000", CAN_LATCH_CONTINUOUS, true, 125000 },
+	};
+	struct scan_fixture e;
+	double p[4 * 3] = { 0, 0, 0, 1, 0.5, 0, 2, 2, 0, 2.5, 1, 0 }, from[3] = { 0, 0, 0 };
+	char json[1024];
+
+	scan_fixture_init(&e, 5, "can-estimate");
+	for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
+		struct asph_config *c = NULL;
+		struct asph_error err;
+		double sweep, move;
+		struct can_timing t = { .axis = { true, true, true },
+					.counts_per_mm = { 1e4, 1e4, 1e4 }, .speed = 25,
+					.acceleration = 1e6, .sdo_s = can_sdo_exchange_s(cases[i].bitrate),
+					.poll_s = 1e-3, .latch = cases[i].latch,
+					.trigger = cases[i].trigger };
+		instrument_json(json, sizeof(json), 0, 25, cases[i].options);
+		if (asph_config_parse(e.reg, json, strlen(json), "<test>", &c, &err) < 0)
+			fail_msg("%s", err.message);
+		const struct asph_instrument_config *ic = &c->instruments[0];
+		const struct asph_option_value *o = asph_options_values(ic->stage_options);
+		assert_int_equal(ic->stage_driver->stage->motion_time(ic->stage_driver, o, from, p, 4,
+								      true, &sweep, NULL), 0);
+		assert_int_equal(ic->stage_driver->stage->motion_time(ic->stage_driver, o, from, p, 4,
+								      false, &move, NULL), 0);
+		assert_float_equal(sweep, can_sweep_time(&t, from, p, 4), 1e-12);
+		double moves = 0;
+		for (int k = 0; k < 4; k++)
+			moves += can_move_time(&t, k ? p + 3 * (k - 1) : from, p + 3 * k);
+		assert_float_equal(move, moves, 1e-12);
+		asph_config_free(c);
+	}
+	scan_fixture_fini(&e);
+}
+
 /* --------------------------------------------- against the simulator */
 
 struct sim {
@@ -90,7 +150,7 @@ struct sim {
 
 /* Simulated drives on a bus of 500 kbit/s; moving at their profile
  * velocity, or at their target the moment they take it (instant). */
-static void sim_start(struct sim *s, bool trigger, bool instant)
+static void sim_start(struct sim *s, bool trigger, bool instant, uint8_t touch_probe)
 {
 	struct can_sim_config c;
 	int sv[2];
@@ -101,6 +161,8 @@ static void sim_start(struct sim *s, bool trigger, bool instant)
 	c.heartbeat_ms = 20;
 	c.speed_factor = instant ? 0 : 1;
 	c.bitrate = instant ? 0 : 500000;
+	for (int k = 0; k < 3; k++)
+		c.touch_probe[k] = touch_probe;
 	if (trigger) {
 		c.trigger_node = node_id[0];
 		c.trigger_bit = 16;
@@ -156,17 +218,6 @@ static double measure(struct scan_fixture *e, struct sim *s, const char *json,
 	return (double)(end - start) * 1e-9;
 }
 
-static void instrument_json(char *buf, size_t size, int fd, double speed)
-{
-	snprintf(buf, size,
-		 "{\"instruments\": [{\"stage\": {\"driver\": \"can\", \"options\": {"
-		 "\"interface\": \"fd:%d\", \"x_node\": 5, \"y_node\": 9, \"z_node\": 12, "
-		 "\"speed\": %g, \"acceleration\": 1000000, \"heartbeat\": 20, "
-		 "\"heartbeat_timeout\": 2000, \"sdo_timeout\": 500}}, "
-		 "\"probe\": {\"driver\": \"mock\", \"options\": {\"time_factor\": 0, "
-		 "\"rate\": 100000}}}]}", fd, speed);
-}
-
 /*
  * The tolerance: the simulated bus (can-sim.c, bitrate) sends every frame
  * with its stuff bits, which the prediction leaves out (up to 24 bits on
@@ -200,8 +251,8 @@ static void test_streamed(void **state)
 	double est;
 
 	scan_fixture_init(&e, vg ? 12 : 30, "can-estimate");
-	sim_start(&s, true, false);
-	instrument_json(json, sizeof(json), s.fd, vg ? 40 : 150);
+	sim_start(&s, true, false, CAN_SIM_TP_FULL);
+	instrument_json(json, sizeof(json), s.fd, vg ? 40 : 150, "");
 	double t = measure(&e, &s, json, &so, &est);
 	check("streamed", est, t, tolerance());
 	scan_fixture_fini(&e);
@@ -216,8 +267,8 @@ static void test_point_by_point(void **state)
 	double est;
 
 	scan_fixture_init(&e, vg ? 6 : 12, "can-estimate");
-	sim_start(&s, false, false);
-	instrument_json(json, sizeof(json), s.fd, vg ? 40 : 150);
+	sim_start(&s, false, false, CAN_SIM_TP_FULL);
+	instrument_json(json, sizeof(json), s.fd, vg ? 40 : 150, "");
 	double t = measure(&e, &s, json, NULL, &est);
 	check("point by point", est, t, tolerance());
 	scan_fixture_fini(&e);
@@ -242,54 +293,69 @@ static unsigned sdo_requests(struct can_sim *sim)
  * number of exchanges, which the drives count as they answer them. */
 static void test_exchanges(void **state)
 {
+	static const struct {
+		uint8_t sim_tp;
+		const char *options;
+		enum can_latch latch;
+	} modes[] = {
+		{ CAN_SIM_TP_FULL, "", CAN_LATCH_CONTINUOUS },
+		/* drives without edge counters: first-event mode, re-armed */
+		{ CAN_SIM_TP_NO_COUNTER, "", CAN_LATCH_SINGLE },
+		/* nothing latched: 0x6064 read back at each trigger */
+		{ CAN_SIM_TP_FULL, ", \"touch_probe\": \"off\"", CAN_LATCH_NONE },
+	};
 	struct scan_fixture e;
-	struct sim s;
-	struct asph_config *c = NULL;
-	struct asph_instrument *inst = NULL;
-	struct asph_error err;
 	char json[1024];
-	struct can_timing t = { .axis = { true, true, true }, .counts_per_mm = { 1e4, 1e4, 1e4 },
-				.speed = 1e12, .acceleration = 1e30, .sdo_s = 1,
-				.latch = CAN_LATCH_CONTINUOUS, .trigger = true };
-	double from[3] = { 0, 0, 0 }, p[5 * 3];
 
 	scan_fixture_init(&e, 5, "can-estimate");
-	sim_start(&s, true, true);
-	instrument_json(json, sizeof(json), s.fd, 10);
-	if (asph_config_parse(e.reg, json, strlen(json), "<test>", &c, &err) < 0 ||
-	    asph_instrument_open(&c->instruments[0], 2000, &inst, &err) < 0)
-		fail_msg("%s", err.message);
-	const struct asph_stage_ops *ops = inst->stage_driver->stage;
-	if (ops->home(inst->stage, 5000, &err) < 0)
-		fail_msg("%s", err.message);
-	/* the first move puts the drives in profile position mode: then a
-	 * move of two axes, one that keeps still */
-	assert_int_equal(ops->move_to(inst->stage, from, 5000, NULL), 0);
-	unsigned n0 = sdo_requests(s.sim);
-	double to[3] = { 1.5, -2.25, 0 };
-	assert_int_equal(ops->move_to(inst->stage, to, 5000, NULL), 0);
-	unsigned moved = sdo_requests(s.sim) - n0;
-	assert_int_equal(moved, (unsigned)lround(can_move_time(&t, from, to)));
-	/* a sweep from there, every axis latched at every point; after a first
-	 * one, which also enables the trigger output (0x60FE:02) once for
-	 * the open */
-	if (ops->sweep(inst->stage, to, 1, 5000, &err) < 0)
-		fail_msg("%s", err.message);
-	for (int k = 0; k < 5; k++) {
-		p[3 * k] = 1.5 + 0.5 * k;
-		p[3 * k + 1] = -2.25 + 0.25 * k * k;
-		p[3 * k + 2] = -0.1 * k;
+	for (size_t mode = 0; mode < sizeof(modes) / sizeof(modes[0]); mode++) {
+		struct sim s;
+		struct asph_config *c = NULL;
+		struct asph_instrument *inst = NULL;
+		struct asph_error err;
+		struct can_timing t = { .axis = { true, true, true },
+					.counts_per_mm = { 1e4, 1e4, 1e4 }, .speed = 1e12,
+					.acceleration = 1e30, .sdo_s = 1, .latch = modes[mode].latch,
+					.trigger = true };
+		double from[3] = { 0, 0, 0 }, p[5 * 3];
+
+		sim_start(&s, true, true, modes[mode].sim_tp);
+		instrument_json(json, sizeof(json), s.fd, 10, modes[mode].options);
+		if (asph_config_parse(e.reg, json, strlen(json), "<test>", &c, &err) < 0 ||
+		    asph_instrument_open(&c->instruments[0], 2000, &inst, &err) < 0)
+			fail_msg("%s", err.message);
+		const struct asph_stage_ops *ops = inst->stage_driver->stage;
+		if (ops->home(inst->stage, 5000, &err) < 0)
+			fail_msg("%s", err.message);
+		/* the first move puts the drives in profile position mode: then
+		 * a move of two axes, one that keeps still */
+		assert_int_equal(ops->move_to(inst->stage, from, 5000, NULL), 0);
+		unsigned n0 = sdo_requests(s.sim);
+		double to[3] = { 1.5, -2.25, 0 };
+		assert_int_equal(ops->move_to(inst->stage, to, 5000, NULL), 0);
+		unsigned moved = sdo_requests(s.sim) - n0;
+		assert_int_equal(moved, (unsigned)lround(can_move_time(&t, from, to)));
+		/* a sweep from there; after a first one, which also enables the
+		 * trigger output (0x60FE:02) once for the open */
+		if (ops->sweep(inst->stage, to, 1, 5000, &err) < 0)
+			fail_msg("%s", err.message);
+		for (int k = 0; k < 5; k++) {
+			p[3 * k] = 1.5 + 0.5 * k;
+			p[3 * k + 1] = -2.25 + 0.25 * k * k;
+			p[3 * k + 2] = -0.1 * k;
+		}
+		n0 = sdo_requests(s.sim);
+		if (ops->sweep(inst->stage, p, 5, 5000, &err) < 0)
+			fail_msg("%s", err.message);
+		unsigned swept = sdo_requests(s.sim) - n0;
+		print_message("exchanges (latch %d): move %u, sweep of 5 points %u\n",
+			      modes[mode].latch, moved, swept);
+		assert_int_equal(swept, (unsigned)lround(can_sweep_time(&t, to, p, 5)));
+		asph_instrument_close(inst);
+		asph_config_free(c);
+		can_sim_free(s.sim);
+		close(s.fd);
 	}
-	n0 = sdo_requests(s.sim);
-	if (ops->sweep(inst->stage, p, 5, 5000, &err) < 0)
-		fail_msg("%s", err.message);
-	unsigned swept = sdo_requests(s.sim) - n0;
-	print_message("exchanges: move %u, sweep of 5 points %u\n", moved, swept);
-	assert_int_equal(swept, (unsigned)lround(can_sweep_time(&t, to, p, 5)));
-	asph_instrument_close(inst);
-	asph_config_free(c);
-	can_sim_free(s.sim);
-	close(s.fd);
 	scan_fixture_fini(&e);
 }
 
@@ -298,6 +364,7 @@ int main(void)
 	const struct CMUnitTest tests[] = {
 		cmocka_unit_test(test_model_closed_forms),
 		cmocka_unit_test(test_exchanges),
+		cmocka_unit_test(test_options),
 		cmocka_unit_test(test_streamed),
 		cmocka_unit_test(test_point_by_point),
 	};
