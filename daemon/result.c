@@ -175,6 +175,7 @@ struct export_source {
 	const char *instrument_json;
 	const struct asph_scatter *scatter;
 	const struct asph_grid *grid;
+	const struct asph_psd *psd;     /* NULL: too few samples for one */
 	const double *xy, *residual_nm;
 	size_t n;
 };
@@ -211,6 +212,7 @@ static int write_report(FILE *f, void *data, struct asph_error *err)
 		.tolerance = e->jp->fit.tolerance,
 		.xy = e->xy, .residual_nm = e->residual_nm, .n = e->n,
 		.scatter = e->scatter, .radius = asph_surface_aperture_radius(e->jp->surface),
+		.psd = e->psd,
 	};
 
 	return asph_report_write_pdf_stream(f, "report.pdf", &r, err);
@@ -232,24 +234,33 @@ static int write_psd(FILE *f, void *data, struct asph_error *err)
 	return 0;
 }
 
-/* psd.csv: the PSD of the residual the report draws (asph_psd_residual()).
- * A map with too few samples for a spectrum has none. */
-static int write_psd_file(const struct result_source *job, const struct asph_scatter *sc,
-			  double radius, json_t *files, struct asph_error *err)
+/* The PSD of the residual (asph_psd_residual()), for psd.csv and the
+ * report alike: *out NULL when the map has too few samples for one. */
+static int residual_psd(const struct asph_scatter *sc, double radius, struct asph_psd **out,
+			struct asph_error *err)
 {
-	_cleanup_(asph_psd_freep) struct asph_psd *p = NULL;
 	struct asph_error perr;
 	int r;
 
+	*out = NULL;
 	asph_error_clear(&perr);
-	r = asph_psd_residual(sc, radius, &p, &perr);
+	r = asph_psd_residual(sc, radius, out, &perr);
 	if (r == -EDOM || r == -EINVAL)
 		return 0;
-	if (r < 0) {
+	if (r < 0)
 		*err = perr;
-		return r;
-	}
-	r = fs_write_file_at(job->dir_fd, "psd.csv", DIRS_FILE_MODE, write_psd, p, err);
+	return r;
+}
+
+/* psd.csv: the spectrum the report draws; none without one. */
+static int write_psd_file(const struct result_source *job, const struct asph_psd *p,
+			  json_t *files, struct asph_error *err)
+{
+	int r;
+
+	if (!p)
+		return 0;
+	r = fs_write_file_at(job->dir_fd, "psd.csv", DIRS_FILE_MODE, write_psd, (void *)p, err);
 	if (r < 0)
 		return r;
 	json_object_set_new(files, "psd", json_string("psd.csv"));
@@ -267,6 +278,7 @@ static int write_exports(const struct result_source *job, const struct job_plan 
 {
 	_cleanup_(asph_scatter_freep) struct asph_scatter *sc = NULL;
 	_cleanup_(asph_grid_freep) struct asph_grid *g = NULL;
+	_cleanup_(asph_psd_freep) struct asph_psd *psd = NULL;
 	_cleanup_free_ double *xy = malloc(2 * c->res.n_used * sizeof(double) + 1);
 	_cleanup_free_ double *v = malloc(c->res.n_used * sizeof(double) + 1);
 	double radius = asph_surface_aperture_radius(jp->surface);
@@ -297,9 +309,12 @@ static int write_exports(const struct result_source *job, const struct job_plan 
 	if (r < 0)
 		return r;
 	json_object_set_new(files, "x3p", json_string("residual.x3p"));
-	r = write_psd_file(job, sc, radius, files, err);
+	r = residual_psd(sc, radius, &psd, err);
+	if (r == 0)
+		r = write_psd_file(job, psd, files, err);
 	if (r < 0)
 		return r;
+	e.psd = psd;
 	asph_error_clear(&perr);
 	r = fs_write_file_at(job->dir_fd, "report.pdf", DIRS_FILE_MODE, write_report, &e, &perr);
 	/* Without cairo, or a map too sparse to draw: no report. */

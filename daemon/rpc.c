@@ -1250,6 +1250,13 @@ int rpc_line_step(struct rpc_line *l, rpc_write_fn write, void *data)
 	return last ? 0 : 1;
 }
 
+bool rpc_line_open(const struct rpc_line *l)
+{
+	size_t n = l->batch ? json_array_size(l->msg) : 1;
+
+	return l->opened && l->next < n;
+}
+
 /* Collects a line's answer for rpc_handle_line(). */
 struct collected {
 	char *text;

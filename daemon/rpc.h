@@ -93,6 +93,9 @@ int rpc_line_new(struct rpc *rpc, struct rpc_session *s, const char *text, size_
 /* Answers the next request of l through write: 1 while requests remain, 0
  * when the line is answered, -ECONNRESET when write refused, -ENOMEM. */
 int rpc_line_step(struct rpc_line *l, rpc_write_fn write, void *data);
+/* Whether part of l's answer line is out and the rest is not: nothing
+ * else may be written to the connection until it is. */
+bool rpc_line_open(const struct rpc_line *l);
 void rpc_line_free(struct rpc_line *l);
 
 /* The whole answer to one line at once (every step), as JSON, or NULL when

@@ -64,6 +64,10 @@ struct client {
 	struct rpc_line *line;          /* being answered */
 	char *out;                      /* pending output */
 	size_t out_off, out_len, out_cap;
+	/* Notifications that came while a batch's answer line was open, sent
+	 * after its end so that they do not split it. */
+	char *held;
+	size_t held_len, held_cap;
 	bool closing;                   /* flush what is queued, then close */
 	bool eof;
 	uint64_t connected_usec;
@@ -221,6 +225,7 @@ static void client_free(struct client *c)
 		close(c->fd);
 	proto_lines_release(&c->in);
 	free(c->out);
+	free(c->held);
 	free(c->session.peer.groups);
 	free(c);
 }
@@ -458,13 +463,69 @@ static int client_send(struct client *c, const json_t *msg)
 	return flush_output(c);
 }
 
+/* An error of the transport, which closes the connection or drops a line:
+ * a batch's answer line still open is cut off first, so that the error has
+ * a line of its own. */
 static void send_error(struct client *c, int code, const char *detail)
 {
 	_cleanup_(json_decrefp) json_t *e = proto_make_error(NULL, code, NULL,
 		detail ? json_pack("{s:s}", "detail", detail) : NULL);
 
-	if (e)
-		client_send(c, e);
+	if (!e || client_dead(c))
+		return;
+	if (c->line && rpc_line_open(c->line) && out_put(c, "\n", 1) < 0) {
+		client_drop(c, "out of memory");
+		return;
+	}
+	client_send(c, e);
+}
+
+/* A notification to c while its answer line is open: kept until the
+ * line ends, counted against limits.max_output_bytes as if it were out. */
+static void hold_notification(struct client *c, const json_t *msg)
+{
+	_cleanup_free_ char *text = json_dumps(msg, JSON_COMPACT);
+	size_t n = text ? strlen(text) + 1 : 0;
+
+	if (!text || output_pending(c) + c->held_len + n > c->srv->limits->max_output_bytes) {
+		log_info("client %" PRIu64 " (%s) does not read its output: dropped",
+			 c->serial, c->session.peer.name);
+		client_drop(c, "output buffer full");
+		return;
+	}
+	if (c->held_len + n > c->held_cap) {
+		size_t cap = c->held_cap ? c->held_cap : 1024;
+		while (cap < c->held_len + n)
+			cap *= 2;
+		char *b = realloc(c->held, cap);
+		if (!b) {
+			client_drop(c, "out of memory");
+			return;
+		}
+		c->held = b;
+		c->held_cap = cap;
+	}
+	memcpy(c->held + c->held_len, text, n - 1);
+	c->held[c->held_len + n - 1] = '\n';
+	c->held_len += n;
+}
+
+/* The notifications held while c's answer line was open, now that it is
+ * complete. */
+static void release_held(struct client *c)
+{
+	if (!c->held_len || client_dead(c))
+		return;
+	if (out_put(c, c->held, c->held_len) < 0) {
+		client_drop(c, "out of memory");
+		return;
+	}
+	c->held_len = 0;
+	if (c->held_cap > OUT_KEEP_BYTES) {
+		free(c->held);
+		c->held = NULL;
+		c->held_cap = 0;
+	}
 }
 
 /* ------------------------------------------------------------ input */
@@ -545,6 +606,7 @@ static void client_turn(struct client *c)
 		if (r <= 0) {
 			rpc_line_free(c->line);
 			c->line = NULL;
+			release_held(c);
 		}
 		if (r < 0) {
 			client_drop(c, r == -ENOMEM ? "out of memory" : "connection lost");
@@ -961,7 +1023,10 @@ void server_notify(const struct event *ev, void *data)
 			msg = proto_make_notification(ev->method, json_incref(ev->params));
 		if (!msg)
 			return;
-		client_send(c, msg);
+		if (c->line && rpc_line_open(c->line))
+			hold_notification(c, msg);
+		else
+			client_send(c, msg);
 	}
 }
 

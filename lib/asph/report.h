@@ -40,6 +40,9 @@ struct asph_report {
 	size_t n;
 	const struct asph_scatter *scatter;
 	double radius;
+	/* asph_psd_residual() of scatter and radius when the caller has it
+	 * (the daemon writes it to psd.csv too); NULL: computed here. */
+	const struct asph_psd *psd;
 };
 
 int asph_report_write_pdf(const char *path, const struct asph_report *r,

@@ -319,15 +319,17 @@ static void zernike_bars(cairo_t *cr, const struct chart *box, const struct asph
 
 static void psd_chart(cairo_t *cr, const struct chart *box, const struct asph_report *r)
 {
-	_cleanup_(asph_psd_freep) struct asph_psd *p = NULL;
+	_cleanup_(asph_psd_freep) struct asph_psd *own = NULL;
+	const struct asph_psd *p = r->psd;
 	struct chart c = *box;
 	double lo = INFINITY, hi = -INFINITY;
 	char title[64];
 
-	if (asph_psd_residual(r->scatter, r->radius, &p, NULL) < 0) {
+	if (!p && asph_psd_residual(r->scatter, r->radius, &own, NULL) < 0) {
 		chart_frame(cr, &c, "PSD: not enough data", "", "");
 		return;
 	}
+	p = p ? p : own;
 	_cleanup_free_ double *f = malloc(p->n * sizeof(double));
 	if (!f)
 		return;

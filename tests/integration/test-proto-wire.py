@@ -4,8 +4,9 @@
 byte-order mark at the start of a line is skipped (anywhere else it is a
 parse error, whose column counts it); a numeric id comes back as the same
 number, an integer as the same text and any other number as the same
-double; and job.result returns what the README and the schema say it
-does, no member more or less."""
+double; job.result returns what the README and the schema say it
+does, no member more or less; and a subscribed client's events never split
+the line of a batch's answers."""
 import json
 import os
 import re
@@ -134,6 +135,51 @@ try:
         on_disk = json.load(f)
     expect(on_disk == {k: v for k, v in res.items() if k != "dir"},
            "result.json holds job.result's answer but dir")
+
+    # A notification never splits an answer's line: a subscribed client's
+    # batch submits jobs, whose events come while the batch's answers are
+    # being written, and each event gets a line of its own, before the
+    # array or after it.
+    w = Client(d.socket)
+    w.call("events.subscribe", {"events": ["job"]})
+    w.call("queue.stop")
+    batch = [{"jsonrpc": "2.0", "id": i, "method": "job.list", "params": {"limit": 50}}
+             for i in range(200)]
+    for i in range(0, 200, 40):
+        batch[i] = {"jsonrpc": "2.0", "id": i, "method": "job.submit",
+                    "params": {"lens": "weak", "plan": {"method": "ci", "h": 0.2},
+                               "label": f"in a batch {i}"}}
+    w.send_raw(json.dumps(batch).encode() + b"\n")
+    answers, events, unparsable = None, [], []
+    while answers is None:
+        while b"\n" not in w.buf:
+            chunk = w.sock.recv(1 << 20)
+            if not chunk:
+                raise EOFError("the daemon closed the connection")
+            w.buf += chunk
+        line, w.buf = w.buf.split(b"\n", 1)
+        try:
+            m = json.loads(line)
+        except ValueError as e:
+            unparsable.append(f"{e}: {line[:80]!r}")
+            if line.startswith(b"["):
+                answers = []
+            continue
+        if isinstance(m, list):
+            answers = m
+        else:
+            events.append(m)
+    submitted = {a["result"]["id"] for a in answers if a["id"] % 40 == 0 and "result" in a}
+    expect(not unparsable and [a["id"] for a in answers] == list(range(200)) and len(submitted) == 5,
+           f"a batch answered on one line among events ({unparsable[:2]})")
+    w.call("daemon.status")
+    seen = {e["params"].get("job") for e in events + w.events if e["method"].startswith("job.")}
+    expect(submitted <= seen, f"every submitted job's event arrived, on its own line "
+                              f"({sorted(submitted - seen)} missing)")
+    for job in submitted:
+        w.call("job.cancel", {"id": job})
+    w.call("queue.start")
+    w.close()
     c.close()
     expect(d.stop() == 0, "clean stop")
 except Exception:
