@@ -148,6 +148,10 @@ int scan_prefixed(int r, const char *who, size_t i, struct asph_error *err);
 /* The base timeout plus twice what the operation should take (s). */
 unsigned scan_timeout(unsigned base_ms, double expected_s);
 int scan_stage_move(struct asph_scan *sc, const double *m, size_t i, struct asph_error *err);
+/* The moves from from to m keeping min_gap: straight, else up to the
+ * travel height, over, down; the waypoints into way, how many. */
+size_t scan_clear_path(const struct asph_scan *sc, const double from[3], const double *m,
+		       double min_gap, double way[3][3]);
 int scan_move_clear(struct asph_scan *sc, const double *m, double min_gap, size_t i,
 		    struct asph_error *err);
 /* Waits until the read-back position is inside the settling window of
@@ -179,6 +183,20 @@ void scan_publish(struct asph_scan *sc, enum asph_scan_state state, uint64_t don
  * estimate's). */
 void scan_motion_limits(const struct asph_stage_info *si, const struct asph_probe_info *pi,
 			struct asph_motion_limits *lim);
+/* How an untimed sweep is cut (the executor's and the estimate's): plan
+ * points join it while the motion so far (each step at the axes' speeds)
+ * and the readings so far last under SWEEP_SECONDS. */
+struct sweep_cut {
+	double motion, reading;
+	size_t n;
+};
+static inline bool sweep_cut_open(const struct sweep_cut *c)
+{
+	return c->n == 0 || (c->motion < SWEEP_SECONDS && c->reading < SWEEP_SECONDS);
+}
+/* The step from from to to (stage axes) and one reading at rate (1/s). */
+void sweep_cut_add(struct sweep_cut *c, const double from[3], const double to[3],
+		   const struct asph_motion_limits *lim, double rate);
 int scan_stream_init(struct asph_scan *sc, struct asph_error *err);
 void scan_stream_fini(struct asph_scan *sc);
 /* Measures from plan point i on while the sweeps can go on; *done gets

@@ -438,12 +438,24 @@ static int approach(struct asph_scan *sc, size_t i, bool clear_move, struct asph
 
 /* -------------------------------------------------- untimed sweeps */
 
+void sweep_cut_add(struct sweep_cut *c, const double from[3], const double to[3],
+		   const struct asph_motion_limits *lim, double rate)
+{
+	double step = 0;
+
+	for (int k = 0; k < 3; k++)
+		step = fmax(step, fabs(to[k] - from[k]) / lim->speed[k]);
+	c->motion += step;
+	c->reading += rate > 0 ? 1 / rate : 0;
+	c->n++;
+}
+
 /* A sweep at the stage's own pace through at most a batch of points. */
 static int stream_plain(struct asph_scan *sc, size_t i, size_t *done, struct asph_error *err)
 {
 	struct asph_instrument *in = sc->inst;
 	size_t e = run_end(sc, i, sc->o.stream_batch), n = 0;
-	double rate = in->probe_info.rate, motion = 0, reading = 0;
+	struct sweep_cut cut = { 0 };
 	const double *prev = sc->pos;
 	struct target t;
 	int r;
@@ -456,13 +468,9 @@ static int stream_plain(struct asph_scan *sc, size_t i, size_t *done, struct asp
 			return r;
 	}
 	sc->n_hist = 0;
-	while (i + n < e && (n == 0 || fmax(motion, reading) < SWEEP_SECONDS)) {
+	while (i + n < e && sweep_cut_open(&cut)) {
 		scan_target(sc, i + n, false, &t);
-		double step = 0;
-		for (int k = 0; k < 3; k++)
-			step = fmax(step, fabs(t.machine[k] - prev[k]) / sc->lim.speed[k]);
-		motion += step;
-		reading += rate > 0 ? 1 / rate : 0;
+		sweep_cut_add(&cut, prev, t.machine, &sc->lim, in->probe_info.rate);
 		memcpy(sc->path + 3 * n, t.machine, sizeof(t.machine));
 		struct pending *pd = push_pending(sc);
 		if (!pd)
@@ -472,7 +480,7 @@ static int stream_plain(struct asph_scan *sc, size_t i, size_t *done, struct asp
 		prev = sc->path + 3 * n++;
 	}
 	r = in->stage_driver->stage->sweep(in->stage, sc->path, n,
-					       scan_timeout(sc->o.move_timeout_ms, motion), err);
+					       scan_timeout(sc->o.move_timeout_ms, cut.motion), err);
 	if (r < 0) {
 		sc->pend_n = sc->pend_head = 0;
 		return scan_prefixed(r, "stage", i, err);

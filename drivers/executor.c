@@ -357,18 +357,29 @@ int scan_stage_move(struct asph_scan *sc, const double *m, size_t i, struct asph
 /* Moves to m straight when that keeps min_gap all the way, else up to the
  * travel height, across, and down. Moving up (-z) is always away from the
  * part. */
+size_t scan_clear_path(const struct asph_scan *sc, const double from[3], const double *m,
+		       double min_gap, double way[3][3])
+{
+	if (scan_path_clear(sc, from, m, min_gap)) {
+		memcpy(way[0], m, sizeof(way[0]));
+		return 1;
+	}
+	double up[3] = { from[0], from[1], fmin(sc->z_safe, from[2]) };
+	memcpy(way[0], up, sizeof(way[0]));
+	memcpy(way[1], (double[3]){ m[0], m[1], up[2] }, sizeof(way[1]));
+	memcpy(way[2], m, sizeof(way[2]));
+	return 3;
+}
+
 int scan_move_clear(struct asph_scan *sc, const double *m, double min_gap, size_t i,
 		    struct asph_error *err)
 {
-	if (scan_path_clear(sc, sc->pos, m, min_gap))
-		return scan_stage_move(sc, m, i, err);
-	double up[3] = { sc->pos[0], sc->pos[1], fmin(sc->z_safe, sc->pos[2]) };
-	double over[3] = { m[0], m[1], up[2] };
-	int r = scan_stage_move(sc, up, i, err);
-	if (r == 0)
-		r = scan_stage_move(sc, over, i, err);
-	if (r == 0)
-		r = scan_stage_move(sc, m, i, err);
+	double way[3][3];
+	size_t n = scan_clear_path(sc, sc->pos, m, min_gap, way);
+	int r = 0;
+
+	for (size_t k = 0; k < n && r == 0; k++)
+		r = scan_stage_move(sc, way[k], i, err);
 	return r;
 }
 

@@ -65,7 +65,8 @@ static void callable_ops(struct asph_instrument *in)
 	memset(&in->probe_ops, 0, sizeof(in->probe_ops));
 	unsigned sm = asph_driver_abi_minor(s);
 	memcpy(&in->stage_ops, s->stage,
-	       sm >= 2   ? sizeof(in->stage_ops)
+	       sm >= 3   ? sizeof(in->stage_ops)
+	       : sm == 2 ? offsetof(struct asph_stage_ops, motion_time)
 	       : sm == 1 ? offsetof(struct asph_stage_ops, clock_align)
 			 : offsetof(struct asph_stage_ops, sweep_pvt));
 	memcpy(&in->probe_ops, p->probe,

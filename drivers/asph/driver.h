@@ -52,9 +52,11 @@ extern "C" {
  *        accelerations and jerks, and describe() without opening
  *   1.2  the settling a stage advises for step and measure, the clock of a
  *        simulated stage aligned (clock_align)
+ *   1.3  the time of a stage's own moves and sweeps predicted from its
+ *        options (motion_time)
  */
 #define ASPH_DRIVER_ABI_MAJOR 1
-#define ASPH_DRIVER_ABI_MINOR 2
+#define ASPH_DRIVER_ABI_MINOR 3
 #define ASPH_DRIVER_ABI(major, minor) ((uint32_t)(major) | (uint32_t)(minor) << 16)
 #define ASPH_DRIVER_ABI_VERSION ASPH_DRIVER_ABI(ASPH_DRIVER_ABI_MAJOR, ASPH_DRIVER_ABI_MINOR)
 #define ASPH_DRIVER_ABI_MAJOR_OF(v) ((uint32_t)(v) & 0xffffu)
@@ -251,6 +253,15 @@ struct asph_stage_ops {
 	 * time of the interrupted one (docs/scanning.md, "Resuming"). A stage
 	 * on the world's time has none. */
 	int (*clock_align)(struct asph_device *dev, uint64_t t_ns, struct asph_error *err);
+	/* ---- 1.3: optional (NULL); a driver of 1.0 .. 1.2 does not have it */
+	/* The time (s) the stage's own motion takes, predicted from its
+	 * options without a device (estimates before anything is opened):
+	 * sweep, a sweep() through the n positions from rest at from; else
+	 * move_to() from from to each of them in turn. Without it the
+	 * executor predicts from the axes' limits alone. */
+	int (*motion_time)(const struct asph_driver *drv, const struct asph_option_value *options,
+			   const double *from, const double *positions, size_t n, bool sweep,
+			   double *seconds, struct asph_error *err);
 };
 
 /* ------------------------------------------------------------- probe */

@@ -15,6 +15,7 @@
 #include "asph/driver.h"
 #include "bus.h"
 #include "std.h"
+#include "timing.h"
 #include "transport.h"
 #include "util-time.h"
 
@@ -24,7 +25,7 @@ enum {
 	OPT_X_MIN, OPT_X_MAX, OPT_Y_MIN, OPT_Y_MAX, OPT_Z_MIN, OPT_Z_MAX,
 	OPT_SPEED, OPT_ACCELERATION, OPT_HOMING_METHOD, OPT_HOMING_SPEED,
 	OPT_HEARTBEAT, OPT_HEARTBEAT_TIMEOUT, OPT_SDO_TIMEOUT, OPT_NMT_RESET, OPT_FAULT_RESET,
-	OPT_TOUCH_PROBE, OPT_TRIGGER_NODE, OPT_TRIGGER_OUTPUT,
+	OPT_TOUCH_PROBE, OPT_TRIGGER_NODE, OPT_TRIGGER_OUTPUT, OPT_BITRATE,
 	OPT_PROBE_NODE, OPT_PROBE_INDEX, OPT_PROBE_SUBINDEX, OPT_PROBE_FORMAT, OPT_PROBE_SCALE,
 	OPT_PROBE_OFFSET, OPT_PROBE_KIND, OPT_PROBE_TIP_RADIUS, OPT_PROBE_STANDOFF,
 	OPT_PROBE_RANGE, N_OPTIONS
@@ -105,6 +106,10 @@ static const struct asph_option_desc can_options[N_OPTIONS] = {
 	[OPT_TRIGGER_OUTPUT] = { "trigger_output", ASPH_OPTION_INT, "16", RANGE(0, 31), .roles = S,
 				 .help = "bit of its digital outputs (0x60FE:01, 16..31) wired to the "
 					 "trigger line; 0: no trigger wiring (no latching)" },
+	[OPT_BITRATE] = { "bitrate", ASPH_OPTION_INT, "500000", RANGE(10000, 1000000),
+			  .unit = "bit/s", .roles = S,
+			  .help = "the bus's bit rate, for the predicted measuring time only (the "
+				  "interface's own is set with ip link)" },
 	[OPT_PROBE_NODE] = { "probe_node", ASPH_OPTION_INT, "4", RANGE(1, 127), .roles = P,
 			     .help = "CANopen node id of the probe" },
 	[OPT_PROBE_INDEX] = { "probe_index", ASPH_OPTION_INT, "28976", RANGE(0x1000, 0xffff), .roles = P,
@@ -173,6 +178,9 @@ struct asph_device {
 	double p_scale, p_offset;
 	struct asph_probe_info pinfo;
 };
+
+/* The wait between two polls of a statusword while an axis is under way. */
+#define POLL_MS 1
 
 /* -------------------------------------------------------- helpers */
 
@@ -477,13 +485,10 @@ static int read_latch(struct asph_device *d, struct axis *a, int32_t *at, uint64
 
 /* ----------------------------------------------------------- stage */
 
-static int stage_open(const struct asph_driver *drv, const struct asph_option_value *o,
-		      unsigned timeout_ms, struct asph_device **out, struct asph_error *err)
+/* The stage as its options describe it: axes, profile, trigger wiring. */
+static int stage_configure(struct asph_device *d, const struct asph_option_value *o,
+			   struct asph_error *err)
 {
-	struct asph_device *d = dev_new(o);
-
-	if (!d)
-		return asph_error_set(err, -ENOMEM, "out of memory");
 	for (int k = 0; k < 3; k++) {
 		struct axis *a = &d->ax[k];
 		a->node = (uint8_t)o[OPT_X_NODE + k].i;
@@ -491,30 +496,33 @@ static int stage_open(const struct asph_driver *drv, const struct asph_option_va
 		a->min = o[OPT_X_MIN + 2 * k].d;
 		a->max = o[OPT_X_MAX + 2 * k].d;
 		for (unsigned i = 0; i < d->n_nodes && a->node; i++)
-			if (d->nodes[i] == a->node) {
-				unsigned node = a->node;
-				dev_close(d);
+			if (d->nodes[i] == a->node)
 				return asph_error_set(err, -EINVAL, "%s_node: node %u drives two axes",
-						      axis_names[k], node);
-			}
+						      axis_names[k], a->node);
 		if (a->node)
 			d->nodes[d->n_nodes++] = a->node;
-		if (a->node && !(a->min < a->max)) {
-			dev_close(d);
+		if (a->node && !(a->min < a->max))
 			return asph_error_set(err, -EINVAL, "%s_min must be below %s_max",
 					      axis_names[k], axis_names[k]);
-		}
 	}
-	if (!d->n_nodes) {
-		dev_close(d);
+	if (!d->n_nodes)
 		return asph_error_set(err, -EINVAL, "no axis: set x_node, y_node or z_node");
-	}
 	d->speed = o[OPT_SPEED].d;
 	d->acceleration = o[OPT_ACCELERATION].d;
 	d->homing_method = (int)o[OPT_HOMING_METHOD].i;
 	d->homing_speed = o[OPT_HOMING_SPEED].d;
 	d->fault_reset = o[OPT_FAULT_RESET].b;
-	int r = trigger_options(d, o, err);
+	return trigger_options(d, o, err);
+}
+
+static int stage_open(const struct asph_driver *drv, const struct asph_option_value *o,
+		      unsigned timeout_ms, struct asph_device **out, struct asph_error *err)
+{
+	struct asph_device *d = dev_new(o);
+
+	if (!d)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	int r = stage_configure(d, o, err);
 	if (r == 0)
 		r = can_bus_open(d->iface, d->nodes, d->n_nodes, &d->bus, err);
 	for (int k = 0; k < 3 && r == 0; k++)
@@ -547,11 +555,78 @@ static int stage_info(struct asph_device *d, struct asph_stage_info *out, struct
 			ai->min = d->ax[k].min;
 			ai->max = d->ax[k].max;
 			ai->max_speed = d->speed;
+			out->max_accel[k] = d->acceleration;
 		}
 	}
 	snprintf(out->model, sizeof(out->model), "CiA 402 drives on %.40s", d->iface);
 	snprintf(out->serial, sizeof(out->serial), "nodes x=%u y=%u z=%u", d->ax[0].node,
 		 d->ax[1].node, d->ax[2].node);
+	return 0;
+}
+
+/* The device the options describe, not opened. */
+static int stage_described(const struct asph_option_value *o, struct asph_device **out,
+			   struct asph_error *err)
+{
+	struct asph_device *d = dev_new(o);
+
+	if (!d)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	int r = stage_configure(d, o, err);
+	if (r < 0) {
+		dev_close(d);
+		return r;
+	}
+	*out = d;
+	return 0;
+}
+
+static int stage_describe(const struct asph_driver *drv, const struct asph_option_value *o,
+			  struct asph_stage_info *out, struct asph_error *err)
+{
+	struct asph_device *d;
+	int r = stage_described(o, &d, err);
+
+	if (r == 0)
+		r = stage_info(d, out, err);
+	dev_close(d);
+	return r;
+}
+
+/*
+ * The time of moves and sweeps, predicted from the options. Whether the
+ * drives have touch probes with edge counters is only known once they
+ * answer: with touch_probe auto or on and a trigger wired, they are taken
+ * to have them. docs/driver-can.md, "Predicted measuring time".
+ */
+static int stage_motion_time(const struct asph_driver *drv, const struct asph_option_value *o,
+			     const double *from, const double *p, size_t n, bool sweep,
+			     double *seconds, struct asph_error *err)
+{
+	struct asph_device *d;
+	int r = stage_described(o, &d, err);
+
+	*seconds = 0;
+	if (r < 0)
+		return r;
+	struct can_timing t = {
+		.speed = d->speed, .acceleration = d->acceleration,
+		.sdo_s = can_sdo_exchange_s((double)o[OPT_BITRATE].i), .poll_s = POLL_MS * 1e-3,
+		.trigger = d->trigger_bit != 0,
+		.latch = d->trigger_bit && d->touch_probe != TOUCH_PROBE_OFF ? CAN_LATCH_CONTINUOUS
+									    : CAN_LATCH_NONE,
+	};
+	for (int k = 0; k < 3; k++) {
+		t.axis[k] = d->ax[k].node != 0;
+		t.counts_per_mm[k] = d->ax[k].counts_per_mm;
+	}
+	dev_close(d);
+	if (sweep) {
+		*seconds = can_sweep_time(&t, from, p, n);
+		return 0;
+	}
+	for (size_t k = 0; k < n; k++)
+		*seconds += can_move_time(&t, k ? p + 3 * (k - 1) : from, p + 3 * k);
 	return 0;
 }
 
@@ -753,7 +828,7 @@ static int send_set_point(struct asph_device *d, struct axis *a, int32_t target,
 		if (transport_ms_left(deadline) == 0)
 			return asph_error_set(err, -ETIMEDOUT, "%s did not acknowledge the new set point "
 					      "in time", name(d, a));
-		r = can_bus_idle(d->bus, 1, err);
+		r = can_bus_idle(d->bus, POLL_MS, err);
 		if (r < 0)
 			return r;
 	}
@@ -826,7 +901,7 @@ static int stage_move(struct asph_device *d, const double *t, unsigned timeout_m
 		}
 		if (r < 0 || all)
 			break;
-		r = transport_ms_left(deadline) ? can_bus_idle(d->bus, 1, err)
+		r = transport_ms_left(deadline) ? can_bus_idle(d->bus, POLL_MS, err)
 			: asph_error_set(err, -ETIMEDOUT, "move did not finish within %u ms", timeout_ms);
 	}
 	return finish(d, r, "motion", err);
@@ -861,7 +936,7 @@ static int buffer_free(struct asph_device *d, const struct axis *a, uint64_t dea
 		if (transport_ms_left(deadline) == 0)
 			return asph_error_set(err, -ETIMEDOUT, "%s: the sweep did not pass its set "
 					      "points in time", name(d, a));
-		r = can_bus_idle(d->bus, 1, err);
+		r = can_bus_idle(d->bus, POLL_MS, err);
 		if (r < 0)
 			return r;
 	}
@@ -884,7 +959,7 @@ static int queue_set_point(struct asph_device *d, struct axis *a, int32_t target
 		if (transport_ms_left(deadline) == 0)
 			return asph_error_set(err, -ETIMEDOUT, "%s did not acknowledge the new set point "
 					      "in time", name(d, a));
-		r = can_bus_idle(d->bus, 1, err);
+		r = can_bus_idle(d->bus, POLL_MS, err);
 	}
 	if (r == 0)
 		r = write_cw(d, a, SWEEP_CW, deadline, err);
@@ -1002,7 +1077,7 @@ static int sweep_run(struct asph_device *d, const double *p, size_t n, uint64_t 
 			there = axis_arrived(d, ax, deadline, err);
 			r = there < 0 ? there : 0;
 			if (r == 0 && there == 0)
-				r = transport_ms_left(deadline) ? can_bus_idle(d->bus, 1, err)
+				r = transport_ms_left(deadline) ? can_bus_idle(d->bus, POLL_MS, err)
 					: asph_error_set(err, -ETIMEDOUT, "%s: the sweep did not "
 							 "end in time", name(d, ax));
 		}
@@ -1192,6 +1267,8 @@ static const struct asph_stage_ops can_stage = {
 	.status = stage_status,
 	.stop = dev_stop,
 	.sweep_trace = stage_trace,
+	.describe = stage_describe,
+	.motion_time = stage_motion_time,
 };
 
 static const struct asph_probe_ops can_probe = {

@@ -23,7 +23,7 @@
  * connections, faults and stop commands as JSON lines.
  *
  *   can-sim-server --socket PATH [--nodes 1,2,3] [--heartbeat MS]
- *                  [--speed-factor F] [--trigger NODE:BIT]
+ *                  [--speed-factor F] [--bitrate BIT/S] [--trigger NODE:BIT]
  *                  [--touch-probe NODE:full|no-counter|none] [--fault KIND
  *                  --at N [--node ID] [--code HEX] [--garbage KIND]]
  *                  [--seed S] [--log FILE]
@@ -435,7 +435,8 @@ static bool from_stdin(struct server *sv)
 static void usage(FILE *f)
 {
 	fprintf(f, "usage: can-sim-server --socket PATH [--nodes 1,2,3] [--heartbeat MS]\n"
-		   "         [--speed-factor F] [--trigger NODE:BIT] [--touch-probe NODE:KIND]\n"
+		   "         [--speed-factor F] [--bitrate BIT/S] [--trigger NODE:BIT]\n"
+		   "         [--touch-probe NODE:KIND]\n"
 		   "         [--fault disconnect|stall|garbage|drive-fault --at N\n"
 		   "         [--node ID] [--code HEX] [--garbage KIND]] [--seed S] [--log FILE]\n"
 		   "garbage kinds: length, cob-id, sdo-index, sdo-command, dlc, error-frame, mixed\n"
@@ -510,6 +511,7 @@ static int parse_args(struct server *sv, int argc, char **argv)
 		{ "socket", required_argument, NULL, 's' }, { "nodes", required_argument, NULL, 'n' },
 		{ "heartbeat", required_argument, NULL, 'b' },
 		{ "speed-factor", required_argument, NULL, 'v' },
+		{ "bitrate", required_argument, NULL, 'B' },
 		{ "fault", required_argument, NULL, 'f' }, { "at", required_argument, NULL, 'a' },
 		{ "node", required_argument, NULL, 'N' }, { "code", required_argument, NULL, 'c' },
 		{ "garbage", required_argument, NULL, 'g' }, { "seed", required_argument, NULL, 'r' },
@@ -529,6 +531,13 @@ static int parse_args(struct server *sv, int argc, char **argv)
 			break;
 		case 'b': sv->cfg.heartbeat_ms = (unsigned)atoi(optarg); break;
 		case 'v': sv->cfg.speed_factor = atof(optarg); break;
+		case 'B':
+			sv->cfg.bitrate = atof(optarg);
+			if (!(sv->cfg.bitrate >= 0)) {
+				fprintf(stderr, "can-sim-server: --bitrate: '%s' is no bit rate\n", optarg);
+				return -1;
+			}
+			break;
 		case 't':
 			if (parse_trigger(&sv->cfg, optarg) < 0)
 				return -1;

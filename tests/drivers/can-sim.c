@@ -47,6 +47,8 @@ struct sim_node {
 	bool buffered;          /* a set point waits behind the one in process */
 	double buffered_goal;
 	unsigned buffered_set_points;
+	uint64_t first_set_point_ns;    /* the first set point taken in profile position */
+	unsigned sdo_requests;          /* SDO requests it answered */
 	/* touch probe 1 and the digital outputs */
 	uint8_t tp_kind;        /* enum can_sim_touch_probe */
 	uint16_t tp_function, tp_status;
@@ -207,6 +209,8 @@ static void controlword(struct can_sim *s, struct sim_node *n, uint16_t cw)
 		if (rise && !n->ack) {
 			n->ack = true;
 			n->set_points++;
+			if (!n->first_set_point_ns)
+				n->first_set_point_ns = now_monotonic_ns();
 			if (n->moving && !(cw & CIA402_CW_CHANGE_IMMEDIATELY)) {
 				/* after the one in process (relative: to its target) */
 				n->buffered = true;
@@ -633,8 +637,10 @@ void can_sim_feed(struct can_sim *s, const struct can_frame *f)
 			nmt(s, n, ev.u.nmt.command);
 		/* SDO is served in pre-operational and operational only */
 		if (ev.type == CAN_EV_SDO_REQUEST && ev.node == n->id &&
-		    n->nmt != CANOPEN_STATE_STOPPED)
+		    n->nmt != CANOPEN_STATE_STOPPED) {
+			n->sdo_requests++;
 			answer(s, n, &ev.u.sdo);
+		}
 	}
 	pthread_mutex_unlock(&s->lock);
 }
@@ -647,6 +653,64 @@ static bool busy(const struct can_sim *s)
 		if (s->nodes[i].moving || s->nodes[i].homing || s->nodes[i].fault_at_ns)
 			return true;
 	return false;
+}
+
+/* ------------------------------------------------------- bus time */
+
+/* The bits of a classical base frame on the wire (ISO 11898-1): SOF,
+ * identifier, RTR, IDE, r0, DLC, data and the CRC-15 (polynomial 0x4599)
+ * with a stuff bit after every five equal bits, then the CRC delimiter,
+ * ACK slot and delimiter, end of frame and intermission (13, unstuffed). */
+static unsigned frame_bits(const struct can_frame *f)
+{
+	uint8_t bits[19 + 64 + 15];
+	unsigned n = 0, dlc = f->can_dlc > 8 ? 8 : f->can_dlc;
+	uint16_t crc = 0;
+
+	bits[n++] = 0;
+	for (int k = 10; k >= 0; k--)
+		bits[n++] = (f->can_id >> k) & 1;
+	bits[n++] = (f->can_id & CAN_RTR_FLAG) != 0;
+	bits[n++] = 0;
+	bits[n++] = 0;
+	for (int k = 3; k >= 0; k--)
+		bits[n++] = (dlc >> k) & 1;
+	for (unsigned b = 0; b < dlc && !(f->can_id & CAN_RTR_FLAG); b++)
+		for (int k = 7; k >= 0; k--)
+			bits[n++] = (f->data[b] >> k) & 1;
+	for (unsigned i = 0; i < n; i++) {
+		bool next = bits[i] ^ ((crc >> 14) & 1);
+		crc = (uint16_t)((crc << 1) & 0x7fff);
+		if (next)
+			crc ^= 0x4599;
+	}
+	for (int k = 14; k >= 0; k--)
+		bits[n++] = (crc >> k) & 1;
+	unsigned stuffed = n, run = 1;
+	uint8_t last = bits[0];
+	for (unsigned i = 1; i < n; i++) {
+		run = bits[i] == last ? run + 1 : 1;
+		last = bits[i];
+		if (run == 5) {
+			/* the complement goes in, and starts a run of its own */
+			stuffed++;
+			last = !last;
+			run = 1;
+		}
+	}
+	return stuffed + 13;
+}
+
+/* Waits until the frame f received at rx_ns, and the answer it gets, would
+ * have crossed the bus (an answer of the same length: 8 data bytes). */
+static void bus_time(const struct can_sim *s, const struct can_frame *f, uint64_t rx_ns)
+{
+	if (!(s->cfg.bitrate > 0) || f->can_id < 0x600 || f->can_id > 0x67f)
+		return;
+	uint64_t end = rx_ns + (uint64_t)(2.0 * frame_bits(f) / s->cfg.bitrate * 1e9);
+	struct timespec ts = { (time_t)(end / 1000000000u), (long)(end % 1000000000u) };
+	while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR)
+		;
 }
 
 static void *serve(void *data)
@@ -668,8 +732,11 @@ static void *serve(void *data)
 		if (p[0].revents & POLLIN) {
 			struct can_frame f;
 			ssize_t got = recv(s->fd, &f, sizeof(f), MSG_DONTWAIT);
-			if (got == (ssize_t)sizeof(f))
+			uint64_t rx = now_monotonic_ns();
+			if (got == (ssize_t)sizeof(f)) {
+				bus_time(s, &f, rx);
 				can_sim_feed(s, &f);
+			}
 			else if (got == 0)
 				break;  /* the client closed */
 		} else if (p[0].revents & (POLLHUP | POLLERR)) {
@@ -868,7 +935,9 @@ void can_sim_get(struct can_sim *s, uint8_t node, struct can_sim_node *out)
 		  out->tp_function = n->tp_function; out->tp_status = n->tp_status;
 		  out->tp_positive = n->tp_positive; out->tp_negative = n->tp_negative;
 		  out->tp_positive_count = n->tp_positive_count;
-		  out->buffered_set_points = n->buffered_set_points);
+		  out->buffered_set_points = n->buffered_set_points;
+		  out->first_set_point_ns = n->first_set_point_ns;
+		  out->sdo_requests = n->sdo_requests);
 }
 
 void can_sim_trigger(struct can_sim *s, bool level)

@@ -32,6 +32,10 @@ struct can_sim_config {
 	/* motion runs at the profile velocity times this; 0: a set point is
 	 * reached the moment it is accepted */
 	double speed_factor;
+	/* the bus's bit rate (bit/s): a request is taken, and answered, once
+	 * it and its answer would have crossed a bus of this rate, each frame
+	 * with its stuff bits (ISO 11898-1); 0: at once */
+	double bitrate;
 	int32_t home_switch[CAN_SIM_MAX_NODES];         /* counts, for methods != 35/37 */
 	/* what each drive has of the touch probe (enum can_sim_touch_probe) */
 	uint8_t touch_probe[CAN_SIM_MAX_NODES];
@@ -122,6 +126,10 @@ struct can_sim_node {
 	int32_t tp_positive, tp_negative;       /* 0x60BA, 0x60BB */
 	uint16_t tp_positive_count;             /* 0x60D5 */
 	unsigned buffered_set_points;           /* set points taken into the buffer */
+	/* CLOCK_MONOTONIC when it took its first set point in profile
+	 * position mode (the first move after homing); 0: none yet */
+	uint64_t first_set_point_ns;
+	unsigned sdo_requests;                  /* SDO requests it answered */
 };
 /* A snapshot of node. */
 void can_sim_get(struct can_sim *s, uint8_t node, struct can_sim_node *out);

@@ -8,6 +8,7 @@ touch probes latched, and falls back (interpolated or flagged) where a
 drive has none."""
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -51,6 +52,37 @@ expect(not os.path.exists(out_path), "nothing is written when the instrument doe
 for name in ("touch_probe", "trigger_node", "trigger_output"):
     expect(name in opts and opts[name]["help"], f"option {name} with help")
 expect(opts["touch_probe"]["choices"] == ["auto", "on", "off"], "touch_probe choices")
+expect(opts["bitrate"]["type"] == "int" and opts["bitrate"]["default"] == "500000"
+       and opts["bitrate"]["unit"] == "bit/s", "bitrate: int, bit/s, 500000 by default")
+
+
+def estimate(**options):
+    """asph plan --estimate on CAN axes with these options: the seconds,
+    the line printed (nothing is opened: the interface need not exist)."""
+    path = os.path.join(T, "estimate.json")
+    with open(path, "w") as f:
+        json.dump({"instruments": [{"name": "bench",
+                   "stage": {"driver": "can", "options": {"interface": "asphcan9", **options}},
+                   "probe": {"driver": "mock", "options": {"time_factor": 0, "rate": 1000}}}]}, f)
+    rc, out, err = run("plan", "strong", "--method", "fermat", "--points", "200",
+                       "--estimate", path, "-o", os.path.join(T, "p.csv"), "-q", check=0)
+    m = re.fullmatch(r"estimate: (\d+\.\d) s \((\d+) min (\d\d) s\) to measure 200 points on "
+                     + re.escape(path) + "\n", out)
+    expect(rc == 0 and m is not None,
+           f"asph plan --estimate predicts CAN axes without opening them ({out!r}, {err.strip()!r})")
+    return float(m.group(1)) if m else 0.0, out
+
+
+slow, line = estimate(speed=10, acceleration=10000)
+fast, _ = estimate(speed=100, acceleration=10000)
+expect(0 < fast < slow, f"faster axes, a shorter prediction ({fast} s < {slow} s)")
+# the axes stop where they turn: a gentler acceleration costs time
+soft, _ = estimate(speed=100, acceleration=100)
+expect(soft > fast, f"a gentler acceleration, a longer prediction ({soft} s > {fast} s)")
+# at 100 mm/s the points come faster than the bus feeds them: the bus sets
+# the pace, a slower bus a longer measuring time
+slow_bus, _ = estimate(speed=100, acceleration=10000, bitrate=125000)
+expect(slow_bus > 1.5 * fast, f"a 125 kbit/s bus, a longer prediction ({slow_bus} s, {fast} s)")
 
 
 def can_sim_server():
