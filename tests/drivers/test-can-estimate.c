@@ -232,11 +232,21 @@ static double tolerance(void)
 	return under_valgrind() ? 0.15 : 0.10;
 }
 
+/* Set by --bench (meson test --benchmark can-estimate). */
+static bool bench_mode;
+
+/*
+ * The simulated run takes wall-clock time (the bus and the drives sleep in
+ * real time), which a loaded machine only lengthens. So the test asserts
+ * that the prediction does not exceed the run by more than the tolerance;
+ * that it does not fall short is the benchmark's check, on an idle
+ * machine, beside the exact counts of test_exchanges().
+ */
 static void check(const char *what, double est, double sim, double tol)
 {
-	print_message("%s: predicted %.3f s, measured %.3f s on the simulator (%+.1f %%)\n", what,
-		      est, sim, 100 * (est - sim) / sim);
-	if (!(fabs(est - sim) <= tol * sim))
+	print_message("%s: predicted %.3f s, measured %.3f s on the simulator (%+.1f %%, "
+		      "ratio %.3f)\n", what, est, sim, 100 * (est - sim) / sim, est / sim);
+	if (!(est - sim <= tol * sim) || (bench_mode && !(sim - est <= tol * sim)))
 		fail_msg("%s: predicted %.4f s, the simulator took %.4f s (%.1f %% off, %.0f %% allowed)",
 			 what, est, sim, 100 * fabs(est - sim) / sim, 100 * tol);
 }
@@ -359,7 +369,7 @@ static void test_exchanges(void **state)
 	scan_fixture_fini(&e);
 }
 
-int main(void)
+int main(int argc, char **argv)
 {
 	const struct CMUnitTest tests[] = {
 		cmocka_unit_test(test_model_closed_forms),
@@ -368,5 +378,14 @@ int main(void)
 		cmocka_unit_test(test_streamed),
 		cmocka_unit_test(test_point_by_point),
 	};
+	const struct CMUnitTest bench[] = {
+		cmocka_unit_test(test_streamed),
+		cmocka_unit_test(test_point_by_point),
+	};
+
+	if (argc > 1 && strcmp(argv[1], "--bench") == 0) {
+		bench_mode = true;
+		return cmocka_run_group_tests(bench, NULL, NULL);
+	}
 	return cmocka_run_group_tests(tests, NULL, NULL);
 }
