@@ -251,7 +251,9 @@ static void check(const char *what, double est, double sim, double tol)
 			 what, est, sim, 100 * fabs(est - sim) / sim, 100 * tol);
 }
 
-static void test_streamed(void **state)
+/* A scan of n points (n_vg under valgrind) predicted and run on the
+ * simulated drives, streamed with latched positions or point by point. */
+static void compare(const char *what, bool stream, double n, double n_vg)
 {
 	bool vg = under_valgrind();
 	struct scan_fixture e;
@@ -260,28 +262,22 @@ static void test_streamed(void **state)
 	char json[1024];
 	double est;
 
-	scan_fixture_init(&e, vg ? 12 : 30, "can-estimate");
-	sim_start(&s, true, false, CAN_SIM_TP_FULL);
+	scan_fixture_init(&e, vg ? n_vg : n, "can-estimate");
+	sim_start(&s, stream, false, CAN_SIM_TP_FULL);
 	instrument_json(json, sizeof(json), s.fd, vg ? 40 : 150, "");
-	double t = measure(&e, &s, json, &so, &est);
-	check("streamed", est, t, tolerance());
+	double t = measure(&e, &s, json, stream ? &so : NULL, &est);
+	check(what, est, t, tolerance());
 	scan_fixture_fini(&e);
+}
+
+static void test_streamed(void **state)
+{
+	compare("streamed", true, 30, 12);
 }
 
 static void test_point_by_point(void **state)
 {
-	bool vg = under_valgrind();
-	struct scan_fixture e;
-	struct sim s;
-	char json[1024];
-	double est;
-
-	scan_fixture_init(&e, vg ? 6 : 12, "can-estimate");
-	sim_start(&s, false, false, CAN_SIM_TP_FULL);
-	instrument_json(json, sizeof(json), s.fd, vg ? 40 : 150, "");
-	double t = measure(&e, &s, json, NULL, &est);
-	check("point by point", est, t, tolerance());
-	scan_fixture_fini(&e);
+	compare("point by point", false, 12, 6);
 }
 
 /* The SDO requests the drives answered so far, all nodes. */

@@ -221,14 +221,18 @@ class Client:
     def send_raw(self, data):
         self.sock.sendall(data)
 
-    def read_message(self):
+    def read_line(self):
+        """The next line the daemon sent, as bytes without its newline."""
         while b"\n" not in self.buf:
-            chunk = self.sock.recv(65536)
+            chunk = self.sock.recv(1 << 20)
             if not chunk:
                 raise EOFError("the daemon closed the connection")
             self.buf += chunk
         line, self.buf = self.buf.split(b"\n", 1)
-        return json.loads(line)
+        return line
+
+    def read_message(self):
+        return json.loads(self.read_line())
 
     def request(self, method, params=None):
         self.next_id += 1

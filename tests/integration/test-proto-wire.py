@@ -24,13 +24,7 @@ BOM = b"\xef\xbb\xbf"
 def raw(c, data):
     """Sends data (one line) and returns the text of the answer's line."""
     c.send_raw(data)
-    while b"\n" not in c.buf:
-        chunk = c.sock.recv(65536)
-        if not chunk:
-            raise EOFError("the daemon closed the connection")
-        c.buf += chunk
-    line, c.buf = c.buf.split(b"\n", 1)
-    return line
+    return c.read_line()
 
 
 def version(rid):
@@ -152,12 +146,7 @@ try:
     w.send_raw(json.dumps(batch).encode() + b"\n")
     answers, events, unparsable = None, [], []
     while answers is None:
-        while b"\n" not in w.buf:
-            chunk = w.sock.recv(1 << 20)
-            if not chunk:
-                raise EOFError("the daemon closed the connection")
-            w.buf += chunk
-        line, w.buf = w.buf.split(b"\n", 1)
+        line = w.read_line()
         try:
             m = json.loads(line)
         except ValueError as e:
