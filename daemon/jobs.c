@@ -1227,6 +1227,14 @@ int jobs_list(struct jobs *jobs, const struct store_filter *f, store_job_fn fn, 
 	return r < 0 ? asph_error_set(err, r, "cannot read the jobs: %s", strerror(-r)) : 0;
 }
 
+int jobs_count(struct jobs *jobs, const struct store_filter *f, int64_t *out,
+	       struct asph_error *err)
+{
+	int r = store_total(jobs->store, f, out);
+
+	return r < 0 ? asph_error_set(err, r, "cannot read the jobs: %s", strerror(-r)) : 0;
+}
+
 int jobs_list_queue(struct jobs *jobs, store_job_fn fn, void *data, struct asph_error *err)
 {
 	struct store_filter f = {
@@ -1237,6 +1245,118 @@ int jobs_list_queue(struct jobs *jobs, store_job_fn fn, void *data, struct asph_
 	int r = store_list(jobs->store, &f, fn, data, NULL);
 
 	return r < 0 ? asph_error_set(err, r, "cannot read the queue: %s", strerror(-r)) : 0;
+}
+
+struct jobs_cursor {
+	struct jobs *jobs;
+	struct store_filter f;          /* its strings are copies */
+	char *strings[6];
+	int64_t left;                   /* of f's limit; -1: no limit */
+	bool started, ended;
+	/* the last job given */
+	int64_t last_id, last_priority, last_seq;
+	/* for the callback */
+	store_job_fn fn;
+	void *data;
+	size_t given;
+};
+
+void jobs_cursor_free(struct jobs_cursor *c)
+{
+	if (!c)
+		return;
+	for (size_t i = 0; i < ARRAY_SIZE(c->strings); i++)
+		free(c->strings[i]);
+	free(c);
+}
+
+/* A copy of the filter's string *s, kept in c. */
+static int keep_string(struct jobs_cursor *c, size_t i, const char **s)
+{
+	if (!*s)
+		return 0;
+	c->strings[i] = strdup(*s);
+	*s = c->strings[i];
+	return *s ? 0 : -ENOMEM;
+}
+
+int jobs_cursor_new(struct jobs *jobs, const struct store_filter *f, struct jobs_cursor **out)
+{
+	struct jobs_cursor *c = calloc(1, sizeof(*c));
+	int r = 0;
+
+	if (!c)
+		return -ENOMEM;
+	c->jobs = jobs;
+	if (f) {
+		c->f = *f;
+	} else {
+		c->f = (struct store_filter){
+			.uid = STORE_ANY_UID,
+			.states = 1u << JOB_QUEUED | 1u << JOB_RUNNING | 1u << JOB_PAUSED,
+			.queue_order = true,
+		};
+	}
+	c->left = c->f.limit > 0 ? c->f.limit : -1;
+	r |= keep_string(c, 0, &c->f.instrument);
+	r |= keep_string(c, 1, &c->f.label);
+	r |= keep_string(c, 2, &c->f.user);
+	r |= keep_string(c, 3, &c->f.part);
+	r |= keep_string(c, 4, &c->f.lot);
+	r |= keep_string(c, 5, &c->f.serial);
+	if (r < 0) {
+		jobs_cursor_free(c);
+		return -ENOMEM;
+	}
+	*out = c;
+	return 0;
+}
+
+static int cursor_entry(const struct job_record *j, void *data)
+{
+	struct jobs_cursor *c = data;
+
+	c->last_id = j->id;
+	c->last_priority = j->priority;
+	c->last_seq = j->seq;
+	c->given++;
+	return c->fn(j, c->data);
+}
+
+int jobs_cursor_next(struct jobs_cursor *c, size_t max, store_job_fn fn, void *data,
+		     struct asph_error *err)
+{
+	struct store_filter f = c->f;
+	int r;
+
+	if (c->ended || c->left == 0)
+		return 0;
+	if (c->left > 0 && (int64_t)max > c->left)
+		max = (size_t)c->left;
+	if (c->started) {
+		/* Where the last slice stopped: after its last job. */
+		f.offset = 0;
+		if (f.queue_order) {
+			f.after = true;
+			f.after_priority = c->last_priority;
+			f.after_seq = c->last_seq;
+			f.after_id = c->last_id;
+		} else {
+			f.before_id = c->last_id;
+		}
+	}
+	f.limit = (int64_t)max;
+	c->fn = fn;
+	c->data = data;
+	c->given = 0;
+	r = store_list(c->jobs->store, &f, cursor_entry, c, NULL);
+	if (r < 0)
+		return asph_error_set(err, r, "cannot read the jobs: %s", strerror(-r));
+	c->started = true;
+	if (c->left > 0)
+		c->left -= (int64_t)c->given;
+	c->ended = c->given < max || c->left == 0;
+	return c->ended ? 0 : 1;
 }
 
 int jobs_history(struct jobs *jobs, int64_t id, store_event_fn fn, void *data,

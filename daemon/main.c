@@ -33,8 +33,10 @@
 #include "server.h"
 #include "web.h"
 #include "settings.h"
+#include "tasks.h"
 #include "telemetry.h"
 #include "tokens.h"
+#include "turns.h"
 #include "util-time.h"
 #include "util-mem.h"
 
@@ -47,6 +49,11 @@ enum {
 };
 
 #define DEFAULT_CONFIG "/etc/asphd/asphd.conf"
+/* The threads that check and estimate plans and read scans for the web
+ * page (tasks.h), and of them those kept for operators' tasks: a reader's
+ * estimates cannot hold up an operator's submission. */
+#define TASK_THREADS 2
+#define TASK_THREADS_RESERVED 1
 
 struct daemon {
 	const char *config_path;
@@ -68,6 +75,8 @@ struct daemon {
 	struct events *events;
 	struct jobs *jobs;
 	struct rpc *rpc;
+	struct turns *turns;            /* the clients' work, every listener's */
+	struct tasks *tasks;            /* plans checked and estimated, scans read */
 	struct server *server;
 	struct web *web;                /* NULL without http_listen */
 	struct tokens *tokens;
@@ -343,6 +352,10 @@ static void needs_restart(const struct daemon *d, const struct settings *next, c
 		append(why, size, "http_listen");
 	if (differ(next->http_root, now->http_root))
 		append(why, size, "http_root");
+	if (differ(section_text(next, "http_allowed_hosts"), section_text(now, "http_allowed_hosts")))
+		append(why, size, "http_allowed_hosts");
+	if (differ(next->http_trust_proxy, now->http_trust_proxy))
+		append(why, size, "http_trust_proxy");
 	if (differ(section_text(next, "mqtt"), section_text(now, "mqtt")))
 		append(why, size, "mqtt");
 	if (differ(section_text(next, "postgres"), section_text(now, "postgres")))
@@ -736,16 +749,24 @@ static int start_modules(struct daemon *d)
 		return r;
 	}
 	r = open_tokens(d);
+	if (r == 0)
+		r = turns_new(d->event, &d->turns);
+	if (r == 0)
+		r = tasks_new(&(struct tasks_setup){
+				.event = d->event, .threads = TASK_THREADS,
+				.reserved = TASK_THREADS_RESERVED,
+			      }, &d->tasks);
 	if (r < 0)
 		return r;
 	r = rpc_new(&(struct rpc_setup){
 			.event = d->event, .started_usec = d->started_usec, .jobs = d->jobs,
 			.instruments = d->instruments, .events = d->events, .access = d->access,
-			.tokens = d->tokens, .limits = &d->limits,
+			.tokens = d->tokens, .tasks = d->tasks, .limits = &d->limits,
 		    }, &d->rpc);
 	if (r == 0)
 		r = server_new(&(struct server_setup){
-				.event = d->event, .rpc = d->rpc, .limits = &d->limits,
+				.event = d->event, .rpc = d->rpc, .turns = d->turns,
+				.limits = &d->limits,
 			       }, &d->server);
 	if (r < 0)
 		return r;
@@ -756,6 +777,7 @@ static int start_modules(struct daemon *d)
 	if (r > 0 && d->http) {
 		r = web_new(&(struct web_setup){
 				.event = d->event, .rpc = d->rpc, .jobs = d->jobs,
+				.turns = d->turns, .tasks = d->tasks,
 				.limits = &d->limits, .state_dir = d->settings->state_dir,
 			    }, &d->web);
 		if (r == 0)
@@ -790,8 +812,13 @@ static int run(struct daemon *d)
 	if (r == 0)
 		r = server_listen(d->server, d->settings, d->tcp);
 	if (r == 0 && d->web) {
-		r = web_listen(d->web, d->http, d->settings->http_listen,
-			       d->settings->http_root ? d->settings->http_root : WEB_DIR);
+		r = web_listen(d->web, &(struct web_listen_setup){
+				.addr = d->http, .text = d->settings->http_listen,
+				.host = d->settings->http_host,
+				.root = d->settings->http_root ? d->settings->http_root : WEB_DIR,
+				.allowed_hosts = d->settings->http_allowed_hosts,
+				.trust_proxy = d->settings->http_trust_proxy,
+			       });
 		if (r == 0)
 			log_info("web page at http://%s%s%s:%u/ (%zu address%s)",
 				 strchr(d->settings->http_host, ':') ? "[" : "", d->settings->http_host,
@@ -812,9 +839,12 @@ static int run(struct daemon *d)
 
 static void teardown(struct daemon *d)
 {
+	/* The clients first: their lines cancel the tasks they wait for. */
 	web_free(d->web);
 	server_free(d->server);
 	rpc_free(d->rpc);
+	tasks_free(d->tasks);
+	turns_free(d->turns);
 	stop_fleet(d);
 	sd_event_source_disable_unref(d->revalidate);
 	sd_event_source_disable_unref(d->token_expiry);

@@ -1,4 +1,5 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <arpa/inet.h>
 #include <errno.h>
 #include <limits.h>
 #include <stdio.h>
@@ -50,6 +51,7 @@ static const struct settings_limits default_limits = {
 	.max_output_bytes = 8u << 20,
 	.max_queue = 10000,
 	.max_plan_points = 5000000,
+	.max_plan_point_terms = 64000000,
 	.max_subscriptions = 64,
 	.max_subscriptions_per_user = 8,
 	.reserved_subscriptions = 8,
@@ -95,6 +97,10 @@ void settings_free(struct settings *c)
 	free(c->http_host);
 	free(c->http_port);
 	free(c->http_root);
+	for (size_t i = 0; c->http_allowed_hosts && c->http_allowed_hosts[i]; i++)
+		free(c->http_allowed_hosts[i]);
+	free(c->http_allowed_hosts);
+	free(c->http_trust_proxy);
 	free(c->state_dir);
 	free(c->instruments_json);
 	free(c->text);
@@ -175,6 +181,7 @@ static const struct {
 	LIMIT(max_output_bytes, 65536, 1u << 30),
 	LIMIT(max_queue, 1, 10000000),
 	LIMIT(max_plan_points, 10, 100000000),
+	LIMIT(max_plan_point_terms, 1000, 4000000000u),
 	LIMIT(max_subscriptions, 1, 65536),
 	LIMIT(max_subscriptions_per_user, 1, 65536),
 	LIMIT(reserved_subscriptions, 0, 65535),
@@ -452,6 +459,50 @@ static void take_postgres(struct loader *ld, json_t *obj, struct settings *c)
 			 "postgres.password_file");
 }
 
+/* A host name or address as a browser sends it in Host, without the
+ * port (an IPv6 address without its brackets). */
+static bool host_name(const char *s)
+{
+	struct in6_addr a6;
+
+	if (!*s || strlen(s) > 253 || strpbrk(s, " \t/[]@?#"))
+		return false;
+	return !strchr(s, ':') || inet_pton(AF_INET6, s, &a6) == 1;
+}
+
+static void take_allowed_hosts(struct loader *ld, json_t *v, struct settings *c)
+{
+	size_t i, n = json_array_size(v);
+	json_t *h;
+
+	if (!json_is_array(v) || n == 0) {
+		complain(ld, "http_allowed_hosts", "must be a non-empty array of host names");
+		return;
+	}
+	c->http_allowed_hosts = calloc(n + 1, sizeof(char *));
+	if (!c->http_allowed_hosts)
+		return;
+	json_array_foreach(v, i, h) {
+		if (!json_is_string(h) || !host_name(json_string_value(h))) {
+			complain(ld, "http_allowed_hosts", "[%zu] must be a host name or address "
+				 "without a port, such as \"metrology.lab.example\"", i);
+			continue;
+		}
+		c->http_allowed_hosts[i] = strdup(json_string_value(h));
+	}
+}
+
+static void take_proxy(struct loader *ld, json_t *v, struct settings *c)
+{
+	struct in6_addr a;
+
+	take_string(ld, v, "http_trust_proxy", &c->http_trust_proxy, false);
+	if (c->http_trust_proxy && inet_pton(AF_INET, c->http_trust_proxy, &a) != 1 &&
+	    inet_pton(AF_INET6, c->http_trust_proxy, &a) != 1)
+		complain(ld, "http_trust_proxy", "must be the proxy's IP address, such as "
+			 "\"127.0.0.1\"");
+}
+
 static void take_member(struct loader *ld, struct settings *c,
 			const char *key, json_t *v)
 {
@@ -469,6 +520,10 @@ static void take_member(struct loader *ld, struct settings *c,
 		take_listen(ld, v, key, &c->http_listen, &c->http_host, &c->http_port);
 	else if (!strcmp(key, "http_root"))
 		take_string(ld, v, key, &c->http_root, true);
+	else if (!strcmp(key, "http_allowed_hosts"))
+		take_allowed_hosts(ld, v, c);
+	else if (!strcmp(key, "http_trust_proxy"))
+		take_proxy(ld, v, c);
 	else if (!strcmp(key, "token_file"))
 		take_string(ld, v, key, &c->token_file, true);
 	else if (!strcmp(key, "state_dir"))

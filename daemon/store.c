@@ -591,7 +591,10 @@ static void filter_sql(const struct store_filter *f, char *sql, size_t size)
 	if (f->serial)
 		n += (size_t)snprintf(sql + n, size - n, " AND serial = ?");
 	if (f->before_id > 0)
-		snprintf(sql + n, size - n, " AND id < ?");
+		n += (size_t)snprintf(sql + n, size - n, " AND id < ?");
+	if (f->after)
+		snprintf(sql + n, size - n, " AND (priority < ? OR (priority = ? AND"
+			 " (seq > ? OR (seq = ? AND id > ?))))");
 }
 
 static int filter_bind(sqlite3_stmt *st, const struct store_filter *f)
@@ -616,30 +619,43 @@ static int filter_bind(sqlite3_stmt *st, const struct store_filter *f)
 		bind_text(st, i++, f->serial);
 	if (f->before_id > 0)
 		sqlite3_bind_int64(st, i++, f->before_id);
+	if (f->after) {
+		sqlite3_bind_int64(st, i++, f->after_priority);
+		sqlite3_bind_int64(st, i++, f->after_priority);
+		sqlite3_bind_int64(st, i++, f->after_seq);
+		sqlite3_bind_int64(st, i++, f->after_seq);
+		sqlite3_bind_int64(st, i++, f->after_id);
+	}
 	return i;
+}
+
+int store_total(struct store *s, const struct store_filter *f, int64_t *total)
+{
+	char sql[768] = "SELECT COUNT(*) FROM jobs";
+	_cleanup_stmt_ sqlite3_stmt *c = NULL;
+
+	filter_sql(f, sql, sizeof(sql));
+	c = prepare(s, sql);
+	if (!c)
+		return -EIO;
+	filter_bind(c, f);
+	if (sqlite3_step(c) != SQLITE_ROW)
+		return -EIO;
+	*total = sqlite3_column_int64(c, 0);
+	return 0;
 }
 
 int store_list(struct store *s, const struct store_filter *f,
 	       store_job_fn fn, void *data, int64_t *total)
 {
-	char sql[768] = "SELECT " JOB_COLUMNS " FROM jobs";
+	char sql[1024] = "SELECT " JOB_COLUMNS " FROM jobs";
 	_cleanup_stmt_ sqlite3_stmt *st = NULL;
 	int i, r;
 
-	if (total) {
-		char csql[512] = "SELECT COUNT(*) FROM jobs";
-		_cleanup_stmt_ sqlite3_stmt *c = NULL;
-		filter_sql(f, csql, sizeof(csql));
-		c = prepare(s, csql);
-		if (!c)
-			return -EIO;
-		filter_bind(c, f);
-		if (sqlite3_step(c) != SQLITE_ROW)
-			return -EIO;
-		*total = sqlite3_column_int64(c, 0);
-	}
+	if (total && (r = store_total(s, f, total)) < 0)
+		return r;
 	filter_sql(f, sql, sizeof(sql));
-	strncat(sql, f->queue_order ? " ORDER BY priority DESC, seq" : " ORDER BY id DESC",
+	strncat(sql, f->queue_order ? " ORDER BY priority DESC, seq, id" : " ORDER BY id DESC",
 		sizeof(sql) - strlen(sql) - 1);
 	strncat(sql, " LIMIT ? OFFSET ?", sizeof(sql) - strlen(sql) - 1);
 	st = prepare(s, sql);

@@ -89,7 +89,11 @@ struct store_filter {
 	const char *part, *lot, *serial;        /* exact, or NULL */
 	int64_t before_id;      /* only ids below; 0 = no bound */
 	int64_t offset, limit;
-	bool queue_order;       /* priority, seq; else newest first */
+	bool queue_order;       /* priority, seq, id; else newest first */
+	/* queue_order: only the jobs after this one in that order (a listing
+	 * taken up where it stopped) */
+	bool after;
+	int64_t after_priority, after_seq, after_id;
 };
 
 typedef int (*store_job_fn)(const struct job_record *j, void *data);
@@ -98,6 +102,8 @@ typedef int (*store_job_fn)(const struct job_record *j, void *data);
  * filter without offset/limit in *total (may be NULL). */
 int store_list(struct store *s, const struct store_filter *f,
 	       store_job_fn fn, void *data, int64_t *total);
+/* The count of jobs that match the filter without offset/limit. */
+int store_total(struct store *s, const struct store_filter *f, int64_t *total);
 
 /* The queued job of an instrument that runs next; -ENOENT when none. */
 int store_next(struct store *s, const char *instrument,

@@ -148,7 +148,9 @@ static int64_t submit_to(struct fixture *f, const char *instrument, int points,
 	snprintf(params, sizeof(params),
 		 "{\"lens\": \"strong\", \"plan\": {\"method\": \"fermat\", \"points\": %d}}", points);
 	p = json_loads(params, 0, NULL);
-	assert_int_equal(jobspec_from_params(p, f->limits.max_plan_points, &spec, &n, &why), 0);
+	assert_int_equal(jobspec_from_params(p, &(struct jobspec_limits){
+			.max_points = f->limits.max_plan_points,
+			.max_point_terms = f->limits.max_plan_point_terms }, &spec, &n, &why), 0);
 	char *text = json_dumps(spec, JSON_COMPACT);
 	struct job_submission sub = {
 		.spec = text, .points = (int64_t)n, .instrument = instrument,
