@@ -1165,16 +1165,26 @@ int jobs_lock(struct jobs *jobs, const char *instrument, const char *reason, boo
 	return 0;
 }
 
-/* The job a lock paused runs again when the lock goes, if it still waits. */
+/*
+ * The job a lock paused runs again when the lock goes: resumed if it still
+ * waits, re-queued where it stopped if someone stopped it meanwhile (a
+ * queue.stop with abort makes it interrupted): it was held for the lock,
+ * not given up. A re-queued job waits for the queue to run.
+ */
 static void resume_after_lock(struct jobs *jobs, struct slot *sl, int64_t id,
 			      const struct job_actor *who)
 {
 	struct job_record j;
 
-	if (!id || sl->act.job != id || !sl->act.paused || load(jobs, id, &j, NULL) < 0)
+	if (!id || load(jobs, id, &j, NULL) < 0)
 		return;
-	if (j.state == JOB_PAUSED)
+	if (j.state == JOB_PAUSED && sl->act.job == id && sl->act.paused) {
 		set_paused(jobs, &j, sl, false, NULL, who, NULL);
+	} else if (j.state == JOB_INTERRUPTED) {
+		log_job(LOG_NOTICE, id, "re-queued at the end of the lock of %s: it was paused by "
+			"the lock and stopped meanwhile", sl->in->name);
+		requeue(jobs, &j, !j.resume, who, NULL);
+	}
 	job_record_clear(&j);
 }
 

@@ -22,6 +22,7 @@
 #include "asph-proto.h"
 #include "config.h"
 #include "devices.h"
+#include "dirs.h"
 #include "events.h"
 #include "fleetdb.h"
 #include "instruments.h"
@@ -126,10 +127,26 @@ static int resolve_listen(const struct settings *s, const char *field, const cha
 	return r;
 }
 
+/* The web page's files, when the web listener serves them: http_root, or
+ * the installed ones when it is not set (and they are there). */
+static void check_page(const struct settings *s, settings_error_fn report, void *data)
+{
+	const char *root = s->http_root ? s->http_root : WEB_DIR;
+	struct asph_error err;
+
+	if (!s->http_listen || (!s->http_root && access(root, F_OK) < 0))
+		return;
+	asph_error_clear(&err);
+	if (dirs_check_page(root, &err) < 0) {
+		settings_locate(s, "http_root", &err);
+		report(&err, data);
+	}
+}
+
 /*
  * Everything the configuration says that needs more than the file to
  * check: the instruments against the drivers, the operator group, the
- * token file, the TCP address. `asphd --check-config` and the start run
+ * token file, the TCP address, the web page's files. `asphd --check-config` and the start run
  * this same function, so that they agree. Returns the number of errors
  * (reported as found).
  */
@@ -146,6 +163,7 @@ static int load_configuration(struct daemon *d)
 		       &d->tcp, report_config_error, &n_errors);
 	resolve_listen(d->settings, "http_listen", d->settings->http_host,
 		       d->settings->http_port, &d->http, report_config_error, &n_errors);
+	check_page(d->settings, report_config_error, &n_errors);
 	mqtt_credentials_load(d->settings, &d->mqtt_credentials, report_config_error, &n_errors);
 	fleetdb_password_load(d->settings, &d->pg_password, report_config_error, &n_errors);
 	return n_errors;
@@ -227,14 +245,18 @@ static int apply_overrides(const struct daemon *d, struct settings *s)
 }
 
 /*
- * The descriptors max_clients needs besides the daemon's own: the soft
- * limit is raised as far as the hard one (LimitNOFILE=) allows. 0, or
- * -EMFILE when it cannot be, which report says naming the setting.
+ * The descriptors the clients need besides the daemon's own: max_clients
+ * and root's own on the socket, and with http_listen as many web
+ * connections again and those making room. The soft limit is raised as
+ * far as the hard one (LimitNOFILE=) allows. 0, or -EMFILE when it cannot
+ * be, which report says naming the setting.
  */
 static int check_descriptors(const struct settings *s, size_t n_instruments,
 			     settings_error_fn report, void *data)
 {
-	rlim_t need = (rlim_t)s->limits.max_clients + SERVER_FIXED_FDS + 4 * n_instruments;
+	rlim_t clients = (rlim_t)s->limits.max_clients + SERVER_ROOT_CLIENTS;
+	rlim_t web = s->http_listen ? (rlim_t)s->limits.max_clients + WEB_DISPLACED_MAX : 0;
+	rlim_t need = clients + web + SERVER_FIXED_FDS + 4 * n_instruments;
 	struct asph_error err;
 	struct rlimit rl;
 
@@ -246,9 +268,10 @@ static int check_descriptors(const struct settings *s, size_t n_instruments,
 			return 0;
 	}
 	asph_error_clear(&err);
-	asph_error_set(&err, -EMFILE, "%u clients need about %llu file descriptors, and this "
+	asph_error_set(&err, -EMFILE, "%u clients%s need about %llu file descriptors, and this "
 		       "process may open %llu (LimitNOFILE=, ulimit -n): lower "
 		       "limits.max_clients or raise the limit", s->limits.max_clients,
+		       web ? " on the socket and as many on the web listener" : "",
 		       (unsigned long long)need, (unsigned long long)rl.rlim_max);
 	settings_locate(s, "limits.max_clients", &err);
 	report(&err, data);

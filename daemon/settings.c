@@ -7,6 +7,7 @@
 #include <string.h>
 
 #include <jansson.h>
+#include <libpq-fe.h>
 
 #include "asph-proto.h"
 #include "settings.h"
@@ -425,6 +426,26 @@ static void take_mqtt(struct loader *ld, json_t *obj, struct settings *c)
 		complain(ld, "mqtt.ca_file", "is for an mqtts:// broker; the url is mqtt://");
 }
 
+/* Whether a libpq connection string (key=value or a URI) gives a
+ * password; one libpq cannot read is said so. */
+static bool conninfo_has_password(struct loader *ld, const char *conninfo)
+{
+	char *why = NULL;
+	PQconninfoOption *opts = PQconninfoParse(conninfo, &why);
+	bool has = false;
+
+	if (!opts) {
+		complain(ld, "postgres.conninfo", "is not a libpq connection string: %.200s",
+			 why ? why : "out of memory");
+		PQfreemem(why);
+		return false;
+	}
+	for (PQconninfoOption *o = opts; o->keyword; o++)
+		has |= o->val && o->val[0] && strstr(o->keyword, "password");
+	PQconninfoFree(opts);
+	return has;
+}
+
 static void take_postgres(struct loader *ld, json_t *obj, struct settings *c)
 {
 	const char *key;
@@ -454,9 +475,9 @@ static void take_postgres(struct loader *ld, json_t *obj, struct settings *c)
 	if (!c->postgres->conninfo)
 		complain(ld, "postgres", "needs \"conninfo\", a libpq connection string such as "
 			 "\"host=db.lab dbname=asph user=asphd\"");
-	else if (strstr(c->postgres->conninfo, "password"))
-		complain(ld, "postgres.conninfo", "must not hold the password: it goes in "
-			 "postgres.password_file");
+	else if (conninfo_has_password(ld, c->postgres->conninfo))
+		complain(ld, "postgres.conninfo", "must not hold the password (as password= or "
+			 "in a URI's user:password@): it goes in postgres.password_file");
 }
 
 /* A host name or address as a browser sends it in Host, without the

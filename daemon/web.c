@@ -55,9 +55,6 @@
 /* libmicrohttpd's memory for one connection's request head and its
  * buffers (its default). */
 #define MHD_CONNECTION_MEMORY (32 * 1024)
-/* Connections closed to make room for new ones, and not yet gone: at most
- * this many beyond limits.max_clients. */
-#define WEB_DISPLACED_MAX 16
 /* How often the time limits of connections and sessions are looked at. */
 #define SWEEP_USEC 1000000
 /* The live map's reads of one owner at once. */

@@ -45,6 +45,10 @@
 #include "tasks.h"
 #include "turns.h"
 
+/* Connections closed to make room for new ones and not yet gone: at most
+ * this many beyond limits.max_clients (of the descriptors' budget). */
+#define WEB_DISPLACED_MAX 16
+
 struct web_setup {
 	sd_event *event;
 	struct rpc *rpc;
