@@ -1333,35 +1333,54 @@ static int cursor_entry(const struct job_record *j, void *data)
 	return c->fn(j, c->data);
 }
 
+/* Up to max jobs of f from the store, through the cursor's callback. */
+static int cursor_read(struct jobs_cursor *c, struct store_filter *f, size_t max,
+		       struct asph_error *err)
+{
+	int r;
+
+	f->limit = (int64_t)max;
+	r = store_list(c->jobs->store, f, cursor_entry, c, NULL);
+	return r < 0 ? asph_error_set(err, r, "cannot read the jobs: %s", strerror(-r)) : 0;
+}
+
 int jobs_cursor_next(struct jobs_cursor *c, size_t max, store_job_fn fn, void *data,
 		     struct asph_error *err)
 {
 	struct store_filter f = c->f;
+	int64_t priority = c->last_priority;
 	int r;
 
 	if (c->ended || c->left == 0)
 		return 0;
 	if (c->left > 0 && (int64_t)max > c->left)
 		max = (size_t)c->left;
-	if (c->started) {
-		/* Where the last slice stopped: after its last job. */
-		f.offset = 0;
-		if (f.queue_order) {
-			f.after = true;
-			f.after_priority = c->last_priority;
-			f.after_seq = c->last_seq;
-			f.after_id = c->last_id;
-		} else {
-			f.before_id = c->last_id;
-		}
-	}
-	f.limit = (int64_t)max;
 	c->fn = fn;
 	c->data = data;
 	c->given = 0;
-	r = store_list(c->jobs->store, &f, cursor_entry, c, NULL);
+	if (!c->started) {
+		r = cursor_read(c, &f, max, err);
+	} else if (!f.queue_order) {
+		/* newest first: below the last id */
+		f.offset = 0;
+		f.before_id = c->last_id;
+		r = cursor_read(c, &f, max, err);
+	} else {
+		/* the rest of the last job's priority, then the lower ones */
+		f.offset = 0;
+		f.after = true;
+		f.after_priority = priority;
+		f.after_seq = c->last_seq;
+		f.after_id = c->last_id;
+		r = cursor_read(c, &f, max, err);
+		if (r == 0 && c->given < max) {
+			f.after = false;
+			f.below = true;
+			r = cursor_read(c, &f, max - c->given, err);
+		}
+	}
 	if (r < 0)
-		return asph_error_set(err, r, "cannot read the jobs: %s", strerror(-r));
+		return r;
 	c->started = true;
 	if (c->left > 0)
 		c->left -= (int64_t)c->given;

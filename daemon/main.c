@@ -466,6 +466,8 @@ static int on_token_expiry(sd_event_source *s, uint64_t usec, void *data)
 	struct daemon *d = data;
 
 	server_revalidate(d->server);
+	if (d->web)
+		web_revalidate(d->web);
 	arm_token_expiry(d);
 	return 0;
 }

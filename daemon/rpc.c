@@ -42,9 +42,11 @@
 /* The computations (tasks.h) of one owner at once: a plan checked or
  * estimated, running or waiting for a thread. */
 #define TASKS_PER_OWNER 2
-/* Jobs of a listing (job.list, queue.get) answered per step: a few
- * milliseconds of the loop (each job is read, parsed and written). */
-#define LIST_STEP 32
+/* A step of a listing (job.list, queue.get): jobs read from the store a
+ * few at a time (each is read, parsed and written: tens of microseconds)
+ * until about this much time has passed. */
+#define LIST_STEP_USEC 1000
+#define LIST_READ 8
 
 struct rpc {
 	sd_event *event;
@@ -1108,7 +1110,8 @@ static int m_events_subscribe(struct call *c, json_t *params, json_t **result)
 	const struct settings_limits *l = c->rpc->limits;
 	const struct peer *p = &c->s->peer;
 	struct event_quota q = {
-		.owner = p->key, .operator = is_operator(c), .max = l->max_subscriptions,
+		/* a user's from whichever address and listener (rpc.h) */
+		.owner = c->s->owner, .operator = is_operator(c), .max = l->max_subscriptions,
 		/* root has no quota of its own, as for connections */
 		.per_owner = !p->tcp && p->uid == 0 ? l->max_subscriptions
 						    : l->max_subscriptions_per_user,
@@ -1391,7 +1394,10 @@ static int listing_step(struct rpc_line *l, struct line_writer *w)
 		ls->head_out = true;
 	}
 	asph_error_clear(&err);
-	r = w->failed ? 0 : jobs_cursor_next(ls->cursor, LIST_STEP, listing_item, &lw, &err);
+	uint64_t start = turns_now_usec();
+	do
+		r = w->failed ? 0 : jobs_cursor_next(ls->cursor, LIST_READ, listing_item, &lw, &err);
+	while (r > 0 && turns_now_usec() - start < LIST_STEP_USEC);
 	if (r > 0)
 		return 1;
 	if (r < 0 && !w->failed)

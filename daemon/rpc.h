@@ -89,9 +89,10 @@ typedef int (*rpc_write_fn)(const char *text, size_t len, void *data);
  * is answered a step at a time (rpc_line_step()), so that the transport
  * can serve other connections between two steps and send each answer as
  * it comes instead of building the whole array in memory. A step is one
- * request, or a slice of a long answer (a listing of jobs, LIST_STEP jobs
- * a step), or nothing while a computation runs on a task's thread (the
- * line then waits: its ready function is called when it can go on).
+ * request, or a slice of a long answer (a listing of jobs, about a
+ * millisecond of them), or nothing while a computation runs on a task's
+ * thread (the line then waits: its ready function is called when it can
+ * go on).
  * A notification is carried out as a request is, and its answer, which
  * is not sent, counts as if it were. Once a line's answers have passed
  * limits.max_response_bytes, each further request of it is answered -32004

@@ -161,7 +161,8 @@ static void client_unlink(struct client *c)
 /* c waits for its turn (nothing when it waits already). */
 static void turn_queue(struct client *c)
 {
-	turns_queue(c->srv->turns, &c->turn);
+	/* A line not yet begun is fresh (turns.h). */
+	turns_queue(c->srv->turns, &c->turn, !c->line);
 }
 
 static void turn_remove(struct client *c)

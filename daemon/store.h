@@ -90,9 +90,11 @@ struct store_filter {
 	int64_t before_id;      /* only ids below; 0 = no bound */
 	int64_t offset, limit;
 	bool queue_order;       /* priority, seq, id; else newest first */
-	/* queue_order: only the jobs after this one in that order (a listing
-	 * taken up where it stopped) */
-	bool after;
+	/* queue_order, a listing taken up where it stopped (each a seek of
+	 * the queue's index, so that a listing costs its length, not its
+	 * square): with after, the jobs of priority after_priority after
+	 * (after_seq, after_id); with below, those of a lower priority. */
+	bool after, below;
 	int64_t after_priority, after_seq, after_id;
 };
 

@@ -6,23 +6,31 @@
 
 #include "turns.h"
 
-struct turns {
-	sd_event_source *work;
+/* A queue of turns, in the order they came. */
+struct queue {
 	struct turn *first, *last;
 };
 
-/* The first turn waiting runs one slice; it queues again, last, when it
- * has more. */
+struct turns {
+	sd_event_source *work;
+	struct queue fresh, going;
+	unsigned fresh_run;             /* fresh turns run since one that went on */
+};
+
+/* The first turn waiting runs one slice (a fresh one first, but not more
+ * than TURN_FRESH_RUN in a row); it queues again, last, when it has more. */
 static int work(sd_event_source *s, void *data)
 {
 	struct turns *t = data;
-	struct turn *turn = t->first;
+	bool fresh = t->fresh.first && (t->fresh_run < TURN_FRESH_RUN || !t->going.first);
+	struct turn *turn = fresh ? t->fresh.first : t->going.first;
 
+	t->fresh_run = fresh ? t->fresh_run + 1 : 0;
 	if (turn) {
 		turns_remove(t, turn);
 		turn->run(turn->data);
 	}
-	if (t->first)
+	if (turns_waiting(t))
 		sd_event_source_set_enabled(t->work, SD_EVENT_ONESHOT);
 	return 0;
 }
@@ -54,40 +62,45 @@ void turns_free(struct turns *t)
 	free(t);
 }
 
-void turns_queue(struct turns *t, struct turn *turn)
+void turns_queue(struct turns *t, struct turn *turn, bool fresh)
 {
+	struct queue *q = fresh ? &t->fresh : &t->going;
+
 	if (turn->queued)
 		return;
 	turn->queued = true;
+	turn->fresh = fresh;
 	turn->next = NULL;
-	turn->prev = t->last;
-	if (t->last)
-		t->last->next = turn;
+	turn->prev = q->last;
+	if (q->last)
+		q->last->next = turn;
 	else
-		t->first = turn;
-	t->last = turn;
+		q->first = turn;
+	q->last = turn;
 	sd_event_source_set_enabled(t->work, SD_EVENT_ONESHOT);
 }
 
 void turns_remove(struct turns *t, struct turn *turn)
 {
+	struct queue *q = turn->fresh ? &t->fresh : &t->going;
+
 	if (!turn->queued)
 		return;
 	if (turn->prev)
 		turn->prev->next = turn->next;
 	else
-		t->first = turn->next;
+		q->first = turn->next;
 	if (turn->next)
 		turn->next->prev = turn->prev;
 	else
-		t->last = turn->prev;
+		q->last = turn->prev;
 	turn->next = turn->prev = NULL;
 	turn->queued = false;
 }
 
 bool turns_waiting(const struct turns *t)
 {
-	return t->first != NULL;
+	return t->fresh.first || t->going.first;
 }
 
 uint64_t turns_now_usec(void)

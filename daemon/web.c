@@ -118,6 +118,7 @@ struct request {
 	/* REQUEST_RPC, REQUEST_LOGIN */
 	struct rpc_line *line;
 	struct turn turn;
+	bool started;                   /* the line had a turn */
 	bool waiting;                   /* the line waits for a computation */
 	bool done;                      /* the line is answered (or abandoned) */
 	bool failed;                    /* ... abandoned: the answer is cut off */
@@ -342,7 +343,7 @@ static bool request_full(const struct request *req)
 static void request_more(struct request *req)
 {
 	if (req->line && !req->done && !req->waiting && !request_full(req))
-		turns_queue(req->web->turns, &req->turn);
+		turns_queue(req->web->turns, &req->turn, !req->started);
 }
 
 /* The request's work ends: its line (a computation it waits for is
@@ -611,6 +612,7 @@ static void request_turn(void *data)
 	uint64_t start = turns_now_usec();
 	int n = 0, r;
 
+	req->started = true;
 	while (req->line && !req->waiting && !request_full(req) && n++ < TURN_SLICE_STEPS) {
 		r = rpc_line_step(req->line, request_write, req);
 		if (r == RPC_LINE_WAITING) {

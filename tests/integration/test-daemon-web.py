@@ -19,7 +19,7 @@ import sys
 import time
 
 sys.path.insert(0, os.path.dirname(__file__))
-from daemontest import Client, Daemon, expect, finish, mock_instrument, web_port  # noqa: E402
+from daemontest import Client, Daemon, Web, expect, finish, mock_instrument, web_port  # noqa: E402
 
 ROOT = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(os.path.dirname(__file__), "..", ".."))
 WEB_ROOT = os.path.join(ROOT, "daemon", "web")
@@ -36,41 +36,6 @@ def weak_sag(x, y):
     c = 1 / WEAK_R
     z = c * r2 / (1 + math.sqrt(1 - (1 + WEAK_K) * c * c * r2))
     return z + sum(a * r2 ** (i // 2) for i, a in WEAK_A.items())
-
-
-class Web:
-    """One browser-like HTTP client: keeps the session cookie."""
-
-    def __init__(self, port):
-        self.port = port
-        self.cookie = None
-
-    def request(self, method, path, body=None, headers=None, raw=None):
-        c = http.client.HTTPConnection("127.0.0.1", self.port, timeout=30)
-        h = {"Host": f"127.0.0.1:{self.port}"}
-        if body is not None:
-            raw = json.dumps(body).encode()
-            h["Content-Type"] = "application/json"
-        if self.cookie:
-            h["Cookie"] = self.cookie
-        h.update(headers or {})
-        c.request(method, path, body=raw, headers=h)
-        r = c.getresponse()
-        data = r.read()
-        c.close()
-        return r, data
-
-    def login(self, token):
-        r, data = self.request("POST", "/api/login", {"token": token})
-        m = re.match(r"(asph_session=[^;]+)", r.getheader("Set-Cookie") or "")
-        if r.status == 200 and m:
-            self.cookie = m.group(1)
-        return r, json.loads(data or b"{}")
-
-    def rpc(self, method, params=None):
-        r, data = self.request("POST", "/api/rpc", {"jsonrpc": "2.0", "id": 1, "method": method,
-                                                    "params": params or {}})
-        return r.status, json.loads(data) if data else None
 
 
 def served(port, host="127.0.0.1"):

@@ -226,6 +226,76 @@ class Sampler(threading.Thread):
         return max((kib for _, kib in self.samples), default=0)
 
 
+def seed_jobs(store, n, state):
+    """n jobs in all in the SQLite store: job 1 and copies of it with ids,
+    labels and places of their own, all in state (0 queued, 3 completed).
+    The daemon must be stopped (it counts the jobs when it starts)."""
+    import sqlite3
+    db = sqlite3.connect(store)
+    db.execute("UPDATE jobs SET state = ? WHERE id = 1", (state,))
+    db.execute("""WITH RECURSIVE k(i) AS (SELECT 1 UNION ALL SELECT i + 1 FROM k WHERE i < ?)
+                  INSERT INTO jobs (state, priority, seq, label, instrument, uid, user, spec,
+                    submitted_ns, started_ns, finished_ns, points_done, points_total, reason,
+                    result, scan_path, resume, attempts)
+                  SELECT ?, priority, seq + i, label || '-' || i, instrument, uid, user, spec,
+                    submitted_ns + i, started_ns, finished_ns, points_done, points_total, reason,
+                    result, scan_path, resume, attempts FROM jobs, k WHERE id = 1""", (n - 1, state))
+    db.commit()
+    count = db.execute("SELECT COUNT(*) FROM jobs").fetchone()[0]
+    db.close()
+    return count
+
+
+def latency_line(what, poller):
+    """The poller's daemon.status answers as one line for the output: count,
+    p50, p99, worst (ms), failures; and the worst in seconds."""
+    lat = sorted(x for x in poller.latencies if x is not None)
+    failed = len(poller.latencies) - len(lat)
+    if not lat:
+        return f"# {what}: no daemon.status answered ({failed} failed)", float("inf"), failed
+    p = lambda q: lat[min(len(lat) - 1, int(q * (len(lat) - 1)))] * 1e3  # noqa: E731
+    return (f"# {what}: daemon.status {len(lat)} answers, p50 {p(0.5):.1f} ms, p99 {p(0.99):.1f} ms, "
+            f"worst {lat[-1] * 1e3:.1f} ms, {failed} failed", lat[-1], failed)
+
+
+class Watch:
+    """Another client asking daemon.status, and the daemon's RSS, while an
+    attack runs: with Watch(pid, socket) as w: ...; then w.check(what,
+    rss_bound_kib) states the figures and checks them (the latency bound
+    of 1 s and the RSS bound left out under valgrind, the RSS bound with
+    AddressSanitizer)."""
+
+    def __init__(self, pid, path):
+        self.pid, self.path = pid, path
+
+    def __enter__(self):
+        self.poller, self.sampler = Poller(self.path), Sampler(self.pid)
+        self.poller.start()
+        self.sampler.start()
+        self.t0 = time.monotonic()
+        return self
+
+    def __exit__(self, *exc):
+        self.seconds = time.monotonic() - self.t0
+        self.poller.stop()
+        self.peak = self.sampler.stop()
+        return False
+
+    def check(self, what, rss_bound_kib):
+        line, worst, failed = latency_line(what, self.poller)
+        print(f"{line}; RSS peak {self.peak / 1024:.1f} MiB; {self.seconds:.1f} s")
+        expect(failed == 0 and self.poller.latencies, f"{what}: another client was answered throughout")
+        if UNDER_VALGRIND:
+            print("# under valgrind: the bounds on latency and RSS are not checked")
+            return
+        expect(worst < 1.0, f"{what}: daemon.status answered within 1 s ({worst * 1e3:.0f} ms at worst)")
+        if SANITIZED:
+            print("# built with AddressSanitizer: the bound on RSS is not checked")
+        else:
+            expect(self.peak < rss_bound_kib, f"{what}: RSS peak {self.peak / 1024:.1f} MiB "
+                   f"< {rss_bound_kib / 1024:.0f} MiB")
+
+
 def tempdir():
     d = tempfile.mkdtemp(prefix="asph-sec-")
     os.chmod(d, 0o755)

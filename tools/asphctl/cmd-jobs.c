@@ -423,17 +423,18 @@ static void csv_cell(const char *t, bool last)
 	putchar(last ? '\n' : ',');
 }
 
-/* A text field: control characters escaped as ctl_escape() does, and one
- * that a spreadsheet would take for a formula (it starts with = + - @, a
- * tab or a carriage return: OWASP's "CSV injection") starts with a ' so
- * that it is shown as the text it is. */
+/* A text field: control characters escaped as ctl_escape() does (a tab
+ * or a carriage return becomes \t, \x0d), and one that a spreadsheet
+ * would take for a formula (it starts with = + - @, a tab or a carriage
+ * return: OWASP's "CSV injection") starts with a ' so that it is shown as
+ * the text it is. */
 static void csv_field(const char *s, bool last)
 {
 	_cleanup_free_ char *e = ctl_escape(s ? s : "", false);
 	_cleanup_free_ char *guarded = NULL;
 	const char *t = e ? e : "";
 
-	if (s && s[0] && strchr("=+-@\t\r", s[0]) && asprintf(&guarded, "'%s", t) >= 0)
+	if (t[0] && strchr("=+-@\t\r", t[0]) && asprintf(&guarded, "'%s", t) >= 0)
 		t = guarded;
 	csv_cell(t, last);
 }
