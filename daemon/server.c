@@ -902,9 +902,6 @@ static int accept_resume(sd_event_source *s, uint64_t usec, void *data)
 	return 0;
 }
 
-static struct client *client_new(struct server *srv, int cfd, bool tcp, struct peer *p);
-static void peer_identity(int fd, bool tcp, struct peer *p);
-
 /* The descriptor kept in reserve, taken again once one is free. */
 static void keep_reserve(struct server *srv)
 {
@@ -915,30 +912,21 @@ static void keep_reserve(struct server *srv)
 /*
  * No descriptor left (EMFILE, ENFILE): the connection waiting would wake
  * the loop again at once, for ever. The descriptor kept in reserve is
- * given up to take it: root on the unix socket keeps it (the last
- * descriptor is root's), anyone else is told why; accepting pauses a
- * while.
+ * given up to take it and tell it why, and accepting pauses a while.
+ * (The descriptors' budget of the start, which counts root's own
+ * connections and the web listener's, keeps clients from getting here.)
  */
-static void out_of_descriptors(struct server *srv, const struct listener *l, int err)
+static void out_of_descriptors(struct server *srv, int listen_fd, int err)
 {
-	struct peer p = { 0 };
 	char what[128];
 
 	if (srv->reserve_fd >= 0) {
 		close(srv->reserve_fd);
 		srv->reserve_fd = -1;
-		int fd = accept4(l->fd, NULL, NULL, SOCK_NONBLOCK | SOCK_CLOEXEC);
-		if (fd >= 0) {
-			peer_identity(fd, l->tcp, &p);
-			if (!l->tcp && p.uid == 0 && !srv->refusing) {
-				log_warning("no file descriptor left: root's connection takes the last");
-				client_new(srv, fd, false, &p);
-			} else {
-				free(p.groups);
-				refuse(srv, fd, PROTO_TOO_MANY_CLIENTS,
-				       "the daemon has no file descriptor left (LimitNOFILE=)");
-			}
-		}
+		int fd = accept4(listen_fd, NULL, NULL, SOCK_NONBLOCK | SOCK_CLOEXEC);
+		if (fd >= 0)
+			refuse(srv, fd, PROTO_TOO_MANY_CLIENTS,
+			       "the daemon has no file descriptor left (LimitNOFILE=)");
 		keep_reserve(srv);
 	}
 	srv->accept_backoff = srv->accept_backoff ? 2 * srv->accept_backoff
@@ -1000,7 +988,7 @@ static int on_accept(sd_event_source *s, int fd, uint32_t revents, void *data)
 	cfd = accept4(fd, NULL, NULL, SOCK_NONBLOCK | SOCK_CLOEXEC);
 	if (cfd < 0) {
 		if (errno == EMFILE || errno == ENFILE) {
-			out_of_descriptors(srv, l, errno);
+			out_of_descriptors(srv, fd, errno);
 		} else if (errno != EAGAIN && errno != EINTR) {
 			snprintf(why, sizeof(why), "accept: %s", strerror(errno));
 			log_limited(srv, "accept", why);

@@ -131,7 +131,7 @@ def estimates(d, port, reader, operator, admin_token):
     # runs, a third is refused.
     second = reader_client(reader, d.socket, wait=False)
     second("job.estimate", {"lens": Q2D, "plan": {"method": "ci", "points": 200}})
-    time.sleep(0.3)
+    time.sleep(0.5)
     third = c("job.estimate", {"lens": Q2D, "plan": {"method": "ci", "points": 200}})
     e = third.get("error", {})
     expect(e.get("code") == 104 and "plans being checked" in e.get("data", {}).get("detail", ""),
@@ -159,7 +159,7 @@ def estimates(d, port, reader, operator, admin_token):
 def reader_client(reader, path, wait=True):
     """One call at a time as the reader, on a connection of its own (a
     process): call(method, params) -> the answer; with wait False the call
-    is sent and not waited for."""
+    is sent and its answer not waited for."""
     code = r'''
 import json, socket, sys
 s = socket.socket(socket.AF_UNIX); s.connect(sys.argv[1]); f = s.makefile("rwb")
@@ -167,8 +167,7 @@ for n, l in enumerate(sys.stdin):
     m = json.loads(l); m["id"] = n + 1
     wait = m.pop("wait", True)
     f.write((json.dumps(m) + "\n").encode()); f.flush()
-    if wait:
-        print(f.readline().decode().strip(), flush=True)
+    print(f.readline().decode().strip() if wait else "{}", flush=True)
 '''
     p = reader.popen([PYTHON, "-c", code, path], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                      text=True)
@@ -177,7 +176,7 @@ for n, l in enumerate(sys.stdin):
         p.stdin.write(json.dumps({"jsonrpc": "2.0", "method": method, "params": params,
                                   "wait": wait}) + "\n")
         p.stdin.flush()
-        return json.loads(p.stdout.readline()) if wait else None
+        return json.loads(p.stdout.readline())   # (without wait: {} once sent)
     call.proc = p
     return call
 
