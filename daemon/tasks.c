@@ -49,6 +49,7 @@ struct tasks {
 	pthread_mutex_t lock;           /* what follows */
 	pthread_cond_t cond;
 	bool quit;
+	unsigned exited;                /* threads that have quit */
 	struct task *first, *last;
 	unsigned waiting, running_plain;
 };
@@ -102,6 +103,8 @@ static void *worker(void *data)
 		mailbox_post(t->mailbox, &k);   /* k is the loop's from here */
 		pthread_mutex_lock(&t->lock);
 	}
+	t->exited++;
+	pthread_cond_broadcast(&t->cond);
 	pthread_mutex_unlock(&t->lock);
 	return NULL;
 }
@@ -245,19 +248,27 @@ int tasks_new(const struct tasks_setup *setup, struct tasks **out)
 	return 0;
 }
 
-/* Waits for the threads, a little; false when one still computes. */
+/* Waits for the threads, a little; false when one still computes (then
+ * none is joined: they are left to end with the process). */
 static bool join_all(struct tasks *t)
 {
 	struct timespec until;
-	bool all = true;
+	bool all;
+	int r = 0;
 
 	clock_gettime(CLOCK_REALTIME, &until);
 	until.tv_sec += JOIN_WAIT_SEC;
-	for (unsigned i = 0; i < t->started; i++)
-		if (pthread_timedjoin_np(t->threads[i], NULL, &until) != 0) {
+	pthread_mutex_lock(&t->lock);
+	while (t->exited < t->started && r != ETIMEDOUT)
+		r = pthread_cond_timedwait(&t->cond, &t->lock, &until);
+	all = t->exited == t->started;
+	pthread_mutex_unlock(&t->lock);
+	for (unsigned i = 0; i < t->started; i++) {
+		if (all)
+			pthread_join(t->threads[i], NULL);
+		else
 			pthread_detach(t->threads[i]);
-			all = false;
-		}
+	}
 	return all;
 }
 
