@@ -15,6 +15,7 @@
 #include "fuzz.h"
 #include "report-text.h"
 
+#if HAVE_CAIRO
 /* text without its spaces and line breaks */
 static char *squeezed(const char *s, size_t n)
 {
@@ -29,7 +30,6 @@ static char *squeezed(const char *s, size_t n)
 	return out;
 }
 
-#if HAVE_CAIRO
 static void check_wrap(const char *clean, double width)
 {
 	cairo_surface_t *surface = cairo_recording_surface_create(CAIRO_CONTENT_COLOR_ALPHA, NULL);
