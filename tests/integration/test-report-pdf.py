@@ -444,6 +444,11 @@ def main():
         expect(re.search(r"^Operator \S", pdf.text(0), re.M) and
                re.search(r"^Measured not known$", pdf.text(0), re.M),
                f"exact points: the user running asph operates; no measurement time known")
+        # a time without its zone is ambiguous: refused, with an example
+        p = run([ASPH, "fit", "weak", exact, "--report", npdf, "--measured",
+                 "2026-11-30T09:15:00"], text=True)
+        expect(p.returncode == 2 and "--measured: '2026-11-30T09:15:00' is not an ISO 8601 time "
+               "with its zone" in p.stderr, f"--measured without a zone: {p.returncode} {p.stderr}")
     finish()
 
 
