@@ -439,7 +439,7 @@ int report_psd(cairo_t *cr, const struct report_rect *area, const struct asph_re
 		c.x1 = c.x0 + 1;
 	if (!(c.y1 > c.y0))
 		c.y1 = c.y0 + 1;
-	snprintf(title, sizeof(title), "PSD of the residual, mean of %zu diameters (Hann window)",
+	snprintf(title, sizeof(title), "Residual PSD, mean of %zu diameters (Hann)",
 		 p->n_profiles);
 	chart_place(cr, &c, area, title, 0);
 	chart_frame(cr, &c, area, title, "spatial frequency (mm⁻¹)", "PSD (nm²·mm)");

@@ -76,6 +76,7 @@ struct doc {
 	const char *continued;  /* the section a new page continues */
 	int appendix_page;      /* where the descriptions in full begin */
 	double noise_nm;        /* > 0: the residual is numerical noise */
+	int error;              /* -ENOMEM when a text could not be laid out */
 	char measured[160], reported[64];
 	char *identity;         /* lens, part, lot, serial: the running footer */
 	char *part, *lot, *serial, *operator_name, *lens_name, *label, *software, *data_name,
@@ -98,8 +99,10 @@ static void show(struct doc *d, double x, double baseline, const char *s, size_t
 	if (!d->drawing || len == 0)
 		return;
 	t = strndup(s, len);
-	if (!t)
+	if (!t) {
+		d->error = -ENOMEM;
 		return;
+	}
 	cairo_move_to(d->cr, x, baseline);
 	cairo_show_text(d->cr, t);
 }
@@ -122,8 +125,8 @@ static void need(struct doc *d, double h)
 		new_page(d);
 }
 
-/* text wrapped to width at x, line by line across pages; ENOMEM shows
- * nothing. Returns the number of lines. */
+/* text wrapped to width at x, line by line across pages. Returns the
+ * number of lines (0 on ENOMEM, which d->error keeps). */
 static size_t paragraph(struct doc *d, double x, double width, const struct style *s,
 			const char *text)
 {
@@ -131,8 +134,10 @@ static size_t paragraph(struct doc *d, double x, double width, const struct styl
 	double lead = LEAD * s->size;
 
 	set_style(d, s);
-	if (report_text_wrap(d->cr, text, width, &l) < 0)
+	if (report_text_wrap(d->cr, text, width, &l) < 0) {
+		d->error = -ENOMEM;
 		l.n = 0;
+	}
 	for (size_t i = 0; i < l.n; i++) {
 		need(d, lead);
 		set_style(d, s);
@@ -152,8 +157,10 @@ static size_t cell(struct doc *d, double x, double y, double width, int right,
 	struct report_lines l = { 0 };
 
 	set_style(d, s);
-	if (report_text_wrap(d->cr, text, width, &l) < 0)
+	if (report_text_wrap(d->cr, text, width, &l) < 0) {
+		d->error = -ENOMEM;
 		l.n = 0;
+	}
 	for (size_t i = 0; draw && i < l.n; i++) {
 		double w = right ? report_text_width(d->cr, l.v[i].s, l.v[i].len) : 0;
 		show(d, right ? x + width - w : x, y + (double)i * LEAD * s->size + s->size,
@@ -164,12 +171,10 @@ static size_t cell(struct doc *d, double x, double y, double width, int right,
 	return n;
 }
 
-/* A text made safe for cairo; "" when it is NULL or memory runs out. */
+/* A text made safe for cairo, "" for NULL; NULL on ENOMEM. */
 static char *clean_text(const char *text)
 {
-	char *c = report_text_clean(text ? text : "");
-
-	return c ? c : strdup("");
+	return report_text_clean(text ? text : "");
 }
 
 /* "label  value" with the value wrapped in its column, kept on one page
@@ -181,6 +186,10 @@ static void field(struct doc *d, const char *label, const char *value, const cha
 	char hash[80] = "";
 	size_t nl, nv, nh = 0;
 
+	if (!v) {
+		d->error = -ENOMEM;
+		return;
+	}
 	if (sha256)
 		snprintf(hash, sizeof(hash), "SHA-256 %s", sha256);
 	nl = cell(d, MARGIN, d->y, LABEL_W - 6, 0, &bold, label, 0);
@@ -371,7 +380,8 @@ static void title_block(struct doc *d)
 	rule(d, 8);
 }
 
-/* Part, lot and serial side by side, each wrapped in its third. */
+/* Part, lot and serial side by side, each wrapped in its third; one under
+ * the other when that row would be taller than a page. */
 static void identity_row(struct doc *d)
 {
 	const char *labels[3] = { "Part", "Lot", "Serial" };
@@ -380,6 +390,11 @@ static void identity_row(struct doc *d)
 	size_t most = 1;
 
 	for (int draw = 0; draw < 2; draw++) {
+		if (draw && (double)most * LEAD * 9 > BOTTOM - MARGIN - 60) {
+			for (int i = 0; i < 3; i++)
+				field(d, labels[i], values[i][0] ? values[i] : "not given", NULL);
+			return;
+		}
 		for (int i = 0; i < 3; i++) {
 			double x = MARGIN + i * w;
 			const char *v = values[i][0] ? values[i] : "not given";
@@ -389,7 +404,7 @@ static void identity_row(struct doc *d)
 					&(struct style){ REPORT_SANS_BOLD, 9, 0 }, v, draw);
 			most = n > most ? n : most;
 		}
-		if (!draw)
+		if (!draw && (double)most * LEAD * 9 <= BOTTOM - MARGIN - 60)
 			need(d, (double)most * LEAD * 9);
 	}
 	d->y += (double)most * LEAD * 9 + 2;
@@ -851,7 +866,7 @@ static int layout(struct doc *d)
 		}
 	if (d->drawing)
 		cairo_show_page(d->cr);
-	return 0;
+	return d->error;
 }
 
 /* ------------------------------------------------------------ the doc */
