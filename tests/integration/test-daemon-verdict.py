@@ -115,7 +115,8 @@ def check_replay(d, job, tol, summary, tmp):
 def check_report(pdf, tmp):
     p = subprocess.run(["pdfinfo", pdf], capture_output=True, text=True)
     pages = [line.split()[1] for line in p.stdout.splitlines() if line.startswith("Pages:")]
-    expect(p.returncode == 0 and pages == ["1"], f"pdfinfo {pdf}: {pages} pages {p.stderr}")
+    # page 1, the details, the lens, plan and instrument in full
+    expect(p.returncode == 0 and pages == ["3"], f"pdfinfo {pdf}: {pages} pages {p.stderr}")
     base = os.path.join(tmp, "page")
     p = subprocess.run(["pdftoppm", "-r", "40", "-png", "-singlefile", pdf, base],
                        capture_output=True, text=True)

@@ -20,6 +20,7 @@
 #include "fileio.h"
 #include "asph/points.h"
 #include "asph-tool.h"
+#include "fit-report.h"
 #include "fit-tool.h"
 #include "fit-uncertainty.h"
 #include "util-mem.h"
@@ -56,6 +57,8 @@ enum {
 	OPT_PART,
 	OPT_LOT,
 	OPT_SERIAL,
+	OPT_OPERATOR,
+	OPT_MEASURED,
 	OPT_SCAN,
 	OPT_BANDS,
 };
@@ -114,9 +117,16 @@ static void usage(FILE *out)
 		"    --correction-extend MM                 beyond the aperture (default 0)\n"
 		"    --correction-extend-method constant|linear   (default constant)\n"
 		"  --report OUT.pdf    the measurement report (PDF), with:\n"
-		"    --part P, --lot L, --serial S          what was measured\n"
+		"    --part P, --lot L, --serial S          what was measured (default: the\n"
+		"                                           scan's, as asphd records the job's)\n"
+		"    --operator NAME                        who measured (default: the job's\n"
+		"                                           submitter in the scan, else the\n"
+		"                                           user running asph)\n"
+		"    --measured TIME                        when, ISO 8601 with the zone (default:\n"
+		"                                           the scan's start and end)\n"
 		"    --scan SCAN                            the recorded scan the points come from\n"
-		"                                           (its plan and instrument are reported)\n"
+		"                                           (its plan, instrument and times are\n"
+		"                                           reported)\n"
 		FIT_MC_HELP
 		"  --json              one JSON object (n_points, dof, uncertainty, iterations,\n"
 		"                      converged, rms_nm, pv_nm, pvr_nm, zernike_nm, form, slope,\n"
@@ -274,6 +284,11 @@ static int take_option(struct fit_cli *c, int opt, const char *arg)
 	case OPT_SERIAL:
 		c->serial = arg;
 		return 0;
+	case OPT_OPERATOR:
+		c->operator_name = arg;
+		return 0;
+	case OPT_MEASURED:
+		return fit_report_parse_measured(arg, &c->measured_ns);
 	case OPT_SCAN:
 		c->scan = arg;
 		return 0;
@@ -385,6 +400,8 @@ int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
 		{ "part", required_argument, NULL, OPT_PART },
 		{ "lot", required_argument, NULL, OPT_LOT },
 		{ "serial", required_argument, NULL, OPT_SERIAL },
+		{ "operator", required_argument, NULL, OPT_OPERATOR },
+		{ "measured", required_argument, NULL, OPT_MEASURED },
 		{ "scan", required_argument, NULL, OPT_SCAN },
 		FIT_MC_LONGOPTS,
 		{ "help", no_argument, NULL, 'h' },
@@ -569,8 +586,12 @@ static int write_report(const struct fit_cli *c, const struct asph_surface *s,
 		tool_print_error("fit: --report", &err);
 		return EXIT_FAILURE_RUN;
 	}
+	_cleanup_(fit_report_who_release) struct fit_report_who who;
+	fit_report_who(c, scan, &who);
 	struct asph_report r = {
-		.part = c->part, .lot = c->lot, .serial = c->serial,
+		.part = who.part, .lot = who.lot, .serial = who.serial,
+		.operator_name = who.operator_name, .measured_ns = who.measured_ns,
+		.measured_end_ns = who.measured_end_ns, .job = who.job, .label = who.label,
 		.lens_name = asph_surface_prescription(s)->name, .lens_json = lens_json,
 		.plan_json = scan ? scan->header.plan : NULL,
 		.instrument_json = scan ? scan->header.instrument : NULL,
