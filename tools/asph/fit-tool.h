@@ -23,6 +23,7 @@ struct fit_cli {
 	struct asph_correction_options correction;
 	const char *report_out, *part, *lot, *serial, *scan;
 	struct fit_mc_cli mc;
+	int quiet;              /* no progress line */
 	int bands_given;
 	struct asph_bands bands;
 };
