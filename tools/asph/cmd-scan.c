@@ -17,6 +17,7 @@
 #include "asph/plan.h"
 #include "asph/prescription.h"
 #include "plan-source.h"
+#include "progress.h"
 #include "util-mem.h"
 #include "util-time.h"
 
@@ -54,9 +55,9 @@ static void progress_cb(const struct asph_scan_progress *p, void *data)
 	uint64_t t = now_monotonic_ns();
 	bool final = p->state >= ASPH_SCAN_COMPLETED;
 	double pct = p->total ? 100.0 * (double)p->done / (double)p->total : 100.0;
-	char eta[32] = "--";
-	if (p->eta_s >= 0)
-		snprintf(eta, sizeof(eta), "%.0f s", p->eta_s);
+	char eta[32];
+
+	progress_duration(p->eta_s, eta, sizeof(eta));
 	if (b->tty) {
 		int filled = (int)(pct / 100 * 30);
 		fprintf(stderr, "\r[%-30.*s] %5.1f %% %llu/%llu  %.0f pt/s  ETA %s  %-9s%s",

@@ -14,6 +14,7 @@
 #include "asph/tolerance.h"
 #include "asphctl.h"
 #include "fit-summary.h"
+#include "progress.h"
 #include "util-fs.h"
 #include "util-mem.h"
 
@@ -599,14 +600,13 @@ struct fetch {
 	struct ctl *ctl;
 	int64_t id;
 	const char *name;
+	bool quiet;             /* no progress line */
 	int code;               /* the exit code when a call failed */
 };
 
-static int fetch_chunks(FILE *f, void *data, struct asph_error *err)
+static int fetch_chunk_loop(struct fetch *fe, FILE *f, struct progress *p, json_int_t *offset,
+			    struct asph_error *err)
 {
-	struct fetch *fe = data;
-	json_int_t offset = 0;
-
 	for (;;) {
 		_cleanup_(json_decrefp) json_t *chunk = NULL;
 		_cleanup_free_ void *bytes = NULL;
@@ -614,7 +614,7 @@ static int fetch_chunks(FILE *f, void *data, struct asph_error *err)
 		size_t n = 0;
 
 		fe->code = ctl_call(fe->ctl, "job.file", json_pack("{s:I, s:s, s:I}", "id",
-				    (json_int_t)fe->id, "name", fe->name, "offset", offset), &chunk);
+				    (json_int_t)fe->id, "name", fe->name, "offset", *offset), &chunk);
 		if (fe->code)
 			return asph_error_set(err, -EIO, "%s: the daemon did not send it", fe->name);
 		text = json_string_value(json_object_get(chunk, "data"));
@@ -622,10 +622,26 @@ static int fetch_chunks(FILE *f, void *data, struct asph_error *err)
 			return asph_error_set(err, -EBADMSG, "%s: the daemon sent no base64", fe->name);
 		if (n && fwrite(bytes, 1, n, f) != n)
 			return asph_error_set(err, -errno, "%s: %s", fe->name, strerror(errno));
-		offset += (json_int_t)n;
+		*offset += (json_int_t)n;
+		progress_show(p, (size_t)*offset / 1024,
+			      (size_t)json_integer_value(json_object_get(chunk, "size")) / 1024);
 		if (json_is_true(json_object_get(chunk, "eof")) || n == 0)
 			return 0;
 	}
+}
+
+static int fetch_chunks(FILE *f, void *data, struct asph_error *err)
+{
+	struct fetch *fe = data;
+	json_int_t offset = 0;
+	struct progress p;
+	int r;
+
+	/* a scan of a million points is a long copy: its KiB on a terminal */
+	progress_start(&p, fe->name, "KiB", fe->quiet);
+	r = fetch_chunk_loop(fe, f, &p, &offset, err);
+	progress_stop(&p);
+	return r;
 }
 
 /*
@@ -635,7 +651,8 @@ static int fetch_chunks(FILE *f, void *data, struct asph_error *err)
  * under a temporary name created exclusively in out and renamed into
  * place: a symlink planted in out is replaced, never written through.
  */
-static int copy_files(struct ctl *ctl, int64_t id, const json_t *files, const char *out)
+static int copy_files(struct ctl *ctl, int64_t id, const json_t *files, const char *out,
+		      bool quiet)
 {
 	_cleanup_close_ int dir = -1;
 	const char *key;
@@ -651,7 +668,8 @@ static int copy_files(struct ctl *ctl, int64_t id, const json_t *files, const ch
 		return EXIT_FAILURE_RUN;
 	}
 	json_object_foreach((json_t *)files, key, v) {
-		struct fetch fe = { .ctl = ctl, .id = id, .name = json_string_value(v) };
+		struct fetch fe = { .ctl = ctl, .id = id, .name = json_string_value(v),
+				    .quiet = quiet };
 		struct asph_error err;
 		char buf[600];
 
@@ -670,11 +688,11 @@ static int copy_files(struct ctl *ctl, int64_t id, const json_t *files, const ch
 /* The result's file under key (e.g. "report") written to the path out,
  * as copy_files() writes each file. */
 static int copy_file_to(struct ctl *ctl, int64_t id, const json_t *files, const char *key,
-			const char *out)
+			const char *out, bool quiet)
 {
 	_cleanup_free_ char *dcopy = strdup(out), *bcopy = strdup(out);
 	_cleanup_close_ int dir = -1;
-	struct fetch fe = { .ctl = ctl, .id = id,
+	struct fetch fe = { .ctl = ctl, .id = id, .quiet = quiet,
 			    .name = json_string_value(json_object_get(files, key)) };
 	struct asph_error err;
 	char buf[600];
@@ -717,19 +735,22 @@ int cmd_result(struct ctl *ctl, int argc, char **argv)
 {
 	static const struct option opts[] = {
 		{ "out", required_argument, NULL, 'o' },
-		{ "report", required_argument, NULL, 'r' }, CTL_JSON_OPTION, CTL_HELP_OPTION,
+		{ "report", required_argument, NULL, 'r' },
+		{ "quiet", no_argument, NULL, 'q' }, CTL_JSON_OPTION, CTL_HELP_OPTION,
 		{ NULL, 0, NULL, 0 },
 	};
-	static const char usage[] = "result JOB [--out DIR] [--report OUT.pdf] [--json]";
+	static const char usage[] = "result JOB [--out DIR] [--report OUT.pdf] [--quiet] [--json]";
 	_cleanup_(json_decrefp) json_t *result = NULL;
 	const char *out = NULL, *report = NULL;
+	bool quiet = false;
 	int64_t id;
 	int c, r;
 
-	while ((c = ctl_option(ctl, argc, argv, "o:", opts, usage)) > 0) {
+	while ((c = ctl_option(ctl, argc, argv, "o:q", opts, usage)) > 0) {
 		switch (c) {
 		case 'o': out = optarg; break;
 		case 'r': report = optarg; break;
+		case 'q': quiet = true; break;
 		}
 	}
 	if (c != CTL_OPTIONS_END)
@@ -739,10 +760,10 @@ int cmd_result(struct ctl *ctl, int argc, char **argv)
 	r = ctl_call(ctl, "job.result", json_pack("{s:I}", "id", (json_int_t)id), &result);
 	if (r)
 		return r;
-	if (out && (r = copy_files(ctl, id, json_object_get(result, "files"), out)))
+	if (out && (r = copy_files(ctl, id, json_object_get(result, "files"), out, quiet)))
 		return r;
-	if (report &&
-	    (r = copy_file_to(ctl, id, json_object_get(result, "files"), "report", report)))
+	if (report && (r = copy_file_to(ctl, id, json_object_get(result, "files"), "report",
+					report, quiet)))
 		return r;
 	if (ctl->json)
 		ctl_print_json(result);

@@ -49,7 +49,8 @@ static const struct ctl_command commands[] = {
 	  "The summary of a completed job: the fit, pose, residual, the ISO 14999-4\n"
 	  "quantities, slope, the verdict with each toleranced quantity, the acquisition\n"
 	  "and the scan's SHA-256. --out copies the result's files into DIR (created if\n"
-	  "missing); --report writes its measurement report (PDF).\n" },
+	  "missing); --report writes its measurement report (PDF). A long copy shows its\n"
+	  "progress on a terminal; --quiet leaves it out.\n" },
 	{ "queue", "show the queue; move a job; start or stop the queue", cmd_queue,
 	  "move JOB POSITION: position 0 runs next. stop --abort also stops running\n"
 	  "scans, resumably.\n" },
