@@ -123,8 +123,9 @@ static void usage(FILE *out)
 		"                                           (its plan and instrument are reported)\n"
 		FIT_MC_HELP
 		"  --json              one JSON object (n_points, dof, uncertainty, iterations,\n"
-		"                      converged, rms_nm, pv_nm, pvr_nm, zernike_nm, form, slope,\n"
-		"                      radius, uncertainty_k2, verdict...)\n"
+		"                      converged, rms_nm (the residual's standard deviation about\n"
+		"                      its mean), pv_nm, pvr_nm, zernike_nm, form, slope, radius,\n"
+		"                      uncertainty_k2, verdict...)\n"
 		"  -q, --quiet         no progress of a long fit or Monte Carlo on the terminal\n"
 		"  -h, --help          this text\n\n"
 		"Exit status: 0 done (and the part passes its tolerance), 1 refused input or no\n"
