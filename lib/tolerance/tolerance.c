@@ -306,6 +306,9 @@ int asph_tolerance_load(const char *arg, struct asph_tolerance *t,
 	size_t len;
 	int r, column = 0;
 
+	if (!arg[strspn(arg, " \t\r\n")])
+		return asph_error_set(err, -EINVAL, "empty: give an ISO 10110-5 call-out, JSON text "
+				      "or a file holding it");
 	switch (asph_tolerance_arg_kind(arg)) {
 	case ASPH_TOLERANCE_ARG_JSON:
 		return asph_tolerance_parse_json(arg, strlen(arg), "<tolerance>", t, err);

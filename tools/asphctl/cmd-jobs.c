@@ -149,6 +149,11 @@ static json_t *tolerance_param(const char *arg)
 	json_error_t e;
 	json_t *j = NULL;
 
+	if (!arg[strspn(arg, " \t\r\n")]) {
+		fprintf(stderr, "asphctl: --tolerance: empty: give an ISO 10110-5 call-out, JSON "
+				"text or a file holding it\n");
+		return NULL;
+	}
 	switch (asph_tolerance_arg_kind(arg)) {
 	case ASPH_TOLERANCE_ARG_CALLOUT:
 		return json_string(arg + strspn(arg, " \t\r\n"));

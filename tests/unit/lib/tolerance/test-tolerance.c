@@ -313,6 +313,8 @@ static void test_arg_kind(void **state)
 	assert_int_equal(err.line, 0);
 	assert_int_equal(err.column, 0);
 	assert_null(strstr(buf, "-1"));
+	assert_int_equal(asph_tolerance_load(" ", &t, &err), -EINVAL);
+	assert_non_null(strstr(err.message, "empty"));
 }
 
 int main(void)
