@@ -25,6 +25,7 @@ struct fit_cli {
 	const char *report_out, *part, *lot, *serial, *scan, *operator_name;
 	int64_t measured_ns;            /* --measured; 0: not given */
 	struct fit_mc_cli mc;
+	int quiet;              /* no progress line */
 	int bands_given;
 	struct asph_bands bands;
 };
