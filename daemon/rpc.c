@@ -1406,15 +1406,25 @@ static int listing_step(struct rpc_line *l, struct line_writer *w)
 	return 0;
 }
 
-/* The element of l that waited is answered: code and c's detail, or result. */
-static void line_answer(struct rpc_line *l, struct call *c, int code, json_t *result)
+/* What the element of l kept while it waited goes (a task still running
+ * is cancelled). */
+static void wait_end(struct rpc_line *l)
 {
+	if (l->task)
+		tasks_cancel(l->rpc->tasks, l->task);
 	l->task = NULL;
 	l->delay = sd_event_source_disable_unref(l->delay);
 	if (l->pending_free)
 		l->pending_free(l->pending);
 	l->pending = NULL;
 	l->pending_free = NULL;
+}
+
+/* The element of l that waited is answered: code and c's detail, or result. */
+static void line_answer(struct rpc_line *l, struct call *c, int code, json_t *result)
+{
+	l->task = NULL;         /* (its task is done: this is its answer) */
+	wait_end(l);
 	l->reply = make_reply(c, l->id, l->notification, code, result);
 	l->state = ELEMENT_READY;
 	if (l->ready)
@@ -1540,14 +1550,7 @@ void rpc_line_on_ready(struct rpc_line *l, void (*ready)(void *data), void *data
 /* The element is done with: what it kept goes. */
 static void element_end(struct rpc_line *l)
 {
-	if (l->task)
-		tasks_cancel(l->rpc->tasks, l->task);
-	l->task = NULL;
-	l->delay = sd_event_source_disable_unref(l->delay);
-	if (l->pending_free)
-		l->pending_free(l->pending);
-	l->pending = NULL;
-	l->pending_free = NULL;
+	wait_end(l);
 	json_decref(l->reply);
 	l->reply = NULL;
 	json_decref(l->id);

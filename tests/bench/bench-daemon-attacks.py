@@ -23,7 +23,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "integration"))
 sys.path.insert(0, os.path.join(HERE, "..", "security"))
 from daemontest import Client, Daemon, Web, free_port, mock_instrument, web_port  # noqa: E402
-from seclib import seed_jobs  # noqa: E402
+from seclib import Slowloris, seed_jobs  # noqa: E402
 
 ROOT = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(HERE, "..", ".."))
 SECONDS = float(os.environ.get("ASPH_BENCH_SECONDS", "5"))
@@ -147,23 +147,9 @@ def logins(ctx):
 
 def slowloris(ctx):
     def body(done):
-        socks = []
-        for a in range(2, 11):
-            for k in range(32):
-                try:
-                    socks.append(socket.create_connection(("127.0.0.1", ctx["web"]), timeout=5,
-                                                          source_address=(f"127.0.8.{a}", 0)))
-                except OSError:
-                    pass
-        while not done.is_set():
-            for s in socks:
-                try:
-                    s.send(b"G")
-                except OSError:
-                    pass
-            done.wait(1.0)
-        for s in socks:
-            s.close()
+        slow = Slowloris(ctx["web"], [f"127.0.8.{a}" for a in range(2, 11)])
+        done.wait()
+        slow.stop()
     return [Load(body)]
 
 
@@ -193,14 +179,7 @@ def main():
                       "limits": {"max_queue": 2 * JOBS, "request_timeout_ms": 5000}})
     misses = 0
     try:
-        d.start()
-        c = Client(d.socket)
-        c.call("queue.stop")
-        c.call("job.submit", {"lens": "strong", "plan": {"method": "fermat", "points": 300},
-                              "label": "a-label-of-a-usual-length-for-a-part-and-a-lot"})
-        c.close()
-        d.stop()
-        seed_jobs(os.path.join(d.state, "jobs.sqlite"), JOBS, 0)
+        seed_jobs(d, JOBS, 0)
         d.start()
         c = Client(d.socket)
         ctx = {"web": web_port(d), "tcp": tcp,

@@ -226,11 +226,21 @@ class Sampler(threading.Thread):
         return max((kib for _, kib in self.samples), default=0)
 
 
-def seed_jobs(store, n, state):
-    """n jobs in all in the SQLite store: job 1 and copies of it with ids,
-    labels and places of their own, all in state (0 queued, 3 completed).
-    The daemon must be stopped (it counts the jobs when it starts)."""
+def seed_jobs(d, n, state):
+    """n jobs in all in d's store, the queue stopped: one submitted, then
+    copied in the SQLite store with ids, labels and places of their own,
+    all in state (0 queued, 3 completed); the daemon is left stopped (it
+    counts the jobs when it starts). Returns how many the store holds."""
     import sqlite3
+    from daemontest import Client
+    d.start()
+    c = Client(d.socket)
+    c.call("queue.stop")
+    c.call("job.submit", {"lens": "strong", "plan": {"method": "fermat", "points": 300},
+                          "label": "a-label-of-a-usual-length-for-a-part-and-a-lot"})
+    c.close()
+    d.stop()
+    store = os.path.join(d.state, "jobs.sqlite")
     db = sqlite3.connect(store)
     db.execute("UPDATE jobs SET state = ? WHERE id = 1", (state,))
     db.execute("""WITH RECURSIVE k(i) AS (SELECT 1 UNION ALL SELECT i + 1 FROM k WHERE i < ?)
@@ -244,6 +254,76 @@ def seed_jobs(store, n, state):
     count = db.execute("SELECT COUNT(*) FROM jobs").fetchone()[0]
     db.close()
     return count
+
+
+def still_in(d, operator, admin_token, port, what):
+    """After an attack: root and an operator on the socket, an admin on
+    the web page (port) get in and are answered, each within 1 s (not
+    checked under valgrind)."""
+    from daemontest import ASPHCTL, Client, Web
+    took = {}
+    t0 = time.monotonic()
+    c = Client(d.socket, timeout=30)
+    ok = c.call("daemon.status")["pid"] == d.proc.pid
+    c.close()
+    took["root"] = time.monotonic() - t0
+    t0 = time.monotonic()
+    p = operator.run([ASPHCTL, "--socket", d.socket, "status"], timeout=60)
+    took["operator"] = time.monotonic() - t0
+    t0 = time.monotonic()
+    admin = Web(port)
+    r, body = admin.login(admin_token)
+    status, answer = admin.rpc("daemon.status")
+    took["admin"] = time.monotonic() - t0
+    ok = ok and p.returncode == 0 and r.status == 200 and body.get("role") == "admin" and \
+        status == 200 and "result" in answer
+    slow = [k for k, v in took.items() if v >= 1.0]
+    expect(ok and (UNDER_VALGRIND or not slow),
+           f"{what}: root, an operator and an admin get in "
+           f"({', '.join(f'{k} {v * 1e3:.0f} ms' for k, v in took.items())})")
+
+
+class Slowloris:
+    """per connections from each of addresses to the web listener (port)
+    that send one byte a second and never a whole request head."""
+
+    def __init__(self, port, addresses, per=32):
+        self.socks, self.done = [], threading.Event()
+        for a in addresses:
+            for _ in range(per):
+                try:
+                    self.socks.append(socket.create_connection(("127.0.0.1", port), timeout=5,
+                                                               source_address=(a, 0)))
+                except OSError:
+                    pass
+        threading.Thread(target=self._trickle, daemon=True).start()
+
+    def _trickle(self):
+        while not self.done.is_set():
+            for s in self.socks:
+                try:
+                    s.send(b"G")
+                except OSError:
+                    pass
+            self.done.wait(1.0)
+
+    def alive(self):
+        """How many the daemon has not closed."""
+        n = 0
+        for s in self.socks:
+            s.setblocking(False)
+            try:
+                s.recv(1)           # b"": closed by the daemon
+            except BlockingIOError:
+                n += 1
+            except OSError:
+                pass
+        return n
+
+    def stop(self):
+        self.done.set()
+        for s in self.socks:
+            s.close()
 
 
 def latency_line(what, poller):
