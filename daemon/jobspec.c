@@ -99,8 +99,8 @@ static int plan_cost(const struct asph_prescription *p, double n, bool exact,
 
 	if (n > (exact ? 1.0 : 2.0) * (double)lim->max_points) {
 		snprintf(why->text, sizeof(why->text),
-			 "the plan has %.0f points, more than the limit of %" PRIu64
-			 " (limits.max_plan_points)", n, lim->max_points);
+			 "the plan %s %.0f points, more than the limit of %" PRIu64
+			 " (limits.max_plan_points)", exact ? "has" : "asks for", n, lim->max_points);
 		return PROTO_LIMIT_REACHED;
 	}
 	if (n * terms > (double)lim->max_point_terms) {
