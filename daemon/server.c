@@ -539,6 +539,9 @@ static int take_line(struct client *c)
 		return 0;
 	}
 	c->request_usec = now_usec(c->srv);
+	/* A whole line came: what follows it is waited for from when the
+	 * daemon next reads, not while it answers this one. */
+	c->partial_usec = 0;
 	if (rpc_line_new(c->srv->rpc, &c->session, line, len, &c->line) < 0) {
 		client_drop(c, "out of memory");
 		return 0;
