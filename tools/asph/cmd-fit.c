@@ -58,6 +58,8 @@ enum {
 	OPT_SERIAL,
 	OPT_SCAN,
 	OPT_BANDS,
+	OPT_FORMAT,
+	OPT_UNITS,
 };
 
 
@@ -78,7 +80,10 @@ static void usage(FILE *out)
 		"the form error that remains (RMS, PV, PVr, slope, Zernike terms).\n"
 		"docs/characterization.md states the conventions.\n\n"
 		"LENS is a preset (weak, strong, turning-point) or a prescription file.\n"
-		"POINTS_FILE is .csv (header x,y,z), .ply or .json; '-' reads CSV from stdin.\n\n"
+		"POINTS_FILE ('-': stdin) is delimited text (comma, semicolon, tab or blank\n"
+		"separated, header x,y,z with optional units, or three columns), PLY, JSON,\n"
+		"X3P, SDF, Zygo MetroPro .dat or .datx, the format found from the content;\n"
+		"maps become points with their invalid nodes left out (docs/characterization.md).\n\n"
 		"  --dof LIST          degrees of freedom, from tx,ty,tz (mm), rx,ry,rz (rad), R (mm),\n"
 		"                      k (default tx,ty,tz,rx,ry); rz (clocking) for freeform\n"
 		"                      surfaces, R and k for rotationally symmetric ones\n"
@@ -118,6 +123,7 @@ static void usage(FILE *out)
 		"    --scan SCAN                            the recorded scan the points come from\n"
 		"                                           (its plan and instrument are reported)\n"
 		FIT_MC_HELP
+		POINTS_INPUT_HELP
 		"  --json              one JSON object (n_points, dof, uncertainty, iterations,\n"
 		"                      converged, rms_nm, pv_nm, pvr_nm, zernike_nm, form, slope,\n"
 		"                      radius, uncertainty_k2, verdict...)\n"
@@ -277,6 +283,10 @@ static int take_option(struct fit_cli *c, int opt, const char *arg)
 	case OPT_SCAN:
 		c->scan = arg;
 		return 0;
+	case OPT_FORMAT:
+		return points_input_format(&c->input, "fit", arg);
+	case OPT_UNITS:
+		return points_input_units(&c->input, "fit", arg);
 	case OPT_MC_UNCERTAINTY:
 	case OPT_MC_INSTRUMENT:
 	case OPT_MC_TRIALS:
@@ -386,6 +396,8 @@ int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
 		{ "lot", required_argument, NULL, OPT_LOT },
 		{ "serial", required_argument, NULL, OPT_SERIAL },
 		{ "scan", required_argument, NULL, OPT_SCAN },
+		{ "format", required_argument, NULL, OPT_FORMAT },
+		{ "units", required_argument, NULL, OPT_UNITS },
 		FIT_MC_LONGOPTS,
 		{ "help", no_argument, NULL, 'h' },
 		{ NULL, 0, NULL, 0 },
@@ -748,17 +760,13 @@ int cmd_fit(int argc, char **argv)
 	_cleanup_(asph_surface_freep) struct asph_surface *s = NULL;
 	_cleanup_(asph_points_freep) struct asph_points *pts = NULL;
 	struct fit_cli c = { 0 };
-	struct asph_error err;
 	int r = fit_cli_parse(&c, argc, argv, 2, usage);
 
 	if (r != EXIT_OK)
 		return r < 0 ? EXIT_OK : r;
 	if (tool_load_surface(c.lens, &s) < 0)
 		return EXIT_FAILURE_RUN;
-	asph_error_clear(&err);
-	if (asph_points_read(c.points, &pts, &err) < 0) {
-		tool_print_error(NULL, &err);
+	if (points_input_read(&c.input, "fit", c.points, &pts) < 0)
 		return EXIT_FAILURE_RUN;
-	}
 	return fit_cli_run(&c, s, pts, NULL, NULL, NULL);
 }

@@ -12,6 +12,7 @@
 #include "asph/points.h"
 #include "asph/tolerance.h"
 #include "fit-uncertainty.h"
+#include "points-input.h"
 
 struct fit_cli {
 	const char *lens, *points, *residuals_out, *map_out, *tolerance_arg;
@@ -25,6 +26,7 @@ struct fit_cli {
 	struct fit_mc_cli mc;
 	int bands_given;
 	struct asph_bands bands;
+	struct points_input input;      /* --format, --units */
 };
 
 /* The fit's options and `operands` operands (asph fit: LENS POINTS_FILE,
