@@ -221,6 +221,9 @@ static int row_numbers(const struct text_line *l, char sep, bool decimal_comma, 
 
 	while ((r = next_field(l, sep, f.next, &f, err)) > 0) {
 		double x;
+		/* a separator that ends the line, as European exports write */
+		if (f.b == f.e && f.next > l->len && n > 0 && sep != BLANK_SEP)
+			break;
 		if (parse_number(l->s + f.b, f.e - f.b, decimal_comma, &x) < 0) {
 			*bad = f;
 			return -EDOM;
