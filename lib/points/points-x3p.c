@@ -110,6 +110,10 @@ static int check_md5(struct x3p *x, const char *expected, size_t n, const void *
 {
 	char hex[33];
 
+#ifdef FUZZING_BUILD_MODE_UNSAFE_FOR_PRODUCTION
+	/* the fuzzer mutates what the sums guard */
+	return 0;
+#endif
 	md5_hex(data, len, hex);
 	if (n < 32 || strncasecmp(expected, hex, 32))
 		return x3p_error(x, -EINVAL, element, "%s does not match its MD5 sum (%.*s, computed %s)",
