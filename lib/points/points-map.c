@@ -151,7 +151,12 @@ int points_from_map(const struct points_map *m, const char *format, const char *
 		    struct asph_error *err)
 {
 	size_t n = 0, total = m->nx * m->ny;
+	double x1 = m->x0 + (double)(m->nx - 1) * m->dx, y1 = m->y0 + (double)(m->ny - 1) * m->dy;
 
+	if (!isfinite(m->x0) || !isfinite(m->y0) || !isfinite(x1) || !isfinite(y1))
+		return asph_error_set_at(err, -EINVAL, source, 0, 0, NULL,
+					 "%s: the %zu x %zu grid at spacings %g, %g mm reaches past any finite position",
+					 format, m->nx, m->ny, m->dx, m->dy);
 	for (size_t k = 0; k < total; k++)
 		n += isfinite(m->z[k]);
 	if (n == 0)

@@ -310,6 +310,13 @@ static void collect(struct collected *c, const double xyz[3])
 	c->n++;
 }
 
+static int collect_alloc(struct x3p *x, struct collected *c)
+{
+	c->p = asph_points_alloc(x->nodes);
+	c->n = 0;
+	return c->p ? 0 : asph_error_set(x->err, -ENOMEM, "out of memory");
+}
+
 static int read_binary(struct x3p *x, xmlNodePtr link, const uint8_t *valid, size_t valid_len,
 		       struct collected *c)
 {
@@ -334,6 +341,8 @@ static int read_binary(struct x3p *x, xmlNodePtr link, const uint8_t *valid, siz
 		return x3p_error(x, -EINVAL, "Record3/DataLink/PointDataLink",
 				 "%s holds %zu bytes; %zu points of %zu bytes take %zu", name, len,
 				 x->nodes, x->record, x->nodes * x->record);
+	if ((r = collect_alloc(x, c)) < 0)
+		return r;
 	const uint8_t *p = data;
 	for (size_t k = 0; k < x->nodes; k++) {
 		double raw[3] = { 0, 0, 0 }, xyz[3];
@@ -389,16 +398,28 @@ static int read_datum(struct x3p *x, xmlNodePtr d, size_t k, double raw[3], bool
 	return 0;
 }
 
+static bool is_datum(xmlNodePtr d)
+{
+	return d->type == XML_ELEMENT_NODE && !strcmp((const char *)d->name, "Datum");
+}
+
 static int read_inline(struct x3p *x, xmlNodePtr list, struct collected *c)
 {
 	size_t k = 0;
+	int r;
 
+	/* as many Datum as points before the points are allocated */
+	for (xmlNodePtr d = list->children; d; d = d->next)
+		k += is_datum(d);
+	if (k != x->nodes)
+		return x3p_error(x, -EINVAL, "Record3/DataList", "%zu points; the dimensions give %zu",
+				 k, x->nodes);
+	if ((r = collect_alloc(x, c)) < 0)
+		return r;
+	k = 0;
 	for (xmlNodePtr d = list->children; d; d = d->next) {
-		if (d->type != XML_ELEMENT_NODE || strcmp((const char *)d->name, "Datum"))
+		if (!is_datum(d))
 			continue;
-		if (k == x->nodes)
-			return x3p_error(x, -EINVAL, "Record3/DataList",
-					 "more than the %zu points the dimensions give", x->nodes);
 		double raw[3] = { 0, 0, 0 }, xyz[3];
 		bool valid;
 		if (read_datum(x, d, k, raw, &valid) < 0)
@@ -407,9 +428,6 @@ static int read_inline(struct x3p *x, xmlNodePtr list, struct collected *c)
 			collect(c, xyz);
 		k++;
 	}
-	if (k != x->nodes)
-		return x3p_error(x, -EINVAL, "Record3/DataList", "%zu points; the dimensions give %zu",
-				 k, x->nodes);
 	return 0;
 }
 
@@ -447,13 +465,11 @@ static int read_points(struct x3p *x, struct asph_points **out, struct asph_poin
 	xmlNodePtr list = child(r3, "DataList");
 	_cleanup_free_ uint8_t *valid = NULL;
 	size_t valid_len = 0;
-	struct collected c = { asph_points_alloc(x->nodes), 0 };
+	struct collected c = { NULL, 0 };
 	int r;
 
 	if (!link && !list)
 		return x3p_error(x, -EINVAL, "Record3", "neither DataLink nor DataList");
-	if (!c.p)
-		return asph_error_set(x->err, -ENOMEM, "out of memory");
 	if (link) {
 		r = read_valid(x, link, &valid, &valid_len);
 		if (r == 0)
