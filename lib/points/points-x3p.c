@@ -36,6 +36,7 @@ struct x3p {
 	zip_t *zip;
 	xmlDocPtr doc;
 	xmlNodePtr root;
+	char root_dir[128];  /* "" or "name/": a container zipped with its folder */
 	struct x3p_axis axis[3];
 	bool matrix;
 	size_t size[3];     /* matrix: SizeX, SizeY, SizeZ; list: n, 1, 1 */
@@ -61,12 +62,42 @@ static int x3p_error(struct x3p *x, int code, const char *element, const char *f
 
 /* ---- the container ---- */
 
-static int member_read(struct x3p *x, const char *name, zip_uint64_t limit, uint8_t **out,
+/* Where main.xml is: at the top, or (as zipping a folder makes it, and
+ * x3ptools' examples are) in one folder, whose members then are the
+ * container's. */
+static int find_root(struct x3p *x)
+{
+	zip_int64_t n = zip_get_num_entries(x->zip, 0);
+	int found = 0;
+
+	x->root_dir[0] = '\0';
+	if (zip_name_locate(x->zip, "main.xml", 0) >= 0)
+		return 0;
+	for (zip_int64_t i = 0; i < n; i++) {
+		const char *name = zip_get_name(x->zip, (zip_uint64_t)i, 0);
+		const char *slash = name ? strchr(name, '/') : NULL;
+		if (!slash || strcmp(slash, "/main.xml") || !strncmp(name, "__MACOSX/", 9) ||
+		    (size_t)(slash - name) + 2 > sizeof(x->root_dir))
+			continue;
+		snprintf(x->root_dir, sizeof(x->root_dir), "%.*s/", (int)(slash - name), name);
+		found++;
+	}
+	if (found != 1) {
+		x->root_dir[0] = '\0';
+		return x3p_error(x, -EINVAL, NULL, found ? "main.xml in more than one folder"
+							 : "the container has no main.xml");
+	}
+	return 0;
+}
+
+static int member_read(struct x3p *x, const char *member, zip_uint64_t limit, uint8_t **out,
 		       size_t *len)
 {
+	char name[512];
 	zip_stat_t st;
 	zip_file_t *f;
 
+	snprintf(name, sizeof(name), "%s%s", x->root_dir, member);
 	zip_stat_init(&st);
 	if (zip_stat(x->zip, name, 0, &st) < 0)
 		return -ENOENT;
@@ -172,6 +203,16 @@ static int size_of(struct x3p *x, xmlNodePtr n, const char *element, size_t *v)
 	return 0;
 }
 
+/* The element, or NULL when it is absent or empty (<Offset/>, as some
+ * writers put it for "not given"). */
+static xmlNodePtr given(xmlNodePtr parent, const char *name)
+{
+	char buf[8];
+	xmlNodePtr n = child(parent, name);
+
+	return n && text_of(n, buf, sizeof(buf))[0] ? n : NULL;
+}
+
 static int read_axis(struct x3p *x, xmlNodePtr axes, int k)
 {
 	char element[64], buf[16];
@@ -199,12 +240,12 @@ static int read_axis(struct x3p *x, xmlNodePtr axes, int k)
 	ax->inc = 1;
 	ax->off = 0;
 	snprintf(element, sizeof(element), "Record1/Axes/%s/Increment", axis_names[k]);
-	if ((n = child(a, "Increment")) && number_of(x, n, element, &ax->inc) < 0)
+	if ((n = given(a, "Increment")) && number_of(x, n, element, &ax->inc) < 0)
 		return -EINVAL;
 	if (ax->type == 'I' && !n)
 		return x3p_error(x, -EINVAL, element, "an incremental axis needs its Increment");
 	snprintf(element, sizeof(element), "Record1/Axes/%s/Offset", axis_names[k]);
-	if ((n = child(a, "Offset")) && number_of(x, n, element, &ax->off) < 0)
+	if ((n = given(a, "Offset")) && number_of(x, n, element, &ax->off) < 0)
 		return -EINVAL;
 	return 0;
 }
@@ -515,7 +556,9 @@ static int parse_main(struct x3p *x, const uint8_t *xml, size_t len)
 	}
 	xmlFreeParserCtxt(ctx);
 	x->root = xmlDocGetRootElement(x->doc);
-	if (!x->root || strcmp((const char *)x->root->name, "ISO5436_2"))
+	/* some writers name the root ISO5436, without the namespace */
+	if (!x->root || (strcmp((const char *)x->root->name, "ISO5436_2") &&
+			 strcmp((const char *)x->root->name, "ISO5436")))
 		return x3p_error(x, -EINVAL, "main.xml", "the root element is not ISO5436_2");
 	return 0;
 }
@@ -549,8 +592,12 @@ int points_read_x3p(const uint8_t *data, size_t len, const char *source,
 	size_t xml_len, sums_len;
 	int r = open_container(&x, data, len);
 
-	if (r < 0)
+	if (r == 0)
+		r = find_root(&x);
+	if (r < 0) {
+		zip_discard(x.zip);
 		return r;
+	}
 	r = member_read(&x, "main.xml", XML_LIMIT, &xml, &xml_len);
 	if (r == -ENOENT)
 		r = x3p_error(&x, -EINVAL, NULL, "the container has no main.xml");

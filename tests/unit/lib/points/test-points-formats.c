@@ -200,6 +200,8 @@ struct x3p_spec {
 	size_t valid_len;
 	const char *bad_data_md5;  /* a wrong MD5ChecksumPointData */
 	int no_checksum_file;
+	const char *folder;        /* the members in this folder ("part/") */
+	const char *root;          /* the root element; NULL: p:ISO5436_2 */
 };
 
 static void axis_xml(char *out, size_t size, const char *name, const struct x3p_axis_spec *a)
@@ -248,7 +250,7 @@ static void write_x3p(const char *name, const struct x3p_spec *s)
 	}
 	snprintf(xml, sizeof(xml),
 		 "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n"
-		 "<p:ISO5436_2 xmlns:p=\"http://www.opengps.eu/2008/ISO5436_2\">\n"
+		 "<%s>\n"
 		 "<Record1><Revision>ISO5436 - 2000</Revision><FeatureType>%s</FeatureType>"
 		 "<Axes>%s%s%s</Axes></Record1>\n"
 		 "<Record2><Date>2024-03-01T10:00:00+01:00</Date><Instrument><Manufacturer>Lab</Manufacturer>"
@@ -258,24 +260,31 @@ static void write_x3p(const char *name, const struct x3p_spec *s)
 		 "</Record2>\n"
 		 "<Record3>%s%s%s%s%s</Record3>\n"
 		 "<Record4><ChecksumFile>md5checksum.hex</ChecksumFile></Record4>\n"
-		 "</p:ISO5436_2>\n",
+		 "</%s>\n",
+		 s->root ? s->root : "p:ISO5436_2 xmlns:p=\"http://www.opengps.eu/2008/ISO5436_2\"",
 		 s->feature, ax[0], ax[1], ax[2], dims, s->data ? link : "",
-		 s->data ? "" : "<DataList>", s->data ? "" : s->datum_list, s->data ? "" : "</DataList>");
+		 s->data ? "" : "<DataList>", s->data ? "" : s->datum_list, s->data ? "" : "</DataList>",
+		 s->root ? s->root : "p:ISO5436_2");
 	md5_hex(xml, strlen(xml), xml_md5);
 	snprintf(hexfile, sizeof(hexfile), "%s *main.xml\n", xml_md5);
 
 	int zerr = 0;
+	char member[4][64];
+	const char *f = s->folder ? s->folder : "";
 	zip_t *z = zip_open(path_of(name), ZIP_CREATE | ZIP_TRUNCATE, &zerr);
 	assert_non_null(z);
-	assert_true(zip_file_add(z, "main.xml", zip_source_buffer(z, xml, strlen(xml), 0), 0) >= 0);
+	snprintf(member[0], sizeof(member[0]), "%smain.xml", f);
+	snprintf(member[1], sizeof(member[1]), "%sbindata/data.bin", f);
+	snprintf(member[2], sizeof(member[2]), "%sbindata/valid.bin", f);
+	snprintf(member[3], sizeof(member[3]), "%smd5checksum.hex", f);
+	assert_true(zip_file_add(z, member[0], zip_source_buffer(z, xml, strlen(xml), 0), 0) >= 0);
 	if (s->data)
-		assert_true(zip_file_add(z, "bindata/data.bin",
-					 zip_source_buffer(z, s->data, s->len, 0), 0) >= 0);
+		assert_true(zip_file_add(z, member[1], zip_source_buffer(z, s->data, s->len, 0), 0) >= 0);
 	if (s->valid)
-		assert_true(zip_file_add(z, "bindata/valid.bin",
+		assert_true(zip_file_add(z, member[2],
 					 zip_source_buffer(z, s->valid, s->valid_len, 0), 0) >= 0);
 	if (!s->no_checksum_file)
-		assert_true(zip_file_add(z, "md5checksum.hex",
+		assert_true(zip_file_add(z, member[3],
 					 zip_source_buffer(z, hexfile, strlen(hexfile), 0), 0) >= 0);
 	assert_int_equal(zip_close(z), 0);
 }
@@ -390,6 +399,17 @@ static void test_x3p_matrix_integer_types(void **state)
 	}
 	asph_points_free(a);
 	asph_points_free(b);
+	asph_points_free(c);
+
+	/* as other writers make them: the members in a folder of the ZIP,
+	 * the root without its namespace, an empty Offset for "none" */
+	s.folder = "part/";
+	s.root = "ISO5436";
+	s.ax[2] = (struct x3p_axis_spec){ "A", "D", "1", "" };
+	write_x3p("folder.x3p", &s);
+	c = read_ok("folder.x3p", NULL, &info);
+	assert_int_equal(c->n, N - 1);
+	expect_point(c, 4, 2e-5 * 1000, 1e-5 * 1000, v[5] * 1e-9 * 1000);
 	asph_points_free(c);
 }
 
