@@ -238,6 +238,11 @@ def main():
     code, _, err = run("fit", os.path.join(tmp, "sphere.json"), os.path.join(tmp, "phase.dat"),
                        "--format", "tiff")
     expect(code == 2 and "unknown format" in err, "--format with an unknown name is a usage error")
+    # a recorded scan carries its own points: replay takes no --format
+    scan = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "fuzz", "corpus",
+                        "scanfile", "strong-ci.scan")
+    code, _, err = run("replay", scan, "--format", "x3p")
+    expect(code == 2 and "--format" in err, f"replay --format is a usage error: {err.strip()[:200]}")
     shutil.rmtree(tmp)
     finish()
 
