@@ -183,11 +183,28 @@ static int try_header(const struct text_line *l, struct text_layout *t, struct a
 
 	t->sep = line_separator(l);
 	t->col[0] = t->col[1] = t->col[2] = t->ivalue = -1;
+	int last_axis = -1;
+
 	while ((r = next_field(l, t->sep, f.next, &f, err)) > 0) {
 		double scale;
 		char unit[16], name[64];
-		int axis = header_axis(l->s + f.b, f.e - f.b, &scale, unit);
 		copy_text(name, sizeof(name), l->s + f.b, f.e - f.b);
+		/* blank separated, "x [mm]" is two fields: the unit goes with
+		 * the axis before it */
+		if (t->sep == BLANK_SEP && last_axis >= 0 && !t->unit[last_axis][0] &&
+		    (name[0] == '[' || name[0] == '(')) {
+			char joined[80];
+			snprintf(joined, sizeof(joined), "%s %s", axis_name[last_axis], name);
+			if (header_axis(joined, strlen(joined), &scale, unit) != last_axis)
+				return asph_error_set_at(err, -EINVAL, l->source, l->no, (int)f.b + 1, name,
+							 "text: an unknown unit (nm, um, mm, cm, m, in)");
+			t->scale[last_axis] = scale;
+			snprintf(t->unit[last_axis], sizeof(t->unit[last_axis]), "%s", unit);
+			last_axis = -1;
+			continue;
+		}
+		int axis = header_axis(l->s + f.b, f.e - f.b, &scale, unit);
+		last_axis = axis >= 0 ? axis : -1;
 		if (axis == -EINVAL)
 			return asph_error_set_at(err, -EINVAL, l->source, l->no, (int)f.b + 1, name,
 						 "text: an unknown unit (nm, um, mm, cm, m, in)");

@@ -138,6 +138,14 @@ static void test_text_variants(void **state)
 	expect_point(p, 0, 2000 * 1e-3, -1000 * 1e-3, 100 * 1e-6);
 	asph_points_free(p);
 
+	/* blank separated, the units apart from the names */
+	static const char spaced[] = "X [mm]   Y [mm]   Z [um]\n 1.25  -2  3.5\n";
+	write_file("spaced.txt", spaced, strlen(spaced));
+	p = read_ok("spaced.txt", NULL, &info);
+	expect_point(p, 0, 1.25, -2, 3.5 * 1e-3);
+	assert_null(p->value);
+	asph_points_free(p);
+
 	/* an asphere machine's whitespace columns without a header, in um */
 	static const char plain[] = "# exported by the machine\n  1.5   -2  0.125\n  3e1 4 5\n";
 	write_file("plain.xyz", plain, strlen(plain));
