@@ -52,8 +52,8 @@ static herr_t first_dataset(hid_t group, const char *name, const H5L_info_t *inf
 	char *out = data;
 	hid_t d;
 
-	(void)info;
-	if ((d = H5Dopen2(group, name, H5P_DEFAULT)) < 0)
+	/* soft and external links could name other files: not followed */
+	if (info->type != H5L_TYPE_HARD || (d = H5Dopen2(group, name, H5P_DEFAULT)) < 0)
 		return 0;
 	H5Dclose(d);
 	snprintf(out, 128, "%s", name);
@@ -79,6 +79,15 @@ static int open_map(struct datx *x)
 	snprintf(x->name, sizeof(x->name), "%s/%s", SURFACE_GROUP, first);
 	if (!first[0] || x->set < 0)
 		return datx_error(x, -EINVAL, SURFACE_GROUP, "the group holds no map");
+	/* a dataset may keep its values in other files (external storage, a
+	 * virtual dataset): only the file's own are read */
+	hid_t dcpl = H5Dget_create_plist(x->set);
+	bool outside = dcpl < 0 || H5Pget_external_count(dcpl) != 0 ||
+		       H5Pget_layout(dcpl) == H5D_VIRTUAL;
+	if (dcpl >= 0)
+		H5Pclose(dcpl);
+	if (outside)
+		return datx_error(x, -EINVAL, x->name, "the map keeps its values outside the file");
 	return 0;
 }
 

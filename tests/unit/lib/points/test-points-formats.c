@@ -787,6 +787,23 @@ static void test_datx(void **state)
 	struct asph_points *p = read_ok("fringes.datx", NULL, NULL);
 	expect_point(p, 1, 6.5e-6 * 1000, 0.5 * 7.25e-6 * 1000, -3.25 * (632.8e-9 * 0.5 * 1.0 * 1000));
 	asph_points_free(p);
+	/* a map whose values lie in another file is not followed there */
+	hid_t f = H5Fcreate(path_of("external.datx"), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+	hid_t g = H5Gcreate2(f, "/Data", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+	hid_t g2 = H5Gcreate2(f, "/Data/Surface", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+	hsize_t dims[2] = { 2, 3 };
+	hid_t space = H5Screate_simple(2, dims, NULL), dcpl = H5Pcreate(H5P_DATASET_CREATE);
+	assert_true(H5Pset_external(dcpl, path_of("raw.bin"), 0, 48) >= 0);
+	hid_t set = H5Dcreate2(g2, "map", H5T_IEEE_F64LE, space, H5P_DEFAULT, dcpl, H5P_DEFAULT);
+	assert_true(set >= 0);
+	H5Dclose(set);
+	H5Pclose(dcpl);
+	H5Sclose(space);
+	H5Gclose(g2);
+	H5Gclose(g);
+	H5Fclose(f);
+	read_bad("external.datx", "keeps its values outside the file");
+
 	struct datx_converter volts = { "HeightCat", "Volts", { 0, 0, 0, 0 } };
 	write_datx("volts.datx", z, 3, 2, big, &volts, 1);
 	struct asph_error err = read_bad("volts.datx", "not a length");
