@@ -30,6 +30,11 @@ struct asph_x3p_info {
 	const char *probing_id;        /* Record2/ProbingSystem/Identification */
 	const char *comment;           /* Record2/Comment, may be NULL */
 	int64_t date_ns;               /* Record2/Date, ns since 1970; 0: now */
+	/* The instrument that measured, as a recorded scan's header
+	 * describes it (JSON object text): it names Record2/Instrument and
+	 * ProbingSystem where the members above are NULL (docs/
+	 * characterization.md, "Exports"). NULL: computed data. */
+	const char *instrument_json;
 };
 
 /* List layout (FeatureType PCL, ListDimension n): the points xyz (mm, 3 n)

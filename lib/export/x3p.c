@@ -12,6 +12,7 @@
 
 #include "asph/x3p.h"
 #include "util-mem.h"
+#include "x3p-internal.h"
 #include "util-time.h"
 
 #define NS "http://www.opengps.eu/2008/ISO5436_2"
@@ -66,14 +67,32 @@ static void axis(xmlNodePtr axes, const char *name, int incremental, double incr
 	number_child(a, "Offset", 0);
 }
 
+/* The members not given from the instrument that measured. */
+static void name_instrument(struct asph_x3p_info *info, const struct x3p_instrument *n)
+{
+	if (!info->manufacturer)
+		info->manufacturer = "-";
+	if (!info->model)
+		info->model = n->model;
+	if (!info->version)
+		info->version = n->version;
+	if (!info->probing_type)
+		info->probing_type = n->probing_type;
+	if (!info->probing_id)
+		info->probing_id = n->probing_id;
+}
+
 static void record2(xmlNodePtr root, const struct asph_x3p_info *in)
 {
 	struct asph_x3p_info info = { 0 };
+	struct x3p_instrument named;
 	xmlNodePtr r = element(root, "Record2"), ins, ps;
 	char date[64];
 
 	if (in)
 		info = *in;
+	if (info.instrument_json && x3p_instrument_names(info.instrument_json, &named) == 0)
+		name_instrument(&info, &named);
 	/* xsd:dateTime with an explicit zone. */
 	iso8601_utc(info.date_ns ? info.date_ns : now_realtime_ns(), 3, date, sizeof(date));
 	if (date[0] && date[strlen(date) - 1] == 'Z') {
