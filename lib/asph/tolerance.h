@@ -65,6 +65,10 @@ int asph_tolerance_parse_json(const char *text, size_t len,
  * file name ("-": stdin) holding it. */
 int asph_tolerance_load(const char *arg, struct asph_tolerance *t,
 			struct asph_error *err);
+/* The same, keeping the JSON text read in *text (malloc'd), which a
+ * result's provenance records. */
+int asph_tolerance_load_text(const char *arg, struct asph_tolerance *t, char **text,
+			     struct asph_error *err);
 
 /* ---------------------------------------------------------------- verdict */
 

@@ -298,22 +298,36 @@ int asph_tolerance_parse_json(const char *text, size_t len, const char *source,
 	return parse_object(&c, root, t);
 }
 
-int asph_tolerance_load(const char *arg, struct asph_tolerance *t,
-			struct asph_error *err)
+int asph_tolerance_load_text(const char *arg, struct asph_tolerance *t, char **text,
+			     struct asph_error *err)
 {
-	_cleanup_free_ char *text = NULL;
+	_cleanup_free_ char *own = NULL;
 	const char *p = arg;
 	size_t len;
 	int r;
 
 	while (*p == ' ' || *p == '\t' || *p == '\n' || *p == '\r')
 		p++;
-	if (*p == '{' || *p == '"')
-		return asph_tolerance_parse_json(arg, strlen(arg), "<tolerance>", t, err);
-	r = file_read_all(arg, MAX_TOLERANCE_BYTES, &text, &len, err);
-	if (r < 0)
-		return r;
-	return asph_tolerance_parse_json(text, len, strcmp(arg, "-") ? arg : "<stdin>", t, err);
+	if (*p == '{' || *p == '"') {
+		own = strdup(arg);
+		if (!own)
+			return asph_error_set(err, -ENOMEM, "out of memory");
+		r = asph_tolerance_parse_json(arg, strlen(arg), "<tolerance>", t, err);
+	} else {
+		r = file_read_all(arg, MAX_TOLERANCE_BYTES, &own, &len, err);
+		if (r < 0)
+			return r;
+		r = asph_tolerance_parse_json(own, len, strcmp(arg, "-") ? arg : "<stdin>", t, err);
+	}
+	if (r == 0 && text)
+		*text = steal_ptr(own);
+	return r;
+}
+
+int asph_tolerance_load(const char *arg, struct asph_tolerance *t,
+			struct asph_error *err)
+{
+	return asph_tolerance_load_text(arg, t, NULL, err);
 }
 
 const char *asph_verdict_name(enum asph_verdict v)
