@@ -8,6 +8,7 @@
  * correction and its size).
  */
 #include <getopt.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -15,14 +16,14 @@
 #include <jansson.h>
 
 #include "asph-tool.h"
-#include "asph/drift.h"
+#include "config.h"
+#include "fileio.h"
 #include "asph/prescription.h"
 #include "asph/scanfile.h"
 #include "fit-tool.h"
 #include "util-mem.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile *, asph_scanfile_free)
-DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_surface *, asph_surface_free)
 
 static void usage(FILE *out)
@@ -40,9 +41,9 @@ static void usage(FILE *out)
 		     "says so.\n");
 }
 
-static void show_acquisition(void *data)
+static void show_acquisition(const struct asph_characterize_result *res)
 {
-	_cleanup_(json_decrefp) json_t *a = json_loads(data, 0, NULL);
+	_cleanup_(json_decrefp) json_t *a = json_loads(res->acquisition_json, 0, NULL);
 	json_t *d = json_object_get(a, "drift");
 	json_t *p = json_object_get(a, "positions");
 	const char *key;
@@ -67,16 +68,44 @@ static void show_acquisition(void *data)
 		printf("Warning: %s\n", json_string_value(v));
 }
 
+/* The scan read into memory (the report and result.json hash its bytes)
+ * and the surface of its lens. */
+static int read_scan(const char *path, char **data, size_t *len, struct asph_scanfile **s,
+		     struct asph_surface **surf)
+{
+	struct asph_prescription p;
+	struct asph_error err;
+
+	asph_error_clear(&err);
+	if (file_read_all(path, SIZE_MAX / 2, data, len, &err) < 0 ||
+	    asph_scanfile_read_memory(*data, *len, path, s, &err) < 0 ||
+	    asph_prescription_parse((*s)->header.prescription, strlen((*s)->header.prescription),
+				    path, &p, &err) < 0 ||
+	    asph_surface_alloc(&p, surf, &err) < 0) {
+		tool_print_error(NULL, &err);
+		return EXIT_FAILURE_RUN;
+	}
+	return EXIT_OK;
+}
+
+/* The lens's name when it is a preset's, as asphd names the lens of a job
+ * that gave a preset (a prescription sent whole has none). */
+static const char *preset_name(const struct asph_surface *s)
+{
+	const char *name = asph_surface_prescription(s)->name;
+	struct asph_prescription p;
+
+	return asph_prescription_preset(name, &p) == 0 ? name : NULL;
+}
+
 int cmd_replay(int argc, char **argv)
 {
 	_cleanup_(asph_scanfile_freep) struct asph_scanfile *s = NULL;
-	_cleanup_(asph_points_freep) struct asph_points *pts = NULL;
 	_cleanup_(asph_surface_freep) struct asph_surface *surf = NULL;
-	_cleanup_free_ char *acq = NULL;
-	struct asph_drift_summary sum;
-	struct asph_prescription p;
-	struct fit_cli c = { 0 };
-	struct asph_error err;
+	_cleanup_free_ char *data = NULL;
+	_cleanup_(fit_cli_release) struct fit_cli c = { 0 };
+	struct fit_input in;
+	size_t len = 0;
 
 	if (argc >= 2 && argv[1][0] == '-' && strcmp(argv[1], "--help") && strcmp(argv[1], "-h")) {
 		fprintf(stderr, "asph replay: SCAN comes first (see --help)\n");
@@ -85,28 +114,19 @@ int cmd_replay(int argc, char **argv)
 	int r = fit_cli_parse(&c, argc, argv, 1, usage);
 	if (r != EXIT_OK)
 		return r < 0 ? EXIT_OK : r;
-	/* the report's provenance and --uncertainty's instrument: the scan's */
-	if (!c.scan)
-		c.scan = c.points;
-	asph_error_clear(&err);
-	if (asph_drift_scan_points(c.points, 0, 0, &s, &pts, &sum, &err) < 0) {
-		tool_print_error(NULL, &err);
-		return EXIT_FAILURE_RUN;
-	}
-	const char *text = s->header.prescription;
-	if (asph_prescription_parse(text, strlen(text), c.points, &p, &err) < 0 ||
-	    asph_surface_alloc(&p, &surf, &err) < 0) {
-		tool_print_error(NULL, &err);
-		return EXIT_FAILURE_RUN;
-	}
+	r = read_scan(c.points, &data, &len, &s, &surf);
+	if (r != EXIT_OK)
+		return r;
 	if (!s->report.ended || s->report.outcome != ASPH_SCANFILE_COMPLETED)
 		fprintf(stderr, "asph replay: note: the scan did not complete (%s); characterizing the %zu points it kept\n",
 			asph_scanfile_outcome_name(s->report.ended ? s->report.outcome
 								    : ASPH_SCANFILE_UNFINISHED),
 			s->n);
-	if (asph_drift_report_json(s, &sum, 1, &acq) < 0) {
-		fprintf(stderr, "asph replay: out of memory\n");
-		return EXIT_FAILURE_RUN;
-	}
-	return fit_cli_run(&c, surf, pts, acq, show_acquisition, acq);
+	in = (struct fit_input){
+		.surface = surf, .scan = s, .name = c.points,
+		.run = { .program = "asph " ASPH_VERSION, .lens_name = preset_name(surf),
+			 .part = c.part, .lot = c.lot, .serial = c.serial,
+			 .data_name = c.points, .data = data, .data_len = len },
+	};
+	return fit_cli_run(&c, &in, show_acquisition);
 }
