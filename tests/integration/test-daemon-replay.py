@@ -169,6 +169,19 @@ def compare_corrections(tmp, scan):
         expect(f1.read() == f2.read(), "the correction tables of asph replay and asph fit are the same bytes")
 
 
+def check_refused(tmp, scan):
+    """--out where no folder can be, and with asph fit: refused, saying why."""
+    blocker = os.path.join(tmp, "a-file")
+    with open(blocker, "w") as f:
+        f.write("not a folder\n")
+    r = run("replay", scan, "--out", blocker)
+    expect(r.returncode == 1 and blocker in r.stderr and "--out" in r.stderr,
+           f"replay --out onto a file: exit 1 naming it ({r.returncode}, {r.stderr.strip()})")
+    r = run("fit", "strong", os.path.join(tmp, "exported.csv"), "--out", tmp)
+    expect(r.returncode == 2 and "asph replay" in r.stderr,
+           f"fit --out is refused ({r.returncode}, {r.stderr.strip()})")
+
+
 def main():
     inst = dict(mock_instrument(), uncertainty=MODEL)
     d = Daemon(instruments=[inst])
@@ -200,6 +213,7 @@ def main():
         check_residuals_x3p(tmp, scan, created)
         check_export_x3p(tmp, scan, created)
         compare_corrections(tmp, scan)
+        check_refused(tmp, scan)
     finally:
         d.stop()
         d.cleanup()

@@ -1,11 +1,11 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
  * asph replay: characterization of a recorded scan, as asphd makes it at
- * the end of a job: the lens of the scan's header, the points `asph
- * export` writes (the drift model fitted to the scan's references and
- * applied, asph_drift_scan_points()), the fit of asph fit; and the
+ * the end of a job (asph_characterize_scan()): the lens of the scan's
+ * header, the points `asph export` writes (the drift model fitted to the
+ * scan's references and applied), the fit of asph fit; and the
  * acquisition's account (position sources, commanded points, the drift
- * correction and its size).
+ * correction and its size). --out writes the job's result folder.
  */
 #include <getopt.h>
 #include <stdint.h>
@@ -38,7 +38,11 @@ static void usage(FILE *out)
 		     "--residuals OUT, --map OUT.png, --uncertainty with the contributions the\n"
 		     "scan's instrument declares); see asph fit --help. A scan that did not\n"
 		     "complete is characterized on the points it kept; a note on standard error\n"
-		     "says so.\n");
+		     "says so.\n\n"
+		     "  --out DIR           write into DIR the files asphd writes into a job's folder:\n"
+		     "                      result.json (asphd's, but for the time and the program),\n"
+		     "                      residuals.csv, residual-map.png, residual.x3p, psd.csv,\n"
+		     "                      report.pdf\n");
 }
 
 static void show_acquisition(const struct asph_characterize_result *res)
