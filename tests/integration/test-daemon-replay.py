@@ -39,7 +39,10 @@ RUN_FIELDS = [
 # main.xml, md5checksum.hex).
 X3P_RUN_FIELDS = [r"(<Creator>)[^<]*(</Creator>)"]
 
-MODEL = {"probe_noise_nm": 3, "position_noise_um": 0.05}
+# The Monte Carlo's 200 trials take minutes under valgrind, which checks the
+# memory, not the numbers: there the instrument declares no contributions
+# (test-characterize runs the Monte Carlo's path under valgrind).
+MODEL = None if VALGRIND else {"probe_noise_nm": 3, "position_noise_um": 0.05}
 TOLERANCE = {"rms_nm": {"t": 2000, "i": 2000}}
 PLAN = {"method": "ci", "h": 0.2 if VALGRIND else 0.1}
 
@@ -79,7 +82,7 @@ def compare_results(job_dir, out):
     d, r = json.loads(daemon), json.loads(replay)
     expect(d["provenance"]["software"].get("asphd") and r["provenance"]["software"].get("asph"),
            "provenance.software names the program that made each")
-    expect(d["summary"]["uncertainty_method"] == "monte-carlo" and
+    expect(d["summary"]["uncertainty_method"] == ("monte-carlo" if MODEL else "covariance") and
            d["summary"]["verdict"]["overall"] == "pass" and
            d["summary"]["acquisition"]["drift"]["rounds"] >= 2,
            "the job had the Monte Carlo, a verdict and the drift correction")
@@ -183,7 +186,9 @@ def check_refused(tmp, scan):
 
 
 def main():
-    inst = dict(mock_instrument(), uncertainty=MODEL)
+    inst = dict(mock_instrument(), **({"uncertainty": MODEL} if MODEL else {}))
+    if not MODEL:
+        print("note: under valgrind, no Monte Carlo (its trials take minutes there)")
     d = Daemon(instruments=[inst])
     tmp = tempfile.mkdtemp(prefix="asph-replay-", dir=d.top)
     try:
@@ -203,8 +208,8 @@ def main():
         created = res["provenance"]["scan"]["created"]
 
         out = os.path.join(tmp, "replay")
-        r = run("replay", scan, "--json", "--uncertainty", "--tolerance", json.dumps(TOLERANCE),
-                "--out", out)
+        r = run("replay", scan, "--json", *(["--uncertainty"] if MODEL else []),
+                "--tolerance", json.dumps(TOLERANCE), "--out", out)
         expect(r.returncode == 0, f"asph replay --json --out: {r.stderr}")
         result_text = compare_results(job_dir, out)
         compare_summary(result_text, r.stdout)
