@@ -193,7 +193,8 @@ const char *asph_characterize_lens_name(const struct asph_characterization *c);
  * The JSON summary (malloc'd text): the keys of asph_fit_result_to_json(),
  * then "acquisition" (a scan's), the Monte Carlo's keys (with it) and
  * "band_rms" (with bands): asphd's result "summary" and asph fit --json.
- * indent: 0 compact, else the spaces per level. 0 or -ENOMEM.
+ * indent: 0 compact, else the spaces per level. 0, -EINVAL before the
+ * characterization, -ENOMEM.
  */
 int asph_characterize_summary_json(const struct asph_characterization *c, int indent,
 				   char **out);

@@ -72,9 +72,13 @@ static json_t *summary(const struct asph_characterization *c)
 int asph_characterize_summary_json(const struct asph_characterization *c, int indent,
 				   char **out)
 {
-	_cleanup_(json_decrefp) json_t *root = c->done ? summary(c) : NULL;
+	_cleanup_(json_decrefp) json_t *root = NULL;
 	size_t flags = indent > 0 ? JSON_INDENT(indent) : JSON_COMPACT;
 
+	*out = NULL;
+	if (!c->res.fit_workspace)
+		return -EINVAL;
+	root = summary(c);
 	*out = root ? json_dumps(root, flags | JSON_REAL_PRECISION(17)) : NULL;
 	return *out ? 0 : -ENOMEM;
 }

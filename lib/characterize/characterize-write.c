@@ -22,10 +22,11 @@
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
 
+/* The fit must have run (the result's workspace is set once it has). */
 static int not_yet(const struct asph_characterization *c, struct asph_error *err)
 {
-	return c->done && c->fit ? 0
-				 : asph_error_set(err, -EINVAL, "nothing characterized to write");
+	return c->res.fit_workspace ? 0
+				    : asph_error_set(err, -EINVAL, "nothing characterized to write");
 }
 
 /* The map's error: why there is no grid. */

@@ -670,8 +670,11 @@ static void test_bad_options(void **state)
 		assert_null(c);
 	}
 	/* nothing characterized: nothing to write */
+	char *text;
 	assert_int_equal(asph_characterize_alloc(s, &(struct asph_characterize_options){ 0 }, &c,
 						 NULL), 0);
+	assert_int_equal(asph_characterize_summary_json(c, 0, &text), -EINVAL);
+	assert_null(text);
 	assert_int_equal(asph_characterize_write_residuals(c, "/nonexistent/r.csv",
 							   ASPH_CHARACTERIZE_ALL_POINTS, &err),
 			 -EINVAL);
