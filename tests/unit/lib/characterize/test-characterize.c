@@ -393,7 +393,7 @@ static void test_map_error(void **state)
 	struct asph_characterization *c = characterize(s, &o, p);
 	const struct asph_characterize_result *res = asph_characterize_result(c);
 	struct asph_error err;
-	char path[] = "/tmp/asph-char-XXXXXX";
+	char path[64] = "/tmp/asph-char-XXXXXX";
 
 	assert_true(res->fit.converged);
 	assert_non_null(res->scatter);
