@@ -10,6 +10,7 @@ replay` and of `asph fit` on the exported points are the same bytes. The
 X3P files name the program that made them and the scan's instrument and
 probe; `--residuals x.x3p` holds the residual."""
 import csv
+import importlib.util
 import json
 import os
 import re
@@ -119,8 +120,35 @@ def compare_x3p(daemon_x3p, replay_x3p, scan_created):
     check_record2(xa, "the daemon's residual.x3p", scan_created)
 
 
+def export_checks():
+    """test-cli-export's readers (the schemas of the shared reference folder),
+    shared rather than written twice."""
+    spec = importlib.util.spec_from_file_location(
+        "cli_export", os.path.join(os.path.dirname(os.path.abspath(__file__)), "test-cli-export.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+SCHEMAS = export_checks().SCHEMAS
+
+
+def validate(xml, what):
+    """main.xml against ISO 5436-2:2008 and ISO 25178-72:2017/Amd 1:2020."""
+    with tempfile.NamedTemporaryFile("w", suffix=".xml", delete=False) as f:
+        f.write(xml)
+    for xsd in SCHEMAS:
+        r = subprocess.run(["xmllint", "--noout", "--schema", xsd, f.name], capture_output=True,
+                           text=True)
+        expect(r.returncode == 0, f"{what}: main.xml against {os.path.basename(xsd)}: "
+               f"{r.stderr.strip()}")
+    os.unlink(f.name)
+
+
 def check_record2(xml, what, scan_created):
-    """Record2 names the scan's instrument and probe, and when it measured."""
+    """Record2 names the scan's instrument and probe, and when it measured;
+    main.xml validates against both schemas."""
+    validate(xml, what)
     expect(xml_text(xml, "Model") == "mock" and xml_text(xml, "Version") .startswith("stage mock")
            and xml_text(xml, "Type") == "NonContacting"
            and xml_text(xml, "Identification").startswith("mock"),
@@ -186,6 +214,9 @@ def check_refused(tmp, scan):
 
 
 def main():
+    if not SCHEMAS:
+        print("skip: no shared/reference/x3p beside the source tree: the X3P files are not "
+              "validated against the ISO 5436-2 schemas")
     inst = dict(mock_instrument(), **({"uncertainty": MODEL} if MODEL else {}))
     if not MODEL:
         print("note: under valgrind, no Monte Carlo (its trials take minutes there)")
