@@ -542,6 +542,33 @@ static void test_residual_files(void **state)
 	asph_surface_free(s);
 }
 
+/* An instrument the X3P writer cannot name (not JSON, no name): the
+ * defaults of computed data, and the file is written all the same. */
+static void test_x3p_unnamed_instrument(void **state)
+{
+	static const char *const bad[] = { "not json", "[1, 2]", "{}", "{\"name\": 7}" };
+	struct asph_grid *g = asph_grid_alloc(3, 2);
+	char dir[] = "/tmp/asph-char-XXXXXX", path[64];
+	size_t len;
+
+	assert_non_null(g);
+	g->dx = 0.5;
+	for (size_t i = 0; i < 6; i++)
+		g->z[i] = (double)i;
+	assert_non_null(mkdtemp(dir));
+	snprintf(path, sizeof(path), "%s/g.x3p", dir);
+	for (size_t k = 0; k < sizeof(bad) / sizeof(bad[0]); k++) {
+		struct asph_x3p_info info = { .instrument_json = bad[k] };
+		assert_int_equal(asph_x3p_write_grid(path, g, &info, NULL), 0);
+		char *xml = zip_member(path, "main.xml", &len);
+		expect_element(xml, "Manufacturer", "asphd");
+		expect_element(xml, "Type", "Software");
+		free(xml);
+	}
+	assert_int_equal(rmtree(dir), 0);
+	asph_grid_free(g);
+}
+
 static void sha256_file(int dir_fd, const char *name, char hex[65])
 {
 	int fd = openat(dir_fd, name, O_RDONLY);
@@ -691,6 +718,7 @@ int main(void)
 		cmocka_unit_test(test_uncertainty),
 		cmocka_unit_test(test_map_error),
 		cmocka_unit_test(test_residual_files),
+		cmocka_unit_test(test_x3p_unnamed_instrument),
 		cmocka_unit_test(test_folder),
 		cmocka_unit_test(test_bad_options),
 	};
