@@ -40,9 +40,9 @@ static void usage(FILE *out)
 		     "complete is characterized on the points it kept; a note on standard error\n"
 		     "says so.\n\n"
 		     "  --out DIR           write into DIR the files asphd writes into a job's folder:\n"
-		     "                      result.json (asphd's, but for the time and the program),\n"
-		     "                      residuals.csv, residual-map.png, residual.x3p, psd.csv,\n"
-		     "                      report.pdf\n");
+		     "                      result.json (asphd's, but for the time and the program,\n"
+		     "                      given the job's fit options and tolerance), residuals.csv,\n"
+		     "                      residual-map.png, residual.x3p, psd.csv, report.pdf\n");
 }
 
 static void show_acquisition(const struct asph_characterize_result *res)
