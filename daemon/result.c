@@ -12,8 +12,6 @@
 #include <sys/mman.h>
 #include <sys/stat.h>
 
-#include <jansson.h>
-
 #include "asph/characterize.h"
 #include "asph/instrument.h"
 #include "asph/mc-runner.h"
@@ -96,18 +94,12 @@ static int run_mc(void *data, struct asph_mc *mc, struct asph_mc_result *out,
 	return r;
 }
 
-static const char *meta_string(const json_t *meta, const char *key)
-{
-	return json_string_value(json_object_get(meta, key));
-}
-
 int result_build(const struct result_source *job, const struct job_plan *jp,
 		 const struct asph_instrument_config *ic, char **out,
 		 struct asph_error *err)
 {
 	_cleanup_(asph_characterize_freep) struct asph_characterization *c = NULL;
 	_cleanup_(asph_scanfile_freep) struct asph_scanfile *scan = NULL;
-	_cleanup_(json_decrefp) json_t *meta = json_loads(job->metadata, 0, NULL);
 	_cleanup_free_ char *path = NULL;
 	struct mapped m = { 0 };
 	struct asph_characterize_options o = {
@@ -115,11 +107,10 @@ int result_build(const struct result_source *job, const struct job_plan *jp,
 		/* docs/characterization.md: N = 200 with the adaptive stop, seed 1 */
 		.uncertainty = ic->has_uncertainty ? &ic->uncertainty : NULL,
 		.mc = { .seed = 1 }, .run_mc = run_mc, .run_mc_data = (void *)job,
+		/* part, lot, serial, operator, label: the job's metadata */
 		.run = {
 			.program = "asphd " ASPH_VERSION, .lens_name = jp->lens_name,
-			.part = meta_string(meta, "part"), .lot = meta_string(meta, "lot"),
-			.serial = meta_string(meta, "serial"), .metadata_json = job->metadata,
-			.data_name = RUNNER_SCAN_FILE,
+			.metadata_json = job->metadata, .data_name = RUNNER_SCAN_FILE,
 		},
 	};
 	const struct asph_characterize_folder f = {

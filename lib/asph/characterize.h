@@ -70,22 +70,28 @@ enum asph_characterize_output {
 /*
  * What names the run in the files written (the X3P's Record2, the report,
  * result.json). The strings are the caller's and must outlive the
- * characterization. NULL is "not known" unless said otherwise.
+ * characterization. NULL (0) is "not given": then the recorded scan says,
+ * where it does.
  */
 struct asph_characterize_run {
 	const char *program;        /* "asphd 0.1.0", "asph 0.1.0": the X3P's
 				       Creator, the report's software */
 	const char *lens_name;      /* NULL: the prescription's name */
+	/* What was measured; NULL: the job's (the metadata's). */
 	const char *part, *lot, *serial;
-	/* The job (JSON object text: job, label, submitted_by with the
-	 * operator's name, submitted, started_ns); NULL: the scan header's
+	/* Who measured; NULL: the job's submitter (the metadata's
+	 * submitted_by.name), else default_operator. */
+	const char *operator_name, *default_operator;
+	/* The job (JSON object text: job, label, part, lot, serial,
+	 * submitted_by, submitted, started_ns); NULL: the scan header's
 	 * metadata. */
 	const char *metadata_json;
-	/* The instrument and the plan (JSON object texts); NULL: the scan
-	 * header's. */
-	const char *instrument_json, *plan_json;
+	/* The recorded scan points come from (asph fit --scan), read only
+	 * by asph_characterize_points(): its plan, instrument, metadata and
+	 * times name the run as a characterized scan's do. */
+	const struct asph_scanfile *source;
 	/* When the measurement was made, ns since 1970; 0: the scan's
-	 * creation (unknown for points without a scan). */
+	 * creation and its end (unknown for points without a scan). */
 	int64_t measured_ns;
 	/* The measured data as read (the scan file, the points file), named
 	 * and hashed in the report and result.json; NULL: not known. */

@@ -24,16 +24,18 @@ struct asph_characterization {
 	 * for points: what the report and result.json name. */
 	char *prescription_json, *plan_json, *instrument_json, *metadata_json;
 	char *created;                  /* the scan's creation, ISO 8601 */
-	int64_t created_ns;
+	int64_t created_ns, ended_ns;   /* its creation and its end block's */
 	struct asph_characterize_result res;
 };
 
-/* The run's value, else the scan's. */
+/* The scan's descriptions (NULL for points without one). */
 const char *characterize_instrument(const struct asph_characterization *c);
 const char *characterize_plan(const struct asph_characterization *c);
 const char *characterize_metadata(const struct asph_characterization *c);
-/* When the measurement was made (ns since 1970), 0 when not known. */
+/* When the measurement was made and ended (ns since 1970), 0 when not
+ * known. */
 int64_t characterize_measured_ns(const struct asph_characterization *c);
+int64_t characterize_measured_end_ns(const struct asph_characterization *c);
 /* The job of the metadata, 0 when none. */
 int64_t characterize_job(const struct asph_characterization *c);
 

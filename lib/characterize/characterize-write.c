@@ -227,12 +227,34 @@ int asph_characterize_write_correction(const struct asph_characterization *c,
 				     c->res.fit.residual == ASPH_FIT_RESIDUAL_NORMAL, opts, err);
 }
 
-static struct asph_report report_of(const struct asph_characterization *c)
+static const char *meta_string(const json_t *meta, const char *object, const char *key)
+{
+	if (object)
+		meta = json_object_get(meta, object);
+	return json_string_value(json_object_get(meta, key));
+}
+
+static const char *first(const char *a, const char *b)
+{
+	return a ? a : b;
+}
+
+/* The report of the result: what, who and when the run's, else the job's
+ * (meta, the metadata parsed, holds the texts). */
+static struct asph_report report_of(const struct asph_characterization *c, const json_t *meta)
 {
 	const struct asph_characterize_run *run = &c->opts.run;
 
 	return (struct asph_report){
-		.part = run->part, .lot = run->lot, .serial = run->serial,
+		.part = first(run->part, meta_string(meta, NULL, "part")),
+		.lot = first(run->lot, meta_string(meta, NULL, "lot")),
+		.serial = first(run->serial, meta_string(meta, NULL, "serial")),
+		.operator_name = first(first(run->operator_name,
+					     meta_string(meta, "submitted_by", "name")),
+				       run->default_operator),
+		.measured_ns = characterize_measured_ns(c),
+		.measured_end_ns = characterize_measured_end_ns(c),
+		.job = characterize_job(c), .label = meta_string(meta, NULL, "label"),
 		.lens_name = asph_characterize_lens_name(c),
 		.lens_json = c->prescription_json, .plan_json = characterize_plan(c),
 		.instrument_json = characterize_instrument(c),
@@ -244,14 +266,23 @@ static struct asph_report report_of(const struct asph_characterization *c)
 	};
 }
 
+static json_t *metadata(const struct asph_characterization *c)
+{
+	const char *text = characterize_metadata(c);
+
+	return text ? json_loads(text, 0, NULL) : NULL;
+}
+
 int asph_characterize_write_report(const struct asph_characterization *c, const char *path,
 				   struct asph_error *err)
 {
+	_cleanup_(json_decrefp) json_t *meta = NULL;
 	struct asph_report r;
 
 	if (!c->scatter)
 		return no_map(c, err);
-	r = report_of(c);
+	meta = metadata(c);
+	r = report_of(c, meta);
 	return asph_report_write_pdf(path, &r, err);
 }
 
@@ -292,7 +323,8 @@ static int x3p_stream(FILE *f, void *data, struct asph_error *err)
 
 static int report_stream(FILE *f, void *data, struct asph_error *err)
 {
-	struct asph_report r = report_of(data);
+	_cleanup_(json_decrefp) json_t *meta = metadata(data);
+	struct asph_report r = report_of(data, meta);
 
 	return asph_report_write_pdf_stream(f, "report.pdf", &r, err);
 }

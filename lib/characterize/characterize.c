@@ -244,6 +244,7 @@ static int keep_header(struct asph_characterization *c, const struct asph_scanfi
 	c->metadata_json = h->metadata ? strdup(h->metadata) : NULL;
 	c->created = strdup(h->created ? h->created : "");
 	c->created_ns = h->created_ns;
+	c->ended_ns = s->report.ended_ns;
 	if (!c->prescription_json || (h->plan && !c->plan_json) ||
 	    (h->instrument && !c->instrument_json) || (h->metadata && !c->metadata_json) ||
 	    !c->created)
@@ -292,6 +293,11 @@ int asph_characterize_points(struct asph_characterization *c, const struct asph_
 
 	if (r < 0)
 		return r;
+	if (c->opts.run.source && keep_header(c, c->opts.run.source) < 0)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	/* the lens is the surface fitted, whatever the source recorded */
+	free(c->prescription_json);
+	c->prescription_json = NULL;
 	if (asph_prescription_to_json(asph_surface_prescription(c->surface),
 				      &c->prescription_json) < 0 ||
 	    !(c->points = points_copy(points)))
@@ -303,12 +309,12 @@ int asph_characterize_points(struct asph_characterization *c, const struct asph_
 
 const char *characterize_instrument(const struct asph_characterization *c)
 {
-	return c->opts.run.instrument_json ? c->opts.run.instrument_json : c->instrument_json;
+	return c->instrument_json;
 }
 
 const char *characterize_plan(const struct asph_characterization *c)
 {
-	return c->opts.run.plan_json ? c->opts.run.plan_json : c->plan_json;
+	return c->plan_json;
 }
 
 const char *characterize_metadata(const struct asph_characterization *c)
@@ -319,6 +325,11 @@ const char *characterize_metadata(const struct asph_characterization *c)
 int64_t characterize_measured_ns(const struct asph_characterization *c)
 {
 	return c->opts.run.measured_ns ? c->opts.run.measured_ns : c->created_ns;
+}
+
+int64_t characterize_measured_end_ns(const struct asph_characterization *c)
+{
+	return c->opts.run.measured_ns ? 0 : c->ended_ns;
 }
 
 int64_t characterize_job(const struct asph_characterization *c)

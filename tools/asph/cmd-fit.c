@@ -9,6 +9,8 @@
 #include <string.h>
 #include <sys/stat.h>
 
+#include <jansson.h>
+
 #include "asph/characterize.h"
 #include "asph/correction.h"
 #include "asph/fit.h"
@@ -17,8 +19,12 @@
 #include "config.h"
 #include "fileio.h"
 #include "asph-tool.h"
+#include "fit-report.h"
 #include "fit-tool.h"
+#include "fit-summary.h"
 #include "fit-uncertainty.h"
+#include "progress.h"
+#include "quantity.h"
 #include "util-mem.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_surface *, asph_surface_free)
@@ -50,6 +56,8 @@ enum {
 	OPT_PART,
 	OPT_LOT,
 	OPT_SERIAL,
+	OPT_OPERATOR,
+	OPT_MEASURED,
 	OPT_SCAN,
 	OPT_BANDS,
 	OPT_OUT,
@@ -76,9 +84,10 @@ static void usage(FILE *out)
 		"  --residuals OUT     write x,y,z,residual_nm of the points fitted (.csv or .ply,\n"
 		"                      PLY coloured by residual; .x3p: x, y and the residual as Z)\n"
 		"  --map OUT.png       residual map with a colour bar in nm\n"
-		"  --tolerance T       a tolerance (JSON text or a file holding it): ISO 10110-5\n"
-		"                      call-out, RMS, slope and R limits; decides pass, fail or\n"
-		"                      undecided (ISO 14253-1) and sets the exit status\n"
+		"  --tolerance T       a tolerance: an ISO 10110-5 call-out ('3/2(0.5/0.3)'), or\n"
+		"                      JSON text or a file holding it (call-out, RMS, slope and R\n"
+		"                      limits); decides pass, fail or undecided (ISO 14253-1) and\n"
+		"                      sets the exit status\n"
 		"  --wavelength NM     test wavelength of the fringes (default: the tolerance's,\n"
 		"                      else 546.07)\n"
 		"  --slope-length MM   evaluation length of the slope deviation (default: the\n"
@@ -102,17 +111,26 @@ static void usage(FILE *out)
 		"    --correction-extend MM                 beyond the aperture (default 0)\n"
 		"    --correction-extend-method constant|linear   (default constant)\n"
 		"  --report OUT.pdf    the measurement report (PDF), with:\n"
-		"    --part P, --lot L, --serial S          what was measured\n"
+		"    --part P, --lot L, --serial S          what was measured (default: the\n"
+		"                                           scan's, as asphd records the job's)\n"
+		"    --operator NAME                        who measured (default: the job's\n"
+		"                                           submitter in the scan, else the\n"
+		"                                           user running asph)\n"
+		"    --measured TIME                        when, ISO 8601 with the zone (default:\n"
+		"                                           the scan's start and end)\n"
 		"    --scan SCAN                            the recorded scan the points come from\n"
-		"                                           (its plan and instrument are reported)\n"
+		"                                           (its plan, instrument and times are\n"
+		"                                           reported)\n"
 		FIT_MC_HELP
 		"  --json              one JSON object (n_points, dof, uncertainty, iterations,\n"
-		"                      converged, rms_nm, pv_nm, pvr_nm, zernike_nm, form, slope,\n"
-		"                      radius, uncertainty_k2, verdict...)\n"
+		"                      converged, rms_nm (the residual's standard deviation about\n"
+		"                      its mean), pv_nm, pvr_nm, zernike_nm, form, slope, radius,\n"
+		"                      uncertainty_k2, verdict...)\n"
+		"  -q, --quiet         no progress of a long fit or Monte Carlo on the terminal\n"
 		"  -h, --help          this text\n\n"
 		"Exit status: 0 done (and the part passes its tolerance), 1 refused input or no\n"
 		"convergence, 2 bad command line, 3 the part fails its tolerance, 4 the verdict\n"
-		"is undecided.\n", out);
+		"is undecided (asph help exit-status).\n", out);
 }
 
 static int parse_int(const char *arg, const char *name, int lo, int hi, int *out)
@@ -220,6 +238,9 @@ static int take_option(struct fit_cli *c, int opt, const char *arg)
 	case OPT_JSON:
 		c->json = 1;
 		return 0;
+	case 'q':
+		c->quiet = c->mc.quiet = 1;
+		return 0;
 	case OPT_RESIDUALS:
 		c->residuals_out = arg;
 		return 0;
@@ -267,6 +288,11 @@ static int take_option(struct fit_cli *c, int opt, const char *arg)
 	case OPT_SERIAL:
 		c->serial = arg;
 		return 0;
+	case OPT_OPERATOR:
+		c->operator_name = arg;
+		return 0;
+	case OPT_MEASURED:
+		return fit_report_parse_measured(arg, &c->measured_ns);
 	case OPT_SCAN:
 		c->scan = arg;
 		return 0;
@@ -385,8 +411,11 @@ int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
 		{ "part", required_argument, NULL, OPT_PART },
 		{ "lot", required_argument, NULL, OPT_LOT },
 		{ "serial", required_argument, NULL, OPT_SERIAL },
+		{ "operator", required_argument, NULL, OPT_OPERATOR },
+		{ "measured", required_argument, NULL, OPT_MEASURED },
 		{ "scan", required_argument, NULL, OPT_SCAN },
 		FIT_MC_LONGOPTS,
+		{ "quiet", no_argument, NULL, 'q' },
 		{ "help", no_argument, NULL, 'h' },
 		{ NULL, 0, NULL, 0 },
 	};
@@ -394,12 +423,15 @@ int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
 
 	/* getopt permutes: options may also follow LENS and POINTS_FILE. */
 	optind = 0;
-	while ((opt = getopt_long(argc, argv, "h", longopts, NULL)) != -1) {
+	opterr = 0;
+	while ((opt = getopt_long(argc, argv, "hq", longopts, NULL)) != -1) {
 		if (opt == 'h') {
 			usage_fn(stdout);
 			return -1;
 		}
-		if (opt == '?' || take_option(c, opt, optarg) < 0)
+		if (opt == '?' || opt == ':')
+			return tool_option_error(argv, "hq", longopts);
+		if (take_option(c, opt, optarg) < 0)
 			return EXIT_USAGE;
 	}
 	if (argc - optind != operands) {
@@ -414,89 +446,48 @@ int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
 	return check_tolerance(c);
 }
 
-static int show_json(const struct asph_characterization *ch)
-{
-	_cleanup_free_ char *text = NULL;
-
-	if (asph_characterize_summary_json(ch, 2, &text) < 0) {
-		fprintf(stderr, "asph fit: out of memory\n");
-		return EXIT_FAILURE_RUN;
-	}
-	puts(text);
-	return EXIT_OK;
-}
-
-static void show_form(const struct asph_fit_result *r)
-{
-	const struct asph_form *f = &r->form;
-	const struct asph_uncertainty_k2 *u = &r->uncertainty_k2;
-
-	if (r->form_valid) {
-		printf("ISO 14999-4 (lambda %g nm; U for k = 2):\n", f->wavelength_nm);
-		printf("  A %+.3f nm (%+.4f fr) U %.3f | B %.3f nm (%.4f fr) U %.3f | C %.3f nm (%.4f fr) U %.3f\n",
-		       f->A.v, f->A_fringes, u->A.v, f->B.v, f->B_fringes, u->B.v, f->C.v,
-		       f->C_fringes, u->C.v);
-		printf("  RMSt %.3f nm, RMSi %.3f nm, RMSa %.3f nm (U %.3f)\n", f->rms_t.v,
-		       f->rms_i.v, f->rms_a.v, u->rms_t.v);
-	}
-	if (r->slope_valid)
-		printf("Slope over %g mm: RMS %.3f urad (radial %.3f, azimuthal %.3f), max %.3f urad\n",
-		       r->slope.length_mm, r->slope.rms.v, r->slope.rms_radial.v,
-		       r->slope.rms_azimuthal.v, r->slope.max.v);
-	if (!isnan(r->R_deviation_mm))
-		printf("Radius deviation %+.6f mm (U %.6f mm)\n", r->R_deviation_mm, u->R_mm);
-	if (!r->verdict.present)
-		return;
-	printf("Verdict (ISO 14253-1): %s\n", asph_verdict_name(r->verdict.overall));
-	for (size_t i = 0; i < r->verdict.n_items; i++) {
-		const struct asph_verdict_item *it = &r->verdict.items[i];
-		printf("  %-16s %12.6g  U %-10.4g limit %-10.6g %s\n", it->quantity, it->value, it->U,
-		       it->limit, asph_verdict_name(it->verdict));
-	}
-}
-
 static void show_bands(const struct fit_cli *c, const struct asph_characterize_result *res)
 {
-	const struct asph_band_rms *b = &res->bands;
+	const double v[] = { res->bands.form, res->bands.mid, res->bands.high, res->bands.total };
+	static const char *const paths[] = { "band_rms.form_nm", "band_rms.mid_nm",
+					     "band_rms.high_nm", "band_rms.total_nm" };
+	char t[4][32];
 
 	if (!res->bands_done)
 		return;
-	printf("Band-limited RMS (areal PSD, grid %g mm): form (> %g mm) %.4f nm, mid (%g..%g mm) "
-	       "%.4f nm, high (< %g mm) %.4f nm, total %.4f nm\n", res->grid_spacing_mm,
-	       c->bands.form_mm, b->form, c->bands.high_mm, c->bands.form_mm, b->mid,
-	       c->bands.high_mm, b->high, b->total);
+	for (int i = 0; i < 4; i++)
+		quantity_format(quantity_by_path(paths[i]), v[i], QUANTITY_UNIT, t[i], sizeof(t[i]));
+	printf("Band-limited RMS (areal PSD, grid %g mm): form (> %g mm) %s, mid (%g..%g mm) %s, "
+	       "high (< %g mm) %s, total %s\n", res->grid_spacing_mm, c->bands.form_mm, t[0],
+	       c->bands.high_mm, c->bands.form_mm, t[1], c->bands.high_mm, t[2], t[3]);
 }
 
-static void show_text(const struct fit_cli *c, const struct asph_characterization *ch)
+/* --json (the summary asphd stores, byte for byte), or the text of
+ * tools/fit-summary.c followed by more_text(). */
+static int show(const struct fit_cli *c, const struct asph_characterization *ch,
+		void (*more_text)(const struct asph_characterize_result *res))
 {
-	const struct asph_fit_result *r = &asph_characterize_result(ch)->fit;
+	const struct asph_characterize_result *res = asph_characterize_result(ch);
+	_cleanup_(json_decrefp) json_t *root = NULL;
+	_cleanup_free_ char *text = NULL;
 
-	printf("Fit of %zu points to %s (%s residual%s)\n", r->n_points,
-	       asph_characterize_lens_name(ch), asph_fit_residual_name(r->residual),
-	       c->opts.robust ? ", robust" : "");
-	for (int d = 0; d < ASPH_FIT_N_DOF; d++) {
-		const char *unit = d < ASPH_FIT_RX || d == ASPH_FIT_R ? "mm " : d == ASPH_FIT_K ? "   " : "rad";
-		if (r->dof & ASPH_FIT_DOF_BIT(d))
-			printf("  %-3s %+.12f %s  +- %.3g\n", asph_fit_dof_name((enum asph_fit_dof)d),
-			       r->value[d], unit, r->uncertainty[d]);
+	if (asph_characterize_summary_json(ch, c->json ? 2 : 0, &text) < 0 ||
+	    (!c->json && !(root = json_loads(text, 0, NULL)))) {
+		fprintf(stderr, "asph fit: out of memory\n");
+		return EXIT_FAILURE_RUN;
 	}
-	printf("%s after %d iterations in %d pass%s: %s\n",
-	       r->converged ? "Converged" : "NOT converged", r->iterations, r->passes,
-	       r->passes == 1 ? "" : "es", r->reason);
-	printf("Points used %zu, outside the aperture %zu, outliers %zu\n", r->n_used,
-	       r->n_outside_aperture, r->n_outliers);
-	printf("Residual RMS %.4f nm, PV %.4f nm, PVr %.4f nm, slope RMS %.4f urad\n",
-	       r->rms.v, r->pv.v, r->pvr.v, r->slope_rms.v);
-	show_form(r);
-	if (r->n_zernike == 0) {
-		printf("Too few points for the Zernike decomposition (PVr and slope need it)\n");
-		return;
+	if (c->json) {
+		puts(text);
+		return EXIT_OK;
 	}
-	printf("Zernike terms of the residual (Noll, nm; Z1-Z3 are taken by the rigid DOF):\n");
-	for (int j = 0; j < r->n_zernike; j++)
-		printf("  Z%-2d %+10.4f%s", j + 1, r->zernike[j].v, (j + 1) % 4 == 0 ? "\n" : "");
-	if (r->n_zernike % 4)
-		printf("\n");
+	fit_summary_print(stdout, root, "");
+	fit_summary_print_zernike(stdout, root, "");
+	if (res->mc_done)
+		fit_mc_show(&res->mc);
+	show_bands(c, res);
+	if (more_text)
+		more_text(res);
+	return EXIT_OK;
 }
 
 /* The outputs that need the residual map of the part. */
@@ -617,8 +608,8 @@ fail:
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_characterization *, asph_characterize_free)
 
-/* The characterization the options ask for: 0, or the exit code after
- * saying why not. */
+/* The characterization the options ask for, the fit's progress on a
+ * terminal: 0, or the exit code after saying why not. */
 static int characterize(const struct fit_cli *c, const struct fit_input *in,
 			struct fit_mc_run *mc, struct asph_characterization **out)
 {
@@ -626,17 +617,24 @@ static int characterize(const struct fit_cli *c, const struct fit_input *in,
 		.fit = c->opts, .outputs = outputs_of(c), .grid_spacing_mm = c->grid_spacing,
 		.bands = c->bands, .run = in->run,
 	};
-	const char *scan = in->scan ? in->name : c->scan;
-	const char *instrument = in->scan ? in->scan->header.instrument : in->run.instrument_json;
+	const struct asph_scanfile *scan = in->scan ? in->scan : in->run.source;
+	const char *scan_name = in->scan ? in->name : c->scan;
+	struct progress p;
 	struct asph_error err;
-	int r = fit_mc_prepare(&c->mc, scan, instrument, mc, &o);
+	int r = fit_mc_prepare(&c->mc, scan_name, scan ? scan->header.instrument : NULL, mc, &o);
 
 	if (r != EXIT_OK)
 		return r;
+	progress_start(&p, "fit", "iterations", c->quiet);
+	o.fit.progress = progress_hook(&p);
+	mc->before = &p;
 	asph_error_clear(&err);
-	if (asph_characterize_alloc(in->surface, &o, out, &err) < 0 ||
-	    (in->scan ? asph_characterize_scan(*out, in->scan, in->name, &err)
-		      : asph_characterize_points(*out, in->points, &err)) < 0) {
+	r = asph_characterize_alloc(in->surface, &o, out, &err);
+	if (r == 0)
+		r = in->scan ? asph_characterize_scan(*out, in->scan, in->name, &err)
+			     : asph_characterize_points(*out, in->points, &err);
+	progress_stop(&p);
+	if (r < 0) {
 		const struct asph_characterize_result *res = *out ? asph_characterize_result(*out)
 								  : NULL;
 		tool_print_error(res && res->uncertainty_failed ? "fit: --uncertainty" : in->name,
@@ -679,7 +677,7 @@ int fit_cli_run(const struct fit_cli *c, const struct fit_input *in,
 {
 	_cleanup_(asph_characterize_freep) struct asph_characterization *ch = NULL;
 	const struct asph_characterize_result *res;
-	struct fit_mc_run mc;
+	struct fit_mc_run mc = { 0 };
 	int r = characterize(c, in, &mc, &ch);
 
 	if (r != EXIT_OK)
@@ -688,56 +686,27 @@ int fit_cli_run(const struct fit_cli *c, const struct fit_input *in,
 	r = check_asked(c, res);
 	if (r != EXIT_OK)
 		return r;
-	if (c->json) {
-		r = show_json(ch);
-		if (r != EXIT_OK)
-			return r;
-	} else {
-		show_text(c, ch);
-		if (res->mc_done)
-			fit_mc_show(&res->mc);
-		show_bands(c, res);
-		if (more_text)
-			more_text(res);
-	}
+	r = show(c, ch, more_text);
+	if (r != EXIT_OK)
+		return r;
 	r = write_outputs(c, ch);
 	if (r == EXIT_OK && c->out_dir)
 		r = write_folder(c, in, ch);
 	return r == EXIT_OK ? exit_status(&res->fit) : r;
 }
 
-DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile_reader *, asph_scanfile_reader_free)
-
-/* --scan: the plan, the instrument and the time of the recorded scan the
- * points come from, for the report and the X3P files. */
-static int scan_header(const char *scan, struct asph_scanfile_reader **reader,
-		       struct asph_characterize_run *run)
-{
-	const struct asph_scanfile_header *h;
-	struct asph_error err;
-
-	asph_error_clear(&err);
-	if (asph_scanfile_reader_open(scan, reader, &err) < 0) {
-		tool_print_error("fit: --scan", &err);
-		return EXIT_FAILURE_RUN;
-	}
-	h = asph_scanfile_reader_header(*reader);
-	run->plan_json = h->plan;
-	run->instrument_json = h->instrument;
-	run->metadata_json = h->metadata;
-	run->measured_ns = h->created_ns;
-	return EXIT_OK;
-}
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile *, asph_scanfile_free)
 
 int cmd_fit(int argc, char **argv)
 {
 	_cleanup_(asph_surface_freep) struct asph_surface *s = NULL;
 	_cleanup_(asph_points_freep) struct asph_points *pts = NULL;
-	_cleanup_(asph_scanfile_reader_freep) struct asph_scanfile_reader *scan = NULL;
+	_cleanup_(asph_scanfile_freep) struct asph_scanfile *scan = NULL;
 	_cleanup_free_ char *data = NULL;
 	_cleanup_(fit_cli_release) struct fit_cli c = { 0 };
 	struct fit_input in = { 0 };
 	struct asph_error err;
+	char user[256];
 	int r = fit_cli_parse(&c, argc, argv, 2, usage);
 
 	if (r != EXIT_OK)
@@ -753,13 +722,17 @@ int cmd_fit(int argc, char **argv)
 		tool_print_error(NULL, &err);
 		return EXIT_FAILURE_RUN;
 	}
+	/* --scan: its plan, instrument, job and times name the run */
+	if (c.scan && asph_scanfile_read(c.scan, &scan, &err) < 0) {
+		tool_print_error("fit: --scan", &err);
+		return EXIT_FAILURE_RUN;
+	}
 	in = (struct fit_input){
 		.surface = s, .points = pts, .name = c.points,
-		.run = { .program = "asph " ASPH_VERSION, .part = c.part, .lot = c.lot,
-			 .serial = c.serial, .data_name = c.scan ? c.scan : c.points },
+		.run = { .program = "asph " ASPH_VERSION, .source = scan,
+			 .data_name = c.scan ? c.scan : c.points },
 	};
-	if (c.scan && (r = scan_header(c.scan, &scan, &in.run)) != EXIT_OK)
-		return r;
+	fit_report_run(&c, user, sizeof(user), &in.run);
 	/* the report names and hashes the measured data */
 	if (c.report_out &&
 	    file_read_all(in.run.data_name, (size_t)1 << 31, &data, &in.run.data_len, &err) < 0) {

@@ -18,6 +18,8 @@
 #include "asph-tool.h"
 #include "config.h"
 #include "fileio.h"
+#include "fit-report.h"
+#include "fit-summary.h"
 #include "asph/prescription.h"
 #include "asph/scanfile.h"
 #include "fit-tool.h"
@@ -48,28 +50,8 @@ static void usage(FILE *out)
 static void show_acquisition(const struct asph_characterize_result *res)
 {
 	_cleanup_(json_decrefp) json_t *a = json_loads(res->acquisition_json, 0, NULL);
-	json_t *d = json_object_get(a, "drift");
-	json_t *p = json_object_get(a, "positions");
-	const char *key;
-	json_t *v;
-	size_t i;
 
-	printf("Positions      ");
-	json_object_foreach(p, key, v)
-		if (json_integer_value(v))
-			printf(" %lld %s", (long long)json_integer_value(v), key);
-	printf("\n");
-	if (json_is_true(json_object_get(d, "corrected")))
-		printf("Drift corrected: %lld rounds of %lld references (%s), max %.3f nm, RMS %.3f nm\n",
-		       (long long)json_integer_value(json_object_get(d, "rounds")),
-		       (long long)json_integer_value(json_object_get(d, "references")),
-		       json_string_value(json_object_get(d, "components")),
-		       json_number_value(json_object_get(d, "max_nm")),
-		       json_number_value(json_object_get(d, "rms_nm")));
-	else
-		printf("Drift not corrected: the scan has no drift references to model it\n");
-	json_array_foreach(json_object_get(a, "warnings"), i, v)
-		printf("Warning: %s\n", json_string_value(v));
+	fit_summary_print_acquisition(stdout, a, "");
 }
 
 /* The scan read into memory (the report and result.json hash its bytes)
@@ -109,6 +91,7 @@ int cmd_replay(int argc, char **argv)
 	_cleanup_free_ char *data = NULL;
 	_cleanup_(fit_cli_release) struct fit_cli c = { 0 };
 	struct fit_input in;
+	char user[256];
 	size_t len = 0;
 
 	if (argc >= 2 && argv[1][0] == '-' && strcmp(argv[1], "--help") && strcmp(argv[1], "-h")) {
@@ -129,8 +112,8 @@ int cmd_replay(int argc, char **argv)
 	in = (struct fit_input){
 		.surface = surf, .scan = s, .name = c.points,
 		.run = { .program = "asph " ASPH_VERSION, .lens_name = preset_name(surf),
-			 .part = c.part, .lot = c.lot, .serial = c.serial,
 			 .data_name = c.points, .data = data, .data_len = len },
 	};
+	fit_report_run(&c, user, sizeof(user), &in.run);
 	return fit_cli_run(&c, &in, show_acquisition);
 }

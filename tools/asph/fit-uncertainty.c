@@ -15,6 +15,8 @@
 #include "asph/mc-runner.h"
 #include "asph-tool.h"
 #include "fit-uncertainty.h"
+#include "progress.h"
+#include "quantity.h"
 #include "util-mem.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_registry *, asph_registry_free)
@@ -149,27 +151,22 @@ static int model_from_config(const char *arg, struct asph_uncertainty_model *m)
 	return 0;
 }
 
-static int show_progress(void *data, size_t done, size_t planned)
-{
-	const struct fit_mc_run *run = data;
-
-	if (run->tty)
-		fprintf(stderr, "\rMonte Carlo: %zu/%zu trials", done, planned);
-	return 0;
-}
-
-/* The trials on --threads workers (drivers/mc-runner.c), the progress on
- * a terminal. */
+/* The trials on --threads workers (drivers/mc-runner.c), their progress
+ * on a terminal (tools/progress.c). */
 static int run_threads(void *data, struct asph_mc *mc, struct asph_mc_result *out,
 		       struct asph_error *err)
 {
-	struct fit_mc_run *run = data;
-	struct asph_mc_threads th = { .n_threads = run->threads, .progress = show_progress,
-				      .progress_data = run };
-	int r = asph_mc_run_threads(mc, &th, out, err);
+	const struct fit_mc_run *run = data;
+	struct progress p;
+	struct asph_mc_threads th = { .n_threads = run->threads, .progress = progress_show,
+				      .progress_data = &p };
+	int r;
 
-	if (run->tty)
-		fputc('\n', stderr);
+	if (run->before)
+		progress_stop(run->before);
+	progress_start(&p, "Monte Carlo", "trials", run->quiet);
+	r = asph_mc_run_threads(mc, &th, out, err);
+	progress_stop(&p);
 	return r;
 }
 
@@ -185,7 +182,7 @@ int fit_mc_prepare(const struct fit_mc_cli *c, const char *scan, const char *ins
 				  : model_from_scan(scan, instrument_json, &run->model) < 0)
 		return EXIT_FAILURE_RUN;
 	run->threads = c->threads;
-	run->tty = isatty(STDERR_FILENO);
+	run->quiet = c->quiet;
 	o->uncertainty = &run->model;
 	o->mc = c->opts;
 	if (!c->seed_set)
@@ -206,9 +203,16 @@ void fit_mc_show(const struct asph_mc_result *mc)
 	       "         drift %g nm, tip radius %g um\n", m->probe_noise_nm, m->position_noise_um,
 	       m->position_resolution_um, m->latency_us, m->scan_speed_mm_s, m->drift_residual_nm,
 	       m->tip_radius_um);
-	for (int q = 0; q < ASPH_MC_N_QUANTITIES; q++)
-		if (mc->covered[q])
-			printf("  %-9s %+.9g  u %.4g  U(k=2) %.4g\n",
-			       asph_mc_quantity_key((enum asph_mc_quantity)q), mc->value[q], mc->u[q],
-			       mc->U[q]);
+	for (int q = 0; q < ASPH_MC_N_QUANTITIES; q++) {
+		const char *key = asph_mc_quantity_key((enum asph_mc_quantity)q);
+		const struct quantity *row = quantity_by_u_key(key);
+		char v[48], u[32], U[32];
+
+		if (!mc->covered[q])
+			continue;
+		printf("  %-9s %16s  u %-10s U(k=2) %s\n", key,
+		       quantity_format(row, mc->value[q], QUANTITY_UNIT, v, sizeof(v)),
+		       quantity_format(row, mc->u[q], QUANTITY_NO_SIGN, u, sizeof(u)),
+		       quantity_format(row, mc->U[q], QUANTITY_NO_SIGN, U, sizeof(U)));
+	}
 }

@@ -11,6 +11,7 @@ struct fit_mc_cli {
 	const char *instrument;   /* FILE or FILE#NAME, else the scan's */
 	int seed_set;
 	int threads;              /* --threads; 0 = the online processors */
+	int quiet;                /* no progress line */
 	struct asph_mc_options opts;
 };
 
@@ -50,10 +51,12 @@ int fit_mc_check(const struct fit_mc_cli *c);
 	"    --seed S              of the trials' draws (default 1)\n"
 
 /* The Monte Carlo of a characterization: the model and the threads. */
+struct progress;
 struct fit_mc_run {
 	struct asph_uncertainty_model model;
 	int threads;
-	int tty;                  /* the progress is shown */
+	int quiet;                /* no progress line */
+	struct progress *before;  /* a progress line to clear first (the fit's) */
 };
 
 /*
