@@ -94,8 +94,9 @@ enum asph_points_format {
 const char *asph_points_format_name(enum asph_points_format f);
 /* The format a name (or an alias) names; -EINVAL for an unknown name. */
 int asph_points_format_parse(const char *name, enum asph_points_format *out);
-/* The format names, ", " separated, for usage texts. */
-const char *asph_points_format_names(void);
+/* The format names, ", " separated, for usage texts, into buf (cut to
+ * size); the length of the whole list, as snprintf() counts it. */
+size_t asph_points_format_names(char *buf, size_t size);
 
 struct asph_points_read_options {
 	enum asph_points_format format;  /* AUTO: from the content */

@@ -48,19 +48,14 @@ int asph_points_format_parse(const char *name, enum asph_points_format *out)
 	return -EINVAL;
 }
 
-const char *asph_points_format_names(void)
+size_t asph_points_format_names(char *buf, size_t size)
 {
-	/* built once from the table, in a static buffer the size of it all */
-	static char names[128];
+	size_t used = (size_t)snprintf(buf, size, "auto");
 
-	if (!names[0]) {
-		size_t used = 0;
-		used += (size_t)snprintf(names, sizeof(names), "auto");
-		for (size_t i = 0; i < ARRAY_SIZE(formats) && used < sizeof(names); i++)
-			used += (size_t)snprintf(names + used, sizeof(names) - used, ", %s",
-						 formats[i].name);
-	}
-	return names;
+	for (size_t i = 0; i < ARRAY_SIZE(formats); i++)
+		used += (size_t)snprintf(buf + (used < size ? used : size),
+					 used < size ? size - used : 0, ", %s", formats[i].name);
+	return used;
 }
 
 static const struct unit_entry {

@@ -7,8 +7,9 @@
 int points_input_format(struct points_input *in, const char *prog, const char *arg)
 {
 	if (asph_points_format_parse(arg, &in->opts.format) < 0) {
-		fprintf(stderr, "asph %s: --format: unknown format '%s' (%s)\n", prog, arg,
-			asph_points_format_names());
+		char names[128];
+		asph_points_format_names(names, sizeof(names));
+		fprintf(stderr, "asph %s: --format: unknown format '%s' (%s)\n", prog, arg, names);
 		return -1;
 	}
 	in->format_arg = arg;
