@@ -52,8 +52,8 @@ void job_record_clear(struct job_record *j);
 
 struct store;
 
-/* Opens or creates path; upgrades nothing it does not know (-EPROTO for a
- * newer schema). */
+/* Opens or creates path; upgrades an older schema after a backup (below),
+ * nothing it does not know (-EPROTO for a newer schema). */
 int store_open(const char *path, struct store **out, struct asph_error *err);
 void store_close(struct store *s);
 
@@ -133,6 +133,25 @@ int store_meta_set(struct store *s, const char *key, const char *value);
  */
 int store_renew_reserve(struct store *s);
 int store_release_reserve(struct store *s);
+
+/*
+ * Backups: a consistent copy of the store made while it is in use. The
+ * copy is read in one read transaction (WAL: the store's writers go on
+ * meanwhile), a few hundred pages a step; progress (may be NULL) is told
+ * after each step with the pages copied and in all, and a nonzero return
+ * stops the copy (-ECANCELED). dst must not exist: it is created (0640), a
+ * complete SQLite file of its own (no write-ahead log), synced with its
+ * directory entry, and removed again on failure. store_open() makes one
+ * into DIR/backup/jobs-schemaN-YYYYmmddTHHMMSSZ.sqlite before it upgrades
+ * a store of schema N, and logs it; no upgrade goes without it.
+ */
+typedef int (*store_backup_fn)(int64_t pages_done, int64_t pages_total, void *data);
+/* The store at path into dst, through a connection of its own (any thread). */
+int store_backup(const char *path, const char *dst, store_backup_fn progress, void *data,
+		 struct asph_error *err);
+/* The backups' directory beside the store at path, "DIR/backup", made
+ * (0750) when missing; a symlink or a file there is refused (-ENOTDIR). */
+int store_backup_dir(const char *path, char **dir, struct asph_error *err);
 
 /* --- API tokens (tokens.c): name, role, SHA-256 of the secret */
 

@@ -76,6 +76,10 @@ static inline void msleep(unsigned ms)
  */
 void iso8601_utc(int64_t ns, int digits, char *buf, size_t size);
 
+/* realtime ns in ISO 8601's basic format, for file names:
+ * "20240501T123456Z" (whole seconds, truncated); "@ns" as above. */
+void iso8601_basic_utc(int64_t ns, char *buf, size_t size);
+
 /* "2027-01-31T12:00:00Z" or "2027-01-31" (midnight UTC) as realtime ns:
  * 0, -EINVAL for any other text, -ERANGE for a time out of range. */
 int iso8601_parse_utc(const char *text, int64_t *ns);
