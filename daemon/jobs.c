@@ -527,6 +527,7 @@ static int start_job(struct jobs *jobs, struct slot *sl, struct job_record *j)
 	}
 	sl->act = (struct instrument_activity){
 		.job = j->id, .done = j->points_done, .total = j->points_total, .eta_s = -1,
+		.points_measured = sl->act.points_measured,
 	};
 	sl->last_progress_store_ns = 0;
 	sl->cancel = false;
@@ -602,6 +603,9 @@ static void job_progress(struct slot *sl, const struct runner_report *rep)
 	struct jobs *jobs = sl->jobs;
 	uint64_t now = (uint64_t)now_realtime_ns();
 
+	/* (a start tells where a resumed scan goes on: nothing measured yet) */
+	if (rep->kind == RUNNER_PROGRESS && (int64_t)rep->done > sl->act.done)
+		sl->act.points_measured += (int64_t)rep->done - sl->act.done;
 	sl->act.done = (int64_t)rep->done;
 	sl->act.total = (int64_t)rep->total;
 	sl->act.rate = rep->rate;
@@ -686,6 +690,8 @@ static void job_done(struct slot *sl, const struct runner_report *rep)
 		j.result = rep->result;
 		j.resume = false;
 		j.points_done = sl->act.total;
+		if (sl->act.total > sl->act.done)       /* (the last report was coalesced) */
+			sl->act.points_measured += sl->act.total - sl->act.done;
 		j.finished_ns = now_realtime_ns();
 		break;
 	case JOB_FAILED:

@@ -20,6 +20,7 @@
 
 #include "access.h"
 #include "asph-proto.h"
+#include "backup.h"
 #include "config.h"
 #include "devices.h"
 #include "events.h"
@@ -27,6 +28,7 @@
 #include "instruments.h"
 #include "jobs.h"
 #include "log.h"
+#include "monitor.h"
 #include "mqtt.h"
 #include "outbox.h"
 #include "rpc.h"
@@ -71,6 +73,8 @@ struct daemon {
 	struct server *server;
 	struct web *web;                /* NULL without http_listen */
 	struct tokens *tokens;
+	struct backups *backups;        /* copies of the job store for clients */
+	struct monitor *monitor;        /* health and metrics */
 	/* What leaves the PC (docs/fleet.md): NULL without mqtt/postgres. */
 	char host[256];
 	struct outbox *outbox;
@@ -509,11 +513,13 @@ static void mqtt_link(void *data, bool up, const char *why)
 		outbox_reset(d->outbox, OUTBOX_MQTT);
 		outbox_pump(d->outbox, OUTBOX_MQTT);
 	} else {
+		monitor_count_error(d->monitor, MONITOR_MQTT_CONNECTION);
 		log_warning("mqtt: %s %s: %s; trying again (the job states and results wait in "
 			    "the outbox)", d->mqtt_up ? "lost the connection to" : "cannot connect to",
 			    d->settings->mqtt->url, why);
 	}
 	d->mqtt_up = up;
+	monitor_sink_link(d->monitor, OUTBOX_MQTT, up);
 }
 
 static int fleetdb_send_item(void *data, const struct store_outbox_item *it)
@@ -534,6 +540,7 @@ static void fleetdb_refused(void *data, int64_t id, const char *why)
 {
 	struct daemon *d = data;
 
+	monitor_count_error(d->monitor, MONITOR_POSTGRES_REFUSED);
 	outbox_hold(d->outbox, OUTBOX_POSTGRES, id, why);
 }
 
@@ -548,7 +555,10 @@ static void fleetdb_link(void *data, bool up, const char *why)
 		log_warning("postgres: %s; trying again (the rows wait in the outbox)", why);
 	if (!up)
 		snprintf(d->fleetdb_down, sizeof(d->fleetdb_down), "%s", why);
+	if (!up)
+		monitor_count_error(d->monitor, MONITOR_POSTGRES_CONNECTION);
 	d->fleetdb_up = up;
+	monitor_sink_link(d->monitor, OUTBOX_POSTGRES, up);
 }
 
 /* Every job change: its messages into the outbox. */
@@ -654,6 +664,11 @@ static int start_fleet(struct daemon *d)
 		log_error("%s", asph_error_format(&err, buf, sizeof(buf)));
 		return r;
 	}
+	monitor_set_outbox(d->monitor, d->outbox);
+	if (s->mqtt)
+		monitor_add_sink(d->monitor, OUTBOX_MQTT);
+	if (s->postgres)
+		monitor_add_sink(d->monitor, OUTBOX_POSTGRES);
 	if (s->mqtt && (r = start_mqtt(d, &prefix)) < 0)
 		return r;
 	if (s->postgres && (r = start_fleetdb(d)) < 0)
@@ -682,6 +697,8 @@ static void stop_fleet(struct daemon *d)
 	d->fleetdb = NULL;
 	telemetry_free(d->telemetry);
 	d->telemetry = NULL;
+	if (d->monitor)
+		monitor_set_outbox(d->monitor, NULL);
 	outbox_free(d->outbox);
 	d->outbox = NULL;
 }
@@ -716,6 +733,24 @@ static int db_migrate(struct daemon *d)
 
 /* ------------------------------------------------------------ running */
 
+static int start_backups(struct daemon *d)
+{
+	_cleanup_free_ char *path = NULL;
+	struct asph_error err;
+	char buf[1024];
+	int r;
+
+	asph_error_clear(&err);
+	if (asprintf(&path, "%s/jobs.sqlite", d->settings->state_dir) < 0)
+		return -ENOMEM;
+	r = backups_new(&(struct backups_setup){
+			.event = d->event, .store_path = path, .limits = &d->limits,
+			}, &d->backups, &err);
+	if (r < 0)
+		log_error("%s", asph_error_format(&err, buf, sizeof(buf)));
+	return r;
+}
+
 static int start_modules(struct daemon *d)
 {
 	struct asph_error err;
@@ -738,10 +773,22 @@ static int start_modules(struct daemon *d)
 	r = open_tokens(d);
 	if (r < 0)
 		return r;
+	r = start_backups(d);
+	if (r == 0)
+		r = monitor_new(&(struct monitor_setup){
+				.jobs = d->jobs, .instruments = d->instruments, .limits = &d->limits,
+				.state_dir = d->settings->state_dir, .version = ASPH_VERSION,
+				.started_ns = now_realtime_ns(),
+				}, &d->monitor);
+	if (r == 0)
+		r = events_watch_add(d->events, EVENT_JOB, monitor_watch, d->monitor, NULL);
+	if (r < 0)
+		return r;
 	r = rpc_new(&(struct rpc_setup){
 			.event = d->event, .started_usec = d->started_usec, .jobs = d->jobs,
 			.instruments = d->instruments, .events = d->events, .access = d->access,
-			.tokens = d->tokens, .limits = &d->limits,
+			.tokens = d->tokens, .backups = d->backups, .monitor = d->monitor,
+			.limits = &d->limits,
 		    }, &d->rpc);
 	if (r == 0)
 		r = server_new(&(struct server_setup){
@@ -756,7 +803,8 @@ static int start_modules(struct daemon *d)
 	if (r > 0 && d->http) {
 		r = web_new(&(struct web_setup){
 				.event = d->event, .rpc = d->rpc, .jobs = d->jobs,
-				.limits = &d->limits, .state_dir = d->settings->state_dir,
+				.monitor = d->monitor, .limits = &d->limits,
+				.state_dir = d->settings->state_dir,
 			    }, &d->web);
 		if (r == 0)
 			r = events_watch_add(d->events, EVENT_ALL, web_notify, d->web, NULL);
@@ -815,12 +863,14 @@ static void teardown(struct daemon *d)
 	web_free(d->web);
 	server_free(d->server);
 	rpc_free(d->rpc);
+	backups_free(d->backups);
 	stop_fleet(d);
 	sd_event_source_disable_unref(d->revalidate);
 	sd_event_source_disable_unref(d->token_expiry);
 	tokens_free(d->tokens);
 	jobs_free(d->jobs);
 	events_free(d->events);
+	monitor_free(d->monitor);
 	unload_configuration(d);
 	sd_event_unref(d->event);
 }

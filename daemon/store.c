@@ -507,6 +507,15 @@ int store_renew_reserve(struct store *s)
 	return r;
 }
 
+bool store_reserve_ready(const char *path)
+{
+	char name[4096];
+	struct stat st;
+
+	snprintf(name, sizeof(name), "%s.reserve", path);
+	return lstat(name, &st) == 0 && S_ISREG(st.st_mode) && st.st_size >= RESERVE_BYTES;
+}
+
 int store_release_reserve(struct store *s)
 {
 	if (!s->reserve)

@@ -133,6 +133,8 @@ int store_meta_set(struct store *s, const char *key, const char *value);
  */
 int store_renew_reserve(struct store *s);
 int store_release_reserve(struct store *s);
+/* Whether the reserve of the store at path is there, whole (any thread). */
+bool store_reserve_ready(const char *path);
 
 /*
  * Backups: a consistent copy of the store made while it is in use. The

@@ -9,7 +9,7 @@ _asphctl()
 		words=("${COMP_WORDS[@]}")
 		cword=$COMP_CWORD
 	}
-	local commands="submit status watch cancel pause resume requeue list result queue instruments drivers"
+	local commands="submit status watch cancel pause resume requeue list result queue instruments drivers backup health"
 	local cmd="" i
 	for ((i = 1; i < cword; i++)); do
 		case ${words[i]} in
@@ -39,6 +39,8 @@ _asphctl()
 	requeue) opts+=" --restart" ;;
 	list) opts+=" --state --instrument --label --mine --limit --offset" ;;
 	result) opts+=" --out" ;;
+	backup) [[ $cur != -* ]] && { COMPREPLY=($(compgen -f -- "$cur")); return; } ;;
+	health) opts+=" --timeout" ;;
 	queue) opts+=" --abort"
 		[[ $cur != -* ]] && { COMPREPLY=($(compgen -W "show move start stop" -- "$cur")); return; } ;;
 	esac

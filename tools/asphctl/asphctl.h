@@ -5,6 +5,7 @@
 
 #include <stdbool.h>
 #include <stdint.h>
+#include <sys/types.h>
 
 #include <jansson.h>
 
@@ -18,6 +19,8 @@ enum {
 	CTL_EXIT_UNREACHABLE = 3,  /* no daemon at the socket, or it broke off */
 	CTL_EXIT_DENIED = 4,       /* not allowed (not an operator) */
 	CTL_EXIT_JOB_FAILED = 5,   /* the job ended failed, cancelled or interrupted */
+	CTL_EXIT_DOWN = 7,         /* health: the daemon cannot be reached or does not answer */
+	CTL_EXIT_DEGRADED = 8,     /* health: the daemon runs, degraded (the reasons printed) */
 };
 
 /* A connection to the daemon. */
@@ -30,6 +33,9 @@ struct ctl_error {
 };
 
 int conn_open(const char *path, struct conn **out, struct ctl_error *e);
+/* The same, waiting at most timeout_ms (-1: no limit) for the connection
+ * and for each answer of conn_call(), which then fails with -ETIMEDOUT. */
+int conn_open_within(const char *path, int timeout_ms, struct conn **out, struct ctl_error *e);
 void conn_close(struct conn *c);
 /*
  * Calls method with params (stolen, may be NULL) and waits for its
@@ -117,6 +123,16 @@ int cmd_lock(struct ctl *ctl, int argc, char **argv);
 int cmd_unlock(struct ctl *ctl, int argc, char **argv);
 int cmd_token(struct ctl *ctl, int argc, char **argv);
 int cmd_fleet(struct ctl *ctl, int argc, char **argv);
+int cmd_backup(struct ctl *ctl, int argc, char **argv);
+int cmd_health(struct ctl *ctl, int argc, char **argv);
+
+/* A file the daemon hands in pieces (job.file, backup.file): method's
+ * answers to params, each with its "offset" added, written to the path out
+ * (mode before the umask) under a temporary name created exclusively and
+ * renamed into place (fs_write_file_at()). name is the file in messages.
+ * Returns the exit code, having said why. */
+int ctl_fetch_file(struct ctl *ctl, const char *method, const json_t *params, const char *name,
+		   const char *out, mode_t mode);
 
 /* Watches job until it ends (used by watch and submit --wait). */
 int ctl_watch_job(struct ctl *ctl, int64_t id, bool quiet);

@@ -31,6 +31,8 @@ static const struct {
 	{ "unlock", "end an instrument's lock", cmd_unlock },
 	{ "token", "create, list or revoke API tokens (root)", cmd_token },
 	{ "fleet", "the newest results across daemons, from the central database", cmd_fleet },
+	{ "backup", "copy the daemon's job store into a file (root)", cmd_backup },
+	{ "health", "ok, degraded (with the reasons) or down, for monitoring", cmd_health },
 };
 
 int ctl_fail(const struct ctl_error *e)
@@ -131,7 +133,8 @@ static void usage(FILE *f)
 		fprintf(f, "  %-12s %s\n", commands[i].name, commands[i].summary);
 	fprintf(f, "\nRun 'asphctl COMMAND --help' for a command's options.\n"
 		   "Exit codes: 0 ok, 1 error from the daemon, 2 usage, 3 daemon unreachable,\n"
-		   "4 permission denied, 5 the job ended without a result.\n");
+		   "4 permission denied, 5 the job ended without a result; health: 7 down,\n"
+		   "8 degraded.\n");
 }
 
 int main(int argc, char **argv)
