@@ -184,6 +184,18 @@ static int device_policy(struct daemon *d, const char *kind)
 	return r < 0 ? ASPHD_EXIT_CONFIG : ASPHD_EXIT_OK;
 }
 
+/* --list-settings: every setting of the file, a line each: name, what it
+ * takes, its default and what it does, separated by tabs. */
+static int list_settings(void)
+{
+	for (size_t i = 0; i < settings_count(); i++) {
+		struct setting_info info;
+		settings_describe(i, &info);
+		printf("%s\t%s\t%s\t%s\n", info.name, info.type, info.fallback, info.help);
+	}
+	return ASPHD_EXIT_OK;
+}
+
 static int check_config(struct daemon *d)
 {
 	int n_errors = 0;
@@ -210,7 +222,7 @@ static int apply_overrides(const struct daemon *d, struct settings *s)
 	if (d->state_override) {
 		free(s->state_dir);
 		s->state_dir = strdup(d->state_override);
-	} else if (!s->source || !strcmp(s->state_dir, "/var/lib/asphd")) {
+	} else if (!s->source || !strcmp(s->state_dir, SETTINGS_STATE_DIR)) {
 		/* systemd's StateDirectory= tells where ours is. */
 		env = getenv("STATE_DIRECTORY");
 		if (env && env[0] == '/' && !strchr(env, ':')) {
@@ -883,6 +895,8 @@ static void usage(FILE *f)
 		   "  -s, --socket PATH     unix socket (default %s)\n"
 		   "  -d, --state-dir DIR   jobs, scans and results (default /var/lib/asphd)\n"
 		   "      --check-config    check the configuration, name every error, exit\n"
+		   "      --list-settings   print every setting of the configuration file: name,\n"
+		   "                        what it takes, default, meaning (tab-separated), exit\n"
 		   "      --db-migrate      create or migrate the central database's schema\n"
 		   "                        (the configuration's postgres section), exit\n"
 		   "      --device-policy=systemd|udev\n"
@@ -900,6 +914,7 @@ int main(int argc, char **argv)
 		{ "socket", required_argument, NULL, 's' },
 		{ "state-dir", required_argument, NULL, 'd' },
 		{ "check-config", no_argument, NULL, 'C' },
+		{ "list-settings", no_argument, NULL, 'L' },
 		{ "db-migrate", no_argument, NULL, 'M' },
 		{ "device-policy", required_argument, NULL, 'D' },
 		{ "verbose", no_argument, NULL, 'v' },
@@ -922,6 +937,7 @@ int main(int argc, char **argv)
 		case 's': d.socket_override = optarg; break;
 		case 'd': d.state_override = optarg; break;
 		case 'C': check = true; break;
+		case 'L': return list_settings();
 		case 'M': migrate = true; break;
 		case 'D': policy = optarg; break;
 		case 'v': verbose = true; break;
