@@ -58,6 +58,7 @@ struct daemon {
 	/* What the configuration gives, checked (load_configuration()). */
 	struct settings *settings;
 	struct settings_limits limits;  /* the modules read these; a reload writes them */
+	struct settings_health health;  /* monitor.c reads these; so does a reload */
 	struct instruments *instruments;
 	struct access *access;
 	struct addrinfo *tcp;           /* tcp_listen's addresses */
@@ -400,6 +401,7 @@ static int on_reload(sd_event_source *s, const struct signalfd_siginfo *si, void
 		goto keep;
 	}
 	d->limits = next->limits;
+	d->health = next->health;
 	access_set_tokens(access, d->tokens);
 	rpc_set_access(d->rpc, access);
 	access_free(d->access);
@@ -789,8 +791,8 @@ static int start_modules(struct daemon *d)
 	if (r == 0)
 		r = monitor_new(&(struct monitor_setup){
 				.jobs = d->jobs, .instruments = d->instruments, .limits = &d->limits,
-				.state_dir = d->settings->state_dir, .version = ASPH_VERSION,
-				.started_ns = now_realtime_ns(),
+				.health = &d->health, .state_dir = d->settings->state_dir,
+				.version = ASPH_VERSION, .started_ns = now_realtime_ns(),
 				}, &d->monitor);
 	if (r == 0)
 		r = events_watch_add(d->events, EVENT_JOB, monitor_watch, d->monitor, NULL);
@@ -968,6 +970,7 @@ int main(int argc, char **argv)
 		return ASPHD_EXIT_CONFIG;
 	}
 	d.limits = d.settings->limits;
+	d.health = d.settings->health;
 	r = apply_overrides(&d, d.settings);
 	if (r == 0)
 		r = run(&d);

@@ -58,6 +58,7 @@ struct monitor {
 	struct jobs *jobs;
 	const struct instruments *instruments;
 	const struct settings_limits *limits;
+	const struct settings_health *health;
 	char *state_dir;
 	char *store_path;
 	char *version;
@@ -77,6 +78,7 @@ int monitor_new(const struct monitor_setup *setup, struct monitor **out)
 	m->jobs = setup->jobs;
 	m->instruments = setup->instruments;
 	m->limits = setup->limits;
+	m->health = setup->health;
 	m->started_ns = setup->started_ns;
 	m->state_dir = strdup(setup->state_dir);
 	m->version = strdup(setup->version);
@@ -176,7 +178,7 @@ static void check_sinks(struct monitor *m, json_t *list, int64_t now)
 
 		if (!s->configured)
 			continue;
-		if (!s->up && now - s->down_since_ns > MONITOR_SINK_GRACE_S * NS_PER_SEC) {
+		if (!s->up && now - s->down_since_ns > m->health->sink_down_s * NS_PER_SEC) {
 			iso8601_utc(s->down_since_ns, 0, since, sizeof(since));
 			finding(list, CHECK_SINK_DOWN, "%s: out of reach since %s (the messages wait "
 				"in the outbox)", name, since);
@@ -184,7 +186,7 @@ static void check_sinks(struct monitor *m, json_t *list, int64_t now)
 		if (!m->outbox)
 			continue;
 		oldest = outbox_oldest_ns(m->outbox, (enum outbox_sink_kind)k);
-		if (oldest > 0 && now - oldest > MONITOR_BACKLOG_S * NS_PER_SEC)
+		if (oldest > 0 && now - oldest > m->health->outbox_age_s * NS_PER_SEC)
 			finding(list, CHECK_OUTBOX_BACKLOG, "%s: %" PRId64 " message(s) wait, the "
 				"oldest for %" PRId64 " s", name,
 				outbox_waiting(m->outbox, (enum outbox_sink_kind)k),

@@ -13,9 +13,9 @@
  *   instrument_fault  an instrument's last job stopped on a fault (until
  *                     its next job starts)
  *   sink_down         the MQTT broker or the PostgreSQL database has been
- *                     out of reach for more than MONITOR_SINK_GRACE_S
+ *                     out of reach for more than health.sink_down_s
  *   outbox_backlog    a sink's oldest message has waited for more than
- *                     MONITOR_BACKLOG_S
+ *                     health.outbox_age_s
  *   outbox_held       messages a sink refused for good wait for the next start
  *   disk_low          the state directory has less than twice
  *                     limits.min_free_disk_mb free (at once it, jobs are refused)
@@ -38,16 +38,11 @@
 #include "outbox.h"
 #include "settings.h"
 
-/* A sink may be out of reach this long before the health says so: a
- * reconnection does not make the daemon degraded. */
-#define MONITOR_SINK_GRACE_S 60
-/* A sink's oldest message may wait this long. */
-#define MONITOR_BACKLOG_S 600
-
 struct monitor_setup {
 	struct jobs *jobs;
 	const struct instruments *instruments;
 	const struct settings_limits *limits;   /* read at each use */
+	const struct settings_health *health;   /* read at each use */
 	const char *state_dir;
 	const char *version;
 	int64_t started_ns;                     /* realtime: the daemon's start */

@@ -62,6 +62,11 @@ static const struct settings_limits default_limits = {
 	.min_free_disk_mb = 64,
 };
 
+static const struct settings_health default_health = {
+	.sink_down_s = 60,
+	.outbox_age_s = 600,
+};
+
 int settings_defaults(struct settings **out)
 {
 	struct settings *c = calloc(1, sizeof(*c));
@@ -76,6 +81,7 @@ int settings_defaults(struct settings **out)
 	}
 	c->socket_mode = 0660;
 	c->limits = default_limits;
+	c->health = default_health;
 	*out = c;
 	return 0;
 }
@@ -375,6 +381,10 @@ static void take_limits(struct loader *ld, void *base, const struct row *row, co
 			json_t *v);
 static void take_mqtt(struct loader *ld, void *base, const struct row *row, const char *field,
 		      json_t *v);
+static void take_health(struct loader *ld, void *base, const struct row *row, const char *field,
+			json_t *v);
+static void take_seconds(struct loader *ld, void *base, const struct row *row,
+			 const char *field, json_t *v);
 static void take_postgres(struct loader *ld, void *base, const struct row *row,
 			  const char *field, json_t *v);
 static void take_instruments(struct loader *ld, void *base, const struct row *row,
@@ -453,6 +463,14 @@ static const struct row rows[] = {
 	LIMIT(max_label_bytes, 16, 4096, "a job's label"),
 	LIMIT(min_free_disk_mb, 0, 1048576, "MiB kept free on the state directory: jobs and "
 	      "backups that would not leave it are refused (0: no check)"),
+	{ "health", "object", "the defaults below", "when the daemon's health is degraded "
+	  "(docs/admin.md, Health)", take_health },
+	{ "health.sink_down_s", .take = take_seconds, .offset = AT(struct settings_health,
+	  sink_down_s), .min = 1, .max = 86400, .help = "seconds the MQTT broker or the database "
+	  "may be out of reach before the health says sink_down" },
+	{ "health.outbox_age_s", .take = take_seconds, .offset = AT(struct settings_health,
+	  outbox_age_s), .min = 1, .max = 604800, .help = "seconds a sink's oldest message may "
+	  "wait in the outbox before the health says outbox_backlog" },
 	{ "mqtt", "object", "off", "MQTT telemetry to a broker (docs/fleet.md)", take_mqtt },
 	{ "mqtt.url", "mqtt://HOST[:PORT] or mqtts://HOST[:PORT]", "none: needed",
 	  "the broker; no user or password in it", take_url },
@@ -528,6 +546,20 @@ static void take_members(struct loader *ld, void *base, const char *section, jso
 	}
 }
 
+/* An integer of [row->min, row->max] at row->offset of base. 0, or -1
+ * having complained. */
+static int take_integer(struct loader *ld, void *base, const struct row *row, const char *field,
+			json_t *v)
+{
+	if (!json_is_integer(v) || json_integer_value(v) < row->min ||
+	    json_integer_value(v) > row->max) {
+		complain(ld, field, "must be an integer in [%u, %u]", row->min, row->max);
+		return -1;
+	}
+	*(uint32_t *)((char *)base + row->offset) = (uint32_t)json_integer_value(v);
+	return 0;
+}
+
 static bool given(const struct loader *ld, const char *name)
 {
 	char field[96];
@@ -541,13 +573,24 @@ static bool given(const struct loader *ld, const char *name)
 static void take_limit(struct loader *ld, void *base, const struct row *row, const char *field,
 		       json_t *v)
 {
-	if (!json_is_integer(v) || json_integer_value(v) < row->min ||
-	    json_integer_value(v) > row->max) {
-		complain(ld, field, "must be an integer in [%u, %u]", row->min, row->max);
+	if (take_integer(ld, base, row, field, v) == 0)
+		ld->limits_given |= 1ull << (row - rows);
+}
+
+static void take_seconds(struct loader *ld, void *base, const struct row *row,
+			 const char *field, json_t *v)
+{
+	take_integer(ld, base, row, field, v);
+}
+
+static void take_health(struct loader *ld, void *base, const struct row *row, const char *field,
+			json_t *v)
+{
+	if (!json_is_object(v)) {
+		complain(ld, field, "must be an object");
 		return;
 	}
-	*(uint32_t *)((char *)base + row->offset) = (uint32_t)json_integer_value(v);
-	ld->limits_given |= 1ull << (row - rows);
+	take_members(ld, &((struct settings *)base)->health, field, v);
 }
 
 static void take_limits(struct loader *ld, void *base, const struct row *row, const char *field,
@@ -635,10 +678,12 @@ void settings_describe(size_t i, struct setting_info *out)
 
 	out->name = row->name;
 	out->help = row->help;
-	if (row->take == take_limit) {
+	if (row->take == take_limit || row->take == take_seconds) {
+		const void *defaults = row->take == take_limit ? (const void *)&default_limits
+							       : (const void *)&default_health;
 		snprintf(out->type, sizeof(out->type), "integer from %u to %u", row->min, row->max);
 		snprintf(out->fallback, sizeof(out->fallback), "%u",
-			 *(const uint32_t *)((const char *)&default_limits + row->offset));
+			 *(const uint32_t *)((const char *)defaults + row->offset));
 	} else {
 		snprintf(out->type, sizeof(out->type), "%s", row->type);
 		snprintf(out->fallback, sizeof(out->fallback), "%s", row->fallback);

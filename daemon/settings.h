@@ -36,6 +36,13 @@ struct settings_limits {
 	uint32_t min_free_disk_mb;      /* kept free on the state directory */
 };
 
+/* The "health" section: when the daemon counts as degraded (monitor.h,
+ * docs/admin.md "Health"). */
+struct settings_health {
+	uint32_t sink_down_s;           /* a sink out of reach this long */
+	uint32_t outbox_age_s;          /* a sink's oldest message this old */
+};
+
 /* The "mqtt" section: telemetry to a broker (docs/fleet.md). */
 struct settings_mqtt {
 	char *url;                      /* as written */
@@ -69,6 +76,7 @@ struct settings {
 	char *http_root;                /* the web page's files (NULL: WEB_DIR) */
 	char *state_dir;
 	struct settings_limits limits;
+	struct settings_health health;
 	struct settings_mqtt *mqtt;     /* NULL: no MQTT */
 	struct settings_postgres *postgres;     /* NULL: no central store */
 	/* Instruments: {"instruments": [...]} as JSON text for the drivers'
