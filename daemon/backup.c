@@ -54,8 +54,8 @@ struct backup {
 struct backups {
 	sd_event *event;
 	char *store_path;
-	char *dir;                      /* STATE_DIR/backup */
-	int dir_fd;
+	char *dir;                      /* STATE_DIR/backup, once made */
+	int state_fd;
 	const struct settings_limits *limits;
 	struct mailbox *mailbox;        /* a copy's thread is done */
 	struct backup *list;
@@ -212,11 +212,11 @@ static int check_room(struct backups *b, struct asph_error *err)
 			need += (uint64_t)st.st_size;
 	}
 	need = (need + (1u << 20) - 1) >> 20;
-	if (dirs_free_mb(b->dir_fd, &free_mb) < 0 || free_mb >= need + keep)
+	if (dirs_free_mb(b->state_fd, &free_mb) < 0 || free_mb >= need + keep)
 		return 0;
-	return asph_error_set(err, -EDQUOT, "%s has %" PRIu64 " MiB free: a copy of the job "
-			      "store takes up to %" PRIu64 " MiB, and limits.min_free_disk_mb "
-			      "keeps %" PRIu64 " MiB free", b->dir, free_mb, need, keep);
+	return asph_error_set(err, -EDQUOT, "the state directory has %" PRIu64 " MiB free: a "
+			      "copy of the job store takes up to %" PRIu64 " MiB, and "
+			      "limits.min_free_disk_mb keeps %" PRIu64 " MiB free", free_mb, need, keep);
 }
 
 int backups_start(struct backups *b, const void *owner, const char *who,
@@ -237,6 +237,8 @@ int backups_start(struct backups *b, const void *owner, const char *who,
 			return asph_error_set(err, -EBUSY, "a copy of the job store is being made "
 					      "for %s: try again when it is done", bk->who);
 	r = check_room(b, err);
+	if (r == 0 && !b->dir)
+		r = store_backup_dir(b->store_path, true, &b->dir, err);
 	if (r < 0)
 		return r;
 	backups_release(b, owner);
@@ -316,22 +318,20 @@ void backups_release(struct backups *b, const void *owner)
 /* The copies a daemon that died left behind. */
 static void remove_leftovers(struct backups *b)
 {
-	_cleanup_close_ int fd = dup(b->dir_fd);
-	DIR *d = fd >= 0 ? fdopendir(fd) : NULL;
+	_cleanup_free_ char *dir = NULL;
 	struct dirent *e;
+	DIR *d;
 	size_t n;
 
-	if (!d)
+	if (store_backup_dir(b->store_path, false, &dir, NULL) < 0 || !(d = opendir(dir)))
 		return;
-	fd = -1;
 	while ((e = readdir(d))) {
 		n = strlen(e->d_name);
 		if (strncmp(e->d_name, COPY_PREFIX, strlen(COPY_PREFIX)) ||
 		    n < strlen(COPY_SUFFIX) || strcmp(e->d_name + n - strlen(COPY_SUFFIX), COPY_SUFFIX))
 			continue;
-		if (unlinkat(b->dir_fd, e->d_name, 0) == 0)
-			log_info("backup: removed %s/%s, a copy left by the last run", b->dir,
-				 e->d_name);
+		if (unlinkat(dirfd(d), e->d_name, 0) == 0)
+			log_info("backup: removed %s/%s, a copy left by the last run", dir, e->d_name);
 	}
 	closedir(d);
 }
@@ -340,21 +340,27 @@ int backups_new(const struct backups_setup *setup, struct backups **out,
 		struct asph_error *err)
 {
 	struct backups *b = calloc(1, sizeof(*b));
-	int r;
+	char *slash;
+	int r = 0;
 
 	if (!b)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	b->event = setup->event;
 	b->limits = setup->limits;
-	b->dir_fd = -1;
+	b->state_fd = -1;
 	b->store_path = strdup(setup->store_path);
-	r = b->store_path ? store_backup_dir(b->store_path, &b->dir, err)
-			  : asph_error_set(err, -ENOMEM, "out of memory");
-	if (r == 0) {
-		b->dir_fd = open(b->dir, O_RDONLY | O_DIRECTORY | O_CLOEXEC | O_NOFOLLOW);
-		if (b->dir_fd < 0)
-			r = asph_error_set(err, -errno, "%s: %s", b->dir, strerror(errno));
+	slash = b->store_path ? strrchr(b->store_path, '/') : NULL;
+	if (!slash) {
+		r = b->store_path ? asph_error_set(err, -EINVAL, "%s: not a path", setup->store_path)
+				  : asph_error_set(err, -ENOMEM, "out of memory");
+		backups_free(b);
+		return r;
 	}
+	*slash = '\0';         /* (the state directory, for its free room) */
+	b->state_fd = open(b->store_path, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+	*slash = '/';
+	if (b->state_fd < 0)
+		r = asph_error_set(err, -errno, "%s: %s", b->store_path, strerror(errno));
 	if (r == 0)
 		r = mailbox_new(&(struct mailbox_setup){
 				.event = setup->event, .size = sizeof(struct backup *),
@@ -385,8 +391,8 @@ void backups_free(struct backups *b)
 		remove_copy(b, bk);
 	}
 	mailbox_free(b->mailbox);
-	if (b->dir_fd >= 0)
-		close(b->dir_fd);
+	if (b->state_fd >= 0)
+		close(b->state_fd);
 	free(b->dir);
 	free(b->store_path);
 	free(b);

@@ -254,7 +254,7 @@ static int set_version(struct store *s, long version, struct asph_error *err)
  * cancel is heard soon. */
 #define BACKUP_STEP_PAGES 256
 
-int store_backup_dir(const char *path, char **out, struct asph_error *err)
+int store_backup_dir(const char *path, bool make, char **out, struct asph_error *err)
 {
 	const char *slash = strrchr(path, '/');
 	_cleanup_free_ char *dir = NULL;
@@ -262,7 +262,7 @@ int store_backup_dir(const char *path, char **out, struct asph_error *err)
 
 	if (asprintf(&dir, "%.*s/backup", slash ? (int)(slash - path) : 1, slash ? path : ".") < 0)
 		return asph_error_set(err, -ENOMEM, "out of memory");
-	if (mkdir(dir, 0750) < 0 && errno != EEXIST)
+	if (make && mkdir(dir, 0750) < 0 && errno != EEXIST)
 		return asph_error_set(err, -errno, "cannot make %s: %s", dir, strerror(errno));
 	if (lstat(dir, &st) < 0)
 		return asph_error_set(err, -errno, "%s: %s", dir, strerror(errno));
@@ -395,7 +395,7 @@ static int backup_before_upgrade(struct store *s, const char *path, long version
 	int r;
 
 	asph_error_clear(&why);
-	r = store_backup_dir(path, &dir, &why);
+	r = store_backup_dir(path, true, &dir, &why);
 	iso8601_basic_utc(now_realtime_ns(), stamp, sizeof(stamp));
 	if (r == 0 && asprintf(&dst, "%s/jobs-schema%ld-%s.sqlite", dir, version, stamp) < 0) {
 		dst = NULL;

@@ -151,9 +151,10 @@ typedef int (*store_backup_fn)(int64_t pages_done, int64_t pages_total, void *da
 /* The store at path into dst, through a connection of its own (any thread). */
 int store_backup(const char *path, const char *dst, store_backup_fn progress, void *data,
 		 struct asph_error *err);
-/* The backups' directory beside the store at path, "DIR/backup", made
- * (0750) when missing; a symlink or a file there is refused (-ENOTDIR). */
-int store_backup_dir(const char *path, char **dir, struct asph_error *err);
+/* The backups' directory beside the store at path, "DIR/backup", with make
+ * made (0750) when missing (else -ENOENT); a symlink or a file there is
+ * refused (-ENOTDIR). */
+int store_backup_dir(const char *path, bool make, char **dir, struct asph_error *err);
 
 /* --- API tokens (tokens.c): name, role, SHA-256 of the secret */
 

@@ -282,6 +282,10 @@ def check_reference():
     expect(not missing and have == want, "the guide's reference is asphd --list-settings, row "
            "for row (paste these rows):\n" + "\n".join(missing if missing else want))
     names = [n for n, *_ in table]
+    with open(os.path.join(ROOT, "docs", "daemon.md")) as f:
+        configure = section(f.read(), "Configure")
+    bare = [n for n in names if "." not in n and f"`{n}`" not in configure]
+    expect(not bare, f"docs/daemon.md's Configure names every section and setting ({bare})")
     # the other tables of limits: docs/daemon.md's every limit, the
     # protocol's those a client meets, and no other
     limits = sorted(n[7:] for n in names if n.startswith("limits."))
