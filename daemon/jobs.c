@@ -36,6 +36,7 @@ struct slot {
 	int64_t cancel_uid;             /* by whom: the history's actor */
 	char *cancel_by;
 	struct instrument_lock lock;    /* act.lock points here when locked */
+	int64_t counted;                /* plan points of its job in act.points_measured */
 };
 
 struct jobs {
@@ -530,6 +531,7 @@ static int start_job(struct jobs *jobs, struct slot *sl, struct job_record *j)
 		.points_measured = sl->act.points_measured,
 	};
 	sl->last_progress_store_ns = 0;
+	sl->counted = j->points_done;
 	sl->cancel = false;
 	set_fault(sl, NULL);
 	r = runner_start(sl->runner, rj);
@@ -603,9 +605,13 @@ static void job_progress(struct slot *sl, const struct runner_report *rep)
 	struct jobs *jobs = sl->jobs;
 	uint64_t now = (uint64_t)now_realtime_ns();
 
-	/* (a start tells where a resumed scan goes on: nothing measured yet) */
-	if (rep->kind == RUNNER_PROGRESS && (int64_t)rep->done > sl->act.done)
-		sl->act.points_measured += (int64_t)rep->done - sl->act.done;
+	/* Points measured: what the progress passes beyond what was counted
+	 * (from where the job started, for a resumed one where its last run
+	 * had got to; the executor's last report is never coalesced away). */
+	if (rep->kind == RUNNER_PROGRESS && (int64_t)rep->done > sl->counted) {
+		sl->act.points_measured += (int64_t)rep->done - sl->counted;
+		sl->counted = (int64_t)rep->done;
+	}
 	sl->act.done = (int64_t)rep->done;
 	sl->act.total = (int64_t)rep->total;
 	sl->act.rate = rep->rate;
@@ -690,8 +696,6 @@ static void job_done(struct slot *sl, const struct runner_report *rep)
 		j.result = rep->result;
 		j.resume = false;
 		j.points_done = sl->act.total;
-		if (sl->act.total > sl->act.done)       /* (the last report was coalesced) */
-			sl->act.points_measured += sl->act.total - sl->act.done;
 		j.finished_ns = now_realtime_ns();
 		break;
 	case JOB_FAILED:

@@ -412,7 +412,7 @@ def part_backup_restore(d, c, backups, guide):
     store = os.path.join(d.state, "jobs.sqlite")
     c.call("events.subscribe", {"events": ["job"]})
     first = c.call("job.submit", {"lens": "strong", "instrument": "bench",
-                                  "plan": {"method": "fermat", "points": 1500}})["id"]
+                                  "plan": {"method": "fermat", "points": 600 if VALGRIND else 1500}})["id"]
     kept = c.call("token.create", {"name": "kept", "role": "viewer"})["token"]
     deadline = time.time() + 300
     while c.call("job.get", {"id": first})["progress"]["done"] < 50 and time.time() < deadline:
@@ -446,9 +446,12 @@ def part_backup_restore(d, c, backups, guide):
     expect(m and int(m.group(1)) == len(data) and m.group(2) == hashlib.sha256(data).hexdigest(),
            "the size and SHA-256 printed are the file's")
     expect(os.stat(copy).st_mode & 0o777 == 0o600, "the copy is written with mode 0600")
-    expect(latencies and max(latencies) < 1.0,
+    # (valgrind runs one thread at a time: the copy's holds the loop's off
+    # while it has the processor)
+    bound = 10.0 if VALGRIND else 1.0
+    expect(latencies and max(latencies) < bound,
            f"daemon.status answered all through the copy: {len(latencies)} calls, the "
-           f"slowest {max(latencies or [0]) * 1000:.0f} ms")
+           f"slowest {max(latencies or [0]) * 1000:.0f} ms (at most {bound:.0f} s)")
     expect(done_after > done_before, f"the job measured on during the copy ({done_before} -> "
            f"{done_after} points)")
     checks = guide.run_block(backup_cmds[1])
@@ -586,11 +589,11 @@ def part_health_metrics(d, guide, token):
     expect("asphd_jobs{state=\"completed\"}" in scraped, "the guide's curl reads the metrics")
     status = c.call("daemon.status")
     value, documented = metrics_check(d, port, secret, status)
-    points = sum(x["progress"]["total"] for x in c.call("job.list", {"states": ["completed"]})["jobs"]
-                 if x["instrument"] == "bench")
-    expect(value("asphd_points_measured_total", instrument="bench") >= points - 1500,
-           f"asphd_points_measured_total counts the points measured since the start "
-           f"({value('asphd_points_measured_total', instrument='bench')})")
+    # since the restart: the two jobs of 100 points; the resumed one found
+    # its scan complete and measured nothing
+    measured = value("asphd_points_measured_total", instrument="bench")
+    expect(measured == 200, f"asphd_points_measured_total counts the points measured since "
+           f"the start ({measured}, 200 wanted)")
     expect(value("asphd_errors_total", kind="job_failed") == 1 and
            value("asphd_health_degraded", check="instrument_fault") == 1 and
            value("asphd_health_degraded", check="queue_stopped") == 0,
@@ -638,7 +641,8 @@ def part_health_metrics(d, guide, token):
     for cmd in blocks(section(GUIDE, "Configuration reference"))[0]:
         guide.run(cmd)
     deadline = time.time() + 60
-    while "disk_low" not in health(d)[1] and time.time() < deadline:
+    while time.time() < deadline and not any(
+            r["check"] == "disk_low" for r in c.call("daemon.health")["reasons"]):
         time.sleep(0.1)
     rc, out = health(d)
     expect(rc == 8 and "\n  disk_low: the state directory " in out,
@@ -666,13 +670,13 @@ def start_sinks_daemon():
 def check_sinks(s):
     """What the daemon with its broker out of reach says, more than a
     second on."""
-    deadline = time.time() + 60
-    while time.time() < deadline:
-        rc, out = health(s, "--json")
-        checks = sorted(r["check"] for r in json.loads(out)["reasons"]) if rc == 8 else []
-        if checks == ["outbox_backlog", "sink_down"]:
-            break
+    c, deadline = Client(s.socket), time.time() + 60
+    while time.time() < deadline and sorted(
+            r["check"] for r in c.call("daemon.health")["reasons"]) != ["outbox_backlog", "sink_down"]:
         time.sleep(0.2)
+    c.close()
+    rc, out = health(s, "--json")
+    checks = sorted(r["check"] for r in json.loads(out)["reasons"]) if rc == 8 else []
     expect(checks == ["outbox_backlog", "sink_down"],
            f"a broker out of reach past health.sink_down_s, a message waiting past "
            f"health.outbox_age_s: degraded by sink_down and outbox_backlog ({rc}: {out.strip()})")
@@ -725,11 +729,21 @@ def part_down():
         shutil.rmtree(top, ignore_errors=True)
 
 
+T0 = time.monotonic()
+
+
+def mark(what):
+    print(f"# {time.monotonic() - T0:.1f} s: {what}")
+
+
 check_strict_reader()
 check_reference()
+mark("reference")
 part_down()
 part_upgrade_backup()
+mark("down, upgrade")
 sinks = start_sinks_daemon()
+mark("sinks daemon")
 d = Daemon(instruments=[mock_instrument("bench", time_factor=0.05),
                         mock_instrument("flaky", fail_after=40)],
            extra={"http_listen": "127.0.0.1:0", "http_root": os.path.join(ROOT, "daemon", "web")})
@@ -742,9 +756,12 @@ try:
     guide = Guide(d, os.path.join(backups, "asphd"))
     guide.port = last_web_port(d)
     c = Client(d.socket)
+    mark("ballast")
     kept = part_backup_restore(d, c, guide.backups, guide)
+    mark("backup and restore")
     guide.port = last_web_port(d)   # (a new one since the restart)
     part_health_metrics(d, guide, kept)
+    mark("health and metrics")
     check_sinks(sinks)
 except Exception:
     print(d.log_text()[-4000:])
