@@ -75,6 +75,10 @@ REQUESTS = {
     "driver.list": ABSENT,
     "events.subscribe": {"events": ["job", "progress"], "job": 1},
     "events.unsubscribe": ABSENT,
+    "daemon.health": ABSENT,
+    # (the corpus's connection has made no copy: every valid request of it
+    # is answered 107, and each mutation below by its error first)
+    "backup.file": {"offset": 0, "length": 64},
 }
 
 PRESCRIPTION = {"type": "even_asphere", "name": "corpus", "R": 23.713, "k": -0.83,
@@ -261,6 +265,7 @@ PARAM_TYPES = [
     ("queue.stop", None, ["abort"], "bool"),
     ("instrument.status", None, ["name"], "string"),
     ("events.subscribe", None, ["events"], "flags"), ("events.subscribe", None, ["job"], "int"),
+    ("backup.file", None, ["offset"], "int"), ("backup.file", None, ["length"], "int"),
 ]
 
 
