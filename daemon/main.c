@@ -471,15 +471,24 @@ static void tokens_changed_or_created(void *data)
 	arm_token_expiry(data);
 }
 
+/* The job store's path, for the modules that keep things in it
+ * (malloc'd, or NULL). */
+static char *store_path(const struct daemon *d)
+{
+	char *path;
+
+	return asprintf(&path, "%s/jobs.sqlite", d->settings->state_dir) < 0 ? NULL : path;
+}
+
 static int open_tokens(struct daemon *d)
 {
-	_cleanup_free_ char *path = NULL;
+	_cleanup_free_ char *path = store_path(d);
 	struct asph_error err;
 	char buf[1024];
 	int r;
 
 	asph_error_clear(&err);
-	if (asprintf(&path, "%s/jobs.sqlite", d->settings->state_dir) < 0)
+	if (!path)
 		return -ENOMEM;
 	r = tokens_open(path, &d->tokens, &err);
 	if (r < 0) {
@@ -667,7 +676,8 @@ static int start_fleet(struct daemon *d)
 		if (!prefix)
 			return -ENOMEM;
 	}
-	if (asprintf(&path, "%s/jobs.sqlite", s->state_dir) < 0)
+	path = store_path(d);
+	if (!path)
 		return -ENOMEM;
 	asph_error_clear(&err);
 	r = outbox_new(&(struct outbox_setup){
@@ -749,13 +759,13 @@ static int db_migrate(struct daemon *d)
 
 static int start_backups(struct daemon *d)
 {
-	_cleanup_free_ char *path = NULL;
+	_cleanup_free_ char *path = store_path(d);
 	struct asph_error err;
 	char buf[1024];
 	int r;
 
 	asph_error_clear(&err);
-	if (asprintf(&path, "%s/jobs.sqlite", d->settings->state_dir) < 0)
+	if (!path)
 		return -ENOMEM;
 	r = backups_new(&(struct backups_setup){
 			.event = d->event, .store_path = path, .limits = &d->limits,

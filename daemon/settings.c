@@ -377,12 +377,10 @@ static void take_http_listen(struct loader *ld, void *base, const struct row *ro
 
 static void take_limit(struct loader *ld, void *base, const struct row *row, const char *field,
 		       json_t *v);
-static void take_limits(struct loader *ld, void *base, const struct row *row, const char *field,
-			json_t *v);
+static void take_section(struct loader *ld, void *base, const struct row *row,
+			 const char *field, json_t *v);
 static void take_mqtt(struct loader *ld, void *base, const struct row *row, const char *field,
 		      json_t *v);
-static void take_health(struct loader *ld, void *base, const struct row *row, const char *field,
-			json_t *v);
 static void take_seconds(struct loader *ld, void *base, const struct row *row,
 			 const char *field, json_t *v);
 static void take_postgres(struct loader *ld, void *base, const struct row *row,
@@ -438,7 +436,7 @@ static const struct row rows[] = {
 	{ "token_file", "path", "none", "deprecated: a file holding one admin token for TCP "
 	  "clients; named tokens replace it", take_path, AT(struct settings, token_file) },
 	{ "limits", "object", "the defaults below", "what one client, one user and the disk may "
-	  "take (proto/README.md, Limits)", take_limits },
+	  "take (proto/README.md, Limits)", take_section, AT(struct settings, limits) },
 	LIMIT(max_clients, 1, 65536, "connections in all (needs LimitNOFILE=: checked at the start)"),
 	LIMIT(max_clients_per_user, 1, 65536, "connections of one uid (root excepted), over TCP "
 	      "of one address"),
@@ -464,7 +462,7 @@ static const struct row rows[] = {
 	LIMIT(min_free_disk_mb, 0, 1048576, "MiB kept free on the state directory: jobs and "
 	      "backups that would not leave it are refused (0: no check)"),
 	{ "health", "object", "the defaults below", "when the daemon's health is degraded "
-	  "(docs/admin.md, Health)", take_health },
+	  "(docs/admin.md, Health)", take_section, AT(struct settings, health) },
 	{ "health.sink_down_s", .take = take_seconds, .offset = AT(struct settings_health,
 	  sink_down_s), .min = 1, .max = 86400, .help = "seconds the MQTT broker or the database "
 	  "may be out of reach before the health says sink_down" },
@@ -583,24 +581,15 @@ static void take_seconds(struct loader *ld, void *base, const struct row *row,
 	take_integer(ld, base, row, field, v);
 }
 
-static void take_health(struct loader *ld, void *base, const struct row *row, const char *field,
-			json_t *v)
+/* A section whose structure is a member of the settings (row->offset). */
+static void take_section(struct loader *ld, void *base, const struct row *row,
+			 const char *field, json_t *v)
 {
 	if (!json_is_object(v)) {
 		complain(ld, field, "must be an object");
 		return;
 	}
-	take_members(ld, &((struct settings *)base)->health, field, v);
-}
-
-static void take_limits(struct loader *ld, void *base, const struct row *row, const char *field,
-			json_t *v)
-{
-	if (!json_is_object(v)) {
-		complain(ld, field, "must be an object");
-		return;
-	}
-	take_members(ld, &((struct settings *)base)->limits, field, v);
+	take_members(ld, (char *)base + row->offset, field, v);
 }
 
 static void take_mqtt(struct loader *ld, void *base, const struct row *row, const char *field,
