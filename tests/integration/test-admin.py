@@ -463,6 +463,11 @@ def part_backup_restore(d, c, backups, guide):
     expect(not os.path.exists(copy + "-wal"), "the copy needs no -wal file")
     expect(not [x for x in os.listdir(os.path.join(d.state, "backup")) if x.startswith("copy-")],
            "the daemon's own copy is gone once asphctl is done")
+    # the lines the guide's Logs quote
+    expect(re.search(r"^asphd: backup: the job store copied for root into copy-\S+\.sqlite: "
+                     r"\d+ bytes in [\d.]+ s, sha256 [0-9a-f]{64}$", d.log_text(), re.M) and
+           re.search(rf"^asphd: job {first}: ", d.log_text(), re.M),
+           "the log has the backup's line and the job's lines as the guide's Logs show them")
     c.wait_state(first, ["completed"], timeout=600)
     guide.run_block(blocks(section(text, "Scans and results", 3))[0])
     expect(os.path.getsize(os.path.join(backups, f"folders-{DAY}.tar.gz")) > 0,
