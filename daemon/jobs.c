@@ -65,6 +65,7 @@ static int open_store(struct jobs *jobs, struct asph_error *err)
 {
 	_cleanup_free_ char *path = NULL;
 	_cleanup_free_ char *v = NULL;
+	int64_t last;
 	int n, r;
 
 	jobs->state_fd = dirs_open_state(jobs->state_dir);
@@ -76,6 +77,17 @@ static int open_store(struct jobs *jobs, struct asph_error *err)
 	r = store_open(path, &jobs->store, err);
 	if (r < 0)
 		return r;
+	/* A job's folder is never taken by another job: after a store is put
+	 * back from a backup, its next jobs start after every folder. */
+	last = dirs_last_job(jobs->state_fd);
+	r = last > 0 ? store_skip_ids(jobs->store, last) : (int)last;
+	if (r < 0)
+		return asph_error_set(err, r, "%s: cannot read the job folders: %s", jobs->state_dir,
+				      strerror(-r));
+	if (r > 0)
+		log_notice("the state directory has job folders up to %" PRId64 " that the job store "
+			   "does not know (a store put back from a backup?): new jobs start after them",
+			   last);
 	n = store_recover(jobs->store, now_realtime_ns());
 	if (n < 0)
 		return asph_error_set(err, n, "%s: cannot mark the interrupted jobs: %s", path,

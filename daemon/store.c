@@ -656,6 +656,29 @@ int store_insert(struct store *s, struct job_record *j, int64_t now_ns)
 	return 0;
 }
 
+int store_skip_ids(struct store *s, int64_t last)
+{
+	_cleanup_stmt_ sqlite3_stmt *ins = prepare(s,
+		"INSERT INTO sqlite_sequence (name, seq) SELECT 'jobs', 0"
+		" WHERE NOT EXISTS (SELECT 1 FROM sqlite_sequence WHERE name = 'jobs')");
+	_cleanup_stmt_ sqlite3_stmt *up = prepare(s,
+		"UPDATE sqlite_sequence SET seq = ?1 WHERE name = 'jobs' AND seq < ?1");
+	int r;
+
+	if (!ins || !up)
+		return -EIO;
+	r = store_begin(s);
+	if (r == 0)
+		r = step_done(ins);
+	sqlite3_bind_int64(up, 1, last);
+	if (r == 0)
+		r = step_done(up);
+	if (r == 0 && (r = store_commit(s)) == 0)
+		return sqlite3_changes(s->db) > 0;
+	store_rollback(s);
+	return r;
+}
+
 int store_get(struct store *s, int64_t id, struct job_record *out)
 {
 	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "SELECT " JOB_COLUMNS " FROM jobs WHERE id = ?");

@@ -60,6 +60,10 @@ void store_close(struct store *s);
 /* Inserts j (id and seq are assigned and written back), with a history
  * entry. */
 int store_insert(struct store *s, struct job_record *j, int64_t now_ns);
+/* Ids up to last are taken (by job folders the store does not know, a
+ * store put back from a backup): the next job gets a higher one. 1 when
+ * that moved the next id, 0 when it was higher already, or -errno. */
+int store_skip_ids(struct store *s, int64_t last);
 /* -ENOENT when there is no such job. */
 int store_get(struct store *s, int64_t id, struct job_record *out);
 

@@ -500,6 +500,18 @@ def part_backup_restore(d, c, backups, guide):
     expect(tokens == {"kept": "active"}, f"the tokens are the copy's: the later one gone, the "
            f"one revoked since active again ({tokens})")
     expect(os.stat(store).st_mode & 0o777 == 0o640, "the store is back with mode 0640")
+    # the later job's folder, which the restored store does not know, is
+    # not taken by the next job
+    with open(os.path.join(d.state, "jobs", str(later), "result.json"), "rb") as f:
+        kept_result = f.read()
+    nxt = c.call("job.submit", {"lens": "strong", "instrument": "bench",
+                                "plan": {"method": "fermat", "points": 100}})["id"]
+    c.wait_state(nxt, ["completed"], timeout=300)
+    with open(os.path.join(d.state, "jobs", str(later), "result.json"), "rb") as f:
+        same = f.read() == kept_result
+    expect(nxt > later and same and "new jobs start after them" in d.log_text(),
+           f"the next job ({nxt}) starts after the folders the restored store does not know "
+           f"(up to {later}), which stay as they were")
     c.close()
     return kept
 
@@ -595,11 +607,11 @@ def part_health_metrics(d, guide, token):
     expect("asphd_jobs{state=\"completed\"}" in scraped, "the guide's curl reads the metrics")
     status = c.call("daemon.status")
     value, documented = metrics_check(d, port, secret, status)
-    # since the restart: the two jobs of 100 points; the resumed one found
+    # since the restart: three jobs of 100 points; the resumed one found
     # its scan complete and measured nothing
     measured = value("asphd_points_measured_total", instrument="bench")
-    expect(measured == 200, f"asphd_points_measured_total counts the points measured since "
-           f"the start ({measured}, 200 wanted)")
+    expect(measured == 300, f"asphd_points_measured_total counts the points measured since "
+           f"the start ({measured}, 300 wanted)")
     expect(value("asphd_errors_total", kind="job_failed") == 1 and
            value("asphd_health_degraded", check="instrument_fault") == 1 and
            value("asphd_health_degraded", check="queue_stopped") == 0,

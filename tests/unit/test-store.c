@@ -352,6 +352,21 @@ static void test_backup(void **state)
 	assert_int_equal(access(copy, F_OK), -1);
 }
 
+/* Ids taken by folders the store does not know are skipped, never reused;
+ * a lower bound changes nothing. */
+static void test_skip_ids(void **state)
+{
+	struct fixture *f = *state;
+
+	assert_int_equal(store_skip_ids(f->s, 4), 1);   /* a store without jobs yet */
+	assert_int_equal(add(f->s, "m1", 0, "a"), 5);
+	assert_int_equal(store_skip_ids(f->s, 10), 1);
+	assert_int_equal(add(f->s, "m1", 0, "b"), 11);
+	assert_int_equal(store_skip_ids(f->s, 7), 0);
+	assert_int_equal(store_skip_ids(f->s, 11), 0);
+	assert_int_equal(add(f->s, "m1", 0, "c"), 12);
+}
+
 /* The tables of schema 1, as its daemon made them. */
 static const char schema_1[] =
 	"CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);"
@@ -433,6 +448,7 @@ int main(void)
 		cmocka_unit_test_setup_teardown(test_schema_corrupt, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_no_symlinks, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_backup, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_skip_ids, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_backup_before_upgrade, setup, teardown),
 	};
 	return cmocka_run_group_tests(tests, NULL, NULL);
