@@ -105,6 +105,14 @@ static int refuse_on_freeform(const struct asph_surface *s, enum asph_plan_metho
 		if (method_of(i)->freeform && len < sizeof(known))
 			len += (size_t)snprintf(known + len, sizeof(known) - len, "%s%s",
 						len ? ", " : "", method_of(i)->name);
+	if (asph_surface_is_radial(s))
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "method",
+					 "the %s plan is for rotationally symmetric parts over a "
+					 "centred circle; on this off-axis segment (a %s over an "
+					 "off-centre or non-circular aperture) use one of %s",
+					 asph_plan_method_name(m),
+					 asph_surface_type_name(asph_surface_prescription(s)->type),
+					 known);
 	return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "method",
 				 "the %s plan is for rotationally symmetric surfaces; on a %s "
 				 "surface use one of %s",

@@ -135,26 +135,25 @@ static const char *type_members(enum asph_surface_type t)
 {
 	switch (t) {
 	case ASPH_SURFACE_QBFS:
-		return "type, name, R, norm_radius, a, aperture_diameter";
 	case ASPH_SURFACE_QCON:
-		return "type, name, R, k, norm_radius, a, aperture_diameter";
+		return "type, name, note, R, c, k, norm_radius, a, aperture_diameter, aperture";
 	case ASPH_SURFACE_BICONIC:
-		return "type, name, Rx, Ry, kx, ky, A, aperture_diameter, aperture";
+		return "type, name, note, Rx, Ry, kx, ky, A, aperture_diameter, aperture";
 	case ASPH_SURFACE_TOROIDAL:
-		return "type, name, R, k, A, R_rotation, norm_radius, zernike, aperture_diameter, "
-		       "aperture";
+		return "type, name, note, R, k, A, R_rotation, norm_radius, zernike, "
+		       "aperture_diameter, aperture";
 	case ASPH_SURFACE_XY_POLYNOMIAL:
-		return "type, name, R, k, norm_radius, c, aperture_diameter, aperture";
+		return "type, name, note, R, k, norm_radius, c, aperture_diameter, aperture";
 	case ASPH_SURFACE_ZERNIKE_SAG:
-		return "type, name, R, k, A, norm_radius, zernike, zernike_decenter, "
+		return "type, name, note, R, k, A, norm_radius, zernike, zernike_decenter, "
 		       "aperture_diameter, aperture";
 	case ASPH_SURFACE_Q2D:
-		return "type, name, R, norm_radius, a, a_m, b_m, aperture_diameter, aperture";
+		return "type, name, note, R, norm_radius, a, a_m, b_m, aperture_diameter, aperture";
 	case ASPH_SURFACE_EVEN_ASPHERE:
 	case ASPH_SURFACE_ODD_ASPHERE:
 		break;
 	}
-	return "type, name, R, k, A, aperture_diameter";
+	return "type, name, note, R, c, k, A, aperture_diameter, aperture";
 }
 
 static int is_member_of(const char *key, const char *list)
@@ -195,6 +194,55 @@ static int parse_optional_number(const struct parse_ctx *c, json_t *root,
 	return v ? get_number(c, v, key, out) : 0;
 }
 
+/* A string member of at most size - 1 bytes into dst. */
+static int parse_text(const struct parse_ctx *c, json_t *root, const char *key, char *dst,
+		      size_t size)
+{
+	json_t *v = json_object_get(root, key);
+
+	if (!v)
+		return 0;
+	if (!json_is_string(v))
+		return json_error_set_at(c->err, -EINVAL, &c->src, key, "expected a string");
+	if (strlen(json_string_value(v)) >= size)
+		return json_error_set_at(c->err, -EINVAL, &c->src, key,
+					 "longer than %zu bytes", size - 1);
+	snprintf(dst, size, "%s", json_string_value(v));
+	return 0;
+}
+
+/*
+ * The base: "R" (mm; "infinity" for a plane) or, on the rotationally
+ * symmetric types, the curvature "c" (1/mm; 0 for a plane), not both.
+ * xy_polynomial's "c" is its coefficients, not a curvature.
+ */
+static int parse_base(const struct parse_ctx *c, json_t *root, const char *members,
+		      struct asph_prescription *out)
+{
+	const int rotational = asph_surface_type_is_rotational(out->type);
+	json_t *vr = json_object_get(root, "R"), *vc = rotational ? json_object_get(root, "c") : NULL;
+	double curv;
+	int r;
+
+	if (vr && vc)
+		return json_error_set_at(c->err, -EINVAL, &c->src, "c",
+					 "give the radius R or the curvature c, not both");
+	if (!vr && !vc && is_member_of("R", members))
+		return json_error_set_at(c->err, -EINVAL, &c->src, NULL,
+					 rotational ? "missing member \"R\" (vertex radius of curvature, "
+						      "mm) or \"c\" (vertex curvature, 1/mm)"
+						    : "missing member \"R\" (vertex radius of curvature, mm)");
+	if (vr)
+		return get_radius(c, vr, "R", &out->R);
+	if (!vc)
+		return 0;
+	if ((r = get_number(c, vc, "c", &curv)) < 0)
+		return r;
+	/* a curvature too small for its radius to be finite is a plane */
+	out->R = curv == 0 ? INFINITY : 1.0 / curv;
+	return 0;
+}
+
 static int parse_members(const struct parse_ctx *c, json_t *root,
 			 struct asph_prescription *out)
 {
@@ -219,13 +267,8 @@ static int parse_members(const struct parse_ctx *c, json_t *root,
 						 "expected a string");
 		snprintf(out->name, sizeof(out->name), "%s", json_string_value(v));
 	}
-
-	v = json_object_get(root, "R");
-	if (!v && is_member_of("R", members))
-		return json_error_set_at(c->err, -EINVAL, &c->src, NULL,
-					 "missing member \"R\" (vertex radius of curvature, mm)");
-	if (v && (r = asph_surface_type_is_rotational(out->type) ? get_number(c, v, "R", &out->R)
-								 : get_radius(c, v, "R", &out->R)) < 0)
+	if ((r = parse_text(c, root, "note", out->note, sizeof(out->note))) < 0 ||
+	    (r = parse_base(c, root, members, out)) < 0)
 		return r;
 	if ((r = parse_optional_number(c, root, "k", &out->k)) < 0)
 		return r;
@@ -250,13 +293,15 @@ static int parse_members(const struct parse_ctx *c, json_t *root,
 	if (!asph_surface_type_is_rotational(out->type) &&
 	    (r = parse_freeform_members(c, root, out)) < 0)
 		return r;
+	if ((v = json_object_get(root, "aperture")) &&
+	    (r = parse_aperture(c, v, &out->aperture)) < 0)
+		return r;
 	v = json_object_get(root, "aperture_diameter");
 	if (!v && json_object_get(root, "aperture"))
 		return 0;
 	if (!v)
 		return json_error_set_at(c->err, -EINVAL, &c->src, NULL,
-					 "missing member \"aperture_diameter\" (mm)%s",
-					 asph_surface_type_is_rotational(out->type) ? "" : " or \"aperture\"");
+					 "missing member \"aperture_diameter\" (mm) or \"aperture\"");
 	if ((r = get_number(c, v, "aperture_diameter", &out->aperture_diameter)) < 0)
 		return r;
 	return 0;
@@ -374,13 +419,18 @@ int asph_prescription_to_json(const struct asph_prescription *p, char **out)
 	json_object_set_new(root, "type", json_string(asph_surface_type_name(p->type)));
 	if (p->name[0])
 		json_object_set_new(root, "name", json_string(p->name));
-	json_object_set_new(root, "R", json_real(p->R));
-	if (asph_surface_type_has_conic(p->type))
-		json_object_set_new(root, "k", json_real(p->k));
+	if (p->note[0])
+		json_object_set_new(root, "note", json_string(p->note));
+	/* a plane base as its curvature */
+	if (isinf(p->R))
+		json_object_set_new(root, "c", json_real(0));
+	else
+		json_object_set_new(root, "R", json_real(p->R));
+	json_object_set_new(root, "k", json_real(p->k));
 	if (q)
 		json_object_set_new(root, "norm_radius", json_real(p->norm_radius));
 	json_object_set_new(root, q ? "a" : "A", coeffs);
-	json_object_set_new(root, "aperture_diameter", json_real(p->aperture_diameter));
+	aperture_to_json(root, p);
 	*out = json_dumps(root, JSON_REAL_PRECISION(17) | JSON_PRESERVE_ORDER);
 	return *out ? 0 : -ENOMEM;
 }
