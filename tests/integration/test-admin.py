@@ -709,7 +709,7 @@ def last_web_port(d):
     deadline = time.time() + 60
     while time.time() < deadline:
         ports = re.findall(r"web page at http://127\.0\.0\.1:(\d+)/", d.log_text())
-        if len(ports) == d.log_text().count("asphd: listening on"):
+        if ports and len(ports) == d.log_text().count("asphd: listening on"):
             return int(ports[-1])
         time.sleep(0.05)
     raise RuntimeError("no web page address in the log")
