@@ -158,8 +158,8 @@ NAME = r"[a-zA-Z_:][a-zA-Z0-9_:]*"
 LABEL = r"[a-zA-Z_][a-zA-Z0-9_]*"
 VALUE = r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|[+-]?Inf|NaN"
 LABEL_VALUE = r'"(?:[^"\\\n]|\\[\\"n])*"'
-SAMPLE = re.compile(rf"^({NAME})(?:\{{((?:{LABEL}={LABEL_VALUE})(?:,{LABEL}={LABEL_VALUE})*,?)?\}})?"
-                    rf" ({VALUE})(?: (-?[0-9]+))?$")
+SAMPLE = re.compile(rf"^[ \t]*({NAME})[ \t]*(?:\{{((?:{LABEL}={LABEL_VALUE})(?:,{LABEL}={LABEL_VALUE})*,?)?"
+                    rf"\}})?[ \t]+({VALUE})(?:[ \t]+(-?[0-9]+))?[ \t]*$")
 
 
 def unescape(s):
@@ -167,9 +167,11 @@ def unescape(s):
 
 
 def strict_parse(text):
-    """The exposition read as its specification (Prometheus, "Exposition
-    formats", text format 0.0.4) says, every departure an error: lines end
-    with a line feed, the last included; HELP (escapes \\\\ and \\n only) and
+    """The exposition read as its specification says (Prometheus,
+    "Exposition formats", the text format 0.0.4:
+    https://prometheus.io/docs/instrumenting/exposition_formats/), every
+    departure an error: lines end with a line feed, the last included;
+    tokens apart by blanks or tabs; HELP (escapes \\\\ and \\n only) and
     TYPE at most once per metric and before its samples; a metric's samples
     together; names and labels of their grammar, label values with the
     escapes \\\\, \\" and \\n only; values as Go's ParseFloat reads them; no
@@ -180,12 +182,12 @@ def strict_parse(text):
     if not text.endswith("\n"):
         errors.append("the last line does not end with a line feed")
     for n, line in enumerate(text.split("\n")[:-1], 1):
-        if line == "":
+        if line.strip() == "":
             continue
-        if line.startswith("#"):
-            m = re.match(rf"^# (HELP|TYPE) ({NAME})(?: (.*))?$", line)
+        if line.lstrip().startswith("#"):
+            m = re.match(rf"^[ \t]*#[ \t]+(HELP|TYPE)[ \t]+({NAME})(?:[ \t]+(.*?))?[ \t]*$", line)
             if not m:
-                if re.match(r"^#\s*(HELP|TYPE)\b", line):
+                if re.match(r"^[ \t]*#[ \t]*(HELP|TYPE)\b", line):
                     errors.append(f"line {n}: a malformed {line.split()[1]}")
                 continue
             kind, name, rest = m.groups()
@@ -195,8 +197,8 @@ def strict_parse(text):
             if kind == "HELP":
                 if fam["help"] is not None:
                     errors.append(f"line {n}: a second HELP of {name}")
-                if rest is None or re.search(r"\\[^\\n]", rest.replace("\\\\", "")):
-                    errors.append(f"line {n}: HELP of {name} empty or with a bad escape")
+                if rest is not None and re.search(r"\\([^\\n]|$)", rest.replace("\\\\", "")):
+                    errors.append(f"line {n}: HELP of {name} with a bad escape")
                 fam["help"] = re.sub(r"\\(.)", lambda mm: "\n" if mm.group(1) == "n" else "\\",
                                      rest or "")
             else:
@@ -260,7 +262,13 @@ def check_strict_reader():
         "a counter without _total": "# HELP c C.\n# TYPE c counter\nc 1\n",
         "a value Go does not read": "# HELP g G.\n# TYPE g gauge\ng 0x10\n",
         "a label name with a dash": "# HELP g G.\n# TYPE g gauge\ng{a-b=\"1\"} 1\n",
+        "a HELP with a bad escape": "# HELP g G\\t.\n# TYPE g gauge\ng 1\n",
+        "a sample without its value": "# HELP g G.\n# TYPE g gauge\ng{a=\"1\"}\n",
     }
+    spaced = "# HELP g  G.\n\t# TYPE\tg gauge\n g{a=\"1\"}\t 2 1700000000000 \n\n"
+    fams, errs = strict_parse(spaced)
+    expect(not errs and fams["g"]["samples"] == [("g", {"a": "1"}, 2.0)],
+           f"the strict reader takes blanks and tabs between tokens, and a timestamp ({errs})")
     fams, errs = strict_parse(good)
     expect(not errs and fams["a_total"]["samples"] == [("a_total", {"x": "q\"\n\\"}, 1500.0)]
            and fams["a_total"]["help"] == "A \\ b.",
