@@ -98,7 +98,10 @@ class Guide:
     def run(self, cmd, want=0):
         """One command of the guide: its output, having checked its exit code."""
         if cmd.startswith("sudo systemctl stop asphd.socket asphd"):
-            expect(self.d.stop() == 0, "systemctl stop: the daemon stops cleanly")
+            rc = self.d.stop()
+            expect(rc == 0, f"systemctl stop: the daemon stops cleanly ({rc})")
+            if rc:
+                print(self.d.log_text()[-6000:])
             return ""
         if cmd.startswith("sudo systemctl start asphd.socket asphd"):
             self.d.start()
@@ -289,7 +292,7 @@ def check_reference():
     have = [x for x in ref.split("\n") if re.match(r"^\| `", x)]
     missing = [w for w in want if w not in have]
     expect(not missing and have == want, "the guide's reference is asphd --list-settings, row "
-           "for row (paste these rows):\n" + "\n".join(missing if missing else want))
+           "for row" + ("" if have == want else " (paste these rows):\n" + "\n".join(want)))
     names = [n for n, *_ in table]
     with open(os.path.join(ROOT, "docs", "daemon.md")) as f:
         configure = section(f.read(), "Configure")
