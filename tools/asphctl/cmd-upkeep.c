@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include "asphctl.h"
+#include "progress.h"
 #include "util-mem.h"
 #include "util-time.h"
 
@@ -20,69 +21,72 @@
 
 /* ---------------------------------------------------------------- backup */
 
-/* Waits for this connection's copy to be made: 0 with *info (the last
- * backup.get), or the exit code. */
-static int wait_copy(struct ctl *ctl, json_t **info)
+/* Waits for this connection's copy to be made, its pages on a terminal
+ * unless quiet: 0 with *info (the last backup.get), or the exit code. */
+static int wait_copy(struct ctl *ctl, bool quiet, json_t **info)
 {
 	unsigned wait_ms = POLL_FIRST_MS;
-	bool shown = false, tty = isatty(STDERR_FILENO) && !ctl->json;
+	struct progress p;
 	int code;
 
+	progress_start(&p, "copying the job store", "pages", quiet || ctl->json);
 	for (;;) {
 		const char *state;
-		long long done, total;
 
 		code = ctl_call(ctl, "backup.get", NULL, info);
 		if (code)
-			return code;
+			break;
 		state = json_string_value(json_object_get(*info, "state"));
 		if (state && strcmp(state, "copying"))
 			break;
-		done = json_integer_value(json_object_get(*info, "pages_done"));
-		total = json_integer_value(json_object_get(*info, "pages_total"));
-		if (tty && total > 0) {
-			fprintf(stderr, "\rcopying the job store: %lld %%", 100 * done / total);
-			shown = true;
-		}
+		progress_show(&p, (size_t)json_integer_value(json_object_get(*info, "pages_done")),
+			      (size_t)json_integer_value(json_object_get(*info, "pages_total")));
 		json_decref(*info);
 		*info = NULL;
 		msleep(wait_ms);
 		wait_ms = wait_ms * 2 > POLL_MAX_MS ? POLL_MAX_MS : wait_ms * 2;
 	}
-	if (shown)
-		fputs("\r\033[K", stderr);
-	return 0;
+	progress_stop(&p);
+	return code;
 }
 
 int cmd_backup(struct ctl *ctl, int argc, char **argv)
 {
-	static const char usage[] = "backup [--json] FILE";
+	static const struct option opts[] = {
+		{ "quiet", no_argument, NULL, 'q' }, CTL_JSON_OPTION, CTL_HELP_OPTION,
+		{ NULL, 0, NULL, 0 },
+	};
+	static const char usage[] = "backup FILE [--quiet] [--json]";
 	_cleanup_(json_decrefp) json_t *started = NULL, *info = NULL, *params = NULL;
 	const char *file, *name, *sha;
+	bool quiet = false;
 	json_int_t size;
-	int code = ctl_common_options(ctl, argc, argv, usage);
+	int c, code;
 
-	if (code >= 0)
+	while ((c = ctl_option(ctl, argc, argv, "q", opts, usage)) > 0)
+		quiet = true;
+	if ((code = ctl_options_exit(c)) >= 0)
 		return code;
 	if (optind + 1 != argc)
 		return ctl_usage_error(usage);
 	file = argv[optind];
 	code = ctl_call(ctl, "backup.start", NULL, &started);
 	if (!code)
-		code = wait_copy(ctl, &info);
+		code = wait_copy(ctl, quiet, &info);
 	if (code)
 		return code;
 	name = json_string_value(json_object_get(info, "name"));
 	if (!name || strcmp(json_string_value(json_object_get(info, "state")), "done")) {
 		fprintf(stderr, "asphctl: the daemon could not copy its job store: %s\n",
 			json_string_value(json_object_get(info, "error")));
-		return CTL_EXIT_ERROR;
+		return EXIT_FAILURE_RUN;
 	}
 	params = json_object();
 	/* The copy's file only: mode 0600, it holds every job and the tokens'
 	 * digests. */
-	code = params ? ctl_fetch_file(ctl, "backup.file", params, name, file, 0600)
-		      : CTL_EXIT_ERROR;
+	code = params ? ctl_fetch_file(ctl, "backup.file", params, name, file, 0600,
+				       quiet || ctl->json)
+		      : EXIT_FAILURE_RUN;
 	if (code)
 		return code;
 	size = json_integer_value(json_object_get(info, "size"));
@@ -95,7 +99,7 @@ int cmd_backup(struct ctl *ctl, int argc, char **argv)
 		       json_string_value(json_object_get(info, "started")), (long long)size,
 		       sha ? sha : "?");
 	}
-	return CTL_EXIT_OK;
+	return EXIT_OK;
 }
 
 /* ---------------------------------------------------------------- health */
@@ -116,7 +120,7 @@ static int health_down(struct ctl *ctl, const struct ctl_error *e)
 		_cleanup_free_ char *text = ctl_escape(detail, false);
 		printf("down: %s\n", text ? text : "?");
 	}
-	return CTL_EXIT_DOWN;
+	return EXIT_UNREACHABLE;
 }
 
 int cmd_health(struct ctl *ctl, int argc, char **argv)
@@ -139,7 +143,7 @@ int cmd_health(struct ctl *ctl, int argc, char **argv)
 		if (c == 't' && ctl_parse_integer(optarg, 1, 3600, &timeout_s) < 0) {
 			fprintf(stderr, "asphctl: --timeout takes seconds from 1 to 3600, not '%s'\n",
 				optarg);
-			return CTL_EXIT_USAGE;
+			return EXIT_USAGE;
 		}
 	if ((c = ctl_options_exit(c)) >= 0)
 		return c;
@@ -161,5 +165,5 @@ int cmd_health(struct ctl *ctl, int argc, char **argv)
 			printf("  %s: %s\n", json_string_value(json_object_get(v, "check")),
 			       json_string_value(json_object_get(v, "detail")));
 	}
-	return status && !strcmp(status, "ok") ? CTL_EXIT_OK : CTL_EXIT_DEGRADED;
+	return status && !strcmp(status, "ok") ? EXIT_OK : EXIT_DEGRADED;
 }
