@@ -94,6 +94,7 @@ enum request_kind {
 	REQUEST_RPC,                    /* a JSON-RPC line, answered in turns */
 	REQUEST_LOGIN,                  /* a hello, answered in turns */
 	REQUEST_POINTS,                 /* the live map's points, read by a task */
+	REQUEST_REFUSED,                /* a wrong token's 401, held back a while */
 };
 
 /*
@@ -126,6 +127,8 @@ struct request {
 	size_t out_len, out_sent, out_cap;
 	struct session *login;          /* REQUEST_LOGIN: the session it makes */
 	bool https;                     /* through the trusted proxy, over TLS */
+	/* REQUEST_REFUSED: the wait */
+	sd_event_source *delay;
 	/* REQUEST_POINTS */
 	struct task *task;
 	unsigned status;
@@ -158,6 +161,7 @@ struct web {
 	struct jobs *jobs;
 	struct turns *turns;
 	struct tasks *tasks;
+	struct monitor *monitor;
 	const struct settings_limits *limits;
 	char *state_dir;
 	struct listener listeners[WEB_MAX_LISTENERS];
@@ -358,6 +362,7 @@ static void request_end_work(struct request *req)
 	if (req->task)
 		tasks_cancel(req->web->tasks, req->task);
 	req->task = NULL;
+	req->delay = sd_event_source_disable_unref(req->delay);
 	if (s) {
 		if (req->prev_in)
 			req->prev_in->next_in = req->next_in;
@@ -1161,6 +1166,117 @@ static enum MHD_Result route_job(struct web *w, struct request *req, struct sess
 	return send_error(req->conn, MHD_HTTP_NOT_FOUND, "no such route");
 }
 
+/* ---------------------------------------------------------- monitoring */
+
+/* GET /healthz: "ok" (200) or "degraded" (503), to anyone, and nothing
+ * more; the reasons are daemon.health's, for those who may read them. */
+static enum MHD_Result route_healthz(struct web *w, struct MHD_Connection *c)
+{
+	_cleanup_(json_decrefp) json_t *reasons = monitor_health(w->monitor);
+	bool ok = reasons && json_array_size(reasons) == 0;
+
+	return send_text(c, ok ? MHD_HTTP_OK : MHD_HTTP_SERVICE_UNAVAILABLE,
+			 "text/plain; charset=utf-8", ok ? "ok\n" : "degraded\n", ok ? 3 : 9, NULL);
+}
+
+/* 401 with the challenge of RFC 6750: the scheme, and invalid_token when
+ * a token was sent and refused. */
+static enum MHD_Result send_unauthorized(struct MHD_Connection *c, bool sent, const char *why)
+{
+	_cleanup_free_ char *text = NULL;
+	struct MHD_Response *r;
+	enum MHD_Result ret;
+	int n = asprintf(&text, "%s\n", why);
+
+	if (n < 0)
+		return MHD_NO;
+	r = MHD_create_response_from_buffer((size_t)n, text, MHD_RESPMEM_MUST_COPY);
+	if (!r)
+		return MHD_NO;
+	secure_headers(r);
+	MHD_add_response_header(r, "Content-Type", "text/plain; charset=utf-8");
+	MHD_add_response_header(r, "Cache-Control", "no-store");
+	MHD_add_response_header(r, "WWW-Authenticate", sent
+				? "Bearer realm=\"asphd\", error=\"invalid_token\""
+				: "Bearer realm=\"asphd\"");
+	ret = MHD_queue_response(c, MHD_HTTP_UNAUTHORIZED, r);
+	MHD_destroy_response(r);
+	return ret;
+}
+
+bool web_bearer_token(const char *authorization, char *token, size_t size)
+{
+	const char *t;
+	size_t n;
+
+	if (!authorization || strncasecmp(authorization, "Bearer ", 7))
+		return false;
+	t = authorization + 7;
+	t += strspn(t, " ");
+	n = strcspn(t, " ");
+	if (n == 0 || n >= size || t[n + strspn(t + n, " ")])
+		return false;
+	for (size_t i = 0; i < n; i++)
+		if (t[i] < 0x21 || t[i] > 0x7e)
+			return false;
+	memcpy(token, t, n);
+	token[n] = '\0';
+	return true;
+}
+
+/* The wait of a wrong token is over: its 401 goes out. */
+static int on_refusal_due(sd_event_source *src, uint64_t usec, void *data)
+{
+	struct request *req = data;
+
+	req->delay = sd_event_source_disable_unref(req->delay);
+	request_resume(req);
+	return 0;
+}
+
+/* GET /metrics: the Prometheus text format, to a viewer's token sent as
+ * "Authorization: Bearer TOKEN" (what Prometheus sends with its scrape
+ * configuration's authorization). The token is checked as a hello's is,
+ * at the same pace on wrong ones (the 401 waits, the connection
+ * suspended), and no session is made. */
+static enum MHD_Result route_metrics(struct web *w, struct request *req)
+{
+	struct MHD_Connection *c = req->conn;
+	const char *auth = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Authorization");
+	struct rpc_session s = { 0 };
+	struct proto_why why = { 0 };
+	_cleanup_free_ char *text = NULL;
+	char token[520];
+	uint64_t wait = 0;
+	size_t len = 0;
+	bool sent, https;
+
+	sent = web_bearer_token(auth, token, sizeof(token));
+	if (!sent)
+		return send_unauthorized(c, false, "send a viewer token as \"Authorization: Bearer "
+					 "TOKEN\"");
+	request_peer(c, &s.peer, &https);
+	if (rpc_check_token(w->rpc, &s, token, "/metrics", &why, &wait)) {
+		explicit_bzero(token, sizeof(token));
+		if (!wait || sd_event_add_time_relative(w->event, &req->delay, CLOCK_MONOTONIC,
+							wait, 0, on_refusal_due, req) < 0)
+			return send_unauthorized(c, true, why.text);
+		req->kind = REQUEST_REFUSED;
+		req->text = strdup(why.text);
+		request_suspend(req);
+		return MHD_YES;
+	}
+	explicit_bzero(token, sizeof(token));
+	if (s.grant.role < ROLE_VIEWER)
+		return send_error(c, MHD_HTTP_FORBIDDEN, "the token \"%s\" may not read",
+				  s.grant.credential);
+	text = monitor_metrics(w->monitor, &len);
+	if (!text)
+		return send_error(c, MHD_HTTP_INTERNAL_SERVER_ERROR, "no memory");
+	return send_text(c, MHD_HTTP_OK, "text/plain; version=0.0.4; charset=utf-8", text, len,
+			 NULL);
+}
+
 /* ------------------------------------------------------------ checks */
 
 bool web_origin_allowed(const char *origin, const char *host, const char *fetch_site)
@@ -1257,6 +1373,10 @@ static enum MHD_Result route_get(struct web *w, struct request *req, const char 
 	struct MHD_Connection *c = req->conn;
 	struct session *s;
 
+	if (!strcmp(url, "/healthz"))
+		return route_healthz(w, c);
+	if (!strcmp(url, "/metrics"))
+		return route_metrics(w, req);
 	if (strncmp(url, "/api/", 5))
 		return route_static(w, c, url);
 	s = find_session(w, c);
@@ -1291,6 +1411,8 @@ static enum MHD_Result respond(struct web *w, struct request *req)
 			return send_error(req->conn, MHD_HTTP_GONE, "the session ended");
 		return send_text(req->conn, req->status, "application/json", req->text,
 				 strlen(req->text), NULL);
+	case REQUEST_REFUSED:
+		return send_unauthorized(req->conn, true, req->text ? req->text : "wrong token");
 	case REQUEST_PLAIN:
 		break;
 	}
@@ -1352,7 +1474,10 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *c, const cha
 	}
 	if ((conn = conn_of(c)))
 		conn->body_done = true;
-	if (!web_host_allowed(MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Host"),
+	/* (/healthz and /metrics carry no cookie: a page of another name
+	 * gains nothing from them, and scrapers may use any address) */
+	if (strcmp(url, "/healthz") && strcmp(url, "/metrics") &&
+	    !web_host_allowed(MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Host"),
 			      w->allowed_hosts))
 		return send_error(c, MHD_HTTP_MISDIRECTED_REQUEST, "this host name is not served "
 				  "here (http_allowed_hosts)");
@@ -1582,6 +1707,7 @@ int web_new(const struct web_setup *setup, struct web **out)
 	w->jobs = setup->jobs;
 	w->turns = setup->turns;
 	w->tasks = setup->tasks;
+	w->monitor = setup->monitor;
 	w->limits = setup->limits;
 	w->root_fd = -1;
 	w->state_dir = strdup(setup->state_dir);
