@@ -1,4 +1,5 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <stdbool.h>
 #include <stdio.h>
 #include <string.h>
 
@@ -50,4 +51,25 @@ int command_help_words(const char *tool, int argc, char **argv, char *words[4], 
 	words[(*n)++] = (char *)"--help";
 	words[*n] = NULL;
 	return -1;
+}
+
+void command_help_option(FILE *out, const char *term, const char *text)
+{
+	int col = fprintf(out, "  %s", term);
+	bool first = true;      /* no word on this line yet */
+
+	col += fprintf(out, "%*s", col + 2 > HELP_COLUMN ? 2 : HELP_COLUMN - col, "");
+	while (*text) {
+		int len = (int)strcspn(text, " ");
+		if (!first && col + 1 + len > HELP_WIDTH) {
+			fprintf(out, "\n%*s", HELP_COLUMN, "");
+			col = HELP_COLUMN;
+			first = true;
+		}
+		col += fprintf(out, "%s%.*s", first ? "" : " ", len, text);
+		first = false;
+		text += len;
+		text += strspn(text, " ");
+	}
+	fputc('\n', out);
 }

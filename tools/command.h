@@ -9,6 +9,7 @@
 #define ASPH_TOOLS_COMMAND_H
 
 #include <stddef.h>
+#include <stdio.h>
 
 #define COMMAND_TABLE(table) (table), sizeof(table) / sizeof((table)[0]), sizeof((table)[0])
 
@@ -28,5 +29,15 @@ int command_unknown(const char *tool, const char *name, const void *table, size_
  * NULL), for the command to show its own help.
  */
 int command_help_words(const char *tool, int argc, char **argv, char *words[4], int *n);
+
+/*
+ * One option of a help text: "  TERM", then TEXT from column HELP_COLUMN
+ * (after two spaces when TERM reaches it), wrapped at spaces to lines of at
+ * most HELP_WIDTH columns, each further line indented to HELP_COLUMN. For
+ * an option whose text is made from a table (a list of names).
+ */
+#define HELP_COLUMN 22
+#define HELP_WIDTH 79
+void command_help_option(FILE *out, const char *term, const char *text);
 
 #endif

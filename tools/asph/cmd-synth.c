@@ -44,12 +44,10 @@ static void usage(FILE *out)
 		"plus the form error along its normal; noise is added along the normal too; the\n"
 		"part is then moved: p = Ry(ry) Rx(rx) Rz(rz) q + (x, y, z)\n"
 		"(docs/characterization.md). asph fit LENS on the output reports the shift,\n"
-		"tilt and clocking back.\n\n"
-		"  --method M          op, ot, lb, ci, raster, concentric, spiral, fermat,\n"
-		"                      cvt\n"
-		"  --h H               mean edge length / aperture radius (the paper's h)\n"
-		"  --spacing MM        mean point spacing on the surface, mm\n"
-		"  --points N          approximate number of points\n"
+		"tilt and clocking back.\n\n");
+	plan_method_help(out, "", "");
+	fprintf(out,
+		PLAN_DENSITY_HELP
 		"  --shift X,Y,Z       shift of the part, mm (default 0,0,0)\n"
 		"  --tilt RX,RY        tilt about the machine x then y axis, rad (default 0,0)\n"
 		"  --clocking RZ       rotation about the part's own axis, applied first, rad\n"

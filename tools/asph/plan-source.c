@@ -5,6 +5,7 @@
 #include <string.h>
 
 #include "asph-tool.h"
+#include "command.h"
 #include "plan-source.h"
 #include "progress.h"
 #include "util-mem.h"
@@ -41,6 +42,34 @@ static int set_density(struct plan_source *ps, enum asph_plan_density_kind kind,
 	ps->n_density++;
 	ps->density = (struct asph_plan_density){ .kind = kind, .value = v };
 	return 0;
+}
+
+void plan_method_help(FILE *out, const char *before, const char *after)
+{
+	char names[256], text[512];
+
+	asph_plan_method_names(names, sizeof(names));
+	snprintf(text, sizeof(text), "%s%s%s", before, names, after);
+	command_help_option(out, "--method M", text);
+}
+
+void plan_source_help(FILE *out)
+{
+	fputs("  PLAN_FILE           points to judge (.csv x,y,z / .ply / .json), as asph plan writes\n",
+	      out);
+	plan_method_help(out, "compute the plan instead: ", "; with exactly one of");
+	fputs(PLAN_DENSITY_HELP, out);
+}
+
+void plan_mesh_methods(char *buf, size_t size)
+{
+	size_t len = 0;
+
+	buf[0] = '\0';
+	for (int m = 0; m < ASPH_PLAN_N_METHODS; m++)
+		if (asph_plan_method_has_mesh((enum asph_plan_method)m) && len < size)
+			len += (size_t)snprintf(buf + len, size - len, "%s%s", len ? ", " : "",
+						asph_plan_method_name((enum asph_plan_method)m));
 }
 
 /* The methods from their table, with the one meant when it is near. */
