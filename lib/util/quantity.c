@@ -58,6 +58,18 @@ static const struct quantity quantities[] = {
 	{ "acquisition.drift.rms_nm", NULL, NULL, "drift RMS", "nm", 1, 2, false, false },
 };
 
+const char *quantity_symbol(const struct quantity *q)
+{
+	static const struct {
+		const char *unit, *symbol;
+	} symbols[] = { { "um", "µm" }, { "urad", "µrad" } };
+
+	for (size_t i = 0; i < sizeof(symbols) / sizeof(symbols[0]); i++)
+		if (!strcmp(q->unit, symbols[i].unit))
+			return symbols[i].symbol;
+	return q->unit;
+}
+
 const struct quantity *quantity_table(size_t *n)
 {
 	*n = sizeof(quantities) / sizeof(quantities[0]);

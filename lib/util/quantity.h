@@ -35,6 +35,10 @@ const struct quantity *quantity_by_path(const char *path);
 const struct quantity *quantity_by_verdict(const char *name);
 const struct quantity *quantity_by_u_key(const char *key);
 
+/* The unit as typeset where the text need not be ASCII (the report, the
+ * web page): "µm" for "um", "µrad" for "urad"; else the unit as printed. */
+const char *quantity_symbol(const struct quantity *q);
+
 enum quantity_format_flags {
 	QUANTITY_UNIT = 1u << 0,        /* followed by the unit: "-0.74 nm" */
 	QUANTITY_NO_SIGN = 1u << 1,     /* an uncertainty or a limit: no '+' */

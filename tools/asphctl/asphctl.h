@@ -36,13 +36,15 @@ int conn_next_event(struct conn *c, int timeout_ms, json_t **msg);
 struct ctl;
 
 /* A command: its name, the summary `asphctl --help` lists, its function,
- * and what `asphctl help COMMAND` says after the usage line (NULL: the
- * usage line says all). */
+ * what `asphctl help COMMAND` says after the usage line (NULL: the usage
+ * line says all), and the values of its operands and options that come
+ * from a table (NULL: none), printed after that. */
 struct ctl_command {
 	const char *name;
 	const char *summary;
 	int (*run)(struct ctl *ctl, int argc, char **argv);
 	const char *help;
+	void (*help_values)(FILE *out);
 };
 
 /* Global options. */
@@ -106,6 +108,7 @@ int64_t ctl_job_id(const char *arg);
 int64_t ctl_job_operand(int argc, char **argv, const char *usage);
 
 int cmd_submit(struct ctl *ctl, int argc, char **argv);
+void cmd_submit_values(FILE *out);
 int cmd_status(struct ctl *ctl, int argc, char **argv);
 int cmd_watch(struct ctl *ctl, int argc, char **argv);
 int cmd_cancel(struct ctl *ctl, int argc, char **argv);

@@ -11,8 +11,10 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "asph-names.h"
 #include "asph/tolerance.h"
 #include "asphctl.h"
+#include "command.h"
 #include "fit-summary.h"
 #include "progress.h"
 #include "util-fs.h"
@@ -173,8 +175,15 @@ static json_t *tolerance_param(const char *arg)
 static const char submit_usage[] =
 	"submit LENS --method M (--h H | --spacing MM | --points N)\n"
 	"       [--instrument NAME] [--priority P] [--label TEXT] [--dof LIST]\n"
-	"       [--residual normal|sag] [--robust] [--zernike N] [--tolerance T]\n"
+	"       [--residual " NAMES_RESIDUALS "] [--robust] [--zernike N] [--tolerance T]\n"
 	"       [--part P] [--lot L] [--serial S] [--wait [--quiet]] [--json]";
+
+/* The presets and plan methods, from libasph's tables (print-names). */
+void cmd_submit_values(FILE *out)
+{
+	command_help_option(out, "LENS", "a preset (" NAMES_PRESETS ") or a prescription file");
+	command_help_option(out, "--method M", NAMES_PLAN_METHODS);
+}
 
 /* "job 12 queued (700 points, about 1 min 15 s to measure)". */
 static void print_queued(const json_t *job, json_int_t id)

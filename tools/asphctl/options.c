@@ -18,6 +18,10 @@ static void help(const struct ctl *ctl, const char *usage)
 	printf("Usage: asphctl %s\n", usage);
 	if (ctl->command && ctl->command->help)
 		printf("\n%s", ctl->command->help);
+	if (ctl->command && ctl->command->help_values) {
+		putchar('\n');
+		ctl->command->help_values(stdout);
+	}
 	printf("\nEvery command takes --json (print the answer as JSON) and --help. The manual\n"
 	       "page asphctl(1) describes the commands; 'asphctl help exit-status' the exit\n"
 	       "codes.\n");
