@@ -102,24 +102,6 @@ static double freeform_radius(const struct asph_surface *s)
 	return R;
 }
 
-/* names[0, n), ", " between them, into buf as snprintf() writes: the
- * length of the whole list. A NULL name is left out. */
-static int name_list(char *buf, size_t size, const char *const *names, size_t n)
-{
-	size_t len = 0;
-
-	if (size)
-		buf[0] = '\0';
-	for (size_t i = 0; i < n; i++) {
-		if (!names[i])
-			continue;
-		int w = snprintf(len < size ? buf + len : NULL, len < size ? size - len : 0,
-				 "%s%s", len ? ", " : "", names[i]);
-		len += (size_t)w;
-	}
-	return (int)len;
-}
-
 static int refuse_on_freeform(const struct asph_surface *s, enum asph_plan_method m,
 			      struct asph_error *err)
 {
@@ -128,7 +110,7 @@ static int refuse_on_freeform(const struct asph_surface *s, enum asph_plan_metho
 
 	for (unsigned i = 0; i < ASPH_PLAN_N_METHODS; i++)
 		names[i] = method_of(i)->freeform ? method_of(i)->name : NULL;
-	name_list(known, sizeof(known), names, ASPH_PLAN_N_METHODS);
+	suggest_join(known, sizeof(known), names, ASPH_PLAN_N_METHODS, ", ");
 	if (asph_surface_is_radial(s))
 		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "method",
 					 "the %s plan is for rotationally symmetric parts over a "
@@ -154,7 +136,7 @@ static const char *const density_names[ASPH_PLAN_N_DENSITIES] = {
 
 int asph_plan_density_names(char *buf, size_t size)
 {
-	return name_list(buf, size, density_names, ARRAY_SIZE(density_names));
+	return suggest_join(buf, size, density_names, ARRAY_SIZE(density_names), ", ");
 }
 
 const char *asph_plan_density_name(enum asph_plan_density_kind k)
@@ -821,7 +803,7 @@ int asph_plan_method_names(char *buf, size_t size)
 
 	for (unsigned i = 0; i < ASPH_PLAN_N_METHODS; i++)
 		names[i] = methods[i].name;
-	return name_list(buf, size, names, ASPH_PLAN_N_METHODS);
+	return suggest_join(buf, size, names, ASPH_PLAN_N_METHODS, ", ");
 }
 
 bool asph_plan_method_has_mesh(enum asph_plan_method m)

@@ -27,6 +27,7 @@
 #include "progress.h"
 #include "quantity.h"
 #include "util-mem.h"
+#include "util-suggest.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_surface *, asph_surface_free)
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
@@ -238,7 +239,14 @@ static int take_option(struct fit_cli *c, int opt, const char *arg)
 		return 0;
 	case OPT_RESIDUAL:
 		if (asph_fit_residual_from_name(arg, &c->opts.residual) < 0) {
-			fprintf(stderr, "asph fit: --residual: '%s' is not normal or sag\n", arg);
+			const char *names[8];
+			char known[64];
+			size_t n = 0;
+			while (n < ARRAY_SIZE(names) &&
+			       (names[n] = asph_fit_residual_name((enum asph_fit_residual_kind)n)))
+				n++;
+			suggest_join(known, sizeof(known), names, n, " or ");
+			fprintf(stderr, "asph fit: --residual: '%s' is not %s\n", arg, known);
 			return -1;
 		}
 		return 0;

@@ -9,6 +9,7 @@
 #include "plan-source.h"
 #include "progress.h"
 #include "util-mem.h"
+#include "util-suggest.h"
 
 /* Guards against a density typo that would ask for billions of points. */
 #define PLAN_MAX_POINTS 50000000
@@ -205,9 +206,17 @@ int plan_quality_option(struct plan_quality *pq, int opt, const char *arg)
 {
 	if (opt != PLAN_OPT_CHART)
 		return plan_source_option(&pq->src, opt, arg);
+	const char *names[8];
+	char known[128];
+	size_t n = 0;
+
 	if (asph_quality_chart_from_name(arg, &pq->opts.chart) == 0)
 		return 0;
-	fprintf(stderr, "asph: --chart: '%s' is not conformal, xy or plan-mesh\n", arg);
+	while (n < ARRAY_SIZE(names) &&
+	       strcmp(names[n] = asph_quality_chart_name((enum asph_quality_chart)n), "unknown"))
+		n++;
+	suggest_join(known, sizeof(known), names, n, " or ");
+	fprintf(stderr, "asph: --chart: '%s' is not %s\n", arg, known);
 	return -1;
 }
 

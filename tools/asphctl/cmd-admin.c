@@ -3,14 +3,17 @@
 #include <errno.h>
 #include <getopt.h>
 #include <limits.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include <libpq-fe.h>
 
+#include "asph-names.h"
 #include "asphctl.h"
 #include "util-mem.h"
+#include "util-suggest.h"
 #include "util-time.h"
 
 static const char *str(const json_t *o, const char *key)
@@ -302,6 +305,21 @@ static void fleet_print(const PGresult *res)
 	printf("(%d result(s))\n", PQntuples(res));
 }
 
+/* --verdict: one of libasph's verdicts (print-names); false after saying
+ * so. */
+static bool is_verdict(const char *arg)
+{
+	static const char *const verdicts[] = { NAMES_VERDICT_LIST };
+	char known[64];
+
+	for (size_t i = 0; i < ARRAY_SIZE(verdicts); i++)
+		if (!strcmp(arg, verdicts[i]))
+			return true;
+	suggest_join(known, sizeof(known), verdicts, ARRAY_SIZE(verdicts), " or ");
+	fprintf(stderr, "asphctl: --verdict: '%s' is not %s\n", arg, known);
+	return false;
+}
+
 int cmd_fleet(struct ctl *ctl, int argc, char **argv)
 {
 	static const struct option opts[] = {
@@ -339,12 +357,8 @@ int cmd_fleet(struct ctl *ctl, int argc, char **argv)
 		case 'L': params[2] = optarg; break;
 		case 'N': params[3] = optarg; break;
 		case 'v':
-			if (strcmp(optarg, "pass") && strcmp(optarg, "fail") &&
-			    strcmp(optarg, "undecided")) {
-				fprintf(stderr, "asphctl: --verdict: '%s' is not pass, fail or "
-					"undecided\n", optarg);
+			if (!is_verdict(optarg))
 				return EXIT_USAGE;
-			}
 			params[4] = optarg;
 			break;
 		}

@@ -129,6 +129,10 @@ static int header(void)
 	print_list("NAMES_PLAN_METHODS", method_name, ", ");
 	print_list("NAMES_PRESETS", preset_name, ", ");
 	print_list("NAMES_RESIDUALS", residual_name, "|");
+	printf("#define NAMES_VERDICT_LIST ");
+	for (int i = 0; verdict_name(i); i++)
+		printf("%s\"%s\"", i ? ", " : "", verdict_name(i));
+	printf("\n");
 	printf("\n#endif\n");
 	return fflush(stdout) ? EXIT_FAILURE : EXIT_SUCCESS;
 }
