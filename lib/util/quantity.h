@@ -47,9 +47,11 @@ enum quantity_format_flags {
 /*
  * v (in the summary's unit) as printed: "-0.74", "+12.0076" (a signed
  * quantity shows '+'), "0.00" (what rounds to zero has no sign); "-" when
- * v is not a number; "%g" when q is NULL. flags: enum
- * quantity_format_flags. Returns buf.
+ * v is not a number; "%g" when q is NULL; "%.6g" from QUANTITY_MAX_FIXED
+ * in magnitude (as printed) on. flags: enum quantity_format_flags. Returns
+ * buf. daemon/web/names.js (print-names) carries the rule to the web page.
  */
+#define QUANTITY_MAX_FIXED 1e12
 const char *quantity_format(const struct quantity *q, double v, unsigned flags, char *buf,
 			    size_t size);
 
