@@ -34,6 +34,8 @@ enum asph_plan_method {
 
 /* Name as on the command line ("op", "ot", ...) and back. */
 const char *asph_plan_method_name(enum asph_plan_method m);
+/* What the method is, in words: "optimal transport", "circle involute". */
+const char *asph_plan_method_title(enum asph_plan_method m);
 int asph_plan_method_from_name(const char *name, enum asph_plan_method *out);
 /* The methods' names in the order of the enum, ", " between them
  * ("op, ot, lb, ..."), as snprintf() writes them: the length of the whole

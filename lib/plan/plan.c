@@ -33,6 +33,7 @@
  */
 struct plan_method {
 	const char *name;
+	const char *title;      /* in words, docs/sampling-plans.md */
 	/* the planar pattern it lays (op: the disk grid) and its lattice */
 	const struct plan_pattern *pattern;
 	bool on_surface;        /* the lattice lies on the surface (CI) */
@@ -756,24 +757,42 @@ static const struct plan_freeform ci_freeform = { ci_freeform_count, ci_freeform
  * help, the protocol's schema, the completion) comes from this table. CI
  * is the disk grid's lattice laid on the surface. */
 static const struct plan_method methods[ASPH_PLAN_N_METHODS] = {
-	[ASPH_PLAN_OP] = { .name = "op", .pattern = &plan_disk_grid, .mesh = true,
-			   .lift = lift_projected, .freeform = &over_aperture },
-	[ASPH_PLAN_OT] = { .name = "ot", .pattern = &plan_disk_grid, .mesh = true,
-			   .lift = lift_ot, .freeform = &ot_freeform },
-	[ASPH_PLAN_LB] = { .name = "lb", .pattern = &plan_disk_grid, .mesh = true,
-			   .lift = lift_lb, .freeform = &lb_freeform },
-	[ASPH_PLAN_CI] = { .name = "ci", .pattern = &plan_disk_grid, .on_surface = true,
-			   .count = ci_count, .fill = ci_fill, .freeform = &ci_freeform },
-	[ASPH_PLAN_RASTER] = { .name = "raster", .pattern = &plan_raster,
-			       .lift = lift_projected, .freeform = &over_aperture },
-	[ASPH_PLAN_CONCENTRIC] = { .name = "concentric", .pattern = &plan_concentric,
-				   .lift = lift_projected, .freeform = &over_aperture },
-	[ASPH_PLAN_SPIRAL] = { .name = "spiral", .pattern = &plan_spiral,
-			       .lift = lift_projected, .freeform = &over_aperture },
-	[ASPH_PLAN_FERMAT] = { .name = "fermat", .pattern = &plan_fermat,
-			       .lift = lift_projected, .freeform = &over_aperture },
-	[ASPH_PLAN_CVT] = { .name = "cvt", .pattern = &plan_disk_grid, .fill = cvt_fill,
-			    .lift = lift_ot, .settle = cvt_settle, .freeform = &cvt_freeform },
+	[ASPH_PLAN_OP] = {
+		.name = "op", .title = "orthogonal projection", .pattern = &plan_disk_grid,
+		.mesh = true, .lift = lift_projected, .freeform = &over_aperture,
+	},
+	[ASPH_PLAN_OT] = {
+		.name = "ot", .title = "optimal transport", .pattern = &plan_disk_grid,
+		.mesh = true, .lift = lift_ot, .freeform = &ot_freeform,
+	},
+	[ASPH_PLAN_LB] = {
+		.name = "lb", .title = "Laplace-Beltrami", .pattern = &plan_disk_grid,
+		.mesh = true, .lift = lift_lb, .freeform = &lb_freeform,
+	},
+	[ASPH_PLAN_CI] = {
+		.name = "ci", .title = "circle involute", .pattern = &plan_disk_grid,
+		.on_surface = true, .count = ci_count, .fill = ci_fill, .freeform = &ci_freeform,
+	},
+	[ASPH_PLAN_RASTER] = {
+		.name = "raster", .title = "x-y raster", .pattern = &plan_raster,
+		.lift = lift_projected, .freeform = &over_aperture,
+	},
+	[ASPH_PLAN_CONCENTRIC] = {
+		.name = "concentric", .title = "concentric circles", .pattern = &plan_concentric,
+		.lift = lift_projected, .freeform = &over_aperture,
+	},
+	[ASPH_PLAN_SPIRAL] = {
+		.name = "spiral", .title = "Archimedean spiral", .pattern = &plan_spiral,
+		.lift = lift_projected, .freeform = &over_aperture,
+	},
+	[ASPH_PLAN_FERMAT] = {
+		.name = "fermat", .title = "Fermat (golden-angle) spiral", .pattern = &plan_fermat,
+		.lift = lift_projected, .freeform = &over_aperture,
+	},
+	[ASPH_PLAN_CVT] = {
+		.name = "cvt", .title = "centroidal Voronoi tessellation", .pattern = &plan_disk_grid,
+		.fill = cvt_fill, .lift = lift_ot, .settle = cvt_settle, .freeform = &cvt_freeform,
+	},
 };
 
 /* m is checked by the callers (resolve); an unknown one reads as OP. */
@@ -804,6 +823,11 @@ int asph_plan_method_names(char *buf, size_t size)
 	for (unsigned i = 0; i < ASPH_PLAN_N_METHODS; i++)
 		names[i] = methods[i].name;
 	return suggest_join(buf, size, names, ASPH_PLAN_N_METHODS, ", ");
+}
+
+const char *asph_plan_method_title(enum asph_plan_method m)
+{
+	return (unsigned)m < ASPH_PLAN_N_METHODS ? methods[m].title : "unknown";
 }
 
 bool asph_plan_method_has_mesh(enum asph_plan_method m)
