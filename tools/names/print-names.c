@@ -4,8 +4,11 @@
  * elsewhere, so that no list is typed twice (docs/architecture.md, "Names
  * from their tables"):
  *   --header   a C header for asphctl, which does not link the tables
- *   --json     every table as one JSON object, which tests/names checks
- *              the schemas, the completion, the page and the docs against
+ *   --json     every table as one JSON object, which test-names checks the
+ *              schemas, the completion, the page and the docs against
+ *   --web      the web page's daemon/web/names.js: the plan methods, the
+ *              presets and the quantity table (committed, for the page
+ *              is plain files; test-names checks it is current)
  * Built by meson, not installed.
  */
 #include <stdio.h>
@@ -98,7 +101,9 @@ static json_t *tables(void)
 
 	for (int m = 0; m < ASPH_PLAN_N_METHODS; m++)
 		json_array_append_new(methods,
-				      json_pack("{s:s, s:b}", "name", method_name(m), "mesh",
+				      json_pack("{s:s, s:s, s:b}", "name", method_name(m), "title",
+						asph_plan_method_title((enum asph_plan_method)m),
+						"mesh",
 						asph_plan_method_has_mesh((enum asph_plan_method)m)));
 	for (size_t i = 0; i < n; i++)
 		json_array_append_new(quantities, quantity_json(&q[i]));
@@ -137,10 +142,49 @@ static int header(void)
 	return fflush(stdout) ? EXIT_FAILURE : EXIT_SUCCESS;
 }
 
+/* "export const NAME = [", one compact JSON element a line, "];". */
+static int print_js_array(const char *name, json_t *a)
+{
+	size_t i;
+	json_t *v;
+
+	printf("export const %s = [\n", name);
+	json_array_foreach(a, i, v) {
+		_cleanup_free_ char *s = json_dumps(v, JSON_COMPACT | JSON_ENCODE_ANY |
+							   JSON_REAL_PRECISION(17));
+		if (!s)
+			return -1;
+		printf("  %s,\n", s);
+	}
+	printf("];\n");
+	return 0;
+}
+
+static int web(void)
+{
+	_cleanup_(json_decrefp) json_t *t = tables();
+
+	if (!t)
+		return EXIT_FAILURE;
+	printf("// SPDX-License-Identifier: GPL-3.0-or-later\n"
+	       "// libasph's tables for the page, printed by `print-names --web`\n"
+	       "// (tools/names/print-names.c) from lib/plan/plan.c, lib/surface/prescription.c\n"
+	       "// and lib/util/quantity.c: do not edit. test-names checks that it is current;\n"
+	       "// `build/tools/names/print-names --web > daemon/web/names.js` renews it.\n");
+	if (print_js_array("planMethods", json_object_get(t, "plan_methods")) < 0 ||
+	    print_js_array("presets", json_object_get(t, "presets")) < 0 ||
+	    print_js_array("quantities", json_object_get(t, "quantities")) < 0)
+		return EXIT_FAILURE;
+	printf("export const QUANTITY_MAX_FIXED = %g;\n", QUANTITY_MAX_FIXED);
+	return fflush(stdout) ? EXIT_FAILURE : EXIT_SUCCESS;
+}
+
 int main(int argc, char **argv)
 {
 	if (argc == 2 && !strcmp(argv[1], "--header"))
 		return header();
+	if (argc == 2 && !strcmp(argv[1], "--web"))
+		return web();
 	if (argc == 2 && !strcmp(argv[1], "--json")) {
 		_cleanup_(json_decrefp) json_t *j = tables();
 		if (!j || json_dumpf(j, stdout, JSON_INDENT(1) | JSON_REAL_PRECISION(17)) < 0)
@@ -148,6 +192,6 @@ int main(int argc, char **argv)
 		putchar('\n');
 		return fflush(stdout) ? EXIT_FAILURE : EXIT_SUCCESS;
 	}
-	fprintf(stderr, "Usage: print-names --header | --json\n");
+	fprintf(stderr, "Usage: print-names --header | --json | --web\n");
 	return 2;
 }
