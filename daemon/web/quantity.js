@@ -27,6 +27,8 @@ function shortest(x) {
 // v (in the summary's unit) as quantity_format() prints it: to the row's
 // decimals, '+' on a signed quantity, what rounds to zero without a sign,
 // "-" for a value that is not a number; with UNIT, the unit as typeset.
+// (An exact tie of binary fractions, 0.125 to two decimals, rounds up here
+// and to even in C; no measured value is one.)
 export function formatQuantity(q, v, flags = 0) {
   if (typeof v !== "number" || Number.isNaN(v)) return "-";
   let plus = q.sign && !(flags & NO_SIGN);
