@@ -99,6 +99,11 @@ int ctl_options_exit(int c);
 /* For a command whose only options are --json and --help: -1 to go on, or
  * the exit code. */
 int ctl_common_options(struct ctl *ctl, int argc, char **argv, const char *usage);
+/* For a command whose options are --json, --help and one flag --NAME
+ * (short: its short form, or 0 for none): *set when it is given; -1 to go
+ * on, or the exit code. */
+int ctl_flag_option(struct ctl *ctl, int argc, char **argv, const char *name, char short_name,
+		    bool *set, const char *usage);
 
 /* Parses a job id argument; -1 (after printing) when it is not one. */
 int64_t ctl_job_id(const char *arg);

@@ -40,9 +40,6 @@ static void print_lock(const json_t *in)
 
 int cmd_lock(struct ctl *ctl, int argc, char **argv)
 {
-	static const struct option opts[] = {
-		{ "pause", no_argument, NULL, 'p' }, CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
-	};
 	static const char usage[] = "lock INSTRUMENT REASON... [--pause] [--json]";
 	_cleanup_(json_decrefp) json_t *result = NULL;
 	_cleanup_free_ char *reason = NULL;
@@ -50,13 +47,8 @@ int cmd_lock(struct ctl *ctl, int argc, char **argv)
 	size_t len = 0;
 	int c, r;
 
-	while ((c = ctl_option(ctl, argc, argv, "p", opts, usage)) > 0) {
-		switch (c) {
-		case 'p': pause = true; break;
-		}
-	}
-	if (c != CTL_OPTIONS_END)
-		return ctl_options_exit(c);
+	if ((c = ctl_flag_option(ctl, argc, argv, "pause", 'p', &pause, usage)) >= 0)
+		return c;
 	if (argc - optind < 2)
 		return ctl_usage_error(usage);
 	/* The reason is the rest of the line, as typed. */
@@ -83,21 +75,13 @@ int cmd_lock(struct ctl *ctl, int argc, char **argv)
 
 int cmd_unlock(struct ctl *ctl, int argc, char **argv)
 {
-	static const struct option opts[] = {
-		{ "force", no_argument, NULL, 'f' }, CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
-	};
 	static const char usage[] = "unlock INSTRUMENT [--force] [--json]";
 	_cleanup_(json_decrefp) json_t *result = NULL;
 	bool force = false;
 	int c, r;
 
-	while ((c = ctl_option(ctl, argc, argv, "f", opts, usage)) > 0) {
-		switch (c) {
-		case 'f': force = true; break;
-		}
-	}
-	if (c != CTL_OPTIONS_END)
-		return ctl_options_exit(c);
+	if ((c = ctl_flag_option(ctl, argc, argv, "force", 'f', &force, usage)) >= 0)
+		return c;
 	if (argc - optind != 1)
 		return ctl_usage_error(usage);
 	r = ctl_call(ctl, "instrument.unlock", json_pack("{s:s, s:b}", "name", argv[optind],

@@ -336,22 +336,14 @@ int cmd_resume(struct ctl *ctl, int argc, char **argv)
 
 int cmd_requeue(struct ctl *ctl, int argc, char **argv)
 {
-	static const struct option opts[] = {
-		{ "restart", no_argument, NULL, 'r' }, CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
-	};
 	static const char usage[] = "requeue JOB [--restart] [--json]";
 	_cleanup_(json_decrefp) json_t *result = NULL;
 	bool restart = false;
 	int64_t id;
 	int c, r;
 
-	while ((c = ctl_option(ctl, argc, argv, "r", opts, usage)) > 0) {
-		switch (c) {
-		case 'r': restart = true; break;
-		}
-	}
-	if (c != CTL_OPTIONS_END)
-		return ctl_options_exit(c);
+	if ((c = ctl_flag_option(ctl, argc, argv, "restart", 'r', &restart, usage)) >= 0)
+		return c;
 	if ((id = ctl_job_operand(argc, argv, usage)) < 0)
 		return EXIT_USAGE;
 	r = ctl_call(ctl, "job.requeue",
@@ -369,21 +361,13 @@ int cmd_requeue(struct ctl *ctl, int argc, char **argv)
 
 int cmd_status(struct ctl *ctl, int argc, char **argv)
 {
-	static const struct option opts[] = {
-		{ "history", no_argument, NULL, 'H' }, CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
-	};
 	static const char usage[] = "status [JOB [--history]] [--json]";
 	_cleanup_(json_decrefp) json_t *result = NULL;
 	bool history = false;
 	int c, r;
 
-	while ((c = ctl_option(ctl, argc, argv, "", opts, usage)) > 0) {
-		switch (c) {
-		case 'H': history = true; break;
-		}
-	}
-	if (c != CTL_OPTIONS_END)
-		return ctl_options_exit(c);
+	if ((c = ctl_flag_option(ctl, argc, argv, "history", 0, &history, usage)) >= 0)
+		return c;
 	if (optind + 1 == argc) {
 		int64_t id = ctl_job_id(argv[optind]);
 		if (id < 0)
