@@ -34,8 +34,14 @@ int command_unknown(const char *tool, const char *name, const void *table, size_
 	return EXIT_USAGE;
 }
 
-int command_help_words(const char *tool, int argc, char **argv, char *words[4], int *n)
+int command_help(const char *tool, const void *table, size_t n, size_t stride,
+		 void (*usage)(FILE *out), int argc, char **argv, const void **entry,
+		 char *words[4], int *n_words)
 {
+	if (argc < 2) {
+		usage(stdout);
+		return EXIT_OK;
+	}
 	if (argc == 2 && !strcmp(argv[1], "exit-status")) {
 		tool_exit_codes_print(stdout);
 		return EXIT_OK;
@@ -45,11 +51,13 @@ int command_help_words(const char *tool, int argc, char **argv, char *words[4], 
 				"       %s help exit-status\n", tool, tool);
 		return EXIT_USAGE;
 	}
-	*n = 0;
+	if (!(*entry = command_find(table, n, stride, argv[1])))
+		return command_unknown(tool, argv[1], table, n, stride);
+	*n_words = 0;
 	for (int i = 1; i < argc; i++)
-		words[(*n)++] = argv[i];
-	words[(*n)++] = (char *)"--help";
-	words[*n] = NULL;
+		words[(*n_words)++] = argv[i];
+	words[(*n_words)++] = (char *)"--help";
+	words[*n_words] = NULL;
 	return -1;
 }
 
