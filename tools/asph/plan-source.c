@@ -147,26 +147,6 @@ int plan_source_compute(const struct plan_source *ps, const struct asph_surface 
 	return r;
 }
 
-static int plan_to_points(const struct asph_plan *plan, struct asph_points **out)
-{
-	struct asph_points *p = asph_points_alloc(plan->n);
-
-	if (!p)
-		return -ENOMEM;
-	memcpy(p->xyz, plan->xyz, 3 * plan->n * sizeof(double));
-	if (plan->n_triangles) {
-		p->triangles = malloc(3 * plan->n_triangles * sizeof(uint32_t));
-		if (!p->triangles) {
-			asph_points_free(p);
-			return -ENOMEM;
-		}
-		memcpy(p->triangles, plan->triangles, 3 * plan->n_triangles * sizeof(uint32_t));
-		p->n_triangles = plan->n_triangles;
-	}
-	*out = p;
-	return 0;
-}
-
 int plan_source_load(const struct plan_source *ps, const struct asph_surface *s,
 		     struct asph_points **out)
 {
@@ -187,7 +167,7 @@ int plan_source_load(const struct plan_source *ps, const struct asph_surface *s,
 		tool_print_error("plan", &err);
 		return r;
 	}
-	r = plan_to_points(plan, out);
+	r = asph_plan_to_points(plan, out);
 	asph_plan_free(plan);
 	if (r < 0)
 		fprintf(stderr, "asph: out of memory copying the plan\n");
