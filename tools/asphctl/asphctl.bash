@@ -59,6 +59,8 @@ _asphctl()
 		[[ $cur != -* ]] && { COMPREPLY=($(compgen -W "$(asphctl help queue 2>/dev/null |
 			sed -n '1s/^Usage: asphctl queue //p' | grep -o '\(\[\||\) *[a-z][a-z]*' |
 			tr -d '[| ')" -- "$cur")); return; } ;;
+	backup)
+		[[ $cur != -* ]] && { COMPREPLY=($(compgen -f -- "$cur")); return; } ;;
 	help)
 		[[ $cur != -* ]] && { COMPREPLY=($(compgen -W "$(asphctl --help 2>/dev/null | sed -n '/^Commands:/,/^$/{/^  /s/^  \([a-z]*\).*/\1/p}') exit-status" -- "$cur")); return; } ;;
 	esac
