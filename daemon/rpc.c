@@ -1428,23 +1428,17 @@ static int put_json(const char *buf, size_t size, void *data)
 	return put(data, buf, size);
 }
 
-/* The answer to a request (NULL for a notification) once its method has
- * run: its result, or the error code with c's detail and data. */
-static json_t *make_reply(struct call *c, json_t *id, bool notification, int code,
-			  json_t *result)
+/* The answer to a request once its method has run: its result, or the
+ * error code with c's detail and data. */
+static json_t *answer_of(struct call *c, json_t *id, int code, json_t *result)
 {
 	json_t *data;
 
-	if (notification || !code) {
+	if (!code) {
 		json_decref(c->data);
 		c->data = NULL;
-	}
-	if (notification) {
-		json_decref(result);
-		return NULL;
-	}
-	if (!code)
 		return proto_make_result(id, result);
+	}
 	json_decref(result);
 	data = c->data ? c->data : json_object();
 	c->data = NULL;
@@ -1453,6 +1447,24 @@ static json_t *make_reply(struct call *c, json_t *id, bool notification, int cod
 	if (c->why.text[0])
 		json_object_set_new(data, "detail", json_string(c->why.text));
 	return proto_make_error(id, code, NULL, data);
+}
+
+/*
+ * The answer to a request, or NULL for a notification: its answer is
+ * made as a request's would be and only counted in the line's bytes, so
+ * that notifications spend limits.max_response_bytes as requests do.
+ */
+static json_t *make_reply(struct call *c, json_t *id, bool notification, int code,
+			  json_t *result)
+{
+	json_t *reply = answer_of(c, notification ? json_null() : id, code, result);
+
+	if (!notification)
+		return reply;
+	if (c->line && reply)
+		c->line->written += json_dumpb(reply, NULL, 0, JSON_COMPACT);
+	json_decref(reply);
+	return NULL;
 }
 
 static void listing_free(struct listing *ls)
