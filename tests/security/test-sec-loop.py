@@ -28,7 +28,10 @@ that the deadlines and the end of clients that do not read come quickly.
   queue.get (10,000 jobs, 6 MB of answer) and never read; then 32 web
   connections do the same over /api/rpc. Each holds at most half of
   limits.max_output_bytes (8 MiB) and is closed when request_timeout_ms
-  passes; RSS stays under 400 MiB.
+  passes; RSS stays under 400 MiB. A connection that sends 3 queue.get
+  and 20 version lines and does not read has none of its versions
+  carried out (daemon.status counts the lines taken) until it reads: then
+  all 23 answers come, in order.
 
 Under valgrind the bounds on time and memory are not checked, and the
 queue holds 1,000 jobs; built with AddressSanitizer the RSS bound is not."""
@@ -243,6 +246,48 @@ print(json.dumps({"closed": len(closed), "after": time.monotonic() - t0}), flush
     still_in(d, operator, admin_token, port, "Medium 5")
 
 
+# Sends argv[2] queue.get and argv[3] version lines on the socket argv[1]
+# and reads nothing until a line comes on stdin; then reads every answer
+# and prints their ids in order.
+HELD = r'''
+import json, socket, sys
+s = socket.socket(socket.AF_UNIX); s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+s.connect(sys.argv[1])
+n, m = int(sys.argv[2]), int(sys.argv[3])
+lines = [{"jsonrpc": "2.0", "id": i, "method": "queue.get"} for i in range(n)]
+lines += [{"jsonrpc": "2.0", "id": n + i, "method": "version"} for i in range(m)]
+s.sendall("".join(json.dumps(x) + "\n" for x in lines).encode())
+print("sent", flush=True)
+sys.stdin.readline()
+f = s.makefile("rb")
+print(json.dumps([json.loads(f.readline()).get("id") for _ in lines]), flush=True)
+'''
+
+
+def held_back(d, port, reader, operator, admin_token):
+    """Medium 5, backpressure: no request of a client that does not read
+    is carried out while half of limits.max_output_bytes waits for it."""
+    # (a queue.get answer is 6 MB, 600 kB under valgrind: a few pass
+    # half of max_output_bytes)
+    gets, versions = (12 if UNDER_VALGRIND else 3), 20
+    root = Client(d.socket)
+    before = root.call("daemon.status")["requests"]
+    p = reader.popen([PYTHON, "-c", HELD, d.socket, str(gets), str(versions)],
+                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    expect(p.stdout.readline().strip() == "sent", "the reader's lines are sent")
+    time.sleep(1.5)
+    taken = root.call("daemon.status")["requests"] - before - 1
+    root.close()
+    p.stdin.write("read\n")
+    p.stdin.flush()
+    ids = json.loads(p.stdout.readline())
+    p.wait(timeout=60)
+    expect(1 <= taken < gets and ids == list(range(gets + versions)),
+           f"{gets} queue.get and {versions} version lines not read: {taken} taken while the "
+           f"output waits unread, none of the versions; once read, all {len(ids)} answered in order")
+    still_in(d, operator, admin_token, port, "Medium 5 (backpressure)")
+
+
 accounts = Accounts()
 ops_gid, ops = accounts.group("ops")
 _, lab = accounts.group("lab")
@@ -267,6 +312,7 @@ try:
     web_batch(d, port, tokens["viewer"], operator, tokens["admin"])
     socket_notifications(d, port, reader, operator, tokens["admin"])
     never_read(d, port, reader, tokens["viewer"], operator, tokens["admin"])
+    held_back(d, port, reader, operator, tokens["admin"])
     # last: the viewer's given-up computations keep its thread for minutes
     estimates(d, port, reader, operator, tokens["admin"])
     expect(d.stop() == 0, "clean stop")
