@@ -21,7 +21,8 @@ the daemon's RSS stays under 256 MiB.
   from any address, and end with their session when it is unused for
   limits.idle_timeout_ms (a reload sets 4 s) without an event stream.
 - Medium 8: a token expires while its web session is open: RPC, the
-  result files, the live points and the event stream all end with it.
+  result files, the live points and the event stream all end with it;
+  the same for a token revoked.
 - Medium 9: one wrong login a second from the address real users share
   (a proxy, a NAT): 20 valid admin logins from it all succeed.
 - Medium 11: the web listener's connections count in the descriptors'
@@ -163,20 +164,32 @@ def expiry(d, port, operator, admin_token):
     when = (datetime.datetime.now(datetime.timezone.utc) + datetime.timedelta(seconds=4)) \
         .strftime("%Y-%m-%dT%H:%M:%SZ")
     tok = root.call("token.create", {"name": "soon", "role": "viewer", "expires": when})["token"]
+    gone = root.call("token.create", {"name": "gone", "role": "viewer"})["token"]
+
+    def expire():
+        time.sleep(max(0.0, datetime.datetime.strptime(when, "%Y-%m-%dT%H:%M:%SZ").replace(
+            tzinfo=datetime.timezone.utc).timestamp() - time.time()) + 1.5)
+
+    def revoke():
+        root.call("token.revoke", {"name": "gone"})
+        time.sleep(0.5)
+    for what, token, end in (("expired", tok, expire), ("revoked", gone, revoke)):
+        v = Web(port)
+        expect(v.login(token)[0].status == 200, f"a token to be {what} logs in")
+        stream = http_stream(port, v.cookie)
+
+        def statuses():
+            return [v.request("GET", f"/api/jobs/{job}/files/{name}")[0].status,
+                    v.request("GET", f"/api/jobs/{job}/points")[0].status, v.rpc("version")[0]]
+        before = statuses()
+        expect(before == [200, 200, 200], f"before it is {what}: files, points, RPC ({before})")
+        end()
+        after = statuses()
+        ended = stream_ended(stream)
+        expect(after == [401, 401, 401] and ended,
+               f"once it is {what}: files, points, RPC refused ({after}), the event stream "
+               f"ended ({ended})")
     root.close()
-    v = Web(port)
-    expect(v.login(tok)[0].status == 200, "a token that expires in a few seconds logs in")
-    stream = http_stream(port, v.cookie)
-    before = [v.request("GET", f"/api/jobs/{job}/files/{name}")[0].status,
-              v.request("GET", f"/api/jobs/{job}/points")[0].status, v.rpc("version")[0]]
-    expect(before == [200, 200, 200], f"before it expires: files, points, RPC ({before})")
-    time.sleep(max(0.0, datetime.datetime.strptime(when, "%Y-%m-%dT%H:%M:%SZ").replace(
-        tzinfo=datetime.timezone.utc).timestamp() - time.time()) + 1.5)
-    after = [v.request("GET", f"/api/jobs/{job}/files/{name}")[0].status,
-             v.request("GET", f"/api/jobs/{job}/points")[0].status, v.rpc("version")[0]]
-    ended = stream_ended(stream)
-    expect(after == [401, 401, 401] and ended,
-           f"once it expired: files, points, RPC refused ({after}), the event stream ended ({ended})")
     still_in(d, operator, admin_token, port, "Medium 8")
 
 
