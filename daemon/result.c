@@ -14,7 +14,7 @@
 
 #include "asph/areal.h"
 #include "asph/drift.h"
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "asph/plot.h"
 #include "asph/points.h"
 #include "asph/report.h"

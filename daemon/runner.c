@@ -16,7 +16,7 @@
 #include <unistd.h>
 
 #include "asph/executor.h"
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "asph/plan.h"
 #include "asph/prescription.h"
 #include "asph/scanfile.h"

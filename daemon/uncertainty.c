@@ -2,7 +2,7 @@
 /* Worker thread: the Monte Carlo uncertainty of a job's characterization. */
 #include <errno.h>
 
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "asph/mc-runner.h"
 #include "asph/uncertainty.h"
 #include "uncertainty.h"

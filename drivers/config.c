@@ -8,7 +8,7 @@
 
 #include <jansson.h>
 
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "jsonpos.h"
 #include "options-internal.h"
 #include "fileio.h"

@@ -3,7 +3,7 @@
 #ifndef ASPH_OPTIONS_INTERNAL_H
 #define ASPH_OPTIONS_INTERNAL_H
 
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 
 /* A descriptor is sane and its default parses. */
 int option_desc_validate(const struct asph_option_desc *d,

@@ -11,7 +11,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "builtin-drivers.h"
 #include "drivers-config.h"
 #include "options-internal.h"
@@ -187,7 +187,7 @@ static int load_table(struct asph_registry *r, void *h, const char *path,
 	const struct asph_driver *const *table = fn(&abi, &n);
 	if (!abi_loadable(abi))
 		return asph_error_set(err, -EPROTO,
-				      "plugin built for driver ABI %u.%u, this program has ABI %u.%u: rebuild it against this version's asph/driver.h",
+				      "plugin built for driver ABI %u.%u, this program has ABI %u.%u: rebuild it against this version's asph-driver/driver.h",
 				      ASPH_DRIVER_ABI_MAJOR_OF(abi), ASPH_DRIVER_ABI_MINOR_OF(abi),
 				      ASPH_DRIVER_ABI_MAJOR, ASPH_DRIVER_ABI_MINOR);
 	if (!table || n == 0)

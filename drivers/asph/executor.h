@@ -7,7 +7,7 @@
 #include <stdint.h>
 
 #include "asph/error.h"
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "asph/plan.h"
 #include "asph/scanfile.h"
 #include "asph/surface.h"

@@ -12,7 +12,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "asph/driver.h"
+#include "asph-driver/driver.h"
 #include "bus.h"
 #include "std.h"
 #include "timing.h"

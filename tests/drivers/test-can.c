@@ -29,7 +29,7 @@
 
 #include "asph/executor.h"
 #include "asph/fit.h"
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "asph/plan.h"
 #include "asph/prescription.h"
 #include "can-sim.h"

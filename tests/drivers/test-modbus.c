@@ -19,7 +19,7 @@
 #include <cmocka.h>
 #include <modbus.h>
 
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "modbus-sim.h"
 #include "modbus/protocol.h"
 
