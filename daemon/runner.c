@@ -15,7 +15,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-#include "asph/executor.h"
+#include "asph-engine/executor.h"
 #include "asph-driver/instrument.h"
 #include "asph/plan.h"
 #include "asph/prescription.h"

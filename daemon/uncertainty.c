@@ -3,7 +3,7 @@
 #include <errno.h>
 
 #include "asph-driver/instrument.h"
-#include "asph/mc-runner.h"
+#include "asph-mc/mc-runner.h"
 #include "asph/uncertainty.h"
 #include "uncertainty.h"
 #include "util-mem.h"

@@ -14,7 +14,4 @@ int option_desc_validate(const struct asph_option_desc *d,
 int option_parse(const struct asph_option_desc *d, const char *text,
 		 struct asph_option_value *v, struct asph_error *err);
 
-/* The index of name in drv's options, or -1. */
-int option_index(const struct asph_driver *drv, const char *name);
-
 #endif

@@ -128,7 +128,7 @@ int option_desc_validate(const struct asph_option_desc *d,
 	return 0;
 }
 
-int option_index(const struct asph_driver *drv, const char *name)
+int asph_option_index(const struct asph_driver *drv, const char *name)
 {
 	for (size_t i = 0; i < drv->n_options; i++)
 		if (!strcmp(drv->options[i].name, name))
@@ -197,7 +197,7 @@ static int store(struct asph_options *o, int i, const char *text, bool set,
 int asph_options_set(struct asph_options *o, const char *name,
 		     const char *text, struct asph_error *err)
 {
-	int i = option_index(o->drv, name);
+	int i = asph_option_index(o->drv, name);
 
 	if (i < 0)
 		return asph_error_set_at(err, -ENOENT, NULL, 0, 0, name,
@@ -209,7 +209,7 @@ int asph_options_set(struct asph_options *o, const char *name,
 int asph_options_set_default(struct asph_options *o, const char *name,
 			     const char *text, struct asph_error *err)
 {
-	int i = option_index(o->drv, name);
+	int i = asph_option_index(o->drv, name);
 
 	if (i < 0 || o->values[i].set)
 		return 0;

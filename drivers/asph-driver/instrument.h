@@ -148,6 +148,9 @@ const struct asph_option_value *
 asph_options_values(const struct asph_options *o);
 const struct asph_driver *asph_options_driver(const struct asph_options *o);
 
+/* The index of option name among drv's descriptors, or -1. */
+int asph_option_index(const struct asph_driver *drv, const char *name);
+
 /* The value as text, as asph_options_set() takes it (buf returned). */
 const char *asph_option_value_format(const struct asph_option_value *v,
 				     char *buf, size_t size);

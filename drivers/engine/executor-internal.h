@@ -10,7 +10,7 @@
 #include <stdatomic.h>
 #include <stdbool.h>
 
-#include "asph/executor.h"
+#include "asph-engine/executor.h"
 #include "asph/motion.h"
 
 #define RECORD_BATCH 4096

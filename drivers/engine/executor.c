@@ -14,7 +14,6 @@
 #include <time.h>
 
 #include "executor-internal.h"
-#include "options-internal.h"
 #include "util-mem.h"
 #include "util-time.h"
 
@@ -36,7 +35,7 @@ const char *asph_scan_state_name(enum asph_scan_state s)
 static unsigned probe_read_timeout(const struct asph_instrument *inst)
 {
 	const struct asph_instrument_config *c = inst->config;
-	int i = c ? option_index(c->probe_driver, "read_timeout") : -1;
+	int i = c ? asph_option_index(c->probe_driver, "read_timeout") : -1;
 
 	if (i < 0 || c->probe_driver->options[i].type != ASPH_OPTION_INT)
 		return DEFAULT_READ_TIMEOUT_MS;

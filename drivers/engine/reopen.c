@@ -5,7 +5,7 @@
 #include <fcntl.h>
 #include <string.h>
 
-#include "asph/executor.h"
+#include "asph-engine/executor.h"
 #include "util-mem.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile_reader *, asph_scanfile_reader_free)

@@ -14,7 +14,7 @@
 #include <unistd.h>
 
 #include "asph/drift.h"
-#include "asph/executor.h"
+#include "asph-engine/executor.h"
 #include "asph/prescription.h"
 #include "util-mem.h"
 

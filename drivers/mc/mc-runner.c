@@ -6,7 +6,7 @@
 #include <stdlib.h>
 #include <unistd.h>
 
-#include "asph/mc-runner.h"
+#include "asph-mc/mc-runner.h"
 
 struct pool;
 

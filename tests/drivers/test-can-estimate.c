@@ -20,7 +20,7 @@
 
 #include <cmocka.h>
 
-#include "asph/executor.h"
+#include "asph-engine/executor.h"
 #include "asph-driver/instrument.h"
 #include "can-sim.h"
 #include "can/timing.h"

@@ -23,7 +23,7 @@
 
 #include <cmocka.h>
 
-#include "asph/executor.h"
+#include "asph-engine/executor.h"
 #include "asph/fit.h"
 #include "asph-driver/instrument.h"
 #include "asph/plan.h"

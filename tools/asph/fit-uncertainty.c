@@ -12,7 +12,7 @@
 #include <jansson.h>
 
 #include "acquire-tool.h"
-#include "asph/mc-runner.h"
+#include "asph-mc/mc-runner.h"
 #include "asph/scanfile.h"
 #include "asph-tool.h"
 #include "fit-uncertainty.h"

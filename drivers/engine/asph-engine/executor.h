@@ -35,7 +35,7 @@ extern "C" {
  * Every point records the position the stage measured (latched on the
  * probe's trigger, read back after settling, interpolated in time) with
  * the probe's latency compensated; a point paired with a commanded position
- * is flagged so. The instrument's acquisition settings (asph/instrument.h)
+ * is flagged so. The instrument's acquisition settings (asph-driver/instrument.h)
  * decide the settling, the drift references and the retries of dropouts.
  */
 
