@@ -14,4 +14,12 @@ int option_desc_validate(const struct asph_option_desc *d,
 int option_parse(const struct asph_option_desc *d, const char *text,
 		 struct asph_option_value *v, struct asph_error *err);
 
+/* " (did you mean 'NAME'?)" for an option name drv does not have, from its
+ * option descriptors, or "" (into buf). */
+const char *option_hint(const struct asph_driver *drv, const char *name, char *buf,
+			size_t size);
+/* The same for a driver name among those of reg. */
+const char *driver_hint(const struct asph_registry *reg, const char *name, char *buf,
+			size_t size);
+
 #endif

@@ -975,12 +975,21 @@ void asph_fit_get_progress(const struct asph_fit *w,
 int asph_fit_run(struct asph_fit *w, const double *xyz, size_t n,
 		 struct asph_fit_result *out, struct asph_error *err)
 {
+	const struct asph_progress *pg = &w->opt.progress;
 	int r = asph_fit_init(w, xyz, n, err);
+	size_t steps = 0;
 
-	while (r == 0 && !asph_fit_test(w))
+	while (r == 0 && !asph_fit_test(w)) {
 		r = asph_fit_iterate(w, err);
+		if (r == 0 && pg->fn && pg->fn(pg->data, ++steps, 0))
+			return asph_error_set(err, -ECANCELED, "fit: cancelled");
+	}
 	if (r < 0)
 		return r;
+	/* the iterations are over: the statistics (as long again on large
+	 * point sets) are what is left */
+	if (pg->fn && pg->fn(pg->data, steps, steps))
+		return asph_error_set(err, -ECANCELED, "fit: cancelled");
 	return asph_fit_get_result(w, out, err);
 }
 

@@ -13,22 +13,34 @@
 #include "jsonpos.h"
 #include "prescription-json.h"
 #include "util-mem.h"
+#include "util-suggest.h"
 
 
-/* Table 1 of the paper (it calls the coefficients alpha_4..alpha_12). */
+/* Table 1 of the paper (it calls the coefficients alpha_4..alpha_12):
+ * X(name, R, k, A4, A6, A8, A10, A12, diameter). */
+#define PRESETS(X)                                                           \
+	X("weak", 40.6193, 0, -6.79375e-7, -4.85203e-10, -2.05223e-13,        \
+	  -6.2324e-17, -4.4857e-20, 39)                                       \
+	X("strong", 20.097, -1, -2.0868e-5, -3.9031e-9, 3.4102e-11,           \
+	  -3.2381e-14, 0, 40)                                                 \
+	X("turning-point", 94.6, -23.2046, -6.86465e-6, -1.21832e-8,          \
+	  2.22491e-11, -8.06098e-14, 0, 60)
+
 static const struct preset {
 	const char *name;
 	double R, k, A4, A6, A8, A10, A12, diameter;
 } presets[] = {
-	{ "weak", 40.6193, 0, -6.79375e-7, -4.85203e-10, -2.05223e-13,
-	  -6.2324e-17, -4.4857e-20, 39 },
-	{ "strong", 20.097, -1, -2.0868e-5, -3.9031e-9, 3.4102e-11,
-	  -3.2381e-14, 0, 40 },
-	{ "turning-point", 94.6, -23.2046, -6.86465e-6, -1.21832e-8,
-	  2.22491e-11, -8.06098e-14, 0, 60 },
+#define PRESET_ROW(name, ...) { name, __VA_ARGS__ },
+	PRESETS(PRESET_ROW)
+#undef PRESET_ROW
 };
 
-static const char *const preset_names[] = { "weak", "strong", "turning-point", NULL };
+static const char *const preset_names[] = {
+#define PRESET_NAME(name, ...) name,
+	PRESETS(PRESET_NAME)
+#undef PRESET_NAME
+	NULL
+};
 
 const char *const *asph_prescription_preset_names(void)
 {
@@ -365,9 +377,19 @@ int asph_prescription_load(const char *name_or_path,
 		return 0;
 	int r = asph_prescription_load_file(name_or_path, out, err);
 	if (r == -ENOENT && !strchr(name_or_path, '/') && !strchr(name_or_path, '.')) {
+		char names[128] = "", hint[96];
+		struct suggest near;
+
+		suggest_init(&near, name_or_path);
+		for (const char *const *n = preset_names; *n; n++) {
+			suggest_offer(&near, *n);
+			snprintf(names + strlen(names), sizeof(names) - strlen(names), "%s%s",
+				 n == preset_names ? "" : ", ", *n);
+		}
 		asph_error_clear(err);
 		return asph_error_set_at(err, -ENOENT, name_or_path, 0, 0, NULL,
-					 "neither a preset (weak, strong, turning-point) nor a file");
+					 "neither a preset (%s) nor a file%s", names,
+					 suggest_hint(&near, hint, sizeof(hint)));
 	}
 	return r;
 }

@@ -381,8 +381,9 @@ def verdict_exit(tmp):
 
 
 def report(tmp):
-    """The PDF rendered by a real viewer (poppler's pdftoppm): one page, not
-    blank, the verdict's exit status."""
+    """The PDF rendered by a real viewer (poppler's pdftoppm): page 1 with
+    the map, the details and the lens in full after it, the verdict's exit
+    status (test-report-pdf reads the pages back)."""
     pts = os.path.join(tmp, "rep.csv")
     pdf = os.path.join(tmp, "report.pdf")
     asph("synth", "weak", "--method", "concentric", "--h", "0.08", "--zernike", "6=25,11=-10",
@@ -394,9 +395,9 @@ def report(tmp):
     r = run(["pdftoppm", "-r", "40", pdf, base])
     check(r.returncode == 0, f"pdftoppm: {r.stderr}")
     pages = sorted(f for f in os.listdir(tmp) if f.startswith("page"))
-    check(len(pages) == 1, f"{len(pages)} pages")
+    check(len(pages) == 3, f"{len(pages)} pages: page 1, the details, the lens in full")
     if pages:
-        data = open(os.path.join(tmp, pages[0]), "rb").read()
+        data = open(os.path.join(tmp, pages[0]), "rb").read()     # page 1
         parts = data.split(maxsplit=4)          # P6 width height maxval pixels
         check(parts[0] == b"P6", "pdftoppm did not write a PPM")
         w, h, pixels = int(parts[1]), int(parts[2]), parts[4]
