@@ -16,7 +16,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "executor-internal.h"
+#include "scan.h"
 
 /* Plan point p where the stage puts the probe's reference point: a
  * standoff above an optical probe's point, the tip's centre on a tactile

@@ -1,11 +1,12 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
-/* The executor's geometry: kinematics, targets, clearance of moves, and
- * the checks made before the first move. */
+/* The scan's geometry: kinematics, targets, clearance of moves, the
+ * checks made before the first move; the axes' limits for the planner and
+ * the cut of untimed sweeps. geometry.h. */
 #include <errno.h>
 #include <math.h>
 #include <string.h>
 
-#include "executor-internal.h"
+#include "scan.h"
 
 /* Calls fn at the points of a 201 x 201 grid over a freeform's aperture. */
 static void freeform_grid(const struct asph_surface *s, void (*fn)(void *, const struct asph_sag *),
@@ -37,7 +38,7 @@ static void curvature_at(void *ctx, const struct asph_sag *d)
 /* max over the aperture of the surface's principal curvatures' bound,
  * max(|Z''|, |Z'/r|) (a freeform: of its Hessian's), with a margin for the
  * sampling. */
-double scan_curvature_bound(const struct asph_surface *s)
+static double curvature_bound(const struct asph_surface *s)
 {
 	double a = asph_surface_aperture_radius(s), k = 0, d[3];
 
@@ -56,6 +57,11 @@ double scan_curvature_bound(const struct asph_surface *s)
 	return 1.25 * k;
 }
 
+void scan_geometry_init(struct asph_scan *sc)
+{
+	sc->geo.curvature = curvature_bound(sc->surface);
+}
+
 /* ------------------------------------------------------ kinematics */
 
 void scan_to_machine(struct asph_scan *sc, const double c[3], double m[3])
@@ -64,13 +70,13 @@ void scan_to_machine(struct asph_scan *sc, const double c[3], double m[3])
 		memcpy(m, c, 3 * sizeof(double));
 		return;
 	}
-	double r = hypot(c[0], c[1]), th = sc->theta_prev;
+	double r = hypot(c[0], c[1]), th = sc->geo.theta_prev;
 	if (r > 1e-12) {
 		/* the rotary axis takes the short way from where it is */
-		double d = remainder(atan2(c[1], c[0]) - sc->theta_prev, 2 * M_PI);
-		th = sc->theta_prev + d;
+		double d = remainder(atan2(c[1], c[0]) - sc->geo.theta_prev, 2 * M_PI);
+		th = sc->geo.theta_prev + d;
 	}
-	sc->theta_prev = th;
+	sc->geo.theta_prev = th;
 	m[0] = r;
 	m[1] = th;
 	m[2] = c[2];
@@ -85,6 +91,11 @@ void scan_to_cartesian(const struct asph_scan *sc, const double m[3], double c[3
 	c[0] = m[0] * cos(m[1]);
 	c[1] = m[0] * sin(m[1]);
 	c[2] = m[2];
+}
+
+void scan_turn_from(struct asph_scan *sc, double theta)
+{
+	sc->geo.theta_prev = theta;
 }
 
 /* The stage position measuring plan point i: the tip centre (tactile) on
@@ -151,7 +162,7 @@ bool scan_path_clear_g(const struct asph_scan *sc, const double *a, double ga,
 	double dx = cb[0] - ca[0], dy = cb[1] - ca[1], len = sqrt(dx * dx + dy * dy);
 	bool rtz = sc->inst->stage_info.kinematics == ASPH_KINEMATICS_RTZ;
 	/* a straight line dips below its chord by at most curvature len^2 / 8 */
-	if (!rtz && sc->tip == 0 && g - sc->curvature * len * len / 8 >= min_gap)
+	if (!rtz && sc->tip == 0 && g - sc->geo.curvature * len * len / 8 >= min_gap)
 		return true;
 	if (rtz)
 		len = fabs(b[0] - a[0]) + fmax(a[0], b[0]) * fabs(b[1] - a[1]);
@@ -171,6 +182,23 @@ bool scan_path_clear(const struct asph_scan *sc, const double *a, const double *
 		       double min_gap)
 {
 	return scan_path_clear_g(sc, a, NAN, b, NAN, min_gap);
+}
+
+/* Moves to m straight when that keeps min_gap all the way, else up to the
+ * travel height, across, and down. Moving up (-z) is always away from the
+ * part. */
+size_t scan_clear_path(const struct asph_scan *sc, const double from[3], const double *m,
+		       double min_gap, double way[3][3])
+{
+	if (scan_path_clear(sc, from, m, min_gap)) {
+		memcpy(way[0], m, sizeof(way[0]));
+		return 1;
+	}
+	double up[3] = { from[0], from[1], fmin(sc->geo.z_safe, from[2]) };
+	memcpy(way[0], up, sizeof(way[0]));
+	memcpy(way[1], (double[3]){ m[0], m[1], up[2] }, sizeof(way[1]));
+	memcpy(way[2], m, sizeof(way[2]));
+	return 3;
 }
 
 struct lowest {
@@ -292,7 +320,7 @@ static int check_probe(const struct asph_scan *sc, struct asph_error *err)
 	return 0;
 }
 
-int asph_scan_check(struct asph_scan *sc, struct asph_error *err)
+int scan_check(struct asph_scan *sc, size_t first, struct asph_error *err)
 {
 	const struct asph_stage_info *si = &sc->inst->stage_info;
 	double lo[3], hi[3];
@@ -305,21 +333,45 @@ int asph_scan_check(struct asph_scan *sc, struct asph_error *err)
 		hi[k] = si->axes[k].max;
 	}
 	double min_z = INFINITY;
-	sc->theta_prev = 0;
-	/* a scan going on with the interrupted one's motion checks what that
-	 * one did: the same travel height */
-	for (size_t i = sc->replay_below ? 0 : sc->o.start_index; r == 0 && i < sc->n; i++)
+	sc->geo.theta_prev = 0;
+	for (size_t i = first; r == 0 && i < sc->n; i++)
 		r = check_point(sc, i, lo, hi, &min_z, err);
 	for (size_t k = 0; r == 0 && asph_acquisition_drift(&sc->acq) &&
 			   k < sc->acq.n_references; k++)
 		r = check_reference(sc, k, lo, hi, &min_z, err);
-	sc->theta_prev = 0;
+	sc->geo.theta_prev = 0;
 	if (r < 0)
 		return r;
-	sc->z_safe = safe_height(sc, min_z);
-	if (!(sc->z_safe >= lo[2]))
+	sc->geo.z_safe = safe_height(sc, min_z);
+	if (!(sc->geo.z_safe >= lo[2]))
 		return asph_error_set(err, -ERANGE,
 				      "the travel height over the part, %.6f mm, is outside the z travel %.6g .. %.6g",
-				      sc->z_safe, lo[2], hi[2]);
+				      sc->geo.z_safe, lo[2], hi[2]);
 	return 0;
+}
+
+/* ----------------------------------------------- the planner's limits */
+
+void scan_motion_limits(const struct asph_stage_info *si, const struct asph_probe_info *pi,
+			struct asph_motion_limits *lim)
+{
+	memset(lim, 0, sizeof(*lim));
+	for (int k = 0; k < 3; k++) {
+		lim->speed[k] = si->axes[k].max_speed > 0 ? si->axes[k].max_speed : 1e6;
+		lim->accel[k] = si->max_accel[k] > 0 ? si->max_accel[k] : 0;
+		lim->jerk[k] = si->max_jerk[k] > 0 ? si->max_jerk[k] : 0;
+	}
+	lim->rate = pi->rate > 0 ? pi->rate : 0;
+}
+
+void sweep_cut_add(struct sweep_cut *c, const double from[3], const double to[3],
+		   const struct asph_motion_limits *lim, double rate)
+{
+	double step = 0;
+
+	for (int k = 0; k < 3; k++)
+		step = fmax(step, fabs(to[k] - from[k]) / lim->speed[k]);
+	c->motion += step;
+	c->reading += rate > 0 ? 1 / rate : 0;
+	c->n++;
 }

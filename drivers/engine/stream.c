@@ -13,43 +13,32 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "executor-internal.h"
+#include "scan.h"
 #include "util-time.h"
 
 /* ------------------------------------------------------------ set up */
 
-void scan_motion_limits(const struct asph_stage_info *si, const struct asph_probe_info *pi,
-			struct asph_motion_limits *lim)
-{
-	memset(lim, 0, sizeof(*lim));
-	for (int k = 0; k < 3; k++) {
-		lim->speed[k] = si->axes[k].max_speed > 0 ? si->axes[k].max_speed : 1e6;
-		lim->accel[k] = si->max_accel[k] > 0 ? si->max_accel[k] : 0;
-		lim->jerk[k] = si->max_jerk[k] > 0 ? si->max_jerk[k] : 0;
-	}
-	lim->rate = pi->rate > 0 ? pi->rate : 0;
-}
-
 int scan_stream_init(struct asph_scan *sc, struct asph_error *err)
 {
-	scan_motion_limits(&sc->inst->stage_info, &sc->inst->probe_info, &sc->lim);
-	sc->run_from = sc->run_to = 0;
-	if (!sc->stream)
+	struct scan_stream *st = &sc->stream;
+
+	st->run_from = st->run_to = 0;
+	if (!sc->streamed)
 		return 0;
-	if (sc->pvt && !sc->planner && asph_motion_planner_alloc(0, &sc->planner) < 0)
+	if (sc->pvt && !st->planner && asph_motion_planner_alloc(0, &st->planner) < 0)
 		return asph_error_set(err, -ENOMEM, "out of memory");
-	if (sc->pvt && sc->inst->stage_info.kinematics == ASPH_KINEMATICS_RTZ && !sc->theta) {
+	if (sc->pvt && sc->inst->stage_info.kinematics == ASPH_KINEMATICS_RTZ && !st->theta) {
 		/* theta of every plan point, the short way from the one before, as
 		 * the motion will take it */
-		sc->theta = malloc((sc->n ? sc->n : 1) * sizeof(double));
-		if (!sc->theta)
+		st->theta = malloc((sc->n ? sc->n : 1) * sizeof(double));
+		if (!st->theta)
 			return asph_error_set(err, -ENOMEM, "out of memory");
 		double prev = 0;
 		for (size_t i = 0; i < sc->n; i++) {
 			const double *p = sc->xyz + 3 * i;
 			if (hypot(p[0], p[1]) > 1e-12)
 				prev += remainder(atan2(p[1], p[0]) - prev, 2 * M_PI);
-			sc->theta[i] = prev;
+			st->theta[i] = prev;
 		}
 	}
 	return 0;
@@ -57,14 +46,16 @@ int scan_stream_init(struct asph_scan *sc, struct asph_error *err)
 
 void scan_stream_fini(struct asph_scan *sc)
 {
-	asph_motion_planner_free(sc->planner);
-	sc->planner = NULL;
-	free(sc->theta);
-	free(sc->pend);
-	free(sc->trace);
-	sc->theta = NULL;
-	sc->pend = NULL;
-	sc->trace = NULL;
+	struct scan_stream *st = &sc->stream;
+
+	asph_motion_planner_free(st->planner);
+	st->planner = NULL;
+	free(st->theta);
+	free(st->pend);
+	free(st->trace);
+	st->theta = NULL;
+	st->pend = NULL;
+	st->trace = NULL;
 }
 
 /* ------------------------------------------------------------ queues */
@@ -86,38 +77,41 @@ static int grow(void **p, size_t *cap, size_t need, size_t size)
 
 static struct pending *push_pending(struct asph_scan *sc)
 {
-	if (sc->pend_head + sc->pend_n == sc->pend_cap && sc->pend_head) {
-		memmove(sc->pend, sc->pend + sc->pend_head, sc->pend_n * sizeof(*sc->pend));
-		sc->pend_head = 0;
+	struct scan_stream *st = &sc->stream;
+
+	if (st->pend_head + st->pend_n == st->pend_cap && st->pend_head) {
+		memmove(st->pend, st->pend + st->pend_head, st->pend_n * sizeof(*st->pend));
+		st->pend_head = 0;
 	}
-	if (grow((void **)&sc->pend, &sc->pend_cap, sc->pend_head + sc->pend_n + 1,
-		 sizeof(*sc->pend)) < 0)
+	if (grow((void **)&st->pend, &st->pend_cap, st->pend_head + st->pend_n + 1,
+		 sizeof(*st->pend)) < 0)
 		return NULL;
-	return &sc->pend[sc->pend_head + sc->pend_n++];
+	return &st->pend[st->pend_head + st->pend_n++];
 }
 
 /* The positions the stage measured since its last report. */
 static int pull_trace(struct asph_scan *sc, size_t i, struct asph_error *err)
 {
+	struct scan_stream *st = &sc->stream;
 	const struct asph_stage_ops *ops = &sc->inst->stage_ops;
 
 	if (!ops->sweep_trace || (sc->o.flags & ASPH_SCAN_COMMANDED))
 		return 0;
 	for (;;) {
 		size_t got = 0;
-		if (sc->trace_head + sc->trace_n + 256 > sc->trace_cap && sc->trace_head) {
-			memmove(sc->trace, sc->trace + sc->trace_head,
-				sc->trace_n * sizeof(*sc->trace));
-			sc->trace_head = 0;
+		if (st->trace_head + st->trace_n + 256 > st->trace_cap && st->trace_head) {
+			memmove(st->trace, st->trace + st->trace_head,
+				st->trace_n * sizeof(*st->trace));
+			st->trace_head = 0;
 		}
-		if (grow((void **)&sc->trace, &sc->trace_cap, sc->trace_head + sc->trace_n + 256,
-			 sizeof(*sc->trace)) < 0)
+		if (grow((void **)&st->trace, &st->trace_cap, st->trace_head + st->trace_n + 256,
+			 sizeof(*st->trace)) < 0)
 			return asph_error_set(err, -ENOMEM, "out of memory");
-		int r = ops->sweep_trace(sc->inst->stage, sc->trace + sc->trace_head + sc->trace_n,
+		int r = ops->sweep_trace(sc->inst->stage, st->trace + st->trace_head + st->trace_n,
 					 256, &got, sc->o.read_timeout_ms, err);
 		if (r < 0)
 			return scan_prefixed(r, "stage", i, err);
-		sc->trace_n += got;
+		st->trace_n += got;
 		if (got < 256)
 			return 0;
 	}
@@ -151,6 +145,7 @@ static void compensate(struct asph_scan *sc, const struct pending *pd,
 		       const struct asph_position_sample *c,
 		       const struct asph_position_sample *next, double out[3])
 {
+	struct scan_stream *st = &sc->stream;
 	const struct asph_position_sample *s[3];
 	size_t n = 0;
 
@@ -164,13 +159,13 @@ static void compensate(struct asph_scan *sc, const struct pending *pd,
 		return;
 	}
 	if (next) {
-		if (sc->n_hist)
-			s[n++] = &sc->latch_hist[sc->n_hist - 1];
+		if (st->n_hist)
+			s[n++] = &st->latch_hist[st->n_hist - 1];
 		s[n++] = c;
 		s[n++] = next;
 	} else {
-		for (size_t k = 0; k < sc->n_hist; k++)
-			s[n++] = &sc->latch_hist[k];
+		for (size_t k = 0; k < st->n_hist; k++)
+			s[n++] = &st->latch_hist[k];
 		s[n++] = c;
 	}
 	/* relative times keep the nanoseconds */
@@ -186,19 +181,22 @@ static void compensate(struct asph_scan *sc, const struct pending *pd,
 
 static void remember_latch(struct asph_scan *sc, const struct asph_position_sample *c)
 {
-	if (sc->n_hist == 2) {
-		sc->latch_hist[0] = sc->latch_hist[1];
-		sc->n_hist = 1;
+	struct scan_stream *st = &sc->stream;
+
+	if (st->n_hist == 2) {
+		st->latch_hist[0] = st->latch_hist[1];
+		st->n_hist = 1;
 	}
-	sc->latch_hist[sc->n_hist++] = *c;
+	st->latch_hist[st->n_hist++] = *c;
 }
 
 /* Positions sampled in time around t (ns): the cubic through the four
  * nearest. false when there are none around it. */
 static bool interpolate(struct asph_scan *sc, uint64_t t, double out[3])
 {
-	const struct asph_position_sample *q = sc->trace + sc->trace_head;
-	size_t n = sc->trace_n, k = 0;
+	struct scan_stream *st = &sc->stream;
+	const struct asph_position_sample *q = st->trace + st->trace_head;
+	size_t n = st->trace_n, k = 0;
 
 	if (n < 2 || t < q[0].t_ns || t > q[n - 1].t_ns + 2 * NS_PER_MS)
 		return false;
@@ -229,8 +227,8 @@ static bool interpolate(struct asph_scan *sc, uint64_t t, double out[3])
 	}
 	/* the samples before the one just before t are spent */
 	if (k >= 2) {
-		sc->trace_head += k - 2;
-		sc->trace_n -= k - 2;
+		st->trace_head += k - 2;
+		st->trace_n -= k - 2;
 	}
 	return true;
 }
@@ -239,25 +237,27 @@ static bool interpolate(struct asph_scan *sc, uint64_t t, double out[3])
 static void place(struct asph_scan *sc, const struct pending *pd, const struct asph_reading *rd,
 		  struct placed *pl)
 {
+	struct scan_stream *st = &sc->stream;
+
 	if (!(sc->o.flags & ASPH_SCAN_COMMANDED)) {
 		if (rd->position_source != ASPH_POSITION_NONE) {
 			memcpy(pl->machine, rd->position, sizeof(pl->machine));
 			pl->source = rd->position_source;
 			return;
 		}
-		if (sc->trace_n && sc->trace[sc->trace_head].source == ASPH_POSITION_LATCHED) {
-			struct asph_position_sample c = sc->trace[sc->trace_head];
-			sc->trace_head++;
-			sc->trace_n--;
+		if (st->trace_n && st->trace[st->trace_head].source == ASPH_POSITION_LATCHED) {
+			struct asph_position_sample c = st->trace[st->trace_head];
+			st->trace_head++;
+			st->trace_n--;
 			const struct asph_position_sample *next =
-				sc->trace_n && sc->trace[sc->trace_head].source == ASPH_POSITION_LATCHED
-					? &sc->trace[sc->trace_head] : NULL;
+				st->trace_n && st->trace[st->trace_head].source == ASPH_POSITION_LATCHED
+					? &st->trace[st->trace_head] : NULL;
 			compensate(sc, pd, &c, next, pl->machine);
 			remember_latch(sc, &c);
 			pl->source = ASPH_POSITION_LATCHED;
 			return;
 		}
-		if (sc->trace_n && sc->inst->shared_timebase && rd->t_ns &&
+		if (st->trace_n && sc->inst->shared_timebase && rd->t_ns &&
 		    interpolate(sc, rd->t_ns + (uint64_t)llround(sc->latency * 1e9), pl->machine)) {
 			pl->source = ASPH_POSITION_INTERPOLATED;
 			return;
@@ -271,8 +271,9 @@ static void place(struct asph_scan *sc, const struct pending *pd, const struct a
  * them; *done: how many were recorded. */
 static int collect(struct asph_scan *sc, size_t n, size_t *done, struct asph_error *err)
 {
+	struct scan_stream *st = &sc->stream;
 	struct asph_instrument *in = sc->inst;
-	const struct pending *pd = sc->pend + sc->pend_head;
+	const struct pending *pd = st->pend + st->pend_head;
 	size_t got = 0;
 	double rate = in->probe_info.rate;
 
@@ -280,7 +281,7 @@ static int collect(struct asph_scan *sc, size_t n, size_t *done, struct asph_err
 	if (n == 0)
 		return 0;
 	for (size_t k = 0; k < n; k++) {
-		struct asph_probe_context *c = &sc->ctx[k];
+		struct asph_probe_context *c = &st->ctx[k];
 		memset(c, 0, sizeof(*c));
 		c->plan_index = pd[k].index;
 		c->kind = pd[k].kind;
@@ -288,7 +289,7 @@ static int collect(struct asph_scan *sc, size_t n, size_t *done, struct asph_err
 		memcpy(c->machine, pd[k].cmd, sizeof(c->machine));
 		scan_to_cartesian(sc, c->machine, c->xyz);
 	}
-	int r = asph_instrument_stream(in, sc->ctx, n, sc->readings, &got,
+	int r = asph_instrument_stream(in, st->ctx, n, st->readings, &got,
 				       scan_timeout(sc->o.read_timeout_ms,
 						    (rate > 0 ? (double)n / rate : 0) + sc->latency),
 				       err);
@@ -297,17 +298,17 @@ static int collect(struct asph_scan *sc, size_t n, size_t *done, struct asph_err
 	int rr = 0;
 	for (size_t k = 0; k < got && rr == 0; k++) {
 		struct placed pl;
-		place(sc, &pd[k], &sc->readings[k], &pl);
-		rr = scan_record(sc, &pd[k], &pl, NULL, &sc->readings[k], 0, err);
+		place(sc, &pd[k], &st->readings[k], &pl);
+		rr = scan_record(sc, &pd[k], &pl, NULL, &st->readings[k], 0, NULL, err);
 		if (rr == 0)
-			rr = scan_check_reading(sc, (size_t)pd[k].index, &sc->readings[k], err);
+			rr = scan_check_reading(sc, (size_t)pd[k].index, &st->readings[k], err);
 		if (rr == 0 || rr == -ERANGE)
 			*done = k + 1;
 	}
-	sc->pend_head += *done;
-	sc->pend_n -= *done;
-	if (sc->pend_n == 0)
-		sc->pend_head = 0;
+	st->pend_head += *done;
+	st->pend_n -= *done;
+	if (st->pend_n == 0)
+		st->pend_head = 0;
 	int fr = scan_flush(sc, rr < 0 ? NULL : err);
 	if (rr < 0)
 		return rr;
@@ -406,13 +407,15 @@ static size_t run_end_from(struct asph_scan *sc, size_t i, size_t max)
  * but for its first one, where the planner now starts from rest. */
 static size_t run_end(struct asph_scan *sc, size_t i, size_t max)
 {
+	struct scan_stream *st = &sc->stream;
+
 	if (max != SIZE_MAX)
 		return run_end_from(sc, i, max);
-	if (sc->run_from <= i && i + 1 < sc->run_to && run_end_from(sc, i, 2) > i + 1)
-		return sc->run_to;
-	sc->run_from = i;
-	sc->run_to = run_end_from(sc, i, max);
-	return sc->run_to;
+	if (st->run_from <= i && i + 1 < st->run_to && run_end_from(sc, i, 2) > i + 1)
+		return st->run_to;
+	st->run_from = i;
+	st->run_to = run_end_from(sc, i, max);
+	return st->run_to;
 }
 
 /* To plan point i, at rest there. */
@@ -424,10 +427,10 @@ static int approach(struct asph_scan *sc, size_t i, bool clear_move, struct asph
 	/* the rotary axis takes the short way from where the stage is (the
 	 * checks and the path's look-ups have turned the angle on meanwhile) */
 	if (sc->inst->stage_info.kinematics == ASPH_KINEMATICS_RTZ)
-		sc->theta_prev = sc->pos[1];
+		scan_turn_from(sc, sc->run.pos[1]);
 	scan_target(sc, i, false, &t);
 	int r = 0;
-	if (!clear_move || !scan_path_clear(sc, sc->pos, t.machine, sweep_gap(sc)))
+	if (!clear_move || !scan_path_clear(sc, sc->run.pos, t.machine, sweep_gap(sc)))
 		r = scan_move_clear(sc, t.approach, sc->o.clearance / 2, i, err);
 	if (r == 0)
 		r = scan_stage_move(sc, t.machine, i, err);
@@ -438,59 +441,48 @@ static int approach(struct asph_scan *sc, size_t i, bool clear_move, struct asph
 
 /* -------------------------------------------------- untimed sweeps */
 
-void sweep_cut_add(struct sweep_cut *c, const double from[3], const double to[3],
-		   const struct asph_motion_limits *lim, double rate)
-{
-	double step = 0;
-
-	for (int k = 0; k < 3; k++)
-		step = fmax(step, fabs(to[k] - from[k]) / lim->speed[k]);
-	c->motion += step;
-	c->reading += rate > 0 ? 1 / rate : 0;
-	c->n++;
-}
-
 /* A sweep at the stage's own pace through at most a batch of points. */
 static int stream_plain(struct asph_scan *sc, size_t i, size_t *done, struct asph_error *err)
 {
+	struct scan_stream *st = &sc->stream;
 	struct asph_instrument *in = sc->inst;
 	size_t e = run_end(sc, i, sc->o.stream_batch), n = 0;
 	struct sweep_cut cut = { 0 };
-	const double *prev = sc->pos;
+	const double *prev = sc->run.pos;
 	struct target t;
 	int r;
 
 	*done = 0;
 	scan_target(sc, i, false, &t);
-	if (!scan_path_clear(sc, sc->pos, t.machine, sweep_gap(sc))) {
+	if (!scan_path_clear(sc, sc->run.pos, t.machine, sweep_gap(sc))) {
 		r = approach(sc, i, false, err);
 		if (r < 0)
 			return r;
 	}
-	sc->n_hist = 0;
+	st->n_hist = 0;
 	while (i + n < e && sweep_cut_open(&cut)) {
 		scan_target(sc, i + n, false, &t);
 		sweep_cut_add(&cut, prev, t.machine, &sc->lim, in->probe_info.rate);
-		memcpy(sc->path + 3 * n, t.machine, sizeof(t.machine));
+		memcpy(st->path + 3 * n, t.machine, sizeof(t.machine));
 		struct pending *pd = push_pending(sc);
 		if (!pd)
 			return asph_error_set(err, -ENOMEM, "out of memory");
 		*pd = (struct pending){ .index = i + n, .kind = ASPH_MEASURE_PLAN };
 		memcpy(pd->cmd, t.machine, sizeof(pd->cmd));
-		prev = sc->path + 3 * n++;
+		prev = st->path + 3 * n++;
 	}
-	r = in->stage_driver->stage->sweep(in->stage, sc->path, n,
+	r = in->stage_driver->stage->sweep(in->stage, st->path, n,
 					       scan_timeout(sc->o.move_timeout_ms, cut.motion), err);
 	if (r < 0) {
-		sc->pend_n = sc->pend_head = 0;
+		st->pend_n = st->pend_head = 0;
 		return scan_prefixed(r, "stage", i, err);
 	}
-	memcpy(sc->pos, sc->path + 3 * (n - 1), sizeof(sc->pos));
+	scan_moved_to(sc, st->path + 3 * (n - 1));
 	r = pull_trace(sc, i, err);
 	if (r == 0)
-		r = collect(sc, sc->pend_n, done, err);
-	sc->pend_n = sc->pend_head = 0;
-	sc->trace_n = sc->trace_head = 0;
+		r = collect(sc, st->pend_n, done, err);
+	st->pend_n = st->pend_head = 0;
+	st->trace_n = st->trace_head = 0;
 	return r;
 }
 
@@ -506,12 +498,13 @@ static void run_point(const void *data, size_t i, double out[3])
 {
 	const struct run *rn = data;
 	const struct asph_scan *sc = rn->sc;
+	const struct scan_stream *st = &sc->stream;
 	size_t k = rn->first + i;
 	const double *p = sc->xyz + 3 * k;
 
-	if (sc->theta) {
+	if (st->theta) {
 		out[0] = hypot(p[0], p[1]);
-		out[1] = sc->theta[k];
+		out[1] = st->theta[k];
 	} else {
 		out[0] = p[0];
 		out[1] = p[1];
@@ -535,27 +528,27 @@ static void command_at(const struct asph_motion_knot *k, size_t n, size_t j, dou
 
 static bool stop_wanted(struct asph_scan *sc)
 {
-	return atomic_load_explicit(&sc->paused, memory_order_relaxed) ||
-	       atomic_load_explicit(&sc->aborted, memory_order_relaxed) || scan_round_due(sc);
+	return scan_stop_asked(sc) || scan_round_due(sc);
 }
 
 /* The next batch of knots: up to a sweep's time or a batch of points, or
  * the knots of a stop. */
 static int next_knots(struct asph_scan *sc, bool stop, size_t *n)
 {
+	struct scan_stream *st = &sc->stream;
 	size_t got = 0, max = sc->o.stream_batch;
 	int r;
 
 	*n = 0;
 	if (stop)
-		return asph_motion_planner_stop(sc->planner, sc->mk, RECORD_BATCH, n);
+		return asph_motion_planner_stop(st->planner, st->mk, RECORD_BATCH, n);
 	do {
 		size_t want = max - *n < 64 ? max - *n : 64;
-		r = asph_motion_planner_next(sc->planner, sc->mk + *n, want, &got);
+		r = asph_motion_planner_next(st->planner, st->mk + *n, want, &got);
 		if (r < 0)
 			return r;
 		*n += got;
-	} while (got && *n < max && sc->mk[*n - 1].t - sc->mk[0].t < SWEEP_SECONDS);
+	} while (got && *n < max && st->mk[*n - 1].t - st->mk[0].t < SWEEP_SECONDS);
 	return 0;
 }
 
@@ -564,15 +557,17 @@ static int next_knots(struct asph_scan *sc, bool stop, size_t *n)
  * exactly where the stage is (at r = 0 any angle is that point). */
 static void align_theta(struct asph_scan *sc, size_t i, size_t e)
 {
-	double shift = 2 * M_PI * round((sc->pos[1] - sc->theta[i]) / (2 * M_PI));
+	struct scan_stream *st = &sc->stream;
+	double shift = 2 * M_PI * round((sc->run.pos[1] - st->theta[i]) / (2 * M_PI));
 
 	for (size_t k = i; k < e; k++)
-		sc->theta[k] += shift;
-	sc->theta[i] = sc->pos[1];
+		st->theta[k] += shift;
+	st->theta[i] = sc->run.pos[1];
 }
 
 static int stream_pvt(struct asph_scan *sc, size_t i, size_t *done, struct asph_error *err)
 {
+	struct scan_stream *st = &sc->stream;
 	struct asph_instrument *in = sc->inst;
 	size_t e = run_end(sc, i, SIZE_MAX);
 	struct run rn = { sc, i };
@@ -583,15 +578,15 @@ static int stream_pvt(struct asph_scan *sc, size_t i, size_t *done, struct asph_
 
 	*done = 0;
 	r = approach(sc, i, true, err);
-	if (r == 0 && sc->theta)
+	if (r == 0 && st->theta)
 		align_theta(sc, i, e);
 	if (r == 0)
-		r = asph_motion_planner_start_path(sc->planner, run_point, &rn, e - i, &sc->lim, err);
+		r = asph_motion_planner_start_path(st->planner, run_point, &rn, e - i, &sc->lim, err);
 	if (r < 0)
 		return r;
 	base = asph_instrument_clock(in);
-	sc->n_hist = 0;
-	sc->trace_n = sc->trace_head = 0;
+	st->n_hist = 0;
+	st->trace_n = st->trace_head = 0;
 	while (!stopped) {
 		size_t n, got;
 		bool stop = stop_wanted(sc);
@@ -602,8 +597,8 @@ static int stream_pvt(struct asph_scan *sc, size_t i, size_t *done, struct asph_
 			break;
 		stopped = stop;
 		for (size_t k = 0; k < n; k++) {
-			struct asph_pvt *p = &sc->knots[k];
-			const struct asph_motion_knot *m = &sc->mk[k];
+			struct asph_pvt *p = &st->knots[k];
+			const struct asph_motion_knot *m = &st->mk[k];
 			p->t = m->t - t_prev;
 			memcpy(p->position, m->position, sizeof(p->position));
 			memcpy(p->velocity, m->velocity, sizeof(p->velocity));
@@ -617,18 +612,18 @@ static int stream_pvt(struct asph_scan *sc, size_t i, size_t *done, struct asph_
 			*pd = (struct pending){ .index = i + m->point, .kind = ASPH_MEASURE_PLAN,
 						.t_ns = base + (uint64_t)llround(m->t * 1e9),
 						.timed = true };
-			command_at(sc->mk, n, k, m->t + lat, pd->cmd);
+			command_at(st->mk, n, k, m->t + lat, pd->cmd);
 			for (int a = 0; a < 3; a++)
 				pd->dcmd[a] = pd->cmd[a] - m->position[a];
 		}
-		double dur = sc->mk[n - 1].t - t_prev;
-		t_prev = sc->mk[n - 1].t;
-		r = in->stage_ops.sweep_pvt(in->stage, sc->knots, n,
+		double dur = st->mk[n - 1].t - t_prev;
+		t_prev = st->mk[n - 1].t;
+		r = in->stage_ops.sweep_pvt(in->stage, st->knots, n,
 					    scan_timeout(sc->o.move_timeout_ms, dur), err);
 		if (r < 0)
 			return scan_prefixed(r, "stage", i + *done, err);
-		memcpy(sc->pos, sc->mk[n - 1].position, sizeof(sc->pos));
-		const double *v = sc->mk[n - 1].velocity;
+		scan_moved_to(sc, st->mk[n - 1].position);
+		const double *v = st->mk[n - 1].velocity;
 		bool rest = v[0] == 0 && v[1] == 0 && v[2] == 0;
 		r = pull_trace(sc, i + *done, err);
 		if (r < 0)
@@ -636,8 +631,8 @@ static int stream_pvt(struct asph_scan *sc, size_t i, size_t *done, struct asph_
 		/* the readings whose sample the motion has passed (all, at rest) */
 		uint64_t end = base + (uint64_t)llround(t_prev * 1e9);
 		size_t ready = 0;
-		while (ready < sc->pend_n &&
-		       (rest || sc->pend[sc->pend_head + ready].t_ns +
+		while (ready < st->pend_n &&
+		       (rest || st->pend[st->pend_head + ready].t_ns +
 					(uint64_t)llround(lat * 1e9) <= end))
 			ready++;
 		r = collect(sc, ready, &got, err);
@@ -646,7 +641,7 @@ static int stream_pvt(struct asph_scan *sc, size_t i, size_t *done, struct asph_
 			return r;
 		scan_publish(sc, ASPH_SCAN_MEASURING, i + *done, false);
 	}
-	sc->pend_n = sc->pend_head = 0;
+	st->pend_n = st->pend_head = 0;
 	return 0;
 }
 
