@@ -1,5 +1,6 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
-/* Option parsing shared by the registry and the configuration. Internal. */
+/* Option parsing and name hints shared by the registry, the options and the
+ * configuration. Internal. */
 #ifndef ASPH_OPTIONS_INTERNAL_H
 #define ASPH_OPTIONS_INTERNAL_H
 
@@ -18,7 +19,7 @@ int option_parse(const struct asph_option_desc *d, const char *text,
  * option descriptors, or "" (into buf). */
 const char *option_hint(const struct asph_driver *drv, const char *name, char *buf,
 			size_t size);
-/* The same for a driver name among those of reg. */
+/* The same for a driver name among those of reg (registry.c). */
 const char *driver_hint(const struct asph_registry *reg, const char *name, char *buf,
 			size_t size);
 

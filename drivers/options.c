@@ -148,17 +148,6 @@ const char *option_hint(const struct asph_driver *drv, const char *name, char *b
 	return suggest_hint(&s, buf, size);
 }
 
-const char *driver_hint(const struct asph_registry *reg, const char *name, char *buf,
-			size_t size)
-{
-	struct suggest s;
-
-	suggest_init(&s, name);
-	for (size_t i = 0; i < asph_registry_count(reg); i++)
-		suggest_offer(&s, asph_registry_get(reg, i)->name);
-	return suggest_hint(&s, buf, size);
-}
-
 void asph_options_free(struct asph_options *o)
 {
 	if (!o)

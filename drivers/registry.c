@@ -17,6 +17,7 @@
 #include "options-internal.h"
 #include "util-fs.h"
 #include "util-mem.h"
+#include "util-suggest.h"
 
 struct registry_entry {
 	const struct asph_driver *driver;
@@ -368,6 +369,17 @@ const struct asph_driver *asph_registry_find(const struct asph_registry *r,
 		if (!strcmp(r->entries[i].driver->name, name))
 			return r->entries[i].driver;
 	return NULL;
+}
+
+const char *driver_hint(const struct asph_registry *reg, const char *name, char *buf,
+			size_t size)
+{
+	struct suggest s;
+
+	suggest_init(&s, name);
+	for (size_t i = 0; i < asph_registry_count(reg); i++)
+		suggest_offer(&s, asph_registry_get(reg, i)->name);
+	return suggest_hint(&s, buf, size);
 }
 
 const char *asph_option_type_name(enum asph_option_type t)
