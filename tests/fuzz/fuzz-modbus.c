@@ -3,37 +3,43 @@
  * The Modbus driver as it runs against a device: its probe (a sensor of a
  * built-in map or of the configured one) and its stage (the AZ map, or
  * the configured word size, word order and start), through the driver
- * table, libmodbus and the bus's retries, over Modbus RTU on a
- * pseudo-terminal whose other end is a peer answering each request as the
- * input says.
+ * table, libmodbus and the bus's retries, against a peer that answers
+ * each request as the input says: over Modbus TCP on 127.0.0.1, or over
+ * RTU on a pseudo-terminal.
  *
  * The input: byte 0 chooses the sensor (bits 0-1: custom, custom with a
  * validity register, orbit-acs, rf60x; bits 2-4: the value's type; bit 5:
  * low word first; bit 6: holding registers; bit 7: the stage runs too);
  * byte 1 the stage (bit 0: 16-bit values; bit 1: low word first; bit 2:
  * the START handshake; bit 3: r-theta-z; bit 4: one retry; bit 5: reset
- * alarms). The rest is the peer's script, an answer per request, each a
- * tag and what it needs:
+ * alarms) and the line (bit 7: RTU, else TCP). The rest is the peer's
+ * script, an answer per request, each a tag and what it needs:
  *   tag % 4 == 0  the answer that fits: the registers read, from the next
  *                 bytes (zeros past the end), or a write's echo
  *   tag % 4 == 1  an exception, its code the next byte
- *   tag % 4 == 2  raw bytes: a length, then that many, with the CRC
- *                 appended when tag & 4 (so a frame can be almost right)
+ *   tag % 4 == 2  raw bytes (unit and PDU): a length, then that many,
+ *                 framed when tag & 4 (RTU: the CRC after them; TCP: the
+ *                 request's MBAP header before), so a frame can be almost
+ *                 right
  *   tag % 4 == 3  no answer (once per input; later ones answer as 0)
  * The peer hangs up when the script ends. The probe opens and reads
  * twice; the stage opens, reports its status, homes, reads its position
  * and moves. Every refusal has a code and a reason; a reading is finite
- * or flagged out of range; a position is finite.
+ * or flagged out of range; a position is finite; a status is one of the
+ * states.
  */
+#include <arpa/inet.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
+#include <netinet/in.h>
 #include <poll.h>
 #include <pthread.h>
 #include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/socket.h>
 #include <unistd.h>
 
 #include "asph-driver/instrument.h"
@@ -41,11 +47,14 @@
 #include "modbus-frame.h"
 
 /* The response timeout of a request (ms), and of a whole operation. */
-#define REQUEST_MS "50"
+#define REQUEST_MS "10"
 #define OPERATION_MS 200
 
 struct peer {
-	int master;             /* the pseudo-terminal's master, -1 once hung up */
+	bool tcp;
+	int line;               /* RTU: the pseudo-terminal's master; TCP: the
+				 * connection; -1 none (hung up) */
+	int listener;           /* TCP: where the driver connects, -1 hung up */
 	int quit[2];            /* a pipe: the harness is done */
 	const uint8_t *p, *end; /* the script left */
 	bool silent;            /* the one silence is spent */
@@ -57,22 +66,49 @@ static uint8_t next_byte(struct peer *pe)
 	return pe->p < pe->end ? *pe->p++ : 0;
 }
 
-static void send_frame(struct peer *pe, uint8_t *f, size_t n, bool crc)
+/* The request of req's got bytes whole: its length, or 0. */
+static size_t request_length(const struct peer *pe, const uint8_t *req, size_t got)
 {
-	if (crc) {
-		uint16_t c = mbsim_crc16(f, n);
-		f[n++] = (uint8_t)c;
-		f[n++] = (uint8_t)(c >> 8);
+	if (!pe->tcp)
+		return (size_t)mbsim_rtu_request_length(req, (int)got);
+	if (got < 6)
+		return 0;
+	size_t len = 6u + (size_t)(req[4] << 8 | req[5]);
+	return got >= len ? len : 0;
+}
+
+/* Sends unit and the PDU (n bytes at f + 1), framed (RTU: the CRC after
+ * them; TCP: the MBAP header of the request's transaction before), or as
+ * they are. What the driver never reads is dropped once the line is full. */
+static void send_frame(struct peer *pe, const uint8_t *req, uint8_t *f, size_t n, bool framed)
+{
+	uint8_t out[600];
+	size_t k = 0;
+
+	if (pe->tcp && framed) {
+		memcpy(out, req, 4);    /* transaction and protocol ids */
+		out[4] = (uint8_t)(n >> 8);
+		out[5] = (uint8_t)n;
+		k = 6;
 	}
-	/* what the driver never reads is dropped once the line is full */
-	if (write(pe->master, f, n) < 0 && errno != EAGAIN)
+	memcpy(out + k, f, n);
+	k += n;
+	if (!pe->tcp && framed) {
+		uint16_t c = mbsim_crc16(out, k);
+		out[k++] = (uint8_t)c;
+		out[k++] = (uint8_t)(c >> 8);
+	}
+	ssize_t r = pe->tcp ? send(pe->line, out, k, MSG_NOSIGNAL | MSG_DONTWAIT)
+			    : write(pe->line, out, k);
+	if (r < 0 && errno != EAGAIN && errno != EPIPE && errno != ECONNRESET && errno != EIO)
 		fuzz_die("peer: %s", strerror(errno));
 }
 
-/* The answer to the request req (len bytes, whole and checked) the script
- * says; false when it is over. */
+/* The answer to the request req (whole) the script says; false when it is
+ * over. */
 static bool answer(struct peer *pe, const uint8_t *req)
 {
+	const uint8_t *pdu = req + (pe->tcp ? 7 : 1);
 	uint8_t f[512];
 	size_t n = 0;
 
@@ -83,10 +119,10 @@ static bool answer(struct peer *pe, const uint8_t *req)
 		pe->silent = true;
 		return true;
 	}
-	f[n++] = req[0];
+	f[n++] = pdu[-1];       /* the unit */
 	switch (tag % 4) {
 	case 1:
-		f[n++] = req[1] | 0x80;
+		f[n++] = pdu[0] | 0x80;
 		f[n++] = next_byte(pe);
 		break;
 	case 2: {
@@ -94,59 +130,86 @@ static bool answer(struct peer *pe, const uint8_t *req)
 		n = 0;
 		while (n < len && pe->p < pe->end)
 			f[n++] = next_byte(pe);
-		send_frame(pe, f, n, tag & 4);
+		send_frame(pe, req, f, n, tag & 4);
 		return true;
 	}
 	default:
-		f[n++] = req[1];
-		if (req[1] == 3 || req[1] == 4) {
-			size_t count = (size_t)(req[4] << 8 | req[5]);
+		f[n++] = pdu[0];
+		if (pdu[0] == 3 || pdu[0] == 4) {
+			size_t count = (size_t)(pdu[3] << 8 | pdu[4]);
 			count = count > 125 ? 125 : count;
 			f[n++] = (uint8_t)(2 * count);
 			for (size_t k = 0; k < 2 * count; k++)
 				f[n++] = next_byte(pe);
 		} else {
-			memcpy(f + n, req + 2, 4);
+			memcpy(f + n, pdu + 1, 4);
 			n += 4;
 		}
 	}
-	send_frame(pe, f, n, true);
+	send_frame(pe, req, f, n, true);
 	return true;
+}
+
+static void hang_up(struct peer *pe)
+{
+	if (pe->line >= 0)
+		close(pe->line);
+	if (pe->listener >= 0)
+		close(pe->listener);
+	pe->line = pe->listener = -1;
 }
 
 static void *peer_main(void *data)
 {
 	struct peer *pe = data;
 	uint8_t req[512];
-	int got = 0;
+	size_t got = 0;
 
 	for (;;) {
-		struct pollfd p[2] = {
+		struct pollfd p[3] = {
 			{ .fd = pe->quit[0], .events = POLLIN },
-			{ .fd = pe->master, .events = POLLIN },
+			{ .fd = pe->line, .events = POLLIN },
+			{ .fd = pe->listener, .events = POLLIN },
 		};
-		if (poll(p, 2, -1) < 0 && errno != EINTR)
+		if (poll(p, 3, -1) < 0 && errno != EINTR)
 			fuzz_die("peer: poll: %s", strerror(errno));
 		if (p[0].revents)
 			return NULL;
-		if (!(p[1].revents & POLLIN))
+		if (p[2].revents & POLLIN) {
+			/* a connection of the driver's, or its new one */
+			int c = accept(pe->listener, NULL, NULL);
+			if (c >= 0) {
+				if (pe->line >= 0)
+					close(pe->line);
+				pe->line = c;
+				got = 0;
+			}
 			continue;
-		ssize_t r = read(pe->master, req + got, sizeof(req) - (size_t)got);
+		}
+		if (!(p[1].revents & (POLLIN | POLLHUP)))
+			continue;
+		ssize_t r = read(pe->line, req + got, sizeof(req) - got);
+		if (r <= 0 && pe->tcp) {
+			/* the driver closed it */
+			close(pe->line);
+			pe->line = -1;
+			got = 0;
+			continue;
+		}
 		if (r <= 0)
 			continue;
-		got += (int)r;
-		int len;
-		while ((len = mbsim_rtu_request_length(req, got)) > 0) {
+		got += (size_t)r;
+		size_t len;
+		while ((len = request_length(pe, req, got)) > 0) {
 			if (!answer(pe, req)) {
 				/* the script is over: the line goes dead */
-				close(pe->master);
-				pe->master = -1;
+				hang_up(pe);
 				return NULL;
 			}
-			memmove(req, req + len, (size_t)(got - len));
+			memmove(req, req + len, got - len);
 			got -= len;
 		}
-		if (got == (int)sizeof(req))
+		if (got == sizeof(req))
 			got = 0;
 	}
 }
@@ -161,29 +224,32 @@ static void check_result(int r, const struct asph_error *err)
 		fuzz_check_error(err);
 }
 
-static struct asph_options *options(const struct asph_driver *drv, const char *device,
+static void set_options(struct asph_options *o, const char *const *kv)
+{
+	struct asph_error err;
+
+	for (; *kv; kv += 2)
+		if (asph_options_set(o, kv[0], kv[1], &err) < 0)
+			fuzz_die("option %s=%s: %s", kv[0], kv[1], err.message);
+}
+
+/* The driver's options: where the peer is (bus), then kv. */
+static struct asph_options *options(const struct asph_driver *drv, const char *const *bus,
 				    const char *const *kv)
 {
+	static const char *const timing[] = { "timeout", REQUEST_MS, "poll", "0", NULL };
 	struct asph_options *o;
 	struct asph_error err;
 
 	if (asph_options_new(drv, &o, &err) < 0)
 		fuzz_die("options: %s", err.message);
-	static const char *const bus[] = {
-		"transport", "rtu", "timeout", REQUEST_MS, "poll", "0", NULL,
-	};
-	for (const char *const *p = bus; *p; p += 2)
-		if (asph_options_set(o, p[0], p[1], &err) < 0)
-			fuzz_die("option %s: %s", p[0], err.message);
-	if (asph_options_set(o, "device", device, &err) < 0)
-		fuzz_die("option device: %s", err.message);
-	for (; *kv; kv += 2)
-		if (asph_options_set(o, kv[0], kv[1], &err) < 0)
-			fuzz_die("option %s=%s: %s", kv[0], kv[1], err.message);
+	set_options(o, timing);
+	set_options(o, bus);
+	set_options(o, kv);
 	return o;
 }
 
-static void run_probe(const struct asph_driver *drv, const char *device, uint8_t b)
+static void run_probe(const struct asph_driver *drv, const char *const *bus, uint8_t b)
 {
 	static const char *const types[] = { "s32", "u32", "s16", "u16", "f32" };
 	static const char *const profiles[][12] = {
@@ -198,13 +264,12 @@ static void run_probe(const struct asph_driver *drv, const char *device, uint8_t
 		"word_order", b & 0x20 ? "low-first" : "high-first",
 		"table", b & 0x40 ? "holding" : "input", NULL,
 	};
-	struct asph_options *o = options(drv, device, profiles[b & 3]);
+	struct asph_options *o = options(drv, bus, profiles[b & 3]);
 	struct asph_device *dev = NULL;
 	struct asph_error err;
 
-	for (const char *const *p = format; *p && (b & 3) != 3; p += 2)
-		if (asph_options_set(o, p[0], p[1], &err) < 0)
-			fuzz_die("option %s: %s", p[0], err.message);
+	if ((b & 3) != 3)
+		set_options(o, format);
 	asph_error_clear(&err);
 	int r = drv->probe->open(drv, asph_options_values(o), OPERATION_MS, &dev, &err);
 	check_result(r, &err);
@@ -222,7 +287,7 @@ static void run_probe(const struct asph_driver *drv, const char *device, uint8_t
 	asph_options_free(o);
 }
 
-static void run_stage(const struct asph_driver *drv, const char *device, uint8_t b)
+static void run_stage(const struct asph_driver *drv, const char *const *bus, uint8_t b)
 {
 	const char *kv[] = {
 		"word_size", b & 1 ? "16" : "32",
@@ -234,7 +299,7 @@ static void run_stage(const struct asph_driver *drv, const char *device, uint8_t
 		/* 16-bit registers take the default speed only at a coarser scale */
 		"counts_per_mm", "100", "counts_per_rad", "100", NULL,
 	};
-	struct asph_options *o = options(drv, device, kv);
+	struct asph_options *o = options(drv, bus, kv);
 	const struct asph_stage_ops *ops = drv->stage;
 	struct asph_device *dev = NULL;
 	struct asph_stage_status st;
@@ -263,34 +328,61 @@ static void run_stage(const struct asph_driver *drv, const char *device, uint8_t
 	asph_options_free(o);
 }
 
+/* RTU: a pseudo-terminal, whose line the harness keeps open between the
+ * probe and the stage (*line). */
+static void open_rtu(struct peer *pe, char *device, size_t size, int *line)
+{
+	pe->line = posix_openpt(O_RDWR | O_NOCTTY | O_NONBLOCK);
+	if (pe->line < 0 || grantpt(pe->line) < 0 || unlockpt(pe->line) < 0 ||
+	    ptsname_r(pe->line, device, size) != 0 ||
+	    (*line = open(device, O_RDWR | O_NOCTTY)) < 0)
+		fuzz_die("no pseudo-terminal: %s", strerror(errno));
+}
+
+/* TCP: a listener on 127.0.0.1, its port into port. */
+static void open_tcp(struct peer *pe, char *port, size_t size)
+{
+	struct sockaddr_in a = { .sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK) };
+	socklen_t len = sizeof(a);
+
+	pe->listener = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+	if (pe->listener < 0 || bind(pe->listener, (struct sockaddr *)&a, sizeof(a)) < 0 ||
+	    listen(pe->listener, 4) < 0 ||
+	    getsockname(pe->listener, (struct sockaddr *)&a, &len) < 0)
+		fuzz_die("no listener: %s", strerror(errno));
+	snprintf(port, size, "%u", (unsigned)ntohs(a.sin_port));
+}
+
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
 	static struct asph_registry *reg;
-	struct peer pe = { .p = data + 2, .end = data + size };
-	char device[64];
+	struct peer pe = { .line = -1, .listener = -1, .p = data + 2, .end = data + size };
+	char where[64];
+	int line = -1;
 
 	if (size < 2)
 		return 0;
 	if (!reg && asph_registry_new(&reg, NULL) < 0)
 		fuzz_die("no registry");
 	const struct asph_driver *drv = asph_registry_find(reg, "modbus");
-	pe.master = posix_openpt(O_RDWR | O_NOCTTY | O_NONBLOCK);
-	if (pe.master < 0 || grantpt(pe.master) < 0 || unlockpt(pe.master) < 0 ||
-	    ptsname_r(pe.master, device, sizeof(device)) != 0 || pipe(pe.quit) < 0)
-		fuzz_die("no pseudo-terminal: %s", strerror(errno));
-	/* the line stays open between the probe and the stage */
-	int line = open(device, O_RDWR | O_NOCTTY);
-	if (line < 0 || pthread_create(&pe.thread, NULL, peer_main, &pe) != 0)
+	pe.tcp = !(data[1] & 0x80);
+	if (pe.tcp)
+		open_tcp(&pe, where, sizeof(where));
+	else
+		open_rtu(&pe, where, sizeof(where), &line);
+	const char *const tcp[] = { "transport", "tcp", "host", "127.0.0.1", "port", where, NULL };
+	const char *const rtu[] = { "transport", "rtu", "device", where, NULL };
+	if (pipe(pe.quit) < 0 || pthread_create(&pe.thread, NULL, peer_main, &pe) != 0)
 		fuzz_die("no peer: %s", strerror(errno));
-	run_probe(drv, device, data[0]);
+	run_probe(drv, pe.tcp ? tcp : rtu, data[0]);
 	if (data[0] & 0x80)
-		run_stage(drv, device, data[1]);
+		run_stage(drv, pe.tcp ? tcp : rtu, data[1]);
 	if (write(pe.quit[1], "", 1) != 1)
 		fuzz_die("peer: %s", strerror(errno));
 	pthread_join(pe.thread, NULL);
-	if (pe.master >= 0)
-		close(pe.master);
-	close(line);
+	hang_up(&pe);
+	if (line >= 0)
+		close(line);
 	close(pe.quit[0]);
 	close(pe.quit[1]);
 	return 0;

@@ -2,7 +2,8 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """Writes the seed corpus of the Modbus fuzz target (fuzz-modbus.c says
 the input's format): the answers a sensor of each map and an AZ stage give
-the driver's requests, in the order the driver asks, and a few refusals.
+the driver's requests, in the order the driver asks, and a few refusals;
+over TCP, and some over RTU.
 
     tests/fuzz/modbus-seeds.py tests/fuzz/corpus/modbus
 """
@@ -23,8 +24,11 @@ def exception(code):
     return bytes([1, code])
 
 
-def raw(data, crc):
-    return bytes([2 | (4 if crc else 0), len(data)]) + bytes(data)
+def raw(data, framed):
+    """Unit and PDU as they are, or framed (the CRC, the MBAP header)."""
+    return bytes([2 | (4 if framed else 0), len(data)]) + bytes(data)
+
+RTU = 0x80      # byte 1: the line is RTU
 
 
 def s32(v, low_first=False):
@@ -68,14 +72,20 @@ def seeds():
     # RF60x: serial, base distance 30 mm, range 10 mm; mid-range, saturated
     yield 'probe-rf60x', bytes([0x03, 0]) + regs(4711, 30, 10) + regs(0x2000) * 2 + regs(0x4000)
     yield 'probe-exception', bytes([0x00, 0]) + exception(2)
-    # a bad CRC, a frame of another unit; each retried
-    yield 'probe-bad-crc', bytes([0x00, 0]) + raw([1, 4, 4, 0, 0, 0x30, 0x39, 0xde, 0xad], False) + probe
+    # a frame of another unit, a byte count that lies; each retried
     yield 'probe-wrong-unit', bytes([0x00, 0]) + raw([9, 4, 4, 0, 0, 0, 1], True) + probe
+    yield 'probe-short-count', bytes([0x00, 0]) + raw([1, 4, 2, 0, 0], True) + probe
     yield 'probe-silence-then-answer', bytes([0x00, 0]) + bytes([3]) + probe
     yield 'stage-az', bytes([0x80, 0]) + probe + stage()
     yield 'stage-16bit-low-first-start', bytes([0x80, 1 | 2 | 4]) + probe + \
         stage(wide=False, low_first=True, start_bit=True)
     yield 'stage-rtz', bytes([0x80, 8]) + probe + stage()
+    # over RTU: a sensor, a bad CRC (retried), an exception, the stage
+    yield 'rtu-probe-custom-s32', bytes([0x00, RTU]) + probe
+    yield 'rtu-probe-bad-crc', bytes([0x00, RTU]) + \
+        raw([1, 4, 4, 0, 0, 0x30, 0x39, 0xde, 0xad], False) + probe
+    yield 'rtu-probe-exception', bytes([0x00, RTU]) + exception(2)
+    yield 'rtu-stage-az', bytes([0x80, RTU]) + probe + stage()
     # an alarm on x: the status says so with its code, homing refuses
     yield 'stage-alarm', bytes([0x80, 0]) + probe + (regs(0, 0x30) + ECHO) * 3 + \
         regs(0, ALM | READY) + regs(0, 0) + regs(0, 0x42) + (regs(0, 0x30) + regs(0, 0)) * 2 + \
