@@ -21,6 +21,18 @@
 #include "transport.h"
 #include "util-time.h"
 
+enum {
+	OPT_INTERFACE, OPT_X_NODE, OPT_Y_NODE, OPT_Z_NODE,
+	OPT_X_COUNTS, OPT_Y_COUNTS, OPT_Z_COUNTS,
+	OPT_X_MIN, OPT_X_MAX, OPT_Y_MIN, OPT_Y_MAX, OPT_Z_MIN, OPT_Z_MAX,
+	OPT_SPEED, OPT_ACCELERATION, OPT_HOMING_METHOD, OPT_HOMING_SPEED,
+	OPT_HEARTBEAT, OPT_HEARTBEAT_TIMEOUT, OPT_SDO_TIMEOUT, OPT_NMT_RESET, OPT_FAULT_RESET,
+	OPT_TOUCH_PROBE, OPT_TRIGGER_NODE, OPT_TRIGGER_OUTPUT, OPT_BITRATE,
+	OPT_PROBE_NODE, OPT_PROBE_INDEX, OPT_PROBE_SUBINDEX, OPT_PROBE_FORMAT, OPT_PROBE_SCALE,
+	OPT_PROBE_OFFSET, OPT_PROBE_KIND, OPT_PROBE_TIP_RADIUS, OPT_PROBE_STANDOFF,
+	OPT_PROBE_RANGE, N_OPTIONS
+};
+
 static const char *const nmt_resets[] = { "communication", "node", "none", NULL };
 static const char *const formats[] = { "i16", "u16", "i32", "u32", "i8", "u8", NULL };
 static const char *const kinds[] = { "optical", "tactile", NULL };
@@ -206,6 +218,33 @@ static int dev_stop(struct asph_device *d, struct asph_error *err)
 
 /* ----------------------------------------------------------- stage */
 
+/* The trigger wiring and touch_probe. */
+static int trigger_options(struct asph_device *d, const struct asph_option_value *o,
+			   struct asph_error *err)
+{
+	unsigned node = (unsigned)o[OPT_TRIGGER_NODE].i, bit = (unsigned)o[OPT_TRIGGER_OUTPUT].i;
+	bool axis = false;
+
+	d->touch_probe = (int)o[OPT_TOUCH_PROBE].i;
+	if (bit >= 1 && bit <= 15)
+		return asph_error_set(err, -EINVAL, "trigger_output: bit %u of 0x60FE:01 is not an "
+				      "output (0: the brake, 1..15: reserved by CiA 402; 16..31: "
+				      "the drive's own outputs)", bit);
+	if (!bit && d->touch_probe == TOUCH_PROBE_ON)
+		return asph_error_set(err, -EINVAL, "touch_probe=on needs the trigger wiring "
+				      "(trigger_output 16..31)");
+	for (int k = 0; k < 3; k++)
+		axis = axis || (node && d->ax[k].node == node);
+	if (node && !axis)
+		return asph_error_set(err, -EINVAL, "trigger_node %u is not one of the axes' drives",
+				      node);
+	d->trigger_bit = (uint8_t)bit;
+	d->trigger_node = (uint8_t)node;
+	for (int k = 0; k < 3 && !d->trigger_node; k++)
+		d->trigger_node = d->ax[k].node;
+	return 0;
+}
+
 /* The stage as its options describe it: axes, profile, trigger wiring. */
 static int stage_configure(struct asph_device *d, const struct asph_option_value *o,
 			   struct asph_error *err)
@@ -233,7 +272,7 @@ static int stage_configure(struct asph_device *d, const struct asph_option_value
 	d->homing_method = (int)o[OPT_HOMING_METHOD].i;
 	d->homing_speed = o[OPT_HOMING_SPEED].d;
 	d->fault_reset = o[OPT_FAULT_RESET].b;
-	return can_trigger_options(d, o, err);
+	return trigger_options(d, o, err);
 }
 
 static int stage_open(const struct asph_driver *drv, const struct asph_option_value *o,

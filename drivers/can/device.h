@@ -27,18 +27,6 @@
 #include "asph-driver/driver.h"
 #include "bus.h"
 
-enum {
-	OPT_INTERFACE, OPT_X_NODE, OPT_Y_NODE, OPT_Z_NODE,
-	OPT_X_COUNTS, OPT_Y_COUNTS, OPT_Z_COUNTS,
-	OPT_X_MIN, OPT_X_MAX, OPT_Y_MIN, OPT_Y_MAX, OPT_Z_MIN, OPT_Z_MAX,
-	OPT_SPEED, OPT_ACCELERATION, OPT_HOMING_METHOD, OPT_HOMING_SPEED,
-	OPT_HEARTBEAT, OPT_HEARTBEAT_TIMEOUT, OPT_SDO_TIMEOUT, OPT_NMT_RESET, OPT_FAULT_RESET,
-	OPT_TOUCH_PROBE, OPT_TRIGGER_NODE, OPT_TRIGGER_OUTPUT, OPT_BITRATE,
-	OPT_PROBE_NODE, OPT_PROBE_INDEX, OPT_PROBE_SUBINDEX, OPT_PROBE_FORMAT, OPT_PROBE_SCALE,
-	OPT_PROBE_OFFSET, OPT_PROBE_KIND, OPT_PROBE_TIP_RADIUS, OPT_PROBE_STANDOFF,
-	OPT_PROBE_RANGE, N_OPTIONS
-};
-
 enum { TOUCH_PROBE_AUTO, TOUCH_PROBE_ON, TOUCH_PROBE_OFF };
 
 struct axis {
@@ -118,9 +106,6 @@ int can_enabled_sw(struct asph_device *d, const struct axis *a, uint16_t *sw, ui
 
 /* ----------------------------------------------------------- latch.c */
 
-/* The trigger wiring and touch_probe from the options. */
-int can_trigger_options(struct asph_device *d, const struct asph_option_value *o,
-			struct asph_error *err);
 /* Whether a's drive has a touch probe, and its edge counter. */
 int can_detect_touch_probe(struct asph_device *d, struct axis *a, uint64_t deadline,
 			   struct asph_error *err);

@@ -10,32 +10,6 @@
 
 #define ABORT_NO_OBJECT 0x06020000u
 
-int can_trigger_options(struct asph_device *d, const struct asph_option_value *o,
-			struct asph_error *err)
-{
-	unsigned node = (unsigned)o[OPT_TRIGGER_NODE].i, bit = (unsigned)o[OPT_TRIGGER_OUTPUT].i;
-	bool axis = false;
-
-	d->touch_probe = (int)o[OPT_TOUCH_PROBE].i;
-	if (bit >= 1 && bit <= 15)
-		return asph_error_set(err, -EINVAL, "trigger_output: bit %u of 0x60FE:01 is not an "
-				      "output (0: the brake, 1..15: reserved by CiA 402; 16..31: "
-				      "the drive's own outputs)", bit);
-	if (!bit && d->touch_probe == TOUCH_PROBE_ON)
-		return asph_error_set(err, -EINVAL, "touch_probe=on needs the trigger wiring "
-				      "(trigger_output 16..31)");
-	for (int k = 0; k < 3; k++)
-		axis = axis || (node && d->ax[k].node == node);
-	if (node && !axis)
-		return asph_error_set(err, -EINVAL, "trigger_node %u is not one of the axes' drives",
-				      node);
-	d->trigger_bit = (uint8_t)bit;
-	d->trigger_node = (uint8_t)node;
-	for (int k = 0; k < 3 && !d->trigger_node; k++)
-		d->trigger_node = d->ax[k].node;
-	return 0;
-}
-
 /* Whether a's drive has a touch probe (0x60B8), and its edge counter
  * (0x60D5) for the continuous mode: an SDO abort "object does not exist"
  * says it has not. */
