@@ -26,6 +26,7 @@
 #include "progress.h"
 #include "quantity.h"
 #include "util-mem.h"
+#include "util-suggest.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_surface *, asph_surface_free)
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
@@ -220,8 +221,9 @@ static int parse_bands(const char *arg, struct fit_cli *c)
 }
 
 /* 0 taken, -1 bad value (message printed). */
-static int take_option(struct fit_cli *c, int opt, const char *arg)
+static int take_option(int opt, const char *arg, void *data)
 {
+	struct fit_cli *c = data;
 	struct asph_error err;
 
 	switch (opt) {
@@ -234,7 +236,14 @@ static int take_option(struct fit_cli *c, int opt, const char *arg)
 		return 0;
 	case OPT_RESIDUAL:
 		if (asph_fit_residual_from_name(arg, &c->opts.residual) < 0) {
-			fprintf(stderr, "asph fit: --residual: '%s' is not normal or sag\n", arg);
+			const char *names[8];
+			char known[64];
+			size_t n = 0;
+			while (n < ARRAY_SIZE(names) &&
+			       (names[n] = asph_fit_residual_name((enum asph_fit_residual_kind)n)))
+				n++;
+			suggest_join(known, sizeof(known), names, n, " or ");
+			fprintf(stderr, "asph fit: --residual: '%s' is not %s\n", arg, known);
 			return -1;
 		}
 		return 0;
@@ -431,21 +440,11 @@ int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
 		{ "help", no_argument, NULL, 'h' },
 		{ NULL, 0, NULL, 0 },
 	};
-	int opt;
-
 	/* getopt permutes: options may also follow LENS and POINTS_FILE. */
-	optind = 0;
-	opterr = 0;
-	while ((opt = getopt_long(argc, argv, "hq", longopts, NULL)) != -1) {
-		if (opt == 'h') {
-			usage_fn(stdout);
-			return -1;
-		}
-		if (opt == '?' || opt == ':')
-			return tool_option_error(argv, "hq", longopts);
-		if (take_option(c, opt, optarg) < 0)
-			return EXIT_USAGE;
-	}
+	int r = tool_getopt(argc, argv, "hq", longopts, usage_fn, take_option, c);
+
+	if (r >= 0)
+		return r == EXIT_OK ? -1 : r;
 	if (argc - optind != operands) {
 		fprintf(stderr, "asph %s: need %s (see --help)\n", argv[0],
 			operands == 2 ? "LENS and POINTS_FILE" : "SCAN");
