@@ -16,7 +16,7 @@
 #include <jansson.h>
 
 #include "asph-proto.h"
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "jobspec.h"
 #include "tasks.h"
 

@@ -18,8 +18,8 @@
 #include "log.h"
 #include "ratelimit.h"
 #include "rpc.h"
-#include "sha256.h"
 #include "turns.h"
+#include "util-hash.h"
 #include "util-time.h"
 #include "util-mem.h"
 
