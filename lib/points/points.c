@@ -15,6 +15,7 @@
 #include "plot/colormap.h"
 #include "fileio.h"
 #include "util-mem.h"
+#include "util-number.h"
 
 
 /* Files larger than this are refused rather than read into memory. */
@@ -183,19 +184,18 @@ static int csv_row(const char *line, size_t len, int lineno, const char *source,
 				    col == cols->iz ? "z" : col == cols->ivalue ? cols->value_name : NULL;
 		if (!field)
 			continue;
-		char tmp[128], *stop;
+		char tmp[128];
 		if (f.e == f.b || f.e - f.b >= sizeof(tmp))
 			return asph_error_set_at(err, -EINVAL, source, lineno, (int)f.b + 1, field,
 						 f.e == f.b ? "empty value" : "value too long");
-		memcpy(tmp, line + f.b, f.e - f.b);
-		tmp[f.e - f.b] = '\0';
-		double v = strtod(tmp, &stop);
-		if (*stop != '\0')
+		double v;
+		size_t used = parse_double(line + f.b, f.e - f.b, &v);
+		if (used != f.e - f.b || !isfinite(v)) {
+			snprintf(tmp, sizeof(tmp), "%.*s", (int)(f.e - f.b), line + f.b);
 			return asph_error_set_at(err, -EINVAL, source, lineno, (int)f.b + 1, field,
-						 "not a number: '%s'", tmp);
-		if (!isfinite(v))
-			return asph_error_set_at(err, -EINVAL, source, lineno, (int)f.b + 1, field,
-						 "not a finite number: '%s'", tmp);
+						 used != f.e - f.b ? "not a number: '%s'"
+								   : "not a finite number: '%s'", tmp);
+		}
 		if (col == cols->ivalue)
 			*value = v;
 		else
@@ -472,17 +472,12 @@ static int ply_next(struct ply_cursor *c, double *v)
 	ply_skip_space(c);
 	if (c->pos >= c->len)
 		return -ENODATA;
-	char tmp[64], *stop;
 	size_t e = c->pos;
 	while (e < c->len && !strchr(" \t\r\n", c->text[e]))
 		e++;
 	/* strchr() finds the NUL too: a NUL byte is an empty token here. */
-	if (e == c->pos || e - c->pos >= sizeof(tmp))
-		return -EINVAL;
-	memcpy(tmp, c->text + c->pos, e - c->pos);
-	tmp[e - c->pos] = '\0';
-	*v = strtod(tmp, &stop);
-	if (*stop)
+	if (e == c->pos || e - c->pos >= 64 ||
+	    parse_double(c->text + c->pos, e - c->pos, v) != e - c->pos)
 		return -EINVAL;
 	c->pos = e;
 	return 0;
