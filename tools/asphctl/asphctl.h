@@ -5,6 +5,7 @@
 
 #include <stdbool.h>
 #include <stdint.h>
+#include <sys/types.h>
 
 #include <jansson.h>
 
@@ -21,6 +22,9 @@ struct ctl_error {
 };
 
 int conn_open(const char *path, struct conn **out, struct ctl_error *e);
+/* The same, waiting at most timeout_ms (-1: no limit) for the connection
+ * and for each answer of conn_call(), which then fails with -ETIMEDOUT. */
+int conn_open_within(const char *path, int timeout_ms, struct conn **out, struct ctl_error *e);
 void conn_close(struct conn *c);
 /*
  * Calls method with params (stolen, may be NULL) and waits for its
@@ -36,13 +40,15 @@ int conn_next_event(struct conn *c, int timeout_ms, json_t **msg);
 struct ctl;
 
 /* A command: its name, the summary `asphctl --help` lists, its function,
- * and what `asphctl help COMMAND` says after the usage line (NULL: the
- * usage line says all). */
+ * what `asphctl help COMMAND` says after the usage line (NULL: the usage
+ * line says all), and the values of its operands and options that come
+ * from a table (NULL: none), printed after that. */
 struct ctl_command {
 	const char *name;
 	const char *summary;
 	int (*run)(struct ctl *ctl, int argc, char **argv);
 	const char *help;
+	void (*help_values)(FILE *out);
 };
 
 /* Global options. */
@@ -97,6 +103,11 @@ int ctl_options_exit(int c);
 /* For a command whose only options are --json and --help: -1 to go on, or
  * the exit code. */
 int ctl_common_options(struct ctl *ctl, int argc, char **argv, const char *usage);
+/* For a command whose options are --json, --help and one flag --NAME
+ * (short: its short form, or 0 for none): *set when it is given; -1 to go
+ * on, or the exit code. */
+int ctl_flag_option(struct ctl *ctl, int argc, char **argv, const char *name, char short_name,
+		    bool *set, const char *usage);
 
 /* Parses a job id argument; -1 (after printing) when it is not one. */
 int64_t ctl_job_id(const char *arg);
@@ -106,6 +117,7 @@ int64_t ctl_job_id(const char *arg);
 int64_t ctl_job_operand(int argc, char **argv, const char *usage);
 
 int cmd_submit(struct ctl *ctl, int argc, char **argv);
+void cmd_submit_values(FILE *out);
 int cmd_status(struct ctl *ctl, int argc, char **argv);
 int cmd_watch(struct ctl *ctl, int argc, char **argv);
 int cmd_cancel(struct ctl *ctl, int argc, char **argv);
@@ -121,6 +133,17 @@ int cmd_lock(struct ctl *ctl, int argc, char **argv);
 int cmd_unlock(struct ctl *ctl, int argc, char **argv);
 int cmd_token(struct ctl *ctl, int argc, char **argv);
 int cmd_fleet(struct ctl *ctl, int argc, char **argv);
+int cmd_backup(struct ctl *ctl, int argc, char **argv);
+int cmd_health(struct ctl *ctl, int argc, char **argv);
+
+/* A file the daemon hands in pieces (job.file, backup.file): method's
+ * answers to params, each with its "offset" added, written to the path out
+ * (mode before the umask) under a temporary name created exclusively and
+ * renamed into place (fs_write_file_at()), its progress on a terminal
+ * unless quiet. name is the file in messages. Returns the exit code,
+ * having said why. */
+int ctl_fetch_file(struct ctl *ctl, const char *method, const json_t *params, const char *name,
+		   const char *out, mode_t mode, bool quiet);
 
 /* Watches job until it ends (used by watch and submit --wait): its states
  * and, with progress, its progress; with --json only the job at the end.
