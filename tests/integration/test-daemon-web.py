@@ -6,6 +6,7 @@ over POST with the socket's role checks, the event stream, result file
 downloads and live points; cross-origin POSTs, malformed requests and
 oversized bodies get their status code and the daemon serves on."""
 import base64
+import contextlib
 import csv
 import http.client
 import json
@@ -103,14 +104,28 @@ def reload_with(d, **limits):
         time.sleep(0.05)
 
 
+@contextlib.contextmanager
+def started(d):
+    """d, started; its log printed when the block fails; stopped (it must
+    stop cleanly) and removed after."""
+    try:
+        d.start()
+        yield d
+        expect(d.stop() == 0, "asphd stops cleanly")
+    except Exception:
+        print(d.log_text())
+        raise
+    finally:
+        d.cleanup()
+
+
 def check_limits_follow_reload():
     """The web listener's connection limits are the socket's: read at each
     connection, so that a reload changes them for the listener too."""
     d = Daemon([mock_instrument()], extra={
         "http_listen": "127.0.0.1:0",
         "limits": {"max_clients": 16, "max_clients_per_user": 2}})
-    try:
-        d.start()
+    with started(d):
         port = web_port(d)
         held = [served(port), served(port)]
         expect(all(held), "two connections of one address: served")
@@ -130,12 +145,6 @@ def check_limits_follow_reload():
                 c.close()
         time.sleep(0.3)
         expect(served(port) is not None, "connections closed: served again")
-        expect(d.stop() == 0, "asphd stops cleanly")
-    except Exception:
-        print(d.log_text())
-        raise
-    finally:
-        d.cleanup()
 
 
 def check_http_root():
@@ -145,20 +154,13 @@ def check_http_root():
     os.chmod(site, 0o755)
     with open(os.path.join(site, "index.html"), "w") as f:
         f.write("<!doctype html><title>our lab's page</title>\n")
-    d = Daemon([mock_instrument()], extra={"http_listen": "127.0.0.1:0", "http_root": site})
-    try:
-        d.start()
+    with started(Daemon([mock_instrument()], extra={"http_listen": "127.0.0.1:0",
+                                                   "http_root": site})) as d:
         page = Web(web_port(d))
         r, body = page.request("GET", "/")
         expect(r.status == 200 and b"our lab's page" in body, "http_root: its index.html is the page")
         r, _ = page.request("GET", "/app.js")
         expect(r.status == 404, f"http_root: a built-in file it does not hold is not served ({r.status})")
-        expect(d.stop() == 0, "asphd stops cleanly")
-    except Exception:
-        print(d.log_text())
-        raise
-    finally:
-        d.cleanup()
     missing = os.path.join(site, "no-such-folder")
     d = Daemon([mock_instrument()], extra={"http_listen": "127.0.0.1:0", "http_root": missing})
     said = f"http_root: {missing}: No such file or directory (set http_root"
@@ -194,8 +196,7 @@ def check_every_address():
         d.cleanup()
         return
     d.prefix = ["unshare", "-m", "--", "sh", "-c", 'mount --bind "$0" /etc/hosts && exec "$@"', hosts]
-    try:
-        d.start()
+    with started(d):
         deadline = time.time() + 20
         while time.time() < deadline and not re.search(r"web page at http://dual-stack\.test:\d+/", d.log_text()):
             time.sleep(0.05)
@@ -207,12 +208,6 @@ def check_every_address():
             expect(c is not None, f"the page on {host} port {port}")
             if c:
                 c.close()
-        expect(d.stop() == 0, "asphd stops cleanly")
-    except Exception:
-        print(d.log_text())
-        raise
-    finally:
-        d.cleanup()
 
 
 check_limits_follow_reload()
