@@ -95,6 +95,7 @@ int asph_registry_to_json(const struct asph_registry *reg, bool pretty, char **o
 
 	json_object_set_new(root, "driver_abi", json_integer(ASPH_DRIVER_ABI_MAJOR));
 	json_object_set_new(root, "driver_abi_minor", json_integer(ASPH_DRIVER_ABI_MINOR));
+	json_object_set_new(root, "drivers", list);     /* (root owns it: nothing leaks on an error) */
 	for (size_t i = 0; i < asph_registry_count(reg); i++) {
 		const struct asph_driver *d = asph_registry_get(reg, i);
 		char abi[24];
@@ -115,7 +116,6 @@ int asph_registry_to_json(const struct asph_registry *reg, bool pretty, char **o
 			return r;
 		json_object_set_new(j, "profiles", profiles);
 	}
-	json_object_set_new(root, "drivers", list);
 	*out = json_dumps(root, (pretty ? JSON_INDENT(2) : JSON_COMPACT) | JSON_PRESERVE_ORDER |
 				JSON_REAL_PRECISION(17));
 	return *out ? 0 : -ENOMEM;
