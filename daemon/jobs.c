@@ -397,8 +397,9 @@ static char *job_metadata(const struct job_record *j)
 	char *s;
 
 	iso8601_utc(j->submitted_ns, 0, submitted, sizeof(submitted));
-	m = json_pack("{s:I, s:s?, s:{s:I, s:s?}, s:s, s:I, s:I}", "job", (json_int_t)j->id,
-		      "label", j->label, "submitted_by", "uid", (json_int_t)j->uid,
+	m = json_pack("{s:I, s:s?, s:s?, s:s?, s:s?, s:{s:I, s:s?}, s:s, s:I, s:I}",
+		      "job", (json_int_t)j->id, "label", j->label, "part", j->part, "lot", j->lot,
+		      "serial", j->serial, "submitted_by", "uid", (json_int_t)j->uid,
 		      "name", j->user, "submitted", submitted,
 		      "started_ns", (json_int_t)j->started_ns,
 		      "attempt", (json_int_t)j->attempts);

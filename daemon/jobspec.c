@@ -12,6 +12,7 @@
 #include "asph/tolerance.h"
 #include "jobspec.h"
 #include "util-mem.h"
+#include "util-suggest.h"
 
 static int spec_lens(json_t *params, json_t *spec, struct asph_prescription *p,
 		     struct proto_why *why)
@@ -31,9 +32,16 @@ static int spec_lens(json_t *params, json_t *spec, struct asph_prescription *p,
 			return PROTO_INVALID_PARAMS;
 		}
 		if (asph_prescription_preset(json_string_value(lens), p) < 0) {
-			snprintf(why->text, sizeof(why->text),
-				 "\"lens\": no preset named \"%.64s\" (send the prescription "
-				 "as an object)", json_string_value(lens));
+			const char *near = suggest_from_list(json_string_value(lens),
+							     asph_prescription_preset_names());
+			if (near)
+				snprintf(why->text, sizeof(why->text),
+					 "\"lens\": no preset named \"%.64s\" (did you mean \"%s\"?)",
+					 json_string_value(lens), near);
+			else
+				snprintf(why->text, sizeof(why->text),
+					 "\"lens\": no preset named \"%.64s\" (send the "
+					 "prescription as an object)", json_string_value(lens));
 			return PROTO_INVALID_LENS;
 		}
 	} else if (json_is_object(lens)) {
@@ -96,8 +104,9 @@ static int spec_plan(json_t *params, json_t *spec, const struct asph_prescriptio
 	    proto_param_string(plan, "method", true, 32, &method, why) < 0)
 		return PROTO_INVALID_PARAMS;
 	if (asph_plan_method_from_name(method, &m) < 0) {
-		snprintf(why->text, sizeof(why->text), "\"plan.method\": unknown method \"%s\"",
-			 method);
+		const char *near = asph_plan_method_suggest(method);
+		snprintf(why->text, sizeof(why->text), "\"plan.method\": unknown method \"%s\"%s%s%s",
+			 method, near ? " (did you mean \"" : "", near ? near : "", near ? "\"?)" : "");
 		return PROTO_INVALID_PLAN;
 	}
 	for (int k = 0; k < 3; k++) {

@@ -38,6 +38,7 @@
 #include "tokens.h"
 #include "util-time.h"
 #include "util-mem.h"
+#include "util-suggest.h"
 
 /* Exit codes, documented in docs/asphd.8.md. */
 enum {
@@ -851,7 +852,10 @@ static void teardown(struct daemon *d)
 static void usage(FILE *f)
 {
 	fprintf(f, "Usage: asphd [OPTIONS]\n\n"
-		   "The asphd measurement daemon.\n\n"
+		   "The asphd measurement daemon: runs the measurement jobs that asphctl (and\n"
+		   "the web page, with http_listen) submit, on the instruments of its\n"
+		   "configuration. Normally started by systemd (asphd.service); the manual page\n"
+		   "is asphd(8).\n\n"
 		   "  -c, --config FILE     configuration (default %s if it exists)\n"
 		   "  -s, --socket PATH     unix socket (default %s)\n"
 		   "  -d, --state-dir DIR   jobs, scans and results (default /var/lib/asphd)\n"
@@ -863,7 +867,10 @@ static void usage(FILE *f)
 		   "                        as a systemd drop-in or as udev rules, exit\n"
 		   "  -v, --verbose         log debug messages\n"
 		   "      --version         print the version\n"
-		   "  -h, --help            this help\n", DEFAULT_CONFIG, PROTO_DEFAULT_SOCKET);
+		   "  -h, --help            this help\n\n"
+		   "Exit status: 0 stopped cleanly (or --check-config found no error), 1 could\n"
+		   "not run, 2 bad command line, 3 a configuration error.\n",
+		   DEFAULT_CONFIG, PROTO_DEFAULT_SOCKET);
 }
 
 int main(int argc, char **argv)
@@ -889,6 +896,7 @@ int main(int argc, char **argv)
 	/* Jobs, scans and results are private to the daemon's user and group,
 	 * under systemd (UMask=0027) or not. */
 	umask(0027);
+	opterr = 0;
 	while ((c = getopt_long(argc, argv, "c:s:d:vh", opts, NULL)) != -1) {
 		switch (c) {
 		case 'c': d.config_path = optarg; break;
@@ -900,7 +908,12 @@ int main(int argc, char **argv)
 		case 'v': verbose = true; break;
 		case 'V': printf("asphd %s\n", ASPH_VERSION); return ASPHD_EXIT_OK;
 		case 'h': usage(stdout); return ASPHD_EXIT_OK;
-		default: usage(stderr); return ASPHD_EXIT_USAGE;
+		default: {
+			char why[256];
+			fprintf(stderr, "asphd: %s\nRun 'asphd --help' for the options.\n",
+				suggest_getopt_error(argv, "c:s:d:vh", opts, why, sizeof(why)));
+			return ASPHD_EXIT_USAGE;
+		}
 		}
 	}
 	if (optind < argc) {

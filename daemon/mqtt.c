@@ -14,6 +14,7 @@
 #include <jansson.h>
 #include <mosquitto.h>
 
+#include "asph/error.h"
 #include "log.h"
 #include "mailbox.h"
 #include "mqtt.h"
@@ -104,8 +105,16 @@ static void read_credentials(struct checker *ck, const char *path, struct mqtt_c
 	}
 	root = json_loadfd(fd, JSON_REJECT_DUPLICATES, &je);
 	if (!json_is_object(root)) {
-		complain(ck, "mqtt.credentials_file", -EINVAL, "%s:%d:%d: %s", path, je.line,
-			 je.column, root ? "must be a JSON object" : je.text);
+		/* jansson's line and column: -1 when it has none (a document
+		 * that is not an object); asph_error_format() leaves them out */
+		struct asph_error e;
+		char where[512];
+
+		asph_error_clear(&e);
+		asph_error_set_at(&e, -EINVAL, path, root ? 0 : je.line, root ? 0 : je.column, NULL,
+				  "%s", root ? "must be a JSON object" : je.text);
+		complain(ck, "mqtt.credentials_file", -EINVAL, "%s",
+			 asph_error_format(&e, where, sizeof(where)));
 		return;
 	}
 	json_object_foreach(root, key, v) {

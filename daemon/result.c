@@ -172,7 +172,7 @@ struct export_source {
 	const struct result_source *job;
 	const struct job_plan *jp;
 	const struct characterized *c;
-	const char *instrument_json;
+	const char *instrument_json, *instrument_name;
 	const struct asph_scatter *scatter;
 	const struct asph_grid *grid;
 	const struct asph_psd *psd;     /* NULL: too few samples for one */
@@ -197,13 +197,19 @@ static const char *meta_string(const json_t *meta, const char *key)
 	return json_string_value(json_object_get(meta, key));
 }
 
+/* The report: what, when and by whom from the job's metadata and its
+ * recorded scan. */
 static int write_report(FILE *f, void *data, struct asph_error *err)
 {
 	const struct export_source *e = data;
 	_cleanup_(json_decrefp) json_t *meta = json_loads(e->job->metadata, 0, NULL);
 	const struct asph_report r = {
 		.part = meta_string(meta, "part"), .lot = meta_string(meta, "lot"),
-		.serial = meta_string(meta, "serial"),
+		.serial = meta_string(meta, "serial"), .label = meta_string(meta, "label"),
+		.operator_name = meta_string(json_object_get(meta, "submitted_by"), "name"),
+		.measured_ns = e->c->scan->header.created_ns,
+		.measured_end_ns = e->c->scan->report.ended_ns, .job = e->job->job,
+		.instrument_name = e->instrument_name,
 		.lens_name = e->jp->lens_name ? e->jp->lens_name : e->jp->prescription.name,
 		.lens_json = e->jp->prescription_json, .plan_json = e->jp->plan_json,
 		.instrument_json = e->instrument_json, .data_name = RUNNER_SCAN_FILE,
@@ -273,8 +279,8 @@ static int write_psd_file(const struct result_source *job, const struct asph_psd
  * map of the part has neither; only a failure to write fails the result.
  */
 static int write_exports(const struct result_source *job, const struct job_plan *jp,
-			 const char *instrument_json, const struct characterized *c,
-			 json_t *files, struct asph_error *err)
+			 const struct asph_instrument_config *ic, const char *instrument_json,
+			 const struct characterized *c, json_t *files, struct asph_error *err)
 {
 	_cleanup_(asph_scatter_freep) struct asph_scatter *sc = NULL;
 	_cleanup_(asph_grid_freep) struct asph_grid *g = NULL;
@@ -283,7 +289,7 @@ static int write_exports(const struct result_source *job, const struct job_plan 
 	_cleanup_free_ double *v = malloc(c->res.n_used * sizeof(double) + 1);
 	double radius = asph_surface_aperture_radius(jp->surface);
 	struct export_source e = { .job = job, .jp = jp, .c = c, .instrument_json = instrument_json,
-				   .xy = xy, .residual_nm = v };
+				   .instrument_name = ic->name, .xy = xy, .residual_nm = v };
 	struct asph_error perr;
 	int r;
 
@@ -449,7 +455,7 @@ int result_build(const struct result_source *job, const struct job_plan *jp,
 	asph_instrument_config_to_json(ic, &inst);
 	r = write_residuals(job, &c, files, err);
 	if (r == 0)
-		r = write_exports(job, jp, inst, &c, files, err);
+		r = write_exports(job, jp, ic, inst, &c, files, err);
 	if (r < 0) {
 		json_decref(files);
 		goto out;

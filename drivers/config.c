@@ -89,10 +89,12 @@ int asph_instrument_spec_parse(const struct asph_registry *reg,
 	if (opts)
 		*opts++ = '\0';
 	const struct asph_driver *drv = asph_registry_find(reg, copy);
-	if (!drv)
+	if (!drv) {
+		char hint[96];
 		return asph_error_set(err, -ENOENT,
-				      "no driver '%s' (and no such configuration file); see asph drivers",
-				      copy);
+				      "no driver '%s'%s (and no such configuration file); see asph drivers",
+				      copy, driver_hint(reg, copy, hint, sizeof(hint)));
+	}
 	r = config_alloc(1, &c, err);
 	if (r < 0)
 		return r;
@@ -162,7 +164,7 @@ static int json_options(const struct json_source *src, json_t *obj,
 	const struct asph_driver *drv = asph_options_driver(opts);
 	const char *key;
 	json_t *v;
-	char dotted[256], buf[64];
+	char dotted[256], buf[64], hint[96];
 
 	if (!json_is_object(obj))
 		return json_error_set_at(err, -EINVAL, src, path, "options must be an object");
@@ -175,8 +177,9 @@ static int json_options(const struct json_source *src, json_t *obj,
 			dotted[0] = '\0';
 		if (i < 0)
 			return json_error_set_at(err, -ENOENT, src, dotted,
-						 "driver '%s' has no option '%s' (see asph drivers)",
-						 drv->name, key);
+						 "driver '%s' has no option '%s'%s (see asph drivers)",
+						 drv->name, key,
+						 option_hint(drv, key, hint, sizeof(hint)));
 		if (value_text(&drv->options[i], v, buf, sizeof(buf), &text) < 0)
 			return json_error_set_at(err, -EINVAL, src, dotted,
 						 "option '%s' expects %s", key,
@@ -223,9 +226,11 @@ static int json_role(const struct json_source *src, const struct asph_registry *
 					 json_object_get(obj, "driver") ? dotted : path,
 					 "\"driver\" must be a driver name");
 	const struct asph_driver *drv = asph_registry_find(reg, name);
-	if (!drv)
-		return json_error_set_at(err, -ENOENT, src, dotted,
-					 "no driver '%s' (see asph drivers)", name);
+	if (!drv) {
+		char hint[96];
+		return json_error_set_at(err, -ENOENT, src, dotted, "no driver '%s'%s (see asph drivers)",
+					 name, driver_hint(reg, name, hint, sizeof(hint)));
+	}
 	int r = role_options(drv, role, drv_out, opts, err);
 	if (r < 0)
 		return json_error_locate(err, r, src, dotted);

@@ -16,5 +16,12 @@ int option_parse(const struct asph_option_desc *d, const char *text,
 
 /* The index of name in drv's options, or -1. */
 int option_index(const struct asph_driver *drv, const char *name);
+/* " (did you mean 'NAME'?)" for an option name drv does not have, from its
+ * option descriptors, or "" (into buf). */
+const char *option_hint(const struct asph_driver *drv, const char *name, char *buf,
+			size_t size);
+/* The same for a driver name among those of reg. */
+const char *driver_hint(const struct asph_registry *reg, const char *name, char *buf,
+			size_t size);
 
 #endif

@@ -9,6 +9,7 @@
 
 #include "options-internal.h"
 #include "util-mem.h"
+#include "util-suggest.h"
 
 struct asph_options {
 	const struct asph_driver *drv;
@@ -136,6 +137,28 @@ int option_index(const struct asph_driver *drv, const char *name)
 	return -1;
 }
 
+const char *option_hint(const struct asph_driver *drv, const char *name, char *buf,
+			size_t size)
+{
+	struct suggest s;
+
+	suggest_init(&s, name);
+	for (size_t i = 0; i < drv->n_options; i++)
+		suggest_offer(&s, drv->options[i].name);
+	return suggest_hint(&s, buf, size);
+}
+
+const char *driver_hint(const struct asph_registry *reg, const char *name, char *buf,
+			size_t size)
+{
+	struct suggest s;
+
+	suggest_init(&s, name);
+	for (size_t i = 0; i < asph_registry_count(reg); i++)
+		suggest_offer(&s, asph_registry_get(reg, i)->name);
+	return suggest_hint(&s, buf, size);
+}
+
 void asph_options_free(struct asph_options *o)
 {
 	if (!o)
@@ -199,10 +222,12 @@ int asph_options_set(struct asph_options *o, const char *name,
 {
 	int i = option_index(o->drv, name);
 
-	if (i < 0)
+	if (i < 0) {
+		char hint[96];
 		return asph_error_set_at(err, -ENOENT, NULL, 0, 0, name,
-					 "driver '%s' has no option '%s' (see asph drivers)",
-					 o->drv->name, name);
+					 "driver '%s' has no option '%s'%s (see asph drivers)",
+					 o->drv->name, name, option_hint(o->drv, name, hint, sizeof(hint)));
+	}
 	return store(o, i, text, true, err);
 }
 

@@ -224,10 +224,12 @@ json_t *proto_parse(const char *text, size_t len, struct proto_why *why)
 	}
 	j = json_loadb(text, len, JSON_REJECT_DUPLICATES | JSON_ALLOW_NUL | JSON_DECODE_ANY, &e);
 	/* The column counts the mark too: it is a character of the line as
-	 * sent. */
-	if (!j)
-		proto_why_set(why, "column %d: %s", e.column > 0 ? e.column + skipped : e.column,
-			      e.text);
+	 * sent (0: at the start). jansson has none (-1) for an error that is
+	 * not at a place: then none is said. */
+	if (!j && e.column >= 0)
+		proto_why_set(why, "column %d: %s", e.column > 0 ? e.column + skipped : 0, e.text);
+	else if (!j)
+		proto_why_set(why, "%s", e.text);
 	return j;
 }
 

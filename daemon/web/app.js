@@ -361,7 +361,7 @@ async function showResult(id) {
   $("result-job").textContent = `#${id}`;
   const rows = [["lens", s.lens], ["points used", `${s.n_used} of ${s.n_points}`],
     ["RMS (nm)", fmt(s.rms_nm)], ["PV (nm)", fmt(s.pv_nm)], ["PVr (nm)", fmt(s.pvr_nm)],
-    ["slope RMS (µrad)", fmt(s.slope_rms_urad)], ["converged", s.converged ? "yes" : "no"]];
+    ["Zernike slope RMS (µrad)", fmt(s.slope_rms_urad)], ["converged", s.converged ? "yes" : "no"]];
   const table = el("table", { id: "verdict" }, el("tbody", {}, ...rows.map(([k, v]) => el("tr", {}, el("th", {}, k), el("td", {}, v)))));
   const pose = el("table", { id: "pose" }, el("thead", {}, el("tr", {}, el("th", {}, "DOF"), el("th", {}, "value"), el("th", {}, "± u"))),
     el("tbody", {}, ...Object.entries(s.dof || {}).map(([k, v]) => el("tr", {}, el("td", {}, k), el("td", {}, fmt(v)), el("td", {}, fmt((s.uncertainty || {})[k]))))));

@@ -5,6 +5,7 @@
 #include <stddef.h>
 
 #include "asph/error.h"
+#include "asph/progress.h"
 #include "asph/uncertainty.h"
 
 #ifdef __cplusplus
@@ -21,12 +22,13 @@ extern "C" {
  */
 
 /*
- * Progress, called on the thread that runs asph_mc_run_threads() (never
- * on a worker) after trials complete: done of planned (planned grows when
- * the adaptive stop asks for another block). A non-zero return cancels the
- * run: no trial starts after it, those running finish.
+ * Progress (asph/progress.h), called on the thread that runs
+ * asph_mc_run_threads() (never on a worker) after trials complete: done of
+ * planned (planned grows when the adaptive stop asks for another block). A
+ * non-zero return cancels the run: no trial starts after it, those running
+ * finish.
  */
-typedef int (*asph_mc_progress_fn)(void *data, size_t done, size_t planned);
+typedef asph_progress_fn asph_mc_progress_fn;
 
 struct asph_mc_threads {
 	int n_threads;          /* workers, 1..256; 0 = the online processors */

@@ -8,6 +8,7 @@
 #include "asph/areal.h"
 #include "asph/error.h"
 #include "asph/form.h"
+#include "asph/progress.h"
 #include "asph/surface.h"
 #include "asph/tolerance.h"
 #include "asph/units.h"
@@ -138,6 +139,11 @@ struct asph_fit_options {
 	const struct asph_tolerance *tolerance; /* NULL: no verdict; read
 				       by asph_fit_get_result(), so it must
 				       outlive the workspace */
+	/* asph_fit_run()'s steps as they go: Levenberg-Marquardt iterations
+	 * done, of 0 (the end is not known in advance), then once done of
+	 * done while the statistics are computed; a cancel makes it return
+	 * -ECANCELED. The stepwise calls do not use it. */
+	struct asph_progress progress;
 };
 
 /* Per-point state after the fit. */
@@ -241,7 +247,7 @@ void asph_fit_get_progress(const struct asph_fit *w,
 int asph_fit_get_result(struct asph_fit *w, struct asph_fit_result *out,
 			struct asph_error *err);
 
-/* All of the above. */
+/* All of the above, telling opts->progress of each iteration. */
 int asph_fit_run(struct asph_fit *w, const double *xyz, size_t n,
 		 struct asph_fit_result *out, struct asph_error *err);
 

@@ -1,8 +1,9 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
  * Lens files of other programs as prescriptions: the surfaces of an
- * OpticStudio sequential lens file (.zmx; UTF-8, or UTF-16 with a byte-order
- * mark) or the rows of a CSV table (R,k,A4,...,aperture_diameter).
+ * OpticStudio sequential lens file (.zmx; UTF-8, UTF-16 with a byte-order
+ * mark, or Latin-1; any lens units, converted to mm) or the rows of a CSV
+ * table (R,k,A4,...,aperture_diameter).
  * docs/prescriptions.md ("Importing from lens design files") lists what is
  * read. The text is untrusted: a refusal names the line, the column and the
  * keyword or column.
@@ -33,10 +34,11 @@ struct asph_lens_import;
 /* One surface the file holds: a .zmx SURF block or a CSV row. */
 struct asph_lens_surface {
 	int number;                 /* the SURF number; a CSV row's, from 1 */
-	char type[32];              /* the .zmx TYPE; "" in a CSV table */
+	char type[32];              /* the .zmx TYPE (STANDARD without one); ""
+				       in a CSV table */
 	double R;                   /* mm; INFINITY for a plane */
 	double k;
-	double aperture_diameter;   /* mm; 0 when the file gives none */
+	double aperture_diameter;   /* mm, twice DIAM; 0 when the file gives none */
 	int line;                   /* where it starts, from 1 */
 };
 
@@ -59,6 +61,11 @@ void asph_lens_import_free(struct asph_lens_import *im);
 
 enum asph_lens_format asph_lens_import_format(const struct asph_lens_import *im);
 
+/* A .zmx file's lens units as its UNIT line names them ("MM" without one:
+ * "MM", "CM", "IN", "INCH", "M", ...); "" for a CSV table. Every length the
+ * reader gives is in mm, converted from them. */
+const char *asph_lens_import_unit(const struct asph_lens_import *im);
+
 /* How many surfaces (at least 1), and the i-th (i < count). */
 size_t asph_lens_import_count(const struct asph_lens_import *im);
 void asph_lens_import_surface(const struct asph_lens_import *im, size_t i,
@@ -67,13 +74,17 @@ void asph_lens_import_surface(const struct asph_lens_import *im, size_t i,
 /*
  * The surface numbered `number` (-1: the only one) as a checked
  * prescription, named "BASE-sN" after the file (BASE: its name without
- * folders and extensions) and the surface. -ENOENT when the file has no such
- * surface (or, for -1, several); -EINVAL, with where, when the surface
- * cannot be a prescription (a type that is not imported, a rotationally
- * symmetric plane, no aperture, an aperture the type cannot take, bad
- * Q-type parameters, a parameter or extra datum the type does not have).
- * The freeform types (BICONICX, TOROIDAL, XPOLYNOM, SZERNSAG) become
- * biconic, toroidal, xy_polynomial and zernike_sag prescriptions.
+ * folders and extensions) and the surface, in mm (a file in other lens
+ * units says so in the prescription's note). -ENOENT when the file has no
+ * such surface (or, for -1, several); -EINVAL, with where, when the surface
+ * cannot be a prescription (a type that is not imported, no aperture, a
+ * user-defined aperture, bad Q-type data, a parameter or extra datum the
+ * type does not have, a conic that ends inside the aperture).
+ * STANDARD, EVENASPH, ODDASPHE and QED_TYPE become even_asphere,
+ * odd_asphere, qbfs and qcon prescriptions (CURV 0: a plane base; an
+ * aperture line with a decenter: an off-axis segment); the freeform types
+ * (BICONICX, TOROIDAL, XPOLYNOM, SZERNSAG) biconic, toroidal,
+ * xy_polynomial and zernike_sag.
  */
 int asph_lens_import_prescription(const struct asph_lens_import *im, int number,
 				  struct asph_prescription *out,

@@ -7,6 +7,7 @@
 
 #include "asph/error.h"
 #include "asph/points.h"
+#include "asph/progress.h"
 #include "asph/surface.h"
 
 #ifdef __cplusplus
@@ -33,6 +34,9 @@ enum asph_plan_method {
 /* Name as on the command line ("op", "ot", ...) and back. */
 const char *asph_plan_method_name(enum asph_plan_method m);
 int asph_plan_method_from_name(const char *name, enum asph_plan_method *out);
+/* The method name closest to a mistyped one ("cvtt": "cvt"), or NULL when
+ * none is near. */
+const char *asph_plan_method_suggest(const char *name);
 
 /* How dense a plan is: exactly one of three ways. */
 enum asph_plan_density_kind {
@@ -84,7 +88,14 @@ enum asph_plan_flags {
 struct asph_plan_options {
 	size_t max_points;       /* refuse larger plans; 0 = no limit */
 	unsigned flags;          /* enum asph_plan_flags */
+	/* The long part of a plan (CVT's iterations: done of at most
+	 * ASPH_PLAN_CVT_MAX_ITERATIONS) as it goes; its cancel makes the
+	 * computation return -ECANCELED. */
+	struct asph_progress progress;
 };
+
+/* The most iterations a CVT plan takes (the total its progress counts to). */
+#define ASPH_PLAN_CVT_MAX_ITERATIONS 100
 
 int asph_plan_compute_opts(const struct asph_surface *s,
 			   enum asph_plan_method m,

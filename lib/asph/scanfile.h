@@ -289,6 +289,8 @@ struct asph_scanfile_report {
 	enum asph_scanfile_outcome outcome;
 	const char *reason;        /* of the end block, or NULL */
 	unsigned n_resumes;        /* times the scan was resumed */
+	int64_t ended_ns;          /* when the end block was written, realtime
+				    * ns since the Unix epoch; 0: no end block */
 };
 
 struct asph_scanfile_reader;

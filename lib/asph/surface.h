@@ -15,11 +15,16 @@ extern "C" {
  *
  * Every surface type answers the same functions of (x, y): sag, gradient
  * and Hessian (all analytic), normal, area element, aperture membership and
- * bounds, area. Rotationally symmetric types (asph_surface_is_rotational())
- * are z = Z(r), r = sqrt(x^2 + y^2), and answer the (x, y) functions through
- * r; they also answer the radial functions (sag and its radial derivatives,
- * meridian arc length, area inside a radius and their inverses) on which
- * the paper's sampling plans rest. Freeform types answer NaN there.
+ * bounds, area. The rotationally symmetric types (asph_surface_is_radial())
+ * are z = Z(r), r = sqrt(x^2 + y^2), and answer the (x, y) functions and
+ * Z(r) with its radial derivatives through r. Over a centred circular
+ * aperture (asph_surface_is_rotational()) they also answer the radial
+ * functions of the whole part (meridian arc length, area inside a radius
+ * and their inverses) on which the paper's sampling plans rest. Freeform
+ * types answer NaN to the radial functions; a rotationally symmetric
+ * parent over an off-centre or non-circular aperture (an off-axis
+ * segment) answers Z(r) but NaN to the arc length and area functions, and
+ * is sampled as the freeforms are.
  *
  * Units: mm and radians. The z axis points from the vertex into the part
  * (sag is positive for a convex-up surface with R > 0, as in the paper).
@@ -64,8 +69,10 @@ static inline int asph_xy_index(int i, int j)
 /*
  * The clear aperture, in the part's own x-y frame. A shape of 0 means the
  * prescription gives aperture_diameter (a centred circle); the other shapes
- * are for the freeform types. width and height are full sizes along x and y
- * (a circle's diameter is both); offset moves the centre.
+ * give any type a circle, a rectangle or an ellipse, off-centre when offset
+ * is not 0 (an off-axis segment of a rotationally symmetric parent).
+ * width and height are full sizes along x and y (a circle's diameter is
+ * both); offset moves the centre.
  */
 enum asph_aperture_shape {
 	ASPH_APERTURE_FROM_DIAMETER = 0,
@@ -96,14 +103,19 @@ struct asph_aperture {
  *   q2d: sphere(R) + [u^2 (1 - u^2) sum a_n^0 Q_n^0(u^2) + sum_m u^m
  *        sum_n (a_n^m cos m theta + b_n^m sin m theta) Q_n^m(u^2)]
  *        / sqrt(1 - r^2/R^2)
- * The freeform types with a base curvature (toroidal, xy_polynomial,
- * zernike_sag, q2d, and biconic's Rx, Ry) take R = INFINITY for a flat
- * base.
+ * Qbfs with a conic (k != 0) measures its departure along the normal of
+ * the base conic: the factor 1 / sqrt(1 - c^2 r^2) becomes
+ * sqrt((1 - k c^2 r^2) / (1 - (1 + k) c^2 r^2)), as OpticStudio's Q-type
+ * asphere has it. Every type with a base curvature (R, and biconic's Rx,
+ * Ry) takes R = INFINITY for a flat base (curvature 0).
  */
 struct asph_prescription {
 	enum asph_surface_type type;
 	char name[64];          /* preset name or file stem, for display */
-	double R;               /* vertex radius of curvature, mm; != 0 */
+	/* free text kept with the prescription, e.g. what an import converted */
+	char note[256];
+	double R;               /* vertex radius of curvature, mm; != 0;
+				   INFINITY (either sign) for a flat base */
 	double k;               /* conic constant */
 	/* A[i] multiplies r^i (mm^(1-i)); the even asphere uses i = 2,4,..,20,
 	 * the odd asphere i = 1..20; 0 for the Q types. */
@@ -135,8 +147,8 @@ struct asph_prescription {
 	 * [m - 1][n], over the best-fit sphere R; the m = 0 terms are Q[]. */
 	double q2d_a[ASPH_SURFACE_Q2D_MAX_M][ASPH_SURFACE_Q2D_MAX_N + 1];
 	double q2d_b[ASPH_SURFACE_Q2D_MAX_M][ASPH_SURFACE_Q2D_MAX_N + 1];
-	/* Freeform types only: a non-circular or off-centre aperture, with
-	 * aperture_diameter 0. */
+	/* A non-circular or off-centre aperture, with aperture_diameter 0
+	 * (shape 0: aperture_diameter gives a centred circle). */
 	struct asph_aperture aperture;
 };
 
@@ -172,6 +184,14 @@ int asph_surface_type_has_conic(enum asph_surface_type type);
 
 /* Whether surfaces of the type are rotationally symmetric about z. */
 int asph_surface_type_is_rotational(enum asph_surface_type type);
+
+/* Whether the sag is a function Z(r) of the distance from the axis alone
+ * (a rotationally symmetric type), whatever the aperture. */
+int asph_surface_is_radial(const struct asph_surface *s);
+
+/* Whether the part is rotationally symmetric: Z(r) over a circular
+ * aperture centred on the axis, so that the radial functions below
+ * describe all of it. */
 int asph_surface_is_rotational(const struct asph_surface *s);
 
 /* ---- the graph z = S(x, y): every type ---------------------------------- */
@@ -268,7 +288,7 @@ void asph_surface_extent(const struct asph_surface *s,
 /* ---- rotationally symmetric types: Z(r) ------------------------------- */
 
 /* Z(r). Defined for 0 <= r while the conic root stays real; NaN past that
- * and for freeform types. */
+ * and for freeform types (asph_surface_is_radial() is 0). */
 double asph_surface_sag(const struct asph_surface *s, double r);
 
 /* d[0] = Z(r), d[1] = Z'(r), d[2] = Z''(r), all analytic (NaN for freeform
@@ -277,7 +297,7 @@ void asph_surface_sag_derivs(const struct asph_surface *s, double r,
 			     double d[3]);
 
 /* Meridian arc length s(r) = int_0^r sqrt(1 + Z'(t)^2) dt, and its inverse
- * (rotationally symmetric types; NaN for freeform types).
+ * (asph_surface_is_rotational(); NaN otherwise).
  * Computed once by composite Gauss-Legendre quadrature, then interpolated
  * (piecewise Chebyshev) to a relative accuracy of 1e-14 or better, so each
  * evaluation, forward or inverse, costs about as much as one sag. */
@@ -286,13 +306,14 @@ double asph_surface_radius_at_arc_length(const struct asph_surface *s,
 					 double arc);
 
 /* Surface area inside radius r: 2 pi int_0^r t sqrt(1 + Z'(t)^2) dt,
- * and its inverse (rotationally symmetric types; NaN for freeform types). */
+ * and its inverse (asph_surface_is_rotational(); NaN otherwise). */
 double asph_surface_area(const struct asph_surface *s, double r);
 double asph_surface_radius_at_area(const struct asph_surface *s, double area);
 
 /* Largest |Z'| over [0, a]; *r_at (if not NULL) gets where it occurs. For
- * a freeform, the largest |grad S| and the distance from the axis of where
- * it occurs (asph_surface_extent() has the point). */
+ * a freeform or an off-axis segment, the largest |grad S| over the
+ * aperture and the distance from the axis of where it occurs
+ * (asph_surface_extent() has the point). */
 double asph_surface_max_slope(const struct asph_surface *s, double *r_at);
 
 /* gamma = area inside the aperture / (pi a^2): the paper's Eq. (10); for

@@ -61,8 +61,37 @@ int asph_tolerance_parse_json(const char *text, size_t len,
 			      const char *source, struct asph_tolerance *t,
 			      struct asph_error *err);
 
-/* arg is JSON text when it starts (after blanks) with '{' or '"', else a
- * file name ("-": stdin) holding it. */
+/*
+ * What a tolerance given on a command line or in a form is, by the one
+ * rule of asph, asphctl and the web page: JSON text when it starts (after
+ * blanks) with '{' or '"', an ISO 10110-5 call-out when it starts with "3"
+ * and "/" (blanks allowed: "3/2(0.5/0.3)"), else the name of a file holding
+ * the JSON ("-": standard input; a file whose name starts with "3/" is
+ * named "./3/...").
+ */
+enum asph_tolerance_arg_kind {
+	ASPH_TOLERANCE_ARG_JSON = 0,
+	ASPH_TOLERANCE_ARG_CALLOUT,
+	ASPH_TOLERANCE_ARG_FILE,
+};
+
+static inline enum asph_tolerance_arg_kind asph_tolerance_arg_kind(const char *arg)
+{
+	while (*arg == ' ' || *arg == '\t' || *arg == '\n' || *arg == '\r')
+		arg++;
+	if (*arg == '{' || *arg == '"')
+		return ASPH_TOLERANCE_ARG_JSON;
+	if (*arg++ == '3') {
+		while (*arg == ' ' || *arg == '\t')
+			arg++;
+		if (*arg == '/')
+			return ASPH_TOLERANCE_ARG_CALLOUT;
+	}
+	return ASPH_TOLERANCE_ARG_FILE;
+}
+
+/* A tolerance as asph_tolerance_arg_kind() tells: the JSON text, the
+ * call-out alone (errors give its column), or the file holding the JSON. */
 int asph_tolerance_load(const char *arg, struct asph_tolerance *t,
 			struct asph_error *err);
 
@@ -89,7 +118,9 @@ enum asph_verdict asph_verdict_decide(double value, double U, double limit);
 
 struct asph_verdict_item {
 	const char *quantity;       /* "A_nm", "B_nm", ..., "R_deviation_mm" */
-	double value, U, limit;     /* NaN: not available */
+	double value, U, limit;     /* NaN: not available. A and R_deviation
+				       keep their sign and are decided on
+				       their magnitude (zone [-limit, limit]) */
 	enum asph_verdict verdict;
 };
 

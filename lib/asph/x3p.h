@@ -17,8 +17,9 @@ extern "C" {
  * X3P files (ISO 25178-72, the openGPS ISO 5436-2 XML format): a ZIP
  * container (libzip) holding main.xml (libxml2), bindata/data.bin
  * (little-endian IEEE doubles, metres) with its MD5 in main.xml, and
- * md5checksum.hex, the MD5 of main.xml. docs/characterization.md,
- * "Exports", gives the layout of each kind.
+ * md5checksum.hex, the MD5 of main.xml. main.xml validates against the
+ * ISO 5436-2:2008 schema and the ISO 25178-72:2017/Amd 1:2020 one.
+ * docs/characterization.md, "Exports", gives the layout of each kind.
  */
 
 struct asph_x3p_info {
@@ -30,6 +31,9 @@ struct asph_x3p_info {
 	const char *probing_id;        /* Record2/ProbingSystem/Identification */
 	const char *comment;           /* Record2/Comment, may be NULL */
 	int64_t date_ns;               /* Record2/Date, ns since 1970; 0: now */
+	int64_t calibration_date_ns;   /* Record2/CalibrationDate, ns since 1970;
+					  0: unknown, written as Date (ISO
+					  5436-2:2008 requires one) */
 };
 
 /* List layout (FeatureType PCL, ListDimension n): the points xyz (mm, 3 n)
@@ -40,8 +44,9 @@ int asph_x3p_write_points(const char *path, const double *xyz, size_t n,
 			  struct asph_error *err);
 
 /* Matrix layout (FeatureType SUR, MatrixDimension nx x ny x 1): the grid
- * (x, y in mm, z in nm) with incremental X and Y axes and absolute Z, in
- * metres; masked nodes are NaN, which ISO 5436-2 reads as invalid. */
+ * (x, y in mm, z in nm) with incremental X and Y axes, their Offset the
+ * grid's first node (x0, y0), and absolute Z, in metres; masked nodes are
+ * NaN, which ISO 5436-2 reads as invalid. */
 int asph_x3p_write_grid(const char *path, const struct asph_grid *g,
 			const struct asph_x3p_info *info,
 			struct asph_error *err);

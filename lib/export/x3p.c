@@ -56,31 +56,44 @@ static void number_child(xmlNodePtr parent, const char *name, double v)
 	text_child(parent, name, buf);
 }
 
-static void axis(xmlNodePtr axes, const char *name, int incremental, double increment)
+/* An axis: incremental (the coordinate of index i is offset + i increment,
+ * in metres) or absolute (the data hold the coordinate). */
+static void axis(xmlNodePtr axes, const char *name, int incremental, double increment,
+		 double offset)
 {
 	xmlNodePtr a = element(axes, name);
 
 	text_child(a, "AxisType", incremental ? "I" : "A");
 	text_child(a, "DataType", "D");
 	number_child(a, "Increment", increment);
-	number_child(a, "Offset", 0);
+	number_child(a, "Offset", offset);
 }
 
-static void record2(xmlNodePtr root, const struct asph_x3p_info *in)
+/* xsd:dateTime with an explicit zone, of ns since 1970 (0: now). */
+static void date_child(xmlNodePtr parent, const char *name, int64_t ns)
 {
-	struct asph_x3p_info info = { 0 };
-	xmlNodePtr r = element(root, "Record2"), ins, ps;
 	char date[64];
 
-	if (in)
-		info = *in;
-	/* xsd:dateTime with an explicit zone. */
-	iso8601_utc(info.date_ns ? info.date_ns : now_realtime_ns(), 3, date, sizeof(date));
+	iso8601_utc(ns ? ns : now_realtime_ns(), 3, date, sizeof(date));
 	if (date[0] && date[strlen(date) - 1] == 'Z') {
 		date[strlen(date) - 1] = '\0';
 		strncat(date, "+00:00", sizeof(date) - strlen(date) - 1);
 	}
-	text_child(r, "Date", date);
+	text_child(parent, name, date);
+}
+
+/* Record2 in the order of ISO 5436-2:2008, which requires the
+ * CalibrationDate that the 2017 amendment makes optional. */
+static void record2(xmlNodePtr root, const struct asph_x3p_info *in)
+{
+	struct asph_x3p_info info = { 0 };
+	xmlNodePtr r = element(root, "Record2"), ins, ps;
+
+	if (in)
+		info = *in;
+	if (!info.date_ns)
+		info.date_ns = now_realtime_ns();
+	date_child(r, "Date", info.date_ns);
 	if (info.creator)
 		text_child(r, "Creator", info.creator);
 	ins = element(r, "Instrument");
@@ -88,6 +101,8 @@ static void record2(xmlNodePtr root, const struct asph_x3p_info *in)
 	text_child(ins, "Model", info.model ? info.model : "asph");
 	text_child(ins, "Serial", info.serial ? info.serial : "-");
 	text_child(ins, "Version", info.version ? info.version : "-");
+	date_child(r, "CalibrationDate",
+		   info.calibration_date_ns ? info.calibration_date_ns : info.date_ns);
 	ps = element(r, "ProbingSystem");
 	text_child(ps, "Type", info.probing_type ? info.probing_type : "Software");
 	text_child(ps, "Identification", info.probing_id ? info.probing_id : "-");
@@ -99,6 +114,7 @@ struct layout {
 	const char *feature;        /* PCL or SUR */
 	int incremental_xy;
 	double dx;                  /* m, incremental axes */
+	double x0, y0;              /* m, the first node of incremental axes */
 	size_t nx, ny, list;        /* list > 0: ListDimension */
 };
 
@@ -117,9 +133,9 @@ static int main_xml(const struct layout *L, const char *data_md5,
 	text_child(r1, "Revision", "ISO5436 - 2000");
 	text_child(r1, "FeatureType", L->feature);
 	axes = element(r1, "Axes");
-	axis(axes, "CX", L->incremental_xy, L->incremental_xy ? L->dx : 1);
-	axis(axes, "CY", L->incremental_xy, L->incremental_xy ? L->dx : 1);
-	axis(axes, "CZ", 0, 1);
+	axis(axes, "CX", L->incremental_xy, L->incremental_xy ? L->dx : 1, L->x0);
+	axis(axes, "CY", L->incremental_xy, L->incremental_xy ? L->dx : 1, L->y0);
+	axis(axes, "CZ", 0, 1, 0);
 	record2(root, info);
 	r3 = element(root, "Record3");
 	if (L->list) {
@@ -289,9 +305,13 @@ static int grid_data(const char *name, const struct asph_grid *g, struct layout 
 	size_t m = g->nx * g->ny;
 	uint8_t *data;
 
-	if (m == 0 || !(g->dx > 0) || !isfinite(g->dx))
-		return asph_error_set(err, -EINVAL, "%s: an empty grid or a bad spacing", name);
+	if (m == 0 || !(g->dx > 0) || !isfinite(g->dx) || !isfinite(g->x0) || !isfinite(g->y0))
+		return asph_error_set(err, -EINVAL, "%s: an empty grid or a bad spacing or origin",
+				      name);
+	/* the grid where it lies in the part frame: node (i, j) at
+	 * (x0 + i dx, y0 + j dx) */
 	*L = (struct layout){ .feature = "SUR", .incremental_xy = 1, .dx = g->dx * MM_TO_M,
+			      .x0 = g->x0 * MM_TO_M, .y0 = g->y0 * MM_TO_M,
 			      .nx = g->nx, .ny = g->ny };
 	data = malloc(8 * m);
 	if (!data)

@@ -23,10 +23,11 @@ void fit_model_init(struct fit_model *m, const struct asph_surface *s)
 	const struct asph_prescription *p = asph_surface_prescription(s);
 
 	m->s = s;
-	m->rotational = asph_surface_is_rotational(s);
+	m->rotational = asph_surface_is_radial(s);
+	m->centred = asph_surface_is_rotational(s);
 	m->a = asph_surface_aperture_radius(s);
 	m->conic_changed = 0;
-	m->c0 = m->c = m->rotational ? 1.0 / p->R : 0.0;
+	m->c0 = m->c = m->rotational && isfinite(p->R) ? 1.0 / p->R : 0.0;
 	m->K0 = m->K = 1.0 + p->k;
 }
 
@@ -378,7 +379,8 @@ int asph_fit_closest_point(const struct asph_surface *s, const double p[3],
 	fit_foot_normal(&f, p, out->normal);
 	out->distance = f.dist;
 	out->foot_radius = fabs(f.r);
-	out->inside = out->foot_radius <= m.a;
+	out->inside = m.centred ? out->foot_radius <= m.a
+				: asph_surface_contains(s, out->foot[0], out->foot[1], 0);
 	out->iterations = f.iterations;
 	return 0;
 }

@@ -25,9 +25,13 @@ size_t asph_fit_residual_map(const struct asph_fit *w, double *xy,
 		double rho, theta;
 		if (w->status[i] != ASPH_FIT_POINT_USED)
 			continue;
-		fit_point_polar(w, i, &rho, &theta);
-		xy[2 * m] = rho * w->model.a * cos(theta);
-		xy[2 * m + 1] = rho * w->model.a * sin(theta);
+		if (w->model.centred) {
+			fit_point_polar(w, i, &rho, &theta);
+			xy[2 * m] = rho * w->model.a * cos(theta);
+			xy[2 * m + 1] = rho * w->model.a * sin(theta);
+		} else {
+			fit_point_foot(w, i, xy + 2 * m);
+		}
 		value_nm[m++] = asph_nm_from_mm(w->resid[i]).v;
 	}
 	return m;
@@ -68,8 +72,9 @@ static void form_invalid(struct asph_form *f, double wavelength)
 	f->rms_t.v = f->rms_i.v = f->rms_a.v = NAN;
 }
 
-static int compute_form(const double *xy, const double *val, size_t m, double a,
-			double wavelength, double noise, struct asph_fit_result *out,
+/* The form quantities over the disk of radius a about centre. */
+static int compute_form(const double *xy, const double *val, size_t m, const double centre[2],
+			double a, double wavelength, double noise, struct asph_fit_result *out,
 			struct asph_error *err)
 {
 	_cleanup_free_ double *rho = malloc(m * sizeof(double) + 1);
@@ -80,8 +85,8 @@ static int compute_form(const double *xy, const double *val, size_t m, double a,
 	if (!rho || !theta)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	for (size_t k = 0; k < m; k++) {
-		rho[k] = hypot(xy[2 * k], xy[2 * k + 1]) / a;
-		theta[k] = atan2(xy[2 * k + 1], xy[2 * k]);
+		rho[k] = hypot(xy[2 * k] - centre[0], xy[2 * k + 1] - centre[1]) / a;
+		theta[k] = atan2(xy[2 * k + 1] - centre[1], xy[2 * k] - centre[0]);
 	}
 	r = asph_form_compute(rho, theta, val, m, &fo, &out->form, &out->uncertainty_k2, err);
 	if (r == -EDOM) {
@@ -168,9 +173,11 @@ int fit_fill_form(struct asph_fit *w, struct asph_fit_result *out,
 	_cleanup_free_ double *xy = malloc(2 * w->n * sizeof(double) + 1);
 	_cleanup_free_ double *val = malloc(w->n * sizeof(double) + 1);
 	double wavelength = w->opt.wavelength_nm, length = w->opt.slope_length_mm;
-	double a = w->model.a, noise = noise_nm(out);
+	double a = w->model.a, noise = noise_nm(out), centre[2], disk_r;
 	size_t m;
 	int r;
+
+	asph_surface_aperture_disk(w->model.s, centre, &disk_r);
 
 	if (!xy || !val)
 		return asph_error_set(err, -ENOMEM, "out of memory");
@@ -181,7 +188,7 @@ int fit_fill_form(struct asph_fit *w, struct asph_fit_result *out,
 							 : DEFAULT_SLOPE_LENGTH_MM;
 	asph_uncertainty_k2_clear(&out->uncertainty_k2);
 	m = asph_fit_residual_map(w, xy, val);
-	r = compute_form(xy, val, m, a, wavelength, noise, out, err);
+	r = compute_form(xy, val, m, centre, disk_r, wavelength, noise, out, err);
 	if (r == 0 && out->form_valid) {
 		remove_tilt(xy, val, m);
 		r = compute_slope(xy, val, m, a, length, noise, out, err);
@@ -191,7 +198,7 @@ int fit_fill_form(struct asph_fit *w, struct asph_fit_result *out,
 	}
 	if (r < 0)
 		return r;
-	out->R_nominal_mm = 1.0 / w->model.c0;
+	out->R_nominal_mm = w->model.c0 != 0 ? 1.0 / w->model.c0 : INFINITY;
 	out->R_deviation_mm = NAN;
 	if (w->opt.dof & ASPH_FIT_DOF_BIT(ASPH_FIT_R)) {
 		out->R_deviation_mm = out->value[ASPH_FIT_R] - out->R_nominal_mm;

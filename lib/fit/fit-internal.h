@@ -80,8 +80,13 @@ struct asph_fit {
  * statuses, and counts the changes in or out. Returns the number outside. */
 size_t fit_evaluate_all(struct asph_fit *w);
 
-/* The foot's azimuthal position in the part frame for point i at the
- * current parameters (or the point's own radius for sag residuals). */
+/* The foot of point i in the part frame at the current parameters (the
+ * point's own x, y for sag residuals). */
+void fit_point_foot(const struct asph_fit *w, size_t i, double xy[2]);
+
+/* That foot in polar coordinates over the disk that holds the aperture
+ * about its centre (for a centred circle, the aperture itself): rho in
+ * [0, 1] inside, theta from +x. */
 void fit_point_polar(const struct asph_fit *w, size_t i, double *rho,
 		     double *theta);
 

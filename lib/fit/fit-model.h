@@ -16,8 +16,11 @@
  */
 struct fit_model {
 	const struct asph_surface *s;
-	int rotational;         /* else a freeform: the (x, y) kernel, no conic change */
-	double a;               /* aperture radius */
+	int rotational;         /* Z(r): the meridian kernel and the conic change;
+				   else a freeform: the (x, y) kernel */
+	int centred;            /* the aperture is a disk about the axis; else a
+				   point's foot is tested against its shape */
+	double a;               /* aperture radius (farthest aperture point) */
 	int conic_changed;
 	double c0, K0;          /* nominal */
 	double c, K;            /* current */

@@ -16,8 +16,7 @@
 #include "fit-internal.h"
 #include "util-mem.h"
 
-void fit_point_polar(const struct asph_fit *w, size_t i, double *rho,
-		     double *theta)
+void fit_point_foot(const struct asph_fit *w, size_t i, double xy[2])
 {
 	struct asph_pose pose = {
 		{ w->full[0], w->full[1], w->full[2] },
@@ -26,13 +25,34 @@ void fit_point_polar(const struct asph_fit *w, size_t i, double *rho,
 	double q[3], r = w->r_foot[i], rq;
 
 	if (!w->model.rotational) {
-		/* the foot itself (or the point, for sag residuals), over the
-		 * disk about the aperture's centre */
-		const struct fit_surface_point *f = &w->foot[i];
-		double c[2], R;
+		xy[0] = w->foot[i].x;
+		xy[1] = w->foot[i].y;
+		return;
+	}
+	asph_pose_apply_inverse(&pose, w->xyz + 3 * i, q);
+	rq = hypot(q[0], q[1]);
+	/* on q's meridian, across the axis when r < 0 */
+	double t = w->opt.residual == ASPH_FIT_RESIDUAL_SAG || !(rq > 0) ? 1.0 : r / rq;
+	xy[0] = t * q[0];
+	xy[1] = t * q[1];
+}
+
+void fit_point_polar(const struct asph_fit *w, size_t i, double *rho,
+		     double *theta)
+{
+	struct asph_pose pose = {
+		{ w->full[0], w->full[1], w->full[2] },
+		w->full[ASPH_FIT_RX], w->full[ASPH_FIT_RY], w->full[ASPH_FIT_RZ],
+	};
+	double q[3], r = w->r_foot[i], rq, xy[2], c[2], R;
+
+	if (!w->model.centred) {
+		/* the foot (or the point, for sag residuals) over the disk
+		 * about the aperture's centre */
+		fit_point_foot(w, i, xy);
 		asph_surface_aperture_disk(w->model.s, c, &R);
-		*rho = hypot(f->x - c[0], f->y - c[1]) / R;
-		*theta = atan2(f->y - c[1], f->x - c[0]);
+		*rho = hypot(xy[0] - c[0], xy[1] - c[1]) / R;
+		*theta = atan2(xy[1] - c[1], xy[0] - c[0]);
 		return;
 	}
 	asph_pose_apply_inverse(&pose, w->xyz + 3 * i, q);

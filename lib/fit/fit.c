@@ -145,6 +145,19 @@ static int point_eval_xy(struct asph_fit *w, const double q[3], size_t i, double
 	return !asph_surface_contains(w->model.s, f->x, f->y, tol);
 }
 
+/* Whether a foot at the signed meridian coordinate r along the azimuth of
+ * q lies past the aperture (grown by the tolerance): on a disk about the
+ * axis by its radius, else by the aperture's shape. */
+static int past_aperture(const struct asph_fit *w, const double q[3], double r)
+{
+	double rho = hypot(q[0], q[1]);
+
+	if (w->model.centred)
+		return fabs(r) > w->model.a + w->opt.aperture_tolerance;
+	return !asph_surface_contains(w->model.s, rho > 0 ? r * q[0] / rho : r,
+				      rho > 0 ? r * q[1] / rho : 0, w->opt.aperture_tolerance);
+}
+
 /*
  * Residual of point i, at q in the part frame; refreshes its foot.
  * Returns 0 inside, 1 when the foot is past the aperture, -1 when there is
@@ -152,8 +165,6 @@ static int point_eval_xy(struct asph_fit *w, const double q[3], size_t i, double
  */
 static int point_eval(struct asph_fit *w, const double q[3], size_t i, double *res)
 {
-	double lim = w->model.a + w->opt.aperture_tolerance;
-
 	if (!w->model.rotational)
 		return point_eval_xy(w, q, i, res);
 	if (w->opt.residual == ASPH_FIT_RESIDUAL_SAG) {
@@ -164,7 +175,7 @@ static int point_eval(struct asph_fit *w, const double q[3], size_t i, double *r
 		w->slope[i] = d[1];
 		if (!isfinite(*res))
 			return -1;
-		return rho > lim;
+		return past_aperture(w, q, rho);
 	}
 	struct fit_foot f;
 	if (fit_foot(&w->model, q, w->r_foot[i], &f) < 0) {
@@ -175,7 +186,7 @@ static int point_eval(struct asph_fit *w, const double q[3], size_t i, double *r
 	w->r_foot[i] = f.r;
 	w->slope[i] = f.slope;
 	*res = f.dist;
-	return fabs(f.r) > lim;
+	return past_aperture(w, q, f.r);
 }
 
 static int point_counts(const struct asph_fit *w, size_t i)
@@ -526,7 +537,9 @@ int asph_fit_alloc(const struct asph_surface *s, size_t n_max,
 		return asph_error_set(err, -EINVAL,
 				      "a %s surface has no conic constant: k cannot be fitted (R can)",
 				      asph_surface_type_name(type));
-	int rotational = asph_surface_is_rotational(s);
+	/* the sag's symmetry, whatever the aperture: an off-axis segment of a
+	 * rotationally symmetric parent looks the same clocked about the axis */
+	int rotational = asph_surface_is_radial(s);
 	if ((w->opt.dof & ASPH_FIT_DOF_BIT(ASPH_FIT_RZ)) && rotational)
 		return asph_error_set(err, -EINVAL,
 				      "surface type %s is rotationally symmetric: it looks the same "
@@ -536,6 +549,11 @@ int asph_fit_alloc(const struct asph_surface *s, size_t n_max,
 		return asph_error_set(err, -EINVAL,
 				      "R and k are fitted on rotationally symmetric surfaces only; "
 				      "surface type %s takes the rigid motions tx, ty, tz, rx, ry, rz",
+				      asph_surface_type_name(type));
+	if ((w->opt.dof & ASPH_FIT_DOF_BIT(ASPH_FIT_R)) && isinf(asph_surface_prescription(s)->R))
+		return asph_error_set(err, -EINVAL,
+				      "the base of this %s is a plane (curvature 0): its radius R "
+				      "cannot be fitted from infinity",
 				      asph_surface_type_name(type));
 	if (rotational && w->opt.start.rz != 0)
 		return asph_error_set(err, -EINVAL, "fit options: a start rz on a rotationally "
@@ -957,12 +975,21 @@ void asph_fit_get_progress(const struct asph_fit *w,
 int asph_fit_run(struct asph_fit *w, const double *xyz, size_t n,
 		 struct asph_fit_result *out, struct asph_error *err)
 {
+	const struct asph_progress *pg = &w->opt.progress;
 	int r = asph_fit_init(w, xyz, n, err);
+	size_t steps = 0;
 
-	while (r == 0 && !asph_fit_test(w))
+	while (r == 0 && !asph_fit_test(w)) {
 		r = asph_fit_iterate(w, err);
+		if (r == 0 && pg->fn && pg->fn(pg->data, ++steps, 0))
+			return asph_error_set(err, -ECANCELED, "fit: cancelled");
+	}
 	if (r < 0)
 		return r;
+	/* the iterations are over: the statistics (as long again on large
+	 * point sets) are what is left */
+	if (pg->fn && pg->fn(pg->data, steps, steps))
+		return asph_error_set(err, -ECANCELED, "fit: cancelled");
 	return asph_fit_get_result(w, out, err);
 }
 

@@ -33,6 +33,7 @@
 #include <string.h>
 
 #include "asph/delaunay.h"
+#include "asph/plan.h"
 #include "plan-aperture.h"
 #include "plan-cvt.h"
 #include "util-mem.h"
@@ -43,7 +44,7 @@
  * 0.004 and costs a third more). */
 #define CVT_SUBDIV 2
 /* At most this many L-BFGS iterations (each with its line search). */
-#define CVT_MAX_ITER 100
+#define CVT_MAX_ITER ASPH_PLAN_CVT_MAX_ITERATIONS
 /* Stop when every moving site is within this fraction of the spacing
  * sqrt(area / n) of its cell's centroid. */
 #define CVT_TOL 1e-3
@@ -624,7 +625,8 @@ static void trial_sites(const struct asph_surface *s, double tol, const double *
  * CVT_MAX_ITER, until every free site is within CVT_TOL e of its cell's
  * centroid, or until the energy stops falling at its rounding. Leaves the
  * sites at the last accepted step. */
-static int cvt_minimise(struct cvt_state *st, double *u, double e, struct plan_cvt_info *info)
+static int cvt_minimise(struct cvt_state *st, double *u, double e,
+			const struct asph_progress *progress, struct plan_cvt_info *info)
 {
 	size_t N = 2 * st->nf;
 	_cleanup_free_ double *g = malloc(N * sizeof(double)), *d = malloc(N * sizeof(double));
@@ -645,6 +647,8 @@ static int cvt_minimise(struct cvt_state *st, double *u, double e, struct plan_c
 	if ((r = cvt_eval(st, u, &F, g, hinv, &worst)) < 0)
 		return r;
 	for (it = 0; it < CVT_MAX_ITER && worst > CVT_TOL * e && N; it++) {
+		if (progress && progress->fn && progress->fn(progress->data, (size_t)it, CVT_MAX_ITER))
+			return -ECANCELED;
 		lbfgs_direction(g, hinv, S, Y, rho, nh, head, d, tmp, N);
 		double slope = dot(g, d, N);
 		if (!(slope < 0)) {
@@ -694,6 +698,9 @@ static int cvt_minimise(struct cvt_state *st, double *u, double e, struct plan_c
 		F = Ft;
 		worst = worst_t;
 	}
+	/* settled: the scan order is what is left */
+	if (it > 0 && progress && progress->fn && progress->fn(progress->data, (size_t)it, (size_t)it))
+		return -ECANCELED;
 	if (info)
 		*info = (struct plan_cvt_info){ .iterations = it, .last_move = worst / e,
 						.triangles = st->mesh->nt };
@@ -701,7 +708,8 @@ static int cvt_minimise(struct cvt_state *st, double *u, double e, struct plan_c
 }
 
 int plan_cvt_relax(const struct asph_surface *s, double p, double *xyz, size_t n,
-		   struct plan_cvt_info *info, struct asph_error *err)
+		   const struct asph_progress *progress, struct plan_cvt_info *info,
+		   struct asph_error *err)
 {
 	_cleanup_(rvd_mesh_clear) struct rvd_mesh mesh = { 0 };
 	_cleanup_(cells_clear) struct cells c = { 0 };
@@ -747,9 +755,10 @@ int plan_cvt_relax(const struct asph_surface *s, double p, double *xyz, size_t n
 		x[2] = a[0] * b[1] - a[1] * b[0];
 		area += 0.5 * sqrt(dot3(x, x));
 	}
-	r = cvt_minimise(&st, u, sqrt(area / (double)n), info);
+	r = cvt_minimise(&st, u, sqrt(area / (double)n), progress, info);
 	if (r < 0)
 		return asph_error_set(err, r, "cvt: %s", r == -ENOMEM ? "out of memory" :
+							 r == -ECANCELED ? "cancelled" :
 							 "a site left the aperture");
 	return 0;
 }

@@ -6,6 +6,7 @@
 #include <stddef.h>
 
 #include "asph/error.h"
+#include "asph/progress.h"
 #include "asph/surface.h"
 
 struct plan_cvt_info {
@@ -22,10 +23,13 @@ struct plan_cvt_info {
  * energy); the points on the aperture's edge stay. The points must follow
  * the surface's area (the OT plan): their x-y Delaunay mesh, refined, is
  * the surface's mesh for the cells. p: the plan's x-y pitch (mm), the cell
- * of a bucket grid. info may be NULL. -EINVAL, -ENOMEM, -E2BIG.
+ * of a bucket grid. progress (may be NULL) hears of each iteration, of
+ * at most ASPH_PLAN_CVT_MAX_ITERATIONS. info may be NULL. -EINVAL,
+ * -ENOMEM, -E2BIG, -ECANCELED when progress cancelled.
  */
 int plan_cvt_relax(const struct asph_surface *s, double p, double *xyz, size_t n,
-		   struct plan_cvt_info *info, struct asph_error *err);
+		   const struct asph_progress *progress, struct plan_cvt_info *info,
+		   struct asph_error *err);
 
 /*
  * The step (x-y) at which the CVT's starting sites sample the aperture's

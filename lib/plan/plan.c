@@ -15,6 +15,7 @@
 #include "plan-freeform.h"
 #include "plan-patterns.h"
 #include "util-mem.h"
+#include "util-suggest.h"
 
 /* Largest plan: triangle indices are 32-bit. */
 #define PLAN_MAX_POINTS ((size_t)UINT32_MAX - 1)
@@ -43,6 +44,10 @@ struct plan_method {
 	/* NULL: the points are on the surface already */
 	int (*lift)(const struct asph_surface *s, double *xyz, size_t n,
 		    struct asph_error *err);
+	/* NULL, or a last step once the points are on the surface (CVT's
+	 * iterations), which reports its progress */
+	int (*settle)(const struct asph_surface *s, double p, double *xyz, size_t n,
+		      const struct asph_progress *progress, struct asph_error *err);
 	/* The method on a freeform surface; NULL: it has none yet, and
 	 * resolve() refuses it there with a message. */
 	const struct plan_freeform *freeform;
@@ -105,6 +110,14 @@ static int refuse_on_freeform(const struct asph_surface *s, enum asph_plan_metho
 		if (method_of(i)->freeform && len < sizeof(known))
 			len += (size_t)snprintf(known + len, sizeof(known) - len, "%s%s",
 						len ? ", " : "", method_of(i)->name);
+	if (asph_surface_is_radial(s))
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "method",
+					 "the %s plan is for rotationally symmetric parts over a "
+					 "centred circle; on this off-axis segment (a %s over an "
+					 "off-centre or non-circular aperture) use one of %s",
+					 asph_plan_method_name(m),
+					 asph_surface_type_name(asph_surface_prescription(s)->type),
+					 known);
 	return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "method",
 				 "the %s plan is for rotationally symmetric surfaces; on a %s "
 				 "surface use one of %s",
@@ -417,18 +430,17 @@ static int cvt_fill(const struct asph_surface *s, double a, double p,
 	return plan_cvt_seed(s, plan->n, plan->xyz, err);
 }
 
-/* CVT: Lloyd's iterations from the OT map of its starting sites. The
- * count is the disk grid's, one point per p^2 of the disk, which gives p
- * back. */
-static int lift_cvt(const struct asph_surface *s, double *xyz, size_t n,
-		    struct asph_error *err)
+/* CVT: Lloyd's iterations from the OT map of its starting sites, then
+ * their scan order. On a surface of revolution the count is the disk
+ * grid's, one point per p^2 of the disk, which gives p back. */
+static int cvt_settle(const struct asph_surface *s, double p, double *xyz, size_t n,
+		      const struct asph_progress *progress, struct asph_error *err)
 {
-	double a = asph_surface_aperture_radius(s);
-	int r = lift_ot(s, xyz, n, err);
+	int r;
 
-	if (r < 0)
-		return r;
-	r = plan_cvt_relax(s, a * sqrt(M_PI / (double)n), xyz, n, NULL, err);
+	if (asph_surface_is_rotational(s))
+		p = asph_surface_aperture_radius(s) * sqrt(M_PI / (double)n);
+	r = plan_cvt_relax(s, p, xyz, n, progress, NULL, err);
 	return r < 0 ? r : plan_cvt_order(s, xyz, n, err);
 }
 
@@ -529,7 +541,7 @@ int asph_plan_to_points(const struct asph_plan *p, struct asph_points **out)
 
 static int compute_points(const struct asph_surface *s, struct asph_plan *plan,
 			  struct plan_size *sz, unsigned flags,
-			  struct asph_error *err)
+			  const struct asph_progress *progress, struct asph_error *err)
 {
 	const struct plan_method *meth = method_of(plan->method);
 	bool freeform = !asph_surface_is_rotational(s);
@@ -554,14 +566,14 @@ static int compute_points(const struct asph_surface *s, struct asph_plan *plan,
 			return r;
 	}
 	if (freeform && meth->freeform->map)
-		return meth->freeform->map(s, sz->p, plan->xyz, plan->n, err);
-	if (freeform) {
+		r = meth->freeform->map(s, sz->p, plan->xyz, plan->n, err);
+	else if (freeform)
 		lift_xy(s, plan->xyz, plan->n);
-		return 0;
-	}
-	if (!meth->lift)
-		return 0;
-	return meth->lift(s, plan->xyz, plan->n, err);
+	else if (meth->lift)
+		r = meth->lift(s, plan->xyz, plan->n, err);
+	if (r < 0 || !meth->settle)
+		return r;
+	return meth->settle(s, sz->p, plan->xyz, plan->n, progress, err);
 }
 
 int asph_plan_compute_opts(const struct asph_surface *s,
@@ -572,6 +584,7 @@ int asph_plan_compute_opts(const struct asph_surface *s,
 {
 	size_t max_points = opts ? opts->max_points : 0;
 	unsigned flags = opts ? opts->flags : 0;
+	const struct asph_progress *progress = opts ? &opts->progress : NULL;
 	_cleanup_(asph_plan_freep) struct asph_plan *plan = NULL;
 	_cleanup_(plan_size_clear) struct plan_size sz = { 0 };
 	int r = resolve(s, m, density, &sz, err);
@@ -588,7 +601,7 @@ int asph_plan_compute_opts(const struct asph_surface *s,
 	plan->method = m;
 	plan->density = density;
 	plan->spacing_mm = sz.e;
-	r = compute_points(s, plan, &sz, flags, err);
+	r = compute_points(s, plan, &sz, flags, progress, err);
 	if (r < 0)
 		return r;
 	*out = steal_ptr(plan);
@@ -747,15 +760,11 @@ static int cvt_aperture_fill(const struct asph_surface *s, const struct plan_met
 }
 
 /* The starting sites' outline has its own step (plan-cvt.h), which tells
- * the map which points are on the edge. */
+ * the map which points are on the edge; cvt_settle() follows. */
 static int cvt_freeform_map(const struct asph_surface *s, double p, double *xyz, size_t n,
 			    struct asph_error *err)
 {
-	int r = plan_ot_freeform_map(s, plan_cvt_edge_step(s, n), xyz, n, err);
-
-	if (r == 0)
-		r = plan_cvt_relax(s, p, xyz, n, NULL, err);
-	return r < 0 ? r : plan_cvt_order(s, xyz, n, err);
+	return plan_ot_freeform_map(s, plan_cvt_edge_step(s, n), xyz, n, err);
 }
 
 /* CVT: the OT map of a hexagonal lattice relaxed by Lloyd's iterations on
@@ -799,27 +808,27 @@ static const struct plan_freeform ci_freeform = { ci_freeform_count, ci_freeform
 static const struct plan_method methods[ASPH_PLAN_N_METHODS] = {
 	[ASPH_PLAN_OP] = { "op", ASPH_PLAN_OP, { 1.0, 1.099 }, false, true,
 			   disk_grid_count, disk_grid_fill, lift_projected,
-			   &over_aperture },
+			   NULL, &over_aperture },
 	[ASPH_PLAN_OT] = { "ot", ASPH_PLAN_OP, { 1.0, 1.099 }, false, true,
-			   disk_grid_count, disk_grid_fill, lift_ot, &ot_freeform },
+			   disk_grid_count, disk_grid_fill, lift_ot, NULL, &ot_freeform },
 	[ASPH_PLAN_LB] = { "lb", ASPH_PLAN_OP, { 1.0, 1.099 }, false, true,
-			   disk_grid_count, disk_grid_fill, lift_lb, &lb_freeform },
+			   disk_grid_count, disk_grid_fill, lift_lb, NULL, &lb_freeform },
 	[ASPH_PLAN_CI] = { "ci", ASPH_PLAN_CI, { 1.0, 1.099 }, true, false,
-			   ci_count, ci_fill, NULL, &ci_freeform },
+			   ci_count, ci_fill, NULL, NULL, &ci_freeform },
 	[ASPH_PLAN_RASTER] = { "raster", ASPH_PLAN_RASTER, { 1.0, 1.138 } /* (2 + sqrt 2) / 3 */, false, false,
 			       raster_count, raster_fill, lift_projected,
-			       &over_aperture },
+			       NULL, &over_aperture },
 	[ASPH_PLAN_CONCENTRIC] = { "concentric", ASPH_PLAN_CONCENTRIC, { 1.0, 1.098 }, false, false,
 				   concentric_count, concentric_fill, lift_projected,
-				   &over_aperture },
+				   NULL, &over_aperture },
 	[ASPH_PLAN_SPIRAL] = { "spiral", ASPH_PLAN_SPIRAL, { 1.0, 1.099 }, false, false,
 			       spiral_count, spiral_fill, lift_projected,
-			       &over_aperture },
+			       NULL, &over_aperture },
 	[ASPH_PLAN_FERMAT] = { "fermat", ASPH_PLAN_FERMAT, { 1.0, 1.114 }, false, false,
 			       fermat_count, fermat_fill, lift_projected,
-			       &over_aperture },
+			       NULL, &over_aperture },
 	[ASPH_PLAN_CVT] = { "cvt", ASPH_PLAN_OP, { 1.0, 1.099 }, false, false,
-			    disk_grid_count, cvt_fill, lift_cvt, &cvt_freeform },
+			    disk_grid_count, cvt_fill, lift_ot, cvt_settle, &cvt_freeform },
 };
 
 /* m is checked by the callers (resolve); an unknown one reads as OP. */
@@ -847,4 +856,14 @@ int asph_plan_method_from_name(const char *name, enum asph_plan_method *out)
 		}
 	}
 	return -EINVAL;
+}
+
+const char *asph_plan_method_suggest(const char *name)
+{
+	struct suggest s;
+
+	suggest_init(&s, name);
+	for (unsigned i = 0; i < ASPH_PLAN_N_METHODS; i++)
+		suggest_offer(&s, methods[i].name);
+	return suggest_best(&s);
 }

@@ -60,17 +60,7 @@ double plot_nice_step(double span, int target);
  * PNG figures and the PDF report share it. The panel must be valid. */
 void plot_draw_panel(cairo_t *cr, const struct asph_plot_panel *p,
 		     const struct plot_rect *panel);
-#ifdef HAVE_CAIRO
-#include <cairo.h>
-/* A cairo write function appending to the FILE * closure. */
-cairo_status_t plot_write_to_file(void *closure, const unsigned char *data,
-				  unsigned int length);
-#endif
 
-#endif
-
-#ifdef HAVE_CAIRO
-#include <cairo.h>
 /* A cairo write function appending to the FILE * closure. */
 cairo_status_t plot_write_to_file(void *closure, const unsigned char *data,
 				  unsigned int length);

@@ -1,5 +1,11 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
-/* The measurement report as a PDF page (cairo's PDF surface). */
+/*
+ * The measurement report as A4 PDF pages (cairo's PDF surface). The pages
+ * are laid out twice with the same code: a first pass measures (nothing is
+ * shown) and counts the pages, the second draws them with "page i of n".
+ * Every text goes through report_text_wrap() inside its column, and a
+ * block that does not fit on the page starts the next one.
+ */
 #include <errno.h>
 #include <float.h>
 #include <math.h>
@@ -7,452 +13,955 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include <jansson.h>
 #include <nettle/sha2.h>
 
 #include "config.h"
 #include "asph/report.h"
 #include "plot-layout.h"
 #include "util-mem.h"
+#include "util-time.h"
 
 #if HAVE_CAIRO
 #include <cairo-pdf.h>
 
-#define PAGE_W 595.0     /* A4, points */
-#define PAGE_H 842.0
-#define MARGIN 36.0
+#include "report-chart.h"
+#include "report-text.h"
+
+#define PAGE_W 595.276          /* A4, points */
+#define PAGE_H 841.890
+#define MARGIN 42.52            /* 15 mm */
+#define CONTENT_W (PAGE_W - 2 * MARGIN)
+#define FOOTER_H 18.0           /* kept free above the bottom margin */
+#define BOTTOM (PAGE_H - MARGIN - FOOTER_H)
+#define BODY 8.0
+#define SMALL REPORT_MIN_TEXT
+#define LEAD 1.3                /* line spacing / font size */
+#define LABEL_W 86.0            /* the label column of the fields */
+#define FIGURE_H 300.0          /* the map and the profiles */
+#define CHART_H 200.0           /* the Zernike terms and the PSD */
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(cairo_t *, cairo_destroy)
 DEFINE_TRIVIAL_CLEANUP_FUNC(cairo_surface_t *, cairo_surface_destroy)
-DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_psd *, asph_psd_free)
+
+struct style {
+	enum report_face face;
+	double size;
+	double grey;            /* 0 black */
+};
+
+static const struct style body = { REPORT_SANS, BODY, 0 };
+static const struct style bold = { REPORT_SANS_BOLD, BODY, 0 };
+static const struct style hash_style = { REPORT_MONO, SMALL, 0.3 };
+static const struct style note_style = { REPORT_SANS, SMALL, 0.25 };
+static const struct style heading = { REPORT_SANS_BOLD, 11, 0 };
+
+/* A description (lens, plan, instrument): its text as given, hashed. */
+struct description {
+	const char *title;      /* "Lens prescription", ... */
+	const char *text;       /* NULL: not known */
+	char *clean;
+	char sha256[65];
+	char *summary;          /* name and type; NULL on ENOMEM */
+};
+
+enum { DESC_LENS, DESC_PLAN, DESC_INSTRUMENT, N_DESC };
+
+struct doc {
+	cairo_t *cr;
+	const struct asph_report *r;
+	int drawing;            /* 0: the measuring pass */
+	int page, n_pages;
+	double y;               /* the top of the free space on the page */
+	const char *continued;  /* the section a new page continues */
+	int appendix_page;      /* where the descriptions in full begin */
+	double noise_nm;        /* > 0: the residual is numerical noise */
+	int error;              /* -ENOMEM when a text could not be laid out */
+	char measured[160], reported[64];
+	char *identity;         /* lens, part, lot, serial: the running footer */
+	char *part, *lot, *serial, *operator_name, *lens_name, *label, *software, *data_name,
+		*instrument_name;
+	struct description desc[N_DESC];
+};
+
+/* ---------------------------------------------------------------- text */
+
+static void set_style(struct doc *d, const struct style *s)
+{
+	report_font(d->cr, s->face, s->size);
+	cairo_set_source_rgb(d->cr, s->grey, s->grey, s->grey);
+}
+
+static void show(struct doc *d, double x, double baseline, const char *s, size_t len)
+{
+	_cleanup_free_ char *t = NULL;
+
+	if (!d->drawing || len == 0)
+		return;
+	t = strndup(s, len);
+	if (!t) {
+		d->error = -ENOMEM;
+		return;
+	}
+	cairo_move_to(d->cr, x, baseline);
+	cairo_show_text(d->cr, t);
+}
+
+static void start_page(struct doc *d);
+
+static void new_page(struct doc *d)
+{
+	if (d->drawing)
+		cairo_show_page(d->cr);
+	d->page++;
+	start_page(d);
+}
+
+/* Starts a new page unless h more points fit on this one (or the page is
+ * still empty: a block taller than a page is then split by lines). */
+static void need(struct doc *d, double h)
+{
+	if (d->y + h > BOTTOM && d->y > MARGIN + 40)
+		new_page(d);
+}
+
+/* text wrapped to width at x, line by line across pages. Returns the
+ * number of lines (0 on ENOMEM, which d->error keeps). */
+static size_t paragraph(struct doc *d, double x, double width, const struct style *s,
+			const char *text)
+{
+	struct report_lines l = { 0 };
+	double lead = LEAD * s->size;
+
+	set_style(d, s);
+	if (report_text_wrap(d->cr, text, width, &l) < 0) {
+		d->error = -ENOMEM;
+		l.n = 0;
+	}
+	for (size_t i = 0; i < l.n; i++) {
+		need(d, lead);
+		set_style(d, s);
+		show(d, x, d->y + s->size, l.v[i].s, l.v[i].len);
+		d->y += lead;
+	}
+	size_t n = l.n;
+	report_lines_release(&l);
+	return n;
+}
+
+/* text (clean) wrapped into a cell of width, left or right aligned, from
+ * the top y; returns its lines. */
+static size_t cell(struct doc *d, double x, double y, double width, int right,
+		   const struct style *s, const char *text, int draw)
+{
+	struct report_lines l = { 0 };
+
+	set_style(d, s);
+	if (report_text_wrap(d->cr, text, width, &l) < 0) {
+		d->error = -ENOMEM;
+		l.n = 0;
+	}
+	for (size_t i = 0; draw && i < l.n; i++) {
+		double w = right ? report_text_width(d->cr, l.v[i].s, l.v[i].len) : 0;
+		show(d, right ? x + width - w : x, y + (double)i * LEAD * s->size + s->size,
+		     l.v[i].s, l.v[i].len);
+	}
+	size_t n = l.n;
+	report_lines_release(&l);
+	return n;
+}
+
+/* A text made safe for cairo, "" for NULL; NULL on ENOMEM. */
+static char *clean_text(const char *text)
+{
+	return report_text_clean(text ? text : "");
+}
+
+/* "label  value" with the value wrapped in its column, kept on one page
+ * unless it is taller than a page. A hash, when given, follows on a line
+ * of its own in the mono face. */
+static void field(struct doc *d, const char *label, const char *value, const char *sha256)
+{
+	_cleanup_free_ char *v = clean_text(value);
+	char hash[80] = "";
+	size_t nl, nv, nh = 0;
+
+	if (!v) {
+		d->error = -ENOMEM;
+		return;
+	}
+	if (sha256)
+		snprintf(hash, sizeof(hash), "SHA-256 %s", sha256);
+	nl = cell(d, MARGIN, d->y, LABEL_W - 6, 0, &bold, label, 0);
+	nv = cell(d, MARGIN + LABEL_W, d->y, CONTENT_W - LABEL_W, 0, &body, v, 0);
+	if (sha256)
+		nh = cell(d, MARGIN + LABEL_W, d->y, CONTENT_W - LABEL_W, 0, &hash_style, hash, 0);
+	double hl = (double)nl * LEAD * BODY;
+	double hv = (double)nv * LEAD * BODY + (double)nh * LEAD * SMALL;
+	if (fmax(hl, hv) < BOTTOM - MARGIN - 60) {
+		need(d, fmax(hl, hv));
+		cell(d, MARGIN, d->y, LABEL_W - 6, 0, &bold, label, 1);
+		cell(d, MARGIN + LABEL_W, d->y, CONTENT_W - LABEL_W, 0, &body, v, 1);
+		if (sha256)
+			cell(d, MARGIN + LABEL_W, d->y + (double)nv * LEAD * BODY,
+			     CONTENT_W - LABEL_W, 0, &hash_style, hash, 1);
+		d->y += fmax(hl, hv);
+		return;
+	}
+	/* taller than a page: the label, then the value line by line */
+	cell(d, MARGIN, d->y, LABEL_W - 6, 0, &bold, label, 1);
+	paragraph(d, MARGIN + LABEL_W, CONTENT_W - LABEL_W, &body, v);
+	if (sha256)
+		paragraph(d, MARGIN + LABEL_W, CONTENT_W - LABEL_W, &hash_style, hash);
+}
+
+static void rule(struct doc *d, double gap)
+{
+	d->y += gap / 2;
+	if (d->drawing) {
+		cairo_set_source_rgb(d->cr, 0.55, 0.55, 0.55);
+		cairo_set_line_width(d->cr, 0.5);
+		cairo_move_to(d->cr, MARGIN, d->y);
+		cairo_line_to(d->cr, PAGE_W - MARGIN, d->y);
+		cairo_stroke(d->cr);
+	}
+	d->y += gap / 2;
+}
+
+/* text, or its first line wrapped to width with "…" after it: for the
+ * running footer only, everything it names being in full on page 1. NULL
+ * on ENOMEM. */
+static char *shortened(cairo_t *cr, const char *text, double width)
+{
+	struct report_lines l = { 0 };
+	char *out = NULL;
+
+	if (report_text_width(cr, text, strlen(text)) <= width)
+		return strdup(text);
+	if (report_text_wrap(cr, text, width - report_text_width(cr, "…", strlen("…")), &l) == 0 &&
+	    asprintf(&out, "%.*s…", (int)l.v[0].len, l.v[0].s) < 0)
+		out = NULL;
+	report_lines_release(&l);
+	return out;
+}
+
+static void start_page(struct doc *d)
+{
+	char right[48];
+
+	d->y = MARGIN;
+	if (d->drawing) {
+		set_style(d, &note_style);
+		snprintf(right, sizeof(right), "page %d of %d", d->page, d->n_pages);
+		double rw = report_text_width(d->cr, right, strlen(right));
+		_cleanup_free_ char *left = shortened(d->cr, d->identity, CONTENT_W - rw - 20);
+		double base = PAGE_H - MARGIN - 0.3 * SMALL;
+		if (left)
+			show(d, MARGIN, base, left, strlen(left));
+		show(d, PAGE_W - MARGIN - rw, base, right, strlen(right));
+		cairo_set_line_width(d->cr, 0.5);
+		cairo_move_to(d->cr, MARGIN, base - SMALL - 3);
+		cairo_line_to(d->cr, PAGE_W - MARGIN, base - SMALL - 3);
+		cairo_stroke(d->cr);
+	}
+	if (d->page > 1 && d->continued) {
+		char h[96];
+		snprintf(h, sizeof(h), "%s (continued)", d->continued);
+		paragraph(d, MARGIN, CONTENT_W, &bold, h);
+		d->y += 4;
+	}
+}
+
+/* ----------------------------------------------------------- summaries */
 
 static void sha256_hex(const void *data, size_t len, char hex[65])
 {
 	struct sha256_ctx c;
-	uint8_t d[SHA256_DIGEST_SIZE];
+	uint8_t dg[SHA256_DIGEST_SIZE];
 
 	sha256_init(&c);
 	sha256_update(&c, len, data);
-	sha256_digest(&c, sizeof(d), d);
+	sha256_digest(&c, sizeof(dg), dg);
 	for (int i = 0; i < SHA256_DIGEST_SIZE; i++)
-		snprintf(hex + 2 * i, 3, "%02x", d[i]);
+		snprintf(hex + 2 * i, 3, "%02x", dg[i]);
 }
 
-static void font(cairo_t *cr, double size, int bold)
+static const char *member_string(const json_t *o, const char *key)
 {
-	cairo_select_font_face(cr, "sans-serif", CAIRO_FONT_SLANT_NORMAL,
-			       bold ? CAIRO_FONT_WEIGHT_BOLD : CAIRO_FONT_WEIGHT_NORMAL);
-	cairo_set_font_size(cr, size);
-	cairo_set_source_rgb(cr, 0, 0, 0);
+	return json_string_value(json_object_get(o, key));
 }
 
-static void text_at(cairo_t *cr, double x, double y, const char *s)
+/* "stage mock 2.0": the driver of one role of an instrument. */
+static char *driver_of(const json_t *inst, const char *role)
 {
-	cairo_move_to(cr, x, y);
-	cairo_show_text(cr, s);
+	const json_t *r = json_object_get(inst, role);
+	const char *drv = member_string(r, "driver"), *ver = member_string(r, "version");
+	char *s;
+
+	if (asprintf(&s, "%s %s%s%s", role, drv ? drv : "?", ver ? " " : "", ver ? ver : "") < 0)
+		return NULL;
+	return s;
 }
 
-/* A line "label: text" shortened to fit; returns the next baseline. */
-static double field_line(cairo_t *cr, double y, const char *label, const char *text)
+/* The name and type of a description: the lens's type, the plan's method
+ * and points, the instrument's drivers. NULL on ENOMEM. */
+static char *summarise(const char *text, int which, const char *name)
 {
-	char buf[160];
+	_cleanup_(json_decrefp) json_t *j = json_loads(text, 0, NULL);
+	_cleanup_free_ char *stage = NULL, *probe = NULL;
+	const char *s;
+	char *out = NULL;
+	int r;
 
-	font(cr, 8, 1);
-	text_at(cr, MARGIN, y, label);
-	font(cr, 8, 0);
-	snprintf(buf, sizeof(buf), "%s", text ? text : "-");
-	text_at(cr, MARGIN + 78, y, buf);
-	return y + 11;
-}
-
-static double provenance(cairo_t *cr, double y, const char *label, const char *json)
-{
-	char hex[65], line[200];
-
-	if (!json)
-		return field_line(cr, y, label, "not known");
-	sha256_hex(json, strlen(json), hex);
-	snprintf(line, sizeof(line), "sha256 %s  %.60s%s", hex, json, strlen(json) > 60 ? "..." : "");
-	return field_line(cr, y, label, line);
-}
-
-static const char *verdict_text(enum asph_verdict v)
-{
-	return asph_verdict_name(v);
-}
-
-/* "%.*g" of v, or "-" when v is not a number. */
-static void num_or_dash(char *buf, size_t size, double v, int digits)
-{
-	if (isnan(v))
-		snprintf(buf, size, "-");
-	else
-		snprintf(buf, size, "%.*g", digits, v);
-}
-
-/* The table: every quantity, its U, and the limit and decision when
- * toleranced. */
-static double verdict_table(cairo_t *cr, double y, const struct asph_report *r)
-{
-	const struct asph_fit_result *f = r->fit;
-	const struct asph_uncertainty_k2 *u = &f->uncertainty_k2;
-	struct row {
-		const char *name, *key;
-		double value, U;
-	} rows[] = {
-		{ "A, sagitta deviation (nm)", "A_nm", fabs(f->form.A.v), u->A.v },
-		{ "B, irregularity (nm)", "B_nm", f->form.B.v, u->B.v },
-		{ "C, rot. symmetric irregularity (nm)", "C_nm", f->form.C.v, u->C.v },
-		{ "RMSt (nm)", "rms_t_nm", f->form.rms_t.v, u->rms_t.v },
-		{ "RMSi (nm)", "rms_i_nm", f->form.rms_i.v, u->rms_i.v },
-		{ "RMSa (nm)", "rms_a_nm", f->form.rms_a.v, u->rms_a.v },
-		{ "slope RMS (urad)", "slope_rms_urad", f->slope.rms.v, u->slope_rms.v },
-		{ "slope max (urad)", "slope_max_urad", f->slope.max.v, u->slope_max.v },
-		{ "|R - R nominal| (mm)", "R_deviation_mm", fabs(f->R_deviation_mm), u->R_mm },
-	};
-	const double col[] = { MARGIN, MARGIN + 190, MARGIN + 270, MARGIN + 350, MARGIN + 430 };
-	char buf[64];
-
-	font(cr, 8, 1);
-	text_at(cr, col[0], y, "quantity");
-	text_at(cr, col[1], y, "value");
-	text_at(cr, col[2], y, "U (k = 2)");
-	text_at(cr, col[3], y, "limit");
-	text_at(cr, col[4], y, "verdict");
-	cairo_set_line_width(cr, 0.5);
-	cairo_move_to(cr, MARGIN, y + 3);
-	cairo_line_to(cr, PAGE_W - MARGIN, y + 3);
-	cairo_stroke(cr);
-	y += 12;
-	for (size_t i = 0; i < sizeof(rows) / sizeof(rows[0]); i++) {
-		const struct asph_verdict_item *it = NULL;
-		for (size_t k = 0; k < f->verdict.n_items; k++)
-			if (!strcmp(f->verdict.items[k].quantity, rows[i].key))
-				it = &f->verdict.items[k];
-		if (isnan(rows[i].value) && !it)
-			continue;
-		font(cr, 8, 0);
-		text_at(cr, col[0], y, rows[i].name);
-		num_or_dash(buf, sizeof(buf), rows[i].value, 4);
-		text_at(cr, col[1], y, buf);
-		num_or_dash(buf, sizeof(buf), rows[i].U, 3);
-		text_at(cr, col[2], y, buf);
-		num_or_dash(buf, sizeof(buf), it ? it->limit : NAN, 4);
-		text_at(cr, col[3], y, buf);
-		if (it) {
-			font(cr, 8, 1);
-			if (it->verdict == ASPH_VERDICT_FAIL)
-				cairo_set_source_rgb(cr, 0.75, 0, 0);
-			else if (it->verdict == ASPH_VERDICT_PASS)
-				cairo_set_source_rgb(cr, 0, 0.5, 0);
-			text_at(cr, col[4], y, verdict_text(it->verdict));
-		}
-		y += 11;
+	if (!j) {
+		r = asprintf(&out, "%s (not JSON)", name ? name : "");
+	} else if (which == DESC_LENS) {
+		s = member_string(j, "type");
+		r = asprintf(&out, "%s (%s)", name ? name : "", s ? s : "type not given");
+	} else if (which == DESC_PLAN) {
+		json_int_t points = json_integer_value(json_object_get(j, "points"));
+		s = member_string(j, "method");
+		r = points > 0 ? asprintf(&out, "method %s, %lld points", s ? s : "not given",
+					  (long long)points)
+			       : asprintf(&out, "method %s", s ? s : "not given");
+	} else {
+		stage = driver_of(j, "stage");
+		probe = driver_of(j, "probe");
+		s = name ? name : member_string(j, "name");
+		r = asprintf(&out, "%s: %s, %s", s ? s : "-", stage ? stage : "",
+			     probe ? probe : "");
 	}
-	return y;
+	return r < 0 ? NULL : out;
 }
 
-/* Axes for a line or bar chart in box (x, y, w, h): ticks from lo to hi. */
-struct chart {
-	double x, y, w, h;
-	double x0, x1, y0, y1;
-	int logx, logy;
+/* ISO 8601 in the local time zone with its offset; "not known" for 0. */
+static void when(int64_t ns, char *buf, size_t size)
+{
+	if (ns == 0)
+		snprintf(buf, size, "not known");
+	else
+		iso8601_local(ns, buf, size);
+}
+
+static void measured_text(const struct asph_report *r, char *buf, size_t size)
+{
+	char a[ISO8601_SIZE], b[ISO8601_SIZE];
+
+	if (r->measured_ns == 0) {
+		snprintf(buf, size, "not known");
+		return;
+	}
+	when(r->measured_ns, a, sizeof(a));
+	if (r->measured_end_ns < r->measured_ns) {
+		snprintf(buf, size, "%s", a);
+		return;
+	}
+	when(r->measured_end_ns, b, sizeof(b));
+	double s = (double)(r->measured_end_ns - r->measured_ns) / 1e9;
+	if (s < 120)
+		snprintf(buf, size, "%s to %s (%.0f s)", a, b, s);
+	else
+		snprintf(buf, size, "%s to %s (%.0f min)", a, b, s / 60);
+}
+
+/* ------------------------------------------------------------- page 1 */
+
+static void title_block(struct doc *d)
+{
+	_cleanup_free_ char *lens = NULL;
+
+	paragraph(d, MARGIN, CONTENT_W, &(struct style){ REPORT_SANS_BOLD, 17, 0 },
+		  "Form measurement report");
+	d->y += 2;
+	if (asprintf(&lens, "Optical asphere, lens %s", d->lens_name) < 0)
+		lens = NULL;
+	paragraph(d, MARGIN, CONTENT_W, &(struct style){ REPORT_SANS, 11, 0.15 },
+		  lens ? lens : "Optical asphere");
+	rule(d, 8);
+}
+
+/* Part, lot and serial side by side, each wrapped in its third; one under
+ * the other when that row would be taller than a page. */
+static void identity_row(struct doc *d)
+{
+	const char *labels[3] = { "Part", "Lot", "Serial" };
+	const char *values[3] = { d->part, d->lot, d->serial };
+	double w = CONTENT_W / 3, lw = 34;
+	size_t most = 1;
+
+	for (int draw = 0; draw < 2; draw++) {
+		if (draw && (double)most * LEAD * 9 > BOTTOM - MARGIN - 60) {
+			for (int i = 0; i < 3; i++)
+				field(d, labels[i], values[i][0] ? values[i] : "not given", NULL);
+			return;
+		}
+		for (int i = 0; i < 3; i++) {
+			double x = MARGIN + i * w;
+			const char *v = values[i][0] ? values[i] : "not given";
+			/* on the baseline of the larger value */
+			cell(d, x, d->y + 9 - BODY, lw, 0, &bold, labels[i], draw);
+			size_t n = cell(d, x + lw, d->y, w - lw - 8, 0,
+					&(struct style){ REPORT_SANS_BOLD, 9, 0 }, v, draw);
+			most = n > most ? n : most;
+		}
+		if (!draw && (double)most * LEAD * 9 <= BOTTOM - MARGIN - 60)
+			need(d, (double)most * LEAD * 9);
+	}
+	d->y += (double)most * LEAD * 9 + 2;
+}
+
+static void identification(struct doc *d)
+{
+	const struct asph_report *r = d->r;
+	_cleanup_free_ char *job = NULL, *rep = NULL;
+
+	identity_row(d);
+	field(d, "Measured", d->measured, NULL);
+	field(d, "Operator", d->operator_name[0] ? d->operator_name : "not given", NULL);
+	field(d, "Instrument",
+	      d->desc[DESC_INSTRUMENT].text ? d->desc[DESC_INSTRUMENT].summary
+	      : d->instrument_name[0]       ? d->instrument_name
+					    : "not known",
+	      d->desc[DESC_INSTRUMENT].text ? d->desc[DESC_INSTRUMENT].sha256 : NULL);
+	if (r->job > 0) {
+		if (asprintf(&job, "%lld%s%s", (long long)r->job, d->label[0] ? ", label: " : "",
+			     d->label) < 0)
+			job = NULL;
+		field(d, "Job", job ? job : "", NULL);
+	}
+	if (asprintf(&rep, "%s by %s", d->reported, d->software[0] ? d->software : "-") < 0)
+		rep = NULL;
+	field(d, "Report issued", rep ? rep : d->reported, NULL);
+	rule(d, 8);
+}
+
+static void fit_line(const struct asph_fit_result *f, char *buf, size_t size)
+{
+	snprintf(buf, size,
+		 "%zu points, %zu used, %zu outside the aperture, %zu outliers; %s residual; "
+		 "%s after %d iterations",
+		 f->n_points, f->n_used, f->n_outside_aperture, f->n_outliers,
+		 asph_fit_residual_name(f->residual), f->converged ? "converged" : "NOT converged",
+		 f->iterations);
+}
+
+static void tolerance_line(const struct asph_report *r, char *buf, size_t size)
+{
+	const struct asph_tolerance *t = r->tolerance;
+
+	if (!t) {
+		snprintf(buf, size, "none given: no verdict");
+		return;
+	}
+	snprintf(buf, size, "%s%s; fringes of λ = %g nm; decision rule ISO 14253-1",
+		 t->callout[0] ? "ISO 10110-5 " : "limits in the table",
+		 t->callout[0] ? t->callout : "", r->fit->form.wavelength_nm);
+}
+
+static void measurement(struct doc *d)
+{
+	const struct asph_report *r = d->r;
+	_cleanup_free_ char *data = NULL;
+	char line[512];
+
+	for (int i = 0; i < N_DESC; i++) {
+		if (i == DESC_INSTRUMENT)
+			continue;
+		field(d, i == DESC_LENS ? "Lens" : "Plan",
+		      d->desc[i].text ? d->desc[i].summary : "not known",
+		      d->desc[i].text ? d->desc[i].sha256 : NULL);
+	}
+	if (r->data) {
+		char hex[65];
+		sha256_hex(r->data, r->data_len, hex);
+		if (asprintf(&data, "%s (%zu bytes)", d->data_name, r->data_len) < 0)
+			data = NULL;
+		field(d, "Data", data ? data : d->data_name, hex);
+	}
+	fit_line(r->fit, line, sizeof(line));
+	field(d, "Fit", line, NULL);
+	tolerance_line(r, line, sizeof(line));
+	field(d, "Tolerance", line, NULL);
+	if (d->desc[DESC_LENS].text || d->desc[DESC_PLAN].text || d->desc[DESC_INSTRUMENT].text) {
+		/* the measuring pass has no page number yet: 0 stands in */
+		snprintf(line, sizeof(line),
+			 "The lens, plan and instrument descriptions are given in full from page %d.",
+			 d->appendix_page);
+		paragraph(d, MARGIN + LABEL_W, CONTENT_W - LABEL_W, &note_style, line);
+	}
+	d->y += 6;
+}
+
+static void verdict_colour(cairo_t *cr, enum asph_verdict v)
+{
+	if (v == ASPH_VERDICT_FAIL)
+		cairo_set_source_rgb(cr, 0.75, 0.05, 0.05);
+	else if (v == ASPH_VERDICT_PASS)
+		cairo_set_source_rgb(cr, 0.0, 0.5, 0.15);
+	else
+		cairo_set_source_rgb(cr, 0.65, 0.45, 0.0);
+}
+
+static void verdict_banner(struct doc *d)
+{
+	const struct asph_fit_result *f = d->r->fit;
+	char line[128];
+	double h = 24;
+
+	need(d, h + 6);
+	if (!f->verdict.present) {
+		paragraph(d, MARGIN, CONTENT_W, &bold, "No tolerance was given: no verdict.");
+		d->y += 4;
+		return;
+	}
+	snprintf(line, sizeof(line), "Verdict (ISO 14253-1): %s",
+		 asph_verdict_name(f->verdict.overall));
+	if (d->drawing) {
+		verdict_colour(d->cr, f->verdict.overall);
+		cairo_set_line_width(d->cr, 1.2);
+		cairo_rectangle(d->cr, MARGIN, d->y, CONTENT_W, h);
+		cairo_stroke(d->cr);
+		report_font(d->cr, REPORT_SANS_BOLD, 13);
+		verdict_colour(d->cr, f->verdict.overall);
+		show(d, MARGIN + 8, d->y + h / 2 + 4.5, line, strlen(line));
+	}
+	d->y += h + 8;
+}
+
+/* One row of the table: the quantity, its verdict item's key, value, U,
+ * its decimals, and whether it is signed (and limited in magnitude). */
+struct quantity {
+	const char *name, *key;
+	double value, U;
+	int decimals;
+	int two_sided;
 };
 
-/* v on a logarithmic axis; a log axis has no place for v <= 0, which is
- * pinned to the smallest positive double (far below any axis). */
-static double axis_value(int lg, double v)
-{
-	return lg ? log10(fmax(v, DBL_MIN)) : v;
-}
+#define N_COLS 5
+static const double col_x[N_COLS] = { 0, 226, 300, 370, 436 };
+static const double col_w[N_COLS] = { 220, 68, 64, 60, 75 };
 
-static double chart_u(const struct chart *c, double v)
+static void table_row(struct doc *d, const char *cells[N_COLS], const struct style *s,
+		      const struct asph_verdict_item *it)
 {
-	double t = (axis_value(c->logx, v) - c->x0) / (c->x1 - c->x0);
-	return c->x + t * c->w;
-}
+	size_t most = 1;
 
-static double chart_v(const struct chart *c, double v)
-{
-	double t = (axis_value(c->logy, v) - c->y0) / (c->y1 - c->y0);
-	return c->y + c->h - t * c->h;
-}
-
-static void chart_frame(cairo_t *cr, const struct chart *c, const char *title,
-			const char *xlabel, const char *ylabel)
-{
-	char buf[32];
-
-	font(cr, 9, 1);
-	text_at(cr, c->x, c->y - 6, title);
-	cairo_set_line_width(cr, 0.6);
-	cairo_rectangle(cr, c->x, c->y, c->w, c->h);
-	cairo_stroke(cr);
-	font(cr, 6.5, 0);
-	for (int axis = 0; axis < 2; axis++) {
-		double lo = axis ? c->y0 : c->x0, hi = axis ? c->y1 : c->x1;
-		int lg = axis ? c->logy : c->logx;
-		double step = lg ? 1 : plot_nice_step(hi - lo, 5);
-		/* Ticks counted, not summed: each an exact multiple of step. */
-		double first = ceil(lo / step - 1e-9);
-		int n_ticks = (int)(floor(hi / step + 1e-9) - first) + 1;
-		for (int i = 0; i < n_ticks; i++) {
-			double t = (first + i) * step;
-			double v = lg ? pow(10, t) : t;
-			if (lg)
-				snprintf(buf, sizeof(buf), "%.0e", v);
-			else
-				snprintf(buf, sizeof(buf), "%.4g", fabs(v) < 1e-12 * step ? 0 : v);
-			if (axis) {
-				double py = chart_v(c, v);
-				cairo_move_to(cr, c->x - 3, py);
-				cairo_line_to(cr, c->x, py);
-				cairo_stroke(cr);
-				text_at(cr, c->x - 30, py + 2, buf);
-			} else {
-				double px = chart_u(c, v);
-				cairo_move_to(cr, px, c->y + c->h);
-				cairo_line_to(cr, px, c->y + c->h + 3);
-				cairo_stroke(cr);
-				text_at(cr, px - 6, c->y + c->h + 10, buf);
-			}
-		}
+	for (int c = 0; c < N_COLS; c++) {
+		size_t n = cell(d, MARGIN + col_x[c], d->y, col_w[c], c > 0 && c < 4, s, cells[c], 0);
+		most = n > most ? n : most;
 	}
-	font(cr, 7, 0);
-	text_at(cr, c->x + c->w / 2 - 20, c->y + c->h + 19, xlabel);
-	cairo_save(cr);
-	cairo_translate(cr, c->x - 33, c->y + c->h / 2 + 20);
-	cairo_rotate(cr, -M_PI / 2);
-	text_at(cr, 0, 0, ylabel);
-	cairo_restore(cr);
-}
-
-static void polyline(cairo_t *cr, const struct chart *c, const double *x, const double *y,
-		     size_t n, double r, double g, double b)
-{
-	int pen = 0;
-
-	cairo_save(cr);
-	cairo_rectangle(cr, c->x, c->y, c->w, c->h);
-	cairo_clip(cr);
-	cairo_set_source_rgb(cr, r, g, b);
-	cairo_set_line_width(cr, 0.8);
-	for (size_t k = 0; k < n; k++) {
-		if (isnan(y[k]) || (c->logy && !(y[k] > 0)) || (c->logx && !(x[k] > 0))) {
-			pen = 0;
+	need(d, (double)most * LEAD * s->size);
+	for (int c = 0; c < N_COLS; c++) {
+		if (c == 4 && it && d->drawing) {
+			report_font(d->cr, REPORT_SANS_BOLD, BODY);
+			verdict_colour(d->cr, it->verdict);
+			show(d, MARGIN + col_x[c], d->y + BODY, cells[c], strlen(cells[c]));
 			continue;
 		}
-		if (pen)
-			cairo_line_to(cr, chart_u(c, x[k]), chart_v(c, y[k]));
-		else
-			cairo_move_to(cr, chart_u(c, x[k]), chart_v(c, y[k]));
-		pen = 1;
+		cell(d, MARGIN + col_x[c], d->y, col_w[c], c > 0 && c < 4, s, cells[c], 1);
 	}
-	cairo_stroke(cr);
-	cairo_restore(cr);
+	d->y += (double)most * LEAD * s->size + 1.5;
 }
 
-static void range_of(const double *v, size_t n, double *lo, double *hi)
+static const struct asph_verdict_item *verdict_item(const struct asph_fit_result *f,
+						    const char *key)
 {
-	*lo = INFINITY;
-	*hi = -INFINITY;
-	for (size_t k = 0; k < n; k++)
-		if (!isnan(v[k])) {
-			*lo = fmin(*lo, v[k]);
-			*hi = fmax(*hi, v[k]);
+	for (size_t k = 0; k < f->verdict.n_items; k++)
+		if (!strcmp(f->verdict.items[k].quantity, key))
+			return &f->verdict.items[k];
+	return NULL;
+}
+
+static void results_table(struct doc *d)
+{
+	const struct asph_fit_result *f = d->r->fit;
+	const struct asph_uncertainty_k2 *u = &f->uncertainty_k2;
+	char slope_rms[96], slope_max[96];
+	const char *head[N_COLS] = { "quantity", "value", "U (k = 2)", "limit", "verdict" };
+
+	snprintf(slope_rms, sizeof(slope_rms), "slope deviation RMS over %g mm (µrad)",
+		 f->slope.length_mm);
+	snprintf(slope_max, sizeof(slope_max), "slope deviation max over %g mm (µrad)",
+		 f->slope.length_mm);
+	const struct quantity rows[] = {
+		{ "A, sagitta deviation (nm)", "A_nm", f->form.A.v, u->A.v, REPORT_NM, 1 },
+		{ "B, irregularity (nm)", "B_nm", f->form.B.v, u->B.v, REPORT_NM, 0 },
+		{ "C, rotationally symmetric irregularity (nm)", "C_nm", f->form.C.v, u->C.v,
+		  REPORT_NM, 0 },
+		{ "RMSt, total RMS deviation (nm)", "rms_t_nm", f->form.rms_t.v, u->rms_t.v,
+		  REPORT_NM, 0 },
+		{ "RMSi, RMS irregularity (nm)", "rms_i_nm", f->form.rms_i.v, u->rms_i.v, REPORT_NM,
+		  0 },
+		{ "RMSa, RMS of the rotationally variant part (nm)", "rms_a_nm", f->form.rms_a.v,
+		  u->rms_a.v, REPORT_NM, 0 },
+		{ slope_rms, "slope_rms_urad", f->slope.rms.v, u->slope_rms.v, REPORT_URAD, 0 },
+		{ slope_max, "slope_max_urad", f->slope.max.v, u->slope_max.v, REPORT_URAD, 0 },
+		{ "R − R₀, radius deviation (mm)", "R_deviation_mm", f->R_deviation_mm, u->R_mm,
+		  REPORT_MM, 1 },
+	};
+
+	need(d, 4 * LEAD * BODY);
+	table_row(d, head, &bold, NULL);
+	if (d->drawing) {
+		cairo_set_source_rgb(d->cr, 0, 0, 0);
+		cairo_set_line_width(d->cr, 0.5);
+		cairo_move_to(d->cr, MARGIN, d->y);
+		cairo_line_to(d->cr, PAGE_W - MARGIN, d->y);
+		cairo_stroke(d->cr);
+	}
+	d->y += 2;
+	for (size_t i = 0; i < sizeof(rows) / sizeof(rows[0]); i++) {
+		const struct asph_verdict_item *it = verdict_item(f, rows[i].key);
+		const struct quantity *q = &rows[i];
+		char value[64], U[64], limit[72] = "-";
+		if (isnan(q->value) && !it)
+			continue;
+		report_figure(value, sizeof(value), q->value, q->decimals,
+			      q->two_sided ? REPORT_FIGURE_SIGNED : 0);
+		report_figure(U, sizeof(U), q->U, q->decimals, 0);
+		if (it) {
+			char l[64];
+			report_figure(l, sizeof(l), it->limit, q->decimals, 0);
+			/* a zone two-sided about zero: ±L */
+			snprintf(limit, sizeof(limit), "%s%s", q->two_sided ? "±" : "", l);
 		}
-	if (!(*lo < *hi)) {
-		*lo = isfinite(*lo) ? *lo - 1 : -1;
-		*hi = isfinite(*hi) ? *hi + 1 : 1;
+		const char *cells[N_COLS] = { rows[i].name, value, U, limit,
+					      it ? asph_verdict_name(it->verdict) : "" };
+		table_row(d, cells, &body, it);
+	}
+	d->y += 3;
+	char note[512];
+	snprintf(note, sizeof(note),
+		 "U: expanded uncertainty, coverage factor k = 2 (%s). A and R − R₀ carry their "
+		 "sign; their limit applies to the magnitude (±L). The slope deviation is the "
+		 "difference quotient of the residual over the evaluation length.",
+		 asph_uncertainty_method_name(u->method));
+	paragraph(d, MARGIN, CONTENT_W, &note_style, note);
+	d->y += 4;
+}
+
+static void residual_line(struct doc *d)
+{
+	const struct asph_fit_result *f = d->r->fit;
+	char rms[32], pv[32], pvr[32], line[256];
+
+	report_figure(rms, sizeof(rms), f->rms.v, REPORT_NM, 0);
+	report_figure(pv, sizeof(pv), f->pv.v, REPORT_NM, 0);
+	report_figure(pvr, sizeof(pvr), f->pvr.v, REPORT_NM, 0);
+	snprintf(line, sizeof(line),
+		 "RMS %s nm (standard deviation about the mean), PV %s nm, PVr %s nm", rms, pv,
+		 pvr);
+	field(d, "Residual", line, NULL);
+	d->y += 6;
+}
+
+static int figures(struct doc *d)
+{
+	double wmap = 300;
+	struct report_rect map = { MARGIN, d->y, wmap, FIGURE_H };
+	struct report_rect prof = { MARGIN + wmap + 14, d->y, CONTENT_W - wmap - 14, FIGURE_H };
+	int r = 0;
+
+	need(d, FIGURE_H);
+	map.y = prof.y = d->y;
+	if (d->drawing) {
+		r = report_map(d->cr, &map, d->r, d->noise_nm);
+		if (r == 0)
+			r = report_profiles(d->cr, &prof, d->r, d->noise_nm);
+	}
+	d->y += FIGURE_H + 6;
+	return r;
+}
+
+/* ------------------------------------------------------------- page 2 */
+
+static void section(struct doc *d, const char *title)
+{
+	need(d, 40);
+	d->y += 4;
+	paragraph(d, MARGIN, CONTENT_W, &heading, title);
+	d->y += 3;
+}
+
+static void pose_table(struct doc *d)
+{
+	const struct asph_fit_result *f = d->r->fit;
+	const char *head[N_COLS] = { "degree of freedom", "value", "u (k = 1)", "unit", "" };
+
+	section(d, "Alignment of the part (best fit)");
+	table_row(d, head, &bold, NULL);
+	for (int k = 0; k < ASPH_FIT_N_DOF; k++) {
+		/* shifts in µm, tilts in µrad, as the text output gives them */
+		int shift = k <= ASPH_FIT_TZ, tilt = k == ASPH_FIT_RX || k == ASPH_FIT_RY ||
+						     k == ASPH_FIT_RZ;
+		double scale = shift ? 1e3 : tilt ? 1e6 : 1;
+		int decimals = shift || tilt ? REPORT_POSE : REPORT_MM;
+		char value[64], u[64];
+		if (!(f->dof & ASPH_FIT_DOF_BIT(k)))
+			continue;
+		report_figure(value, sizeof(value), scale * f->value[k], decimals,
+			      shift || tilt ? REPORT_FIGURE_SIGNED : 0);
+		report_figure(u, sizeof(u), scale * f->uncertainty[k], decimals, 0);
+		const char *cells[N_COLS] = { asph_fit_dof_name((enum asph_fit_dof)k), value, u,
+					      shift ? "µm" : tilt ? "µrad" : k == ASPH_FIT_R ? "mm" : "",
+					      "" };
+		table_row(d, cells, &body, NULL);
+	}
+	char note[256], sigma[32];
+	report_figure(sigma, sizeof(sigma), f->sigma_mm * 1e6, REPORT_NM, 0);
+	snprintf(note, sizeof(note), "u: standard uncertainty of the fit (residual σ = %s nm). %s",
+		 sigma, f->reason);
+	paragraph(d, MARGIN, CONTENT_W, &note_style, note);
+}
+
+static void residual_details(struct doc *d)
+{
+	const struct asph_fit_result *f = d->r->fit;
+	char a[32], b[32], c[32], e[32], line[512];
+
+	section(d, "Residual and slope");
+	report_figure(a, sizeof(a), f->rms.v, REPORT_NM, 0);
+	report_figure(b, sizeof(b), f->pv.v, REPORT_NM, 0);
+	report_figure(c, sizeof(c), f->pvr.v, REPORT_NM, 0);
+	report_figure(e, sizeof(e), f->zernike_fit_rms_left.v, REPORT_NM, 0);
+	snprintf(line, sizeof(line),
+		 "RMS %s nm (standard deviation about the mean), PV %s nm, PVr %s nm "
+		 "(PV of the %d-term Zernike fit + 3 × the RMS it leaves, %s nm)",
+		 a, b, c, f->n_zernike, e);
+	field(d, "Amplitude", line, NULL);
+	report_figure(a, sizeof(a), f->slope_rms.v, REPORT_URAD, 0);
+	snprintf(line, sizeof(line), "Zernike slope RMS %s µrad (the gradient of the Zernike fit)",
+		 a);
+	field(d, "Slope", line, NULL);
+	if (f->slope_valid) {
+		report_figure(a, sizeof(a), f->slope.rms_radial.v, REPORT_URAD, 0);
+		report_figure(b, sizeof(b), f->slope.rms_azimuthal.v, REPORT_URAD, 0);
+		report_figure(c, sizeof(c), f->slope.max_radial.v, REPORT_URAD, 0);
+		report_figure(e, sizeof(e), f->slope.max_azimuthal.v, REPORT_URAD, 0);
+		snprintf(line, sizeof(line),
+			 "over %g mm at %zu positions: radial RMS %s µrad, max %s µrad; azimuthal RMS "
+			 "%s µrad, max %s µrad", f->slope.length_mm, f->slope.n, a, c, b, e);
+		field(d, "Slope deviation", line, NULL);
+	}
+	if (f->form_valid) {
+		const struct asph_uncertainty_k2 *u = &f->uncertainty_k2;
+		char ua[32], ub[32], uc[32];
+		report_figure(a, sizeof(a), f->form.A_fringes, REPORT_FRINGES, REPORT_FIGURE_SIGNED);
+		report_figure(b, sizeof(b), f->form.B_fringes, REPORT_FRINGES, 0);
+		report_figure(c, sizeof(c), f->form.C_fringes, REPORT_FRINGES, 0);
+		report_figure(ua, sizeof(ua), u->A_fringes, REPORT_FRINGES, 0);
+		report_figure(ub, sizeof(ub), u->B_fringes, REPORT_FRINGES, 0);
+		report_figure(uc, sizeof(uc), u->C_fringes, REPORT_FRINGES, 0);
+		snprintf(line, sizeof(line),
+			 "A %s (U %s), B %s (U %s), C %s (U %s) fringes of λ = %g nm (λ/2 of height)",
+			 a, ua, b, ub, c, uc, f->form.wavelength_nm);
+		field(d, "In fringes", line, NULL);
 	}
 }
 
-/* The residual along four diameters (0, 45, 90, 135 degrees). */
-static int radial_profile(cairo_t *cr, const struct chart *box, const struct asph_report *r)
+static int zernike_and_psd(struct doc *d)
 {
-	double ds = r->radius / 150;
-	size_t n = asph_profile_length(r->radius, ds);
-	_cleanup_free_ double *s = malloc(n * sizeof(double));
-	_cleanup_free_ double *z = malloc(4 * n * sizeof(double));
-	static const double colours[4][3] = { { 0.1, 0.3, 0.8 }, { 0.8, 0.2, 0.1 },
-					      { 0.1, 0.6, 0.2 }, { 0.5, 0.3, 0.6 } };
-	struct chart c = *box;
+	double w = (CONTENT_W - 16) / 2;
+	struct report_rect z = { MARGIN, 0, w, CHART_H }, p = { MARGIN + w + 16, 0, w, CHART_H };
+	int r = 0;
 
-	if (!s || !z)
+	need(d, CHART_H + 10);
+	d->y += 8;
+	z.y = p.y = d->y;
+	if (d->drawing) {
+		if (d->r->fit->n_zernike > 0)
+			report_zernike(d->cr, &z, d->r->fit);
+		r = report_psd(d->cr, &p, d->r);
+	}
+	d->y += CHART_H + 4;
+	return r;
+}
+
+static void zernike_table(struct doc *d)
+{
+	const struct asph_fit_result *f = d->r->fit;
+	int rows = (f->n_zernike + 3) / 4;
+
+	if (f->n_zernike == 0)
+		return;
+	section(d, "Zernike coefficients of the residual (Noll order, nm, over the aperture)");
+	for (int i = 0; i < rows; i++) {
+		need(d, LEAD * BODY);
+		for (int c = 0; c < 4; c++) {
+			int j = c * rows + i;
+			char name[16], v[48];
+			if (j >= f->n_zernike)
+				continue;
+			snprintf(name, sizeof(name), "Z%d", j + 1);
+			report_figure(v, sizeof(v), f->zernike[j].v, REPORT_NM, REPORT_FIGURE_SIGNED);
+			double x = MARGIN + c * CONTENT_W / 4;
+			cell(d, x, d->y, 30, 0, &bold, name, 1);
+			cell(d, x + 30, d->y, CONTENT_W / 4 - 48, 1, &body, v, 1);
+		}
+		d->y += LEAD * BODY;
+	}
+	paragraph(d, MARGIN, CONTENT_W, &note_style,
+		  "Z1 to Z3 (piston and tilt) are mostly taken up by the fitted rigid-body "
+		  "degrees of freedom.");
+}
+
+/* ----------------------------------------------------------- appendix */
+
+static void descriptions(struct doc *d)
+{
+	d->appendix_page = d->page;
+	section(d, "Descriptions in full");
+	paragraph(d, MARGIN, CONTENT_W, &note_style,
+		  "Each text exactly as hashed (SHA-256 of its bytes), wrapped at the margin.");
+	for (int i = 0; i < N_DESC; i++) {
+		struct description *ds = &d->desc[i];
+		char hash[80];
+		if (!ds->text)
+			continue;
+		need(d, 4 * LEAD * BODY);
+		d->y += 6;
+		paragraph(d, MARGIN, CONTENT_W, &bold, ds->title);
+		snprintf(hash, sizeof(hash), "SHA-256 %s", ds->sha256);
+		paragraph(d, MARGIN, CONTENT_W, &hash_style, hash);
+		d->y += 2;
+		d->continued = ds->title;
+		paragraph(d, MARGIN, CONTENT_W, &(struct style){ REPORT_MONO, SMALL, 0 }, ds->clean);
+		d->continued = NULL;
+	}
+}
+
+/* ---------------------------------------------------------------- pages */
+
+static int layout(struct doc *d)
+{
+	int r;
+
+	d->page = 1;
+	start_page(d);
+	title_block(d);
+	identification(d);
+	measurement(d);
+	verdict_banner(d);
+	results_table(d);
+	residual_line(d);
+	r = figures(d);
+	if (r < 0)
+		return r;
+
+	new_page(d);
+	paragraph(d, MARGIN, CONTENT_W, &(struct style){ REPORT_SANS_BOLD, 14, 0 },
+		  "Details of the characterization");
+	pose_table(d);
+	residual_details(d);
+	r = zernike_and_psd(d);
+	if (r < 0)
+		return r;
+	zernike_table(d);
+
+	for (int i = 0; i < N_DESC; i++)
+		if (d->desc[i].text) {
+			new_page(d);
+			descriptions(d);
+			break;
+		}
+	if (d->drawing)
+		cairo_show_page(d->cr);
+	return d->error;
+}
+
+/* ------------------------------------------------------------ the doc */
+
+static int doc_init(struct doc *d, const struct asph_report *r)
+{
+	static const char *const titles[N_DESC] = { "Lens prescription", "Sampling plan",
+						    "Instrument" };
+	const char *texts[N_DESC] = { r->lens_json, r->plan_json, r->instrument_json };
+	memset(d, 0, sizeof(*d));
+	d->r = r;
+	d->part = clean_text(r->part);
+	d->lot = clean_text(r->lot);
+	d->serial = clean_text(r->serial);
+	d->operator_name = clean_text(r->operator_name);
+	d->lens_name = clean_text(r->lens_name ? r->lens_name : "not named");
+	d->label = clean_text(r->label);
+	d->software = clean_text(r->software);
+	d->data_name = clean_text(r->data_name ? r->data_name : "the measured points");
+	d->instrument_name = clean_text(r->instrument_name);
+	if (!d->part || !d->lot || !d->serial || !d->operator_name || !d->lens_name || !d->label ||
+	    !d->software || !d->data_name || !d->instrument_name)
 		return -ENOMEM;
-	for (size_t k = 0; k < n; k++)
-		s[k] = -r->radius + (double)k * ds;
-	for (int a = 0; a < 4; a++)
-		asph_profile_sample(r->scatter, a * M_PI / 4, r->radius, ds, z + (size_t)a * n, NULL);
-	c.x0 = -r->radius;
-	c.x1 = r->radius;
-	range_of(z, 4 * n, &c.y0, &c.y1);
-	chart_frame(cr, &c, "Radial profiles (0, 45, 90, 135 deg)", "r (mm)", "residual (nm)");
-	for (int a = 0; a < 4; a++)
-		polyline(cr, &c, s, z + (size_t)a * n, n, colours[a][0], colours[a][1], colours[a][2]);
+	for (int i = 0; i < N_DESC; i++) {
+		struct description *ds = &d->desc[i];
+		ds->title = titles[i];
+		ds->text = texts[i];
+		if (!ds->text)
+			continue;
+		ds->clean = clean_text(ds->text);
+		if (!ds->clean)
+			return -ENOMEM;
+		sha256_hex(ds->text, strlen(ds->text), ds->sha256);
+		ds->summary = summarise(ds->text, i,
+					i == DESC_LENS ? d->lens_name
+					: i == DESC_INSTRUMENT && d->instrument_name[0] ? d->instrument_name
+											: NULL);
+		if (!ds->summary)
+			return -ENOMEM;
+	}
+	measured_text(r, d->measured, sizeof(d->measured));
+	when(r->reported_ns ? r->reported_ns : now_realtime_ns(), d->reported, sizeof(d->reported));
+	if (asprintf(&d->identity, "%s · part %s · lot %s · serial %s", d->lens_name,
+		     d->part[0] ? d->part : "-", d->lot[0] ? d->lot : "-",
+		     d->serial[0] ? d->serial : "-") < 0) {
+		d->identity = NULL;
+		return -ENOMEM;
+	}
+	double pv = d->r->fit->pv.v, floor_nm = asph_report_noise_floor_nm(r->radius);
+	d->noise_nm = pv < floor_nm ? floor_nm : 0;
 	return 0;
 }
 
-static void zernike_bars(cairo_t *cr, const struct chart *box, const struct asph_fit_result *f)
+static void doc_release(struct doc *d)
 {
-	struct chart c = *box;
-	double lo = 0, hi = 0;
+	char **own[] = { &d->part, &d->lot, &d->serial, &d->operator_name, &d->lens_name,
+			 &d->label, &d->software, &d->data_name, &d->instrument_name, &d->identity };
 
-	for (int j = 0; j < f->n_zernike; j++) {
-		lo = fmin(lo, f->zernike[j].v);
-		hi = fmax(hi, f->zernike[j].v);
+	for (size_t i = 0; i < sizeof(own) / sizeof(own[0]); i++)
+		free(*own[i]);
+	for (int i = 0; i < N_DESC; i++) {
+		free(d->desc[i].clean);
+		free(d->desc[i].summary);
 	}
-	if (!(hi > lo))
-		hi = lo + 1;
-	c.x0 = 0.5;
-	c.x1 = f->n_zernike + 0.5;
-	c.y0 = lo;
-	c.y1 = hi;
-	chart_frame(cr, &c, "Zernike terms (Noll)", "j", "coefficient (nm)");
-	cairo_set_source_rgb(cr, 0.2, 0.35, 0.7);
-	for (int j = 0; j < f->n_zernike; j++) {
-		double u0 = chart_u(&c, j + 0.6), u1 = chart_u(&c, j + 1.4);
-		double v0 = chart_v(&c, 0), v1 = chart_v(&c, f->zernike[j].v);
-		cairo_rectangle(cr, u0, fmin(v0, v1), u1 - u0, fabs(v1 - v0));
-	}
-	cairo_fill(cr);
 }
 
-static void psd_chart(cairo_t *cr, const struct chart *box, const struct asph_report *r)
-{
-	_cleanup_(asph_psd_freep) struct asph_psd *own = NULL;
-	const struct asph_psd *p = r->psd;
-	struct chart c = *box;
-	double lo = INFINITY, hi = -INFINITY;
-	char title[64];
-
-	if (!p && asph_psd_residual(r->scatter, r->radius, &own, NULL) < 0) {
-		chart_frame(cr, &c, "PSD: not enough data", "", "");
-		return;
-	}
-	p = p ? p : own;
-	_cleanup_free_ double *f = malloc(p->n * sizeof(double));
-	if (!f)
-		return;
-	for (size_t k = 0; k < p->n; k++) {
-		f[k] = (double)k * p->df;
-		if (k > 0 && p->psd[k] > 0) {
-			lo = fmin(lo, p->psd[k]);
-			hi = fmax(hi, p->psd[k]);
-		}
-	}
-	c.logx = c.logy = 1;
-	c.x0 = floor(log10(p->df));
-	c.x1 = ceil(log10((double)(p->n - 1) * p->df));
-	c.y0 = isfinite(lo) ? floor(log10(lo)) : 0;
-	c.y1 = isfinite(hi) ? ceil(log10(hi)) : 1;
-	if (c.y1 - c.y0 > 12)
-		c.y0 = c.y1 - 12;
-	snprintf(title, sizeof(title), "PSD, mean of %zu diameters (Hann)", p->n_profiles);
-	chart_frame(cr, &c, title, "f (1/mm)", "PSD (nm^2 mm)");
-	polyline(cr, &c, f + 1, p->psd + 1, p->n - 1, 0.1, 0.1, 0.1);
-}
-
-static void residual_map(cairo_t *cr, double x, double y, double w, double h,
-			 const struct asph_report *r)
-{
-	struct asph_plot_panel p = {
-		.kind = ASPH_PLOT_POINTS, .n = r->n, .value = r->residual_nm,
-		.opts = { .title = "Residual", .colour_label = "nm", .diverging = 1 },
-	};
-	_cleanup_free_ double *xyz = malloc(3 * r->n * sizeof(double) + 1);
-	struct plot_rect panel = { 0, 0, 900, 760 };
-
-	if (!xyz)
-		return;
-	for (size_t k = 0; k < r->n; k++) {
-		xyz[3 * k] = r->xy[2 * k];
-		xyz[3 * k + 1] = r->xy[2 * k + 1];
-		xyz[3 * k + 2] = 0;
-	}
-	p.xyz = xyz;
-	cairo_save(cr);
-	cairo_translate(cr, x, y);
-	cairo_scale(cr, w / 900, h / 760);
-	plot_draw_panel(cr, &p, &panel);
-	cairo_restore(cr);
-}
-
-static double header_block(cairo_t *cr, const struct asph_report *r)
-{
-	const struct asph_fit_result *f = r->fit;
-	char line[200], hex[65];
-	double y = MARGIN + 14;
-
-	font(cr, 15, 1);
-	snprintf(line, sizeof(line), "Form measurement report: %s", r->lens_name ? r->lens_name : "-");
-	text_at(cr, MARGIN, y, line);
-	y += 20;
-	snprintf(line, sizeof(line), "part %s   lot %s   serial %s", r->part ? r->part : "-",
-		 r->lot ? r->lot : "-", r->serial ? r->serial : "-");
-	y = field_line(cr, y, "Part", line);
-	y = provenance(cr, y, "Lens", r->lens_json);
-	y = provenance(cr, y, "Plan", r->plan_json);
-	y = provenance(cr, y, "Instrument", r->instrument_json);
-	if (r->data) {
-		sha256_hex(r->data, r->data_len, hex);
-		snprintf(line, sizeof(line), "sha256 %s  %s", hex, r->data_name ? r->data_name : "");
-		y = field_line(cr, y, "Data", line);
-	}
-	y = field_line(cr, y, "Software", r->software);
-	snprintf(line, sizeof(line), "%zu points, %zu used, %zu outside, %zu outliers; %s residual; %s",
-		 f->n_points, f->n_used, f->n_outside_aperture, f->n_outliers,
-		 asph_fit_residual_name(f->residual), f->converged ? "converged" : "NOT converged");
-	y = field_line(cr, y, "Fit", line);
-	snprintf(line, sizeof(line), "RMS %.3f nm, PV %.3f nm, PVr %.3f nm; lambda %g nm; slope length %g mm",
-		 f->rms.v, f->pv.v, f->pvr.v, f->form.wavelength_nm, f->slope.length_mm);
-	y = field_line(cr, y, "Residual", line);
-	snprintf(line, sizeof(line), "%s  (uncertainty: %s)",
-		 r->tolerance ? (r->tolerance->callout[0] ? r->tolerance->callout : "see the table")
-			      : "none given",
-		 asph_uncertainty_method_name(f->uncertainty_k2.method));
-	y = field_line(cr, y, "Tolerance", line);
-	if (f->verdict.present) {
-		y += 6;
-		font(cr, 13, 1);
-		if (f->verdict.overall == ASPH_VERDICT_FAIL)
-			cairo_set_source_rgb(cr, 0.75, 0, 0);
-		else if (f->verdict.overall == ASPH_VERDICT_PASS)
-			cairo_set_source_rgb(cr, 0, 0.5, 0);
-		else
-			cairo_set_source_rgb(cr, 0.6, 0.45, 0);
-		snprintf(line, sizeof(line), "Verdict (ISO 14253-1): %s",
-			 verdict_text(f->verdict.overall));
-		text_at(cr, MARGIN, y, line);
-		y += 8;
-	}
-	return y + 10;
-}
-
-/* Draws the page on surface (a PDF surface of name) and finishes it. */
+/* Draws the pages on surface (a PDF surface of name) and finishes it. */
 static int draw_report(cairo_surface_t *surface, const char *name, const struct asph_report *r,
 		       struct asph_error *err)
 {
 	_cleanup_(cairo_destroyp) cairo_t *cr = cairo_create(surface);
-	double y, cw = (PAGE_W - 2 * MARGIN - 60) / 2, ch = 150;
+	struct doc d;
 	cairo_status_t st;
+	int rc, appendix;
 
 	if (cairo_status(cr) != CAIRO_STATUS_SUCCESS)
 		return asph_error_set(err, -EIO, "cannot create %s: %s", name,
 				      cairo_status_to_string(cairo_status(cr)));
 	cairo_pdf_surface_set_metadata(surface, CAIRO_PDF_METADATA_TITLE, "Form measurement report");
-	cairo_pdf_surface_set_metadata(surface, CAIRO_PDF_METADATA_CREATOR, "asphd");
-	y = header_block(cr, r);
-	y = verdict_table(cr, y, r) + 8;
-	residual_map(cr, MARGIN, y, 260, 220, r);
-	struct chart prof = { MARGIN + 310, y + 20, cw + 10, ch };
-	if (radial_profile(cr, &prof, r) < 0)
-		return asph_error_set(err, -ENOMEM, "out of memory");
-	y += 250;
-	struct chart z = { MARGIN + 40, y, cw, ch }, psd = { MARGIN + 80 + cw, y, cw, ch };
-	if (r->fit->n_zernike > 0)
-		zernike_bars(cr, &z, r->fit);
-	psd_chart(cr, &psd, r);
-	cairo_show_page(cr);
+	cairo_pdf_surface_set_metadata(surface, CAIRO_PDF_METADATA_CREATOR,
+				       r->software ? r->software : "libasph");
+	rc = doc_init(&d, r);
+	d.cr = cr;
+	/* measure, then draw with the page count and the appendix's page */
+	if (rc == 0)
+		rc = layout(&d);
+	appendix = d.appendix_page;
+	d.n_pages = d.page;
+	d.drawing = 1;
+	d.appendix_page = appendix;
+	if (rc == 0)
+		rc = layout(&d);
+	doc_release(&d);
+	if (rc < 0)
+		return asph_error_set(err, rc, "%s: out of memory", name);
 	cairo_destroy(steal_ptr(cr));
 	cairo_surface_finish(surface);
 	st = cairo_surface_status(surface);

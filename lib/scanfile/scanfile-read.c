@@ -361,6 +361,7 @@ static int parse_end(struct asph_scanfile_reader *r, const uint8_t *payload,
 	}
 	r->report.ended = true;
 	r->report.outcome = o;
+	r->report.ended_ns = json_integer_value(json_object_get(root, "time_ns"));
 	return 0;
 }
 

@@ -1,4 +1,5 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <errno.h>
 #include <math.h>
 
 #include "aperture.h"
@@ -124,4 +125,43 @@ void aperture_map(const struct asph_aperture *ap, double s, double t, double xy[
 	xy[0] = ap->offset[0] + hx * s * cos(a);
 	xy[1] = ap->offset[1] + hy * s * sin(a);
 	*jac = 2.0 * M_PI * hx * hy * s;
+}
+
+int aperture_check(const struct asph_prescription *p, struct asph_error *err)
+{
+	const struct asph_aperture *ap = &p->aperture;
+
+	if (ap->shape == ASPH_APERTURE_FROM_DIAMETER) {
+		if (!(p->aperture_diameter > 0) || !isfinite(p->aperture_diameter))
+			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture_diameter",
+						 "aperture_diameter (or aperture) must give a positive size in mm");
+		return 0;
+	}
+	if ((unsigned)ap->shape > ASPH_APERTURE_ELLIPTICAL)
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture.shape",
+					 "unknown aperture shape %d", (int)ap->shape);
+	if (p->aperture_diameter != 0)
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture_diameter",
+					 "give either aperture_diameter or aperture, not both");
+	if (!(ap->width > 0) || !isfinite(ap->width))
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0,
+					 ap->shape == ASPH_APERTURE_CIRCULAR ? "aperture.diameter"
+									     : "aperture.width",
+					 "the aperture's size must be a positive number of mm");
+	if (!(ap->height > 0) || !isfinite(ap->height))
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture.height",
+					 "the aperture's height must be a positive number of mm");
+	if (ap->shape == ASPH_APERTURE_CIRCULAR && ap->width != ap->height)
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture",
+					 "a circular aperture has one diameter");
+	if (!isfinite(ap->offset[0]) || !isfinite(ap->offset[1]))
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture.offset",
+					 "the aperture's offset must be finite");
+	return 0;
+}
+
+int aperture_is_centred_circle(const struct asph_aperture *ap)
+{
+	return ap->shape == ASPH_APERTURE_CIRCULAR && ap->width == ap->height &&
+	       ap->offset[0] == 0 && ap->offset[1] == 0;
 }

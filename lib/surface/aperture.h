@@ -7,11 +7,20 @@
 #ifndef ASPH_APERTURE_H
 #define ASPH_APERTURE_H
 
+#include "asph/error.h"
 #include "asph/surface.h"
 
 /* The aperture of p with its shape resolved (a centred circle of
  * aperture_diameter when p gives no shape). */
 void aperture_resolve(const struct asph_prescription *p, struct asph_aperture *out);
+
+/* The aperture members of p: aperture_diameter, or an aperture of a known
+ * shape with positive finite sizes (a circle's two equal) and a finite
+ * offset, never both; err names the member. */
+int aperture_check(const struct asph_prescription *p, struct asph_error *err);
+
+/* Whether the aperture is a circle centred on the axis. */
+int aperture_is_centred_circle(const struct asph_aperture *ap);
 
 int aperture_contains(const struct asph_aperture *ap, double x, double y, double tol);
 void aperture_bounds(const struct asph_aperture *ap, double box[4]);

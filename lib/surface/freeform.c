@@ -543,8 +543,7 @@ static unsigned type_uses(const struct asph_prescription *p)
 	}
 }
 
-/* A radius: finite and non-zero, or infinite (flat); never NaN. */
-static int check_radius(double R, const char *field, struct asph_error *err)
+int radius_check(double R, const char *field, struct asph_error *err)
 {
 	if (isnan(R))
 		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
@@ -585,12 +584,12 @@ static int check_scalars(const struct asph_prescription *p, unsigned uses, const
 	for (size_t i = 0; i < sizeof(f) / sizeof(f[0]); i++)
 		if ((r = check_unused(f[i].v, uses, f[i].bit, f[i].name, type, err)) < 0)
 			return r;
-	if ((uses & USES_R) && (r = check_radius(p->R, "R", err)) < 0)
+	if ((uses & USES_R) && (r = radius_check(p->R, "R", err)) < 0)
 		return r;
-	if ((uses & USES_BICONIC) && ((r = check_radius(p->Rx, "Rx", err)) < 0 ||
-				      (r = check_radius(p->Ry, "Ry", err)) < 0))
+	if ((uses & USES_BICONIC) && ((r = radius_check(p->Rx, "Rx", err)) < 0 ||
+				      (r = radius_check(p->Ry, "Ry", err)) < 0))
 		return r;
-	if ((uses & USES_ROTATION) && (r = check_radius(p->R_rotation, "R_rotation", err)) < 0)
+	if ((uses & USES_ROTATION) && (r = radius_check(p->R_rotation, "R_rotation", err)) < 0)
 		return r;
 	const struct { double v; const char *name; } fin[] = {
 		{ p->k, "k" }, { p->kx, "kx" }, { p->ky, "ky" },
@@ -673,39 +672,6 @@ static int check_coefficients(const struct asph_prescription *p, unsigned uses,
 					return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
 								 "a %s surface has no Q coefficients", type);
 			}
-	return 0;
-}
-
-static int check_aperture(const struct asph_prescription *p, struct asph_error *err)
-{
-	const struct asph_aperture *ap = &p->aperture;
-
-	if (ap->shape == ASPH_APERTURE_FROM_DIAMETER) {
-		if (!(p->aperture_diameter > 0) || !isfinite(p->aperture_diameter))
-			return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture_diameter",
-						 "aperture_diameter (or aperture) must give a positive size in mm");
-		return 0;
-	}
-	if ((unsigned)ap->shape > ASPH_APERTURE_ELLIPTICAL)
-		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture.shape",
-					 "unknown aperture shape %d", (int)ap->shape);
-	if (p->aperture_diameter != 0)
-		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture_diameter",
-					 "give either aperture_diameter or aperture, not both");
-	if (!(ap->width > 0) || !isfinite(ap->width))
-		return asph_error_set_at(err, -EINVAL, NULL, 0, 0,
-					 ap->shape == ASPH_APERTURE_CIRCULAR ? "aperture.diameter"
-									     : "aperture.width",
-					 "the aperture's size must be a positive number of mm");
-	if (!(ap->height > 0) || !isfinite(ap->height))
-		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture.height",
-					 "the aperture's height must be a positive number of mm");
-	if (ap->shape == ASPH_APERTURE_CIRCULAR && ap->width != ap->height)
-		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture",
-					 "a circular aperture has one diameter");
-	if (!isfinite(ap->offset[0]) || !isfinite(ap->offset[1]))
-		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture.offset",
-					 "the aperture's offset must be finite");
 	return 0;
 }
 
@@ -841,7 +807,7 @@ int freeform_check(const struct asph_prescription *p, struct asph_error *err)
 
 	if ((r = check_scalars(p, uses, type, err)) < 0 ||
 	    (r = check_coefficients(p, uses, type, err)) < 0 ||
-	    (r = check_aperture(p, err)) < 0)
+	    (r = aperture_check(p, err)) < 0)
 		return r;
 	return check_roots(p, err);
 }

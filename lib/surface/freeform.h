@@ -53,6 +53,10 @@ struct freeform {
 	double qb[ASPH_SURFACE_Q2D_MAX_M][ASPH_SURFACE_Q2D_MAX_N + 1];
 };
 
+/* A radius of curvature: finite and non-zero, or infinite (flat); never
+ * NaN. field names it in err. */
+int radius_check(double R, const char *field, struct asph_error *err);
+
 /* The checks of a freeform prescription (the fields its type uses and
  * leaves alone, the roots of its conics over the aperture); err names the
  * field. */
@@ -71,10 +75,11 @@ void freeform_sag_grad(const struct freeform *f, double x, double y, double g[3]
 /* S alone. */
 double freeform_sag(const struct freeform *f, double x, double y);
 
-/* The sag range and steepest slope over the aperture, and the area. */
-void freeform_extent(const struct freeform *f, const struct asph_aperture *ap,
-		     struct asph_surface_extent *e);
-double freeform_area(const struct freeform *f, const struct asph_aperture *ap,
-		     const gsl_integration_glfixed_table *gl);
+/* The sag range and steepest slope of s over the aperture, and the area
+ * (freeform-extent.c; for the surfaces without the radial tables). */
+void extent_over_aperture(const struct asph_surface *s, const struct asph_aperture *ap,
+			  struct asph_surface_extent *e);
+double area_over_aperture(const struct asph_surface *s, const struct asph_aperture *ap,
+			  const gsl_integration_glfixed_table *gl);
 
 #endif

@@ -1,6 +1,7 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
- * The OpticStudio freeform surface types as prescriptions: Biconic
+ * The table of the OpticStudio surface types that are imported, and the
+ * freeform ones as prescriptions: Biconic
  * (BICONICX), Toroidal (TOROIDAL, with its optional Zernike Standard
  * terms), Extended Polynomial (XPOLYNOM) and Zernike Standard Sag
  * (SZERNSAG). docs/prescriptions.md gives the layout of their PARM and
@@ -19,28 +20,32 @@
 #define XDAT_NORM 2
 #define XDAT_FIRST_TERM 3
 
-struct zmx_type {
-	const char *name;          /* TYPE */
-	const char *title;         /* OpticStudio's name of the type */
-	enum asph_surface_type type;
-	unsigned parms;            /* bit i: PARM i is a parameter of the type */
-	int max_terms;             /* the most terms in extra data; 0: no extra data */
-};
-
+/* The imported types. Their names are 8 characters, as OpticStudio writes
+ * them (ODDASPH, one short, is read as ODDASPHE). */
 static const struct zmx_type types[] = {
+	{ "STANDARD", "Standard", ZMX_STANDARD, ASPH_SURFACE_EVEN_ASPHERE, 0, 0 },
+	/* PARM 1 .. 8 multiply r^2 .. r^16 */
+	{ "EVENASPH", "Even Asphere", ZMX_EVENASPH, ASPH_SURFACE_EVEN_ASPHERE, 0x1fe, 0 },
+	/* PARM 1 .. 8 multiply r^1 .. r^8 */
+	{ "ODDASPHE", "Odd Asphere", ZMX_ODDASPH, ASPH_SURFACE_ODD_ASPHERE, 0x1fe, 0 },
+	{ "ODDASPH", "Odd Asphere", ZMX_ODDASPH, ASPH_SURFACE_ODD_ASPHERE, 0x1fe, 0 },
+	/* XDAT 1 Qbfs (0) or Qcon (1), 2 the number of terms, 3 the
+	 * normalization radius, 4 .. the terms a_0 .. */
+	{ "QED_TYPE", "Q-Type Asphere", ZMX_QTYPE, ASPH_SURFACE_QBFS, 0, ASPH_SURFACE_MAX_Q + 1 },
 	/* PARM 1 x radius, PARM 2 x conic */
-	{ "BICONICX", "Biconic", ASPH_SURFACE_BICONIC, 0x6, 0 },
+	{ "BICONICX", "Biconic", ZMX_FREEFORM, ASPH_SURFACE_BICONIC, 0x6, 0 },
 	/* PARM 0 extrapolate, 1 radius of rotation, 2..8 y^2 .. y^14 */
-	{ "TOROIDAL", "Toroidal", ASPH_SURFACE_TOROIDAL, 0x1ff, ASPH_SURFACE_MAX_ZERNIKE },
+	{ "TOROIDAL", "Toroidal", ZMX_FREEFORM, ASPH_SURFACE_TOROIDAL, 0x1ff,
+	  ASPH_SURFACE_MAX_ZERNIKE },
 	/* no parameters; the terms x, y, x^2, x y, y^2, x^3, ... */
-	{ "XPOLYNOM", "Extended Polynomial", ASPH_SURFACE_XY_POLYNOMIAL, 0,
+	{ "XPOLYNOM", "Extended Polynomial", ZMX_FREEFORM, ASPH_SURFACE_XY_POLYNOMIAL, 0,
 	  ASPH_SURFACE_XY_TERMS - 1 },
 	/* PARM 0 extrapolate, 1..8 r^2 .. r^16, 9 and 10 the terms' x and y decenter */
-	{ "SZERNSAG", "Zernike Standard Sag", ASPH_SURFACE_ZERNIKE_SAG, 0x7ff,
+	{ "SZERNSAG", "Zernike Standard Sag", ZMX_FREEFORM, ASPH_SURFACE_ZERNIKE_SAG, 0x7ff,
 	  ASPH_SURFACE_MAX_ZERNIKE },
 };
 
-static const struct zmx_type *type_of(const char *name)
+const struct zmx_type *zmx_type_of(const char *name)
 {
 	for (size_t i = 0; i < sizeof(types) / sizeof(types[0]); i++)
 		if (!strcmp(name, types[i].name))
@@ -48,9 +53,13 @@ static const struct zmx_type *type_of(const char *name)
 	return NULL;
 }
 
-int zmx_type_is_freeform(const char *type)
+void zmx_type_names(char *buf, size_t size)
 {
-	return type_of(type) != NULL;
+	size_t len = 0;
+
+	buf[0] = '\0';
+	for (size_t i = 0; i < sizeof(types) / sizeof(types[0]) && len < size; i++)
+		len += (size_t)snprintf(buf + len, size - len, "%s%s", i ? ", " : "", types[i].name);
 }
 
 /* OpticStudio writes a plane as curvature 0, and a radius parameter of 0
@@ -72,10 +81,8 @@ static void where(const struct zsurf *z, const struct zmx_value *v, int *line, i
 	*col = v->line ? v->col : z->type_col;
 }
 
-/* A parameter or an extra datum the type does not have holds a value the
- * prescription would lose: refused unless it is 0. */
-static int check_unknown_data(const struct zsurf *z, const struct zmx_type *t,
-			      const char *file, struct asph_error *err)
+int zmx_check_unknown_data(const struct zsurf *z, const struct zmx_type *t, const char *file,
+			   struct asph_error *err)
 {
 	char field[16];
 
@@ -189,14 +196,14 @@ static int zernike_terms(const struct zsurf *z, const struct zmx_type *t, const 
 int zmx_freeform(const struct zsurf *z, const char *file, struct asph_prescription *p,
 		 struct asph_error *err)
 {
-	const struct zmx_type *t = type_of(z->type);
+	const struct zmx_type *t = zmx_type_of(z->type);
 	double terms[ASPH_SURFACE_XY_TERMS - 1];
 	int r, n;
 
-	if (!t)
+	if (!t || t->kind != ZMX_FREEFORM)
 		return zmx_refuse(err, file, z->type_line, z->type_col, "TYPE",
 				  "surface %d: type %s is not a freeform type", z->number, z->type);
-	if ((r = check_unknown_data(z, t, file, err)) < 0)
+	if ((r = zmx_check_unknown_data(z, t, file, err)) < 0)
 		return r;
 	p->type = t->type;
 	switch (t->type) {

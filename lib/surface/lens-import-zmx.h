@@ -10,6 +10,7 @@
 #define ASPH_LENS_IMPORT_ZMX_H
 
 #include <errno.h>
+#include <stddef.h>
 
 #include "asph/error.h"
 #include "asph/prescription.h"
@@ -36,8 +37,8 @@ enum zmx_aperture_kind {
 struct zsurf {
 	int number;
 	int line;                 /* of its SURF line */
-	char type[32];
-	int type_line, type_col;
+	char type[32];            /* "STANDARD" when the file has no TYPE line */
+	int type_line, type_col;  /* the SURF line when it has none */
 	struct zmx_value curv, coni, diam;   /* diam: the semi-diameter */
 	struct zmx_value parm[ZMX_MAX_PARM + 1];
 	struct zmx_value xdat[ZMX_MAX_XDAT + 1];
@@ -51,8 +52,36 @@ struct zsurf {
 #define zmx_refuse(err, file, line, col, field, ...) \
 	asph_error_set_at(err, -EINVAL, file, line, col, field, __VA_ARGS__)
 
-/* Whether TYPE names one of the freeform types that are imported. */
-int zmx_type_is_freeform(const char *type);
+/* How a type's data become a prescription. */
+enum zmx_kind {
+	ZMX_STANDARD,   /* a conic */
+	ZMX_EVENASPH,   /* PARM i multiplies r^(2i) */
+	ZMX_ODDASPH,    /* PARM i multiplies r^i */
+	ZMX_QTYPE,      /* Forbes' Qbfs or Qcon in extra data */
+	ZMX_FREEFORM,   /* zmx_freeform() */
+};
+
+/* One OpticStudio surface type that is imported: the table in
+ * lens-import-freeform.c is the one list of them. */
+struct zmx_type {
+	const char *name;          /* TYPE */
+	const char *title;         /* OpticStudio's name of the type */
+	enum zmx_kind kind;
+	enum asph_surface_type type;
+	unsigned parms;            /* bit i: PARM i is a parameter of the type */
+	int max_terms;             /* the most terms in extra data; 0: no extra data */
+};
+
+/* The imported type TYPE names; NULL when it is not imported. */
+const struct zmx_type *zmx_type_of(const char *name);
+
+/* The names of the imported types, ", " between them, for messages. */
+void zmx_type_names(char *buf, size_t size);
+
+/* A parameter or an extra datum the type does not have holds a value the
+ * prescription would lose: refused, with where, unless it is 0. */
+int zmx_check_unknown_data(const struct zsurf *z, const struct zmx_type *t, const char *file,
+			   struct asph_error *err);
 
 /*
  * The shape of a freeform surface (BICONICX, TOROIDAL, XPOLYNOM, SZERNSAG)

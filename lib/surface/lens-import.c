@@ -1,7 +1,8 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
  * Lens files of other programs: OpticStudio .zmx surface blocks and CSV
- * tables of prescriptions. The file is decoded to UTF-8 and split into
+ * tables of prescriptions. The file is decoded to UTF-8 (from UTF-16 with
+ * its byte-order mark, or from Latin-1 when it is not UTF-8) and split into
  * lines in place; every surface is read (and the file refused as a whole
  * when any is malformed), a surface is converted when it is asked for.
  */
@@ -27,11 +28,19 @@ struct csv_rows {
 	int n;
 };
 
+/* A .zmx file's lens units (UNIT): how many mm one is. */
+struct zmx_unit {
+	const char *name;          /* as OpticStudio writes it */
+	const char *words;         /* for the note of a converted prescription */
+	double mm;
+};
+
 struct asph_lens_import {
 	char *name;
 	enum asph_lens_format format;
 	struct zsurf *surf;
 	size_t n_surf, cap_surf;
+	const struct zmx_unit *unit;
 	struct csv_rows rows;
 	/* while parsing */
 	struct asph_error *err;
@@ -102,6 +111,56 @@ static int from_utf16(struct asph_lens_import *im, const unsigned char *b, size_
 	return 0;
 }
 
+/* Whether b holds well-formed UTF-8 (no overlong forms, no surrogates). */
+static int is_utf8(const unsigned char *b, size_t n)
+{
+	size_t i = 0;
+
+	while (i < n) {
+		unsigned c = b[i], need, cp;
+		if (c < 0x80) {
+			i++;
+			continue;
+		}
+		if (c >= 0xc2 && c < 0xe0)
+			need = 1, cp = c & 0x1f;
+		else if (c >= 0xe0 && c < 0xf0)
+			need = 2, cp = c & 0x0f;
+		else if (c >= 0xf0 && c < 0xf5)
+			need = 3, cp = c & 0x07;
+		else
+			return 0;
+		if (n - i - 1 < need)
+			return 0;
+		for (unsigned k = 1; k <= need; k++) {
+			if ((b[i + k] & 0xc0) != 0x80)
+				return 0;
+			cp = cp << 6 | (b[i + k] & 0x3f);
+		}
+		if ((need == 2 && (cp < 0x800 || (cp >= 0xd800 && cp < 0xe000))) ||
+		    (need == 3 && (cp < 0x10000 || cp > 0x10ffff)))
+			return 0;
+		i += need + 1;
+	}
+	return 1;
+}
+
+/* Text that is not UTF-8 is Latin-1 (ISO 8859-1), as older writers and
+ * lens vendors' files have it: each byte is its code point. */
+static int from_latin1(struct asph_lens_import *im, const unsigned char *b, size_t n)
+{
+	size_t o = 0;
+
+	im->text = malloc(2 * n + 1);
+	if (!im->text)
+		return asph_error_set(im->err, -ENOMEM, "out of memory");
+	for (size_t i = 0; i < n; i++)
+		o += put_utf8(im->text + o, b[i]);
+	im->text[o] = '\0';
+	im->len = o;
+	return 0;
+}
+
 static int decode(struct asph_lens_import *im, const unsigned char *b, size_t n)
 {
 	if (n >= 2 && b[0] == 0xff && b[1] == 0xfe)
@@ -112,6 +171,8 @@ static int decode(struct asph_lens_import *im, const unsigned char *b, size_t n)
 	if (memchr(b + skip, '\0', n - skip))
 		return fail(im, 0, 0, NULL,
 			    "contains NUL bytes: UTF-16 without a byte-order mark is not read");
+	if (!is_utf8(b + skip, n - skip))
+		return from_latin1(im, b + skip, n - skip);
 	im->len = n - skip;
 	im->text = malloc(im->len + 1);
 	if (!im->text)
@@ -184,6 +245,10 @@ static int number_arg(const struct asph_lens_import *im, const char **p, const c
 
 	if (!t)
 		return fail(im, line, (int)strlen(ls) + 1, kw, "%s without a value", kw);
+	/* a number longer than the token holds would be read cut short */
+	if (*p - (ls + col - 1) >= TOKEN_MAX)
+		return fail(im, line, col, kw, "a value of %td characters is not a number",
+			    *p - (ls + col - 1));
 	if (parse_double(t, out) < 0)
 		return fail(im, line, col, kw, "'%s' is not a finite number", t);
 	return 0;
@@ -280,16 +345,35 @@ static int zmx_surface_line(struct asph_lens_import *im, struct zsurf *z, const 
 	return aperture_line(im, z, p, ls, line, kw);
 }
 
+/* OpticStudio's lens units; the first is the default of a file without a
+ * UNIT line. */
+static const struct zmx_unit units[] = {
+	{ "MM", "millimetres", 1.0 },
+	{ "CM", "centimetres", 10.0 },
+	{ "IN", "inches", 25.4 },
+	{ "INCH", "inches", 25.4 },
+	{ "M", "metres", 1000.0 },
+	{ "METER", "metres", 1000.0 },
+	{ "METERS", "metres", 1000.0 },
+};
+
+/* UNIT u ...: the lens units, in which every length of the file is. */
 static int zmx_unit(struct asph_lens_import *im, const char *p, const char *ls, int line)
 {
 	char buf[TOKEN_MAX];
 	int col = 0;
 	const char *t = token(&p, ls, buf, &col);
 
-	if (t && strcmp(t, "MM"))
-		return fail(im, line, col, "UNIT",
-			    "lens units %s: only files in millimetres (UNIT MM) are read", t);
-	return 0;
+	if (!t)
+		return 0;
+	for (size_t i = 0; i < ARRAY_SIZE(units); i++)
+		if (!strcasecmp(t, units[i].name)) {
+			im->unit = &units[i];
+			return 0;
+		}
+	return fail(im, line, col, "UNIT",
+		    "lens units %s: the units read are MM, CM, IN and M (millimetres, "
+		    "centimetres, inches, metres)", t);
 }
 
 /* Room for one more surface, zeroed. */
@@ -307,21 +391,26 @@ static int grow_surfaces(struct asph_lens_import *im)
 	return 0;
 }
 
+/*
+ * A SURF block runs to the next SURF line: its keywords are read whether
+ * they are indented (as OpticStudio writes them) or not, and a file may end
+ * without a newline. A surface without a TYPE line is STANDARD,
+ * OpticStudio's default.
+ */
 static int zmx_parse(struct asph_lens_import *im)
 {
 	char *rest = im->text, *l;
 	int line = 0, nl = 1;
 	struct zsurf *cur = NULL;
 
+	im->unit = &units[0];
 	while ((l = next_line(&rest, &nl))) {
-		int col = 0, indented = (*l == ' ' || *l == '\t');
+		int col = 0;
 		const char *ls = l, *p = l, *kw;
 		char kwbuf[TOKEN_MAX];
 		line++;
 		if (!(kw = token(&p, ls, kwbuf, &col)))
 			continue;
-		if (!indented)
-			cur = NULL;
 		if (!strcmp(kw, "UNIT")) {
 			int r = zmx_unit(im, p, ls, line);
 			if (r < 0)
@@ -338,6 +427,12 @@ static int zmx_parse(struct asph_lens_import *im)
 			if (im->n_surf == MAX_SURFACES)
 				return fail(im, line, col, "SURF", "more than %d surfaces",
 					    MAX_SURFACES);
+			for (size_t i = 0; i < im->n_surf; i++)
+				if (im->surf[i].number == (int)num)
+					return fail(im, line, col, "SURF",
+						    "surface %d again (first at line %d): which "
+						    "one is meant is not clear", (int)num,
+						    im->surf[i].line);
 			if ((r = grow_surfaces(im)) < 0)
 				return r;
 			cur = &im->surf[im->n_surf++];
@@ -348,72 +443,69 @@ static int zmx_parse(struct asph_lens_import *im)
 			if (r < 0)
 				return r;
 		}
-		if (!nl && cur)
-			return fail(im, line, (int)strlen(ls) + 1, NULL,
-				    "the file ends inside surface %d: it is truncated", cur->number);
 	}
 	if (im->n_surf == 0)
 		return fail(im, line, 0, NULL, "no SURF block: not an OpticStudio lens file");
-	for (size_t i = 0; i < im->n_surf; i++)
-		if (!im->surf[i].type[0])
-			return fail(im, im->surf[i].line, 1, NULL,
-				    "surface %d has no TYPE line (truncated file?)",
-				    im->surf[i].number);
+	for (size_t i = 0; i < im->n_surf; i++) {
+		struct zsurf *z = &im->surf[i];
+		if (z->type[0])
+			continue;
+		snprintf(z->type, sizeof(z->type), "STANDARD");
+		z->type_line = z->line;
+		z->type_col = 1;
+	}
 	return 0;
 }
 
-enum ztype { Z_STANDARD, Z_EVENASPH, Z_ODDASPH, Z_QTYPE, Z_FREEFORM, Z_UNKNOWN };
-
-static enum ztype ztype_of(const char *t)
+/* An extra datum's line and column, or the TYPE line's when it is absent. */
+static void xdat_where(const struct zsurf *z, int i, int *line, int *col)
 {
-	if (!strcmp(t, "STANDARD"))
-		return Z_STANDARD;
-	if (!strcmp(t, "EVENASPH"))
-		return Z_EVENASPH;
-	if (!strcmp(t, "ODDASPH"))
-		return Z_ODDASPH;
-	if (!strcmp(t, "QTYPEASPH") || !strcmp(t, "QTYPE"))
-		return Z_QTYPE;
-	if (zmx_type_is_freeform(t))
-		return Z_FREEFORM;
-	return Z_UNKNOWN;
+	*line = z->xdat[i].line ? z->xdat[i].line : z->type_line;
+	*col = z->xdat[i].line ? z->xdat[i].col : z->type_col;
 }
 
-/* A parameter's line and column, or the TYPE line's when it is absent. */
-static void parm_where(const struct zsurf *z, int i, int *line, int *col)
-{
-	*line = z->parm[i].line ? z->parm[i].line : z->type_line;
-	*col = z->parm[i].line ? z->parm[i].col : z->type_col;
-}
+/* The Q-type asphere's extra data (QED_TYPE). */
+#define QED_FAMILY 1      /* 0 Qbfs, 1 Qcon */
+#define QED_COUNT 2       /* the number of terms N */
+#define QED_NORM 3        /* the normalization radius */
+#define QED_FIRST_TERM 4  /* a_0 .. a_{N-1} */
 
-/* Q type: PARM 1 family (0 Qbfs, 1 Qcon), PARM 2 normalization radius,
- * PARM 3 number of terms N, PARM 4 .. 3+N the coefficients a_0 .. a_{N-1}. */
+/*
+ * QED_TYPE: OpticStudio's Q-type asphere, the base conic (CURV, CONI) plus
+ * Forbes' Qbfs or Qcon terms. Terms past the count are OpticStudio's to
+ * ignore; a count past the 31 terms a prescription holds is read when the
+ * terms past a_30 are 0.
+ */
 static int zmx_qtype(struct asph_lens_import *im, const struct zsurf *z,
 		     struct asph_prescription *p)
 {
-	double fam = z->parm[1].v, n = z->parm[3].v;
+	double fam = z->xdat[QED_FAMILY].v, n = z->xdat[QED_COUNT].v;
 	int line, col;
 
 	if (fam != 0 && fam != 1) {
-		parm_where(z, 1, &line, &col);
-		return fail(im, line, col, "PARM 1",
-			    "surface %d: Q family %g (0 is Qbfs, 1 is Qcon)", z->number, fam);
+		xdat_where(z, QED_FAMILY, &line, &col);
+		return fail(im, line, col, "XDAT 1",
+			    "surface %d: Q type %g (0 is Qbfs, 1 is Qcon)", z->number, fam);
 	}
 	p->type = fam == 0 ? ASPH_SURFACE_QBFS : ASPH_SURFACE_QCON;
-	p->norm_radius = z->parm[2].v;
-	if (n != floor(n) || n < 1 || n > ASPH_SURFACE_MAX_Q + 1 || 3 + n > ZMX_MAX_PARM) {
-		parm_where(z, 3, &line, &col);
-		return fail(im, line, col, "PARM 3",
-			    "surface %d: %g Q terms (1..%d)", z->number, n, ASPH_SURFACE_MAX_Q + 1);
+	p->norm_radius = z->xdat[QED_NORM].v;
+	if (n != floor(n) || n < 0 || n > ZMX_MAX_XDAT - QED_FIRST_TERM + 1) {
+		xdat_where(z, QED_COUNT, &line, &col);
+		return fail(im, line, col, "XDAT 2",
+			    "surface %d: %g Q terms: a whole number from 0 to %d", z->number, n,
+			    ZMX_MAX_XDAT - QED_FIRST_TERM + 1);
 	}
-	for (int m = 0; m < (int)n; m++)
-		p->Q[m] = z->parm[4 + m].v;
-	if (p->type == ASPH_SURFACE_QBFS && p->k != 0)
-		return fail(im, z->coni.line, z->coni.col, "CONI",
-			    "surface %d: a Qbfs surface has no conic constant (CONI %g)",
-			    z->number, p->k);
-	if (p->type == ASPH_SURFACE_QBFS)
-		p->k = 0;
+	for (int m = 0; m < (int)n; m++) {
+		const struct zmx_value *a = &z->xdat[QED_FIRST_TERM + m];
+		if (m <= ASPH_SURFACE_MAX_Q) {
+			p->Q[m] = a->v;
+			continue;
+		}
+		if (a->v != 0)
+			return fail(im, a->line, a->col, "XDAT",
+				    "surface %d: term a%d is %g: a prescription holds a0 .. a%d",
+				    z->number, m, a->v, ASPH_SURFACE_MAX_Q);
+	}
 	return 0;
 }
 
@@ -422,12 +514,12 @@ static const char *const aperture_keywords[] = {
 	[ZMX_APERTURE_ELLIPTICAL] = "ELAP", [ZMX_APERTURE_USER] = "UDAD",
 };
 
-/* A circular clear aperture CLAP r_min r_max: r_min > 0 is a hole. */
-static int zmx_clap(struct asph_lens_import *im, const struct zsurf *z, int freeform,
+/* A circular clear aperture CLAP r_min r_max: r_min > 0 is a hole. Centred
+ * on the axis it is aperture_diameter, else a circle about OBDC. */
+static int zmx_clap(struct asph_lens_import *im, const struct zsurf *z,
 		    struct asph_prescription *p)
 {
 	const struct zmx_value *lo = &z->aperture_size[0], *hi = &z->aperture_size[1];
-	int centred = z->decenter[0].v == 0 && z->decenter[1].v == 0;
 
 	if (lo->v != 0)
 		return fail(im, lo->line, lo->col, "CLAP",
@@ -436,11 +528,7 @@ static int zmx_clap(struct asph_lens_import *im, const struct zsurf *z, int free
 	if (!(hi->v > 0))
 		return fail(im, hi->line, hi->col, "CLAP",
 			    "surface %d: the clear aperture's radius must be positive", z->number);
-	if (!centred && !freeform)
-		return fail(im, z->decenter[0].line, z->decenter[0].col, "OBDC",
-			    "surface %d: an off-centre aperture needs a freeform type; a %s surface "
-			    "is measured over a centred circle", z->number, z->type);
-	if (centred) {
+	if (z->decenter[0].v == 0 && z->decenter[1].v == 0) {
 		p->aperture_diameter = 2.0 * hi->v;
 		return 0;
 	}
@@ -451,11 +539,10 @@ static int zmx_clap(struct asph_lens_import *im, const struct zsurf *z, int free
 
 /*
  * The clear aperture: SQAP and ELAP (half widths) for a rectangle or an
- * ellipse, CLAP for a circle, each centred at OBDC; without one, the
- * semi-diameter DIAM. Only the freeform types take the non-circular or
- * off-centre ones.
+ * ellipse, CLAP for a circle, each centred at OBDC (an off-axis segment of
+ * the surface); without one, the semi-diameter DIAM.
  */
-static int zmx_aperture(struct asph_lens_import *im, const struct zsurf *z, int freeform,
+static int zmx_aperture(struct asph_lens_import *im, const struct zsurf *z,
 			struct asph_prescription *p)
 {
 	const struct zmx_value *w = &z->aperture_size[0], *h = &z->aperture_size[1];
@@ -476,16 +563,11 @@ static int zmx_aperture(struct asph_lens_import *im, const struct zsurf *z, int 
 		return fail(im, w->line, 1, kw, "surface %d: a user-defined aperture is not "
 			    "imported; give the part's aperture in the prescription", z->number);
 	case ZMX_APERTURE_CIRCULAR:
-		return zmx_clap(im, z, freeform, p);
+		return zmx_clap(im, z, p);
 	case ZMX_APERTURE_RECTANGULAR:
 	case ZMX_APERTURE_ELLIPTICAL:
 		break;
 	}
-	if (!freeform)
-		return fail(im, w->line, 1, kw, "surface %d: a %s aperture needs a freeform type; "
-			    "a %s surface is measured over a centred circle", z->number,
-			    z->aperture == ZMX_APERTURE_RECTANGULAR ? "rectangular" : "elliptical",
-			    z->type);
 	if (!(w->v > 0) || !(h->v > 0))
 		return fail(im, !(w->v > 0) ? w->line : h->line, !(w->v > 0) ? w->col : h->col, kw,
 			    "surface %d: the aperture's half widths must be positive", z->number);
@@ -496,36 +578,73 @@ static int zmx_aperture(struct asph_lens_import *im, const struct zsurf *z, int 
 	return 0;
 }
 
+/* The shape of a rotationally symmetric type: the base (CURV 0 is a
+ * plane), the conic, and the type's terms. */
+static int zmx_rotational(struct asph_lens_import *im, const struct zsurf *z,
+			  const struct zmx_type *t, struct asph_prescription *p)
+{
+	int r = zmx_check_unknown_data(z, t, im->name, im->err);
+
+	if (r < 0)
+		return r;
+	p->type = t->type;
+	p->R = z->curv.v == 0 ? INFINITY : 1.0 / z->curv.v;
+	p->k = z->coni.v;
+	/* EVENASPH: PARM i multiplies r^(2i); ODDASPHE: r^i; i = 1..8. */
+	for (int i = 1; i <= 8 && (t->kind == ZMX_EVENASPH || t->kind == ZMX_ODDASPH); i++)
+		p->A[t->kind == ZMX_EVENASPH ? 2 * i : i] = z->parm[i].v;
+	return t->kind == ZMX_QTYPE ? zmx_qtype(im, z, p) : 0;
+}
+
+/* Lens units to mm: every length by f, a coefficient of r^i (mm^(1-i))
+ * by f^(1-i); curvatures follow their radii. */
+static void scale_lengths(struct asph_prescription *p, double f)
+{
+	double *lengths[] = {
+		&p->R, &p->Rx, &p->Ry, &p->R_rotation, &p->aperture_diameter, &p->norm_radius,
+		&p->aperture.width, &p->aperture.height, &p->aperture.offset[0],
+		&p->aperture.offset[1], &p->zernike_decenter[0], &p->zernike_decenter[1],
+	};
+
+	for (size_t i = 0; i < ARRAY_SIZE(lengths); i++)
+		*lengths[i] *= f;
+	for (int i = 0; i <= ASPH_SURFACE_MAX_POWER; i++)
+		p->A[i] *= pow(f, 1 - i);
+	for (int m = 0; m <= ASPH_SURFACE_MAX_Q; m++)
+		p->Q[m] *= f;
+	for (int i = 0; i < ASPH_SURFACE_XY_TERMS; i++)
+		p->C[i] *= f;
+	for (int j = 0; j < ASPH_SURFACE_MAX_ZERNIKE; j++)
+		p->Zernike[j] *= f;
+	for (int m = 0; m < ASPH_SURFACE_Q2D_MAX_M; m++)
+		for (int n = 0; n <= ASPH_SURFACE_Q2D_MAX_N; n++) {
+			p->q2d_a[m][n] *= f;
+			p->q2d_b[m][n] *= f;
+		}
+}
+
 static int zmx_convert(struct asph_lens_import *im, const struct zsurf *z,
 		       struct asph_prescription *p)
 {
-	enum ztype t = ztype_of(z->type);
+	const struct zmx_type *t = zmx_type_of(z->type);
+	char names[256];
 	int r;
 
-	if (t == Z_UNKNOWN)
+	if (!t) {
+		zmx_type_names(names, sizeof(names));
 		return fail(im, z->type_line, z->type_col, "TYPE",
-			    "surface %d has type %s, which is not imported (STANDARD, EVENASPH, "
-			    "ODDASPH, QTYPEASPH, BICONICX, TOROIDAL, XPOLYNOM, SZERNSAG are)",
-			    z->number, z->type);
-	if (t == Z_FREEFORM) {
-		if ((r = zmx_aperture(im, z, 1, p)) < 0)
-			return r;
-		return zmx_freeform(z, im->name, p, im->err);
+			    "surface %d has type %s, which is not imported (%s are)", z->number,
+			    z->type, names);
 	}
-	if (z->curv.v == 0)
-		return fail(im, z->curv.line ? z->curv.line : z->line, z->curv.line ? z->curv.col : 1,
-			    "CURV",
-			    "surface %d is flat (CURV 0): a prescription needs a radius", z->number);
-	if ((r = zmx_aperture(im, z, 0, p)) < 0)
+	if ((r = zmx_aperture(im, z, p)) < 0)
 		return r;
-	p->R = 1.0 / z->curv.v;
-	p->k = z->coni.v;
-	p->type = t == Z_ODDASPH ? ASPH_SURFACE_ODD_ASPHERE : ASPH_SURFACE_EVEN_ASPHERE;
-	/* EVENASPH: PARM i multiplies r^(2i); ODDASPH: r^i; i = 1..8. */
-	for (int i = 1; i <= 8 && t != Z_QTYPE && t != Z_STANDARD; i++)
-		p->A[t == Z_EVENASPH ? 2 * i : i] = z->parm[i].v;
-	if (t == Z_QTYPE)
-		return zmx_qtype(im, z, p);
+	r = t->kind == ZMX_FREEFORM ? zmx_freeform(z, im->name, p, im->err)
+				    : zmx_rotational(im, z, t, p);
+	if (r < 0 || im->unit->mm == 1.0)
+		return r;
+	scale_lengths(p, im->unit->mm);
+	snprintf(p->note, sizeof(p->note), "lens units %s (UNIT %s) converted to mm (x %g)",
+		 im->unit->words, im->unit->name, im->unit->mm);
 	return 0;
 }
 
@@ -712,6 +831,11 @@ enum asph_lens_format asph_lens_import_format(const struct asph_lens_import *im)
 	return im->format;
 }
 
+const char *asph_lens_import_unit(const struct asph_lens_import *im)
+{
+	return im->format == ASPH_LENS_ZMX ? im->unit->name : "";
+}
+
 size_t asph_lens_import_count(const struct asph_lens_import *im)
 {
 	return im->format == ASPH_LENS_CSV ? (size_t)im->rows.n : im->n_surf;
@@ -731,11 +855,12 @@ void asph_lens_import_surface(const struct asph_lens_import *im, size_t i,
 		return;
 	}
 	const struct zsurf *z = &im->surf[i];
+	double f = im->unit->mm;
 	out->number = z->number;
 	snprintf(out->type, sizeof(out->type), "%s", z->type);
-	out->R = z->curv.v == 0 ? INFINITY : 1.0 / z->curv.v;
+	out->R = z->curv.v == 0 ? INFINITY : f / z->curv.v;
 	out->k = z->coni.v;
-	out->aperture_diameter = 2.0 * z->diam.v;
+	out->aperture_diameter = 2.0 * z->diam.v * f;
 	out->line = z->line;
 }
 
@@ -762,7 +887,8 @@ static int check(struct asph_lens_import *im, const struct asph_prescription *p,
 static const struct zmx_value *zmx_source(const struct zsurf *z, const char *field,
 					  char kw[16])
 {
-	enum ztype t = ztype_of(z->type);
+	const struct zmx_type *t = zmx_type_of(z->type);
+	const int qtype = t && t->kind == ZMX_QTYPE;
 	int i, j, parm = -1, xdat = -1;
 
 	if (!strcmp(field, "R") || !strcmp(field, "Ry"))
@@ -777,15 +903,14 @@ static const struct zmx_value *zmx_source(const struct zsurf *z, const char *fie
 		parm = 1;
 	else if (!strcmp(field, "kx"))
 		parm = 2;
-	else if (!strcmp(field, "norm_radius") && t == Z_QTYPE)
-		parm = 2;
 	else if (!strcmp(field, "norm_radius"))
-		xdat = 2;
+		xdat = qtype ? QED_NORM : 2;
 	else if (sscanf(field, "a.[%d]", &i) == 1)
-		parm = 4 + i;
+		xdat = QED_FIRST_TERM + i;
 	else if (sscanf(field, "A.%d", &i) == 1)
-		/* r^i is PARM i (ODDASPH), i/2 (EVENASPH, SZERNSAG), y^i i/2 + 1 (TOROIDAL) */
-		parm = t == Z_ODDASPH ? i : !strcmp(z->type, "TOROIDAL") ? i / 2 + 1 : i / 2;
+		/* r^i is PARM i (ODDASPHE), i/2 (EVENASPH, SZERNSAG), y^i i/2 + 1 (TOROIDAL) */
+		parm = t && t->kind == ZMX_ODDASPH ? i : !strcmp(z->type, "TOROIDAL") ? i / 2 + 1
+											: i / 2;
 	else if (sscanf(field, "zernike.[%d]", &i) == 1)
 		xdat = 3 + i;
 	else if (sscanf(field, "c.x%dy%d", &i, &j) == 2)

@@ -140,7 +140,7 @@ static const char *const shape_names[] = {
 
 /* "aperture": {"shape": "rectangular", "width": 30, "height": 20,
  * "offset": [0, 12]}; a circle has "diameter". */
-static int parse_aperture(const struct parse_ctx *c, json_t *obj, struct asph_aperture *ap)
+int parse_aperture(const struct parse_ctx *c, json_t *obj, struct asph_aperture *ap)
 {
 	const char *key, *allowed;
 	json_t *v = json_is_object(obj) ? json_object_get(obj, "shape") : NULL;
@@ -222,8 +222,6 @@ int parse_freeform_members(const struct parse_ctx *c, json_t *root,
 		return r;
 	if ((v = json_object_get(root, "b_m")) && (r = parse_q2d_terms(c, v, "b_m", out->q2d_b)) < 0)
 		return r;
-	if ((v = json_object_get(root, "aperture")) && (r = parse_aperture(c, v, &out->aperture)) < 0)
-		return r;
 	if (out->type == ASPH_SURFACE_XY_POLYNOMIAL || out->type == ASPH_SURFACE_ZERNIKE_SAG ||
 	    out->type == ASPH_SURFACE_Q2D) {
 		if (!json_object_get(root, "norm_radius"))
@@ -303,6 +301,14 @@ static json_t *aperture_json(const struct asph_aperture *ap)
 	return o;
 }
 
+void aperture_to_json(json_t *o, const struct asph_prescription *p)
+{
+	if (p->aperture.shape == ASPH_APERTURE_FROM_DIAMETER)
+		json_object_set_new(o, "aperture_diameter", json_real(p->aperture_diameter));
+	else
+		json_object_set_new(o, "aperture", aperture_json(&p->aperture));
+}
+
 json_t *freeform_to_json(const struct asph_prescription *p)
 {
 	json_t *o = json_object();
@@ -313,6 +319,8 @@ json_t *freeform_to_json(const struct asph_prescription *p)
 	json_object_set_new(o, "type", json_string(asph_surface_type_name(t)));
 	if (p->name[0])
 		json_object_set_new(o, "name", json_string(p->name));
+	if (p->note[0])
+		json_object_set_new(o, "note", json_string(p->note));
 	if (t == ASPH_SURFACE_BICONIC) {
 		json_object_set_new(o, "Rx", radius_json(p->Rx));
 		json_object_set_new(o, "Ry", radius_json(p->Ry));
@@ -346,9 +354,6 @@ json_t *freeform_to_json(const struct asph_prescription *p)
 		json_object_set_new(o, "a_m", q2d_json(p->q2d_a));
 		json_object_set_new(o, "b_m", q2d_json(p->q2d_b));
 	}
-	if (p->aperture.shape == ASPH_APERTURE_FROM_DIAMETER)
-		json_object_set_new(o, "aperture_diameter", json_real(p->aperture_diameter));
-	else
-		json_object_set_new(o, "aperture", aperture_json(&p->aperture));
+	aperture_to_json(o, p);
 	return o;
 }

@@ -13,22 +13,34 @@
 #include "jsonpos.h"
 #include "prescription-json.h"
 #include "util-mem.h"
+#include "util-suggest.h"
 
 
-/* Table 1 of the paper (it calls the coefficients alpha_4..alpha_12). */
+/* Table 1 of the paper (it calls the coefficients alpha_4..alpha_12):
+ * X(name, R, k, A4, A6, A8, A10, A12, diameter). */
+#define PRESETS(X)                                                           \
+	X("weak", 40.6193, 0, -6.79375e-7, -4.85203e-10, -2.05223e-13,        \
+	  -6.2324e-17, -4.4857e-20, 39)                                       \
+	X("strong", 20.097, -1, -2.0868e-5, -3.9031e-9, 3.4102e-11,           \
+	  -3.2381e-14, 0, 40)                                                 \
+	X("turning-point", 94.6, -23.2046, -6.86465e-6, -1.21832e-8,          \
+	  2.22491e-11, -8.06098e-14, 0, 60)
+
 static const struct preset {
 	const char *name;
 	double R, k, A4, A6, A8, A10, A12, diameter;
 } presets[] = {
-	{ "weak", 40.6193, 0, -6.79375e-7, -4.85203e-10, -2.05223e-13,
-	  -6.2324e-17, -4.4857e-20, 39 },
-	{ "strong", 20.097, -1, -2.0868e-5, -3.9031e-9, 3.4102e-11,
-	  -3.2381e-14, 0, 40 },
-	{ "turning-point", 94.6, -23.2046, -6.86465e-6, -1.21832e-8,
-	  2.22491e-11, -8.06098e-14, 0, 60 },
+#define PRESET_ROW(name, ...) { name, __VA_ARGS__ },
+	PRESETS(PRESET_ROW)
+#undef PRESET_ROW
 };
 
-static const char *const preset_names[] = { "weak", "strong", "turning-point", NULL };
+static const char *const preset_names[] = {
+#define PRESET_NAME(name, ...) name,
+	PRESETS(PRESET_NAME)
+#undef PRESET_NAME
+	NULL
+};
 
 const char *const *asph_prescription_preset_names(void)
 {
@@ -135,26 +147,25 @@ static const char *type_members(enum asph_surface_type t)
 {
 	switch (t) {
 	case ASPH_SURFACE_QBFS:
-		return "type, name, R, norm_radius, a, aperture_diameter";
 	case ASPH_SURFACE_QCON:
-		return "type, name, R, k, norm_radius, a, aperture_diameter";
+		return "type, name, note, R, c, k, norm_radius, a, aperture_diameter, aperture";
 	case ASPH_SURFACE_BICONIC:
-		return "type, name, Rx, Ry, kx, ky, A, aperture_diameter, aperture";
+		return "type, name, note, Rx, Ry, kx, ky, A, aperture_diameter, aperture";
 	case ASPH_SURFACE_TOROIDAL:
-		return "type, name, R, k, A, R_rotation, norm_radius, zernike, aperture_diameter, "
-		       "aperture";
+		return "type, name, note, R, k, A, R_rotation, norm_radius, zernike, "
+		       "aperture_diameter, aperture";
 	case ASPH_SURFACE_XY_POLYNOMIAL:
-		return "type, name, R, k, norm_radius, c, aperture_diameter, aperture";
+		return "type, name, note, R, k, norm_radius, c, aperture_diameter, aperture";
 	case ASPH_SURFACE_ZERNIKE_SAG:
-		return "type, name, R, k, A, norm_radius, zernike, zernike_decenter, "
+		return "type, name, note, R, k, A, norm_radius, zernike, zernike_decenter, "
 		       "aperture_diameter, aperture";
 	case ASPH_SURFACE_Q2D:
-		return "type, name, R, norm_radius, a, a_m, b_m, aperture_diameter, aperture";
+		return "type, name, note, R, norm_radius, a, a_m, b_m, aperture_diameter, aperture";
 	case ASPH_SURFACE_EVEN_ASPHERE:
 	case ASPH_SURFACE_ODD_ASPHERE:
 		break;
 	}
-	return "type, name, R, k, A, aperture_diameter";
+	return "type, name, note, R, c, k, A, aperture_diameter, aperture";
 }
 
 static int is_member_of(const char *key, const char *list)
@@ -195,6 +206,55 @@ static int parse_optional_number(const struct parse_ctx *c, json_t *root,
 	return v ? get_number(c, v, key, out) : 0;
 }
 
+/* A string member of at most size - 1 bytes into dst. */
+static int parse_text(const struct parse_ctx *c, json_t *root, const char *key, char *dst,
+		      size_t size)
+{
+	json_t *v = json_object_get(root, key);
+
+	if (!v)
+		return 0;
+	if (!json_is_string(v))
+		return json_error_set_at(c->err, -EINVAL, &c->src, key, "expected a string");
+	if (strlen(json_string_value(v)) >= size)
+		return json_error_set_at(c->err, -EINVAL, &c->src, key,
+					 "longer than %zu bytes", size - 1);
+	snprintf(dst, size, "%s", json_string_value(v));
+	return 0;
+}
+
+/*
+ * The base: "R" (mm; "infinity" for a plane) or, on the rotationally
+ * symmetric types, the curvature "c" (1/mm; 0 for a plane), not both.
+ * xy_polynomial's "c" is its coefficients, not a curvature.
+ */
+static int parse_base(const struct parse_ctx *c, json_t *root, const char *members,
+		      struct asph_prescription *out)
+{
+	const int rotational = asph_surface_type_is_rotational(out->type);
+	json_t *vr = json_object_get(root, "R"), *vc = rotational ? json_object_get(root, "c") : NULL;
+	double curv;
+	int r;
+
+	if (vr && vc)
+		return json_error_set_at(c->err, -EINVAL, &c->src, "c",
+					 "give the radius R or the curvature c, not both");
+	if (!vr && !vc && is_member_of("R", members))
+		return json_error_set_at(c->err, -EINVAL, &c->src, NULL,
+					 rotational ? "missing member \"R\" (vertex radius of curvature, "
+						      "mm) or \"c\" (vertex curvature, 1/mm)"
+						    : "missing member \"R\" (vertex radius of curvature, mm)");
+	if (vr)
+		return get_radius(c, vr, "R", &out->R);
+	if (!vc)
+		return 0;
+	if ((r = get_number(c, vc, "c", &curv)) < 0)
+		return r;
+	/* a curvature too small for its radius to be finite is a plane */
+	out->R = curv == 0 ? INFINITY : 1.0 / curv;
+	return 0;
+}
+
 static int parse_members(const struct parse_ctx *c, json_t *root,
 			 struct asph_prescription *out)
 {
@@ -219,13 +279,8 @@ static int parse_members(const struct parse_ctx *c, json_t *root,
 						 "expected a string");
 		snprintf(out->name, sizeof(out->name), "%s", json_string_value(v));
 	}
-
-	v = json_object_get(root, "R");
-	if (!v && is_member_of("R", members))
-		return json_error_set_at(c->err, -EINVAL, &c->src, NULL,
-					 "missing member \"R\" (vertex radius of curvature, mm)");
-	if (v && (r = asph_surface_type_is_rotational(out->type) ? get_number(c, v, "R", &out->R)
-								 : get_radius(c, v, "R", &out->R)) < 0)
+	if ((r = parse_text(c, root, "note", out->note, sizeof(out->note))) < 0 ||
+	    (r = parse_base(c, root, members, out)) < 0)
 		return r;
 	if ((r = parse_optional_number(c, root, "k", &out->k)) < 0)
 		return r;
@@ -250,13 +305,15 @@ static int parse_members(const struct parse_ctx *c, json_t *root,
 	if (!asph_surface_type_is_rotational(out->type) &&
 	    (r = parse_freeform_members(c, root, out)) < 0)
 		return r;
+	if ((v = json_object_get(root, "aperture")) &&
+	    (r = parse_aperture(c, v, &out->aperture)) < 0)
+		return r;
 	v = json_object_get(root, "aperture_diameter");
 	if (!v && json_object_get(root, "aperture"))
 		return 0;
 	if (!v)
 		return json_error_set_at(c->err, -EINVAL, &c->src, NULL,
-					 "missing member \"aperture_diameter\" (mm)%s",
-					 asph_surface_type_is_rotational(out->type) ? "" : " or \"aperture\"");
+					 "missing member \"aperture_diameter\" (mm) or \"aperture\"");
 	if ((r = get_number(c, v, "aperture_diameter", &out->aperture_diameter)) < 0)
 		return r;
 	return 0;
@@ -320,9 +377,19 @@ int asph_prescription_load(const char *name_or_path,
 		return 0;
 	int r = asph_prescription_load_file(name_or_path, out, err);
 	if (r == -ENOENT && !strchr(name_or_path, '/') && !strchr(name_or_path, '.')) {
+		char names[128] = "", hint[96];
+		struct suggest near;
+
+		suggest_init(&near, name_or_path);
+		for (const char *const *n = preset_names; *n; n++) {
+			suggest_offer(&near, *n);
+			snprintf(names + strlen(names), sizeof(names) - strlen(names), "%s%s",
+				 n == preset_names ? "" : ", ", *n);
+		}
 		asph_error_clear(err);
 		return asph_error_set_at(err, -ENOENT, name_or_path, 0, 0, NULL,
-					 "neither a preset (weak, strong, turning-point) nor a file");
+					 "neither a preset (%s) nor a file%s", names,
+					 suggest_hint(&near, hint, sizeof(hint)));
 	}
 	return r;
 }
@@ -374,13 +441,18 @@ int asph_prescription_to_json(const struct asph_prescription *p, char **out)
 	json_object_set_new(root, "type", json_string(asph_surface_type_name(p->type)));
 	if (p->name[0])
 		json_object_set_new(root, "name", json_string(p->name));
-	json_object_set_new(root, "R", json_real(p->R));
-	if (asph_surface_type_has_conic(p->type))
-		json_object_set_new(root, "k", json_real(p->k));
+	if (p->note[0])
+		json_object_set_new(root, "note", json_string(p->note));
+	/* a plane base as its curvature */
+	if (isinf(p->R))
+		json_object_set_new(root, "c", json_real(0));
+	else
+		json_object_set_new(root, "R", json_real(p->R));
+	json_object_set_new(root, "k", json_real(p->k));
 	if (q)
 		json_object_set_new(root, "norm_radius", json_real(p->norm_radius));
 	json_object_set_new(root, q ? "a" : "A", coeffs);
-	json_object_set_new(root, "aperture_diameter", json_real(p->aperture_diameter));
+	aperture_to_json(root, p);
 	*out = json_dumps(root, JSON_REAL_PRECISION(17) | JSON_PRESERVE_ORDER);
 	return *out ? 0 : -ENOMEM;
 }

@@ -50,7 +50,8 @@ struct asph_surface {
 	struct cheb_table area_inv_ratio; /* r(q)/q, q = sqrt(A/pi), [0, q(a)] */
 	double arc_a, area_a;
 	double max_slope, r_max_slope;
-	int rotational;
+	int radial;                       /* Z(r): a rotationally symmetric type */
+	int rotational;                   /* radial over a centred circle */
 	struct asph_aperture ap;          /* resolved */
 	double total_area;
 	struct asph_surface_extent extent;
@@ -89,8 +90,7 @@ int asph_surface_type_from_name(const char *name, enum asph_surface_type *out)
 
 int asph_surface_type_has_conic(enum asph_surface_type type)
 {
-	return type != ASPH_SURFACE_QBFS && type != ASPH_SURFACE_Q2D &&
-	       type != ASPH_SURFACE_BICONIC;
+	return type != ASPH_SURFACE_Q2D && type != ASPH_SURFACE_BICONIC;
 }
 
 int asph_surface_type_is_rotational(enum asph_surface_type type)
@@ -102,6 +102,11 @@ int asph_surface_type_is_rotational(enum asph_surface_type type)
 int asph_surface_is_rotational(const struct asph_surface *s)
 {
 	return s->rotational;
+}
+
+int asph_surface_is_radial(const struct asph_surface *s)
+{
+	return s->radial;
 }
 
 static int is_q_type(enum asph_surface_type type)
@@ -138,9 +143,28 @@ static void power_series(const struct asph_surface *s, double r, double d[3])
 }
 
 /*
+ * Qbfs measures its departure along the normal of the base conic; its
+ * sag is the departure times the secant of the normal's angle,
+ * g = sqrt(1 + Z_conic'^2) = sqrt(N / D), N = 1 - k c^2 r^2,
+ * D = 1 - (1 + k) c^2 r^2 (1 / sqrt(1 - c^2 r^2) on a sphere, Forbes'
+ * form), with g' = g L and g'' = g (L^2 + L'), L = (ln g)'.
+ */
+static void normal_secant(double c, double k, double r, double g[3])
+{
+	double c2 = c * c, N = 1.0 - k * c2 * r * r, D = 1.0 - (1.0 + k) * c2 * r * r;
+	double L = -k * c2 * r / N + (1.0 + k) * c2 * r / D;
+	double Lp = -k * c2 / N - 2.0 * k * k * c2 * c2 * r * r / (N * N) + (1.0 + k) * c2 / D +
+		    2.0 * (1.0 + k) * (1.0 + k) * c2 * c2 * r * r / (D * D);
+
+	g[0] = sqrt(N / D);
+	g[1] = g[0] * L;
+	g[2] = g[0] * (L * L + Lp);
+}
+
+/*
  * The Q departures as functions of r: T(x) with x = r^2 / rho^2, where
  * T = x (1 - x) S(x) for Qbfs and x^2 S(x) for Qcon, S = sum a_m Q_m.
- * Qbfs then divides by sqrt(1 - c^2 r^2).
+ * Qbfs then multiplies by the secant of the base's normal.
  */
 static void q_departure(const struct asph_surface *s, double r, double d[3])
 {
@@ -164,13 +188,11 @@ static void q_departure(const struct asph_surface *s, double r, double d[3])
 	d[2] = t[2] * dx * dx + t[1] * 2.0 * s->inv_rho2;
 	if (s->p.type != ASPH_SURFACE_QBFS)
 		return;
-	double c2 = s->c * s->c, g = 1.0 / sqrt(1.0 - c2 * r * r);
-	double g1 = c2 * r * g * g * g;
-	double g2 = c2 * g * g * g * (1.0 + 3.0 * c2 * r * r * g * g);
-	double d0 = d[0], d1 = d[1];
-	d[0] = g * d0;
-	d[1] = g1 * d0 + g * d1;
-	d[2] = g2 * d0 + 2.0 * g1 * d1 + g * d[2];
+	double g[3], d0 = d[0], d1 = d[1];
+	normal_secant(s->c, s->p.k, r, g);
+	d[0] = g[0] * d0;
+	d[1] = g[1] * d0 + g[0] * d1;
+	d[2] = g[2] * d0 + 2.0 * g[1] * d1 + g[0] * d[2];
 }
 
 void asph_surface_sag_derivs(const struct asph_surface *s, double r,
@@ -178,7 +200,7 @@ void asph_surface_sag_derivs(const struct asph_surface *s, double r,
 {
 	double dep[3] = { 0, 0, 0 };
 
-	if (!s->rotational) {
+	if (!s->radial) {
 		d[0] = d[1] = d[2] = NAN;
 		return;
 	}
@@ -227,7 +249,7 @@ static void rotational_derivs_xy(const struct asph_surface *s, double x, double 
 void asph_surface_derivs_xy(const struct asph_surface *s, double x, double y,
 			    struct asph_sag *out)
 {
-	if (s->rotational)
+	if (s->radial)
 		rotational_derivs_xy(s, x, y, out);
 	else
 		freeform_eval(&s->ff, x, y, out);
@@ -238,7 +260,7 @@ void asph_surface_sag_grad_xy(const struct asph_surface *s, double x, double y,
 {
 	double r = sqrt(x * x + y * y), d[3];
 
-	if (!s->rotational) {
+	if (!s->radial) {
 		freeform_sag_grad(&s->ff, x, y, g);
 		return;
 	}
@@ -250,7 +272,7 @@ void asph_surface_sag_grad_xy(const struct asph_surface *s, double x, double y,
 
 double asph_surface_sag_xy(const struct asph_surface *s, double x, double y)
 {
-	if (s->rotational)
+	if (s->radial)
 		return asph_surface_sag(s, sqrt(x * x + y * y));
 	return freeform_sag(&s->ff, x, y);
 }
@@ -268,7 +290,7 @@ void asph_surface_normal(const struct asph_surface *s, double x, double y,
 {
 	double r = hypot(x, y), d[3];
 
-	if (!s->rotational) {
+	if (!s->radial) {
 		struct asph_sag g;
 		freeform_eval(&s->ff, x, y, &g);
 		double inv = 1.0 / sqrt(1.0 + g.zx * g.zx + g.zy * g.zy);
@@ -594,10 +616,23 @@ static int check_q(const struct asph_prescription *p, struct asph_error *err)
 	if (!(p->norm_radius > 0) || !isfinite(p->norm_radius))
 		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "norm_radius",
 					 "norm_radius must be a positive number of mm");
-	if (p->type == ASPH_SURFACE_QBFS && p->k != 0)
-		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "k",
-					 "a qbfs surface has no conic constant (its base is a sphere)");
 	return 0;
+}
+
+/* The conic's square root 1 - (1 + k) c^2 r^2 stays positive out to the
+ * farthest point of the aperture (Qbfs's secant needs no more). */
+static int check_conic_root(const struct asph_prescription *p, struct asph_error *err)
+{
+	struct asph_aperture ap;
+
+	aperture_resolve(p, &ap);
+	double a = aperture_max_radius(&ap), c = isinf(p->R) ? 0.0 : 1.0 / p->R;
+	if (!((1.0 + p->k) * c * c * a * a >= 1.0))
+		return 0;
+	return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "k",
+				 "the conic square root 1 - (1+k) r^2/R^2 reaches zero at r = %.6g mm, "
+				 "inside the aperture, which reaches r = %.6g mm (R = %g, k = %g)",
+				 fabs(p->R) / sqrt(1.0 + p->k), a, p->R, p->k);
 }
 
 int asph_prescription_check(const struct asph_prescription *p,
@@ -610,39 +645,15 @@ int asph_prescription_check(const struct asph_prescription *p,
 					 "unknown surface type %d", (int)p->type);
 	if (!asph_surface_type_is_rotational(p->type))
 		return freeform_check(p, err);
-	if (!isfinite(p->R))
-		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "R",
-					 "R must be a finite number");
-	if (p->R == 0)
-		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "R",
-					 "R = 0 is not a radius of curvature");
-	if (!isfinite(1.0 / p->R))
-		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "R",
-					 "R = %g mm is too small: its curvature 1/R overflows",
-					 p->R);
+	if ((r = radius_check(p->R, "R", err)) < 0)
+		return r;
 	if (!isfinite(p->k))
 		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "k",
 					 "k must be a finite number");
-	if ((r = check_powers(p, err)) < 0 || (r = check_q(p, err)) < 0)
+	if ((r = check_powers(p, err)) < 0 || (r = check_q(p, err)) < 0 ||
+	    (r = aperture_check(p, err)) < 0)
 		return r;
-	if (p->aperture.shape != ASPH_APERTURE_FROM_DIAMETER)
-		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture",
-					 "a %s surface takes aperture_diameter (a centred circle); "
-					 "other apertures are for the freeform types",
-					 asph_surface_type_name(p->type));
-	if (!(p->aperture_diameter > 0) || !isfinite(p->aperture_diameter))
-		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "aperture_diameter",
-					 "aperture_diameter must be a positive number of mm");
-	double a = 0.5 * p->aperture_diameter;
-	double c = 1.0 / p->R;
-	if ((1.0 + p->k) * c * c * a * a >= 1.0) {
-		double r_fail = fabs(p->R) / sqrt(1.0 + p->k);
-		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "k",
-					 "the conic square root 1 - (1+k) r^2/R^2 reaches zero at r = %.6g mm, "
-					 "inside the aperture radius %.6g mm (R = %g, k = %g)",
-					 r_fail, a, p->R, p->k);
-	}
-	return 0;
+	return check_conic_root(p, err);
 }
 
 static int build_tables(struct asph_surface *s)
@@ -679,30 +690,50 @@ static int build_tables(struct asph_surface *s)
 	return 0;
 }
 
-/* A freeform has no radial tables: its area is a 2-D integral, its extent
- * a search over the aperture. */
-static int freeform_alloc(struct asph_surface *s, struct asph_surface **out,
-			  struct asph_error *err)
+/* A freeform, or a segment of a rotationally symmetric parent, has no
+ * radial tables: its area is a 2-D integral, its extent a search over the
+ * aperture. */
+static int aperture_surface_alloc(struct asph_surface *s, struct asph_surface **out,
+				  struct asph_error *err)
 {
-	freeform_init(&s->ff, &s->p);
+	if (!s->radial)
+		freeform_init(&s->ff, &s->p);
 	s->a = aperture_max_radius(&s->ap);
 	s->gl = gsl_integration_glfixed_table_alloc(GL_ORDER);
 	if (!s->gl) {
 		asph_surface_free(s);
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	}
-	s->total_area = freeform_area(&s->ff, &s->ap, s->gl);
+	s->total_area = area_over_aperture(s, &s->ap, s->gl);
 	if (!isfinite(s->total_area)) {
 		asph_surface_free(s);
 		return asph_error_set(err, -EINVAL, "the surface is too steep to sample: its "
 				      "area over the aperture overflows");
 	}
-	freeform_extent(&s->ff, &s->ap, &s->extent);
+	extent_over_aperture(s, &s->ap, &s->extent);
 	s->max_slope = s->extent.max_slope;
 	s->r_max_slope = hypot(s->extent.max_slope_at[0], s->extent.max_slope_at[1]);
 	s->arc_a = s->area_a = NAN;
 	*out = s;
 	return 0;
+}
+
+/* Z(r)'s coefficients as the evaluation takes them. */
+static void radial_init(struct asph_surface *s)
+{
+	const struct asph_prescription *p = &s->p;
+
+	s->c = isinf(p->R) ? 0.0 : 1.0 / p->R;
+	for (int i = 1; i <= ASPH_SURFACE_MAX_POWER; i++)
+		if (p->A[i] != 0)
+			s->max_power = i;
+	for (int m = 0; m <= ASPH_SURFACE_MAX_Q; m++)
+		if (p->Q[m] != 0)
+			s->n_q = m + 1;
+	if (is_q_type(p->type)) {
+		s->inv_rho2 = 1.0 / (p->norm_radius * p->norm_radius);
+		qbfs_coef_init(&s->qbfs);
+	}
 }
 
 int asph_surface_alloc(const struct asph_prescription *p,
@@ -716,22 +747,14 @@ int asph_surface_alloc(const struct asph_prescription *p,
 	if (!s)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	s->p = *p;
-	s->rotational = asph_surface_type_is_rotational(p->type);
+	s->radial = asph_surface_type_is_rotational(p->type);
 	aperture_resolve(p, &s->ap);
+	s->rotational = s->radial && aperture_is_centred_circle(&s->ap);
+	if (s->radial)
+		radial_init(s);
 	if (!s->rotational)
-		return freeform_alloc(s, out, err);
-	s->a = 0.5 * p->aperture_diameter;
-	s->c = 1.0 / p->R;
-	for (int i = 1; i <= ASPH_SURFACE_MAX_POWER; i++)
-		if (p->A[i] != 0)
-			s->max_power = i;
-	for (int m = 0; m <= ASPH_SURFACE_MAX_Q; m++)
-		if (p->Q[m] != 0)
-			s->n_q = m + 1;
-	if (is_q_type(p->type)) {
-		s->inv_rho2 = 1.0 / (p->norm_radius * p->norm_radius);
-		qbfs_coef_init(&s->qbfs);
-	}
+		return aperture_surface_alloc(s, out, err);
+	s->a = 0.5 * s->ap.width;
 	s->gl = gsl_integration_glfixed_table_alloc(GL_ORDER);
 	if (!s->gl) {
 		asph_surface_free(s);

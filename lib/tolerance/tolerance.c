@@ -10,6 +10,7 @@
 #include "asph/tolerance.h"
 #include "fileio.h"
 #include "jsonpos.h"
+#include "quantity.h"
 #include "util-mem.h"
 
 #define MAX_TOLERANCE_BYTES (1u << 20)
@@ -302,14 +303,25 @@ int asph_tolerance_load(const char *arg, struct asph_tolerance *t,
 			struct asph_error *err)
 {
 	_cleanup_free_ char *text = NULL;
-	const char *p = arg;
 	size_t len;
-	int r;
+	int r, column = 0;
 
-	while (*p == ' ' || *p == '\t' || *p == '\n' || *p == '\r')
-		p++;
-	if (*p == '{' || *p == '"')
+	if (!arg[strspn(arg, " \t\r\n")])
+		return asph_error_set(err, -EINVAL, "empty: give an ISO 10110-5 call-out, JSON text "
+				      "or a file holding it");
+	switch (asph_tolerance_arg_kind(arg)) {
+	case ASPH_TOLERANCE_ARG_JSON:
 		return asph_tolerance_parse_json(arg, strlen(arg), "<tolerance>", t, err);
+	case ASPH_TOLERANCE_ARG_CALLOUT:
+		asph_tolerance_init(t);
+		r = asph_tolerance_parse_callout(arg, t->wavelength_nm, t, &column, err);
+		if (r < 0 && err)
+			asph_error_set_at(err, r, NULL, 0, 0, NULL, "'%.160s', column %d: %s", arg,
+					  column, err->message);
+		return r;
+	case ASPH_TOLERANCE_ARG_FILE:
+		break;
+	}
 	r = file_read_all(arg, MAX_TOLERANCE_BYTES, &text, &len, err);
 	if (r < 0)
 		return r;
@@ -342,6 +354,7 @@ enum asph_verdict asph_verdict_decide(double value, double U, double limit)
 static void add_item(struct asph_verdict_report *r, const char *quantity, double value,
 		     double U, double limit)
 {
+	const struct quantity *q = quantity_by_verdict(quantity);
 	struct asph_verdict_item *it;
 
 	if (isnan(limit) || r->n_items >= ASPH_VERDICT_MAX_ITEMS)
@@ -351,7 +364,8 @@ static void add_item(struct asph_verdict_report *r, const char *quantity, double
 	it->value = value;
 	it->U = U;
 	it->limit = limit;
-	it->verdict = asph_verdict_decide(value, U, limit);
+	/* A and R - R_nominal keep their sign; their zone is [-limit, limit] */
+	it->verdict = asph_verdict_decide(q && q->two_sided ? fabs(value) : value, U, limit);
 	if (it->verdict == ASPH_VERDICT_FAIL)
 		r->overall = ASPH_VERDICT_FAIL;
 	else if (it->verdict == ASPH_VERDICT_UNDECIDED && r->overall == ASPH_VERDICT_PASS)
@@ -369,7 +383,7 @@ void asph_verdict_evaluate(const struct asph_tolerance *t,
 	memset(out, 0, sizeof(*out));
 	out->present = 1;
 	out->overall = ASPH_VERDICT_PASS;
-	add_item(out, "A_nm", form ? fabs(form->A.v) : nan, U->A.v, t->A.v);
+	add_item(out, "A_nm", form ? form->A.v : nan, U->A.v, t->A.v);
 	add_item(out, "B_nm", form ? form->B.v : nan, U->B.v, t->B.v);
 	add_item(out, "C_nm", form ? form->C.v : nan, U->C.v, t->C.v);
 	add_item(out, "rms_t_nm", form ? form->rms_t.v : nan, U->rms_t.v, t->rms_t.v);
@@ -379,5 +393,5 @@ void asph_verdict_evaluate(const struct asph_tolerance *t,
 		 t->slope_rms.v);
 	add_item(out, "slope_max_urad", slope ? slope->max.v : nan, U->slope_max.v,
 		 t->slope_max.v);
-	add_item(out, "R_deviation_mm", fabs(R_dev), U->R_mm, t->R_mm);
+	add_item(out, "R_deviation_mm", R_dev, U->R_mm, t->R_mm);
 }

@@ -281,6 +281,9 @@ int asph_mc_alloc(const struct asph_surface *s, const double *xyz, size_t n,
 	mc->opt = o;
 	mc->fit_opts = fit_opts ? *fit_opts : (struct asph_fit_options){ 0 };
 	mc->fit_opts.tolerance = NULL;
+	/* the trials' fits run on the runner's workers: the caller hears of
+	 * trials, not of their steps */
+	mc->fit_opts.progress = (struct asph_progress){ 0 };
 	/* every trial starts where the measurement's fit ended */
 	mc->fit_opts.start = (struct asph_pose){
 		{ ref->value[ASPH_FIT_TX], ref->value[ASPH_FIT_TY], ref->value[ASPH_FIT_TZ] },

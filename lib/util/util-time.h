@@ -76,8 +76,20 @@ static inline void msleep(unsigned ms)
  */
 void iso8601_utc(int64_t ns, int digits, char *buf, size_t size);
 
+/*
+ * realtime ns as ISO 8601 in the local time zone (TZ, else /etc/localtime)
+ * with its offset, to the second: "2024-05-01T14:34:56+02:00" (UTC gives
+ * "+00:00"). What a person reads on a report; "@ns" as iso8601_utc().
+ */
+void iso8601_local(int64_t ns, char *buf, size_t size);
+
 /* "2027-01-31T12:00:00Z" or "2027-01-31" (midnight UTC) as realtime ns:
  * 0, -EINVAL for any other text, -ERANGE for a time out of range. */
 int iso8601_parse_utc(const char *text, int64_t *ns);
+
+/* A time with its zone, as a person gives one: "2027-01-31T14:00:00+01:00",
+ * "...-0330" or "...Z", as realtime ns: 0, -EINVAL for any other text
+ * (a time without a zone is ambiguous), -ERANGE out of range. */
+int iso8601_parse_zoned(const char *text, int64_t *ns);
 
 #endif

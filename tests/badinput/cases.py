@@ -1,6 +1,7 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""The bad-input corpus: malformed prescriptions, points files (CSV, PLY,
-JSON), instrument and daemon configurations and recorded scans, generated
+"""The bad-input corpus: malformed prescriptions, OpticStudio lens files,
+points files (CSV, PLY, JSON), instrument and daemon configurations and
+recorded scans, generated
 from a valid template of each by mutations (truncation, wrong types, huge
 numbers, deep nesting, invalid UTF-8, very long lines, unknown members, NaN
 coordinates, flipped bytes) plus cases that break one rule of the format.
@@ -180,6 +181,89 @@ def prescription_cases():
         Case(k, "very-large-file", lambda: dumps(_set(p, ["name"], "n" * (3 << 20))), None),
     ]
     return cases
+
+
+# ------------------------------------------------------------ lens files
+
+ZMX = """UNIT MM X W X CM MR CPMM
+SURF 0
+  CURV 0.0
+  DISZ INFINITY
+SURF 1
+  TYPE QED_TYPE
+  CURV 8.712E-02 0 0 0 0 ""
+  XDAT 1 0 0 0 1.0 0.0 0 ""
+  XDAT 2 3 0 0 1.0 0.0 0 ""
+  XDAT 3 13.5 0 0 1.0 0.0 0 ""
+  XDAT 4 -0.2913 0 0 1.0 0.0 0 ""
+  XDAT 5 -0.0871 0 0 1.0 0.0 0 ""
+  XDAT 6 0.0231 0 0 1.0 0.0 0 ""
+  CONI -0.5873
+  DIAM 12.2 1 0 0 1 ""
+SURF 2
+  TYPE EVENASPH
+  CURV -1.25E-002 0 0 0 0 ""
+  PARM 2 3.1E-007
+  CONI -1.05
+  DIAM 30 0 0 0 1 ""
+  SQAP 15 10 0
+  OBDC 0 22
+"""
+
+
+def zmx_cases():
+    """OpticStudio .zmx files broken where a reader could misread them:
+    asph lens import FILE --surface 1 refuses each, naming the keyword
+    (the field) and where."""
+    k = "lens-zmx"
+    good = ZMX.encode()
+
+    def sub(old, new, count=1):
+        assert old in ZMX, old
+        return ZMX.replace(old, new, count).encode()
+
+    utf16 = b"\xff\xfe" + ZMX.replace("\n", "\r\n").encode("utf-16-le")
+    return [
+        Case(k, "empty", b"", None),
+        Case(k, "no-surf", b"NAME x\nUNIT MM\n", None),
+        Case(k, "utf16-odd-length", utf16[:-1], None),
+        Case(k, "utf16-lone-surrogate", utf16[:40] + b"\x00\xd8" + utf16[40:], None),
+        Case(k, "utf16-without-bom", ZMX.encode("utf-16-le"), None),
+        Case(k, "nul-byte", good[:60] + b"\0" + good[60:], None),
+        Case(k, "unit-feet", sub("UNIT MM", "UNIT FT"), "UNIT"),
+        Case(k, "surf-number-fraction", sub("SURF 1", "SURF 1.5"), "SURF"),
+        Case(k, "surf-number-huge", sub("SURF 1", "SURF 99999999999999999999"), "SURF"),
+        Case(k, "surf-twice", sub("SURF 2", "SURF 1"), "SURF"),
+        Case(k, "curv-without-value", sub("  CURV 8.712E-02 0 0 0 0 \"\"", "  CURV"), "CURV"),
+        Case(k, "curv-not-a-number", sub("8.712E-02", "8.712E-0x2"), "CURV"),
+        Case(k, "curv-nan", sub("8.712E-02", "nan"), "CURV"),
+        Case(k, "curv-overflow", sub("8.712E-02", "1e400"), "CURV"),
+        Case(k, "coni-infinite", sub("CONI -0.5873", "CONI inf"), "CONI"),
+        Case(k, "xdat-index-0", sub("XDAT 1 0", "XDAT 0 0"), "XDAT"),
+        Case(k, "xdat-index-251", sub("XDAT 6 0.0231", "XDAT 251 0.0231"), "XDAT"),
+        Case(k, "xdat-index-fraction", sub("XDAT 6 0.0231", "XDAT 6.5 0.0231"), "XDAT"),
+        Case(k, "xdat-without-value", sub("XDAT 6 0.0231 0 0 1.0 0.0 0 \"\"", "XDAT 6"), "XDAT"),
+        Case(k, "q-type-2", sub("XDAT 1 0 0", "XDAT 1 2 0"), "XDAT 1"),
+        Case(k, "q-terms-fraction", sub("XDAT 2 3 0", "XDAT 2 2.5 0"), "XDAT 2"),
+        Case(k, "q-terms-negative", sub("XDAT 2 3 0", "XDAT 2 -1 0"), "XDAT 2"),
+        Case(k, "q-term-31", ZMX.replace("XDAT 2 3 0", "XDAT 2 40 0").replace(
+            "  CONI -0.5873", "  XDAT 40 1e-6\n  CONI -0.5873").encode(), "XDAT"),
+        Case(k, "q-norm-radius-zero", sub("XDAT 3 13.5", "XDAT 3 0"), "XDAT 3"),
+        Case(k, "q-parameter", sub("  CONI -0.5873", "  PARM 2 1e-5\n  CONI -0.5873"), "PARM 2"),
+        Case(k, "type-unknown", sub("TYPE QED_TYPE", "TYPE GRID_SAG"), "TYPE"),
+        Case(k, "type-without-name", sub("TYPE QED_TYPE", "TYPE"), "TYPE"),
+        Case(k, "conic-root-in-aperture", sub("CONI -0.5873", "CONI 2.5"), "CONI"),
+        Case(k, "diam-negative", sub("DIAM 12.2 1", "DIAM -12.2 1"), "DIAM"),
+        Case(k, "diam-missing", sub("  DIAM 12.2 1 0 0 1 \"\"\n", ""), "DIAM"),
+        Case(k, "clap-hole", sub("  DIAM 12.2", "  CLAP 2 12\n  DIAM 12.2"), "CLAP"),
+        Case(k, "two-apertures", sub("  DIAM 12.2", "  CLAP 0 12\n  ELAP 6 5\n  DIAM 12.2"), "ELAP"),
+        Case(k, "user-aperture", sub("  DIAM 12.2", "  UDAD 0 0\n  DIAM 12.2"), "UDAD"),
+        Case(k, "sqap-zero-height", sub("  DIAM 12.2", "  SQAP 6 0\n  DIAM 12.2"), "SQAP"),
+        Case(k, "sqap-without-height", sub("  DIAM 12.2", "  SQAP 6\n  DIAM 12.2"), "SQAP"),
+        Case(k, "obdc-not-a-number", sub("  DIAM 12.2", "  CLAP 0 6\n  OBDC 0 x\n  DIAM 12.2"), "OBDC"),
+        Case(k, "very-long-line", sub("CONI -0.5873", "CONI -0." + "5" * 100000 + "x"), "CONI"),
+        Case(k, "huge-file", lambda: good + b"NOTE " + b"x" * (17 << 20) + b"\n", None),
+    ]
 
 
 # ------------------------------------------------------------ points
@@ -447,5 +531,5 @@ def scan_cases():
 
 
 def all_cases():
-    return (prescription_cases() + csv_cases() + ply_cases() + points_json_cases() +
+    return (prescription_cases() + zmx_cases() + csv_cases() + ply_cases() + points_json_cases() +
             instrument_cases() + daemon_cases() + scan_cases())

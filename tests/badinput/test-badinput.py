@@ -5,6 +5,7 @@ reads that kind of file and checks the answer:
 
   kind          command                                  documented answer
   prescription  asph lens show FILE                      exit 1
+  lens-zmx      asph lens import FILE --surface 1        exit 1
   points-*      asph fit strong FILE                     exit 1
   instrument    asph scan ... --instrument FILE          exit 2 (docs/scanning.md)
   daemon        asphd --check-config --config FILE       exit 3 (docs/daemon.md)
@@ -37,22 +38,25 @@ ASPHD = os.environ.get("ASPHD_BIN")
 # take a minute of their own.
 TIMEOUT = 300 if os.environ.get("ASPH_UNDER_VALGRIND") else 60
 
-EXT = {"prescription": ".json", "points-csv": ".csv", "points-ply": ".ply", "points-json": ".json",
+EXT = {"prescription": ".json", "lens-zmx": ".zmx", "points-csv": ".csv", "points-ply": ".ply", "points-json": ".json",
        "instrument": ".json", "daemon": ".json", "scan": ".scan"}
-EXIT = {"prescription": 1, "points-csv": 1, "points-ply": 1, "points-json": 1,
+EXIT = {"prescription": 1, "lens-zmx": 1, "points-csv": 1, "points-ply": 1, "points-json": 1,
         "instrument": 2, "daemon": 3, "scan": 1}
 # Refusals of a whole file have no line or field to name: the file is named.
 WHOLE_FILE = re.compile(r"empty|too large|larger than|cannot read|binary data|no 'ply' magic|"
                         r"missing member|lack x, y or z|"
                         r"without end_header|faces before vertices|PLY data ends|more than the|"
                         r"only triangles|out of range|expected an array \"points\"|"
-                        r"not a finite number|must be a JSON object|end of file expected")
+                        r"not a finite number|must be a JSON object|end of file expected|"
+                        r"no SURF block|odd number of bytes|contains NUL bytes|invalid UTF-16")
 SANITIZER = re.compile(r"Sanitizer|runtime error:")
 
 
 def command(kind, path, work):
     if kind == "prescription":
         return [ASPH, "lens", "show", path]
+    if kind == "lens-zmx":
+        return [ASPH, "lens", "import", path, "--surface", "1"]
     if kind.startswith("points-"):
         return [ASPH, "fit", "strong", path]
     if kind == "instrument":

@@ -9,7 +9,12 @@ values Gwyddion read (a GWY file is a plain serialization, parsed below). The
 second reader is a chain of standard tools: `unzip -t` (the container and
 its CRCs), `md5sum -c` (main.xml against md5checksum.hex, and data.bin
 against the MD5 main.xml names), `xmllint --xpath` (the XML) and
-`od -t f8` (the little-endian doubles)."""
+`od -t f8` (the little-endian doubles). `xmllint --schema` validates every
+main.xml against the ISO 5436-2:2008 schema of the openGPS reference library
+and the ISO 25178-72:2017/Amd 1:2020 schema of x3ptools, from the shared
+reference folder beside the source tree (shared/reference/x3p, never copied
+into it); without that folder the validation is skipped, and the test says
+so."""
 
 import json
 import math
@@ -22,6 +27,23 @@ import tempfile
 
 ASPH = os.environ.get("ASPH_BIN")
 FAILURES = []
+SCAN = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "fuzz", "corpus", "scanfile",
+                    "strong-ci.scan")
+
+
+def x3p_schemas():
+    """The .xsd files of the nearest shared/reference/x3p above this file."""
+    d = os.path.dirname(os.path.abspath(__file__))
+    while True:
+        ref = os.path.join(d, "shared", "reference", "x3p")
+        if os.path.isdir(ref):
+            return sorted(os.path.join(ref, f) for f in os.listdir(ref) if f.endswith(".xsd"))
+        if os.path.dirname(d) == d:
+            return []
+        d = os.path.dirname(d)
+
+
+SCHEMAS = x3p_schemas()
 
 
 def check(cond, what):
@@ -135,6 +157,11 @@ def second_reader(x3p, tmp):
     values = [float(v) for v in r.stdout.split()]
     r = run(["xmllint", "--noout", os.path.join(d, "main.xml")])
     check(r.returncode == 0, f"main.xml is not well-formed: {r.stderr}")
+    for xsd in SCHEMAS:
+        r = run(["xmllint", "--noout", "--schema", xsd, os.path.join(d, "main.xml")])
+        check(r.returncode == 0, f"{x3p}: main.xml against {os.path.basename(xsd)}: {r.stderr.strip()}")
+    # ISO 5436-2:2008 requires the calibration date
+    check(xpath("/*/Record2/CalibrationDate") != "", f"{x3p}: no CalibrationDate")
     return xpath, values
 
 
@@ -156,6 +183,11 @@ def grid_export(tmp):
           "axis types")
     check(nx == ny == len(range(-48, 49)), f"grid {nx} x {ny}, expected 97 x 97 (19.5 mm / 0.4)")
     check(abs(inc - 0.4e-3) < 1e-15, f"increment {inc} m")
+    # the grid where it lies: its first node at (-48, -48) x 0.4 mm, the
+    # lens axis at its centre node
+    for ax in ("CX", "CY"):
+        off = float(xpath(f"/*/Record1/Axes/{ax}/Offset"))
+        check(abs(off + 48 * 0.4e-3) < 1e-15, f"{ax} offset {off} m, the grid's origin -19.2 mm")
     check(len(values) == nx * ny, f"{len(values)} values for {nx} x {ny}")
     valid = [v for v in values if not math.isnan(v)]
     # Nodes outside the aperture are masked: about 1 - pi/4 of them.
@@ -202,6 +234,13 @@ def points_export(tmp):
     worst = max((abs(values[3 * i + k] - rows[i][k] * 1e-3) for i in range(len(rows)) for k in range(3)),
                 default=1)
     check(worst <= 1e-18, f"list values differ from the CSV by {worst} m")
+    # the measured points of a recorded scan, as asph export writes them
+    scan_x3p = os.path.join(tmp, "scan.x3p")
+    r = asph("export", SCAN, "-o", scan_x3p)
+    check(r.returncode == 0, f"export -o .x3p: {r.stderr}")
+    if r.returncode == 0:
+        xpath2, values2 = second_reader(scan_x3p, tmp)
+        check(int(xpath2("/*/Record3/ListDimension")) * 3 == len(values2), "export: ListDimension")
     comps, why = gwyddion_read(x3p, tmp)
     if comps is None:
         # Gwyddion 2.62 reads heights on a grid only (opengps.c refuses
@@ -342,8 +381,9 @@ def verdict_exit(tmp):
 
 
 def report(tmp):
-    """The PDF rendered by a real viewer (poppler's pdftoppm): one page, not
-    blank, the verdict's exit status."""
+    """The PDF rendered by a real viewer (poppler's pdftoppm): page 1 with
+    the map, the details and the lens in full after it, the verdict's exit
+    status (test-report-pdf reads the pages back)."""
     pts = os.path.join(tmp, "rep.csv")
     pdf = os.path.join(tmp, "report.pdf")
     asph("synth", "weak", "--method", "concentric", "--h", "0.08", "--zernike", "6=25,11=-10",
@@ -355,9 +395,9 @@ def report(tmp):
     r = run(["pdftoppm", "-r", "40", pdf, base])
     check(r.returncode == 0, f"pdftoppm: {r.stderr}")
     pages = sorted(f for f in os.listdir(tmp) if f.startswith("page"))
-    check(len(pages) == 1, f"{len(pages)} pages")
+    check(len(pages) == 3, f"{len(pages)} pages: page 1, the details, the lens in full")
     if pages:
-        data = open(os.path.join(tmp, pages[0]), "rb").read()
+        data = open(os.path.join(tmp, pages[0]), "rb").read()     # page 1
         parts = data.split(maxsplit=4)          # P6 width height maxval pixels
         check(parts[0] == b"P6", "pdftoppm did not write a PPM")
         w, h, pixels = int(parts[1]), int(parts[2]), parts[4]
@@ -379,6 +419,9 @@ def main():
     if missing:
         print("skip: missing", ", ".join(missing), "(scripts/install-deps installs them)")
         return 77
+    if not SCHEMAS:
+        print("skip: no shared/reference/x3p beside the source tree: the X3P files are not "
+              "validated against the ISO 5436-2 schemas")
     with tempfile.TemporaryDirectory() as tmp:
         grid_export(tmp)
         points_export(tmp)

@@ -114,7 +114,7 @@ def outputs(tmp):
     res_ply = os.path.join(tmp, "res.ply")
     png = os.path.join(tmp, "map.png")
     r = run(["fit", "turning-point", path, "--residuals", res_csv])
-    check(r.returncode == 0 and "Residual RMS" in r.stdout, f"fit text output: {r.stderr}")
+    check(r.returncode == 0 and "Residual: RMS" in r.stdout, f"fit text output: {r.stderr}")
     with open(res_csv) as f:
         rows = f.read().splitlines()
     check(rows[0] == "x,y,z,residual_nm", f"residual CSV header {rows[0]!r}")

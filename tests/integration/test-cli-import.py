@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""asph lens import: OpticStudio .zmx (UTF-8, UTF-16 LE and BE) and CSV to JSON prescriptions."""
+"""asph lens import: OpticStudio .zmx (UTF-8, UTF-16 LE and BE, Latin-1; any lens units) and CSV
+to JSON prescriptions; Q-type aspheres, aspheric plates and off-axis segments through the pipeline."""
 import json
 import math
 import os
@@ -20,14 +21,18 @@ def imported(path, surface):
     return json.loads(out) if code == 0 else {}
 
 
-# The surface list: number, type, radius (1/CURV), semi-diameter.
+# The surface list: number, type (STANDARD without a TYPE line), radius
+# (1/CURV), semi-diameter, and whether it imports, as what or why not.
 code, out, err = run("lens", "import", ZMX)
 rows = [line.split() for line in out.splitlines()[1:]]
 expect(code == 0 and len(rows) == 7 and "--surface" in err, "several surfaces are listed")
-expect([r[1] for r in rows] == ["STANDARD", "EVENASPH", "STANDARD", "ODDASPH", "QTYPEASPH", "QTYPEASPH", "STANDARD"],
+expect([r[1] for r in rows] == ["STANDARD", "EVENASPH", "STANDARD", "ODDASPHE", "QED_TYPE", "QED_TYPE", "STANDARD"],
        "list: types in file order")
 expect(rows[0][2] == "inf" and abs(float(rows[2][2]) + 60.9) < 1e-9 and float(rows[2][3]) == 19.5,
        "list: radius and semi-diameter")
+expect([r[4] for r in rows] == ["no:"] + ["yes"] * 6 and rows[4][5] == "(qcon)" and rows[5][5] == "(qbfs)"
+       and "no positive semi-diameter (DIAM)" in out.splitlines()[1],
+       "list: whether each surface imports, and why the object surface does not")
 
 for path in (ZMX, ZMX16):
     name = os.path.basename(path)
@@ -39,16 +44,19 @@ for path in (ZMX, ZMX16):
     expect(p.get("aperture_diameter") == 40, f"{name}: aperture is twice DIAM")
     p = imported(path, 3)
     expect(p.get("type") == "odd_asphere" and p["A"] == {"1": 1.3e-3, "2": 2.1e-4, "3": -2.7e-6, "4": 3.1e-6, "5": 4.3e-9},
-           f"{name}: ODDASPH, PARM i is the coefficient of r^i")
+           f"{name}: ODDASPHE, PARM i is the coefficient of r^i")
     p = imported(path, 4)
     expect(p.get("type") == "qcon" and p["norm_radius"] == 10.5 and p["k"] == -0.73 and
-           p["a"] == [0.0371, -0.0128, 0.0049, -0.0017, 6.1e-4], f"{name}: Q-type Qcon")
+           p["a"] == [0.0371, -0.0128, 0.0049, -0.0017, 6.1e-4], f"{name}: QED_TYPE Qcon (XDAT 1 = 1)")
     p = imported(path, 5)
-    expect(p.get("type") == "qbfs" and p["norm_radius"] == 10 and "k" not in p and
-           p["a"] == [0.0213, -0.0071, 0.0032], f"{name}: Q-type Qbfs")
+    expect(p.get("type") == "qbfs" and p["norm_radius"] == 10 and p.get("k") == 0 and
+           p["a"] == [0.0213, -0.0071, 0.0032], f"{name}: QED_TYPE Qbfs (XDAT 1 = 0)")
     p = imported(path, 2)
     expect(p.get("type") == "even_asphere" and abs(p["R"] + 60.9) < 1e-12 and p["k"] == 0.37 and p["A"] == {},
-           f"{name}: STANDARD")
+           f"{name}: a surface without a TYPE line is STANDARD")
+    p = imported(path, 6)
+    expect(p.get("type") == "even_asphere" and p.get("c") == 0 and "R" not in p and p["aperture_diameter"] == 24.2,
+           f"{name}: a plane (CURV 0) is the curvature c = 0")
 
 with tempfile.TemporaryDirectory() as d:
     # UTF-16 big-endian, written here from the UTF-8 file.
@@ -123,22 +131,27 @@ with tempfile.TemporaryDirectory() as d:
     cases = {
         "unknown": (grid, "1", ":3:8: TYPE: surface 1 has type GRID_SAG"),
         "unsupported term": (extra, None, ":5:10: PARM 3: surface 1: the Biconic surface has no parameter 3"),
-        "truncated": (os.path.join(DATA, "lens-truncated.zmx"), None, "truncated"),
-        "flat": (ZMX, "6", "flat"),
+        "no aperture": (ZMX, "0", ":7:1: DIAM: surface 0 has no positive semi-diameter"),
         "missing": (ZMX, "9", "no surface 9"),
     }
     for what, (path, surf, needle) in cases.items():
         args = ["lens", "import", path] + (["--surface", surf] if surf else [])
         code, _, err = run(*args)
         expect(code == 1 and needle in err and path in err, f"{what} refused ({err.strip()})")
-    code, _, err = run("lens", "import", os.path.join(DATA, "lens-truncated.zmx"), "--surface", "1")
-    expect(code == 1 and ":59:" in err, "a truncated file is refused even for an earlier surface, at its last line")
 
     units = os.path.join(d, "inch.zmx")
     with open(units, "w") as f:
-        f.write("UNIT IN X W X CM MR CPMM\nSURF 1\n  TYPE STANDARD\n  CURV 0.05\n  DIAM 3\n")
-    code, _, err = run("lens", "import", units)
-    expect(code == 1 and "inch.zmx:1:6: UNIT" in err, f"non-mm units refused ({err.strip()})")
+        f.write("UNIT IN X W X CM MR CPMM\nSURF 1\n  TYPE EVENASPH\n  CURV 0.05\n  PARM 2 3e-4\n  DIAM 3\n")
+    code, out, err = run("lens", "import", units)
+    p = json.loads(out) if code == 0 else {}
+    expect(code == 0 and p.get("R") == 20 * 25.4 and p.get("aperture_diameter") == 6 * 25.4 and
+           abs(p["A"]["4"] - 3e-4 / 25.4 ** 3) < 1e-22 and "UNIT IN" in p.get("note", ""),
+           f"inches are converted to mm, and the prescription says so ({err.strip()})")
+    feet = os.path.join(d, "feet.zmx")
+    with open(feet, "w") as f:
+        f.write("UNIT FT\nSURF 1\n  CURV 0.05\n  DIAM 3\n")
+    code, _, err = run("lens", "import", feet)
+    expect(code == 1 and "feet.zmx:1:6: UNIT: lens units FT" in err, f"unknown units refused ({err.strip()})")
     bad = os.path.join(d, "bad.zmx")
     with open(bad, "w") as f:
         f.write("SURF 1\n  TYPE EVENASPH\n  CURV 0.05\n  PARM 2 -2.1e-5q\n  DIAM 3\n")
@@ -149,6 +162,57 @@ with tempfile.TemporaryDirectory() as d:
         f.write("SURF 1\n  TYPE EVENASPH\n  CURV 0.05\n  PARM 2 -2.1e-5\n  DIAM 3\n")
     code, out, err = run("lens", "import", single)
     expect(code == 0 and json.loads(out)["A"] == {"4": -2.1e-5}, "one surface needs no --surface")
+
+# Files of other writers: a three-mirror telescope in inches (UTF-16 LE,
+# CR LF) with off-axis segments and an aspheric plate; Q-type aspheres in
+# Latin-1 with unindented lines and no final newline. The unit test checks
+# each sag against OpticStudio's formula; here the command line and the
+# pipeline on what they import.
+TMA = os.path.join(DATA, "lens-tma-inch-utf16.zmx")
+QT = os.path.join(DATA, "lens-qtype-latin1.zmx")
+code, out, err = run("lens", "import", TMA)
+rows = [line.split() for line in out.splitlines()[1:]]
+expect(code == 0 and [r[4] for r in rows] == ["no:", "yes", "yes", "yes", "yes", "yes"] and
+       "lens units IN, shown and imported in mm" in err and float(rows[1][2]) == -2032,
+       f"the telescope's surfaces are listed in mm ({err.strip()})")
+code, out, err = run("lens", "import", QT)
+rows = [line.split() for line in out.splitlines()[1:]]
+expect(code == 0 and [r[1] for r in rows] == ["STANDARD", "QED_TYPE", "QED_TYPE", "STANDARD"] and
+       [r[5] for r in rows[1:3]] == ["(qbfs)", "(qcon)"], f"the Latin-1 file's Q types are listed ({err.strip()})")
+with tempfile.TemporaryDirectory() as d:
+    primary = imported(TMA, 1)
+    expect(primary.get("aperture") == {"shape": "rectangular", "width": 6 * 25.4, "height": 4 * 25.4,
+                                       "offset": [0.0, 4.5 * 25.4]} and "aperture_diameter" not in primary,
+           "SQAP with OBDC: the parent asphere over its off-axis rectangle")
+    plate = imported(TMA, 4)
+    expect(plate.get("c") == 0 and abs(plate["A"]["4"] / (1.7e-5 / 25.4 ** 3) - 1) < 1e-15,
+           "EVENASPH with CURV 0: an aspheric plate")
+    # Each through the pipeline: a plan on the part, measured with a
+    # misalignment (asph synth), fitted back. A segment fits the rigid
+    # motions but rz (the parent looks the same clocked) and R; a plate the
+    # motions a plane base with its terms tells apart.
+    cases = [
+        (TMA, "1", "raster", "tx,ty,tz,rx,ry,R", {"tx": 0.021, "ty": -0.013, "tz": 0.0071, "rx": 2.1e-4, "ry": -1.3e-4}),
+        (TMA, "3", "spiral", "tx,ty,tz,rx,ry", {"tx": -0.017, "ty": 0.011, "tz": -0.0043, "rx": -1.7e-4, "ry": 2.3e-4}),
+        (TMA, "4", "op", "tx,ty,tz,rx,ry", {"tx": 0.012, "ty": 0.019, "tz": 0.0052, "rx": 3.1e-4, "ry": 1.9e-4}),
+        (QT, "1", "ot", "tx,ty,tz,rx,ry,R,k", {"tx": 0.031, "ty": -0.017, "tz": 0.0093, "rx": 4.1e-4, "ry": -2.3e-4}),
+    ]
+    for i, (path, surf, method, dof, want) in enumerate(cases):
+        lens, pts = os.path.join(d, f"c{i}.json"), os.path.join(d, f"c{i}.csv")
+        name = f"{os.path.basename(path)} surface {surf}"
+        code, _, err = run("lens", "import", path, "--surface", surf, "-o", lens)
+        code2, _, err2 = run("synth", lens, "--method", method, "--points", "1500",
+                             "--shift", f"{want['tx']},{want['ty']},{want['tz']}",
+                             "--tilt", f"{want['rx']},{want['ry']}", "-o", pts)
+        code3, out, err3 = run("fit", lens, pts, "--dof", dof, "--json")
+        dof_v = json.loads(out)["dof"] if code3 == 0 else {}
+        expect(code == code2 == code3 == 0 and all(abs(dof_v[k] - v) < 1e-9 for k, v in want.items()),
+               f"{name}: {method} plan, the misalignment recovered ({(err + err2 + err3).strip()[:300]})")
+    code, _, err = run("fit", os.path.join(d, "c0.json"), os.path.join(d, "c0.csv"), "--dof", "tx,ty,tz,rx,ry,rz")
+    expect(code == 1 and "looks the same clocked" in err, f"rz on a segment of a rotationally symmetric parent ({err.strip()})")
+    code, _, err = run("plan", os.path.join(d, "c0.json"), "--method", "cvt", "--points", "300",
+                       "-o", os.path.join(d, "cvt.csv"))
+    expect(code == 0, f"a CVT plan on the segment ({err.strip()})")
 
 # CSV
 code, out, err = run("lens", "import", os.path.join(DATA, "lenses.csv"))

@@ -44,7 +44,7 @@ try:
     expect(out[len(reads):] == [100] * len(writes), f"a reader is refused every mutating method ({out[len(reads):]})")
     expect(root.call("job.get", {"id": queued})["state"] == "queued", "the reader changed nothing")
     rc, _, err = ctl_as_user(d, [], "submit", "strong", "--method", "fermat", "--points", "300")
-    expect(rc == 4 and "Permission denied" in err, "asphctl as a reader: exit 4, permission denied")
+    expect(rc == 6 and "Permission denied" in err, "asphctl as a reader: exit 6, permission denied")
     expect(ctl_as_user(d, [], "status")[0] == 0, "asphctl status works for a reader")
 
     # More supplementary groups than the first guess of the daemon's

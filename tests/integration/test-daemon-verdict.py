@@ -115,7 +115,8 @@ def check_replay(d, job, tol, summary, tmp):
 def check_report(pdf, tmp):
     p = subprocess.run(["pdfinfo", pdf], capture_output=True, text=True)
     pages = [line.split()[1] for line in p.stdout.splitlines() if line.startswith("Pages:")]
-    expect(p.returncode == 0 and pages == ["1"], f"pdfinfo {pdf}: {pages} pages {p.stderr}")
+    # page 1, the details, the lens, plan and instrument in full
+    expect(p.returncode == 0 and pages == ["3"], f"pdfinfo {pdf}: {pages} pages {p.stderr}")
     base = os.path.join(tmp, "page")
     p = subprocess.run(["pdftoppm", "-r", "40", "-png", "-singlefile", pdf, base],
                        capture_output=True, text=True)
@@ -223,7 +224,8 @@ def main():
                f"the result lists report.pdf and residual.x3p: {files}")
         pdf = os.path.join(tmp, "fail-report.pdf")
         rc, out, err = d.ctl("result", jobs["fail"], "--report", pdf)
-        expect(rc == 0 and "verdict     fail" in out, f"asphctl result --report: {rc} {out} {err}")
+        expect(rc == 0 and "Verdict (ISO 14253-1, U for k = 2): fail" in out,
+               f"asphctl result --report: {rc} {out} {err}")
         if os.path.exists(pdf):
             check_report(pdf, tmp)
         check_x3p(os.path.join(tmp, f"job{jobs['fail']}", "residual.x3p"), res["fail"]["summary"], tmp)
@@ -260,13 +262,27 @@ def main():
             print(f"# a 12-point scan's files: {sorted(sfiles)}")
         rc, out, err = d.ctl("submit", "strong", "--method", "ci", "--h", "0.05", "--tolerance",
                              json.dumps(FAIL_TOL), "--wait")
-        expect(rc == 0 and out.rstrip().endswith("verdict fail"),
+        # exit 3: the part fails (the exit codes asph fit has)
+        expect(rc == 3 and out.rstrip().endswith("verdict fail"),
                f"asphctl submit --tolerance JSON --wait: {rc} {out[-200:]} {err}")
         tfile = os.path.join(tmp, "bad.json")
         with open(tfile, "w") as f:
             f.write('{"iso10110_5": "3/2(0.5"}')
         rc, _, err = d.ctl("submit", "strong", "--method", "ci", "--h", "0.05", "--tolerance", tfile)
         expect(rc == 1 and "column 9: missing ')'" in err, f"asphctl submit --tolerance bad: {rc} {err}")
+        # A bare call-out, as the web page's form takes it: sent as the
+        # call-out string, checked by the daemon with its column.
+        rc, _, err = d.ctl("submit", "strong", "--method", "ci", "--h", "0.05", "--tolerance",
+                           "3/2(0.5")
+        expect(rc == 1 and "column 9: missing ')'" in err and "-1" not in err,
+               f"asphctl submit --tolerance bare bad call-out: {rc} {err}")
+        rc, out, err = d.ctl("--json", "submit", "strong", "--method", "ci", "--h", "0.05",
+                             "--tolerance", " 3/5(3/2)")
+        bare = json.loads(out)["id"] if rc == 0 else None
+        expect(bare and c.call("job.get", {"id": bare}).get("tolerance") == "3/5(3/2)",
+               f"asphctl submit --tolerance '3/5(3/2)': the call-out as the tolerance: {rc} {err}")
+        if bare:
+            c.call("job.cancel", {"id": bare})
         c.close()
     finally:
         d.cleanup()

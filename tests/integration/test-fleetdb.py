@@ -255,7 +255,7 @@ try:
     p = subprocess.run([ASPHCTL, "fleet", "list", "--db", pg.conninfo.replace(f"port={pg.port}",
                                                                                 "port=1")],
                        capture_output=True, text=True, timeout=60)
-    expect(p.returncode == 3 and "cannot connect" in p.stderr, "no database: exit 3, said why")
+    expect(p.returncode == 7 and "cannot connect" in p.stderr, "no database: exit 7, said why")
     p = subprocess.run([ASPHCTL, "fleet", "list", "--db", pg.conninfo, "--verdict", "maybe"],
                        capture_output=True, text=True, timeout=60)
     expect(p.returncode == 2 and "not pass, fail or undecided" in p.stderr,

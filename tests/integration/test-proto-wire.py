@@ -50,8 +50,10 @@ try:
         r = json.loads(raw(c, data + b"\n"))
         err = r.get("error", {})
         detail = err.get("data", {}).get("detail", "")
-        m = re.match(r"column (-?\d+): ", detail)
-        expect(err.get("code") == -32700 and m and (column is None or int(m.group(1)) == column),
+        # a column where jansson knows one; never "column -1"
+        m = re.match(r"column (\d+): ", detail)
+        expect(err.get("code") == -32700 and "-1" not in detail and
+               (column is None or (m and int(m.group(1)) == column)),
                f"a byte-order mark {name}: a parse error{'' if column is None else f' at column {column}'}"
                f" ({detail})")
     expect(c.call("version")["server"] == "asphd", "the connection goes on")

@@ -9,15 +9,7 @@
 
 #include "asph/error.h"
 #include "asph/surface.h"
-
-/* Exit codes, documented in docs/asph.1.md. */
-enum {
-	EXIT_OK = 0,
-	EXIT_FAILURE_RUN = 1,   /* the command ran and failed (bad data, I/O) */
-	EXIT_USAGE = 2,         /* bad command line */
-	EXIT_VERDICT_FAIL = 3,  /* asph fit with a tolerance: the part fails */
-	EXIT_VERDICT_UNDECIDED = 4, /* ... conformance is not proven either way */
-};
+#include "exit-codes.h"
 
 struct tool_command {
 	const char *name;
@@ -56,6 +48,11 @@ typedef int tool_option_fn(int opt, const char *arg, void *data);
 int tool_getopt(int argc, char **argv, const char *shortopts,
 		const struct option *longopts, void (*usage)(FILE *out),
 		tool_option_fn *take, void *data);
+
+/* After getopt_long() (with opterr = 0) refused an option: says what was
+ * wrong with it, with the option meant when it is near, and how to see the
+ * command's options. EXIT_USAGE. */
+int tool_option_error(char **argv, const char *shortopts, const struct option *longopts);
 
 /* For a command whose one option is a flag: sets the int at data. */
 tool_option_fn tool_take_flag;

@@ -20,8 +20,12 @@
 #include "fileio.h"
 #include "asph/points.h"
 #include "asph-tool.h"
+#include "fit-report.h"
 #include "fit-tool.h"
+#include "fit-summary.h"
 #include "fit-uncertainty.h"
+#include "progress.h"
+#include "quantity.h"
 #include "util-mem.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_surface *, asph_surface_free)
@@ -56,6 +60,8 @@ enum {
 	OPT_PART,
 	OPT_LOT,
 	OPT_SERIAL,
+	OPT_OPERATOR,
+	OPT_MEASURED,
 	OPT_SCAN,
 	OPT_BANDS,
 };
@@ -89,9 +95,10 @@ static void usage(FILE *out)
 		"  --residuals OUT     write x,y,z,residual_nm of the points fitted (.csv or .ply,\n"
 		"                      PLY coloured by residual)\n"
 		"  --map OUT.png       residual map with a colour bar in nm\n"
-		"  --tolerance T       a tolerance (JSON text or a file holding it): ISO 10110-5\n"
-		"                      call-out, RMS, slope and R limits; decides pass, fail or\n"
-		"                      undecided (ISO 14253-1) and sets the exit status\n"
+		"  --tolerance T       a tolerance: an ISO 10110-5 call-out ('3/2(0.5/0.3)'), or\n"
+		"                      JSON text or a file holding it (call-out, RMS, slope and R\n"
+		"                      limits); decides pass, fail or undecided (ISO 14253-1) and\n"
+		"                      sets the exit status\n"
 		"  --wavelength NM     test wavelength of the fringes (default: the tolerance's,\n"
 		"                      else 546.07)\n"
 		"  --slope-length MM   evaluation length of the slope deviation (default: the\n"
@@ -114,17 +121,26 @@ static void usage(FILE *out)
 		"    --correction-extend MM                 beyond the aperture (default 0)\n"
 		"    --correction-extend-method constant|linear   (default constant)\n"
 		"  --report OUT.pdf    the measurement report (PDF), with:\n"
-		"    --part P, --lot L, --serial S          what was measured\n"
+		"    --part P, --lot L, --serial S          what was measured (default: the\n"
+		"                                           scan's, as asphd records the job's)\n"
+		"    --operator NAME                        who measured (default: the job's\n"
+		"                                           submitter in the scan, else the\n"
+		"                                           user running asph)\n"
+		"    --measured TIME                        when, ISO 8601 with the zone (default:\n"
+		"                                           the scan's start and end)\n"
 		"    --scan SCAN                            the recorded scan the points come from\n"
-		"                                           (its plan and instrument are reported)\n"
+		"                                           (its plan, instrument and times are\n"
+		"                                           reported)\n"
 		FIT_MC_HELP
 		"  --json              one JSON object (n_points, dof, uncertainty, iterations,\n"
-		"                      converged, rms_nm, pv_nm, pvr_nm, zernike_nm, form, slope,\n"
-		"                      radius, uncertainty_k2, verdict...)\n"
+		"                      converged, rms_nm (the residual's standard deviation about\n"
+		"                      its mean), pv_nm, pvr_nm, zernike_nm, form, slope, radius,\n"
+		"                      uncertainty_k2, verdict...)\n"
+		"  -q, --quiet         no progress of a long fit or Monte Carlo on the terminal\n"
 		"  -h, --help          this text\n\n"
 		"Exit status: 0 done (and the part passes its tolerance), 1 refused input or no\n"
 		"convergence, 2 bad command line, 3 the part fails its tolerance, 4 the verdict\n"
-		"is undecided.\n", out);
+		"is undecided (asph help exit-status).\n", out);
 }
 
 static int parse_int(const char *arg, const char *name, int lo, int hi, int *out)
@@ -232,6 +248,9 @@ static int take_option(struct fit_cli *c, int opt, const char *arg)
 	case OPT_JSON:
 		c->json = 1;
 		return 0;
+	case 'q':
+		c->quiet = c->mc.quiet = 1;
+		return 0;
 	case OPT_RESIDUALS:
 		c->residuals_out = arg;
 		return 0;
@@ -274,6 +293,11 @@ static int take_option(struct fit_cli *c, int opt, const char *arg)
 	case OPT_SERIAL:
 		c->serial = arg;
 		return 0;
+	case OPT_OPERATOR:
+		c->operator_name = arg;
+		return 0;
+	case OPT_MEASURED:
+		return fit_report_parse_measured(arg, &c->measured_ns);
 	case OPT_SCAN:
 		c->scan = arg;
 		return 0;
@@ -385,8 +409,11 @@ int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
 		{ "part", required_argument, NULL, OPT_PART },
 		{ "lot", required_argument, NULL, OPT_LOT },
 		{ "serial", required_argument, NULL, OPT_SERIAL },
+		{ "operator", required_argument, NULL, OPT_OPERATOR },
+		{ "measured", required_argument, NULL, OPT_MEASURED },
 		{ "scan", required_argument, NULL, OPT_SCAN },
 		FIT_MC_LONGOPTS,
+		{ "quiet", no_argument, NULL, 'q' },
 		{ "help", no_argument, NULL, 'h' },
 		{ NULL, 0, NULL, 0 },
 	};
@@ -394,12 +421,15 @@ int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
 
 	/* getopt permutes: options may also follow LENS and POINTS_FILE. */
 	optind = 0;
-	while ((opt = getopt_long(argc, argv, "h", longopts, NULL)) != -1) {
+	opterr = 0;
+	while ((opt = getopt_long(argc, argv, "hq", longopts, NULL)) != -1) {
 		if (opt == 'h') {
 			usage_fn(stdout);
 			return -1;
 		}
-		if (opt == '?' || take_option(c, opt, optarg) < 0)
+		if (opt == '?' || opt == ':')
+			return tool_option_error(argv, "hq", longopts);
+		if (take_option(c, opt, optarg) < 0)
 			return EXIT_USAGE;
 	}
 	if (argc - optind != operands) {
@@ -424,97 +454,70 @@ static json_t *bands_json(const struct fit_cli *c, const struct band_result *b)
 			 "mid_nm", b->rms.mid, "high_nm", b->rms.high, "total_nm", b->rms.total);
 }
 
-static int show_json(const struct fit_cli *c, const struct asph_surface *s,
-		     const struct asph_fit_result *r, const struct asph_mc_result *mc,
-		     const struct band_result *b, const char *acquisition)
+/* The summary as asph_fit_result_to_json() makes it, with the Monte
+ * Carlo's keys, band_rms and the acquisition; NULL when out of memory. */
+static json_t *summary_json(const struct fit_cli *c, const struct asph_surface *s,
+			    const struct asph_fit_result *r, const struct asph_mc_result *mc,
+			    const struct band_result *b, const char *acquisition)
 {
 	_cleanup_free_ char *text = NULL;
-	_cleanup_(json_decrefp) json_t *root = NULL;
+	json_t *root = NULL;
 
 	if (asph_fit_result_to_json(r, asph_surface_prescription(s)->name,
 				    c->opts.robust, &text) < 0 ||
 	    !(root = json_loads(text, 0, NULL)) ||
 	    (mc && fit_mc_json(root, mc, r->form.wavelength_nm) < 0)) {
-		fprintf(stderr, "asph fit: out of memory\n");
-		return EXIT_FAILURE_RUN;
+		json_decref(root);
+		return NULL;
 	}
 	if (c->bands_given)
 		json_object_set_new(root, "band_rms", bands_json(c, b));
 	if (acquisition)
 		json_object_set_new(root, "acquisition", json_loads(acquisition, 0, NULL));
-	json_dumpf(root, stdout, JSON_INDENT(2) | JSON_PRESERVE_ORDER | JSON_REAL_PRECISION(17));
-	fputc('\n', stdout);
-	return EXIT_OK;
-}
-
-static void show_form(const struct asph_fit_result *r)
-{
-	const struct asph_form *f = &r->form;
-	const struct asph_uncertainty_k2 *u = &r->uncertainty_k2;
-
-	if (r->form_valid) {
-		printf("ISO 14999-4 (lambda %g nm; U for k = 2):\n", f->wavelength_nm);
-		printf("  A %+.3f nm (%+.4f fr) U %.3f | B %.3f nm (%.4f fr) U %.3f | C %.3f nm (%.4f fr) U %.3f\n",
-		       f->A.v, f->A_fringes, u->A.v, f->B.v, f->B_fringes, u->B.v, f->C.v,
-		       f->C_fringes, u->C.v);
-		printf("  RMSt %.3f nm, RMSi %.3f nm, RMSa %.3f nm (U %.3f)\n", f->rms_t.v,
-		       f->rms_i.v, f->rms_a.v, u->rms_t.v);
-	}
-	if (r->slope_valid)
-		printf("Slope over %g mm: RMS %.3f urad (radial %.3f, azimuthal %.3f), max %.3f urad\n",
-		       r->slope.length_mm, r->slope.rms.v, r->slope.rms_radial.v,
-		       r->slope.rms_azimuthal.v, r->slope.max.v);
-	if (!isnan(r->R_deviation_mm))
-		printf("Radius deviation %+.6f mm (U %.6f mm)\n", r->R_deviation_mm, u->R_mm);
-	if (!r->verdict.present)
-		return;
-	printf("Verdict (ISO 14253-1): %s\n", asph_verdict_name(r->verdict.overall));
-	for (size_t i = 0; i < r->verdict.n_items; i++) {
-		const struct asph_verdict_item *it = &r->verdict.items[i];
-		printf("  %-16s %12.6g  U %-10.4g limit %-10.6g %s\n", it->quantity, it->value, it->U,
-		       it->limit, asph_verdict_name(it->verdict));
-	}
+	return root;
 }
 
 static void show_bands(const struct fit_cli *c, const struct band_result *b)
 {
+	const double v[] = { b->rms.form, b->rms.mid, b->rms.high, b->rms.total };
+	static const char *const paths[] = { "band_rms.form_nm", "band_rms.mid_nm",
+					     "band_rms.high_nm", "band_rms.total_nm" };
+	char t[4][32];
+
 	if (!c->bands_given || !b->valid)
 		return;
-	printf("Band-limited RMS (areal PSD, grid %g mm): form (> %g mm) %.4f nm, mid (%g..%g mm) "
-	       "%.4f nm, high (< %g mm) %.4f nm, total %.4f nm\n", b->spacing_mm,
-	       c->bands.form_mm, b->rms.form, c->bands.high_mm, c->bands.form_mm, b->rms.mid,
-	       c->bands.high_mm, b->rms.high, b->rms.total);
+	for (int i = 0; i < 4; i++)
+		quantity_format(quantity_by_path(paths[i]), v[i], QUANTITY_UNIT, t[i], sizeof(t[i]));
+	printf("Band-limited RMS (areal PSD, grid %g mm): form (> %g mm) %s, mid (%g..%g mm) %s, "
+	       "high (< %g mm) %s, total %s\n", b->spacing_mm, c->bands.form_mm, t[0],
+	       c->bands.high_mm, c->bands.form_mm, t[1], c->bands.high_mm, t[2], t[3]);
 }
 
-static void show_text(const struct fit_cli *c, const struct asph_surface *s,
-		      const struct asph_fit_result *r)
+/* --json, or the text of tools/fit-summary.c. */
+static int show(const struct fit_cli *c, const struct asph_surface *s,
+		const struct asph_fit_result *r, const struct asph_mc_result *mc,
+		const struct band_result *b, const char *acquisition,
+		void (*more_text)(void *data), void *data)
 {
-	printf("Fit of %zu points to %s (%s residual%s)\n", r->n_points,
-	       asph_surface_prescription(s)->name, asph_fit_residual_name(r->residual),
-	       c->opts.robust ? ", robust" : "");
-	for (int d = 0; d < ASPH_FIT_N_DOF; d++) {
-		const char *unit = d < ASPH_FIT_RX || d == ASPH_FIT_R ? "mm " : d == ASPH_FIT_K ? "   " : "rad";
-		if (r->dof & ASPH_FIT_DOF_BIT(d))
-			printf("  %-3s %+.12f %s  +- %.3g\n", asph_fit_dof_name((enum asph_fit_dof)d),
-			       r->value[d], unit, r->uncertainty[d]);
+	_cleanup_(json_decrefp) json_t *root = summary_json(c, s, r, mc, b, acquisition);
+
+	if (!root) {
+		fprintf(stderr, "asph fit: out of memory\n");
+		return EXIT_FAILURE_RUN;
 	}
-	printf("%s after %d iterations in %d pass%s: %s\n",
-	       r->converged ? "Converged" : "NOT converged", r->iterations, r->passes,
-	       r->passes == 1 ? "" : "es", r->reason);
-	printf("Points used %zu, outside the aperture %zu, outliers %zu\n", r->n_used,
-	       r->n_outside_aperture, r->n_outliers);
-	printf("Residual RMS %.4f nm, PV %.4f nm, PVr %.4f nm, slope RMS %.4f urad\n",
-	       r->rms.v, r->pv.v, r->pvr.v, r->slope_rms.v);
-	show_form(r);
-	if (r->n_zernike == 0) {
-		printf("Too few points for the Zernike decomposition (PVr and slope need it)\n");
-		return;
+	if (c->json) {
+		json_dumpf(root, stdout, JSON_INDENT(2) | JSON_PRESERVE_ORDER | JSON_REAL_PRECISION(17));
+		fputc('\n', stdout);
+		return EXIT_OK;
 	}
-	printf("Zernike terms of the residual (Noll, nm; Z1-Z3 are taken by the rigid DOF):\n");
-	for (int j = 0; j < r->n_zernike; j++)
-		printf("  Z%-2d %+10.4f%s", j + 1, r->zernike[j].v, (j + 1) % 4 == 0 ? "\n" : "");
-	if (r->n_zernike % 4)
-		printf("\n");
+	fit_summary_print(stdout, root, "");
+	fit_summary_print_zernike(stdout, root, "");
+	if (mc)
+		fit_mc_show(mc);
+	show_bands(c, b);
+	if (more_text)
+		more_text(data);
+	return EXIT_OK;
 }
 
 /* The points fitted (outliers included, points outside the aperture not)
@@ -569,8 +572,12 @@ static int write_report(const struct fit_cli *c, const struct asph_surface *s,
 		tool_print_error("fit: --report", &err);
 		return EXIT_FAILURE_RUN;
 	}
+	_cleanup_(fit_report_who_release) struct fit_report_who who;
+	fit_report_who(c, scan, &who);
 	struct asph_report r = {
-		.part = c->part, .lot = c->lot, .serial = c->serial,
+		.part = who.part, .lot = who.lot, .serial = who.serial,
+		.operator_name = who.operator_name, .measured_ns = who.measured_ns,
+		.measured_end_ns = who.measured_end_ns, .job = who.job, .label = who.label,
 		.lens_name = asph_surface_prescription(s)->name, .lens_json = lens_json,
 		.plan_json = scan ? scan->header.plan : NULL,
 		.instrument_json = scan ? scan->header.instrument : NULL,
@@ -694,15 +701,22 @@ int fit_cli_run(const struct fit_cli *c, const struct asph_surface *s,
 		void (*more_text)(void *data), void *data)
 {
 	_cleanup_(asph_fit_freep) struct asph_fit *w = NULL;
+	struct asph_fit_options fo = c->opts;
 	struct asph_fit_result res;
 	struct asph_mc_result mc;
 	struct band_result bands = { 0 };
 	struct asph_error err;
+	struct progress p;
 	int r;
 
 	asph_error_clear(&err);
-	if (asph_fit_alloc(s, pts->n, &c->opts, &w, &err) < 0 ||
-	    asph_fit_run(w, pts->xyz, pts->n, &res, &err) < 0) {
+	progress_start(&p, "fit", "iterations", c->quiet);
+	fo.progress = progress_hook(&p);
+	r = asph_fit_alloc(s, pts->n, &fo, &w, &err);
+	if (r == 0)
+		r = asph_fit_run(w, pts->xyz, pts->n, &res, &err);
+	progress_stop(&p);
+	if (r < 0) {
 		tool_print_error(c->points, &err);
 		return EXIT_FAILURE_RUN;
 	}
@@ -718,18 +732,9 @@ int fit_cli_run(const struct fit_cli *c, const struct asph_surface *s,
 	r = compute_bands(c, s, w, &bands);
 	if (r != EXIT_OK)
 		return r;
-	if (c->json) {
-		r = show_json(c, s, &res, c->mc.enabled ? &mc : NULL, &bands, acquisition);
-		if (r != EXIT_OK)
-			return r;
-	} else {
-		show_text(c, s, &res);
-		if (c->mc.enabled)
-			fit_mc_show(&mc);
-		show_bands(c, &bands);
-		if (more_text)
-			more_text(data);
-	}
+	r = show(c, s, &res, c->mc.enabled ? &mc : NULL, &bands, acquisition, more_text, data);
+	if (r != EXIT_OK)
+		return r;
 	r = write_outputs(c, s, pts, w);
 	if (r == EXIT_OK)
 		r = write_exports(c, s, w, &res);

@@ -2,7 +2,8 @@
 /*
  * asph lens import: one surface of an OpticStudio .zmx lens file or a row of
  * a CSV table as our JSON prescription (libasph's asph/lens-import.h reads
- * the file; docs/prescriptions.md, "Importing", lists what is read).
+ * the file; docs/prescriptions.md, "Importing", lists what is read), or the
+ * list of the file's surfaces and whether each imports.
  */
 #include <errno.h>
 #include <getopt.h>
@@ -18,22 +19,43 @@
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_lens_import *, asph_lens_import_free)
 
-/* The surfaces of a file with several, for choosing one with --surface. */
+/* Whether the surface numbered `number` imports, and as what or why not. */
+static void print_imports(const struct asph_lens_import *im, int number)
+{
+	struct asph_prescription p;
+	struct asph_error err;
+
+	asph_error_clear(&err);
+	if (asph_lens_import_prescription(im, number, &p, &err) == 0) {
+		printf("yes (%s)\n", asph_surface_type_name(p.type));
+		return;
+	}
+	if (err.line > 0)
+		printf("no: line %d: %s\n", err.line, err.message);
+	else
+		printf("no: %s\n", err.message);
+}
+
+/* The surfaces of a file with several, for choosing one with --surface:
+ * each with its type, radius and size in mm, and whether it imports. */
 static void list(const struct asph_lens_import *im)
 {
 	struct asph_lens_surface s;
 	size_t n = asph_lens_import_count(im);
 
 	if (asph_lens_import_format(im) == ASPH_LENS_CSV) {
-		printf("%-8s %16s %10s %14s\n", "row", "R (mm)", "k", "diameter (mm)");
+		printf("%-8s %16s %10s %14s  %s\n", "row", "R (mm)", "k", "diameter (mm)",
+		       "imports");
 		for (size_t i = 0; i < n; i++) {
 			asph_lens_import_surface(im, i, &s);
-			printf("%-8d %16.10g %10.6g %14.10g\n", s.number, s.R, s.k,
+			printf("%-8d %16.10g %10.6g %14.10g  ", s.number, s.R, s.k,
 			       s.aperture_diameter);
+			print_imports(im, s.number);
 		}
 		return;
 	}
-	printf("%-8s %-12s %16s %14s\n", "surface", "type", "radius (mm)", "semi-diam (mm)");
+	printf("%-8s %-12s %16s %14s  %s\n", "surface", "type", "radius (mm)", "semi-diam (mm)",
+	       "imports");
 	for (size_t i = 0; i < n; i++) {
 		char rad[32];
 		asph_lens_import_surface(im, i, &s);
@@ -41,8 +63,8 @@ static void list(const struct asph_lens_import *im)
 			snprintf(rad, sizeof(rad), "inf");
 		else
 			snprintf(rad, sizeof(rad), "%.10g", s.R);
-		printf("%-8d %-12s %16s %14.10g\n", s.number, s.type, rad,
-		       s.aperture_diameter / 2);
+		printf("%-8d %-12s %16s %14.10g  ", s.number, s.type, rad, s.aperture_diameter / 2);
+		print_imports(im, s.number);
 	}
 }
 
@@ -52,7 +74,8 @@ static void usage(FILE *out)
 		     "FILE is an OpticStudio lens file (.zmx, UTF-8 or UTF-16) or a CSV table\n"
 		     "with the header R,k,A4,A6,...,aperture_diameter.\n"
 		     "  --surface N   the surface (its SURF number; a CSV row, from 1) to import;\n"
-		     "                without it a file with several surfaces lists them\n"
+		     "                without it a file with several surfaces lists them, each\n"
+		     "                with whether it imports and why not\n"
 		     "  -o OUT.json   write the prescription there instead of to stdout\n");
 }
 
@@ -87,6 +110,9 @@ static int import(const char *path, int want, const char *out)
 	}
 	if (want < 0 && asph_lens_import_count(im) > 1) {
 		list(im);
+		if (strcmp(asph_lens_import_unit(im), "MM") && asph_lens_import_unit(im)[0])
+			fprintf(stderr, "asph: lens import: lens units %s, shown and imported in mm\n",
+				asph_lens_import_unit(im));
 		fprintf(stderr, "asph: lens import: several surfaces; choose one with --surface N\n");
 		return EXIT_OK;
 	}

@@ -129,7 +129,10 @@ static void show_text(const struct asph_surface *s, const struct lens_facts *f)
 	}
 	printf("Lens %s (%s)\n", p->name[0] ? p->name : "(unnamed)",
 	       asph_surface_type_name(p->type));
-	printf("  R                   %.10g mm\n", p->R);
+	if (isinf(p->R))
+		printf("  R                   infinity (a plane base, c = 0)\n");
+	else
+		printf("  R                   %.10g mm\n", p->R);
 	if (asph_surface_type_has_conic(p->type))
 		printf("  k                   %.10g\n", p->k);
 	for (int i = 1; i <= ASPH_SURFACE_MAX_POWER; i++)
@@ -141,6 +144,8 @@ static void show_text(const struct asph_surface *s, const struct lens_facts *f)
 		if (p->Q[m] != 0)
 			printf("  a%-2d                 %.10g mm\n", m, p->Q[m]);
 	printf("  aperture diameter   %.10g mm\n", p->aperture_diameter);
+	if (p->note[0])
+		printf("  note                %s\n", p->note);
 	printf("Sag at the edge       %.9f mm\n", f->sag_edge);
 	printf("Slope at the edge     %.6f (%.3f deg)\n", f->slope_edge,
 	       atan(f->slope_edge) * 180 / M_PI);

@@ -50,7 +50,8 @@ static void usage(FILE *out)
 		"                      asph scan takes it), streamed where the instrument can:\n"
 		"                      on standard output with -o, else on standard error\n"
 		"  --max-points N      refuse plans with more points (default %d)\n"
-		"  -q, --quiet         no summary line on standard error\n"
+		"  -q, --quiet         no summary line, and no progress of a long plan (CVT),\n"
+		"                      on standard error\n"
 		"  -h, --help          this help\n\n"
 		"Exactly one of --h, --spacing, --points. docs/sampling-plans.md explains the\n"
 		"methods, the density relations and the scan orders.\n",
@@ -95,7 +96,7 @@ static int parse_args(int argc, char **argv, struct plan_args *a)
 	int c;
 
 	a->opts.max_points = PLAN_DEFAULT_MAX_POINTS;
-	optind = 1;
+	optind = 0;   /* 0: getopt starts afresh (main read its options in order) */
 	opterr = 0;
 	while ((c = getopt_long(argc, argv, ":ho:q", longopts, NULL)) != -1) {
 		int r = plan_source_option(&a->src, c, optarg);
@@ -112,6 +113,7 @@ static int parse_args(int argc, char **argv, struct plan_args *a)
 			break;
 		case 'q':
 			a->quiet = 1;
+			a->src.quiet = 1;
 			break;
 		case OPT_MAX_POINTS:
 			if (parse_count(optarg, &a->opts.max_points) < 0)
@@ -123,13 +125,8 @@ static int parse_args(int argc, char **argv, struct plan_args *a)
 		case OPT_ESTIMATE:
 			a->estimate = optarg;
 			break;
-		case ':':
-			fprintf(stderr, "asph: plan: %s needs a value\n", argv[optind - 1]);
-			return EXIT_USAGE;
-		default:
-			fprintf(stderr, "asph: plan: unknown option '%s'\n", argv[optind - 1]);
-			usage(stderr);
-			return EXIT_USAGE;
+		default:        /* '?', ':' */
+			return tool_option_error(argv, ":ho:q", longopts);
 		}
 	}
 	if (optind != argc - 1) {
@@ -222,8 +219,7 @@ int cmd_plan(int argc, char **argv)
 	if (tool_load_surface(a.lens, &s) < 0)
 		return EXIT_FAILURE_RUN;
 	asph_error_clear(&err);
-	r = asph_plan_compute_opts(s, a.src.method, a.src.density, &a.opts,
-				   &plan, &err);
+	r = plan_source_compute(&a.src, s, &a.opts, &plan, &err);
 	if (r < 0) {
 		tool_print_error("plan", &err);
 		return EXIT_FAILURE_RUN;

@@ -22,6 +22,7 @@ static void usage(FILE *out)
 		"paper's Figs. 8 and 9 (docs/quality.md).\n\n"
 		"LENS is a preset (weak, strong, turning-point) or a prescription file.\n"
 		PLAN_SOURCE_HELP
+		PLAN_SOURCE_QUIET_HELP
 		"  -o, --output FILE   the PNG to write (required)\n"
 		"  --color area|q      what colours the triangles (default area)\n"
 		"  --chart C           conformal (default), xy or plan-mesh, as for asph quality\n"

@@ -23,6 +23,7 @@ static void usage(FILE *out)
 		"q > 0.9 and the fraction with A_i / mean within 0.95..1.05 (docs/quality.md).\n\n"
 		"LENS is a preset (weak, strong, turning-point) or a prescription file.\n"
 		PLAN_SOURCE_HELP
+		PLAN_SOURCE_QUIET_HELP
 		"  --chart C           conformal (default), xy (the vertex plane, for comparison),\n"
 		"                      or plan-mesh (the mesh that comes with the plan)\n"
 		"  --rim-angle DEG     drop rim triangles whose angle facing the rim exceeds DEG\n"

@@ -18,6 +18,7 @@
 #include "asph/drift.h"
 #include "asph/prescription.h"
 #include "asph/scanfile.h"
+#include "fit-summary.h"
 #include "fit-tool.h"
 #include "util-mem.h"
 
@@ -43,28 +44,8 @@ static void usage(FILE *out)
 static void show_acquisition(void *data)
 {
 	_cleanup_(json_decrefp) json_t *a = json_loads(data, 0, NULL);
-	json_t *d = json_object_get(a, "drift");
-	json_t *p = json_object_get(a, "positions");
-	const char *key;
-	json_t *v;
-	size_t i;
 
-	printf("Positions      ");
-	json_object_foreach(p, key, v)
-		if (json_integer_value(v))
-			printf(" %lld %s", (long long)json_integer_value(v), key);
-	printf("\n");
-	if (json_is_true(json_object_get(d, "corrected")))
-		printf("Drift corrected: %lld rounds of %lld references (%s), max %.3f nm, RMS %.3f nm\n",
-		       (long long)json_integer_value(json_object_get(d, "rounds")),
-		       (long long)json_integer_value(json_object_get(d, "references")),
-		       json_string_value(json_object_get(d, "components")),
-		       json_number_value(json_object_get(d, "max_nm")),
-		       json_number_value(json_object_get(d, "rms_nm")));
-	else
-		printf("Drift not corrected: the scan has no drift references to model it\n");
-	json_array_foreach(json_object_get(a, "warnings"), i, v)
-		printf("Warning: %s\n", json_string_value(v));
+	fit_summary_print_acquisition(stdout, a, "");
 }
 
 int cmd_replay(int argc, char **argv)

@@ -18,12 +18,17 @@ static void usage(FILE *out)
 {
 	fprintf(out, "Usage: asph report OUT.pdf SCAN [FIT OPTIONS...]\n"
 		     "       asph report OUT.pdf LENS POINTS_FILE [FIT OPTIONS...]\n\n"
-		     "Writes the measurement report (one PDF page): part, lot and serial (--part,\n"
-		     "--lot, --serial), the lens, plan and instrument with their SHA-256, the verdict\n"
-		     "table with values, uncertainties and tolerances (--tolerance), the residual\n"
-		     "map, the radial profiles, the Zernike terms and the PSD. From a recorded scan\n"
-		     "(as asph replay characterizes it) or from a lens and a points file (as asph fit\n"
-		     "does). FIT OPTIONS are those of asph fit; the exit status is asph fit's.\n");
+		     "Writes the measurement report (A4 PDF). Page 1: what was measured (--part,\n"
+		     "--lot, --serial), when (the scan's start and end, or --measured TIME), by whom\n"
+		     "(--operator; default the job's submitter the scan records, else the user\n"
+		     "running asph), on which instrument; the lens, plan and data with their\n"
+		     "SHA-256; the verdict table with values, uncertainties and limits\n"
+		     "(--tolerance); the residual map and the radial profiles. Page 2: the fit,\n"
+		     "the Zernike terms and the PSD. Then the lens, plan and instrument\n"
+		     "descriptions in full. From a recorded scan (as asph replay characterizes it,\n"
+		     "its part, lot, serial and operator as asphd recorded them) or from a lens and\n"
+		     "a points file (as asph fit does). FIT OPTIONS are those of asph fit; the exit\n"
+		     "status is asph fit's.\n");
 }
 
 static int is_scan(const char *path)

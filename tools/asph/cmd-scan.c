@@ -17,6 +17,7 @@
 #include "asph/plan.h"
 #include "asph/prescription.h"
 #include "plan-source.h"
+#include "progress.h"
 #include "util-mem.h"
 #include "util-time.h"
 
@@ -54,9 +55,9 @@ static void progress_cb(const struct asph_scan_progress *p, void *data)
 	uint64_t t = now_monotonic_ns();
 	bool final = p->state >= ASPH_SCAN_COMPLETED;
 	double pct = p->total ? 100.0 * (double)p->done / (double)p->total : 100.0;
-	char eta[32] = "--";
-	if (p->eta_s >= 0)
-		snprintf(eta, sizeof(eta), "%.0f s", p->eta_s);
+	char eta[32];
+
+	progress_duration(p->eta_s, eta, sizeof(eta));
 	if (b->tty) {
 		int filled = (int)(pct / 100 * 30);
 		fprintf(stderr, "\r[%-30.*s] %5.1f %% %llu/%llu  %.0f pt/s  ETA %s  %-9s%s",
@@ -187,7 +188,7 @@ static int scan(const struct scan_args *a)
 		tool_print_error("instrument", &err);
 		return EXIT_FAILURE_RUN;
 	}
-	if (asph_plan_compute_opts(s, a->ps.method, a->ps.density, &po, &plan, &err) < 0) {
+	if (plan_source_compute(&a->ps, s, &po, &plan, &err) < 0) {
 		tool_print_error("plan", &err);
 		return EXIT_FAILURE_RUN;
 	}
@@ -221,7 +222,7 @@ static void usage(FILE *out)
 		"  --clearance MM      approach height above each point (default 0.5)\n"
 		"  --skip-out-of-range record out-of-range readings and go on\n"
 		"  --plugin-dir DIR    load driver plugins from DIR\n"
-		"  --quiet             no progress\n"
+		"  --quiet             no progress (of the plan and of the scan)\n"
 		"SIGINT or SIGTERM aborts the scan; the file keeps what was measured.\n");
 }
 
@@ -241,7 +242,7 @@ static int take(int opt, const char *arg, void *data)
 	case OPT_NO_STREAM: a->no_stream = true; break;
 	case OPT_SKIP_OOR: a->skip_oor = true; break;
 	case OPT_PLUGIN_DIR: a->plugin_dir = arg; break;
-	case OPT_QUIET: a->quiet = true; break;
+	case OPT_QUIET: a->quiet = true; a->ps.quiet = 1; break;
 	case OPT_CLEARANCE:
 		a->clearance = strtod(arg, &end);
 		if (*end || !(a->clearance > 0) || a->clearance > 1000) {

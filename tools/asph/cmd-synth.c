@@ -59,6 +59,7 @@ static void usage(FILE *out)
 		"  --noise NM          Gaussian noise, standard deviation in nm (default 0)\n"
 		"  --seed S            random seed (default 1); same seed, same points\n"
 		"  -o, --output OUT    .csv (default '-': CSV on stdout), .ply or .json\n"
+		PLAN_SOURCE_QUIET_HELP
 		"  -h, --help          this text\n");
 }
 
@@ -171,18 +172,22 @@ static int parse_args(struct synth_cli *c, int argc, char **argv, const char **l
 		{ "noise", required_argument, NULL, OPT_NOISE },
 		{ "seed", required_argument, NULL, OPT_SEED },
 		{ "output", required_argument, NULL, 'o' },
+		PLAN_SOURCE_QUIET_OPTION,
 		{ "help", no_argument, NULL, 'h' },
 		{ NULL, 0, NULL, 0 },
 	};
 	int opt;
 
 	optind = 0;
+	opterr = 0;
 	while ((opt = getopt_long(argc, argv, "ho:", longopts, NULL)) != -1) {
 		if (opt == 'h') {
 			usage(stdout);
 			return -1;
 		}
-		if (opt == '?' || take_option(c, opt, optarg) < 0)
+		if (opt == '?' || opt == ':')
+			return tool_option_error(argv, "ho:", longopts);
+		if (take_option(c, opt, optarg) < 0)
 			return EXIT_USAGE;
 	}
 	if (argc - optind != 1) {

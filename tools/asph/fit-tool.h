@@ -4,6 +4,7 @@
 #ifndef ASPH_TOOL_FIT_H
 #define ASPH_TOOL_FIT_H
 
+#include <stdint.h>
 #include <stdio.h>
 
 #include "asph/areal.h"
@@ -21,8 +22,10 @@ struct fit_cli {
 	const char *x3p_out, *correction_out;
 	double grid_spacing;
 	struct asph_correction_options correction;
-	const char *report_out, *part, *lot, *serial, *scan;
+	const char *report_out, *part, *lot, *serial, *scan, *operator_name;
+	int64_t measured_ns;            /* --measured; 0: not given */
 	struct fit_mc_cli mc;
+	int quiet;              /* no progress line */
 	int bands_given;
 	struct asph_bands bands;
 };

@@ -16,6 +16,8 @@
 #include "asph/scanfile.h"
 #include "asph-tool.h"
 #include "fit-uncertainty.h"
+#include "progress.h"
+#include "quantity.h"
 #include "util-mem.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_registry *, asph_registry_free)
@@ -156,19 +158,6 @@ static int model_from_config(const char *arg, struct asph_uncertainty_model *m)
 	return 0;
 }
 
-struct progress {
-	int tty;
-};
-
-static int show_progress(void *data, size_t done, size_t planned)
-{
-	struct progress *p = data;
-
-	if (p->tty)
-		fprintf(stderr, "\rMonte Carlo: %zu/%zu trials", done, planned);
-	return 0;
-}
-
 int fit_mc_run(const struct fit_mc_cli *c, const char *scan, const struct asph_surface *s,
 	       const struct asph_points *pts, const struct asph_fit_options *fo,
 	       const struct asph_tolerance *t, struct asph_fit_result *res,
@@ -177,8 +166,8 @@ int fit_mc_run(const struct fit_mc_cli *c, const char *scan, const struct asph_s
 	_cleanup_(asph_mc_freep) struct asph_mc *mc = NULL;
 	struct asph_uncertainty_model model;
 	struct asph_mc_options o = c->opts;
-	struct progress p = { .tty = isatty(STDERR_FILENO) };
-	struct asph_mc_threads th = { .n_threads = c->threads, .progress = show_progress,
+	struct progress p;
+	struct asph_mc_threads th = { .n_threads = c->threads, .progress = progress_show,
 				      .progress_data = &p };
 	struct asph_error err;
 	int r;
@@ -192,11 +181,11 @@ int fit_mc_run(const struct fit_mc_cli *c, const char *scan, const struct asph_s
 	if (!c->seed_set)
 		o.seed = 1;
 	asph_error_clear(&err);
+	progress_start(&p, "Monte Carlo", "trials", c->quiet);
 	r = asph_mc_alloc(s, pts->xyz, pts->n, fo, res, &model, &o, &mc, &err);
 	if (r == 0)
 		r = asph_mc_run_threads(mc, &th, out, &err);
-	if (p.tty)
-		fputc('\n', stderr);
+	progress_stop(&p);
 	if (r < 0) {
 		tool_print_error("fit: --uncertainty", &err);
 		return EXIT_FAILURE_RUN;
@@ -226,9 +215,16 @@ void fit_mc_show(const struct asph_mc_result *mc)
 	       "         drift %g nm, tip radius %g um\n", m->probe_noise_nm, m->position_noise_um,
 	       m->position_resolution_um, m->latency_us, m->scan_speed_mm_s, m->drift_residual_nm,
 	       m->tip_radius_um);
-	for (int q = 0; q < ASPH_MC_N_QUANTITIES; q++)
-		if (mc->covered[q])
-			printf("  %-9s %+.9g  u %.4g  U(k=2) %.4g\n",
-			       asph_mc_quantity_key((enum asph_mc_quantity)q), mc->value[q], mc->u[q],
-			       mc->U[q]);
+	for (int q = 0; q < ASPH_MC_N_QUANTITIES; q++) {
+		const char *key = asph_mc_quantity_key((enum asph_mc_quantity)q);
+		const struct quantity *row = quantity_by_u_key(key);
+		char v[48], u[32], U[32];
+
+		if (!mc->covered[q])
+			continue;
+		printf("  %-9s %16s  u %-10s U(k=2) %s\n", key,
+		       quantity_format(row, mc->value[q], QUANTITY_UNIT, v, sizeof(v)),
+		       quantity_format(row, mc->u[q], QUANTITY_NO_SIGN, u, sizeof(u)),
+		       quantity_format(row, mc->U[q], QUANTITY_NO_SIGN, U, sizeof(U)));
+	}
 }

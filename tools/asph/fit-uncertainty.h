@@ -14,6 +14,7 @@ struct fit_mc_cli {
 	const char *instrument;   /* FILE or FILE#NAME, else the scan's */
 	int seed_set;
 	int threads;              /* --threads; 0 = the online processors */
+	int quiet;                /* no progress line */
 	struct asph_mc_options opts;
 };
 

@@ -7,13 +7,18 @@
 #include "config.h"
 #include "asph/prescription.h"
 #include "asph-tool.h"
+#include "command.h"
 #include "util-mem.h"
+#include "util-suggest.h"
+
+static int cmd_help(int argc, char **argv);
 
 /* Keep sorted as `asph --help` shows it. */
 static const struct tool_command commands[] = {
 	{ "drivers", "list the instrument drivers with their roles and options", cmd_drivers },
 	{ "export", "write the points of a recorded scan as CSV, PLY or JSON", cmd_export },
 	{ "fit", "best-fit measured points to the lens; residual, PV, PVr, Zernike", cmd_fit },
+	{ "help", "the usage of asph or of a command; help exit-status: the exit codes", cmd_help },
 	{ "lens", "show or check a lens prescription", cmd_lens },
 	{ "plan", "compute a sampling plan: points in scan order", cmd_plan },
 	{ "plot", "draw a plan and a heatmap of its triangles' area ratio or q (PNG)", cmd_plot },
@@ -36,22 +41,33 @@ void tool_print_error(const char *context, const struct asph_error *err)
 		fprintf(stderr, "asph: %s\n", buf);
 }
 
+/* The command being run, for messages ("lens" for asph lens import). */
+static const char *command_name = "";
+
+int tool_option_error(char **argv, const char *shortopts, const struct option *longopts)
+{
+	char why[256];
+
+	fprintf(stderr, "asph %s: %s\nRun 'asph help %s' for its options.\n", command_name,
+		suggest_getopt_error(argv, shortopts, longopts, why, sizeof(why)), command_name);
+	return EXIT_USAGE;
+}
+
 int tool_getopt(int argc, char **argv, const char *shortopts,
 		const struct option *longopts, void (*usage)(FILE *out),
 		tool_option_fn *take, void *data)
 {
 	int c;
 
-	optind = 1;
+	optind = 0;   /* 0: getopt starts afresh (main read its options in order) */
+	opterr = 0;
 	while ((c = getopt_long(argc, argv, shortopts, longopts, NULL)) != -1) {
 		if (c == 'h') {
 			usage(stdout);
 			return EXIT_OK;
 		}
-		if (c == '?' || c == ':') {
-			usage(stderr);
-			return EXIT_USAGE;
-		}
+		if (c == '?' || c == ':')
+			return tool_option_error(argv, shortopts, longopts);
 		if (take(c, optarg, data) < 0)
 			return EXIT_USAGE;
 	}
@@ -81,34 +97,74 @@ int tool_load_surface(const char *lens, struct asph_surface **out)
 
 static void usage(FILE *f)
 {
-	fprintf(f, "Usage: asph COMMAND [OPTIONS...]\n\n"
+	fprintf(f, "Usage: asph COMMAND [OPTIONS...]\n"
+		   "       asph help [COMMAND]\n"
+		   "       asph --version\n\n"
 		   "Offline tool of asphd: lenses, sampling plans, quality, fitting, scans.\n\n"
 		   "Commands:\n");
 	for (size_t i = 0; i < ARRAY_SIZE(commands); i++)
 		fprintf(f, "  %-10s %s\n", commands[i].name, commands[i].summary);
-	fprintf(f, "\nRun 'asph COMMAND --help' for the options of a command.\n");
+	fprintf(f, "\nRun 'asph help COMMAND' (or 'asph COMMAND --help') for the options of a\n"
+		   "command. Operations that take more than a second show their progress on\n"
+		   "a terminal; --quiet turns it off. The manual page is asph(1).\n");
+}
+
+/* asph help [COMMAND [SUBCOMMAND]]: the command's own --help. */
+static int cmd_help(int argc, char **argv)
+{
+	const struct tool_command *c;
+	char *words[4];
+	int n, r;
+
+	if (argc < 2) {
+		usage(stdout);
+		return EXIT_OK;
+	}
+	if ((r = command_help_words("asph", argc, argv, words, &n)) >= 0)
+		return r;
+	if (!(c = command_find(COMMAND_TABLE(commands), words[0])))
+		return command_unknown("asph", words[0], COMMAND_TABLE(commands));
+	if (c->run == cmd_help)
+		return cmd_help(1, argv);
+	command_name = c->name;
+	optind = 0;
+	return c->run(n, words);
 }
 
 int main(int argc, char **argv)
 {
+	static const struct option top[] = {
+		{ "help", no_argument, NULL, 'h' }, { "version", no_argument, NULL, 'V' },
+		{ NULL, 0, NULL, 0 },
+	};
+	const struct tool_command *c;
+	int o;
+
 	/* GSL's default handler aborts; every caller checks return codes. */
 	gsl_set_error_handler_off();
-	if (argc < 2) {
+	opterr = 0;
+	while ((o = getopt_long(argc, argv, "+h", top, NULL)) != -1) {
+		char why[256];
+
+		switch (o) {
+		case 'h':
+			usage(stdout);
+			return EXIT_OK;
+		case 'V':
+			printf("asph %s\n", ASPH_VERSION);
+			return EXIT_OK;
+		default:
+			fprintf(stderr, "asph: %s\nRun 'asph help' for the commands.\n",
+				suggest_getopt_error(argv, "h", top, why, sizeof(why)));
+			return EXIT_USAGE;
+		}
+	}
+	if (optind >= argc) {
 		usage(stderr);
 		return EXIT_USAGE;
 	}
-	if (!strcmp(argv[1], "--help") || !strcmp(argv[1], "-h")) {
-		usage(stdout);
-		return EXIT_OK;
-	}
-	if (!strcmp(argv[1], "--version")) {
-		printf("asph %s\n", ASPH_VERSION);
-		return EXIT_OK;
-	}
-	for (size_t i = 0; i < ARRAY_SIZE(commands); i++)
-		if (!strcmp(argv[1], commands[i].name))
-			return commands[i].run(argc - 1, argv + 1);
-	fprintf(stderr, "asph: unknown command '%s'\n", argv[1]);
-	usage(stderr);
-	return EXIT_USAGE;
+	if (!(c = command_find(COMMAND_TABLE(commands), argv[optind])))
+		return command_unknown("asph", argv[optind], COMMAND_TABLE(commands));
+	command_name = c->name;
+	return c->run(argc - optind, argv + optind);
 }

@@ -6,6 +6,7 @@
 
 #include "asph-tool.h"
 #include "plan-source.h"
+#include "progress.h"
 #include "util-mem.h"
 
 /* Guards against a density typo that would ask for billions of points. */
@@ -42,16 +43,32 @@ static int set_density(struct plan_source *ps, enum asph_plan_density_kind kind,
 	return 0;
 }
 
+/* The methods from their table, with the one meant when it is near. */
+static void unknown_method(const char *arg)
+{
+	const char *near = asph_plan_method_suggest(arg);
+
+	fprintf(stderr, "asph: --method: unknown method '%s'", arg);
+	if (near)
+		fprintf(stderr, " (did you mean '%s'?)", near);
+	fprintf(stderr, "; the methods:");
+	for (int m = 0; m < ASPH_PLAN_N_METHODS; m++)
+		fprintf(stderr, " %s", asph_plan_method_name((enum asph_plan_method)m));
+	fputc('\n', stderr);
+}
+
 int plan_source_option(struct plan_source *ps, int opt, const char *arg)
 {
 	switch (opt) {
 	case PLAN_OPT_METHOD:
 		if (asph_plan_method_from_name(arg, &ps->method) < 0) {
-			fprintf(stderr, "asph: --method: unknown method '%s' (op, ot, lb, ci, raster, "
-					"concentric, spiral, fermat, cvt)\n", arg);
+			unknown_method(arg);
 			return -1;
 		}
 		ps->have_method = 1;
+		return 0;
+	case PLAN_OPT_QUIET:
+		ps->quiet = 1;
 		return 0;
 	case PLAN_OPT_H:
 		return set_density(ps, ASPH_DENSITY_H, arg, "h");
@@ -80,6 +97,24 @@ int plan_source_finish(struct plan_source *ps, const char *plan_file)
 		return -1;
 	}
 	return 0;
+}
+
+int plan_source_compute(const struct plan_source *ps, const struct asph_surface *s,
+			const struct asph_plan_options *opts, struct asph_plan **out,
+			struct asph_error *err)
+{
+	struct asph_plan_options o = opts ? *opts : (struct asph_plan_options){ 0 };
+	struct progress p;
+	char what[32];
+	int r;
+
+	snprintf(what, sizeof(what), "%s plan", asph_plan_method_name(ps->method));
+	progress_start(&p, what, "iterations", ps->quiet);
+	p.at_most = true;
+	o.progress = progress_hook(&p);
+	r = asph_plan_compute_opts(s, ps->method, ps->density, &o, out, err);
+	progress_stop(&p);
+	return r;
 }
 
 static int plan_to_points(const struct asph_plan *plan, struct asph_points **out)
@@ -116,7 +151,8 @@ int plan_source_load(const struct plan_source *ps, const struct asph_surface *s,
 			tool_print_error(NULL, &err);
 		return r;
 	}
-	r = asph_plan_compute(s, ps->method, ps->density, PLAN_MAX_POINTS, &plan, &err);
+	r = plan_source_compute(ps, s, &(struct asph_plan_options){ .max_points = PLAN_MAX_POINTS },
+				&plan, &err);
 	if (r < 0) {
 		tool_print_error("plan", &err);
 		return r;

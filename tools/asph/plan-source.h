@@ -17,6 +17,7 @@ enum {
 	PLAN_OPT_H,
 	PLAN_OPT_SPACING,
 	PLAN_OPT_POINTS,
+	PLAN_OPT_QUIET,
 };
 
 /* getopt_long entries for --method, --h, --spacing, --points. */
@@ -25,6 +26,11 @@ enum {
 	{ "h", required_argument, NULL, PLAN_OPT_H },                     \
 	{ "spacing", required_argument, NULL, PLAN_OPT_SPACING },         \
 	{ "points", required_argument, NULL, PLAN_OPT_POINTS }
+
+/* --quiet for the commands whose only quiet is the plan's progress. */
+#define PLAN_SOURCE_QUIET_OPTION { "quiet", no_argument, NULL, PLAN_OPT_QUIET }
+#define PLAN_SOURCE_QUIET_HELP \
+	"  --quiet             no progress of a long plan (CVT) on the terminal\n"
 
 /* Help text for the options above. */
 #define PLAN_SOURCE_HELP                                                                  \
@@ -37,6 +43,7 @@ enum {
 
 struct plan_source {
 	const char *plan_file;
+	int quiet;              /* no progress line */
 	int have_method;
 	enum asph_plan_method method;
 	int n_density;
@@ -52,6 +59,12 @@ int plan_source_option(struct plan_source *ps, int opt, const char *arg);
  * is given, with exactly one density option for --method. */
 int plan_source_finish(struct plan_source *ps, const char *plan_file);
 
+/* Computes the plan of --method and the density, with the progress of a
+ * long one on the terminal unless ps->quiet (opts may be NULL). */
+int plan_source_compute(const struct plan_source *ps, const struct asph_surface *s,
+			const struct asph_plan_options *opts, struct asph_plan **out,
+			struct asph_error *err);
+
 /* Reads the file or computes the plan (its mesh, if any, goes into the
  * points' triangles). Prints the error; returns a negative errno. */
 int plan_source_load(const struct plan_source *ps, const struct asph_surface *s,
@@ -64,7 +77,8 @@ int plan_source_load(const struct plan_source *ps, const struct asph_surface *s,
  */
 enum { PLAN_OPT_CHART = 0x1100 };
 #define PLAN_QUALITY_LONG_OPTIONS \
-	PLAN_SOURCE_LONG_OPTIONS, { "chart", required_argument, NULL, PLAN_OPT_CHART }
+	PLAN_SOURCE_LONG_OPTIONS, { "chart", required_argument, NULL, PLAN_OPT_CHART }, \
+	PLAN_SOURCE_QUIET_OPTION
 
 struct plan_quality {
 	struct plan_source src;

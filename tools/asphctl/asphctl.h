@@ -9,16 +9,7 @@
 #include <jansson.h>
 
 #include "asph-proto.h"
-
-/* Exit codes, documented in docs/asphctl.1.md. */
-enum {
-	CTL_EXIT_OK = 0,
-	CTL_EXIT_ERROR = 1,        /* the daemon refused or reported an error */
-	CTL_EXIT_USAGE = 2,
-	CTL_EXIT_UNREACHABLE = 3,  /* no daemon at the socket, or it broke off */
-	CTL_EXIT_DENIED = 4,       /* not allowed (not an operator) */
-	CTL_EXIT_JOB_FAILED = 5,   /* the job ended failed, cancelled or interrupted */
-};
+#include "exit-codes.h"
 
 /* A connection to the daemon. */
 struct conn;
@@ -42,11 +33,24 @@ int conn_call(struct conn *c, const char *method, json_t *params,
 /* Next notification: 1 with *msg, 0 on timeout (ms, -1 = none), or -errno. */
 int conn_next_event(struct conn *c, int timeout_ms, json_t **msg);
 
+struct ctl;
+
+/* A command: its name, the summary `asphctl --help` lists, its function,
+ * and what `asphctl help COMMAND` says after the usage line (NULL: the
+ * usage line says all). */
+struct ctl_command {
+	const char *name;
+	const char *summary;
+	int (*run)(struct ctl *ctl, int argc, char **argv);
+	const char *help;
+};
+
 /* Global options. */
 struct ctl {
 	const char *socket;
 	bool json;
 	struct conn *conn;
+	const struct ctl_command *command;      /* the one running */
 };
 
 /* Prints e as "asphctl: ..." and returns the exit code it means. */
@@ -75,7 +79,7 @@ struct option;
 #define CTL_JSON_OPTION { "json", no_argument, NULL, 'j' }
 #define CTL_HELP_OPTION { "help", no_argument, NULL, 'h' }
 enum { CTL_OPTIONS_END = -1, CTL_OPTIONS_HELP = -2, CTL_OPTIONS_BAD = -3 };
-/* Prints "Usage: asphctl USAGE" on stderr: CTL_EXIT_USAGE. */
+/* Prints "Usage: asphctl USAGE" on stderr: EXIT_USAGE. */
 int ctl_usage_error(const char *usage);
 /*
  * The next option of a command (getopt_long() over opts, which hold
@@ -118,8 +122,11 @@ int cmd_unlock(struct ctl *ctl, int argc, char **argv);
 int cmd_token(struct ctl *ctl, int argc, char **argv);
 int cmd_fleet(struct ctl *ctl, int argc, char **argv);
 
-/* Watches job until it ends (used by watch and submit --wait). */
-int ctl_watch_job(struct ctl *ctl, int64_t id, bool quiet);
+/* Watches job until it ends (used by watch and submit --wait): its states
+ * and, with progress, its progress; with --json only the job at the end.
+ * The exit code: 0 completed (and its part passes), EXIT_VERDICT_FAIL,
+ * EXIT_VERDICT_UNDECIDED, EXIT_JOB_FAILED, or a failed call's. */
+int ctl_watch_job(struct ctl *ctl, int64_t id, bool progress);
 /* One line per job for list and queue. */
 void ctl_print_job_line(const json_t *job);
 

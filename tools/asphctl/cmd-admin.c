@@ -61,7 +61,7 @@ int cmd_lock(struct ctl *ctl, int argc, char **argv)
 		len += strlen(argv[i]) + 1;
 	reason = calloc(1, len + 1);
 	if (!reason)
-		return CTL_EXIT_ERROR;
+		return EXIT_FAILURE_RUN;
 	for (int i = optind + 1; i < argc; i++) {
 		if (i > optind + 1)
 			strcat(reason, " ");
@@ -75,7 +75,7 @@ int cmd_lock(struct ctl *ctl, int argc, char **argv)
 		ctl_print_json(result);
 	else
 		print_lock(result);
-	return CTL_EXIT_OK;
+	return EXIT_OK;
 }
 
 int cmd_unlock(struct ctl *ctl, int argc, char **argv)
@@ -105,7 +105,7 @@ int cmd_unlock(struct ctl *ctl, int argc, char **argv)
 		ctl_print_json(result);
 	else
 		print_lock(result);
-	return CTL_EXIT_OK;
+	return EXIT_OK;
 }
 
 /* ------------------------------------------------------------ token */
@@ -167,7 +167,7 @@ static int token_create(struct ctl *ctl, int argc, char **argv)
 				fprintf(stderr, "asphctl: --expires: '%s' is neither a time from now "
 					"(90d, 12h, 30m, 45s, 2w) nor a UTC day or time (2027-01-31, "
 					"2027-01-31T12:00:00Z)\n", optarg);
-				return CTL_EXIT_USAGE;
+				return EXIT_USAGE;
 			}
 			json_object_set_new(params, "expires", json_string(when));
 			break;
@@ -183,7 +183,7 @@ static int token_create(struct ctl *ctl, int argc, char **argv)
 		return r;
 	if (ctl->json) {
 		ctl_print_json(result);
-		return CTL_EXIT_OK;
+		return EXIT_OK;
 	}
 	printf("token %s (%s%s%s):\n%s\n", str(result, "name"), str(result, "role"),
 	       json_is_string(json_object_get(result, "expires")) ? ", expires " : "",
@@ -191,7 +191,7 @@ static int token_create(struct ctl *ctl, int argc, char **argv)
 	       str(result, "token"));
 	fprintf(stderr, "asphctl: this is the only time the token is shown: the daemon keeps "
 		"only its hash\n");
-	return CTL_EXIT_OK;
+	return EXIT_OK;
 }
 
 static int token_list(struct ctl *ctl)
@@ -205,14 +205,14 @@ static int token_list(struct ctl *ctl)
 		return r;
 	if (ctl->json) {
 		ctl_print_json(result);
-		return CTL_EXIT_OK;
+		return EXIT_OK;
 	}
 	printf("%-24s %-9s %-8s %-21s %-21s %s\n", "NAME", "ROLE", "STATE", "CREATED", "EXPIRES",
 	       "BY");
 	json_array_foreach(json_object_get(result, "tokens"), i, t)
 		printf("%-24s %-9s %-8s %-21s %-21s %s\n", str(t, "name"), str(t, "role"),
 		       str(t, "state"), str(t, "created"), str(t, "expires"), str(t, "created_by"));
-	return CTL_EXIT_OK;
+	return EXIT_OK;
 }
 
 static int token_revoke(struct ctl *ctl, const char *name)
@@ -226,7 +226,7 @@ static int token_revoke(struct ctl *ctl, const char *name)
 		ctl_print_json(result);
 	else
 		printf("token %s revoked; its connections are closed\n", name);
-	return CTL_EXIT_OK;
+	return EXIT_OK;
 }
 
 int cmd_token(struct ctl *ctl, int argc, char **argv)
@@ -321,7 +321,7 @@ int cmd_fleet(struct ctl *ctl, int argc, char **argv)
 	long long limit;
 	PGconn *db;
 	PGresult *res;
-	int c, rc = CTL_EXIT_OK;
+	int c, rc = EXIT_OK;
 
 	while ((c = ctl_option(ctl, argc, argv, "d:n:", opts, usage)) > 0) {
 		switch (c) {
@@ -330,7 +330,7 @@ int cmd_fleet(struct ctl *ctl, int argc, char **argv)
 			if (ctl_parse_integer(optarg, 1, 100000, &limit) < 0) {
 				fprintf(stderr, "asphctl: --limit: '%s' is not a count from 1 to "
 					"100000\n", optarg);
-				return CTL_EXIT_USAGE;
+				return EXIT_USAGE;
 			}
 			params[5] = optarg;
 			break;
@@ -343,7 +343,7 @@ int cmd_fleet(struct ctl *ctl, int argc, char **argv)
 			    strcmp(optarg, "undecided")) {
 				fprintf(stderr, "asphctl: --verdict: '%s' is not pass, fail or "
 					"undecided\n", optarg);
-				return CTL_EXIT_USAGE;
+				return EXIT_USAGE;
 			}
 			params[4] = optarg;
 			break;
@@ -360,12 +360,12 @@ int cmd_fleet(struct ctl *ctl, int argc, char **argv)
 		fprintf(stderr, "asphctl: cannot connect to the fleet's database: %s",
 			PQerrorMessage(db));
 		PQfinish(db);
-		return CTL_EXIT_UNREACHABLE;
+		return EXIT_UNREACHABLE;
 	}
 	res = PQexecParams(db, fleet_query, 6, NULL, params, NULL, NULL, 0);
 	if (PQresultStatus(res) != PGRES_TUPLES_OK) {
 		fprintf(stderr, "asphctl: %s", PQerrorMessage(db));
-		rc = CTL_EXIT_ERROR;
+		rc = EXIT_FAILURE_RUN;
 	} else if (ctl->json) {
 		json_t *j = fleet_json(res);
 		ctl_print_json(j);

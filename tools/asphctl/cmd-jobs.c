@@ -11,7 +11,10 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "asph/tolerance.h"
 #include "asphctl.h"
+#include "fit-summary.h"
+#include "progress.h"
 #include "util-fs.h"
 #include "util-mem.h"
 
@@ -83,6 +86,19 @@ static void print_job(const json_t *job)
 		printf("  verdict     (toleranced; decided when the job completes)\n");
 }
 
+/* Why JSON text could not be read, with where when jansson knows it
+ * (asph_error_format() leaves an unknown line or column out). */
+static void json_load_failed(const char *what, const char *source, const json_error_t *e)
+{
+	struct asph_error err;
+	char buf[600];
+
+	asph_error_clear(&err);
+	asph_error_set_at(&err, -EINVAL, source, e->line, e->column, NULL, "%s", e->text);
+	fprintf(stderr, "asphctl: %s%s%s\n", what ? what : "", what ? ": " : "",
+		asph_error_format(&err, buf, sizeof(buf)));
+}
+
 /* LENS: a file the client reads (sent as the prescription), else a
  * preset name. */
 static json_t *lens_param(const char *lens)
@@ -95,7 +111,7 @@ static json_t *lens_param(const char *lens)
 		return json_string(lens);
 	j = json_load_file(lens, JSON_REJECT_DUPLICATES, &e);
 	if (!j)
-		fprintf(stderr, "asphctl: %s:%d:%d: %s\n", lens, e.line, e.column, e.text);
+		json_load_failed(NULL, lens, &e);
 	return j;
 }
 
@@ -125,21 +141,32 @@ static bool set_real(json_t *obj, const char *key, const char *arg)
 	return true;
 }
 
-/* --tolerance: JSON text (starting with '{' or '"') or a file holding it,
- * read here and sent as it is; the daemon checks it. */
+/* --tolerance, by the rule of asph_tolerance_arg_kind(): a call-out is sent
+ * as a string (as the web page sends it), JSON text or a file's JSON as it
+ * is; the daemon checks it. */
 static json_t *tolerance_param(const char *arg)
 {
-	const char *p = arg + strspn(arg, " \t\r\n");
 	json_error_t e;
-	json_t *j;
+	json_t *j = NULL;
 
-	if (*p == '{' || *p == '"')
+	if (!arg[strspn(arg, " \t\r\n")]) {
+		fprintf(stderr, "asphctl: --tolerance: empty: give an ISO 10110-5 call-out, JSON "
+				"text or a file holding it\n");
+		return NULL;
+	}
+	switch (asph_tolerance_arg_kind(arg)) {
+	case ASPH_TOLERANCE_ARG_CALLOUT:
+		return json_string(arg + strspn(arg, " \t\r\n"));
+	case ASPH_TOLERANCE_ARG_JSON:
 		j = json_loads(arg, JSON_DECODE_ANY | JSON_REJECT_DUPLICATES, &e);
-	else
+		break;
+	case ASPH_TOLERANCE_ARG_FILE:
 		j = json_load_file(arg, JSON_DECODE_ANY | JSON_REJECT_DUPLICATES, &e);
+		break;
+	}
 	if (!j)
-		fprintf(stderr, "asphctl: --tolerance: %s:%d:%d: %s\n",
-			*p == '{' || *p == '"' ? "<tolerance>" : arg, e.line, e.column, e.text);
+		json_load_failed("--tolerance", asph_tolerance_arg_kind(arg) == ASPH_TOLERANCE_ARG_JSON
+						? "<tolerance>" : arg, &e);
 	return j;
 }
 
@@ -147,7 +174,7 @@ static const char submit_usage[] =
 	"submit LENS --method M (--h H | --spacing MM | --points N)\n"
 	"       [--instrument NAME] [--priority P] [--label TEXT] [--dof LIST]\n"
 	"       [--residual normal|sag] [--robust] [--zernike N] [--tolerance T]\n"
-	"       [--part P] [--lot L] [--serial S] [--wait] [--json]";
+	"       [--part P] [--lot L] [--serial S] [--wait [--quiet]] [--json]";
 
 /* "job 12 queued (700 points, about 1 min 15 s to measure)". */
 static void print_queued(const json_t *job, json_int_t id)
@@ -190,16 +217,17 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 		{ "serial", required_argument, NULL, 'N' },
 		{ "tolerance", required_argument, NULL, 't' },
 		{ "wait", no_argument, NULL, 'w' },
+		{ "quiet", no_argument, NULL, 'q' },
 		CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
 	};
 	_cleanup_(json_decrefp) json_t *params = json_object();
 	_cleanup_(json_decrefp) json_t *result = NULL;
 	json_t *plan = json_object(), *fit = json_object();
-	bool wait = false;
+	bool wait = false, quiet = false;
 	int c, r;
 
 	json_object_set_new(params, "plan", plan);
-	while ((c = ctl_option(ctl, argc, argv, "m:i:p:l:", opts, submit_usage)) > 0) {
+	while ((c = ctl_option(ctl, argc, argv, "m:i:p:l:q", opts, submit_usage)) > 0) {
 		bool ok = true;
 		switch (c) {
 		case 'm': json_object_set_new(plan, "method", json_string(optarg)); break;
@@ -224,10 +252,11 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 			break;
 		}
 		case 'w': wait = true; break;
+		case 'q': quiet = true; break;
 		}
 		if (!ok) {
 			json_decref(fit);
-			return CTL_EXIT_USAGE;
+			return EXIT_USAGE;
 		}
 	}
 	if (c != CTL_OPTIONS_END) {
@@ -244,7 +273,7 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 		json_decref(fit);
 	json_t *lens = lens_param(argv[optind]);
 	if (!lens)
-		return CTL_EXIT_ERROR;
+		return EXIT_FAILURE_RUN;
 	json_object_set_new(params, "lens", lens);
 	r = ctl_call(ctl, "job.submit", json_incref(params), &result);
 	if (r)
@@ -255,7 +284,7 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 	else if (!ctl->json)
 		print_queued(result, id);
 	fflush(stdout);
-	return wait ? ctl_watch_job(ctl, id, ctl->json) : CTL_EXIT_OK;
+	return wait ? ctl_watch_job(ctl, id, !quiet) : EXIT_OK;
 }
 
 /* Commands that take JOB and [--json] and call one method. */
@@ -269,7 +298,7 @@ static int simple_job_command(struct ctl *ctl, int argc, char **argv, const char
 	if ((c = ctl_common_options(ctl, argc, argv, usage)) >= 0)
 		return c;
 	if ((id = ctl_job_operand(argc, argv, usage)) < 0)
-		return CTL_EXIT_USAGE;
+		return EXIT_USAGE;
 	r = ctl_call(ctl, method, json_pack("{s:I}", "id", (json_int_t)id), &result);
 	if (r)
 		return r;
@@ -277,7 +306,7 @@ static int simple_job_command(struct ctl *ctl, int argc, char **argv, const char
 		ctl_print_json(result);
 	else
 		printf("job %lld %s (%s)\n", (long long)id, done, str(result, "state"));
-	return CTL_EXIT_OK;
+	return EXIT_OK;
 }
 
 int cmd_cancel(struct ctl *ctl, int argc, char **argv)
@@ -315,7 +344,7 @@ int cmd_requeue(struct ctl *ctl, int argc, char **argv)
 	if (c != CTL_OPTIONS_END)
 		return ctl_options_exit(c);
 	if ((id = ctl_job_operand(argc, argv, usage)) < 0)
-		return CTL_EXIT_USAGE;
+		return EXIT_USAGE;
 	r = ctl_call(ctl, "job.requeue",
 		     json_pack("{s:I, s:b}", "id", (json_int_t)id, "restart", restart), &result);
 	if (r)
@@ -326,7 +355,7 @@ int cmd_requeue(struct ctl *ctl, int argc, char **argv)
 		printf("job %lld queued again%s\n", (long long)id,
 		       restart ? " (new scan)" : json_is_true(json_object_get(result, "resumable"))
 						 ? " (continues its scan)" : "");
-	return CTL_EXIT_OK;
+	return EXIT_OK;
 }
 
 int cmd_status(struct ctl *ctl, int argc, char **argv)
@@ -349,14 +378,14 @@ int cmd_status(struct ctl *ctl, int argc, char **argv)
 	if (optind + 1 == argc) {
 		int64_t id = ctl_job_id(argv[optind]);
 		if (id < 0)
-			return CTL_EXIT_USAGE;
+			return EXIT_USAGE;
 		r = ctl_call(ctl, "job.get", json_pack("{s:I, s:b}", "id", (json_int_t)id,
 						       "history", history), &result);
 		if (r)
 			return r;
 		if (ctl->json) {
 			ctl_print_json(result);
-			return CTL_EXIT_OK;
+			return EXIT_OK;
 		}
 		print_job(result);
 		size_t i;
@@ -365,7 +394,7 @@ int cmd_status(struct ctl *ctl, int argc, char **argv)
 			printf("  %s  %-11s %-16s %s\n", str(h, "time"), str(h, "state"),
 			       json_is_string(json_object_get(h, "actor")) ? str(h, "actor") : "-",
 			       json_is_string(json_object_get(h, "reason")) ? str(h, "reason") : "");
-		return CTL_EXIT_OK;
+		return EXIT_OK;
 	}
 	if (optind != argc)
 		return ctl_usage_error(usage);
@@ -374,7 +403,7 @@ int cmd_status(struct ctl *ctl, int argc, char **argv)
 		return r;
 	if (ctl->json) {
 		ctl_print_json(result);
-		return CTL_EXIT_OK;
+		return EXIT_OK;
 	}
 	json_t *jobs = json_object_get(result, "jobs"), *in;
 	size_t i;
@@ -402,7 +431,7 @@ int cmd_status(struct ctl *ctl, int argc, char **argv)
 			       str(lock, "reason"));
 		printf("\n");
 	}
-	return CTL_EXIT_OK;
+	return EXIT_OK;
 }
 
 /* One CSV field (RFC 4180): quoted when it holds a comma, a quote or a
@@ -491,7 +520,7 @@ static int list_csv(struct ctl *ctl, json_t *params, bool all)
 		offset += (json_int_t)json_array_size(jobs);
 		if (!all || json_array_size(jobs) == 0 ||
 		    offset >= json_integer_value(json_object_get(result, "total")))
-			return CTL_EXIT_OK;
+			return EXIT_OK;
 	}
 }
 
@@ -540,7 +569,7 @@ int cmd_list(struct ctl *ctl, int argc, char **argv)
 			long long v;
 			if (ctl_parse_integer(optarg, 0, LLONG_MAX, &v) < 0) {
 				fprintf(stderr, "asphctl: '%s' is not a count\n", optarg);
-				return CTL_EXIT_USAGE;
+				return EXIT_USAGE;
 			}
 			json_object_set_new(params, c == 'n' ? "limit" : "offset", json_integer(v));
 			break;
@@ -559,7 +588,7 @@ int cmd_list(struct ctl *ctl, int argc, char **argv)
 		return r;
 	if (ctl->json) {
 		ctl_print_json(result);
-		return CTL_EXIT_OK;
+		return EXIT_OK;
 	}
 	size_t i;
 	json_t *job;
@@ -568,7 +597,7 @@ int cmd_list(struct ctl *ctl, int argc, char **argv)
 		ctl_print_job_line(job);
 	printf("(%zu of %lld)\n", json_array_size(json_object_get(result, "jobs")),
 	       (long long)json_integer_value(json_object_get(result, "total")));
-	return CTL_EXIT_OK;
+	return EXIT_OK;
 }
 
 /* One file of a job's result, fetched from the daemon chunk by chunk. */
@@ -576,14 +605,13 @@ struct fetch {
 	struct ctl *ctl;
 	int64_t id;
 	const char *name;
+	bool quiet;             /* no progress line */
 	int code;               /* the exit code when a call failed */
 };
 
-static int fetch_chunks(FILE *f, void *data, struct asph_error *err)
+static int fetch_chunk_loop(struct fetch *fe, FILE *f, struct progress *p, json_int_t *offset,
+			    struct asph_error *err)
 {
-	struct fetch *fe = data;
-	json_int_t offset = 0;
-
 	for (;;) {
 		_cleanup_(json_decrefp) json_t *chunk = NULL;
 		_cleanup_free_ void *bytes = NULL;
@@ -591,7 +619,7 @@ static int fetch_chunks(FILE *f, void *data, struct asph_error *err)
 		size_t n = 0;
 
 		fe->code = ctl_call(fe->ctl, "job.file", json_pack("{s:I, s:s, s:I}", "id",
-				    (json_int_t)fe->id, "name", fe->name, "offset", offset), &chunk);
+				    (json_int_t)fe->id, "name", fe->name, "offset", *offset), &chunk);
 		if (fe->code)
 			return asph_error_set(err, -EIO, "%s: the daemon did not send it", fe->name);
 		text = json_string_value(json_object_get(chunk, "data"));
@@ -599,10 +627,26 @@ static int fetch_chunks(FILE *f, void *data, struct asph_error *err)
 			return asph_error_set(err, -EBADMSG, "%s: the daemon sent no base64", fe->name);
 		if (n && fwrite(bytes, 1, n, f) != n)
 			return asph_error_set(err, -errno, "%s: %s", fe->name, strerror(errno));
-		offset += (json_int_t)n;
+		*offset += (json_int_t)n;
+		progress_show(p, (size_t)*offset / 1024,
+			      (size_t)json_integer_value(json_object_get(chunk, "size")) / 1024);
 		if (json_is_true(json_object_get(chunk, "eof")) || n == 0)
 			return 0;
 	}
+}
+
+static int fetch_chunks(FILE *f, void *data, struct asph_error *err)
+{
+	struct fetch *fe = data;
+	json_int_t offset = 0;
+	struct progress p;
+	int r;
+
+	/* a scan of a million points is a long copy: its KiB on a terminal */
+	progress_start(&p, fe->name, "KiB", fe->quiet);
+	r = fetch_chunk_loop(fe, f, &p, &offset, err);
+	progress_stop(&p);
+	return r;
 }
 
 /*
@@ -612,7 +656,8 @@ static int fetch_chunks(FILE *f, void *data, struct asph_error *err)
  * under a temporary name created exclusively in out and renamed into
  * place: a symlink planted in out is replaced, never written through.
  */
-static int copy_files(struct ctl *ctl, int64_t id, const json_t *files, const char *out)
+static int copy_files(struct ctl *ctl, int64_t id, const json_t *files, const char *out,
+		      bool quiet)
 {
 	_cleanup_close_ int dir = -1;
 	const char *key;
@@ -620,15 +665,16 @@ static int copy_files(struct ctl *ctl, int64_t id, const json_t *files, const ch
 
 	if (mkdir(out, 0777) < 0 && errno != EEXIST) {
 		fprintf(stderr, "asphctl: %s: %s\n", out, strerror(errno));
-		return CTL_EXIT_ERROR;
+		return EXIT_FAILURE_RUN;
 	}
 	dir = open(out, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
 	if (dir < 0) {
 		fprintf(stderr, "asphctl: %s: %s\n", out, strerror(errno));
-		return CTL_EXIT_ERROR;
+		return EXIT_FAILURE_RUN;
 	}
 	json_object_foreach((json_t *)files, key, v) {
-		struct fetch fe = { .ctl = ctl, .id = id, .name = json_string_value(v) };
+		struct fetch fe = { .ctl = ctl, .id = id, .name = json_string_value(v),
+				    .quiet = quiet };
 		struct asph_error err;
 		char buf[600];
 
@@ -638,48 +684,20 @@ static int copy_files(struct ctl *ctl, int64_t id, const json_t *files, const ch
 				return fe.code;
 			fprintf(stderr, "asphctl: %s: %s\n", out,
 				fe.name ? asph_error_format(&err, buf, sizeof(buf)) : "a file without a name");
-			return CTL_EXIT_ERROR;
+			return EXIT_FAILURE_RUN;
 		}
 	}
-	return CTL_EXIT_OK;
-}
-
-/* Where the points' positions came from, the drift correction and its
- * size, and the warnings (commanded positions, points left invalid). */
-static void print_acquisition(const json_t *a)
-{
-	json_t *d = json_object_get(a, "drift"), *v;
-	const char *key;
-	size_t i;
-
-	if (!json_is_object(a))
-		return;
-	printf("  positions  ");
-	json_object_foreach(json_object_get(a, "positions"), key, v)
-		if (json_integer_value(v))
-			printf(" %lld %s", (long long)json_integer_value(v), key);
-	printf("\n");
-	if (json_is_true(json_object_get(d, "corrected")))
-		printf("  drift       corrected from %lld rounds of references over %.0f s: "
-		       "max %.2f nm, RMS %.2f nm\n",
-		       (long long)json_integer_value(json_object_get(d, "rounds")),
-		       json_number_value(json_object_get(d, "span_s")),
-		       json_number_value(json_object_get(d, "max_nm")),
-		       json_number_value(json_object_get(d, "rms_nm")));
-	else
-		printf("  drift       not corrected (no drift references)\n");
-	json_array_foreach(json_object_get(a, "warnings"), i, v)
-		printf("  warning     %s\n", json_string_value(v));
+	return EXIT_OK;
 }
 
 /* The result's file under key (e.g. "report") written to the path out,
  * as copy_files() writes each file. */
 static int copy_file_to(struct ctl *ctl, int64_t id, const json_t *files, const char *key,
-			const char *out)
+			const char *out, bool quiet)
 {
 	_cleanup_free_ char *dcopy = strdup(out), *bcopy = strdup(out);
 	_cleanup_close_ int dir = -1;
-	struct fetch fe = { .ctl = ctl, .id = id,
+	struct fetch fe = { .ctl = ctl, .id = id, .quiet = quiet,
 			    .name = json_string_value(json_object_get(files, key)) };
 	struct asph_error err;
 	char buf[600];
@@ -687,125 +705,78 @@ static int copy_file_to(struct ctl *ctl, int64_t id, const json_t *files, const 
 	if (!fe.name) {
 		fprintf(stderr, "asphctl: job %lld has no %s (a result without one: built without "
 			"cairo, or before the daemon wrote one)\n", (long long)id, key);
-		return CTL_EXIT_ERROR;
+		return EXIT_FAILURE_RUN;
 	}
 	if (!dcopy || !bcopy)
-		return CTL_EXIT_ERROR;
+		return EXIT_FAILURE_RUN;
 	dir = open(dirname(dcopy), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
 	if (dir < 0) {
 		fprintf(stderr, "asphctl: %s: %s\n", out, strerror(errno));
-		return CTL_EXIT_ERROR;
+		return EXIT_FAILURE_RUN;
 	}
 	asph_error_clear(&err);
 	if (fs_write_file_at(dir, basename(bcopy), 0666, fetch_chunks, &fe, &err) < 0) {
 		if (fe.code)
 			return fe.code;
 		fprintf(stderr, "asphctl: %s: %s\n", out, asph_error_format(&err, buf, sizeof(buf)));
-		return CTL_EXIT_ERROR;
+		return EXIT_FAILURE_RUN;
 	}
-	return CTL_EXIT_OK;
-}
-
-static void print_form(const json_t *s)
-{
-	const json_t *f = json_object_get(s, "form"), *sl = json_object_get(s, "slope");
-	const json_t *v = json_object_get(s, "verdict"), *it;
-	size_t i;
-
-	if (json_is_object(f) && json_is_number(json_object_get(f, "A_nm")))
-		printf("  ISO 14999-4 A %.2f nm, B %.2f nm, C %.2f nm (lambda %g nm); RMSt %.2f, "
-		       "RMSi %.2f, RMSa %.2f nm\n",
-		       json_number_value(json_object_get(f, "A_nm")),
-		       json_number_value(json_object_get(f, "B_nm")),
-		       json_number_value(json_object_get(f, "C_nm")),
-		       json_number_value(json_object_get(f, "wavelength_nm")),
-		       json_number_value(json_object_get(f, "rms_t_nm")),
-		       json_number_value(json_object_get(f, "rms_i_nm")),
-		       json_number_value(json_object_get(f, "rms_a_nm")));
-	if (json_is_object(sl) && json_is_number(json_object_get(sl, "rms_urad")))
-		printf("  slope over %g mm: RMS %.2f urad, max %.2f urad\n",
-		       json_number_value(json_object_get(sl, "length_mm")),
-		       json_number_value(json_object_get(sl, "rms_urad")),
-		       json_number_value(json_object_get(sl, "max_urad")));
-	if (!json_is_object(v))
-		return;
-	printf("  verdict     %s (ISO 14253-1, U for k = 2)\n", str(v, "overall"));
-	json_array_foreach(json_object_get(v, "items"), i, it)
-		printf("    %-16s %12.6g  U %-10.4g limit %-10.6g %s\n", str(it, "quantity"),
-		       json_number_value(json_object_get(it, "value")),
-		       json_number_value(json_object_get(it, "U")),
-		       json_number_value(json_object_get(it, "limit")), str(it, "verdict"));
+	return EXIT_OK;
 }
 
 static void print_summary(const json_t *res)
 {
-	json_t *s = json_object_get(res, "summary"), *dof, *unc, *v;
+	json_t *s = json_object_get(res, "summary");
 	json_t *prov = json_object_get(res, "provenance");
-	const char *key;
 
-	printf("job %lld: %lld points, %lld used\n",
-	       (long long)json_integer_value(json_object_get(res, "job")),
-	       (long long)json_integer_value(json_object_get(s, "n_points")),
-	       (long long)json_integer_value(json_object_get(s, "n_used")));
-	printf("  form error  RMS %.2f nm, PV %.2f nm, PVr %.2f nm\n",
-	       json_number_value(json_object_get(s, "rms_nm")),
-	       json_number_value(json_object_get(s, "pv_nm")),
-	       json_number_value(json_object_get(s, "pvr_nm")));
-	dof = json_object_get(s, "dof");
-	unc = json_object_get(s, "uncertainty");
-	json_object_foreach(dof, key, v) {
-		/* mm and rad inside; um and urad for people. R and k as they are. */
-		bool angle = key[0] == 'r' && key[1] && !key[2];
-		bool shift = key[0] == 't' && key[1] && !key[2];
-		double scale = angle || shift ? (angle ? 1e6 : 1e3) : 1;
-		printf("  %-3s %14.4f +- %.4f %s\n", key, json_number_value(v) * scale,
-		       json_number_value(json_object_get(unc, key)) * scale,
-		       angle ? "urad" : shift ? "um" : key[0] == 'R' ? "mm" : "");
-	}
-	print_form(s);
-	print_acquisition(json_object_get(s, "acquisition"));
-	printf("  scan sha256 %s\n", str(json_object_get(prov, "scan"), "sha256"));
-	printf("  files in %s\n", str(res, "dir"));
+	printf("job %lld:\n", (long long)json_integer_value(json_object_get(res, "job")));
+	fit_summary_print(stdout, s, "  ");
+	fit_summary_print_acquisition(stdout, json_object_get(s, "acquisition"), "  ");
+	printf("  Scan sha256 %s\n", str(json_object_get(prov, "scan"), "sha256"));
+	printf("  Files in %s\n", str(res, "dir"));
 }
 
 int cmd_result(struct ctl *ctl, int argc, char **argv)
 {
 	static const struct option opts[] = {
 		{ "out", required_argument, NULL, 'o' },
-		{ "report", required_argument, NULL, 'r' }, CTL_JSON_OPTION, CTL_HELP_OPTION,
+		{ "report", required_argument, NULL, 'r' },
+		{ "quiet", no_argument, NULL, 'q' }, CTL_JSON_OPTION, CTL_HELP_OPTION,
 		{ NULL, 0, NULL, 0 },
 	};
-	static const char usage[] = "result JOB [--out DIR] [--report OUT.pdf] [--json]";
+	static const char usage[] = "result JOB [--out DIR] [--report OUT.pdf] [--quiet] [--json]";
 	_cleanup_(json_decrefp) json_t *result = NULL;
 	const char *out = NULL, *report = NULL;
+	bool quiet = false;
 	int64_t id;
 	int c, r;
 
-	while ((c = ctl_option(ctl, argc, argv, "o:", opts, usage)) > 0) {
+	while ((c = ctl_option(ctl, argc, argv, "o:q", opts, usage)) > 0) {
 		switch (c) {
 		case 'o': out = optarg; break;
 		case 'r': report = optarg; break;
+		case 'q': quiet = true; break;
 		}
 	}
 	if (c != CTL_OPTIONS_END)
 		return ctl_options_exit(c);
 	if ((id = ctl_job_operand(argc, argv, usage)) < 0)
-		return CTL_EXIT_USAGE;
+		return EXIT_USAGE;
 	r = ctl_call(ctl, "job.result", json_pack("{s:I}", "id", (json_int_t)id), &result);
 	if (r)
 		return r;
-	if (out && (r = copy_files(ctl, id, json_object_get(result, "files"), out)))
+	if (out && (r = copy_files(ctl, id, json_object_get(result, "files"), out, quiet)))
 		return r;
-	if (report &&
-	    (r = copy_file_to(ctl, id, json_object_get(result, "files"), "report", report)))
+	if (report && (r = copy_file_to(ctl, id, json_object_get(result, "files"), "report",
+					report, quiet)))
 		return r;
 	if (ctl->json)
 		ctl_print_json(result);
 	else
 		print_summary(result);
 	if (out && !ctl->json)
-		printf("  copied to %s\n", out);
+		printf("  Copied to %s\n", out);
 	if (report && !ctl->json)
-		printf("  report written to %s\n", report);
-	return CTL_EXIT_OK;
+		printf("  Report written to %s\n", report);
+	return EXIT_OK;
 }

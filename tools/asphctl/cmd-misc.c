@@ -54,7 +54,7 @@ int cmd_queue(struct ctl *ctl, int argc, char **argv)
 		long long pos;
 		if (id < 0 || ctl_parse_integer(args[2], 0, LLONG_MAX, &pos) < 0) {
 			fprintf(stderr, "Usage: asphctl %s\n", usage);
-			return CTL_EXIT_USAGE;
+			return EXIT_USAGE;
 		}
 		method = "queue.move";
 		params = json_pack("{s:I, s:I}", "id", (json_int_t)id, "position", (json_int_t)pos);
@@ -65,7 +65,7 @@ int cmd_queue(struct ctl *ctl, int argc, char **argv)
 		params = json_pack("{s:b}", "abort", flags & 1);
 	} else {
 		fprintf(stderr, "Usage: asphctl %s\n", usage);
-		return CTL_EXIT_USAGE;
+		return EXIT_USAGE;
 	}
 	r = ctl_call(ctl, method, params, &result);
 	if (r)
@@ -74,7 +74,7 @@ int cmd_queue(struct ctl *ctl, int argc, char **argv)
 		ctl_print_json(result);
 	else
 		print_queue(result);
-	return CTL_EXIT_OK;
+	return EXIT_OK;
 }
 
 static void print_options(const json_t *opts)
@@ -101,7 +101,7 @@ int cmd_instruments(struct ctl *ctl, int argc, char **argv)
 		return -1 - flags;
 	if (argc - optind > 1) {
 		fprintf(stderr, "Usage: asphctl %s\n", usage);
-		return CTL_EXIT_USAGE;
+		return EXIT_USAGE;
 	}
 	if (argc - optind == 1)
 		r = ctl_call(ctl, "instrument.status", json_pack("{s:s}", "name", argv[optind]),
@@ -112,7 +112,7 @@ int cmd_instruments(struct ctl *ctl, int argc, char **argv)
 		return r;
 	if (ctl->json) {
 		ctl_print_json(result);
-		return CTL_EXIT_OK;
+		return EXIT_OK;
 	}
 	json_t *list = json_object_get(result, "instruments");
 	if (!list) {
@@ -148,7 +148,7 @@ int cmd_instruments(struct ctl *ctl, int argc, char **argv)
 		}
 	}
 	json_decref(list);
-	return CTL_EXIT_OK;
+	return EXIT_OK;
 }
 
 int cmd_drivers(struct ctl *ctl, int argc, char **argv)
@@ -163,14 +163,14 @@ int cmd_drivers(struct ctl *ctl, int argc, char **argv)
 		return -1 - flags;
 	if (argc != optind) {
 		fprintf(stderr, "Usage: asphctl %s\n", usage);
-		return CTL_EXIT_USAGE;
+		return EXIT_USAGE;
 	}
 	r = ctl_call(ctl, "driver.list", NULL, &result);
 	if (r)
 		return r;
 	if (ctl->json) {
 		ctl_print_json(result);
-		return CTL_EXIT_OK;
+		return EXIT_OK;
 	}
 	json_array_foreach(json_object_get(result, "drivers"), i, d) {
 		printf("%s %s (%s): %s\n", json_string_value(json_object_get(d, "name")),
@@ -186,5 +186,5 @@ int cmd_drivers(struct ctl *ctl, int argc, char **argv)
 			       json_is_string(json_object_get(o, "help"))
 				       ? json_string_value(json_object_get(o, "help")) : "");
 	}
-	return CTL_EXIT_OK;
+	return EXIT_OK;
 }

@@ -7,27 +7,19 @@
 #include <unistd.h>
 
 #include "asphctl.h"
+#include "progress.h"
 #include "util-mem.h"
 
 #define BAR_WIDTH 30
 
 struct view {
 	int64_t id;
-	bool tty, quiet;
+	bool tty, quiet;        /* quiet: --json, the job's JSON at the end only */
+	bool progress;          /* not --quiet: the progress bar or lines */
 	int last_percent;
 	bool last_mc;           /* the last progress counted trials */
 	bool bar_drawn;
 };
-
-static void format_eta(double s, char *buf, size_t size)
-{
-	if (!(s >= 0) || !isfinite(s))
-		snprintf(buf, size, "--:--");
-	else if (s < 3600)
-		snprintf(buf, size, "%d:%02d", (int)s / 60, (int)s % 60);
-	else
-		snprintf(buf, size, "%d:%02d:%02d", (int)s / 3600, (int)s / 60 % 60, (int)s % 60);
-}
 
 /* The progress of a job.progress event: plan points while measuring,
  * trials during its Monte Carlo uncertainty (phase "uncertainty"). */
@@ -44,9 +36,11 @@ static void show_progress(struct view *v, const json_t *p)
 	const char *unit = mc ? "trials" : "points";
 	char eta_text[32];
 
-	if (v->quiet)
+	if (v->quiet || !v->progress)
 		return;
-	format_eta(json_number_value(json_object_get(p, "eta_s")), eta_text, sizeof(eta_text));
+	progress_duration(json_is_number(json_object_get(p, "eta_s"))
+				  ? json_number_value(json_object_get(p, "eta_s")) : NAN,
+			  eta_text, sizeof(eta_text));
 	if (v->tty) {
 		char bar[BAR_WIDTH + 1];
 		int fill = (int)(frac * BAR_WIDTH);
@@ -86,6 +80,18 @@ static bool ended(const char *state)
 	       !strcmp(state, "cancelled") || !strcmp(state, "interrupted");
 }
 
+/* A completed job exits as asph fit does on its verdict (exit-codes.h). */
+static int verdict_exit(const char *state, const char *verdict)
+{
+	if (!state || strcmp(state, "completed"))
+		return EXIT_JOB_FAILED;
+	if (verdict && !strcmp(verdict, "fail"))
+		return EXIT_VERDICT_FAIL;
+	if (verdict && !strcmp(verdict, "undecided"))
+		return EXIT_VERDICT_UNDECIDED;
+	return EXIT_OK;
+}
+
 static int finish(struct ctl *ctl, struct view *v)
 {
 	_cleanup_(json_decrefp) json_t *job = NULL;
@@ -93,18 +99,19 @@ static int finish(struct ctl *ctl, struct view *v)
 
 	if (r)
 		return r;
+	const char *verdict = json_string_value(json_object_get(job, "verdict"));
+
 	if (ctl->json)
 		ctl_print_json(job);
-	else if (!v->quiet && json_is_string(json_object_get(job, "verdict")))
-		printf("job %lld: verdict %s\n", (long long)v->id,
-		       json_string_value(json_object_get(job, "verdict")));
-	return strcmp(json_string_value(json_object_get(job, "state")), "completed")
-		? CTL_EXIT_JOB_FAILED : CTL_EXIT_OK;
+	else if (!v->quiet && verdict)
+		printf("job %lld: verdict %s\n", (long long)v->id, verdict);
+	return verdict_exit(json_string_value(json_object_get(job, "state")), verdict);
 }
 
-int ctl_watch_job(struct ctl *ctl, int64_t id, bool quiet)
+int ctl_watch_job(struct ctl *ctl, int64_t id, bool progress)
 {
-	struct view v = { .id = id, .tty = isatty(STDOUT_FILENO), .quiet = quiet,
+	struct view v = { .id = id, .tty = isatty(STDOUT_FILENO), .quiet = ctl->json,
+			  .progress = progress,
 			  .last_percent = -1 };
 	_cleanup_(json_decrefp) json_t *sub = NULL;
 	_cleanup_(json_decrefp) json_t *job = NULL;
@@ -151,13 +158,20 @@ int ctl_watch_job(struct ctl *ctl, int64_t id, bool quiet)
 
 int cmd_watch(struct ctl *ctl, int argc, char **argv)
 {
-	static const char usage[] = "watch JOB [--json]";
+	static const struct option opts[] = {
+		{ "quiet", no_argument, NULL, 'q' }, CTL_JSON_OPTION, CTL_HELP_OPTION,
+		{ NULL, 0, NULL, 0 },
+	};
+	static const char usage[] = "watch JOB [--quiet] [--json]";
+	bool quiet = false;
 	int64_t id;
 	int c;
 
-	if ((c = ctl_common_options(ctl, argc, argv, usage)) >= 0)
-		return c;
+	while ((c = ctl_option(ctl, argc, argv, "q", opts, usage)) > 0)
+		quiet |= c == 'q';
+	if (c != CTL_OPTIONS_END)
+		return ctl_options_exit(c);
 	if ((id = ctl_job_operand(argc, argv, usage)) < 0)
-		return CTL_EXIT_USAGE;
-	return ctl_watch_job(ctl, id, ctl->json);
+		return EXIT_USAGE;
+	return ctl_watch_job(ctl, id, !quiet);
 }

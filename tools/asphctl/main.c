@@ -7,30 +7,68 @@
 #include <string.h>
 
 #include "asphctl.h"
+#include "command.h"
 #include "config.h"
 #include "util-mem.h"
+#include "util-suggest.h"
 
-static const struct {
-	const char *name;
-	const char *summary;
-	int (*run)(struct ctl *ctl, int argc, char **argv);
-} commands[] = {
-	{ "submit", "submit a measurement job", cmd_submit },
-	{ "status", "the daemon's status, or a job's", cmd_status },
-	{ "watch", "follow a job until it ends", cmd_watch },
-	{ "cancel", "cancel a job", cmd_cancel },
-	{ "pause", "pause a running scan", cmd_pause },
-	{ "resume", "resume a paused scan, or an interrupted job", cmd_resume },
-	{ "requeue", "queue a failed, interrupted or cancelled job again", cmd_requeue },
-	{ "list", "list jobs", cmd_list },
-	{ "result", "a job's result; --out DIR copies its files", cmd_result },
-	{ "queue", "show the queue; move a job; start or stop the queue", cmd_queue },
-	{ "instruments", "the instruments and their state", cmd_instruments },
-	{ "drivers", "the drivers the daemon has", cmd_drivers },
-	{ "lock", "lock an instrument for work at the machine", cmd_lock },
-	{ "unlock", "end an instrument's lock", cmd_unlock },
-	{ "token", "create, list or revoke API tokens (root)", cmd_token },
-	{ "fleet", "the newest results across daemons, from the central database", cmd_fleet },
+static int cmd_help(struct ctl *ctl, int argc, char **argv);
+
+/*
+ * The commands: name, summary (asphctl --help), and what `asphctl help
+ * COMMAND` adds to the usage line (docs/asphctl.1.md says more).
+ */
+static const struct ctl_command commands[] = {
+	{ "submit", "submit a measurement job", cmd_submit,
+	  "Queues a measurement of LENS (a preset: weak, strong, turning-point, or a\n"
+	  "prescription file, which asphctl reads and sends) on the plan of --method and\n"
+	  "one density. --tolerance takes an ISO 10110-5 call-out ('3/2(0.5/0.3)'), JSON\n"
+	  "text or a file holding it; the completed job then has a verdict. --wait follows\n"
+	  "the job as watch does (and exits as watch does); --quiet leaves its progress out.\n" },
+	{ "status", "the daemon's status, or a job's", cmd_status,
+	  "The daemon: version, queue, jobs by state, instruments. A job: its state, plan,\n"
+	  "points, submitter, times and verdict; --history adds every transition.\n" },
+	{ "watch", "follow a job until it ends", cmd_watch,
+	  "Follows the job: a progress bar with points (or Monte Carlo trials), rate and\n"
+	  "time left on a terminal, one line per percent otherwise; --quiet: the end\n"
+	  "only. Exits 0 when the job completed (and its part passes), 3 when the part\n"
+	  "fails its tolerance, 4 when the verdict is undecided, 5 when the job failed,\n"
+	  "was cancelled or interrupted.\n" },
+	{ "cancel", "cancel a job", cmd_cancel, NULL },
+	{ "pause", "pause a running scan", cmd_pause,
+	  "Pauses the job's scan at its next point; resume continues it.\n" },
+	{ "resume", "resume a paused scan, or an interrupted job", cmd_resume,
+	  "An interrupted job continues its recorded scan.\n" },
+	{ "requeue", "queue a failed, interrupted or cancelled job again", cmd_requeue,
+	  "The job continues its recorded scan, or with --restart records a new one.\n" },
+	{ "list", "list jobs", cmd_list,
+	  "Jobs, newest first, filtered by state, instrument, label, part, lot, serial or\n"
+	  "your own (--mine). --csv prints every matching job as CSV (RFC 4180) unless\n"
+	  "--limit is given.\n" },
+	{ "result", "a job's result; --out DIR copies its files", cmd_result,
+	  "The summary of a completed job: the fit, pose, residual, the ISO 14999-4\n"
+	  "quantities, slope, the verdict with each toleranced quantity, the acquisition\n"
+	  "and the scan's SHA-256. --out copies the result's files into DIR (created if\n"
+	  "missing); --report writes its measurement report (PDF). A long copy shows its\n"
+	  "progress on a terminal; --quiet leaves it out.\n" },
+	{ "queue", "show the queue; move a job; start or stop the queue", cmd_queue,
+	  "move JOB POSITION: position 0 runs next. stop --abort also stops running\n"
+	  "scans, resumably.\n" },
+	{ "instruments", "the instruments and their state", cmd_instruments, NULL },
+	{ "drivers", "the drivers the daemon has", cmd_drivers, NULL },
+	{ "lock", "lock an instrument for work at the machine", cmd_lock,
+	  "No job starts on a locked instrument and others' changes to it are refused;\n"
+	  "--pause also pauses its running scan. The reason is the rest of the line.\n" },
+	{ "unlock", "end an instrument's lock", cmd_unlock,
+	  "--force (admin) ends another's lock.\n" },
+	{ "token", "create, list or revoke API tokens (root)", cmd_token,
+	  "WHEN is a duration (90d, 12h) or a UTC date or time. The secret is printed\n"
+	  "once.\n" },
+	{ "fleet", "the newest results across daemons, from the central database", cmd_fleet,
+	  "CONNINFO is a libpq connection string; without --db, $ASPHCTL_FLEET_DB, then\n"
+	  "libpq's environment.\n" },
+	{ "help", "the usage of asphctl or of a command; help exit-status: the exit codes",
+	  cmd_help, NULL },
 };
 
 int ctl_fail(const struct ctl_error *e)
@@ -43,10 +81,10 @@ int ctl_fail(const struct ctl_error *e)
 	else
 		fprintf(stderr, "asphctl: %s\n", message ? message : "?");
 	if (e->code == 0)
-		return CTL_EXIT_UNREACHABLE;
+		return EXIT_UNREACHABLE;
 	if (e->code == PROTO_PERMISSION_DENIED)
-		return CTL_EXIT_DENIED;
-	return CTL_EXIT_ERROR;
+		return EXIT_DENIED;
+	return EXIT_FAILURE_RUN;
 }
 
 int ctl_call(struct ctl *ctl, const char *method, json_t *params, json_t **result)
@@ -121,7 +159,8 @@ int64_t ctl_job_operand(int argc, char **argv, const char *usage)
 
 static void usage(FILE *f)
 {
-	fprintf(f, "Usage: asphctl [--socket PATH] [--json] COMMAND [ARGS...]\n\n"
+	fprintf(f, "Usage: asphctl [--socket PATH] [--json] COMMAND [ARGS...]\n"
+		   "       asphctl help [COMMAND]\n\n"
 		   "Client of the asphd measurement daemon.\n\n"
 		   "  -s, --socket PATH   the daemon's socket (default $ASPHD_SOCKET or %s)\n"
 		   "  -j, --json          print results as JSON\n"
@@ -129,9 +168,40 @@ static void usage(FILE *f)
 		   "Commands:\n", PROTO_DEFAULT_SOCKET);
 	for (size_t i = 0; i < ARRAY_SIZE(commands); i++)
 		fprintf(f, "  %-12s %s\n", commands[i].name, commands[i].summary);
-	fprintf(f, "\nRun 'asphctl COMMAND --help' for a command's options.\n"
-		   "Exit codes: 0 ok, 1 error from the daemon, 2 usage, 3 daemon unreachable,\n"
-		   "4 permission denied, 5 the job ended without a result.\n");
+	fprintf(f, "\nRun 'asphctl help COMMAND' for a command's options, 'asphctl help\n"
+		   "exit-status' for the exit codes. The manual page is asphctl(1).\n");
+}
+
+static int run(struct ctl *ctl, const struct ctl_command *c, int argc, char **argv)
+{
+	int r;
+
+	ctl->command = c;
+	optind = 0;   /* reset getopt for the command */
+	r = c->run(ctl, argc, argv);
+	conn_close(ctl->conn);
+	ctl->conn = NULL;
+	return r;
+}
+
+/* asphctl help [COMMAND [SUBCOMMAND]]: the command's own --help. */
+static int cmd_help(struct ctl *ctl, int argc, char **argv)
+{
+	const struct ctl_command *c;
+	char *words[4];
+	int n, r;
+
+	if (argc < 2) {
+		usage(stdout);
+		return EXIT_OK;
+	}
+	if ((r = command_help_words("asphctl", argc, argv, words, &n)) >= 0)
+		return r;
+	if (!(c = command_find(COMMAND_TABLE(commands), words[0])))
+		return command_unknown("asphctl", words[0], COMMAND_TABLE(commands));
+	if (c->run == cmd_help)
+		return cmd_help(ctl, 1, argv);
+	return run(ctl, c, n, words);
 }
 
 int main(int argc, char **argv)
@@ -144,35 +214,31 @@ int main(int argc, char **argv)
 		{ NULL, 0, NULL, 0 },
 	};
 	struct ctl ctl = { .socket = getenv("ASPHD_SOCKET") };
-	int c, r;
+	const struct ctl_command *c;
+	char why[256];
+	int o;
 
 	if (!ctl.socket || !*ctl.socket)
 		ctl.socket = PROTO_DEFAULT_SOCKET;
 	/* Options before the command only; the command parses the rest. */
-	while ((c = getopt_long(argc, argv, "+s:jh", opts, NULL)) != -1) {
-		switch (c) {
+	opterr = 0;
+	while ((o = getopt_long(argc, argv, "+s:jh", opts, NULL)) != -1) {
+		switch (o) {
 		case 's': ctl.socket = optarg; break;
 		case 'j': ctl.json = true; break;
-		case 'V': printf("asphctl %s\n", ASPH_VERSION); return CTL_EXIT_OK;
-		case 'h': usage(stdout); return CTL_EXIT_OK;
-		default: usage(stderr); return CTL_EXIT_USAGE;
+		case 'V': printf("asphctl %s\n", ASPH_VERSION); return EXIT_OK;
+		case 'h': usage(stdout); return EXIT_OK;
+		default:
+			fprintf(stderr, "asphctl: %s\nRun 'asphctl help' for the options.\n",
+				suggest_getopt_error(argv, "+s:jh", opts, why, sizeof(why)));
+			return EXIT_USAGE;
 		}
 	}
 	if (optind >= argc) {
 		usage(stderr);
-		return CTL_EXIT_USAGE;
+		return EXIT_USAGE;
 	}
-	for (size_t i = 0; i < ARRAY_SIZE(commands); i++) {
-		if (strcmp(argv[optind], commands[i].name))
-			continue;
-		char **sub = argv + optind;
-		int n = argc - optind;
-		optind = 0;   /* reset getopt for the command */
-		r = commands[i].run(&ctl, n, sub);
-		conn_close(ctl.conn);
-		return r;
-	}
-	fprintf(stderr, "asphctl: unknown command '%s'\n", argv[optind]);
-	usage(stderr);
-	return CTL_EXIT_USAGE;
+	if (!(c = command_find(COMMAND_TABLE(commands), argv[optind])))
+		return command_unknown("asphctl", argv[optind], COMMAND_TABLE(commands));
+	return run(&ctl, c, argc - optind, argv + optind);
 }

@@ -4,19 +4,32 @@
 #include <stdio.h>
 
 #include "asphctl.h"
+#include "util-suggest.h"
 
 int ctl_usage_error(const char *usage)
 {
 	fprintf(stderr, "Usage: asphctl %s\n", usage);
-	return CTL_EXIT_USAGE;
+	return EXIT_USAGE;
+}
+
+/* --help: the usage, then what the command's entry says. */
+static void help(const struct ctl *ctl, const char *usage)
+{
+	printf("Usage: asphctl %s\n", usage);
+	if (ctl->command && ctl->command->help)
+		printf("\n%s", ctl->command->help);
+	printf("\nEvery command takes --json (print the answer as JSON) and --help. The manual\n"
+	       "page asphctl(1) describes the commands; 'asphctl help exit-status' the exit\n"
+	       "codes.\n");
 }
 
 int ctl_option(struct ctl *ctl, int argc, char **argv, const char *shortopts,
 	       const struct option *opts, const char *usage)
 {
-	char optstring[64];
+	char optstring[64], why[256];
 
 	snprintf(optstring, sizeof(optstring), "%sjh", shortopts);
+	opterr = 0;
 	for (;;) {
 		int c = getopt_long(argc, argv, optstring, opts, NULL);
 
@@ -27,10 +40,12 @@ int ctl_option(struct ctl *ctl, int argc, char **argv, const char *shortopts,
 			ctl->json = true;
 			break;
 		case 'h':
-			printf("Usage: asphctl %s\n", usage);
+			help(ctl, usage);
 			return CTL_OPTIONS_HELP;
 		case '?':
 		case ':':
+			fprintf(stderr, "asphctl %s: %s\n", ctl->command ? ctl->command->name : "",
+				suggest_getopt_error(argv, optstring, opts, why, sizeof(why)));
 			ctl_usage_error(usage);
 			return CTL_OPTIONS_BAD;
 		default:
@@ -41,7 +56,7 @@ int ctl_option(struct ctl *ctl, int argc, char **argv, const char *shortopts,
 
 int ctl_options_exit(int c)
 {
-	return c == CTL_OPTIONS_END ? -1 : c == CTL_OPTIONS_HELP ? CTL_EXIT_OK : CTL_EXIT_USAGE;
+	return c == CTL_OPTIONS_END ? -1 : c == CTL_OPTIONS_HELP ? EXIT_OK : EXIT_USAGE;
 }
 
 int ctl_common_options(struct ctl *ctl, int argc, char **argv, const char *usage)

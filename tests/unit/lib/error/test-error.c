@@ -54,6 +54,12 @@ static void test_set_at(void **state)
 			    "lens.zmx:12:3: SURF 2: in SURF 2: too large");
 	asph_error_set(&e, -EIO, "%s, again", e.message);
 	assert_string_equal(e.message, "in SURF 2: too large, again");
+	/* jansson's -1 for "no place" is no place: never "-1:-1" */
+	asph_error_clear(&e);
+	asph_error_set_at(&e, -ENOENT, "tol.json", -1, -1, NULL, "unable to open");
+	assert_string_equal(asph_error_format(&e, buf, sizeof(buf)), "tol.json: unable to open");
+	asph_error_set_at(&e, -EINVAL, NULL, 2, -1, NULL, "bad");
+	assert_string_equal(asph_error_format(&e, buf, sizeof(buf)), "tol.json:2: bad");
 }
 
 static void test_null_error(void **state)

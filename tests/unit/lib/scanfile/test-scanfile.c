@@ -333,6 +333,8 @@ static void test_round_trip(void **state)
 	assert_true(r->ended);
 	assert_int_equal(r->outcome, ASPH_SCANFILE_COMPLETED);
 	assert_string_equal(r->reason, "all 12345 points, \"quoted\"");
+	/* when it ended: after it began, on the wall clock */
+	assert_true(r->ended_ns >= h->created_ns && r->ended_ns <= after);
 	assert_int_equal(r->n_resumes, 0);
 	assert_string_equal(r->stop_detail, "");
 	struct stat st;
@@ -443,6 +445,7 @@ static void test_flush_by_count(void **state)
 	assert_int_equal(s->report.n_blocks, 2);
 	assert_false(s->report.ended);
 	assert_int_equal(s->report.outcome, ASPH_SCANFILE_UNFINISHED);
+	assert_int_equal(s->report.ended_ns, 0);
 	asph_scanfile_free(s);
 	unlink(path);
 }

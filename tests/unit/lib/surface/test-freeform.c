@@ -839,7 +839,7 @@ static void test_json(void **state)
 	parse_fails("{\"type\": \"biconic\", \"Rx\": 40, \"Ry\": 50,\n \"kx\": 60, \"aperture_diameter\": 20}",
 		    "kx", 2, 2);
 	parse_fails("{\"type\": \"even_asphere\", \"R\": 40,\n \"aperture\": {\"shape\": \"circular\", "
-		    "\"diameter\": 3}}", "aperture", 2, 2);
+		    "\"diameter\": 3, \"offset\": [45, 1]}}", "k", 0, 0);
 }
 
 int main(void)

@@ -27,7 +27,7 @@ static const char zmx[] =
 	"  CONI -1\n"
 	"  DIAM 20 1 0 0 1 \"\"\n"
 	"SURF 7\n"                             /* 12 */
-	"  TYPE ODDASPH\n"
+	"  TYPE ODDASPHE\n"
 	"  CURV -0.025\n"
 	"  PARM 1 1.3e-3\n"
 	"  PARM 3 -2.7e-6\n"
@@ -73,16 +73,17 @@ static void test_zmx(void **state)
 	assert_string_equal(p.name, "doublet-s1");
 	assert_true(p.R == 1 / 4.975866e-2 && p.k == -1 && p.aperture_diameter == 40);
 	assert_true(p.A[4] == -2.0868e-5 && p.A[6] == -3.9031e-9 && p.A[2] == 0 && p.A[8] == 0);
-	/* ODDASPH: PARM i multiplies r^i */
+	/* ODDASPHE: PARM i multiplies r^i */
 	assert_int_equal(asph_lens_import_prescription(im, 7, &p, &err), 0);
 	assert_int_equal(p.type, ASPH_SURFACE_ODD_ASPHERE);
 	assert_true(p.R == 1 / -0.025 && p.A[1] == 1.3e-3 && p.A[3] == -2.7e-6 && p.A[2] == 0);
 
-	/* refusals: a plane, a type not imported, no such surface, no choice */
+	/* refusals: no aperture, a type not imported, no such surface, no choice */
 	asph_error_clear(&err);
 	assert_int_equal(asph_lens_import_prescription(im, 0, &p, &err), -EINVAL);
-	assert_string_equal(err.field, "CURV");
-	assert_non_null(strstr(err.message, "flat"));
+	assert_true(err.line == 2 && err.column == 1);
+	assert_string_equal(err.field, "DIAM");
+	assert_non_null(strstr(err.message, "no positive semi-diameter"));
 	asph_error_clear(&err);
 	assert_int_equal(asph_lens_import_prescription(im, 8, &p, &err), -EINVAL);
 	assert_true(err.line == 19 && err.column == 8);
@@ -121,10 +122,9 @@ static void test_zmx_refusals(void **state)
 	static const struct refusal cases[] = {
 		{ "SURF 1\n  TYPE EVENASPH\n  CURV 0.05\n  PARM 2 -2.1e-5q\n  DIAM 3\n",
 		  4, 10, "PARM", "not a finite number" },
-		{ "UNIT IN X W\nSURF 1\n", 1, 6, "UNIT", "millimetres" },
-		{ "SURF 1\n  TYPE STANDARD\n  CURV 0.05", 3, 12, NULL, "truncated" },
-		{ "SURF 1\n  CURV 0.05\n", 1, 1, NULL, "no TYPE line" },
+		{ "UNIT FT X W\nSURF 1\n", 1, 6, "UNIT", "the units read are MM, CM, IN and M" },
 		{ "NAME x\n", 1, 0, NULL, "no SURF block" },
+		{ "SURF 1\n  TYPE QED_TYPE\n  XDAT 0 1\n", 3, 0, "XDAT", "is not 1..250" },
 		{ "SURF 1\n\0\n", 0, 0, NULL, "NUL bytes" },
 		/* found by the lens-zmx fuzz target: a number past int */
 		{ "SURF 09999999999999999999\n  TYPE STANDARD\n", 1, 1, "SURF",
@@ -328,6 +328,157 @@ static void test_zmx_freeform(void **state)
 	}
 }
 
+/* ---- the files of other writers: Q types, units, segments, encodings ---- */
+
+/* Forbes' Q^bfs_0 .. Q^bfs_3 (Opt. Express 15, 5218 (2007), Eq. A.2-A.4)
+ * and Q^con_0 .. Q^con_3 = P_m^(0,4)(2x - 1), written out. */
+static double qbfs_q(int m, double x)
+{
+	const double s2 = sqrt(2.0 / 95.0), s3 = sqrt(2.0 / 2545.0);
+	const double q[4] = { 1, (13 - 16 * x) / sqrt(19.0), s2 * (29 - 4 * x * (25 - 19 * x)),
+			      s3 * (207 - 4 * x * (315 - x * (577 - 320 * x))) };
+	return q[m];
+}
+
+static double qcon_q(int m, double x)
+{
+	const double q[4] = { 1, 6 * x - 5, 15 - 14 * x * (3 - 2 * x),
+			      -35 + x * (168 - x * (252 - 120 * x)) };
+	return q[m];
+}
+
+/* OpticStudio's Q-type asphere: the base conic, then for Qbfs
+ * u^2 (1 - u^2) sum a_m Q^bfs_m(u^2) times the secant of the conic's
+ * normal sqrt((1 - k c^2 r^2) / (1 - (1 + k) c^2 r^2)), for Qcon
+ * u^4 sum a_m Q^con_m(u^2); u = r / norm_radius. */
+static double qtype_sag(int qcon, double c, double k, double rho, const double a[4], double r2)
+{
+	double u2 = r2 / (rho * rho), sum = 0;
+
+	for (int m = 0; m < 4; m++)
+		sum += a[m] * (qcon ? qcon_q(m, u2) : qbfs_q(m, u2));
+	if (qcon)
+		return conic(c, k, r2) + u2 * u2 * sum;
+	return conic(c, k, r2) +
+	       u2 * (1 - u2) * sqrt((1 - k * c * c * r2) / (1 - (1 + k) * c * c * r2)) * sum;
+}
+
+/* tests/data/lens-qtype-latin1.zmx */
+static double condenser_qbfs_sag(double x, double y)
+{
+	const double a[4] = { -0.2913, -0.0871, 0.0231, -0.0067 };
+	return qtype_sag(0, 8.712e-2, -0.5873, 13.5, a, x * x + y * y);
+}
+
+static double condenser_qcon_sag(double x, double y)
+{
+	const double a[4] = { 0.0417, -0.0123, 0.0051, -0.0019 };
+	return qtype_sag(1, -1.9431e-2, -2.31, 12.7, a, x * x + y * y);
+}
+
+/* tests/data/lens-tma-inch-utf16.zmx, in inches: each sag z(x, y) in mm is
+ * 25.4 z_in(x / 25.4, y / 25.4). */
+#define IN 25.4
+static double tma_primary_sag(double x, double y)
+{
+	double r2 = (x * x + y * y) / (IN * IN);
+	return IN * (conic(-1.25e-2, -1.05, r2) + 3.1e-7 * r2 * r2 - 2.2e-10 * r2 * r2 * r2);
+}
+
+static double tma_secondary_sag(double x, double y)
+{
+	return IN * conic(-4.0e-2, -3.1, (x * x + y * y) / (IN * IN));
+}
+
+static double tma_tertiary_sag(double x, double y)
+{
+	double r2 = (x * x + y * y) / (IN * IN);
+	return IN * (conic(-2.27e-2, -0.6, r2) - 1.3e-6 * r2 * r2);
+}
+
+static double tma_plate_sag(double x, double y)
+{
+	double r2 = (x * x + y * y) / (IN * IN);
+	return IN * (1.7e-5 * r2 * r2 - 4.4e-8 * r2 * r2 * r2);
+}
+
+static void import_or_fail(const struct asph_lens_import *im, int number,
+			   struct asph_prescription *p)
+{
+	struct asph_error err;
+
+	asph_error_clear(&err);
+	if (asph_lens_import_prescription(im, number, p, &err) < 0) {
+		print_error("%s:%d:%d: %s: %s\n", err.source, err.line, err.column, err.field,
+			    err.message);
+		fail();
+	}
+}
+
+/* Q-type aspheres (QED_TYPE), Qbfs over a conic past the vertex radius and
+ * Qcon, in a Latin-1 file with unindented lines and no final newline. */
+static void test_zmx_qtype_latin1(void **state)
+{
+	struct asph_lens_import *im = load("lens-qtype-latin1.zmx");
+	struct asph_lens_surface ls;
+	struct asph_prescription p;
+	struct asph_error err;
+
+	assert_int_equal(asph_lens_import_count(im), 4);
+	asph_lens_import_surface(im, 1, &ls);
+	assert_string_equal(ls.type, "QED_TYPE");
+	import_or_fail(im, 1, &p);
+	assert_int_equal(p.type, ASPH_SURFACE_QBFS);
+	assert_true(p.norm_radius == 13.5 && p.k == -0.5873 && p.Q[3] == -0.0067 && p.Q[4] == 0);
+	assert_true(p.aperture_diameter == 24.4 && p.note[0] == '\0');
+	check_sag(&p, condenser_qbfs_sag, 12.2);
+	import_or_fail(im, 2, &p);
+	assert_int_equal(p.type, ASPH_SURFACE_QCON);
+	assert_true(p.norm_radius == 12.7 && p.k == -2.31 && p.Q[0] == 0.0417);
+	check_sag(&p, condenser_qcon_sag, 12.7);
+	/* the last surface, its last line without a newline: a flat */
+	import_or_fail(im, 3, &p);
+	assert_true(isinf(p.R) && p.aperture_diameter == 6.2);
+	asph_error_clear(&err);
+	assert_int_equal(asph_lens_import_prescription(im, 0, &p, &err), -EINVAL);
+	assert_string_equal(err.field, "DIAM");
+	asph_lens_import_free(im);
+}
+
+/* A three-mirror telescope in inches, UTF-16 LE with CR LF: off-axis
+ * segments (SQAP and ELAP about OBDC), a standard surface without TYPE, an
+ * aspheric plate, every length converted to mm. */
+static void test_zmx_segments_inches(void **state)
+{
+	struct asph_lens_import *im = load("lens-tma-inch-utf16.zmx");
+	struct asph_lens_surface ls;
+	struct asph_prescription p;
+
+	assert_int_equal(asph_lens_import_count(im), 6);
+	asph_lens_import_surface(im, 2, &ls);
+	assert_string_equal(ls.type, "STANDARD");
+	assert_true(ls.R == IN / -4.0e-2 && ls.aperture_diameter == 2 * 1.2 * IN);
+
+	import_or_fail(im, 1, &p);
+	assert_int_equal(p.type, ASPH_SURFACE_EVEN_ASPHERE);
+	assert_int_equal(p.aperture.shape, ASPH_APERTURE_RECTANGULAR);
+	assert_true(p.aperture.width == 6 * IN && p.aperture.height == 4 * IN);
+	assert_true(p.aperture.offset[0] == 0 && p.aperture.offset[1] == 4.5 * IN);
+	assert_non_null(strstr(p.note, "inches (UNIT IN) converted to mm"));
+	check_sag(&p, tma_primary_sag, 1.9 * IN);
+	import_or_fail(im, 2, &p);
+	assert_true(p.aperture_diameter == 2.4 * IN);
+	check_sag(&p, tma_secondary_sag, 1.2 * IN);
+	import_or_fail(im, 3, &p);
+	assert_int_equal(p.aperture.shape, ASPH_APERTURE_ELLIPTICAL);
+	assert_true(p.aperture.offset[0] == 0.4 * IN && p.aperture.offset[1] == -3.1 * IN);
+	check_sag(&p, tma_tertiary_sag, 1.5 * IN);
+	import_or_fail(im, 4, &p);
+	assert_true(isinf(p.R));
+	check_sag(&p, tma_plate_sag, 1.5 * IN);
+	asph_lens_import_free(im);
+}
+
 static void convert(const char *text, struct asph_prescription *p, struct asph_error *err,
 		    int expect)
 {
@@ -362,6 +513,32 @@ static void test_zmx_freeform_edges(void **state)
 	/* a CLAP without a decenter is the centred circle of any type */
 	convert("SURF 1\n  TYPE EVENASPH\n  CURV 0.02\n  CLAP 0 3.5\n  DIAM 5\n", &p, &err, 0);
 	assert_true(p.aperture_diameter == 7);
+	/* off-axis segments of a rotationally symmetric parent: any aperture
+	 * about its decenter */
+	convert("SURF 1\n  TYPE EVENASPH\n  CURV 0.02\n  CLAP 0 3\n  OBDC 1 0\n  DIAM 4\n", &p, &err,
+		0);
+	assert_true(p.aperture.shape == ASPH_APERTURE_CIRCULAR && p.aperture.width == 6 &&
+		    p.aperture.offset[0] == 1 && p.aperture_diameter == 0);
+	convert("SURF 1\n  TYPE ODDASPHE\n  CURV 0.02\n  SQAP 3 2\n  DIAM 4\n", &p, &err, 0);
+	assert_true(p.aperture.shape == ASPH_APERTURE_RECTANGULAR && p.aperture.height == 4 &&
+		    p.aperture.offset[1] == 0);
+	/* a plate: CURV 0 is a plane base; no TYPE line is STANDARD */
+	convert("SURF 1\n  TYPE EVENASPH\n  CURV 0\n  PARM 2 1.7e-5\n  DIAM 4\n", &p, &err, 0);
+	assert_true(isinf(p.R) && p.A[4] == 1.7e-5);
+	convert("SURF 1\n  CURV -0.04\n  CONI -3.1\n  DIAM 1.2\n", &p, &err, 0);
+	assert_true(p.type == ASPH_SURFACE_EVEN_ASPHERE && p.R == 1 / -0.04 && p.k == -3.1);
+	/* OpticStudio's older short name of the odd asphere */
+	convert("SURF 1\n  TYPE ODDASPH\n  CURV 0.02\n  PARM 3 1e-6\n  DIAM 4\n", &p, &err, 0);
+	assert_true(p.type == ASPH_SURFACE_ODD_ASPHERE && p.A[3] == 1e-6);
+	/* lens units in centimetres and metres: lengths in mm, r^i terms by
+	 * (10 mm)^(1-i) */
+	convert("UNIT CM\nSURF 1\n  TYPE EVENASPH\n  CURV 0.5\n  PARM 2 2e-3\n  DIAM 1.5\n", &p,
+		&err, 0);
+	assert_true(p.R == 20 && p.aperture_diameter == 30 && fabs(p.A[4] - 2e-6) < 1e-21);
+	assert_non_null(strstr(p.note, "UNIT CM"));
+	convert("UNIT M\nSURF 1\n  TYPE QED_TYPE\n  CURV 10\n  XDAT 1 1\n  XDAT 2 1\n"
+		"  XDAT 3 0.012\n  XDAT 4 2e-5\n  DIAM 0.01\n", &p, &err, 0);
+	assert_true(p.R == 100 && p.norm_radius == 12 && p.Q[0] == 2e-2 && p.aperture_diameter == 20);
 }
 
 /* What cannot be imported, each with its line, column and keyword. */
@@ -394,10 +571,24 @@ static void test_zmx_freeform_refusals(void **state)
 		  4, 10, "PARM 1", "R_rotation: the circle of rotation" },
 		{ "SURF 1\n  TYPE FZERNSAG\n  CURV 0.02\n  DIAM 5\n",
 		  2, 8, "TYPE", "FZERNSAG, which is not imported" },
-		{ "SURF 1\n  TYPE EVENASPH\n  CURV 0.02\n  SQAP 3 2\n  DIAM 4\n",
-		  4, 1, "SQAP", "a rectangular aperture needs a freeform type" },
-		{ "SURF 1\n  TYPE EVENASPH\n  CURV 0.02\n  CLAP 0 3\n  OBDC 1 0\n  DIAM 4\n",
-		  5, 8, "OBDC", "an off-centre aperture needs a freeform type" },
+		/* the Q-type asphere's extra data */
+		{ "SURF 1\n  TYPE QED_TYPE\n  CURV 0.02\n  XDAT 1 2\n  XDAT 3 5\n  DIAM 4\n",
+		  4, 10, "XDAT 1", "Q type 2 (0 is Qbfs, 1 is Qcon)" },
+		{ "SURF 1\n  TYPE QED_TYPE\n  CURV 0.02\n  XDAT 2 2.5\n  XDAT 3 5\n  DIAM 4\n",
+		  4, 10, "XDAT 2", "2.5 Q terms" },
+		{ "SURF 1\n  TYPE QED_TYPE\n  CURV 0.02\n  XDAT 2 33\n  XDAT 3 5\n"
+		  "  XDAT 35 1e-6\n  DIAM 4\n", 6, 11, "XDAT", "term a31 is 1e-06" },
+		{ "SURF 1\n  TYPE QED_TYPE\n  CURV 0.02\n  XDAT 2 1\n  XDAT 4 1e-3\n  DIAM 4\n",
+		  2, 8, "XDAT 3", "norm_radius" },
+		{ "SURF 1\n  TYPE QED_TYPE\n  CURV 0.02\n  PARM 2 1e-5\n  XDAT 3 5\n  DIAM 4\n",
+		  4, 10, "PARM 2", "the Q-Type Asphere surface has no parameter 2" },
+		{ "SURF 1\n  TYPE EVENASPH\n  CURV 0.02\n  XDAT 1 3\n  DIAM 4\n",
+		  4, 10, "XDAT 1", "the Even Asphere surface has no extra data" },
+		{ "SURF 1\n  CURV 0.02\n  PARM 2 1e-5\n  DIAM 4\n",
+		  3, 10, "PARM 2", "the Standard surface has no parameter 2" },
+		/* a segment whose parent's conic ends inside the aperture */
+		{ "SURF 1\n  TYPE EVENASPH\n  CURV 0.02\n  CONI 0.5\n  SQAP 3 2\n  OBDC 0 40\n"
+		  "  DIAM 4\n", 4, 8, "CONI", "reaches zero" },
 		{ "SURF 1\n  TYPE XPOLYNOM\n  CURV 0.02\n  XDAT 2 5\n  UDAD 0 0\n  DIAM 4\n",
 		  5, 1, "UDAD", "user-defined aperture" },
 		{ "SURF 1\n  TYPE XPOLYNOM\n  CURV 0.02\n  XDAT 2 5\n  CLAP 1.5 4\n  DIAM 4\n",
@@ -505,6 +696,8 @@ int main(void)
 		cmocka_unit_test(test_zmx_freeform),
 		cmocka_unit_test(test_zmx_freeform_edges),
 		cmocka_unit_test(test_zmx_freeform_refusals),
+		cmocka_unit_test(test_zmx_qtype_latin1),
+		cmocka_unit_test(test_zmx_segments_inches),
 		cmocka_unit_test(test_csv),
 		cmocka_unit_test(test_load),
 	};

@@ -107,8 +107,11 @@ static const struct bad_case bad[] = {
 	{ "{\"R\": 20, \"aperture_diameter\": 10}", 0, NULL, "", "missing member \"type\"" },
 	{ "{\"type\": 3, \"R\": 20, \"aperture_diameter\": 10}", 1, "\"type\"", "type", "expected a string" },
 	{ "{\"type\": \"toroid\", \"R\": 20, \"aperture_diameter\": 10}", 1, "\"type\"", "type", "unknown surface type 'toroid'" },
-	{ HEAD "\"aperture_diameter\": 10}", 0, NULL, "", "missing member \"R\"" },
-	{ HEAD "\"R\": \"20\", \"aperture_diameter\": 10}", 1, "\"R\"", "R", "expected a number" },
+	{ HEAD "\"aperture_diameter\": 10}", 0, NULL, "", "missing member \"R\" (vertex radius of curvature, mm) or \"c\"" },
+	{ HEAD "\"R\": \"20\", \"aperture_diameter\": 10}", 1, "\"R\"", "R", "expected a radius in mm" },
+	{ HEAD "\"R\": 20, \"c\": 0.05, \"aperture_diameter\": 10}", 1, "\"c\"", "c", "not both" },
+	{ HEAD "\"c\": \"flat\", \"aperture_diameter\": 10}", 1, "\"c\"", "c", "expected a number" },
+	{ HEAD "\"note\": [1], \"c\": 0, \"aperture_diameter\": 10}", 1, "\"note\"", "note", "expected a string" },
 	{ HEAD "\n  \"R\": 0,\n  \"aperture_diameter\": 10}", 2, "\"R\"", "R", "R = 0" },
 	{ HEAD "\"R\": 20, \"k\": \"x\", \"aperture_diameter\": 10}", 1, "\"k\"", "k", "expected a number" },
 	{ HEAD "\"R\": 20, \"A\": [1e-5], \"aperture_diameter\": 10}", 1, "\"A\"", "A", "expected an object" },
@@ -118,7 +121,9 @@ static const struct bad_case bad[] = {
 	{ HEAD "\"R\": 20, \"A\": {\"4\": 1e-5, \"04\": 2e-5}, \"aperture_diameter\": 10}", 1, "\"04\"", "A.04", "plain number" },
 	{ HEAD "\"R\": 5e-324, \"aperture_diameter\": 10}", 1, "\"R\"", "R", "too small" },
 	{ HEAD "\"R\": 20, \"A\": {\"4\": \"1e-5\"}, \"aperture_diameter\": 10}", 1, "\"4\"", "A.4", "expected a number" },
-	{ HEAD "\"R\": 20}", 0, NULL, "", "missing member \"aperture_diameter\"" },
+	{ HEAD "\"R\": 20}", 0, NULL, "", "missing member \"aperture_diameter\" (mm) or \"aperture\"" },
+	{ HEAD "\"R\": 20, \"aperture_diameter\": 10,\n \"aperture\": {\"shape\": \"circular\", \"diameter\": 3}}", 0, NULL, "aperture_diameter", "not both" },
+	{ HEAD "\"R\": 20,\n \"aperture\": {\"shape\": \"rectangular\", \"width\": 3}}", 2, "\"aperture\"", "aperture", "missing member \"height\"" },
 	{ HEAD "\"R\": 20, \"aperture_diameter\": -3}", 1, "\"aperture_diameter\"", "aperture_diameter", "positive" },
 	{ HEAD "\"R\": 20,\n \"aperture_diamter\": 10}", 2, "\"aperture_diamter\"", "aperture_diamter", "unknown member" },
 	/* An empty key once hung the member check (found by fuzzing). */
@@ -130,7 +135,7 @@ static const struct bad_case bad[] = {
 	{ HEAD "\"R\": 20, \"aperture_diameter\": 10} trailing", 1, NULL, "", "end of file expected" },
 	{ "{\"type\": \"even_asphere\", \"R\": 20, \"aperture_diameter\": 10, \"A\": {\"6\": 1e-7, \"6\": 2e-7}}", 1, NULL, "", "duplicate" },
 	/* The Q types and the odd asphere. */
-	{ QBFS "\"k\": -1, \"a\": [1e-3], \"aperture_diameter\": 10}", 1, "\"k\"", "k", "unknown member 'k' for type qbfs" },
+	{ QBFS "\"k\": 2, \"a\": [1e-3], \"aperture_diameter\": 80}", 1, "\"k\"", "k", "reaches zero" },
 	{ QBFS "\"A\": {\"4\": 1e-5}, \"aperture_diameter\": 10}", 1, "\"A\"", "A", "unknown member 'A'" },
 	{ QBFS "\"a\": {\"0\": 1e-3}, \"aperture_diameter\": 10}", 1, "\"a\"", "a", "expected an array" },
 	{ QBFS "\"a\": [1e-3, -2e-4,\n \"x\"], \"aperture_diameter\": 10}", 2, "\"x\"", "a.[2]", "expected a number" },
@@ -185,6 +190,10 @@ static void test_refusals(void **state)
 static const char *const other_types[] = {
 	"{\"type\": \"qbfs\", \"name\": \"q1\", \"R\": 31.7, \"norm_radius\": 10.25,\n"
 	" \"a\": [0.0213, -0.0071, 0.0032], \"aperture_diameter\": 20}",
+	"{\"type\": \"qbfs\", \"note\": \"a conic base\", \"c\": 0.0575, \"k\": -0.676,\n"
+	" \"norm_radius\": 27, \"a\": [-0.81, -0.32], \"aperture_diameter\": 45.7}",
+	"{\"type\": \"even_asphere\", \"c\": 0, \"A\": {\"4\": 2.1e-6},\n"
+	" \"aperture\": {\"shape\": \"rectangular\", \"width\": 30, \"height\": 20, \"offset\": [0, 45]}}",
 	"{\"type\": \"qcon\", \"R\": -42.3, \"k\": -0.73, \"norm_radius\": 10.5,\n"
 	" \"a\": [0.0371, -0.0128, 0, 6.1e-4], \"aperture_diameter\": 20}",
 	"{\"type\": \"odd_asphere\", \"R\": 27.9, \"k\": -0.41,\n"
@@ -193,10 +202,10 @@ static const char *const other_types[] = {
 
 static void test_other_types(void **state)
 {
-	struct asph_prescription p[3], q;
+	struct asph_prescription p[5], q;
 	struct asph_error err;
 
-	for (int i = 0; i < 3; i++) {
+	for (int i = 0; i < 5; i++) {
 		const char *t = other_types[i];
 		char *json = NULL;
 		if (asph_prescription_parse(t, strlen(t), "t.json", &p[i], &err) != 0)
@@ -208,10 +217,23 @@ static void test_other_types(void **state)
 	}
 	assert_int_equal(p[0].type, ASPH_SURFACE_QBFS);
 	assert_true(p[0].norm_radius == 10.25 && p[0].Q[1] == -0.0071 && p[0].Q[3] == 0 && p[0].k == 0);
-	assert_int_equal(p[1].type, ASPH_SURFACE_QCON);
-	assert_true(p[1].k == -0.73 && p[1].Q[3] == 6.1e-4 && p[1].Q[2] == 0);
-	assert_int_equal(p[2].type, ASPH_SURFACE_ODD_ASPHERE);
-	assert_true(p[2].A[1] == 1.3e-3 && p[2].A[3] == -2.7e-6 && p[2].A[7] == 1.9e-11);
+	/* Qbfs on a conic base; the curvature c for R */
+	assert_int_equal(p[1].type, ASPH_SURFACE_QBFS);
+	assert_true(p[1].R == 1 / 0.0575 && p[1].k == -0.676 && p[1].Q[1] == -0.32);
+	assert_string_equal(p[1].note, "a conic base");
+	/* a plate: a plane base, an off-centre aperture */
+	assert_true(isinf(p[2].R) && p[2].A[4] == 2.1e-6 && p[2].aperture_diameter == 0);
+	assert_true(p[2].aperture.shape == ASPH_APERTURE_RECTANGULAR && p[2].aperture.offset[1] == 45);
+	assert_int_equal(p[3].type, ASPH_SURFACE_QCON);
+	assert_true(p[3].k == -0.73 && p[3].Q[3] == 6.1e-4 && p[3].Q[2] == 0);
+	assert_int_equal(p[4].type, ASPH_SURFACE_ODD_ASPHERE);
+	assert_true(p[4].A[1] == 1.3e-3 && p[4].A[3] == -2.7e-6 && p[4].A[7] == 1.9e-11);
+	/* the plane is written as its curvature */
+	char *json = NULL;
+	assert_int_equal(asph_prescription_to_json(&p[2], &json), 0);
+	assert_non_null(strstr(json, "\"c\": 0.0"));
+	assert_null(strstr(json, "\"R\""));
+	free(json);
 }
 
 int main(void)

@@ -307,30 +307,53 @@ static struct asph_surface *build(const struct asph_prescription *p)
 	return s;
 }
 
-/* Sag of the Qbfs test lens written out from the closed forms. */
+/*
+ * Sag of a Qbfs lens written out from the closed forms: the base conic
+ * plus the departure times the secant of the conic's normal,
+ * sqrt((1 - k c^2 r^2) / (1 - (1 + k) c^2 r^2)) (OpticStudio's Q-type
+ * asphere; 1 / sqrt(1 - c^2 r^2), Forbes' sphere, for k = 0).
+ */
 static double qbfs_sag_closed(const struct asph_prescription *p, double r)
 {
-	double c = 1 / p->R, u2 = r * r / (p->norm_radius * p->norm_radius), sum = 0, q[3];
-	double root = sqrt(1 - c * c * r * r);
+	double c = 1 / p->R, k = p->k, u2 = r * r / (p->norm_radius * p->norm_radius), sum = 0;
+	double root = sqrt(1 - (1 + k) * c * c * r * r), q[3];
 
 	for (int m = 0; m < 4; m++) {
 		qbfs_closed(m, u2, q);
 		sum += p->Q[m] * q[0];
 	}
-	return c * r * r / (1 + root) + u2 * (1 - u2) / root * sum;
+	return c * r * r / (1 + root) +
+	       u2 * (1 - u2) * sqrt(1 - k * c * c * r * r) / root * sum;
+}
+
+/* A Qbfs departure over a conic, with an aperture past the vertex radius
+ * (the sphere's secant would be undefined there): a condenser. */
+static struct asph_prescription qbfs_conic_lens(void)
+{
+	struct asph_prescription p = { .type = ASPH_SURFACE_QBFS, .R = 17.3729, .k = -0.67609,
+				       .aperture_diameter = 45.72, .norm_radius = 27 };
+	const double a[] = { -0.814837, -0.32311, 0.10591, -0.05058 };
+
+	snprintf(p.name, sizeof(p.name), "qbfs-conic");
+	memcpy(p.Q, a, sizeof(a));
+	return p;
 }
 
 static void test_qbfs_surface(void **state)
 {
-	struct asph_prescription p = qbfs_lens();
-	p.Q[4] = 0;
-	struct asph_surface *s = build(&p);
-
-	for (int i = 0; i <= 40; i++) {
-		double r = 10.0 * i / 40 * (1 - 0.013 * (i % 3));
-		assert_true(fabs(asph_surface_sag(s, r) - qbfs_sag_closed(&p, r)) < 1e-14);
+	struct asph_prescription p[2] = { qbfs_lens(), qbfs_conic_lens() };
+	p[0].Q[4] = 0;
+	for (int k = 0; k < 2; k++) {
+		struct asph_surface *s = build(&p[k]);
+		double a = p[k].aperture_diameter / 2;
+		for (int i = 0; i <= 40; i++) {
+			double r = a * i / 40 * (1 - 0.013 * (i % 3)), want = qbfs_sag_closed(&p[k], r);
+			if (!(fabs(asph_surface_sag(s, r) - want) < 1e-14 * fmax(1, fabs(want))))
+				fail_msg("%s r = %g: %.17g, closed form %.17g", p[k].name, r,
+					 asph_surface_sag(s, r), want);
+		}
+		asph_surface_free(s);
 	}
-	asph_surface_free(s);
 }
 
 /* All a_m = 0: the base sphere, to the last bits, with its tables. */
@@ -432,15 +455,17 @@ static void check_derivs(const struct asph_surface *s)
 
 static void test_derivatives(void **state)
 {
-	struct asph_prescription p[3] = { qbfs_lens(), qcon_lens(),
-		{ .type = ASPH_SURFACE_ODD_ASPHERE, .R = 27.9, .k = -0.41, .aperture_diameter = 16 } };
+	struct asph_prescription p[4] = { qbfs_lens(), qcon_lens(),
+		{ .type = ASPH_SURFACE_ODD_ASPHERE, .R = 27.9, .k = -0.41, .aperture_diameter = 16 },
+		qbfs_conic_lens() };
 
 	/* High orders too: a_20 of either family. */
 	p[0].Q[20] = 3.3e-5;
 	p[1].Q[17] = -2.9e-5;
 	p[2].A[1] = 1.3e-3, p[2].A[3] = -2.7e-6, p[2].A[4] = 3.1e-6, p[2].A[7] = 1.9e-11;
 	snprintf(p[2].name, sizeof(p[2].name), "odd");
-	for (int i = 0; i < 3; i++) {
+	p[3].Q[20] = 2.1e-5;
+	for (int i = 0; i < 4; i++) {
 		struct asph_surface *s = build(&p[i]);
 		check_derivs(s);
 		asph_surface_free(s);
@@ -469,7 +494,8 @@ static void test_refusals(void **state)
 	struct asph_prescription ok = qbfs_lens(), p;
 	struct asph_error err;
 
-	p = ok, p.k = -1;
+	/* a conic base whose root vanishes inside the aperture */
+	p = ok, p.k = 10;
 	assert_int_equal(asph_prescription_check(&p, &err), -EINVAL);
 	assert_string_equal(err.field, "k");
 	p = ok, p.norm_radius = 0;
@@ -654,7 +680,8 @@ static void test_fit_pose(void **state)
 /*
  * R and k are those of the base conic, the departure kept as it is: for
  * Qcon (whose departure does not depend on R or k) a part made with
- * another R and k is exactly that, and the fit finds them. Qbfs has no k.
+ * another R and k is exactly that, and the fit finds them. On Qbfs the
+ * fit finds the nominal R and k of a part made to them.
  */
 static void test_fit_radius_conic(void **state)
 {
@@ -683,12 +710,11 @@ static void test_fit_radius_conic(void **state)
 	s = build(&qb);
 	xyz = ring_points(s, &n);
 	assert_int_equal(asph_fit_synthesize(s, xyz, n, &so, meas, NULL), 0);
-	assert_int_equal(fit(s, meas, n, ASPH_FIT_DOF_RIGID | rk, &res, &err), -EINVAL);
-	assert_non_null(strstr(err.message, "no conic constant"));
-	if (fit(s, meas, n, ASPH_FIT_DOF_RIGID | ASPH_FIT_DOF_BIT(ASPH_FIT_R), &res, &err) != 0)
+	if (fit(s, meas, n, ASPH_FIT_DOF_RIGID | rk, &res, &err) != 0)
 		fail_msg("fit: %s", err.message);
 	expect_pose(&res, &so.pose);
 	assert_true(fabs(res.value[ASPH_FIT_R] - qb.R) < 1e-8);
+	assert_true(fabs(res.value[ASPH_FIT_K] - qb.k) < 1e-8);
 	asph_surface_free(s);
 	free(xyz);
 	free(meas);

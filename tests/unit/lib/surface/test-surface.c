@@ -250,7 +250,7 @@ static void test_refusals(void **state)
 	p = ok; p.R = 0;
 	expect_refusal(p, "R", "R = 0");
 	p = ok; p.R = NAN;
-	expect_refusal(p, "R", "finite");
+	expect_refusal(p, "R", "not a number");
 	p = ok; p.k = INFINITY;
 	expect_refusal(p, "k", "finite");
 	p = ok; p.A[8] = NAN;
@@ -355,15 +355,97 @@ static void test_extent(void **state)
 	asph_surface_free(s);
 }
 
-static void test_rotational_refuses_other_apertures(void **state)
+/* The area of the sphere of radius R over [x0, x1] x [y0, y1] (inside its
+ * equator): the integral of R / sqrt(R^2 - x^2 - y^2), from its
+ * antiderivative F at the corners. */
+static double sphere_area_over_rectangle(double R, double x0, double x1, double y0, double y1)
 {
-	struct asph_prescription p = { .type = ASPH_SURFACE_EVEN_ASPHERE, .R = 30,
-				       .aperture = { ASPH_APERTURE_RECTANGULAR, 10, 8, { 0, 0 } } };
+	double xs[2] = { x0, x1 }, ys[2] = { y0, y1 }, sum = 0;
+
+	for (int i = 0; i < 2; i++)
+		for (int j = 0; j < 2; j++) {
+			double x = xs[i], y = ys[j];
+			double F = R * (x * asin(y / sqrt(R * R - x * x)) +
+					y * asin(x / sqrt(R * R - y * y)) -
+					R * atan(x * y / (R * sqrt(R * R - x * x - y * y))));
+			sum += (i == j ? 1 : -1) * F;
+		}
+	return sum;
+}
+
+/* An off-axis segment: a sphere over a rectangle whose centre is off the
+ * axis. Its sag is the parent's; the radial tables of the whole part do
+ * not apply, the extent and the area come from the aperture. */
+static void test_segment(void **state)
+{
+	const double R = 37.31;
+	struct asph_prescription p = { .type = ASPH_SURFACE_EVEN_ASPHERE, .R = R,
+				       .aperture = { ASPH_APERTURE_RECTANGULAR, 10, 8, { 0, 12 } } };
+	struct asph_surface *s = NULL;
+	struct asph_surface_extent e;
 	struct asph_error err;
+	struct asph_sag d;
 
 	asph_error_clear(&err);
-	assert_int_equal(asph_prescription_check(&p, &err), -EINVAL);
-	assert_string_equal(err.field, "aperture");
+	assert_int_equal(asph_surface_alloc(&p, &s, &err), 0);
+	assert_false(asph_surface_is_rotational(s));
+	assert_true(asph_surface_is_radial(s));
+	assert_true(isnan(asph_surface_arc_length(s, 5)) && isnan(asph_surface_area(s, 5)));
+	assert_rel(asph_surface_aperture_radius(s), hypot(5, 16), 1e-15);
+	/* the parent's sag, gradient and Hessian */
+	const double pts[][2] = { { 0.31, 12.7 }, { -4.9, 8.2 }, { 3.3, 15.9 } };
+	for (size_t i = 0; i < 3; i++) {
+		double x = pts[i][0], y = pts[i][1], r2 = x * x + y * y, w = sqrt(R * R - r2);
+		asph_surface_derivs_xy(s, x, y, &d);
+		assert_rel(d.z, r2 / (R + w), 1e-14);
+		assert_rel(d.zx, x / w, 1e-13);
+		assert_rel(d.zy, y / w, 1e-13);
+		assert_rel(d.zxx, (R * R - y * y) / (w * w * w), 1e-12);
+		assert_rel(asph_surface_sag(s, sqrt(r2)), d.z, 1e-15);
+	}
+	assert_true(asph_surface_contains(s, 4.9, 15.9, 0) && !asph_surface_contains(s, 0, 0, 0));
+	/* lowest at the edge nearest the axis, highest and steepest at the far
+	 * corners */
+	asph_surface_extent(s, &e);
+	assert_rel(e.sag_min, 64 / (R + sqrt(R * R - 64)), 1e-12);
+	assert_rel(e.sag_max, 281 / (R + sqrt(R * R - 281)), 1e-12);
+	assert_rel(e.max_slope, sqrt(281) / sqrt(R * R - 281), 1e-9);
+	assert_rel(asph_surface_total_area(s), sphere_area_over_rectangle(R, -5, 5, 8, 16), 1e-12);
+	assert_rel(asph_surface_projected_area(s), 80, 1e-15);
+	asph_surface_free(s);
+}
+
+/* A plane base (R infinite, curvature 0): the sag is the polynomial alone,
+ * and the radial tables hold. */
+static void test_plane_base(void **state)
+{
+	const double A4 = 2.173e-6, A6 = -3.41e-9, a = 14.3;
+	struct asph_prescription p = { .type = ASPH_SURFACE_EVEN_ASPHERE, .R = INFINITY,
+				       .aperture_diameter = 2 * a };
+	struct asph_surface *s = NULL;
+	struct asph_error err;
+	double d[3];
+
+	p.A[4] = A4, p.A[6] = A6;
+	asph_error_clear(&err);
+	assert_int_equal(asph_surface_alloc(&p, &s, &err), 0);
+	assert_true(asph_surface_is_rotational(s));
+	for (size_t i = 0; i < sizeof(radii) / sizeof(radii[0]); i++) {
+		double r = radii[i], r3 = r * r * r;
+		asph_surface_sag_derivs(s, r, d);
+		assert_rel(d[0], A4 * r3 * r + A6 * r3 * r3, 1e-14);
+		assert_rel(d[1], 4 * A4 * r3 + 6 * A6 * r3 * r * r, 1e-14);
+		assert_rel(d[2], 12 * A4 * r * r + 30 * A6 * r3 * r, 1e-14);
+	}
+	/* a flat: the area is the disk's, the arc length the radius */
+	p.A[4] = p.A[6] = 0;
+	p.R = -INFINITY;
+	asph_surface_free(s);
+	assert_int_equal(asph_surface_alloc(&p, &s, &err), 0);
+	assert_rel(asph_surface_area(s, a), M_PI * a * a, 1e-14);
+	assert_rel(asph_surface_arc_length(s, 0.731), 0.731, 1e-14);
+	assert_true(asph_surface_sag(s, a) == 0 && asph_surface_max_slope(s, NULL) == 0);
+	asph_surface_free(s);
 }
 
 int main(void)
@@ -381,7 +463,8 @@ int main(void)
 		cmocka_unit_test(test_sphere_xy),
 		cmocka_unit_test(test_aperture_of_rotational),
 		cmocka_unit_test(test_extent),
-		cmocka_unit_test(test_rotational_refuses_other_apertures),
+		cmocka_unit_test(test_segment),
+		cmocka_unit_test(test_plane_base),
 	};
 	return cmocka_run_group_tests(tests, NULL, NULL);
 }

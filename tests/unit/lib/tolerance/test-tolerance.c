@@ -208,7 +208,8 @@ static void test_decide(void **state)
 }
 
 /* The overall decision: fail wins over undecided, which wins over pass;
- * only toleranced quantities get items; |A| is what is decided. */
+ * only toleranced quantities get items; A keeps its sign in the item (as
+ * in the form quantities) and |A| is what is decided. */
 static void test_evaluate(void **state)
 {
 	struct asph_tolerance t;
@@ -228,7 +229,7 @@ static void test_evaluate(void **state)
 	asph_verdict_evaluate(&t, &f, &sl, NAN, &u, &v);
 	assert_int_equal(v.n_items, 2);
 	assert_string_equal(v.items[0].quantity, "A_nm");
-	assert_true(v.items[0].value == 75);
+	assert_true(v.items[0].value == -75);
 	assert_int_equal(v.items[0].verdict, ASPH_VERDICT_PASS);
 	assert_int_equal(v.overall, ASPH_VERDICT_PASS);
 
@@ -241,6 +242,13 @@ static void test_evaluate(void **state)
 	asph_verdict_evaluate(&t, &f, &sl, NAN, &u, &v);
 	assert_int_equal(v.items[0].verdict, ASPH_VERDICT_FAIL);
 	assert_int_equal(v.overall, ASPH_VERDICT_FAIL);
+	f.A.v = -126;                                       /* on either side */
+	asph_verdict_evaluate(&t, &f, &sl, NAN, &u, &v);
+	assert_true(v.items[0].value == -126);
+	assert_int_equal(v.items[0].verdict, ASPH_VERDICT_FAIL);
+	f.A.v = -80;                                        /* -80 - 25 < -100 */
+	asph_verdict_evaluate(&t, &f, &sl, NAN, &u, &v);
+	assert_int_equal(v.items[0].verdict, ASPH_VERDICT_UNDECIDED);
 
 	t.R_mm = 0.01;                                      /* R not fitted */
 	t.slope_max.v = 50;                                 /* no slope */
@@ -273,6 +281,42 @@ static void test_load(void **state)
 	remove(path);
 }
 
+/* What a tolerance argument is (the rule of asph, asphctl and the web
+ * page), and a bare call-out read as the call-out string in JSON is. */
+static void test_arg_kind(void **state)
+{
+	struct asph_tolerance t, j;
+	struct asph_error err;
+	char buf[600];
+
+	assert_int_equal(asph_tolerance_arg_kind(" {\"R_mm\": 1}"), ASPH_TOLERANCE_ARG_JSON);
+	assert_int_equal(asph_tolerance_arg_kind("\"3/2\""), ASPH_TOLERANCE_ARG_JSON);
+	assert_int_equal(asph_tolerance_arg_kind("3/2(0.5/0.3)"), ASPH_TOLERANCE_ARG_CALLOUT);
+	assert_int_equal(asph_tolerance_arg_kind(" 3 /- RMSt < 100 nm"), ASPH_TOLERANCE_ARG_CALLOUT);
+	assert_int_equal(asph_tolerance_arg_kind("3.json"), ASPH_TOLERANCE_ARG_FILE);
+	assert_int_equal(asph_tolerance_arg_kind("./3/tol.json"), ASPH_TOLERANCE_ARG_FILE);
+	assert_int_equal(asph_tolerance_arg_kind("tol.json"), ASPH_TOLERANCE_ARG_FILE);
+	assert_int_equal(asph_tolerance_arg_kind("-"), ASPH_TOLERANCE_ARG_FILE);
+
+	asph_error_clear(&err);
+	assert_int_equal(asph_tolerance_load("3/2(0.5/0.3); lambda = 632.8 nm", &t, &err), 0);
+	assert_int_equal(asph_tolerance_load("\"3/2(0.5/0.3); lambda = 632.8 nm\"", &j, &err), 0);
+	assert_true(t.A.v == j.A.v && t.B.v == j.B.v && t.C.v == j.C.v);
+	assert_near(t.A.v, 632.8);         /* 2 fringes of lambda / 2 */
+	assert_near(t.wavelength_nm, 632.8);
+	assert_string_equal(t.callout, "3/2(0.5/0.3); lambda = 632.8 nm");
+
+	/* the column in the argument; no line or column of a file */
+	assert_int_equal(asph_tolerance_load("3/2(0.5/x)", &t, &err), -EINVAL);
+	asph_error_format(&err, buf, sizeof(buf));
+	assert_non_null(strstr(buf, "'3/2(0.5/x)', column 9: "));
+	assert_int_equal(err.line, 0);
+	assert_int_equal(err.column, 0);
+	assert_null(strstr(buf, "-1"));
+	assert_int_equal(asph_tolerance_load(" ", &t, &err), -EINVAL);
+	assert_non_null(strstr(err.message, "empty"));
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -282,6 +326,7 @@ int main(void)
 		cmocka_unit_test(test_decide),
 		cmocka_unit_test(test_evaluate),
 		cmocka_unit_test(test_load),
+		cmocka_unit_test(test_arg_kind),
 	};
 
 	return cmocka_run_group_tests(tests, NULL, NULL);

@@ -1,10 +1,12 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /* util-time.h: the clocks and ISO 8601. Expected dates are calendar.timegm()
  * values (Python), not this code's output. */
+#include <errno.h>
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <stdlib.h>
 #include <string.h>
 #include <time.h>
 
@@ -43,6 +45,48 @@ static void test_iso8601(void **state)
 	assert_string_equal(small, "2024-02");
 }
 
+/* Local time with its offset: the zones are POSIX TZ rules, so the test
+ * needs no time zone database. */
+static void test_iso8601_local(void **state)
+{
+	char buf[ISO8601_SIZE];
+	const int64_t leap = 1709251199 * NS_PER_SEC + 987654321;  /* 2024-02-29T23:59:59Z */
+
+	setenv("TZ", "UTC0", 1);
+	tzset();
+	iso8601_local(leap, buf, sizeof(buf));
+	assert_string_equal(buf, "2024-02-29T23:59:59+00:00");
+	setenv("TZ", "CET-1", 1);
+	tzset();
+	iso8601_local(leap, buf, sizeof(buf));
+	assert_string_equal(buf, "2024-03-01T00:59:59+01:00");
+	setenv("TZ", "NST+3:30", 1);
+	tzset();
+	iso8601_local(leap, buf, sizeof(buf));
+	assert_string_equal(buf, "2024-02-29T20:29:59-03:30");
+	unsetenv("TZ");
+	tzset();
+}
+
+static void test_iso8601_parse_zoned(void **state)
+{
+	const int64_t t = 1709251199 * NS_PER_SEC;     /* 2024-02-29T23:59:59Z */
+	static const char *const same[] = { "2024-02-29T23:59:59Z", "2024-03-01T00:59:59+01:00",
+					    "2024-03-01T00:59:59+0100", "2024-02-29T20:29:59-03:30" };
+	static const char *const bad[] = { "2024-02-29T23:59:59", "2024-02-29", "2024-02-29T23:59:59+1",
+					   "2024-02-29T23:59:59+01:0", "2024-02-29T23:59:59+24:00",
+					   "2024-02-29T23:59:59+01:00x", "2024-02-29T23:59:59 Z", "" };
+	int64_t ns;
+
+	for (size_t i = 0; i < sizeof(same) / sizeof(same[0]); i++) {
+		ns = 0;
+		assert_int_equal(iso8601_parse_zoned(same[i], &ns), 0);
+		assert_int_equal(ns, t);
+	}
+	for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++)
+		assert_int_equal(iso8601_parse_zoned(bad[i], &ns), -EINVAL);
+}
+
 static void test_timespec(void **state)
 {
 	struct timespec ts = timespec_from_ns(-1500000000);
@@ -78,6 +122,8 @@ int main(void)
 {
 	const struct CMUnitTest tests[] = {
 		cmocka_unit_test(test_iso8601),
+		cmocka_unit_test(test_iso8601_local),
+		cmocka_unit_test(test_iso8601_parse_zoned),
 		cmocka_unit_test(test_timespec),
 		cmocka_unit_test(test_clocks),
 	};
