@@ -144,8 +144,9 @@ static void check_http_root(const struct settings *s, settings_error_fn report, 
 /*
  * Everything the configuration says that needs more than the file to
  * check: the instruments against the drivers, the operator group, the
- * token file, the TCP address, the web page's folder. `asphd --check-config` and the start run
- * this same function, so that they agree. Returns the number of errors
+ * token file, the TCP address, the web page's folder. `asphd
+ * --check-config` and the start run this same function, so that they
+ * agree. Returns the number of errors
  * (reported as found).
  */
 static int load_configuration(struct daemon *d)

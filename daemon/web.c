@@ -662,7 +662,9 @@ static enum MHD_Result route_static(struct web *w, struct MHD_Connection *c, con
 		return send_error(c, MHD_HTTP_NOT_FOUND, "no such page: %s", url);
 	if (w->root_fd < 0) {
 		f = embedded_file_find(web_builtin_files, web_builtin_files_count, name);
-		return f ? send_builtin(c, f, type) : send_error(c, MHD_HTTP_NOT_FOUND, "no such page: %s", url);
+		if (!f)
+			return send_error(c, MHD_HTTP_NOT_FOUND, "no such page: %s", url);
+		return send_builtin(c, f, type);
 	}
 	fd = openat(w->root_fd, name, O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
 	if (fd < 0)
@@ -1120,8 +1122,7 @@ int web_listen(struct web *w, const struct addrinfo *addr, const char *text, con
 		w->root_fd = open(root, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
 		if (w->root_fd < 0) {
 			r = -errno;
-			log_error("http_root %s: %s (set http_root to the folder of the page's files, "
-				  "or remove it to serve the built-in page)", root, strerror(-r));
+			log_error("http_root %s: %s", root, strerror(-r));   /* (checked at the start) */
 			return r;
 		}
 	}

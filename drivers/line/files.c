@@ -1,9 +1,9 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /* Line profile files: finding one by name, listing them all. */
 #include <dirent.h>
-#include <stdbool.h>
 #include <errno.h>
 #include <limits.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -77,6 +77,31 @@ static int load_file(const char *path, struct line_profile *p, struct asph_error
 	return r < 0 ? r : line_profile_parse(text, len, path, p, err);
 }
 
+/* NAME when file is NAME.profile and NAME fits an entry, else false. */
+static bool profile_name(const char *file, char name[64])
+{
+	size_t len = strlen(file);
+
+	if (len <= strlen(SUFFIX) || len - strlen(SUFFIX) >= 64 ||
+	    strcmp(file + len - strlen(SUFFIX), SUFFIX))
+		return false;
+	snprintf(name, 64, "%.*s", (int)(len - strlen(SUFFIX)), file);
+	return true;
+}
+
+/* "a, b, c": the built-in profiles' names, in buf. */
+static const char *builtin_names(char *buf, size_t size)
+{
+	char name[64];
+	size_t used = 0;
+
+	buf[0] = '\0';
+	for (size_t i = 0; i < line_builtin_profiles_count && used < size; i++)
+		if (profile_name(line_builtin_profiles[i].name, name))
+			used += snprintf(buf + used, size - used, "%s%s", used ? ", " : "", name);
+	return buf;
+}
+
 /* The built-in profile NAME.profile, or NULL. */
 static const struct embedded_file *builtin(const char *name)
 {
@@ -95,18 +120,6 @@ static int load_builtin(const struct embedded_file *f, struct line_profile *p,
 	return line_profile_parse((const char *)f->data, f->size, source, p, err);
 }
 
-/* "a, b, c": the built-in profiles' names, in buf. */
-static const char *builtin_names(char *buf, size_t size)
-{
-	size_t used = 0;
-
-	buf[0] = '\0';
-	for (size_t i = 0; i < line_builtin_profiles_count && used < size; i++)
-		used += snprintf(buf + used, size - used, "%s%.*s", i ? ", " : "",
-				 (int)(strlen(line_builtin_profiles[i].name) - strlen(SUFFIX)),
-				 line_builtin_profiles[i].name);
-	return buf;
-}
 
 int line_profile_load(const char *name, struct line_profile *p, struct asph_error *err)
 {
@@ -186,18 +199,6 @@ static int add_entry(struct listing *l, const char *name, const char *path,
 	snprintf(dp->description, sizeof(dp->description), "%s", p.description);
 	snprintf(dp->reference, sizeof(dp->reference), "%s", p.reference);
 	return 0;
-}
-
-/* NAME when file is NAME.profile and NAME fits an entry, else false. */
-static bool profile_name(const char *file, char name[64])
-{
-	size_t len = strlen(file);
-
-	if (len <= strlen(SUFFIX) || len - strlen(SUFFIX) >= 64 ||
-	    strcmp(file + len - strlen(SUFFIX), SUFFIX))
-		return false;
-	snprintf(name, 64, "%.*s", (int)(len - strlen(SUFFIX)), file);
-	return true;
 }
 
 /* The *.profile files of dir whose names an earlier directory did not
