@@ -79,6 +79,9 @@ def table(block):
 
 def mend(roff):
     roff = re.sub(r"\A\.nh\n(\.TH [^\n]*\n)", r"\1.nh\n", roff)
+    # A text line that go-md2man's wrap starts with "'" is a control line to
+    # troff (the no-break form); it emits no such macro itself.
+    roff = re.sub(r"^'", r"\\&'", roff, flags=re.M)
     return re.sub(r"^\.TS\n.*?\n\.TE$", lambda m: table(m.group(0)), roff,
                   flags=re.M | re.S)
 

@@ -59,9 +59,13 @@ int asph_points_read_memory(const void *data, size_t len, const char *source,
 
 /* PLY colours map value linearly over [lo, hi] (a diverging map centred on
  * zero when lo = -hi); lo = hi = 0 picks the symmetric range of the data. */
+struct asph_x3p_info;
 struct asph_points_write_options {
 	double colour_lo, colour_hi;
 	int precision;          /* significant digits, 0 = 17 (round trip) */
+	/* An X3P file's Record2 (asph/x3p.h): who wrote it, when and on
+	 * what the points were measured; NULL: computed data, now. */
+	const struct asph_x3p_info *x3p;
 };
 
 int asph_points_write(const char *path, const struct asph_points *p,

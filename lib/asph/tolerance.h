@@ -94,6 +94,10 @@ static inline enum asph_tolerance_arg_kind asph_tolerance_arg_kind(const char *a
  * call-out alone (errors give its column), or the file holding the JSON. */
 int asph_tolerance_load(const char *arg, struct asph_tolerance *t,
 			struct asph_error *err);
+/* The same, keeping the JSON text read in *text (malloc'd), which a
+ * result's provenance records. */
+int asph_tolerance_load_text(const char *arg, struct asph_tolerance *t, char **text,
+			     struct asph_error *err);
 
 /* ---------------------------------------------------------------- verdict */
 

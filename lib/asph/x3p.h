@@ -34,6 +34,11 @@ struct asph_x3p_info {
 	int64_t calibration_date_ns;   /* Record2/CalibrationDate, ns since 1970;
 					  0: unknown, written as Date (ISO
 					  5436-2:2008 requires one) */
+	/* The instrument that measured, as a recorded scan's header
+	 * describes it (JSON object text): it names Record2/Instrument and
+	 * ProbingSystem where the members above are NULL (docs/
+	 * characterization.md, "Exports"). NULL: computed data. */
+	const char *instrument_json;
 };
 
 /* List layout (FeatureType PCL, ListDimension n): the points xyz (mm, 3 n)

@@ -12,6 +12,7 @@
 
 #include "asph/x3p.h"
 #include "util-mem.h"
+#include "x3p-internal.h"
 #include "util-time.h"
 
 #define NS "http://www.opengps.eu/2008/ISO5436_2"
@@ -82,15 +83,33 @@ static void date_child(xmlNodePtr parent, const char *name, int64_t ns)
 	text_child(parent, name, date);
 }
 
+/* The members not given from the instrument that measured. */
+static void name_instrument(struct asph_x3p_info *info, const struct x3p_instrument *n)
+{
+	if (!info->manufacturer)
+		info->manufacturer = "-";
+	if (!info->model)
+		info->model = n->model;
+	if (!info->version)
+		info->version = n->version;
+	if (!info->probing_type)
+		info->probing_type = n->probing_type;
+	if (!info->probing_id)
+		info->probing_id = n->probing_id;
+}
+
 /* Record2 in the order of ISO 5436-2:2008, which requires the
  * CalibrationDate that the 2017 amendment makes optional. */
 static void record2(xmlNodePtr root, const struct asph_x3p_info *in)
 {
 	struct asph_x3p_info info = { 0 };
+	struct x3p_instrument named;
 	xmlNodePtr r = element(root, "Record2"), ins, ps;
 
 	if (in)
 		info = *in;
+	if (info.instrument_json && x3p_instrument_names(info.instrument_json, &named) == 0)
+		name_instrument(&info, &named);
 	if (!info.date_ns)
 		info.date_ns = now_realtime_ns();
 	date_child(r, "Date", info.date_ns);

@@ -891,7 +891,7 @@ int asph_points_write(const char *path, const struct asph_points *p,
 
 	/* X3P: the list layout of ISO 25178-72 (lib/export/x3p.c). */
 	if (!is_stdout && dot && !strcasecmp(dot, ".x3p"))
-		return asph_x3p_write_points(path, p->xyz, p->n, NULL, err);
+		return asph_x3p_write_points(path, p->xyz, p->n, opts ? opts->x3p : NULL, err);
 	f = is_stdout ? stdout : fopen(path, "we");
 	if (!f) {
 		int e = -errno;

@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include "asph/scanfile.h"
+#include "asph/x3p.h"
 #include "crc32c.h"
 #include "scanfile-format.h"
 #include "util-mem.h"
@@ -261,12 +262,17 @@ int asph_scanfile_export(const char *scan_path, const char *out_path,
 	_cleanup_(asph_scanfile_freep) struct asph_scanfile *s = NULL;
 	_cleanup_(asph_points_freep) struct asph_points *p = NULL;
 	/* precision 0: 17 significant digits, which read back bit for bit */
-	const struct asph_points_write_options wopts = { 0 };
+	struct asph_points_write_options wopts = { 0 };
+	struct asph_x3p_info x3p = { 0 };
 	int r;
 
 	r = asph_scanfile_read(scan_path, &s, err);
 	if (r < 0)
 		return r;
+	/* an X3P names the instrument that measured, and when */
+	x3p.instrument_json = s->header.instrument;
+	x3p.date_ns = s->header.created_ns;
+	wopts.x3p = &x3p;
 	if (report) {
 		*report = s->report;
 		report->reason = NULL;

@@ -299,10 +299,18 @@ int asph_tolerance_parse_json(const char *text, size_t len, const char *source,
 	return parse_object(&c, root, t);
 }
 
-int asph_tolerance_load(const char *arg, struct asph_tolerance *t,
-			struct asph_error *err)
+/* The JSON text of a bare call-out: the JSON string holding it. */
+static char *callout_json(const char *arg)
 {
-	_cleanup_free_ char *text = NULL;
+	_cleanup_(json_decrefp) json_t *s = json_string(arg);
+
+	return s ? json_dumps(s, JSON_ENCODE_ANY) : NULL;
+}
+
+int asph_tolerance_load_text(const char *arg, struct asph_tolerance *t, char **text,
+			     struct asph_error *err)
+{
+	_cleanup_free_ char *own = NULL;
 	size_t len;
 	int r, column = 0;
 
@@ -311,21 +319,36 @@ int asph_tolerance_load(const char *arg, struct asph_tolerance *t,
 				      "or a file holding it");
 	switch (asph_tolerance_arg_kind(arg)) {
 	case ASPH_TOLERANCE_ARG_JSON:
-		return asph_tolerance_parse_json(arg, strlen(arg), "<tolerance>", t, err);
+		own = strdup(arg);
+		r = asph_tolerance_parse_json(arg, strlen(arg), "<tolerance>", t, err);
+		break;
 	case ASPH_TOLERANCE_ARG_CALLOUT:
 		asph_tolerance_init(t);
 		r = asph_tolerance_parse_callout(arg, t->wavelength_nm, t, &column, err);
 		if (r < 0 && err)
 			asph_error_set_at(err, r, NULL, 0, 0, NULL, "'%.160s', column %d: %s", arg,
 					  column, err->message);
-		return r;
-	case ASPH_TOLERANCE_ARG_FILE:
+		if (r == 0)
+			own = callout_json(arg);
+		break;
+	default:
+		r = file_read_all(arg, MAX_TOLERANCE_BYTES, &own, &len, err);
+		if (r < 0)
+			return r;
+		r = asph_tolerance_parse_json(own, len, strcmp(arg, "-") ? arg : "<stdin>", t, err);
 		break;
 	}
-	r = file_read_all(arg, MAX_TOLERANCE_BYTES, &text, &len, err);
-	if (r < 0)
-		return r;
-	return asph_tolerance_parse_json(text, len, strcmp(arg, "-") ? arg : "<stdin>", t, err);
+	if (r == 0 && !own)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	if (r == 0 && text)
+		*text = steal_ptr(own);
+	return r;
+}
+
+int asph_tolerance_load(const char *arg, struct asph_tolerance *t,
+			struct asph_error *err)
+{
+	return asph_tolerance_load_text(arg, t, NULL, err);
 }
 
 const char *asph_verdict_name(enum asph_verdict v)

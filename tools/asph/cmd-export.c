@@ -7,6 +7,8 @@
 
 #include "asph/drift.h"
 #include "asph/scanfile.h"
+#include "asph/x3p.h"
+#include "config.h"
 #include "asph-tool.h"
 #include "util-mem.h"
 
@@ -71,7 +73,8 @@ int cmd_export(int argc, char **argv)
 	_cleanup_(asph_scanfile_freep) struct asph_scanfile *s = NULL;
 	_cleanup_(asph_points_freep) struct asph_points *pts = NULL;
 	/* precision 0: 17 significant digits, which read back bit for bit */
-	const struct asph_points_write_options wo = { 0 };
+	struct asph_points_write_options wo = { 0 };
+	struct asph_x3p_info x3p = { .creator = "asph " ASPH_VERSION };
 	struct asph_error err;
 	uint32_t mask;
 	int code = tool_getopt(argc, argv, "o:h", options, usage, take, &a);
@@ -87,8 +90,15 @@ int cmd_export(int argc, char **argv)
 		tool_print_error("--exclude", &err);
 		return EXIT_USAGE;
 	}
-	if (asph_drift_scan_points(argv[optind], mask, a.raw, &s, &pts, NULL, &err) < 0 ||
-	    asph_points_write(a.output, pts, &wo, &err) < 0) {
+	if (asph_drift_scan_points(argv[optind], mask, a.raw, &s, &pts, NULL, &err) < 0) {
+		tool_print_error(NULL, &err);
+		return EXIT_FAILURE_RUN;
+	}
+	/* an X3P names the instrument that measured, and when */
+	x3p.instrument_json = s->header.instrument;
+	x3p.date_ns = s->header.created_ns;
+	wo.x3p = &x3p;
+	if (asph_points_write(a.output, pts, &wo, &err) < 0) {
 		tool_print_error(NULL, &err);
 		return EXIT_FAILURE_RUN;
 	}

@@ -1,24 +1,23 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /* asph fit: best fit of measured points to the nominal surface. */
 #include <errno.h>
+#include <fcntl.h>
 #include <getopt.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 #include <jansson.h>
 
+#include "asph/characterize.h"
 #include "asph/correction.h"
 #include "asph/fit.h"
-#include "asph/plot.h"
-#include "asph/prescription.h"
-#include "asph/report.h"
+#include "asph/points.h"
 #include "asph/scanfile.h"
-#include "asph/x3p.h"
 #include "config.h"
 #include "fileio.h"
-#include "asph/points.h"
 #include "asph-tool.h"
 #include "fit-report.h"
 #include "fit-tool.h"
@@ -30,9 +29,6 @@
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_surface *, asph_surface_free)
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
-DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_fit *, asph_fit_free)
-DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scatter *, asph_scatter_free)
-DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_grid *, asph_grid_free)
 
 enum {
 	OPT_DOF = 0x100,
@@ -64,16 +60,9 @@ enum {
 	OPT_MEASURED,
 	OPT_SCAN,
 	OPT_BANDS,
+	OPT_OUT,
 };
 
-
-/* Band-limited RMS of the residual (--bands), from the areal PSD of the
- * residual grid. */
-struct band_result {
-	int valid;
-	double spacing_mm;
-	struct asph_band_rms rms;
-};
 
 static void usage(FILE *out)
 {
@@ -93,7 +82,7 @@ static void usage(FILE *out)
 		"  --robust            down-weight outliers (Tukey biweight) and leave them out\n"
 		"  --zernike N         Zernike terms of the decomposition (default 36, max %d)\n"
 		"  --residuals OUT     write x,y,z,residual_nm of the points fitted (.csv or .ply,\n"
-		"                      PLY coloured by residual)\n"
+		"                      PLY coloured by residual; .x3p: x, y and the residual as Z)\n"
 		"  --map OUT.png       residual map with a colour bar in nm\n"
 		"  --tolerance T       a tolerance: an ISO 10110-5 call-out ('3/2(0.5/0.3)'), or\n"
 		"                      JSON text or a file holding it (call-out, RMS, slope and R\n"
@@ -104,7 +93,8 @@ static void usage(FILE *out)
 		"  --slope-length MM   evaluation length of the slope deviation (default: the\n"
 		"                      tolerance's, else 1)\n"
 		"  --x3p OUT.x3p       the residual resampled on a grid (ISO 25178-72 matrix layout)\n"
-		"  --grid-spacing MM   spacing of that grid (default: the median point spacing)\n"
+		"  --grid-spacing MM   spacing of that grid (default: the median point spacing, at\n"
+		"                      most 1000 nodes across the aperture)\n"
 		"  --bands FORM,HIGH   band-limited RMS of the residual from the areal PSD of\n"
 		"                      that grid, by spatial wavelength in mm: form (longer\n"
 		"                      than FORM), mid-spatial (HIGH to FORM), high (shorter\n"
@@ -261,7 +251,9 @@ static int take_option(struct fit_cli *c, int opt, const char *arg)
 		return parse_int(arg, "zernike", 1, ASPH_FIT_MAX_ZERNIKE, &c->opts.n_zernike);
 	case OPT_TOLERANCE:
 		asph_error_clear(&err);
-		if (asph_tolerance_load(arg, &c->tolerance, &err) < 0) {
+		free(c->tolerance_json);
+		c->tolerance_json = NULL;
+		if (asph_tolerance_load_text(arg, &c->tolerance, &c->tolerance_json, &err) < 0) {
 			tool_print_error("fit: --tolerance", &err);
 			return -1;
 		}
@@ -278,6 +270,9 @@ static int take_option(struct fit_cli *c, int opt, const char *arg)
 		return parse_positive(arg, "grid-spacing", 1e-6, 1e6, &c->grid_spacing);
 	case OPT_BANDS:
 		return parse_bands(arg, c);
+	case OPT_OUT:
+		c->out_dir = arg;
+		return 0;
 	case OPT_CORRECTION:
 		c->correction_out = arg;
 		return 0;
@@ -379,6 +374,12 @@ static int check_tolerance(struct fit_cli *c)
 	return EXIT_OK;
 }
 
+void fit_cli_release(struct fit_cli *c)
+{
+	free(c->tolerance_json);
+	c->tolerance_json = NULL;
+}
+
 int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
 		  void (*usage_fn)(FILE *out))
 {
@@ -396,6 +397,7 @@ int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
 		{ "x3p", required_argument, NULL, OPT_X3P },
 		{ "grid-spacing", required_argument, NULL, OPT_GRID_SPACING },
 		{ "bands", required_argument, NULL, OPT_BANDS },
+		{ "out", required_argument, NULL, OPT_OUT },
 		{ "correction", required_argument, NULL, OPT_CORRECTION },
 		{ "correction-kind", required_argument, NULL, OPT_CORRECTION_KIND },
 		{ "correction-sign", required_argument, NULL, OPT_CORRECTION_SIGN },
@@ -444,320 +446,275 @@ int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
 	return check_tolerance(c);
 }
 
-static json_t *bands_json(const struct fit_cli *c, const struct band_result *b)
+static void show_bands(const struct fit_cli *c, const struct asph_characterize_result *res)
 {
-	if (!b->valid)
-		return json_null();
-	return json_pack("{s:f, s:f, s:f, s:f, s:f, s:f, s:f}",
-			 "form_mm", c->bands.form_mm, "high_mm", c->bands.high_mm,
-			 "grid_spacing_mm", b->spacing_mm, "form_nm", b->rms.form,
-			 "mid_nm", b->rms.mid, "high_nm", b->rms.high, "total_nm", b->rms.total);
-}
-
-/* The summary as asph_fit_result_to_json() makes it, with the Monte
- * Carlo's keys, band_rms and the acquisition; NULL when out of memory. */
-static json_t *summary_json(const struct fit_cli *c, const struct asph_surface *s,
-			    const struct asph_fit_result *r, const struct asph_mc_result *mc,
-			    const struct band_result *b, const char *acquisition)
-{
-	_cleanup_free_ char *text = NULL;
-	json_t *root = NULL;
-
-	if (asph_fit_result_to_json(r, asph_surface_prescription(s)->name,
-				    c->opts.robust, &text) < 0 ||
-	    !(root = json_loads(text, 0, NULL)) ||
-	    (mc && fit_mc_json(root, mc, r->form.wavelength_nm) < 0)) {
-		json_decref(root);
-		return NULL;
-	}
-	if (c->bands_given)
-		json_object_set_new(root, "band_rms", bands_json(c, b));
-	if (acquisition)
-		json_object_set_new(root, "acquisition", json_loads(acquisition, 0, NULL));
-	return root;
-}
-
-static void show_bands(const struct fit_cli *c, const struct band_result *b)
-{
-	const double v[] = { b->rms.form, b->rms.mid, b->rms.high, b->rms.total };
+	const double v[] = { res->bands.form, res->bands.mid, res->bands.high, res->bands.total };
 	static const char *const paths[] = { "band_rms.form_nm", "band_rms.mid_nm",
 					     "band_rms.high_nm", "band_rms.total_nm" };
 	char t[4][32];
 
-	if (!c->bands_given || !b->valid)
+	if (!res->bands_done)
 		return;
 	for (int i = 0; i < 4; i++)
 		quantity_format(quantity_by_path(paths[i]), v[i], QUANTITY_UNIT, t[i], sizeof(t[i]));
 	printf("Band-limited RMS (areal PSD, grid %g mm): form (> %g mm) %s, mid (%g..%g mm) %s, "
-	       "high (< %g mm) %s, total %s\n", b->spacing_mm, c->bands.form_mm, t[0],
+	       "high (< %g mm) %s, total %s\n", res->grid_spacing_mm, c->bands.form_mm, t[0],
 	       c->bands.high_mm, c->bands.form_mm, t[1], c->bands.high_mm, t[2], t[3]);
 }
 
-/* --json, or the text of tools/fit-summary.c. */
-static int show(const struct fit_cli *c, const struct asph_surface *s,
-		const struct asph_fit_result *r, const struct asph_mc_result *mc,
-		const struct band_result *b, const char *acquisition,
-		void (*more_text)(void *data), void *data)
+/* --json (the summary asphd stores, byte for byte), or the text of
+ * tools/fit-summary.c followed by more_text(). */
+static int show(const struct fit_cli *c, const struct asph_characterization *ch,
+		void (*more_text)(const struct asph_characterize_result *res))
 {
-	_cleanup_(json_decrefp) json_t *root = summary_json(c, s, r, mc, b, acquisition);
+	const struct asph_characterize_result *res = asph_characterize_result(ch);
+	_cleanup_(json_decrefp) json_t *root = NULL;
+	_cleanup_free_ char *text = NULL;
 
-	if (!root) {
+	if (asph_characterize_summary_json(ch, c->json ? 2 : 0, &text) < 0 ||
+	    (!c->json && !(root = json_loads(text, 0, NULL)))) {
 		fprintf(stderr, "asph fit: out of memory\n");
 		return EXIT_FAILURE_RUN;
 	}
 	if (c->json) {
-		json_dumpf(root, stdout, JSON_INDENT(2) | JSON_PRESERVE_ORDER | JSON_REAL_PRECISION(17));
-		fputc('\n', stdout);
+		puts(text);
 		return EXIT_OK;
 	}
 	fit_summary_print(stdout, root, "");
 	fit_summary_print_zernike(stdout, root, "");
-	if (mc)
-		fit_mc_show(mc);
-	show_bands(c, b);
+	if (res->mc_done)
+		fit_mc_show(&res->mc);
+	show_bands(c, res);
 	if (more_text)
-		more_text(data);
+		more_text(res);
 	return EXIT_OK;
 }
 
-/* The points fitted (outliers included, points outside the aperture not)
- * with their residual in nm. */
-static int residual_points(const struct asph_points *pts, const struct asph_fit *w,
-			   int with_outliers, struct asph_points **out)
+/* The outputs that need the residual map of the part. */
+static unsigned outputs_of(const struct fit_cli *c)
 {
-	const uint8_t *st = asph_fit_point_status(w);
-	const double *res = asph_fit_residuals(w);
-	struct asph_points *p;
-	size_t m = 0;
+	unsigned o = c->bands_given ? ASPH_CHARACTERIZE_BANDS : 0;
 
-	for (size_t i = 0; i < pts->n; i++)
-		m += st[i] == ASPH_FIT_POINT_USED || (with_outliers && st[i] == ASPH_FIT_POINT_OUTLIER);
-	p = asph_points_alloc(m);
-	if (!p || asph_points_add_value(p, "residual_nm") < 0) {
-		asph_points_free(p);
-		return -ENOMEM;
-	}
-	m = 0;
-	for (size_t i = 0; i < pts->n; i++) {
-		if (!(st[i] == ASPH_FIT_POINT_USED || (with_outliers && st[i] == ASPH_FIT_POINT_OUTLIER)))
-			continue;
-		memcpy(p->xyz + 3 * m, pts->xyz + 3 * i, 3 * sizeof(double));
-		p->value[m++] = asph_nm_from_mm(res[i]).v;
-	}
-	*out = p;
-	return 0;
+	if (c->x3p_out || c->correction_out || c->report_out || c->out_dir)
+		o |= ASPH_CHARACTERIZE_MAP;
+	return o;
 }
 
-DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile *, asph_scanfile_free)
-
-/* --report: the provenance from the scan when there is one. */
-static int write_report(const struct fit_cli *c, const struct asph_surface *s,
-			const struct asph_fit *w, const struct asph_fit_result *res,
-			const struct asph_scatter *sc)
+/* The map an output needs: 0, or the exit code after saying why there is
+ * none. */
+static int need_map(const struct asph_characterization *ch, const char *what)
 {
-	_cleanup_(asph_scanfile_freep) struct asph_scanfile *scan = NULL;
-	_cleanup_free_ char *lens_json = NULL, *data = NULL;
-	_cleanup_free_ double *xy = malloc(2 * res->n_used * sizeof(double) + 1);
-	_cleanup_free_ double *v = malloc(res->n_used * sizeof(double) + 1);
-	struct asph_error err;
-	size_t len = 0;
+	const struct asph_characterize_result *res = asph_characterize_result(ch);
 
-	asph_error_clear(&err);
-	if (!xy || !v || asph_prescription_to_json(asph_surface_prescription(s), &lens_json) < 0) {
-		fprintf(stderr, "asph fit: out of memory\n");
-		return EXIT_FAILURE_RUN;
-	}
-	if ((c->scan && asph_scanfile_read(c->scan, &scan, &err) < 0) ||
-	    file_read_all(c->scan ? c->scan : c->points, (size_t)1 << 31, &data, &len, &err) < 0) {
-		tool_print_error("fit: --report", &err);
-		return EXIT_FAILURE_RUN;
-	}
-	_cleanup_(fit_report_who_release) struct fit_report_who who;
-	fit_report_who(c, scan, &who);
-	struct asph_report r = {
-		.part = who.part, .lot = who.lot, .serial = who.serial,
-		.operator_name = who.operator_name, .measured_ns = who.measured_ns,
-		.measured_end_ns = who.measured_end_ns, .job = who.job, .label = who.label,
-		.lens_name = asph_surface_prescription(s)->name, .lens_json = lens_json,
-		.plan_json = scan ? scan->header.plan : NULL,
-		.instrument_json = scan ? scan->header.instrument : NULL,
-		.data_name = c->scan ? c->scan : c->points, .data = data, .data_len = len,
-		.software = "asph " ASPH_VERSION, .fit = res,
-		.tolerance = c->tolerance_arg ? &c->tolerance : NULL,
-		.xy = xy, .residual_nm = v, .n = asph_fit_residual_map(w, xy, v),
-		.scatter = sc, .radius = asph_surface_aperture_radius(s),
-	};
-	if (asph_report_write_pdf(c->report_out, &r, &err) < 0) {
-		tool_print_error("fit: --report", &err);
-		return EXIT_FAILURE_RUN;
-	}
-	return EXIT_OK;
-}
-
-DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_psd2 *, asph_psd2_free)
-
-/* --bands: the residual on the grid of --grid-spacing (default the median
- * point spacing), its areal PSD, and the RMS in each band. */
-static int compute_bands(const struct fit_cli *c, const struct asph_surface *s,
-			 const struct asph_fit *w, struct band_result *out)
-{
-	_cleanup_(asph_scatter_freep) struct asph_scatter *sc = NULL;
-	_cleanup_(asph_grid_freep) struct asph_grid *g = NULL;
-	_cleanup_(asph_psd2_freep) struct asph_psd2 *p = NULL;
-	struct asph_error err;
-
-	if (!c->bands_given)
+	if (res->scatter)
 		return EXIT_OK;
+	tool_print_error(what, &res->map_error);
+	return EXIT_FAILURE_RUN;
+}
+
+/* --correction: a bad option names itself. */
+static int write_correction(const struct fit_cli *c, const struct asph_characterization *ch)
+{
+	struct asph_error err;
+	char where[192];
+
 	asph_error_clear(&err);
-	if (asph_fit_residual_scatter(w, &sc, &err) < 0)
-		goto fail;
-	out->spacing_mm = c->grid_spacing > 0 ? c->grid_spacing : asph_scatter_median_edge(sc);
-	if (asph_grid_resample(sc, asph_surface_aperture_radius(s), out->spacing_mm, &g, &err) < 0 ||
-	    asph_psd_areal(g, &p, &err) < 0 || asph_band_rms(p, &c->bands, &out->rms, &err) < 0)
-		goto fail;
-	out->valid = 1;
-	return EXIT_OK;
-fail:
-	tool_print_error("fit: --bands", &err);
+	if (asph_characterize_write_correction(ch, c->correction_out, &c->correction, &err) == 0)
+		return EXIT_OK;
+	snprintf(where, sizeof(where), "fit: --correction%s%s", err.field[0] ? "-" : "", err.field);
+	err.field[0] = '\0';
+	tool_print_error(where, &err);
 	return err.code == -EINVAL ? EXIT_USAGE : EXIT_FAILURE_RUN;
 }
 
 /* --x3p, --correction and --report. */
-static int write_exports(const struct fit_cli *c, const struct asph_surface *s,
-			 const struct asph_fit *w, const struct asph_fit_result *res)
+static int write_exports(const struct fit_cli *c, const struct asph_characterization *ch)
 {
-	_cleanup_(asph_scatter_freep) struct asph_scatter *sc = NULL;
-	_cleanup_(asph_grid_freep) struct asph_grid *g = NULL;
-	const char *lens = asph_surface_prescription(s)->name;
 	struct asph_error err;
-	char comment[256];
+	int r;
 
 	if (!c->x3p_out && !c->correction_out && !c->report_out)
 		return EXIT_OK;
+	r = need_map(ch, "fit: the residual map");
+	if (r != EXIT_OK)
+		return r;
 	asph_error_clear(&err);
-	if (asph_fit_residual_scatter(w, &sc, &err) < 0) {
-		tool_print_error("fit: the residual map", &err);
+	if (c->x3p_out && asph_characterize_write_x3p(ch, c->x3p_out, &err) < 0) {
+		tool_print_error("fit: --x3p", &err);
 		return EXIT_FAILURE_RUN;
 	}
-	if (c->x3p_out) {
-		double dx = c->grid_spacing > 0 ? c->grid_spacing : asph_scatter_median_edge(sc);
-		struct asph_x3p_info info = { .creator = "asph fit", .comment = comment };
-		snprintf(comment, sizeof(comment), "%s residual of %s after the best fit (z in m)",
-			 asph_fit_residual_name(res->residual), lens);
-		if (asph_grid_resample(sc, asph_surface_aperture_radius(s), dx, &g, &err) < 0 ||
-		    asph_x3p_write_grid(c->x3p_out, g, &info, &err) < 0) {
-			tool_print_error("fit: --x3p", &err);
-			return EXIT_FAILURE_RUN;
-		}
+	if (c->correction_out && (r = write_correction(c, ch)) != EXIT_OK)
+		return r;
+	if (c->report_out && asph_characterize_write_report(ch, c->report_out, &err) < 0) {
+		tool_print_error("fit: --report", &err);
+		return EXIT_FAILURE_RUN;
 	}
-	if (c->correction_out &&
-	    asph_correction_write(c->correction_out, s, lens, sc,
-				  res->residual == ASPH_FIT_RESIDUAL_NORMAL, &c->correction, &err) < 0) {
-		char where[192];
-		snprintf(where, sizeof(where), "fit: --correction%s%s", err.field[0] ? "-" : "",
-			 err.field);
-		err.field[0] = '\0';
-		tool_print_error(where, &err);
-		return err.code == -EINVAL ? EXIT_USAGE : EXIT_FAILURE_RUN;
-	}
-	if (c->report_out)
-		return write_report(c, s, w, res, sc);
 	return EXIT_OK;
 }
 
-static int write_outputs(const struct fit_cli *c, const struct asph_surface *s,
-			 const struct asph_points *pts, const struct asph_fit *w)
+static int write_outputs(const struct fit_cli *c, const struct asph_characterization *ch)
 {
-	_cleanup_(asph_points_freep) struct asph_points *all = NULL;
-	_cleanup_(asph_points_freep) struct asph_points *used = NULL;
 	struct asph_error err;
 	char title[160];
 
 	asph_error_clear(&err);
-	if (c->residuals_out) {
-		if (residual_points(pts, w, 1, &all) < 0 ||
-		    asph_points_write(c->residuals_out, all, NULL, &err) < 0) {
-			tool_print_error("fit: --residuals", &err);
-			return EXIT_FAILURE_RUN;
-		}
+	if (c->residuals_out &&
+	    asph_characterize_write_residuals(ch, c->residuals_out,
+					      ASPH_CHARACTERIZE_FITTED_POINTS, &err) < 0) {
+		tool_print_error("fit: --residuals", &err);
+		return EXIT_FAILURE_RUN;
 	}
-	if (c->map_out) {
-		struct asph_plot_options po = {
-			.title = title, .colour_label = "residual (nm)", .diverging = 1,
-		};
-		snprintf(title, sizeof(title), "%s: %s residual after the best fit",
-			 asph_surface_prescription(s)->name, asph_fit_residual_name(c->opts.residual));
-		if (residual_points(pts, w, 0, &used) < 0 ||
-		    asph_plot_points_png(c->map_out, used->xyz, used->value, used->n, &po, &err) < 0) {
-			tool_print_error("fit: --map", &err);
-			return EXIT_FAILURE_RUN;
-		}
+	snprintf(title, sizeof(title), "%s: %s residual after the best fit",
+		 asph_characterize_lens_name(ch), asph_fit_residual_name(c->opts.residual));
+	if (c->map_out &&
+	    asph_characterize_write_map(ch, c->map_out, title, ASPH_CHARACTERIZE_USED_POINTS,
+					&err) < 0) {
+		tool_print_error("fit: --map", &err);
+		return EXIT_FAILURE_RUN;
+	}
+	return write_exports(c, ch);
+}
+
+/* --out DIR: the files asphd writes into a job's folder. */
+static int write_folder(const struct fit_cli *c, const struct fit_input *in,
+			const struct asph_characterization *ch)
+{
+	static const char software[] = "{\"asph\": \"" ASPH_VERSION "\", \"libasph\": \""
+		ASPH_VERSION "\"}";
+	const char *slash = strrchr(in->name, '/');
+	struct asph_characterize_folder f = {
+		.mode = 0666, .scan_file = slash ? slash + 1 : in->name, .software_json = software,
+		.tolerance_json = c->tolerance_json,
+	};
+	_cleanup_close_ int fd = -1;
+	struct asph_error err;
+
+	asph_error_clear(&err);
+	if (mkdir(c->out_dir, 0777) < 0 && errno != EEXIST) {
+		asph_error_set(&err, -errno, "%s: cannot create: %s", c->out_dir, strerror(errno));
+		goto fail;
+	}
+	fd = open(c->out_dir, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+	if (fd < 0) {
+		asph_error_set(&err, -errno, "%s: %s", c->out_dir, strerror(errno));
+		goto fail;
+	}
+	if (asph_characterize_write_folder(ch, fd, &f, NULL, &err) == 0)
+		return EXIT_OK;
+fail:
+	tool_print_error("replay: --out", &err);
+	return EXIT_FAILURE_RUN;
+}
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_characterization *, asph_characterize_free)
+
+/* The characterization the options ask for, the fit's progress on a
+ * terminal: 0, or the exit code after saying why not. */
+static int characterize(const struct fit_cli *c, const struct fit_input *in,
+			struct fit_mc_run *mc, struct asph_characterization **out)
+{
+	struct asph_characterize_options o = {
+		.fit = c->opts, .outputs = outputs_of(c), .grid_spacing_mm = c->grid_spacing,
+		.bands = c->bands, .run = in->run,
+	};
+	const struct asph_scanfile *scan = in->scan ? in->scan : in->run.source;
+	const char *scan_name = in->scan ? in->name : c->scan;
+	struct progress p;
+	struct asph_error err;
+	int r = fit_mc_prepare(&c->mc, scan_name, scan ? scan->header.instrument : NULL, mc, &o);
+
+	if (r != EXIT_OK)
+		return r;
+	progress_start(&p, "fit", "iterations", c->quiet);
+	o.fit.progress = progress_hook(&p);
+	mc->before = &p;
+	asph_error_clear(&err);
+	r = asph_characterize_alloc(in->surface, &o, out, &err);
+	if (r == 0)
+		r = in->scan ? asph_characterize_scan(*out, in->scan, in->name, &err)
+			     : asph_characterize_points(*out, in->points, &err);
+	progress_stop(&p);
+	if (r < 0) {
+		const struct asph_characterize_result *res = *out ? asph_characterize_result(*out)
+								  : NULL;
+		tool_print_error(res && res->uncertainty_failed ? "fit: --uncertainty" : in->name,
+				 &err);
+		return EXIT_FAILURE_RUN;
 	}
 	return EXIT_OK;
 }
 
-int fit_cli_run(const struct fit_cli *c, const struct asph_surface *s,
-		const struct asph_points *pts, const char *acquisition,
-		void (*more_text)(void *data), void *data)
+/* What the options ask for and the characterization could not give:
+ * the Monte Carlo (a fit that did not converge), the bands (no grid). */
+static int check_asked(const struct fit_cli *c, const struct asph_characterize_result *res)
 {
-	_cleanup_(asph_fit_freep) struct asph_fit *w = NULL;
-	struct asph_fit_options fo = c->opts;
-	struct asph_fit_result res;
-	struct asph_mc_result mc;
-	struct band_result bands = { 0 };
-	struct asph_error err;
-	struct progress p;
-	int r;
-
-	asph_error_clear(&err);
-	progress_start(&p, "fit", "iterations", c->quiet);
-	fo.progress = progress_hook(&p);
-	r = asph_fit_alloc(s, pts->n, &fo, &w, &err);
-	if (r == 0)
-		r = asph_fit_run(w, pts->xyz, pts->n, &res, &err);
-	progress_stop(&p);
-	if (r < 0) {
-		tool_print_error(c->points, &err);
+	if (c->mc.enabled && !res->fit.converged) {
+		fprintf(stderr, "asph fit: the fit did not converge: %s\n", res->fit.reason);
 		return EXIT_FAILURE_RUN;
 	}
-	if (c->mc.enabled) {
-		if (!res.converged) {
-			fprintf(stderr, "asph fit: the fit did not converge: %s\n", res.reason);
-			return EXIT_FAILURE_RUN;
-		}
-		r = fit_mc_run(&c->mc, c->scan, s, pts, &c->opts, c->opts.tolerance, &res, &mc);
-		if (r != EXIT_OK)
-			return r;
+	if (c->bands_given && !res->bands_done) {
+		tool_print_error("fit: --bands", &res->map_error);
+		return res->map_error.code == -EINVAL ? EXIT_USAGE : EXIT_FAILURE_RUN;
 	}
-	r = compute_bands(c, s, w, &bands);
-	if (r != EXIT_OK)
-		return r;
-	r = show(c, s, &res, c->mc.enabled ? &mc : NULL, &bands, acquisition, more_text, data);
-	if (r != EXIT_OK)
-		return r;
-	r = write_outputs(c, s, pts, w);
-	if (r == EXIT_OK)
-		r = write_exports(c, s, w, &res);
-	if (r == EXIT_OK && !res.converged) {
-		fprintf(stderr, "asph fit: the fit did not converge: %s\n", res.reason);
-		r = EXIT_FAILURE_RUN;
-	}
-	if (r == EXIT_OK && res.verdict.present && res.verdict.overall != ASPH_VERDICT_PASS)
-		r = res.verdict.overall == ASPH_VERDICT_FAIL ? EXIT_VERDICT_FAIL
-							     : EXIT_VERDICT_UNDECIDED;
-	return r;
+	return EXIT_OK;
 }
+
+/* The exit status: the fit converged, the part passed. */
+static int exit_status(const struct asph_fit_result *res)
+{
+	if (!res->converged) {
+		fprintf(stderr, "asph fit: the fit did not converge: %s\n", res->reason);
+		return EXIT_FAILURE_RUN;
+	}
+	if (res->verdict.present && res->verdict.overall != ASPH_VERDICT_PASS)
+		return res->verdict.overall == ASPH_VERDICT_FAIL ? EXIT_VERDICT_FAIL
+								 : EXIT_VERDICT_UNDECIDED;
+	return EXIT_OK;
+}
+
+int fit_cli_run(const struct fit_cli *c, const struct fit_input *in,
+		void (*more_text)(const struct asph_characterize_result *res))
+{
+	_cleanup_(asph_characterize_freep) struct asph_characterization *ch = NULL;
+	const struct asph_characterize_result *res;
+	struct fit_mc_run mc = { 0 };
+	int r = characterize(c, in, &mc, &ch);
+
+	if (r != EXIT_OK)
+		return r;
+	res = asph_characterize_result(ch);
+	r = check_asked(c, res);
+	if (r != EXIT_OK)
+		return r;
+	r = show(c, ch, more_text);
+	if (r != EXIT_OK)
+		return r;
+	r = write_outputs(c, ch);
+	if (r == EXIT_OK && c->out_dir)
+		r = write_folder(c, in, ch);
+	return r == EXIT_OK ? exit_status(&res->fit) : r;
+}
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile *, asph_scanfile_free)
 
 int cmd_fit(int argc, char **argv)
 {
 	_cleanup_(asph_surface_freep) struct asph_surface *s = NULL;
 	_cleanup_(asph_points_freep) struct asph_points *pts = NULL;
-	struct fit_cli c = { 0 };
+	_cleanup_(asph_scanfile_freep) struct asph_scanfile *scan = NULL;
+	_cleanup_free_ char *data = NULL;
+	_cleanup_(fit_cli_release) struct fit_cli c = { 0 };
+	struct fit_input in = { 0 };
 	struct asph_error err;
+	char user[256];
 	int r = fit_cli_parse(&c, argc, argv, 2, usage);
 
 	if (r != EXIT_OK)
 		return r < 0 ? EXIT_OK : r;
+	if (c.out_dir) {
+		fprintf(stderr, "asph fit: --out goes with asph replay SCAN\n");
+		return EXIT_USAGE;
+	}
 	if (tool_load_surface(c.lens, &s) < 0)
 		return EXIT_FAILURE_RUN;
 	asph_error_clear(&err);
@@ -765,5 +722,23 @@ int cmd_fit(int argc, char **argv)
 		tool_print_error(NULL, &err);
 		return EXIT_FAILURE_RUN;
 	}
-	return fit_cli_run(&c, s, pts, NULL, NULL, NULL);
+	/* --scan: its plan, instrument, job and times name the run */
+	if (c.scan && asph_scanfile_read(c.scan, &scan, &err) < 0) {
+		tool_print_error("fit: --scan", &err);
+		return EXIT_FAILURE_RUN;
+	}
+	in = (struct fit_input){
+		.surface = s, .points = pts, .name = c.points,
+		.run = { .program = "asph " ASPH_VERSION, .source = scan,
+			 .data_name = c.scan ? c.scan : c.points },
+	};
+	fit_report_run(&c, user, sizeof(user), &in.run);
+	/* the report names and hashes the measured data */
+	if (c.report_out &&
+	    file_read_all(in.run.data_name, (size_t)1 << 31, &data, &in.run.data_len, &err) < 0) {
+		tool_print_error("fit: --report", &err);
+		return EXIT_FAILURE_RUN;
+	}
+	in.run.data = data;
+	return fit_cli_run(&c, &in, NULL);
 }

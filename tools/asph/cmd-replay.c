@@ -1,13 +1,14 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
  * asph replay: characterization of a recorded scan, as asphd makes it at
- * the end of a job: the lens of the scan's header, the points `asph
- * export` writes (the drift model fitted to the scan's references and
- * applied, asph_drift_scan_points()), the fit of asph fit; and the
+ * the end of a job (asph_characterize_scan()): the lens of the scan's
+ * header, the points `asph export` writes (the drift model fitted to the
+ * scan's references and applied), the fit of asph fit; and the
  * acquisition's account (position sources, commanded points, the drift
- * correction and its size).
+ * correction and its size). --out writes the job's result folder.
  */
 #include <getopt.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -15,15 +16,16 @@
 #include <jansson.h>
 
 #include "asph-tool.h"
-#include "asph/drift.h"
+#include "config.h"
+#include "fileio.h"
+#include "fit-report.h"
+#include "fit-summary.h"
 #include "asph/prescription.h"
 #include "asph/scanfile.h"
-#include "fit-summary.h"
 #include "fit-tool.h"
 #include "util-mem.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile *, asph_scanfile_free)
-DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_surface *, asph_surface_free)
 
 static void usage(FILE *out)
@@ -38,26 +40,59 @@ static void usage(FILE *out)
 		     "--residuals OUT, --map OUT.png, --uncertainty with the contributions the\n"
 		     "scan's instrument declares); see asph fit --help. A scan that did not\n"
 		     "complete is characterized on the points it kept; a note on standard error\n"
-		     "says so.\n");
+		     "says so.\n\n"
+		     "  --out DIR           write into DIR the files asphd writes into a job's folder:\n"
+		     "                      result.json (asphd's, but for the time and the program,\n"
+		     "                      given the job's fit options and tolerance), residuals.csv,\n"
+		     "                      residual-map.png, residual.x3p, psd.csv, report.pdf\n");
 }
 
-static void show_acquisition(void *data)
+static void show_acquisition(const struct asph_characterize_result *res)
 {
-	_cleanup_(json_decrefp) json_t *a = json_loads(data, 0, NULL);
+	_cleanup_(json_decrefp) json_t *a = json_loads(res->acquisition_json, 0, NULL);
 
 	fit_summary_print_acquisition(stdout, a, "");
+}
+
+/* The scan read into memory (the report and result.json hash its bytes)
+ * and the surface of its lens. */
+static int read_scan(const char *path, char **data, size_t *len, struct asph_scanfile **s,
+		     struct asph_surface **surf)
+{
+	struct asph_prescription p;
+	struct asph_error err;
+
+	asph_error_clear(&err);
+	if (file_read_all(path, SIZE_MAX / 2, data, len, &err) < 0 ||
+	    asph_scanfile_read_memory(*data, *len, path, s, &err) < 0 ||
+	    asph_prescription_parse((*s)->header.prescription, strlen((*s)->header.prescription),
+				    path, &p, &err) < 0 ||
+	    asph_surface_alloc(&p, surf, &err) < 0) {
+		tool_print_error(NULL, &err);
+		return EXIT_FAILURE_RUN;
+	}
+	return EXIT_OK;
+}
+
+/* The lens's name when it is a preset's, as asphd names the lens of a job
+ * that gave a preset (a prescription sent whole has none). */
+static const char *preset_name(const struct asph_surface *s)
+{
+	const char *name = asph_surface_prescription(s)->name;
+	struct asph_prescription p;
+
+	return asph_prescription_preset(name, &p) == 0 ? name : NULL;
 }
 
 int cmd_replay(int argc, char **argv)
 {
 	_cleanup_(asph_scanfile_freep) struct asph_scanfile *s = NULL;
-	_cleanup_(asph_points_freep) struct asph_points *pts = NULL;
 	_cleanup_(asph_surface_freep) struct asph_surface *surf = NULL;
-	_cleanup_free_ char *acq = NULL;
-	struct asph_drift_summary sum;
-	struct asph_prescription p;
-	struct fit_cli c = { 0 };
-	struct asph_error err;
+	_cleanup_free_ char *data = NULL;
+	_cleanup_(fit_cli_release) struct fit_cli c = { 0 };
+	struct fit_input in;
+	char user[256];
+	size_t len = 0;
 
 	if (argc >= 2 && argv[1][0] == '-' && strcmp(argv[1], "--help") && strcmp(argv[1], "-h")) {
 		fprintf(stderr, "asph replay: SCAN comes first (see --help)\n");
@@ -66,28 +101,19 @@ int cmd_replay(int argc, char **argv)
 	int r = fit_cli_parse(&c, argc, argv, 1, usage);
 	if (r != EXIT_OK)
 		return r < 0 ? EXIT_OK : r;
-	/* the report's provenance and --uncertainty's instrument: the scan's */
-	if (!c.scan)
-		c.scan = c.points;
-	asph_error_clear(&err);
-	if (asph_drift_scan_points(c.points, 0, 0, &s, &pts, &sum, &err) < 0) {
-		tool_print_error(NULL, &err);
-		return EXIT_FAILURE_RUN;
-	}
-	const char *text = s->header.prescription;
-	if (asph_prescription_parse(text, strlen(text), c.points, &p, &err) < 0 ||
-	    asph_surface_alloc(&p, &surf, &err) < 0) {
-		tool_print_error(NULL, &err);
-		return EXIT_FAILURE_RUN;
-	}
+	r = read_scan(c.points, &data, &len, &s, &surf);
+	if (r != EXIT_OK)
+		return r;
 	if (!s->report.ended || s->report.outcome != ASPH_SCANFILE_COMPLETED)
 		fprintf(stderr, "asph replay: note: the scan did not complete (%s); characterizing the %zu points it kept\n",
 			asph_scanfile_outcome_name(s->report.ended ? s->report.outcome
 								    : ASPH_SCANFILE_UNFINISHED),
 			s->n);
-	if (asph_drift_report_json(s, &sum, 1, &acq) < 0) {
-		fprintf(stderr, "asph replay: out of memory\n");
-		return EXIT_FAILURE_RUN;
-	}
-	return fit_cli_run(&c, surf, pts, acq, show_acquisition, acq);
+	in = (struct fit_input){
+		.surface = surf, .scan = s, .name = c.points,
+		.run = { .program = "asph " ASPH_VERSION, .lens_name = preset_name(surf),
+			 .data_name = c.points, .data = data, .data_len = len },
+	};
+	fit_report_run(&c, user, sizeof(user), &in.run);
+	return fit_cli_run(&c, &in, show_acquisition);
 }

@@ -5,19 +5,8 @@
 #include <string.h>
 #include <unistd.h>
 
-#include <jansson.h>
-
 #include "fit-report.h"
 #include "util-time.h"
-
-/* A member of the scan's metadata (asphd records the job's there), or of
- * an object in it. */
-static const char *meta_string(const json_t *meta, const char *object, const char *key)
-{
-	if (object)
-		meta = json_object_get(meta, object);
-	return json_string_value(json_object_get(meta, key));
-}
 
 /* The login name of the user running asph, or "uid N". */
 static void running_user(char *buf, size_t size)
@@ -31,38 +20,16 @@ static void running_user(char *buf, size_t size)
 		snprintf(buf, size, "uid %u", (unsigned)geteuid());
 }
 
-static const char *first(const char *a, const char *b)
+void fit_report_run(const struct fit_cli *c, char *user, size_t size,
+		    struct asph_characterize_run *run)
 {
-	return a ? a : b;
-}
-
-void fit_report_who(const struct fit_cli *c, const struct asph_scanfile *scan,
-		    struct fit_report_who *w)
-{
-	memset(w, 0, sizeof(*w));
-	if (scan)
-		w->meta = json_loads(scan->header.metadata, 0, NULL);
-	running_user(w->user, sizeof(w->user));
-	w->part = first(c->part, meta_string(w->meta, NULL, "part"));
-	w->lot = first(c->lot, meta_string(w->meta, NULL, "lot"));
-	w->serial = first(c->serial, meta_string(w->meta, NULL, "serial"));
-	w->label = meta_string(w->meta, NULL, "label");
-	w->job = json_integer_value(json_object_get(w->meta, "job"));
-	w->operator_name = first(c->operator_name, meta_string(w->meta, "submitted_by", "name"));
-	if (!w->operator_name)
-		w->operator_name = w->user;
-	if (c->measured_ns) {
-		w->measured_ns = c->measured_ns;
-	} else if (scan) {
-		w->measured_ns = scan->header.created_ns;
-		w->measured_end_ns = scan->report.ended_ns;
-	}
-}
-
-void fit_report_who_release(struct fit_report_who *w)
-{
-	json_decref(w->meta);
-	w->meta = NULL;
+	running_user(user, size);
+	run->part = c->part;
+	run->lot = c->lot;
+	run->serial = c->serial;
+	run->operator_name = c->operator_name;
+	run->default_operator = user;
+	run->measured_ns = c->measured_ns;
 }
 
 int fit_report_parse_measured(const char *arg, int64_t *ns)

@@ -8,9 +8,11 @@
 #include <stdio.h>
 
 #include "asph/areal.h"
+#include "asph/characterize.h"
 #include "asph/correction.h"
 #include "asph/fit.h"
 #include "asph/points.h"
+#include "asph/scanfile.h"
 #include "asph/tolerance.h"
 #include "fit-uncertainty.h"
 
@@ -28,7 +30,12 @@ struct fit_cli {
 	int quiet;              /* no progress line */
 	int bands_given;
 	struct asph_bands bands;
+	const char *out_dir;            /* asph replay --out */
+	char *tolerance_json;           /* --tolerance's text */
 };
+
+/* Frees what parsing kept. */
+void fit_cli_release(struct fit_cli *c);
 
 /* The fit's options and `operands` operands (asph fit: LENS POINTS_FILE,
  * asph replay: SCAN, in points). EXIT_OK, the exit code to leave with, or
@@ -36,11 +43,20 @@ struct fit_cli {
 int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
 		  void (*usage_fn)(FILE *out));
 
-/* Fits pts to s and shows it (JSON with acquisition, a JSON object's text,
- * as member "acquisition" when not NULL; the text followed by
- * more_text()). Writes --residuals and --map. An exit code. */
-int fit_cli_run(const struct fit_cli *c, const struct asph_surface *s,
-		const struct asph_points *pts, const char *acquisition,
-		void (*more_text)(void *data), void *data);
+/* What is characterized: points (asph fit) or a recorded scan (asph
+ * replay), on surface, and what names the run. */
+struct fit_input {
+	const struct asph_surface *surface;
+	const struct asph_points *points;
+	const struct asph_scanfile *scan;
+	const char *name;               /* the points' or the scan's file */
+	struct asph_characterize_run run;
+};
+
+/* Characterizes in and shows it (JSON, or the text followed by
+ * more_text(), may be NULL), then writes the files the options ask for.
+ * An exit code. */
+int fit_cli_run(const struct fit_cli *c, const struct fit_input *in,
+		void (*more_text)(const struct asph_characterize_result *res));
 
 #endif

@@ -13,7 +13,6 @@
 
 #include "acquire-tool.h"
 #include "asph/mc-runner.h"
-#include "asph/scanfile.h"
 #include "asph-tool.h"
 #include "fit-uncertainty.h"
 #include "progress.h"
@@ -22,8 +21,6 @@
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_registry *, asph_registry_free)
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_config *, asph_config_free)
-DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile *, asph_scanfile_free)
-DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_mc *, asph_mc_free)
 
 static int parse_count(const char *arg, const char *name, unsigned long lo, unsigned long hi,
 		       unsigned long *out)
@@ -95,28 +92,24 @@ int fit_mc_check(const struct fit_mc_cli *c)
 	return EXIT_OK;
 }
 
-/* The "uncertainty" member of an instrument's JSON (a scan header's). */
-static int model_from_scan(const char *scan, struct asph_uncertainty_model *m)
+/* The "uncertainty" member of an instrument's JSON (a scan header's); scan
+ * names it in messages. */
+static int model_from_scan(const char *scan, const char *instrument_json,
+			   struct asph_uncertainty_model *m)
 {
-	_cleanup_(asph_scanfile_freep) struct asph_scanfile *sf = NULL;
+	_cleanup_(json_decrefp) json_t *root = instrument_json ?
+		json_loads(instrument_json, 0, NULL) : NULL;
+	json_t *u = json_object_get(root, "uncertainty");
 	struct asph_error err;
-	json_error_t jerr;
 	const char *key;
 	json_t *v;
 
-	asph_error_clear(&err);
-	if (asph_scanfile_read(scan, &sf, &err) < 0) {
-		tool_print_error("fit: --scan", &err);
-		return -1;
-	}
-	_cleanup_(json_decrefp) json_t *root = sf->header.instrument ?
-		json_loads(sf->header.instrument, 0, &jerr) : NULL;
-	json_t *u = json_object_get(root, "uncertainty");
 	if (!json_is_object(u)) {
 		fprintf(stderr, "asph fit: --uncertainty: the instrument recorded in %s declares no "
 			"uncertainty contributions (give --instrument CONFIG)\n", scan);
 		return -1;
 	}
+	asph_error_clear(&err);
 	asph_uncertainty_model_init(m);
 	json_object_foreach(u, key, v) {
 		if (!json_is_number(v) ||
@@ -158,50 +151,45 @@ static int model_from_config(const char *arg, struct asph_uncertainty_model *m)
 	return 0;
 }
 
-int fit_mc_run(const struct fit_mc_cli *c, const char *scan, const struct asph_surface *s,
-	       const struct asph_points *pts, const struct asph_fit_options *fo,
-	       const struct asph_tolerance *t, struct asph_fit_result *res,
-	       struct asph_mc_result *out)
+/* The trials on --threads workers (drivers/mc-runner.c), their progress
+ * on a terminal (tools/progress.c). */
+static int run_threads(void *data, struct asph_mc *mc, struct asph_mc_result *out,
+		       struct asph_error *err)
 {
-	_cleanup_(asph_mc_freep) struct asph_mc *mc = NULL;
-	struct asph_uncertainty_model model;
-	struct asph_mc_options o = c->opts;
+	const struct fit_mc_run *run = data;
 	struct progress p;
-	struct asph_mc_threads th = { .n_threads = c->threads, .progress = progress_show,
+	struct asph_mc_threads th = { .n_threads = run->threads, .progress = progress_show,
 				      .progress_data = &p };
-	struct asph_error err;
 	int r;
 
-	if (c->instrument ? model_from_config(c->instrument, &model) < 0
+	if (run->before)
+		progress_stop(run->before);
+	progress_start(&p, "Monte Carlo", "trials", run->quiet);
+	r = asph_mc_run_threads(mc, &th, out, err);
+	progress_stop(&p);
+	return r;
+}
+
+int fit_mc_prepare(const struct fit_mc_cli *c, const char *scan, const char *instrument_json,
+		   struct fit_mc_run *run, struct asph_characterize_options *o)
+{
+	if (!c->enabled)
+		return EXIT_OK;
+	if (c->instrument ? model_from_config(c->instrument, &run->model) < 0
 			  : !scan ? (fprintf(stderr, "asph fit: --uncertainty needs --instrument "
 						     "CONFIG or --scan SCAN (whose instrument "
 						     "declares the contributions)\n"), -1)
-				  : model_from_scan(scan, &model) < 0)
+				  : model_from_scan(scan, instrument_json, &run->model) < 0)
 		return EXIT_FAILURE_RUN;
+	run->threads = c->threads;
+	run->quiet = c->quiet;
+	o->uncertainty = &run->model;
+	o->mc = c->opts;
 	if (!c->seed_set)
-		o.seed = 1;
-	asph_error_clear(&err);
-	progress_start(&p, "Monte Carlo", "trials", c->quiet);
-	r = asph_mc_alloc(s, pts->xyz, pts->n, fo, res, &model, &o, &mc, &err);
-	if (r == 0)
-		r = asph_mc_run_threads(mc, &th, out, &err);
-	progress_stop(&p);
-	if (r < 0) {
-		tool_print_error("fit: --uncertainty", &err);
-		return EXIT_FAILURE_RUN;
-	}
-	asph_mc_apply(out, t, res);
+		o->mc.seed = 1;
+	o->run_mc = run_threads;
+	o->run_mc_data = run;
 	return EXIT_OK;
-}
-
-int fit_mc_json(json_t *root, const struct asph_mc_result *mc, double wavelength_nm)
-{
-	_cleanup_free_ char *text = NULL;
-	_cleanup_(json_decrefp) json_t *add = NULL;
-
-	if (asph_mc_result_to_json(mc, wavelength_nm, &text) < 0 || !(add = json_loads(text, 0, NULL)))
-		return -ENOMEM;
-	return json_object_update_recursive(root, add) < 0 ? -ENOMEM : 0;
 }
 
 void fit_mc_show(const struct asph_mc_result *mc)

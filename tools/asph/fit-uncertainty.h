@@ -3,10 +3,7 @@
 #ifndef ASPH_TOOL_FIT_UNCERTAINTY_H
 #define ASPH_TOOL_FIT_UNCERTAINTY_H
 
-#include <jansson.h>
-
-#include "asph/fit.h"
-#include "asph/points.h"
+#include "asph/characterize.h"
 #include "asph/uncertainty.h"
 
 struct fit_mc_cli {
@@ -53,18 +50,23 @@ int fit_mc_check(const struct fit_mc_cli *c);
 	"    --threads N           worker threads (default: the online processors)\n" \
 	"    --seed S              of the trials' draws (default 1)\n"
 
-/*
- * Runs the Monte Carlo for the fit res of pts and puts its expanded
- * uncertainties and the verdict they decide into res. scan is --scan (may
- * be NULL). EXIT_OK or the exit code.
- */
-int fit_mc_run(const struct fit_mc_cli *c, const char *scan, const struct asph_surface *s,
-	       const struct asph_points *pts, const struct asph_fit_options *fo,
-	       const struct asph_tolerance *t, struct asph_fit_result *res,
-	       struct asph_mc_result *out);
+/* The Monte Carlo of a characterization: the model and the threads. */
+struct progress;
+struct fit_mc_run {
+	struct asph_uncertainty_model model;
+	int threads;
+	int quiet;                /* no progress line */
+	struct progress *before;  /* a progress line to clear first (the fit's) */
+};
 
-/* Merges the Monte Carlo's keys into the JSON summary. -ENOMEM. */
-int fit_mc_json(json_t *root, const struct asph_mc_result *mc, double wavelength_nm);
+/*
+ * With --uncertainty: the model (from --instrument, else the instrument
+ * recorded in the scan named scan, instrument_json; scan NULL: none), the
+ * Monte Carlo's options and its runner on run into o. EXIT_OK or the exit
+ * code after saying why.
+ */
+int fit_mc_prepare(const struct fit_mc_cli *c, const char *scan, const char *instrument_json,
+		   struct fit_mc_run *run, struct asph_characterize_options *o);
 
 /* The text summary of the Monte Carlo. */
 void fit_mc_show(const struct asph_mc_result *mc);
