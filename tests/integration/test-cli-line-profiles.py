@@ -4,10 +4,13 @@
 the built-in ones with no profile directory anywhere (they are compiled
 in), a lab's own in a directory of $ASPH_LINE_PROFILE_PATH, one that
 replaces a built-in of the same name, and one that does not load (with
-its reason); a directory named there that is not one is refused with the
-setting to change."""
+its reason); a directory named there that is not one, or that the user
+cannot read, is refused with the setting to change, and so is the lab's
+profile directory (/etc/asphd/line-profiles from the package) when it is
+not a directory the user can read."""
 import os
 import shutil
+import subprocess
 import sys
 import tempfile
 
@@ -95,4 +98,72 @@ for bad, why in ((missing, "No such file or directory"),
         expect(rc == 1 and f"ASPH_LINE_PROFILE_PATH names {bad}: {why}" in err,
                f"asph {what}, ASPH_LINE_PROFILE_PATH={os.path.basename(bad)}: "
                f"refused, naming the setting ({err.strip()[-120:]})")
+os.environ.pop("ASPH_LINE_PROFILE_PATH")
+
+# Unreadable: a directory this user cannot search. Root reads any, so as
+# root asph runs as nobody for these; another user meets a mode of 0.
+NOBODY = ["setpriv", "--reuid", "65534", "--regid", "65534", "--clear-groups"]
+as_root = os.geteuid() == 0
+DENIED = "Permission denied"
+
+
+def as_user(args, env=None):
+    """(exit, stderr) of asph args as a user who cannot read a root-only folder."""
+    p = subprocess.run([os.environ.get("ASPH_BIN", "asph"), *args], capture_output=True, text=True,
+                       timeout=600, env=env, **({"user": 65534, "group": 65534, "extra_groups": []}
+                                                 if as_root else {}))
+    return p.returncode, p.stderr
+
+
+shut = tempfile.mkdtemp(prefix="asph-test-shut-")
+os.chmod(shut, 0o755)
+locked = os.path.join(shut, "profiles")
+os.mkdir(locked, 0o700 if as_root else 0)
+rc, err = as_user(["drivers"], env={**os.environ, "ASPH_LINE_PROFILE_PATH": locked})
+expect(rc == 1 and f"ASPH_LINE_PROFILE_PATH names {locked}: {DENIED} (set it" in err,
+       f"ASPH_LINE_PROFILE_PATH not readable: refused, naming the setting ({err.strip()[-120:]})")
+os.chmod(locked, 0o700)
+shutil.rmtree(shut)
+
+# The lab's directory (/etc/asphd/line-profiles installed from the
+# package) may be absent, but one that is there and is not a directory
+# this user can read is named with what to change. It is made in a mount
+# namespace of the test's own, on an overlay of the folder that holds it:
+# the machine's folders are untouched.
+LAB_DIR = os.environ["ASPH_TEST_LAB_PROFILE_DIR"]
+SAID = "(the lab's profile directory: make it a directory this user can read, or remove it)"
+
+
+def in_namespace(make, cmd):
+    """cmd with LAB_DIR made by the shell command make (the directory's
+    path is $1); the completed process."""
+    top = tempfile.mkdtemp(prefix="asph-test-overlay-")
+    base = os.path.dirname(LAB_DIR)
+    while not os.path.isdir(base):
+        base = os.path.dirname(base)
+    script = ('mount -t overlay overlay -o "lowerdir=$2,upperdir=$3/upper,workdir=$3/work" "$2" '
+              '&& rm -rf "$1" && mkdir -p "$(dirname "$1")" && ' + make + ' && shift 3 && exec "$@"')
+    os.mkdir(os.path.join(top, "upper"))
+    os.mkdir(os.path.join(top, "work"))
+    p = subprocess.run(["unshare", "-m", "--", "sh", "-c", script, "sh", LAB_DIR, base, top, *cmd],
+                       capture_output=True, text=True, timeout=600)
+    shutil.rmtree(top)
+    return p
+
+
+probe = in_namespace('mkdir "$1"', ["true"])
+if probe.returncode != 0:
+    print(f"# SKIP the lab's profile directory: no mount namespace or overlay here "
+          f"({probe.stderr.strip()})")
+else:
+    wrap = getattr(sys.modules.get("sitecustomize"), "wrapped", list)
+    for make, user, why in (('touch "$1"', False, "Not a directory"),
+                            ('mkdir -m 700 "$1"', True, DENIED)):
+        if user and not as_root:
+            continue
+        p = in_namespace(make, [*(NOBODY if user else []),
+                                *wrap([os.environ.get("ASPH_BIN", "asph"), "drivers"])])
+        expect(p.returncode == 1 and f"{LAB_DIR}: {why} {SAID}" in p.stderr,
+               f"the lab's profile directory, {why.lower()}: asph drivers names it and what to "
+               f"change (exit {p.returncode}: {p.stderr.strip()[-160:]})")
 finish()

@@ -175,9 +175,33 @@ def check_http_root():
                                capture_output=True, text=True, timeout=60)
         expect(check.returncode == 3 and said in check.stderr,
                f"asphd --check-config says so too (exit {check.returncode})")
+        check_http_root_unusable(d, site)
     finally:
         d.cleanup()
         shutil.rmtree(site, ignore_errors=True)
+
+
+def check_http_root_unusable(d, site):
+    """http_root that is a file, or a folder the daemon's user cannot
+    read, is named with the setting to change (asphd --check-config runs
+    the start's checks). Root reads any folder: as root, the check runs as
+    nobody, as an unprivileged daemon would."""
+    as_root = os.geteuid() == 0
+    a_file = os.path.join(site, "index.html")
+    locked = os.path.join(site, "locked")
+    os.mkdir(locked, 0o700 if as_root else 0)
+    user = {"user": 65534, "group": 65534, "extra_groups": []} if as_root else {}
+    for root, why, who in ((a_file, "Not a directory", {}), (locked, "Permission denied", user)):
+        cfg = {"instruments": [mock_instrument()], "http_listen": "127.0.0.1:0", "http_root": root}
+        with open(d.config, "w") as f:
+            json.dump(cfg, f)
+        check = subprocess.run([ASPHD, "--check-config", "--config", d.config],
+                               capture_output=True, text=True, timeout=60, **who)
+        said = f"http_root: {root}: {why} (set http_root"
+        expect(check.returncode == 3 and said in check.stderr,
+               f"http_root, {why.lower()}: asphd --check-config names the setting "
+               f"(exit {check.returncode}: {check.stderr.strip()[-160:]})")
+    os.chmod(locked, 0o700)
 
 
 def check_every_address():
