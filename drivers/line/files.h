@@ -13,7 +13,7 @@
 
 #include <stddef.h>
 
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "embedded.h"
 #include "profile.h"
 
