@@ -6,6 +6,7 @@
  * (docs/architecture.md). Event loop thread.
  */
 #include <errno.h>
+#include <fcntl.h>
 #include <getopt.h>
 #include <signal.h>
 #include <stdio.h>
@@ -133,27 +134,37 @@ static int resolve_listen(const struct settings *s, const char *field, const cha
 	return r;
 }
 
-/* The web page's files, when the web listener serves them: http_root, or
- * the installed ones when it is not set (and they are there). */
-static void check_page(const struct settings *s, settings_error_fn report, void *data)
+/* http_root, when the web page is on: a folder the daemon can open, that
+ * only root and the daemon's user may write, nor any file in it (the page
+ * compiled in is served without it). */
+static void check_http_root(const struct settings *s, settings_error_fn report, void *data)
 {
-	const char *root = s->http_root ? s->http_root : WEB_DIR;
 	struct asph_error err;
+	int fd, r;
 
-	if (!s->http_listen || (!s->http_root && access(root, F_OK) < 0))
+	if (!s->http_listen || !s->http_root)
 		return;
 	asph_error_clear(&err);
-	if (dirs_check_page(root, &err) < 0) {
-		settings_locate(s, "http_root", &err);
-		report(&err, data);
+	fd = open(s->http_root, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+	if (fd >= 0) {
+		close(fd);
+		if (dirs_check_page(s->http_root, &err) == 0)
+			return;
+	} else {
+		r = -errno;
+		asph_error_set(&err, r, "%s: %s (set http_root to the folder of the page's files, "
+			       "or remove it to serve the built-in page)", s->http_root, strerror(-r));
 	}
+	settings_locate(s, "http_root", &err);
+	report(&err, data);
 }
 
 /*
  * Everything the configuration says that needs more than the file to
  * check: the instruments against the drivers, the operator group, the
- * token file, the TCP address, the web page's files. `asphd --check-config` and the start run
- * this same function, so that they agree. Returns the number of errors
+ * token file, the TCP address, the web page's folder. `asphd
+ * --check-config` and the start run this same function, so that they
+ * agree. Returns the number of errors
  * (reported as found).
  */
 static int load_configuration(struct daemon *d)
@@ -169,7 +180,7 @@ static int load_configuration(struct daemon *d)
 		       &d->tcp, report_config_error, &n_errors);
 	resolve_listen(d->settings, "http_listen", d->settings->http_host,
 		       d->settings->http_port, &d->http, report_config_error, &n_errors);
-	check_page(d->settings, report_config_error, &n_errors);
+	check_http_root(d->settings, report_config_error, &n_errors);
 	mqtt_credentials_load(d->settings, &d->mqtt_credentials, report_config_error, &n_errors);
 	fleetdb_password_load(d->settings, &d->pg_password, report_config_error, &n_errors);
 	return n_errors;
@@ -911,8 +922,7 @@ static int run(struct daemon *d)
 	if (r == 0 && d->web) {
 		r = web_listen(d->web, &(struct web_listen_setup){
 				.addr = d->http, .text = d->settings->http_listen,
-				.host = d->settings->http_host,
-				.root = d->settings->http_root ? d->settings->http_root : WEB_DIR,
+				.host = d->settings->http_host, .root = d->settings->http_root,
 				.allowed_hosts = d->settings->http_allowed_hosts,
 				.trust_proxy = d->settings->http_trust_proxy,
 			       });

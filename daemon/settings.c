@@ -485,9 +485,9 @@ static const struct row rows[] = {
 	  "(docs/daemon.md)", take_tcp_listen },
 	{ "http_listen", "HOST:PORT", "off", "the web page and its API (docs/web.md), /healthz "
 	  "and /metrics (docs/admin.md)", take_http_listen },
-	{ "http_root", "path", "PREFIX/share/asphd/web", "the web page's files; none that "
-	  "others than root and the daemon's user may write", take_path,
-	  AT(struct settings, http_root) },
+	{ "http_root", "path", "none: the page built into asphd", "a folder of the web page's "
+	  "files, served instead of the built-in page; none that others than root and the "
+	  "daemon's user may write", take_path, AT(struct settings, http_root) },
 	{ "http_allowed_hosts", "array of host names", "the listen address, localhost and the "
 	  "host name", "the names the web page answers to (Host): others get 421 (DNS "
 	  "rebinding)", take_allowed_hosts },

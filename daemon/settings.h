@@ -74,7 +74,7 @@ struct settings {
 	char *token_file;
 	char *http_listen;              /* "HOST:PORT" or NULL (off), as written */
 	char *http_host, *http_port;    /* its parts */
-	char *http_root;                /* the web page's files (NULL: WEB_DIR) */
+	char *http_root;                /* the web page's files (NULL: built in) */
 	char **http_allowed_hosts;      /* Host names served, NULL-terminated; NULL: default */
 	char *http_trust_proxy;         /* the reverse proxy's address, or NULL */
 	char *state_dir;

@@ -8,7 +8,7 @@
  * the socket's do.
  *
  * Routes:
- *   GET  /, /NAME            the page's files (http_root)
+ *   GET  /, /NAME            the page's files (built in, or http_root's)
  *   POST /api/login          {"token": ...}: a session cookie
  *   POST /api/logout         ends the session
  *   POST /api/rpc            a JSON-RPC line (request, notification, batch)
@@ -41,6 +41,7 @@
 
 #include <systemd/sd-event.h>
 
+#include "embedded.h"
 #include "events.h"
 #include "jobs.h"
 #include "monitor.h"
@@ -52,6 +53,10 @@
 /* Connections closed to make room for new ones and not yet gone: at most
  * this many beyond limits.max_clients (of the descriptors' budget). */
 #define WEB_DISPLACED_MAX 16
+
+/* The page's files (daemon/web/), compiled in by scripts/embed-files. */
+extern const struct embedded_file web_builtin_files[];
+extern const size_t web_builtin_files_count;
 
 struct web_setup {
 	sd_event *event;
@@ -74,7 +79,7 @@ struct web_listen_setup {
 	const struct addrinfo *addr;    /* from server_resolve_tcp() */
 	const char *text;               /* http_listen, for messages */
 	const char *host;               /* its host, as written */
-	const char *root;               /* the page's files */
+	const char *root;               /* the page's files (NULL: the built-in page) */
 	/* The Host names served (http_allowed_hosts, NULL-terminated); NULL:
 	 * localhost, host, this host's name and the addresses of addr. */
 	char *const *allowed_hosts;
@@ -84,8 +89,8 @@ struct web_listen_setup {
 };
 
 /* Listens on every address of ls->addr, all on one port
- * (server_listen_tcp()), and serves the files of ls->root. 0, or -errno
- * having logged why. */
+ * (server_listen_tcp()), and serves the files of ls->root, or the
+ * built-in page when it is NULL. 0, or -errno having logged why. */
 int web_listen(struct web *w, const struct web_listen_setup *ls);
 /* The port listened on (after web_listen()), 0 when not listening. */
 unsigned web_port(const struct web *w);
