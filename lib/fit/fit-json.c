@@ -14,15 +14,45 @@ static json_t *json_num(double v)
 	return isfinite(v) ? json_real(v) : json_null();
 }
 
-static json_t *dof_object(const struct asph_fit_result *r, const double *v)
+/* The DOF fitted, name to value; with R its curvature c beside it. */
+static json_t *dof_object(const struct asph_fit_result *r, const double *v, double c)
 {
 	json_t *o = json_object();
 
-	for (int d = 0; o && d < ASPH_FIT_N_DOF; d++)
-		if (r->dof & ASPH_FIT_DOF_BIT(d))
-			json_object_set_new(o, asph_fit_dof_name((enum asph_fit_dof)d),
-					    json_num(v[d]));
+	for (int d = 0; o && d < ASPH_FIT_N_DOF; d++) {
+		if (!(r->dof & ASPH_FIT_DOF_BIT(d)))
+			continue;
+		json_object_set_new(o, asph_fit_dof_name((enum asph_fit_dof)d), json_num(v[d]));
+		if (d == ASPH_FIT_R)
+			json_object_set_new(o, "c", json_num(c));
+	}
 	return o;
+}
+
+/* Line profiles: each trace with what the fit leaves along it. */
+static json_t *profiles_array(const struct asph_fit_result *r)
+{
+	json_t *a;
+
+	if (!r->profile)
+		return json_null();
+	a = json_array();
+	for (size_t t = 0; a && t < r->n_profiles; t++) {
+		const struct asph_fit_profile *p = &r->profiles[t];
+		json_t *o = json_object();
+		json_object_set_new(o, "azimuth_deg", json_num(p->azimuth * 180 / M_PI));
+		json_object_set_new(o, "offset_mm", json_num(p->offset_mm));
+		json_object_set_new(o, "length_mm", json_num(p->length_mm));
+		json_object_set_new(o, "n_points", json_integer((json_int_t)p->n_points));
+		json_object_set_new(o, "n_used", json_integer((json_int_t)p->n_used));
+		json_object_set_new(o, "rms_nm", json_num(p->rms.v));
+		json_object_set_new(o, "pv_nm", json_num(p->pv.v));
+		json_object_set_new(o, "slope_rms_urad", json_num(p->slope_rms.v));
+		json_object_set_new(o, "slope_max_urad", json_num(p->slope_max.v));
+		json_object_set_new(o, "n_slope_positions", json_integer((json_int_t)p->n_slope));
+		json_array_append_new(a, o);
+	}
+	return a;
 }
 
 static json_t *form_object(const struct asph_form *f)
@@ -73,6 +103,8 @@ static json_t *radius_object(const struct asph_fit_result *r)
 	json_object_set_new(o, "R_mm", json_num(r->value[ASPH_FIT_R]));
 	json_object_set_new(o, "nominal_mm", json_num(r->R_nominal_mm));
 	json_object_set_new(o, "deviation_mm", json_num(r->R_deviation_mm));
+	json_object_set_new(o, "c_per_mm", json_num(r->curvature));
+	json_object_set_new(o, "nominal_c_per_mm", json_num(r->curvature_nominal));
 	return o;
 }
 
@@ -96,6 +128,7 @@ static json_t *uncertainty_object(const struct asph_uncertainty_k2 *u)
 	json_object_set_new(o, "max_urad", json_num(u->slope_max.v));
 	json_object_set_new(o, "R_mm", json_num(u->R_mm));
 	json_object_set_new(o, "deviation_mm", json_num(u->R_mm));
+	json_object_set_new(o, "c_per_mm", json_num(u->c_per_mm));
 	return o;
 }
 
@@ -148,8 +181,9 @@ static json_t *result_json(const struct asph_fit_result *r, const char *lens,
 	json_object_set_new(root, "n_downweighted", json_integer((json_int_t)r->n_downweighted));
 	json_object_set_new(root, "residual", json_string(asph_fit_residual_name(r->residual)));
 	json_object_set_new(root, "robust", json_boolean(robust));
-	json_object_set_new(root, "dof", dof_object(r, r->value));
-	json_object_set_new(root, "uncertainty", dof_object(r, r->uncertainty));
+	json_object_set_new(root, "profile", json_boolean(r->profile));
+	json_object_set_new(root, "dof", dof_object(r, r->value, r->curvature));
+	json_object_set_new(root, "uncertainty", dof_object(r, r->uncertainty, r->u_curvature));
 	json_object_set_new(root, "iterations", json_integer(r->iterations));
 	json_object_set_new(root, "passes", json_integer(r->passes));
 	json_object_set_new(root, "converged", json_boolean(r->converged));
@@ -164,6 +198,7 @@ static json_t *result_json(const struct asph_fit_result *r, const char *lens,
 	json_object_set_new(root, "form", form_object(&r->form));
 	json_object_set_new(root, "slope", slope_object(&r->slope));
 	json_object_set_new(root, "radius", radius_object(r));
+	json_object_set_new(root, "profiles", profiles_array(r));
 	json_object_set_new(root, "uncertainty_k2", uncertainty_object(&r->uncertainty_k2));
 	json_object_set_new(root, "uncertainty_method",
 			    json_string(asph_uncertainty_method_name(r->uncertainty_k2.method)));
