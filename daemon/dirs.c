@@ -1,4 +1,5 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <libgen.h>
@@ -164,6 +165,34 @@ int dirs_open_job(int state_fd, int64_t id, bool create)
 	if (jobs < 0)
 		return jobs;
 	return fs_mkdir_beneath(jobs, name, DIRS_DIR_MODE);
+}
+
+int64_t dirs_last_job(int state_fd)
+{
+	int fd = fs_open_beneath(state_fd, "jobs", O_RDONLY | O_DIRECTORY, 0);
+	int64_t last = 0;
+	struct dirent *e;
+	DIR *d;
+
+	if (fd == -ENOENT)
+		return 0;
+	if (fd < 0)
+		return fd;
+	d = fdopendir(fd);
+	if (!d) {
+		close(fd);
+		return -errno;
+	}
+	while ((e = readdir(d))) {
+		size_t n = strlen(e->d_name);
+		if (n == 0 || n > 18 || e->d_name[0] == '0' || strspn(e->d_name, "0123456789") != n)
+			continue;
+		int64_t id = strtoll(e->d_name, NULL, 10);
+		if (id > last)
+			last = id;
+	}
+	closedir(d);
+	return last;
 }
 
 int dirs_free_mb(int fd, uint64_t *mb)

@@ -50,6 +50,10 @@ char *dirs_job_path(const char *state_dir, int64_t id);
  * is refused (-ELOOP). Returns the descriptor or -errno. */
 int dirs_open_job(int state_fd, int64_t id, bool create);
 
+/* The highest id among the job folders in jobs/ (0: none), or -errno:
+ * a job store put back from a backup may be older than the folders. */
+int64_t dirs_last_job(int state_fd);
+
 /* MiB free for the daemon on the file system of fd; 0 or -errno. */
 int dirs_free_mb(int fd, uint64_t *mb);
 

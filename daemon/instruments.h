@@ -53,6 +53,7 @@ struct instrument_activity {
 	double trials_rate;
 	const char *fault;      /* the last driver fault, or NULL */
 	const struct instrument_lock *lock;     /* NULL: not locked */
+	int64_t points_measured;        /* since the daemon started, all jobs */
 };
 
 struct instruments;

@@ -36,6 +36,7 @@ struct slot {
 	int64_t cancel_uid;             /* by whom: the history's actor */
 	char *cancel_by;
 	struct instrument_lock lock;    /* act.lock points here when locked */
+	int64_t counted;                /* plan points of its job in act.points_measured */
 };
 
 struct jobs {
@@ -64,6 +65,7 @@ static int open_store(struct jobs *jobs, struct asph_error *err)
 {
 	_cleanup_free_ char *path = NULL;
 	_cleanup_free_ char *v = NULL;
+	int64_t last;
 	int n, r;
 
 	jobs->state_fd = dirs_open_state(jobs->state_dir);
@@ -75,6 +77,17 @@ static int open_store(struct jobs *jobs, struct asph_error *err)
 	r = store_open(path, &jobs->store, err);
 	if (r < 0)
 		return r;
+	/* A job's folder is never taken by another job: after a store is put
+	 * back from a backup, its next jobs start after every folder. */
+	last = dirs_last_job(jobs->state_fd);
+	r = last > 0 ? store_skip_ids(jobs->store, last) : (int)last;
+	if (r < 0)
+		return asph_error_set(err, r, "%s: cannot read the job folders: %s", jobs->state_dir,
+				      strerror(-r));
+	if (r > 0)
+		log_notice("the state directory has job folders up to %" PRId64 " that the job store "
+			   "does not know (a store put back from a backup?): new jobs start after them",
+			   last);
 	n = store_recover(jobs->store, now_realtime_ns());
 	if (n < 0)
 		return asph_error_set(err, n, "%s: cannot mark the interrupted jobs: %s", path,
@@ -528,8 +541,10 @@ static int start_job(struct jobs *jobs, struct slot *sl, struct job_record *j)
 	}
 	sl->act = (struct instrument_activity){
 		.job = j->id, .done = j->points_done, .total = j->points_total, .eta_s = -1,
+		.points_measured = sl->act.points_measured,
 	};
 	sl->last_progress_store_ns = 0;
+	sl->counted = j->points_done;
 	sl->cancel = false;
 	set_fault(sl, NULL);
 	r = runner_start(sl->runner, rj);
@@ -603,6 +618,13 @@ static void job_progress(struct slot *sl, const struct runner_report *rep)
 	struct jobs *jobs = sl->jobs;
 	uint64_t now = (uint64_t)now_realtime_ns();
 
+	/* Points measured: what the progress passes beyond what was counted
+	 * (from where the job started, for a resumed one where its last run
+	 * had got to; the executor's last report is never coalesced away). */
+	if (rep->kind == RUNNER_PROGRESS && (int64_t)rep->done > sl->counted) {
+		sl->act.points_measured += (int64_t)rep->done - sl->counted;
+		sl->counted = (int64_t)rep->done;
+	}
 	sl->act.done = (int64_t)rep->done;
 	sl->act.total = (int64_t)rep->total;
 	sl->act.rate = rep->rate;

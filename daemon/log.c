@@ -1,6 +1,7 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 #include <errno.h>
 #include <stdarg.h>
+#include <stdatomic.h>
 #include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -12,6 +13,9 @@
 
 static int max_level = LOG_INFO;
 static bool to_journal;
+/* Messages of each priority (LOG_EMERG..LOG_DEBUG), logged or not: any
+ * thread logs. */
+static atomic_ullong counts[LOG_DEBUG + 1];
 
 /* A decimal number (digits only, no sign or blanks) ending at *end. */
 static int parse_ull(const char *s, char **end, unsigned long long *out)
@@ -53,6 +57,11 @@ static bool stderr_is_journal(void)
 	return st.st_dev == dev && st.st_ino == ino;
 }
 
+uint64_t log_messages(int priority)
+{
+	return priority >= 0 && priority <= LOG_DEBUG ? atomic_load(&counts[priority]) : 0;
+}
+
 void log_setup(int max_priority)
 {
 	max_level = max_priority;
@@ -64,6 +73,8 @@ void log_job(int priority, int64_t job, const char *fmt, ...)
 	char msg[1024];
 	va_list ap;
 
+	if (priority >= 0 && priority <= LOG_DEBUG)
+		atomic_fetch_add(&counts[priority], 1);
 	if (priority > max_level)
 		return;
 	va_start(ap, fmt);

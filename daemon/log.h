@@ -12,6 +12,10 @@
 
 void log_setup(int max_priority);
 
+/* The messages of priority since the start, whether logged or left out
+ * by the level. */
+uint64_t log_messages(int priority);
+
 /* job may be 0 (no job); it becomes the JOB_ID field. */
 void log_job(int priority, int64_t job, const char *fmt, ...)
 	__attribute__((format(printf, 3, 4)));

@@ -20,6 +20,7 @@
 
 #include "access.h"
 #include "asph-proto.h"
+#include "backup.h"
 #include "config.h"
 #include "devices.h"
 #include "events.h"
@@ -27,6 +28,7 @@
 #include "instruments.h"
 #include "jobs.h"
 #include "log.h"
+#include "monitor.h"
 #include "mqtt.h"
 #include "outbox.h"
 #include "rpc.h"
@@ -57,6 +59,7 @@ struct daemon {
 	/* What the configuration gives, checked (load_configuration()). */
 	struct settings *settings;
 	struct settings_limits limits;  /* the modules read these; a reload writes them */
+	struct settings_health health;  /* monitor.c reads these; so does a reload */
 	struct instruments *instruments;
 	struct access *access;
 	struct addrinfo *tcp;           /* tcp_listen's addresses */
@@ -72,6 +75,8 @@ struct daemon {
 	struct server *server;
 	struct web *web;                /* NULL without http_listen */
 	struct tokens *tokens;
+	struct backups *backups;        /* copies of the job store for clients */
+	struct monitor *monitor;        /* health and metrics */
 	/* What leaves the PC (docs/fleet.md): NULL without mqtt/postgres. */
 	char host[256];
 	struct outbox *outbox;
@@ -181,6 +186,18 @@ static int device_policy(struct daemon *d, const char *kind)
 	return r < 0 ? ASPHD_EXIT_CONFIG : ASPHD_EXIT_OK;
 }
 
+/* --list-settings: every setting of the file, a line each: name, what it
+ * takes, its default and what it does, separated by tabs. */
+static int list_settings(void)
+{
+	for (size_t i = 0; i < settings_count(); i++) {
+		struct setting_info info;
+		settings_describe(i, &info);
+		printf("%s\t%s\t%s\t%s\n", info.name, info.type, info.fallback, info.help);
+	}
+	return ASPHD_EXIT_OK;
+}
+
 static int check_config(struct daemon *d)
 {
 	int n_errors = 0;
@@ -207,7 +224,7 @@ static int apply_overrides(const struct daemon *d, struct settings *s)
 	if (d->state_override) {
 		free(s->state_dir);
 		s->state_dir = strdup(d->state_override);
-	} else if (!s->source || !strcmp(s->state_dir, "/var/lib/asphd")) {
+	} else if (!s->source || !strcmp(s->state_dir, SETTINGS_STATE_DIR)) {
 		/* systemd's StateDirectory= tells where ours is. */
 		env = getenv("STATE_DIRECTORY");
 		if (env && env[0] == '/' && !strchr(env, ':')) {
@@ -385,6 +402,7 @@ static int on_reload(sd_event_source *s, const struct signalfd_siginfo *si, void
 		goto keep;
 	}
 	d->limits = next->limits;
+	d->health = next->health;
 	access_set_tokens(access, d->tokens);
 	rpc_set_access(d->rpc, access);
 	access_free(d->access);
@@ -454,15 +472,24 @@ static void tokens_changed_or_created(void *data)
 	arm_token_expiry(data);
 }
 
+/* The job store's path, for the modules that keep things in it
+ * (malloc'd, or NULL). */
+static char *store_path(const struct daemon *d)
+{
+	char *path;
+
+	return asprintf(&path, "%s/jobs.sqlite", d->settings->state_dir) < 0 ? NULL : path;
+}
+
 static int open_tokens(struct daemon *d)
 {
-	_cleanup_free_ char *path = NULL;
+	_cleanup_free_ char *path = store_path(d);
 	struct asph_error err;
 	char buf[1024];
 	int r;
 
 	asph_error_clear(&err);
-	if (asprintf(&path, "%s/jobs.sqlite", d->settings->state_dir) < 0)
+	if (!path)
 		return -ENOMEM;
 	r = tokens_open(path, &d->tokens, &err);
 	if (r < 0) {
@@ -510,11 +537,13 @@ static void mqtt_link(void *data, bool up, const char *why)
 		outbox_reset(d->outbox, OUTBOX_MQTT);
 		outbox_pump(d->outbox, OUTBOX_MQTT);
 	} else {
+		monitor_count_error(d->monitor, MONITOR_MQTT_CONNECTION);
 		log_warning("mqtt: %s %s: %s; trying again (the job states and results wait in "
 			    "the outbox)", d->mqtt_up ? "lost the connection to" : "cannot connect to",
 			    d->settings->mqtt->url, why);
 	}
 	d->mqtt_up = up;
+	monitor_sink_link(d->monitor, OUTBOX_MQTT, up);
 }
 
 static int fleetdb_send_item(void *data, const struct store_outbox_item *it)
@@ -535,6 +564,7 @@ static void fleetdb_refused(void *data, int64_t id, const char *why)
 {
 	struct daemon *d = data;
 
+	monitor_count_error(d->monitor, MONITOR_POSTGRES_REFUSED);
 	outbox_hold(d->outbox, OUTBOX_POSTGRES, id, why);
 }
 
@@ -549,7 +579,10 @@ static void fleetdb_link(void *data, bool up, const char *why)
 		log_warning("postgres: %s; trying again (the rows wait in the outbox)", why);
 	if (!up)
 		snprintf(d->fleetdb_down, sizeof(d->fleetdb_down), "%s", why);
+	if (!up)
+		monitor_count_error(d->monitor, MONITOR_POSTGRES_CONNECTION);
 	d->fleetdb_up = up;
+	monitor_sink_link(d->monitor, OUTBOX_POSTGRES, up);
 }
 
 /* Every job change: its messages into the outbox. */
@@ -644,7 +677,8 @@ static int start_fleet(struct daemon *d)
 		if (!prefix)
 			return -ENOMEM;
 	}
-	if (asprintf(&path, "%s/jobs.sqlite", s->state_dir) < 0)
+	path = store_path(d);
+	if (!path)
 		return -ENOMEM;
 	asph_error_clear(&err);
 	r = outbox_new(&(struct outbox_setup){
@@ -655,6 +689,11 @@ static int start_fleet(struct daemon *d)
 		log_error("%s", asph_error_format(&err, buf, sizeof(buf)));
 		return r;
 	}
+	monitor_set_outbox(d->monitor, d->outbox);
+	if (s->mqtt)
+		monitor_add_sink(d->monitor, OUTBOX_MQTT);
+	if (s->postgres)
+		monitor_add_sink(d->monitor, OUTBOX_POSTGRES);
 	if (s->mqtt && (r = start_mqtt(d, &prefix)) < 0)
 		return r;
 	if (s->postgres && (r = start_fleetdb(d)) < 0)
@@ -683,6 +722,8 @@ static void stop_fleet(struct daemon *d)
 	d->fleetdb = NULL;
 	telemetry_free(d->telemetry);
 	d->telemetry = NULL;
+	if (d->monitor)
+		monitor_set_outbox(d->monitor, NULL);
 	outbox_free(d->outbox);
 	d->outbox = NULL;
 }
@@ -717,6 +758,24 @@ static int db_migrate(struct daemon *d)
 
 /* ------------------------------------------------------------ running */
 
+static int start_backups(struct daemon *d)
+{
+	_cleanup_free_ char *path = store_path(d);
+	struct asph_error err;
+	char buf[1024];
+	int r;
+
+	asph_error_clear(&err);
+	if (!path)
+		return -ENOMEM;
+	r = backups_new(&(struct backups_setup){
+			.event = d->event, .store_path = path, .limits = &d->limits,
+			}, &d->backups, &err);
+	if (r < 0)
+		log_error("%s", asph_error_format(&err, buf, sizeof(buf)));
+	return r;
+}
+
 static int start_modules(struct daemon *d)
 {
 	struct asph_error err;
@@ -739,10 +798,22 @@ static int start_modules(struct daemon *d)
 	r = open_tokens(d);
 	if (r < 0)
 		return r;
+	r = start_backups(d);
+	if (r == 0)
+		r = monitor_new(&(struct monitor_setup){
+				.jobs = d->jobs, .instruments = d->instruments, .limits = &d->limits,
+				.health = &d->health, .state_dir = d->settings->state_dir,
+				.version = ASPH_VERSION, .started_ns = now_realtime_ns(),
+				}, &d->monitor);
+	if (r == 0)
+		r = events_watch_add(d->events, EVENT_JOB, monitor_watch, d->monitor, NULL);
+	if (r < 0)
+		return r;
 	r = rpc_new(&(struct rpc_setup){
 			.event = d->event, .started_usec = d->started_usec, .jobs = d->jobs,
 			.instruments = d->instruments, .events = d->events, .access = d->access,
-			.tokens = d->tokens, .limits = &d->limits,
+			.tokens = d->tokens, .backups = d->backups, .monitor = d->monitor,
+			.limits = &d->limits,
 		    }, &d->rpc);
 	if (r == 0)
 		r = server_new(&(struct server_setup){
@@ -757,7 +828,8 @@ static int start_modules(struct daemon *d)
 	if (r > 0 && d->http) {
 		r = web_new(&(struct web_setup){
 				.event = d->event, .rpc = d->rpc, .jobs = d->jobs,
-				.limits = &d->limits, .state_dir = d->settings->state_dir,
+				.monitor = d->monitor, .limits = &d->limits,
+				.state_dir = d->settings->state_dir,
 			    }, &d->web);
 		if (r == 0)
 			r = events_watch_add(d->events, EVENT_ALL, web_notify, d->web, NULL);
@@ -816,12 +888,14 @@ static void teardown(struct daemon *d)
 	web_free(d->web);
 	server_free(d->server);
 	rpc_free(d->rpc);
+	backups_free(d->backups);
 	stop_fleet(d);
 	sd_event_source_disable_unref(d->revalidate);
 	sd_event_source_disable_unref(d->token_expiry);
 	tokens_free(d->tokens);
 	jobs_free(d->jobs);
 	events_free(d->events);
+	monitor_free(d->monitor);
 	unload_configuration(d);
 	sd_event_unref(d->event);
 }
@@ -837,6 +911,8 @@ static void usage(FILE *f)
 		   "  -s, --socket PATH     unix socket (default %s)\n"
 		   "  -d, --state-dir DIR   jobs, scans and results (default /var/lib/asphd)\n"
 		   "      --check-config    check the configuration, name every error, exit\n"
+		   "      --list-settings   print every setting of the configuration file: name,\n"
+		   "                        what it takes, default, meaning (tab-separated), exit\n"
 		   "      --db-migrate      create or migrate the central database's schema\n"
 		   "                        (the configuration's postgres section), exit\n"
 		   "      --device-policy=systemd|udev\n"
@@ -857,6 +933,7 @@ int main(int argc, char **argv)
 		{ "socket", required_argument, NULL, 's' },
 		{ "state-dir", required_argument, NULL, 'd' },
 		{ "check-config", no_argument, NULL, 'C' },
+		{ "list-settings", no_argument, NULL, 'L' },
 		{ "db-migrate", no_argument, NULL, 'M' },
 		{ "device-policy", required_argument, NULL, 'D' },
 		{ "verbose", no_argument, NULL, 'v' },
@@ -880,6 +957,7 @@ int main(int argc, char **argv)
 		case 's': d.socket_override = optarg; break;
 		case 'd': d.state_override = optarg; break;
 		case 'C': check = true; break;
+		case 'L': return list_settings();
 		case 'M': migrate = true; break;
 		case 'D': policy = optarg; break;
 		case 'v': verbose = true; break;
@@ -915,6 +993,7 @@ int main(int argc, char **argv)
 		return ASPHD_EXIT_CONFIG;
 	}
 	d.limits = d.settings->limits;
+	d.health = d.settings->health;
 	r = apply_overrides(&d, d.settings);
 	if (r == 0)
 		r = run(&d);

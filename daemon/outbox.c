@@ -479,6 +479,24 @@ void outbox_reset(struct outbox *o, enum outbox_sink_kind k)
 	ss->last_handed = 0;
 }
 
+const char *outbox_sink_name(enum outbox_sink_kind k)
+{
+	return (unsigned)k < OUTBOX_N_SINKS ? sink_names[k] : "unknown";
+}
+
+static int take_created(const struct store_outbox_item *it, void *data)
+{
+	*(int64_t *)data = it->created_ns;
+	return 0;
+}
+
+int64_t outbox_oldest_ns(struct outbox *o, enum outbox_sink_kind k)
+{
+	int64_t ns = 0;
+
+	return store_outbox_list(o->store, sink_names[k], 0, 1, take_created, &ns) < 0 ? -1 : ns;
+}
+
 int64_t outbox_waiting(struct outbox *o, enum outbox_sink_kind k)
 {
 	int64_t n = 0;

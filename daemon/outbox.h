@@ -84,5 +84,10 @@ int64_t outbox_held(struct outbox *o, enum outbox_sink_kind k);
 void outbox_reset(struct outbox *o, enum outbox_sink_kind k);
 /* Items waiting for sink k (in the store, handed or not). */
 int64_t outbox_waiting(struct outbox *o, enum outbox_sink_kind k);
+/* When the oldest item waiting for sink k was made (realtime ns): 0 when
+ * none waits, -1 when the store cannot be read. */
+int64_t outbox_oldest_ns(struct outbox *o, enum outbox_sink_kind k);
+/* "mqtt", "postgres": a sink's name in messages and metrics. */
+const char *outbox_sink_name(enum outbox_sink_kind k);
 
 #endif

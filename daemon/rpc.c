@@ -40,6 +40,8 @@ struct rpc {
 	struct events *events;
 	const struct access *access;
 	struct tokens *tokens;
+	struct backups *backups;
+	struct monitor *monitor;
 	const struct settings_limits *limits;
 	size_t n_sessions;
 	uint64_t requests;
@@ -66,6 +68,7 @@ int rpc_new(const struct rpc_setup *setup, struct rpc **out)
 		.event = setup->event, .started_usec = setup->started_usec,
 		.jobs = setup->jobs, .instruments = setup->instruments, .events = setup->events,
 		.access = setup->access, .tokens = setup->tokens, .limits = setup->limits,
+		.backups = setup->backups, .monitor = setup->monitor,
 	};
 	if (ratelimit_new(HELLO_FAILURES_BURST, HELLO_FAILURE_INTERVAL_USEC, RATE_KEYS,
 			  &rpc->hello_failures) < 0 ||
@@ -105,6 +108,7 @@ void rpc_session_close(struct rpc *rpc, struct rpc_session *s)
 	if (!s->open)
 		return;
 	events_unsubscribe(rpc->events, &s->events);
+	backups_release(rpc->backups, s);
 	s->open = false;
 	rpc->n_sessions--;
 }
@@ -239,37 +243,50 @@ static int change_job(struct call *c, json_t *params, job_change_fn change, json
 /* ------------------------------------------------------------ daemon */
 
 /*
- * A TCP peer's token. A wrong one costs the peer's key a token of
- * hello_failures; with none left, hellos are refused without looking at
- * the token, so that guessing goes no faster than the bucket refills.
+ * A peer's token. A wrong one costs the peer's key a token of
+ * hello_failures; with none left, tokens are refused without being looked
+ * at, so that guessing goes no faster than the bucket refills.
  */
-static int authenticate(struct call *c, const char *token)
+int rpc_check_token(struct rpc *rpc, struct rpc_session *s, const char *token,
+		    const char *where, struct proto_why *why)
 {
-	struct rpc_session *s = c->s;
-	struct rpc *rpc = c->rpc;
 	uint64_t now = loop_usec(rpc);
 	unsigned left_out = 0;
 	int r;
 
 	if (!ratelimit_allows(rpc->hello_failures, s->peer.key, now)) {
 		ratelimit_take(rpc->hello_failures, s->peer.key, now, NULL);
-		return fail(c, PROTO_PERMISSION_DENIED, "too many wrong tokens from %s: try "
-			    "again in %.1f s", s->peer.key,
-			    (double)ratelimit_wait(rpc->hello_failures, s->peer.key, now) / 1e6);
+		proto_why_set(why, "too many wrong tokens from %s: try again in %.1f s",
+			      s->peer.key,
+			      (double)ratelimit_wait(rpc->hello_failures, s->peer.key, now) / 1e6);
+		return PROTO_PERMISSION_DENIED;
 	}
 	r = access_authenticate(rpc->access, token, &s->grant);
 	if (r == -EKEYREVOKED || r == -EKEYEXPIRED) {
-		log_warning("%s token \"%s\" in hello from %s", r == -EKEYREVOKED ? "revoked"
-			    : "expired", s->grant.credential, s->peer.name);
-		return fail(c, PROTO_PERMISSION_DENIED, "the token \"%s\" is %s",
-			    s->grant.credential, r == -EKEYREVOKED ? "revoked" : "expired");
+		log_warning("%s token \"%s\" in %s from %s", r == -EKEYREVOKED ? "revoked"
+			    : "expired", s->grant.credential, where, s->peer.name);
+		proto_why_set(why, "the token \"%s\" is %s", s->grant.credential,
+			      r == -EKEYREVOKED ? "revoked" : "expired");
+		return PROTO_PERMISSION_DENIED;
 	}
 	if (r < 0) {
 		ratelimit_take(rpc->hello_failures, s->peer.key, now, &left_out);
-		log_warning("wrong token in hello from %s (%u hello(s) refused unread before)",
+		log_warning("wrong token in %s from %s (%u refused unread before)", where,
 			    s->peer.name, left_out);
-		return fail(c, PROTO_PERMISSION_DENIED, "wrong token");
+		proto_why_set(why, "wrong token");
+		return PROTO_PERMISSION_DENIED;
 	}
+	return 0;
+}
+
+/* A TCP peer's hello: its token checked, and its success logged. */
+static int authenticate(struct call *c, const char *token)
+{
+	struct rpc_session *s = c->s;
+	int code = rpc_check_token(c->rpc, s, token, "hello", &c->why);
+
+	if (code)
+		return code;
 	s->authenticated = true;
 	log_info("%s authenticated with %s (%s)", s->peer.name, s->grant.credential,
 		 access_role_name(s->grant.role));
@@ -359,6 +376,23 @@ static int m_daemon_status(struct call *c, json_t *params, json_t **result)
 		"queue", "running", jobs_queue_running(rpc->jobs),
 		"jobs", counts_json(rpc->jobs), "instruments", instrument_states_json(rpc),
 		"clients", (json_int_t)rpc->n_sessions, "requests", (json_int_t)rpc->requests);
+	return 0;
+}
+
+/* The findings of monitor.h's checks: ok when there are none. */
+static int m_daemon_health(struct call *c, json_t *params, json_t **result)
+{
+	static const char *const names[] = { NULL };
+	json_t *reasons;
+	int code = only(c, params, names);
+
+	if (code)
+		return code;
+	reasons = monitor_health(c->rpc->monitor);
+	if (!reasons)
+		return PROTO_INTERNAL_ERROR;
+	*result = json_pack("{s:s, s:o}", "status", json_array_size(reasons) ? "degraded" : "ok",
+			    "reasons", reasons);
 	return 0;
 }
 
@@ -634,32 +668,33 @@ static int m_job_result(struct call *c, json_t *params, json_t **result)
 	return r < 0 ? job_error(c, r, &err) : 0;
 }
 
-/* The most bytes one job.file answer carries (before base64). */
+/* The most bytes one job.file or backup.file answer carries (before
+ * base64). */
 #define FILE_CHUNK_MAX (1u << 20)
 
-static int m_job_file(struct call *c, json_t *params, json_t **result)
+/* The offset and length of a file's piece, as job.file and backup.file
+ * take them. */
+static int chunk_params(struct call *c, json_t *params, int64_t *offset, int64_t *length)
 {
-	static const char *const names[] = { "id", "name", "offset", "length", NULL };
-	_cleanup_close_ int fd = -1;
-	_cleanup_free_ char *buf = NULL, *data = NULL;
-	struct asph_error err;
-	const char *name;
-	int64_t id, offset = 0, length = FILE_CHUNK_MAX;
-	struct stat st;
-	ssize_t n;
-	int code = only(c, params, names), r;
-
-	if (code || (code = job_id(c, params, &id)))
-		return code;
-	if (proto_param_string(params, "name", true, 255, &name, &c->why) < 0 ||
-	    proto_param_int(params, "offset", false, 0, INT64_MAX, &offset, &c->why) == -EINVAL ||
-	    proto_param_int(params, "length", false, 1, FILE_CHUNK_MAX, &length,
+	*offset = 0;
+	*length = FILE_CHUNK_MAX;
+	if (proto_param_int(params, "offset", false, 0, INT64_MAX, offset, &c->why) == -EINVAL ||
+	    proto_param_int(params, "length", false, 1, FILE_CHUNK_MAX, length,
 			    &c->why) == -EINVAL)
 		return PROTO_INVALID_PARAMS;
-	asph_error_clear(&err);
-	r = jobs_result_file(c->rpc->jobs, id, name, &fd, &err);
-	if (r < 0)
-		return job_error(c, r, &err);
+	return 0;
+}
+
+/* The piece of the file fd (named name) from offset, at most length bytes,
+ * as job.file and backup.file answer: name, offset, size, data (base64),
+ * eof. */
+static int file_chunk(struct call *c, int fd, const char *name, int64_t offset, int64_t length,
+		      json_t **result)
+{
+	_cleanup_free_ char *buf = NULL, *data = NULL;
+	struct stat st;
+	ssize_t n;
+
 	if (fstat(fd, &st) < 0 || !(buf = malloc((size_t)length)))
 		return fail(c, PROTO_STORAGE_ERROR, "%s: %s", name, strerror(errno));
 	n = offset < st.st_size ? pread(fd, buf, (size_t)length, (off_t)offset) : 0;
@@ -672,6 +707,110 @@ static int m_job_file(struct call *c, json_t *params, json_t **result)
 			    "size", (json_int_t)st.st_size, "data", data,
 			    "eof", offset + n >= st.st_size);
 	return 0;
+}
+
+static int m_job_file(struct call *c, json_t *params, json_t **result)
+{
+	static const char *const names[] = { "id", "name", "offset", "length", NULL };
+	_cleanup_close_ int fd = -1;
+	struct asph_error err;
+	const char *name;
+	int64_t id, offset, length;
+	int code = only(c, params, names), r;
+
+	if (code || (code = job_id(c, params, &id)))
+		return code;
+	if (proto_param_string(params, "name", true, 255, &name, &c->why) < 0)
+		return PROTO_INVALID_PARAMS;
+	if ((code = chunk_params(c, params, &offset, &length)))
+		return code;
+	asph_error_clear(&err);
+	r = jobs_result_file(c->rpc->jobs, id, name, &fd, &err);
+	if (r < 0)
+		return job_error(c, r, &err);
+	return file_chunk(c, fd, name, offset, length, result);
+}
+
+/* ------------------------------------------------------------ backups */
+
+static json_t *backup_json(const struct backup_info *b)
+{
+	char started[ISO8601_SIZE], finished[ISO8601_SIZE];
+
+	iso8601_utc(b->started_ns, 0, started, sizeof(started));
+	iso8601_utc(b->finished_ns, 0, finished, sizeof(finished));
+	return json_pack("{s:s, s:s, s:I, s:I, s:o, s:s?, s:s?, s:s, s:s?}",
+		"name", b->name, "state", backup_state_name(b->state),
+		"pages_done", (json_int_t)b->pages_done, "pages_total", (json_int_t)b->pages_total,
+		"size", b->state == BACKUP_DONE ? json_integer(b->size) : json_null(),
+		"sha256", b->sha256, "error", b->error, "started", started,
+		"finished", b->finished_ns ? finished : NULL);
+}
+
+/* This session's copy, or 107 saying there is none. */
+static int session_backup(struct call *c, struct backup_info *info)
+{
+	if (backups_get(c->rpc->backups, c->s, info) < 0)
+		return fail(c, PROTO_NO_RESULT, "this connection has made no copy of the job store: "
+			    "backup.start makes one");
+	return 0;
+}
+
+static int m_backup_start(struct call *c, json_t *params, json_t **result)
+{
+	static const char *const names[] = { NULL };
+	struct backup_info info;
+	struct asph_error err;
+	int code = only(c, params, names), r;
+
+	if (code)
+		return code;
+	asph_error_clear(&err);
+	r = backups_start(c->rpc->backups, c->s, c->s->peer.name, &err);
+	if (r == -EBUSY || r == -EDQUOT)
+		return fail(c, PROTO_LIMIT_REACHED, "%s", err.message);
+	if (r < 0)
+		return fail(c, r == -ENOMEM ? PROTO_INTERNAL_ERROR : PROTO_STORAGE_ERROR, "%s",
+			    err.message[0] ? err.message : strerror(-r));
+	if ((code = session_backup(c, &info)))
+		return code;
+	*result = backup_json(&info);
+	return 0;
+}
+
+static int m_backup_get(struct call *c, json_t *params, json_t **result)
+{
+	static const char *const names[] = { NULL };
+	struct backup_info info;
+	int code = only(c, params, names);
+
+	if (code || (code = session_backup(c, &info)))
+		return code;
+	*result = backup_json(&info);
+	return 0;
+}
+
+static int m_backup_file(struct call *c, json_t *params, json_t **result)
+{
+	static const char *const names[] = { "offset", "length", NULL };
+	struct backup_info info;
+	int64_t offset, length;
+	int fd = -1, code = only(c, params, names);
+
+	if (code || (code = chunk_params(c, params, &offset, &length)) ||
+	    (code = session_backup(c, &info)))
+		return code;
+	switch (backups_fd(c->rpc->backups, c->s, &fd)) {
+	case 0:
+		return file_chunk(c, fd, info.name, offset, length, result);
+	case -EAGAIN:
+		return fail(c, PROTO_NO_RESULT, "the copy %s is not finished: %" PRId64 " of %"
+			    PRId64 " pages copied (backup.get tells when it is done)", info.name,
+			    info.pages_done, info.pages_total);
+	default:
+		return fail(c, PROTO_STORAGE_ERROR, "the copy %s failed: %s", info.name,
+			    info.error ? info.error : "?");
+	}
 }
 
 /* ------------------------------------------------------------- queue */
@@ -996,6 +1135,7 @@ static const struct method {
 	{ "hello", m_hello, ROLE_NONE },
 	{ "version", m_version, ROLE_VIEWER },
 	{ "daemon.status", m_daemon_status, ROLE_VIEWER },
+	{ "daemon.health", m_daemon_health, ROLE_VIEWER },
 	{ "job.submit", m_job_submit, ROLE_OPERATOR },
 	{ "job.estimate", m_job_estimate, ROLE_VIEWER },
 	{ "job.get", m_job_get, ROLE_VIEWER },
@@ -1020,6 +1160,9 @@ static const struct method {
 	{ "token.create", m_token_create, ROLE_ADMIN },
 	{ "token.list", m_token_list, ROLE_ADMIN },
 	{ "token.revoke", m_token_revoke, ROLE_ADMIN },
+	{ "backup.start", m_backup_start, ROLE_ADMIN },
+	{ "backup.get", m_backup_get, ROLE_ADMIN },
+	{ "backup.file", m_backup_file, ROLE_ADMIN },
 };
 
 static const struct method *find_method(const char *name)

@@ -10,7 +10,9 @@
  * daemon.status), and the lines handled (its "requests").
  *
  * A transport (server.c) fills a session's peer, opens it, hands over its
- * lines and closes it once; nothing here calls the transport.
+ * lines and closes it once; nothing here calls the transport. A session's
+ * end also ends what it owns: its subscription, its copy of the job store
+ * (backup.h).
  *
  * Event loop thread.
  */
@@ -25,9 +27,12 @@
 #include <systemd/sd-event.h>
 
 #include "access.h"
+#include "asph-proto.h"
+#include "backup.h"
 #include "events.h"
 #include "instruments.h"
 #include "jobs.h"
+#include "monitor.h"
 #include "settings.h"
 
 struct rpc_session {
@@ -46,6 +51,8 @@ struct rpc_setup {
 	struct events *events;
 	const struct access *access;
 	struct tokens *tokens;                  /* the named API tokens */
+	struct backups *backups;                /* copies of the job store */
+	struct monitor *monitor;                /* the health (daemon.health) */
 	const struct settings_limits *limits;   /* read at each use: may change */
 };
 
@@ -64,6 +71,14 @@ size_t rpc_sessions(const struct rpc *rpc);
 /* Whether a peer operates as it connects (root, the operator group; a TCP
  * peer not before hello): it may take the connections reserved for them. */
 bool rpc_peer_operator(const struct rpc *rpc, const struct peer *p);
+/*
+ * A token presented by s's peer (where: "hello", "/metrics", for the
+ * log): s->grant filled, 0; or PROTO_PERMISSION_DENIED with why (wrong,
+ * expired, revoked, or too many wrong ones from the peer's key, which the
+ * hello's rate limit counts). A success is not logged here.
+ */
+int rpc_check_token(struct rpc *rpc, struct rpc_session *s, const char *token,
+		    const char *where, struct proto_why *why);
 /* Whether s still stands after a reload: false for a TCP session whose
  * token was changed or removed, which the transport then ends. */
 bool rpc_session_valid(const struct rpc *rpc, const struct rpc_session *s);

@@ -1,6 +1,7 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 #include <errno.h>
 #include <limits.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -19,7 +20,7 @@ struct loader {
 	settings_error_fn report;
 	void *data;
 	int n_errors;
-	uint64_t limits_given;          /* bit i: limit_fields[i] is in the file */
+	uint64_t limits_given;          /* bit i: the limit of rows[i] is in the file */
 };
 
 static void complain(struct loader *ld, const char *field, const char *fmt, ...)
@@ -61,6 +62,11 @@ static const struct settings_limits default_limits = {
 	.min_free_disk_mb = 64,
 };
 
+static const struct settings_health default_health = {
+	.sink_down_s = 60,
+	.outbox_age_s = 600,
+};
+
 int settings_defaults(struct settings **out)
 {
 	struct settings *c = calloc(1, sizeof(*c));
@@ -68,13 +74,14 @@ int settings_defaults(struct settings **out)
 	if (!c)
 		return -ENOMEM;
 	c->socket_path = strdup(PROTO_DEFAULT_SOCKET);
-	c->state_dir = strdup("/var/lib/asphd");
+	c->state_dir = strdup(SETTINGS_STATE_DIR);
 	if (!c->socket_path || !c->state_dir) {
 		settings_free(c);
 		return -ENOMEM;
 	}
 	c->socket_mode = 0660;
 	c->limits = default_limits;
+	c->health = default_health;
 	*out = c;
 	return 0;
 }
@@ -161,71 +168,7 @@ static void take_mode(struct loader *ld, json_t *v, mode_t *dst)
 	*dst = (mode_t)m;
 }
 
-static const struct {
-	const char *name;
-	size_t offset;
-	uint32_t min, max;
-} limit_fields[] = {
-#define LIMIT(n, lo, hi) { #n, offsetof(struct settings_limits, n), lo, hi }
-	LIMIT(max_clients, 1, 65536),
-	LIMIT(max_clients_per_user, 1, 65536),
-	LIMIT(reserved_clients, 0, 65535),
-	LIMIT(max_request_bytes, 1024, 64u << 20),
-	LIMIT(max_response_bytes, 4096, 512u << 20),
-	LIMIT(max_output_bytes, 65536, 1u << 30),
-	LIMIT(max_queue, 1, 10000000),
-	LIMIT(max_plan_points, 10, 100000000),
-	LIMIT(max_subscriptions, 1, 65536),
-	LIMIT(max_subscriptions_per_user, 1, 65536),
-	LIMIT(reserved_subscriptions, 0, 65535),
-	LIMIT(request_timeout_ms, 100, 3600000),
-	LIMIT(auth_timeout_ms, 100, 3600000),
-	LIMIT(idle_timeout_ms, 0, 86400000),
-	LIMIT(progress_interval_ms, 10, 60000),
-	LIMIT(max_label_bytes, 16, 4096),
-	LIMIT(min_free_disk_mb, 0, 1048576),
-#undef LIMIT
-};
-
-static void take_limits(struct loader *ld, json_t *obj, struct settings_limits *l)
-{
-	const char *key;
-	json_t *v;
-	char field[96];
-
-	if (!json_is_object(obj)) {
-		complain(ld, "limits", "must be an object");
-		return;
-	}
-	json_object_foreach(obj, key, v) {
-		size_t i;
-		snprintf(field, sizeof(field), "limits.%.60s", key);
-		for (i = 0; i < ARRAY_SIZE(limit_fields); i++)
-			if (!strcmp(limit_fields[i].name, key))
-				break;
-		if (i == ARRAY_SIZE(limit_fields)) {
-			complain(ld, field, "unknown limit");
-			continue;
-		}
-		if (!json_is_integer(v) || json_integer_value(v) < limit_fields[i].min ||
-		    json_integer_value(v) > limit_fields[i].max) {
-			complain(ld, field, "must be an integer in [%u, %u]",
-				 limit_fields[i].min, limit_fields[i].max);
-			continue;
-		}
-		*(uint32_t *)((char *)l + limit_fields[i].offset) =
-			(uint32_t)json_integer_value(v);
-		ld->limits_given |= 1ull << i;
-	}
-}
-
-static bool given(const struct loader *ld, const char *name)
-{
-	for (size_t i = 0; i < ARRAY_SIZE(limit_fields); i++)
-		if (!strcmp(limit_fields[i].name, name))
-			return ld->limits_given & (1ull << i);
-	return false;
-}
+static bool given(const struct loader *ld, const char *name);
 
 /* The default of a limit bounded by another the file set, scaled down. */
 static void derive(const struct loader *ld, const char *name, uint32_t *v, uint32_t bound)
@@ -371,126 +314,388 @@ static void take_prefix(struct loader *ld, json_t *v, struct settings_mqtt *m)
 			 "'+' or '#', no empty level, at most 200 bytes");
 }
 
-static void take_mqtt(struct loader *ld, json_t *obj, struct settings *c)
+/* ------------------------------------------------------------ the table */
+
+/*
+ * How a row takes its value v (named field in messages) into base: the
+ * settings, or the section's structure (struct settings_limits,
+ * struct settings_mqtt, struct settings_postgres).
+ */
+struct row;
+typedef void (*take_fn)(struct loader *ld, void *base, const struct row *row, const char *field,
+			json_t *v);
+
+struct row {
+	const char *name;       /* "socket", "limits.max_queue", "mqtt.url" */
+	const char *type;       /* what it takes, for people (a limit's: from min, max) */
+	const char *fallback;   /* the default, for people (a limit's: default_limits) */
+	const char *help;
+	take_fn take;
+	size_t offset;          /* of the member of base that a plain row sets */
+	uint32_t min, max;      /* a limit's range */
+};
+
+#define AT(type, member) offsetof(type, member)
+
+static void take_path(struct loader *ld, void *base, const struct row *row, const char *field,
+		      json_t *v)
+{
+	take_string(ld, v, field, (char **)((char *)base + row->offset), true);
+}
+
+static void take_text(struct loader *ld, void *base, const struct row *row, const char *field,
+		      json_t *v)
+{
+	char **dst = (char **)((char *)base + row->offset);
+
+	take_string(ld, v, field, dst, false);
+	if (row->max && *dst && strlen(*dst) > row->max)
+		complain(ld, field, "must be at most %u bytes", row->max);
+}
+
+static void take_socket_mode(struct loader *ld, void *base, const struct row *row,
+			     const char *field, json_t *v)
+{
+	take_mode(ld, v, &((struct settings *)base)->socket_mode);
+}
+
+static void take_tcp_listen(struct loader *ld, void *base, const struct row *row,
+			    const char *field, json_t *v)
+{
+	struct settings *c = base;
+
+	take_listen(ld, v, field, &c->tcp_listen, &c->tcp_host, &c->tcp_port);
+}
+
+static void take_http_listen(struct loader *ld, void *base, const struct row *row,
+			     const char *field, json_t *v)
+{
+	struct settings *c = base;
+
+	take_listen(ld, v, field, &c->http_listen, &c->http_host, &c->http_port);
+}
+
+static void take_limit(struct loader *ld, void *base, const struct row *row, const char *field,
+		       json_t *v);
+static void take_section(struct loader *ld, void *base, const struct row *row,
+			 const char *field, json_t *v);
+static void take_mqtt(struct loader *ld, void *base, const struct row *row, const char *field,
+		      json_t *v);
+static void take_seconds(struct loader *ld, void *base, const struct row *row,
+			 const char *field, json_t *v);
+static void take_postgres(struct loader *ld, void *base, const struct row *row,
+			  const char *field, json_t *v);
+static void take_instruments(struct loader *ld, void *base, const struct row *row,
+			     const char *field, json_t *v);
+
+static void take_url(struct loader *ld, void *base, const struct row *row, const char *field,
+		     json_t *v)
+{
+	take_broker_url(ld, v, base);
+}
+
+static void take_topic_prefix(struct loader *ld, void *base, const struct row *row,
+			      const char *field, json_t *v)
+{
+	take_prefix(ld, v, base);
+}
+
+static void take_qos(struct loader *ld, void *base, const struct row *row, const char *field,
+		     json_t *v)
+{
+	if (!json_is_integer(v) || json_integer_value(v) < 0 || json_integer_value(v) > 2)
+		complain(ld, field, "must be 0, 1 or 2");
+	else
+		((struct settings_mqtt *)base)->qos = (int)json_integer_value(v);
+}
+
+#define LIMIT(n, lo, hi, text) { .name = "limits." #n, .take = take_limit, \
+	.offset = AT(struct settings_limits, n), .min = lo, .max = hi, .help = text }
+
+/* Every setting of the file, in the order of the reference (asphd
+ * --list-settings, docs/admin.md): the file is read through this table,
+ * so a setting the daemon takes has its row here. */
+static const struct row rows[] = {
+	{ "socket", "path", PROTO_DEFAULT_SOCKET, "the unix socket, when the daemon binds it "
+	  "itself (not socket-activated by systemd)", take_path, AT(struct settings, socket_path) },
+	{ "socket_group", "group name", "the daemon's group", "the group of a socket the daemon "
+	  "binds", take_text, AT(struct settings, socket_group) },
+	{ "socket_mode", "octal mode", "\"0660\"", "the mode of a socket the daemon binds; never "
+	  "writable by others", take_socket_mode },
+	{ "operator_group", "group name", "none: only root operates", "its members (and root) "
+	  "may submit, cancel, pause, resume, re-queue, reorder and lock", take_text,
+	  AT(struct settings, operator_group) },
+	{ "state_dir", "path", SETTINGS_STATE_DIR " (systemd's $STATE_DIRECTORY)", "the job store, "
+	  "its backups, the scans and the results", take_path, AT(struct settings, state_dir) },
+	{ "tcp_listen", "HOST:PORT", "off", "a TCP listener for clients that send an API token "
+	  "(docs/daemon.md)", take_tcp_listen },
+	{ "http_listen", "HOST:PORT", "off", "the web page and its API (docs/web.md), /healthz "
+	  "and /metrics (docs/admin.md)", take_http_listen },
+	{ "http_root", "path", "PREFIX/share/asphd/web", "the web page's files",
+	  take_path, AT(struct settings, http_root) },
+	{ "token_file", "path", "none", "deprecated: a file holding one admin token for TCP "
+	  "clients; named tokens replace it", take_path, AT(struct settings, token_file) },
+	{ "limits", "object", "the defaults below", "what one client, one user and the disk may "
+	  "take (proto/README.md, Limits)", take_section, AT(struct settings, limits) },
+	LIMIT(max_clients, 1, 65536, "connections in all (needs LimitNOFILE=: checked at the start)"),
+	LIMIT(max_clients_per_user, 1, 65536, "connections of one uid (root excepted), over TCP "
+	      "of one address"),
+	LIMIT(reserved_clients, 0, 65535, "the last connections of max_clients, kept for root "
+	      "and the operator group (default at most a quarter of max_clients)"),
+	LIMIT(max_request_bytes, 1024, 64u << 20, "one request line"),
+	LIMIT(max_response_bytes, 4096, 512u << 20, "the answers to one line; at most half of "
+	      "max_output_bytes"),
+	LIMIT(max_output_bytes, 65536, 1u << 30, "a client's unread output"),
+	LIMIT(max_queue, 1, 10000000, "jobs queued, running, paused or interrupted"),
+	LIMIT(max_plan_points, 10, 100000000, "the points of one plan"),
+	LIMIT(max_subscriptions, 1, 65536, "clients subscribed to events"),
+	LIMIT(max_subscriptions_per_user, 1, 65536, "subscriptions of one uid or address"),
+	LIMIT(reserved_subscriptions, 0, 65535, "the last subscriptions, kept for operators "
+	      "(default at most a quarter of max_subscriptions)"),
+	LIMIT(request_timeout_ms, 100, 3600000, "an incomplete request line; output the client "
+	      "does not read"),
+	LIMIT(auth_timeout_ms, 100, 3600000, "a TCP client without hello and its token"),
+	LIMIT(idle_timeout_ms, 0, 86400000, "a client that sends nothing and is not subscribed "
+	      "(0: none)"),
+	LIMIT(progress_interval_ms, 10, 60000, "between two progress events of a job"),
+	LIMIT(max_label_bytes, 16, 4096, "a job's label"),
+	LIMIT(min_free_disk_mb, 0, 1048576, "MiB kept free on the state directory: jobs and "
+	      "backups that would not leave it are refused (0: no check)"),
+	{ "health", "object", "the defaults below", "when the daemon's health is degraded "
+	  "(docs/admin.md, Health)", take_section, AT(struct settings, health) },
+	{ "health.sink_down_s", .take = take_seconds, .offset = AT(struct settings_health,
+	  sink_down_s), .min = 1, .max = 86400, .help = "seconds the MQTT broker or the database "
+	  "may be out of reach before the health says sink_down" },
+	{ "health.outbox_age_s", .take = take_seconds, .offset = AT(struct settings_health,
+	  outbox_age_s), .min = 1, .max = 604800, .help = "seconds a sink's oldest message may "
+	  "wait in the outbox before the health says outbox_backlog" },
+	{ "mqtt", "object", "off", "MQTT telemetry to a broker (docs/fleet.md)", take_mqtt },
+	{ "mqtt.url", "mqtt://HOST[:PORT] or mqtts://HOST[:PORT]", "none: needed",
+	  "the broker; no user or password in it", take_url },
+	{ "mqtt.prefix", "topic levels", "asphd/HOSTNAME", "the topics' prefix, without "
+	  "wildcards", take_topic_prefix },
+	{ "mqtt.client_id", "text", "asphd-HOSTNAME-ID", "the MQTT client id (at most 128 bytes)",
+	  take_text, AT(struct settings_mqtt, client_id), 0, 128 },
+	{ "mqtt.qos", "0, 1 or 2", "1", "the QoS of the job states and results", take_qos },
+	{ "mqtt.credentials_file", "path", "none", "a JSON file with the broker's username and password (docs/fleet.md)",
+	  take_path, AT(struct settings_mqtt, credentials_file) },
+	{ "mqtt.ca_file", "path", "the system's CAs", "the CA of an mqtts:// broker",
+	  take_path, AT(struct settings_mqtt, ca_file) },
+	{ "postgres", "object", "off", "the central results store in PostgreSQL (docs/fleet.md)",
+	  take_postgres },
+	{ "postgres.conninfo", "libpq connection string", "none: needed", "the database, "
+	  "without its password", take_text, AT(struct settings_postgres, conninfo) },
+	{ "postgres.password_file", "path", "none (~/.pgpass, PGPASSWORD)", "a file with the "
+	  "database password", take_path, AT(struct settings_postgres, password_file) },
+	{ "instruments", "array", "one \"mock\" instrument", "each a stage and a probe, a driver "
+	  "and its options each (docs/drivers.md)", take_instruments },
+};
+
+#undef LIMIT
+
+/* The row of field ("limits.max_queue"), or NULL. */
+static const struct row *find_row(const char *field)
+{
+	for (size_t i = 0; i < ARRAY_SIZE(rows); i++)
+		if (!strcmp(rows[i].name, field))
+			return &rows[i];
+	return NULL;
+}
+
+/* "url, prefix, ...": the members section takes, for a message. */
+static void members_of(const char *section, char *buf, size_t size)
+{
+	size_t n = strlen(section), used = 0;
+
+	buf[0] = '\0';
+	for (size_t i = 0; i < ARRAY_SIZE(rows) && used < size; i++)
+		if (!strncmp(rows[i].name, section, n) && rows[i].name[n] == '.')
+			used += (size_t)snprintf(buf + used, size - used, "%s%s", used ? ", " : "",
+						 rows[i].name + n + 1);
+}
+
+/*
+ * Each member of obj, a section (NULL: the top level), taken into base by
+ * its row; a member without one is an unknown setting. A name with a dot
+ * is never a section's member.
+ */
+static void take_members(struct loader *ld, void *base, const char *section, json_t *obj)
 {
 	const char *key;
 	json_t *v;
-	char field[96];
 
-	if (!json_is_object(obj)) {
-		complain(ld, "mqtt", "must be an object");
+	json_object_foreach(obj, key, v) {
+		char field[96], members[256];
+		const struct row *row;
+
+		snprintf(field, sizeof(field), "%s%s%.60s", section ? section : "", section ? "." : "",
+			 key);
+		row = strchr(key, '.') ? NULL : find_row(field);
+		if (row) {
+			row->take(ld, base, row, field, v);
+		} else if (!section) {
+			complain(ld, field, "unknown setting");
+		} else if (!strcmp(section, "limits")) {
+			complain(ld, field, "unknown limit");
+		} else {
+			members_of(section, members, sizeof(members));
+			complain(ld, field, "unknown setting (%s takes %s)", section, members);
+		}
+	}
+}
+
+/* An integer of [row->min, row->max] at row->offset of base. 0, or -1
+ * having complained. */
+static int take_integer(struct loader *ld, void *base, const struct row *row, const char *field,
+			json_t *v)
+{
+	if (!json_is_integer(v) || json_integer_value(v) < row->min ||
+	    json_integer_value(v) > row->max) {
+		complain(ld, field, "must be an integer in [%u, %u]", row->min, row->max);
+		return -1;
+	}
+	*(uint32_t *)((char *)base + row->offset) = (uint32_t)json_integer_value(v);
+	return 0;
+}
+
+static bool given(const struct loader *ld, const char *name)
+{
+	char field[96];
+	const struct row *row;
+
+	snprintf(field, sizeof(field), "limits.%s", name);
+	row = find_row(field);
+	return row && ld->limits_given & (1ull << (row - rows));
+}
+
+static void take_limit(struct loader *ld, void *base, const struct row *row, const char *field,
+		       json_t *v)
+{
+	if (take_integer(ld, base, row, field, v) == 0)
+		ld->limits_given |= 1ull << (row - rows);
+}
+
+static void take_seconds(struct loader *ld, void *base, const struct row *row,
+			 const char *field, json_t *v)
+{
+	take_integer(ld, base, row, field, v);
+}
+
+/* A section whose structure is a member of the settings (row->offset). */
+static void take_section(struct loader *ld, void *base, const struct row *row,
+			 const char *field, json_t *v)
+{
+	if (!json_is_object(v)) {
+		complain(ld, field, "must be an object");
+		return;
+	}
+	take_members(ld, (char *)base + row->offset, field, v);
+}
+
+static void take_mqtt(struct loader *ld, void *base, const struct row *row, const char *field,
+		      json_t *v)
+{
+	struct settings *c = base;
+
+	if (!json_is_object(v)) {
+		complain(ld, field, "must be an object");
 		return;
 	}
 	settings_mqtt_free(c->mqtt);
 	c->mqtt = calloc(1, sizeof(*c->mqtt));
 	if (!c->mqtt) {
-		complain(ld, "mqtt", "out of memory");
+		complain(ld, field, "out of memory");
 		return;
 	}
 	c->mqtt->qos = 1;
-	json_object_foreach(obj, key, v) {
-		snprintf(field, sizeof(field), "mqtt.%.60s", key);
-		if (!strcmp(key, "url"))
-			take_broker_url(ld, v, c->mqtt);
-		else if (!strcmp(key, "prefix"))
-			take_prefix(ld, v, c->mqtt);
-		else if (!strcmp(key, "client_id")) {
-			take_string(ld, v, field, &c->mqtt->client_id, false);
-			if (c->mqtt->client_id && strlen(c->mqtt->client_id) > 128)
-				complain(ld, field, "must be at most 128 bytes");
-		} else if (!strcmp(key, "qos")) {
-			if (!json_is_integer(v) || json_integer_value(v) < 0 ||
-			    json_integer_value(v) > 2)
-				complain(ld, field, "must be 0, 1 or 2");
-			else
-				c->mqtt->qos = (int)json_integer_value(v);
-		} else if (!strcmp(key, "credentials_file"))
-			take_string(ld, v, field, &c->mqtt->credentials_file, true);
-		else if (!strcmp(key, "ca_file"))
-			take_string(ld, v, field, &c->mqtt->ca_file, true);
-		else
-			complain(ld, field, "unknown setting (mqtt takes url, prefix, client_id, "
-				 "qos, credentials_file, ca_file)");
-	}
-	if (!json_object_get(obj, "url"))
-		complain(ld, "mqtt", "needs \"url\", the broker's mqtt:// or mqtts:// address");
+	take_members(ld, c->mqtt, field, v);
+	if (!json_object_get(v, "url"))
+		complain(ld, field, "needs \"url\", the broker's mqtt:// or mqtts:// address");
 	if (c->mqtt->ca_file && c->mqtt->url && !c->mqtt->tls)
 		complain(ld, "mqtt.ca_file", "is for an mqtts:// broker; the url is mqtt://");
 }
 
-static void take_postgres(struct loader *ld, json_t *obj, struct settings *c)
+static void take_postgres(struct loader *ld, void *base, const struct row *row,
+			  const char *field, json_t *v)
 {
-	const char *key;
-	json_t *v;
-	char field[96];
+	struct settings *c = base;
 
-	if (!json_is_object(obj)) {
-		complain(ld, "postgres", "must be an object");
+	if (!json_is_object(v)) {
+		complain(ld, field, "must be an object");
 		return;
 	}
 	settings_postgres_free(c->postgres);
 	c->postgres = calloc(1, sizeof(*c->postgres));
 	if (!c->postgres) {
-		complain(ld, "postgres", "out of memory");
+		complain(ld, field, "out of memory");
 		return;
 	}
-	json_object_foreach(obj, key, v) {
-		snprintf(field, sizeof(field), "postgres.%.60s", key);
-		if (!strcmp(key, "conninfo"))
-			take_string(ld, v, field, &c->postgres->conninfo, false);
-		else if (!strcmp(key, "password_file"))
-			take_string(ld, v, field, &c->postgres->password_file, true);
-		else
-			complain(ld, field, "unknown setting (postgres takes conninfo and "
-				 "password_file)");
-	}
+	take_members(ld, c->postgres, field, v);
 	if (!c->postgres->conninfo)
-		complain(ld, "postgres", "needs \"conninfo\", a libpq connection string such as "
+		complain(ld, field, "needs \"conninfo\", a libpq connection string such as "
 			 "\"host=db.lab dbname=asph user=asphd\"");
 	else if (strstr(c->postgres->conninfo, "password"))
 		complain(ld, "postgres.conninfo", "must not hold the password: it goes in "
 			 "postgres.password_file");
 }
 
-static void take_member(struct loader *ld, struct settings *c,
-			const char *key, json_t *v)
+static void take_instruments(struct loader *ld, void *base, const struct row *row,
+			     const char *field, json_t *v)
 {
-	if (!strcmp(key, "socket"))
-		take_string(ld, v, key, &c->socket_path, true);
-	else if (!strcmp(key, "socket_group"))
-		take_string(ld, v, key, &c->socket_group, false);
-	else if (!strcmp(key, "socket_mode"))
-		take_mode(ld, v, &c->socket_mode);
-	else if (!strcmp(key, "operator_group"))
-		take_string(ld, v, key, &c->operator_group, false);
-	else if (!strcmp(key, "tcp_listen"))
-		take_listen(ld, v, key, &c->tcp_listen, &c->tcp_host, &c->tcp_port);
-	else if (!strcmp(key, "http_listen"))
-		take_listen(ld, v, key, &c->http_listen, &c->http_host, &c->http_port);
-	else if (!strcmp(key, "http_root"))
-		take_string(ld, v, key, &c->http_root, true);
-	else if (!strcmp(key, "token_file"))
-		take_string(ld, v, key, &c->token_file, true);
-	else if (!strcmp(key, "state_dir"))
-		take_string(ld, v, key, &c->state_dir, true);
-	else if (!strcmp(key, "limits"))
-		take_limits(ld, v, &c->limits);
-	else if (!strcmp(key, "mqtt"))
-		take_mqtt(ld, v, c);
-	else if (!strcmp(key, "postgres"))
-		take_postgres(ld, v, c);
-	else if (!strcmp(key, "instruments")) {
-		if (!json_is_array(v) || json_array_size(v) == 0) {
-			complain(ld, key, "must be a non-empty array");
-			return;
+	struct settings *c = base;
+	json_t *wrap;
+
+	if (!json_is_array(v) || json_array_size(v) == 0) {
+		complain(ld, field, "must be a non-empty array");
+		return;
+	}
+	/* Kept as the drivers' own format for their parser. */
+	free(c->instruments_json);
+	wrap = json_pack("{s:O}", "instruments", v);
+	c->instruments_json = wrap ? json_dumps(wrap, JSON_COMPACT) : NULL;
+	json_decref(wrap);
+}
+
+size_t settings_count(void)
+{
+	return ARRAY_SIZE(rows);
+}
+
+void settings_describe(size_t i, struct setting_info *out)
+{
+	const struct row *row = &rows[i];
+
+	out->name = row->name;
+	out->help = row->help;
+	if (row->take == take_limit || row->take == take_seconds) {
+		const void *defaults = row->take == take_limit ? (const void *)&default_limits
+							       : (const void *)&default_health;
+		snprintf(out->type, sizeof(out->type), "integer from %u to %u", row->min, row->max);
+		snprintf(out->fallback, sizeof(out->fallback), "%u",
+			 *(const uint32_t *)((const char *)defaults + row->offset));
+	} else {
+		snprintf(out->type, sizeof(out->type), "%s", row->type);
+		snprintf(out->fallback, sizeof(out->fallback), "%s", row->fallback);
+	}
+}
+
+void settings_blank_comments(char *text, size_t len)
+{
+	bool in_string = false;
+
+	for (size_t i = 0; i < len; i++) {
+		if (in_string) {
+			if (text[i] == '\\')
+				i++;
+			else if (text[i] == '"')
+				in_string = false;
+		} else if (text[i] == '"') {
+			in_string = true;
+		} else if (text[i] == '/' && i + 1 < len && text[i + 1] == '/') {
+			for (; i < len && text[i] != '\n'; i++)
+				text[i] = ' ';
 		}
-		/* Kept as the drivers' own format for their parser. */
-		free(c->instruments_json);
-		json_t *wrap = json_pack("{s:O}", "instruments", v);
-		c->instruments_json = wrap ? json_dumps(wrap, JSON_COMPACT) : NULL;
-		json_decref(wrap);
-	} else
-		complain(ld, key, "unknown setting");
+	}
 }
 
 int settings_load(const char *path, struct settings **out,
@@ -500,8 +705,7 @@ int settings_load(const char *path, struct settings **out,
 	struct settings *c = NULL;
 	_cleanup_free_ char *text = NULL;
 	json_error_t je;
-	json_t *root, *v;
-	const char *key;
+	json_t *root;
 	size_t len;
 	int r;
 
@@ -533,6 +737,7 @@ int settings_load(const char *path, struct settings **out,
 			return -EINVAL;
 		}
 	}
+	settings_blank_comments(text, len);
 	ld.text = text;
 	ld.len = len;
 	root = json_loadb(text, len, JSON_REJECT_DUPLICATES, &je);
@@ -548,8 +753,7 @@ int settings_load(const char *path, struct settings **out,
 	if (!json_is_object(root))
 		complain(&ld, NULL, "the configuration must be a JSON object");
 	else
-		json_object_foreach(root, key, v)
-			take_member(&ld, c, key, v);
+		take_members(&ld, c, NULL, root);
 	json_decref(root);
 	check_limit_pairs(&ld, &c->limits);
 	if (ld.n_errors) {

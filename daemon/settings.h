@@ -1,6 +1,7 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
- * asphd's configuration file (/etc/asphd/asphd.conf, JSON; docs/daemon.md):
+ * asphd's configuration file (/etc/asphd/asphd.conf, JSON with "//"
+ * comments; docs/daemon.md, docs/admin.md):
  * who may operate, where to listen, the limits, and the instruments (the
  * "instruments" member in the drivers' format, docs/drivers.md).
  */
@@ -33,6 +34,13 @@ struct settings_limits {
 	uint32_t progress_interval_ms;  /* between progress events of a job */
 	uint32_t max_label_bytes;
 	uint32_t min_free_disk_mb;      /* kept free on the state directory */
+};
+
+/* The "health" section: when the daemon counts as degraded (monitor.h,
+ * docs/admin.md "Health"). */
+struct settings_health {
+	uint32_t sink_down_s;           /* a sink out of reach this long */
+	uint32_t outbox_age_s;          /* a sink's oldest message this old */
 };
 
 /* The "mqtt" section: telemetry to a broker (docs/fleet.md). */
@@ -68,17 +76,42 @@ struct settings {
 	char *http_root;                /* the web page's files (NULL: WEB_DIR) */
 	char *state_dir;
 	struct settings_limits limits;
+	struct settings_health health;
 	struct settings_mqtt *mqtt;     /* NULL: no MQTT */
 	struct settings_postgres *postgres;     /* NULL: no central store */
 	/* Instruments: {"instruments": [...]} as JSON text for the drivers'
 	 * parser, or NULL for the default single "mock" instrument. */
 	char *instruments_json;
-	char *text;                     /* the file, to locate their errors */
+	char *text;                     /* the file (comments blanked), to locate errors */
 	size_t text_len;
 };
 
+/* The state directory without a setting (systemd's StateDirectory=). */
+#define SETTINGS_STATE_DIR "/var/lib/asphd"
+
+/* One setting of the configuration file, as its reference gives it
+ * (asphd --list-settings, docs/admin.md). */
+struct setting_info {
+	const char *name;       /* "socket", "limits.max_queue", "mqtt.url" */
+	char type[64];          /* what it takes: "path", "integer from 1 to 65536" */
+	char fallback[64];      /* its default, for people */
+	const char *help;       /* what it does */
+};
+
+/* Every setting the file takes, in the reference's order: settings_count()
+ * of them, the i-th described into *out. The file is read through the
+ * same table. */
+size_t settings_count(void);
+void settings_describe(size_t i, struct setting_info *out);
+
 /* Called once for every error found (the load goes on where it can). */
 typedef void (*settings_error_fn)(const struct asph_error *err, void *data);
+
+/* The comments of the file's text blanked: "//" outside a string, to the
+ * end of its line, becomes spaces (the line feed stays), so that JSON's
+ * parser reads the rest and every place in the file keeps its line and
+ * column. settings_load() does it; the text it keeps (text) is blanked. */
+void settings_blank_comments(char *text, size_t len);
 
 /*
  * Loads path (NULL: the defaults). Every problem is reported through

@@ -1,5 +1,6 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 #include <errno.h>
+#include <stdbool.h>
 #include <fcntl.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -9,8 +10,10 @@
 
 #include <sqlite3.h>
 
+#include "log.h"
 #include "store.h"
 #include "util-mem.h"
+#include "util-time.h"
 
 /* 2: part, lot and serial of jobs, the actor's name in the history, API
  * tokens, instrument locks, the outbox. */
@@ -132,6 +135,39 @@ static int exec(struct store *s, const char *sql)
 	return rc == SQLITE_OK ? 0 : sql_errno(rc);
 }
 
+static void finalizep(sqlite3_stmt **st)
+{
+	if (*st)
+		sqlite3_finalize(*st);
+}
+#define _cleanup_stmt_ _cleanup_(finalizep)
+
+static sqlite3_stmt *prepare(struct store *s, const char *sql)
+{
+	sqlite3_stmt *st = NULL;
+
+	if (sqlite3_prepare_v2(s->db, sql, -1, &st, NULL) != SQLITE_OK)
+		return NULL;
+	return st;
+}
+
+static int step_done(sqlite3_stmt *st)
+{
+	int rc = sqlite3_step(st);
+
+	return rc == SQLITE_DONE ? 0 : sql_errno(rc);
+}
+
+/* The one row a query of one record reads: 0, -ENOENT when there is none. */
+static int step_row(sqlite3_stmt *st)
+{
+	int rc = sqlite3_step(st);
+
+	if (rc == SQLITE_ROW)
+		return 0;
+	return rc == SQLITE_DONE ? -ENOENT : -EIO;
+}
+
 /* The columns of schema 2 that the store lacks, added. */
 static int add_columns(struct store *s)
 {
@@ -154,41 +190,225 @@ static int add_columns(struct store *s)
 	return exec(s, "CREATE INDEX IF NOT EXISTS jobs_part ON jobs (part)");
 }
 
-static int check_version(struct store *s, struct asph_error *err)
+/* The schema version of the store: 0 for a new one (no meta table, or no
+ * version in it); -EPROTO for a store that is damaged, not asphd's, or
+ * newer than this daemon. */
+static int read_version(struct store *s, long *version, struct asph_error *err)
 {
+	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
+		"SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'meta'");
 	_cleanup_free_ char *v = NULL;
-	char buf[16];
-	int r = store_meta_get(s, "schema", &v);
+	char *end;
+	int r;
 
-	if (r == -ENOENT) {
-		/* A new store: the tables of every version are there. */
-		snprintf(buf, sizeof(buf), "%d", SCHEMA_VERSION);
-		return add_columns(s) < 0 ? sql_error(s, err, "creating the store")
-					  : store_meta_set(s, "schema", buf);
-	}
+	*version = 0;
+	if (!st)
+		return sql_error(s, err, "reading the schema version");
+	r = step_row(st);
+	if (r == -ENOENT)
+		return 0;
+	r = r < 0 ? r : store_meta_get(s, "schema", &v);
+	if (r == -ENOENT)
+		return 0;
 	if (r < 0)
 		return sql_error(s, err, "reading the schema version");
 	/* only digits: strtol alone would take " 1", "+1" or "1x" */
-	char *end;
 	errno = 0;
-	long version = strtol(v, &end, 10);
-	if (v[0] < '0' || v[0] > '9' || *end || errno || version < 1)
+	*version = strtol(v, &end, 10);
+	if (v[0] < '0' || v[0] > '9' || *end || errno || *version < 1)
 		return asph_error_set(err, -EPROTO,
 				      "the job store's schema version \"%.32s\" is not a number "
 				      "from 1 on: the store is damaged or not asphd's", v);
-	if (version > SCHEMA_VERSION)
+	if (*version > SCHEMA_VERSION)
 		return asph_error_set(err, -EPROTO,
 				      "the job store has schema %ld, newer than %d",
-				      version, SCHEMA_VERSION);
-	if (version == 1) {
-		snprintf(buf, sizeof(buf), "%d", SCHEMA_VERSION);
-		if (store_begin(s) < 0 || add_columns(s) < 0 ||
-		    store_meta_set(s, "schema", buf) < 0 || store_commit(s) < 0) {
-			r = sql_error(s, err, "upgrading the job store to schema 2");
-			store_rollback(s);
-			return r;
-		}
+				      *version, SCHEMA_VERSION);
+	return 0;
+}
+
+/* A new store gets the version; an older one is upgraded in place (its
+ * backup is made before, in store_open()). */
+static int set_version(struct store *s, long version, struct asph_error *err)
+{
+	char buf[16];
+	int r;
+
+	snprintf(buf, sizeof(buf), "%d", SCHEMA_VERSION);
+	if (version == 0)
+		return add_columns(s) < 0 ? sql_error(s, err, "creating the store")
+					  : store_meta_set(s, "schema", buf);
+	if (version == SCHEMA_VERSION)
+		return 0;
+	if (store_begin(s) < 0 || add_columns(s) < 0 ||
+	    store_meta_set(s, "schema", buf) < 0 || store_commit(s) < 0) {
+		r = sql_error(s, err, "upgrading the job store to schema 2");
+		store_rollback(s);
+		return r;
 	}
+	return 0;
+}
+
+/* ------------------------------------------------------------ backups */
+
+/* Pages copied per step (a MiB of 4 KiB pages): progress moves and a
+ * cancel is heard soon. */
+#define BACKUP_STEP_PAGES 256
+
+int store_backup_dir(const char *path, bool make, char **out, struct asph_error *err)
+{
+	const char *slash = strrchr(path, '/');
+	_cleanup_free_ char *dir = NULL;
+	struct stat st;
+
+	if (asprintf(&dir, "%.*s/backup", slash ? (int)(slash - path) : 1, slash ? path : ".") < 0)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	if (make && mkdir(dir, 0750) < 0 && errno != EEXIST)
+		return asph_error_set(err, -errno, "cannot make %s: %s", dir, strerror(errno));
+	if (lstat(dir, &st) < 0)
+		return asph_error_set(err, -errno, "%s: %s", dir, strerror(errno));
+	if (!S_ISDIR(st.st_mode))
+		return asph_error_set(err, -ENOTDIR, "%s is not a directory: refusing to keep "
+				      "the job store's backups there", dir);
+	*out = steal_ptr(dir);
+	return 0;
+}
+
+/* fsync() of a file or a directory. */
+static int sync_path(const char *path, int flags)
+{
+	int fd = open(path, flags | O_CLOEXEC | O_NOFOLLOW), r = 0;
+
+	if (fd < 0)
+		return -errno;
+	if (fsync(fd) < 0)
+		r = -errno;
+	close(fd);
+	return r;
+}
+
+/* The file dst and its directory's entry of it, on disk. */
+static int sync_new_file(const char *dst)
+{
+	_cleanup_free_ char *dir = strdup(dst);
+	char *slash = dir ? strrchr(dir, '/') : NULL;
+	int r = sync_path(dst, O_RDONLY);
+
+	if (r < 0 || !slash)
+		return r;
+	*slash = '\0';
+	return sync_path(slash == dir ? "/" : dir, O_RDONLY | O_DIRECTORY);
+}
+
+/* The copy of src into the new file dst, step by step, in one read
+ * transaction of src: a snapshot of one moment, which the store's writers
+ * do not wait for (WAL). The copy is written without a journal (it is
+ * removed unless complete) and synced once at the end. */
+static int copy_db(sqlite3 *src, sqlite3 *out, const char *dst, store_backup_fn progress,
+		   void *data, struct asph_error *err)
+{
+	sqlite3_backup *b;
+	bool cancelled = false;
+	int rc;
+
+	if (sqlite3_exec(out, "PRAGMA journal_mode=OFF; PRAGMA synchronous=OFF", NULL, NULL,
+			 NULL) != SQLITE_OK)
+		return asph_error_set(err, -EIO, "%s: %s", dst, sqlite3_errmsg(out));
+	if (sqlite3_exec(src, "BEGIN; SELECT COUNT(*) FROM sqlite_master", NULL, NULL,
+			 NULL) != SQLITE_OK)
+		return asph_error_set(err, -EIO, "reading the job store: %s", sqlite3_errmsg(src));
+	b = sqlite3_backup_init(out, "main", src, "main");
+	if (!b)
+		return asph_error_set(err, -EIO, "%s: %s", dst, sqlite3_errmsg(out));
+	do {
+		rc = sqlite3_backup_step(b, BACKUP_STEP_PAGES);
+		if ((rc == SQLITE_OK || rc == SQLITE_DONE) && progress &&
+		    progress(sqlite3_backup_pagecount(b) - sqlite3_backup_remaining(b),
+			     sqlite3_backup_pagecount(b), data))
+			cancelled = rc == SQLITE_OK;
+	} while (rc == SQLITE_OK && !cancelled);
+	sqlite3_backup_finish(b);
+	if (cancelled)
+		return asph_error_set(err, -ECANCELED, "the backup was cancelled");
+	if (rc != SQLITE_DONE)
+		return asph_error_set(err, sql_errno(rc), "copying the job store into %s: %s", dst,
+				      sqlite3_errstr(rc));
+	/* a file of its own, without a write-ahead log beside it */
+	if (sqlite3_exec(out, "PRAGMA journal_mode=DELETE", NULL, NULL, NULL) != SQLITE_OK)
+		return asph_error_set(err, -EIO, "%s: %s", dst, sqlite3_errmsg(out));
+	return 0;
+}
+
+static int backup_db(sqlite3 *src, const char *dst, store_backup_fn progress, void *data,
+		     struct asph_error *err)
+{
+	sqlite3 *out = NULL;
+	int fd, r;
+
+	fd = open(dst, O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0640);
+	if (fd < 0)
+		return asph_error_set(err, -errno, "%s: %s", dst, strerror(errno));
+	close(fd);
+	if (sqlite3_open_v2(dst, &out, SQLITE_OPEN_READWRITE | SQLITE_OPEN_NOMUTEX |
+			    SQLITE_OPEN_NOFOLLOW, NULL) != SQLITE_OK)
+		r = asph_error_set(err, -EIO, "%s: %s", dst,
+				   out ? sqlite3_errmsg(out) : "out of memory");
+	else
+		r = copy_db(src, out, dst, progress, data, err);
+	if (!sqlite3_get_autocommit(src))
+		sqlite3_exec(src, "ROLLBACK", NULL, NULL, NULL);    /* (the read transaction) */
+	if (sqlite3_close(out) != SQLITE_OK && r == 0)
+		r = asph_error_set(err, -EIO, "%s: cannot close it", dst);
+	if (r == 0 && (r = sync_new_file(dst)) < 0)
+		asph_error_set(err, r, "%s: %s", dst, strerror(-r));
+	if (r < 0)
+		unlink(dst);
+	return r;
+}
+
+int store_backup(const char *path, const char *dst, store_backup_fn progress, void *data,
+		 struct asph_error *err)
+{
+	sqlite3 *src = NULL;
+	int r;
+
+	if (sqlite3_open_v2(path, &src, SQLITE_OPEN_READWRITE | SQLITE_OPEN_NOMUTEX |
+			    SQLITE_OPEN_NOFOLLOW, NULL) != SQLITE_OK) {
+		r = asph_error_set(err, -EIO, "cannot open the job store %s: %s", path,
+				   src ? sqlite3_errmsg(src) : "out of memory");
+		sqlite3_close(src);
+		return r;
+	}
+	sqlite3_busy_timeout(src, 5000);
+	r = backup_db(src, dst, progress, data, err);
+	sqlite3_close(src);
+	return r;
+}
+
+/* The store as it is, into DIR/backup/jobs-schemaN-TIME.sqlite, before
+ * its upgrade from schema N: no upgrade without it. */
+static int backup_before_upgrade(struct store *s, const char *path, long version,
+				 struct asph_error *err)
+{
+	_cleanup_free_ char *dir = NULL, *dst = NULL;
+	char stamp[ISO8601_SIZE];
+	struct asph_error why;
+	int r;
+
+	asph_error_clear(&why);
+	r = store_backup_dir(path, true, &dir, &why);
+	iso8601_basic_utc(now_realtime_ns(), stamp, sizeof(stamp));
+	if (r == 0 && asprintf(&dst, "%s/jobs-schema%ld-%s.sqlite", dir, version, stamp) < 0) {
+		dst = NULL;
+		r = asph_error_set(&why, -ENOMEM, "out of memory");
+	}
+	if (r == 0)
+		r = backup_db(s->db, dst, NULL, NULL, &why);
+	if (r < 0)
+		return asph_error_set(err, r, "the job store %s has schema %ld; it is upgraded to "
+				      "schema %d only after a backup, which failed: %s", path,
+				      version, SCHEMA_VERSION, why.message);
+	log_notice("the job store %s has schema %ld: backed up to %s before its upgrade to "
+		   "schema %d", path, version, dst, SCHEMA_VERSION);
 	return 0;
 }
 
@@ -212,6 +432,7 @@ static int check_files(const char *path, struct asph_error *err)
 int store_open(const char *path, struct store **out, struct asph_error *err)
 {
 	struct store *s;
+	long version;
 	int r = check_files(path, err);
 
 	if (r < 0)
@@ -231,13 +452,19 @@ int store_open(const char *path, struct store **out, struct asph_error *err)
 	 * loss, and readers never block the writer. */
 	if (exec(s, "PRAGMA journal_mode=WAL;") < 0 ||
 	    exec(s, "PRAGMA synchronous=FULL;") < 0 ||
-	    exec(s, "PRAGMA foreign_keys=ON;") < 0 ||
-	    exec(s, schema) < 0 || exec(s, schema_2_tables) < 0) {
+	    exec(s, "PRAGMA foreign_keys=ON;") < 0) {
 		r = sql_error(s, err, path);
 		store_close(s);
 		return r;
 	}
-	r = check_version(s, err);
+	/* An older store is copied as it is before anything of it changes. */
+	r = read_version(s, &version, err);
+	if (r == 0 && version > 0 && version < SCHEMA_VERSION)
+		r = backup_before_upgrade(s, path, version, err);
+	if (r == 0 && (exec(s, schema) < 0 || exec(s, schema_2_tables) < 0))
+		r = sql_error(s, err, path);
+	if (r == 0)
+		r = set_version(s, version, err);
 	if (r < 0) {
 		store_close(s);
 		return r;
@@ -280,44 +507,20 @@ int store_renew_reserve(struct store *s)
 	return r;
 }
 
+bool store_reserve_ready(const char *path)
+{
+	char name[4096];
+	struct stat st;
+
+	snprintf(name, sizeof(name), "%s.reserve", path);
+	return lstat(name, &st) == 0 && S_ISREG(st.st_mode) && st.st_size >= RESERVE_BYTES;
+}
+
 int store_release_reserve(struct store *s)
 {
 	if (!s->reserve)
 		return -ENOENT;
 	return unlink(s->reserve) < 0 ? -errno : 0;
-}
-
-static void finalizep(sqlite3_stmt **st)
-{
-	if (*st)
-		sqlite3_finalize(*st);
-}
-#define _cleanup_stmt_ _cleanup_(finalizep)
-
-static sqlite3_stmt *prepare(struct store *s, const char *sql)
-{
-	sqlite3_stmt *st = NULL;
-
-	if (sqlite3_prepare_v2(s->db, sql, -1, &st, NULL) != SQLITE_OK)
-		return NULL;
-	return st;
-}
-
-static int step_done(sqlite3_stmt *st)
-{
-	int rc = sqlite3_step(st);
-
-	return rc == SQLITE_DONE ? 0 : sql_errno(rc);
-}
-
-/* The one row a query of one record reads: 0, -ENOENT when there is none. */
-static int step_row(sqlite3_stmt *st)
-{
-	int rc = sqlite3_step(st);
-
-	if (rc == SQLITE_ROW)
-		return 0;
-	return rc == SQLITE_DONE ? -ENOENT : -EIO;
 }
 
 static void bind_text(sqlite3_stmt *st, int i, const char *v)
@@ -451,6 +654,29 @@ int store_insert(struct store *s, struct job_record *j, int64_t now_ns)
 		}
 	}
 	return 0;
+}
+
+int store_skip_ids(struct store *s, int64_t last)
+{
+	_cleanup_stmt_ sqlite3_stmt *ins = prepare(s,
+		"INSERT INTO sqlite_sequence (name, seq) SELECT 'jobs', 0"
+		" WHERE NOT EXISTS (SELECT 1 FROM sqlite_sequence WHERE name = 'jobs')");
+	_cleanup_stmt_ sqlite3_stmt *up = prepare(s,
+		"UPDATE sqlite_sequence SET seq = ?1 WHERE name = 'jobs' AND seq < ?1");
+	int r;
+
+	if (!ins || !up)
+		return -EIO;
+	r = store_begin(s);
+	if (r == 0)
+		r = step_done(ins);
+	sqlite3_bind_int64(up, 1, last);
+	if (r == 0)
+		r = step_done(up);
+	if (r == 0 && (r = store_commit(s)) == 0)
+		return sqlite3_changes(s->db) > 0;
+	store_rollback(s);
+	return r;
 }
 
 int store_get(struct store *s, int64_t id, struct job_record *out)

@@ -52,14 +52,18 @@ void job_record_clear(struct job_record *j);
 
 struct store;
 
-/* Opens or creates path; upgrades nothing it does not know (-EPROTO for a
- * newer schema). */
+/* Opens or creates path; upgrades an older schema after a backup (below),
+ * nothing it does not know (-EPROTO for a newer schema). */
 int store_open(const char *path, struct store **out, struct asph_error *err);
 void store_close(struct store *s);
 
 /* Inserts j (id and seq are assigned and written back), with a history
  * entry. */
 int store_insert(struct store *s, struct job_record *j, int64_t now_ns);
+/* Ids up to last are taken (by job folders the store does not know, a
+ * store put back from a backup): the next job gets a higher one. 1 when
+ * that moved the next id, 0 when it was higher already, or -errno. */
+int store_skip_ids(struct store *s, int64_t last);
 /* -ENOENT when there is no such job. */
 int store_get(struct store *s, int64_t id, struct job_record *out);
 
@@ -133,6 +137,28 @@ int store_meta_set(struct store *s, const char *key, const char *value);
  */
 int store_renew_reserve(struct store *s);
 int store_release_reserve(struct store *s);
+/* Whether the reserve of the store at path is there, whole (any thread). */
+bool store_reserve_ready(const char *path);
+
+/*
+ * Backups: a consistent copy of the store made while it is in use. The
+ * copy is read in one read transaction (WAL: the store's writers go on
+ * meanwhile), a few hundred pages a step; progress (may be NULL) is told
+ * after each step with the pages copied and in all, and a nonzero return
+ * stops the copy (-ECANCELED). dst must not exist: it is created (0640), a
+ * complete SQLite file of its own (no write-ahead log), synced with its
+ * directory entry, and removed again on failure. store_open() makes one
+ * into DIR/backup/jobs-schemaN-YYYYmmddTHHMMSSZ.sqlite before it upgrades
+ * a store of schema N, and logs it; no upgrade goes without it.
+ */
+typedef int (*store_backup_fn)(int64_t pages_done, int64_t pages_total, void *data);
+/* The store at path into dst, through a connection of its own (any thread). */
+int store_backup(const char *path, const char *dst, store_backup_fn progress, void *data,
+		 struct asph_error *err);
+/* The backups' directory beside the store at path, "DIR/backup", with make
+ * made (0750) when missing (else -ENOENT); a symlink or a file there is
+ * refused (-ENOTDIR). */
+int store_backup_dir(const char *path, bool make, char **dir, struct asph_error *err);
 
 /* --- API tokens (tokens.c): name, role, SHA-256 of the secret */
 

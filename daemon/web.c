@@ -100,6 +100,7 @@ struct web {
 	sd_event *event;
 	struct rpc *rpc;
 	struct jobs *jobs;
+	struct monitor *monitor;
 	const struct settings_limits *limits;
 	char *state_dir;
 	struct listener listeners[WEB_MAX_LISTENERS];
@@ -418,12 +419,25 @@ json_t *web_login_token(const char *body, size_t len, json_t **doc)
 	return token;
 }
 
+/* The peer of an HTTP connection: its address, "http ADDRESS" in the log
+ * (the key stays the address's, as a TCP peer's). */
+static void http_peer(struct MHD_Connection *c, struct peer *p)
+{
+	const union MHD_ConnectionInfo *info =
+		MHD_get_connection_info(c, MHD_CONNECTION_INFO_CONNECTION_FD);
+
+	p->tcp = true;
+	server_tcp_peer(info ? info->connect_fd : -1, p);
+	memmove(p->name + 1, p->name, sizeof(p->name) - 1);
+	p->name[sizeof(p->name) - 1] = '\0';
+	memcpy(p->name, "http", 4);
+}
+
 static enum MHD_Result route_login(struct web *w, struct MHD_Connection *c,
 				   const struct request *req)
 {
 	_cleanup_(json_decrefp) json_t *body = NULL, *hello = NULL, *answer = NULL;
 	_cleanup_free_ char *line = NULL;
-	const union MHD_ConnectionInfo *info;
 	struct answer a = { 0 };
 	struct session *s;
 	json_t *token, *err;
@@ -441,13 +455,7 @@ static enum MHD_Result route_login(struct web *w, struct MHD_Connection *c,
 		free(s);
 		return send_error(c, MHD_HTTP_INTERNAL_SERVER_ERROR, "no memory");
 	}
-	info = MHD_get_connection_info(c, MHD_CONNECTION_INFO_CONNECTION_FD);
-	s->rpc.peer.tcp = true;
-	server_tcp_peer(info ? info->connect_fd : -1, &s->rpc.peer);
-	/* "http ADDRESS" in the log; the key stays the address's */
-	memmove(s->rpc.peer.name + 1, s->rpc.peer.name, sizeof(s->rpc.peer.name) - 1);
-	s->rpc.peer.name[sizeof(s->rpc.peer.name) - 1] = '\0';
-	memcpy(s->rpc.peer.name, "http", 4);
+	http_peer(c, &s->rpc.peer);
 	s->last_used_ns = now_realtime_ns();
 	rpc_session_open(w->rpc, &s->rpc);
 	s->next = w->sessions;
@@ -788,6 +796,98 @@ static enum MHD_Result route_job(struct web *w, struct MHD_Connection *c, const 
 	return send_error(c, MHD_HTTP_NOT_FOUND, "no such route");
 }
 
+/* ---------------------------------------------------------- monitoring */
+
+/* GET /healthz: "ok" (200) or "degraded" (503), to anyone, and nothing
+ * more; the reasons are daemon.health's, for those who may read them. */
+static enum MHD_Result route_healthz(struct web *w, struct MHD_Connection *c)
+{
+	_cleanup_(json_decrefp) json_t *reasons = monitor_health(w->monitor);
+	bool ok = reasons && json_array_size(reasons) == 0;
+
+	return send_text(c, ok ? MHD_HTTP_OK : MHD_HTTP_SERVICE_UNAVAILABLE,
+			 "text/plain; charset=utf-8", ok ? "ok\n" : "degraded\n", ok ? 3 : 9, NULL);
+}
+
+/* 401 with the challenge of RFC 6750: the scheme, and invalid_token when
+ * a token was sent and refused. */
+static enum MHD_Result send_unauthorized(struct MHD_Connection *c, bool sent, const char *why)
+{
+	_cleanup_free_ char *text = NULL;
+	struct MHD_Response *r;
+	enum MHD_Result ret;
+	int n = asprintf(&text, "%s\n", why);
+
+	if (n < 0)
+		return MHD_NO;
+	r = MHD_create_response_from_buffer((size_t)n, text, MHD_RESPMEM_MUST_COPY);
+	if (!r)
+		return MHD_NO;
+	secure_headers(r);
+	MHD_add_response_header(r, "Content-Type", "text/plain; charset=utf-8");
+	MHD_add_response_header(r, "Cache-Control", "no-store");
+	MHD_add_response_header(r, "WWW-Authenticate", sent
+				? "Bearer realm=\"asphd\", error=\"invalid_token\""
+				: "Bearer realm=\"asphd\"");
+	ret = MHD_queue_response(c, MHD_HTTP_UNAUTHORIZED, r);
+	MHD_destroy_response(r);
+	return ret;
+}
+
+bool web_bearer_token(const char *authorization, char *token, size_t size)
+{
+	const char *t;
+	size_t n;
+
+	if (!authorization || strncasecmp(authorization, "Bearer ", 7))
+		return false;
+	t = authorization + 7;
+	t += strspn(t, " ");
+	n = strcspn(t, " ");
+	if (n == 0 || n >= size || t[n + strspn(t + n, " ")])
+		return false;
+	for (size_t i = 0; i < n; i++)
+		if (t[i] < 0x21 || t[i] > 0x7e)
+			return false;
+	memcpy(token, t, n);
+	token[n] = '\0';
+	return true;
+}
+
+/* GET /metrics: the Prometheus text format, to a viewer's token sent as
+ * "Authorization: Bearer TOKEN" (what Prometheus sends with its scrape
+ * configuration's authorization). The token is checked as a hello's is,
+ * under its rate limit, and no session is made. */
+static enum MHD_Result route_metrics(struct web *w, struct MHD_Connection *c)
+{
+	const char *auth = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Authorization");
+	struct rpc_session s = { 0 };
+	struct proto_why why = { 0 };
+	_cleanup_free_ char *text = NULL;
+	char token[520];
+	size_t len = 0;
+	bool sent;
+
+	sent = web_bearer_token(auth, token, sizeof(token));
+	if (!sent)
+		return send_unauthorized(c, false, "send a viewer token as \"Authorization: Bearer "
+					 "TOKEN\"");
+	http_peer(c, &s.peer);
+	if (rpc_check_token(w->rpc, &s, token, "/metrics", &why)) {
+		explicit_bzero(token, sizeof(token));
+		return send_unauthorized(c, true, why.text);
+	}
+	explicit_bzero(token, sizeof(token));
+	if (s.grant.role < ROLE_VIEWER)
+		return send_error(c, MHD_HTTP_FORBIDDEN, "the token \"%s\" may not read",
+				  s.grant.credential);
+	text = monitor_metrics(w->monitor, &len);
+	if (!text)
+		return send_error(c, MHD_HTTP_INTERNAL_SERVER_ERROR, "no memory");
+	return send_text(c, MHD_HTTP_OK, "text/plain; version=0.0.4; charset=utf-8", text, len,
+			 NULL);
+}
+
 /* ------------------------------------------------------------ requests */
 
 bool web_origin_allowed(const char *origin, const char *host, const char *fetch_site)
@@ -849,6 +949,10 @@ static enum MHD_Result route_get(struct web *w, struct MHD_Connection *c, const 
 {
 	struct session *s;
 
+	if (!strcmp(url, "/healthz"))
+		return route_healthz(w, c);
+	if (!strcmp(url, "/metrics"))
+		return route_metrics(w, c);
 	if (strncmp(url, "/api/", 5))
 		return route_static(w, c, url);
 	s = find_session(w, c);
@@ -938,6 +1042,7 @@ int web_new(const struct web_setup *setup, struct web **out)
 	w->event = setup->event;
 	w->rpc = setup->rpc;
 	w->jobs = setup->jobs;
+	w->monitor = setup->monitor;
 	w->limits = setup->limits;
 	w->root_fd = -1;
 	w->state_dir = strdup(setup->state_dir);

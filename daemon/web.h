@@ -16,6 +16,9 @@
  *                            session subscribed to with events.subscribe
  *   GET  /api/jobs/ID/files/NAME   a result file (job.file's names)
  *   GET  /api/jobs/ID/points?from=N  measured points from the Nth on
+ *   GET  /healthz            "ok" or "degraded" (monitor.h), without login
+ *   GET  /metrics            the Prometheus text format, to a viewer's token
+ *                            in "Authorization: Bearer TOKEN"
  *
  * A session is an rpc_session of a peer that proved a token (a named
  * token's role, as over TCP); its cookie is HttpOnly and SameSite=Strict.
@@ -40,6 +43,7 @@
 
 #include "events.h"
 #include "jobs.h"
+#include "monitor.h"
 #include "rpc.h"
 #include "settings.h"
 
@@ -47,6 +51,7 @@ struct web_setup {
 	sd_event *event;
 	struct rpc *rpc;
 	struct jobs *jobs;
+	struct monitor *monitor;                /* /healthz, /metrics */
 	const struct settings_limits *limits;   /* read at each use: may change */
 	const char *state_dir;                  /* the jobs' scans, for points */
 };
@@ -89,6 +94,10 @@ int web_job_route(const char *path, int64_t *id, const char **rest);
 /* A file name the listener serves: letters, digits, "._-", not starting
  * with ".", at most 128 bytes. */
 bool web_plain_name(const char *name);
+/* The token of an "Authorization: Bearer TOKEN" header (the scheme in any
+ * case, TOKEN visible ASCII without blanks, shorter than size) copied into
+ * token: true, or false for any other header (or none). */
+bool web_bearer_token(const char *authorization, char *token, size_t size);
 /* The token of a login body {"token": TOKEN} (nothing else), borrowed from
  * *doc, which the caller frees (json_decref); NULL when the body is not
  * that. */

@@ -29,6 +29,15 @@ void iso8601_utc(int64_t ns, int digits, char *buf, size_t size)
 	snprintf(buf, size, "%s.%0*ldZ", day, digits, frac);
 }
 
+void iso8601_basic_utc(int64_t ns, char *buf, size_t size)
+{
+	struct timespec ts = timespec_from_ns(ns);
+	struct tm tm;
+
+	if (!gmtime_r(&ts.tv_sec, &tm) || !strftime(buf, size, "%Y%m%dT%H%M%SZ", &tm))
+		snprintf(buf, size, "@%lld", (long long)ns);
+}
+
 void iso8601_local(int64_t ns, char *buf, size_t size)
 {
 	struct timespec ts = timespec_from_ns(ns);

@@ -76,6 +76,10 @@ static inline void msleep(unsigned ms)
  */
 void iso8601_utc(int64_t ns, int digits, char *buf, size_t size);
 
+/* realtime ns in ISO 8601's basic format, for file names:
+ * "20240501T123456Z" (whole seconds, truncated); "@ns" as above. */
+void iso8601_basic_utc(int64_t ns, char *buf, size_t size);
+
 /*
  * realtime ns as ISO 8601 in the local time zone (TZ, else /etc/localtime)
  * with its offset, to the second: "2024-05-01T14:34:56+02:00" (UTC gives

@@ -2,8 +2,9 @@
 /*
  * What the web listener reads of a request itself (web.h): the input is
  * split at its first two NUL bytes into an Origin, a Host and the rest,
- * which is also taken as a path after /api/jobs/, a file name, a count and
- * a login body. libmicrohttpd parses the HTTP around them.
+ * which is also taken as a path after /api/jobs/, a file name, a count, a
+ * login body and an Authorization header. libmicrohttpd parses the HTTP
+ * around them.
  */
 #include <stdlib.h>
 #include <string.h>
@@ -14,6 +15,7 @@
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
 	char *text = malloc(size + 1), *origin, *host, *rest, *end;
+	char token[64];
 	const char *tail;
 	json_t *doc = NULL;
 	int64_t v;
@@ -37,6 +39,10 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 	if (web_parse_count(rest, strlen(rest), &v) && v <= 0)
 		abort();
 	(void)web_login_token(rest, (size_t)(end - rest), &doc);
+	if (web_bearer_token(rest, token, sizeof(token)) &&
+	    (!token[0] || strlen(token) >= sizeof(token) || strchr(token, ' ') ||
+	     !strstr(rest, token)))
+		abort();
 	json_decref(doc);
 	free(text);
 	return 0;

@@ -249,8 +249,9 @@ try:
     expect(st["state"] == "failed" and st["reason"], f"that job fails with a reason ({st['reason']})")
     for dirpath, dirnames, files in os.walk(d.state):
         rel = os.path.relpath(dirpath, d.state)
-        ok = rel == "." or rel == "jobs" or re.fullmatch(r"jobs/\d+", rel)
-        expect(ok, f"only job folders in the state directory ({rel})")
+        # (backup/: the copies of the store root asked for with backup.start)
+        ok = rel in (".", "jobs", "backup") or re.fullmatch(r"jobs/\d+", rel)
+        expect(ok, f"only job folders and backup/ in the state directory ({rel})")
     c.close()
     expect(d.stop() == 0, "clean stop")
 except Exception:

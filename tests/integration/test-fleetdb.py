@@ -229,6 +229,10 @@ try:
            f"({[json.loads(h[3]).get('job') for h in held]})")
     expect("refused for good" in log and "no_scrap" in log,
            "the log says which row was refused and the server's reason")
+    h = c.call("daemon.health")
+    expect(h["status"] == "degraded" and any(
+        r["check"] == "outbox_held" and r["detail"].startswith("postgres: 1 message(s) refused")
+        for r in h["reasons"]), f"the health is degraded by the refused row: outbox_held ({h})")
     pg.psql("ALTER TABLE asphd.results DROP CONSTRAINT no_scrap")
     c.close()
     expect(daemons[1].stop() == 0, "clean stop")

@@ -10,6 +10,7 @@ import json
 import os
 import re
 import sys
+import time
 
 sys.path.insert(0, os.path.dirname(__file__))
 from daemontest import Client, Daemon, expect, finish, mock_instrument, poll_state  # noqa: E402
@@ -137,6 +138,15 @@ try:
     c.call("token.create", {"name": "wall-display", "role": "viewer", "expires": "2099-01-31"})
     c.call("token.list")
     c.call("token.revoke", {"name": "wall-display"})
+    c.call("daemon.health")
+    c.call("backup.start")
+    while Client.call(c, "backup.get")["state"] == "copying":   # (not recorded)
+        time.sleep(0.05)
+    copy = c.call("backup.get")
+    piece = c.call("backup.file", {"offset": 0, "length": 64})
+    expect(copy["state"] == "done" and piece["size"] == copy["size"] and not piece["eof"]
+           and len(piece["data"]) == 88, f"backup.file: the first 64 bytes of the copy, "
+           f"base64 ({copy['size']} bytes in all)")
     poll_state(c, j2, ["completed"])
     poll_state(c, j3, ["completed"])
     c.call("events.unsubscribe")

@@ -361,6 +361,7 @@ static void test_run_to_completion(void **state)
 	assert_false(j.resume);
 	job_record_clear(&j);
 	assert_int_equal(jobs_activity(f->jobs, 0)->job, 0);
+	assert_int_equal(jobs_activity(f->jobs, 0)->points_measured, FAST_POINTS);
 	assert_int_equal(jobs_result(f->jobs, a, &res, NULL), 0);
 	assert_non_null(json_object_get(res, "summary"));
 	assert_non_null(strstr(json_string_value(json_object_get(res, "dir")), f->dir));
@@ -518,6 +519,26 @@ static void test_queue_stop_abort(void **state)
 	job_record_clear(&j);
 	assert_event(f, a, "interrupted", "cancelled");
 	assert_counts(f);
+}
+
+/* The points measured on an instrument: each plan point once, also when
+ * the scan was stopped and continued (the metric asphd_points_measured_total). */
+static void test_points_measured(void **state)
+{
+	struct fixture *f = *state;
+	int64_t a = submit_to(f, "slow1", 1500, 0);
+	const struct instrument_activity *act = jobs_activity(f->jobs, 1);
+
+	assert_int_equal(jobs_queue_start(f->jobs, &root, NULL), 0);
+	run_until_measuring(f, 1, a);
+	assert_int_equal(jobs_queue_stop(f->jobs, true, &root, NULL), 0);
+	assert_int_equal(run_while(f, a, BUSY), JOB_INTERRUPTED);
+	assert_true(act->points_measured > 0 && act->points_measured < 1500);
+	assert_int_equal(jobs_resume(f->jobs, a, &root, NULL, NULL), 0);
+	assert_int_equal(jobs_queue_start(f->jobs, &root, NULL), 0);
+	assert_int_equal(run_while(f, a, BUSY), JOB_COMPLETED);
+	assert_int_equal(act->points_measured, 1500);
+	assert_int_equal(jobs_activity(f->jobs, 0)->points_measured, 0);
 }
 
 /* queue.stop abort, then job.cancel before the scan has stopped: the
@@ -910,6 +931,7 @@ int main(void)
 		cmocka_unit_test_setup_teardown(test_cancel_paused, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_driver_fault, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_queue_stop_abort, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_points_measured, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_cancel_after_queue_stop_abort, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_cancel_while_characterizing, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_requeue, setup, teardown),

@@ -2,6 +2,7 @@
 #include <errno.h>
 #include <setjmp.h>
 #include <stdarg.h>
+#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -120,6 +121,63 @@ static void test_syntax_and_missing(void **state)
 	assert_string_equal(s.e[0].source, "/nonexistent/asphd.conf");
 }
 
+/* "//" comments are blanked outside strings, and only there; every place
+ * after them keeps its line and column. */
+static void test_comments(void **state)
+{
+	char text[] = "// head\n{\"a\": \"x//y\", // tail \"q\"\n \"b\": \"\\\"//\"}//end";
+	const char *want = "       \n{\"a\": \"x//y\",            \n \"b\": \"\\\"//\"}     ";
+	struct settings *c = NULL;
+	struct seen s = { 0 };
+	char *path;
+
+	settings_blank_comments(text, strlen(text));
+	assert_string_equal(text, want);
+	path = write_tmp("// asphd.conf\n{\n  // the socket\n  \"socket\": \"/run/x/a.sock\", // ours\n"
+			 "  \"mqtt\": {\"url\": \"mqtt://broker.lab:1883\"},\n"
+			 "  \"operator_group\": 7 // wrong\n}\n");
+	assert_int_equal(settings_load(path, &c, collect, &s), -EINVAL);
+	assert_int_equal(s.n, 1);
+	assert_string_equal(s.e[0].field, "operator_group");
+	assert_int_equal(s.e[0].line, 6);
+	assert_int_equal(s.e[0].column, 3);
+	unlink(path);
+	path = write_tmp("// asphd.conf\n{\n  // the socket\n  \"socket\": \"/run/x/a.sock\", // ours\n"
+			 "  \"mqtt\": {\"url\": \"mqtt://broker.lab:1883\"}\n}\n");
+	s.n = 0;
+	assert_int_equal(settings_load(path, &c, collect, &s), 0);
+	assert_string_equal(c->socket_path, "/run/x/a.sock");
+	assert_string_equal(c->mqtt->host, "broker.lab");
+	settings_free(c);
+	unlink(path);
+}
+
+/* The reference of the settings is the table the file is read through:
+ * each limit's default is the one loaded without a file, and each name
+ * is taken in its place (an unknown one would be refused). */
+static void test_reference(void **state)
+{
+	struct settings *c = NULL;
+	struct setting_info info;
+	bool have_limit = false;
+
+	assert_int_equal(settings_load(NULL, &c, NULL, NULL), 0);
+	assert_true(settings_count() > 30);
+	for (size_t i = 0; i < settings_count(); i++) {
+		settings_describe(i, &info);
+		assert_true(info.help[0] && info.type[0] && info.fallback[0]);
+		if (!strcmp(info.name, "limits.max_queue")) {
+			char want[32];
+			snprintf(want, sizeof(want), "%u", c->limits.max_queue);
+			assert_string_equal(info.fallback, want);
+			assert_string_equal(info.type, "integer from 1 to 10000000");
+			have_limit = true;
+		}
+	}
+	assert_true(have_limit);
+	settings_free(c);
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -127,6 +185,8 @@ int main(void)
 		cmocka_unit_test(test_full),
 		cmocka_unit_test(test_errors),
 		cmocka_unit_test(test_syntax_and_missing),
+		cmocka_unit_test(test_comments),
+		cmocka_unit_test(test_reference),
 	};
 	return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -9,7 +9,11 @@
 #include <string.h>
 #include <unistd.h>
 
+#include <dirent.h>
+#include <sys/stat.h>
+
 #include <cmocka.h>
+#include <sqlite3.h>
 
 #include "rmtree.h"
 #include "store.h"
@@ -271,6 +275,169 @@ static void test_no_symlinks(void **state)
 	assert_string_equal(buf, "precious");
 }
 
+/* The number of rows of a table in the SQLite file path, read with
+ * SQLite itself (not through store.c); -1 when there is no such table. */
+static int64_t rows_in(const char *path, const char *table)
+{
+	sqlite3 *db = NULL;
+	sqlite3_stmt *st = NULL;
+	char sql[128];
+	int64_t n = -1;
+
+	snprintf(sql, sizeof(sql), "SELECT COUNT(*) FROM %s", table);
+	assert_int_equal(sqlite3_open_v2(path, &db, SQLITE_OPEN_READONLY, NULL), SQLITE_OK);
+	if (sqlite3_prepare_v2(db, sql, -1, &st, NULL) == SQLITE_OK &&
+	    sqlite3_step(st) == SQLITE_ROW)
+		n = sqlite3_column_int64(st, 0);
+	sqlite3_finalize(st);
+	sqlite3_close(db);
+	return n;
+}
+
+struct steps {
+	int calls;
+	int64_t last_done, total;
+	int stop_after;         /* 0: never */
+};
+
+static int count_steps(int64_t done, int64_t total, void *data)
+{
+	struct steps *s = data;
+
+	assert_true(done >= s->last_done);
+	assert_true(done <= total);
+	s->last_done = done;
+	s->total = total;
+	return ++s->calls == s->stop_after;
+}
+
+/* A copy of the store in use: every job in it, a file of its own (no
+ * write-ahead log: the header's format bytes say "rollback journal"),
+ * never written over an existing file, removed when cancelled. */
+static void test_backup(void **state)
+{
+	struct fixture *f = *state;
+	struct steps steps = { 0 };
+	struct asph_error err;
+	char copy[160], big[4096];
+	unsigned char header[100];
+	FILE *c;
+
+	/* enough pages for several steps of 256 */
+	memset(big, 'x', sizeof(big) - 1);
+	big[sizeof(big) - 1] = '\0';
+	for (int i = 0; i < 600; i++)
+		add(f->s, "m1", i % 7, big);
+	snprintf(copy, sizeof(copy), "%s/copy.sqlite", f->dir);
+	asph_error_clear(&err);
+	assert_int_equal(store_backup(f->path, copy, count_steps, &steps, &err), 0);
+	assert_true(steps.calls >= 3);
+	assert_int_equal(steps.last_done, steps.total);
+	assert_int_equal(rows_in(copy, "jobs"), 600);
+	assert_int_equal(rows_in(copy, "history"), 600);
+	c = fopen(copy, "rb");
+	assert_non_null(c);
+	assert_int_equal(fread(header, 1, sizeof(header), c), sizeof(header));
+	fclose(c);
+	assert_memory_equal(header, "SQLite format 3", 16);
+	assert_int_equal(header[18], 1);
+	assert_int_equal(header[19], 1);
+	/* an existing file is not written over */
+	assert_int_equal(store_backup(f->path, copy, NULL, NULL, &err), -EEXIST);
+	assert_int_equal(rows_in(copy, "jobs"), 600);
+	/* cancelled at the second step: nothing is left */
+	unlink(copy);
+	steps = (struct steps){ .stop_after = 2 };
+	assert_int_equal(store_backup(f->path, copy, count_steps, &steps, &err), -ECANCELED);
+	assert_int_equal(access(copy, F_OK), -1);
+}
+
+/* Ids taken by folders the store does not know are skipped, never reused;
+ * a lower bound changes nothing. */
+static void test_skip_ids(void **state)
+{
+	struct fixture *f = *state;
+
+	assert_int_equal(store_skip_ids(f->s, 4), 1);   /* a store without jobs yet */
+	assert_int_equal(add(f->s, "m1", 0, "a"), 5);
+	assert_int_equal(store_skip_ids(f->s, 10), 1);
+	assert_int_equal(add(f->s, "m1", 0, "b"), 11);
+	assert_int_equal(store_skip_ids(f->s, 7), 0);
+	assert_int_equal(store_skip_ids(f->s, 11), 0);
+	assert_int_equal(add(f->s, "m1", 0, "c"), 12);
+}
+
+/* The tables of schema 1, as its daemon made them. */
+static const char schema_1[] =
+	"CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);"
+	"CREATE TABLE jobs (id INTEGER PRIMARY KEY AUTOINCREMENT,"
+	" state INTEGER NOT NULL, priority INTEGER NOT NULL, seq INTEGER NOT NULL,"
+	" label TEXT, instrument TEXT NOT NULL, uid INTEGER NOT NULL, user TEXT,"
+	" spec TEXT NOT NULL, submitted_ns INTEGER NOT NULL, started_ns INTEGER NOT NULL,"
+	" finished_ns INTEGER NOT NULL, points_done INTEGER NOT NULL,"
+	" points_total INTEGER NOT NULL, reason TEXT, result TEXT, scan_path TEXT,"
+	" resume INTEGER NOT NULL, attempts INTEGER NOT NULL);"
+	"CREATE TABLE history (job INTEGER NOT NULL REFERENCES jobs(id), t_ns INTEGER NOT NULL,"
+	" state INTEGER NOT NULL, reason TEXT, actor_uid INTEGER NOT NULL);"
+	"INSERT INTO meta VALUES ('schema', '1');"
+	"INSERT INTO jobs VALUES (1, 3, 0, 1, 'old', 'm1', 1013, 'anna', '{}', 5, 6, 7, 10, 10,"
+	" NULL, NULL, NULL, 0, 1);"
+	"INSERT INTO history VALUES (1, 5, 0, NULL, 1013);";
+
+/* A store of schema 1 is copied as it was into backup/ before its
+ * upgrade, under the name the upgrade's documentation gives. */
+static void test_backup_before_upgrade(void **state)
+{
+	struct fixture *f = *state;
+	char dir[96], path[128], backups[128], copy[400] = "";
+	struct store *s = NULL;
+	struct job_record j;
+	struct dirent *e;
+	sqlite3 *db = NULL;
+	DIR *d;
+	int n = 0;
+
+	snprintf(dir, sizeof(dir), "%s/old", f->dir);
+	assert_int_equal(mkdir(dir, 0750), 0);
+	snprintf(path, sizeof(path), "%s/jobs.sqlite", dir);
+	assert_int_equal(sqlite3_open(path, &db), SQLITE_OK);
+	assert_int_equal(sqlite3_exec(db, schema_1, NULL, NULL, NULL), SQLITE_OK);
+	sqlite3_close(db);
+	assert_int_equal(store_open(path, &s, NULL), 0);
+	assert_int_equal(store_get(s, 1, &j), 0);
+	assert_string_equal(j.label, "old");
+	assert_null(j.part);
+	job_record_clear(&j);
+	store_close(s);
+	snprintf(backups, sizeof(backups), "%s/backup", dir);
+	d = opendir(backups);
+	assert_non_null(d);
+	while ((e = readdir(d)))
+		if (e->d_name[0] != '.') {
+			n++;
+			snprintf(copy, sizeof(copy), "%s/%s", backups, e->d_name);
+			/* jobs-schema1-YYYYmmddTHHMMSSZ.sqlite */
+			assert_int_equal(strlen(e->d_name), strlen("jobs-schema1-20250101T000000Z.sqlite"));
+			assert_memory_equal(e->d_name, "jobs-schema1-", 13);
+			assert_int_equal(e->d_name[21], 'T');
+			assert_string_equal(e->d_name + 28, "Z.sqlite");
+		}
+	closedir(d);
+	assert_int_equal(n, 1);
+	/* the copy is schema 1's store: no tables of schema 2 */
+	assert_int_equal(rows_in(copy, "jobs"), 1);
+	assert_int_equal(rows_in(copy, "tokens"), -1);
+	/* the second start finds schema 2: nothing more is copied */
+	assert_int_equal(store_open(path, &s, NULL), 0);
+	store_close(s);
+	n = 0;
+	d = opendir(backups);
+	while ((e = readdir(d)))
+		n += e->d_name[0] != '.';
+	closedir(d);
+	assert_int_equal(n, 1);
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -280,6 +447,9 @@ int main(void)
 		cmocka_unit_test_setup_teardown(test_meta_and_schema, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_schema_corrupt, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_no_symlinks, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_backup, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_skip_ids, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_backup_before_upgrade, setup, teardown),
 	};
 	return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -130,6 +130,27 @@ static void test_login_body(void **state)
 	check_login("{\"Token\": \"a\"}", NULL);
 }
 
+/* "Authorization: Bearer TOKEN" (RFC 6750, 2.1): the scheme in any case,
+ * blanks around, one token of visible ASCII; nothing else. */
+static void test_bearer(void **state)
+{
+	static const char *const bad[] = {
+		NULL, "", "Bearer", "Bearer ", "Bearer    ", "Basic dXNlcjpwdw==", "Bearerasph_x",
+		"Bearer two tokens", "Bearer tab\there", "Bearer caf\xc3\xa9", "Token asph_x",
+		"Bearer 0123456789abcdefghijklmnopqrstuvwxyz0123456789abcdefghijklmnopqrstuvwxyz",
+	};
+	char token[64];
+
+	assert_true(web_bearer_token("Bearer asph_Kq8vT2mX", token, sizeof(token)));
+	assert_string_equal(token, "asph_Kq8vT2mX");
+	assert_true(web_bearer_token("bearer   a.b-c_d~e+f/g==  ", token, sizeof(token)));
+	assert_string_equal(token, "a.b-c_d~e+f/g==");
+	assert_true(web_bearer_token("BEARER x", token, sizeof(token)));
+	assert_string_equal(token, "x");
+	for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++)
+		assert_false(web_bearer_token(bad[i], token, sizeof(token)));
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -138,6 +159,7 @@ int main(void)
 		cmocka_unit_test(test_job_route),
 		cmocka_unit_test(test_plain_name),
 		cmocka_unit_test(test_login_body),
+		cmocka_unit_test(test_bearer),
 	};
 
 	return cmocka_run_group_tests(tests, NULL, NULL);

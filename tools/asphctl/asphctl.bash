@@ -39,6 +39,8 @@ _asphctl()
 		fi ;;
 	queue)
 		[[ $cur != -* ]] && { COMPREPLY=($(compgen -W "show move start stop" -- "$cur")); return; } ;;
+	backup)
+		[[ $cur != -* ]] && { COMPREPLY=($(compgen -f -- "$cur")); return; } ;;
 	help)
 		[[ $cur != -* ]] && { COMPREPLY=($(compgen -W "$(asphctl --help 2>/dev/null | sed -n '/^Commands:/,/^$/{/^  /s/^  \([a-z]*\).*/\1/p}') exit-status" -- "$cur")); return; } ;;
 	esac

@@ -5,6 +5,7 @@
 
 #include <stdbool.h>
 #include <stdint.h>
+#include <sys/types.h>
 
 #include <jansson.h>
 
@@ -21,6 +22,9 @@ struct ctl_error {
 };
 
 int conn_open(const char *path, struct conn **out, struct ctl_error *e);
+/* The same, waiting at most timeout_ms (-1: no limit) for the connection
+ * and for each answer of conn_call(), which then fails with -ETIMEDOUT. */
+int conn_open_within(const char *path, int timeout_ms, struct conn **out, struct ctl_error *e);
 void conn_close(struct conn *c);
 /*
  * Calls method with params (stolen, may be NULL) and waits for its
@@ -121,6 +125,17 @@ int cmd_lock(struct ctl *ctl, int argc, char **argv);
 int cmd_unlock(struct ctl *ctl, int argc, char **argv);
 int cmd_token(struct ctl *ctl, int argc, char **argv);
 int cmd_fleet(struct ctl *ctl, int argc, char **argv);
+int cmd_backup(struct ctl *ctl, int argc, char **argv);
+int cmd_health(struct ctl *ctl, int argc, char **argv);
+
+/* A file the daemon hands in pieces (job.file, backup.file): method's
+ * answers to params, each with its "offset" added, written to the path out
+ * (mode before the umask) under a temporary name created exclusively and
+ * renamed into place (fs_write_file_at()), its progress on a terminal
+ * unless quiet. name is the file in messages. Returns the exit code,
+ * having said why. */
+int ctl_fetch_file(struct ctl *ctl, const char *method, const json_t *params, const char *name,
+		   const char *out, mode_t mode, bool quiet);
 
 /* Watches job until it ends (used by watch and submit --wait): its states
  * and, with progress, its progress; with --json only the job at the end.

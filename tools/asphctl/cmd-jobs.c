@@ -600,11 +600,13 @@ int cmd_list(struct ctl *ctl, int argc, char **argv)
 	return EXIT_OK;
 }
 
-/* One file of a job's result, fetched from the daemon chunk by chunk. */
+/* A file the daemon hands in pieces (job.file, backup.file): the answers
+ * of method to params with each piece's "offset" added. */
 struct fetch {
 	struct ctl *ctl;
-	int64_t id;
-	const char *name;
+	const char *method;
+	const json_t *params;
+	const char *name;       /* for messages */
 	bool quiet;             /* no progress line */
 	int code;               /* the exit code when a call failed */
 };
@@ -615,11 +617,15 @@ static int fetch_chunk_loop(struct fetch *fe, FILE *f, struct progress *p, json_
 	for (;;) {
 		_cleanup_(json_decrefp) json_t *chunk = NULL;
 		_cleanup_free_ void *bytes = NULL;
+		json_t *params = json_deep_copy(fe->params);
 		const char *text;
 		size_t n = 0;
 
-		fe->code = ctl_call(fe->ctl, "job.file", json_pack("{s:I, s:s, s:I}", "id",
-				    (json_int_t)fe->id, "name", fe->name, "offset", *offset), &chunk);
+		if (!params || json_object_set_new(params, "offset", json_integer(*offset)) < 0) {
+			json_decref(params);
+			return asph_error_set(err, -ENOMEM, "out of memory");
+		}
+		fe->code = ctl_call(fe->ctl, fe->method, params, &chunk);
 		if (fe->code)
 			return asph_error_set(err, -EIO, "%s: the daemon did not send it", fe->name);
 		text = json_string_value(json_object_get(chunk, "data"));
@@ -649,6 +655,33 @@ static int fetch_chunks(FILE *f, void *data, struct asph_error *err)
 	return r;
 }
 
+int ctl_fetch_file(struct ctl *ctl, const char *method, const json_t *params, const char *name,
+		   const char *out, mode_t mode, bool quiet)
+{
+	_cleanup_free_ char *dcopy = strdup(out), *bcopy = strdup(out);
+	_cleanup_close_ int dir = -1;
+	struct fetch fe = { .ctl = ctl, .method = method, .params = params, .name = name,
+			    .quiet = quiet };
+	struct asph_error err;
+	char buf[600];
+
+	if (!dcopy || !bcopy)
+		return EXIT_FAILURE_RUN;
+	dir = open(dirname(dcopy), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+	if (dir < 0) {
+		fprintf(stderr, "asphctl: %s: %s\n", out, strerror(errno));
+		return EXIT_FAILURE_RUN;
+	}
+	asph_error_clear(&err);
+	if (fs_write_file_at(dir, basename(bcopy), mode, fetch_chunks, &fe, &err) < 0) {
+		if (fe.code)
+			return fe.code;
+		fprintf(stderr, "asphctl: %s: %s\n", out, asph_error_format(&err, buf, sizeof(buf)));
+		return EXIT_FAILURE_RUN;
+	}
+	return EXIT_OK;
+}
+
 /*
  * Copies the files of job id's result into the directory out (created if
  * missing). The bytes come through the socket (job.file), so the caller
@@ -673,13 +706,16 @@ static int copy_files(struct ctl *ctl, int64_t id, const json_t *files, const ch
 		return EXIT_FAILURE_RUN;
 	}
 	json_object_foreach((json_t *)files, key, v) {
-		struct fetch fe = { .ctl = ctl, .id = id, .name = json_string_value(v),
-				    .quiet = quiet };
+		_cleanup_(json_decrefp) json_t *params = json_pack("{s:I, s:O}", "id",
+								   (json_int_t)id, "name", v);
+		struct fetch fe = { .ctl = ctl, .method = "job.file", .params = params,
+				    .name = json_string_value(v), .quiet = quiet };
 		struct asph_error err;
 		char buf[600];
 
 		asph_error_clear(&err);
-		if (!fe.name || fs_write_file_at(dir, fe.name, 0666, fetch_chunks, &fe, &err) < 0) {
+		if (!fe.name || !params ||
+		    fs_write_file_at(dir, fe.name, 0666, fetch_chunks, &fe, &err) < 0) {
 			if (fe.code)
 				return fe.code;
 			fprintf(stderr, "asphctl: %s: %s\n", out,
@@ -695,33 +731,18 @@ static int copy_files(struct ctl *ctl, int64_t id, const json_t *files, const ch
 static int copy_file_to(struct ctl *ctl, int64_t id, const json_t *files, const char *key,
 			const char *out, bool quiet)
 {
-	_cleanup_free_ char *dcopy = strdup(out), *bcopy = strdup(out);
-	_cleanup_close_ int dir = -1;
-	struct fetch fe = { .ctl = ctl, .id = id, .quiet = quiet,
-			    .name = json_string_value(json_object_get(files, key)) };
-	struct asph_error err;
-	char buf[600];
+	const char *name = json_string_value(json_object_get(files, key));
+	_cleanup_(json_decrefp) json_t *params = NULL;
 
-	if (!fe.name) {
+	if (!name) {
 		fprintf(stderr, "asphctl: job %lld has no %s (a result without one: built without "
 			"cairo, or before the daemon wrote one)\n", (long long)id, key);
 		return EXIT_FAILURE_RUN;
 	}
-	if (!dcopy || !bcopy)
+	params = json_pack("{s:I, s:s}", "id", (json_int_t)id, "name", name);
+	if (!params)
 		return EXIT_FAILURE_RUN;
-	dir = open(dirname(dcopy), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-	if (dir < 0) {
-		fprintf(stderr, "asphctl: %s: %s\n", out, strerror(errno));
-		return EXIT_FAILURE_RUN;
-	}
-	asph_error_clear(&err);
-	if (fs_write_file_at(dir, basename(bcopy), 0666, fetch_chunks, &fe, &err) < 0) {
-		if (fe.code)
-			return fe.code;
-		fprintf(stderr, "asphctl: %s: %s\n", out, asph_error_format(&err, buf, sizeof(buf)));
-		return EXIT_FAILURE_RUN;
-	}
-	return EXIT_OK;
+	return ctl_fetch_file(ctl, "job.file", params, name, out, 0666, quiet);
 }
 
 static void print_summary(const json_t *res)

@@ -6,6 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
+#include <sys/time.h>
 #include <sys/un.h>
 #include <time.h>
 #include <unistd.h>
@@ -15,6 +16,7 @@
 
 struct conn {
 	int fd;
+	int timeout_ms;         /* for each answer; -1: none */
 	struct proto_lines in;
 	json_int_t next_id;
 	json_t *events;         /* array of notifications not yet taken */
@@ -32,7 +34,13 @@ static int io_error(struct ctl_error *e, int r, const char *what)
 
 int conn_open(const char *path, struct conn **out, struct ctl_error *e)
 {
+	return conn_open_within(path, -1, out, e);
+}
+
+int conn_open_within(const char *path, int timeout_ms, struct conn **out, struct ctl_error *e)
+{
 	struct sockaddr_un sa = { .sun_family = AF_UNIX };
+	struct timeval tv = { .tv_sec = timeout_ms / 1000, .tv_usec = timeout_ms % 1000 * 1000 };
 	struct conn *c;
 	int fd;
 
@@ -42,8 +50,11 @@ int conn_open(const char *path, struct conn **out, struct ctl_error *e)
 	fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
 	if (fd < 0)
 		return io_error(e, -errno, "socket");
+	/* a daemon whose backlog is full makes connect() wait: at most this */
+	if (timeout_ms >= 0)
+		setsockopt(fd, SOL_SOCKET, SO_SNDTIMEO, &tv, sizeof(tv));
 	if (connect(fd, (struct sockaddr *)&sa, sizeof(sa)) < 0) {
-		int r = -errno;
+		int r = errno == EAGAIN ? -ETIMEDOUT : -errno;
 		close(fd);
 		if (e) {
 			e->code = 0;
@@ -58,6 +69,7 @@ int conn_open(const char *path, struct conn **out, struct ctl_error *e)
 		return -ENOMEM;
 	}
 	c->fd = fd;
+	c->timeout_ms = timeout_ms;
 	c->events = json_array();
 	proto_lines_init(&c->in, 64u << 20);
 	*out = c;
@@ -145,7 +157,9 @@ int conn_call(struct conn *c, const char *method, json_t *params,
 		_cleanup_(json_decrefp) json_t *msg = NULL;
 		struct proto_message m;
 
-		r = read_message(c, -1, &msg);
+		r = read_message(c, c->timeout_ms, &msg);
+		if (r == 0)
+			return io_error(e, -ETIMEDOUT, "asphd did not answer");
 		if (r < 0)
 			return io_error(e, r, "the connection to asphd broke");
 		if (proto_check_incoming(msg, &m, NULL) != 0)

@@ -67,6 +67,16 @@ static const struct ctl_command commands[] = {
 	{ "fleet", "the newest results across daemons, from the central database", cmd_fleet,
 	  "CONNINFO is a libpq connection string; without --db, $ASPHCTL_FLEET_DB, then\n"
 	  "libpq's environment.\n" },
+	{ "backup", "copy the daemon's job store into a file (root)", cmd_backup,
+	  "A consistent copy of the job store (every job, its history, the tokens'\n"
+	  "digests, the locks, the outbox) made while jobs run, written to FILE (mode\n"
+	  "0600); prints the moment it is of, its size and its SHA-256. The restore is\n"
+	  "in docs/admin.md. A long copy shows its progress on a terminal; --quiet\n"
+	  "leaves it out.\n" },
+	{ "health", "ok, degraded (with the reasons) or down, for monitoring", cmd_health,
+	  "Prints ok (exit 0), degraded and a line per finding (exit 8), or down when\n"
+	  "the daemon cannot be reached or does not answer within --timeout seconds,\n"
+	  "10 by default (exit 7). The checks are in docs/admin.md.\n" },
 	{ "help", "the usage of asphctl or of a command; help exit-status: the exit codes",
 	  cmd_help, NULL },
 };

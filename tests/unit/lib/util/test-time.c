@@ -39,6 +39,11 @@ static void test_iso8601(void **state)
 	assert_string_equal(buf, "1969-12-31T23:59:59.999999999Z");
 	iso8601_utc(-1, 0, buf, sizeof(buf));
 	assert_string_equal(buf, "1969-12-31T23:59:59Z");
+	/* the basic format of file names: whole seconds, truncated */
+	iso8601_basic_utc(leap, buf, sizeof(buf));
+	assert_string_equal(buf, "20240229T235959Z");
+	iso8601_basic_utc(-1, buf, sizeof(buf));
+	assert_string_equal(buf, "19691231T235959Z");
 	/* a buffer too small gets a truncated, terminated text */
 	char small[8];
 	iso8601_utc(leap, 9, small, sizeof(small));
