@@ -411,6 +411,22 @@ static int param_get(json_t *params, const char *name, bool required,
 	return 0;
 }
 
+#define TYPE(t) (1u << (t))
+
+/* param_get(), and the member is one of the JSON types in the mask types
+ * (TYPE(JSON_STRING), ...), else the error that it must be must_be. */
+static int param_typed(json_t *params, const char *name, bool required, unsigned types,
+		       const char *must_be, json_t **v, struct proto_why *why)
+{
+	int r = param_get(params, name, required, v, why);
+
+	if (r < 0)
+		return r;
+	if (!(types & TYPE(json_typeof(*v))))
+		return proto_why_set(why, "\"%s\" must be %s", name, must_be);
+	return 0;
+}
+
 int proto_params_only(json_t *params, const char *const *names,
 		      struct proto_why *why)
 {
@@ -437,12 +453,10 @@ int proto_param_int(json_t *params, const char *name, bool required,
 		    struct proto_why *why)
 {
 	json_t *v;
-	int r = param_get(params, name, required, &v, why);
+	int r = param_typed(params, name, required, TYPE(JSON_INTEGER), "an integer", &v, why);
 
 	if (r < 0)
 		return r;
-	if (!json_is_integer(v))
-		return proto_why_set(why, "\"%s\" must be an integer", name);
 	json_int_t x = json_integer_value(v);
 	if (x < min || x > max)
 		return proto_why_set(why, "\"%s\" must be in [%lld, %lld]", name,
@@ -456,12 +470,11 @@ int proto_param_number(json_t *params, const char *name, bool required,
 		       struct proto_why *why)
 {
 	json_t *v;
-	int r = param_get(params, name, required, &v, why);
+	int r = param_typed(params, name, required, TYPE(JSON_INTEGER) | TYPE(JSON_REAL),
+			    "a number", &v, why);
 
 	if (r < 0)
 		return r;
-	if (!json_is_number(v))
-		return proto_why_set(why, "\"%s\" must be a number", name);
 	double x = json_number_value(v);
 	if (!isfinite(x) || x < min || x > max)
 		return proto_why_set(why, "\"%s\" must be in [%g, %g]", name, min, max);
@@ -473,12 +486,11 @@ int proto_param_bool(json_t *params, const char *name, bool required,
 		     bool *out, struct proto_why *why)
 {
 	json_t *v;
-	int r = param_get(params, name, required, &v, why);
+	int r = param_typed(params, name, required, TYPE(JSON_TRUE) | TYPE(JSON_FALSE),
+			    "true or false", &v, why);
 
 	if (r < 0)
 		return r;
-	if (!json_is_boolean(v))
-		return proto_why_set(why, "\"%s\" must be true or false", name);
 	*out = json_is_true(v);
 	return 0;
 }
@@ -488,12 +500,10 @@ int proto_param_string(json_t *params, const char *name, bool required,
 		       struct proto_why *why)
 {
 	json_t *v;
-	int r = param_get(params, name, required, &v, why);
+	int r = param_typed(params, name, required, TYPE(JSON_STRING), "a string", &v, why);
 
 	if (r < 0)
 		return r;
-	if (!json_is_string(v))
-		return proto_why_set(why, "\"%s\" must be a string", name);
 	if (json_string_length(v) > max_len)
 		return proto_why_set(why, "\"%s\" is longer than %zu bytes", name, max_len);
 	if (strlen(json_string_value(v)) != json_string_length(v))
@@ -506,12 +516,10 @@ int proto_param_object(json_t *params, const char *name, bool required,
 		       json_t **out, struct proto_why *why)
 {
 	json_t *v;
-	int r = param_get(params, name, required, &v, why);
+	int r = param_typed(params, name, required, TYPE(JSON_OBJECT), "an object", &v, why);
 
 	if (r < 0)
 		return r;
-	if (!json_is_object(v))
-		return proto_why_set(why, "\"%s\" must be an object", name);
 	*out = v;
 	return 0;
 }
@@ -522,12 +530,11 @@ int proto_param_flags(json_t *params, const char *name, bool required,
 {
 	json_t *v, *e;
 	size_t i;
-	int r = param_get(params, name, required, &v, why);
+	int r = param_typed(params, name, required, TYPE(JSON_ARRAY), "an array of strings",
+			    &v, why);
 
 	if (r < 0)
 		return r;
-	if (!json_is_array(v))
-		return proto_why_set(why, "\"%s\" must be an array of strings", name);
 	*mask = 0;
 	json_array_foreach(v, i, e) {
 		size_t k;

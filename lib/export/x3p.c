@@ -312,8 +312,10 @@ int asph_x3p_write_points(const char *path, const double *xyz, size_t n,
 	data = malloc(24 * n);
 	if (!data)
 		return asph_error_set(err, -ENOMEM, "out of memory");
+	/* divided by 1000, not multiplied by 1e-3: the metres read back
+	 * (times 1000, lib/points) and written again give the same bits */
 	for (size_t i = 0; i < 3 * n; i++)
-		put_le_double(data + 8 * i, xyz[i] * MM_TO_M);
+		put_le_double(data + 8 * i, xyz[i] / 1000.0);
 	return write_container(path, &L, data, 24 * n, info, err);
 }
 

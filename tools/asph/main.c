@@ -116,14 +116,9 @@ static int cmd_help(int argc, char **argv)
 	char *words[4];
 	int n, r;
 
-	if (argc < 2) {
-		usage(stdout);
-		return EXIT_OK;
-	}
-	if ((r = command_help_words("asph", argc, argv, words, &n)) >= 0)
+	if ((r = command_help("asph", COMMAND_TABLE(commands), usage, argc, argv,
+			      (const void **)&c, words, &n)) >= 0)
 		return r;
-	if (!(c = command_find(COMMAND_TABLE(commands), words[0])))
-		return command_unknown("asph", words[0], COMMAND_TABLE(commands));
 	if (c->run == cmd_help)
 		return cmd_help(1, argv);
 	command_name = c->name;

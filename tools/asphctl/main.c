@@ -20,11 +20,12 @@ static int cmd_help(struct ctl *ctl, int argc, char **argv);
  */
 static const struct ctl_command commands[] = {
 	{ "submit", "submit a measurement job", cmd_submit,
-	  "Queues a measurement of LENS (a preset: weak, strong, turning-point, or a\n"
-	  "prescription file, which asphctl reads and sends) on the plan of --method and\n"
-	  "one density. --tolerance takes an ISO 10110-5 call-out ('3/2(0.5/0.3)'), JSON\n"
-	  "text or a file holding it; the completed job then has a verdict. --wait follows\n"
-	  "the job as watch does (and exits as watch does); --quiet leaves its progress out.\n" },
+	  "Queues a measurement of LENS (a preset or a prescription file, which asphctl\n"
+	  "reads and sends) on the plan of --method and one density. --tolerance takes\n"
+	  "an ISO 10110-5 call-out ('3/2(0.5/0.3)'), JSON text or a file holding it; the\n"
+	  "completed job then has a verdict. --wait follows the job as watch does (and\n"
+	  "exits as watch does); --quiet leaves its progress out.\n",
+	  cmd_submit_values },
 	{ "status", "the daemon's status, or a job's", cmd_status,
 	  "The daemon: version, queue, jobs by state, instruments. A job: its state, plan,\n"
 	  "points, submitter, times and verdict; --history adds every transition.\n" },
@@ -201,14 +202,9 @@ static int cmd_help(struct ctl *ctl, int argc, char **argv)
 	char *words[4];
 	int n, r;
 
-	if (argc < 2) {
-		usage(stdout);
-		return EXIT_OK;
-	}
-	if ((r = command_help_words("asphctl", argc, argv, words, &n)) >= 0)
+	if ((r = command_help("asphctl", COMMAND_TABLE(commands), usage, argc, argv,
+			      (const void **)&c, words, &n)) >= 0)
 		return r;
-	if (!(c = command_find(COMMAND_TABLE(commands), words[0])))
-		return command_unknown("asphctl", words[0], COMMAND_TABLE(commands));
 	if (c->run == cmd_help)
 		return cmd_help(ctl, 1, argv);
 	return run(ctl, c, n, words);
