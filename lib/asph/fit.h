@@ -170,6 +170,12 @@ enum asph_fit_point_status {
  * frame.
  */
 #define ASPH_FIT_MAX_PROFILES 36
+/* The DOF one profile tells apart, in its trace's frame, and its default. */
+#define ASPH_FIT_DOF_PROFILE                                                            \
+	(ASPH_FIT_DOF_BIT(ASPH_FIT_TX) | ASPH_FIT_DOF_BIT(ASPH_FIT_TZ) |                 \
+	 ASPH_FIT_DOF_BIT(ASPH_FIT_RY) | ASPH_FIT_DOF_BIT(ASPH_FIT_R) | ASPH_FIT_DOF_BIT(ASPH_FIT_K))
+#define ASPH_FIT_DOF_PROFILE_DEFAULT                                                    \
+	(ASPH_FIT_DOF_BIT(ASPH_FIT_TX) | ASPH_FIT_DOF_BIT(ASPH_FIT_TZ) | ASPH_FIT_DOF_BIT(ASPH_FIT_RY))
 
 struct asph_fit_profile {
 	double azimuth;             /* rad, the trace's direction in machine

@@ -35,8 +35,6 @@
 /* Degree of each trace's smooth fit of the residual (Legendre), at most. */
 #define SMOOTH_DEGREE 10
 
-#define DOF(d) ASPH_FIT_DOF_BIT(ASPH_FIT_##d)
-
 /* ---------------------------------------------------------------- lines */
 
 static void sums_add(struct fit_line_sums *s, double x, double y)
@@ -269,7 +267,6 @@ static void dof_names(unsigned mask, char *buf, size_t size)
  * the axis across it, R and k: tx, tz, ry of its trace's frame. */
 static int profile_dof(struct asph_fit *w, struct asph_error *err)
 {
-	const unsigned allowed = DOF(TX) | DOF(TZ) | DOF(RY) | DOF(R) | DOF(K);
 	unsigned mask = w->dof_asked;
 	char names[64];
 
@@ -281,9 +278,9 @@ static int profile_dof(struct asph_fit *w, struct asph_error *err)
 				      "surface needs an area, or profiles at several azimuths",
 				      (size_t)w->traces.t[0].n);
 	if (w->dof_default) {
-		mask = DOF(TX) | DOF(TZ) | DOF(RY);
-	} else if (mask & ~allowed) {
-		dof_names(mask & ~allowed, names, sizeof(names));
+		mask = ASPH_FIT_DOF_PROFILE_DEFAULT;
+	} else if (mask & ~ASPH_FIT_DOF_PROFILE) {
+		dof_names(mask & ~ASPH_FIT_DOF_PROFILE, names, sizeof(names));
 		return asph_error_set(err, -EINVAL,
 				      "the points are one line profile (azimuth %.2f deg): it tells "
 				      "apart tx (the decentre along the trace), tz, ry (the tilt about "
