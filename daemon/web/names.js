@@ -13,6 +13,7 @@ export const planMethods = [
   {"name":"spiral","title":"Archimedean spiral","mesh":false},
   {"name":"fermat","title":"Fermat (golden-angle) spiral","mesh":false},
   {"name":"cvt","title":"centroidal Voronoi tessellation","mesh":false},
+  {"name":"profiles","title":"line profiles through the apex","mesh":false},
 ];
 export const presets = [
   "weak",
