@@ -14,7 +14,7 @@
 #include <string.h>
 
 #include <jansson.h>
-#include <nettle/sha2.h>
+#include "util-hash.h"
 
 #include "config.h"
 #include "asph/report.h"
@@ -274,18 +274,6 @@ static void start_page(struct doc *d)
 }
 
 /* ----------------------------------------------------------- summaries */
-
-static void sha256_hex(const void *data, size_t len, char hex[65])
-{
-	struct sha256_ctx c;
-	uint8_t dg[SHA256_DIGEST_SIZE];
-
-	sha256_init(&c);
-	sha256_update(&c, len, data);
-	sha256_digest(&c, sizeof(dg), dg);
-	for (int i = 0; i < SHA256_DIGEST_SIZE; i++)
-		snprintf(hex + 2 * i, 3, "%02x", dg[i]);
-}
 
 static const char *member_string(const json_t *o, const char *key)
 {

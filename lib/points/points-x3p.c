@@ -14,7 +14,7 @@
 
 #include <libxml/parser.h>
 #include <libxml/tree.h>
-#include <nettle/md5.h>
+#include "util-hash.h"
 #include <zip.h>
 
 #include "readers.h"
@@ -121,18 +121,6 @@ static int member_read(struct x3p *x, const char *member, zip_uint64_t limit, ui
 	*out = buf;
 	*len = st.size;
 	return 0;
-}
-
-static void md5_hex(const void *data, size_t len, char hex[33])
-{
-	struct md5_ctx c;
-	uint8_t d[MD5_DIGEST_SIZE];
-
-	md5_init(&c);
-	md5_update(&c, len, data);
-	md5_digest(&c, sizeof(d), d);
-	for (int i = 0; i < MD5_DIGEST_SIZE; i++)
-		snprintf(hex + 2 * i, 3, "%02x", d[i]);
 }
 
 /* The sum (32 hex digits at the start of text) against the data's. */

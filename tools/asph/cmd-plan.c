@@ -7,7 +7,7 @@
 #include <string.h>
 
 #include "acquire-tool.h"
-#include "asph/executor.h"
+#include "asph-engine/executor.h"
 #include "asph/plan.h"
 #include "asph/points.h"
 #include "asph/prescription.h"

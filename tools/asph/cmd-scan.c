@@ -13,7 +13,7 @@
 
 #include "acquire-tool.h"
 #include "asph-tool.h"
-#include "asph/executor.h"
+#include "asph-engine/executor.h"
 #include "asph/plan.h"
 #include "asph/prescription.h"
 #include "plan-source.h"
