@@ -42,22 +42,10 @@
 
 #include "asph/fit.h"
 #include "asph/surface.h"
+#include "custom-surface.h"
 
 #define DOF(d) ASPH_FIT_DOF_BIT(ASPH_FIT_##d)
 #define DEG (M_PI / 180)
-
-static struct asph_surface *custom(double R, double k, double diameter)
-{
-	struct asph_prescription p = { .type = ASPH_SURFACE_EVEN_ASPHERE };
-	struct asph_surface *s = NULL;
-
-	snprintf(p.name, sizeof(p.name), "custom");
-	p.R = R;
-	p.k = k;
-	p.aperture_diameter = diameter;
-	assert_int_equal(asph_surface_alloc(&p, &s, NULL), 0);
-	return s;
-}
 
 /* z where the part of surface s, lying with pose, is at machine (x, y):
  * Newton on g(z) = q_z - S(q_x, q_y), q the point in the part frame. */

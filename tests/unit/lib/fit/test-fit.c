@@ -18,6 +18,7 @@
 #include "asph/prescription.h"
 #include "asph/surface.h"
 #include "asph/zernike.h"
+#include "custom-surface.h"
 
 static const char *const lenses[] = { "weak", "strong", "turning-point" };
 
@@ -38,19 +39,6 @@ static struct asph_surface *lens(const char *name)
 	struct asph_surface *s = NULL;
 
 	assert_int_equal(asph_prescription_preset(name, &p), 0);
-	assert_int_equal(asph_surface_alloc(&p, &s, NULL), 0);
-	return s;
-}
-
-static struct asph_surface *custom(double R, double k, double diameter)
-{
-	struct asph_prescription p = { .type = ASPH_SURFACE_EVEN_ASPHERE };
-	struct asph_surface *s = NULL;
-
-	snprintf(p.name, sizeof(p.name), "custom");
-	p.R = R;
-	p.k = k;
-	p.aperture_diameter = diameter;
 	assert_int_equal(asph_surface_alloc(&p, &s, NULL), 0);
 	return s;
 }

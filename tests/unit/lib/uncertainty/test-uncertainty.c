@@ -24,6 +24,7 @@
 #include "asph/surface.h"
 #include "asph/tolerance.h"
 #include "asph/uncertainty.h"
+#include "custom-surface.h"
 
 #define N_POINTS 160
 
@@ -45,19 +46,6 @@ static size_t trials(void)
 static double band(double z)
 {
 	return z / sqrt(2.0 * (double)(trials() - 1));
-}
-
-static struct asph_surface *custom(double R, double k, double diameter)
-{
-	struct asph_prescription p = { .type = ASPH_SURFACE_EVEN_ASPHERE };
-	struct asph_surface *s = NULL;
-
-	snprintf(p.name, sizeof(p.name), "custom");
-	p.R = R;
-	p.k = k;
-	p.aperture_diameter = diameter;
-	assert_int_equal(asph_surface_alloc(&p, &s, NULL), 0);
-	return s;
 }
 
 static struct asph_surface *lens(const char *name)
