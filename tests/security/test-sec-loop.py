@@ -45,8 +45,6 @@ from seclib import (PYTHON, UNDER_VALGRIND, Accounts, Watch, expect, finish, see
                     tempdir)
 from daemontest import Client, Daemon, Web, mock_instrument, web_port
 
-ROOT = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(os.path.dirname(__file__), "..", ".."))
-WEB_ROOT = os.path.join(ROOT, "daemon", "web")
 JOBS = 1000 if UNDER_VALGRIND else 10000
 TIMEOUT_MS = 5000
 MIB = 1024
@@ -297,7 +295,7 @@ top = tempdir()
 os.mkdir(os.path.join(top, "d"))
 d = Daemon(instruments=[mock_instrument()], top=os.path.join(top, "d"),
            extra={"operator_group": ops, "socket_group": lab, "http_listen": "127.0.0.1:0",
-                  "http_root": WEB_ROOT, "limits": {"request_timeout_ms": TIMEOUT_MS,
+                  "limits": {"request_timeout_ms": TIMEOUT_MS,
                                                      "max_queue": 2 * JOBS}})
 try:
     expect(seed_jobs(d, JOBS, 0) == JOBS, f"{JOBS} jobs queued")

@@ -105,7 +105,7 @@ def rebinding(d, port):
 
 def secure_cookie():
     d = Daemon(instruments=[mock_instrument()],
-               extra={"http_listen": "127.0.0.1:0", "http_root": WEB_ROOT,
+               extra={"http_listen": "127.0.0.1:0",
                       "http_trust_proxy": "127.0.0.1"})
     try:
         d.start()
@@ -231,7 +231,7 @@ other = accounts.user("opr2", [ops])
 reader = accounts.user("read")
 top = tempdir()
 d = Daemon(instruments=[mock_instrument(), mock_instrument("fast", time_factor=0)],
-           extra={"http_listen": "127.0.0.1:0", "http_root": WEB_ROOT})
+           extra={"http_listen": "127.0.0.1:0"})
 try:
     d.start()
     port = web_port(d)

@@ -44,8 +44,6 @@ from seclib import (PYTHON, UNDER_VALGRIND, Accounts, Slowloris, Watch, expect, 
                     still_in, tempdir)
 from daemontest import Client, Daemon, Web, mock_instrument, web_port
 
-ROOT = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(os.path.dirname(__file__), "..", ".."))
-WEB_ROOT = os.path.join(ROOT, "daemon", "web")
 MIB = 1024
 RSS = 256 * MIB
 
@@ -302,7 +300,7 @@ def descriptors(reader, lab):
         return
     top = tempdir()
     d = Daemon(instruments=[mock_instrument()], top=top,
-               extra={"http_listen": "127.0.0.1:0", "http_root": WEB_ROOT, "socket_group": lab,
+               extra={"http_listen": "127.0.0.1:0", "socket_group": lab,
                       "limits": {"max_clients": 16, "max_clients_per_user": 16}})
     # What the start asks for: 16 clients and root's 4, 16 web connections
     # and 16 making room, 64 of its own, 4 per instrument.
@@ -357,7 +355,7 @@ tcp_port = free_port()
 d = Daemon(instruments=[mock_instrument(), mock_instrument("fast", time_factor=0)],
            top=os.path.join(top, "d"),
            extra={"operator_group": ops, "socket_group": lab, "http_listen": "127.0.0.1:0",
-                  "http_root": WEB_ROOT, "tcp_listen": f"127.0.0.1:{tcp_port}",
+                  "tcp_listen": f"127.0.0.1:{tcp_port}",
                   "limits": {"auth_timeout_ms": 3000, "idle_timeout_ms": 0}})
 try:
     d.start()
