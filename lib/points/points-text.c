@@ -12,6 +12,7 @@
 
 #include "readers.h"
 #include "util-mem.h"
+#include "util-number.h"
 
 #define BLANK_SEP ' '
 
@@ -121,6 +122,10 @@ static int parse_number(const char *s, size_t n, bool decimal_comma, double *v)
 
 	if (n == 0 || n >= sizeof(tmp))
 		return -EINVAL;
+	/* the common case without a copy or the locale; the rest (blanks
+	 * before it, a decimal comma) as strtod() reads it */
+	if (parse_double(s, n, v) == n)
+		return 0;
 	memcpy(tmp, s, n);
 	tmp[n] = '\0';
 	if (decimal_comma) {
