@@ -120,6 +120,56 @@ int dirs_open_state(const char *dir)
 	return steal_fd(fd);
 }
 
+DEFINE_TRIVIAL_CLEANUP_FUNC(DIR *, closedir)
+
+/* What of st lets someone other than root and the daemon's user write it,
+ * or NULL. */
+static const char *others_write(const struct stat *st)
+{
+	if (st->st_uid != 0 && st->st_uid != geteuid())
+		return "belongs to another user";
+	if (st->st_mode & S_IWOTH)
+		return "is writable by every user";
+	if ((st->st_mode & S_IWGRP) && st->st_gid != getegid() && st->st_gid != 0)
+		return "is writable by a group other than the daemon's";
+	return NULL;
+}
+
+int dirs_check_page(const char *root, struct asph_error *err)
+{
+	struct fs_owners o;
+	_cleanup_close_ int fd = fs_open_trusted(root, daemon_owners(&o), O_RDONLY | O_DIRECTORY,
+						 err);
+	_cleanup_(closedirp) DIR *d = NULL;
+	const struct dirent *e;
+	const char *why;
+	struct stat st;
+
+	if (fd < 0)
+		return fd;
+	if (fstat(fd, &st) < 0)
+		return asph_error_set(err, -errno, "%s: %s", root, strerror(errno));
+	if ((why = others_write(&st)))
+		return asph_error_set(err, -EPERM, "%s %s: the page's files must come from root "
+				      "or the daemon's user only", root, why);
+	d = fdopendir(fd);
+	if (!d)
+		return asph_error_set(err, -errno, "%s: %s", root, strerror(errno));
+	fd = -1;        /* (the DIR has it) */
+	while ((e = readdir(d))) {
+		if (e->d_name[0] == '.')
+			continue;       /* (never served) */
+		if (fstatat(dirfd(d), e->d_name, &st, AT_SYMLINK_NOFOLLOW) < 0)
+			return asph_error_set(err, -errno, "%s/%s: %s", root, e->d_name,
+					      strerror(errno));
+		if (S_ISREG(st.st_mode) && (why = others_write(&st)))
+			return asph_error_set(err, -EPERM, "%s/%s %s: the page's files must come "
+					      "from root or the daemon's user only", root,
+					      e->d_name, why);
+	}
+	return 0;
+}
+
 int dirs_check_socket_dir(const char *socket_path)
 {
 	static const char what[] = "to put the socket there";

@@ -16,6 +16,8 @@
 #include <stdint.h>
 #include <sys/stat.h>
 
+#include "asph/error.h"
+
 /* The modes of what the daemon creates in its state directory. */
 #define DIRS_DIR_MODE 0750
 #define DIRS_FILE_MODE 0640
@@ -49,6 +51,16 @@ char *dirs_job_path(const char *state_dir, int64_t id);
  * making it (and jobs/ above it) if missing; a symlink in place of either
  * is refused (-ELOOP). Returns the descriptor or -errno. */
 int dirs_open_job(int state_fd, int64_t id, bool create);
+
+/*
+ * The web page's files (http_root): the directory trusted from "/", not
+ * writable by anyone but root and the daemon's user (its group's members
+ * included), and each file in it a regular file of root or the daemon's
+ * user that no one else may write: what the page's users run in their
+ * browsers comes from nobody else. 0, or -EPERM / -errno with err saying
+ * which and why.
+ */
+int dirs_check_page(const char *root, struct asph_error *err);
 
 /* The highest id among the job folders in jobs/ (0: none), or -errno:
  * a job store put back from a backup may be older than the folders. */

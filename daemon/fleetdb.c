@@ -207,15 +207,36 @@ static int apply(PGconn *c, int version, struct asph_error *err)
 	return r < 0 ? r : exec_ok(c, sql, err, "recording the version");
 }
 
+void fleetdb_conninfo_shown(const char *conninfo, char *buf, size_t size)
+{
+	PQconninfoOption *opts = PQconninfoParse(conninfo, NULL);
+	size_t n = 0;
+
+	buf[0] = '\0';
+	for (PQconninfoOption *o = opts; o && o->keyword; o++) {
+		if (!o->val || !o->val[0] || strstr(o->keyword, "password"))
+			continue;
+		n += (size_t)snprintf(buf + n, n < size ? size - n : 0, "%s%s=%s", n ? " " : "",
+				      o->keyword, o->val);
+	}
+	if (n >= size && size > 4)
+		memcpy(buf + size - 4, "...", 4);
+	if (!opts)
+		snprintf(buf, size, "postgres.conninfo");
+	PQconninfoFree(opts);
+}
+
 int fleetdb_migrate(const struct settings_postgres *cfg, const char *password, FILE *out,
 		    struct asph_error *err)
 {
 	PGconn *c = connect_db(cfg, password);
+	char shown[256];
 	int from = 0, r;
 
 	if (!c || PQstatus(c) != CONNECTION_OK) {
+		fleetdb_conninfo_shown(cfg->conninfo, shown, sizeof(shown));
 		r = asph_error_set(err, -ECONNREFUSED, "cannot connect to the database (%s): %s",
-				   cfg->conninfo, pq_message(c));
+				   shown, pq_message(c));
 		PQfinish(c);
 		return r;
 	}

@@ -42,6 +42,10 @@
 int fleetdb_password_load(const struct settings *s, char **password, settings_error_fn report,
 			  void *data);
 
+/* The connection string as it may be shown (a message, the log): its
+ * parameters without any password, into buf (size bytes). */
+void fleetdb_conninfo_shown(const char *conninfo, char *buf, size_t size);
+
 /* asphd --db-migrate: creates or migrates the schema, in one transaction
  * under an advisory lock (several daemons may run it at once); says what
  * it did on out. 0, or -errno with err. */

@@ -1189,16 +1189,26 @@ int jobs_lock(struct jobs *jobs, const char *instrument, const char *reason, boo
 	return 0;
 }
 
-/* The job a lock paused runs again when the lock goes, if it still waits. */
+/*
+ * The job a lock paused runs again when the lock goes: resumed if it still
+ * waits, re-queued where it stopped if someone stopped it meanwhile (a
+ * queue.stop with abort makes it interrupted): it was held for the lock,
+ * not given up. A re-queued job waits for the queue to run.
+ */
 static void resume_after_lock(struct jobs *jobs, struct slot *sl, int64_t id,
 			      const struct job_actor *who)
 {
 	struct job_record j;
 
-	if (!id || sl->act.job != id || !sl->act.paused || load(jobs, id, &j, NULL) < 0)
+	if (!id || load(jobs, id, &j, NULL) < 0)
 		return;
-	if (j.state == JOB_PAUSED)
+	if (j.state == JOB_PAUSED && sl->act.job == id && sl->act.paused) {
 		set_paused(jobs, &j, sl, false, NULL, who, NULL);
+	} else if (j.state == JOB_INTERRUPTED) {
+		log_job(LOG_NOTICE, id, "re-queued at the end of the lock of %s: it was paused by "
+			"the lock and stopped meanwhile", sl->in->name);
+		requeue(jobs, &j, !j.resume, who, NULL);
+	}
 	job_record_clear(&j);
 }
 
@@ -1251,6 +1261,14 @@ int jobs_list(struct jobs *jobs, const struct store_filter *f, store_job_fn fn, 
 	return r < 0 ? asph_error_set(err, r, "cannot read the jobs: %s", strerror(-r)) : 0;
 }
 
+int jobs_count(struct jobs *jobs, const struct store_filter *f, int64_t *out,
+	       struct asph_error *err)
+{
+	int r = store_total(jobs->store, f, out);
+
+	return r < 0 ? asph_error_set(err, r, "cannot read the jobs: %s", strerror(-r)) : 0;
+}
+
 int jobs_list_queue(struct jobs *jobs, store_job_fn fn, void *data, struct asph_error *err)
 {
 	struct store_filter f = {
@@ -1261,6 +1279,137 @@ int jobs_list_queue(struct jobs *jobs, store_job_fn fn, void *data, struct asph_
 	int r = store_list(jobs->store, &f, fn, data, NULL);
 
 	return r < 0 ? asph_error_set(err, r, "cannot read the queue: %s", strerror(-r)) : 0;
+}
+
+struct jobs_cursor {
+	struct jobs *jobs;
+	struct store_filter f;          /* its strings are copies */
+	char *strings[6];
+	int64_t left;                   /* of f's limit; -1: no limit */
+	bool started, ended;
+	/* the last job given */
+	int64_t last_id, last_priority, last_seq;
+	/* for the callback */
+	store_job_fn fn;
+	void *data;
+	size_t given;
+};
+
+void jobs_cursor_free(struct jobs_cursor *c)
+{
+	if (!c)
+		return;
+	for (size_t i = 0; i < ARRAY_SIZE(c->strings); i++)
+		free(c->strings[i]);
+	free(c);
+}
+
+/* A copy of the filter's string *s, kept in c. */
+static int keep_string(struct jobs_cursor *c, size_t i, const char **s)
+{
+	if (!*s)
+		return 0;
+	c->strings[i] = strdup(*s);
+	*s = c->strings[i];
+	return *s ? 0 : -ENOMEM;
+}
+
+int jobs_cursor_new(struct jobs *jobs, const struct store_filter *f, struct jobs_cursor **out)
+{
+	struct jobs_cursor *c = calloc(1, sizeof(*c));
+	int r = 0;
+
+	if (!c)
+		return -ENOMEM;
+	c->jobs = jobs;
+	if (f) {
+		c->f = *f;
+	} else {
+		c->f = (struct store_filter){
+			.uid = STORE_ANY_UID,
+			.states = 1u << JOB_QUEUED | 1u << JOB_RUNNING | 1u << JOB_PAUSED,
+			.queue_order = true,
+		};
+	}
+	c->left = c->f.limit > 0 ? c->f.limit : -1;
+	r |= keep_string(c, 0, &c->f.instrument);
+	r |= keep_string(c, 1, &c->f.label);
+	r |= keep_string(c, 2, &c->f.user);
+	r |= keep_string(c, 3, &c->f.part);
+	r |= keep_string(c, 4, &c->f.lot);
+	r |= keep_string(c, 5, &c->f.serial);
+	if (r < 0) {
+		jobs_cursor_free(c);
+		return -ENOMEM;
+	}
+	*out = c;
+	return 0;
+}
+
+static int cursor_entry(const struct job_record *j, void *data)
+{
+	struct jobs_cursor *c = data;
+
+	c->last_id = j->id;
+	c->last_priority = j->priority;
+	c->last_seq = j->seq;
+	c->given++;
+	return c->fn(j, c->data);
+}
+
+/* Up to max jobs of f from the store, through the cursor's callback. */
+static int cursor_read(struct jobs_cursor *c, struct store_filter *f, size_t max,
+		       struct asph_error *err)
+{
+	int r;
+
+	f->limit = (int64_t)max;
+	r = store_list(c->jobs->store, f, cursor_entry, c, NULL);
+	return r < 0 ? asph_error_set(err, r, "cannot read the jobs: %s", strerror(-r)) : 0;
+}
+
+int jobs_cursor_next(struct jobs_cursor *c, size_t max, store_job_fn fn, void *data,
+		     struct asph_error *err)
+{
+	struct store_filter f = c->f;
+	int64_t priority = c->last_priority;
+	int r;
+
+	if (c->ended || c->left == 0)
+		return 0;
+	if (c->left > 0 && (int64_t)max > c->left)
+		max = (size_t)c->left;
+	c->fn = fn;
+	c->data = data;
+	c->given = 0;
+	if (!c->started) {
+		r = cursor_read(c, &f, max, err);
+	} else if (!f.queue_order) {
+		/* newest first: below the last id */
+		f.offset = 0;
+		f.before_id = c->last_id;
+		r = cursor_read(c, &f, max, err);
+	} else {
+		/* the rest of the last job's priority, then the lower ones */
+		f.offset = 0;
+		f.after = true;
+		f.after_priority = priority;
+		f.after_seq = c->last_seq;
+		f.after_id = c->last_id;
+		r = cursor_read(c, &f, max, err);
+		if (r == 0 && c->given < max) {
+			f.after = false;
+			f.below = true;
+			r = cursor_read(c, &f, max - c->given, err);
+		}
+	}
+	if (r < 0)
+		return r;
+	c->started = true;
+	if (c->left > 0)
+		c->left -= (int64_t)c->given;
+	c->ended = c->given < max || c->left == 0;
+	return c->ended ? 0 : 1;
 }
 
 int jobs_history(struct jobs *jobs, int64_t id, store_event_fn fn, void *data,

@@ -152,8 +152,26 @@ int jobs_get(struct jobs *jobs, int64_t id, struct job_record *out, struct asph_
 /* As store_list(). */
 int jobs_list(struct jobs *jobs, const struct store_filter *f, store_job_fn fn, void *data,
 	      int64_t *total, struct asph_error *err);
+/* The number of jobs f selects (without its offset and limit). */
+int jobs_count(struct jobs *jobs, const struct store_filter *f, int64_t *out,
+	       struct asph_error *err);
 /* The queue: running, paused and queued jobs, in the order they run. */
 int jobs_list_queue(struct jobs *jobs, store_job_fn fn, void *data, struct asph_error *err);
+
+/*
+ * A listing taken a few jobs at a time (a long answer is made in slices,
+ * turns.h): the jobs f selects (NULL: the queue, in the order it runs),
+ * from f's offset and at most f's limit of them (0: all). It takes up
+ * after the last job it gave: a job that moves in the meantime may be
+ * left out or come twice, as in any listing made while the queue changes.
+ */
+struct jobs_cursor;
+int jobs_cursor_new(struct jobs *jobs, const struct store_filter *f, struct jobs_cursor **out);
+/* Up to max jobs through fn: 1 when more may follow, 0 at the end, or
+ * -errno (err says what). */
+int jobs_cursor_next(struct jobs_cursor *c, size_t max, store_job_fn fn, void *data,
+		     struct asph_error *err);
+void jobs_cursor_free(struct jobs_cursor *c);
 int jobs_history(struct jobs *jobs, int64_t id, store_event_fn fn, void *data,
 		 struct asph_error *err);
 /* The job object of proto/README.md, with the live progress of a running

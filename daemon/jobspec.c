@@ -1,5 +1,5 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
-/* Event loop thread: job.submit's parameters into a job specification. */
+/* job.submit's parameters into a job specification (pure: any thread). */
 #include <errno.h>
 #include <inttypes.h>
 #include <math.h>
@@ -71,6 +71,48 @@ static int spec_lens(json_t *params, json_t *spec, struct asph_prescription *p,
 	return 0;
 }
 
+static unsigned nonzero(const double *v, size_t n)
+{
+	unsigned k = 0;
+
+	for (size_t i = 0; i < n; i++)
+		k += v[i] != 0;
+	return k;
+}
+
+unsigned jobspec_terms(const struct asph_prescription *p)
+{
+	return 1 + nonzero(p->A, ARRAY_SIZE(p->A)) + nonzero(p->Q, ARRAY_SIZE(p->Q)) +
+	       nonzero(p->C, ARRAY_SIZE(p->C)) + nonzero(p->Zernike, ARRAY_SIZE(p->Zernike)) +
+	       nonzero(&p->q2d_a[0][0], sizeof(p->q2d_a) / sizeof(double)) +
+	       nonzero(&p->q2d_b[0][0], sizeof(p->q2d_b) / sizeof(double));
+}
+
+/* Refused when the plan's n points on a surface of p's terms cost more
+ * than the limits allow. Not exact: n is the count asked for, which the
+ * plan comes near; the plan's own count is held to max_plan_points to the
+ * point. */
+static int plan_cost(const struct asph_prescription *p, double n, bool exact,
+		     const struct jobspec_limits *lim, struct proto_why *why)
+{
+	unsigned terms = jobspec_terms(p);
+
+	if (n > (exact ? 1.0 : 2.0) * (double)lim->max_points) {
+		snprintf(why->text, sizeof(why->text),
+			 "the plan %s %.0f points, more than the limit of %" PRIu64
+			 " (limits.max_plan_points)", exact ? "has" : "asks for", n, lim->max_points);
+		return PROTO_LIMIT_REACHED;
+	}
+	if (n * terms > (double)lim->max_point_terms) {
+		snprintf(why->text, sizeof(why->text),
+			 "the plan's %.0f points on a surface of %u terms make %.0f point-terms, "
+			 "more than the limit of %" PRIu64 " (limits.max_plan_point_terms)",
+			 n, terms, n * terms, lim->max_point_terms);
+		return PROTO_LIMIT_REACHED;
+	}
+	return 0;
+}
+
 /* How many points the plan of this lens would have. */
 static int plan_size(const struct asph_prescription *p, enum asph_plan_method m,
 		     struct asph_plan_density density, const struct asph_plan_options *po,
@@ -88,7 +130,7 @@ static int plan_size(const struct asph_prescription *p, enum asph_plan_method m,
 }
 
 static int spec_plan(json_t *params, json_t *spec, const struct asph_prescription *p,
-		     uint64_t max_points, uint64_t *points, struct proto_why *why)
+		     const struct jobspec_limits *lim, uint64_t *points, struct proto_why *why)
 {
 	static const char *const names[] = { "method", "h", "spacing", "points", "profiles", NULL };
 	struct asph_plan_density density = { 0 };
@@ -139,17 +181,19 @@ static int spec_plan(json_t *params, json_t *spec, const struct asph_prescriptio
 	}
 	if (m == ASPH_PLAN_PROFILES)
 		po.profiles = profiles ? (unsigned)profiles : 1;
+	/* Asked for by its number of points: refused before the surface is
+	 * built (which takes time for a freeform of many terms). */
+	if (density.kind == ASPH_DENSITY_POINTS &&
+	    (r = plan_cost(p, density.value, false, lim, why)))
+		return r;
 	asph_error_clear(&err);
 	r = plan_size(p, m, density, &po, &n, &err);
 	if (r < 0) {
 		snprintf(why->text, sizeof(why->text), "\"plan\": %.200s", err.message);
 		return PROTO_INVALID_PLAN;
 	}
-	if (n > max_points) {
-		snprintf(why->text, sizeof(why->text),
-			 "the plan has %zu points, more than the limit of %" PRIu64, n, max_points);
-		return PROTO_LIMIT_REACHED;
-	}
+	if ((r = plan_cost(p, (double)n, true, lim, why)))
+		return r;
 	*points = n;
 	json_object_set_new(spec, "plan", json_pack("{s:s, s:s, s:f}", "method", method,
 		"density", asph_plan_density_name(density.kind), "value", density.value));
@@ -273,8 +317,8 @@ static int spec_tolerance(json_t *params, json_t *spec, struct proto_why *why)
 	return 0;
 }
 
-int jobspec_from_params(json_t *params, uint64_t max_points, json_t **out,
-		     uint64_t *points, struct proto_why *why)
+int jobspec_from_params(json_t *params, const struct jobspec_limits *lim, json_t **out,
+			uint64_t *points, struct proto_why *why)
 {
 	struct asph_prescription p;
 	json_t *spec = json_object();
@@ -284,7 +328,7 @@ int jobspec_from_params(json_t *params, uint64_t max_points, json_t **out,
 		return PROTO_INTERNAL_ERROR;
 	code = spec_lens(params, spec, &p, why);
 	if (!code)
-		code = spec_plan(params, spec, &p, max_points, points, why);
+		code = spec_plan(params, spec, &p, lim, points, why);
 	if (!code)
 		code = spec_fit(params, spec, why);
 	if (!code)

@@ -2,7 +2,8 @@
 /*
  * A job's specification: what job.submit asked for (lens, plan, fit),
  * checked and normalized into the JSON text the job store keeps and the
- * worker measures from (jobplan.h reads it back). Event loop thread.
+ * worker measures from (jobplan.h reads it back). Pure: a task's thread
+ * (estimate.h) runs it, since a freeform surface takes time to build.
  *
  * The specification: {"lens": {"name": PRESET or null, "prescription":
  * {...}}, "plan": {"method", "density": "h" | "spacing" | "points"
@@ -17,14 +18,28 @@
 
 #include "asph-proto.h"
 #include "asph/plan.h"
+#include "asph/surface.h"
+
+/* What a plan may cost (settings_limits: max_plan_points,
+ * max_plan_point_terms). */
+struct jobspec_limits {
+	uint64_t max_points;
+	uint64_t max_point_terms;       /* points times the surface's terms */
+};
 
 /*
  * Checks job.submit's lens, plan and fit members and builds the normalized
  * spec. Returns 0, or a protocol error code (PROTO_INVALID_PARAMS,
  * PROTO_INVALID_LENS, PROTO_INVALID_PLAN, PROTO_LIMIT_REACHED) with why.
- * *points is the plan's (estimated) number of points.
+ * *points is the plan's (estimated) number of points. A plan over a
+ * limit is refused naming it, before its surface is built where the
+ * number of points was given.
  */
-int jobspec_from_params(json_t *params, uint64_t max_points, json_t **spec,
+int jobspec_from_params(json_t *params, const struct jobspec_limits *lim, json_t **spec,
 			uint64_t *points, struct proto_why *why);
+
+/* The terms of a prescription: its base, and each coefficient that is
+ * not zero (what one evaluation of its sag costs). */
+unsigned jobspec_terms(const struct asph_prescription *p);
 
 #endif

@@ -10,6 +10,8 @@
 #include <systemd/sd-journal.h>
 
 #include "log.h"
+#include "util-mem.h"
+#include "util-text.h"
 
 static int max_level = LOG_INFO;
 static bool to_journal;
@@ -68,9 +70,17 @@ void log_setup(int max_priority)
 	to_journal = stderr_is_journal();
 }
 
+/*
+ * A message may carry what users sent (a label, a lock's reason, a token's
+ * name, a peer's text): its control characters are written as escapes, so
+ * that no one can forge a line of the log or act on the terminal that
+ * shows it.
+ */
 void log_job(int priority, int64_t job, const char *fmt, ...)
 {
-	char msg[1024];
+	char text[1024];
+	_cleanup_free_ char *escaped = NULL;
+	const char *msg = text;
 	va_list ap;
 
 	if (priority >= 0 && priority <= LOG_DEBUG)
@@ -78,8 +88,10 @@ void log_job(int priority, int64_t job, const char *fmt, ...)
 	if (priority > max_level)
 		return;
 	va_start(ap, fmt);
-	vsnprintf(msg, sizeof(msg), fmt, ap);
+	vsnprintf(text, sizeof(text), fmt, ap);
 	va_end(ap);
+	if (text_has_controls(text) && (escaped = text_escape_controls(text, false)))
+		msg = escaped;
 	if (to_journal) {
 		if (job > 0)
 			sd_journal_send("MESSAGE=%s", msg, "PRIORITY=%d", priority,

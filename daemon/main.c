@@ -24,6 +24,7 @@
 #include "backup.h"
 #include "config.h"
 #include "devices.h"
+#include "dirs.h"
 #include "events.h"
 #include "fleetdb.h"
 #include "instruments.h"
@@ -36,8 +37,10 @@
 #include "server.h"
 #include "web.h"
 #include "settings.h"
+#include "tasks.h"
 #include "telemetry.h"
 #include "tokens.h"
+#include "turns.h"
 #include "util-time.h"
 #include "util-mem.h"
 #include "util-suggest.h"
@@ -51,6 +54,11 @@ enum {
 };
 
 #define DEFAULT_CONFIG "/etc/asphd/asphd.conf"
+/* The threads that check and estimate plans and read scans for the web
+ * page (tasks.h), and of them those kept for operators' tasks: a reader's
+ * estimates cannot hold up an operator's submission. */
+#define TASK_THREADS 2
+#define TASK_THREADS_RESERVED 1
 
 struct daemon {
 	const char *config_path;
@@ -73,6 +81,8 @@ struct daemon {
 	struct events *events;
 	struct jobs *jobs;
 	struct rpc *rpc;
+	struct turns *turns;            /* the clients' work, every listener's */
+	struct tasks *tasks;            /* plans checked and estimated, scans read */
 	struct server *server;
 	struct web *web;                /* NULL without http_listen */
 	struct tokens *tokens;
@@ -124,8 +134,9 @@ static int resolve_listen(const struct settings *s, const char *field, const cha
 	return r;
 }
 
-/* http_root, when the web page is on: a folder the daemon can open (the
- * page compiled in is served without it). */
+/* http_root, when the web page is on: a folder the daemon can open, that
+ * only root and the daemon's user may write, nor any file in it (the page
+ * compiled in is served without it). */
 static void check_http_root(const struct settings *s, settings_error_fn report, void *data)
 {
 	struct asph_error err;
@@ -133,15 +144,17 @@ static void check_http_root(const struct settings *s, settings_error_fn report, 
 
 	if (!s->http_listen || !s->http_root)
 		return;
+	asph_error_clear(&err);
 	fd = open(s->http_root, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
 	if (fd >= 0) {
 		close(fd);
-		return;
+		if (dirs_check_page(s->http_root, &err) == 0)
+			return;
+	} else {
+		r = -errno;
+		asph_error_set(&err, r, "%s: %s (set http_root to the folder of the page's files, "
+			       "or remove it to serve the built-in page)", s->http_root, strerror(-r));
 	}
-	r = -errno;
-	asph_error_clear(&err);
-	asph_error_set(&err, r, "%s: %s (set http_root to the folder of the page's files, or remove "
-		       "it to serve the built-in page)", s->http_root, strerror(-r));
 	settings_locate(s, "http_root", &err);
 	report(&err, data);
 }
@@ -261,14 +274,18 @@ static int apply_overrides(const struct daemon *d, struct settings *s)
 }
 
 /*
- * The descriptors max_clients needs besides the daemon's own: the soft
- * limit is raised as far as the hard one (LimitNOFILE=) allows. 0, or
- * -EMFILE when it cannot be, which report says naming the setting.
+ * The descriptors the clients need besides the daemon's own: max_clients
+ * and root's own on the socket, and with http_listen as many web
+ * connections again and those making room. The soft limit is raised as
+ * far as the hard one (LimitNOFILE=) allows. 0, or -EMFILE when it cannot
+ * be, which report says naming the setting.
  */
 static int check_descriptors(const struct settings *s, size_t n_instruments,
 			     settings_error_fn report, void *data)
 {
-	rlim_t need = (rlim_t)s->limits.max_clients + SERVER_FIXED_FDS + 4 * n_instruments;
+	rlim_t clients = (rlim_t)s->limits.max_clients + SERVER_ROOT_CLIENTS;
+	rlim_t web = s->http_listen ? (rlim_t)s->limits.max_clients + WEB_DISPLACED_MAX : 0;
+	rlim_t need = clients + web + SERVER_FIXED_FDS + 4 * n_instruments;
 	struct asph_error err;
 	struct rlimit rl;
 
@@ -280,9 +297,10 @@ static int check_descriptors(const struct settings *s, size_t n_instruments,
 			return 0;
 	}
 	asph_error_clear(&err);
-	asph_error_set(&err, -EMFILE, "%u clients need about %llu file descriptors, and this "
+	asph_error_set(&err, -EMFILE, "%u clients%s need about %llu file descriptors, and this "
 		       "process may open %llu (LimitNOFILE=, ulimit -n): lower "
 		       "limits.max_clients or raise the limit", s->limits.max_clients,
+		       web ? " on the socket and as many on the web listener" : "",
 		       (unsigned long long)need, (unsigned long long)rl.rlim_max);
 	settings_locate(s, "limits.max_clients", &err);
 	report(&err, data);
@@ -386,6 +404,10 @@ static void needs_restart(const struct daemon *d, const struct settings *next, c
 		append(why, size, "http_listen");
 	if (differ(next->http_root, now->http_root))
 		append(why, size, "http_root");
+	if (differ(section_text(next, "http_allowed_hosts"), section_text(now, "http_allowed_hosts")))
+		append(why, size, "http_allowed_hosts");
+	if (differ(next->http_trust_proxy, now->http_trust_proxy))
+		append(why, size, "http_trust_proxy");
 	if (differ(section_text(next, "mqtt"), section_text(now, "mqtt")))
 		append(why, size, "mqtt");
 	if (differ(section_text(next, "postgres"), section_text(now, "postgres")))
@@ -474,6 +496,8 @@ static int on_token_expiry(sd_event_source *s, uint64_t usec, void *data)
 	struct daemon *d = data;
 
 	server_revalidate(d->server);
+	if (d->web)
+		web_revalidate(d->web);
 	arm_token_expiry(d);
 	return 0;
 }
@@ -821,6 +845,13 @@ static int start_modules(struct daemon *d)
 		return r;
 	}
 	r = open_tokens(d);
+	if (r == 0)
+		r = turns_new(d->event, &d->turns);
+	if (r == 0)
+		r = tasks_new(&(struct tasks_setup){
+				.event = d->event, .threads = TASK_THREADS,
+				.reserved = TASK_THREADS_RESERVED,
+			      }, &d->tasks);
 	if (r < 0)
 		return r;
 	r = start_backups(d);
@@ -837,12 +868,13 @@ static int start_modules(struct daemon *d)
 	r = rpc_new(&(struct rpc_setup){
 			.event = d->event, .started_usec = d->started_usec, .jobs = d->jobs,
 			.instruments = d->instruments, .events = d->events, .access = d->access,
-			.tokens = d->tokens, .backups = d->backups, .monitor = d->monitor,
-			.limits = &d->limits,
+			.tokens = d->tokens, .tasks = d->tasks, .backups = d->backups,
+			.monitor = d->monitor, .limits = &d->limits,
 		    }, &d->rpc);
 	if (r == 0)
 		r = server_new(&(struct server_setup){
-				.event = d->event, .rpc = d->rpc, .limits = &d->limits,
+				.event = d->event, .rpc = d->rpc, .turns = d->turns,
+				.limits = &d->limits,
 			       }, &d->server);
 	if (r < 0)
 		return r;
@@ -853,8 +885,8 @@ static int start_modules(struct daemon *d)
 	if (r > 0 && d->http) {
 		r = web_new(&(struct web_setup){
 				.event = d->event, .rpc = d->rpc, .jobs = d->jobs,
-				.monitor = d->monitor, .limits = &d->limits,
-				.state_dir = d->settings->state_dir,
+				.turns = d->turns, .tasks = d->tasks, .monitor = d->monitor,
+				.limits = &d->limits, .state_dir = d->settings->state_dir,
 			    }, &d->web);
 		if (r == 0)
 			r = events_watch_add(d->events, EVENT_ALL, web_notify, d->web, NULL);
@@ -888,7 +920,12 @@ static int run(struct daemon *d)
 	if (r == 0)
 		r = server_listen(d->server, d->settings, d->tcp);
 	if (r == 0 && d->web) {
-		r = web_listen(d->web, d->http, d->settings->http_listen, d->settings->http_root);
+		r = web_listen(d->web, &(struct web_listen_setup){
+				.addr = d->http, .text = d->settings->http_listen,
+				.host = d->settings->http_host, .root = d->settings->http_root,
+				.allowed_hosts = d->settings->http_allowed_hosts,
+				.trust_proxy = d->settings->http_trust_proxy,
+			       });
 		if (r == 0)
 			log_info("web page at http://%s%s%s:%u/ (%zu address%s)",
 				 strchr(d->settings->http_host, ':') ? "[" : "", d->settings->http_host,
@@ -909,9 +946,12 @@ static int run(struct daemon *d)
 
 static void teardown(struct daemon *d)
 {
+	/* The clients first: their lines cancel the tasks they wait for. */
 	web_free(d->web);
 	server_free(d->server);
 	rpc_free(d->rpc);
+	tasks_free(d->tasks);
+	turns_free(d->turns);
 	backups_free(d->backups);
 	stop_fleet(d);
 	sd_event_source_disable_unref(d->revalidate);

@@ -13,24 +13,40 @@
 
 #include "asph-proto.h"
 #include "config.h"
-#include "jobplan.h"
+#include "estimate.h"
 #include "jobspec.h"
 #include "log.h"
 #include "ratelimit.h"
 #include "rpc.h"
+#include "turns.h"
+#include "util-hash.h"
 #include "util-time.h"
 #include "util-mem.h"
 
-/* Failed hellos a peer (an address, a uid) may make at once, then one per
- * interval: the guesses of a token are slowed down to that. */
+/* Wrong tokens a peer (an address) may send at once, and of one claimed
+ * prefix from anywhere, then one per interval: past that, the answer to a
+ * wrong token waits until the interval is up. A right token is never held
+ * back, so that one guesser behind a shared address (a proxy, a NAT)
+ * cannot lock its users out; a guesser's pace is one guess per interval on
+ * each of its connections, which max_clients_per_user bounds. */
 #define HELLO_FAILURES_BURST 5
 #define HELLO_FAILURE_INTERVAL_USEC (2 * 1000000ull)
+/* The characters of a presented token that make its claimed prefix. */
+#define TOKEN_PREFIX 12
 /* Refusals logged per peer at once, then one per interval (the rest are
  * counted into the next line that is logged). */
 #define REFUSALS_LOGGED_BURST 10
 #define REFUSAL_LOG_INTERVAL_USEC (1000000ull)
 /* Peers whose counts are kept at once. */
 #define RATE_KEYS 256
+/* The computations (tasks.h) of one owner at once: a plan checked or
+ * estimated, running or waiting for a thread. */
+#define TASKS_PER_OWNER 2
+/* A step of a listing (job.list, queue.get): jobs read from the store a
+ * few at a time (each is read, parsed and written: tens of microseconds)
+ * until about this much time has passed. */
+#define LIST_STEP_USEC 1000
+#define LIST_READ 8
 
 struct rpc {
 	sd_event *event;
@@ -40,23 +56,75 @@ struct rpc {
 	struct events *events;
 	const struct access *access;
 	struct tokens *tokens;
+	struct tasks *tasks;
 	struct backups *backups;
 	struct monitor *monitor;
 	const struct settings_limits *limits;
 	size_t n_sessions;
 	uint64_t requests;
 	struct ratelimit *hello_failures;       /* per peer key */
+	struct ratelimit *prefix_failures;      /* per claimed token prefix */
 	struct ratelimit *refusals_logged;      /* per peer key */
+};
+
+/* How the element of a line answered now goes on. */
+enum element {
+	ELEMENT_NEXT,           /* none started: the next one is taken */
+	ELEMENT_WAITING,        /* a task computes its answer */
+	ELEMENT_READY,          /* its answer is in reply */
+	ELEMENT_LISTING,        /* its answer is a listing, made a step at a time */
+};
+
+/* A listing's answer: the response up to the array, the jobs a step at a
+ * time, then the closing "]}}". */
+struct listing {
+	struct jobs_cursor *cursor;
+	char *head;
+	bool head_out;
+	size_t items;
+};
+
+struct rpc_line {
+	struct rpc *rpc;
+	struct rpc_session *s;
+	json_t *msg;            /* the request, the batch, or an error answer */
+	bool batch;
+	bool parsed;            /* msg is a request or batch to answer */
+	size_t next;            /* the batch element answered next */
+	size_t written;         /* bytes of answer so far, notifications' too */
+	bool opened;            /* a batch's "[" is out */
+	void (*ready)(void *data);
+	void *ready_data;
+	/* The element being answered over several steps. */
+	enum element state;
+	json_t *id;             /* its id */
+	bool notification;      /* its answer is counted, not sent */
+	json_t *reply;          /* ELEMENT_READY */
+	struct task *task;      /* ELEMENT_WAITING: a computation */
+	sd_event_source *delay; /* ELEMENT_WAITING: an answer held back */
+	void *pending;          /* ELEMENT_WAITING: the method's, freed with it */
+	void (*pending_free)(void *pending);
+	struct listing *listing;
 };
 
 struct call {
 	struct rpc *rpc;
 	struct rpc_session *s;
+	struct rpc_line *line;  /* the line it is part of */
 	struct proto_why why;
 	json_t *data;           /* more members of an error's data, or NULL */
+	/* The answer comes later: a task computes it (deferred), or it is
+	 * the result given and a list of jobs made a step at a time. */
+	bool deferred;
+	struct listing *listing;
 };
 
 typedef int (*method_fn)(struct call *c, json_t *params, json_t **result);
+
+/* An answer that comes later (the lines, below). */
+static void defer(struct call *c, void *pending, void (*free_fn)(void *pending));
+static int defer_answer(struct call *c, int code, uint64_t wait);
+static void line_answer(struct rpc_line *l, struct call *c, int code, json_t *result);
 
 int rpc_new(const struct rpc_setup *setup, struct rpc **out)
 {
@@ -67,11 +135,13 @@ int rpc_new(const struct rpc_setup *setup, struct rpc **out)
 	*rpc = (struct rpc){
 		.event = setup->event, .started_usec = setup->started_usec,
 		.jobs = setup->jobs, .instruments = setup->instruments, .events = setup->events,
-		.access = setup->access, .tokens = setup->tokens, .limits = setup->limits,
-		.backups = setup->backups, .monitor = setup->monitor,
+		.access = setup->access, .tokens = setup->tokens, .tasks = setup->tasks,
+		.limits = setup->limits, .backups = setup->backups, .monitor = setup->monitor,
 	};
 	if (ratelimit_new(HELLO_FAILURES_BURST, HELLO_FAILURE_INTERVAL_USEC, RATE_KEYS,
 			  &rpc->hello_failures) < 0 ||
+	    ratelimit_new(HELLO_FAILURES_BURST, HELLO_FAILURE_INTERVAL_USEC, RATE_KEYS,
+			  &rpc->prefix_failures) < 0 ||
 	    ratelimit_new(REFUSALS_LOGGED_BURST, REFUSAL_LOG_INTERVAL_USEC, RATE_KEYS,
 			  &rpc->refusals_logged) < 0) {
 		rpc_free(rpc);
@@ -86,6 +156,7 @@ void rpc_free(struct rpc *rpc)
 	if (!rpc)
 		return;
 	ratelimit_free(rpc->hello_failures);
+	ratelimit_free(rpc->prefix_failures);
 	ratelimit_free(rpc->refusals_logged);
 	free(rpc);
 }
@@ -100,6 +171,8 @@ void rpc_session_open(struct rpc *rpc, struct rpc_session *s)
 	if (s->open)
 		return;
 	s->open = true;
+	if (!s->owner[0])       /* (a hello before may have set the token's) */
+		snprintf(s->owner, sizeof(s->owner), "%s", s->peer.key);
 	rpc->n_sessions++;
 }
 
@@ -242,26 +315,46 @@ static int change_job(struct call *c, json_t *params, job_change_fn change, json
 
 /* ------------------------------------------------------------ daemon */
 
-/*
- * A peer's token. A wrong one costs the peer's key a token of
- * hello_failures; with none left, tokens are refused without being looked
- * at, so that guessing goes no faster than the bucket refills.
- */
-int rpc_check_token(struct rpc *rpc, struct rpc_session *s, const char *token,
-		    const char *where, struct proto_why *why)
+/* The bucket of a claimed prefix: a digest of the token's first
+ * characters, so that nothing of a secret is kept in the table. */
+static void prefix_key(const char *token, char key[RATELIMIT_KEY_MAX])
 {
-	uint64_t now = loop_usec(rpc);
-	unsigned left_out = 0;
-	int r;
+	char hex[65];
 
-	if (!ratelimit_allows(rpc->hello_failures, s->peer.key, now)) {
-		ratelimit_take(rpc->hello_failures, s->peer.key, now, NULL);
-		proto_why_set(why, "too many wrong tokens from %s: try again in %.1f s",
-			      s->peer.key,
-			      (double)ratelimit_wait(rpc->hello_failures, s->peer.key, now) / 1e6);
-		return PROTO_PERMISSION_DENIED;
-	}
-	r = access_authenticate(rpc->access, token, &s->grant);
+	sha256_hex(token, strnlen(token, TOKEN_PREFIX), hex);
+	snprintf(key, RATELIMIT_KEY_MAX, "prefix %.16s", hex);
+}
+
+/*
+ * A wrong token: counted against the peer's address and the prefix it
+ * claimed; the log says it, at most as often as tries are earned. The
+ * time its answer should wait: until both have a try left again (at most
+ * an interval).
+ */
+static uint64_t wrong_token(struct rpc *rpc, const struct peer *p, const char *token,
+			    const char *where)
+{
+	uint64_t now = loop_usec(rpc), wait;
+	char key[RATELIMIT_KEY_MAX];
+	unsigned left_out = 0;
+
+	prefix_key(token ? token : "", key);
+	ratelimit_take(rpc->prefix_failures, key, now, NULL);
+	if (ratelimit_take(rpc->hello_failures, p->key, now, &left_out))
+		log_warning("wrong token in %s from %s (%u more before it not logged)", where,
+			    p->name, left_out);
+	wait = ratelimit_wait(rpc->hello_failures, p->key, now);
+	if (ratelimit_wait(rpc->prefix_failures, key, now) > wait)
+		wait = ratelimit_wait(rpc->prefix_failures, key, now);
+	return wait < HELLO_FAILURE_INTERVAL_USEC ? wait : HELLO_FAILURE_INTERVAL_USEC;
+}
+
+int rpc_check_token(struct rpc *rpc, struct rpc_session *s, const char *token,
+		    const char *where, struct proto_why *why, uint64_t *wait_usec)
+{
+	int r = access_authenticate(rpc->access, token, &s->grant);
+
+	*wait_usec = 0;
 	if (r == -EKEYREVOKED || r == -EKEYEXPIRED) {
 		log_warning("%s token \"%s\" in %s from %s", r == -EKEYREVOKED ? "revoked"
 			    : "expired", s->grant.credential, where, s->peer.name);
@@ -270,24 +363,35 @@ int rpc_check_token(struct rpc *rpc, struct rpc_session *s, const char *token,
 		return PROTO_PERMISSION_DENIED;
 	}
 	if (r < 0) {
-		ratelimit_take(rpc->hello_failures, s->peer.key, now, &left_out);
-		log_warning("wrong token in %s from %s (%u refused unread before)", where,
-			    s->peer.name, left_out);
+		*wait_usec = wrong_token(rpc, &s->peer, token, where);
 		proto_why_set(why, "wrong token");
 		return PROTO_PERMISSION_DENIED;
 	}
 	return 0;
 }
 
-/* A TCP peer's hello: its token checked, and its success logged. */
+/* A TCP peer's hello: its token checked (a wrong one answered when the
+ * pace of wrong tokens says), and its success logged. */
 static int authenticate(struct call *c, const char *token)
 {
 	struct rpc_session *s = c->s;
-	int code = rpc_check_token(c->rpc, s, token, "hello", &c->why);
+	uint64_t wait;
+	int code = rpc_check_token(c->rpc, s, token, "hello", &c->why, &wait);
 
 	if (code)
-		return code;
+		return wait ? defer_answer(c, code, wait) : code;
+	/* A connection that took one of the last reserved_clients before it
+	 * said who it is keeps it only as an operator or admin. */
+	if (s->open && s->grant.role < ROLE_OPERATOR &&
+	    c->rpc->n_sessions + c->rpc->limits->reserved_clients > c->rpc->limits->max_clients) {
+		s->grant = (struct access_grant){ 0 };
+		return fail(c, PROTO_TOO_MANY_CLIENTS, "the last %u of limits.max_clients (%u) are "
+			    "kept for operators and admins: this token is a viewer's",
+			    c->rpc->limits->reserved_clients, c->rpc->limits->max_clients);
+	}
 	s->authenticated = true;
+	/* A user's shares follow its token, from whichever address. */
+	snprintf(s->owner, sizeof(s->owner), "token %.57s", s->grant.credential);
 	log_info("%s authenticated with %s (%s)", s->peer.name, s->grant.credential,
 		 access_role_name(s->grant.role));
 	if (s->grant.token_file)
@@ -308,7 +412,7 @@ static int m_hello(struct call *c, json_t *params, json_t **result)
 	if (proto_param_string(params, "client", false, 128, &client, &c->why) == -EINVAL ||
 	    proto_param_string(params, "token", false, 512, &token, &c->why) == -EINVAL)
 		return PROTO_INVALID_PARAMS;
-	if (s->peer.tcp && !s->authenticated && (code = authenticate(c, token)))
+	if (s->peer.tcp && !s->authenticated && ((code = authenticate(c, token)) || c->deferred))
 		return code;
 	*result = json_pack("{s:s, s:s, s:{s:i, s:i}, s:{s:I, s:s, s:b, s:s, s:s?}}",
 		"server", "asphd", "version", ASPH_VERSION,
@@ -398,28 +502,46 @@ static int m_daemon_health(struct call *c, json_t *params, json_t **result)
 
 /* -------------------------------------------------------------- jobs */
 
-/* The predicted measuring time of a submitted job on its instrument, or
- * null when its drivers cannot describe themselves without a device. */
-static json_t *submit_estimate(struct call *c, const struct job_submission *sub)
-{
-	int i = sub->instrument ? instruments_find(c->rpc->instruments, sub->instrument) : 0;
-	struct asph_error err;
-	double t;
+/* What a job.submit or job.estimate keeps while its plan is checked. */
+struct check {
+	struct rpc_line *line;
+	bool submit;                    /* queue the job once it is checked */
+	struct job_submission sub;      /* its strings are copies */
+	char *strings[5];
+	struct job_actor who;
+	char *who_name;
+	int64_t timeout_ms;
+};
 
-	if (i < 0 || (size_t)i >= instruments_count(c->rpc->instruments) ||
-	    job_plan_estimate(sub->spec, c->rpc->limits->max_plan_points,
-			      instruments_get(c->rpc->instruments, (size_t)i)->config, &t, &err) < 0)
-		return json_null();
-	return json_real(t);
+static void check_free(void *data)
+{
+	struct check *k = data;
+
+	if (!k)
+		return;
+	for (size_t i = 0; i < ARRAY_SIZE(k->strings); i++)
+		free(k->strings[i]);
+	free(k->who_name);
+	free(k);
 }
 
-/* The parameters job.submit and job.estimate share, read into sub; the
- * job specification (owned by the caller through spec) and its point count.
- * check is the refusal to give before the plan is computed. */
+/* *s as a copy kept in k. */
+static int check_keep(struct check *k, size_t i, const char **s)
+{
+	if (!*s)
+		return 0;
+	k->strings[i] = strdup(*s);
+	*s = k->strings[i];
+	return *s ? 0 : -ENOMEM;
+}
+
+/* The parameters job.submit and job.estimate share, read into sub (the
+ * cheap checks: the plan is checked by a task). check is the refusal to
+ * give before anything is computed. */
 static int submission_from_params(struct call *c, json_t *params,
 				  int (*check)(const struct jobs *, const char *,
 					       struct asph_error *),
-				  struct job_submission *sub, json_t **spec, uint64_t *points)
+				  struct job_submission *sub)
 {
 	static const char *const names[] = { "lens", "plan", "fit", "tolerance", "instrument",
 					     "priority", "label", "part", "lot", "serial", NULL };
@@ -446,62 +568,136 @@ static int submission_from_params(struct call *c, json_t *params,
 		return PROTO_INVALID_PARAMS;
 	asph_error_clear(&err);
 	r = check(c->rpc->jobs, sub->instrument, &err);
-	if (r < 0)
-		return job_error(c, r, &err);
-	return jobspec_from_params(params, lim->max_plan_points, spec, points, &c->why);
+	return r < 0 ? job_error(c, r, &err) : 0;
+}
+
+/* The job checked: queued (job.submit), or its estimate answered. */
+static void check_answer(struct check *k, struct estimate *e)
+{
+	struct rpc_line *l = k->line;
+	struct call c = { .rpc = l->rpc, .s = l->s, .line = l };
+	_cleanup_free_ char *text = NULL;
+	struct asph_error err;
+	struct job_record j;
+	json_t *result = NULL, *t = e->timed ? json_real(e->seconds) : json_null();
+	int code = 0, r;
+
+	if (!k->submit) {
+		result = json_pack("{s:o, s:I}", "estimate_s", t, "points", (json_int_t)e->points);
+		line_answer(l, &c, result ? 0 : PROTO_INTERNAL_ERROR, result);
+		return;
+	}
+	text = json_dumps(e->spec, JSON_COMPACT);
+	k->sub.spec = text;
+	k->sub.points = (int64_t)e->points;
+	asph_error_clear(&err);
+	r = text ? jobs_submit(l->rpc->jobs, &k->sub, &k->who, &j, &err) : -ENOMEM;
+	if (r < 0) {
+		code = job_error(&c, r, &err);
+	} else if ((code = job_result(&c, &j, &result)) == 0) {
+		json_object_set_new(result, "estimate_s", t);
+		t = NULL;
+	}
+	json_decref(t);
+	line_answer(l, &c, code, result);
+}
+
+/* A task's done(): the plan checked, or its deadline passed. */
+static void check_done(void *work, int r, void *data)
+{
+	struct check *k = data;
+	struct estimate *e = work;
+	struct rpc_line *l = k->line;
+	struct call c = { .rpc = l->rpc, .s = l->s, .line = l };
+
+	if (r == -ETIMEDOUT) {
+		fail(&c, PROTO_REQUEST_TIMEOUT, "checking the plan took longer than "
+		     "limits.request_timeout_ms (%" PRId64 " ms)%s", k->timeout_ms,
+		     k->submit ? ": nothing was queued" : "");
+		line_answer(l, &c, PROTO_REQUEST_TIMEOUT, NULL);
+	} else if (r < 0 || e->code) {
+		int code = r < 0 ? PROTO_INTERNAL_ERROR : e->code;
+		proto_why_set(&c.why, "%s", r < 0 ? strerror(-r) : e->why.text);
+		line_answer(l, &c, code, NULL);
+	} else {
+		check_answer(k, e);
+	}
+}
+
+/*
+ * job.submit and job.estimate: the cheap refusals at once; the plan (its
+ * surface, its size against the limits, the feed-rate profile of its
+ * estimate) on a task's thread, the answer when it is done.
+ */
+static int check_plan(struct call *c, json_t *params, bool submit)
+{
+	const struct settings_limits *lim = c->rpc->limits;
+	const struct jobspec_limits jl = { .max_points = lim->max_plan_points,
+					   .max_point_terms = lim->max_plan_point_terms };
+	struct job_actor who = actor(c);
+	struct check *k = calloc(1, sizeof(*k));
+	struct estimate *e = NULL;
+	const struct peer *p = &c->s->peer;
+	int i, code, r;
+
+	if (!k)
+		return PROTO_INTERNAL_ERROR;
+	code = submission_from_params(c, params, submit ? jobs_check_submit
+						       : jobs_check_instrument, &k->sub);
+	if (code) {
+		check_free(k);
+		return code;
+	}
+	i = k->sub.instrument ? instruments_find(c->rpc->instruments, k->sub.instrument) : 0;
+	k->line = c->line;
+	k->submit = submit;
+	k->timeout_ms = lim->request_timeout_ms;
+	k->who = who;
+	k->who_name = strdup(who.name ? who.name : "");
+	k->who.name = k->who_name;
+	if (!k->who_name || check_keep(k, 0, &k->sub.instrument) || check_keep(k, 1, &k->sub.label) ||
+	    check_keep(k, 2, &k->sub.part) || check_keep(k, 3, &k->sub.lot) ||
+	    check_keep(k, 4, &k->sub.serial) ||
+	    estimate_new(params, &jl, i >= 0 && (size_t)i < instruments_count(c->rpc->instruments)
+			 ? instruments_get(c->rpc->instruments, (size_t)i)->config : NULL, &e) < 0) {
+		check_free(k);
+		return PROTO_INTERNAL_ERROR;
+	}
+	defer(c, k, check_free);
+	if (!c->rpc->tasks) {           /* no pool: at once */
+		check_done(e, estimate_run(e, NULL), k);
+		estimate_free(e);
+		return 0;
+	}
+	r = tasks_submit(c->rpc->tasks, &(struct task_spec){
+		.owner = c->s->owner, .privileged = is_operator(c),
+		/* root has no share of its own, as for connections */
+		.max_per_owner = !p->tcp && p->uid == 0 ? TASKS_MAX_WAITING : TASKS_PER_OWNER,
+		.deadline_usec = turns_now_usec() + (uint64_t)lim->request_timeout_ms * 1000,
+		.run = estimate_run, .done = check_done, .free = estimate_free,
+		.work = e, .data = k }, &c->line->task);
+	if (r == 0)
+		return 0;
+	c->deferred = false;            /* (the line frees k) */
+	if (r == -EDQUOT)
+		return fail(c, PROTO_LIMIT_REACHED, "%s has %d plans being checked or estimated: "
+			    "wait for their answers", c->s->owner, TASKS_PER_OWNER);
+	if (r == -EAGAIN)
+		return fail(c, PROTO_LIMIT_REACHED, "%d plans wait to be checked: try again in "
+			    "a moment", TASKS_MAX_WAITING);
+	return PROTO_INTERNAL_ERROR;
 }
 
 static int m_job_submit(struct call *c, json_t *params, json_t **result)
 {
-	struct job_submission sub = { 0 };
-	struct job_actor who = actor(c);
-	_cleanup_(json_decrefp) json_t *spec = NULL;
-	_cleanup_free_ char *text = NULL;
-	struct asph_error err;
-	struct job_record j;
-	uint64_t points = 0;
-	int code, r;
-
-	/* The cheap refusals (unknown instrument, full queue) come before the
-	 * plan is computed. */
-	code = submission_from_params(c, params, jobs_check_submit, &sub, &spec, &points);
-	if (code)
-		return code;
-	text = json_dumps(spec, JSON_COMPACT);
-	if (!text)
-		return PROTO_INTERNAL_ERROR;
-	sub.spec = text;
-	sub.points = (int64_t)points;
-	asph_error_clear(&err);
-	r = jobs_submit(c->rpc->jobs, &sub, &who, &j, &err);
-	if (r < 0)
-		return job_error(c, r, &err);
-	code = job_result(c, &j, result);
-	if (code == 0)
-		json_object_set_new(*result, "estimate_s", submit_estimate(c, &sub));
-	return code;
+	return check_plan(c, params, true);
 }
 
 /* What job.submit would predict for the same parameters, queuing nothing:
  * a full queue or a locked instrument does not stop a look ahead. */
 static int m_job_estimate(struct call *c, json_t *params, json_t **result)
 {
-	struct job_submission sub = { 0 };
-	_cleanup_(json_decrefp) json_t *spec = NULL;
-	_cleanup_free_ char *text = NULL;
-	uint64_t points = 0;
-	int code;
-
-	code = submission_from_params(c, params, jobs_check_instrument, &sub, &spec, &points);
-	if (code)
-		return code;
-	text = json_dumps(spec, JSON_COMPACT);
-	if (!text)
-		return PROTO_INTERNAL_ERROR;
-	sub.spec = text;
-	*result = json_pack("{s:o, s:I}", "estimate_s", submit_estimate(c, &sub),
-			    "points", (json_int_t)points);
-	return *result ? 0 : PROTO_INTERNAL_ERROR;
+	return check_plan(c, params, false);
 }
 
 static int history_entry(const struct store_event *e, void *data)
@@ -543,36 +739,20 @@ static int m_job_get(struct call *c, json_t *params, json_t **result)
 	return code;
 }
 
-struct list_ctx {
-	const struct jobs *jobs;
-	json_t *list;
-};
-
-static int list_entry(const struct job_record *j, void *data)
+/* The answer is result and the jobs f selects (NULL: the queue) as its
+ * "jobs", a step at a time (rpc_line_step()). */
+static int list_jobs(struct call *c, const struct store_filter *f, json_t *result,
+		     json_t **out)
 {
-	struct list_ctx *l = data;
+	struct listing *ls = calloc(1, sizeof(*ls));
 
-	return json_array_append_new(l->list, jobs_job_to_json(l->jobs, j)) < 0 ? -ENOMEM : 0;
-}
-
-/* The jobs f selects (NULL: the queue), as a JSON array in *list. */
-static int list_jobs(struct call *c, const struct store_filter *f, json_t **list,
-		     int64_t *total)
-{
-	struct list_ctx l = { .jobs = c->rpc->jobs, .list = json_array() };
-	struct asph_error err;
-	int r;
-
-	if (!l.list)
-		return PROTO_INTERNAL_ERROR;
-	asph_error_clear(&err);
-	r = f ? jobs_list(c->rpc->jobs, f, list_entry, &l, total, &err)
-	      : jobs_list_queue(c->rpc->jobs, list_entry, &l, &err);
-	if (r < 0) {
-		json_decref(l.list);
-		return job_error(c, r, &err);
+	if (!ls || !result || jobs_cursor_new(c->rpc->jobs, f, &ls->cursor) < 0) {
+		free(ls);
+		json_decref(result);
+		return fail(c, PROTO_INTERNAL_ERROR, "out of memory");
 	}
-	*list = l.list;
+	c->listing = ls;
+	*out = result;
 	return 0;
 }
 
@@ -585,10 +765,10 @@ static int m_job_list(struct call *c, json_t *params, json_t **result)
 	static const char *const names[] = { "states", "instrument", "label", "uid", "mine",
 					     "part", "lot", "serial", "offset", "limit", NULL };
 	struct store_filter f = { .uid = STORE_ANY_UID, .limit = 100 };
-	json_t *list;
+	struct asph_error err;
 	bool mine = false;
 	int64_t total = 0;
-	int code = only(c, params, names);
+	int code = only(c, params, names), r;
 
 	if (code)
 		return code;
@@ -610,12 +790,13 @@ static int m_job_list(struct call *c, json_t *params, json_t **result)
 		if (c->s->peer.tcp)
 			f.user = who.name;
 	}
-	code = list_jobs(c, &f, &list, &total);
-	if (code)
-		return code;
-	*result = json_pack("{s:o, s:I, s:I, s:I}", "jobs", list, "total", (json_int_t)total,
-			    "offset", (json_int_t)f.offset, "limit", (json_int_t)f.limit);
-	return 0;
+	asph_error_clear(&err);
+	r = jobs_count(c->rpc->jobs, &f, &total, &err);
+	if (r < 0)
+		return job_error(c, r, &err);
+	return list_jobs(c, &f, json_pack("{s:I, s:I, s:I}", "total", (json_int_t)total,
+					  "offset", (json_int_t)f.offset, "limit",
+					  (json_int_t)f.limit), result);
 }
 
 static int m_job_cancel(struct call *c, json_t *params, json_t **result)
@@ -817,14 +998,8 @@ static int m_backup_file(struct call *c, json_t *params, json_t **result)
 
 static int queue_json(struct call *c, json_t **result)
 {
-	json_t *list;
-	int code = list_jobs(c, NULL, &list, NULL);
-
-	if (code)
-		return code;
-	*result = json_pack("{s:b, s:o}", "running", jobs_queue_running(c->rpc->jobs),
-			    "jobs", list);
-	return 0;
+	return list_jobs(c, NULL, json_pack("{s:b}", "running", jobs_queue_running(c->rpc->jobs)),
+			 result);
 }
 
 static int m_queue_get(struct call *c, json_t *params, json_t **result)
@@ -1072,7 +1247,8 @@ static int m_events_subscribe(struct call *c, json_t *params, json_t **result)
 	const struct settings_limits *l = c->rpc->limits;
 	const struct peer *p = &c->s->peer;
 	struct event_quota q = {
-		.owner = p->key, .operator = is_operator(c), .max = l->max_subscriptions,
+		/* a user's from whichever address and listener (rpc.h) */
+		.owner = c->s->owner, .operator = is_operator(c), .max = l->max_subscriptions,
 		/* root has no quota of its own, as for connections */
 		.per_owner = !p->tcp && p->uid == 0 ? l->max_subscriptions
 						    : l->max_subscriptions_per_user,
@@ -1223,65 +1399,15 @@ static int dispatch(struct call *c, const struct proto_message *m, json_t **resu
 	if (json_is_array(params))
 		params = NULL;
 	code = meth->fn(c, params, result);
-	if (!code && !*result)
+	if (!code && !*result && !c->deferred)
 		code = fail(c, PROTO_INTERNAL_ERROR, "out of memory");
 	return code;
 }
 
-/* One request or notification (an element of a batch, or a line). */
-static json_t *handle(struct rpc *rpc, struct rpc_session *s, json_t *msg)
-{
-	struct call c = { .rpc = rpc, .s = s };
-	struct proto_message m;
-	json_t *result = NULL, *data;
-	int code;
-
-	code = proto_check_request(msg, &m, &c.why);
-	if (code) {
-		if (m.unknown)
-			fail(&c, code, "unknown member \"%.64s\" in request", m.unknown);
-		return proto_make_error(m.id, code, NULL, json_pack("{s:s}", "detail", c.why.text));
-	}
-	code = dispatch(&c, &m, &result);
-	if (m.kind == PROTO_KIND_NOTIFICATION || !code) {
-		json_decref(c.data);
-		c.data = NULL;
-	}
-	if (m.kind == PROTO_KIND_NOTIFICATION) {
-		json_decref(result);
-		return NULL;
-	}
-	if (!code)
-		return proto_make_result(m.id, result);
-	json_decref(result);
-	data = c.data ? c.data : json_object();
-	/* A name cut at 64 bytes may end inside a character. */
-	proto_utf8_clean(c.why.text);
-	if (c.why.text[0])
-		json_object_set_new(data, "detail", json_string(c.why.text));
-	return proto_make_error(m.id, code, NULL, data);
-}
-
-static json_t *error_reply(int code, const char *detail)
-{
-	return proto_make_error(NULL, code, NULL, json_pack("{s:s}", "detail", detail));
-}
-
 /* ------------------------------------------------------------ lines */
 
-struct rpc_line {
-	struct rpc *rpc;
-	struct rpc_session *s;
-	json_t *msg;            /* the request, the batch, or an error answer */
-	bool batch;
-	bool parsed;            /* msg is a request or batch to answer */
-	size_t next;            /* the batch element answered next */
-	size_t written;         /* bytes of answer so far */
-	bool opened;            /* a batch's "[" is out */
-};
-
 struct line_writer {
-	rpc_write_fn write;
+	rpc_write_fn write;     /* NULL: counted only (a notification's) */
 	void *data;
 	size_t *written;
 	int failed;
@@ -1289,7 +1415,7 @@ struct line_writer {
 
 static int put(struct line_writer *w, const char *text, size_t len)
 {
-	if (w->failed || w->write(text, len, w->data) < 0) {
+	if (w->failed || (w->write && w->write(text, len, w->data) < 0)) {
 		w->failed = -ECONNRESET;
 		return -1;
 	}
@@ -1300,6 +1426,239 @@ static int put(struct line_writer *w, const char *text, size_t len)
 static int put_json(const char *buf, size_t size, void *data)
 {
 	return put(data, buf, size);
+}
+
+/* The answer to a request once its method has run: its result, or the
+ * error code with c's detail and data. */
+static json_t *answer_of(struct call *c, json_t *id, int code, json_t *result)
+{
+	json_t *data;
+
+	if (!code) {
+		json_decref(c->data);
+		c->data = NULL;
+		return proto_make_result(id, result);
+	}
+	json_decref(result);
+	data = c->data ? c->data : json_object();
+	c->data = NULL;
+	/* A name cut at 64 bytes may end inside a character. */
+	proto_utf8_clean(c->why.text);
+	if (c->why.text[0])
+		json_object_set_new(data, "detail", json_string(c->why.text));
+	return proto_make_error(id, code, NULL, data);
+}
+
+/*
+ * The answer to a request, or NULL for a notification: its answer is
+ * made as a request's would be and only counted in the line's bytes, so
+ * that notifications spend limits.max_response_bytes as requests do.
+ */
+static json_t *make_reply(struct call *c, json_t *id, bool notification, int code,
+			  json_t *result)
+{
+	json_t *reply = answer_of(c, notification ? json_null() : id, code, result);
+
+	if (!notification)
+		return reply;
+	if (c->line && reply)
+		c->line->written += json_dumpb(reply, NULL, 0, JSON_COMPACT);
+	json_decref(reply);
+	return NULL;
+}
+
+static void listing_free(struct listing *ls)
+{
+	if (!ls)
+		return;
+	jobs_cursor_free(ls->cursor);
+	free(ls->head);
+	free(ls);
+}
+
+/*
+ * A listing's answer starts: the response with result (which must not
+ * hold member) dumped, its closing "}}" taken off, and member's array
+ * opened. 0, or -ENOMEM.
+ */
+static int listing_open(struct listing *ls, json_t *id, json_t *result, const char *member)
+{
+	_cleanup_(json_decrefp) json_t *r = proto_make_result(id, result);
+	_cleanup_free_ char *text = r ? json_dumps(r, JSON_COMPACT) : NULL;
+	size_t n = text ? strlen(text) : 0;
+
+	/* A compact response ends with the result's "}" and its own. */
+	if (n < 4 || strcmp(text + n - 2, "}}"))
+		return -ENOMEM;
+	text[n - 2] = '\0';
+	if (asprintf(&ls->head, "%s%s\"%s\":[", text, text[n - 3] == '{' ? "" : ",", member) < 0) {
+		ls->head = NULL;
+		return -ENOMEM;
+	}
+	return 0;
+}
+
+/* Makes ls from a method's call: the answer to the element of l. */
+static void start_listing(struct rpc_line *l, struct call *c, json_t *id, bool notification,
+			  json_t *result)
+{
+	struct listing *ls = steal_ptr(c->listing);
+
+	if (listing_open(ls, id, result, "jobs") < 0) {
+		listing_free(ls);
+		l->reply = make_reply(c, id, notification, fail(c, PROTO_INTERNAL_ERROR,
+							      "out of memory"), NULL);
+		l->state = ELEMENT_READY;
+		return;
+	}
+	l->listing = ls;
+	l->state = ELEMENT_LISTING;
+}
+
+struct listing_writer {
+	const struct jobs *jobs;
+	struct line_writer *w;
+	struct listing *ls;
+};
+
+static int listing_item(const struct job_record *j, void *data)
+{
+	struct listing_writer *lw = data;
+	_cleanup_(json_decrefp) json_t *v = jobs_job_to_json(lw->jobs, j);
+
+	if (!v || (lw->ls->items++ && put(lw->w, ",", 1) < 0) ||
+	    json_dump_callback(v, put_json, lw->w, JSON_COMPACT) < 0)
+		return lw->w->failed ? lw->w->failed : -ENOMEM;
+	return 0;
+}
+
+/* One step of l's listing: 1 while jobs remain, 0 once its answer is
+ * complete. An error of the store ends the array where it is (the answer
+ * stays JSON), and is logged. */
+static int listing_step(struct rpc_line *l, struct line_writer *w)
+{
+	struct listing *ls = l->listing;
+	struct listing_writer lw = { .jobs = l->rpc->jobs, .w = w, .ls = ls };
+	struct asph_error err;
+	int r;
+
+	if (!ls->head_out) {
+		put(w, ls->head, strlen(ls->head));
+		ls->head_out = true;
+	}
+	asph_error_clear(&err);
+	uint64_t start = turns_now_usec();
+	do
+		r = w->failed ? 0 : jobs_cursor_next(ls->cursor, LIST_READ, listing_item, &lw, &err);
+	while (r > 0 && turns_now_usec() - start < LIST_STEP_USEC);
+	if (r > 0)
+		return 1;
+	if (r < 0 && !w->failed)
+		log_error("a listing of jobs ends early: %s", err.message);
+	put(w, "]}}", 3);
+	return 0;
+}
+
+/* What the element of l kept while it waited goes (a task still running
+ * is cancelled). */
+static void wait_end(struct rpc_line *l)
+{
+	if (l->task)
+		tasks_cancel(l->rpc->tasks, l->task);
+	l->task = NULL;
+	l->delay = sd_event_source_disable_unref(l->delay);
+	if (l->pending_free)
+		l->pending_free(l->pending);
+	l->pending = NULL;
+	l->pending_free = NULL;
+}
+
+/* The element of l that waited is answered: code and c's detail, or result. */
+static void line_answer(struct rpc_line *l, struct call *c, int code, json_t *result)
+{
+	l->task = NULL;         /* (its task is done: this is its answer) */
+	wait_end(l);
+	l->reply = make_reply(c, l->id, l->notification, code, result);
+	l->state = ELEMENT_READY;
+	if (l->ready)
+		l->ready(l->ready_data);
+}
+
+/* The call's element waits for pending (what its method keeps, freed with
+ * free_fn when the element ends or the line is freed). */
+static void defer(struct call *c, void *pending, void (*free_fn)(void *pending))
+{
+	c->deferred = true;
+	c->line->pending = pending;
+	c->line->pending_free = free_fn;
+}
+
+/* An answer given only after wait: the call's error, code. */
+static int on_delay(sd_event_source *s, uint64_t usec, void *data)
+{
+	struct rpc_line *l = data;
+	struct call c = { .rpc = l->rpc, .s = l->s, .line = l };
+
+	proto_why_set(&c.why, "%s", (const char *)l->pending);
+	line_answer(l, &c, PROTO_PERMISSION_DENIED, NULL);
+	return 0;
+}
+
+static int defer_answer(struct call *c, int code, uint64_t wait)
+{
+	struct rpc_line *l = c->line;
+	char *why;
+
+	/* Without a transport that waits (rpc_handle_line()), at once. */
+	if (!l || !l->ready || code != PROTO_PERMISSION_DENIED || !(why = strdup(c->why.text)))
+		return code;
+	if (sd_event_add_time_relative(c->rpc->event, &l->delay, CLOCK_MONOTONIC, wait, 0,
+				       on_delay, l) < 0) {
+		free(why);
+		return code;
+	}
+	defer(c, why, free);
+	return 0;
+}
+
+/* Starts the element msg of l: an answer in *reply now (NULL for a
+ * notification), or one that comes later (l->state). */
+static void start_element(struct rpc_line *l, json_t *msg, json_t **reply)
+{
+	struct call c = { .rpc = l->rpc, .s = l->s, .line = l };
+	struct proto_message m;
+	json_t *result = NULL;
+	bool notification;
+	int code;
+
+	code = proto_check_request(msg, &m, &c.why);
+	if (code) {
+		if (m.unknown)
+			fail(&c, code, "unknown member \"%.64s\" in request", m.unknown);
+		*reply = proto_make_error(m.id, code, NULL, json_pack("{s:s}", "detail",
+								       c.why.text));
+		return;
+	}
+	notification = m.kind == PROTO_KIND_NOTIFICATION;
+	/* (an answer computed at once, without a pool, needs them in dispatch) */
+	l->id = json_incref(m.id);
+	l->notification = notification;
+	code = dispatch(&c, &m, &result);
+	if (!code && (c.deferred || c.listing)) {
+		if (c.listing) {
+			start_listing(l, &c, m.id, notification, result);
+		} else if (l->state != ELEMENT_READY) {
+			/* (answered at once when there is no pool: still READY) */
+			l->state = ELEMENT_WAITING;
+		}
+		return;
+	}
+	*reply = make_reply(&c, m.id, notification, code, result);
+}
+
+static json_t *error_reply(int code, const char *detail)
+{
+	return proto_make_error(NULL, code, NULL, json_pack("{s:s}", "detail", detail));
 }
 
 int rpc_line_new(struct rpc *rpc, struct rpc_session *s, const char *text, size_t len,
@@ -1335,10 +1694,30 @@ int rpc_line_new(struct rpc *rpc, struct rpc_session *s, const char *text, size_
 	return 0;
 }
 
+void rpc_line_on_ready(struct rpc_line *l, void (*ready)(void *data), void *data)
+{
+	l->ready = ready;
+	l->ready_data = data;
+}
+
+/* The element is done with: what it kept goes. */
+static void element_end(struct rpc_line *l)
+{
+	wait_end(l);
+	json_decref(l->reply);
+	l->reply = NULL;
+	json_decref(l->id);
+	l->id = NULL;
+	listing_free(l->listing);
+	l->listing = NULL;
+	l->state = ELEMENT_NEXT;
+}
+
 void rpc_line_free(struct rpc_line *l)
 {
 	if (!l)
 		return;
+	element_end(l);
 	json_decref(l->msg);
 	free(l);
 }
@@ -1362,35 +1741,77 @@ static json_t *over_budget(const struct rpc_line *l, json_t *msg)
 				json_pack("{s:s}", "detail", why.text));
 }
 
+/* Writes one answer of the line (its separator first). */
+static void emit(struct rpc_line *l, struct line_writer *w, const json_t *reply)
+{
+	if (l->batch)
+		put(w, l->opened ? "," : "[", 1);
+	l->opened = true;
+	if (json_dump_callback(reply, put_json, w, JSON_COMPACT) < 0 && !w->failed)
+		w->failed = -ENOMEM;
+}
+
+/* The element now answered: 1 when it is, 0 when it goes on. */
+static int element_step(struct rpc_line *l, struct line_writer *w, json_t *msg)
+{
+	_cleanup_(json_decrefp) json_t *reply = NULL;
+	struct line_writer counted = *w;
+
+	switch (l->state) {
+	case ELEMENT_NEXT:
+		if (!l->parsed)
+			reply = json_incref(l->msg);
+		else if (l->written > l->rpc->limits->max_response_bytes)
+			reply = over_budget(l, msg);
+		else
+			start_element(l, msg, &reply);
+		if (l->state == ELEMENT_NEXT) {
+			if (reply)
+				emit(l, w, reply);
+			return 1;
+		}
+		/* A listing's first slice, or an answer the method had at once,
+		 * goes out in this step too. */
+		return l->state == ELEMENT_WAITING ? 0 : element_step(l, w, msg);
+	case ELEMENT_WAITING:
+		return 0;
+	case ELEMENT_READY:
+		if (l->reply)
+			emit(l, w, l->reply);
+		return 1;
+	case ELEMENT_LISTING:
+		counted.write = NULL;
+		if (!l->notification && !l->listing->head_out) {
+			if (l->batch)
+				put(w, l->opened ? "," : "[", 1);
+			l->opened = true;
+		}
+		return listing_step(l, l->notification ? &counted : w) > 0 ? 0 : 1;
+	}
+	return 1;
+}
+
 int rpc_line_step(struct rpc_line *l, rpc_write_fn write, void *data)
 {
 	struct line_writer w = { .write = write, .data = data, .written = &l->written };
 	size_t n = l->batch ? json_array_size(l->msg) : 1;
 	json_t *msg = l->batch ? json_array_get(l->msg, l->next) : l->msg;
-	_cleanup_(json_decrefp) json_t *reply = NULL;
 	bool last;
 
 	if (l->next >= n)
-		return 0;
-	if (!l->parsed)
-		reply = json_incref(l->msg);
-	else if (l->written > l->rpc->limits->max_response_bytes)
-		reply = over_budget(l, msg);
-	else
-		reply = handle(l->rpc, l->s, msg);
-	last = ++l->next == n;
-	if (reply) {
-		if (l->batch)
-			put(&w, l->opened ? "," : "[", 1);
-		l->opened = true;
-		if (json_dump_callback(reply, put_json, &w, JSON_COMPACT) < 0 && !w.failed)
-			w.failed = -ENOMEM;
+		return RPC_LINE_DONE;
+	if (!element_step(l, &w, msg)) {
+		if (w.failed)
+			return w.failed;
+		return l->state == ELEMENT_WAITING ? RPC_LINE_WAITING : RPC_LINE_MORE;
 	}
+	element_end(l);
+	last = ++l->next == n;
 	if (last && l->opened)
 		put(&w, l->batch ? "]\n" : "\n", l->batch ? 2 : 1);
 	if (w.failed)
 		return w.failed;
-	return last ? 0 : 1;
+	return last ? RPC_LINE_DONE : RPC_LINE_MORE;
 }
 
 bool rpc_line_open(const struct rpc_line *l)
@@ -1435,10 +1856,10 @@ json_t *rpc_handle_line(struct rpc *rpc, struct rpc_session *s, const char *line
 
 	if (rpc_line_new(rpc, s, line, len, &l) < 0)
 		return NULL;
-	while ((r = rpc_line_step(l, collect, &c)) > 0)
+	while ((r = rpc_line_step(l, collect, &c)) == RPC_LINE_MORE)
 		;
 	rpc_line_free(l);
-	if (r == 0 && c.text)
+	if (r == RPC_LINE_DONE && c.text)
 		reply = json_loadb(c.text, c.len, 0, NULL);
 	free(c.text);
 	return reply;

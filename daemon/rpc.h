@@ -34,11 +34,16 @@
 #include "jobs.h"
 #include "monitor.h"
 #include "settings.h"
+#include "tasks.h"
 
 struct rpc_session {
 	struct peer peer;               /* the transport fills it */
 	bool authenticated;             /* unix peers at once; TCP after hello */
 	struct access_grant grant;      /* rpc.c's: what a TCP peer proved */
+	/* rpc.c's: whose share of subscriptions and computations it takes:
+	 * the peer's key, or once a named token is proved "token NAME" (a
+	 * user's, from whichever address and listener). */
+	char owner[RATELIMIT_KEY_MAX];
 	struct event_subscription events;
 	bool open;                      /* rpc.c's */
 };
@@ -51,6 +56,9 @@ struct rpc_setup {
 	struct events *events;
 	const struct access *access;
 	struct tokens *tokens;                  /* the named API tokens */
+	/* Where plans are checked and estimated (job.submit, job.estimate);
+	 * NULL: at once, in the call (tests, the fuzz target). */
+	struct tasks *tasks;
 	struct backups *backups;                /* copies of the job store */
 	struct monitor *monitor;                /* the health (daemon.health) */
 	const struct settings_limits *limits;   /* read at each use: may change */
@@ -74,11 +82,14 @@ bool rpc_peer_operator(const struct rpc *rpc, const struct peer *p);
 /*
  * A token presented by s's peer (where: "hello", "/metrics", for the
  * log): s->grant filled, 0; or PROTO_PERMISSION_DENIED with why (wrong,
- * expired, revoked, or too many wrong ones from the peer's key, which the
- * hello's rate limit counts). A success is not logged here.
+ * expired, revoked). A wrong one is counted against the peer's key and the
+ * prefix it claimed, and *wait_usec says how long the answer should wait
+ * (0: none): past a burst of 5, until the next try is earned, so that a
+ * guesser goes no faster while a right token is never held back. A
+ * success is not logged here.
  */
 int rpc_check_token(struct rpc *rpc, struct rpc_session *s, const char *token,
-		    const char *where, struct proto_why *why);
+		    const char *where, struct proto_why *why, uint64_t *wait_usec);
 /* Whether s still stands after a reload: false for a TCP session whose
  * token was changed or removed, which the transport then ends. */
 bool rpc_session_valid(const struct rpc *rpc, const struct rpc_session *s);
@@ -93,29 +104,45 @@ typedef int (*rpc_write_fn)(const char *text, size_t len, void *data);
 
 /*
  * One line being answered: a request, a notification or a batch. A batch
- * is answered one request per rpc_line_step(), so that the transport can
- * serve other connections between two requests and send each answer as
- * it comes instead of building the whole array in memory. Once a line's
- * answers have passed limits.max_response_bytes, each further request of
- * it is answered -32004 without being carried out.
+ * is answered a step at a time (rpc_line_step()), so that the transport
+ * can serve other connections between two steps and send each answer as
+ * it comes instead of building the whole array in memory. A step is one
+ * request, or a slice of a long answer (a listing of jobs, about a
+ * millisecond of them), or nothing while a computation runs on a task's
+ * thread (the line then waits: its ready function is called when it can
+ * go on).
+ * A notification is carried out as a request is, and its answer, which
+ * is not sent, counts as if it were. Once a line's answers have passed
+ * limits.max_response_bytes, each further request of it is answered -32004
+ * (a notification dropped) without being carried out.
  */
 struct rpc_line;
+
+/* What rpc_line_step() returns besides errors. */
+enum {
+	RPC_LINE_DONE = 0,      /* answered in full */
+	RPC_LINE_MORE = 1,      /* step again */
+	RPC_LINE_WAITING = 2,   /* a computation runs: step again once ready() is called */
+};
 
 /* Takes a line (without its "\n"; it is parsed here and not kept) of s,
  * which must outlive the line. 0 or -ENOMEM. */
 int rpc_line_new(struct rpc *rpc, struct rpc_session *s, const char *text, size_t len,
 		 struct rpc_line **out);
-/* Answers the next request of l through write: 1 while requests remain, 0
- * when the line is answered, -ECONNRESET when write refused, -ENOMEM. */
+/* Who is told (ready(data), on the loop) when a waiting line can go on. */
+void rpc_line_on_ready(struct rpc_line *l, void (*ready)(void *data), void *data);
+/* Answers the next step of l through write: RPC_LINE_MORE, RPC_LINE_DONE,
+ * RPC_LINE_WAITING, -ECONNRESET when write refused, -ENOMEM. */
 int rpc_line_step(struct rpc_line *l, rpc_write_fn write, void *data);
 /* Whether part of l's answer line is out and the rest is not: nothing
  * else may be written to the connection until it is. */
 bool rpc_line_open(const struct rpc_line *l);
+/* Frees l; a computation it waits for is cancelled. */
 void rpc_line_free(struct rpc_line *l);
 
 /* The whole answer to one line at once (every step), as JSON, or NULL when
  * nothing is due: what the transport would send, for tests and the fuzz
- * target. */
+ * target (whose rpc has no tasks: nothing waits). */
 json_t *rpc_handle_line(struct rpc *rpc, struct rpc_session *s, const char *line, size_t len);
 
 #endif

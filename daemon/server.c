@@ -1,11 +1,12 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
  * Event loop thread. Non-blocking sockets, one JSON text per line in; the
- * lines are answered by one deferred source ("work") that takes the
- * clients with requests waiting in turn, first come first served, a slice
- * of a few milliseconds each, so that one batch cannot hold the loop (or
- * the watchdog) for longer than one request and every connection is
- * served between two of its requests.
+ * lines are answered in turns (turns.h) that the web listener's requests
+ * share: the clients with requests waiting, first come first served, a
+ * slice of a few milliseconds each, so that one batch cannot hold the loop
+ * (or the watchdog) for longer than one step and every connection is
+ * served between two of another's. A line whose request waits for a
+ * computation (tasks.h) leaves the turns until it is ready.
  */
 #include <arpa/inet.h>
 #include <errno.h>
@@ -28,6 +29,7 @@
 #include "log.h"
 #include "ratelimit.h"
 #include "server.h"
+#include "turns.h"
 #include "util-mem.h"
 
 #define READ_CHUNK 65536
@@ -36,10 +38,6 @@
 #define READ_BUDGET (256 * 1024)
 /* TCP addresses listened on at once (a host name may have several). */
 #define MAX_TCP_LISTENERS 16
-/* One turn of a client's work: requests answered until this much time has
- * passed (the one that passes it is finished), at most this many. */
-#define WORK_SLICE_USEC 2000
-#define WORK_SLICE_REQUESTS 64
 /* An output buffer this large is given back once it has drained, and the
  * heap trimmed, so that a spike does not stay in the daemon's RSS. */
 #define OUT_KEEP_BYTES (256 * 1024)
@@ -57,8 +55,8 @@ struct client {
 	bool tcp;
 	sd_event_source *io;
 	sd_event_source *timer;         /* the nearest of client_deadline() */
-	struct client *turn_next, *turn_prev;   /* waiting for its turn */
-	bool in_turn;
+	struct turn turn;               /* its requests wait for their turn */
+	bool waiting;                   /* its line waits for a computation */
 	struct proto_lines in;
 	bool have_lines;                /* input not yet cut into lines */
 	struct rpc_line *line;          /* being answered */
@@ -95,10 +93,7 @@ struct server {
 	struct client *clients;
 	struct client *dead;            /* dropped, freed by the reaper */
 	sd_event_source *reaper;
-	/* The clients whose requests wait, in the order they came: work
-	 * answers the first for one slice, then puts it last if it has more. */
-	struct client *turns, *turns_last;
-	sd_event_source *work;
+	struct turns *turns;
 	uint64_t next_serial;
 	bool refusing;
 	/* EMFILE: a descriptor kept to be given up, the pause, its log. */
@@ -110,7 +105,7 @@ struct server {
 
 static int reap(sd_event_source *s, void *data);
 static int accept_resume(sd_event_source *s, uint64_t usec, void *data);
-static int work(sd_event_source *s, void *data);
+static void keep_reserve(struct server *srv);
 
 static uint64_t now_usec(const struct server *srv)
 {
@@ -118,15 +113,6 @@ static uint64_t now_usec(const struct server *srv)
 
 	sd_event_now(srv->event, CLOCK_MONOTONIC, &now);
 	return now;
-}
-
-/* The time now, not the loop's time of its last wake-up. */
-static uint64_t monotonic_usec(void)
-{
-	struct timespec ts;
-
-	clock_gettime(CLOCK_MONOTONIC, &ts);
-	return (uint64_t)ts.tv_sec * 1000000u + (uint64_t)ts.tv_nsec / 1000u;
 }
 
 int server_new(const struct server_setup *setup, struct server **out)
@@ -139,12 +125,11 @@ int server_new(const struct server_setup *setup, struct server **out)
 	srv->event = setup->event;
 	srv->rpc = setup->rpc;
 	srv->limits = setup->limits;
+	srv->turns = setup->turns;
 	srv->reserve_fd = open("/dev/null", O_RDONLY | O_CLOEXEC);
 	r = ratelimit_new(1, 10 * 1000000ull, 16, &srv->log_limit);
 	if (r == 0)
 		r = sd_event_add_defer(srv->event, &srv->reaper, reap, srv);
-	if (r == 0)
-		r = sd_event_add_defer(srv->event, &srv->work, work, srv);
 	if (r == 0)
 		r = sd_event_add_time(srv->event, &srv->accept_timer, CLOCK_MONOTONIC, UINT64_MAX,
 				      0, accept_resume, srv);
@@ -154,9 +139,6 @@ int server_new(const struct server_setup *setup, struct server **out)
 	}
 	sd_event_source_set_enabled(srv->reaper, SD_EVENT_OFF);
 	sd_event_source_set_enabled(srv->accept_timer, SD_EVENT_OFF);
-	/* Below the sockets: bytes in and out first, then the requests. */
-	sd_event_source_set_priority(srv->work, SD_EVENT_PRIORITY_NORMAL + 1);
-	sd_event_source_set_enabled(srv->work, SD_EVENT_OFF);
 	*out = srv;
 	return 0;
 }
@@ -179,37 +161,13 @@ static void client_unlink(struct client *c)
 /* c waits for its turn (nothing when it waits already). */
 static void turn_queue(struct client *c)
 {
-	struct server *srv = c->srv;
-
-	if (c->in_turn)
-		return;
-	c->in_turn = true;
-	c->turn_next = NULL;
-	c->turn_prev = srv->turns_last;
-	if (srv->turns_last)
-		srv->turns_last->turn_next = c;
-	else
-		srv->turns = c;
-	srv->turns_last = c;
-	sd_event_source_set_enabled(srv->work, SD_EVENT_ONESHOT);
+	/* A line not yet begun is fresh (turns.h). */
+	turns_queue(c->srv->turns, &c->turn, !c->line);
 }
 
 static void turn_remove(struct client *c)
 {
-	struct server *srv = c->srv;
-
-	if (!c->in_turn)
-		return;
-	if (c->turn_prev)
-		c->turn_prev->turn_next = c->turn_next;
-	else
-		srv->turns = c->turn_next;
-	if (c->turn_next)
-		c->turn_next->turn_prev = c->turn_prev;
-	else
-		srv->turns_last = c->turn_prev;
-	c->turn_next = c->turn_prev = NULL;
-	c->in_turn = false;
+	turns_remove(c->srv->turns, &c->turn);
 }
 
 static void client_free(struct client *c)
@@ -246,6 +204,7 @@ static int reap(sd_event_source *s, void *data)
 
 	free_list(srv->dead);
 	srv->dead = NULL;
+	keep_reserve(srv);
 	return 0;
 }
 
@@ -288,7 +247,8 @@ static bool output_blocked(const struct client *c)
 
 static bool work_pending(const struct client *c)
 {
-	return !c->closing && (c->line || c->have_lines || (c->eof && c->partial_usec));
+	return !c->closing && !c->waiting &&
+	       (c->line || c->have_lines || (c->eof && c->partial_usec));
 }
 
 /* ------------------------------------------------------------ timers */
@@ -355,7 +315,8 @@ static void arm_timer(struct client *c)
 /* ------------------------------------------------------------ output */
 
 static void update_events(struct client *c);
-static void client_turn(struct client *c);
+static void client_turn(void *data);
+static void line_ready(void *data);
 
 static int flush_output(struct client *c)
 {
@@ -540,11 +501,15 @@ static void update_events(struct client *c)
 		ev |= EPOLLIN;
 	if (c->out_len > c->out_off)
 		ev |= EPOLLOUT;
-	if (!ev && !work_pending(c)) {
+	if (!ev && !work_pending(c) && !c->waiting) {
 		/* Nothing more to read, answer or write. */
 		client_drop(c, c->closing ? "closed" : "end of input");
 		return;
 	}
+	/* A client whose request is computed is not read, but its hang-up
+	 * is heard, which cancels the computation. */
+	if (!ev && c->waiting)
+		ev = EPOLLHUP;
 	sd_event_source_set_io_events(c->io, ev ? ev : EPOLLOUT);
 	sd_event_source_set_enabled(c->io, ev ? SD_EVENT_ON : SD_EVENT_OFF);
 	if (work_pending(c) && !output_blocked(c))
@@ -574,10 +539,14 @@ static int take_line(struct client *c)
 		return 0;
 	}
 	c->request_usec = now_usec(c->srv);
+	/* A whole line came: what follows it is waited for from when the
+	 * daemon next reads, not while it answers this one. */
+	c->partial_usec = 0;
 	if (rpc_line_new(c->srv->rpc, &c->session, line, len, &c->line) < 0) {
 		client_drop(c, "out of memory");
 		return 0;
 	}
+	rpc_line_on_ready(c->line, line_ready, c);
 	return 1;
 }
 
@@ -592,17 +561,31 @@ static void end_of_input(struct client *c)
 	c->partial_usec = 0;
 }
 
-/* One turn: the requests of c's lines, for about WORK_SLICE_USEC. */
-static void client_turn(struct client *c)
+/* A computation that c's line waited for is done: its turn again. */
+static void line_ready(void *data)
 {
-	uint64_t start = monotonic_usec();
+	struct client *c = data;
+
+	c->waiting = false;
+	update_events(c);
+}
+
+/* One turn (turns.h): the requests of c's lines, for about TURN_SLICE_USEC. */
+static void client_turn(void *data)
+{
+	struct client *c = data;
+	uint64_t start = turns_now_usec();
 	int n = 0, r;
 
-	while (!client_dead(c) && !c->closing && !output_blocked(c) &&
-	       n < WORK_SLICE_REQUESTS) {
+	while (!client_dead(c) && !c->closing && !c->waiting && !output_blocked(c) &&
+	       n < TURN_SLICE_STEPS) {
 		if (!c->line && (!c->have_lines || !take_line(c)))
 			break;
 		r = rpc_line_step(c->line, out_answer, c);
+		if (r == RPC_LINE_WAITING) {
+			c->waiting = true;
+			break;
+		}
 		if (r <= 0) {
 			rpc_line_free(c->line);
 			c->line = NULL;
@@ -613,7 +596,7 @@ static void client_turn(struct client *c)
 			return;
 		}
 		n++;
-		if (monotonic_usec() - start > WORK_SLICE_USEC)
+		if (turns_now_usec() - start > TURN_SLICE_USEC)
 			break;
 	}
 	if (client_dead(c))
@@ -622,22 +605,6 @@ static void client_turn(struct client *c)
 		end_of_input(c);
 	if (!client_dead(c))
 		flush_output(c);
-}
-
-/* The first client waiting gets its turn; it waits again, last, when it
- * has more (flush_output() queues it through update_events()). */
-static int work(sd_event_source *s, void *data)
-{
-	struct server *srv = data;
-	struct client *c = srv->turns;
-
-	if (c) {
-		turn_remove(c);
-		client_turn(c);
-	}
-	if (srv->turns)
-		sd_event_source_set_enabled(srv->work, SD_EVENT_ONESHOT);
-	return 0;
 }
 
 static void read_input(struct client *c)
@@ -677,8 +644,8 @@ static void read_input(struct client *c)
 	if (c->eof && !c->have_lines && !c->line && proto_lines_pending(&c->in) > 0)
 		c->partial_usec = c->partial_usec ? c->partial_usec : now_usec(c->srv);
 	/* Nobody waits for a turn: this one is taken now (a turn is the
-	 * same whether it starts here or from work()). */
-	if (!c->srv->turns && work_pending(c) && !output_blocked(c)) {
+	 * same whether it starts here or from the turns' source). */
+	if (!turns_waiting(c->srv->turns) && work_pending(c) && !output_blocked(c)) {
 		client_turn(c);
 		return;
 	}
@@ -689,6 +656,10 @@ static int client_io(sd_event_source *s, int fd, uint32_t revents, void *data)
 {
 	struct client *c = data;
 
+	if (c->waiting && (revents & (EPOLLHUP | EPOLLERR))) {
+		client_drop(c, "hung up while its request was computed");
+		return 0;
+	}
 	if (revents & EPOLLOUT)
 		flush_output(c);
 	if (!client_dead(c) && (revents & (EPOLLIN | EPOLLHUP | EPOLLERR)) &&
@@ -848,25 +819,59 @@ static size_t connections_of(const struct server *srv, const char *key)
 	return n;
 }
 
-/* Why p may not connect now (into why), or false when it may. */
-static bool refused(const struct server *srv, const struct peer *p, char *why, size_t size)
+/* The TCP client that connected longest ago and has not sent its token:
+ * a full listener closes it to make room, so that connections that never
+ * authenticate cannot keep an operator's token out. NULL: none. */
+static struct client *oldest_anonymous(struct server *srv)
+{
+	struct client *old = NULL;
+
+	for (struct client *c = srv->clients; c; c = c->next)
+		if (c->tcp && !c->session.authenticated && !c->closing && !client_dead(c) &&
+		    (!old || c->connected_usec < old->connected_usec))
+			old = c;
+	return old;
+}
+
+/*
+ * Why p may not connect now (into why), or false when it may. root has
+ * SERVER_ROOT_CLIENTS connections of its own beyond limits.max_clients;
+ * the last limits.reserved_clients are root's and the operators'; a TCP
+ * peer, who it is unknown until its hello, may take them, and past
+ * limits.max_clients the anonymous TCP client waiting longest makes room
+ * (rpc.c refuses a viewer's token that would hold a reserved one).
+ */
+static bool refused(struct server *srv, const struct peer *p, char *why, size_t size)
 {
 	const struct settings_limits *l = srv->limits;
 	size_t n = rpc_sessions(srv->rpc);
+	struct client *old;
 
+	if (!p->tcp && p->uid == 0) {
+		if (n < (size_t)l->max_clients + SERVER_ROOT_CLIENTS)
+			return false;
+		snprintf(why, size, "%zu clients are connected, limits.max_clients and the %d "
+			 "connections kept for root", n, SERVER_ROOT_CLIENTS);
+		return true;
+	}
+	if (p->tcp && n >= l->max_clients && (old = oldest_anonymous(srv))) {
+		send_error(old, PROTO_TOO_MANY_CLIENTS, "closed to make room: no hello with the "
+			   "token came, and limits.max_clients are connected");
+		client_drop(old, "made room for a new connection");
+		n = rpc_sessions(srv->rpc);
+	}
 	if (n >= l->max_clients) {
 		snprintf(why, size, "%zu clients are connected, limits.max_clients", n);
 		return true;
 	}
-	if (n + l->reserved_clients >= l->max_clients && !rpc_peer_operator(srv->rpc, p)) {
+	if (!p->tcp && n + l->reserved_clients >= l->max_clients &&
+	    !rpc_peer_operator(srv->rpc, p)) {
 		snprintf(why, size, "the last %u of limits.max_clients (%u) are kept for root "
 			 "and operators", l->reserved_clients, l->max_clients);
 		return true;
 	}
-	if (!p->tcp && p->uid == 0)
-		return false;
 	n = connections_of(srv, p->key);
-	if (n >= l->max_clients_per_user) {
+	if (!(!p->tcp && p->uid == 0) && n >= l->max_clients_per_user) {
 		snprintf(why, size, "%s has %zu connections, limits.max_clients_per_user", p->key, n);
 		return true;
 	}
@@ -900,10 +905,19 @@ static int accept_resume(sd_event_source *s, uint64_t usec, void *data)
 	return 0;
 }
 
+/* The descriptor kept in reserve, taken again once one is free. */
+static void keep_reserve(struct server *srv)
+{
+	if (srv->reserve_fd < 0)
+		srv->reserve_fd = open("/dev/null", O_RDONLY | O_CLOEXEC);
+}
+
 /*
  * No descriptor left (EMFILE, ENFILE): the connection waiting would wake
  * the loop again at once, for ever. The descriptor kept in reserve is
  * given up to take it and tell it why, and accepting pauses a while.
+ * (The descriptors' budget of the start, which counts root's own
+ * connections and the web listener's, keeps clients from getting here.)
  */
 static void out_of_descriptors(struct server *srv, int listen_fd, int err)
 {
@@ -911,11 +925,12 @@ static void out_of_descriptors(struct server *srv, int listen_fd, int err)
 
 	if (srv->reserve_fd >= 0) {
 		close(srv->reserve_fd);
+		srv->reserve_fd = -1;
 		int fd = accept4(listen_fd, NULL, NULL, SOCK_NONBLOCK | SOCK_CLOEXEC);
 		if (fd >= 0)
 			refuse(srv, fd, PROTO_TOO_MANY_CLIENTS,
 			       "the daemon has no file descriptor left (LimitNOFILE=)");
-		srv->reserve_fd = open("/dev/null", O_RDONLY | O_CLOEXEC);
+		keep_reserve(srv);
 	}
 	srv->accept_backoff = srv->accept_backoff ? 2 * srv->accept_backoff
 						  : ACCEPT_BACKOFF_MIN_USEC;
@@ -942,6 +957,8 @@ static struct client *client_new(struct server *srv, int cfd, bool tcp, struct p
 	c->srv = srv;
 	c->fd = cfd;
 	c->tcp = tcp;
+	c->turn.run = client_turn;
+	c->turn.data = c;
 	c->serial = ++srv->next_serial;
 	c->connected_usec = c->request_usec = now_usec(srv);
 	proto_lines_init(&c->in, srv->limits->max_request_bytes);
@@ -1421,7 +1438,6 @@ void server_free(struct server *srv)
 	free_list(srv->clients);
 	free_list(srv->dead);
 	sd_event_source_disable_unref(srv->reaper);
-	sd_event_source_disable_unref(srv->work);
 	sd_event_source_disable_unref(srv->accept_timer);
 	for (size_t i = 0; i < srv->n_listeners; i++) {
 		struct listener *l = &srv->listeners[i];

@@ -8,8 +8,11 @@
  * clients. Event loop thread.
  *
  * What bounds a connection (the limits of settings.h, docs/daemon.md):
- * - connections: max_clients in all, the last reserved_clients of them for
- *   root and operators, max_clients_per_user per uid (TCP: per address);
+ * - connections: max_clients in all (the web page's sessions included),
+ *   the last reserved_clients of them for root and operators,
+ *   max_clients_per_user per uid (TCP: per address), and
+ *   SERVER_ROOT_CLIENTS more for root; past max_clients a TCP client that
+ *   has not sent its token makes room for a new one;
  * - time: an incomplete line or unread output may wait request_timeout_ms,
  *   a TCP client without the token auth_timeout_ms, a client that sends
  *   nothing and is not subscribed idle_timeout_ms;
@@ -31,10 +34,12 @@
 #include "events.h"
 #include "rpc.h"
 #include "settings.h"
+#include "turns.h"
 
 struct server_setup {
 	sd_event *event;
 	struct rpc *rpc;
+	struct turns *turns;                    /* shared with the web listener */
 	const struct settings_limits *limits;   /* read at each use: may change */
 };
 
@@ -101,8 +106,11 @@ int server_listen_tcp(const struct addrinfo *list, const char *field, const char
 		      int *fds, size_t max, size_t *n);
 
 /* The descriptors asphd needs besides its clients' (listeners, the job
- * store, workers, devices, the log): what LimitNOFILE= must leave above
- * max_clients. */
+ * store, workers, devices, the log, the scans the web page's live map
+ * reads): what LimitNOFILE= must leave above the clients'. */
 #define SERVER_FIXED_FDS 64
+/* Connections root has on the unix socket beyond limits.max_clients: root
+ * always gets in, whatever the other users and listeners hold. */
+#define SERVER_ROOT_CLIENTS 4
 
 #endif

@@ -1,4 +1,5 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <arpa/inet.h>
 #include <errno.h>
 #include <limits.h>
 #include <stdbool.h>
@@ -7,6 +8,7 @@
 #include <string.h>
 
 #include <jansson.h>
+#include <libpq-fe.h>
 
 #include "asph-proto.h"
 #include "settings.h"
@@ -51,6 +53,7 @@ static const struct settings_limits default_limits = {
 	.max_output_bytes = 8u << 20,
 	.max_queue = 10000,
 	.max_plan_points = 5000000,
+	.max_plan_point_terms = 64000000,
 	.max_subscriptions = 64,
 	.max_subscriptions_per_user = 8,
 	.reserved_subscriptions = 8,
@@ -102,6 +105,10 @@ void settings_free(struct settings *c)
 	free(c->http_host);
 	free(c->http_port);
 	free(c->http_root);
+	for (size_t i = 0; c->http_allowed_hosts && c->http_allowed_hosts[i]; i++)
+		free(c->http_allowed_hosts[i]);
+	free(c->http_allowed_hosts);
+	free(c->http_trust_proxy);
 	free(c->state_dir);
 	free(c->instruments_json);
 	free(c->text);
@@ -375,6 +382,53 @@ static void take_http_listen(struct loader *ld, void *base, const struct row *ro
 	take_listen(ld, v, field, &c->http_listen, &c->http_host, &c->http_port);
 }
 
+/* A host name or address as a browser sends it in Host, without the
+ * port (an IPv6 address without its brackets). */
+static bool host_name(const char *s)
+{
+	struct in6_addr a6;
+
+	if (!*s || strlen(s) > 253 || strpbrk(s, " \t/[]@?#"))
+		return false;
+	return !strchr(s, ':') || inet_pton(AF_INET6, s, &a6) == 1;
+}
+
+static void take_allowed_hosts(struct loader *ld, void *base, const struct row *row,
+			       const char *field, json_t *v)
+{
+	struct settings *c = base;
+	size_t i, n = json_array_size(v);
+	json_t *h;
+
+	if (!json_is_array(v) || n == 0) {
+		complain(ld, field, "must be a non-empty array of host names");
+		return;
+	}
+	c->http_allowed_hosts = calloc(n + 1, sizeof(char *));
+	if (!c->http_allowed_hosts)
+		return;
+	json_array_foreach(v, i, h) {
+		if (!json_is_string(h) || !host_name(json_string_value(h))) {
+			complain(ld, field, "[%zu] must be a host name or address without a port, "
+				 "such as \"metrology.lab.example\"", i);
+			continue;
+		}
+		c->http_allowed_hosts[i] = strdup(json_string_value(h));
+	}
+}
+
+static void take_proxy(struct loader *ld, void *base, const struct row *row, const char *field,
+		       json_t *v)
+{
+	struct settings *c = base;
+	struct in6_addr a;
+
+	take_string(ld, v, field, &c->http_trust_proxy, false);
+	if (c->http_trust_proxy && inet_pton(AF_INET, c->http_trust_proxy, &a) != 1 &&
+	    inet_pton(AF_INET6, c->http_trust_proxy, &a) != 1)
+		complain(ld, field, "must be the proxy's IP address, such as \"127.0.0.1\"");
+}
+
 static void take_limit(struct loader *ld, void *base, const struct row *row, const char *field,
 		       json_t *v);
 static void take_section(struct loader *ld, void *base, const struct row *row,
@@ -432,31 +486,44 @@ static const struct row rows[] = {
 	{ "http_listen", "HOST:PORT", "off", "the web page and its API (docs/web.md), /healthz "
 	  "and /metrics (docs/admin.md)", take_http_listen },
 	{ "http_root", "path", "none: the page built into asphd", "a folder of the web page's "
-	  "files, served instead of the built-in page", take_path, AT(struct settings, http_root) },
+	  "files, served instead of the built-in page; none that others than root and the "
+	  "daemon's user may write", take_path, AT(struct settings, http_root) },
+	{ "http_allowed_hosts", "array of host names", "the listen address, localhost and the "
+	  "host name", "the names the web page answers to (Host): others get 421 (DNS "
+	  "rebinding)", take_allowed_hosts },
+	{ "http_trust_proxy", "IP address", "none", "the reverse proxy whose X-Forwarded-For and "
+	  "X-Forwarded-Proto are believed (the browser's address, a Secure cookie)",
+	  take_proxy },
 	{ "token_file", "path", "none", "deprecated: a file holding one admin token for TCP "
 	  "clients; named tokens replace it", take_path, AT(struct settings, token_file) },
 	{ "limits", "object", "the defaults below", "what one client, one user and the disk may "
 	  "take (proto/README.md, Limits)", take_section, AT(struct settings, limits) },
-	LIMIT(max_clients, 1, 65536, "connections in all (needs LimitNOFILE=: checked at the start)"),
+	LIMIT(max_clients, 1, 65536, "connections and web sessions in all (needs LimitNOFILE=: "
+	      "checked at the start); root has 4 of its own beyond it"),
 	LIMIT(max_clients_per_user, 1, 65536, "connections of one uid (root excepted), over TCP "
-	      "of one address"),
-	LIMIT(reserved_clients, 0, 65535, "the last connections of max_clients, kept for root "
-	      "and the operator group (default at most a quarter of max_clients)"),
+	      "or the web of one address; web sessions of one address and of one token"),
+	LIMIT(reserved_clients, 0, 65535, "the last connections and sessions of max_clients, "
+	      "kept for root, the operator group and operator or admin tokens (default at most "
+	      "a quarter of max_clients)"),
 	LIMIT(max_request_bytes, 1024, 64u << 20, "one request line"),
 	LIMIT(max_response_bytes, 4096, 512u << 20, "the answers to one line; at most half of "
 	      "max_output_bytes"),
 	LIMIT(max_output_bytes, 65536, 1u << 30, "a client's unread output"),
 	LIMIT(max_queue, 1, 10000000, "jobs queued, running, paused or interrupted"),
 	LIMIT(max_plan_points, 10, 100000000, "the points of one plan"),
+	LIMIT(max_plan_point_terms, 1000, 4000000000u, "one plan's points times its surface's "
+	      "terms: what checking and estimating it costs"),
 	LIMIT(max_subscriptions, 1, 65536, "clients subscribed to events"),
-	LIMIT(max_subscriptions_per_user, 1, 65536, "subscriptions of one uid or address"),
+	LIMIT(max_subscriptions_per_user, 1, 65536, "subscriptions of one uid, address or named "
+	      "token"),
 	LIMIT(reserved_subscriptions, 0, 65535, "the last subscriptions, kept for operators "
 	      "(default at most a quarter of max_subscriptions)"),
-	LIMIT(request_timeout_ms, 100, 3600000, "an incomplete request line; output the client "
-	      "does not read"),
-	LIMIT(auth_timeout_ms, 100, 3600000, "a TCP client without hello and its token"),
-	LIMIT(idle_timeout_ms, 0, 86400000, "a client that sends nothing and is not subscribed "
-	      "(0: none)"),
+	LIMIT(request_timeout_ms, 100, 3600000, "an incomplete request line or web body; output "
+	      "the client does not read; a plan's check and estimate, a scan read for the page"),
+	LIMIT(auth_timeout_ms, 100, 3600000, "a TCP client without hello and its token; a web "
+	      "connection without a request's head"),
+	LIMIT(idle_timeout_ms, 0, 86400000, "a client that sends nothing and is not subscribed; "
+	      "a web session unused without an event stream (0: none)"),
 	LIMIT(progress_interval_ms, 10, 60000, "between two progress events of a job"),
 	LIMIT(max_label_bytes, 16, 4096, "a job's label"),
 	LIMIT(min_free_disk_mb, 0, 1048576, "MiB kept free on the state directory: jobs and "
@@ -615,6 +682,26 @@ static void take_mqtt(struct loader *ld, void *base, const struct row *row, cons
 		complain(ld, "mqtt.ca_file", "is for an mqtts:// broker; the url is mqtt://");
 }
 
+/* Whether a libpq connection string (key=value or a URI) gives a
+ * password; one libpq cannot read is said so. */
+static bool conninfo_has_password(struct loader *ld, const char *conninfo)
+{
+	char *why = NULL;
+	PQconninfoOption *opts = PQconninfoParse(conninfo, &why);
+	bool has = false;
+
+	if (!opts) {
+		complain(ld, "postgres.conninfo", "is not a libpq connection string: %.200s",
+			 why ? why : "out of memory");
+		PQfreemem(why);
+		return false;
+	}
+	for (PQconninfoOption *o = opts; o->keyword; o++)
+		has |= o->val && o->val[0] && strstr(o->keyword, "password");
+	PQconninfoFree(opts);
+	return has;
+}
+
 static void take_postgres(struct loader *ld, void *base, const struct row *row,
 			  const char *field, json_t *v)
 {
@@ -634,9 +721,9 @@ static void take_postgres(struct loader *ld, void *base, const struct row *row,
 	if (!c->postgres->conninfo)
 		complain(ld, field, "needs \"conninfo\", a libpq connection string such as "
 			 "\"host=db.lab dbname=asph user=asphd\"");
-	else if (strstr(c->postgres->conninfo, "password"))
-		complain(ld, "postgres.conninfo", "must not hold the password: it goes in "
-			 "postgres.password_file");
+	else if (conninfo_has_password(ld, c->postgres->conninfo))
+		complain(ld, "postgres.conninfo", "must not hold the password (as password= or "
+			 "in a URI's user:password@): it goes in postgres.password_file");
 }
 
 static void take_instruments(struct loader *ld, void *base, const struct row *row,

@@ -25,6 +25,7 @@ struct settings_limits {
 	uint32_t max_output_bytes;      /* queued to one client */
 	uint32_t max_queue;             /* jobs queued, paused or interrupted */
 	uint32_t max_plan_points;
+	uint32_t max_plan_point_terms;  /* a plan's points times its surface's terms */
 	uint32_t max_subscriptions;     /* clients subscribed to events */
 	uint32_t max_subscriptions_per_user;
 	uint32_t reserved_subscriptions;        /* of max_subscriptions, for operators */
@@ -74,6 +75,8 @@ struct settings {
 	char *http_listen;              /* "HOST:PORT" or NULL (off), as written */
 	char *http_host, *http_port;    /* its parts */
 	char *http_root;                /* the web page's files (NULL: built in) */
+	char **http_allowed_hosts;      /* Host names served, NULL-terminated; NULL: default */
+	char *http_trust_proxy;         /* the reverse proxy's address, or NULL */
 	char *state_dir;
 	struct settings_limits limits;
 	struct settings_health health;

@@ -73,6 +73,9 @@ struct store {
  * stops: a few transactions of a few pages each. */
 #define RESERVE_BYTES (1 << 20)
 
+/* The states of the queue, of the index jobs_queue_order. */
+#define QUEUE_STATES (1u << JOB_QUEUED | 1u << JOB_RUNNING | 1u << JOB_PAUSED)
+
 static const char schema[] =
 	"CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);"
 	"CREATE TABLE IF NOT EXISTS jobs ("
@@ -84,6 +87,10 @@ static const char schema[] =
 	" points_total INTEGER NOT NULL, reason TEXT, result TEXT, scan_path TEXT,"
 	" resume INTEGER NOT NULL, attempts INTEGER NOT NULL);"
 	"CREATE INDEX IF NOT EXISTS jobs_queue ON jobs (state, instrument, priority DESC, seq);"
+	/* The queue in the order it runs, for listings taken a few jobs at a
+	 * time (store_list()); the states are those of QUEUE_STATES_SQL. */
+	"CREATE INDEX IF NOT EXISTS jobs_queue_order ON jobs (priority DESC, seq, id)"
+	" WHERE state IN (0,1,2);"
 	"CREATE TABLE IF NOT EXISTS history ("
 	" job INTEGER NOT NULL REFERENCES jobs(id), t_ns INTEGER NOT NULL,"
 	" state INTEGER NOT NULL, reason TEXT, actor_uid INTEGER NOT NULL);"
@@ -800,8 +807,17 @@ static void filter_sql(const struct store_filter *f, char *sql, size_t size)
 	size_t n = strlen(sql);
 
 	n += (size_t)snprintf(sql + n, size - n, " WHERE 1");
-	if (f->states)
-		n += (size_t)snprintf(sql + n, size - n, " AND ((1 << state) & ?)");
+	/* "state IN (...)" as the queue's index says it, so that a listing of
+	 * the queue may use it */
+	if (f->states) {
+		n += (size_t)snprintf(sql + n, size - n, " AND state IN (");
+		for (int k = 0, first = 1; k < JOB_N_STATES; k++)
+			if (f->states & (1u << k)) {
+				n += (size_t)snprintf(sql + n, size - n, "%s%d", first ? "" : ",", k);
+				first = 0;
+			}
+		n += (size_t)snprintf(sql + n, size - n, ")");
+	}
 	if (f->instrument)
 		n += (size_t)snprintf(sql + n, size - n, " AND instrument = ?");
 	if (f->uid != STORE_ANY_UID)
@@ -817,15 +833,17 @@ static void filter_sql(const struct store_filter *f, char *sql, size_t size)
 	if (f->serial)
 		n += (size_t)snprintf(sql + n, size - n, " AND serial = ?");
 	if (f->before_id > 0)
-		snprintf(sql + n, size - n, " AND id < ?");
+		n += (size_t)snprintf(sql + n, size - n, " AND id < ?");
+	if (f->after)
+		snprintf(sql + n, size - n, " AND priority = ? AND (seq, id) > (?, ?)");
+	else if (f->below)
+		snprintf(sql + n, size - n, " AND priority < ?");
 }
 
 static int filter_bind(sqlite3_stmt *st, const struct store_filter *f)
 {
 	int i = 1;
 
-	if (f->states)
-		sqlite3_bind_int64(st, i++, f->states);
 	if (f->instrument)
 		bind_text(st, i++, f->instrument);
 	if (f->uid != STORE_ANY_UID)
@@ -842,30 +860,47 @@ static int filter_bind(sqlite3_stmt *st, const struct store_filter *f)
 		bind_text(st, i++, f->serial);
 	if (f->before_id > 0)
 		sqlite3_bind_int64(st, i++, f->before_id);
+	if (f->after) {
+		sqlite3_bind_int64(st, i++, f->after_priority);
+		sqlite3_bind_int64(st, i++, f->after_seq);
+		sqlite3_bind_int64(st, i++, f->after_id);
+	} else if (f->below) {
+		sqlite3_bind_int64(st, i++, f->after_priority);
+	}
 	return i;
+}
+
+int store_total(struct store *s, const struct store_filter *f, int64_t *total)
+{
+	char sql[768] = "SELECT COUNT(*) FROM jobs";
+	_cleanup_stmt_ sqlite3_stmt *c = NULL;
+
+	filter_sql(f, sql, sizeof(sql));
+	c = prepare(s, sql);
+	if (!c)
+		return -EIO;
+	filter_bind(c, f);
+	if (sqlite3_step(c) != SQLITE_ROW)
+		return -EIO;
+	*total = sqlite3_column_int64(c, 0);
+	return 0;
 }
 
 int store_list(struct store *s, const struct store_filter *f,
 	       store_job_fn fn, void *data, int64_t *total)
 {
-	char sql[768] = "SELECT " JOB_COLUMNS " FROM jobs";
+	char sql[1024] = "SELECT " JOB_COLUMNS " FROM jobs";
 	_cleanup_stmt_ sqlite3_stmt *st = NULL;
 	int i, r;
 
-	if (total) {
-		char csql[512] = "SELECT COUNT(*) FROM jobs";
-		_cleanup_stmt_ sqlite3_stmt *c = NULL;
-		filter_sql(f, csql, sizeof(csql));
-		c = prepare(s, csql);
-		if (!c)
-			return -EIO;
-		filter_bind(c, f);
-		if (sqlite3_step(c) != SQLITE_ROW)
-			return -EIO;
-		*total = sqlite3_column_int64(c, 0);
-	}
+	if (total && (r = store_total(s, f, total)) < 0)
+		return r;
+	/* A slice of the queue: its index in its order, a seek and a few
+	 * steps, not a sort of the whole queue. */
+	if (f->queue_order && f->states == QUEUE_STATES && (f->after || f->below || f->limit > 0))
+		strncat(sql, " INDEXED BY jobs_queue_order", sizeof(sql) - strlen(sql) - 1);
 	filter_sql(f, sql, sizeof(sql));
-	strncat(sql, f->queue_order ? " ORDER BY priority DESC, seq" : " ORDER BY id DESC",
+	strncat(sql, f->queue_order ? " ORDER BY priority DESC, seq, id" : " ORDER BY id DESC",
 		sizeof(sql) - strlen(sql) - 1);
 	strncat(sql, " LIMIT ? OFFSET ?", sizeof(sql) - strlen(sql) - 1);
 	st = prepare(s, sql);

@@ -93,7 +93,13 @@ struct store_filter {
 	const char *part, *lot, *serial;        /* exact, or NULL */
 	int64_t before_id;      /* only ids below; 0 = no bound */
 	int64_t offset, limit;
-	bool queue_order;       /* priority, seq; else newest first */
+	bool queue_order;       /* priority, seq, id; else newest first */
+	/* queue_order, a listing taken up where it stopped (each a seek of
+	 * the queue's index, so that a listing costs its length, not its
+	 * square): with after, the jobs of priority after_priority after
+	 * (after_seq, after_id); with below, those of a lower priority. */
+	bool after, below;
+	int64_t after_priority, after_seq, after_id;
 };
 
 typedef int (*store_job_fn)(const struct job_record *j, void *data);
@@ -102,6 +108,8 @@ typedef int (*store_job_fn)(const struct job_record *j, void *data);
  * filter without offset/limit in *total (may be NULL). */
 int store_list(struct store *s, const struct store_filter *f,
 	       store_job_fn fn, void *data, int64_t *total);
+/* The count of jobs that match the filter without offset/limit. */
+int store_total(struct store *s, const struct store_filter *f, int64_t *total);
 
 /* The queued job of an instrument that runs next; -ENOENT when none. */
 int store_next(struct store *s, const char *instrument,

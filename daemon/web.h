@@ -47,6 +47,12 @@
 #include "monitor.h"
 #include "rpc.h"
 #include "settings.h"
+#include "tasks.h"
+#include "turns.h"
+
+/* Connections closed to make room for new ones and not yet gone: at most
+ * this many beyond limits.max_clients (of the descriptors' budget). */
+#define WEB_DISPLACED_MAX 16
 
 /* The page's files (daemon/web/), compiled in by scripts/embed-files. */
 extern const struct embedded_file web_builtin_files[];
@@ -56,6 +62,8 @@ struct web_setup {
 	sd_event *event;
 	struct rpc *rpc;
 	struct jobs *jobs;
+	struct turns *turns;                    /* shared with the socket server */
+	struct tasks *tasks;                    /* reads the scans of live points */
 	struct monitor *monitor;                /* /healthz, /metrics */
 	const struct settings_limits *limits;   /* read at each use: may change */
 	const char *state_dir;                  /* the jobs' scans, for points */
@@ -67,15 +75,29 @@ int web_new(const struct web_setup *setup, struct web **out);
 /* Ends every session and stops listening. */
 void web_free(struct web *w);
 
-/* Listens on every address of addr (from server_resolve_tcp(); text is
- * http_listen's, for messages), all on one port (server_listen_tcp()),
- * and serves the files of root (http_root), or the built-in page when
- * root is NULL. 0, or -errno having logged why. */
-int web_listen(struct web *w, const struct addrinfo *addr, const char *text, const char *root);
+struct web_listen_setup {
+	const struct addrinfo *addr;    /* from server_resolve_tcp() */
+	const char *text;               /* http_listen, for messages */
+	const char *host;               /* its host, as written */
+	const char *root;               /* the page's files (NULL: the built-in page) */
+	/* The Host names served (http_allowed_hosts, NULL-terminated); NULL:
+	 * localhost, host, this host's name and the addresses of addr. */
+	char *const *allowed_hosts;
+	/* http_trust_proxy: the address of the reverse proxy whose
+	 * X-Forwarded-For and X-Forwarded-Proto are believed; NULL: none. */
+	const char *trust_proxy;
+};
+
+/* Listens on every address of ls->addr, all on one port
+ * (server_listen_tcp()), and serves the files of ls->root, or the
+ * built-in page when it is NULL. 0, or -errno having logged why. */
+int web_listen(struct web *w, const struct web_listen_setup *ls);
 /* The port listened on (after web_listen()), 0 when not listening. */
 unsigned web_port(const struct web *w);
 /* The number of addresses listened on. */
 size_t web_listeners(const struct web *w);
+/* The connections open now (of the descriptors' budget). */
+size_t web_connections(const struct web *w);
 
 /* Ends the sessions whose token no longer stands (rpc_session_valid()). */
 void web_revalidate(struct web *w);
@@ -97,6 +119,10 @@ bool web_parse_count(const char *text, size_t len, int64_t *out);
 /* "ID/REST" (after "/api/jobs/"): 0 with the job's id and *rest at the
  * "/", or -ENOENT. */
 int web_job_route(const char *path, int64_t *id, const char **rest);
+/* Whether the Host header (may be NULL: an HTTP/1.0 client) names one of
+ * allowed (NULL-terminated), without its port and without case: a page
+ * of another name (DNS rebinding) is not served. */
+bool web_host_allowed(const char *host, char *const *allowed);
 /* A file name the listener serves: letters, digits, "._-", not starting
  * with ".", at most 128 bytes. */
 bool web_plain_name(const char *name);

@@ -6,6 +6,7 @@
 // only decides what the page offers.
 import { drawMap, colourScale } from "./map.js";
 import { zernikeBars, radialProfile, psdChart, psdTable, parsePsd } from "./charts.js";
+import { csvText } from "./csv.js";
 import { planMethods, presets } from "./names.js";
 import { NO_SIGN, UNIT, formatQuantity, labelOf, quantityAt, quantityOfVerdict } from "./quantity.js";
 
@@ -446,8 +447,7 @@ $("history-form").addEventListener("submit", (e) => {
 $("history-csv").addEventListener("click", async () => {
   const list = await rpc("job.list", { limit: 1000, ...history.filter });
   const cols = ["id", "state", "instrument", "label", "part", "lot", "serial", "submitted", "started", "finished", "reason"];
-  const quote = (v) => (v === null || v === undefined ? "" : /[",\n]/.test(String(v)) ? `"${String(v).replace(/"/g, '""')}"` : String(v));
-  const text = [cols.join(","), ...list.jobs.map((j) => cols.map((c) => quote(j[c])).join(","))].join("\n") + "\n";
+  const text = csvText(cols, list.jobs);
   const a = el("a", { href: URL.createObjectURL(new Blob([text], { type: "text/csv" })), download: "asphd-history.csv" });
   document.body.append(a);
   a.click();

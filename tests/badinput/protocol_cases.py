@@ -385,7 +385,8 @@ def huge_number_cases():
     for method, key, values in [
             ("fermat", "points", [("zero", "0", PARAMS), ("minus-zero", "-0", PARAMS), ("-3", "-3", PARAMS),
                                   ("1e13", "1e13", PARAMS), ("1e-400", "1e-400", PARAMS),
-                                  ("1e12", "1e12", PLAN), ("6e6", "6000000", LIMIT)]),
+                                  # (refused by its number before the surface is built)
+                                  ("1e12", "1e12", LIMIT), ("6e6", "6000000", LIMIT)]),
             ("ci", "h", [("minus-zero", "-0.0", PARAMS), ("1e-400", "1e-400", PARAMS),
                          ("1e300", "1e300", PARAMS), ("1e-9", "1e-9", PLAN), ("4.2", "4.2", PLAN)]),
             ("raster", "spacing", [("1e-10", "1e-10", PARAMS), ("1e13", "1e13", PARAMS),

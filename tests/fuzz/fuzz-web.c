@@ -31,6 +31,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 	rest = host + strlen(host);
 	rest = rest < end ? rest + 1 : rest;
 
+	(void)web_host_allowed(host, (char *const[]){ "localhost", origin, rest, NULL });
 	(void)web_origin_allowed(origin, host, NULL);
 	(void)web_origin_allowed(origin, host, rest);
 	if (web_job_route(rest, &v, &tail) == 0 && (v <= 0 || *tail != '/'))

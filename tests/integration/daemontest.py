@@ -2,6 +2,7 @@
 """Runs the real asphd on a temporary socket and state directory, with a
 raw JSON-RPC client and asphctl (python3 stdlib only)."""
 import grp
+import http.client
 import json
 import os
 import re
@@ -66,8 +67,10 @@ class Daemon:
             json.dump(cfg, f, indent=1)
         self.proc = None
         self.prefix = []        # a command that execs the daemon (unshare, ...)
+        self.starts = 0
 
     def start(self, wait=True):
+        self.starts += 1
         logf = open(self.log, "a")
         cmd = [ASPHD, "--config", self.config, "--socket", self.socket, "--state-dir", self.state]
         if self.prefix:     # (valgrindpy's wrapper goes after the prefix)
@@ -290,11 +293,52 @@ def web_port(d, timeout=20):
     import re
     deadline = time.time() + timeout
     while time.time() < deadline:
-        m = re.search(r"web page at http://127\.0\.0\.1:(\d+)/", d.log_text())
-        if m:
-            return int(m.group(1))
+        # the last start's (the log is kept across restarts)
+        m = re.findall(r"web page at http://127\.0\.0\.1:(\d+)/", d.log_text())
+        if m and len(m) >= getattr(d, "starts", 1):
+            return int(m[-1])
         time.sleep(0.05)
     raise RuntimeError("no web page address in the log:\n" + d.log_text())
+
+
+class Web:
+    """One browser-like HTTP client of the web listener: keeps the session
+    cookie."""
+
+    def __init__(self, port, source=None, timeout=None):
+        self.port = port
+        self.cookie = None
+        self.source = (source, 0) if source else None       # a loopback address of its own
+        # valgrind (ASPH_UNDER_VALGRIND) makes a long answer take minutes
+        self.timeout = timeout or (600 if os.environ.get("ASPH_UNDER_VALGRIND") else 30)
+
+    def request(self, method, path, body=None, headers=None, raw=None):
+        c = http.client.HTTPConnection("127.0.0.1", self.port, timeout=self.timeout,
+                                        source_address=self.source)
+        h = {"Host": f"127.0.0.1:{self.port}"}
+        if body is not None:
+            raw = json.dumps(body).encode()
+            h["Content-Type"] = "application/json"
+        if self.cookie:
+            h["Cookie"] = self.cookie
+        h.update(headers or {})
+        c.request(method, path, body=raw, headers=h)
+        r = c.getresponse()
+        data = r.read()
+        c.close()
+        return r, data
+
+    def login(self, token):
+        r, data = self.request("POST", "/api/login", {"token": token})
+        m = re.match(r"(asph_session=[^;]+)", r.getheader("Set-Cookie") or "")
+        if r.status == 200 and m:
+            self.cookie = m.group(1)
+        return r, json.loads(data or b"{}")
+
+    def rpc(self, method, params=None):
+        r, data = self.request("POST", "/api/rpc", {"jsonrpc": "2.0", "id": 1, "method": method,
+                                                    "params": params or {}})
+        return r.status, json.loads(data) if data else None
 
 
 def browser_or_skip(root):

@@ -226,6 +226,169 @@ class Sampler(threading.Thread):
         return max((kib for _, kib in self.samples), default=0)
 
 
+def seed_jobs(d, n, state):
+    """n jobs in all in d's store, the queue stopped: one submitted, then
+    copied in the SQLite store with ids, labels and places of their own,
+    all in state (0 queued, 3 completed); the daemon is left stopped (it
+    counts the jobs when it starts). Returns how many the store holds."""
+    import sqlite3
+    from daemontest import Client
+    d.start()
+    c = Client(d.socket)
+    c.call("queue.stop")
+    c.call("job.submit", {"lens": "strong", "plan": {"method": "fermat", "points": 300},
+                          "label": "a-label-of-a-usual-length-for-a-part-and-a-lot"})
+    c.close()
+    d.stop()
+    store = os.path.join(d.state, "jobs.sqlite")
+    db = sqlite3.connect(store)
+    db.execute("UPDATE jobs SET state = ? WHERE id = 1", (state,))
+    db.execute("""WITH RECURSIVE k(i) AS (SELECT 1 UNION ALL SELECT i + 1 FROM k WHERE i < ?)
+                  INSERT INTO jobs (state, priority, seq, label, instrument, uid, user, spec,
+                    submitted_ns, started_ns, finished_ns, points_done, points_total, reason,
+                    result, scan_path, resume, attempts)
+                  SELECT ?, priority, seq + i, label || '-' || i, instrument, uid, user, spec,
+                    submitted_ns + i, started_ns, finished_ns, points_done, points_total, reason,
+                    result, scan_path, resume, attempts FROM jobs, k WHERE id = 1""", (n - 1, state))
+    db.commit()
+    count = db.execute("SELECT COUNT(*) FROM jobs").fetchone()[0]
+    db.close()
+    return count
+
+
+# An operator's daemon.status on the socket (argv[1]), timed from the
+# connect to the answer; prints {"seconds", "pid"}.
+OPERATOR_STATUS = r'''
+import json, socket, sys, time
+t0 = time.monotonic()
+s = socket.socket(socket.AF_UNIX); s.connect(sys.argv[1])
+s.sendall(b'{"jsonrpc":"2.0","id":1,"method":"daemon.status"}\n')
+a = json.loads(s.makefile("rb").readline())
+print(json.dumps({"seconds": time.monotonic() - t0, "pid": a["result"]["pid"]}))
+'''
+
+
+def still_in(d, operator, admin_token, port, what):
+    """After an attack: root and an operator on the socket, an admin on
+    the web page (port) get in and are answered, each within 1 s (not
+    checked under valgrind); and asphctl status works for the operator."""
+    from daemontest import ASPHCTL, Client, Web
+    took = {}
+    t0 = time.monotonic()
+    c = Client(d.socket, timeout=30)
+    ok = c.call("daemon.status")["pid"] == d.proc.pid
+    c.close()
+    took["root"] = time.monotonic() - t0
+    # (timed in the operator's process: from its connect to the answer)
+    out = operator.python(OPERATOR_STATUS, d.socket, timeout=120)
+    took["operator"] = out["seconds"]
+    p = operator.run([ASPHCTL, "--socket", d.socket, "status"], timeout=120)
+    t0 = time.monotonic()
+    admin = Web(port)
+    r, body = admin.login(admin_token)
+    status, answer = admin.rpc("daemon.status")
+    took["admin"] = time.monotonic() - t0
+    ok = ok and out["pid"] == d.proc.pid and p.returncode == 0 and r.status == 200 and \
+        body.get("role") == "admin" and status == 200 and "result" in answer
+    slow = [k for k, v in took.items() if v >= 1.0]
+    expect(ok and (UNDER_VALGRIND or not slow),
+           f"{what}: root, an operator and an admin get in "
+           f"({', '.join(f'{k} {v * 1e3:.0f} ms' for k, v in took.items())})")
+
+
+class Slowloris:
+    """per connections from each of addresses to the web listener (port)
+    that send one byte a second and never a whole request head."""
+
+    def __init__(self, port, addresses, per=32):
+        self.socks, self.done = [], threading.Event()
+        for a in addresses:
+            for _ in range(per):
+                try:
+                    self.socks.append(socket.create_connection(("127.0.0.1", port), timeout=5,
+                                                               source_address=(a, 0)))
+                except OSError:
+                    pass
+        threading.Thread(target=self._trickle, daemon=True).start()
+
+    def _trickle(self):
+        while not self.done.is_set():
+            for s in self.socks:
+                try:
+                    s.send(b"G")
+                except OSError:
+                    pass
+            self.done.wait(1.0)
+
+    def alive(self):
+        """How many the daemon has not closed."""
+        n = 0
+        for s in self.socks:
+            s.setblocking(False)
+            try:
+                s.recv(1)           # b"": closed by the daemon
+            except BlockingIOError:
+                n += 1
+            except OSError:
+                pass
+        return n
+
+    def stop(self):
+        self.done.set()
+        for s in self.socks:
+            s.close()
+
+
+def latency_line(what, poller):
+    """The poller's daemon.status answers as one line for the output: count,
+    p50, p99, worst (ms), failures; and the worst in seconds."""
+    lat = sorted(x for x in poller.latencies if x is not None)
+    failed = len(poller.latencies) - len(lat)
+    if not lat:
+        return f"# {what}: no daemon.status answered ({failed} failed)", float("inf"), failed
+    p = lambda q: lat[min(len(lat) - 1, int(q * (len(lat) - 1)))] * 1e3  # noqa: E731
+    return (f"# {what}: daemon.status {len(lat)} answers, p50 {p(0.5):.1f} ms, p99 {p(0.99):.1f} ms, "
+            f"worst {lat[-1] * 1e3:.1f} ms, {failed} failed", lat[-1], failed)
+
+
+class Watch:
+    """Another client asking daemon.status, and the daemon's RSS, while an
+    attack runs: with Watch(pid, socket) as w: ...; then w.check(what,
+    rss_bound_kib) states the figures and checks them (the latency bound
+    of 1 s and the RSS bound left out under valgrind, the RSS bound with
+    AddressSanitizer)."""
+
+    def __init__(self, pid, path):
+        self.pid, self.path = pid, path
+
+    def __enter__(self):
+        self.poller, self.sampler = Poller(self.path), Sampler(self.pid)
+        self.poller.start()
+        self.sampler.start()
+        self.t0 = time.monotonic()
+        return self
+
+    def __exit__(self, *exc):
+        self.seconds = time.monotonic() - self.t0
+        self.poller.stop()
+        self.peak = self.sampler.stop()
+        return False
+
+    def check(self, what, rss_bound_kib):
+        line, worst, failed = latency_line(what, self.poller)
+        print(f"{line}; RSS peak {self.peak / 1024:.1f} MiB; {self.seconds:.1f} s")
+        expect(failed == 0 and self.poller.latencies, f"{what}: another client was answered throughout")
+        if UNDER_VALGRIND:
+            print("# under valgrind: the bounds on latency and RSS are not checked")
+            return
+        expect(worst < 1.0, f"{what}: daemon.status answered within 1 s ({worst * 1e3:.0f} ms at worst)")
+        if SANITIZED:
+            print("# built with AddressSanitizer: the bound on RSS is not checked")
+        else:
+            expect(self.peak < rss_bound_kib, f"{what}: RSS peak {self.peak / 1024:.1f} MiB "
+                   f"< {rss_bound_kib / 1024:.0f} MiB")
+
+
 def tempdir():
     d = tempfile.mkdtemp(prefix="asph-sec-")
     os.chmod(d, 0o755)

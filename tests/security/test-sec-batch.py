@@ -24,11 +24,10 @@ are left out, the time bounds kept."""
 import json
 import os
 import signal
-import sqlite3
 import time
 
 from seclib import (SANITIZED, UNDER_VALGRIND, Accounts, Notify, Poller, Sampler, expect, finish,
-                    rss_kib, tempdir)
+                    rss_kib, seed_jobs, tempdir)
 from daemontest import Client, Daemon, mock_instrument
 
 RSS_BOUND_KIB = 256 * 1024
@@ -76,23 +75,6 @@ def batch(method, params, n=1000):
                         for i in range(n)], separators=(",", ":")) + "\n").encode()
 
 
-def seed(store, n):
-    """n jobs in all: copies of job 1, completed, with their own ids."""
-    db = sqlite3.connect(store)
-    db.execute("UPDATE jobs SET state = 3 WHERE id = 1")
-    db.execute("""WITH RECURSIVE k(i) AS (SELECT 1 UNION ALL SELECT i + 1 FROM k WHERE i < ?)
-                  INSERT INTO jobs (state, priority, seq, label, instrument, uid, user, spec,
-                    submitted_ns, started_ns, finished_ns, points_done, points_total, reason,
-                    result, scan_path, resume, attempts)
-                  SELECT 3, priority, seq + i, label || '-' || i, instrument, uid, user, spec,
-                    submitted_ns + i, started_ns, finished_ns, points_done, points_total, reason,
-                    result, scan_path, resume, attempts FROM jobs, k WHERE id = 1""", (n - 1,))
-    db.commit()
-    count = db.execute("SELECT COUNT(*) FROM jobs").fetchone()[0]
-    db.close()
-    return count
-
-
 def gaps(times, start, end):
     inside = [t for t in times if start <= t <= end]
     edges = [start] + inside + [end]
@@ -107,14 +89,7 @@ notify = Notify(top)
 os.mkdir(os.path.join(top, "d"))
 d = Daemon(instruments=[mock_instrument()], top=os.path.join(top, "d"), extra={"socket_group": lab})
 try:
-    d.start()
-    c = Client(d.socket)
-    c.call("queue.stop")
-    c.call("job.submit", {"lens": "strong", "plan": {"method": "fermat", "points": 300},
-                          "label": "a-label-of-a-usual-length-for-a-part-and-a-lot"})
-    c.close()
-    d.stop()
-    n = seed(os.path.join(d.state, "jobs.sqlite"), JOBS)
+    n = seed_jobs(d, JOBS, 3)
     expect(n == JOBS, f"{n} jobs in the store")
 
     os.environ["NOTIFY_SOCKET"] = notify.path

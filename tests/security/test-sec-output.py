@@ -58,7 +58,7 @@ try:
 
     # A reason and an error detail carry other people's text too.
     rc, out, err = as_reader("cancel", job)
-    expect(rc == 4 and not RAW.findall(err.replace("\n", "")), "an error's detail, escaped")
+    expect(rc == 6 and not RAW.findall(err.replace("\n", "")), "an error's detail, escaped (permission denied: 6)")
     rc, out, err = as_reader("instruments", "no\x1b]0;t\x07such")
     expect(rc == 1 and "\x1b" not in err and "\\x1b" in err,
            f"a name echoed in an error comes back escaped ({err.strip()})")

@@ -148,7 +148,9 @@ static int64_t submit_to(struct fixture *f, const char *instrument, int points,
 	snprintf(params, sizeof(params),
 		 "{\"lens\": \"strong\", \"plan\": {\"method\": \"fermat\", \"points\": %d}}", points);
 	p = json_loads(params, 0, NULL);
-	assert_int_equal(jobspec_from_params(p, f->limits.max_plan_points, &spec, &n, &why), 0);
+	assert_int_equal(jobspec_from_params(p, &(struct jobspec_limits){
+			.max_points = f->limits.max_plan_points,
+			.max_point_terms = f->limits.max_plan_point_terms }, &spec, &n, &why), 0);
 	char *text = json_dumps(spec, JSON_COMPACT);
 	struct job_submission sub = {
 		.spec = text, .points = (int64_t)n, .instrument = instrument,
@@ -763,6 +765,54 @@ static void test_move(void **state)
 	assert_int_equal(q.n, 2);
 }
 
+/* The ids a cursor of f (NULL: the queue) gives, step jobs at a time. */
+static struct ids cursor_ids(struct fixture *f, const struct store_filter *flt, size_t step)
+{
+	struct jobs_cursor *c;
+	struct ids ids = { 0 };
+	int r, steps = 0;
+
+	assert_int_equal(jobs_cursor_new(f->jobs, flt, &c), 0);
+	while ((r = jobs_cursor_next(c, step, collect, &ids, NULL)) > 0)
+		assert_true(++steps < 100);
+	assert_int_equal(r, 0);
+	assert_int_equal(jobs_cursor_next(c, step, collect, &ids, NULL), 0);   /* ended */
+	jobs_cursor_free(c);
+	return ids;
+}
+
+/* A listing taken a few jobs at a time gives the jobs the listing in one
+ * go gives, in its order: the queue over priorities, moves and a cancelled
+ * job; the newest first with a filter, an offset and a limit. */
+static void test_cursor(void **state)
+{
+	struct fixture *f = *state;
+	int64_t prio[] = { 0, 5, 0, -3, 5, 0, 2 };
+	int64_t id[ARRAY_SIZE(prio)];
+	struct store_filter newest = { .uid = STORE_ANY_UID, .states = 1u << JOB_QUEUED,
+				       .offset = 1, .limit = 4 };
+	struct ids q, c;
+
+	for (size_t i = 0; i < ARRAY_SIZE(prio); i++)
+		id[i] = submit_to(f, "fast", FAST_POINTS, prio[i]);
+	assert_int_equal(jobs_move(f->jobs, id[3], 1, &root, NULL), 0);
+	assert_int_equal(jobs_cancel(f->jobs, id[5], &root, NULL, NULL), 0);
+	q = queue_of(f);
+	assert_int_equal(q.n, ARRAY_SIZE(prio) - 1);
+	for (size_t step = 1; step <= 4; step++) {
+		c = cursor_ids(f, NULL, step);
+		assert_int_equal(c.n, q.n);
+		assert_memory_equal(c.v, q.v, q.n * sizeof(q.v[0]));
+	}
+	/* queued only (the cancelled one out), newest first, from the second, four */
+	c = cursor_ids(f, &newest, 3);
+	assert_int_equal(c.n, 4);
+	assert_int_equal(c.v[0], id[4]);
+	assert_int_equal(c.v[1], id[3]);
+	assert_int_equal(c.v[2], id[2]);
+	assert_int_equal(c.v[3], id[1]);
+}
+
 static void stopped(void *data)
 {
 	struct fixture *f = data;
@@ -937,6 +987,7 @@ int main(void)
 		cmocka_unit_test_setup_teardown(test_requeue, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_job_folder_refused, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_move, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_cursor, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_shutdown, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_recovery, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_refusals, setup, teardown),

@@ -354,6 +354,43 @@ static void test_batch_budget(void **state)
 	assert_false(jobs_queue_running(f->jobs));
 }
 
+/* Notifications spend max_response_bytes as requests do: the answers
+ * they would have had are counted, so that a request after a dozen
+ * driver.list notifications is refused unrun, and so is queue.start. */
+static void test_notification_budget(void **state)
+{
+	struct fixture *f = *state;
+	char batch[4096];
+	json_t *answers, *e;
+	size_t n = 0;
+
+	f->settings->limits.max_response_bytes = 4096;
+	n += (size_t)snprintf(batch + n, sizeof(batch) - n, "[");
+	for (int k = 0; k < 12; k++)
+		n += (size_t)snprintf(batch + n, sizeof(batch) - n,
+				      "{\"jsonrpc\": \"2.0\", \"method\": \"driver.list\"}, ");
+	snprintf(batch + n, sizeof(batch) - n,
+		 "{\"jsonrpc\": \"2.0\", \"id\": 7, \"method\": \"version\"}, "
+		 "{\"jsonrpc\": \"2.0\", \"method\": \"queue.start\"}]");
+	answers = line(f, &f->root, batch);
+	assert_non_null(answers);
+	assert_int_equal(json_array_size(answers), 1);
+	assert_int_equal(json_integer_value(json_object_get(json_array_get(answers, 0), "id")), 7);
+	e = json_object_get(json_array_get(answers, 0), "error");
+	assert_non_null(e);
+	assert_int_equal(json_integer_value(json_object_get(e, "code")), PROTO_RESPONSE_TOO_LARGE);
+	json_decref(answers);
+	assert_false(jobs_queue_running(f->jobs));
+	/* Under the budget, the request after notifications is answered. */
+	snprintf(batch, sizeof(batch), "[{\"jsonrpc\": \"2.0\", \"method\": \"version\"}, "
+		 "{\"jsonrpc\": \"2.0\", \"id\": 8, \"method\": \"version\"}]");
+	answers = line(f, &f->root, batch);
+	assert_non_null(answers);
+	assert_int_equal(json_array_size(answers), 1);
+	assert_non_null(json_object_get(json_array_get(answers, 0), "result"));
+	json_decref(answers);
+}
+
 /* The exact sequence of the issue: a batch [events.subscribe, ...,
  * events.unsubscribe] of a client dropped in its middle (the transport
  * frees the line and closes the session), and one that runs to the end
@@ -400,6 +437,7 @@ int main(void)
 		cmocka_unit_test_setup_teardown(test_sessions_and_requests, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_subscriptions, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_batch_budget, setup, teardown),
+		cmocka_unit_test_setup_teardown(test_notification_budget, setup, teardown),
 		cmocka_unit_test_setup_teardown(test_batch_dropped_subscriber, setup, teardown),
 	};
 

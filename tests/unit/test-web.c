@@ -130,6 +130,37 @@ static void test_login_body(void **state)
 	check_login("{\"Token\": \"a\"}", NULL);
 }
 
+static void test_host(void **state)
+{
+	char *const allowed[] = { "localhost", "127.0.0.1", "::1", "metrology.lab.example", NULL };
+
+	/* the names served, with or without the port, without case */
+	assert_true(web_host_allowed("127.0.0.1:7718", allowed));
+	assert_true(web_host_allowed("localhost", allowed));
+	assert_true(web_host_allowed("LocalHost:80", allowed));
+	assert_true(web_host_allowed("[::1]:7718", allowed));
+	assert_true(web_host_allowed("[::1]", allowed));
+	assert_true(web_host_allowed("::1", allowed));          /* a bare address, as some send */
+	assert_true(web_host_allowed("::1:7718", allowed));
+	assert_true(web_host_allowed("metrology.lab.example.", allowed));
+	/* no Host: an HTTP/1.0 client, not a browser */
+	assert_true(web_host_allowed(NULL, allowed));
+
+	/* another name resolving here (DNS rebinding) */
+	assert_false(web_host_allowed("evil.example:7718", allowed));
+	assert_false(web_host_allowed("evil.example", allowed));
+	assert_false(web_host_allowed("127.0.0.1.evil.example", allowed));
+	assert_false(web_host_allowed("localhost.evil", allowed));
+	assert_false(web_host_allowed("localhost:80x", allowed));
+	assert_false(web_host_allowed("[::1]x", allowed));
+	assert_false(web_host_allowed("[::1", allowed));
+	assert_false(web_host_allowed("[127.0.0.2]:1", allowed));
+	assert_false(web_host_allowed("", allowed));
+	assert_false(web_host_allowed(":7718", allowed));
+	assert_false(web_host_allowed(".", allowed));
+	assert_false(web_host_allowed("localhost", (char *const[]){ NULL }));
+}
+
 /* "Authorization: Bearer TOKEN" (RFC 6750, 2.1): the scheme in any case,
  * blanks around, one token of visible ASCII; nothing else. */
 static void test_bearer(void **state)
@@ -154,6 +185,7 @@ static void test_bearer(void **state)
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
+		cmocka_unit_test(test_host),
 		cmocka_unit_test(test_origin),
 		cmocka_unit_test(test_count),
 		cmocka_unit_test(test_job_route),

@@ -429,13 +429,10 @@ int cmd_status(struct ctl *ctl, int argc, char **argv)
 	return EXIT_OK;
 }
 
-/* One CSV field (RFC 4180): quoted when it holds a comma, a quote or a
- * line break, control characters escaped as ctl_escape() does. */
-static void csv_field(const char *s, bool last)
+/* One CSV cell (RFC 4180): quoted when it holds a comma, a quote or a
+ * line break. */
+static void csv_cell(const char *t, bool last)
 {
-	_cleanup_free_ char *e = ctl_escape(s ? s : "", false);
-	const char *t = e ? e : "";
-
 	if (strpbrk(t, ",\"\r\n")) {
 		putchar('"');
 		for (const char *c = t; *c; c++) {
@@ -450,6 +447,22 @@ static void csv_field(const char *s, bool last)
 	putchar(last ? '\n' : ',');
 }
 
+/* A text field: control characters escaped as ctl_escape() does (a tab
+ * or a carriage return becomes \t, \x0d), and one that a spreadsheet
+ * would take for a formula (it starts with = + - @, a tab or a carriage
+ * return: OWASP's "CSV injection") starts with a ' so that it is shown as
+ * the text it is. */
+static void csv_field(const char *s, bool last)
+{
+	_cleanup_free_ char *e = ctl_escape(s ? s : "", false);
+	_cleanup_free_ char *guarded = NULL;
+	const char *t = e ? e : "";
+
+	if (t[0] && strchr("=+-@\t\r", t[0]) && asprintf(&guarded, "'%s", t) >= 0)
+		t = guarded;
+	csv_cell(t, last);
+}
+
 static void csv_number(const json_t *v, bool last)
 {
 	char buf[32] = "";
@@ -458,7 +471,7 @@ static void csv_number(const json_t *v, bool last)
 		snprintf(buf, sizeof(buf), "%lld", (long long)json_integer_value(v));
 	else if (json_is_number(v))
 		snprintf(buf, sizeof(buf), "%.17g", json_number_value(v));
-	csv_field(buf, last);
+	csv_cell(buf, last);
 }
 
 static const char csv_header[] =

@@ -11,72 +11,16 @@
 
 #include "asphctl.h"
 #include "util-mem.h"
-
-/*
- * The length of the character at s that must be escaped, and its code
- * point, or 0: C0 controls, DEL, C1 controls (U+0080..U+009F) and the
- * bidirectional overrides and isolates (U+202A..U+202E, U+2066..U+2069).
- */
-static size_t control_at(const unsigned char *s, unsigned *cp)
-{
-	if (s[0] < 0x20 || s[0] == 0x7f) {
-		*cp = s[0];
-		return 1;
-	}
-	if (s[0] == 0xc2 && s[1] >= 0x80 && s[1] <= 0x9f) {
-		*cp = s[1];
-		return 2;
-	}
-	if (s[0] == 0xe2 && s[1] == 0x80 && s[2] >= 0xaa && s[2] <= 0xae) {
-		*cp = 0x202au + (s[2] - 0xaa);
-		return 3;
-	}
-	if (s[0] == 0xe2 && s[1] == 0x81 && s[2] >= 0xa6 && s[2] <= 0xa9) {
-		*cp = 0x2066u + (s[2] - 0xa6);
-		return 3;
-	}
-	return 0;
-}
+#include "util-text.h"
 
 static bool needs_escape(const char *s)
 {
-	unsigned cp;
-
-	for (const unsigned char *p = (const unsigned char *)s; *p; p++)
-		if (control_at(p, &cp))
-			return true;
-	return false;
+	return text_has_controls(s);
 }
 
 char *ctl_escape(const char *s, bool json)
 {
-	size_t n = strlen(s);
-	char *out = malloc(6 * n + 1), *o = out;
-	const unsigned char *p = (const unsigned char *)s;
-	unsigned cp;
-
-	if (!out)
-		return NULL;
-	while (*p) {
-		size_t len = control_at(p, &cp);
-		/* In JSON text a raw C0 character is layout: jansson has
-		 * escaped those inside strings. */
-		if (!len || (json && cp < 0x20)) {
-			*o++ = (char)*p++;
-			continue;
-		}
-		if (!json && cp == '\n')
-			o += sprintf(o, "\\n");
-		else if (!json && cp == '\t')
-			o += sprintf(o, "\\t");
-		else if (!json && cp < 0x80)
-			o += sprintf(o, "\\x%02x", cp);
-		else
-			o += sprintf(o, "\\u%04x", cp);
-		p += len;
-	}
-	*o = '\0';
-	return out;
+	return text_escape_controls(s, json);
 }
 
 void ctl_escape_json(json_t *j)

@@ -1,0 +1,46 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+/*
+ * A job's parameters checked (jobspec.h) and, where wanted, its measuring
+ * time predicted (jobplan.h): the work of job.submit and job.estimate,
+ * done by a task (tasks.h) since a freeform surface, a plan and its
+ * feed-rate profile take seconds to compute. The loop makes it from the
+ * request (its own copies of everything), a worker thread runs it, the
+ * loop reads what it found. Each function says which thread runs it.
+ */
+#ifndef ASPHD_ESTIMATE_H
+#define ASPHD_ESTIMATE_H
+
+#include <stdbool.h>
+#include <stdint.h>
+
+#include <jansson.h>
+
+#include "asph-proto.h"
+#include "asph-driver/instrument.h"
+#include "jobspec.h"
+#include "tasks.h"
+
+struct estimate {
+	/* what to do */
+	json_t *params;                 /* a copy of the request's */
+	struct jobspec_limits limits;
+	struct asph_config *instrument; /* a copy, or NULL: no time wanted */
+	/* what was found */
+	int code;                       /* 0, or the protocol's error code */
+	struct proto_why why;
+	json_t *spec;                   /* the job's specification */
+	uint64_t points;
+	bool timed;                     /* the instrument can predict: seconds */
+	double seconds;
+};
+
+/* Loop: the work for params (copied), with the time on instrument ic
+ * (copied; NULL: none wanted). 0 or -ENOMEM. */
+int estimate_new(json_t *params, const struct jobspec_limits *limits,
+		 const struct asph_instrument_config *ic, struct estimate **out);
+/* A task's run(): worker thread. Always 0 (what it found is in e). */
+int estimate_run(void *e, const struct task *task);
+/* A task's free(): loop. */
+void estimate_free(void *e);
+
+#endif
