@@ -12,6 +12,7 @@
 #include "asph-proto.h"
 #include "util-mem.h"
 #include "util-time.h"
+#include "util-utf8.h"
 
 static const struct {
 	int code;
@@ -142,43 +143,12 @@ size_t proto_lines_pending(const struct proto_lines *l)
 
 /* ------------------------------------------------------------ messages */
 
-/* Length of the valid UTF-8 sequence at s (RFC 3629: no overlong forms, no
- * surrogates, nothing past U+10FFFF), or 0. */
-static size_t utf8_sequence(const unsigned char *s)
-{
-	unsigned n, min, cp;
-
-	if (s[0] < 0x80)
-		return 1;
-	if (s[0] >= 0xc2 && s[0] <= 0xdf) {
-		n = 2;
-		min = 0x80;
-	} else if (s[0] >= 0xe0 && s[0] <= 0xef) {
-		n = 3;
-		min = 0x800;
-	} else if (s[0] >= 0xf0 && s[0] <= 0xf4) {
-		n = 4;
-		min = 0x10000;
-	} else {
-		return 0;
-	}
-	cp = s[0] & (0x7fu >> n);
-	for (unsigned i = 1; i < n; i++) {
-		if ((s[i] & 0xc0) != 0x80)
-			return 0;
-		cp = cp << 6 | (s[i] & 0x3fu);
-	}
-	if (cp < min || cp > 0x10ffff || (cp >= 0xd800 && cp <= 0xdfff))
-		return 0;
-	return n;
-}
-
 size_t proto_utf8_clean(char *text)
 {
-	unsigned char *s = (unsigned char *)text, *out = s;
+	unsigned char *s = (unsigned char *)text, *out = s, *end = s + strlen(text);
 
 	while (*s) {
-		size_t n = utf8_sequence(s);
+		size_t n = utf8_sequence(s, (size_t)(end - s), NULL);
 		if (n == 0) {
 			s++;
 			continue;

@@ -10,37 +10,7 @@
 
 #include "asph/report.h"
 #include "report-text.h"
-
-/* The length of the valid UTF-8 sequence at s (1 to 4), its code point in
- * *code, or 0 when it is not one: a stray continuation byte, a truncated or
- * overlong sequence, a surrogate, or past U+10FFFF. */
-static size_t utf8_valid_length(const unsigned char *s, uint32_t *code)
-{
-	uint32_t c;
-	size_t n;
-
-	*code = s[0];
-	if (s[0] < 0x80)
-		return 1;
-	if (s[0] >= 0xc2 && s[0] <= 0xdf)
-		n = 2, c = s[0] & 0x1f;
-	else if (s[0] >= 0xe0 && s[0] <= 0xef)
-		n = 3, c = s[0] & 0x0f;
-	else if (s[0] >= 0xf0 && s[0] <= 0xf4)
-		n = 4, c = s[0] & 0x07;
-	else
-		return 0;
-	for (size_t k = 1; k < n; k++) {
-		if ((s[k] & 0xc0) != 0x80)
-			return 0;
-		c = c << 6 | (s[k] & 0x3f);
-	}
-	if ((n == 3 && c < 0x800) || (n == 4 && (c < 0x10000 || c > 0x10ffff)) ||
-	    (c >= 0xd800 && c <= 0xdfff))
-		return 0;
-	*code = c;
-	return n;
-}
+#include "util-utf8.h"
 
 /* A C1 control character (U+0080 to U+009F), as two bytes of UTF-8. */
 static int is_c1_control(const unsigned char *s, size_t n)
@@ -59,19 +29,20 @@ static int is_noncharacter(uint32_t c)
 
 char *report_text_clean(const char *text)
 {
-	const unsigned char *s = (const unsigned char *)text;
+	const unsigned char *s = (const unsigned char *)text, *end;
 	char *out, *o;
 
 	if (!text)
 		return NULL;
+	end = s + strlen(text);
 	/* U+FFFD takes 3 bytes where the invalid byte took 1. */
-	out = malloc(3 * strlen(text) + 1);
+	out = malloc(3 * (size_t)(end - s) + 1);
 	if (!out)
 		return NULL;
 	o = out;
 	while (*s) {
-		uint32_t c;
-		size_t n = utf8_valid_length(s, &c);
+		uint32_t c = 0;
+		size_t n = utf8_sequence(s, (size_t)(end - s), &c);
 		if (n == 0 || is_noncharacter(c)) {
 			/* a noncharacter's 3 or 4 bytes become U+FFFD's 3 */
 			memcpy(o, "\xef\xbf\xbd", 3);
@@ -148,8 +119,7 @@ static int lines_add(struct report_lines *l, const char *s, size_t len)
 /* The byte length of the (clean) character at s. */
 static size_t char_length(const char *s)
 {
-	uint32_t c;
-	size_t n = utf8_valid_length((const unsigned char *)s, &c);
+	size_t n = utf8_sequence((const unsigned char *)s, strnlen(s, 4), NULL);
 
 	return n ? n : 1;
 }

@@ -13,6 +13,7 @@
 #include "readers.h"
 #include "util-mem.h"
 #include "util-number.h"
+#include "util-utf8.h"
 
 #define BLANK_SEP ' '
 
@@ -188,11 +189,16 @@ static int try_header(const struct text_line *l, struct text_layout *t, struct a
 
 	t->sep = line_separator(l);
 	t->col[0] = t->col[1] = t->col[2] = t->ivalue = -1;
-	int last_axis = -1;
+	int last_axis = -1, not_utf8 = -1;
+	size_t not_utf8_at = 0;
 
 	while ((r = next_field(l, t->sep, f.next, &f, err)) > 0) {
 		double scale;
 		char unit[16], name[64];
+		if (not_utf8 < 0 && !utf8_valid(l->s + f.b, f.e - f.b)) {
+			not_utf8 = col;
+			not_utf8_at = f.b;
+		}
 		copy_text(name, sizeof(name), l->s + f.b, f.e - f.b);
 		/* blank separated, "x [mm]" is two fields: the unit goes with
 		 * the axis before it */
@@ -229,6 +235,13 @@ static int try_header(const struct text_line *l, struct text_layout *t, struct a
 	if (r < 0)
 		return r;
 	t->count = col;
+	/* A header with a column's name its writer garbled (or wrote in
+	 * Latin-1): which column holds what cannot be told with certainty.
+	 * (A preamble line in Latin-1 names no axes and is passed over.) */
+	if (t->col[0] >= 0 && t->col[2] >= 0 && not_utf8 >= 0)
+		return asph_error_set_at(err, -EINVAL, l->source, l->no, (int)not_utf8_at + 1, NULL,
+					 "text: the header's field %d is not UTF-8 text (save the file as UTF-8)",
+					 not_utf8 + 1);
 	/* x and z without y: a line profile along x, as a tactile
 	 * profilometer exports one (y = 0) */
 	return t->col[0] >= 0 && t->col[2] >= 0;

@@ -195,6 +195,17 @@ static void test_text_profile(void **state)
 	assert_true(p->n == 1 && p->xyz[0] == 1 && p->xyz[1] == 0 && p->xyz[2] == 0.004);
 	assert_true(p->value[0] == 7);
 	asph_points_free(p);
+	/* a header whose column's name is not UTF-8 is refused at that field;
+	 * a Latin-1 preamble line before a good header is passed over */
+	const char garbled[] = "x,\xc3,z\n1,2,3\n";
+	const char latin1[] = "Operator: M\xfcller\nx,y,z\n1,2,3\n";
+	assert_int_equal(asph_points_read_csv_text(garbled, strlen(garbled), "g.csv", &p, &err), -EINVAL);
+	assert_int_equal(err.line, 1);
+	assert_int_equal(err.column, 3);
+	assert_non_null(strstr(err.message, "not UTF-8"));
+	assert_int_equal(asph_points_read_csv_text(latin1, strlen(latin1), "l.csv", &p, &err), 0);
+	assert_true(p->n == 1 && p->xyz[2] == 3);
+	asph_points_free(p);
 }
 
 /* Headers as R's write.csv() and spreadsheets write them. */
