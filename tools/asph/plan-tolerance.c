@@ -306,7 +306,7 @@ static void print_result(const struct plan_tolerance_cli *c, const char *lens,
 		others |= r->methods[m].outcome != ASPH_PLAN_SEARCH_CHOSEN &&
 			  r->methods[m].outcome != ASPH_PLAN_SEARCH_NOT_TRIED;
 	if (others) {
-		printf("The other methods:\n");
+		printf(r->found ? "The other methods:\n" : "The methods:\n");
 		for (int m = 0; m < ASPH_PLAN_N_METHODS; m++)
 			print_method(r, &r->methods[m]);
 	}
