@@ -13,7 +13,7 @@
 #include "access.h"
 #include "account.h"
 #include "log.h"
-#include "sha256.h"
+#include "util-hash.h"
 #include "util-mem.h"
 #include "util-time.h"
 
@@ -67,11 +67,11 @@ static void load_group(struct loader *ld, struct access *a)
 
 static void digest_of(const char *token, uint8_t digest[32])
 {
-	struct sha256 h;
+	struct sha256_ctx h;
 
 	sha256_init(&h);
-	sha256_update(&h, token, strlen(token));
-	sha256_final(&h, digest);
+	sha256_update(&h, strlen(token), (const uint8_t *)token);
+	sha256_digest(&h, SHA256_DIGEST_SIZE, digest);
 	explicit_bzero(&h, sizeof(h));
 }
 

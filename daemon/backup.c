@@ -20,7 +20,7 @@
 #include "dirs.h"
 #include "log.h"
 #include "mailbox.h"
-#include "sha256.h"
+#include "util-hash.h"
 #include "store.h"
 #include "util-mem.h"
 #include "util-time.h"
@@ -91,8 +91,7 @@ static int digest(struct backup *bk)
 	_cleanup_close_ int fd = open(bk->path, O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
 	static const size_t chunk = 1 << 16;
 	_cleanup_free_ unsigned char *buf = malloc(chunk);
-	struct sha256 h;
-	uint8_t d[32];
+	struct sha256_ctx h;
 	ssize_t n;
 
 	if (fd < 0 || !buf)
@@ -102,14 +101,12 @@ static int digest(struct backup *bk)
 	while ((n = read(fd, buf, chunk)) > 0) {
 		if (atomic_load(&bk->cancel))
 			return -ECANCELED;
-		sha256_update(&h, buf, (size_t)n);
+		sha256_update(&h, (size_t)n, buf);
 		bk->size += n;
 	}
 	if (n < 0)
 		return -errno;
-	sha256_final(&h, d);
-	for (size_t i = 0; i < sizeof(d); i++)
-		snprintf(bk->sha256 + 2 * i, 3, "%02x", d[i]);
+	sha256_hex_of(&h, bk->sha256);
 	return 0;
 }
 

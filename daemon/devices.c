@@ -7,7 +7,7 @@
 #include <sys/stat.h>
 
 #include "account.h"
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "devices.h"
 
 /* One option of an instrument's stage or probe, as the policy sees it. */

@@ -4,7 +4,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "instruments.h"
 #include "util-time.h"
 #include "log.h"

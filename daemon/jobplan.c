@@ -6,7 +6,7 @@
 
 #include <jansson.h>
 
-#include "asph/executor.h"
+#include "asph-engine/executor.h"
 #include "jobplan.h"
 #include "util-mem.h"
 

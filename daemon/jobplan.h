@@ -11,7 +11,7 @@
 
 #include "asph/error.h"
 #include "asph/fit.h"
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "asph/plan.h"
 #include "asph/prescription.h"
 #include "asph/tolerance.h"

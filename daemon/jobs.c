@@ -8,6 +8,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "asph-proto.h"
 #include "dirs.h"
 #include "jobs.h"
 #include "log.h"
@@ -1271,16 +1272,6 @@ int jobs_history(struct jobs *jobs, int64_t id, store_event_fn fn, void *data,
 				      id, strerror(-r)) : 0;
 }
 
-static json_t *time_json(int64_t ns)
-{
-	char buf[32];
-
-	if (ns <= 0)
-		return json_null();
-	iso8601_utc(ns, 0, buf, sizeof(buf));
-	return json_string(buf);
-}
-
 json_t *jobs_job_to_json(const struct jobs *jobs, const struct job_record *j)
 {
 	_cleanup_(json_decrefp) json_t *spec = json_loads(j->spec, 0, NULL);
@@ -1318,9 +1309,9 @@ json_t *jobs_job_to_json(const struct jobs *jobs, const struct job_record *j)
 		"fit", json_object_get(spec, "fit"),
 		"tolerance", json_object_get(spec, "tolerance"),
 		"verdict", job_verdict(j, verdict),
-		"submitted", time_json(j->submitted_ns),
-		"started", time_json(j->started_ns),
-		"finished", time_json(j->finished_ns),
+		"submitted", proto_time_json(j->submitted_ns),
+		"started", proto_time_json(j->started_ns),
+		"finished", proto_time_json(j->finished_ns),
 		"progress", progress,
 		"reason", j->reason,
 		"attempts", (json_int_t)j->attempts,

@@ -9,9 +9,10 @@
 #include <jansson.h>
 #include <sqlite3.h>
 
+#include "asph-proto.h"
 #include "log.h"
 #include "outbox.h"
-#include "sha256.h"
+#include "util-hash.h"
 #include "util-mem.h"
 #include "util-time.h"
 
@@ -174,16 +175,6 @@ void outbox_set_sink(struct outbox *o, enum outbox_sink_kind k, const struct out
 
 /* ------------------------------------------------------------ messages */
 
-static json_t *time_json(int64_t ns)
-{
-	char buf[ISO8601_SIZE];
-
-	if (ns <= 0)
-		return json_null();
-	iso8601_utc(ns, 3, buf, sizeof(buf));
-	return json_string(buf);
-}
-
 /* What every message says about the job. */
 static json_t *job_fields(const struct outbox *o, const struct store_change *c,
 			  const char *message_id)
@@ -217,7 +208,7 @@ static char *state_message(const struct outbox *o, const struct store_change *c,
 			    : json_string(job_state_name((enum job_state)c->previous)));
 	json_object_set_new(m, "reason", c->reason ? json_string(c->reason) : json_null());
 	json_object_set_new(m, "actor", c->actor ? json_string(c->actor) : json_null());
-	json_object_set_new(m, "time", time_json(c->t_ns));
+	json_object_set_new(m, "time", proto_time_json(c->t_ns));
 	return dump(m);
 }
 
@@ -253,7 +244,7 @@ static char *result_message(const struct outbox *o, const struct store_change *c
 
 	if (!m || !res)
 		return dump(m);
-	json_object_set_new(m, "finished", time_json(c->t_ns));
+	json_object_set_new(m, "finished", proto_time_json(c->t_ns));
 	json_object_set(m, "summary", json_object_get(res, "summary"));
 	json_object_set_new(m, "verdict", verdict_of(json_object_get(res, "summary")));
 	json_object_set_new(m, "provenance", json_pack("{s:O?, s:O?, s:O?, s:O?, s:o}",
@@ -283,9 +274,9 @@ static char *row_message(const struct outbox *o, const struct store_change *c,
 			    : json_null());
 	json_object_set_new(m, "submitted_by", json_pack("{s:I, s:s?}", "uid", (json_int_t)j->uid,
 							 "name", j->user));
-	json_object_set_new(m, "submitted", time_json(j->submitted_ns));
-	json_object_set_new(m, "started", time_json(j->started_ns));
-	json_object_set_new(m, "finished", time_json(c->t_ns));
+	json_object_set_new(m, "submitted", proto_time_json(j->submitted_ns));
+	json_object_set_new(m, "started", proto_time_json(j->started_ns));
+	json_object_set_new(m, "finished", proto_time_json(c->t_ns));
 	json_object_set_new(m, "points", json_integer(j->points_done));
 	json_object_set_new(m, "attempts", json_integer(j->attempts));
 	json_object_set(m, "summary", summary ? summary : json_null());

@@ -13,8 +13,8 @@
 #include <sys/stat.h>
 
 #include "asph/characterize.h"
-#include "asph/instrument.h"
-#include "asph/mc-runner.h"
+#include "asph-driver/instrument.h"
+#include "asph-mc/mc-runner.h"
 #include "asph-proto.h"
 #include "config.h"
 #include "dirs.h"
@@ -77,7 +77,7 @@ static int on_progress(void *data, size_t done, size_t planned)
 	return job->cancelled && job->cancelled(job->cancelled_data);
 }
 
-/* The Monte Carlo on a thread per online processor (drivers/mc-runner.c),
+/* The Monte Carlo on a thread per online processor (drivers/mc/mc-runner.c),
  * the first block announced before it starts, the trials run after. */
 static int run_mc(void *data, struct asph_mc *mc, struct asph_mc_result *out,
 		  struct asph_error *err)

@@ -15,8 +15,8 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-#include "asph/executor.h"
-#include "asph/instrument.h"
+#include "asph-engine/executor.h"
+#include "asph-driver/instrument.h"
 #include "asph/plan.h"
 #include "asph/prescription.h"
 #include "asph/scanfile.h"

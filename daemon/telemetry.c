@@ -7,6 +7,7 @@
 
 #include <jansson.h>
 
+#include "asph-proto.h"
 #include "config.h"
 #include "log.h"
 #include "telemetry.h"
@@ -85,19 +86,11 @@ const char *telemetry_status_topic(const struct telemetry *t)
 	return t->status_topic;
 }
 
-static json_t *time_json(int64_t ns)
-{
-	char buf[ISO8601_SIZE];
-
-	iso8601_utc(ns, 0, buf, sizeof(buf));
-	return json_string(buf);
-}
-
 static json_t *status_base(const struct telemetry *t, const char *state)
 {
 	return json_pack("{s:s, s:s, s:s, s:s, s:o}", "state", state, "daemon", t->daemon_id,
 			 "host", t->host, "version", ASPH_VERSION, "since",
-			 time_json(t->started_ns));
+			 proto_time_json(t->started_ns));
 }
 
 char *telemetry_offline(const struct telemetry *t)
@@ -204,7 +197,7 @@ static void publish_progress(struct telemetry *t, const struct event *ev)
 	m = json_deep_copy(ev->params);
 	if (!m)
 		return;
-	json_object_set_new(m, "time", time_json(now));
+	json_object_set_new(m, "time", proto_time_json(now));
 	text = json_dumps(m, JSON_COMPACT);
 	json_decref(m);
 	snprintf(topic, sizeof(topic), "%s/job/%" PRId64 "/progress", t->prefix, ev->job);

@@ -8,7 +8,9 @@
 
 #include "asph-proto.h"
 #include "log.h"
-#include "sha256.h"
+#include <nettle/memops.h>
+
+#include "util-hash.h"
 #include "store.h"
 #include "tokens.h"
 #include "util-mem.h"
@@ -140,13 +142,10 @@ static int make_secret(char secret[TOKENS_SECRET_SIZE])
 
 	if (n != (ssize_t)sizeof(raw))
 		return n < 0 ? -errno : -EIO;
-	b64 = proto_base64_encode(raw, sizeof(raw));
+	b64 = proto_base64url_encode(raw, sizeof(raw));
 	explicit_bzero(raw, sizeof(raw));
 	if (!b64)
 		return -ENOMEM;
-	for (char *p = b64; *p; p++)
-		*p = *p == '+' ? '-' : *p == '/' ? '_' : *p;
-	b64[strcspn(b64, "=")] = '\0';
 	snprintf(secret, TOKENS_SECRET_SIZE, "asph_%s", b64);
 	explicit_bzero(b64, strlen(b64));
 	return 0;
@@ -161,7 +160,7 @@ int tokens_create(struct tokens *t, const char *name, enum access_role role,
 		.expires_ns = expires_ns, .created_by = creator,
 	};
 	uint8_t digest[32];
-	struct sha256 h;
+	struct sha256_ctx h;
 	int r;
 
 	if (!name_ok(name))
@@ -179,8 +178,8 @@ int tokens_create(struct tokens *t, const char *name, enum access_role role,
 	if (r < 0)
 		return asph_error_set(err, r, "cannot make a secret: %s", strerror(-r));
 	sha256_init(&h);
-	sha256_update(&h, secret, strlen(secret));
-	sha256_final(&h, digest);
+	sha256_update(&h, strlen(secret), (const uint8_t *)secret);
+	sha256_digest(&h, SHA256_DIGEST_SIZE, digest);
 	explicit_bzero(&h, sizeof(h));
 	st.digest = digest;
 	r = store_token_insert(t->store, &st);
@@ -217,16 +216,6 @@ int tokens_revoke(struct tokens *t, const char *name, struct asph_error *err)
 	return 0;
 }
 
-static json_t *time_or_null(int64_t ns)
-{
-	char buf[ISO8601_SIZE];
-
-	if (!ns)
-		return json_null();
-	iso8601_utc(ns, 0, buf, sizeof(buf));
-	return json_string(buf);
-}
-
 json_t *tokens_to_json(const struct tokens *t)
 {
 	int64_t now = now_realtime_ns();
@@ -238,20 +227,16 @@ json_t *tokens_to_json(const struct tokens *t)
 			: k->info.expires_ns && k->info.expires_ns <= now ? "expired" : "active";
 		json_array_append_new(list, json_pack("{s:s, s:s, s:s, s:o, s:s?, s:o, s:o}",
 			"name", k->info.name, "role", access_role_name(k->info.role),
-			"state", state, "created", time_or_null(k->created_ns),
-			"created_by", k->created_by, "expires", time_or_null(k->info.expires_ns),
-			"revoked", time_or_null(k->info.revoked_ns)));
+			"state", state, "created", proto_time_json(k->created_ns),
+			"created_by", k->created_by, "expires", proto_time_json(k->info.expires_ns),
+			"revoked", proto_time_json(k->info.revoked_ns)));
 	}
 	return json_pack("{s:o}", "tokens", list);
 }
 
 bool tokens_digest_equal(const uint8_t a[32], const uint8_t b[32])
 {
-	unsigned diff = 0;
-
-	for (size_t i = 0; i < 32; i++)
-		diff |= (unsigned)(a[i] ^ b[i]);
-	return diff == 0;
+	return memeql_sec(a, b, 32);
 }
 
 int tokens_match(const struct tokens *t, const uint8_t digest[32], struct token_info *out)

@@ -25,6 +25,7 @@
 #include <unistd.h>
 
 #include <microhttpd.h>
+#include <nettle/memops.h>
 
 #include "asph-proto.h"
 #include "asph/prescription.h"
@@ -303,11 +304,8 @@ static struct session *find_session(struct web *w, struct MHD_Connection *c)
 	if (strlen(id) != sizeof(s->id) - 1)
 		return NULL;
 	for (s = w->sessions; s; s = s->next) {
-		unsigned diff = 0;
 		/* compared in full: the time says nothing of where they differ */
-		for (size_t i = 0; i < sizeof(s->id) - 1; i++)
-			diff |= (unsigned)(id[i] ^ s->id[i]);
-		if (!diff) {
+		if (memeql_sec(id, s->id, sizeof(s->id) - 1)) {
 			s->last_used_ns = now_realtime_ns();
 			return s;
 		}
@@ -398,13 +396,10 @@ static int new_session_id(char id[44])
 
 	if (getrandom(bytes, sizeof(bytes), 0) != sizeof(bytes))
 		return -errno;
-	b64 = proto_base64_encode(bytes, sizeof(bytes));
+	b64 = proto_base64url_encode(bytes, sizeof(bytes));
 	if (!b64)
 		return -ENOMEM;
-	/* base64url, without padding: a cookie value needs no quoting */
-	for (size_t i = 0; i < 43; i++)
-		id[i] = b64[i] == '+' ? '-' : b64[i] == '/' ? '_' : b64[i];
-	id[43] = '\0';
+	snprintf(id, 44, "%s", b64);
 	return 0;
 }
 

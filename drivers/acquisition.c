@@ -6,7 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 
 void asph_acquisition_defaults(struct asph_acquisition *a)
 {

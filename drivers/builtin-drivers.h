@@ -6,8 +6,8 @@
 
 #include <stddef.h>
 
-#include "asph/driver.h"
-#include "asph/instrument.h"
+#include "asph-driver/driver.h"
+#include "asph-driver/instrument.h"
 
 #define ARRAY_LEN(a) (sizeof(a) / sizeof((a)[0]))
 

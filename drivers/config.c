@@ -8,7 +8,7 @@
 
 #include <jansson.h>
 
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "jsonpos.h"
 #include "options-internal.h"
 #include "fileio.h"
@@ -169,7 +169,7 @@ static int json_options(const struct json_source *src, json_t *obj,
 	if (!json_is_object(obj))
 		return json_error_set_at(err, -EINVAL, src, path, "options must be an object");
 	json_object_foreach(obj, key, v) {
-		int i = option_index(drv, key);
+		int i = asph_option_index(drv, key);
 		const char *text;
 		int r;
 
@@ -510,7 +510,7 @@ int asph_instrument_config_copy(const struct asph_instrument_config *c,
 
 static int lens_option(struct asph_options *o, const char *json, struct asph_error *err)
 {
-	int i = option_index(asph_options_driver(o), "lens");
+	int i = asph_option_index(asph_options_driver(o), "lens");
 
 	if (i < 0 || asph_options_driver(o)->options[i].type != ASPH_OPTION_STRING)
 		return 0;

@@ -7,7 +7,7 @@
 
 #include <jansson.h>
 
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "util-mem.h"
 
 /* Every role named: an option (or driver) of roles 0 serves both. */

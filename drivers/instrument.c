@@ -7,7 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "util-time.h"
 
 /*

@@ -129,7 +129,7 @@ int option_desc_validate(const struct asph_option_desc *d,
 	return 0;
 }
 
-int option_index(const struct asph_driver *drv, const char *name)
+int asph_option_index(const struct asph_driver *drv, const char *name)
 {
 	for (size_t i = 0; i < drv->n_options; i++)
 		if (!strcmp(drv->options[i].name, name))
@@ -145,17 +145,6 @@ const char *option_hint(const struct asph_driver *drv, const char *name, char *b
 	suggest_init(&s, name);
 	for (size_t i = 0; i < drv->n_options; i++)
 		suggest_offer(&s, drv->options[i].name);
-	return suggest_hint(&s, buf, size);
-}
-
-const char *driver_hint(const struct asph_registry *reg, const char *name, char *buf,
-			size_t size)
-{
-	struct suggest s;
-
-	suggest_init(&s, name);
-	for (size_t i = 0; i < asph_registry_count(reg); i++)
-		suggest_offer(&s, asph_registry_get(reg, i)->name);
 	return suggest_hint(&s, buf, size);
 }
 
@@ -220,7 +209,7 @@ static int store(struct asph_options *o, int i, const char *text, bool set,
 int asph_options_set(struct asph_options *o, const char *name,
 		     const char *text, struct asph_error *err)
 {
-	int i = option_index(o->drv, name);
+	int i = asph_option_index(o->drv, name);
 
 	if (i < 0) {
 		char hint[96];
@@ -234,7 +223,7 @@ int asph_options_set(struct asph_options *o, const char *name,
 int asph_options_set_default(struct asph_options *o, const char *name,
 			     const char *text, struct asph_error *err)
 {
-	int i = option_index(o->drv, name);
+	int i = asph_option_index(o->drv, name);
 
 	if (i < 0 || o->values[i].set)
 		return 0;

@@ -11,12 +11,13 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "builtin-drivers.h"
 #include "drivers-config.h"
 #include "options-internal.h"
 #include "util-fs.h"
 #include "util-mem.h"
+#include "util-suggest.h"
 
 struct registry_entry {
 	const struct asph_driver *driver;
@@ -187,7 +188,7 @@ static int load_table(struct asph_registry *r, void *h, const char *path,
 	const struct asph_driver *const *table = fn(&abi, &n);
 	if (!abi_loadable(abi))
 		return asph_error_set(err, -EPROTO,
-				      "plugin built for driver ABI %u.%u, this program has ABI %u.%u: rebuild it against this version's asph/driver.h",
+				      "plugin built for driver ABI %u.%u, this program has ABI %u.%u: rebuild it against this version's asph-driver/driver.h",
 				      ASPH_DRIVER_ABI_MAJOR_OF(abi), ASPH_DRIVER_ABI_MINOR_OF(abi),
 				      ASPH_DRIVER_ABI_MAJOR, ASPH_DRIVER_ABI_MINOR);
 	if (!table || n == 0)
@@ -368,6 +369,17 @@ const struct asph_driver *asph_registry_find(const struct asph_registry *r,
 		if (!strcmp(r->entries[i].driver->name, name))
 			return r->entries[i].driver;
 	return NULL;
+}
+
+const char *driver_hint(const struct asph_registry *reg, const char *name, char *buf,
+			size_t size)
+{
+	struct suggest s;
+
+	suggest_init(&s, name);
+	for (size_t i = 0; i < asph_registry_count(reg); i++)
+		suggest_offer(&s, asph_registry_get(reg, i)->name);
+	return suggest_hint(&s, buf, size);
 }
 
 const char *asph_option_type_name(enum asph_option_type t)

@@ -11,7 +11,7 @@
 #include <stdbool.h>
 #include <stddef.h>
 
-#include "asph/driver.h"
+#include "asph-driver/driver.h"
 
 /* Type, tip radius (0 for an optical probe) and the measuring range of
  * width range centred on the standoff. */

@@ -155,6 +155,13 @@ char *proto_dump(const json_t *msg, size_t *len);
  * returns the new length. */
 size_t proto_utf8_clean(char *text);
 
+/* ------------------------------------------------------------------ time */
+
+/* A time as every message carries it: ISO 8601 UTC to the millisecond
+ * ("2026-12-07T16:55:01.123Z"), or null when not known (ns <= 0: not yet
+ * started, never expires). NULL when out of memory. */
+json_t *proto_time_json(int64_t ns);
+
 /* ---------------------------------------------------------------- base64 */
 
 /* RFC 4648 base64 with padding, as job.file sends bytes: the text
@@ -163,6 +170,10 @@ char *proto_base64_encode(const void *data, size_t n);
 /* Back to bytes (malloc'd, *n of them): 0, -EINVAL for anything but
  * padded base64 of the standard alphabet, -ENOMEM. */
 int proto_base64_decode(const char *text, size_t len, void **out, size_t *n);
+
+/* RFC 4648 base64url without padding (§5): tokens and cookie values,
+ * which then need no quoting. NULL when out of memory. */
+char *proto_base64url_encode(const void *data, size_t n);
 
 /* ---------------------------------------------------------- parameters */
 

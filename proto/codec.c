@@ -1,13 +1,17 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 #include <errno.h>
+#include <stdint.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
+#include <nettle/base64.h>
+
 #include "asph-proto.h"
 #include "util-mem.h"
+#include "util-time.h"
 
 static const struct {
 	int code;
@@ -411,6 +415,22 @@ static int param_get(json_t *params, const char *name, bool required,
 	return 0;
 }
 
+#define TYPE(t) (1u << (t))
+
+/* param_get(), and the member is one of the JSON types in the mask types
+ * (TYPE(JSON_STRING), ...), else the error that it must be must_be. */
+static int param_typed(json_t *params, const char *name, bool required, unsigned types,
+		       const char *must_be, json_t **v, struct proto_why *why)
+{
+	int r = param_get(params, name, required, v, why);
+
+	if (r < 0)
+		return r;
+	if (!(types & TYPE(json_typeof(*v))))
+		return proto_why_set(why, "\"%s\" must be %s", name, must_be);
+	return 0;
+}
+
 int proto_params_only(json_t *params, const char *const *names,
 		      struct proto_why *why)
 {
@@ -437,12 +457,10 @@ int proto_param_int(json_t *params, const char *name, bool required,
 		    struct proto_why *why)
 {
 	json_t *v;
-	int r = param_get(params, name, required, &v, why);
+	int r = param_typed(params, name, required, TYPE(JSON_INTEGER), "an integer", &v, why);
 
 	if (r < 0)
 		return r;
-	if (!json_is_integer(v))
-		return proto_why_set(why, "\"%s\" must be an integer", name);
 	json_int_t x = json_integer_value(v);
 	if (x < min || x > max)
 		return proto_why_set(why, "\"%s\" must be in [%lld, %lld]", name,
@@ -456,12 +474,11 @@ int proto_param_number(json_t *params, const char *name, bool required,
 		       struct proto_why *why)
 {
 	json_t *v;
-	int r = param_get(params, name, required, &v, why);
+	int r = param_typed(params, name, required, TYPE(JSON_INTEGER) | TYPE(JSON_REAL),
+			    "a number", &v, why);
 
 	if (r < 0)
 		return r;
-	if (!json_is_number(v))
-		return proto_why_set(why, "\"%s\" must be a number", name);
 	double x = json_number_value(v);
 	if (!isfinite(x) || x < min || x > max)
 		return proto_why_set(why, "\"%s\" must be in [%g, %g]", name, min, max);
@@ -473,12 +490,11 @@ int proto_param_bool(json_t *params, const char *name, bool required,
 		     bool *out, struct proto_why *why)
 {
 	json_t *v;
-	int r = param_get(params, name, required, &v, why);
+	int r = param_typed(params, name, required, TYPE(JSON_TRUE) | TYPE(JSON_FALSE),
+			    "true or false", &v, why);
 
 	if (r < 0)
 		return r;
-	if (!json_is_boolean(v))
-		return proto_why_set(why, "\"%s\" must be true or false", name);
 	*out = json_is_true(v);
 	return 0;
 }
@@ -488,12 +504,10 @@ int proto_param_string(json_t *params, const char *name, bool required,
 		       struct proto_why *why)
 {
 	json_t *v;
-	int r = param_get(params, name, required, &v, why);
+	int r = param_typed(params, name, required, TYPE(JSON_STRING), "a string", &v, why);
 
 	if (r < 0)
 		return r;
-	if (!json_is_string(v))
-		return proto_why_set(why, "\"%s\" must be a string", name);
 	if (json_string_length(v) > max_len)
 		return proto_why_set(why, "\"%s\" is longer than %zu bytes", name, max_len);
 	if (strlen(json_string_value(v)) != json_string_length(v))
@@ -506,12 +520,10 @@ int proto_param_object(json_t *params, const char *name, bool required,
 		       json_t **out, struct proto_why *why)
 {
 	json_t *v;
-	int r = param_get(params, name, required, &v, why);
+	int r = param_typed(params, name, required, TYPE(JSON_OBJECT), "an object", &v, why);
 
 	if (r < 0)
 		return r;
-	if (!json_is_object(v))
-		return proto_why_set(why, "\"%s\" must be an object", name);
 	*out = v;
 	return 0;
 }
@@ -522,12 +534,11 @@ int proto_param_flags(json_t *params, const char *name, bool required,
 {
 	json_t *v, *e;
 	size_t i;
-	int r = param_get(params, name, required, &v, why);
+	int r = param_typed(params, name, required, TYPE(JSON_ARRAY), "an array of strings",
+			    &v, why);
 
 	if (r < 0)
 		return r;
-	if (!json_is_array(v))
-		return proto_why_set(why, "\"%s\" must be an array of strings", name);
 	*mask = 0;
 	json_array_foreach(v, i, e) {
 		size_t k;
@@ -548,71 +559,65 @@ int proto_param_flags(json_t *params, const char *name, bool required,
 
 /* ------------------------------------------------------------- base64 */
 
-static const char b64[] = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+json_t *proto_time_json(int64_t ns)
+{
+	char buf[ISO8601_SIZE];
+
+	if (ns <= 0)
+		return json_null();
+	iso8601_utc(ns, 3, buf, sizeof(buf));
+	return json_string(buf);
+}
 
 char *proto_base64_encode(const void *data, size_t n)
 {
-	const unsigned char *in = data;
-	char *out = malloc(4 * ((n + 2) / 3) + 1), *o = out;
+	char *out = n <= (SIZE_MAX - 1) / 2 ? malloc(BASE64_ENCODE_RAW_LENGTH(n) + 1) : NULL;
 
 	if (!out)
 		return NULL;
-	for (size_t i = 0; i < n; i += 3) {
-		uint32_t v = (uint32_t)in[i] << 16;
-		if (i + 1 < n)
-			v |= (uint32_t)in[i + 1] << 8;
-		if (i + 2 < n)
-			v |= in[i + 2];
-		*o++ = b64[v >> 18 & 63];
-		*o++ = b64[v >> 12 & 63];
-		*o++ = i + 1 < n ? b64[v >> 6 & 63] : '=';
-		*o++ = i + 2 < n ? b64[v & 63] : '=';
-	}
-	*o = '\0';
+	base64_encode_raw(out, n, data);
+	out[BASE64_ENCODE_RAW_LENGTH(n)] = '\0';
 	return out;
 }
 
-static int b64_value(char c)
+char *proto_base64url_encode(const void *data, size_t n)
 {
-	const char *p = c ? strchr(b64, c) : NULL;
+	struct base64_encode_ctx ctx;
+	char *out = n <= (SIZE_MAX - 1) / 2 ? malloc(BASE64_ENCODE_LENGTH(n) + BASE64_ENCODE_FINAL_LENGTH + 1) : NULL;
+	size_t len;
 
-	return p ? (int)(p - b64) : -1;
+	if (!out)
+		return NULL;
+	base64url_encode_init(&ctx);
+	len = base64_encode_update(&ctx, out, n, data);
+	len += base64_encode_final(&ctx, out + len);
+	out[len] = '\0';
+	out[strcspn(out, "=")] = '\0';
+	return out;
 }
 
 int proto_base64_decode(const char *text, size_t len, void **out, size_t *n)
 {
-	unsigned char *buf, *o;
+	struct base64_decode_ctx ctx;
+	unsigned char *buf;
+	size_t got;
 
+	/* nettle skips white space; the protocol's base64 has none, and is padded */
 	if (len % 4)
 		return -EINVAL;
-	buf = malloc(len / 4 * 3 + 1);
+	for (size_t i = 0; i < len; i++)
+		if (text[i] == ' ' || text[i] == '\t' || text[i] == '\r' || text[i] == '\n')
+			return -EINVAL;
+	buf = malloc(BASE64_DECODE_LENGTH(len) + 1);
 	if (!buf)
 		return -ENOMEM;
-	o = buf;
-	for (size_t i = 0; i < len; i += 4) {
-		int v[4], pad = 0;
-		for (int k = 0; k < 4; k++) {
-			bool last = i + 4 == len;
-			if (text[i + k] == '=' && last && k >= 2 && (k == 3 || text[i + 3] == '=')) {
-				v[k] = 0;
-				pad++;
-				continue;
-			}
-			v[k] = pad ? -1 : b64_value(text[i + k]);
-			if (v[k] < 0) {
-				free(buf);
-				return -EINVAL;
-			}
-		}
-		uint32_t w = (uint32_t)v[0] << 18 | (uint32_t)v[1] << 12 | (uint32_t)v[2] << 6 |
-			     (uint32_t)v[3];
-		*o++ = (unsigned char)(w >> 16);
-		if (pad < 2)
-			*o++ = (unsigned char)(w >> 8);
-		if (pad < 1)
-			*o++ = (unsigned char)w;
+	got = BASE64_DECODE_LENGTH(len) + 1;
+	base64_decode_init(&ctx);
+	if (!base64_decode_update(&ctx, &got, buf, len, text) || !base64_decode_final(&ctx)) {
+		free(buf);
+		return -EINVAL;
 	}
 	*out = buf;
-	*n = (size_t)(o - buf);
+	*n = got;
 	return 0;
 }

@@ -6,6 +6,8 @@
 // only decides what the page offers.
 import { drawMap, colourScale } from "./map.js";
 import { zernikeBars, radialProfile, psdChart, psdTable, parsePsd } from "./charts.js";
+import { planMethods, presets } from "./names.js";
+import { NO_SIGN, UNIT, formatQuantity, labelOf, quantityAt, quantityOfVerdict } from "./quantity.js";
 
 const $ = (id) => document.getElementById(id);
 let role = null;
@@ -217,6 +219,15 @@ $("queue-stop").addEventListener("click", () => act("queue.stop", {}));
 
 // ------------------------------------------------------------- submit
 
+// The presets and plan methods from libasph's tables (names.js): strong on
+// the Fermat spiral unless the operator picks another.
+function fillChoices(form) {
+  const option = (value, text, chosen) => el("option", { value, ...(chosen ? { selected: "" } : {}) }, text);
+  form.elements.lens.replaceChildren(...presets.map((p) => option(p, p, p === "strong")));
+  form.elements.method.replaceChildren(...planMethods.map((m) => option(m.name, m.title, m.name === "fermat")));
+}
+fillChoices($("submit-form"));
+
 // The form as job.submit's parameters; throws an Error saying which field
 // does not read.
 async function submitParams(form) {
@@ -353,27 +364,42 @@ async function fetchBatches(l) {
 
 // ------------------------------------------------------------- result
 
-const fmt = (v, digits = 3) => (typeof v === "number" ? v.toPrecision(digits) : v ?? "–");
+// A summary's quantity: its label and unit, and its value as printed.
+const quantityRow = (s, path) => {
+  const q = quantityAt(path);
+  return [labelOf(q), formatQuantity(q, s[path])];
+};
 
 async function showResult(id) {
   const r = await rpc("job.result", { id });
   const s = r.summary;
   $("result-job").textContent = `#${id}`;
   const rows = [["lens", s.lens], ["points used", `${s.n_used} of ${s.n_points}`],
-    ["RMS (nm)", fmt(s.rms_nm)], ["PV (nm)", fmt(s.pv_nm)], ["PVr (nm)", fmt(s.pvr_nm)],
-    ["Zernike slope RMS (µrad)", fmt(s.slope_rms_urad)], ["converged", s.converged ? "yes" : "no"]];
+    ...["rms_nm", "pv_nm", "pvr_nm", "slope_rms_urad"].map((p) => quantityRow(s, p)),
+    ["converged", s.converged ? "yes" : "no"]];
   const table = el("table", { id: "verdict" }, el("tbody", {}, ...rows.map(([k, v]) => el("tr", {}, el("th", {}, k), el("td", {}, v)))));
+  const dofRow = ([k, v]) => {
+    const q = quantityAt(`dof.${k}`);
+    return el("tr", {}, el("td", {}, k), el("td", {}, formatQuantity(q, v, UNIT)),
+      el("td", {}, formatQuantity(q, (s.uncertainty || {})[k], UNIT | NO_SIGN)));
+  };
   const pose = el("table", { id: "pose" }, el("thead", {}, el("tr", {}, el("th", {}, "DOF"), el("th", {}, "value"), el("th", {}, "± u"))),
-    el("tbody", {}, ...Object.entries(s.dof || {}).map(([k, v]) => el("tr", {}, el("td", {}, k), el("td", {}, fmt(v)), el("td", {}, fmt((s.uncertainty || {})[k]))))));
+    el("tbody", {}, ...Object.entries(s.dof || {}).map(dofRow)));
   const files = el("ul", { id: "downloads" }, ...Object.values(r.files).map((name) =>
     el("li", {}, el("a", { href: `/api/jobs/${id}/files/${encodeURIComponent(name)}`, download: `job${id}-${name}` }, name))));
   const parts = [table];
   if (s.verdict) {
     // ISO 14253-1: each toleranced quantity with its value, U and limit
+    // a zone two-sided about zero has its limit as ±L, as in the report
+    const item = (i) => {
+      const q = quantityOfVerdict(i.quantity);
+      return el("tr", {}, el("td", {}, labelOf(q)), el("td", {}, formatQuantity(q, i.value)),
+        el("td", {}, formatQuantity(q, i.U, NO_SIGN)),
+        el("td", {}, (q.two_sided ? "±" : "") + formatQuantity(q, i.limit, NO_SIGN)), el("td", {}, i.verdict));
+    };
     parts.push(el("h3", {}, `Verdict: ${s.verdict.overall}`), el("table", { id: "tolerances" },
       el("thead", {}, el("tr", {}, ...["quantity", "value", "U", "limit", "verdict"].map((h) => el("th", {}, h)))),
-      el("tbody", {}, ...s.verdict.items.map((i) => el("tr", {}, el("td", {}, i.quantity), el("td", {}, fmt(i.value)),
-        el("td", {}, fmt(i.U)), el("td", {}, fmt(i.limit)), el("td", {}, i.verdict))))));
+      el("tbody", {}, ...s.verdict.items.map(item))));
   } else parts.push(el("p", {}, "No tolerance was given: no verdict."));
   parts.push(el("h3", {}, "Pose"), pose);
   if (s.zernike_nm) parts.push(el("h3", { id: "zernike-h" }, "Zernike coefficients"), zernikeBars(s.zernike_nm));

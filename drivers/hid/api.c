@@ -10,7 +10,7 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "asph/driver.h"
+#include "asph-driver/driver.h"
 #include "keyboard.h"
 #include "protocol.h"
 #include "std.h"

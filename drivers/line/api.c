@@ -11,7 +11,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "asph/driver.h"
+#include "asph-driver/driver.h"
 #include "dialogue.h"
 #include "files.h"
 #include "std.h"

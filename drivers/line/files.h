@@ -11,7 +11,7 @@
 
 #include <stddef.h>
 
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "profile.h"
 
 /* A profile by name (searched as above) or by path (a name with a '/').

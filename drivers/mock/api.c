@@ -9,7 +9,7 @@
 #include <string.h>
 #include <time.h>
 
-#include "asph/driver.h"
+#include "asph-driver/driver.h"
 #include "asph/units.h"
 #include "bench.h"
 #include "protocol.h"

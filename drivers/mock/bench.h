@@ -16,7 +16,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "asph/driver.h"
+#include "asph-driver/driver.h"
 #include "asph/error.h"
 #include "asph/motion.h"
 

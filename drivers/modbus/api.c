@@ -10,7 +10,7 @@
 #include <string.h>
 #include <time.h>
 
-#include "asph/driver.h"
+#include "asph-driver/driver.h"
 #include "protocol.h"
 #include "sensor.h"
 #include "stage.h"

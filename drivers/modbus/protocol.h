@@ -2,8 +2,8 @@
 /*
  * Modbus on the wire: a bus (libmodbus, RTU or TCP) with timeouts, retries
  * and failures turned into the driver ABI's codes with a readable reason;
- * 16/32-bit register words; and a pure decoder of response frames (no I/O)
- * that the fuzz target exercises. Internal to drivers/.
+ * 16/32-bit register words. libmodbus frames the requests and checks the
+ * answers. Internal to drivers/.
  */
 #ifndef ASPH_MODBUS_PROTOCOL_H
 #define ASPH_MODBUS_PROTOCOL_H
@@ -14,36 +14,12 @@
 
 #include "asph/error.h"
 
-/* ------------------------------------------------------------ frames */
+/* ------------------------------------------------------------ framing */
 
 enum mb_framing {
 	MB_FRAMING_RTU = 0,     /* unit, PDU, CRC-16 (low byte first) */
 	MB_FRAMING_TCP,         /* MBAP header (7 bytes), PDU */
 };
-
-/* A decoded response ADU. data points into the decoded buffer. */
-struct mb_frame {
-	uint16_t transaction;   /* TCP only */
-	uint8_t unit;
-	uint8_t function;       /* without the exception flag 0x80 */
-	uint8_t exception;      /* exception code; 0 for a normal answer */
-	const uint8_t *data;    /* register bytes (reads) or the echoed
-				 * address and value/quantity (writes) */
-	size_t len;
-	size_t size;            /* bytes of buf the frame takes */
-};
-
-/*
- * Decodes a response frame without I/O. -EBADMSG for a frame that is too
- * short, has a bad CRC (RTU) or an MBAP header that does not fit (TCP),
- * -EPROTO for a PDU whose length does not match its function, -ENOTSUP for
- * a function code it does not know. On failure *out is left zeroed.
- */
-int mb_frame_decode(const uint8_t *buf, size_t len, enum mb_framing framing,
-		    struct mb_frame *out);
-
-/* The Modbus RTU CRC-16 (polynomial 0xA001, initial 0xFFFF). */
-uint16_t mb_crc16(const uint8_t *buf, size_t len);
 
 /* "illegal data address", ...; a generic text for unknown codes. */
 const char *mb_exception_text(unsigned code);

@@ -13,7 +13,7 @@
 #include <stdbool.h>
 #include <stdint.h>
 
-#include "asph/driver.h"
+#include "asph-driver/driver.h"
 #include "protocol.h"
 
 struct stage_map {

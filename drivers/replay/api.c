@@ -11,7 +11,7 @@
 #include <string.h>
 #include <time.h>
 
-#include "asph/driver.h"
+#include "asph-driver/driver.h"
 #include "asph/scanfile.h"
 #include "std.h"
 #include "util-time.h"

@@ -13,7 +13,7 @@
 #include <string.h>
 #include <time.h>
 
-#include "asph/driver.h"
+#include "asph-driver/driver.h"
 #include "protocol.h"
 #include "scpi.h"
 #include "std.h"

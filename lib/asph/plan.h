@@ -2,6 +2,7 @@
 #ifndef ASPH_PLAN_H
 #define ASPH_PLAN_H
 
+#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -33,7 +34,15 @@ enum asph_plan_method {
 
 /* Name as on the command line ("op", "ot", ...) and back. */
 const char *asph_plan_method_name(enum asph_plan_method m);
+/* What the method is, in words: "optimal transport", "circle involute". */
+const char *asph_plan_method_title(enum asph_plan_method m);
 int asph_plan_method_from_name(const char *name, enum asph_plan_method *out);
+/* The methods' names in the order of the enum, ", " between them
+ * ("op, ot, lb, ..."), as snprintf() writes them: the length of the whole
+ * list. */
+int asph_plan_method_names(char *buf, size_t size);
+/* The method's plan comes with a mesh (the grid methods op, ot, lb). */
+bool asph_plan_method_has_mesh(enum asph_plan_method m);
 /* The method name closest to a mistyped one ("cvtt": "cvt"), or NULL when
  * none is near. */
 const char *asph_plan_method_suggest(const char *name);
@@ -43,6 +52,7 @@ enum asph_plan_density_kind {
 	ASPH_DENSITY_H = 0,      /* mean edge length / aperture radius (paper) */
 	ASPH_DENSITY_SPACING,    /* mean point spacing on the surface, mm */
 	ASPH_DENSITY_POINTS,     /* approximate number of points */
+	ASPH_PLAN_N_DENSITIES
 };
 
 struct asph_plan_density {
@@ -54,6 +64,9 @@ struct asph_plan_density {
 const char *asph_plan_density_name(enum asph_plan_density_kind k);
 int asph_plan_density_from_name(const char *name,
 				enum asph_plan_density_kind *out);
+/* Their names, ", " between them ("h, spacing, points"), as
+ * asph_plan_method_names() writes the methods'. */
+int asph_plan_density_names(char *buf, size_t size);
 
 struct asph_plan {
 	enum asph_plan_method method;

@@ -10,7 +10,7 @@
 #include <unistd.h>
 
 #include <jansson.h>
-#include <nettle/sha2.h>
+#include "util-hash.h"
 
 #include "asph/characterize.h"
 #include "characterize-internal.h"
@@ -85,22 +85,11 @@ int asph_characterize_summary_json(const struct asph_characterization *c, int in
 
 /* ------------------------------------------------------------ result.json */
 
-static void hex_of(const uint8_t *d, size_t n, char *hex)
-{
-	static const char digits[] = "0123456789abcdef";
-
-	for (size_t i = 0; i < n; i++) {
-		hex[2 * i] = digits[d[i] >> 4];
-		hex[2 * i + 1] = digits[d[i] & 15];
-	}
-	hex[2 * n] = '\0';
-}
-
 /* The SHA-256 of a file of the folder, read beneath it. */
 static int hash_file(int dir_fd, const char *name, char hex[65])
 {
 	_cleanup_close_ int fd = fs_open_beneath(dir_fd, name, O_RDONLY, 0);
-	uint8_t buf[65536], digest[SHA256_DIGEST_SIZE];
+	uint8_t buf[65536];
 	struct sha256_ctx h;
 	ssize_t n;
 
@@ -111,8 +100,7 @@ static int hash_file(int dir_fd, const char *name, char hex[65])
 		sha256_update(&h, (size_t)n, buf);
 	if (n < 0)
 		return -errno;
-	sha256_digest(&h, sizeof(digest), digest);
-	hex_of(digest, sizeof(digest), hex);
+	sha256_hex_of(&h, hex);
 	return 0;
 }
 
@@ -200,7 +188,6 @@ int characterize_result_json(const struct asph_characterization *c,
 			     json_t *files, char **out, struct asph_error *err)
 {
 	const struct asph_characterize_run *run = &c->opts.run;
-	uint8_t digest[SHA256_DIGEST_SIZE];
 	struct sha256_ctx h;
 	int64_t job = characterize_job(c);
 	char sha[65];
@@ -208,8 +195,7 @@ int characterize_result_json(const struct asph_characterization *c,
 
 	sha256_init(&h);
 	sha256_update(&h, run->data_len, run->data);
-	sha256_digest(&h, sizeof(digest), digest);
-	hex_of(digest, sizeof(digest), sha);
+	sha256_hex_of(&h, sha);
 	result = json_pack("{s:o, s:o, s:o, s:o, s:O}",
 			   "job", job > 0 ? json_integer(job) : json_null(),
 			   "summary", summary(c),

@@ -7,7 +7,7 @@
 #include <string.h>
 
 #include <libxml/tree.h>
-#include <nettle/md5.h>
+#include "util-hash.h"
 #include <zip.h>
 
 #include "asph/x3p.h"
@@ -19,18 +19,6 @@
 #define DATA_NAME "bindata/data.bin"
 #define MM_TO_M 1e-3
 #define NM_TO_M 1e-9
-
-static void md5_hex(const void *data, size_t len, char hex[33])
-{
-	struct md5_ctx c;
-	uint8_t d[MD5_DIGEST_SIZE];
-
-	md5_init(&c);
-	md5_update(&c, len, data);
-	md5_digest(&c, sizeof(d), d);
-	for (int i = 0; i < MD5_DIGEST_SIZE; i++)
-		snprintf(hex + 2 * i, 3, "%02x", d[i]);
-}
 
 /* The schema's elements below the root are unqualified (no namespace):
  * xmlNewChild() would give them the parent's. */
@@ -312,8 +300,10 @@ int asph_x3p_write_points(const char *path, const double *xyz, size_t n,
 	data = malloc(24 * n);
 	if (!data)
 		return asph_error_set(err, -ENOMEM, "out of memory");
+	/* divided by 1000, not multiplied by 1e-3: the metres read back
+	 * (times 1000, lib/points) and written again give the same bits */
 	for (size_t i = 0; i < 3 * n; i++)
-		put_le_double(data + 8 * i, xyz[i] * MM_TO_M);
+		put_le_double(data + 8 * i, xyz[i] / 1000.0);
 	return write_container(path, &L, data, 24 * n, info, err);
 }
 

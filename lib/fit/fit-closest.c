@@ -7,6 +7,7 @@
 #include "asph/fit.h"
 #include "fit-model.h"
 #include "util-mem.h"
+#include "util-suggest.h"
 
 /* Newton stops when the next step in r is below this (mm, relative to
  * 1 + a). That last step is still applied (by Taylor expansion), which
@@ -457,10 +458,12 @@ int asph_fit_dof_parse(const char *list, unsigned *mask,
 	for (;;) {
 		size_t len = strcspn(p, ",");
 		int d = dof_lookup(p, len);
-		if (d < 0)
-			return asph_error_set(err, -EINVAL,
-					      "unknown degree of freedom '%.*s' (tx, ty, tz, rx, ry, rz, R, k)",
-					      (int)len, p);
+		if (d < 0) {
+			char known[64];
+			suggest_join(known, sizeof(known), dof_names, ASPH_FIT_N_DOF, ", ");
+			return asph_error_set(err, -EINVAL, "unknown degree of freedom '%.*s' (%s)",
+					      (int)len, p, known);
+		}
 		if (out & ASPH_FIT_DOF_BIT(d))
 			return asph_error_set(err, -EINVAL,
 					      "degree of freedom '%s' given twice", dof_names[d]);

@@ -81,7 +81,7 @@ struct asph_fit {
 size_t fit_evaluate_all(struct asph_fit *w);
 
 /* The foot of point i in the part frame at the current parameters (the
- * point's own x, y for sag residuals). */
+ * point's own x, y for sag residuals; fit-foot.c). */
 void fit_point_foot(const struct asph_fit *w, size_t i, double xy[2]);
 
 /* That foot in polar coordinates over the disk that holds the aperture

@@ -3,6 +3,7 @@
  * results asphd stores, so both carry the same keys. */
 #include <errno.h>
 #include <math.h>
+#include <stddef.h>
 
 #include <jansson.h>
 
@@ -25,78 +26,88 @@ static json_t *dof_object(const struct asph_fit_result *r, const double *v)
 	return o;
 }
 
-static json_t *form_object(const struct asph_form *f)
+/* A number of a result's struct, at its offset, under its key. */
+struct number_member {
+	const char *key;
+	size_t offset;          /* of a double */
+};
+
+#define NUMBER(type, key, member) { key, offsetof(type, member) }
+
+/* The numbers members[0, n) of base as one object, in that order. */
+static json_t *numbers_object(const void *base, const struct number_member *members, size_t n)
 {
 	json_t *o = json_object();
 
-	if (!o)
-		return NULL;
-	json_object_set_new(o, "A_nm", json_num(f->A.v));
-	json_object_set_new(o, "B_nm", json_num(f->B.v));
-	json_object_set_new(o, "C_nm", json_num(f->C.v));
-	json_object_set_new(o, "A_fringes", json_num(f->A_fringes));
-	json_object_set_new(o, "B_fringes", json_num(f->B_fringes));
-	json_object_set_new(o, "C_fringes", json_num(f->C_fringes));
-	json_object_set_new(o, "rms_t_nm", json_num(f->rms_t.v));
-	json_object_set_new(o, "rms_i_nm", json_num(f->rms_i.v));
-	json_object_set_new(o, "rms_a_nm", json_num(f->rms_a.v));
-	json_object_set_new(o, "wavelength_nm", json_num(f->wavelength_nm));
+	for (size_t i = 0; o && i < n; i++)
+		json_object_set_new(o, members[i].key,
+				    json_num(*(const double *)((const char *)base +
+							       members[i].offset)));
 	return o;
 }
 
+#define NUMBERS_OBJECT(base, members) numbers_object(base, members, ARRAY_SIZE(members))
+
+static const struct number_member form_members[] = {
+	NUMBER(struct asph_form, "A_nm", A.v),
+	NUMBER(struct asph_form, "B_nm", B.v),
+	NUMBER(struct asph_form, "C_nm", C.v),
+	NUMBER(struct asph_form, "A_fringes", A_fringes),
+	NUMBER(struct asph_form, "B_fringes", B_fringes),
+	NUMBER(struct asph_form, "C_fringes", C_fringes),
+	NUMBER(struct asph_form, "rms_t_nm", rms_t.v),
+	NUMBER(struct asph_form, "rms_i_nm", rms_i.v),
+	NUMBER(struct asph_form, "rms_a_nm", rms_a.v),
+	NUMBER(struct asph_form, "wavelength_nm", wavelength_nm),
+};
+
+static const struct number_member slope_members[] = {
+	NUMBER(struct asph_slope, "rms_urad", rms.v),
+	NUMBER(struct asph_slope, "max_urad", max.v),
+	NUMBER(struct asph_slope, "length_mm", length_mm),
+	NUMBER(struct asph_slope, "rms_radial_urad", rms_radial.v),
+	NUMBER(struct asph_slope, "max_radial_urad", max_radial.v),
+	NUMBER(struct asph_slope, "rms_azimuthal_urad", rms_azimuthal.v),
+	NUMBER(struct asph_slope, "max_azimuthal_urad", max_azimuthal.v),
+};
+
+static const struct number_member radius_members[] = {
+	NUMBER(struct asph_fit_result, "R_mm", value[ASPH_FIT_R]),
+	NUMBER(struct asph_fit_result, "nominal_mm", R_nominal_mm),
+	NUMBER(struct asph_fit_result, "deviation_mm", R_deviation_mm),
+};
+
+/* The same keys as the quantities covered (form, slope, radius). */
+static const struct number_member uncertainty_members[] = {
+	NUMBER(struct asph_uncertainty_k2, "A_nm", A.v),
+	NUMBER(struct asph_uncertainty_k2, "B_nm", B.v),
+	NUMBER(struct asph_uncertainty_k2, "C_nm", C.v),
+	NUMBER(struct asph_uncertainty_k2, "A_fringes", A_fringes),
+	NUMBER(struct asph_uncertainty_k2, "B_fringes", B_fringes),
+	NUMBER(struct asph_uncertainty_k2, "C_fringes", C_fringes),
+	NUMBER(struct asph_uncertainty_k2, "rms_t_nm", rms_t.v),
+	NUMBER(struct asph_uncertainty_k2, "rms_i_nm", rms_i.v),
+	NUMBER(struct asph_uncertainty_k2, "rms_a_nm", rms_a.v),
+	NUMBER(struct asph_uncertainty_k2, "rms_urad", slope_rms.v),
+	NUMBER(struct asph_uncertainty_k2, "max_urad", slope_max.v),
+	NUMBER(struct asph_uncertainty_k2, "R_mm", R_mm),
+	NUMBER(struct asph_uncertainty_k2, "deviation_mm", R_mm),
+};
+
 static json_t *slope_object(const struct asph_slope *sl)
 {
-	json_t *o = json_object();
+	json_t *o = NUMBERS_OBJECT(sl, slope_members);
 
-	if (!o)
-		return NULL;
-	json_object_set_new(o, "rms_urad", json_num(sl->rms.v));
-	json_object_set_new(o, "max_urad", json_num(sl->max.v));
-	json_object_set_new(o, "length_mm", json_num(sl->length_mm));
-	json_object_set_new(o, "rms_radial_urad", json_num(sl->rms_radial.v));
-	json_object_set_new(o, "max_radial_urad", json_num(sl->max_radial.v));
-	json_object_set_new(o, "rms_azimuthal_urad", json_num(sl->rms_azimuthal.v));
-	json_object_set_new(o, "max_azimuthal_urad", json_num(sl->max_azimuthal.v));
-	json_object_set_new(o, "n_positions", json_integer((json_int_t)sl->n));
+	if (o)
+		json_object_set_new(o, "n_positions", json_integer((json_int_t)sl->n));
 	return o;
 }
 
 static json_t *radius_object(const struct asph_fit_result *r)
 {
-	json_t *o;
-
 	if (!(r->dof & ASPH_FIT_DOF_BIT(ASPH_FIT_R)))
 		return json_null();
-	o = json_object();
-	if (!o)
-		return NULL;
-	json_object_set_new(o, "R_mm", json_num(r->value[ASPH_FIT_R]));
-	json_object_set_new(o, "nominal_mm", json_num(r->R_nominal_mm));
-	json_object_set_new(o, "deviation_mm", json_num(r->R_deviation_mm));
-	return o;
-}
-
-/* The same keys as the quantities covered (form, slope, radius). */
-static json_t *uncertainty_object(const struct asph_uncertainty_k2 *u)
-{
-	json_t *o = json_object();
-
-	if (!o)
-		return NULL;
-	json_object_set_new(o, "A_nm", json_num(u->A.v));
-	json_object_set_new(o, "B_nm", json_num(u->B.v));
-	json_object_set_new(o, "C_nm", json_num(u->C.v));
-	json_object_set_new(o, "A_fringes", json_num(u->A_fringes));
-	json_object_set_new(o, "B_fringes", json_num(u->B_fringes));
-	json_object_set_new(o, "C_fringes", json_num(u->C_fringes));
-	json_object_set_new(o, "rms_t_nm", json_num(u->rms_t.v));
-	json_object_set_new(o, "rms_i_nm", json_num(u->rms_i.v));
-	json_object_set_new(o, "rms_a_nm", json_num(u->rms_a.v));
-	json_object_set_new(o, "rms_urad", json_num(u->slope_rms.v));
-	json_object_set_new(o, "max_urad", json_num(u->slope_max.v));
-	json_object_set_new(o, "R_mm", json_num(u->R_mm));
-	json_object_set_new(o, "deviation_mm", json_num(u->R_mm));
-	return o;
+	return NUMBERS_OBJECT(r, radius_members);
 }
 
 static json_t *verdict_object(const struct asph_verdict_report *v)
@@ -161,10 +172,11 @@ static json_t *result_json(const struct asph_fit_result *r, const char *lens,
 	json_object_set_new(root, "zernike_fit_rms_left_nm", json_num(r->zernike_fit_rms_left.v));
 	json_object_set_new(root, "slope_rms_urad", json_num(r->slope_rms.v));
 	json_object_set_new(root, "zernike_nm", z);
-	json_object_set_new(root, "form", form_object(&r->form));
+	json_object_set_new(root, "form", NUMBERS_OBJECT(&r->form, form_members));
 	json_object_set_new(root, "slope", slope_object(&r->slope));
 	json_object_set_new(root, "radius", radius_object(r));
-	json_object_set_new(root, "uncertainty_k2", uncertainty_object(&r->uncertainty_k2));
+	json_object_set_new(root, "uncertainty_k2",
+			    NUMBERS_OBJECT(&r->uncertainty_k2, uncertainty_members));
 	json_object_set_new(root, "uncertainty_method",
 			    json_string(asph_uncertainty_method_name(r->uncertainty_k2.method)));
 	json_object_set_new(root, "verdict", verdict_object(&r->verdict));

@@ -186,37 +186,7 @@ int plan_outline_append(const struct asph_surface *s, double p, double x0, doubl
 
 /* ---- patterns -------------------------------------------------------------- */
 
-/* A planar pattern of plan-patterns.h on the disk of radius a at the
- * origin. */
-struct planar_pattern {
-	size_t (*count)(double a, double p);
-	int (*fill)(double a, double p, double *xyr);
-};
-
-static const struct planar_pattern *planar_of(enum asph_plan_method m)
-{
-	static const struct planar_pattern disk = { plan_disk_grid_count, plan_disk_grid_fill };
-	static const struct planar_pattern raster = { plan_raster_count, plan_raster_fill };
-	static const struct planar_pattern concentric = { plan_concentric_count,
-							  plan_concentric_fill };
-	static const struct planar_pattern spiral = { plan_spiral_count, plan_spiral_fill };
-	static const struct planar_pattern fermat = { plan_fermat_count, plan_fermat_fill };
-
-	switch (m) {
-	case ASPH_PLAN_RASTER:
-		return &raster;
-	case ASPH_PLAN_CONCENTRIC:
-		return &concentric;
-	case ASPH_PLAN_SPIRAL:
-		return &spiral;
-	case ASPH_PLAN_FERMAT:
-		return &fermat;
-	default:
-		return &disk;
-	}
-}
-
-static int planar_fill(const struct planar_pattern *pat, double a, double p,
+static int planar_fill(const struct plan_pattern *pat, double a, double p,
 		       double **xyr, size_t *n)
 {
 	*n = pat->count(a, p);
@@ -227,7 +197,7 @@ static int planar_fill(const struct planar_pattern *pat, double a, double p,
 }
 
 /* A circle: the pattern of the circle, moved to its centre. */
-static int circle_pattern(const struct asph_surface *s, const struct planar_pattern *pat,
+static int circle_pattern(const struct asph_surface *s, const struct plan_pattern *pat,
 			  double p, struct plan_points *pp)
 {
 	struct asph_aperture ap;
@@ -248,7 +218,7 @@ static int circle_pattern(const struct asph_surface *s, const struct planar_patt
 
 /* A rectangle or an ellipse: the pattern over the disk about the centre,
  * the points at least p/2 inside, then the outline. */
-static int inset_pattern(const struct asph_surface *s, const struct planar_pattern *pat,
+static int inset_pattern(const struct asph_surface *s, const struct plan_pattern *pat,
 			 double p, struct plan_points *pp, size_t *n_edge)
 {
 	double c[2], R;
@@ -334,24 +304,21 @@ static int aperture_raster(const struct asph_surface *s, double p, struct plan_p
 	return 0;
 }
 
-int plan_aperture_pattern(const struct asph_surface *s, enum asph_plan_method pattern,
+int plan_aperture_pattern(const struct asph_surface *s, const struct plan_pattern *pat,
 			  double p, struct plan_points *pp, size_t *n_edge)
 {
-	const struct planar_pattern *pat = planar_of(pattern);
 	struct asph_aperture ap;
-	int disk = pat == planar_of(ASPH_PLAN_OP);
 
 	asph_surface_aperture(s, &ap);
 	if (n_edge)
 		*n_edge = 0;
 	if (ap.shape == ASPH_APERTURE_CIRCULAR) {
 		int r = circle_pattern(s, pat, p, pp);
-		double a = 0.5 * ap.width;
-		if (r == 0 && disk && n_edge)
-			*n_edge = plan_disk_grid_count(a, p) - plan_disk_grid_spiral_count(a, p);
+		if (r == 0 && pat->rim_count && n_edge)
+			*n_edge = pat->rim_count(0.5 * ap.width, p);
 		return r;
 	}
-	if (pattern == ASPH_PLAN_RASTER)
+	if (pat->rows)
 		return aperture_raster(s, p, pp);
 	return inset_pattern(s, pat, p, pp, n_edge);
 }

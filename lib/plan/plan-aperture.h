@@ -11,6 +11,7 @@
 #include "asph/error.h"
 #include "asph/plan.h"
 #include "asph/surface.h"
+#include "plan-patterns.h"
 
 /*
  * A growing list of points (x, y and a third slot) in the part's frame. The
@@ -36,17 +37,18 @@ int plan_outline_append(const struct asph_surface *s, double p, double x0,
 			double y0, struct plan_points *pp);
 
 /*
- * The method's vertex-plane pattern at pitch p over the aperture, in scan
- * order, z = 0: on a circle (centred or not) the pattern of the circle,
- * moved to its centre; on a rectangle or an ellipse the disk grid and the
- * spirals and circles laid over the disk about the aperture's centre, kept
- * where they are at least p/2 inside, then the outline; the raster's rows
- * end on the edge (and a rectangle's top and bottom sides are rows).
- * *n_edge (may be NULL) is the number of trailing points on the edge: the
- * outline, or on a circle the disk grid's ring; 0 for the other patterns of
- * a circle and for the raster.
+ * A vertex-plane pattern (plan-patterns.h) at pitch p over the aperture, in
+ * scan order, z = 0: on a circle (centred or not) the pattern of the
+ * circle, moved to its centre; on a rectangle or an ellipse the disk grid
+ * and the spirals and circles laid over the disk about the aperture's
+ * centre, kept where they are at least p/2 inside, then the outline; a
+ * pattern of rows (the raster) has its rows end on the edge (and a
+ * rectangle's top and bottom sides are rows). *n_edge (may be NULL) is the
+ * number of trailing points on the edge: the outline, or on a circle the
+ * pattern's rim (the disk grid's ring); 0 for the other patterns of a
+ * circle and for rows.
  */
-int plan_aperture_pattern(const struct asph_surface *s, enum asph_plan_method pattern,
+int plan_aperture_pattern(const struct asph_surface *s, const struct plan_pattern *pat,
 			  double p, struct plan_points *pp, size_t *n_edge);
 
 /* Moves (x, y) towards the aperture's centre by an ulp at a time until the

@@ -101,7 +101,7 @@ int asph_lb_chart_alloc(const struct asph_surface *s, double pitch, struct asph_
 	if (!(pitch > 0) || !isfinite(pitch))
 		return asph_error_set(err, -EINVAL, "harmonic chart: pitch %g is not > 0", pitch);
 	c = calloc(1, sizeof(*c));
-	if (!c || plan_aperture_pattern(s, ASPH_PLAN_OP, pitch, &grid, NULL) < 0 ||
+	if (!c || plan_aperture_pattern(s, &plan_disk_grid, pitch, &grid, NULL) < 0 ||
 	    !(c->S = malloc(2 * grid.n * sizeof(double))))
 		return asph_error_set(err, -ENOMEM, "out of memory (%zu points)", grid.n);
 	c->s = s;

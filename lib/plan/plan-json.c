@@ -39,9 +39,12 @@ static int density_of(json_t *root, const char *source, struct asph_plan_density
 		kind_field = "plan.density.kind";
 		value_field = "plan.density.value";
 	}
-	if (asph_plan_density_from_name(json_string_value(d), &out->kind) < 0)
+	if (asph_plan_density_from_name(json_string_value(d), &out->kind) < 0) {
+		char known[64];
+		asph_plan_density_names(known, sizeof(known));
 		return asph_error_set_at(err, -EINVAL, source, 0, 0, kind_field,
-					 "the density is not one of h, spacing, points");
+					 "the density is not one of %s", known);
+	}
 	if (!json_is_number(v) || !(json_number_value(v) > 0) ||
 	    !isfinite(json_number_value(v)))
 		return asph_error_set_at(err, -EINVAL, source, 0, 0, value_field,
@@ -62,9 +65,12 @@ int asph_plan_info_from_json(const char *text, size_t len, const char *source,
 					 root ? "a plan is a JSON object" : jerr.text);
 	memset(out, 0, sizeof(*out));
 	if (asph_plan_method_from_name(json_string_value(json_object_get(root, "method")),
-				       &out->method) < 0)
+				       &out->method) < 0) {
+		char known[256];
+		asph_plan_method_names(known, sizeof(known));
 		return asph_error_set_at(err, -EINVAL, source, 0, 0, "plan.method",
-					 "not a plan method (op, ot, lb, ci, raster, concentric, spiral, fermat, cvt)");
+					 "not a plan method (%s)", known);
+	}
 	int r = density_of(root, source, &out->density, err);
 	if (r < 0)
 		return r;

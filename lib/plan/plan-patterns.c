@@ -44,12 +44,6 @@ static double involute_rho(double s0, size_t k)
 	return s0 * sqrt(1.0 + 4.0 * M_PI * (double)k);
 }
 
-static size_t disk_ring_count(double a, double p)
-{
-	double m = ceil(2.0 * M_PI * a / p - 1e-9);
-	return m < 3 ? 3 : (size_t)m;
-}
-
 size_t plan_disk_grid_spiral_count(double a, double p)
 {
 	double s0 = p / (2.0 * M_PI), rmax = a - 0.5 * p;
@@ -67,15 +61,21 @@ size_t plan_disk_grid_spiral_count(double a, double p)
 	return k;
 }
 
+size_t plan_disk_grid_rim_count(double a, double p)
+{
+	double m = ceil(2.0 * M_PI * a / p - 1e-9);
+	return m < 3 ? 3 : (size_t)m;
+}
+
 size_t plan_disk_grid_count(double a, double p)
 {
-	return plan_disk_grid_spiral_count(a, p) + disk_ring_count(a, p);
+	return plan_disk_grid_spiral_count(a, p) + plan_disk_grid_rim_count(a, p);
 }
 
 int plan_disk_grid_fill(double a, double p, double *xyr)
 {
 	double s0 = p / (2.0 * M_PI), xy[2] = { a, 0 }, rho;
-	size_t ns = plan_disk_grid_spiral_count(a, p), m = disk_ring_count(a, p);
+	size_t ns = plan_disk_grid_spiral_count(a, p), m = plan_disk_grid_rim_count(a, p);
 
 	for (size_t k = 0; k < ns; k++) {
 		plan_involute_point(s0, k, xy, &rho);
@@ -424,6 +424,32 @@ int plan_fermat_fill(double a, double p, double *xyr)
 				  at);
 	return 0;
 }
+
+/* ---- the patterns ------------------------------------------------------------ */
+
+/*
+ * Lattices measured on flat patterns of 1.26e5 points on the unit disk
+ * (Delaunay triangulation, mean edge length; points per area),
+ * docs/sampling-plans.md, "Density". Each lattice has one point per p^2 of
+ * area to within 0.5 %.
+ */
+const struct plan_pattern plan_disk_grid = {
+	.lattice = { 1.0, 1.099 }, .count = plan_disk_grid_count, .fill = plan_disk_grid_fill,
+	.rim_count = plan_disk_grid_rim_count,
+};
+const struct plan_pattern plan_raster = {
+	.lattice = { 1.0, 1.138 } /* (2 + sqrt 2) / 3 */, .count = plan_raster_count,
+	.fill = plan_raster_fill, .rows = true,
+};
+const struct plan_pattern plan_concentric = {
+	.lattice = { 1.0, 1.098 }, .count = plan_concentric_count, .fill = plan_concentric_fill,
+};
+const struct plan_pattern plan_spiral = {
+	.lattice = { 1.0, 1.099 }, .count = plan_spiral_count, .fill = plan_spiral_fill,
+};
+const struct plan_pattern plan_fermat = {
+	.lattice = { 1.0, 1.114 }, .count = plan_fermat_count, .fill = plan_fermat_fill,
+};
 
 /* ---- triangles -------------------------------------------------------------- */
 

@@ -4,6 +4,7 @@
 #ifndef ASPH_PLAN_PATTERNS_H
 #define ASPH_PLAN_PATTERNS_H
 
+#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -22,6 +23,27 @@ struct plan_lattice {
 	double edge_per_pitch;
 };
 
+/*
+ * A planar pattern: its lattice, its exact count and its points (below) on
+ * the disk of radius a, and how it lies over an aperture that is not a
+ * circle (plan-aperture.h): the disk pattern kept inside with the outline,
+ * or (rows) rows that end on the edge. rim_count, where not NULL, is the
+ * number of its trailing points on the circle r = a.
+ */
+struct plan_pattern {
+	struct plan_lattice lattice;
+	size_t (*count)(double a, double p);
+	int (*fill)(double a, double p, double *xyr);
+	size_t (*rim_count)(double a, double p);
+	bool rows;
+};
+
+extern const struct plan_pattern plan_disk_grid, plan_raster, plan_concentric, plan_spiral,
+	plan_fermat;
+
+/* The pattern a method lays (CI: the disk grid's lattice, laid on the
+ * surface), and its lattice. */
+const struct plan_pattern *plan_pattern_of(enum asph_plan_method m);
 const struct plan_lattice *plan_lattice_of(enum asph_plan_method m);
 
 /*
@@ -38,6 +60,7 @@ const struct plan_lattice *plan_lattice_of(enum asph_plan_method m);
  * <= a - p/2, then a ring of ceil(2 pi a / p) points on the circle r = a. */
 size_t plan_disk_grid_count(double a, double p);
 size_t plan_disk_grid_spiral_count(double a, double p);   /* involute samples */
+size_t plan_disk_grid_rim_count(double a, double p);      /* the ring */
 int plan_disk_grid_fill(double a, double p, double *xyr);
 
 /* k-th involute sample: t_k = 2 s0 sqrt(pi k), the arc length being

@@ -33,12 +33,15 @@
  */
 struct plan_method {
 	const char *name;
-	enum asph_plan_method pattern;  /* the planar pattern it lays (op: the disk grid) */
-	struct plan_lattice lattice;
+	const char *title;      /* in words, docs/sampling-plans.md */
+	/* the planar pattern it lays (op: the disk grid) and its lattice */
+	const struct plan_pattern *pattern;
 	bool on_surface;        /* the lattice lies on the surface (CI) */
 	bool mesh;              /* the disk grid's mesh comes with the plan */
+	/* NULL: the pattern's count on the disk of radius a */
 	size_t (*count)(const struct asph_surface *s, double a, double p);
-	/* plan->n is count's; fill allocates plan->xyz and may set plan->n */
+	/* plan->n is count's; fill allocates plan->xyz and may set plan->n;
+	 * NULL: the pattern's points */
 	int (*fill)(const struct asph_surface *s, double a, double p,
 		    struct asph_plan *plan, struct asph_error *err);
 	/* NULL: the points are on the surface already */
@@ -103,13 +106,12 @@ static double freeform_radius(const struct asph_surface *s)
 static int refuse_on_freeform(const struct asph_surface *s, enum asph_plan_method m,
 			      struct asph_error *err)
 {
-	char known[128] = "";
-	size_t len = 0;
+	const char *names[ASPH_PLAN_N_METHODS];
+	char known[128];
 
 	for (unsigned i = 0; i < ASPH_PLAN_N_METHODS; i++)
-		if (method_of(i)->freeform && len < sizeof(known))
-			len += (size_t)snprintf(known + len, sizeof(known) - len, "%s%s",
-						len ? ", " : "", method_of(i)->name);
+		names[i] = method_of(i)->freeform ? method_of(i)->name : NULL;
+	suggest_join(known, sizeof(known), names, ASPH_PLAN_N_METHODS, ", ");
 	if (asph_surface_is_radial(s))
 		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "method",
 					 "the %s plan is for rotationally symmetric parts over a "
@@ -127,11 +129,16 @@ static int refuse_on_freeform(const struct asph_surface *s, enum asph_plan_metho
 
 /* ---- density ------------------------------------------------------------- */
 
-static const char *const density_names[] = {
+static const char *const density_names[ASPH_PLAN_N_DENSITIES] = {
 	[ASPH_DENSITY_H] = "h",
 	[ASPH_DENSITY_SPACING] = "spacing",
 	[ASPH_DENSITY_POINTS] = "points",
 };
+
+int asph_plan_density_names(char *buf, size_t size)
+{
+	return suggest_join(buf, size, density_names, ARRAY_SIZE(density_names), ", ");
+}
 
 const char *asph_plan_density_name(enum asph_plan_density_kind k)
 {
@@ -183,7 +190,7 @@ static size_t pattern_count(const struct asph_surface *s,
 	 * first so they never run for long. */
 	if (!(pattern_area(s, meth) / (p * p) < 2.0 * (double)PLAN_MAX_POINTS))
 		return SIZE_MAX;
-	return meth->count(s, a, p);
+	return meth->count ? meth->count(s, a, p) : meth->pattern->count(a, p);
 }
 
 /* Pitch / spacing ratio: vertex-plane and disk lattices are stretched by
@@ -192,7 +199,7 @@ static double pitch_per_spacing(const struct asph_surface *s,
 				enum asph_plan_method m)
 {
 	const struct plan_method *meth = method_of(m);
-	double c = meth->lattice.edge_per_pitch;
+	double c = meth->pattern->lattice.edge_per_pitch;
 
 	if (meth->on_surface)
 		return 1.0 / c;
@@ -206,7 +213,7 @@ static double pitch_for_points(const struct asph_surface *s,
 			       enum asph_plan_method m, double n_req)
 {
 	const struct plan_method *meth = method_of(m);
-	double p = sqrt(pattern_area(s, meth) / (meth->lattice.area_per_pitch2 * n_req));
+	double p = sqrt(pattern_area(s, meth) / (meth->pattern->lattice.area_per_pitch2 * n_req));
 	bool costly = !asph_surface_is_rotational(s) && meth->freeform->count_is_plan;
 
 	for (int it = 0; it < 2 && !costly; it++) {
@@ -539,6 +546,16 @@ int asph_plan_to_points(const struct asph_plan *p, struct asph_points **out)
 	return 0;
 }
 
+/* Room for plan->n points, laid out by the method's planar pattern. */
+static int planar_fill(struct asph_plan *plan, double a, double p,
+		       const struct plan_pattern *pattern, struct asph_error *err)
+{
+	plan->xyz = malloc(3 * plan->n * sizeof(*plan->xyz));
+	if (!plan->xyz || pattern->fill(a, p, plan->xyz) < 0)
+		return asph_error_set(err, -ENOMEM, "out of memory (%zu points)", plan->n);
+	return 0;
+}
+
 static int compute_points(const struct asph_surface *s, struct asph_plan *plan,
 			  struct plan_size *sz, unsigned flags,
 			  const struct asph_progress *progress, struct asph_error *err)
@@ -553,8 +570,10 @@ static int compute_points(const struct asph_surface *s, struct asph_plan *plan,
 		r = 0;
 	} else if (freeform) {
 		r = meth->freeform->fill(s, meth, sz->p, plan, err);
-	} else {
+	} else if (meth->fill) {
 		r = meth->fill(s, asph_surface_aperture_radius(s), sz->p, plan, err);
+	} else {
+		r = planar_fill(plan, asph_surface_aperture_radius(s), sz->p, meth->pattern, err);
 	}
 	if (r < 0)
 		return r;
@@ -619,28 +638,6 @@ int asph_plan_compute(const struct asph_surface *s, enum asph_plan_method m,
 
 /* ---- the methods ---------------------------------------------------------- */
 
-/* Room for plan->n points, laid out by a planar pattern. */
-static int planar(struct asph_plan *plan, double a, double p,
-		  int (*pattern)(double a, double p, double *xyr),
-		  struct asph_error *err)
-{
-	plan->xyz = malloc(3 * plan->n * sizeof(*plan->xyz));
-	if (!plan->xyz || pattern(a, p, plan->xyz) < 0)
-		return asph_error_set(err, -ENOMEM, "out of memory (%zu points)", plan->n);
-	return 0;
-}
-
-static size_t disk_grid_count(const struct asph_surface *s, double a, double p)
-{
-	return plan_disk_grid_count(a, p);
-}
-
-static int disk_grid_fill(const struct asph_surface *s, double a, double p,
-			  struct asph_plan *plan, struct asph_error *err)
-{
-	return planar(plan, a, p, plan_disk_grid_fill, err);
-}
-
 /* CI: the involute's own count, asph/involute.h. */
 static size_t ci_count(const struct asph_surface *s, double a, double p)
 {
@@ -654,50 +651,6 @@ static int ci_fill(const struct asph_surface *s, double a, double p,
 		   struct asph_plan *plan, struct asph_error *err)
 {
 	return asph_involute_points(s, p, 0, &plan->xyz, &plan->n, err);
-}
-
-static size_t raster_count(const struct asph_surface *s, double a, double p)
-{
-	return plan_raster_count(a, p);
-}
-
-static int raster_fill(const struct asph_surface *s, double a, double p,
-		       struct asph_plan *plan, struct asph_error *err)
-{
-	return planar(plan, a, p, plan_raster_fill, err);
-}
-
-static size_t concentric_count(const struct asph_surface *s, double a, double p)
-{
-	return plan_concentric_count(a, p);
-}
-
-static int concentric_fill(const struct asph_surface *s, double a, double p,
-			   struct asph_plan *plan, struct asph_error *err)
-{
-	return planar(plan, a, p, plan_concentric_fill, err);
-}
-
-static size_t spiral_count(const struct asph_surface *s, double a, double p)
-{
-	return plan_spiral_count(a, p);
-}
-
-static int spiral_fill(const struct asph_surface *s, double a, double p,
-		       struct asph_plan *plan, struct asph_error *err)
-{
-	return planar(plan, a, p, plan_spiral_fill, err);
-}
-
-static size_t fermat_count(const struct asph_surface *s, double a, double p)
-{
-	return plan_fermat_count(a, p);
-}
-
-static int fermat_fill(const struct asph_surface *s, double a, double p,
-		       struct asph_plan *plan, struct asph_error *err)
-{
-	return planar(plan, a, p, plan_fermat_fill, err);
 }
 
 /* ---- freeform surfaces ----------------------------------------------------- */
@@ -799,36 +752,47 @@ static int ci_freeform_fill(const struct asph_surface *s, const struct plan_meth
 static const struct plan_freeform ci_freeform = { ci_freeform_count, ci_freeform_fill, NULL,
 						  true };
 
-/*
- * Lattices measured on flat patterns of 1.26e5 points on the unit disk
- * (Delaunay triangulation, mean edge length; points per area),
- * docs/sampling-plans.md, "Density". Each lattice has one point per p^2 of
- * area to within 0.5 %. CI is the disk grid's lattice laid on the surface.
- */
+/* The methods, docs/sampling-plans.md: a method is its row here and its
+ * value in enum asph_plan_method; every list of their names (the tools'
+ * help, the protocol's schema, the completion) comes from this table. CI
+ * is the disk grid's lattice laid on the surface. */
 static const struct plan_method methods[ASPH_PLAN_N_METHODS] = {
-	[ASPH_PLAN_OP] = { "op", ASPH_PLAN_OP, { 1.0, 1.099 }, false, true,
-			   disk_grid_count, disk_grid_fill, lift_projected,
-			   NULL, &over_aperture },
-	[ASPH_PLAN_OT] = { "ot", ASPH_PLAN_OP, { 1.0, 1.099 }, false, true,
-			   disk_grid_count, disk_grid_fill, lift_ot, NULL, &ot_freeform },
-	[ASPH_PLAN_LB] = { "lb", ASPH_PLAN_OP, { 1.0, 1.099 }, false, true,
-			   disk_grid_count, disk_grid_fill, lift_lb, NULL, &lb_freeform },
-	[ASPH_PLAN_CI] = { "ci", ASPH_PLAN_CI, { 1.0, 1.099 }, true, false,
-			   ci_count, ci_fill, NULL, NULL, &ci_freeform },
-	[ASPH_PLAN_RASTER] = { "raster", ASPH_PLAN_RASTER, { 1.0, 1.138 } /* (2 + sqrt 2) / 3 */, false, false,
-			       raster_count, raster_fill, lift_projected,
-			       NULL, &over_aperture },
-	[ASPH_PLAN_CONCENTRIC] = { "concentric", ASPH_PLAN_CONCENTRIC, { 1.0, 1.098 }, false, false,
-				   concentric_count, concentric_fill, lift_projected,
-				   NULL, &over_aperture },
-	[ASPH_PLAN_SPIRAL] = { "spiral", ASPH_PLAN_SPIRAL, { 1.0, 1.099 }, false, false,
-			       spiral_count, spiral_fill, lift_projected,
-			       NULL, &over_aperture },
-	[ASPH_PLAN_FERMAT] = { "fermat", ASPH_PLAN_FERMAT, { 1.0, 1.114 }, false, false,
-			       fermat_count, fermat_fill, lift_projected,
-			       NULL, &over_aperture },
-	[ASPH_PLAN_CVT] = { "cvt", ASPH_PLAN_OP, { 1.0, 1.099 }, false, false,
-			    disk_grid_count, cvt_fill, lift_ot, cvt_settle, &cvt_freeform },
+	[ASPH_PLAN_OP] = {
+		.name = "op", .title = "orthogonal projection", .pattern = &plan_disk_grid,
+		.mesh = true, .lift = lift_projected, .freeform = &over_aperture,
+	},
+	[ASPH_PLAN_OT] = {
+		.name = "ot", .title = "optimal transport", .pattern = &plan_disk_grid,
+		.mesh = true, .lift = lift_ot, .freeform = &ot_freeform,
+	},
+	[ASPH_PLAN_LB] = {
+		.name = "lb", .title = "Laplace-Beltrami", .pattern = &plan_disk_grid,
+		.mesh = true, .lift = lift_lb, .freeform = &lb_freeform,
+	},
+	[ASPH_PLAN_CI] = {
+		.name = "ci", .title = "circle involute", .pattern = &plan_disk_grid,
+		.on_surface = true, .count = ci_count, .fill = ci_fill, .freeform = &ci_freeform,
+	},
+	[ASPH_PLAN_RASTER] = {
+		.name = "raster", .title = "x-y raster", .pattern = &plan_raster,
+		.lift = lift_projected, .freeform = &over_aperture,
+	},
+	[ASPH_PLAN_CONCENTRIC] = {
+		.name = "concentric", .title = "concentric circles", .pattern = &plan_concentric,
+		.lift = lift_projected, .freeform = &over_aperture,
+	},
+	[ASPH_PLAN_SPIRAL] = {
+		.name = "spiral", .title = "Archimedean spiral", .pattern = &plan_spiral,
+		.lift = lift_projected, .freeform = &over_aperture,
+	},
+	[ASPH_PLAN_FERMAT] = {
+		.name = "fermat", .title = "Fermat (golden-angle) spiral", .pattern = &plan_fermat,
+		.lift = lift_projected, .freeform = &over_aperture,
+	},
+	[ASPH_PLAN_CVT] = {
+		.name = "cvt", .title = "centroidal Voronoi tessellation", .pattern = &plan_disk_grid,
+		.fill = cvt_fill, .lift = lift_ot, .settle = cvt_settle, .freeform = &cvt_freeform,
+	},
 };
 
 /* m is checked by the callers (resolve); an unknown one reads as OP. */
@@ -837,14 +801,38 @@ static const struct plan_method *method_of(enum asph_plan_method m)
 	return &methods[(unsigned)m < ASPH_PLAN_N_METHODS ? m : 0];
 }
 
+const struct plan_pattern *plan_pattern_of(enum asph_plan_method m)
+{
+	return method_of(m)->pattern;
+}
+
 const struct plan_lattice *plan_lattice_of(enum asph_plan_method m)
 {
-	return &method_of(m)->lattice;
+	return &method_of(m)->pattern->lattice;
 }
 
 const char *asph_plan_method_name(enum asph_plan_method m)
 {
 	return (unsigned)m < ASPH_PLAN_N_METHODS ? methods[m].name : "unknown";
+}
+
+int asph_plan_method_names(char *buf, size_t size)
+{
+	const char *names[ASPH_PLAN_N_METHODS];
+
+	for (unsigned i = 0; i < ASPH_PLAN_N_METHODS; i++)
+		names[i] = methods[i].name;
+	return suggest_join(buf, size, names, ASPH_PLAN_N_METHODS, ", ");
+}
+
+const char *asph_plan_method_title(enum asph_plan_method m)
+{
+	return (unsigned)m < ASPH_PLAN_N_METHODS ? methods[m].title : "unknown";
+}
+
+bool asph_plan_method_has_mesh(enum asph_plan_method m)
+{
+	return (unsigned)m < ASPH_PLAN_N_METHODS && methods[m].mesh;
 }
 
 int asph_plan_method_from_name(const char *name, enum asph_plan_method *out)

@@ -85,27 +85,6 @@ void report_lines_release(struct report_lines *l)
 	l->n = l->cap = 0;
 }
 
-/* ------------------------------------------------------------- figures */
-
-void report_figure(char *buf, size_t size, double v, int decimals, unsigned flags)
-{
-	if (isnan(v)) {
-		snprintf(buf, size, "-");
-		return;
-	}
-	/* no figure of a measurement is this large: the digits would not fit */
-	if (fabs(v) >= 1e12) {
-		snprintf(buf, size, "%.6g", v);
-		return;
-	}
-	/* what rounds to zero reads as zero, with no sign */
-	if (fabs(v) < 0.5 * pow(10, -decimals)) {
-		v = 0;
-		flags &= ~(unsigned)REPORT_FIGURE_SIGNED;
-	}
-	snprintf(buf, size, flags & REPORT_FIGURE_SIGNED ? "%+.*f" : "%.*f", decimals, v);
-}
-
 double asph_report_noise_floor_nm(double radius_mm)
 {
 	return 1000 * DBL_EPSILON * fabs(radius_mm) * 1e6;

@@ -26,20 +26,6 @@ struct report_lines {
 
 void report_lines_release(struct report_lines *l);
 
-/*
- * A figure as the text output prints it (docs/characterization.md,
- * "Figures"): to its quantity's decimals, '+' on a signed quantity; what
- * rounds to zero reads as zero, without a sign; "-" for NaN.
- */
-#define REPORT_NM 2             /* decimals of nm: 0.01 nm */
-#define REPORT_URAD 2           /* of µrad (slopes) */
-#define REPORT_FRINGES 4
-#define REPORT_POSE 4           /* of the pose in µm and µrad */
-#define REPORT_MM 6             /* of R and R - R nominal: 1 nm */
-#define REPORT_FIGURE_SIGNED 1u
-
-void report_figure(char *buf, size_t size, double v, int decimals, unsigned flags);
-
 #if HAVE_CAIRO
 #include <cairo.h>
 

@@ -14,11 +14,12 @@
 #include <string.h>
 
 #include <jansson.h>
-#include <nettle/sha2.h>
+#include "util-hash.h"
 
 #include "config.h"
 #include "asph/report.h"
 #include "plot-layout.h"
+#include "quantity.h"
 #include "util-mem.h"
 #include "util-time.h"
 
@@ -274,18 +275,6 @@ static void start_page(struct doc *d)
 
 /* ----------------------------------------------------------- summaries */
 
-static void sha256_hex(const void *data, size_t len, char hex[65])
-{
-	struct sha256_ctx c;
-	uint8_t dg[SHA256_DIGEST_SIZE];
-
-	sha256_init(&c);
-	sha256_update(&c, len, data);
-	sha256_digest(&c, sizeof(dg), dg);
-	for (int i = 0; i < SHA256_DIGEST_SIZE; i++)
-		snprintf(hex + 2 * i, 3, "%02x", dg[i]);
-}
-
 static const char *member_string(const json_t *o, const char *key)
 {
 	return json_string_value(json_object_get(o, key));
@@ -445,6 +434,13 @@ static void fit_line(const struct asph_fit_result *f, char *buf, size_t size)
 		 f->iterations);
 }
 
+/* v as the quantity at path prints (quantity.h); flags: enum
+ * quantity_format_flags. */
+static const char *figure(char *buf, size_t size, const char *path, double v, unsigned flags)
+{
+	return quantity_format(quantity_by_path(path), v, flags, buf, size);
+}
+
 static void tolerance_line(const struct asph_report *r, char *buf, size_t size)
 {
 	const struct asph_tolerance *t = r->tolerance;
@@ -453,9 +449,12 @@ static void tolerance_line(const struct asph_report *r, char *buf, size_t size)
 		snprintf(buf, size, "none given: no verdict");
 		return;
 	}
-	snprintf(buf, size, "%s%s; fringes of λ = %g nm; decision rule ISO 14253-1",
+	char lambda[32];
+
+	snprintf(buf, size, "%s%s; fringes of λ = %s nm; decision rule ISO 14253-1",
 		 t->callout[0] ? "ISO 10110-5 " : "limits in the table",
-		 t->callout[0] ? t->callout : "", r->fit->form.wavelength_nm);
+		 t->callout[0] ? t->callout : "",
+		 figure(lambda, sizeof(lambda), "form.wavelength_nm", r->fit->form.wavelength_nm, 0));
 }
 
 static void measurement(struct doc *d)
@@ -528,13 +527,11 @@ static void verdict_banner(struct doc *d)
 	d->y += h + 8;
 }
 
-/* One row of the table: the quantity, its verdict item's key, value, U,
- * its decimals, and whether it is signed (and limited in magnitude). */
-struct quantity {
-	const char *name, *key;
+/* One row of the table: what it says, the quantity's path in the summary
+ * (quantity.h: its decimals, sign, zone and verdict item), value and U. */
+struct result_row {
+	const char *name, *path;
 	double value, U;
-	int decimals;
-	int two_sided;
 };
 
 #define N_COLS 5
@@ -576,28 +573,23 @@ static void results_table(struct doc *d)
 {
 	const struct asph_fit_result *f = d->r->fit;
 	const struct asph_uncertainty_k2 *u = &f->uncertainty_k2;
-	char slope_rms[96], slope_max[96];
+	char len[32], slope_rms[96], slope_max[96];
 	const char *head[N_COLS] = { "quantity", "value", "U (k = 2)", "limit", "verdict" };
 
-	snprintf(slope_rms, sizeof(slope_rms), "slope deviation RMS over %g mm (µrad)",
-		 f->slope.length_mm);
-	snprintf(slope_max, sizeof(slope_max), "slope deviation max over %g mm (µrad)",
-		 f->slope.length_mm);
-	const struct quantity rows[] = {
-		{ "A, sagitta deviation (nm)", "A_nm", f->form.A.v, u->A.v, REPORT_NM, 1 },
-		{ "B, irregularity (nm)", "B_nm", f->form.B.v, u->B.v, REPORT_NM, 0 },
-		{ "C, rotationally symmetric irregularity (nm)", "C_nm", f->form.C.v, u->C.v,
-		  REPORT_NM, 0 },
-		{ "RMSt, total RMS deviation (nm)", "rms_t_nm", f->form.rms_t.v, u->rms_t.v,
-		  REPORT_NM, 0 },
-		{ "RMSi, RMS irregularity (nm)", "rms_i_nm", f->form.rms_i.v, u->rms_i.v, REPORT_NM,
-		  0 },
-		{ "RMSa, RMS of the rotationally variant part (nm)", "rms_a_nm", f->form.rms_a.v,
-		  u->rms_a.v, REPORT_NM, 0 },
-		{ slope_rms, "slope_rms_urad", f->slope.rms.v, u->slope_rms.v, REPORT_URAD, 0 },
-		{ slope_max, "slope_max_urad", f->slope.max.v, u->slope_max.v, REPORT_URAD, 0 },
-		{ "R − R₀, radius deviation (mm)", "R_deviation_mm", f->R_deviation_mm, u->R_mm,
-		  REPORT_MM, 1 },
+	figure(len, sizeof(len), "slope.length_mm", f->slope.length_mm, 0);
+	snprintf(slope_rms, sizeof(slope_rms), "slope deviation RMS over %s mm", len);
+	snprintf(slope_max, sizeof(slope_max), "slope deviation max over %s mm", len);
+	const struct result_row rows[] = {
+		{ "A, sagitta deviation", "form.A_nm", f->form.A.v, u->A.v },
+		{ "B, irregularity", "form.B_nm", f->form.B.v, u->B.v },
+		{ "C, rotationally symmetric irregularity", "form.C_nm", f->form.C.v, u->C.v },
+		{ "RMSt, total RMS deviation", "form.rms_t_nm", f->form.rms_t.v, u->rms_t.v },
+		{ "RMSi, RMS irregularity", "form.rms_i_nm", f->form.rms_i.v, u->rms_i.v },
+		{ "RMSa, RMS of the rotationally variant part", "form.rms_a_nm", f->form.rms_a.v,
+		  u->rms_a.v },
+		{ slope_rms, "slope.rms_urad", f->slope.rms.v, u->slope_rms.v },
+		{ slope_max, "slope.max_urad", f->slope.max.v, u->slope_max.v },
+		{ "R − R₀, radius deviation", "radius.deviation_mm", f->R_deviation_mm, u->R_mm },
 	};
 
 	need(d, 4 * LEAD * BODY);
@@ -611,21 +603,21 @@ static void results_table(struct doc *d)
 	}
 	d->y += 2;
 	for (size_t i = 0; i < sizeof(rows) / sizeof(rows[0]); i++) {
-		const struct asph_verdict_item *it = verdict_item(f, rows[i].key);
-		const struct quantity *q = &rows[i];
-		char value[64], U[64], limit[72] = "-";
-		if (isnan(q->value) && !it)
+		const struct quantity *q = quantity_by_path(rows[i].path);
+		const struct asph_verdict_item *it = verdict_item(f, q->verdict);
+		char name[160], value[64], U[64], limit[72] = "-";
+		if (isnan(rows[i].value) && !it)
 			continue;
-		report_figure(value, sizeof(value), q->value, q->decimals,
-			      q->two_sided ? REPORT_FIGURE_SIGNED : 0);
-		report_figure(U, sizeof(U), q->U, q->decimals, 0);
+		snprintf(name, sizeof(name), "%s (%s)", rows[i].name, quantity_symbol(q));
+		quantity_format(q, rows[i].value, 0, value, sizeof(value));
+		quantity_format(q, rows[i].U, QUANTITY_NO_SIGN, U, sizeof(U));
 		if (it) {
 			char l[64];
-			report_figure(l, sizeof(l), it->limit, q->decimals, 0);
+			quantity_format(q, it->limit, QUANTITY_NO_SIGN, l, sizeof(l));
 			/* a zone two-sided about zero: ±L */
 			snprintf(limit, sizeof(limit), "%s%s", q->two_sided ? "±" : "", l);
 		}
-		const char *cells[N_COLS] = { rows[i].name, value, U, limit,
+		const char *cells[N_COLS] = { name, value, U, limit,
 					      it ? asph_verdict_name(it->verdict) : "" };
 		table_row(d, cells, &body, it);
 	}
@@ -645,12 +637,11 @@ static void residual_line(struct doc *d)
 	const struct asph_fit_result *f = d->r->fit;
 	char rms[32], pv[32], pvr[32], line[256];
 
-	report_figure(rms, sizeof(rms), f->rms.v, REPORT_NM, 0);
-	report_figure(pv, sizeof(pv), f->pv.v, REPORT_NM, 0);
-	report_figure(pvr, sizeof(pvr), f->pvr.v, REPORT_NM, 0);
 	snprintf(line, sizeof(line),
-		 "RMS %s nm (standard deviation about the mean), PV %s nm, PVr %s nm", rms, pv,
-		 pvr);
+		 "RMS %s nm (standard deviation about the mean), PV %s nm, PVr %s nm",
+		 figure(rms, sizeof(rms), "rms_nm", f->rms.v, 0),
+		 figure(pv, sizeof(pv), "pv_nm", f->pv.v, 0),
+		 figure(pvr, sizeof(pvr), "pvr_nm", f->pvr.v, 0));
 	field(d, "Residual", line, NULL);
 	d->y += 6;
 }
@@ -692,25 +683,20 @@ static void pose_table(struct doc *d)
 	table_row(d, head, &bold, NULL);
 	for (int k = 0; k < ASPH_FIT_N_DOF; k++) {
 		/* shifts in µm, tilts in µrad, as the text output gives them */
-		int shift = k <= ASPH_FIT_TZ, tilt = k == ASPH_FIT_RX || k == ASPH_FIT_RY ||
-						     k == ASPH_FIT_RZ;
-		double scale = shift ? 1e3 : tilt ? 1e6 : 1;
-		int decimals = shift || tilt ? REPORT_POSE : REPORT_MM;
-		char value[64], u[64];
+		char path[32], value[64], u[64];
 		if (!(f->dof & ASPH_FIT_DOF_BIT(k)))
 			continue;
-		report_figure(value, sizeof(value), scale * f->value[k], decimals,
-			      shift || tilt ? REPORT_FIGURE_SIGNED : 0);
-		report_figure(u, sizeof(u), scale * f->uncertainty[k], decimals, 0);
+		snprintf(path, sizeof(path), "dof.%s", asph_fit_dof_name((enum asph_fit_dof)k));
+		const struct quantity *q = quantity_by_path(path);
+		quantity_format(q, f->value[k], 0, value, sizeof(value));
+		quantity_format(q, f->uncertainty[k], QUANTITY_NO_SIGN, u, sizeof(u));
 		const char *cells[N_COLS] = { asph_fit_dof_name((enum asph_fit_dof)k), value, u,
-					      shift ? "µm" : tilt ? "µrad" : k == ASPH_FIT_R ? "mm" : "",
-					      "" };
+					      quantity_symbol(q), "" };
 		table_row(d, cells, &body, NULL);
 	}
 	char note[256], sigma[32];
-	report_figure(sigma, sizeof(sigma), f->sigma_mm * 1e6, REPORT_NM, 0);
 	snprintf(note, sizeof(note), "u: standard uncertainty of the fit (residual σ = %s nm). %s",
-		 sigma, f->reason);
+		 figure(sigma, sizeof(sigma), "sigma_nm", f->sigma_mm * 1e6, 0), f->reason);
 	paragraph(d, MARGIN, CONTENT_W, &note_style, note);
 }
 
@@ -720,41 +706,42 @@ static void residual_details(struct doc *d)
 	char a[32], b[32], c[32], e[32], line[512];
 
 	section(d, "Residual and slope");
-	report_figure(a, sizeof(a), f->rms.v, REPORT_NM, 0);
-	report_figure(b, sizeof(b), f->pv.v, REPORT_NM, 0);
-	report_figure(c, sizeof(c), f->pvr.v, REPORT_NM, 0);
-	report_figure(e, sizeof(e), f->zernike_fit_rms_left.v, REPORT_NM, 0);
 	snprintf(line, sizeof(line),
 		 "RMS %s nm (standard deviation about the mean), PV %s nm, PVr %s nm "
 		 "(PV of the %d-term Zernike fit + 3 × the RMS it leaves, %s nm)",
-		 a, b, c, f->n_zernike, e);
+		 figure(a, sizeof(a), "rms_nm", f->rms.v, 0),
+		 figure(b, sizeof(b), "pv_nm", f->pv.v, 0),
+		 figure(c, sizeof(c), "pvr_nm", f->pvr.v, 0), f->n_zernike,
+		 figure(e, sizeof(e), "zernike_fit_rms_left_nm", f->zernike_fit_rms_left.v, 0));
 	field(d, "Amplitude", line, NULL);
-	report_figure(a, sizeof(a), f->slope_rms.v, REPORT_URAD, 0);
 	snprintf(line, sizeof(line), "Zernike slope RMS %s µrad (the gradient of the Zernike fit)",
-		 a);
+		 figure(a, sizeof(a), "slope_rms_urad", f->slope_rms.v, 0));
 	field(d, "Slope", line, NULL);
 	if (f->slope_valid) {
-		report_figure(a, sizeof(a), f->slope.rms_radial.v, REPORT_URAD, 0);
-		report_figure(b, sizeof(b), f->slope.rms_azimuthal.v, REPORT_URAD, 0);
-		report_figure(c, sizeof(c), f->slope.max_radial.v, REPORT_URAD, 0);
-		report_figure(e, sizeof(e), f->slope.max_azimuthal.v, REPORT_URAD, 0);
+		char len[32];
 		snprintf(line, sizeof(line),
-			 "over %g mm at %zu positions: radial RMS %s µrad, max %s µrad; azimuthal RMS "
-			 "%s µrad, max %s µrad", f->slope.length_mm, f->slope.n, a, c, b, e);
+			 "over %s mm at %zu positions: radial RMS %s µrad, max %s µrad; azimuthal RMS "
+			 "%s µrad, max %s µrad",
+			 figure(len, sizeof(len), "slope.length_mm", f->slope.length_mm, 0),
+			 f->slope.n,
+			 figure(a, sizeof(a), "slope.rms_radial_urad", f->slope.rms_radial.v, 0),
+			 figure(c, sizeof(c), "slope.max_radial_urad", f->slope.max_radial.v, 0),
+			 figure(b, sizeof(b), "slope.rms_azimuthal_urad", f->slope.rms_azimuthal.v, 0),
+			 figure(e, sizeof(e), "slope.max_azimuthal_urad", f->slope.max_azimuthal.v, 0));
 		field(d, "Slope deviation", line, NULL);
 	}
 	if (f->form_valid) {
 		const struct asph_uncertainty_k2 *u = &f->uncertainty_k2;
-		char ua[32], ub[32], uc[32];
-		report_figure(a, sizeof(a), f->form.A_fringes, REPORT_FRINGES, REPORT_FIGURE_SIGNED);
-		report_figure(b, sizeof(b), f->form.B_fringes, REPORT_FRINGES, 0);
-		report_figure(c, sizeof(c), f->form.C_fringes, REPORT_FRINGES, 0);
-		report_figure(ua, sizeof(ua), u->A_fringes, REPORT_FRINGES, 0);
-		report_figure(ub, sizeof(ub), u->B_fringes, REPORT_FRINGES, 0);
-		report_figure(uc, sizeof(uc), u->C_fringes, REPORT_FRINGES, 0);
+		char ua[32], ub[32], uc[32], lambda[32];
 		snprintf(line, sizeof(line),
-			 "A %s (U %s), B %s (U %s), C %s (U %s) fringes of λ = %g nm (λ/2 of height)",
-			 a, ua, b, ub, c, uc, f->form.wavelength_nm);
+			 "A %s (U %s), B %s (U %s), C %s (U %s) fringes of λ = %s nm (λ/2 of height)",
+			 figure(a, sizeof(a), "form.A_fringes", f->form.A_fringes, 0),
+			 figure(ua, sizeof(ua), "form.A_fringes", u->A_fringes, QUANTITY_NO_SIGN),
+			 figure(b, sizeof(b), "form.B_fringes", f->form.B_fringes, 0),
+			 figure(ub, sizeof(ub), "form.B_fringes", u->B_fringes, QUANTITY_NO_SIGN),
+			 figure(c, sizeof(c), "form.C_fringes", f->form.C_fringes, 0),
+			 figure(uc, sizeof(uc), "form.C_fringes", u->C_fringes, QUANTITY_NO_SIGN),
+			 figure(lambda, sizeof(lambda), "form.wavelength_nm", f->form.wavelength_nm, 0));
 		field(d, "In fringes", line, NULL);
 	}
 }
@@ -793,7 +780,7 @@ static void zernike_table(struct doc *d)
 			if (j >= f->n_zernike)
 				continue;
 			snprintf(name, sizeof(name), "Z%d", j + 1);
-			report_figure(v, sizeof(v), f->zernike[j].v, REPORT_NM, REPORT_FIGURE_SIGNED);
+			figure(v, sizeof(v), "zernike_nm", f->zernike[j].v, 0);
 			double x = MARGIN + c * CONTENT_W / 4;
 			cell(d, x, d->y, 30, 0, &bold, name, 1);
 			cell(d, x + 30, d->y, CONTENT_W / 4 - 48, 1, &body, v, 1);

@@ -13,50 +13,11 @@
 #include "asph/points.h"
 #include "asph/x3p.h"
 #include "plot/colormap.h"
+#include "readers.h"
 #include "fileio.h"
 #include "util-mem.h"
 
 
-/* Files larger than this are refused rather than read into memory. */
-#define POINTS_FILE_LIMIT ((size_t)4 << 30)
-#define POINTS_MAX ((size_t)1 << 28)
-
-struct asph_points *asph_points_alloc(size_t n)
-{
-	struct asph_points *p = calloc(1, sizeof(*p));
-
-	if (!p || n > POINTS_MAX) {
-		free(p);
-		return NULL;
-	}
-	p->n = n;
-	p->xyz = calloc(n ? 3 * n : 1, sizeof(double));
-	if (!p->xyz) {
-		free(p);
-		return NULL;
-	}
-	return p;
-}
-
-int asph_points_add_value(struct asph_points *p, const char *name)
-{
-	free(p->value);
-	p->value = calloc(p->n ? p->n : 1, sizeof(double));
-	if (!p->value)
-		return -ENOMEM;
-	snprintf(p->value_name, sizeof(p->value_name), "%s", name);
-	return 0;
-}
-
-void asph_points_free(struct asph_points *p)
-{
-	if (!p)
-		return;
-	free(p->xyz);
-	free(p->value);
-	free(p->triangles);
-	free(p);
-}
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
 
@@ -70,213 +31,6 @@ static enum format format_of(const char *path)
 	if (dot && !strcasecmp(dot, ".json"))
 		return FMT_JSON;
 	return FMT_CSV;
-}
-
-/* ---- CSV ---- */
-
-struct csv_columns {
-	int ix, iy, iz, ivalue;
-	int count;
-	char value_name[32];
-};
-
-static bool is_blank(char c)
-{
-	return c == ' ' || c == '\t' || c == '\r';
-}
-
-/* One field of a CSV line: its text at [b, e) without the blanks around it
- * and without the double quotes of a quoted field (R and spreadsheets quote
- * the header: "x","y","z"), and where the next field starts (past len after
- * the last one). */
-struct csv_field {
-	size_t b, e, next;
-};
-
-static int csv_field(const char *line, size_t len, size_t pos, int lineno,
-		     const char *source, struct csv_field *f, struct asph_error *err)
-{
-	size_t p = pos, q;
-
-	while (p < len && is_blank(line[p]))
-		p++;
-	if (p < len && line[p] == '"') {
-		/* a quote inside is doubled ("") */
-		for (q = p + 1; q < len; q++) {
-			if (line[q] == '"' && q + 1 < len && line[q + 1] == '"')
-				q++;
-			else if (line[q] == '"')
-				break;
-		}
-		if (q >= len)
-			return asph_error_set_at(err, -EINVAL, source, lineno, (int)p + 1, NULL,
-						 "a quote that does not close");
-		f->b = p + 1;
-		f->e = q;
-		for (q++; q < len && is_blank(line[q]); q++)
-			;
-		if (q < len && line[q] != ',')
-			return asph_error_set_at(err, -EINVAL, source, lineno, (int)q + 1, NULL,
-						 "text after the closing quote");
-		f->next = q + 1;
-		return 0;
-	}
-	for (q = p; q < len && line[q] != ','; q++)
-		;
-	f->b = p;
-	f->e = q;
-	while (f->e > f->b && is_blank(line[f->e - 1]))
-		f->e--;
-	f->next = q + 1;
-	return 0;
-}
-
-/* The header: columns x, y and z (in any case, in any order, quoted or
- * not), and the first other named column as the value. */
-static int csv_header(const char *line, size_t len, int lineno, const char *source,
-		      struct csv_columns *cols, struct asph_error *err)
-{
-	struct csv_field f = { .next = 0 };
-	int col = 0;
-
-	cols->ix = cols->iy = cols->iz = cols->ivalue = -1;
-	while (f.next <= len) {
-		int r = csv_field(line, len, f.next, lineno, source, &f, err);
-		if (r < 0)
-			return r;
-		char name[64];
-		snprintf(name, sizeof(name), "%.*s", (int)(f.e - f.b), line + f.b);
-		if (!strcasecmp(name, "x"))
-			cols->ix = col;
-		else if (!strcasecmp(name, "y"))
-			cols->iy = col;
-		else if (!strcasecmp(name, "z"))
-			cols->iz = col;
-		else if (cols->ivalue < 0 && name[0]) {
-			cols->ivalue = col;
-			snprintf(cols->value_name, sizeof(cols->value_name), "%.31s", name);
-		}
-		col++;
-	}
-	cols->count = col;
-	if (cols->ix < 0 || cols->iy < 0 || cols->iz < 0)
-		return asph_error_set_at(err, -EINVAL, source, lineno, 1, NULL,
-					 "the first line must be a header naming the columns x,y,z (got '%.*s')",
-					 (int)(len > 80 ? 80 : len), line);
-	return 0;
-}
-
-static int csv_row(const char *line, size_t len, int lineno, const char *source,
-		   const struct csv_columns *cols, double *xyz, double *value,
-		   struct asph_error *err)
-{
-	struct csv_field f = { .next = 0 };
-
-	for (int col = 0; col < cols->count; col++) {
-		if (f.next > len)
-			return asph_error_set_at(err, -EINVAL, source, lineno, (int)len + 1, NULL,
-						 "expected %d columns, found %d", cols->count, col);
-		int r = csv_field(line, len, f.next, lineno, source, &f, err);
-		if (r < 0)
-			return r;
-		const char *field = col == cols->ix ? "x" : col == cols->iy ? "y" :
-				    col == cols->iz ? "z" : col == cols->ivalue ? cols->value_name : NULL;
-		if (!field)
-			continue;
-		char tmp[128], *stop;
-		if (f.e == f.b || f.e - f.b >= sizeof(tmp))
-			return asph_error_set_at(err, -EINVAL, source, lineno, (int)f.b + 1, field,
-						 f.e == f.b ? "empty value" : "value too long");
-		memcpy(tmp, line + f.b, f.e - f.b);
-		tmp[f.e - f.b] = '\0';
-		double v = strtod(tmp, &stop);
-		if (*stop != '\0')
-			return asph_error_set_at(err, -EINVAL, source, lineno, (int)f.b + 1, field,
-						 "not a number: '%s'", tmp);
-		if (!isfinite(v))
-			return asph_error_set_at(err, -EINVAL, source, lineno, (int)f.b + 1, field,
-						 "not a finite number: '%s'", tmp);
-		if (col == cols->ivalue)
-			*value = v;
-		else
-			xyz[col == cols->ix ? 0 : col == cols->iy ? 1 : 2] = v;
-	}
-	if (f.next <= len)
-		return asph_error_set_at(err, -EINVAL, source, lineno, (int)f.next, NULL,
-					 "expected %d columns, found more", cols->count);
-	return 0;
-}
-
-int asph_points_read_csv_text(const char *text, size_t len,
-			      const char *source, struct asph_points **out,
-			      struct asph_error *err)
-{
-	struct csv_columns cols;
-	size_t pos = 0, n = 0, cap = 1024;
-	int lineno = 0, have_header = 0, r;
-	_cleanup_free_ double *xyz = malloc(3 * cap * sizeof(double));
-	_cleanup_free_ double *val = malloc(cap * sizeof(double));
-
-	if (!xyz || !val)
-		return asph_error_set(err, -ENOMEM, "out of memory");
-	/* spreadsheets' "CSV UTF-8" starts with a byte-order mark */
-	if (len >= 3 && !memcmp(text, "\xef\xbb\xbf", 3))
-		pos = 3;
-	while (pos < len) {
-		size_t end = pos;
-		while (end < len && text[end] != '\n')
-			end++;
-		const char *line = text + pos;
-		size_t ll = end - pos;
-		lineno++;
-		pos = end + 1;
-		size_t skip = 0;
-		while (skip < ll && (line[skip] == ' ' || line[skip] == '\t' || line[skip] == '\r'))
-			skip++;
-		if (skip == ll || line[skip] == '#')
-			continue;
-		if (memchr(line, '\0', ll))
-			return asph_error_set_at(err, -EINVAL, source, lineno, 1, NULL,
-						 "binary data in a CSV file");
-		if (!have_header) {
-			if ((r = csv_header(line, ll, lineno, source, &cols, err)) < 0)
-				return r;
-			have_header = 1;
-			continue;
-		}
-		if (n == cap) {
-			if (cap >= POINTS_MAX)
-				return asph_error_set_at(err, -E2BIG, source, lineno, 1, NULL,
-							 "more than %zu points", POINTS_MAX);
-			cap *= 2;
-			double *gx = realloc(xyz, 3 * cap * sizeof(double));
-			if (!gx)
-				return asph_error_set(err, -ENOMEM, "out of memory");
-			xyz = gx;
-			double *gv = realloc(val, cap * sizeof(double));
-			if (!gv)
-				return asph_error_set(err, -ENOMEM, "out of memory");
-			val = gv;
-		}
-		r = csv_row(line, ll, lineno, source, &cols, xyz + 3 * n, val + n, err);
-		if (r < 0)
-			return r;
-		n++;
-	}
-	if (!have_header)
-		return asph_error_set_at(err, -EINVAL, source, 0, 0, NULL,
-					 "empty file: expected a header x,y,z and points");
-	struct asph_points *p = calloc(1, sizeof(*p));
-	if (!p)
-		return asph_error_set(err, -ENOMEM, "out of memory");
-	p->n = n;
-	p->xyz = steal_ptr(xyz);
-	if (cols.ivalue >= 0) {
-		p->value = steal_ptr(val);
-		snprintf(p->value_name, sizeof(p->value_name), "%s", cols.value_name);
-	}
-	*out = p;
-	return 0;
 }
 
 /* ---- PLY ---- */
@@ -732,35 +486,88 @@ static int read_json(const char *text, size_t len, const char *source,
 	return 0;
 }
 
+/* The reader of each format; maps, binary formats and containers take
+ * bytes, the text formats characters. */
+static int read_format(enum asph_points_format f, const void *data, size_t len,
+		       const char *source, const struct asph_points_read_options *o,
+		       struct asph_points **out, struct asph_points_read_info *info,
+		       struct asph_error *err)
+{
+	switch (f) {
+	case ASPH_POINTS_PLY:
+		return read_ply(data, len, source, out, err);
+	case ASPH_POINTS_JSON:
+		return read_json(data, len, source, out, err);
+	case ASPH_POINTS_X3P:
+		return points_read_x3p(data, len, source, out, info, err);
+	case ASPH_POINTS_SDF:
+		return points_read_sdf(data, len, source, out, info, err);
+	case ASPH_POINTS_METROPRO:
+		return points_read_metropro(data, len, source, out, info, err);
+	case ASPH_POINTS_DATX:
+		return points_read_datx(data, len, source, out, info, err);
+	case ASPH_POINTS_AUTO:
+	case ASPH_POINTS_TEXT:
+		break;
+	}
+	return points_read_text(data, len, source, o, out, info, err);
+}
+
+int asph_points_read_memory_as(const void *data, size_t len, const char *source,
+			       const struct asph_points_read_options *o,
+			       struct asph_points **out, struct asph_points_read_info *info,
+			       struct asph_error *err)
+{
+	struct asph_points_read_info local;
+	enum asph_points_format f = o ? o->format : ASPH_POINTS_AUTO;
+
+	if (!info)
+		info = &local;
+	memset(info, 0, sizeof(*info));
+	*out = NULL;
+	if (f == ASPH_POINTS_AUTO)
+		f = points_detect(data, len);
+	if (o && o->unit_mm != 0 && !(o->unit_mm > 0 && isfinite(o->unit_mm)))
+		return asph_error_set_at(err, -EINVAL, source, 0, 0, NULL,
+					 "the unit must be a positive length (mm)");
+	info->format = f;
+	return read_format(f, data, len, source, o, out, info, err);
+}
+
 int asph_points_read_memory(const void *data, size_t len, const char *source,
 			    struct asph_points **out, struct asph_error *err)
 {
-	const char *text = data;
+	return asph_points_read_memory_as(data, len, source, NULL, out, NULL, err);
+}
 
-	switch (format_of(source)) {
-	case FMT_PLY:
-		return read_ply(text, len, source, out, err);
-	case FMT_JSON:
-		return read_json(text, len, source, out, err);
-	case FMT_CSV:
-		break;
-	}
-	return asph_points_read_csv_text(text, len, source, out, err);
+int asph_points_read_csv_text(const char *text, size_t len,
+			      const char *source, struct asph_points **out,
+			      struct asph_error *err)
+{
+	struct asph_points_read_options o = { .format = ASPH_POINTS_TEXT };
+
+	return asph_points_read_memory_as(text, len, source, &o, out, NULL, err);
+}
+
+int asph_points_read_as(const char *path, const struct asph_points_read_options *o,
+			struct asph_points **out, struct asph_points_read_info *info,
+			struct asph_error *err)
+{
+	int is_stdin = !strcmp(path, "-");
+	_cleanup_free_ char *data = NULL;
+	size_t len = 0;
+
+	int r = file_read_all(path, POINTS_FILE_LIMIT, &data, &len, err);
+	if (r < 0)
+		return r;
+	return asph_points_read_memory_as(data, len, is_stdin ? "<stdin>" : path, o, out, info,
+					  err);
 }
 
 int asph_points_read(const char *path, struct asph_points **out,
 		     struct asph_error *err)
 {
-	int is_stdin = !strcmp(path, "-");
-	const char *source = is_stdin ? "<stdin>" : path;
-	_cleanup_free_ char *text = NULL;
-	size_t len = 0;
-
-	int r = file_read_all(path, POINTS_FILE_LIMIT, &text, &len, err);
-	if (r < 0)
-		return r;
-	/* "<stdin>" has no extension: CSV */
-	return asph_points_read_memory(text, len, source, out, err);
+	return asph_points_read_as(path, NULL, out, NULL, err);
 }
 
 /* ---- writing ---- */

@@ -27,14 +27,14 @@ struct best {
 
 /* One evaluation at (x, y) for all the quantities (or only q when q is
  * not N_QUANTITIES). */
-static void consider(const struct asph_surface *f, const struct asph_aperture *ap, enum quantity q,
+static void consider(const struct sag_sampler *f, const struct asph_aperture *ap, enum quantity q,
 		     double x, double y, struct best *b)
 {
 	struct asph_sag d;
 
 	if (!aperture_contains(ap, x, y, 0))
 		return;
-	asph_surface_derivs_xy(f, x, y, &d);
+	f->derivs(f->data, x, y, &d);
 	for (int k = 0; k < N_QUANTITIES; k++) {
 		if (q != N_QUANTITIES && k != (int)q)
 			continue;
@@ -48,7 +48,7 @@ static void consider(const struct asph_surface *f, const struct asph_aperture *a
  * quantity a grid of 15 x 15 points around its best, shrinking sevenfold
  * each step: interior or edge, each extremum is found to about 1e-11 of the
  * aperture size. */
-static void search(const struct asph_surface *f, const struct asph_aperture *ap, struct best *b)
+static void search(const struct sag_sampler *f, const struct asph_aperture *ap, struct best *b)
 {
 	double box[4], pt[2], dp[2];
 
@@ -80,8 +80,8 @@ static void search(const struct asph_surface *f, const struct asph_aperture *ap,
 	}
 }
 
-void extent_over_aperture(const struct asph_surface *f, const struct asph_aperture *ap,
-		     struct asph_surface_extent *e)
+void extent_over_aperture(const struct sag_sampler *f, const struct asph_aperture *ap,
+			  struct asph_surface_extent *e)
 {
 	struct best b[N_QUANTITIES];
 
@@ -96,7 +96,7 @@ void extent_over_aperture(const struct asph_surface *f, const struct asph_apertu
 
 /* Gauss-Legendre on p x p equal panels of the unit square mapped onto the
  * aperture (affinely for a rectangle, in polar coordinates otherwise). */
-static double area_panels(const struct asph_surface *f, const struct asph_aperture *ap,
+static double area_panels(const struct sag_sampler *f, const struct asph_aperture *ap,
 			  const gsl_integration_glfixed_table *gl, int p)
 {
 	double sum = 0;
@@ -112,14 +112,14 @@ static double area_panels(const struct asph_surface *f, const struct asph_apertu
 					gsl_integration_glfixed_point((double)pj / p, (pj + 1.0) / p, j,
 								      &t, &wt, gl);
 					aperture_map(ap, s, t, xy, &jac);
-					asph_surface_derivs_xy(f, xy[0], xy[1], &d);
+					f->derivs(f->data, xy[0], xy[1], &d);
 					sum += ws * wt * jac * sqrt(1.0 + d.zx * d.zx + d.zy * d.zy);
 				}
 	return sum;
 }
 
-double area_over_aperture(const struct asph_surface *f, const struct asph_aperture *ap,
-		     const gsl_integration_glfixed_table *gl)
+double area_over_aperture(const struct sag_sampler *f, const struct asph_aperture *ap,
+			  const gsl_integration_glfixed_table *gl)
 {
 	double prev = area_panels(f, ap, gl, 1), area = prev;
 

@@ -799,9 +799,8 @@ static int check_roots(const struct asph_prescription *p, struct asph_error *err
 	}
 }
 
-int freeform_check(const struct asph_prescription *p, struct asph_error *err)
+int freeform_check(const struct asph_prescription *p, const char *type, struct asph_error *err)
 {
-	const char *type = asph_surface_type_name(p->type);
 	unsigned uses = type_uses(p);
 	int r;
 

@@ -59,8 +59,8 @@ int radius_check(double R, const char *field, struct asph_error *err);
 
 /* The checks of a freeform prescription (the fields its type uses and
  * leaves alone, the roots of its conics over the aperture); err names the
- * field. */
-int freeform_check(const struct asph_prescription *p, struct asph_error *err);
+ * field, and type the type (asph_surface_type_name()). */
+int freeform_check(const struct asph_prescription *p, const char *type, struct asph_error *err);
 
 /* Prepares f for p, which passed freeform_check(). */
 void freeform_init(struct freeform *f, const struct asph_prescription *p);
@@ -75,11 +75,18 @@ void freeform_sag_grad(const struct freeform *f, double x, double y, double g[3]
 /* S alone. */
 double freeform_sag(const struct freeform *f, double x, double y);
 
+/* A surface as the numerics over an aperture see it: its sag and slopes at
+ * (x, y), whichever surface data is. */
+struct sag_sampler {
+	void (*derivs)(const void *data, double x, double y, struct asph_sag *d);
+	const void *data;
+};
+
 /* The sag range and steepest slope of s over the aperture, and the area
  * (freeform-extent.c; for the surfaces without the radial tables). */
-void extent_over_aperture(const struct asph_surface *s, const struct asph_aperture *ap,
+void extent_over_aperture(const struct sag_sampler *s, const struct asph_aperture *ap,
 			  struct asph_surface_extent *e);
-double area_over_aperture(const struct asph_surface *s, const struct asph_aperture *ap,
+double area_over_aperture(const struct sag_sampler *s, const struct asph_aperture *ap,
 			  const gsl_integration_glfixed_table *gl);
 
 #endif

@@ -1,6 +1,7 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /* The prescription reader and writer, shared by prescription.c (all types)
- * and prescription-freeform.c (the freeform members). Internal. */
+ * and prescription-freeform.c (the freeform members); the values both read
+ * and write are in prescription-json.c. Internal. */
 #ifndef ASPH_PRESCRIPTION_JSON_H
 #define ASPH_PRESCRIPTION_JSON_H
 

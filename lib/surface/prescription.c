@@ -69,17 +69,6 @@ int asph_prescription_preset(const char *name, struct asph_prescription *out)
 	return -ENOENT;
 }
 
-int get_number(const struct parse_ctx *c, json_t *v, const char *field,
-	       double *out)
-{
-	if (!json_is_number(v))
-		return json_error_set_at(c->err, -EINVAL, &c->src, field, "expected a number");
-	*out = json_number_value(v);
-	if (!isfinite(*out))
-		return json_error_set_at(c->err, -EINVAL, &c->src, field, "not a finite number");
-	return 0;
-}
-
 static int parse_coefficients(const struct parse_ctx *c, json_t *obj,
 			      struct asph_prescription *out)
 {
@@ -392,33 +381,6 @@ int asph_prescription_load(const char *name_or_path,
 					 suggest_hint(&near, hint, sizeof(hint)));
 	}
 	return r;
-}
-
-json_t *q_array(const struct asph_prescription *p)
-{
-	json_t *arr = json_array();
-	int n = 0;
-
-	for (int m = 0; m <= ASPH_SURFACE_MAX_Q; m++)
-		if (p->Q[m] != 0)
-			n = m + 1;
-	for (int m = 0; arr && m < n; m++)
-		json_array_append_new(arr, json_real(p->Q[m]));
-	return arr;
-}
-
-json_t *power_object(const struct asph_prescription *p)
-{
-	json_t *coeffs = json_object();
-
-	for (int i = 1; coeffs && i <= ASPH_SURFACE_MAX_POWER; i++) {
-		if (p->A[i] == 0)
-			continue;
-		char key[8];
-		snprintf(key, sizeof(key), "%d", i);
-		json_object_set_new(coeffs, key, json_real(p->A[i]));
-	}
-	return coeffs;
 }
 
 int asph_prescription_to_json(const struct asph_prescription *p, char **out)

@@ -644,7 +644,7 @@ int asph_prescription_check(const struct asph_prescription *p,
 		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "type",
 					 "unknown surface type %d", (int)p->type);
 	if (!asph_surface_type_is_rotational(p->type))
-		return freeform_check(p, err);
+		return freeform_check(p, asph_surface_type_name(p->type), err);
 	if ((r = radius_check(p->R, "R", err)) < 0)
 		return r;
 	if (!isfinite(p->k))
@@ -690,6 +690,12 @@ static int build_tables(struct asph_surface *s)
 	return 0;
 }
 
+/* asph_surface_derivs_xy() as the numerics over an aperture call it. */
+static void derivs_at(const void *data, double x, double y, struct asph_sag *d)
+{
+	asph_surface_derivs_xy(data, x, y, d);
+}
+
 /* A freeform, or a segment of a rotationally symmetric parent, has no
  * radial tables: its area is a 2-D integral, its extent a search over the
  * aperture. */
@@ -704,13 +710,14 @@ static int aperture_surface_alloc(struct asph_surface *s, struct asph_surface **
 		asph_surface_free(s);
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	}
-	s->total_area = area_over_aperture(s, &s->ap, s->gl);
+	const struct sag_sampler sampler = { derivs_at, s };
+	s->total_area = area_over_aperture(&sampler, &s->ap, s->gl);
 	if (!isfinite(s->total_area)) {
 		asph_surface_free(s);
 		return asph_error_set(err, -EINVAL, "the surface is too steep to sample: its "
 				      "area over the aperture overflows");
 	}
-	extent_over_aperture(s, &s->ap, &s->extent);
+	extent_over_aperture(&sampler, &s->ap, &s->extent);
 	s->max_slope = s->extent.max_slope;
 	s->r_max_slope = hypot(s->extent.max_slope_at[0], s->extent.max_slope_at[1]);
 	s->arc_a = s->area_a = NAN;

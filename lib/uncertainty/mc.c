@@ -42,21 +42,6 @@ struct asph_mc {
 	double decide_U[ASPH_MC_N_QUANTITIES];  /* opt.decide_U's copy */
 };
 
-static const char *const quantity_keys[ASPH_MC_N_QUANTITIES] = {
-	[ASPH_FIT_TX] = "tx", [ASPH_FIT_TY] = "ty", [ASPH_FIT_TZ] = "tz",
-	[ASPH_FIT_RX] = "rx", [ASPH_FIT_RY] = "ry", [ASPH_FIT_R] = "R_mm",
-	[ASPH_FIT_K] = "k", [ASPH_FIT_RZ] = "rz",
-	[ASPH_MC_RMS] = "rms_nm", [ASPH_MC_PV] = "pv_nm", [ASPH_MC_PVR] = "pvr_nm",
-	[ASPH_MC_A] = "A_nm", [ASPH_MC_B] = "B_nm", [ASPH_MC_C] = "C_nm",
-	[ASPH_MC_RMS_T] = "rms_t_nm", [ASPH_MC_RMS_I] = "rms_i_nm", [ASPH_MC_RMS_A] = "rms_a_nm",
-	[ASPH_MC_SLOPE_RMS] = "rms_urad", [ASPH_MC_SLOPE_MAX] = "max_urad",
-};
-
-const char *asph_mc_quantity_key(enum asph_mc_quantity q)
-{
-	return (unsigned)q < ASPH_MC_N_QUANTITIES ? quantity_keys[q] : NULL;
-}
-
 /* The quantities of one characterization; NaN where it has none. */
 void mc_quantities(const struct asph_fit_result *r, double q[ASPH_MC_N_QUANTITIES])
 {

@@ -13,6 +13,21 @@
 
 #define NQ ASPH_MC_N_QUANTITIES
 
+static const char *const quantity_keys[ASPH_MC_N_QUANTITIES] = {
+	[ASPH_FIT_TX] = "tx", [ASPH_FIT_TY] = "ty", [ASPH_FIT_TZ] = "tz",
+	[ASPH_FIT_RX] = "rx", [ASPH_FIT_RY] = "ry", [ASPH_FIT_R] = "R_mm",
+	[ASPH_FIT_K] = "k", [ASPH_FIT_RZ] = "rz",
+	[ASPH_MC_RMS] = "rms_nm", [ASPH_MC_PV] = "pv_nm", [ASPH_MC_PVR] = "pvr_nm",
+	[ASPH_MC_A] = "A_nm", [ASPH_MC_B] = "B_nm", [ASPH_MC_C] = "C_nm",
+	[ASPH_MC_RMS_T] = "rms_t_nm", [ASPH_MC_RMS_I] = "rms_i_nm", [ASPH_MC_RMS_A] = "rms_a_nm",
+	[ASPH_MC_SLOPE_RMS] = "rms_urad", [ASPH_MC_SLOPE_MAX] = "max_urad",
+};
+
+const char *asph_mc_quantity_key(enum asph_mc_quantity q)
+{
+	return (unsigned)q < ASPH_MC_N_QUANTITIES ? quantity_keys[q] : NULL;
+}
+
 /* Mean and sample standard deviation of quantity q over trials [lo, hi),
  * NaN values (failed trials) left out. Returns how many counted. */
 static size_t mean_sd(const double *values, size_t lo, size_t hi, int q, double *mean,

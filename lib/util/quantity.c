@@ -58,6 +58,18 @@ static const struct quantity quantities[] = {
 	{ "acquisition.drift.rms_nm", NULL, NULL, "drift RMS", "nm", 1, 2, false, false },
 };
 
+const char *quantity_symbol(const struct quantity *q)
+{
+	static const struct {
+		const char *unit, *symbol;
+	} symbols[] = { { "um", "µm" }, { "urad", "µrad" } };
+
+	for (size_t i = 0; i < sizeof(symbols) / sizeof(symbols[0]); i++)
+		if (!strcmp(q->unit, symbols[i].unit))
+			return symbols[i].symbol;
+	return q->unit;
+}
+
 const struct quantity *quantity_table(size_t *n)
 {
 	*n = sizeof(quantities) / sizeof(quantities[0]);
@@ -97,6 +109,12 @@ const char *quantity_format(const struct quantity *q, double v, unsigned flags, 
 		return buf;
 	}
 	x = q ? v * q->scale : v;
+	/* no figure of a measurement is this large: its digits would not fit
+	 * where it is shown */
+	if (fabs(x) >= QUANTITY_MAX_FIXED) {
+		snprintf(buf, size, "%.6g%s%s", x, unit ? " " : "", unit ? unit : "");
+		return buf;
+	}
 	/* no "-0.00" or "+0.00": a value that rounds to zero reads as zero */
 	if (q && q->decimals >= 0 && fabs(x) < 0.5 * pow(10, -q->decimals)) {
 		x = 0;

@@ -35,6 +35,10 @@ const struct quantity *quantity_by_path(const char *path);
 const struct quantity *quantity_by_verdict(const char *name);
 const struct quantity *quantity_by_u_key(const char *key);
 
+/* The unit as typeset where the text need not be ASCII (the report, the
+ * web page): "µm" for "um", "µrad" for "urad"; else the unit as printed. */
+const char *quantity_symbol(const struct quantity *q);
+
 enum quantity_format_flags {
 	QUANTITY_UNIT = 1u << 0,        /* followed by the unit: "-0.74 nm" */
 	QUANTITY_NO_SIGN = 1u << 1,     /* an uncertainty or a limit: no '+' */
@@ -43,9 +47,11 @@ enum quantity_format_flags {
 /*
  * v (in the summary's unit) as printed: "-0.74", "+12.0076" (a signed
  * quantity shows '+'), "0.00" (what rounds to zero has no sign); "-" when
- * v is not a number; "%g" when q is NULL. flags: enum
- * quantity_format_flags. Returns buf.
+ * v is not a number; "%g" when q is NULL; "%.6g" from QUANTITY_MAX_FIXED
+ * in magnitude (as printed) on. flags: enum quantity_format_flags. Returns
+ * buf. daemon/web/names.js (print-names) carries the rule to the web page.
  */
+#define QUANTITY_MAX_FIXED 1e12
 const char *quantity_format(const struct quantity *q, double v, unsigned flags, char *buf,
 			    size_t size);
 

@@ -202,3 +202,22 @@ const char *suggest_getopt_error(char **argv, const char *shortopts,
 	snprintf(buf, size, "unknown option '--%s'%s", name, hint);
 	return buf;
 }
+
+int suggest_join(char *buf, size_t size, const char *const *names, size_t n, const char *last)
+{
+	size_t len = 0, left = 0;
+
+	if (size)
+		buf[0] = '\0';
+	for (size_t i = 0; i < n; i++)
+		left += names[i] != NULL;
+	for (size_t i = 0; i < n; i++) {
+		if (!names[i])
+			continue;
+		const char *sep = len == 0 ? "" : left == 1 ? last : ", ";
+		len += (size_t)snprintf(len < size ? buf + len : NULL, len < size ? size - len : 0,
+					"%s%s", sep, names[i]);
+		left--;
+	}
+	return (int)len;
+}

@@ -45,6 +45,14 @@ const char *suggest_hint(const struct suggest *s, char *buf, size_t size);
 const char *suggest_from_list(const char *word, const char *const *names);
 
 /*
+ * A table's names[0, n) for a message or a help text, NULL ones left out:
+ * ", " between them, and last (", " or " or ") before the last one
+ * ("conformal, xy or plan-mesh"), into buf as snprintf() writes. Returns
+ * the length of the whole list.
+ */
+int suggest_join(char *buf, size_t size, const char *const *names, size_t n, const char *last);
+
+/*
  * What was wrong with the option getopt_long() just refused (it returned
  * '?' or ':', with opterr = 0), read from argv, optind and optopt as
  * getopt_long() left them, into buf: "unknown option '--tolerence' (did

@@ -1,6 +1,7 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """The bad-input corpus: malformed prescriptions, OpticStudio lens files,
-points files (CSV, PLY, JSON), instrument and daemon configurations and
+points files (delimited text, PLY, JSON, X3P, SDF, Zygo MetroPro .dat and
+.datx), instrument and daemon configurations and
 recorded scans, generated
 from a valid template of each by mutations (truncation, wrong types, huge
 numbers, deep nesting, invalid UTF-8, very long lines, unknown members, NaN
@@ -14,13 +15,16 @@ test-badinput.py. Everything is deterministic: the same cases every run.
 import json
 import os
 import random
+import io
 import struct
+import zipfile
 from collections import namedtuple
 
 Case = namedtuple("Case", "kind name data field")
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SCAN_TEMPLATE = os.path.join(HERE, "..", "fuzz", "corpus", "scanfile", "strong-ci.scan")
+CORPUS = os.path.join(HERE, "..", "fuzz", "corpus")
 
 PRESCRIPTION = {
     "type": "even_asphere", "name": "strong", "R": 20.097, "k": -1,
@@ -297,14 +301,21 @@ def csv_cases():
     cases += [
         Case(k, "empty", b"", None),
         Case(k, "comments-only", b"# nothing\n\n# here\n", None),
-        Case(k, "no-header", good.split(b"\n", 1)[1], None),
         Case(k, "header-without-z", b"x,y\n0.731,-1.29\n", None),
         Case(k, "header-quote-unclosed", good.replace(b"x,y,z", b'"x","y","z'), None),
         Case(k, "header-semicolons", good.replace(b"x,y,z", b"x;y;z"), None),
         Case(k, "header-invalid-utf8", b"x,\xc3,z\n1,2,3\n", None),
         Case(k, "header-nul", b"x,y\0,z\n1,2,3\n", None),
         Case(k, "ply-as-csv", b"ply\nformat ascii 1.0\nend_header\n", None),
-        Case(k, "json-as-csv", dumps(POINTS_JSON), None),
+        Case(k, "no-header-two-columns", b"0.731 -1.29\n2.6 0.37\n", None),
+        Case(k, "no-header-four-columns", b"0.731;-1.29;0.0417;5\n", None),
+        Case(k, "unnamed-header", b"Pos X;Pos Y;Height\n0,731;-1,29;0,0417\n", None),
+        Case(k, "unit-unknown", b"x [mm],y [mm],z [furlong]\n1,2,3\n", "z furlong"),
+        Case(k, "decimal-comma-and-point", b"x;y;z\n1,234.5;2;3\n", "x"),
+        Case(k, "decimal-comma-twice", b"x;y;z\n1,2,3;2;3\n", "x"),
+        Case(k, "preamble-then-bad-row", b"Instrument: X\nDate: today\n1 2 abc\n", None),
+        Case(k, "two-x-columns", b"x,y,z,X\n1,2,3,4\n", "X"),
+        Case(k, "units-overflow", b"x [m],y,z\n1e306,2,3\n", "x"),
         Case(k, "very-long-line", lambda: good + b"1" * (12 << 20) + b",2,3\n", None),
         Case(k, "very-long-header", lambda: b"x,y,z," + b"w" * (12 << 20) + b"\n1,2,3\n", None),
         Case(k, "many-columns", lambda: b"x,y,z\n" + b"1," * (1 << 20) + b"1\n", None),
@@ -337,7 +348,6 @@ def ply_cases():
         Case(k, "empty", b"", None),
         Case(k, "no-magic", good[4:], None),
         Case(k, "magic-uppercase", b"PLY" + good[3:], None),
-        Case(k, "csv-as-ply", b"x,y,z\n1,2,3\n", None),
         Case(k, "no-end-header", PLY_HEAD.replace(b"end_header\n", b""), None),
         Case(k, "no-end-header-with-body", PLY_HEAD.replace(b"end_header\n", b"") + PLY_BODY, None),
         Case(k, "format-big-endian", good.replace(b"ascii", b"binary_big_endian"), "format"),
@@ -530,6 +540,186 @@ def scan_cases():
     return cases
 
 
+# ------------------------------------------------------------ measured maps
+
+def _seed(kind, name):
+    with open(os.path.join(CORPUS, kind, name), "rb") as f:
+        return f.read()
+
+
+def _damage(k, good, cuts, flips):
+    """Truncations and single flipped bits of a binary template."""
+    cases = [Case(k, "truncated-at-%d" % c, good[:c], None) for c in cuts if c < len(good)]
+    for off in flips:
+        if off < len(good):
+            bad = bytearray(good)
+            bad[off] ^= 1 << (off % 8)
+            cases.append(Case(k, "bit-flip-at-%d" % off, bytes(bad), None))
+    return cases
+
+
+def _x3p(xml, members=None, checksum=True):
+    """An X3P container: main.xml and the members, md5checksum.hex of it."""
+    import hashlib
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("main.xml", xml)
+        for name, data in (members or {}).items():
+            z.writestr(name, data)
+        if checksum:
+            z.writestr("md5checksum.hex", hashlib.md5(xml).hexdigest() + " *main.xml\n")
+    return out.getvalue()
+
+
+X3P_MAIN = (b'<?xml version="1.0" encoding="UTF-8"?>\n'
+            b'<p:ISO5436_2 xmlns:p="http://www.opengps.eu/2008/ISO5436_2"><Record1>'
+            b'<Revision>ISO5436 - 2000</Revision><FeatureType>SUR</FeatureType><Axes>'
+            b'<CX><AxisType>I</AxisType><Increment>1e-6</Increment><Offset>0</Offset></CX>'
+            b'<CY><AxisType>I</AxisType><Increment>1e-6</Increment><Offset>0</Offset></CY>'
+            b'<CZ><AxisType>A</AxisType><DataType>D</DataType></CZ></Axes></Record1>'
+            b'<Record3><MatrixDimension><SizeX>2</SizeX><SizeY>2</SizeY><SizeZ>1</SizeZ>'
+            b'</MatrixDimension><DataLink><PointDataLink>bindata/data.bin</PointDataLink>'
+            b'<MD5ChecksumPointData>@MD5@</MD5ChecksumPointData></DataLink></Record3>'
+            b'<Record4><ChecksumFile>md5checksum.hex</ChecksumFile></Record4></p:ISO5436_2>')
+
+
+def _x3p_matrix(xml=X3P_MAIN, data=None, **kw):
+    import hashlib
+    data = struct.pack("<4d", 1e-7, 2e-7, float("nan"), 4e-7) if data is None else data
+    xml = xml.replace(b"@MD5@", hashlib.md5(data).hexdigest().encode())
+    return _x3p(xml, {"bindata/data.bin": data}, **kw)
+
+
+def x3p_cases():
+    k = "points-x3p"
+    seed = _seed(k, "float.x3p")
+    cases = [
+        Case(k, "empty", b"", None),
+        Case(k, "zip-magic-only", b"PK\x03\x04", None),
+        Case(k, "main-xml-missing", _x3p_matrix().replace(b"main.xml", b"mainxxml"), None),
+        Case(k, "xml-not-well-formed", _x3p(X3P_MAIN[:-20]), None),
+        Case(k, "root-wrong", _x3p(b"<root/>"), None),
+        Case(k, "md5-data-wrong", _x3p(X3P_MAIN.replace(b"@MD5@", b"0" * 32),
+                                       {"bindata/data.bin": struct.pack("<4d", 1, 2, 3, 4)}), None),
+        Case(k, "data-short", _x3p_matrix(data=struct.pack("<3d", 1e-7, 2e-7, 3e-7)), None),
+        Case(k, "data-member-missing", _x3p(X3P_MAIN.replace(b"@MD5@", b"0" * 32)), None),
+        Case(k, "axis-type-wrong", _x3p_matrix(X3P_MAIN.replace(b"<AxisType>I</AxisType><Increment>1e-6</Increment><Offset>0</Offset></CX>",
+                                                                b"<AxisType>Q</AxisType></CX>")), None),
+        Case(k, "z-incremental", _x3p_matrix(X3P_MAIN.replace(b"<AxisType>A</AxisType><DataType>D",
+                                                              b"<AxisType>I</AxisType><DataType>D")), None),
+        Case(k, "data-type-wrong", _x3p_matrix(X3P_MAIN.replace(b"<DataType>D", b"<DataType>X")), None),
+        Case(k, "increment-word", _x3p_matrix(X3P_MAIN.replace(b"1e-6</Increment><Offset>0</Offset></CX>",
+                                                               b"one</Increment><Offset>0</Offset></CX>")), None),
+        Case(k, "size-zero", _x3p_matrix(X3P_MAIN.replace(b"<SizeX>2", b"<SizeX>0")), None),
+        Case(k, "size-huge", _x3p_matrix(X3P_MAIN.replace(b"<SizeX>2", b"<SizeX>99999999999")), None),
+        Case(k, "size-beyond-data", _x3p_matrix(X3P_MAIN.replace(b"<SizeY>2", b"<SizeY>20000")), None),
+        Case(k, "all-invalid", _x3p_matrix(data=struct.pack("<4d", *[float("nan")] * 4)), None),
+        Case(k, "no-dimension", _x3p_matrix(X3P_MAIN.replace(b"MatrixDimension", b"Dimension")), None),
+        Case(k, "datum-text", _x3p(X3P_MAIN.replace(b"<DataLink><PointDataLink>bindata/data.bin</PointDataLink>"
+                                                    b"<MD5ChecksumPointData>@MD5@</MD5ChecksumPointData></DataLink>",
+                                                    b"<DataList><Datum>1</Datum><Datum>x</Datum><Datum>3</Datum>"
+                                                    b"<Datum>4</Datum></DataList>")), None),
+        Case(k, "datum-too-many", _x3p(X3P_MAIN.replace(b"<DataLink><PointDataLink>bindata/data.bin</PointDataLink>"
+                                                        b"<MD5ChecksumPointData>@MD5@</MD5ChecksumPointData></DataLink>",
+                                                        b"<DataList>" + b"<Datum>1</Datum>" * 5 + b"</DataList>")), None),
+        Case(k, "entity-expansion", _x3p(b'<?xml version="1.0"?><!DOCTYPE r [<!ENTITY a "aaaaaaaaaa">'
+                                         b'<!ENTITY b "&a;&a;&a;&a;&a;&a;&a;&a;&a;&a;">'
+                                         b'<!ENTITY c "&b;&b;&b;&b;&b;&b;&b;&b;&b;&b;">]>'
+                                         b'<r>&c;&c;&c;</r>'), None),
+        Case(k, "external-entity", _x3p(b'<?xml version="1.0"?><!DOCTYPE r [<!ENTITY e SYSTEM "file:///etc/passwd">]>'
+                                        b'<r>&e;</r>'), None),
+        Case(k, "text-file", b"x,y,z\n" + b"PK", None),
+    ]
+    cases.append(Case(k, "md5checksum-wrong", _x3p_with_sum(X3P_MAIN, "0" * 32), None))
+    cases.append(Case(k, "no-md5checksum-data-bad", _x3p_matrix(data=b"\0" * 31, checksum=False), None))
+    return cases + _damage(k, seed, [5, 30, 100, len(seed) // 2, len(seed) - 1],
+                           list(range(0, len(seed), max(1, len(seed) // 40))))
+
+
+def _x3p_with_sum(xml, digest):
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w") as z:
+        z.writestr("main.xml", xml)
+        z.writestr("md5checksum.hex", digest + " *main.xml\n")
+    return out.getvalue()
+
+
+SDF_ASCII = (b"aBCR-1.0\nManufacID   = Lab\nCreateDate  = 010320241000\nModDate     = 010320241000\n"
+             b"NumPoints   = 3\nNumProfiles = 2\nXscale      = 2.0E-06\nYscale      = 4.0E-06\n"
+             b"Zscale      = 1.0E-09\nZresolution = -1\nCompression = 0\nDataType    = 5\n"
+             b"CheckType   = 0\n*\n10 -20 30\n40 50 -60\n*\n")
+
+
+def sdf_cases():
+    k = "points-sdf"
+    binary = _seed(k, "b.sdf")
+    a = SDF_ASCII
+    cases = [
+        Case(k, "version-only", b"aBCR-1.0\n", None),
+        Case(k, "no-star", a.replace(b"CheckType   = 0\n*\n", b"CheckType   = 0\n"), None),
+        Case(k, "points-zero", a.replace(b"NumPoints   = 3", b"NumPoints   = 0"), None),
+        Case(k, "points-word", a.replace(b"NumPoints   = 3", b"NumPoints   = three"), "NumPoints"),
+        Case(k, "points-negative", a.replace(b"NumPoints   = 3", b"NumPoints   = -3"), "NumPoints"),
+        Case(k, "points-huge", a.replace(b"NumPoints   = 3", b"NumPoints   = 1e300"), "NumPoints"),
+        Case(k, "points-beyond-data", a.replace(b"NumProfiles = 2", b"NumProfiles = 60000"), None),
+        Case(k, "xscale-zero", a.replace(b"2.0E-06", b"0"), None),
+        Case(k, "zscale-nan", a.replace(b"1.0E-09", b"nan"), "Zscale"),
+        Case(k, "datatype-unknown", a.replace(b"DataType    = 5", b"DataType    = 12"), "DataType"),
+        Case(k, "compressed", a.replace(b"Compression = 0", b"Compression = 1"), "Compression"),
+        Case(k, "checksum", a.replace(b"CheckType   = 0", b"CheckType   = 1"), "CheckType"),
+        Case(k, "key-missing", a.replace(b"Zscale      = 1.0E-09\n", b""), None),
+        Case(k, "line-not-key", a.replace(b"Zresolution = -1", b"Zresolution -1"), None),
+        Case(k, "values-short", a.replace(b"40 50 -60", b"40 50"), None),
+        Case(k, "values-long", a.replace(b"40 50 -60", b"40 50 -60 70"), None),
+        Case(k, "value-word", a.replace(b"-20", b"minus"), None),
+        Case(k, "value-inf", a.replace(b"-20", b"inf"), None),
+        Case(k, "nul", a.replace(b"-20", b"-2\0"), None),
+        Case(k, "binary-short-header", binary[:50], None),
+        Case(k, "binary-datatype", binary[:79] + b"\x0c" + binary[80:], "DataType"),
+        Case(k, "binary-scale-zero", binary[:46] + struct.pack("<d", 0) + binary[54:], None),
+        Case(k, "binary-count-beyond-data", binary[:42] + struct.pack("<HH", 65535, 65535) + binary[46:], None),
+        Case(k, "binary-all-nan", binary[:81] + struct.pack("<4f", *[float("nan")] * 4), None),
+    ]
+    return cases + _damage(k, binary, [8, 45, 80, 90], [])
+
+
+def metropro_cases():
+    k = "points-metropro"
+    good = _seed(k, "f1.dat")
+
+    def put(off, fmt, v, base=good):
+        return base[:off] + struct.pack(fmt, v) + base[off + struct.calcsize(fmt):]
+
+    cases = [
+        Case(k, "magic-only", good[:4], None),
+        Case(k, "header-short", good[:500], None),
+        Case(k, "format-wrong", put(4, ">H", 3), "header_format"),
+        Case(k, "size-wrong", put(6, ">I", 4096), "header_size"),
+        Case(k, "format3-short", put(6, ">I", 4096, put(4, ">H", 3, put(0, ">I", 0x881B0371))), None),
+        Case(k, "phase-res-unknown", put(218, ">H", 9), "phase_res"),
+        Case(k, "intensity-size-wrong", put(60, ">I", 7), "ac_n_bytes"),
+        Case(k, "phase-size-wrong", put(72, ">I", 7), "cn_n_bytes"),
+        Case(k, "phase-huge", put(70, ">H", 65535, put(72, ">I", 3 * 65535 * 4)), None),
+        Case(k, "no-phase", put(68, ">H", 0), "cn_width"),
+        Case(k, "lateral-zero", put(184, ">f", 0.0), "lateral_res"),
+        Case(k, "lateral-nan", put(184, ">f", float("nan")), "lateral_res"),
+        Case(k, "wavelength-zero", put(168, ">f", 0.0), "wavelength_in"),
+        Case(k, "all-invalid", good[:len(good) - 24] + struct.pack(">6i", *[2147483647] * 6), None),
+    ]
+    return cases + _damage(k, good, [10, 100, 833, len(good) - 1], list(range(0, 240, 7)))
+
+
+def datx_cases():
+    k = "points-datx"
+    good = _seed(k, "nm1.datx")
+    cases = [Case(k, "signature-only", b"\x89HDF\r\n\x1a\n", None),
+             Case(k, "signature-zeros", b"\x89HDF\r\n\x1a\n" + bytes(2000), None)]
+    rng = random.Random(29)
+    cases.append(Case(k, "random-after-signature", good[:8] + bytes(rng.randrange(256) for _ in range(3000)), None))
+    return cases + _damage(k, good, [100, 1000, len(good) // 2, len(good) - 100], [])
+
+
 def all_cases():
     return (prescription_cases() + zmx_cases() + csv_cases() + ply_cases() + points_json_cases() +
+            x3p_cases() + sdf_cases() + metropro_cases() + datx_cases() +
             instrument_cases() + daemon_cases() + scan_cases())

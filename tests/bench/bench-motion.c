@@ -22,7 +22,7 @@
 #include <string.h>
 #include <unistd.h>
 
-#include "asph/executor.h"
+#include "asph-engine/executor.h"
 #include "asph/motion.h"
 #include "asph/plan.h"
 #include "asph/prescription.h"

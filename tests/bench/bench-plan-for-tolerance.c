@@ -22,9 +22,9 @@
 #include <gsl/gsl_errno.h>
 
 #include "asph/characterize.h"
-#include "asph/executor.h"
-#include "asph/instrument.h"
-#include "asph/mc-runner.h"
+#include "asph-engine/executor.h"
+#include "asph-driver/instrument.h"
+#include "asph-mc/mc-runner.h"
 #include "asph/plan-search.h"
 #include "asph/prescription.h"
 #include "bench-common.h"

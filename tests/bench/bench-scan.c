@@ -19,7 +19,7 @@
 #include <string.h>
 #include <unistd.h>
 
-#include "asph/executor.h"
+#include "asph-engine/executor.h"
 #include "asph/plan.h"
 #include "asph/prescription.h"
 #include "bench-common.h"

@@ -12,7 +12,7 @@
 #include <gsl/gsl_errno.h>
 
 #include "asph/fit.h"
-#include "asph/mc-runner.h"
+#include "asph-mc/mc-runner.h"
 #include "asph/prescription.h"
 #include "asph/surface.h"
 #include "asph/uncertainty.h"

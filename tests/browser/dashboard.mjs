@@ -173,6 +173,10 @@ try {
   const decision = await page.$eval("#result", (e) => [...e.querySelectorAll("h3")].map((h) => h.textContent).find((t) => t.startsWith("Verdict")));
   const items = await page.$$eval("#tolerances tbody tr", (rows) => rows.length);
   ok(/^Verdict: (pass|fail|undecided)$/.test(decision || "") && items >= 1, `the verdict and its table (${decision}, ${items} rows)`);
+  // The figures as the page prints them: the caller compares them with the
+  // summary through the quantity table.
+  findings.figures = await page.evaluate(() => Object.fromEntries(["#verdict", "#pose tbody", "#tolerances tbody"].map((s) =>
+    [s.split(" ")[0].slice(1), [...document.querySelectorAll(`${s} tr`)].map((r) => [...r.cells].map((c) => c.textContent))])));
   ok(await page.$eval("img.residual-map", (e) => e.complete && e.naturalWidth > 0), "the residual map is drawn");
   await page.waitForFunction(() => document.querySelectorAll("#result svg.chart").length === 3);
   const bars = await page.$$eval("#result svg.chart", (s) => [s[0].querySelectorAll("rect").length, s[1].querySelector("path").getAttribute("d").split("M").length - 1]);

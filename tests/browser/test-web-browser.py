@@ -15,6 +15,7 @@ import tempfile
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "integration"))
 from daemontest import Client, Daemon, browser_or_skip, expect, finish, mock_instrument, web_port  # noqa: E402
+from quantities import NO_SIGN, UNIT, Quantities  # noqa: E402
 
 ROOT = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(HERE, "..", ".."))
 SHOTS = os.environ.get("ASPH_TEST_LOG_DIR") or tempfile.mkdtemp(prefix="asph-web-shots-")
@@ -43,6 +44,37 @@ def check_psd(findings, path):
            f"the plotted PSD is psd.csv's (worst {worst_f:.1e} in f, {worst_p:.1e} in PSD)")
     worst_t = max((max(rel(t[0], r[0]), rel(t[1], r[1])) for t, r in zip(table, rows)), default=1)
     expect(worst_t < 5.001e-4, f"the PSD table is psd.csv's to 4 digits (worst {worst_t:.1e})")
+
+
+def check_figures(figures, summary):
+    """Every figure of the result, the pose and the verdict as the quantity
+    table prints the summary's value (lib/util/quantity.h), with the label
+    and the unit of its row."""
+    q = Quantities()
+
+    def label(row):
+        return f"{row['label']} ({row['symbol']})" if row["symbol"] else row["label"]
+    shown = dict(figures["verdict"])
+    for path in ("rms_nm", "pv_nm", "pvr_nm", "slope_rms_urad"):
+        row = q.by_path[path]
+        expect(shown.get(label(row)) == q.format(path, summary[path]),
+               f"the page's {label(row)}: {shown.get(label(row))!r}, the summary's {summary[path]!r}")
+    expect(len(figures["pose"]) == len(summary["dof"]), f"one row a fitted DOF: {figures['pose']}")
+    for name, value, u in figures["pose"]:
+        path, row = f"dof.{name}", q.by_path[f"dof.{name}"]
+        want = (q.format(path, summary["dof"][name], UNIT, row["symbol"]),
+                q.format(path, (summary.get("uncertainty") or {}).get(name), UNIT | NO_SIGN,
+                         row["symbol"]))
+        expect((value, u) == want, f"the page's {name}: {value!r} ± {u!r}, want {want}")
+    items = summary["verdict"]["items"]
+    expect(len(figures["tolerances"]) == len(items), "one row a toleranced quantity")
+    for cells, it in zip(figures["tolerances"], items):
+        row = q.by_verdict[it["quantity"]]
+        path = row["path"]
+        want = [label(row), q.format(path, it["value"]), q.format(path, it["U"], NO_SIGN),
+                ("±" if row["two_sided"] else "") + q.format(path, it["limit"], NO_SIGN),
+                it["verdict"]]
+        expect(cells == want, f"the page's verdict row {cells}, want {want}")
 
 
 os.makedirs(SHOTS, exist_ok=True)
@@ -74,6 +106,7 @@ try:
         with open(os.path.join(out, "residuals.csv")) as f:
             expect(findings["csv"] == f.read(), "the CSV downloaded in the browser is asphctl result's")
         check_psd(findings, os.path.join(out, "psd.csv"))
+        check_figures(findings["figures"], admin.call("job.result", {"id": job})["summary"])
         shutil.rmtree(out)
         jobrec = admin.call("job.get", {"id": job})
         want = admin.call("job.estimate", {"lens": "strong", "plan": {"method": "fermat", "points": 2000}})

@@ -18,6 +18,7 @@
 
 #include <modbus.h>
 
+#include "modbus-frame.h"
 #include "modbus-sim.h"
 #include "util-time.h"
 
@@ -329,7 +330,7 @@ static void send_garbled(struct mbsim *s, const uint8_t *req, modbus_mapping_t *
 		memcpy(rsp + 2, req + 2, 4);
 		len = 6;
 	}
-	uint16_t crc = mb_crc16(rsp, (size_t)len) ^ 0x5a5a;
+	uint16_t crc = mbsim_crc16(rsp, (size_t)len) ^ 0x5a5a;
 	rsp[len] = (uint8_t)crc;
 	rsp[len + 1] = (uint8_t)(crc >> 8);
 	if (write(s->master_fd, rsp, (size_t)len + 2) < 0)
@@ -447,15 +448,6 @@ static void serve_tcp(struct mbsim *s)
 
 /* ------------------------------------------------------ serving RTU */
 
-/* Bytes of the request in buf so far, 0 while incomplete. */
-static int rtu_length(const uint8_t *buf, int got)
-{
-	if (got < 2)
-		return 0;
-	int len = buf[1] == 16 || buf[1] == 15 ? (got < 7 ? 0 : 9 + buf[6]) : 8;
-	return len && got >= len ? len : 0;
-}
-
 static void serve_rtu(struct mbsim *s)
 {
 	uint8_t buf[512];
@@ -480,10 +472,10 @@ static void serve_rtu(struct mbsim *s)
 		if (n <= 0)
 			continue;
 		got += (int)n;
-		int len = rtu_length(buf, got);
+		int len = mbsim_rtu_request_length(buf, got);
 		if (!len)
 			continue;
-		if (mb_crc16(buf, (size_t)len - 2) == (buf[len - 2] | buf[len - 1] << 8))
+		if (mbsim_crc16(buf, (size_t)len - 2) == (buf[len - 2] | buf[len - 1] << 8))
 			handle(s, buf, len);
 		memmove(buf, buf + len, (size_t)(got - len));
 		got -= len;

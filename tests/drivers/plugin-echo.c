@@ -1,19 +1,26 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
- * A driver built outside the tree: only asph/driver.h, no library symbol.
+ * A driver built outside the tree: only asph-driver/driver.h, no library
+ * symbol.
  * A probe that reads a constant height above whatever stage carries it, one
  * reading at a time or streamed along a sweep. Built against this tree's
  * header, against the ABI 1.0 header (tests/drivers/abi-1.0: plugins of an
  * older minor version must load and measure), and with PLUGIN_ABI set to
  * versions the host refuses. Its constructor leaves a mark where
  * $ASPH_TEST_PLUGIN_MARK says, so that a test can tell whether any of its
- * code ran (a plugin that is refused must not run at all).
+ * code ran (a plugin that is refused must not run at all). Built with
+ * PLUGIN_OLD_INCLUDE, it includes the header as plugins did before it had
+ * a prefix of its own (asph/driver.h, which still works).
  */
 #include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 
+#ifdef PLUGIN_OLD_INCLUDE
 #include "asph/driver.h"
+#else
+#include "asph-driver/driver.h"
+#endif
 
 #ifndef PLUGIN_ABI
 #define PLUGIN_ABI ASPH_DRIVER_ABI_VERSION

@@ -18,7 +18,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 
 /* Opens drv's probe with opts; *o must outlive the device. */
 static int open_probe(const struct asph_driver *drv, char *opts, struct asph_options **o,

@@ -11,7 +11,7 @@
 #include <stdbool.h>
 #include <stddef.h>
 
-#include "asph/executor.h"
+#include "asph-engine/executor.h"
 #include "asph/fit.h"
 #include "asph/plan.h"
 

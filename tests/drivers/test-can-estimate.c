@@ -20,8 +20,8 @@
 
 #include <cmocka.h>
 
-#include "asph/executor.h"
-#include "asph/instrument.h"
+#include "asph-engine/executor.h"
+#include "asph-driver/instrument.h"
 #include "can-sim.h"
 #include "can/timing.h"
 #include "scan-fixture.h"

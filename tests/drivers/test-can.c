@@ -27,9 +27,9 @@
 #include <cmocka.h>
 #include <linux/can/error.h>
 
-#include "asph/executor.h"
+#include "asph-engine/executor.h"
 #include "asph/fit.h"
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "asph/plan.h"
 #include "asph/prescription.h"
 #include "can-sim.h"

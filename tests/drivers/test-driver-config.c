@@ -12,7 +12,7 @@
 
 #include <cmocka.h>
 
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 
 struct fixture {
 	struct asph_registry *reg;

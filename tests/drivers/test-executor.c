@@ -19,7 +19,7 @@
 #include <cmocka.h>
 #include <jansson.h>
 
-#include "asph/executor.h"
+#include "asph-engine/executor.h"
 #include "asph/fit.h"
 #include "asph/motion.h"
 #include "asph/plan.h"

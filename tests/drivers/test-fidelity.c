@@ -20,7 +20,7 @@
 #include <cmocka.h>
 
 #include "asph/drift.h"
-#include "asph/executor.h"
+#include "asph-engine/executor.h"
 #include "asph/fit.h"
 #include "asph/plan.h"
 #include "asph/prescription.h"

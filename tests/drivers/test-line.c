@@ -22,7 +22,7 @@
 
 #include <cmocka.h>
 
-#include "asph/executor.h"
+#include "asph-engine/executor.h"
 #include "asph/fit.h"
 #include "line-sim.h"
 #include "line/profile.h"

@@ -19,7 +19,7 @@
 
 #include <cmocka.h>
 
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "asph/prescription.h"
 
 struct vi {

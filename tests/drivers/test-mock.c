@@ -16,7 +16,7 @@
 #include <cmocka.h>
 
 #include "asph/fit.h"
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "asph/prescription.h"
 #include "asph/zernike.h"
 

@@ -1,9 +1,9 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
-/* The Modbus driver against simulated drives and a sensor: the frame
- * decoder, moves and homing over TCP and RTU, register maps, the probe's
- * value formats, and every fault path (exceptions, a silent slave, bad
- * CRCs, late answers, a drive alarm, stop from another thread, no
- * device). */
+/* The Modbus driver against simulated drives and a sensor: the
+ * simulator's frames, moves and homing over TCP and RTU, register maps,
+ * the probe's value formats, and every fault path (exceptions, a silent
+ * slave, bad CRCs, late answers, a drive alarm, stop from another thread,
+ * no device). */
 #include <errno.h>
 #include <math.h>
 #include <pthread.h>
@@ -19,7 +19,8 @@
 #include <cmocka.h>
 #include <modbus.h>
 
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
+#include "modbus-frame.h"
 #include "modbus-sim.h"
 #include "modbus/protocol.h"
 
@@ -30,14 +31,14 @@ static void test_crc(void **state)
 	/* the request "read 10 holding registers from 0 of unit 1" as the
 	 * Modbus over serial line specification's examples give it */
 	static const uint8_t req[] = { 0x01, 0x03, 0x00, 0x00, 0x00, 0x0a };
-	assert_int_equal(mb_crc16(req, sizeof(req)), 0xcdc5);
+	assert_int_equal(mbsim_crc16(req, sizeof(req)), 0xcdc5);
 	static const uint8_t req2[] = { 0x11, 0x03, 0x00, 0x6b, 0x00, 0x03 };
-	assert_int_equal(mb_crc16(req2, sizeof(req2)), 0x8776);
+	assert_int_equal(mbsim_crc16(req2, sizeof(req2)), 0x8776);
 }
 
 static size_t rtu(uint8_t *f, size_t n)
 {
-	uint16_t crc = mb_crc16(f, n);
+	uint16_t crc = mbsim_crc16(f, n);
 	f[n] = (uint8_t)crc;
 	f[n + 1] = (uint8_t)(crc >> 8);
 	return n + 2;
@@ -46,10 +47,10 @@ static size_t rtu(uint8_t *f, size_t n)
 static void test_decode_rtu(void **state)
 {
 	uint8_t f[16] = { 0x11, 0x03, 0x06, 0x02, 0x2b, 0x00, 0x00, 0x00, 0x64 };
-	struct mb_frame fr;
+	struct mbsim_frame fr;
 	size_t n = rtu(f, 9);
 
-	assert_int_equal(mb_frame_decode(f, n, MB_FRAMING_RTU, &fr), 0);
+	assert_int_equal(mbsim_frame_decode(f, n, MB_FRAMING_RTU, &fr), 0);
 	assert_int_equal(fr.unit, 0x11);
 	assert_int_equal(fr.function, 3);
 	assert_int_equal(fr.exception, 0);
@@ -58,26 +59,26 @@ static void test_decode_rtu(void **state)
 	assert_int_equal(fr.size, n);
 	/* every truncation and every single flipped bit is refused */
 	for (size_t k = 0; k < n; k++)
-		assert_true(mb_frame_decode(f, k, MB_FRAMING_RTU, &fr) < 0);
+		assert_true(mbsim_frame_decode(f, k, MB_FRAMING_RTU, &fr) < 0);
 	for (size_t bitpos = 0; bitpos < 8 * n; bitpos++) {
 		f[bitpos / 8] ^= (uint8_t)(1u << bitpos % 8);
-		assert_int_equal(mb_frame_decode(f, n, MB_FRAMING_RTU, &fr), -EBADMSG);
+		assert_int_equal(mbsim_frame_decode(f, n, MB_FRAMING_RTU, &fr), -EBADMSG);
 		f[bitpos / 8] ^= (uint8_t)(1u << bitpos % 8);
 	}
 	uint8_t ex[8] = { 0x0a, 0x83, 0x02 };
-	assert_int_equal(mb_frame_decode(ex, rtu(ex, 3), MB_FRAMING_RTU, &fr), 0);
+	assert_int_equal(mbsim_frame_decode(ex, rtu(ex, 3), MB_FRAMING_RTU, &fr), 0);
 	assert_int_equal(fr.function, 3);
 	assert_int_equal(fr.exception, 2);
 	assert_string_equal(mb_exception_text(fr.exception), "illegal data address");
 	/* a byte count that lies, an odd register count, an unknown function */
 	uint8_t bad[16] = { 0x01, 0x03, 0x04, 0x00, 0x01 };
-	assert_int_equal(mb_frame_decode(bad, rtu(bad, 5), MB_FRAMING_RTU, &fr), -EPROTO);
+	assert_int_equal(mbsim_frame_decode(bad, rtu(bad, 5), MB_FRAMING_RTU, &fr), -EPROTO);
 	uint8_t odd[16] = { 0x01, 0x04, 0x03, 0x00, 0x01, 0x02 };
-	assert_int_equal(mb_frame_decode(odd, rtu(odd, 6), MB_FRAMING_RTU, &fr), -EPROTO);
+	assert_int_equal(mbsim_frame_decode(odd, rtu(odd, 6), MB_FRAMING_RTU, &fr), -EPROTO);
 	uint8_t unk[16] = { 0x01, 0x41, 0x00, 0x00 };
-	assert_int_equal(mb_frame_decode(unk, rtu(unk, 4), MB_FRAMING_RTU, &fr), -ENOTSUP);
+	assert_int_equal(mbsim_frame_decode(unk, rtu(unk, 4), MB_FRAMING_RTU, &fr), -ENOTSUP);
 	uint8_t wr[16] = { 0x07, 0x10, 0x00, 0x58, 0x00, 0x10 };
-	assert_int_equal(mb_frame_decode(wr, rtu(wr, 6), MB_FRAMING_RTU, &fr), 0);
+	assert_int_equal(mbsim_frame_decode(wr, rtu(wr, 6), MB_FRAMING_RTU, &fr), 0);
 	assert_int_equal(fr.function, 16);
 	assert_int_equal(fr.data[1], 0x58);
 }
@@ -86,10 +87,10 @@ static void test_decode_tcp(void **state)
 {
 	uint8_t f[32] = { 0x12, 0x34, 0, 0, 0, 7, 0x05, 0x04, 0x04, 0xde, 0xad, 0xbe, 0xef,
 			  0x99, 0x98 };
-	struct mb_frame fr;
+	struct mbsim_frame fr;
 
 	/* trailing bytes of the next frame are not part of this one */
-	assert_int_equal(mb_frame_decode(f, 15, MB_FRAMING_TCP, &fr), 0);
+	assert_int_equal(mbsim_frame_decode(f, 15, MB_FRAMING_TCP, &fr), 0);
 	assert_int_equal(fr.transaction, 0x1234);
 	assert_int_equal(fr.unit, 5);
 	assert_int_equal(fr.function, 4);
@@ -97,18 +98,18 @@ static void test_decode_tcp(void **state)
 	assert_int_equal(fr.data[3], 0xef);
 	assert_int_equal(fr.size, 13);
 	for (size_t k = 0; k < 13; k++)
-		assert_true(mb_frame_decode(f, k, MB_FRAMING_TCP, &fr) < 0);
+		assert_true(mbsim_frame_decode(f, k, MB_FRAMING_TCP, &fr) < 0);
 	f[2] = 1;               /* not the Modbus protocol id */
-	assert_int_equal(mb_frame_decode(f, 13, MB_FRAMING_TCP, &fr), -EBADMSG);
+	assert_int_equal(mbsim_frame_decode(f, 13, MB_FRAMING_TCP, &fr), -EBADMSG);
 	f[2] = 0;
 	f[5] = 9;               /* longer than the buffer */
-	assert_int_equal(mb_frame_decode(f, 13, MB_FRAMING_TCP, &fr), -EBADMSG);
+	assert_int_equal(mbsim_frame_decode(f, 13, MB_FRAMING_TCP, &fr), -EBADMSG);
 	uint8_t ex[9] = { 0, 1, 0, 0, 0, 3, 0xff, 0x90, 0x0b };
-	assert_int_equal(mb_frame_decode(ex, 9, MB_FRAMING_TCP, &fr), 0);
+	assert_int_equal(mbsim_frame_decode(ex, 9, MB_FRAMING_TCP, &fr), 0);
 	assert_int_equal(fr.function, 16);
 	assert_int_equal(fr.exception, 11);
 	assert_non_null(strstr(mb_exception_text(11), "gateway"));
-	assert_int_equal(mb_frame_decode(NULL, 9, MB_FRAMING_TCP, &fr), -EBADMSG);
+	assert_int_equal(mbsim_frame_decode(NULL, 9, MB_FRAMING_TCP, &fr), -EBADMSG);
 }
 
 static void test_words(void **state)

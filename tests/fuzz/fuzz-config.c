@@ -7,7 +7,7 @@
 #include <stdint.h>
 #include <stdlib.h>
 
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 #include "fuzz.h"
 
 static struct asph_registry *registry;

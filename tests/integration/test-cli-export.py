@@ -20,10 +20,11 @@ import json
 import math
 import os
 import shutil
-import struct
 import subprocess
 import sys
 import tempfile
+
+from gwyfile import gwyddion_read
 
 ASPH = os.environ.get("ASPH_BIN")
 FAILURES = []
@@ -58,78 +59,6 @@ def run(args, **kw):
 
 def asph(*args):
     return run([ASPH, *args])
-
-
-# ---- GWY (Gwyddion's serialization) ---------------------------------------
-
-def gwy_object(b, pos):
-    """(name, {component: value}, next position) of the object at pos."""
-    end = b.index(b"\0", pos)
-    name = b[pos:end].decode()
-    size = struct.unpack_from("<I", b, end + 1)[0]
-    pos = end + 5
-    stop = pos + size
-    comps = {}
-    while pos < stop:
-        e = b.index(b"\0", pos)
-        key = b[pos:e].decode()
-        t = chr(b[e + 1])
-        pos = e + 2
-        if t in "bc":
-            val, pos = b[pos], pos + 1
-        elif t == "i":
-            val, pos = struct.unpack_from("<i", b, pos)[0], pos + 4
-        elif t == "q":
-            val, pos = struct.unpack_from("<q", b, pos)[0], pos + 8
-        elif t == "d":
-            val, pos = struct.unpack_from("<d", b, pos)[0], pos + 8
-        elif t == "s":
-            e2 = b.index(b"\0", pos)
-            val, pos = b[pos:e2].decode(), e2 + 1
-        elif t == "o":
-            _, val, pos = gwy_object(b, pos)
-        elif t in "CIQD":
-            n = struct.unpack_from("<I", b, pos)[0]
-            fmt = {"C": "B", "I": "i", "Q": "q", "D": "d"}[t]
-            width = struct.calcsize(fmt)
-            val = list(struct.unpack_from(f"<{n}{fmt}", b, pos + 4))
-            pos += 4 + n * width
-        elif t == "S":
-            n = struct.unpack_from("<I", b, pos)[0]
-            pos += 4
-            val = []
-            for _ in range(n):
-                e2 = b.index(b"\0", pos)
-                val.append(b[pos:e2].decode())
-                pos = e2 + 1
-        elif t == "O":
-            n = struct.unpack_from("<I", b, pos)[0]
-            pos += 4
-            val = []
-            for _ in range(n):
-                _, o, pos = gwy_object(b, pos)
-                val.append(o)
-        else:
-            raise ValueError(f"GWY component type {t!r}")
-        comps[key] = val
-    return name, comps, stop
-
-
-def gwyddion_read(x3p, tmp):
-    """The container Gwyddion makes of x3p, or (None, its complaint)."""
-    out = os.path.join(tmp, "gwy.gwy")
-    if os.path.exists(out):
-        os.remove(out)
-    env = dict(os.environ, GWYDDION_LOGFILE=os.path.join(tmp, "gwy.log"))
-    r = run(["gwyddion", "--no-splash", f"--convert-to-gwy={out}", x3p], env=env, timeout=120)
-    if not os.path.exists(out):
-        c = run(["gwyddion", "--check", x3p], env=env, timeout=120)
-        return None, (r.stderr + c.stdout + c.stderr).strip()
-    data = open(out, "rb").read()
-    if data[:4] != b"GWYP":
-        return None, "not a GWY file"
-    _, comps, _ = gwy_object(data, 4)
-    return comps, ""
 
 
 # ---- the second reader: unzip, md5sum, xmllint, od -------------------------
@@ -231,7 +160,7 @@ def points_export(tmp):
     check(xpath("/*/Record1/FeatureType") == "PCL", "list export is not PCL")
     check(int(xpath("/*/Record3/ListDimension")) == len(rows), "ListDimension")
     check(len(values) == 3 * len(rows), f"{len(values)} doubles for {len(rows)} points")
-    worst = max((abs(values[3 * i + k] - rows[i][k] * 1e-3) for i in range(len(rows)) for k in range(3)),
+    worst = max((abs(values[3 * i + k] - rows[i][k] / 1000) for i in range(len(rows)) for k in range(3)),
                 default=1)
     check(worst <= 1e-18, f"list values differ from the CSV by {worst} m")
     # the measured points of a recorded scan, as asph export writes them

@@ -164,7 +164,8 @@ def bad_input(tmp):
         "nan": "\n".join(rows[:40] + ["0.5,nan,0.01"] + rows[40:80]) + "\n",
         "few": "\n".join(rows[:4]) + "\n",
         "line": "x,y,z\n" + "".join(f"{0.1 * i - 3},{0.05 * i},{0.001 * i}\n" for i in range(60)),
-        "noheader": "\n".join(rows[1:60]) + "\n",
+        # without a header a row is x, y, z: two columns are refused
+        "noheader-two-columns": "\n".join(r.rsplit(",", 1)[0] for r in rows[1:60]) + "\n",
     }
     for name, text in cases.items():
         path = os.path.join(tmp, name + ".csv")
@@ -175,6 +176,13 @@ def bad_input(tmp):
         check(r.stderr.startswith("asph") and len(r.stderr.strip()) > 10,
               f"{name}: no clear message: {r.stderr!r}")
         check(r.stdout == "", f"{name}: printed a result")
+    # three columns without a header are x, y, z: the same fit as with one
+    path = os.path.join(tmp, "noheader.csv")
+    with open(path, "w") as f:
+        f.write("\n".join(rows[1:]) + "\n")
+    r, h = run(["fit", "weak", path, "--json"]), run(["fit", "weak", "-", "--json"], stdin=good)
+    check(r.returncode == 0 and h.returncode == 0 and json.loads(r.stdout)["dof"] == json.loads(h.stdout)["dof"],
+          f"noheader: exit {r.returncode}, the fit differs from the file with a header: {r.stderr}")
     for args in (["fit"], ["fit", "weak"], ["fit", "weak", "x.csv", "--dof", "tx,rw"],
                  ["fit", "weak", "x.csv", "--residual", "radial"],
                  ["synth", "weak"], ["synth", "weak", "--method", "op", "--h", "0.05",

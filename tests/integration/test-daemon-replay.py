@@ -171,7 +171,7 @@ def check_residuals_x3p(tmp, scan, scan_created):
     n = int(xml_text(xml, "ListDimension"))
     values = struct.unpack(f"<{3 * n}d", m["bindata/data.bin"])
     expect(n == len(rows) and n > 100, f"the X3P lists the {len(rows)} points fitted ({n})")
-    worst = max(max(abs(values[3 * i] - float(p["x"]) * 1e-3), abs(values[3 * i + 1] - float(p["y"]) * 1e-3),
+    worst = max(max(abs(values[3 * i] - float(p["x"]) / 1000), abs(values[3 * i + 1] - float(p["y"]) / 1000),
                     abs(values[3 * i + 2] - float(p["residual_nm"]) * 1e-9)) for i, p in enumerate(rows))
     expect(worst < 1e-18, f"its X, Y are the points' and Z their residual, in m (worst {worst:.3g})")
     check_record2(xml, "replay --residuals x.x3p", scan_created)

@@ -26,6 +26,7 @@ import tempfile
 import time
 
 from daemontest import Client, Daemon, expect, finish, mock_instrument
+from quantities import NO_SIGN, Quantities
 
 ASPH = os.environ.get("ASPH_BIN", "asph")
 
@@ -249,11 +250,17 @@ def same_figure(text, value, what):
            f"{what}: {text} is {value!r} rounded")
 
 
+QUANTITIES = Quantities()
+
+
 def check_figures(pdf, summary, what):
     """The table and the residual line of page 1 against the summary JSON:
     the same value and sign, rounded as the text output rounds (0.01 nm,
-    0.01 µrad, A signed); the limit and the verdict of each toleranced row."""
+    0.01 µrad, A signed); each figure exactly as the quantity table prints
+    the summary's value (lib/util/quantity.h); the limit and the verdict of
+    each toleranced row."""
     lines = pdf.lines(0)
+    q = QUANTITIES
     items = {it["quantity"]: it for it in (summary.get("verdict") or {}).get("items", [])}
     for label, (group, key), ukey, qkey in ROWS:
         row = [ln for ln in lines if ln.startswith(label + " ")]
@@ -264,6 +271,9 @@ def check_figures(pdf, summary, what):
         value, U = summary[group][key], summary["uncertainty_k2"][ukey]
         same_figure(cells[0], value, f"{what}: {label}")
         same_figure(cells[1], U, f"{what}: U of {label}")
+        path = f"{group}.{key}"
+        expect(cells[:2] == [q.format(path, value), q.format(path, U, NO_SIGN)],
+               f"{what}: {label}: {cells[:2]} as the quantity table prints {value!r}, {U!r}")
         expect(decimals(cells[0]) == decimals(cells[1]) == (2 if "(nm)" in label or "rad)" in label
                                                              else 6),
                f"{what}: {label}: {cells[0]} and U {cells[1]} to the text output's decimals")
@@ -275,6 +285,8 @@ def check_figures(pdf, summary, what):
             expect((cells[2][0] == "±") == (key == "A_nm"), f"{what}: {label}: the limit "
                    f"{cells[2]} is two-sided for A only")
             same_figure(limit, it["limit"], f"{what}: {label}: the limit")
+            expect(limit == q.format(path, it["limit"], NO_SIGN),
+                   f"{what}: {label}: the limit {limit} as the quantity table prints it")
             expect(cells[3] == it["verdict"], f"{what}: {label}: {cells[3]}, the summary's "
                    f"{it['verdict']}")
         else:
@@ -285,6 +297,8 @@ def check_figures(pdf, summary, what):
     if m:
         for text, key in zip(m.groups(), ("rms_nm", "pv_nm", "pvr_nm")):
             same_figure(text, summary[key], f"{what}: {key}")
+            expect(text == q.format(key, summary[key]),
+                   f"{what}: {key} {text} as the quantity table prints it")
 
 
 def check_fonts_and_symbols(pdf, what):

@@ -4,6 +4,7 @@
 #include <stdarg.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include <cmocka.h>
@@ -263,6 +264,34 @@ static void test_params(void **state)
 	json_decref(p);
 }
 
+/* RFC 4648 §10's vectors; base64url for tokens and cookies (§5), unpadded. */
+static void test_base64(void **state)
+{
+	static const char *plain[] = { "", "f", "fo", "foo", "foob", "fooba", "foobar" };
+	static const char *coded[] = { "", "Zg==", "Zm8=", "Zm9v", "Zm9vYg==", "Zm9vYmE=", "Zm9vYmFy" };
+	const uint8_t url[] = { 0xfb, 0xff, 0xbf, 0x3e };
+	void *back;
+	size_t n;
+
+	(void)state;
+	for (size_t i = 0; i < sizeof(plain) / sizeof(plain[0]); i++) {
+		char *b = proto_base64_encode(plain[i], strlen(plain[i]));
+		assert_string_equal(b, coded[i]);
+		free(b);
+		assert_int_equal(proto_base64_decode(coded[i], strlen(coded[i]), &back, &n), 0);
+		assert_int_equal(n, strlen(plain[i]));
+		assert_memory_equal(back, plain[i], n);
+		free(back);
+	}
+	char *u = proto_base64url_encode(url, sizeof(url));
+	assert_string_equal(u, "-_-_Pg");
+	free(u);
+	/* not the protocol's base64: unpadded, white space, another alphabet, junk after '=' */
+	static const char *bad[] = { "Zg", "Zm 9", "-_-_", "Zg=A", "Z===" };
+	for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++)
+		assert_int_equal(proto_base64_decode(bad[i], strlen(bad[i]), &back, &n), -EINVAL);
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -273,6 +302,7 @@ int main(void)
 		cmocka_unit_test(test_utf8_clean),
 		cmocka_unit_test(test_builders),
 		cmocka_unit_test(test_params),
+		cmocka_unit_test(test_base64),
 	};
 	return cmocka_run_group_tests(tests, NULL, NULL);
 }

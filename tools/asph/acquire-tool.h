@@ -4,7 +4,7 @@
 #ifndef ASPH_TOOL_ACQUIRE_H
 #define ASPH_TOOL_ACQUIRE_H
 
-#include "asph/instrument.h"
+#include "asph-driver/instrument.h"
 
 /* The built-in drivers, plugins from plugin_dir (or, when NULL, the default
  * directories) with a warning per plugin that does not load. Prints the

@@ -34,6 +34,9 @@ int cmd_synth(int argc, char **argv);
 /* Prints "asph: <formatted error>" to stderr. */
 void tool_print_error(const char *context, const struct asph_error *err);
 
+/* The command being run, which the messages of the option loop name. */
+void tool_set_command(const char *name);
+
 /* Takes one option of a command: 0, or < 0 for a value it refuses (after
  * saying why). */
 typedef int tool_option_fn(int opt, const char *arg, void *data);

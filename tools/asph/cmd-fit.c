@@ -26,6 +26,7 @@
 #include "progress.h"
 #include "quantity.h"
 #include "util-mem.h"
+#include "util-suggest.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_surface *, asph_surface_free)
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
@@ -61,6 +62,8 @@ enum {
 	OPT_SCAN,
 	OPT_BANDS,
 	OPT_OUT,
+	OPT_FORMAT,
+	OPT_UNITS,
 };
 
 
@@ -73,7 +76,10 @@ static void usage(FILE *out)
 		"the form error that remains (RMS, PV, PVr, slope, Zernike terms).\n"
 		"docs/characterization.md states the conventions.\n\n"
 		"LENS is a preset (weak, strong, turning-point) or a prescription file.\n"
-		"POINTS_FILE is .csv (header x,y,z), .ply or .json; '-' reads CSV from stdin.\n\n"
+		"POINTS_FILE ('-': stdin) is delimited text (comma, semicolon, tab or blank\n"
+		"separated, header x,y,z with optional units, or three columns), PLY, JSON,\n"
+		"X3P, SDF, Zygo MetroPro .dat or .datx, the format found from the content;\n"
+		"maps become points with their invalid nodes left out (docs/characterization.md).\n\n"
 		"  --dof LIST          degrees of freedom, from tx,ty,tz (mm), rx,ry,rz (rad), R (mm),\n"
 		"                      k (default tx,ty,tz,rx,ry); rz (clocking) for freeform\n"
 		"                      surfaces, R and k for rotationally symmetric ones\n"
@@ -122,6 +128,7 @@ static void usage(FILE *out)
 		"                                           (its plan, instrument and times are\n"
 		"                                           reported)\n"
 		FIT_MC_HELP
+		POINTS_INPUT_HELP
 		"  --json              one JSON object (n_points, dof, uncertainty, iterations,\n"
 		"                      converged, rms_nm (the residual's standard deviation about\n"
 		"                      its mean), pv_nm, pvr_nm, zernike_nm, form, slope, radius,\n"
@@ -214,8 +221,9 @@ static int parse_bands(const char *arg, struct fit_cli *c)
 }
 
 /* 0 taken, -1 bad value (message printed). */
-static int take_option(struct fit_cli *c, int opt, const char *arg)
+static int take_option(int opt, const char *arg, void *data)
 {
+	struct fit_cli *c = data;
 	struct asph_error err;
 
 	switch (opt) {
@@ -228,7 +236,14 @@ static int take_option(struct fit_cli *c, int opt, const char *arg)
 		return 0;
 	case OPT_RESIDUAL:
 		if (asph_fit_residual_from_name(arg, &c->opts.residual) < 0) {
-			fprintf(stderr, "asph fit: --residual: '%s' is not normal or sag\n", arg);
+			const char *names[8];
+			char known[64];
+			size_t n = 0;
+			while (n < ARRAY_SIZE(names) &&
+			       (names[n] = asph_fit_residual_name((enum asph_fit_residual_kind)n)))
+				n++;
+			suggest_join(known, sizeof(known), names, n, " or ");
+			fprintf(stderr, "asph fit: --residual: '%s' is not %s\n", arg, known);
 			return -1;
 		}
 		return 0;
@@ -296,6 +311,10 @@ static int take_option(struct fit_cli *c, int opt, const char *arg)
 	case OPT_SCAN:
 		c->scan = arg;
 		return 0;
+	case OPT_FORMAT:
+		return points_input_format(&c->input, "fit", arg);
+	case OPT_UNITS:
+		return points_input_units(&c->input, "fit", arg);
 	case OPT_MC_UNCERTAINTY:
 	case OPT_MC_INSTRUMENT:
 	case OPT_MC_TRIALS:
@@ -414,26 +433,18 @@ int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
 		{ "operator", required_argument, NULL, OPT_OPERATOR },
 		{ "measured", required_argument, NULL, OPT_MEASURED },
 		{ "scan", required_argument, NULL, OPT_SCAN },
+		{ "format", required_argument, NULL, OPT_FORMAT },
+		{ "units", required_argument, NULL, OPT_UNITS },
 		FIT_MC_LONGOPTS,
 		{ "quiet", no_argument, NULL, 'q' },
 		{ "help", no_argument, NULL, 'h' },
 		{ NULL, 0, NULL, 0 },
 	};
-	int opt;
-
 	/* getopt permutes: options may also follow LENS and POINTS_FILE. */
-	optind = 0;
-	opterr = 0;
-	while ((opt = getopt_long(argc, argv, "hq", longopts, NULL)) != -1) {
-		if (opt == 'h') {
-			usage_fn(stdout);
-			return -1;
-		}
-		if (opt == '?' || opt == ':')
-			return tool_option_error(argv, "hq", longopts);
-		if (take_option(c, opt, optarg) < 0)
-			return EXIT_USAGE;
-	}
+	int r = tool_getopt(argc, argv, "hq", longopts, usage_fn, take_option, c);
+
+	if (r >= 0)
+		return r == EXIT_OK ? -1 : r;
 	if (argc - optind != operands) {
 		fprintf(stderr, "asph %s: need %s (see --help)\n", argv[0],
 			operands == 2 ? "LENS and POINTS_FILE" : "SCAN");
@@ -717,11 +728,9 @@ int cmd_fit(int argc, char **argv)
 	}
 	if (tool_load_surface(c.lens, &s) < 0)
 		return EXIT_FAILURE_RUN;
-	asph_error_clear(&err);
-	if (asph_points_read(c.points, &pts, &err) < 0) {
-		tool_print_error(NULL, &err);
+	if (points_input_read(&c.input, "fit", c.points, &pts) < 0)
 		return EXIT_FAILURE_RUN;
-	}
+	asph_error_clear(&err);
 	/* --scan: its plan, instrument, job and times name the run */
 	if (c.scan && asph_scanfile_read(c.scan, &scan, &err) < 0) {
 		tool_print_error("fit: --scan", &err);

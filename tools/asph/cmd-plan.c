@@ -7,12 +7,13 @@
 #include <string.h>
 
 #include "acquire-tool.h"
-#include "asph/executor.h"
+#include "asph-engine/executor.h"
 #include "asph/plan-search.h"
 #include "asph/plan.h"
 #include "asph/points.h"
 #include "asph/prescription.h"
 #include "asph-tool.h"
+#include "command.h"
 #include "plan-source.h"
 #include "plan-tolerance.h"
 #include "util-mem.h"
@@ -35,6 +36,9 @@ enum {
 
 static void usage(FILE *out)
 {
+	char mesh[128], text[256];
+
+	plan_mesh_methods(mesh, sizeof(mesh));
 	fprintf(out,
 		"Usage: asph plan LENS --method M (--h H | --spacing MM | --points N) [-o FILE]\n"
 		"       asph plan LENS --for-tolerance TOL --instrument INST [--capability R]\n"
@@ -42,15 +46,15 @@ static void usage(FILE *out)
 		"Computes a sampling plan on LENS (a preset: weak, strong, turning-point, or a\n"
 		"prescription file) and writes its points in scan order. With --for-tolerance\n"
 		"it chooses the plan: the shortest predicted measuring time on INST whose\n"
-		"expanded uncertainty decides the tolerance TOL.\n\n"
-		"  --method M          op, ot, lb, ci, raster, concentric, spiral, fermat,\n"
-		"                      cvt\n"
-		"  --h H               mean edge length / aperture radius (the paper's h)\n"
-		"  --spacing MM        mean point spacing on the surface, mm\n"
-		"  --points N          approximate number of points\n"
-		"  -o, --output FILE   .csv (x,y,z), .ply (with faces for op, ot, lb) or .json;\n"
-		"                      default: CSV on standard output\n"
-		"  --no-mesh           leave the mesh of op, ot, lb out\n"
+		"expanded uncertainty decides the tolerance TOL.\n\n");
+	plan_method_help(out, "", "");
+	fputs(PLAN_DENSITY_HELP, out);
+	snprintf(text, sizeof(text), ".csv (x,y,z), .ply (with faces for %s) or .json; default: "
+		 "CSV on standard output", mesh);
+	command_help_option(out, "-o, --output FILE", text);
+	snprintf(text, sizeof(text), "leave the mesh of %s out", mesh);
+	command_help_option(out, "--no-mesh", text);
+	fprintf(out,
 		"  --estimate INSTRUMENT  print the predicted measuring time of the plan on\n"
 		"                      INSTRUMENT (a configuration file or a driver spec, as\n"
 		"                      asph scan takes it), streamed where the instrument can:\n"

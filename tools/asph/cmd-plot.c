@@ -20,8 +20,9 @@ static void usage(FILE *out)
 		"the plan's points coloured by their height z, and its triangles (as asph quality\n"
 		"builds them) coloured by A_i / mean(A) on [0, 4] or by q on [0, 1], as in the\n"
 		"paper's Figs. 8 and 9 (docs/quality.md).\n\n"
-		"LENS is a preset (weak, strong, turning-point) or a prescription file.\n"
-		PLAN_SOURCE_HELP
+		"LENS is a preset (weak, strong, turning-point) or a prescription file.\n");
+	plan_source_help(out);
+	fprintf(out,
 		PLAN_SOURCE_QUIET_HELP
 		"  -o, --output FILE   the PNG to write (required)\n"
 		"  --color area|q      what colours the triangles (default area)\n"

@@ -21,8 +21,9 @@ static void usage(FILE *out)
 		"triangles, the shape measure q = 4 sqrt(3) A / (l1^2 + l2^2 + l3^2) and the\n"
 		"area ratio A_i / mean(A): min, quartiles, max, mean, std, the fraction with\n"
 		"q > 0.9 and the fraction with A_i / mean within 0.95..1.05 (docs/quality.md).\n\n"
-		"LENS is a preset (weak, strong, turning-point) or a prescription file.\n"
-		PLAN_SOURCE_HELP
+		"LENS is a preset (weak, strong, turning-point) or a prescription file.\n");
+	plan_source_help(out);
+	fprintf(out,
 		PLAN_SOURCE_QUIET_HELP
 		"  --chart C           conformal (default), xy (the vertex plane, for comparison),\n"
 		"                      or plan-mesh (the mesh that comes with the plan)\n"

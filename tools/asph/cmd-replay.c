@@ -101,6 +101,10 @@ int cmd_replay(int argc, char **argv)
 	int r = fit_cli_parse(&c, argc, argv, 1, usage);
 	if (r != EXIT_OK)
 		return r < 0 ? EXIT_OK : r;
+	if (c.input.format_arg || c.input.units_arg) {
+		fprintf(stderr, "asph replay: --format and --units are for the points file of asph fit; a scan carries its own\n");
+		return EXIT_USAGE;
+	}
 	r = read_scan(c.points, &data, &len, &s, &surf);
 	if (r != EXIT_OK)
 		return r;

@@ -13,7 +13,7 @@
 
 #include "acquire-tool.h"
 #include "asph-tool.h"
-#include "asph/executor.h"
+#include "asph-engine/executor.h"
 #include "asph/plan.h"
 #include "asph/prescription.h"
 #include "plan-source.h"
@@ -209,9 +209,9 @@ static void usage(FILE *out)
 		"Usage: asph scan LENS --method M (--h H | --spacing MM | --points N)\n"
 		"                 --instrument INSTRUMENT -o SCAN [OPTIONS]\n\n"
 		"Measures the plan with an instrument and records every point in SCAN.\n"
-		"LENS is a preset (weak, strong, turning-point) or a prescription file.\n"
-		"  --method M          op, ot, lb, ci, raster, concentric, spiral, fermat,\n"
-		"                      cvt\n"
+		"LENS is a preset (weak, strong, turning-point) or a prescription file.\n");
+	plan_method_help(out, "", "");
+	fprintf(out,
 		"  --h H | --spacing MM | --points N   the plan's density (exactly one)\n"
 		"  --instrument I      a configuration file (FILE or FILE#NAME), or a driver\n"
 		"                      spec NAME[:key=value,...], e.g. mock, mock:rate=20000\n"

@@ -44,12 +44,10 @@ static void usage(FILE *out)
 		"plus the form error along its normal; noise is added along the normal too; the\n"
 		"part is then moved: p = Ry(ry) Rx(rx) Rz(rz) q + (x, y, z)\n"
 		"(docs/characterization.md). asph fit LENS on the output reports the shift,\n"
-		"tilt and clocking back.\n\n"
-		"  --method M          op, ot, lb, ci, raster, concentric, spiral, fermat,\n"
-		"                      cvt\n"
-		"  --h H               mean edge length / aperture radius (the paper's h)\n"
-		"  --spacing MM        mean point spacing on the surface, mm\n"
-		"  --points N          approximate number of points\n"
+		"tilt and clocking back.\n\n");
+	plan_method_help(out, "", "");
+	fprintf(out,
+		PLAN_DENSITY_HELP
 		"  --shift X,Y,Z       shift of the part, mm (default 0,0,0)\n"
 		"  --tilt RX,RY        tilt about the machine x then y axis, rad (default 0,0)\n"
 		"  --clocking RZ       rotation about the part's own axis, applied first, rad\n"
@@ -113,8 +111,9 @@ static int parse_terms(struct synth_cli *c, const char *arg)
 	return 0;
 }
 
-static int take_option(struct synth_cli *c, int opt, const char *arg)
+static int take_option(int opt, const char *arg, void *data)
 {
+	struct synth_cli *c = data;
 	double v[3];
 	char *end;
 
@@ -176,20 +175,10 @@ static int parse_args(struct synth_cli *c, int argc, char **argv, const char **l
 		{ "help", no_argument, NULL, 'h' },
 		{ NULL, 0, NULL, 0 },
 	};
-	int opt;
+	int r = tool_getopt(argc, argv, "ho:", longopts, usage, take_option, c);
 
-	optind = 0;
-	opterr = 0;
-	while ((opt = getopt_long(argc, argv, "ho:", longopts, NULL)) != -1) {
-		if (opt == 'h') {
-			usage(stdout);
-			return -1;
-		}
-		if (opt == '?' || opt == ':')
-			return tool_option_error(argv, "ho:", longopts);
-		if (take_option(c, opt, optarg) < 0)
-			return EXIT_USAGE;
-	}
+	if (r >= 0)
+		return r == EXIT_OK ? -1 : r;
 	if (argc - optind != 1) {
 		fprintf(stderr, "asph synth: need exactly one LENS (see --help)\n");
 		return EXIT_USAGE;

@@ -15,6 +15,7 @@
 #include "asph/scanfile.h"
 #include "asph/tolerance.h"
 #include "fit-uncertainty.h"
+#include "points-input.h"
 
 struct fit_cli {
 	const char *lens, *points, *residuals_out, *map_out, *tolerance_arg;
@@ -32,6 +33,7 @@ struct fit_cli {
 	struct asph_bands bands;
 	const char *out_dir;            /* asph replay --out */
 	char *tolerance_json;           /* --tolerance's text */
+	struct points_input input;      /* --format, --units */
 };
 
 /* Frees what parsing kept. */

@@ -12,7 +12,7 @@
 #include <jansson.h>
 
 #include "acquire-tool.h"
-#include "asph/mc-runner.h"
+#include "asph-mc/mc-runner.h"
 #include "asph-tool.h"
 #include "fit-uncertainty.h"
 #include "progress.h"
@@ -151,7 +151,7 @@ static int model_from_config(const char *arg, struct asph_uncertainty_model *m)
 	return 0;
 }
 
-/* The trials on --threads workers (drivers/mc-runner.c), their progress
+/* The trials on --threads workers (drivers/mc/mc-runner.c), their progress
  * on a terminal (tools/progress.c). */
 static int run_threads(void *data, struct asph_mc *mc, struct asph_mc_result *out,
 		       struct asph_error *err)

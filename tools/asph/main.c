@@ -5,7 +5,6 @@
 #include <gsl/gsl_errno.h>
 
 #include "config.h"
-#include "asph/prescription.h"
 #include "asph-tool.h"
 #include "command.h"
 #include "util-mem.h"
@@ -30,71 +29,6 @@ static const struct tool_command commands[] = {
 	{ "synth", "synthetic measurement: plan points of a misaligned part with form error", cmd_synth },
 };
 
-void tool_print_error(const char *context, const struct asph_error *err)
-{
-	char buf[1024];
-
-	asph_error_format(err, buf, sizeof(buf));
-	if (context)
-		fprintf(stderr, "asph: %s: %s\n", context, buf);
-	else
-		fprintf(stderr, "asph: %s\n", buf);
-}
-
-/* The command being run, for messages ("lens" for asph lens import). */
-static const char *command_name = "";
-
-int tool_option_error(char **argv, const char *shortopts, const struct option *longopts)
-{
-	char why[256];
-
-	fprintf(stderr, "asph %s: %s\nRun 'asph help %s' for its options.\n", command_name,
-		suggest_getopt_error(argv, shortopts, longopts, why, sizeof(why)), command_name);
-	return EXIT_USAGE;
-}
-
-int tool_getopt(int argc, char **argv, const char *shortopts,
-		const struct option *longopts, void (*usage)(FILE *out),
-		tool_option_fn *take, void *data)
-{
-	int c;
-
-	optind = 0;   /* 0: getopt starts afresh (main read its options in order) */
-	opterr = 0;
-	while ((c = getopt_long(argc, argv, shortopts, longopts, NULL)) != -1) {
-		if (c == 'h') {
-			usage(stdout);
-			return EXIT_OK;
-		}
-		if (c == '?' || c == ':')
-			return tool_option_error(argv, shortopts, longopts);
-		if (take(c, optarg, data) < 0)
-			return EXIT_USAGE;
-	}
-	return -1;
-}
-
-int tool_take_flag(int opt, const char *arg, void *data)
-{
-	*(int *)data = 1;
-	return 0;
-}
-
-int tool_load_surface(const char *lens, struct asph_surface **out)
-{
-	struct asph_prescription p;
-	struct asph_error err;
-	int r;
-
-	asph_error_clear(&err);
-	r = asph_prescription_load(lens, &p, &err);
-	if (r == 0)
-		r = asph_surface_alloc(&p, out, &err);
-	if (r < 0)
-		tool_print_error(NULL, &err);
-	return r;
-}
-
 static void usage(FILE *f)
 {
 	fprintf(f, "Usage: asph COMMAND [OPTIONS...]\n"
@@ -116,17 +50,12 @@ static int cmd_help(int argc, char **argv)
 	char *words[4];
 	int n, r;
 
-	if (argc < 2) {
-		usage(stdout);
-		return EXIT_OK;
-	}
-	if ((r = command_help_words("asph", argc, argv, words, &n)) >= 0)
+	if ((r = command_help("asph", COMMAND_TABLE(commands), usage, argc, argv,
+			      (const void **)&c, words, &n)) >= 0)
 		return r;
-	if (!(c = command_find(COMMAND_TABLE(commands), words[0])))
-		return command_unknown("asph", words[0], COMMAND_TABLE(commands));
 	if (c->run == cmd_help)
 		return cmd_help(1, argv);
-	command_name = c->name;
+	tool_set_command(c->name);
 	optind = 0;
 	return c->run(n, words);
 }
@@ -165,6 +94,6 @@ int main(int argc, char **argv)
 	}
 	if (!(c = command_find(COMMAND_TABLE(commands), argv[optind])))
 		return command_unknown("asph", argv[optind], COMMAND_TABLE(commands));
-	command_name = c->name;
+	tool_set_command(c->name);
 	return c->run(argc - optind, argv + optind);
 }

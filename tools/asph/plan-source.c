@@ -5,9 +5,11 @@
 #include <string.h>
 
 #include "asph-tool.h"
+#include "command.h"
 #include "plan-source.h"
 #include "progress.h"
 #include "util-mem.h"
+#include "util-suggest.h"
 
 /* Guards against a density typo that would ask for billions of points. */
 #define PLAN_MAX_POINTS 50000000
@@ -41,6 +43,34 @@ static int set_density(struct plan_source *ps, enum asph_plan_density_kind kind,
 	ps->n_density++;
 	ps->density = (struct asph_plan_density){ .kind = kind, .value = v };
 	return 0;
+}
+
+void plan_method_help(FILE *out, const char *before, const char *after)
+{
+	char names[256], text[512];
+
+	asph_plan_method_names(names, sizeof(names));
+	snprintf(text, sizeof(text), "%s%s%s", before, names, after);
+	command_help_option(out, "--method M", text);
+}
+
+void plan_source_help(FILE *out)
+{
+	fputs("  PLAN_FILE           points to judge (.csv x,y,z / .ply / .json), as asph plan writes\n",
+	      out);
+	plan_method_help(out, "compute the plan instead: ", "; with exactly one of");
+	fputs(PLAN_DENSITY_HELP, out);
+}
+
+void plan_mesh_methods(char *buf, size_t size)
+{
+	size_t len = 0;
+
+	buf[0] = '\0';
+	for (int m = 0; m < ASPH_PLAN_N_METHODS; m++)
+		if (asph_plan_method_has_mesh((enum asph_plan_method)m) && len < size)
+			len += (size_t)snprintf(buf + len, size - len, "%s%s", len ? ", " : "",
+						asph_plan_method_name((enum asph_plan_method)m));
 }
 
 /* The methods from their table, with the one meant when it is near. */
@@ -117,26 +147,6 @@ int plan_source_compute(const struct plan_source *ps, const struct asph_surface 
 	return r;
 }
 
-static int plan_to_points(const struct asph_plan *plan, struct asph_points **out)
-{
-	struct asph_points *p = asph_points_alloc(plan->n);
-
-	if (!p)
-		return -ENOMEM;
-	memcpy(p->xyz, plan->xyz, 3 * plan->n * sizeof(double));
-	if (plan->n_triangles) {
-		p->triangles = malloc(3 * plan->n_triangles * sizeof(uint32_t));
-		if (!p->triangles) {
-			asph_points_free(p);
-			return -ENOMEM;
-		}
-		memcpy(p->triangles, plan->triangles, 3 * plan->n_triangles * sizeof(uint32_t));
-		p->n_triangles = plan->n_triangles;
-	}
-	*out = p;
-	return 0;
-}
-
 int plan_source_load(const struct plan_source *ps, const struct asph_surface *s,
 		     struct asph_points **out)
 {
@@ -157,7 +167,7 @@ int plan_source_load(const struct plan_source *ps, const struct asph_surface *s,
 		tool_print_error("plan", &err);
 		return r;
 	}
-	r = plan_to_points(plan, out);
+	r = asph_plan_to_points(plan, out);
 	asph_plan_free(plan);
 	if (r < 0)
 		fprintf(stderr, "asph: out of memory copying the plan\n");
@@ -176,9 +186,17 @@ int plan_quality_option(struct plan_quality *pq, int opt, const char *arg)
 {
 	if (opt != PLAN_OPT_CHART)
 		return plan_source_option(&pq->src, opt, arg);
+	const char *names[8];
+	char known[128];
+	size_t n = 0;
+
 	if (asph_quality_chart_from_name(arg, &pq->opts.chart) == 0)
 		return 0;
-	fprintf(stderr, "asph: --chart: '%s' is not conformal, xy or plan-mesh\n", arg);
+	while (n < ARRAY_SIZE(names) &&
+	       strcmp(names[n] = asph_quality_chart_name((enum asph_quality_chart)n), "unknown"))
+		n++;
+	suggest_join(known, sizeof(known), names, n, " or ");
+	fprintf(stderr, "asph: --chart: '%s' is not %s\n", arg, known);
 	return -1;
 }
 

@@ -32,14 +32,20 @@ enum {
 #define PLAN_SOURCE_QUIET_HELP \
 	"  --quiet             no progress of a long plan (CVT) on the terminal\n"
 
-/* Help text for the options above. */
-#define PLAN_SOURCE_HELP                                                                  \
-	"  PLAN_FILE           points to judge (.csv x,y,z / .ply / .json), as asph plan writes\n" \
-	"  --method M          compute the plan instead: op, ot, lb, ci, raster, concentric,\n"  \
-	"                      spiral, fermat, cvt; with exactly one of\n"                             \
+/* The help of --method M: before, the methods from their table, after. */
+void plan_method_help(FILE *out, const char *before, const char *after);
+
+/* The help of the density options, --h, --spacing and --points. */
+#define PLAN_DENSITY_HELP                                                                 \
 	"  --h H               mean edge length / aperture radius (the paper's h)\n"             \
 	"  --spacing MM        mean point spacing on the surface, mm\n"                           \
 	"  --points N          approximate number of points\n"
+
+/* The help of PLAN_FILE or --method with a density. */
+void plan_source_help(FILE *out);
+
+/* The methods whose plan comes with a mesh, from their table: "op, ot, lb". */
+void plan_mesh_methods(char *buf, size_t size);
 
 struct plan_source {
 	const char *plan_file;

@@ -9,8 +9,8 @@
 #include <unistd.h>
 
 #include "acquire-tool.h"
-#include "asph/executor.h"
-#include "asph/mc-runner.h"
+#include "asph-engine/executor.h"
+#include "asph-mc/mc-runner.h"
 #include "asph/plan-search.h"
 #include "asph/prescription.h"
 #include "asph-tool.h"

@@ -1,7 +1,21 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-# bash completion for asphctl. The commands and each command's options come
-# from asphctl itself (`asphctl --help`, `asphctl help COMMAND`), so they are
-# the ones the installed asphctl has.
+# bash completion for asphctl. The commands, each command's options and the
+# values that come from a table (presets, plan methods, residuals, the
+# queue's subcommands) come from asphctl itself (`asphctl --help`, `asphctl
+# help COMMAND`), so they are the ones the installed asphctl has. The job
+# states are the protocol's (proto/schema/common.json, jobState).
+
+# The text of an operand or option in `asphctl help COMMAND`, its lines
+# joined: _asphctl_item submit '--method M'.
+_asphctl_item()
+{
+	asphctl help "$1" 2>/dev/null | awk -v t="  $2 " '
+		index($0, t) == 1 { s = substr($0, length(t) + 1); sub(/^ +/, "", s); on = 1; next }
+		on && /^                      [^ ]/ { sub(/^ +/, ""); s = s " " $0; next }
+		{ on = 0 }
+		END { print s }'
+}
+
 _asphctl()
 {
 	local cur prev words cword
@@ -21,8 +35,11 @@ _asphctl()
 	done
 	case $prev in
 	-s|--socket|--out|--report|--tolerance) COMPREPLY=($(compgen -f -- "$cur")); return ;;
-	--method) COMPREPLY=($(compgen -W "op ot lb ci raster concentric spiral fermat cvt" -- "$cur")); return ;;
-	--residual) COMPREPLY=($(compgen -W "normal sag" -- "$cur")); return ;;
+	--method) COMPREPLY=($(compgen -W "$(_asphctl_item submit '--method M' | tr -d ,)" -- "$cur")); return ;;
+	--residual)
+		COMPREPLY=($(compgen -W "$(asphctl help submit 2>/dev/null |
+			grep -o -- '--residual [a-z|-]*' | cut -d' ' -f2 | tr '|' ' ')" -- "$cur"))
+		return ;;
 	--state) COMPREPLY=($(compgen -W "queued running paused completed failed cancelled interrupted" -- "$cur")); return ;;
 	esac
 	if [[ -z $cmd ]]; then
@@ -34,11 +51,14 @@ _asphctl()
 	case $cmd in
 	submit)
 		if [[ $cur != -* ]]; then
-			COMPREPLY=($(compgen -W "weak strong turning-point" -- "$cur") $(compgen -f -- "$cur"))
+			COMPREPLY=($(compgen -W "$(_asphctl_item submit LENS | sed 's/^[^(]*(\([^)]*\)).*/\1/' | tr -d ,)" -- "$cur")
+				   $(compgen -f -- "$cur"))
 			return
 		fi ;;
 	queue)
-		[[ $cur != -* ]] && { COMPREPLY=($(compgen -W "show move start stop" -- "$cur")); return; } ;;
+		[[ $cur != -* ]] && { COMPREPLY=($(compgen -W "$(asphctl help queue 2>/dev/null |
+			sed -n '1s/^Usage: asphctl queue //p' | grep -o '\(\[\||\) *[a-z][a-z]*' |
+			tr -d '[| ')" -- "$cur")); return; } ;;
 	backup)
 		[[ $cur != -* ]] && { COMPREPLY=($(compgen -f -- "$cur")); return; } ;;
 	help)

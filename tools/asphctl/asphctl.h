@@ -40,13 +40,15 @@ int conn_next_event(struct conn *c, int timeout_ms, json_t **msg);
 struct ctl;
 
 /* A command: its name, the summary `asphctl --help` lists, its function,
- * and what `asphctl help COMMAND` says after the usage line (NULL: the
- * usage line says all). */
+ * what `asphctl help COMMAND` says after the usage line (NULL: the usage
+ * line says all), and the values of its operands and options that come
+ * from a table (NULL: none), printed after that. */
 struct ctl_command {
 	const char *name;
 	const char *summary;
 	int (*run)(struct ctl *ctl, int argc, char **argv);
 	const char *help;
+	void (*help_values)(FILE *out);
 };
 
 /* Global options. */
@@ -101,6 +103,11 @@ int ctl_options_exit(int c);
 /* For a command whose only options are --json and --help: -1 to go on, or
  * the exit code. */
 int ctl_common_options(struct ctl *ctl, int argc, char **argv, const char *usage);
+/* For a command whose options are --json, --help and one flag --NAME
+ * (short: its short form, or 0 for none): *set when it is given; -1 to go
+ * on, or the exit code. */
+int ctl_flag_option(struct ctl *ctl, int argc, char **argv, const char *name, char short_name,
+		    bool *set, const char *usage);
 
 /* Parses a job id argument; -1 (after printing) when it is not one. */
 int64_t ctl_job_id(const char *arg);
@@ -110,6 +117,7 @@ int64_t ctl_job_id(const char *arg);
 int64_t ctl_job_operand(int argc, char **argv, const char *usage);
 
 int cmd_submit(struct ctl *ctl, int argc, char **argv);
+void cmd_submit_values(FILE *out);
 int cmd_status(struct ctl *ctl, int argc, char **argv);
 int cmd_watch(struct ctl *ctl, int argc, char **argv);
 int cmd_cancel(struct ctl *ctl, int argc, char **argv);

@@ -3,14 +3,17 @@
 #include <errno.h>
 #include <getopt.h>
 #include <limits.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include <libpq-fe.h>
 
+#include "asph-names.h"
 #include "asphctl.h"
 #include "util-mem.h"
+#include "util-suggest.h"
 #include "util-time.h"
 
 static const char *str(const json_t *o, const char *key)
@@ -37,9 +40,6 @@ static void print_lock(const json_t *in)
 
 int cmd_lock(struct ctl *ctl, int argc, char **argv)
 {
-	static const struct option opts[] = {
-		{ "pause", no_argument, NULL, 'p' }, CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
-	};
 	static const char usage[] = "lock INSTRUMENT REASON... [--pause] [--json]";
 	_cleanup_(json_decrefp) json_t *result = NULL;
 	_cleanup_free_ char *reason = NULL;
@@ -47,13 +47,8 @@ int cmd_lock(struct ctl *ctl, int argc, char **argv)
 	size_t len = 0;
 	int c, r;
 
-	while ((c = ctl_option(ctl, argc, argv, "p", opts, usage)) > 0) {
-		switch (c) {
-		case 'p': pause = true; break;
-		}
-	}
-	if (c != CTL_OPTIONS_END)
-		return ctl_options_exit(c);
+	if ((c = ctl_flag_option(ctl, argc, argv, "pause", 'p', &pause, usage)) >= 0)
+		return c;
 	if (argc - optind < 2)
 		return ctl_usage_error(usage);
 	/* The reason is the rest of the line, as typed. */
@@ -80,21 +75,13 @@ int cmd_lock(struct ctl *ctl, int argc, char **argv)
 
 int cmd_unlock(struct ctl *ctl, int argc, char **argv)
 {
-	static const struct option opts[] = {
-		{ "force", no_argument, NULL, 'f' }, CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
-	};
 	static const char usage[] = "unlock INSTRUMENT [--force] [--json]";
 	_cleanup_(json_decrefp) json_t *result = NULL;
 	bool force = false;
 	int c, r;
 
-	while ((c = ctl_option(ctl, argc, argv, "f", opts, usage)) > 0) {
-		switch (c) {
-		case 'f': force = true; break;
-		}
-	}
-	if (c != CTL_OPTIONS_END)
-		return ctl_options_exit(c);
+	if ((c = ctl_flag_option(ctl, argc, argv, "force", 'f', &force, usage)) >= 0)
+		return c;
 	if (argc - optind != 1)
 		return ctl_usage_error(usage);
 	r = ctl_call(ctl, "instrument.unlock", json_pack("{s:s, s:b}", "name", argv[optind],
@@ -302,6 +289,21 @@ static void fleet_print(const PGresult *res)
 	printf("(%d result(s))\n", PQntuples(res));
 }
 
+/* --verdict: one of libasph's verdicts (print-names); false after saying
+ * so. */
+static bool is_verdict(const char *arg)
+{
+	static const char *const verdicts[] = { NAMES_VERDICT_LIST };
+	char known[64];
+
+	for (size_t i = 0; i < ARRAY_SIZE(verdicts); i++)
+		if (!strcmp(arg, verdicts[i]))
+			return true;
+	suggest_join(known, sizeof(known), verdicts, ARRAY_SIZE(verdicts), " or ");
+	fprintf(stderr, "asphctl: --verdict: '%s' is not %s\n", arg, known);
+	return false;
+}
+
 int cmd_fleet(struct ctl *ctl, int argc, char **argv)
 {
 	static const struct option opts[] = {
@@ -339,12 +341,8 @@ int cmd_fleet(struct ctl *ctl, int argc, char **argv)
 		case 'L': params[2] = optarg; break;
 		case 'N': params[3] = optarg; break;
 		case 'v':
-			if (strcmp(optarg, "pass") && strcmp(optarg, "fail") &&
-			    strcmp(optarg, "undecided")) {
-				fprintf(stderr, "asphctl: --verdict: '%s' is not pass, fail or "
-					"undecided\n", optarg);
+			if (!is_verdict(optarg))
 				return EXIT_USAGE;
-			}
 			params[4] = optarg;
 			break;
 		}

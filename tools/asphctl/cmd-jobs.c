@@ -11,8 +11,10 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "asph-names.h"
 #include "asph/tolerance.h"
 #include "asphctl.h"
+#include "command.h"
 #include "fit-summary.h"
 #include "progress.h"
 #include "util-fs.h"
@@ -173,8 +175,15 @@ static json_t *tolerance_param(const char *arg)
 static const char submit_usage[] =
 	"submit LENS --method M (--h H | --spacing MM | --points N)\n"
 	"       [--instrument NAME] [--priority P] [--label TEXT] [--dof LIST]\n"
-	"       [--residual normal|sag] [--robust] [--zernike N] [--tolerance T]\n"
+	"       [--residual " NAMES_RESIDUALS "] [--robust] [--zernike N] [--tolerance T]\n"
 	"       [--part P] [--lot L] [--serial S] [--wait [--quiet]] [--json]";
+
+/* The presets and plan methods, from libasph's tables (print-names). */
+void cmd_submit_values(FILE *out)
+{
+	command_help_option(out, "LENS", "a preset (" NAMES_PRESETS ") or a prescription file");
+	command_help_option(out, "--method M", NAMES_PLAN_METHODS);
+}
 
 /* "job 12 queued (700 points, about 1 min 15 s to measure)". */
 static void print_queued(const json_t *job, json_int_t id)
@@ -327,22 +336,14 @@ int cmd_resume(struct ctl *ctl, int argc, char **argv)
 
 int cmd_requeue(struct ctl *ctl, int argc, char **argv)
 {
-	static const struct option opts[] = {
-		{ "restart", no_argument, NULL, 'r' }, CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
-	};
 	static const char usage[] = "requeue JOB [--restart] [--json]";
 	_cleanup_(json_decrefp) json_t *result = NULL;
 	bool restart = false;
 	int64_t id;
 	int c, r;
 
-	while ((c = ctl_option(ctl, argc, argv, "r", opts, usage)) > 0) {
-		switch (c) {
-		case 'r': restart = true; break;
-		}
-	}
-	if (c != CTL_OPTIONS_END)
-		return ctl_options_exit(c);
+	if ((c = ctl_flag_option(ctl, argc, argv, "restart", 'r', &restart, usage)) >= 0)
+		return c;
 	if ((id = ctl_job_operand(argc, argv, usage)) < 0)
 		return EXIT_USAGE;
 	r = ctl_call(ctl, "job.requeue",
@@ -360,21 +361,13 @@ int cmd_requeue(struct ctl *ctl, int argc, char **argv)
 
 int cmd_status(struct ctl *ctl, int argc, char **argv)
 {
-	static const struct option opts[] = {
-		{ "history", no_argument, NULL, 'H' }, CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
-	};
 	static const char usage[] = "status [JOB [--history]] [--json]";
 	_cleanup_(json_decrefp) json_t *result = NULL;
 	bool history = false;
 	int c, r;
 
-	while ((c = ctl_option(ctl, argc, argv, "", opts, usage)) > 0) {
-		switch (c) {
-		case 'H': history = true; break;
-		}
-	}
-	if (c != CTL_OPTIONS_END)
-		return ctl_options_exit(c);
+	if ((c = ctl_flag_option(ctl, argc, argv, "history", 0, &history, usage)) >= 0)
+		return c;
 	if (optind + 1 == argc) {
 		int64_t id = ctl_job_id(argv[optind]);
 		if (id < 0)

@@ -9,22 +9,6 @@
 #include "asphctl.h"
 #include "util-mem.h"
 
-/* --json, --help and --abort: the flags (1: --abort), or < 0 with the exit
- * code negated minus one. */
-static int parse_json_flag(struct ctl *ctl, int argc, char **argv, const char *usage)
-{
-	static const struct option opts[] = {
-		CTL_JSON_OPTION, CTL_HELP_OPTION, { "abort", no_argument, NULL, 'a' },
-		{ NULL, 0, NULL, 0 },
-	};
-	int c, flags = 0;
-
-	while ((c = ctl_option(ctl, argc, argv, "a", opts, usage)) > 0)
-		if (c == 'a')
-			flags |= 1;
-	return c == CTL_OPTIONS_END ? flags : -1 - ctl_options_exit(c);
-}
-
 static void print_queue(const json_t *q)
 {
 	size_t i;
@@ -41,12 +25,13 @@ int cmd_queue(struct ctl *ctl, int argc, char **argv)
 	_cleanup_(json_decrefp) json_t *result = NULL;
 	const char *method = "queue.get";
 	json_t *params = NULL;
-	int flags = parse_json_flag(ctl, argc, argv, usage), r;
+	bool abort_scans = false;
+	int r = ctl_flag_option(ctl, argc, argv, "abort", 'a', &abort_scans, usage);
 	int rest = argc - optind;
 	char **args = argv + optind;
 
-	if (flags < 0)
-		return -1 - flags;
+	if (r >= 0)
+		return r;
 	if (rest == 0 || (rest == 1 && !strcmp(args[0], "show"))) {
 		method = "queue.get";
 	} else if (rest == 3 && !strcmp(args[0], "move")) {
@@ -62,7 +47,7 @@ int cmd_queue(struct ctl *ctl, int argc, char **argv)
 		method = "queue.start";
 	} else if (rest == 1 && !strcmp(args[0], "stop")) {
 		method = "queue.stop";
-		params = json_pack("{s:b}", "abort", flags & 1);
+		params = json_pack("{s:b}", "abort", abort_scans);
 	} else {
 		fprintf(stderr, "Usage: asphctl %s\n", usage);
 		return EXIT_USAGE;
@@ -93,12 +78,12 @@ int cmd_instruments(struct ctl *ctl, int argc, char **argv)
 {
 	static const char usage[] = "instruments [NAME] [--json]";
 	_cleanup_(json_decrefp) json_t *result = NULL;
-	int flags = parse_json_flag(ctl, argc, argv, usage), r;
+	int r = ctl_common_options(ctl, argc, argv, usage);
 	size_t i;
 	json_t *in;
 
-	if (flags < 0)
-		return -1 - flags;
+	if (r >= 0)
+		return r;
 	if (argc - optind > 1) {
 		fprintf(stderr, "Usage: asphctl %s\n", usage);
 		return EXIT_USAGE;
@@ -155,12 +140,12 @@ int cmd_drivers(struct ctl *ctl, int argc, char **argv)
 {
 	static const char usage[] = "drivers [--json]";
 	_cleanup_(json_decrefp) json_t *result = NULL;
-	int flags = parse_json_flag(ctl, argc, argv, usage), r;
+	int r = ctl_common_options(ctl, argc, argv, usage);
 	size_t i, k;
 	json_t *d, *o;
 
-	if (flags < 0)
-		return -1 - flags;
+	if (r >= 0)
+		return r;
 	if (argc != optind) {
 		fprintf(stderr, "Usage: asphctl %s\n", usage);
 		return EXIT_USAGE;

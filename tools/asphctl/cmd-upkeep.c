@@ -52,20 +52,14 @@ static int wait_copy(struct ctl *ctl, bool quiet, json_t **info)
 
 int cmd_backup(struct ctl *ctl, int argc, char **argv)
 {
-	static const struct option opts[] = {
-		{ "quiet", no_argument, NULL, 'q' }, CTL_JSON_OPTION, CTL_HELP_OPTION,
-		{ NULL, 0, NULL, 0 },
-	};
 	static const char usage[] = "backup FILE [--quiet] [--json]";
 	_cleanup_(json_decrefp) json_t *started = NULL, *info = NULL, *params = NULL;
 	const char *file, *name, *sha;
 	bool quiet = false;
 	json_int_t size;
-	int c, code;
+	int code;
 
-	while ((c = ctl_option(ctl, argc, argv, "q", opts, usage)) > 0)
-		quiet = true;
-	if ((code = ctl_options_exit(c)) >= 0)
+	if ((code = ctl_flag_option(ctl, argc, argv, "quiet", 'q', &quiet, usage)) >= 0)
 		return code;
 	if (optind + 1 != argc)
 		return ctl_usage_error(usage);

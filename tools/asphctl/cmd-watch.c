@@ -158,19 +158,13 @@ int ctl_watch_job(struct ctl *ctl, int64_t id, bool progress)
 
 int cmd_watch(struct ctl *ctl, int argc, char **argv)
 {
-	static const struct option opts[] = {
-		{ "quiet", no_argument, NULL, 'q' }, CTL_JSON_OPTION, CTL_HELP_OPTION,
-		{ NULL, 0, NULL, 0 },
-	};
 	static const char usage[] = "watch JOB [--quiet] [--json]";
 	bool quiet = false;
 	int64_t id;
 	int c;
 
-	while ((c = ctl_option(ctl, argc, argv, "q", opts, usage)) > 0)
-		quiet |= c == 'q';
-	if (c != CTL_OPTIONS_END)
-		return ctl_options_exit(c);
+	if ((c = ctl_flag_option(ctl, argc, argv, "quiet", 'q', &quiet, usage)) >= 0)
+		return c;
 	if ((id = ctl_job_operand(argc, argv, usage)) < 0)
 		return EXIT_USAGE;
 	return ctl_watch_job(ctl, id, !quiet);

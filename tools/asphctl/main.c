@@ -20,11 +20,12 @@ static int cmd_help(struct ctl *ctl, int argc, char **argv);
  */
 static const struct ctl_command commands[] = {
 	{ "submit", "submit a measurement job", cmd_submit,
-	  "Queues a measurement of LENS (a preset: weak, strong, turning-point, or a\n"
-	  "prescription file, which asphctl reads and sends) on the plan of --method and\n"
-	  "one density. --tolerance takes an ISO 10110-5 call-out ('3/2(0.5/0.3)'), JSON\n"
-	  "text or a file holding it; the completed job then has a verdict. --wait follows\n"
-	  "the job as watch does (and exits as watch does); --quiet leaves its progress out.\n" },
+	  "Queues a measurement of LENS (a preset or a prescription file, which asphctl\n"
+	  "reads and sends) on the plan of --method and one density. --tolerance takes\n"
+	  "an ISO 10110-5 call-out ('3/2(0.5/0.3)'), JSON text or a file holding it; the\n"
+	  "completed job then has a verdict. --wait follows the job as watch does (and\n"
+	  "exits as watch does); --quiet leaves its progress out.\n",
+	  cmd_submit_values },
 	{ "status", "the daemon's status, or a job's", cmd_status,
 	  "The daemon: version, queue, jobs by state, instruments. A job: its state, plan,\n"
 	  "points, submitter, times and verdict; --history adds every transition.\n" },
@@ -81,92 +82,6 @@ static const struct ctl_command commands[] = {
 	  cmd_help, NULL },
 };
 
-int ctl_fail(const struct ctl_error *e)
-{
-	_cleanup_free_ char *message = ctl_escape(e->message, false);
-	_cleanup_free_ char *detail = ctl_escape(e->detail, false);
-
-	if (detail && detail[0])
-		fprintf(stderr, "asphctl: %s: %s\n", message ? message : "?", detail);
-	else
-		fprintf(stderr, "asphctl: %s\n", message ? message : "?");
-	if (e->code == 0)
-		return EXIT_UNREACHABLE;
-	if (e->code == PROTO_PERMISSION_DENIED)
-		return EXIT_DENIED;
-	return EXIT_FAILURE_RUN;
-}
-
-int ctl_call(struct ctl *ctl, const char *method, json_t *params, json_t **result)
-{
-	struct ctl_error e = { 0 };
-	int r;
-
-	if (!ctl->conn && conn_open(ctl->socket, &ctl->conn, &e) < 0) {
-		json_decref(params);
-		return ctl_fail(&e);
-	}
-	r = conn_call(ctl->conn, method, params, result, &e);
-	if (r < 0)
-		return ctl_fail(&e);
-	if (!ctl->json)
-		ctl_escape_json(*result);
-	return 0;
-}
-
-void ctl_print_json(const json_t *j)
-{
-	_cleanup_free_ char *s = json_dumps(j, JSON_INDENT(2) | JSON_REAL_PRECISION(10));
-	/* jansson escapes C0; DEL, C1 and the bidirectional controls it
-	 * leaves as they are, inside strings only (JSON's syntax is ASCII). */
-	_cleanup_free_ char *e = s ? ctl_escape(s, true) : NULL;
-
-	if (e)
-		puts(e);
-}
-
-int ctl_parse_integer(const char *arg, long long min, long long max, long long *v)
-{
-	char *end;
-
-	errno = 0;
-	*v = strtoll(arg, &end, 10);
-	if (errno || end == arg || *end || *v < min || *v > max)
-		return -EINVAL;
-	return 0;
-}
-
-int ctl_parse_real(const char *arg, double *v)
-{
-	char *end;
-
-	errno = 0;
-	*v = strtod(arg, &end);
-	if (errno || end == arg || *end || !isfinite(*v))
-		return -EINVAL;
-	return 0;
-}
-
-int64_t ctl_job_id(const char *arg)
-{
-	long long v;
-
-	if (ctl_parse_integer(arg, 1, INT64_MAX, &v) < 0) {
-		fprintf(stderr, "asphctl: '%s' is not a job id\n", arg);
-		return -1;
-	}
-	return v;
-}
-
-int64_t ctl_job_operand(int argc, char **argv, const char *usage)
-{
-	if (optind + 1 != argc) {
-		fprintf(stderr, "Usage: asphctl %s\n", usage);
-		return -1;
-	}
-	return ctl_job_id(argv[optind]);
-}
-
 static void usage(FILE *f)
 {
 	fprintf(f, "Usage: asphctl [--socket PATH] [--json] COMMAND [ARGS...]\n"
@@ -201,14 +116,9 @@ static int cmd_help(struct ctl *ctl, int argc, char **argv)
 	char *words[4];
 	int n, r;
 
-	if (argc < 2) {
-		usage(stdout);
-		return EXIT_OK;
-	}
-	if ((r = command_help_words("asphctl", argc, argv, words, &n)) >= 0)
+	if ((r = command_help("asphctl", COMMAND_TABLE(commands), usage, argc, argv,
+			      (const void **)&c, words, &n)) >= 0)
 		return r;
-	if (!(c = command_find(COMMAND_TABLE(commands), words[0])))
-		return command_unknown("asphctl", words[0], COMMAND_TABLE(commands));
 	if (c->run == cmd_help)
 		return cmd_help(ctl, 1, argv);
 	return run(ctl, c, n, words);

@@ -1,6 +1,7 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /* The options every command shares: --json and --help. */
 #include <getopt.h>
+#include <stdbool.h>
 #include <stdio.h>
 
 #include "asphctl.h"
@@ -18,6 +19,10 @@ static void help(const struct ctl *ctl, const char *usage)
 	printf("Usage: asphctl %s\n", usage);
 	if (ctl->command && ctl->command->help)
 		printf("\n%s", ctl->command->help);
+	if (ctl->command && ctl->command->help_values) {
+		putchar('\n');
+		ctl->command->help_values(stdout);
+	}
 	printf("\nEvery command takes --json (print the answer as JSON) and --help. The manual\n"
 	       "page asphctl(1) describes the commands; 'asphctl help exit-status' the exit\n"
 	       "codes.\n");
@@ -66,5 +71,21 @@ int ctl_common_options(struct ctl *ctl, int argc, char **argv, const char *usage
 
 	while ((c = ctl_option(ctl, argc, argv, "", opts, usage)) > 0)
 		;       /* only --json and --help, which ctl_option() takes */
+	return ctl_options_exit(c);
+}
+
+int ctl_flag_option(struct ctl *ctl, int argc, char **argv, const char *name, char short_name,
+		    bool *set, const char *usage)
+{
+	/* the flag's value: its short form, else one no short option has */
+	int val = short_name ? short_name : 1;
+	const struct option opts[] = {
+		{ name, no_argument, NULL, val }, CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
+	};
+	const char shortopts[2] = { short_name, '\0' };
+	int c;
+
+	while ((c = ctl_option(ctl, argc, argv, shortopts, opts, usage)) > 0)
+		*set |= c == val;
 	return ctl_options_exit(c);
 }

@@ -507,8 +507,8 @@ static void test_residual_files(void **state)
 	uint8_t *data = zip_member(path, "bindata/data.bin", &len);
 	assert_int_equal((int)len, (int)(24 * fitted->n));
 	for (size_t i = 0; i < fitted->n; i++) {
-		assert_true(le_double(data + 24 * i) == fitted->xyz[3 * i] * 1e-3);
-		assert_true(le_double(data + 24 * i + 8) == fitted->xyz[3 * i + 1] * 1e-3);
+		assert_true(le_double(data + 24 * i) == fitted->xyz[3 * i] / 1000);
+		assert_true(le_double(data + 24 * i + 8) == fitted->xyz[3 * i + 1] / 1000);
 		assert_true(fabs(le_double(data + 24 * i + 16) - fitted->value[i] * 1e-9) <=
 			    1e-15 * fabs(fitted->value[i] * 1e-9));
 	}

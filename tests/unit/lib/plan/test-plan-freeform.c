@@ -163,7 +163,7 @@ static void check_pattern(const struct asph_surface *s, enum asph_plan_method m,
 	size_t n_edge = 0, corners = 0;
 
 	asph_surface_aperture(s, &ap);
-	assert_int_equal(plan_aperture_pattern(s, m, p, &pp, &n_edge), 0);
+	assert_int_equal(plan_aperture_pattern(s, plan_pattern_of(m), p, &pp, &n_edge), 0);
 	assert_true(pp.n > 10);
 	for (size_t i = 0; i < pp.n; i++)
 		assert_true(asph_surface_contains(s, pp.xyz[3 * i], pp.xyz[3 * i + 1], 0));
@@ -212,7 +212,7 @@ static void test_rectangle_raster(void **state)
 	const double p = 0.913;
 	size_t rows = 0, ends = 0;
 
-	assert_int_equal(plan_aperture_pattern(s, ASPH_PLAN_RASTER, p, &pp, NULL), 0);
+	assert_int_equal(plan_aperture_pattern(s, &plan_raster, p, &pp, NULL), 0);
 	for (size_t i = 0; i < pp.n; i++) {
 		double u = pp.xyz[3 * i] - 1.7;
 		ends += fabs(fabs(u) - 12) < 1e-12;

@@ -23,7 +23,7 @@
 #include <gsl/gsl_errno.h>
 
 #include "asph/characterize.h"
-#include "asph/mc-runner.h"
+#include "asph-mc/mc-runner.h"
 #include "asph/plan-search.h"
 #include "asph/prescription.h"
 

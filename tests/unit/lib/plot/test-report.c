@@ -179,36 +179,6 @@ static void test_wrap_prefers_spaces(void **state)
 }
 #endif
 
-static void figure_is(double v, int decimals, unsigned flags, const char *want)
-{
-	char buf[64];
-
-	report_figure(buf, sizeof(buf), v, decimals, flags);
-	if (strcmp(buf, want))
-		fail_msg("%.17g to %d decimals: '%s', want '%s'", v, decimals, buf, want);
-}
-
-/* The text output's rule (docs/characterization.md, "Figures"). */
-static void test_figure(void **state)
-{
-	figure_is(-8.1963780952015224, REPORT_NM, REPORT_FIGURE_SIGNED, "-8.20");
-	figure_is(141.7449, REPORT_NM, REPORT_FIGURE_SIGNED, "+141.74");
-	figure_is(133.77356728800095, REPORT_NM, 0, "133.77");
-	figure_is(0.51914, REPORT_FRINGES, 0, "0.5191");
-	figure_is(-0.0000004, REPORT_MM, REPORT_FIGURE_SIGNED, "0.000000");
-	figure_is(-1.7729583e-2, REPORT_POSE, REPORT_FIGURE_SIGNED, "-0.0177");
-	/* what rounds to zero has no sign */
-	figure_is(-0.004, REPORT_NM, REPORT_FIGURE_SIGNED, "0.00");
-	figure_is(-0.004, REPORT_NM, 0, "0.00");
-	figure_is(0.005000001, REPORT_NM, REPORT_FIGURE_SIGNED, "+0.01");
-	figure_is(NAN, REPORT_NM, 0, "-");
-	figure_is(3.5e13, REPORT_NM, 0, "3.5e+13");
-
-	char small[8];
-	report_figure(small, sizeof(small), -123456.789, REPORT_NM, 0);
-	assert_string_equal(small, "-123456");   /* cut to the buffer, terminated */
-}
-
 static void test_noise_floor(void **state)
 {
 	/* 1000 rounding steps of the radius, in nm */
@@ -226,7 +196,6 @@ int main(void)
 		cmocka_unit_test(test_wrap_long_tokens),
 		cmocka_unit_test(test_wrap_prefers_spaces),
 #endif
-		cmocka_unit_test(test_figure),
 		cmocka_unit_test(test_noise_floor),
 	};
 

@@ -125,8 +125,8 @@ struct bad_csv {
 static const struct bad_csv bad[] = {
 	{ "", 0, 0, "", "empty file" },
 	{ "# only a comment\n\n", 0, 0, "", "empty file" },
-	{ "1,2,3\n", 1, 1, "", "header" },
-	{ "x,y\n1,2\n", 1, 1, "", "header" },
+	{ "x,y\n1,2\n", 1, 1, "", "does not name the columns x, y, z" },
+	{ "1,2\n3,4\n", 1, 1, "", "three columns" },
 	{ "x,y,z\n1,2,3\n4,nan,6\n", 3, 3, "y", "not a finite number" },
 	{ "x,y,z\n1,2,3\n4,5\n", 3, 0, "", "expected 3 columns" },
 	{ "x,y,z\n1,2,3,4\n", 2, 0, "", "found more" },
@@ -137,7 +137,12 @@ static const struct bad_csv bad[] = {
 	{ "\"x\",\"y\",\"z\n1,2,3\n", 1, 9, "", "does not close" },
 	{ "x,y,z\n\"1\"2,2,3\n", 2, 4, "", "after the closing quote" },
 	{ "x,y,z\n1,\"2 mm\",3\n", 2, 4, "y", "not a number: '2 mm'" },
-	{ "X,Y,Q\n1,2,3\n", 1, 1, "", "header" },
+	{ "X,Y,Q\n1,2,3\n", 1, 1, "", "does not name the columns x, y, z" },
+	{ "x [furlong],y,z\n1,2,3\n", 1, 1, "x [furlong]", "unknown unit" },
+	{ "x,y,z,x\n1,2,3,4\n", 1, 7, "x", "two columns name x" },
+	{ "Operator: A\n1;2;3\n4;5,5\n", 3, 1, "", "three columns" },
+	{ "1;2;3\n4;5,5.5;6\n", 2, 3, "", "not a number: '5,5.5'" },
+	{ "1 2 3\n4 5 6 end\n", 2, 7, "", "not a number: 'end'" },
 };
 
 static void test_csv_errors(void **state)
@@ -208,7 +213,7 @@ static void test_csv_quoted_header(void **state)
 static void test_ply_errors(void **state)
 {
 	const char *cases[][2] = {
-		{ "plx\n", "no 'ply' magic" },
+		{ "plx\n", "no header naming" },
 		{ "ply\nformat ascii 1.0\nelement vertex 2\nproperty double x\nproperty double y\n"
 		  "property double z\nend_header\n1 2 3\n", "ends at vertex 1" },
 		{ "ply\nformat ascii 1.0\nelement vertex 1\nproperty double x\nproperty double y\n"
@@ -290,10 +295,16 @@ static void test_read_memory(void **state)
 	assert_int_equal(m->n, 1);
 	assert_true(m->xyz[0] == 0.731 && m->xyz[2] == 0.041);
 	asph_points_free(m);
-	/* A PLY in a CSV's name is read as CSV, and refused as such. */
-	assert_int_equal(asph_points_read_memory(ply, strlen(ply), "p.csv", &m, &err), -EINVAL);
-	assert_int_equal(err.line, 1);
-	assert_string_equal(err.source, "p.csv");
+	/* The content decides, not the name: a PLY called .csv is a PLY. */
+	assert_int_equal(asph_points_read_memory(ply, strlen(ply), "p.csv", &m, &err), 0);
+	assert_int_equal(m->n_triangles, 1);
+	asph_points_free(m);
+	/* and a forced format reads it as that, refused as such */
+	struct asph_points_read_options text = { .format = ASPH_POINTS_TEXT };
+	assert_int_equal(asph_points_read_memory_as(ply, strlen(ply), "p.ply", &text, &m, NULL, &err),
+			 -EINVAL);
+	assert_null(m);
+	assert_string_equal(err.source, "p.ply");
 }
 
 /* Headers whose counts the data cannot hold are refused before anything of

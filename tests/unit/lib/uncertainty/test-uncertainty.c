@@ -19,7 +19,7 @@
 #include <jansson.h>
 
 #include "asph/fit.h"
-#include "asph/mc-runner.h"
+#include "asph-mc/mc-runner.h"
 #include "asph/prescription.h"
 #include "asph/surface.h"
 #include "asph/tolerance.h"

@@ -52,6 +52,40 @@ static void test_format(void **state)
 	assert_null(quantity_by_verdict(NULL));
 }
 
+static void figure_is(const char *path, double v, unsigned flags, const char *want)
+{
+	char buf[64];
+
+	quantity_format(quantity_by_path(path), v, flags, buf, sizeof(buf));
+	if (strcmp(buf, want))
+		fail_msg("%s %.17g: '%s', want '%s'", path, v, buf, want);
+}
+
+/* The rule as the report and the text output meet it (docs/characterization.md,
+ * "Figures"): nm to 0.01, fringes to 1e-4, R - R nominal to 1e-6 mm, the pose
+ * in um to 1e-4. */
+static void test_figures(void **state)
+{
+	figure_is("form.A_nm", -8.1963780952015224, 0, "-8.20");
+	figure_is("form.A_nm", 141.7449, 0, "+141.74");
+	figure_is("rms_nm", 133.77356728800095, 0, "133.77");
+	figure_is("form.B_fringes", 0.51914, 0, "0.5191");
+	figure_is("radius.deviation_mm", -0.0000004, 0, "0.000000");
+	figure_is("dof.tx", -1.7729583e-5, 0, "-0.0177");
+	/* what rounds to zero has no sign */
+	figure_is("form.A_nm", -0.004, 0, "0.00");
+	figure_is("form.B_nm", -0.004, 0, "0.00");
+	figure_is("form.A_nm", 0.005000001, 0, "+0.01");
+	figure_is("rms_nm", NAN, 0, "-");
+	/* no figure of a measurement is this large */
+	figure_is("rms_nm", 3.5e13, 0, "3.5e+13");
+	figure_is("dof.tx", -2e9, QUANTITY_UNIT, "-2e+12 um");
+
+	char small[8];
+	quantity_format(quantity_by_path("rms_nm"), -123456.789, 0, small, sizeof(small));
+	assert_string_equal(small, "-123456");   /* cut to the buffer, terminated */
+}
+
 /* The member at a path of the summary: "rms_nm" or "form.A_nm" (the
  * table's deeper paths are outside the summary). */
 static json_t *member(json_t *root, const char *path)
@@ -133,6 +167,7 @@ int main(void)
 {
 	const struct CMUnitTest tests[] = {
 		cmocka_unit_test(test_format),
+		cmocka_unit_test(test_figures),
 		cmocka_unit_test(test_keys),
 		cmocka_unit_test(test_verdict_names),
 	};

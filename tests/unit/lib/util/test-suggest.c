@@ -123,12 +123,32 @@ static void test_getopt_error(void **state)
 	assert_string_equal(refused(buf, sizeof(buf), 3, "--json", "--robust"), "accepted");
 }
 
+/* A table's names joined for a message: NULL ones left out, the last
+ * separator as asked, the whole length returned however small buf is. */
+static void test_join(void **state)
+{
+	const char *names[] = { "conformal", NULL, "vertex-plane", "plan-mesh" };
+	char buf[64], small[8];
+
+	assert_int_equal(suggest_join(buf, sizeof(buf), names, 4, " or "), 36);
+	assert_string_equal(buf, "conformal, vertex-plane or plan-mesh");
+	assert_int_equal(suggest_join(buf, sizeof(buf), names, 4, ", "), 34);
+	assert_string_equal(buf, "conformal, vertex-plane, plan-mesh");
+	assert_int_equal(suggest_join(small, sizeof(small), names, 4, " or "), 36);
+	assert_string_equal(small, "conform");
+	assert_int_equal(suggest_join(buf, sizeof(buf), names + 1, 2, " or "), 12);
+	assert_string_equal(buf, "vertex-plane");
+	assert_int_equal(suggest_join(buf, sizeof(buf), names, 0, " or "), 0);
+	assert_string_equal(buf, "");
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
 		cmocka_unit_test(test_distance),
 		cmocka_unit_test(test_suggest),
 		cmocka_unit_test(test_getopt_error),
+		cmocka_unit_test(test_join),
 	};
 
 	return cmocka_run_group_tests(tests, NULL, NULL);

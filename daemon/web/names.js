@@ -1,0 +1,65 @@
+// SPDX-License-Identifier: GPL-3.0-or-later
+// libasph's tables for the page, printed by `print-names --web`
+// (tools/names/print-names.c) from lib/plan/plan.c, lib/surface/prescription.c
+// and lib/util/quantity.c: do not edit. test-names checks that it is current;
+// `build/tools/names/print-names --web > daemon/web/names.js` renews it.
+export const planMethods = [
+  {"name":"op","title":"orthogonal projection","mesh":true},
+  {"name":"ot","title":"optimal transport","mesh":true},
+  {"name":"lb","title":"Laplace-Beltrami","mesh":true},
+  {"name":"ci","title":"circle involute","mesh":false},
+  {"name":"raster","title":"x-y raster","mesh":false},
+  {"name":"concentric","title":"concentric circles","mesh":false},
+  {"name":"spiral","title":"Archimedean spiral","mesh":false},
+  {"name":"fermat","title":"Fermat (golden-angle) spiral","mesh":false},
+  {"name":"cvt","title":"centroidal Voronoi tessellation","mesh":false},
+];
+export const presets = [
+  "weak",
+  "strong",
+  "turning-point",
+];
+export const quantities = [
+  {"path":"dof.tx","u_key":"tx","verdict":null,"label":"tx","unit":"um","symbol":"µm","scale":1000.0,"decimals":4,"sign":true,"two_sided":false},
+  {"path":"dof.ty","u_key":"ty","verdict":null,"label":"ty","unit":"um","symbol":"µm","scale":1000.0,"decimals":4,"sign":true,"two_sided":false},
+  {"path":"dof.tz","u_key":"tz","verdict":null,"label":"tz","unit":"um","symbol":"µm","scale":1000.0,"decimals":4,"sign":true,"two_sided":false},
+  {"path":"dof.rx","u_key":"rx","verdict":null,"label":"rx","unit":"urad","symbol":"µrad","scale":1000000.0,"decimals":4,"sign":true,"two_sided":false},
+  {"path":"dof.ry","u_key":"ry","verdict":null,"label":"ry","unit":"urad","symbol":"µrad","scale":1000000.0,"decimals":4,"sign":true,"two_sided":false},
+  {"path":"dof.rz","u_key":"rz","verdict":null,"label":"rz","unit":"urad","symbol":"µrad","scale":1000000.0,"decimals":4,"sign":true,"two_sided":false},
+  {"path":"dof.R","u_key":"R_mm","verdict":null,"label":"R","unit":"mm","symbol":"mm","scale":1.0,"decimals":6,"sign":false,"two_sided":false},
+  {"path":"dof.k","u_key":"k","verdict":null,"label":"k","unit":"","symbol":"","scale":1.0,"decimals":6,"sign":false,"two_sided":false},
+  {"path":"sigma_nm","u_key":null,"verdict":null,"label":"sigma","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"rms_nm","u_key":"rms_nm","verdict":null,"label":"RMS","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"pv_nm","u_key":"pv_nm","verdict":null,"label":"PV","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"pvr_nm","u_key":"pvr_nm","verdict":null,"label":"PVr","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"zernike_fit_rms_left_nm","u_key":null,"verdict":null,"label":"RMS left by the Zernike fit","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"slope_rms_urad","u_key":null,"verdict":null,"label":"Zernike slope RMS","unit":"urad","symbol":"µrad","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"zernike_nm","u_key":null,"verdict":null,"label":"Zernike term","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":true,"two_sided":false},
+  {"path":"form.A_nm","u_key":"A_nm","verdict":"A_nm","label":"A","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":true,"two_sided":true},
+  {"path":"form.B_nm","u_key":"B_nm","verdict":"B_nm","label":"B","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"form.C_nm","u_key":"C_nm","verdict":"C_nm","label":"C","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"form.A_fringes","u_key":"A_fringes","verdict":null,"label":"A","unit":"fr","symbol":"fr","scale":1.0,"decimals":4,"sign":true,"two_sided":false},
+  {"path":"form.B_fringes","u_key":"B_fringes","verdict":null,"label":"B","unit":"fr","symbol":"fr","scale":1.0,"decimals":4,"sign":false,"two_sided":false},
+  {"path":"form.C_fringes","u_key":"C_fringes","verdict":null,"label":"C","unit":"fr","symbol":"fr","scale":1.0,"decimals":4,"sign":false,"two_sided":false},
+  {"path":"form.rms_t_nm","u_key":"rms_t_nm","verdict":"rms_t_nm","label":"RMSt","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"form.rms_i_nm","u_key":"rms_i_nm","verdict":"rms_i_nm","label":"RMSi","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"form.rms_a_nm","u_key":"rms_a_nm","verdict":"rms_a_nm","label":"RMSa","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"form.wavelength_nm","u_key":null,"verdict":null,"label":"lambda","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"slope.rms_urad","u_key":"rms_urad","verdict":"slope_rms_urad","label":"slope RMS","unit":"urad","symbol":"µrad","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"slope.max_urad","u_key":"max_urad","verdict":"slope_max_urad","label":"slope max","unit":"urad","symbol":"µrad","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"slope.rms_radial_urad","u_key":null,"verdict":null,"label":"radial","unit":"urad","symbol":"µrad","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"slope.max_radial_urad","u_key":null,"verdict":null,"label":"radial max","unit":"urad","symbol":"µrad","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"slope.rms_azimuthal_urad","u_key":null,"verdict":null,"label":"azimuthal","unit":"urad","symbol":"µrad","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"slope.max_azimuthal_urad","u_key":null,"verdict":null,"label":"azimuthal max","unit":"urad","symbol":"µrad","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"slope.length_mm","u_key":null,"verdict":null,"label":"evaluation length","unit":"mm","symbol":"mm","scale":1.0,"decimals":-1,"sign":false,"two_sided":false},
+  {"path":"radius.R_mm","u_key":null,"verdict":null,"label":"R","unit":"mm","symbol":"mm","scale":1.0,"decimals":6,"sign":false,"two_sided":false},
+  {"path":"radius.nominal_mm","u_key":null,"verdict":null,"label":"R nominal","unit":"mm","symbol":"mm","scale":1.0,"decimals":6,"sign":false,"two_sided":false},
+  {"path":"radius.deviation_mm","u_key":"deviation_mm","verdict":"R_deviation_mm","label":"R - R nominal","unit":"mm","symbol":"mm","scale":1.0,"decimals":6,"sign":true,"two_sided":true},
+  {"path":"band_rms.form_nm","u_key":null,"verdict":null,"label":"form","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"band_rms.mid_nm","u_key":null,"verdict":null,"label":"mid","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"band_rms.high_nm","u_key":null,"verdict":null,"label":"high","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"band_rms.total_nm","u_key":null,"verdict":null,"label":"total","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"acquisition.drift.max_nm","u_key":null,"verdict":null,"label":"drift max","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+  {"path":"acquisition.drift.rms_nm","u_key":null,"verdict":null,"label":"drift RMS","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
+];
+export const QUANTITY_MAX_FIXED = 1e+12;

@@ -1,0 +1,50 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <stdio.h>
+
+#include "asph-tool.h"
+#include "points-input.h"
+
+int points_input_format(struct points_input *in, const char *prog, const char *arg)
+{
+	if (asph_points_format_parse(arg, &in->opts.format) < 0) {
+		char names[128];
+		asph_points_format_names(names, sizeof(names));
+		fprintf(stderr, "asph %s: --format: unknown format '%s' (%s)\n", prog, arg, names);
+		return -1;
+	}
+	in->format_arg = arg;
+	return 0;
+}
+
+int points_input_units(struct points_input *in, const char *prog, const char *arg)
+{
+	if (asph_points_unit_parse(arg, &in->opts.unit_mm) < 0) {
+		fprintf(stderr, "asph %s: --units: unknown unit '%s' (nm, um, mm, cm, m, in)\n",
+			prog, arg);
+		return -1;
+	}
+	in->units_arg = arg;
+	return 0;
+}
+
+int points_input_read(const struct points_input *in, const char *prog, const char *path,
+		      struct asph_points **out)
+{
+	struct asph_points_read_info info;
+	struct asph_error err;
+
+	asph_error_clear(&err);
+	if (asph_points_read_as(path, &in->opts, out, &info, &err) < 0) {
+		tool_print_error(NULL, &err);
+		return err.code ? err.code : -1;
+	}
+	if (info.n_invalid)
+		fprintf(stderr, "asph %s: note: %s map of %zu x %zu: %zu invalid points left out, %zu read\n",
+			prog, asph_points_format_name(info.format), info.nx, info.ny,
+			info.n_invalid, (*out)->n);
+	if (info.n_preamble)
+		fprintf(stderr, "asph %s: note: %zu preamble line%s before the %s skipped\n", prog,
+			info.n_preamble, info.n_preamble == 1 ? "" : "s",
+			info.has_header ? "header" : "data");
+	return 0;
+}
