@@ -104,13 +104,13 @@ static const struct asph_plan_search_result *search(struct asph_plan_search **ps
 
 /* U(tz) of a fresh Monte Carlo on the fermat plan of n points. */
 static double U_tz(const struct asph_surface *s, const struct asph_plan_search_options *o,
-		   size_t n, unsigned long seed)
+		   size_t n, unsigned long seed, size_t trials)
 {
 	struct asph_plan_density d = { ASPH_DENSITY_POINTS, (double)n };
 	struct asph_plan_options po = { .flags = ASPH_PLAN_NO_MESH };
 	struct asph_characterize_options co = {
 		.fit = o->fit, .uncertainty = &o->model,
-		.mc = { .n_trials = 800, .fixed = 1, .seed = seed }, .run_mc = run_mc,
+		.mc = { .n_trials = trials, .fixed = 1, .seed = seed }, .run_mc = run_mc,
 	};
 	struct asph_plan *plan;
 	struct asph_points *p;
@@ -152,12 +152,20 @@ static void test_closed_form(void **state)
 	assert_true(r->characterizations <= 5000);
 
 	/* the chosen plan holds with another seed: U/T within 10 % of r
-	 * (800 trials: U's relative standard error is 2.5 %) */
-	double ratio = U_tz(s, &o, (size_t)r->density.value, 77) / T_TZ_MM;
-	print_message("another seed: U/T %.4f\n", ratio);
-	assert_true(fabs(ratio - RATIO) <= 0.10 * RATIO);
+	 * (800 trials: U's relative standard error is 2.5 %). Under valgrind,
+	 * which checks the memory and not the statistics, the runs are those
+	 * of the search: this one is left out, and half the points (U/T 41 %
+	 * above r) are told apart on 100 trials (7 %). */
+	const char *vg = getenv("ASPH_UNDER_VALGRIND");
+	size_t trials = vg && strcmp(vg, "0") ? 100 : 800;
+	double ratio;
+	if (trials == 800) {
+		ratio = U_tz(s, &o, (size_t)r->density.value, 77, trials) / T_TZ_MM;
+		print_message("another seed: U/T %.4f\n", ratio);
+		assert_true(fabs(ratio - RATIO) <= 0.10 * RATIO);
+	}
 	/* half the points fail the ratio */
-	ratio = U_tz(s, &o, (size_t)(r->density.value / 2), 78) / T_TZ_MM;
+	ratio = U_tz(s, &o, (size_t)(r->density.value / 2), 78, trials) / T_TZ_MM;
 	print_message("half the points: U/T %.4f\n", ratio);
 	assert_true(ratio > RATIO);
 
