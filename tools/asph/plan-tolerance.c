@@ -10,10 +10,10 @@
 
 #include "acquire-tool.h"
 #include "asph-engine/executor.h"
-#include "asph-mc/mc-runner.h"
 #include "asph/plan-search.h"
 #include "asph/prescription.h"
 #include "asph-tool.h"
+#include "fit-uncertainty.h"
 #include "plan-tolerance.h"
 #include "progress.h"
 #include "quantity.h"
@@ -32,23 +32,6 @@ static int parse_number(const char *arg, const char *name, double *out)
 	v = strtod(arg, &end);
 	if (errno || end == arg || *end || !isfinite(v)) {
 		fprintf(stderr, "asph: plan: --%s: '%s' is not a number\n", name, arg);
-		return -1;
-	}
-	*out = v;
-	return 0;
-}
-
-static int parse_whole(const char *arg, const char *name, unsigned long lo, unsigned long hi,
-		       unsigned long *out)
-{
-	char *end;
-	unsigned long v;
-
-	errno = 0;
-	v = strtoul(arg, &end, 10);
-	if (errno || end == arg || *end || arg[0] == '-' || v < lo || v > hi) {
-		fprintf(stderr, "asph: plan: --%s: '%s' is not a whole number in %lu..%lu\n", name,
-			arg, lo, hi);
 		return -1;
 	}
 	*out = v;
@@ -80,13 +63,13 @@ int plan_tolerance_option(struct plan_tolerance_cli *c, int opt, const char *arg
 		c->dof = arg;
 		break;
 	case OPT_PT_SEED:
-		if (parse_whole(arg, "seed", 0, 4294967295ul, &v) < 0)
+		if (fit_mc_parse_count("asph: plan", arg, "seed", 0, 4294967295ul, &v) < 0)
 			return -1;
 		c->seed = v;
 		c->seed_set = 1;
 		break;
 	case OPT_PT_THREADS:
-		if (parse_whole(arg, "threads", 1, 256, &v) < 0)
+		if (fit_mc_parse_count("asph: plan", arg, "threads", 1, 256, &v) < 0)
 			return -1;
 		c->threads = (int)v;
 		break;
@@ -103,27 +86,10 @@ int plan_tolerance_option(struct plan_tolerance_cli *c, int opt, const char *arg
 /* ------------------------------------------------------------ the run */
 
 struct search_run {
-	int threads;
-	bool quiet;
+	struct fit_mc_run mc;                   /* the Monte Carlo's threads */
 	const struct asph_plan_search *ps;      /* for the step lines */
 	size_t shown;                           /* the run last shown */
 };
-
-/* The Monte Carlo of each plan on the threads, its trials on the terminal. */
-static int run_threads(void *data, struct asph_mc *mc, struct asph_mc_result *out,
-		       struct asph_error *err)
-{
-	const struct search_run *run = data;
-	struct progress p;
-	struct asph_mc_threads th = { .n_threads = run->threads, .progress = progress_show,
-				      .progress_data = &p };
-	int r;
-
-	progress_start(&p, "Monte Carlo", "trials", run->quiet);
-	r = asph_mc_run_threads(mc, &th, out, err);
-	progress_stop(&p);
-	return r;
-}
 
 static const struct quantity *row_of(enum asph_mc_quantity q)
 {
@@ -146,7 +112,7 @@ static int on_step(void *data, size_t done, size_t budget)
 	struct asph_plan_search_status st;
 	char t[16];
 
-	if (run->quiet)
+	if (run->mc.quiet)
 		return 0;
 	asph_plan_search_status(run->ps, &st);
 	if (!isfinite(st.ratio) || st.evaluations == 0)
@@ -337,7 +303,7 @@ int plan_tolerance_run(const struct plan_tolerance_cli *c, const char *lens,
 	_cleanup_(asph_plan_search_freep) struct asph_plan_search *ps = NULL;
 	struct asph_plan_search_options o = { .methods = methods, .max_points = max_points };
 	struct asph_tolerance tol;
-	struct search_run run = { .threads = c->threads, .quiet = quiet };
+	struct search_run run = { .mc = { .threads = c->threads, .quiet = quiet } };
 	struct asph_error err;
 	size_t idx = 0;
 	int r;
@@ -348,8 +314,8 @@ int plan_tolerance_run(const struct plan_tolerance_cli *c, const char *lens,
 	struct asph_scan_timing timing = { .instrument = &cfg->instruments[idx], .surface = s,
 					   .options = { .flags = ASPH_SCAN_STREAM } };
 	o.model = cfg->instruments[idx].uncertainty;
-	o.run_mc = run_threads;
-	o.run_mc_data = &run;
+	o.run_mc = fit_mc_run_threads;
+	o.run_mc_data = &run.mc;
 	o.plan_time = asph_scan_plan_time;
 	o.plan_time_data = &timing;
 	o.progress = (struct asph_progress){ .fn = on_step, .data = &run };
