@@ -637,6 +637,11 @@ static size_t next_request(const struct asph_plan_search *ps, const struct metho
 			return 0;
 		}
 		root = v.computed ? v.root * (1 + tol / 3) : 4.0 * (double)L->n;
+		/* no root: a floor near the threshold that is not yet beyond it
+		 * by its error; a step of 4 rather than a plan 16 times finer
+		 * that costs 16 times as much per trial */
+		if (!isfinite(root))
+			root = 4.0 * (double)L->n;
 		size_t n = clamp_request(root, 2 * L->request, 16 * L->request);
 		return n > top ? top : n;
 	}
