@@ -175,8 +175,13 @@ json_t *instrument_lock_to_json(const struct instrument_lock *l)
 json_t *drivers_to_json(const struct instruments *ins)
 {
 	_cleanup_free_ char *text = NULL;
+	struct asph_error err;
+	char buf[640];
 
-	if (asph_registry_to_json(ins->registry, false, &text) < 0)
+	asph_error_clear(&err);
+	if (asph_registry_to_json(ins->registry, false, &text, &err) < 0) {
+		log_error("driver.list: %s", asph_error_format(&err, buf, sizeof(buf)));
 		return NULL;
+	}
 	return json_loads(text, 0, NULL);
 }

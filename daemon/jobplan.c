@@ -62,6 +62,7 @@ int job_plan_build(const char *spec_text, uint64_t max_points, struct job_plan *
 					&density.kind) < 0)
 		return asph_error_set(err, -EINVAL, "the stored plan density is damaged");
 	density.value = json_number_value(json_object_get(plan, "value"));
+	po.profiles = (unsigned)json_integer_value(json_object_get(plan, "profiles"));
 	r = asph_plan_compute_opts(jp->surface, m, density, &po, &jp->plan, err);
 	if (r < 0)
 		return r;

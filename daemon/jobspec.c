@@ -73,7 +73,8 @@ static int spec_lens(json_t *params, json_t *spec, struct asph_prescription *p,
 
 /* How many points the plan of this lens would have. */
 static int plan_size(const struct asph_prescription *p, enum asph_plan_method m,
-		     struct asph_plan_density density, size_t *n, struct asph_error *err)
+		     struct asph_plan_density density, const struct asph_plan_options *po,
+		     size_t *n, struct asph_error *err)
 {
 	struct asph_surface *s = NULL;
 	double spacing;
@@ -81,7 +82,7 @@ static int plan_size(const struct asph_prescription *p, enum asph_plan_method m,
 
 	if (r < 0)
 		return r;
-	r = asph_plan_resolve(s, m, density, &spacing, n, err);
+	r = asph_plan_resolve_opts(s, m, density, po, &spacing, n, err);
 	asph_surface_free(s);
 	return r;
 }
@@ -89,8 +90,10 @@ static int plan_size(const struct asph_prescription *p, enum asph_plan_method m,
 static int spec_plan(json_t *params, json_t *spec, const struct asph_prescription *p,
 		     uint64_t max_points, uint64_t *points, struct proto_why *why)
 {
-	static const char *const names[] = { "method", "h", "spacing", "points", NULL };
+	static const char *const names[] = { "method", "h", "spacing", "points", "profiles", NULL };
 	struct asph_plan_density density = { 0 };
+	struct asph_plan_options po = { 0 };
+	int64_t profiles = 0;
 	enum asph_plan_method m;
 	struct asph_error err;
 	json_t *plan;
@@ -126,8 +129,18 @@ static int spec_plan(json_t *params, json_t *spec, const struct asph_prescriptio
 			 "\"plan\" needs exactly one of \"h\", \"spacing\", \"points\"");
 		return PROTO_INVALID_PARAMS;
 	}
+	if (proto_param_int(plan, "profiles", false, 1, ASPH_PLAN_MAX_PROFILES, &profiles,
+			    why) == -EINVAL)
+		return PROTO_INVALID_PARAMS;
+	if (profiles && m != ASPH_PLAN_PROFILES) {
+		snprintf(why->text, sizeof(why->text),
+			 "\"plan.profiles\" is for the method \"profiles\", not \"%s\"", method);
+		return PROTO_INVALID_PARAMS;
+	}
+	if (m == ASPH_PLAN_PROFILES)
+		po.profiles = profiles ? (unsigned)profiles : 1;
 	asph_error_clear(&err);
-	r = plan_size(p, m, density, &n, &err);
+	r = plan_size(p, m, density, &po, &n, &err);
 	if (r < 0) {
 		snprintf(why->text, sizeof(why->text), "\"plan\": %.200s", err.message);
 		return PROTO_INVALID_PLAN;
@@ -140,14 +153,27 @@ static int spec_plan(json_t *params, json_t *spec, const struct asph_prescriptio
 	*points = n;
 	json_object_set_new(spec, "plan", json_pack("{s:s, s:s, s:f}", "method", method,
 		"density", asph_plan_density_name(density.kind), "value", density.value));
+	if (po.profiles)
+		json_object_set_new(json_object_get(spec, "plan"), "profiles",
+				    json_integer(po.profiles));
 	return 0;
+}
+
+/* A plan of one profile: the fit has its DOF (in the trace's frame). */
+static bool one_profile(const json_t *spec)
+{
+	const json_t *plan = json_object_get(spec, "plan");
+
+	return !strcmp(json_string_value(json_object_get(plan, "method")),
+		       asph_plan_method_name(ASPH_PLAN_PROFILES)) &&
+	       json_integer_value(json_object_get(plan, "profiles")) == 1;
 }
 
 static int spec_fit(json_t *params, json_t *spec, struct proto_why *why)
 {
 	static const char *const names[] = { "dof", "residual", "robust", "zernike", NULL };
 	json_t *fit = NULL;
-	const char *dof = "tx,ty,tz,rx,ry", *residual = "normal";
+	const char *dof = one_profile(spec) ? "tx,tz,ry" : "tx,ty,tz,rx,ry", *residual = "normal";
 	bool robust = false;
 	int64_t zernike = ASPH_FIT_DEFAULT_ZERNIKE;
 	enum asph_fit_residual_kind kind;
@@ -165,6 +191,13 @@ static int spec_fit(json_t *params, json_t *spec, struct proto_why *why)
 		return PROTO_INVALID_PARAMS;
 	if (asph_fit_dof_parse(dof, &mask, &err) < 0) {
 		snprintf(why->text, sizeof(why->text), "\"fit.dof\": %.200s", err.message);
+		return PROTO_INVALID_PARAMS;
+	}
+	if (one_profile(spec) && (mask & ~ASPH_FIT_DOF_PROFILE)) {
+		snprintf(why->text, sizeof(why->text),
+			 "\"fit.dof\": a plan of one profile tells apart tx (the decentre along "
+			 "the trace), tz, ry (the tilt about the axis across it), R and k, in the "
+			 "trace's frame, not \"%.40s\"", dof);
 		return PROTO_INVALID_PARAMS;
 	}
 	if (asph_fit_residual_from_name(residual, &kind) < 0) {

@@ -6,6 +6,7 @@
  * (docs/architecture.md). Event loop thread.
  */
 #include <errno.h>
+#include <fcntl.h>
 #include <getopt.h>
 #include <signal.h>
 #include <stdio.h>
@@ -123,11 +124,34 @@ static int resolve_listen(const struct settings *s, const char *field, const cha
 	return r;
 }
 
+/* http_root, when the web page is on: a folder the daemon can open (the
+ * page compiled in is served without it). */
+static void check_http_root(const struct settings *s, settings_error_fn report, void *data)
+{
+	struct asph_error err;
+	int fd, r;
+
+	if (!s->http_listen || !s->http_root)
+		return;
+	fd = open(s->http_root, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+	if (fd >= 0) {
+		close(fd);
+		return;
+	}
+	r = -errno;
+	asph_error_clear(&err);
+	asph_error_set(&err, r, "%s: %s (set http_root to the folder of the page's files, or remove "
+		       "it to serve the built-in page)", s->http_root, strerror(-r));
+	settings_locate(s, "http_root", &err);
+	report(&err, data);
+}
+
 /*
  * Everything the configuration says that needs more than the file to
  * check: the instruments against the drivers, the operator group, the
- * token file, the TCP address. `asphd --check-config` and the start run
- * this same function, so that they agree. Returns the number of errors
+ * token file, the TCP address, the web page's folder. `asphd
+ * --check-config` and the start run this same function, so that they
+ * agree. Returns the number of errors
  * (reported as found).
  */
 static int load_configuration(struct daemon *d)
@@ -143,6 +167,7 @@ static int load_configuration(struct daemon *d)
 		       &d->tcp, report_config_error, &n_errors);
 	resolve_listen(d->settings, "http_listen", d->settings->http_host,
 		       d->settings->http_port, &d->http, report_config_error, &n_errors);
+	check_http_root(d->settings, report_config_error, &n_errors);
 	mqtt_credentials_load(d->settings, &d->mqtt_credentials, report_config_error, &n_errors);
 	fleetdb_password_load(d->settings, &d->pg_password, report_config_error, &n_errors);
 	return n_errors;
@@ -863,8 +888,7 @@ static int run(struct daemon *d)
 	if (r == 0)
 		r = server_listen(d->server, d->settings, d->tcp);
 	if (r == 0 && d->web) {
-		r = web_listen(d->web, d->http, d->settings->http_listen,
-			       d->settings->http_root ? d->settings->http_root : WEB_DIR);
+		r = web_listen(d->web, d->http, d->settings->http_listen, d->settings->http_root);
 		if (r == 0)
 			log_info("web page at http://%s%s%s:%u/ (%zu address%s)",
 				 strchr(d->settings->http_host, ':') ? "[" : "", d->settings->http_host,

@@ -8,6 +8,7 @@
  */
 #include <errno.h>
 #include <fcntl.h>
+#include <malloc.h>
 #include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -349,6 +350,10 @@ static void *worker(void *data)
 		r->want_pause = r->want_abort = r->want_stop = false;
 		runner_job_free(job);
 		pthread_mutex_unlock(&r->lock);
+		/* A job's points, plan and characterization come and go in
+		 * hundreds of MiB: give the freed pages back, in every arena,
+		 * rather than hold them until the next job. */
+		malloc_trim(0);
 		post(r, &final);
 		pthread_mutex_lock(&r->lock);
 	}

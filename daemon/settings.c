@@ -431,8 +431,8 @@ static const struct row rows[] = {
 	  "(docs/daemon.md)", take_tcp_listen },
 	{ "http_listen", "HOST:PORT", "off", "the web page and its API (docs/web.md), /healthz "
 	  "and /metrics (docs/admin.md)", take_http_listen },
-	{ "http_root", "path", "PREFIX/share/asphd/web", "the web page's files",
-	  take_path, AT(struct settings, http_root) },
+	{ "http_root", "path", "none: the page built into asphd", "a folder of the web page's "
+	  "files, served instead of the built-in page", take_path, AT(struct settings, http_root) },
 	{ "token_file", "path", "none", "deprecated: a file holding one admin token for TCP "
 	  "clients; named tokens replace it", take_path, AT(struct settings, token_file) },
 	{ "limits", "object", "the defaults below", "what one client, one user and the disk may "

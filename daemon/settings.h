@@ -73,7 +73,7 @@ struct settings {
 	char *token_file;
 	char *http_listen;              /* "HOST:PORT" or NULL (off), as written */
 	char *http_host, *http_port;    /* its parts */
-	char *http_root;                /* the web page's files (NULL: WEB_DIR) */
+	char *http_root;                /* the web page's files (NULL: built in) */
 	char *state_dir;
 	struct settings_limits limits;
 	struct settings_health health;

@@ -634,14 +634,41 @@ bool web_plain_name(const char *name)
 	       strlen(name);
 }
 
+/* One of the page's files compiled in (no copy: they live as long as
+ * the program). */
+static enum MHD_Result send_builtin(struct MHD_Connection *c, const struct embedded_file *f,
+				   const char *type)
+{
+	struct MHD_Response *r;
+	enum MHD_Result ret;
+
+	r = MHD_create_response_from_buffer(f->size, (void *)f->data, MHD_RESPMEM_PERSISTENT);
+	if (!r)
+		return MHD_NO;
+	secure_headers(r);
+	MHD_add_response_header(r, "Content-Type", type);
+	MHD_add_response_header(r, "Cache-Control", "no-cache");
+	ret = MHD_queue_response(c, MHD_HTTP_OK, r);
+	MHD_destroy_response(r);
+	return ret;
+}
+
+/* The page's files: http_root's when it is set, else the built-in ones. */
 static enum MHD_Result route_static(struct web *w, struct MHD_Connection *c, const char *url)
 {
 	const char *name = strcmp(url, "/") ? url + 1 : "index.html";
 	const char *type = content_type(name);
+	const struct embedded_file *f;
 	int fd;
 
 	if (!web_plain_name(name) || !type)
 		return send_error(c, MHD_HTTP_NOT_FOUND, "no such page: %s", url);
+	if (w->root_fd < 0) {
+		f = embedded_file_find(web_builtin_files, web_builtin_files_count, name);
+		if (!f)
+			return send_error(c, MHD_HTTP_NOT_FOUND, "no such page: %s", url);
+		return send_builtin(c, f, type);
+	}
 	fd = openat(w->root_fd, name, O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
 	if (fd < 0)
 		return send_error(c, MHD_HTTP_NOT_FOUND, "no such page: %s", url);
@@ -1191,11 +1218,13 @@ int web_listen(struct web *w, const struct addrinfo *addr, const char *text, con
 	size_t n = 0;
 	int r;
 
-	w->root_fd = open(root, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-	if (w->root_fd < 0) {
-		r = -errno;
-		log_error("http_root %s: %s", root, strerror(-r));
-		return r;
+	if (root) {
+		w->root_fd = open(root, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+		if (w->root_fd < 0) {
+			r = -errno;
+			log_error("http_root %s: %s", root, strerror(-r));   /* (checked at the start) */
+			return r;
+		}
 	}
 	r = server_listen_tcp(addr, "http_listen", text, fds, WEB_MAX_LISTENERS, &n);
 	if (r < 0)

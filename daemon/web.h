@@ -8,7 +8,7 @@
  * the socket's do.
  *
  * Routes:
- *   GET  /, /NAME            the page's files (http_root)
+ *   GET  /, /NAME            the page's files (built in, or http_root's)
  *   POST /api/login          {"token": ...}: a session cookie
  *   POST /api/logout         ends the session
  *   POST /api/rpc            a JSON-RPC line (request, notification, batch)
@@ -41,11 +41,16 @@
 
 #include <systemd/sd-event.h>
 
+#include "embedded.h"
 #include "events.h"
 #include "jobs.h"
 #include "monitor.h"
 #include "rpc.h"
 #include "settings.h"
+
+/* The page's files (daemon/web/), compiled in by scripts/embed-files. */
+extern const struct embedded_file web_builtin_files[];
+extern const size_t web_builtin_files_count;
 
 struct web_setup {
 	sd_event *event;
@@ -64,7 +69,8 @@ void web_free(struct web *w);
 
 /* Listens on every address of addr (from server_resolve_tcp(); text is
  * http_listen's, for messages), all on one port (server_listen_tcp()),
- * and serves the files of root. 0, or -errno having logged why. */
+ * and serves the files of root (http_root), or the built-in page when
+ * root is NULL. 0, or -errno having logged why. */
 int web_listen(struct web *w, const struct addrinfo *addr, const char *text, const char *root);
 /* The port listened on (after web_listen()), 0 when not listening. */
 unsigned web_port(const struct web *w);

@@ -72,11 +72,12 @@ static json_t *profile_json(const struct asph_driver_profile *p)
 }
 
 /* The profiles the driver's "profile" option can name, as found now. */
-static int profiles_json(const struct asph_registry *reg, size_t i, json_t **out)
+static int profiles_json(const struct asph_registry *reg, size_t i, json_t **out,
+			 struct asph_error *err)
 {
 	_cleanup_free_ struct asph_driver_profile *v = NULL;
 	size_t n = 0;
-	int r = asph_registry_profiles(reg, i, &v, &n, NULL);
+	int r = asph_registry_profiles(reg, i, &v, &n, err);
 
 	if (r < 0)
 		return r;
@@ -86,13 +87,15 @@ static int profiles_json(const struct asph_registry *reg, size_t i, json_t **out
 	return 0;
 }
 
-int asph_registry_to_json(const struct asph_registry *reg, bool pretty, char **out)
+int asph_registry_to_json(const struct asph_registry *reg, bool pretty, char **out,
+			  struct asph_error *err)
 {
 	_cleanup_(json_decrefp) json_t *root = json_object();
 	json_t *list = json_array();
 
 	json_object_set_new(root, "driver_abi", json_integer(ASPH_DRIVER_ABI_MAJOR));
 	json_object_set_new(root, "driver_abi_minor", json_integer(ASPH_DRIVER_ABI_MINOR));
+	json_object_set_new(root, "drivers", list);     /* (root owns it: nothing leaks on an error) */
 	for (size_t i = 0; i < asph_registry_count(reg); i++) {
 		const struct asph_driver *d = asph_registry_get(reg, i);
 		char abi[24];
@@ -108,12 +111,11 @@ int asph_registry_to_json(const struct asph_registry *reg, bool pretty, char **o
 		json_object_set_new(j, "options", opts);
 		json_array_append_new(list, j);
 		json_t *profiles = NULL;
-		int r = profiles_json(reg, i, &profiles);
+		int r = profiles_json(reg, i, &profiles, err);
 		if (r < 0)
 			return r;
 		json_object_set_new(j, "profiles", profiles);
 	}
-	json_object_set_new(root, "drivers", list);
 	*out = json_dumps(root, (pretty ? JSON_INDENT(2) : JSON_COMPACT) | JSON_PRESERVE_ORDER |
 				JSON_REAL_PRECISION(17));
 	return *out ? 0 : -ENOMEM;

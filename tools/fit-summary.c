@@ -125,6 +125,15 @@ static void print_slope(FILE *f, const json_t *s, const char *indent)
 
 	if (isnan(at(s, "slope.rms_urad")))
 		return;
+	if (json_is_true(json_object_get(s, "profile"))) {
+		fprintf(f, "%sSlope along the traces over %s: RMS %s U %s, max %s U %s\n", indent,
+			value(s, "slope.length_mm", len, sizeof(len)),
+			value(s, "slope.rms_urad", rms, sizeof(rms)),
+			expanded(s, "slope.rms_urad", urms, sizeof(urms)),
+			value(s, "slope.max_urad", max, sizeof(max)),
+			expanded(s, "slope.max_urad", umax, sizeof(umax)));
+		return;
+	}
 	fprintf(f, "%sSlope over %s: RMS %s (radial %s, azimuthal %s) U %s, max %s U %s\n", indent,
 		value(s, "slope.length_mm", len, sizeof(len)),
 		value(s, "slope.rms_urad", rms, sizeof(rms)),
@@ -139,6 +148,8 @@ static void print_radius(FILE *f, const json_t *s, const char *indent)
 {
 	char r[32], nom[32], dev[32], u[32];
 
+	char c[48], cnom[48], uc[48];
+
 	if (!json_is_object(json_object_get(s, "radius")))
 		return;
 	fprintf(f, "%sRadius %s (nominal %s): R - R nominal %s U %s\n", indent,
@@ -146,6 +157,34 @@ static void print_radius(FILE *f, const json_t *s, const char *indent)
 		value(s, "radius.nominal_mm", nom, sizeof(nom)),
 		value(s, "radius.deviation_mm", dev, sizeof(dev)),
 		expanded(s, "radius.deviation_mm", u, sizeof(u)));
+	fprintf(f, "%sCurvature c = 1/R %s U %s (nominal %s)%s\n", indent,
+		value(s, "radius.c_per_mm", c, sizeof(c)), expanded(s, "dof.c", uc, sizeof(uc)),
+		value(s, "radius.nominal_c_per_mm", cnom, sizeof(cnom)),
+		isnan(at(s, "radius.R_mm")) ? ": R not determined (c = 0 within U)" : "");
+}
+
+/* Line profiles: each trace with what the fit leaves along it. */
+static void print_profiles(FILE *f, const json_t *s, const char *indent)
+{
+	static const char *const keys[] = { "azimuth_deg", "offset_mm", "length_mm", "rms_nm",
+					     "pv_nm", "slope_rms_urad", "slope_max_urad" };
+	const json_t *a = json_object_get(s, "profiles"), *p;
+	size_t i;
+
+	if (!json_is_array(a))
+		return;
+	fprintf(f, "%sLine profiles (%zu), along each trace:\n", indent, json_array_size(a));
+	json_array_foreach(a, i, p) {
+		char v[7][48], path[48];
+		for (size_t k = 0; k < 7; k++) {
+			snprintf(path, sizeof(path), "profiles.%s", keys[k]);
+			quantity_format(quantity_by_path(path), at(p, keys[k]), QUANTITY_UNIT, v[k],
+					sizeof(v[k]));
+		}
+		fprintf(f, "%s  %zu: azimuth %s, offset %s, length %s, %lld points: RMS %s, PV %s, "
+			"slope RMS %s, max %s\n", indent, i + 1, v[0], v[1], v[2],
+			count(p, "n_used"), v[3], v[4], v[5], v[6]);
+	}
 }
 
 /* One line per toleranced quantity: the value with its sign (a two-sided
@@ -180,6 +219,7 @@ void fit_summary_print(FILE *f, const json_t *summary, const char *indent)
 	print_residual(f, summary, indent);
 	print_form(f, summary, indent);
 	print_slope(f, summary, indent);
+	print_profiles(f, summary, indent);
 	print_radius(f, summary, indent);
 	print_verdict(f, summary, indent);
 }
@@ -190,6 +230,11 @@ void fit_summary_print_zernike(FILE *f, const json_t *summary, const char *inden
 	const json_t *z = json_object_get(summary, "zernike_nm"), *v;
 	size_t j;
 
+	if (json_is_true(json_object_get(summary, "profile"))) {
+		fprintf(f, "%sNo Zernike decomposition of line profiles (the terms alias on lines)\n",
+			indent);
+		return;
+	}
 	if (json_array_size(z) == 0) {
 		fprintf(f, "%sToo few points for the Zernike decomposition (PVr and slope need it)\n",
 			indent);

@@ -102,9 +102,11 @@ int asph_driver_validate(const struct asph_driver *d, struct asph_error *err);
  * only for an enum; a text the driver leaves out is null; roles are always
  * named (an option of both roles has ["stage", "probe"]); profiles as
  * asph_registry_profiles() finds them (empty for a driver without profile
- * files; error null for one that loads). malloc'd. */
+ * files; error null for one that loads). malloc'd. Fails, saying why in
+ * err, when a driver's profiles cannot be listed (a profile directory
+ * that cannot be searched). */
 int asph_registry_to_json(const struct asph_registry *r, bool pretty,
-			  char **out);
+			  char **out, struct asph_error *err);
 
 /* "MAJOR.MINOR" of a driver ABI version, in buf (returned). */
 const char *asph_driver_abi_text(uint32_t version, char *buf, size_t size);

@@ -26,7 +26,8 @@ static int check_plan(int dirfd, const char *path, const struct asph_plan *plan,
 	if (ret < 0)
 		return ret;
 	if (was.method == plan->method && was.density.kind == plan->density.kind &&
-	    was.density.value == plan->density.value && was.points == plan->n)
+	    was.density.value == plan->density.value && was.points == plan->n &&
+	    was.profiles == plan->profiles)
 		return 0;
 	return asph_error_set_at(err, -EINVAL, path, 0, 0, "plan",
 				 "recorded with the plan %s %s=%.17g (%llu points), not %s %s=%.17g "

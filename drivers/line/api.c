@@ -40,8 +40,8 @@ static const char *const triggers[] = { "request", "dtr", "operator", NULL };
 static const struct asph_option_desc line_options[N_OPTIONS] = {
 	[OPT_PROFILE] = { "profile", ASPH_OPTION_STRING, "pi-gcs",
 			  .help = "the device's profile: a profile file's path, or a name found in "
-				  "$ASPH_LINE_PROFILE_PATH, the lab's or the installed profile "
-				  "directory (asph drivers lists them)" },
+				  "$ASPH_LINE_PROFILE_PATH, the lab's profile directory or built in "
+				  "(asph drivers lists them)" },
 	[OPT_HOST] = { "host", ASPH_OPTION_STRING, "127.0.0.1",
 		       .help = "TCP: the controller's host name or address (used when device is empty)" },
 	[OPT_PORT] = { "port", ASPH_OPTION_INT, "50000", RANGE(1, 65535),

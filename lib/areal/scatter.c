@@ -9,6 +9,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include <gsl/gsl_statistics_double.h>
+
 #include "asph/areal.h"
 #include "asph/delaunay.h"
 #include "areal-internal.h"
@@ -35,14 +37,8 @@ static double edge_length(const struct asph_scatter *s, uint32_t a, uint32_t b)
 	return hypot(s->xy[2 * a] - s->xy[2 * b], s->xy[2 * a + 1] - s->xy[2 * b + 1]);
 }
 
-static int cmp_double(const void *a, const void *b)
-{
-	double x = *(const double *)a, y = *(const double *)b;
-
-	return (x > y) - (x < y);
-}
-
-/* Median edge length, then which triangles stay inside. */
+/* Median edge length (selected, not sorted: the same element, in linear
+ * time), then which triangles stay inside. */
 static int mark_kept(struct asph_scatter *s, const struct asph_scatter_options *o,
 		     struct asph_error *err)
 {
@@ -55,8 +51,7 @@ static int mark_kept(struct asph_scatter *s, const struct asph_scatter_options *
 	for (size_t t = 0; t < s->n_tri; t++)
 		for (int k = 0; k < 3; k++)
 			len[3 * t + k] = edge_length(s, s->tri[3 * t + k], s->tri[3 * t + (k + 1) % 3]);
-	qsort(len, 3 * s->n_tri, sizeof(double), cmp_double);
-	s->median_edge = len[3 * s->n_tri / 2];
+	s->median_edge = gsl_stats_select(len, 1, 3 * s->n_tri, 3 * s->n_tri / 2);
 	s->max_edge = o->max_edge_mm > 0 ? o->max_edge_mm : factor * s->median_edge;
 	for (size_t t = 0; t < s->n_tri; t++) {
 		s->kept[t] = 1;
@@ -102,6 +97,8 @@ int asph_scatter_alloc(const double *xy, const double *value, size_t n,
 	r = asph_delaunay_triangulate(d, xy, n, &s->tri, &s->n_tri, err);
 	if (r == 0)
 		r = asph_delaunay_neighbors(d, &s->adj, err);
+	/* the workspace's memory is not needed for the rest */
+	asph_delaunay_free(steal_ptr(d));
 	if (r == 0)
 		r = mark_kept(s, &o, err);
 	if (r < 0) {

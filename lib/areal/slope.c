@@ -18,9 +18,11 @@ struct quotient {
 };
 
 /* (F(p + L/2 e) - F(p - L/2 e)) / L; -EDOM when either end is masked or
- * outside the disc. */
+ * outside the disc. hint[k] is where the search for end k starts: the
+ * triangle of the same end at the previous position, a few triangles
+ * away (one hint for both would walk the length L at every step). */
 static int quotient_at(const struct asph_scatter *s, double radius, double x,
-		       double y, double ex, double ey, double L, uint32_t *hint,
+		       double y, double ex, double ey, double L, uint32_t hint[2],
 		       struct quotient *q)
 {
 	double v[2], w[3];
@@ -29,7 +31,7 @@ static int quotient_at(const struct asph_scatter *s, double radius, double x,
 		double sign = k ? -0.5 : 0.5;
 		double px = x + sign * L * ex, py = y + sign * L * ey;
 		if (hypot(px, py) > radius ||
-		    asph_scatter_eval(s, px, py, hint, &v[k], q->idx + 3 * k, w) < 0)
+		    asph_scatter_eval(s, px, py, &hint[k], &v[k], q->idx + 3 * k, w) < 0)
 			return -EDOM;
 		for (int j = 0; j < 3; j++)
 			q->w[3 * k + j] = (k ? -w[j] : w[j]) / L;
@@ -92,7 +94,7 @@ int asph_slope_compute(const struct asph_scatter *s, double radius,
 	_cleanup_free_ double *grad = NULL;
 	struct slope_sums a = { 0 };
 	long half;
-	uint32_t hint = 0;
+	uint32_t hint[2][2] = { { 0 } };       /* radial, tangential; each end */
 	int r = check_args(radius, length_mm, spacing, err);
 
 	if (r < 0)
@@ -106,8 +108,8 @@ int asph_slope_compute(const struct asph_scatter *s, double radius,
 			double x = (double)i * spacing, y = (double)j * spacing, rr = hypot(x, y);
 			struct quotient qr, qt;
 			if (rr > radius || rr == 0 ||
-			    quotient_at(s, radius, x, y, x / rr, y / rr, length_mm, &hint, &qr) < 0 ||
-			    quotient_at(s, radius, x, y, -y / rr, x / rr, length_mm, &hint, &qt) < 0)
+			    quotient_at(s, radius, x, y, x / rr, y / rr, length_mm, hint[0], &qr) < 0 ||
+			    quotient_at(s, radius, x, y, -y / rr, x / rr, length_mm, hint[1], &qt) < 0)
 				continue;
 			double m2 = qr.value * qr.value + qt.value * qt.value;
 			a.r2 += qr.value * qr.value;

@@ -44,7 +44,8 @@ enum asph_fit_dof {
 	ASPH_FIT_TZ,
 	ASPH_FIT_RX,            /* tilt, rad */
 	ASPH_FIT_RY,
-	ASPH_FIT_R,             /* vertex radius, mm (absolute value fitted) */
+	ASPH_FIT_R,             /* vertex radius R, mm; the fit varies the
+				   curvature c = 1/R (1/mm), "c" in lists */
 	ASPH_FIT_K,             /* conic constant */
 	ASPH_FIT_RZ,            /* clocking about the part's axis, rad */
 	ASPH_FIT_N_DOF
@@ -58,8 +59,9 @@ enum asph_fit_dof {
 /* "tx", "ty", "tz", "rx", "ry", "R", "k", "rz". */
 const char *asph_fit_dof_name(enum asph_fit_dof d);
 
-/* Parses a comma-separated list such as "tx,ty,tz,rx,ry,rz" into a mask.
- * -EINVAL for an unknown or repeated name, or an empty list. */
+/* Parses a comma-separated list such as "tx,ty,tz,rx,ry,rz" into a mask;
+ * "c" (the curvature) names the same degree of freedom as "R". -EINVAL for
+ * an unknown or repeated name, or an empty list. */
 int asph_fit_dof_parse(const char *list, unsigned *mask,
 		       struct asph_error *err);
 
@@ -118,9 +120,11 @@ int asph_fit_residual_from_name(const char *name,
 #define ASPH_FIT_DEFAULT_ZERNIKE 36 /* Evans' PVr uses a 36-term fit */
 
 struct asph_fit_options {
-	unsigned dof;               /* mask; 0 = ASPH_FIT_DOF_RIGID; rz is
-				       refused for a rotationally symmetric
-				       surface, R and k for a freeform */
+	unsigned dof;               /* mask; 0 = ASPH_FIT_DOF_RIGID (a line
+				       profile: tx, tz, ry in its trace's
+				       frame); rz is refused for a
+				       rotationally symmetric surface, R and k
+				       for a freeform, k on a plane base */
 	enum asph_fit_residual_kind residual;
 	int robust;                 /* Tukey biweight reweighting */
 	int max_iterations;         /* per pass; 0 = 200 */
@@ -130,7 +134,9 @@ struct asph_fit_options {
 	double max_outside_fraction; /* refuse above; 0 = 0.5 */
 	int n_zernike;              /* 0 = 36; up to ASPH_FIT_MAX_ZERNIKE */
 	struct asph_pose start;     /* initial pose (all 0 is fine for parts
-				       within a few 0.1 mm and mrad) */
+				       within a few 0.1 mm and mrad); of a
+				       single line profile, in its trace's
+				       frame */
 	/* Form deviation quantities (docs/characterization.md). */
 	double wavelength_nm;       /* test wavelength of the fringes;
 				       0 = the tolerance's, else 546.07 */
@@ -153,16 +159,64 @@ enum asph_fit_point_status {
 	ASPH_FIT_POINT_OUTLIER,     /* weight 0 in the robust fit */
 };
 
+/*
+ * Line profiles (docs/characterization.md, "Line profiles"): points in
+ * scan order that lie on up to ASPH_FIT_MAX_PROFILES straight traces in
+ * x-y. One trace, or several parallel ones, is fitted in the trace's own
+ * frame (x along the trace, the machine frame turned by its azimuth about
+ * z) with the DOF a profile tells apart: tx (the decentre along the
+ * trace), tz, ry (the tilt about the axis across it), R and k. Traces at
+ * several azimuths (a cross, a star) are fitted together in the machine
+ * frame.
+ */
+#define ASPH_FIT_MAX_PROFILES 36
+/* The DOF one profile tells apart, in its trace's frame, and its default. */
+#define ASPH_FIT_DOF_PROFILE                                                            \
+	(ASPH_FIT_DOF_BIT(ASPH_FIT_TX) | ASPH_FIT_DOF_BIT(ASPH_FIT_TZ) |                 \
+	 ASPH_FIT_DOF_BIT(ASPH_FIT_RY) | ASPH_FIT_DOF_BIT(ASPH_FIT_R) | ASPH_FIT_DOF_BIT(ASPH_FIT_K))
+#define ASPH_FIT_DOF_PROFILE_DEFAULT                                                    \
+	(ASPH_FIT_DOF_BIT(ASPH_FIT_TX) | ASPH_FIT_DOF_BIT(ASPH_FIT_TZ) | ASPH_FIT_DOF_BIT(ASPH_FIT_RY))
+
+struct asph_fit_profile {
+	double azimuth;             /* rad, the trace's direction in machine
+				       x-y, in (-pi/2, pi/2] */
+	double offset_mm;           /* its line's signed distance from the
+				       machine z axis, along (-sin, cos) of
+				       the azimuth */
+	double length_mm;           /* its points' extent along it */
+	size_t n_points, n_used;
+	asph_nm rms, pv;            /* of the residual over its used points */
+	/* The residual's slope along the trace over the slope length, its
+	 * tilt removed; NaN when the trace is shorter than the length. */
+	asph_urad slope_rms, slope_max;
+	size_t n_slope;             /* positions evaluated */
+};
+
 struct asph_fit_result {
 	size_t n_points;
 	size_t n_used;              /* points in the statistics */
 	size_t n_outside_aperture;
 	size_t n_outliers;          /* zero weight after the robust fit */
 	size_t n_downweighted;      /* weight below 1/2 (includes outliers) */
-	unsigned dof;
+	unsigned dof;               /* the DOF fitted (a profile's, when the
+				       options left them to the fit) */
 	enum asph_fit_residual_kind residual;
-	double value[ASPH_FIT_N_DOF];       /* fitted, in the DOF's unit */
-	double uncertainty[ASPH_FIT_N_DOF]; /* standard uncertainty */
+	/* Fitted, in the DOF's unit, and the standard uncertainty; a single
+	 * profile's in its trace's frame. R is 1/c; R and its uncertainty
+	 * u(c) / c^2 are NaN when c = 0 lies within c's expanded uncertainty
+	 * 2 u(c) (a flat: R is not determined, c is). */
+	double value[ASPH_FIT_N_DOF];
+	double uncertainty[ASPH_FIT_N_DOF];
+	/* The fitted pose in the machine frame, the convention above (rz 0
+	 * on a surface of revolution). */
+	struct asph_pose pose;
+	/* With R fitted: the curvature c = 1/R (1/mm) the fit varies, and its
+	 * standard uncertainty; else NaN. The nominal curvature always. */
+	double curvature, u_curvature, curvature_nominal;
+	/* Line profiles: the traces, in the order of their first point. */
+	int profile;
+	size_t n_profiles;
+	struct asph_fit_profile profiles[ASPH_FIT_MAX_PROFILES];
 	int iterations;             /* LM iterations, all passes */
 	int passes;                 /* LM runs (exclusion, reweighting) */
 	int converged;
@@ -215,9 +269,10 @@ void asph_fit_free(struct asph_fit *w);
  * valid until the fit is done.
  *
  * init refuses (-EINVAL) n > n_max, a non-finite coordinate, fewer points
- * than DOF + 1, points that all lie on one line (or at one place) in x-y,
- * and (-EDOM) points that cannot tell the DOF apart (e.g. all at one
- * radius, where a decentre and a tilt look the same).
+ * than DOF + 1, points all at one place in x-y, a profile asked for DOF it
+ * cannot tell apart, and (-EDOM) points that cannot tell the DOF apart
+ * (e.g. all at one radius, where a decentre and a tilt look the same).
+ * Points on lines are fitted as line profiles (above).
  * iterate runs one Levenberg-Marquardt step; when a pass has converged it
  * starts the next (points whose foot left the aperture excluded, robust
  * weights updated). It returns -EDOM when too many points have no foot inside

@@ -42,6 +42,10 @@ struct asph_form_options {
 	int rsi_order;           /* even, 4..40; 0 = default */
 	double noise_nm;         /* standard deviation of independent noise on
 				    F, for the uncertainties (NaN: none) */
+	/* The points lie on one line along u (a line profile, theta 0 or pi
+	 * about a centre on it, or a parallel line): v is not fitted, and C
+	 * and RMSa, which need the azimuthal average, are NaN. */
+	int one_line;
 };
 
 struct asph_form {
@@ -75,6 +79,7 @@ struct asph_uncertainty_k2 {
 	asph_nm rms_t, rms_i, rms_a;
 	asph_urad slope_rms, slope_max;
 	double R_mm;             /* of the fitted R and of its deviation */
+	double c_per_mm;         /* of the fitted curvature c = 1/R */
 };
 
 /* All members NaN, method NONE. */

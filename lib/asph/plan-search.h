@@ -76,7 +76,8 @@ struct asph_plan_search_options {
 	 * fills them from a tolerance; a test may limit any quantity the
 	 * Monte Carlo reports (the pose too). */
 	double limit[ASPH_MC_N_QUANTITIES];
-	/* The methods to try (bits 1 << enum asph_plan_method); 0 = all. */
+	/* The methods to try (bits 1 << enum asph_plan_method); 0 = all
+	 * but the line profiles. */
 	unsigned methods;
 	/* The coarsest and finest plans tried; 0 = the defaults: at least
 	 * ASPH_PLAN_SEARCH_POINTS_PER_TERM points per Zernike term of the

@@ -29,8 +29,13 @@ enum asph_plan_method {
 	ASPH_PLAN_SPIRAL,       /* Archimedean spiral in the vertex plane */
 	ASPH_PLAN_FERMAT,       /* Fermat / golden-angle spiral */
 	ASPH_PLAN_CVT,          /* centroidal Voronoi tessellation on the surface */
+	ASPH_PLAN_PROFILES,     /* line profiles through the apex (a tactile
+				   instrument's), asph_plan_options.profiles */
 	ASPH_PLAN_N_METHODS
 };
+
+/* The profiles method: at most this many profiles through the apex. */
+#define ASPH_PLAN_MAX_PROFILES 36
 
 /* Name as on the command line ("op", "ot", ...) and back. */
 const char *asph_plan_method_name(enum asph_plan_method m);
@@ -76,6 +81,7 @@ struct asph_plan {
 	double *xyz;             /* 3 n, mm, scan order */
 	size_t n_triangles;      /* 0 when the method has no mesh */
 	uint32_t *triangles;     /* 3 n_triangles, indices into xyz, or NULL */
+	unsigned profiles;       /* the profiles method: how many; else 0 */
 };
 
 /*
@@ -105,6 +111,9 @@ struct asph_plan_options {
 	 * ASPH_PLAN_CVT_MAX_ITERATIONS) as it goes; its cancel makes the
 	 * computation return -ECANCELED. */
 	struct asph_progress progress;
+	/* The profiles method: the profiles, 1..ASPH_PLAN_MAX_PROFILES (0:
+	 * one); the other methods refuse any but 0. */
+	unsigned profiles;
 };
 
 /* The most iterations a CVT plan takes (the total its progress counts to). */
@@ -125,6 +134,11 @@ int asph_plan_compute_opts(const struct asph_surface *s,
 int asph_plan_resolve(const struct asph_surface *s, enum asph_plan_method m,
 		      struct asph_plan_density density, double *spacing_mm,
 		      size_t *n_points, struct asph_error *err);
+/* The same with the options' profiles (the rest is not read; NULL: all 0). */
+int asph_plan_resolve_opts(const struct asph_surface *s, enum asph_plan_method m,
+			   struct asph_plan_density density,
+			   const struct asph_plan_options *opts, double *spacing_mm,
+			   size_t *n_points, struct asph_error *err);
 
 /* A copy of the plan as points (xyz and the mesh, if any) for
  * asph_points_write(). */
@@ -135,7 +149,7 @@ int asph_plan_to_points(const struct asph_plan *p, struct asph_points **out);
  * recorded scan's header and of asphd's job results:
  *   {"method": "ot", "density": "h", "value": 0.05, "spacing_mm": 1.005,
  *    "points": 1653}
- * 0 or -ENOMEM.
+ * and "profiles": N for the profiles method. 0 or -ENOMEM.
  */
 int asph_plan_to_json(const struct asph_plan *p, char **out);
 
@@ -145,6 +159,8 @@ struct asph_plan_info {
 	struct asph_plan_density density;
 	double spacing_mm;       /* NaN when not given */
 	uint64_t points;         /* 0 when not given */
+	unsigned profiles;       /* the profiles method's (1 when not given);
+				    0 for the others */
 };
 
 /*

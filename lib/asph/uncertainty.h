@@ -97,7 +97,9 @@ int asph_uncertainty_model_to_json(const struct asph_uncertainty_model *m,
 /* ------------------------------------------------------------ quantities */
 
 /* The quantities a trial yields; the first ASPH_FIT_N_DOF are the fit's
- * degrees of freedom in enum asph_fit_dof order. */
+ * degrees of freedom in enum asph_fit_dof order, R as the curvature c =
+ * 1/R (1/mm) the fit varies (U(R) = U(c) / c^2, none when c = 0 lies
+ * within U(c)). */
 enum asph_mc_quantity {
 	ASPH_MC_RMS = ASPH_FIT_N_DOF,  /* residual RMS, nm */
 	ASPH_MC_PV,                    /* nm */
@@ -109,7 +111,7 @@ enum asph_mc_quantity {
 };
 
 /* The JSON summary's key of a quantity: "tx", "ty", "tz", "rx", "ry",
- * "R_mm", "k", "rz", "rms_nm", "pv_nm", "pvr_nm", "A_nm", "B_nm", "C_nm",
+ * "c_per_mm", "k", "rz", "rms_nm", "pv_nm", "pvr_nm", "A_nm", "B_nm", "C_nm",
  * "rms_t_nm", "rms_i_nm", "rms_a_nm", "rms_urad", "max_urad". */
 const char *asph_mc_quantity_key(enum asph_mc_quantity q);
 

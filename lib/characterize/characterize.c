@@ -142,6 +142,12 @@ static int residual_map(struct asph_characterization *c, struct asph_error *err)
 	res->map_xy = c->map_xy;
 	res->map_nm = c->map_nm;
 	asph_error_clear(&res->map_error);
+	if (res->fit.profile) {
+		asph_error_set(&res->map_error, -EDOM,
+			       "the points are line profiles: they have no residual map of the "
+			       "area (grid, PSD, correction table, report)");
+		return 0;
+	}
 	r = asph_fit_residual_scatter(c->fit, &c->scatter, &res->map_error);
 	if (r == 0) {
 		res->scatter = c->scatter;

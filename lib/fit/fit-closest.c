@@ -32,11 +32,11 @@ void fit_model_init(struct fit_model *m, const struct asph_surface *s)
 	m->K0 = m->K = 1.0 + p->k;
 }
 
-void fit_model_set_conic(struct fit_model *m, double R, double k)
+void fit_model_set_conic(struct fit_model *m, double c, double k)
 {
 	if (!m->rotational)
 		return;
-	m->c = 1.0 / R;
+	m->c = c;
 	m->K = 1.0 + k;
 	m->conic_changed = (m->c != m->c0 || m->K != m->K0);
 }
@@ -67,16 +67,18 @@ void fit_model_derivs(const struct fit_model *m, double r, double d[3])
 
 /*
  * With S = sqrt(1 - K c^2 r^2) and 1 - S^2 = K c^2 r^2:
- *   d conic / dc = r^2 / (S (1 + S)),     dc/dR = -c^2,
+ *   d conic / dc = r^2 / (S (1 + S)),
  *   d conic / dk = c^3 r^4 / (2 S (1 + S)^2).
+ * The fit varies c, not R = 1/c: the sag is nearly linear in c, and c = 0
+ * (a plane) is an ordinary value, where dc/dR = -c^2 would vanish.
  */
 void fit_model_conic_partials(const struct fit_model *m, double r,
-			      double *dz_dR, double *dz_dk)
+			      double *dz_dc, double *dz_dk)
 {
 	double c = m->c, r2 = r * r;
 	double sq = sqrt(1.0 - m->K * c * c * r2);
 
-	*dz_dR = -c * c * r2 / (sq * (1.0 + sq));
+	*dz_dc = r2 / (sq * (1.0 + sq));
 	*dz_dk = c * c * c * r2 * r2 / (2.0 * sq * (1.0 + sq) * (1.0 + sq));
 }
 
@@ -441,6 +443,9 @@ const char *asph_fit_dof_name(enum asph_fit_dof d)
 
 static int dof_lookup(const char *name, size_t len)
 {
+	/* c, the curvature, is the degree of freedom the fit varies for R */
+	if (len == 1 && name[0] == 'c')
+		return ASPH_FIT_R;
 	for (int d = 0; d < ASPH_FIT_N_DOF; d++)
 		if (strlen(dof_names[d]) == len && !strncmp(dof_names[d], name, len))
 			return d;
@@ -461,12 +466,13 @@ int asph_fit_dof_parse(const char *list, unsigned *mask,
 		if (d < 0) {
 			char known[64];
 			suggest_join(known, sizeof(known), dof_names, ASPH_FIT_N_DOF, ", ");
-			return asph_error_set(err, -EINVAL, "unknown degree of freedom '%.*s' (%s)",
+			return asph_error_set(err, -EINVAL, "unknown degree of freedom '%.*s' (%s; c for R's curvature)",
 					      (int)len, p, known);
 		}
 		if (out & ASPH_FIT_DOF_BIT(d))
 			return asph_error_set(err, -EINVAL,
-					      "degree of freedom '%s' given twice", dof_names[d]);
+					      "degree of freedom '%s' given twice%s", dof_names[d],
+					      d == ASPH_FIT_R ? " (c is R's curvature)" : "");
 		out |= ASPH_FIT_DOF_BIT(d);
 		if (p[len] == '\0')
 			break;

@@ -26,6 +26,7 @@ void fit_point_foot(const struct asph_fit *w, size_t i, double xy[2])
 	double t = w->opt.residual == ASPH_FIT_RESIDUAL_SAG || !(rq > 0) ? 1.0 : r / rq;
 	xy[0] = t * q[0];
 	xy[1] = t * q[1];
+	fit_frame_to_part(w, xy);
 }
 
 void fit_point_polar(const struct asph_fit *w, size_t i, double *rho,
@@ -48,6 +49,7 @@ void fit_point_polar(const struct asph_fit *w, size_t i, double *rho,
 	}
 	asph_pose_apply_inverse(&pose, w->xyz + 3 * i, q);
 	rq = hypot(q[0], q[1]);
+	fit_frame_to_part(w, q);
 	if (w->opt.residual == ASPH_FIT_RESIDUAL_SAG || !(rq > 0)) {
 		*rho = rq / w->model.a;
 		*theta = atan2(q[1], q[0]);

@@ -72,23 +72,14 @@ static void form_invalid(struct asph_form *f, double wavelength)
 	f->rms_t.v = f->rms_i.v = f->rms_a.v = NAN;
 }
 
-/* The form quantities over the disk of radius a about centre. */
-static int compute_form(const double *xy, const double *val, size_t m, const double centre[2],
-			double a, double wavelength, double noise, struct asph_fit_result *out,
-			struct asph_error *err)
+int fit_form_quantities(const double *rho, const double *theta, const double *val,
+			size_t m, double wavelength, double noise, int one_line,
+			struct asph_fit_result *out, struct asph_error *err)
 {
-	_cleanup_free_ double *rho = malloc(m * sizeof(double) + 1);
-	_cleanup_free_ double *theta = malloc(m * sizeof(double) + 1);
-	struct asph_form_options fo = { .wavelength_nm = wavelength, .noise_nm = noise };
-	int r;
+	struct asph_form_options fo = { .wavelength_nm = wavelength, .noise_nm = noise,
+					.one_line = one_line };
+	int r = asph_form_compute(rho, theta, val, m, &fo, &out->form, &out->uncertainty_k2, err);
 
-	if (!rho || !theta)
-		return asph_error_set(err, -ENOMEM, "out of memory");
-	for (size_t k = 0; k < m; k++) {
-		rho[k] = hypot(xy[2 * k] - centre[0], xy[2 * k + 1] - centre[1]) / a;
-		theta[k] = atan2(xy[2 * k + 1] - centre[1], xy[2 * k] - centre[0]);
-	}
-	r = asph_form_compute(rho, theta, val, m, &fo, &out->form, &out->uncertainty_k2, err);
 	if (r == -EDOM) {
 		asph_error_clear(err);
 		form_invalid(&out->form, wavelength);
@@ -96,6 +87,33 @@ static int compute_form(const double *xy, const double *val, size_t m, const dou
 	}
 	out->form_valid = r == 0;
 	return r;
+}
+
+/* The form quantities over the disk of radius a about centre. */
+static int compute_form(const double *xy, const double *val, size_t m, const double centre[2],
+			double a, double wavelength, double noise, struct asph_fit_result *out,
+			struct asph_error *err)
+{
+	_cleanup_free_ double *rho = malloc(m * sizeof(double) + 1);
+	_cleanup_free_ double *theta = malloc(m * sizeof(double) + 1);
+
+	if (!rho || !theta)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	for (size_t k = 0; k < m; k++) {
+		rho[k] = hypot(xy[2 * k] - centre[0], xy[2 * k + 1] - centre[1]) / a;
+		theta[k] = atan2(xy[2 * k + 1] - centre[1], xy[2 * k] - centre[0]);
+	}
+	return fit_form_quantities(rho, theta, val, m, wavelength, noise, 0, out, err);
+}
+
+void fit_slope_invalid(struct asph_slope *s, double length)
+{
+	memset(s, 0, sizeof(*s));
+	s->length_mm = length;
+	s->rms.v = s->max.v = NAN;
+	s->rms_radial.v = s->max_radial.v = NAN;
+	s->rms_azimuthal.v = s->max_azimuthal.v = NAN;
+	s->u_rms.v = s->u_max.v = NAN;
 }
 
 /* The slope of the residual with its tilt plane (least squares, over the
@@ -118,12 +136,7 @@ static int compute_slope(double *xy, double *val, size_t m, double a, double len
 		/* Too few points, or a length the aperture cannot hold: the
 		 * slope is left out, the rest stands. */
 		asph_error_clear(err);
-		memset(&out->slope, 0, sizeof(out->slope));
-		out->slope.length_mm = length;
-		out->slope.rms.v = out->slope.max.v = NAN;
-		out->slope.rms_radial.v = out->slope.max_radial.v = NAN;
-		out->slope.rms_azimuthal.v = out->slope.max_azimuthal.v = NAN;
-		out->slope.u_rms.v = out->slope.u_max.v = NAN;
+		fit_slope_invalid(&out->slope, length);
 		return 0;
 	}
 	if (r < 0)
@@ -166,27 +179,34 @@ static void remove_tilt(const double *xy, double *val, size_t m)
 		val[k] -= c[0] + c[1] * xy[2 * k] + c[2] * xy[2 * k + 1];
 }
 
-int fit_fill_form(struct asph_fit *w, struct asph_fit_result *out,
-		  struct asph_error *err)
+void fit_form_lengths(const struct asph_fit *w, double *wavelength, double *length)
 {
 	const struct asph_tolerance *t = w->opt.tolerance;
+
+	*wavelength = w->opt.wavelength_nm;
+	*length = w->opt.slope_length_mm;
+	if (*wavelength == 0)
+		*wavelength = t ? t->wavelength_nm : ASPH_FORM_DEFAULT_WAVELENGTH_NM;
+	if (*length == 0)
+		*length = t && !isnan(t->slope_length_mm) ? t->slope_length_mm
+							  : DEFAULT_SLOPE_LENGTH_MM;
+}
+
+/* The form quantities, slope and their uncertainties of an areal
+ * measurement. */
+static int areal_form(struct asph_fit *w, struct asph_fit_result *out,
+		      struct asph_error *err)
+{
 	_cleanup_free_ double *xy = malloc(2 * w->n * sizeof(double) + 1);
 	_cleanup_free_ double *val = malloc(w->n * sizeof(double) + 1);
-	double wavelength = w->opt.wavelength_nm, length = w->opt.slope_length_mm;
-	double a = w->model.a, noise = noise_nm(out), centre[2], disk_r;
+	double wavelength, length, a = w->model.a, noise = noise_nm(out), centre[2], disk_r;
 	size_t m;
 	int r;
 
-	asph_surface_aperture_disk(w->model.s, centre, &disk_r);
-
 	if (!xy || !val)
 		return asph_error_set(err, -ENOMEM, "out of memory");
-	if (wavelength == 0)
-		wavelength = t ? t->wavelength_nm : ASPH_FORM_DEFAULT_WAVELENGTH_NM;
-	if (length == 0)
-		length = t && !isnan(t->slope_length_mm) ? t->slope_length_mm
-							 : DEFAULT_SLOPE_LENGTH_MM;
-	asph_uncertainty_k2_clear(&out->uncertainty_k2);
+	fit_form_lengths(w, &wavelength, &length);
+	asph_surface_aperture_disk(w->model.s, centre, &disk_r);
 	m = asph_fit_residual_map(w, xy, val);
 	r = compute_form(xy, val, m, centre, disk_r, wavelength, noise, out, err);
 	if (r == 0 && out->form_valid) {
@@ -196,14 +216,32 @@ int fit_fill_form(struct asph_fit *w, struct asph_fit_result *out,
 		out->slope.length_mm = length;
 		out->slope.rms.v = out->slope.max.v = NAN;
 	}
-	if (r < 0)
-		return r;
+	return r;
+}
+
+/* R = 1/c and its deviation from the nominal, with U. */
+static void radius(const struct asph_fit *w, struct asph_fit_result *out)
+{
 	out->R_nominal_mm = w->model.c0 != 0 ? 1.0 / w->model.c0 : INFINITY;
 	out->R_deviation_mm = NAN;
 	if (w->opt.dof & ASPH_FIT_DOF_BIT(ASPH_FIT_R)) {
 		out->R_deviation_mm = out->value[ASPH_FIT_R] - out->R_nominal_mm;
 		out->uncertainty_k2.R_mm = 2 * out->uncertainty[ASPH_FIT_R];
+		out->uncertainty_k2.c_per_mm = 2 * out->u_curvature;
 	}
+}
+
+int fit_fill_form(struct asph_fit *w, struct asph_fit_result *out,
+		  struct asph_error *err)
+{
+	const struct asph_tolerance *t = w->opt.tolerance;
+	int r;
+
+	asph_uncertainty_k2_clear(&out->uncertainty_k2);
+	r = w->traces.n ? fit_profile_fill(w, out, err) : areal_form(w, out, err);
+	if (r < 0)
+		return r;
+	radius(w, out);
 	memset(&out->verdict, 0, sizeof(out->verdict));
 	if (t)
 		asph_verdict_evaluate(t, out->form_valid ? &out->form : NULL,

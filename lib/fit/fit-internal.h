@@ -15,6 +15,38 @@ struct fit_sums {
 	double jtj[ASPH_FIT_N_DOF][ASPH_FIT_N_DOF];
 };
 
+/* Runs of consecutive points on one line, while the traces are sought. */
+#define FIT_MAX_RUNS 256
+
+/* Sums over points in x-y (about a reference point): their least-squares
+ * line. */
+struct fit_line_sums {
+	double n, sx, sy, sxx, sxy, syy;
+};
+
+struct fit_trace {
+	struct fit_line_sums sums;
+	double u[2];                /* unit direction, azimuth in (-pi/2, pi/2] */
+	double azimuth, offset, length;
+	size_t n;
+};
+
+/* The line profiles the points are (n 0: they are not). */
+struct fit_traces {
+	int n;
+	int single;                 /* one trace: the fit runs in its frame */
+	double ca, sa;              /* cos, sin of that frame's azimuth; 1, 0
+				       in the machine frame */
+	double ref[2];              /* x-y origin of the sums */
+	struct fit_trace t[ASPH_FIT_MAX_PROFILES];
+};
+
+struct fit_run {
+	size_t first, n;
+	struct fit_line_sums sums;
+	int trace;
+};
+
 enum fit_phase {
 	FIT_PHASE_IDLE = 0,
 	FIT_PHASE_RUNNING,
@@ -25,7 +57,16 @@ struct asph_fit {
 	struct asph_fit_options opt;
 	struct fit_model model;
 	size_t n_max, n;
-	const double *xyz;
+	const double *xyz;          /* the points fitted (a single profile's in
+				       its trace's frame) */
+	/* The DOF asked for (opt.dof is the set fitted), and whether the
+	 * options left them to the default. */
+	unsigned dof_asked;
+	int dof_default;
+	struct fit_traces traces;
+	uint8_t *trace_of;          /* n_max: each point's trace */
+	double *xyz_frame;          /* 3 n_max when a single profile needs it */
+	struct fit_run runs[FIT_MAX_RUNS];
 
 	/* Parameters: full[] holds every DOF; the solver sees the chosen ones
 	 * in enum order. */
@@ -102,5 +143,45 @@ int fit_fill_form(struct asph_fit *w, struct asph_fit_result *out,
 
 int fit_fill_statistics(struct asph_fit *w, struct asph_fit_result *out,
 			struct asph_error *err);
+
+/* Fits only the degrees of freedom of mask (solver index -> DOF). */
+int fit_select_dof(struct asph_fit *w, unsigned mask, struct asph_error *err);
+
+/* --- Line profiles (lib/fit/fit-profile.c) ------------------------------ */
+
+/* Finds whether the points are line profiles (w->traces), chooses their
+ * DOF and, for a single profile, turns the points into its trace's frame;
+ * *pts: the points to fit. */
+int fit_profile_setup(struct asph_fit *w, const double *xyz, size_t n,
+		      const double **pts, struct asph_error *err);
+
+/* A foot (x, y) of the fit's frame in the part's, whose azimuths are the
+ * machine's. */
+void fit_frame_to_part(const struct asph_fit *w, double xy[2]);
+
+/* left[i] = resid[i] minus each trace's smooth (polynomial) fit of it,
+ * NaN for points outside; *terms: the coefficients fitted in all. */
+void fit_profile_smooth(const struct asph_fit *w, double *left, size_t *terms);
+
+/* The profiles' statistics, form quantities, slope along the traces and
+ * the machine-frame pose, after fit_fill_statistics(). */
+int fit_profile_fill(struct asph_fit *w, struct asph_fit_result *out,
+		     struct asph_error *err);
+
+/* The fitted pose in the machine frame. */
+void fit_machine_pose(const struct asph_fit *w, struct asph_pose *pose);
+
+/* The form quantities of the residual at (rho, theta) over the disk, the
+ * noise and wavelength given (fit-form.c); one_line for a profile. */
+int fit_form_quantities(const double *rho, const double *theta, const double *val,
+			size_t m, double wavelength, double noise, int one_line,
+			struct asph_fit_result *out, struct asph_error *err);
+
+/* The slope of an unavailable map: NaN values of length. */
+void fit_slope_invalid(struct asph_slope *s, double length);
+
+/* The options' wavelength and slope length, else the tolerance's, else
+ * the defaults. */
+void fit_form_lengths(const struct asph_fit *w, double *wavelength, double *length);
 
 #endif

@@ -15,15 +15,45 @@ static json_t *json_num(double v)
 	return isfinite(v) ? json_real(v) : json_null();
 }
 
-static json_t *dof_object(const struct asph_fit_result *r, const double *v)
+/* The DOF fitted, name to value; with R its curvature c beside it. */
+static json_t *dof_object(const struct asph_fit_result *r, const double *v, double c)
 {
 	json_t *o = json_object();
 
-	for (int d = 0; o && d < ASPH_FIT_N_DOF; d++)
-		if (r->dof & ASPH_FIT_DOF_BIT(d))
-			json_object_set_new(o, asph_fit_dof_name((enum asph_fit_dof)d),
-					    json_num(v[d]));
+	for (int d = 0; o && d < ASPH_FIT_N_DOF; d++) {
+		if (!(r->dof & ASPH_FIT_DOF_BIT(d)))
+			continue;
+		json_object_set_new(o, asph_fit_dof_name((enum asph_fit_dof)d), json_num(v[d]));
+		if (d == ASPH_FIT_R)
+			json_object_set_new(o, "c", json_num(c));
+	}
 	return o;
+}
+
+/* Line profiles: each trace with what the fit leaves along it. */
+static json_t *profiles_array(const struct asph_fit_result *r)
+{
+	json_t *a;
+
+	if (!r->profile)
+		return json_null();
+	a = json_array();
+	for (size_t t = 0; a && t < r->n_profiles; t++) {
+		const struct asph_fit_profile *p = &r->profiles[t];
+		json_t *o = json_object();
+		json_object_set_new(o, "azimuth_deg", json_num(p->azimuth * 180 / M_PI));
+		json_object_set_new(o, "offset_mm", json_num(p->offset_mm));
+		json_object_set_new(o, "length_mm", json_num(p->length_mm));
+		json_object_set_new(o, "n_points", json_integer((json_int_t)p->n_points));
+		json_object_set_new(o, "n_used", json_integer((json_int_t)p->n_used));
+		json_object_set_new(o, "rms_nm", json_num(p->rms.v));
+		json_object_set_new(o, "pv_nm", json_num(p->pv.v));
+		json_object_set_new(o, "slope_rms_urad", json_num(p->slope_rms.v));
+		json_object_set_new(o, "slope_max_urad", json_num(p->slope_max.v));
+		json_object_set_new(o, "n_slope_positions", json_integer((json_int_t)p->n_slope));
+		json_array_append_new(a, o);
+	}
+	return a;
 }
 
 /* A number of a result's struct, at its offset, under its key. */
@@ -75,6 +105,8 @@ static const struct number_member radius_members[] = {
 	NUMBER(struct asph_fit_result, "R_mm", value[ASPH_FIT_R]),
 	NUMBER(struct asph_fit_result, "nominal_mm", R_nominal_mm),
 	NUMBER(struct asph_fit_result, "deviation_mm", R_deviation_mm),
+	NUMBER(struct asph_fit_result, "c_per_mm", curvature),
+	NUMBER(struct asph_fit_result, "nominal_c_per_mm", curvature_nominal),
 };
 
 /* The same keys as the quantities covered (form, slope, radius). */
@@ -92,6 +124,7 @@ static const struct number_member uncertainty_members[] = {
 	NUMBER(struct asph_uncertainty_k2, "max_urad", slope_max.v),
 	NUMBER(struct asph_uncertainty_k2, "R_mm", R_mm),
 	NUMBER(struct asph_uncertainty_k2, "deviation_mm", R_mm),
+	NUMBER(struct asph_uncertainty_k2, "c_per_mm", c_per_mm),
 };
 
 static json_t *slope_object(const struct asph_slope *sl)
@@ -159,8 +192,9 @@ static json_t *result_json(const struct asph_fit_result *r, const char *lens,
 	json_object_set_new(root, "n_downweighted", json_integer((json_int_t)r->n_downweighted));
 	json_object_set_new(root, "residual", json_string(asph_fit_residual_name(r->residual)));
 	json_object_set_new(root, "robust", json_boolean(robust));
-	json_object_set_new(root, "dof", dof_object(r, r->value));
-	json_object_set_new(root, "uncertainty", dof_object(r, r->uncertainty));
+	json_object_set_new(root, "profile", json_boolean(r->profile));
+	json_object_set_new(root, "dof", dof_object(r, r->value, r->curvature));
+	json_object_set_new(root, "uncertainty", dof_object(r, r->uncertainty, r->u_curvature));
 	json_object_set_new(root, "iterations", json_integer(r->iterations));
 	json_object_set_new(root, "passes", json_integer(r->passes));
 	json_object_set_new(root, "converged", json_boolean(r->converged));
@@ -175,6 +209,7 @@ static json_t *result_json(const struct asph_fit_result *r, const char *lens,
 	json_object_set_new(root, "form", NUMBERS_OBJECT(&r->form, form_members));
 	json_object_set_new(root, "slope", slope_object(&r->slope));
 	json_object_set_new(root, "radius", radius_object(r));
+	json_object_set_new(root, "profiles", profiles_array(r));
 	json_object_set_new(root, "uncertainty_k2",
 			    NUMBERS_OBJECT(&r->uncertainty_k2, uncertainty_members));
 	json_object_set_new(root, "uncertainty_method",

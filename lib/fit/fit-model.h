@@ -27,14 +27,15 @@ struct fit_model {
 };
 
 void fit_model_init(struct fit_model *m, const struct asph_surface *s);
-void fit_model_set_conic(struct fit_model *m, double R, double k);
+/* The base conic's curvature c = 1/R (0: a plane) and conic constant. */
+void fit_model_set_conic(struct fit_model *m, double c, double k);
 
 /* d[0..2] = Z, Z', Z'' at |r| (Z' for |r|: the caller applies parity). */
 void fit_model_derivs(const struct fit_model *m, double r, double d[3]);
 
-/* dZ/dR and dZ/dk of the current conic at |r|. */
+/* dZ/dc and dZ/dk of the current conic at |r|. */
 void fit_model_conic_partials(const struct fit_model *m, double r,
-			      double *dz_dR, double *dz_dk);
+			      double *dz_dc, double *dz_dk);
 
 /* Foot of q in its meridian plane. r is the signed meridian coordinate
  * along the azimuth of q, i.e. (q_x, q_y) / rho (negative: across the

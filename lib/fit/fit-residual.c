@@ -76,6 +76,25 @@ static void uncertainties(struct asph_fit *w, struct asph_fit_result *out)
 	}
 }
 
+/* The fit varies c = 1/R: R and u(R) = u(c) / c^2 from it, both NaN when
+ * c = 0 lies within U(c) = 2 u(c) (docs/characterization.md). */
+static void radius_from_curvature(const struct asph_fit *w, struct asph_fit_result *out)
+{
+	double c = w->full[ASPH_FIT_R], uc = out->uncertainty[ASPH_FIT_R];
+
+	out->curvature_nominal = w->model.c0;
+	out->curvature = out->u_curvature = NAN;
+	out->value[ASPH_FIT_R] = 1.0 / c;
+	if (!(w->opt.dof & ASPH_FIT_DOF_BIT(ASPH_FIT_R)))
+		return;
+	out->curvature = c;
+	out->u_curvature = uc;
+	out->uncertainty[ASPH_FIT_R] = uc / (c * c);
+	/* (an unknown u(c) decides nothing: R stands) */
+	if (c == 0 || fabs(c) <= 2 * uc)
+		out->value[ASPH_FIT_R] = out->uncertainty[ASPH_FIT_R] = NAN;
+}
+
 struct field {
 	double *rho, *theta, *val, *mask;
 };
@@ -113,7 +132,12 @@ int fit_smooth_residual(struct asph_fit *w, double *left,
 	struct field f = { 0 };
 	double coef[ASPH_FIT_MAX_ZERNIKE];
 	int n_z = w->opt.n_zernike, r;
+	size_t terms;
 
+	if (w->traces.n) {
+		fit_profile_smooth(w, left, &terms);
+		return 0;
+	}
 	r = field_build(w, &f, err);
 	for (size_t i = 0; r == 0 && i < w->n; i++) {
 		int inside = w->status[i] != ASPH_FIT_POINT_OUTSIDE;
@@ -203,7 +227,9 @@ int fit_fill_statistics(struct asph_fit *w, struct asph_fit_result *out,
 	r = field_build(w, &f, err);
 	if (r == 0)
 		basic_stats(&f, w->n, out);
-	if (r == 0)
+	if (r == 0 && w->traces.n)
+		r = -EDOM;      /* on lines the Zernike terms alias: none */
+	else if (r == 0)
 		r = asph_zernike_decompose(f.rho, f.theta, f.val, f.mask, w->n,
 					   out->n_zernike, coef, err);
 	if (r == 0) {
@@ -236,6 +262,8 @@ int asph_fit_get_result(struct asph_fit *w, struct asph_fit_result *out,
 	out->converged = w->converged;
 	snprintf(out->reason, sizeof(out->reason), "%s", w->reason);
 	uncertainties(w, out);
+	radius_from_curvature(w, out);
+	fit_machine_pose(w, &out->pose);
 	int r = fit_fill_statistics(w, out, err);
 	return r < 0 ? r : fit_fill_form(w, out, err);
 }

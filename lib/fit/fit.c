@@ -154,8 +154,9 @@ static int past_aperture(const struct asph_fit *w, const double q[3], double r)
 
 	if (w->model.centred)
 		return fabs(r) > w->model.a + w->opt.aperture_tolerance;
-	return !asph_surface_contains(w->model.s, rho > 0 ? r * q[0] / rho : r,
-				      rho > 0 ? r * q[1] / rho : 0, w->opt.aperture_tolerance);
+	double xy[2] = { rho > 0 ? r * q[0] / rho : r, rho > 0 ? r * q[1] / rho : 0 };
+	fit_frame_to_part(w, xy);
+	return !asph_surface_contains(w->model.s, xy[0], xy[1], w->opt.aperture_tolerance);
 }
 
 /*
@@ -201,12 +202,13 @@ static int point_counts(const struct asph_fit *w, size_t i)
  *   d/dt  = -R v               (dq/dt = -R^T)
  *   d/drx = v_y q_z - v_z q_y  (dq/drx = -e_x x q)
  *   d/dry = -((Rx v)_x w_z - (Rx v)_z w_x)   (dq/dry = -Rx(-rx) (e_y x w))
- *   d/dR  = -vz dZ/dR,  d/dk = -vz dZ/dk     (the surface moves along z)
+ *   d/dc  = -vz dZ/dc,  d/dk = -vz dZ/dk     (the surface moves along z;
+ *                                            the R column is c's)
  */
 static void jacobian_row(const struct asph_fit *w, const struct frame *fr, size_t i,
 			 const double q[3], const double wv[3], double sw, double *row)
 {
-	double v[3], d[ASPH_FIT_N_DOF], rr, vz, dzr = 0, dzk = 0;
+	double v[3], d[ASPH_FIT_N_DOF], rr, vz, dzc = 0, dzk = 0;
 	double s = w->slope[i], rho;
 
 	rho = sqrt(q[0] * q[0] + q[1] * q[1]);
@@ -222,8 +224,8 @@ static void jacobian_row(const struct asph_fit *w, const struct frame *fr, size_
 	double mx = v[0], mz = fr->sx * v[1] + fr->cx * v[2];
 	d[ASPH_FIT_RY] = -(mx * wv[2] - mz * wv[0]);
 	if (w->opt.dof & (ASPH_FIT_DOF_BIT(ASPH_FIT_R) | ASPH_FIT_DOF_BIT(ASPH_FIT_K)))
-		fit_model_conic_partials(&w->model, rr, &dzr, &dzk);
-	d[ASPH_FIT_R] = -vz * dzr;
+		fit_model_conic_partials(&w->model, rr, &dzc, &dzk);
+	d[ASPH_FIT_R] = -vz * dzc;
 	d[ASPH_FIT_K] = -vz * dzk;
 	for (int k = 0; k < w->p; k++)
 		row[k] = sw * d[w->idx[k]];
@@ -527,6 +529,7 @@ int asph_fit_alloc(const struct asph_surface *s, size_t n_max,
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	if (opts)
 		w->opt = *opts;
+	w->dof_default = w->opt.dof == 0;
 	r = options_resolve(&w->opt, err);
 	if (r < 0)
 		return r;
@@ -550,18 +553,20 @@ int asph_fit_alloc(const struct asph_surface *s, size_t n_max,
 				      "R and k are fitted on rotationally symmetric surfaces only; "
 				      "surface type %s takes the rigid motions tx, ty, tz, rx, ry, rz",
 				      asph_surface_type_name(type));
-	if ((w->opt.dof & ASPH_FIT_DOF_BIT(ASPH_FIT_R)) && isinf(asph_surface_prescription(s)->R))
+	/* A plane base takes R (its curvature c, from 0); a conic constant
+	 * changes nothing there, whatever the curvature it starts from. */
+	if ((w->opt.dof & ASPH_FIT_DOF_BIT(ASPH_FIT_K)) && isinf(asph_surface_prescription(s)->R))
 		return asph_error_set(err, -EINVAL,
-				      "the base of this %s is a plane (curvature 0): its radius R "
-				      "cannot be fitted from infinity",
+				      "the base of this %s is a plane (curvature 0): a conic constant "
+				      "k does nothing there; fit R (the curvature c) without k",
 				      asph_surface_type_name(type));
 	if (rotational && w->opt.start.rz != 0)
 		return asph_error_set(err, -EINVAL, "fit options: a start rz on a rotationally "
 				      "symmetric surface");
 	fit_model_init(&w->model, s);
-	for (int d = 0; d < ASPH_FIT_N_DOF; d++)
-		if (w->opt.dof & ASPH_FIT_DOF_BIT(d))
-			w->idx[w->p++] = d;
+	w->dof_asked = w->opt.dof;
+	if (fit_select_dof(w, w->opt.dof, err) < 0)
+		return -ENOMEM;
 	w->n_max = n_max;
 	w->r_foot = malloc(n_max * sizeof(double) + 1);
 	w->slope = malloc(n_max * sizeof(double) + 1);
@@ -569,16 +574,15 @@ int asph_fit_alloc(const struct asph_surface *s, size_t n_max,
 	w->weight = malloc(n_max * sizeof(double) + 1);
 	w->scratch = malloc(n_max * sizeof(double) + 1);
 	w->status = calloc(n_max + 1, 1);
+	w->trace_of = malloc(n_max + 1);
 	w->left = w->opt.robust ? malloc(n_max * sizeof(double) + 1) : NULL;
 	if (!rotational) {
 		w->foot = malloc(n_max * sizeof(*w->foot) + 1);
 		if (!w->foot)
 			return asph_error_set(err, -ENOMEM, "out of memory for %zu points", n_max);
 	}
-	w->x0 = gsl_vector_alloc((size_t)w->p);
-	w->covar = gsl_matrix_alloc((size_t)w->p, (size_t)w->p);
 	if (!w->r_foot || !w->slope || !w->resid || !w->weight || !w->scratch ||
-	    !w->status || !w->x0 || !w->covar || (w->opt.robust && !w->left))
+	    !w->status || !w->trace_of || (w->opt.robust && !w->left))
 		return asph_error_set(err, -ENOMEM, "out of memory for %zu points", n_max);
 	*out = steal_ptr(w);
 	return 0;
@@ -600,7 +604,29 @@ void asph_fit_free(struct asph_fit *w)
 	free(w->left);
 	free(w->foot);
 	free(w->status);
+	free(w->trace_of);
+	free(w->xyz_frame);
 	free(w);
+}
+
+int fit_select_dof(struct asph_fit *w, unsigned mask, struct asph_error *err)
+{
+	int p = 0;
+
+	for (int d = 0; d < ASPH_FIT_N_DOF; d++)
+		if (mask & ASPH_FIT_DOF_BIT(d))
+			w->idx[p++] = d;
+	w->opt.dof = mask;
+	w->p = p;
+	if (w->x0 && w->x0->size == (size_t)p)
+		return 0;
+	gsl_vector_free(w->x0);
+	gsl_matrix_free(w->covar);
+	w->x0 = gsl_vector_alloc((size_t)p);
+	w->covar = gsl_matrix_alloc((size_t)p, (size_t)p);
+	if (!w->x0 || !w->covar)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	return 0;
 }
 
 /* --- Input checks ------------------------------------------------------- */
@@ -608,39 +634,34 @@ void asph_fit_free(struct asph_fit *w)
 static int check_points(const struct asph_fit *w, const double *xyz, size_t n,
 			struct asph_error *err)
 {
-	double mx = 0, my = 0, sxx = 0, syy = 0, sxy = 0, tr, det, lmin;
-
 	if (n > w->n_max)
 		return asph_error_set(err, -EINVAL, "%zu points, workspace holds %zu", n, w->n_max);
-	if (n < (size_t)w->p + 1)
-		return asph_error_set(err, -EINVAL,
-				      "%zu points cannot determine %d degrees of freedom (need at least %d)",
-				      n, w->p, w->p + 1);
+	if (n == 0)
+		return asph_error_set(err, -EINVAL, "no points to fit");
 	for (size_t i = 0; i < 3 * n; i++)
 		if (!isfinite(xyz[i]))
 			return asph_error_set(err, -EINVAL, "point %zu: coordinate %c is not finite",
 					      i / 3 + 1, "xyz"[i % 3]);
-	for (size_t i = 0; i < n; i++) {
-		mx += xyz[3 * i];
-		my += xyz[3 * i + 1];
-	}
-	mx /= (double)n;
-	my /= (double)n;
-	for (size_t i = 0; i < n; i++) {
-		double dx = xyz[3 * i] - mx, dy = xyz[3 * i + 1] - my;
-		sxx += dx * dx;
-		syy += dy * dy;
-		sxy += dx * dy;
-	}
-	/* Smallest eigenvalue of the x-y scatter: zero for points on a line. */
-	tr = sxx + syy;
-	det = sxx * syy - sxy * sxy;
-	lmin = 0.5 * tr - sqrt(fmax(0.25 * tr * tr - det, 0));
-	if (!(tr > 0) || lmin <= 1e-12 * tr)
-		return asph_error_set(err, -EINVAL,
-				      "the %zu points lie on one line (or at one place) in x-y: no surface to fit",
-				      n);
 	return 0;
+}
+
+/* Enough points for the DOF fitted. */
+static int check_count(const struct asph_fit *w, size_t n, struct asph_error *err)
+{
+	char names[64] = "";
+
+	if (n >= (size_t)w->p + 1)
+		return 0;
+	if (!w->traces.n)
+		return asph_error_set(err, -EINVAL,
+				      "%zu points cannot determine %d degrees of freedom (need at least %d)",
+				      n, w->p, w->p + 1);
+	for (int k = 0; k < w->p; k++)
+		snprintf(names + strlen(names), sizeof(names) - strlen(names), "%s%s", k ? ", " : "",
+			 asph_fit_dof_name((enum asph_fit_dof)w->idx[k]));
+	return asph_error_set(err, -EINVAL,
+			      "a line profile of %zu points cannot determine %d degrees of freedom "
+			      "(%s): it needs at least %d", n, w->p, names, w->p + 1);
 }
 
 /* --- Passes ------------------------------------------------------------- */
@@ -727,7 +748,7 @@ static int solver_setup(struct asph_fit *w, size_t n, struct asph_error *err)
 {
 	gsl_multilarge_nlinear_parameters par = gsl_multilarge_nlinear_default_parameters();
 
-	if (w->solver && w->solver->n == n)
+	if (w->solver && w->solver->n == n && w->solver->p == (size_t)w->p)
 		return 0;
 	if (w->solver)
 		gsl_multilarge_nlinear_free(w->solver);
@@ -748,22 +769,28 @@ int asph_fit_init(struct asph_fit *w, const double *xyz, size_t n,
 		  struct asph_error *err)
 {
 	const struct asph_prescription *pr = asph_surface_prescription(w->model.s);
+	const double *pts = xyz;
 	int r = check_points(w, xyz, n, err);
 
+	w->phase = FIT_PHASE_IDLE;
+	if (r == 0)
+		r = fit_profile_setup(w, xyz, n, &pts, err);
+	if (r == 0)
+		r = check_count(w, n, err);
+	if (r == 0)
+		r = solver_setup(w, n, err);
 	if (r < 0)
 		return r;
-	r = solver_setup(w, n, err);
-	if (r < 0)
-		return r;
-	w->xyz = xyz;
+	w->xyz = pts;
 	w->n = n;
 	memcpy(w->full, w->opt.start.t, 3 * sizeof(double));
 	w->full[ASPH_FIT_RX] = w->opt.start.rx;
 	w->full[ASPH_FIT_RY] = w->opt.start.ry;
 	w->full[ASPH_FIT_RZ] = w->opt.start.rz;
-	w->full[ASPH_FIT_R] = pr->R;
+	/* the fit varies the curvature c = 1/R (0 for a plane base) */
+	w->full[ASPH_FIT_R] = w->model.c0;
 	w->full[ASPH_FIT_K] = pr->k;
-	fit_model_set_conic(&w->model, pr->R, pr->k);
+	fit_model_set_conic(&w->model, w->model.c0, pr->k);
 	for (size_t i = 0; i < n && w->foot; i++)
 		w->foot[i] = FIT_NO_POINT;
 	for (size_t i = 0; i < n; i++) {
@@ -970,6 +997,7 @@ void asph_fit_get_progress(const struct asph_fit *w,
 	}
 	out->rms_mm = rms;
 	memcpy(out->value, w->full, sizeof(out->value));
+	out->value[ASPH_FIT_R] = 1.0 / w->full[ASPH_FIT_R];
 }
 
 int asph_fit_run(struct asph_fit *w, const double *xyz, size_t n,

@@ -15,6 +15,7 @@
 
 #define N_TILT 3
 #define N_SPH 4
+#define TERM_V 2
 #define MAX_TERMS (N_SPH + ASPH_FORM_MAX_RSI_ORDER / 2 - 1)
 /* Below this reciprocal condition number a fit is not determined. */
 #define MIN_RCOND 1e-12
@@ -39,6 +40,7 @@ void asph_uncertainty_k2_clear(struct asph_uncertainty_k2 *u)
 	u->rms_t.v = u->rms_i.v = u->rms_a.v = NAN;
 	u->slope_rms.v = u->slope_max.v = NAN;
 	u->R_mm = NAN;
+	u->c_per_mm = NAN;
 }
 
 /*
@@ -64,33 +66,46 @@ static void basis_row(double rho, double theta, int n_terms, double *row)
 }
 
 struct fit {
-	int p;
+	int p;                      /* basis terms */
+	int m;                      /* of them fitted (all but v on one line) */
+	int idx[MAX_TERMS];         /* fitted term -> basis term */
 	gsl_matrix_view L;          /* Cholesky factor of the normal matrix */
 	double store[MAX_TERMS * MAX_TERMS];
-	double coef[MAX_TERMS];
+	double coef[MAX_TERMS];     /* per basis term; 0 for one not fitted */
 };
 
-/* The fit over the first p basis terms from the full normal equations. */
+/* The fit over the first p basis terms (without v when one_line) from
+ * the full normal equations. */
 static int fit_solve(struct fit *f, int p, const double *M, int ld,
-		     const double *b, struct asph_error *err)
+		     const double *b, int one_line, struct asph_error *err)
 {
-	gsl_vector_const_view bv = gsl_vector_const_view_array(b, (size_t)p);
-	gsl_vector_view c = gsl_vector_view_array(f->coef, (size_t)p);
-	double rcond = 0, work[3 * MAX_TERMS];
-	gsl_vector_view wv = gsl_vector_view_array(work, 3 * (size_t)p);
+	double rcond = 0, work[3 * MAX_TERMS], br[MAX_TERMS], x[MAX_TERMS];
+	gsl_vector_view wv, bv, xv;
 
 	f->p = p;
+	f->m = 0;
 	for (int i = 0; i < p; i++)
-		for (int j = 0; j < p; j++)
-			f->store[i * p + j] = M[i * ld + j];
-	f->L = gsl_matrix_view_array(f->store, (size_t)p, (size_t)p);
+		if (!(one_line && i == TERM_V))
+			f->idx[f->m++] = i;
+	for (int i = 0; i < f->m; i++) {
+		br[i] = b[f->idx[i]];
+		for (int j = 0; j < f->m; j++)
+			f->store[i * f->m + j] = M[f->idx[i] * ld + f->idx[j]];
+	}
+	wv = gsl_vector_view_array(work, 3 * (size_t)f->m);
+	bv = gsl_vector_view_array(br, (size_t)f->m);
+	xv = gsl_vector_view_array(x, (size_t)f->m);
+	f->L = gsl_matrix_view_array(f->store, (size_t)f->m, (size_t)f->m);
 	if (gsl_linalg_cholesky_decomp1(&f->L.matrix) != GSL_SUCCESS ||
 	    gsl_linalg_cholesky_rcond(&f->L.matrix, &rcond, &wv.vector) != GSL_SUCCESS ||
 	    !(rcond > MIN_RCOND))
 		return asph_error_set(err, -EDOM,
 				      "the points do not determine a fit of %d terms "
-				      "(too few, or at too few radii)", p);
-	gsl_linalg_cholesky_solve(&f->L.matrix, &bv.vector, &c.vector);
+				      "(too few, or at too few radii)", f->m);
+	gsl_linalg_cholesky_solve(&f->L.matrix, &bv.vector, &xv.vector);
+	memset(f->coef, 0, sizeof(f->coef));
+	for (int i = 0; i < f->m; i++)
+		f->coef[f->idx[i]] = x[i];
 	return 0;
 }
 
@@ -103,16 +118,18 @@ static double fit_value(const struct fit *f, const double *row)
 	return v;
 }
 
-/* g^T M^-1 g for the fit's normal matrix M. */
+/* g^T M^-1 g for the fit's normal matrix M (g over the basis terms). */
 static double fit_quadratic(const struct fit *f, const double *g)
 {
-	double x[MAX_TERMS], q = 0;
-	gsl_vector_const_view gv = gsl_vector_const_view_array(g, (size_t)f->p);
-	gsl_vector_view xv = gsl_vector_view_array(x, (size_t)f->p);
+	double x[MAX_TERMS], gr[MAX_TERMS], q = 0;
+	gsl_vector_view gv = gsl_vector_view_array(gr, (size_t)f->m);
+	gsl_vector_view xv = gsl_vector_view_array(x, (size_t)f->m);
 
+	for (int i = 0; i < f->m; i++)
+		gr[i] = g[f->idx[i]];
 	gsl_linalg_cholesky_solve(&f->L.matrix, &gv.vector, &xv.vector);
-	for (int i = 0; i < f->p; i++)
-		q += g[i] * x[i];
+	for (int i = 0; i < f->m; i++)
+		q += gr[i] * x[i];
 	return q;
 }
 
@@ -256,9 +273,9 @@ int asph_form_compute(const double *rho, const double *theta,
 	for (int j = 0; j < p; j++)
 		for (int k = j + 1; k < p; k++)
 			M[j * p + k] = M[k * p + j];
-	if ((r = fit_solve(&f[0], N_TILT, M, p, b, err)) < 0 ||
-	    (r = fit_solve(&f[1], N_SPH, M, p, b, err)) < 0 ||
-	    (r = fit_solve(&f[2], p, M, p, b, err)) < 0)
+	if ((r = fit_solve(&f[0], N_TILT, M, p, b, o.one_line, err)) < 0 ||
+	    (r = fit_solve(&f[1], N_SPH, M, p, b, o.one_line, err)) < 0 ||
+	    (r = fit_solve(&f[2], p, M, p, b, o.one_line, err)) < 0)
 		return r;
 	residual_pass(rho, theta, value_nm, n, f, &s);
 
@@ -276,5 +293,12 @@ int asph_form_compute(const double *rho, const double *theta,
 	out->rms_a.v = sqrt(s.a2 / (double)n);
 	if (u && o.noise_nm >= 0 && isfinite(o.noise_nm))
 		propagate(rho, theta, n, f, &s, o.noise_nm, fringe, u);
+	if (o.one_line) {
+		/* one diameter cannot tell the rotationally symmetric part
+		 * from the even azimuthal terms (astigmatism, ...) */
+		out->C.v = out->C_fringes = out->rms_a.v = NAN;
+		if (u && u->method == ASPH_UNCERTAINTY_COVARIANCE)
+			u->C.v = u->C_fringes = u->rms_a.v = NAN;
+	}
 	return 0;
 }

@@ -21,6 +21,9 @@ int asph_plan_to_json(const struct asph_plan *p, char **out)
 			  "spacing_mm", p->spacing_mm,
 			  "points", (json_int_t)p->n);
 
+	if (j && p->method == ASPH_PLAN_PROFILES &&
+	    json_object_set_new(j, "profiles", json_integer(p->profiles)) < 0)
+		return -ENOMEM;
 	*out = j ? json_dumps(j, JSON_COMPACT | JSON_REAL_PRECISION(17)) : NULL;
 	return *out ? 0 : -ENOMEM;
 }
@@ -74,6 +77,15 @@ int asph_plan_info_from_json(const char *text, size_t len, const char *source,
 	int r = density_of(root, source, &out->density, err);
 	if (r < 0)
 		return r;
+	v = json_object_get(root, "profiles");
+	if (out->method == ASPH_PLAN_PROFILES)
+		out->profiles = v ? (unsigned)json_integer_value(v) : 1;
+	if ((v && out->method != ASPH_PLAN_PROFILES) ||
+	    (v && (!json_is_integer(v) || json_integer_value(v) < 1 ||
+		   json_integer_value(v) > ASPH_PLAN_MAX_PROFILES)))
+		return asph_error_set_at(err, -EINVAL, source, 0, 0, "plan.profiles",
+					 "profiles is a whole number 1..%d of the profiles method",
+					 ASPH_PLAN_MAX_PROFILES);
 	v = json_object_get(root, "spacing_mm");
 	out->spacing_mm = json_is_number(v) ? json_number_value(v) : NAN;
 	v = json_object_get(root, "points");

@@ -14,6 +14,7 @@
 #include "plan-cvt.h"
 #include "plan-freeform.h"
 #include "plan-patterns.h"
+#include "plan-profiles.h"
 #include "util-mem.h"
 #include "util-suggest.h"
 
@@ -226,8 +227,23 @@ static double pitch_for_points(const struct asph_surface *s,
 	return p;
 }
 
+/* The options' profiles: the profiles method's count (0: one), 0 for the
+ * others. */
+static int profiles_of(enum asph_plan_method m, const struct asph_plan_options *o,
+		       unsigned *profiles, struct asph_error *err)
+{
+	unsigned n = o ? o->profiles : 0;
+
+	if (m != ASPH_PLAN_PROFILES && n)
+		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, "profiles",
+					 "a count of profiles is for the profiles method, not %s",
+					 asph_plan_method_name(m));
+	*profiles = m == ASPH_PLAN_PROFILES && n == 0 ? 1 : n;
+	return 0;
+}
+
 static int resolve(const struct asph_surface *s, enum asph_plan_method m,
-		   struct asph_plan_density d, struct plan_size *out,
+		   struct asph_plan_density d, unsigned profiles, struct plan_size *out,
 		   struct asph_error *err)
 {
 	const char *field = density_field(d.kind);
@@ -244,6 +260,8 @@ static int resolve(const struct asph_surface *s, enum asph_plan_method m,
 	if (!isfinite(d.value) || d.value <= 0)
 		return asph_error_set_at(err, -EINVAL, NULL, 0, 0, field,
 					 "must be positive and finite (got %g)", d.value);
+	if (m == ASPH_PLAN_PROFILES)
+		return plan_profiles_resolve(s, d, profiles, &out->e, &out->p, &out->n, err);
 	ratio = pitch_per_spacing(s, m);
 	switch (d.kind) {
 	case ASPH_DENSITY_H:
@@ -280,9 +298,20 @@ int asph_plan_resolve(const struct asph_surface *s, enum asph_plan_method m,
 		      struct asph_plan_density density, double *spacing_mm,
 		      size_t *n_points, struct asph_error *err)
 {
-	_cleanup_(plan_size_clear) struct plan_size sz = { 0 };
-	int r = resolve(s, m, density, &sz, err);
+	return asph_plan_resolve_opts(s, m, density, NULL, spacing_mm, n_points, err);
+}
 
+int asph_plan_resolve_opts(const struct asph_surface *s, enum asph_plan_method m,
+			   struct asph_plan_density density,
+			   const struct asph_plan_options *opts, double *spacing_mm,
+			   size_t *n_points, struct asph_error *err)
+{
+	_cleanup_(plan_size_clear) struct plan_size sz = { 0 };
+	unsigned profiles = 0;
+	int r = profiles_of(m, opts, &profiles, err);
+
+	if (r == 0)
+		r = resolve(s, m, density, profiles, &sz, err);
 	if (r < 0)
 		return r;
 	if (spacing_mm)
@@ -606,8 +635,11 @@ int asph_plan_compute_opts(const struct asph_surface *s,
 	const struct asph_progress *progress = opts ? &opts->progress : NULL;
 	_cleanup_(asph_plan_freep) struct asph_plan *plan = NULL;
 	_cleanup_(plan_size_clear) struct plan_size sz = { 0 };
-	int r = resolve(s, m, density, &sz, err);
+	unsigned profiles = 0;
+	int r = profiles_of(m, opts, &profiles, err);
 
+	if (r == 0)
+		r = resolve(s, m, density, profiles, &sz, err);
 	if (r < 0)
 		return r;
 	if (max_points && sz.n > max_points)
@@ -620,6 +652,7 @@ int asph_plan_compute_opts(const struct asph_surface *s,
 	plan->method = m;
 	plan->density = density;
 	plan->spacing_mm = sz.e;
+	plan->profiles = profiles;
 	r = compute_points(s, plan, &sz, flags, progress, err);
 	if (r < 0)
 		return r;
@@ -637,6 +670,17 @@ int asph_plan_compute(const struct asph_surface *s, enum asph_plan_method m,
 }
 
 /* ---- the methods ---------------------------------------------------------- */
+
+/* The profiles plan: its count is resolve()'s (plan_profiles_resolve()),
+ * for plan->profiles profiles. */
+static int profiles_fill(const struct asph_surface *s, double a, double p,
+			 struct asph_plan *plan, struct asph_error *err)
+{
+	plan->xyz = malloc(3 * plan->n * sizeof(*plan->xyz));
+	if (!plan->xyz || plan_profiles_fill(a, p, plan->profiles, plan->xyz) < 0)
+		return asph_error_set(err, -ENOMEM, "out of memory (%zu points)", plan->n);
+	return 0;
+}
 
 /* CI: the involute's own count, asph/involute.h. */
 static size_t ci_count(const struct asph_surface *s, double a, double p)
@@ -792,6 +836,12 @@ static const struct plan_method methods[ASPH_PLAN_N_METHODS] = {
 	[ASPH_PLAN_CVT] = {
 		.name = "cvt", .title = "centroidal Voronoi tessellation", .pattern = &plan_disk_grid,
 		.fill = cvt_fill, .lift = lift_ot, .settle = cvt_settle, .freeform = &cvt_freeform,
+	},
+	/* lines through the apex, not a pattern over the area: resolve()
+	 * counts them (plan-profiles.c); rotationally symmetric parts only */
+	[ASPH_PLAN_PROFILES] = {
+		.name = "profiles", .title = "line profiles through the apex",
+		.pattern = &plan_profile_lines, .fill = profiles_fill, .lift = lift_projected,
 	},
 };
 

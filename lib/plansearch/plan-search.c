@@ -170,8 +170,9 @@ static void defaults(struct asph_plan_search_options *o)
 {
 	if (o->capability == 0)
 		o->capability = ASPH_PLAN_SEARCH_DEFAULT_CAPABILITY;
+	/* line profiles do not cover the area an areal tolerance limits */
 	if (o->methods == 0)
-		o->methods = (1u << ASPH_PLAN_N_METHODS) - 1;
+		o->methods = ((1u << ASPH_PLAN_N_METHODS) - 1) & ~(1u << ASPH_PLAN_PROFILES);
 	if (o->max_points == 0)
 		o->max_points = ASPH_PLAN_SEARCH_DEFAULT_MAX_POINTS;
 	if (o->min_points == 0) {

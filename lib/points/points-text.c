@@ -12,6 +12,7 @@
 
 #include "readers.h"
 #include "util-mem.h"
+#include "util-number.h"
 
 #define BLANK_SEP ' '
 
@@ -121,6 +122,10 @@ static int parse_number(const char *s, size_t n, bool decimal_comma, double *v)
 
 	if (n == 0 || n >= sizeof(tmp))
 		return -EINVAL;
+	/* the common case without a copy or the locale; the rest (blanks
+	 * before it, a decimal comma) as strtod() reads it */
+	if (parse_double(s, n, v) == n)
+		return 0;
 	memcpy(tmp, s, n);
 	tmp[n] = '\0';
 	if (decimal_comma) {
@@ -224,7 +229,9 @@ static int try_header(const struct text_line *l, struct text_layout *t, struct a
 	if (r < 0)
 		return r;
 	t->count = col;
-	return t->col[0] >= 0 && t->col[1] >= 0 && t->col[2] >= 0;
+	/* x and z without y: a line profile along x, as a tactile
+	 * profilometer exports one (y = 0) */
+	return t->col[0] >= 0 && t->col[2] >= 0;
 }
 
 /* The fields of a row as numbers into v (count of them): the number of
@@ -260,6 +267,7 @@ static int header_row(const struct text_line *l, const struct text_layout *t, do
 	struct field f = { .next = 0 };
 	int col = 0, r;
 
+	xyz[1] = 0;     /* a profile's, whose header names no y */
 	for (; col < t->count; col++) {
 		r = next_field(l, t->sep, f.next, &f, err);
 		if (r < 0)
@@ -392,7 +400,7 @@ static int check_unnamed_header(const struct text_line *prev, const struct text_
 	    !memchr(prev->s, sep, prev->len) || field_count(prev, sep) != field_count(row, sep))
 		return 0;
 	return asph_error_set_at(err, -EINVAL, prev->source, prev->no, 1, NULL,
-				 "text: the header '%.*s' does not name the columns x, y, z (a header names them x, y, z, with units as in 'z [um]')",
+				 "text: the header '%.*s' does not name the columns x, y, z (a header names them x, y, z, or x and z for a profile along x, with units as in 'z [um]')",
 				 (int)(prev->len > 80 ? 80 : prev->len), prev->s);
 }
 

@@ -16,6 +16,7 @@
 #include "readers.h"
 #include "fileio.h"
 #include "util-mem.h"
+#include "util-number.h"
 
 
 
@@ -226,17 +227,12 @@ static int ply_next(struct ply_cursor *c, double *v)
 	ply_skip_space(c);
 	if (c->pos >= c->len)
 		return -ENODATA;
-	char tmp[64], *stop;
 	size_t e = c->pos;
 	while (e < c->len && !strchr(" \t\r\n", c->text[e]))
 		e++;
 	/* strchr() finds the NUL too: a NUL byte is an empty token here. */
-	if (e == c->pos || e - c->pos >= sizeof(tmp))
-		return -EINVAL;
-	memcpy(tmp, c->text + c->pos, e - c->pos);
-	tmp[e - c->pos] = '\0';
-	*v = strtod(tmp, &stop);
-	if (*stop)
+	if (e == c->pos || e - c->pos >= 64 ||
+	    parse_double(c->text + c->pos, e - c->pos, v) != e - c->pos)
 		return -EINVAL;
 	c->pos = e;
 	return 0;

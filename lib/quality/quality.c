@@ -4,6 +4,9 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include <gsl/gsl_statistics_double.h>
+
+
 #include "asph/delaunay.h"
 #include "asph/lb.h"
 #include "asph/quality.h"
@@ -49,21 +52,18 @@ double asph_quality_triangle_q(const double a[3], const double b[3],
 	return 4 * sqrt(3.0) * triangle_area(a, b, c) / sum;
 }
 
-static int cmp_double(const void *a, const void *b)
-{
-	double x = *(const double *)a, y = *(const double *)b;
-
-	return (x > y) - (x < y);
-}
-
-static double percentile(const double *sorted, size_t n, double p)
+/* The p-quantile by linear interpolation between order statistics (R's
+ * type 7), each selected in linear time rather than sorted for. */
+static double percentile(double *v, size_t n, double p)
 {
 	double pos = p * (double)(n - 1);
 	size_t i = (size_t)floor(pos);
+	double lo;
 
 	if (i + 1 >= n)
-		return sorted[n - 1];
-	return sorted[i] + (pos - (double)i) * (sorted[i + 1] - sorted[i]);
+		return gsl_stats_select(v, 1, n, n - 1);
+	lo = gsl_stats_select(v, 1, n, i);
+	return lo + (pos - (double)i) * (gsl_stats_select(v, 1, n, i + 1) - lo);
 }
 
 int asph_quality_summarize(const double *v, size_t n,
@@ -77,26 +77,22 @@ int asph_quality_summarize(const double *v, size_t n,
 		return asph_error_set(err, -EINVAL, "no values to summarize");
 	s = malloc(n * sizeof(double));
 	if (!s)
-		return asph_error_set(err, -ENOMEM, "out of memory sorting %zu values", n);
+		return asph_error_set(err, -ENOMEM, "out of memory for %zu values", n);
 	for (size_t i = 0; i < n; i++) {
 		if (isnan(v[i]))
 			return asph_error_set(err, -EINVAL, "value %zu is not a number", i);
 		s[i] = v[i];
 		sum += v[i];
 	}
-	qsort(s, n, sizeof(double), cmp_double);
 	mean = sum / (double)n;
 	for (size_t i = 0; i < n; i++)
 		ss += (v[i] - mean) * (v[i] - mean);
-	*out = (struct asph_quality_stats){
-		.min = s[0],
-		.p25 = percentile(s, n, 0.25),
-		.median = percentile(s, n, 0.5),
-		.p75 = percentile(s, n, 0.75),
-		.max = s[n - 1],
-		.mean = mean,
-		.std = n > 1 ? sqrt(ss / (double)(n - 1)) : 0,
-	};
+	*out = (struct asph_quality_stats){ .mean = mean,
+					    .std = n > 1 ? sqrt(ss / (double)(n - 1)) : 0 };
+	gsl_stats_minmax(&out->min, &out->max, s, 1, n);
+	out->p25 = percentile(s, n, 0.25);
+	out->median = percentile(s, n, 0.5);
+	out->p75 = percentile(s, n, 0.75);
 	return 0;
 }
 

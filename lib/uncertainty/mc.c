@@ -50,6 +50,9 @@ void mc_quantities(const struct asph_fit_result *r, double q[ASPH_MC_N_QUANTITIE
 	for (int d = 0; d < ASPH_FIT_N_DOF; d++)
 		if (r->dof & ASPH_FIT_DOF_BIT(d))
 			q[d] = r->value[d];
+	/* the curvature: defined on a flat too, where R is not */
+	if (r->dof & ASPH_FIT_DOF_BIT(ASPH_FIT_R))
+		q[ASPH_FIT_R] = r->curvature;
 	q[ASPH_MC_RMS] = r->rms.v;
 	q[ASPH_MC_PV] = r->pv.v;
 	q[ASPH_MC_PVR] = r->n_zernike > 0 ? r->pvr.v : NAN;
@@ -283,7 +286,8 @@ int asph_mc_alloc(const struct asph_surface *s, const double *xyz, size_t n,
 	/* the trials' fits run on the runner's workers: the caller hears of
 	 * trials, not of their steps */
 	mc->fit_opts.progress = (struct asph_progress){ 0 };
-	/* every trial starts where the measurement's fit ended */
+	/* every trial starts where the measurement's fit ended (a single
+	 * profile's pose is its trace frame's, as the trials' fits run) */
 	mc->fit_opts.start = (struct asph_pose){
 		{ ref->value[ASPH_FIT_TX], ref->value[ASPH_FIT_TY], ref->value[ASPH_FIT_TZ] },
 		ref->value[ASPH_FIT_RX], ref->value[ASPH_FIT_RY],
@@ -300,7 +304,7 @@ int asph_mc_alloc(const struct asph_surface *s, const double *xyz, size_t n,
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	memcpy(mc->truth, xyz, 3 * n * sizeof(double));
 	scan_directions(mc);
-	normals(mc, &mc->fit_opts.start);
+	normals(mc, &ref->pose);
 	*out = steal_ptr(mc);
 	return 0;
 }

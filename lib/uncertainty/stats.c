@@ -15,7 +15,7 @@
 
 static const char *const quantity_keys[ASPH_MC_N_QUANTITIES] = {
 	[ASPH_FIT_TX] = "tx", [ASPH_FIT_TY] = "ty", [ASPH_FIT_TZ] = "tz",
-	[ASPH_FIT_RX] = "rx", [ASPH_FIT_RY] = "ry", [ASPH_FIT_R] = "R_mm",
+	[ASPH_FIT_RX] = "rx", [ASPH_FIT_RY] = "ry", [ASPH_FIT_R] = "c_per_mm",
 	[ASPH_FIT_K] = "k", [ASPH_FIT_RZ] = "rz",
 	[ASPH_MC_RMS] = "rms_nm", [ASPH_MC_PV] = "pv_nm", [ASPH_MC_PVR] = "pvr_nm",
 	[ASPH_MC_A] = "A_nm", [ASPH_MC_B] = "B_nm", [ASPH_MC_C] = "C_nm",
@@ -144,6 +144,26 @@ void mc_summarize(const double *values, size_t n, const int *covered,
 	}
 }
 
+/* U(R) = U(c) / c^2 from the trials' curvature; R, its deviation and U
+ * none when c = 0 lies within U(c), as the fit decides it with its own
+ * U(c). */
+static void mc_apply_radius(const struct asph_mc_result *mc, struct asph_fit_result *fit)
+{
+	double c = fit->curvature, Uc = mc->U[ASPH_FIT_R];
+	struct asph_uncertainty_k2 *u = &fit->uncertainty_k2;
+
+	if (!mc->covered[ASPH_FIT_R])
+		return;
+	u->c_per_mm = Uc;
+	if (c == 0 || fabs(c) <= Uc) {
+		fit->value[ASPH_FIT_R] = fit->R_deviation_mm = NAN;
+		return;
+	}
+	fit->value[ASPH_FIT_R] = 1.0 / c;
+	fit->R_deviation_mm = fit->value[ASPH_FIT_R] - fit->R_nominal_mm;
+	u->R_mm = Uc / (c * c);
+}
+
 void asph_mc_apply(const struct asph_mc_result *mc,
 		   const struct asph_tolerance *t,
 		   struct asph_fit_result *fit)
@@ -164,7 +184,7 @@ void asph_mc_apply(const struct asph_mc_result *mc,
 	u->rms_a.v = mc->U[ASPH_MC_RMS_A];
 	u->slope_rms.v = mc->U[ASPH_MC_SLOPE_RMS];
 	u->slope_max.v = mc->U[ASPH_MC_SLOPE_MAX];
-	u->R_mm = mc->U[ASPH_FIT_R];
+	mc_apply_radius(mc, fit);
 	if (t && fit->verdict.present)
 		asph_verdict_evaluate(t, fit->form_valid ? &fit->form : NULL,
 				      fit->slope_valid ? &fit->slope : NULL, fit->R_deviation_mm,
@@ -193,8 +213,13 @@ static json_t *quantity_object(const struct asph_mc_result *mc, const double *x,
 		if (mc->covered[fringe_of[i]])
 			json_object_set_new(o, fringe_key[i],
 					    json_num(x[fringe_of[i]] * 2.0 / wavelength_nm));
-	if (o && mc->covered[ASPH_FIT_R])
-		json_object_set_new(o, "deviation_mm", json_num(x[ASPH_FIT_R]));
+	/* R from the curvature c the trials vary: U(R) = U(c) / c^2 */
+	double c = mc->value[ASPH_FIT_R];
+	if (o && mc->covered[ASPH_FIT_R]) {
+		double uR = c == 0 || fabs(c) <= mc->U[ASPH_FIT_R] ? NAN : x[ASPH_FIT_R] / (c * c);
+		json_object_set_new(o, "R_mm", json_num(uR));
+		json_object_set_new(o, "deviation_mm", json_num(uR));
+	}
 	return o;
 }
 

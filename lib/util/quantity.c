@@ -8,7 +8,8 @@
 /*
  * nm to 0.01 nm and urad to 0.01 urad: well below any probe's noise, and
  * what the tolerances are written in. Fringes to 1e-4 (0.03 nm of 546 nm
- * light). The pose in um and urad to 1e-4 (0.1 nm, 0.1 nrad), R to 1 nm.
+ * light). The pose in um and urad to 1e-4 (0.1 nm, 0.1 nrad), R to 1 nm,
+ * the curvature c to six significant digits (it may be 0 or 1e-9 /mm).
  */
 static const struct quantity quantities[] = {
 	/* path, uncertainty key, verdict item, label, unit, scale, decimals, sign,
@@ -20,6 +21,7 @@ static const struct quantity quantities[] = {
 	{ "dof.ry", "ry", NULL, "ry", "urad", 1e6, 4, true, false },
 	{ "dof.rz", "rz", NULL, "rz", "urad", 1e6, 4, true, false },
 	{ "dof.R", "R_mm", NULL, "R", "mm", 1, 6, false, false },
+	{ "dof.c", "c_per_mm", NULL, "c", "1/mm", 1, -1, true, false },
 	{ "dof.k", "k", NULL, "k", "", 1, 6, false, false },
 	{ "sigma_nm", NULL, NULL, "sigma", "nm", 1, 2, false, false },
 	{ "rms_nm", "rms_nm", NULL, "RMS", "nm", 1, 2, false, false },
@@ -50,6 +52,16 @@ static const struct quantity quantities[] = {
 	{ "radius.nominal_mm", NULL, NULL, "R nominal", "mm", 1, 6, false, false },
 	{ "radius.deviation_mm", "deviation_mm", "R_deviation_mm", "R - R nominal", "mm", 1, 6,
 	  true, true },
+	{ "radius.c_per_mm", NULL, NULL, "c", "1/mm", 1, -1, true, false },
+	{ "radius.nominal_c_per_mm", NULL, NULL, "c nominal", "1/mm", 1, -1, true, false },
+	/* each trace of line profiles (an array of them in the summary) */
+	{ "profiles.azimuth_deg", NULL, NULL, "azimuth", "deg", 1, 2, true, false },
+	{ "profiles.offset_mm", NULL, NULL, "offset", "mm", 1, 4, true, false },
+	{ "profiles.length_mm", NULL, NULL, "length", "mm", 1, 3, false, false },
+	{ "profiles.rms_nm", NULL, NULL, "RMS", "nm", 1, 2, false, false },
+	{ "profiles.pv_nm", NULL, NULL, "PV", "nm", 1, 2, false, false },
+	{ "profiles.slope_rms_urad", NULL, NULL, "slope RMS", "urad", 1, 2, false, false },
+	{ "profiles.slope_max_urad", NULL, NULL, "slope max", "urad", 1, 2, false, false },
 	{ "band_rms.form_nm", NULL, NULL, "form", "nm", 1, 2, false, false },
 	{ "band_rms.mid_nm", NULL, NULL, "mid", "nm", 1, 2, false, false },
 	{ "band_rms.high_nm", NULL, NULL, "high", "nm", 1, 2, false, false },

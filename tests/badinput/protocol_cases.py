@@ -247,6 +247,8 @@ PARAM_TYPES = [
      ["plan", "spacing"], "number"),
     ("job.submit", copy_set(SUBMIT, ["plan"], {"method": "fermat", "points": 61}),
      ["plan", "points"], "number"),
+    ("job.submit", copy_set(SUBMIT, ["plan"], {"method": "profiles", "h": 0.05, "profiles": 2}),
+     ["plan", "profiles"], "int"),
     ("job.submit", None, ["fit"], "object"), ("job.submit", None, ["fit", "dof"], "string"),
     ("job.submit", None, ["fit", "residual"], "string"),
     ("job.submit", None, ["fit", "robust"], "bool"),
@@ -396,6 +398,16 @@ def huge_number_cases():
                 Err(code, detail, 1, None))
         for name, raw in [("2^64", str(2 ** 64)), ("1e400", "1e400")]:
             add("plan-%s-%s-%s" % (method, key, name), obj, ["params", "plan", key], raw, "parse")
+    # The profiles plan's count: 1..36, and only with its method.
+    obj = request("job.submit", copy_set(SUBMIT, ["plan"], {"method": "profiles", "h": 0.05,
+                                                           "profiles": 2}), rid=1)
+    for name, raw in [("zero", "0"), ("-1", "-1"), ("37", "37")]:
+        add("plan-profiles-%s" % name, obj, ["params", "plan", "profiles"], raw,
+            Err(PARAMS, quoted("profiles"), 1, None))
+    obj = request("job.submit", copy_set(SUBMIT, ["plan"], {"method": "ot", "h": 0.05,
+                                                           "profiles": 2}), rid=1)
+    add("plan-profiles-with-ot", obj, ["params", "plan", "profiles"], "2",
+        Err(PARAMS, '"plan.profiles" is for the method', 1, None))
     # Coordinates of an inline prescription.
     lens = request("job.submit", copy_set(SUBMIT, ["lens"], PRESCRIPTION), rid=1)
     for path, name, raw, code, detail in [

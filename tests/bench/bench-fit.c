@@ -1,10 +1,19 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /* Best fit of 1e6 points to convergence, against one pass of sag
  * evaluation over the same points: 5 DOF on the paper's lenses, 6 DOF
- * (with clocking) on a freeform off-axis segment. */
+ * (with clocking) on a freeform off-axis segment. Then `asph fit` end to
+ * end on the same number of points from a CSV file (read, fit, form error,
+ * slope, summary printed) against a SciPy least_squares script on the same
+ * file (fit-scipy.py), each run as a program, by wall and processor time. */
+#include <fcntl.h>
 #include <math.h>
+#include <spawn.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
 #include <gsl/gsl_errno.h>
 
@@ -15,6 +24,13 @@
 
 #define TARGET_RATIO 60.0
 #define TARGET_RATIO_FREEFORM 80.0
+/* asph fit at least 4 times as fast as the script. */
+#define TARGET_RATIO_CLI 0.25
+/* and at most 2 s per million points (printed, not a verdict: the
+ * benchmarks judge ratios only) */
+#define TARGET_S_PER_MILLION 2.0
+
+extern char **environ;
 
 struct ctx {
 	const struct asph_surface *s;
@@ -209,6 +225,111 @@ static int bench_freeform(size_t n, void (*make)(struct asph_prescription *))
 	return miss;
 }
 
+/* Runs of a program, its output to /dev/null: the processor time of each
+ * (user and system, all its threads; steadier than the wall time on a
+ * shared machine), and failed on an exit status other than 0. */
+struct run {
+	char *const *argv;
+	double cpu[8];
+	int n;
+	int failed;
+};
+
+static void run_program(void *p)
+{
+	struct run *run = p;
+	posix_spawn_file_actions_t fa;
+	struct rusage ru;
+	pid_t pid;
+	int status = 0;
+
+	posix_spawn_file_actions_init(&fa);
+	posix_spawn_file_actions_addopen(&fa, STDOUT_FILENO, "/dev/null", O_WRONLY, 0);
+	if (posix_spawn(&pid, run->argv[0], &fa, NULL, run->argv, environ) != 0 ||
+	    wait4(pid, &status, 0, &ru) < 0 || !WIFEXITED(status) || WEXITSTATUS(status) != 0) {
+		fprintf(stderr, "%s failed (status %#x)\n", run->argv[0], (unsigned)status);
+		run->failed = 1;
+	} else if (run->n < 8) {
+		run->cpu[run->n++] = (double)(ru.ru_utime.tv_sec + ru.ru_stime.tv_sec) +
+				     1e-6 * (double)(ru.ru_utime.tv_usec + ru.ru_stime.tv_usec);
+	}
+	posix_spawn_file_actions_destroy(&fa);
+}
+
+static double median_cpu(struct run *run)
+{
+	for (int i = 1; i < run->n; i++)
+		for (int j = i; j > 0 && run->cpu[j - 1] > run->cpu[j]; j--) {
+			double x = run->cpu[j];
+			run->cpu[j] = run->cpu[j - 1];
+			run->cpu[j - 1] = x;
+		}
+	return run->n ? run->cpu[run->n / 2] : NAN;
+}
+
+static int write_csv(const char *path, const double *xyz, size_t n)
+{
+	FILE *f = fopen(path, "w");
+	int bad;
+
+	if (!f)
+		return -1;
+	fputs("x,y,z\n", f);
+	for (size_t i = 0; i < n; i++)
+		fprintf(f, "%.17g,%.17g,%.17g\n", xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]);
+	bad = ferror(f);
+	return fclose(f) || bad ? -1 : 0;
+}
+
+/* The command line on the "strong" lens; the programs come from the
+ * build (ASPH_BIN, BENCH_PYTHON, BENCH_FIT_SCIPY, set by meson). */
+static int bench_cli(size_t n)
+{
+	const char *asph = getenv("ASPH_BIN"), *py = getenv("BENCH_PYTHON");
+	const char *script = getenv("BENCH_FIT_SCIPY"), *tmp = getenv("TMPDIR");
+	struct asph_prescription p;
+	struct asph_surface *s = NULL;
+	char dir[4096], csv[4200], num[7][32];
+	double *xyz;
+	int miss;
+
+	if (!asph || !py || !script) {
+		printf("asph fit end to end: skipped (run through meson test --benchmark)\n");
+		return 0;
+	}
+	snprintf(dir, sizeof(dir), "%s/bench-fit-XXXXXX", tmp && *tmp ? tmp : "/tmp");
+	if (asph_prescription_preset("strong", &p) < 0 || asph_surface_alloc(&p, &s, NULL) < 0 ||
+	    !mkdtemp(dir))
+		return 1;
+	snprintf(csv, sizeof(csv), "%s/points.csv", dir);
+	xyz = measured_points(s, n);
+	if (!xyz || write_csv(csv, xyz, n) < 0)
+		return 1;
+	free(xyz);
+	asph_surface_free(s);
+	const double coef[7] = { p.R, p.k, p.A[4], p.A[6], p.A[8], p.A[10], p.A[12] };
+	for (int i = 0; i < 7; i++)
+		snprintf(num[i], sizeof(num[i]), "%.17g", coef[i]);
+	char *const fit_argv[] = { (char *)asph, "fit", "strong", csv, NULL };
+	char *const py_argv[] = { (char *)py, (char *)script, csv, num[0], num[1], num[2],
+				  num[3], num[4], num[5], num[6], NULL };
+	struct run a = { .argv = fit_argv }, b = { .argv = py_argv };
+	double t_asph = bench_median(run_program, &a, 3);
+	double t_py = bench_median(run_program, &b, 3);
+	unlink(csv);
+	rmdir(dir);
+	if (a.failed || b.failed)
+		return 1;
+	double c_asph = median_cpu(&a), c_py = median_cpu(&b);
+	printf("asph fit end to end: %.2f s per million points (target <= %g), processor time "
+	       "%.2f s; SciPy least_squares script %.2f s, processor time %.2f s\n",
+	       t_asph / ((double)n / 1e6), TARGET_S_PER_MILLION, c_asph, t_py, c_py);
+	miss = bench_report("asph fit strong, CSV (vs SciPy script)", t_asph, t_py,
+			    TARGET_RATIO_CLI);
+	miss |= bench_report("  the same, processor time", c_asph, c_py, TARGET_RATIO_CLI);
+	return miss;
+}
+
 int main(void)
 {
 	size_t n = bench_size(1000000);
@@ -219,5 +340,6 @@ int main(void)
 	miss |= bench_lens("weak", n);
 	miss |= bench_freeform(n, zernike_freeform);
 	miss |= bench_freeform(n, xy_segment);
+	miss |= bench_cli(n);
 	return miss;
 }

@@ -51,9 +51,7 @@ def scan_rate(c):
 # time_factor 0.35 of a 20 kHz probe on a fast stage: about 20,000 points/s here.
 inst = {"name": "mock", "stage": {"driver": "mock", "options": {"time_factor": 0.35, "speed": 2000}},
         "probe": {"driver": "mock", "options": {"time_factor": 0.35, "rate": 20000}}}
-d = Daemon([inst], extra={"http_listen": "127.0.0.1:0",
-                          "http_root": os.path.join(ROOT, "daemon", "web"),
-                          "limits": {"max_queue": 20000}})
+d = Daemon([inst], extra={"http_listen": "127.0.0.1:0", "limits": {"max_queue": 20000}})
 failed = False
 try:
     d.start()

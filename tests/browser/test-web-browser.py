@@ -83,7 +83,7 @@ os.makedirs(SHOTS, exist_ok=True)
 # part has spherical form error and the probe 2 nm of noise: the residual,
 # its charts and its PSD show something.
 d = Daemon([mock_instrument(time_factor=0.1, form="9:-40;11:25", noise=2)],
-           extra={"http_listen": "127.0.0.1:0", "http_root": os.path.join(ROOT, "daemon", "web")})
+           extra={"http_listen": "127.0.0.1:0"})
 try:
     d.start()
     url = f"http://127.0.0.1:{web_port(d)}/"

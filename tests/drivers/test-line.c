@@ -25,6 +25,7 @@
 #include "asph-engine/executor.h"
 #include "asph/fit.h"
 #include "line-sim.h"
+#include "line/files.h"
 #include "line/profile.h"
 #include "line/protocol.h"
 #include "mock/protocol.h"
@@ -102,32 +103,32 @@ static void test_profile_refusals(void **state)
 	}
 }
 
-/* Every built-in profile parses and has what its role needs. */
+/* Every built-in profile is compiled in, loads by its name with no
+ * profile directory anywhere, and has what its role needs; a name that
+ * is none is refused with the built-in ones named. */
 static void test_builtin_profiles(void **state)
 {
 	static const char *const names[] = {
 		"pi-gcs", "newport-esp", "aerotech-ascii", "linuxcnc", "keyence-lk", "mitutoyo-vcp",
 		"sylvac",
 	};
-	const char *dir = getenv("ASPH_LINE_PROFILE_PATH");
-	char path[512], *text;
 	struct line_profile p;
 	struct asph_error err;
 
-	assert_non_null(dir);
+	assert_null(getenv("ASPH_LINE_PROFILE_PATH"));
+	assert_int_equal(line_builtin_profiles_count, sizeof(names) / sizeof(names[0]));
 	for (size_t i = 0; i < sizeof(names) / sizeof(names[0]); i++) {
-		snprintf(path, sizeof(path), "%s/%s.profile", dir, names[i]);
-		FILE *f = fopen(path, "r");
-		assert_non_null(f);
-		text = calloc(1, 1 << 16);
-		size_t n = fread(text, 1, (1 << 16) - 1, f);
-		fclose(f);
-		if (line_profile_parse(text, n, path, &p, &err) < 0)
-			fail_msg("%s:%d:%d: %s", path, err.line, err.column, err.message);
+		asph_error_clear(&err);
+		if (line_profile_load(names[i], &p, &err) < 0)
+			fail_msg("%s: %s:%d:%d: %s", names[i], err.source, err.line, err.column,
+				 err.message);
 		assert_string_equal(p.name, names[i]);
 		assert_true(p.reference[0] && p.description[0]);
-		free(text);
 	}
+	asph_error_clear(&err);
+	assert_int_equal(line_profile_load("pi-gsc", &p, &err), -ENOENT);
+	assert_non_null(strstr(err.message, "no line profile 'pi-gsc'"));
+	assert_non_null(strstr(err.message, "built in: aerotech-ascii, keyence-lk, "));
 }
 
 /* ----------------------------------------------------- the decoder */

@@ -1053,7 +1053,7 @@ static void test_listed(void **state)
 
 	assert_int_equal(asph_driver_validate(e->drv, NULL), 0);
 	assert_int_equal(e->drv->roles, ASPH_ROLE_STAGE | ASPH_ROLE_PROBE);
-	assert_int_equal(asph_registry_to_json(e->reg, false, &json), 0);
+	assert_int_equal(asph_registry_to_json(e->reg, false, &json, NULL), 0);
 	assert_non_null(strstr(json, "\"modbus\""));
 	assert_non_null(strstr(json, "\"reg_data\""));
 	free(json);

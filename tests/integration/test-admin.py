@@ -339,7 +339,7 @@ def check_reference():
                 f.write(content)
             os.chmod(local, 0o600)
             text = text.replace(path, local)
-        text = text.replace("/usr/share/asphd/web", os.path.join(ROOT, "daemon", "web"))
+        text = text.replace("/etc/asphd/web", os.path.join(ROOT, "daemon", "web"))
         text = text.replace('"asph-operators"', f'"{grp.getgrgid(os.getgid()).gr_name}"')
         conf = os.path.join(top, "asphd.conf")
         with open(conf, "w") as f:
@@ -780,7 +780,7 @@ sinks = start_sinks_daemon()
 mark("sinks daemon")
 d = Daemon(instruments=[mock_instrument("bench", time_factor=0.05),
                         mock_instrument("flaky", fail_after=40)],
-           extra={"http_listen": "127.0.0.1:0", "http_root": os.path.join(ROOT, "daemon", "web")})
+           extra={"http_listen": "127.0.0.1:0"})
 backups = tempfile.mkdtemp(prefix="asphd-backups-")
 try:
     os.makedirs(d.state, mode=0o750)

@@ -6,23 +6,27 @@ over POST with the socket's role checks, the event stream, result file
 downloads and live points; cross-origin POSTs, malformed requests and
 oversized bodies get their status code and the daemon serves on."""
 import base64
+import contextlib
 import csv
 import http.client
 import json
 import math
 import os
 import re
+import shutil
 import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 
 sys.path.insert(0, os.path.dirname(__file__))
-from daemontest import Client, Daemon, expect, finish, mock_instrument, web_port  # noqa: E402
+from daemontest import ASPHD, Client, Daemon, expect, finish, mock_instrument, web_port  # noqa: E402
 
 ROOT = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(os.path.dirname(__file__), "..", ".."))
-WEB_ROOT = os.path.join(ROOT, "daemon", "web")
+# the page's sources, to compare what is served with: asphd never reads them
+WEB_SOURCES = os.path.join(ROOT, "daemon", "web")
 ASPH = os.environ.get("ASPH_BIN", "asph")
 
 # The weak lens of Table 1 (docs/prescriptions.md): an even asphere.
@@ -100,14 +104,28 @@ def reload_with(d, **limits):
         time.sleep(0.05)
 
 
+@contextlib.contextmanager
+def started(d):
+    """d, started; its log printed when the block fails; stopped (it must
+    stop cleanly) and removed after."""
+    try:
+        d.start()
+        yield d
+        expect(d.stop() == 0, "asphd stops cleanly")
+    except Exception:
+        print(d.log_text())
+        raise
+    finally:
+        d.cleanup()
+
+
 def check_limits_follow_reload():
     """The web listener's connection limits are the socket's: read at each
     connection, so that a reload changes them for the listener too."""
     d = Daemon([mock_instrument()], extra={
-        "http_listen": "127.0.0.1:0", "http_root": WEB_ROOT,
+        "http_listen": "127.0.0.1:0",
         "limits": {"max_clients": 16, "max_clients_per_user": 2}})
-    try:
-        d.start()
+    with started(d):
         port = web_port(d)
         held = [served(port), served(port)]
         expect(all(held), "two connections of one address: served")
@@ -127,12 +145,63 @@ def check_limits_follow_reload():
                 c.close()
         time.sleep(0.3)
         expect(served(port) is not None, "connections closed: served again")
-        expect(d.stop() == 0, "asphd stops cleanly")
-    except Exception:
-        print(d.log_text())
-        raise
+
+
+def check_http_root():
+    """http_root overrides the built-in page with a folder of files; one
+    that is not there stops the daemon, naming http_root."""
+    site = tempfile.mkdtemp(prefix="asphd-test-page-")
+    os.chmod(site, 0o755)
+    with open(os.path.join(site, "index.html"), "w") as f:
+        f.write("<!doctype html><title>our lab's page</title>\n")
+    with started(Daemon([mock_instrument()], extra={"http_listen": "127.0.0.1:0",
+                                                   "http_root": site})) as d:
+        page = Web(web_port(d))
+        r, body = page.request("GET", "/")
+        expect(r.status == 200 and b"our lab's page" in body, "http_root: its index.html is the page")
+        r, _ = page.request("GET", "/app.js")
+        expect(r.status == 404, f"http_root: a built-in file it does not hold is not served ({r.status})")
+    missing = os.path.join(site, "no-such-folder")
+    d = Daemon([mock_instrument()], extra={"http_listen": "127.0.0.1:0", "http_root": missing})
+    said = f"http_root: {missing}: No such file or directory (set http_root"
+    try:
+        d.start(wait=False)
+        rc = d.proc.wait(timeout=100 if os.environ.get("ASPH_UNDER_VALGRIND") else 20)
+        d.proc = None
+        log = d.log_text()
+        expect(rc == 3 and said in log,
+               f"http_root not there: asphd stops (exit {rc}), naming the setting: {log.strip()[-200:]}")
+        check = subprocess.run([ASPHD, "--check-config", "--config", d.config],
+                               capture_output=True, text=True, timeout=60)
+        expect(check.returncode == 3 and said in check.stderr,
+               f"asphd --check-config says so too (exit {check.returncode})")
+        check_http_root_unusable(d, site)
     finally:
         d.cleanup()
+        shutil.rmtree(site, ignore_errors=True)
+
+
+def check_http_root_unusable(d, site):
+    """http_root that is a file, or a folder the daemon's user cannot
+    read, is named with the setting to change (asphd --check-config runs
+    the start's checks). Root reads any folder: as root, the check runs as
+    nobody, as an unprivileged daemon would."""
+    as_root = os.geteuid() == 0
+    a_file = os.path.join(site, "index.html")
+    locked = os.path.join(site, "locked")
+    os.mkdir(locked, 0o700 if as_root else 0)
+    user = {"user": 65534, "group": 65534, "extra_groups": []} if as_root else {}
+    for root, why, who in ((a_file, "Not a directory", {}), (locked, "Permission denied", user)):
+        cfg = {"instruments": [mock_instrument()], "http_listen": "127.0.0.1:0", "http_root": root}
+        with open(d.config, "w") as f:
+            json.dump(cfg, f)
+        check = subprocess.run([ASPHD, "--check-config", "--config", d.config],
+                               capture_output=True, text=True, timeout=60, **who)
+        said = f"http_root: {root}: {why} (set http_root"
+        expect(check.returncode == 3 and said in check.stderr,
+               f"http_root, {why.lower()}: asphd --check-config names the setting "
+               f"(exit {check.returncode}: {check.stderr.strip()[-160:]})")
+    os.chmod(locked, 0o700)
 
 
 def check_every_address():
@@ -140,8 +209,7 @@ def check_every_address():
     both, on one port. The name resolves through /etc/hosts: the daemon
     runs in a mount namespace of its own where /etc/hosts says so."""
     hosts = None
-    d = Daemon([mock_instrument()], extra={"http_listen": "dual-stack.test:0",
-                                           "http_root": WEB_ROOT})
+    d = Daemon([mock_instrument()], extra={"http_listen": "dual-stack.test:0"})
     hosts = os.path.join(d.top, "hosts")
     with open(hosts, "w") as f:
         f.write("127.0.0.1 localhost\n127.0.0.1 dual-stack.test\n::1 dual-stack.test\n")
@@ -152,8 +220,7 @@ def check_every_address():
         d.cleanup()
         return
     d.prefix = ["unshare", "-m", "--", "sh", "-c", 'mount --bind "$0" /etc/hosts && exec "$@"', hosts]
-    try:
-        d.start()
+    with started(d):
         deadline = time.time() + 20
         while time.time() < deadline and not re.search(r"web page at http://dual-stack\.test:\d+/", d.log_text()):
             time.sleep(0.05)
@@ -165,21 +232,16 @@ def check_every_address():
             expect(c is not None, f"the page on {host} port {port}")
             if c:
                 c.close()
-        expect(d.stop() == 0, "asphd stops cleanly")
-    except Exception:
-        print(d.log_text())
-        raise
-    finally:
-        d.cleanup()
 
 
 check_limits_follow_reload()
+check_http_root()
 check_every_address()
 
 # The part sits 12 um off the axis, and the probe has 2 nm of noise: the
 # live map's deviations from the nominal are not zero.
 d = Daemon([mock_instrument(time_factor=0.02, noise=2, shift_x=0.012)],
-           extra={"http_listen": "127.0.0.1:0", "http_root": WEB_ROOT})
+           extra={"http_listen": "127.0.0.1:0"})
 try:
     d.start()
     port = web_port(d)
@@ -199,6 +261,13 @@ try:
                        ("style.css", "text/css")):
         r, _ = anon.request("GET", "/" + name)
         expect(r.status == 200 and r.getheader("Content-Type") == kind, f"{name} as {kind}")
+    # no http_root: the page compiled in is daemon/web/ as it is in the tree
+    served_all = True
+    for name in sorted(os.listdir(WEB_SOURCES)):
+        r, body = anon.request("GET", "/" + name)
+        with open(os.path.join(WEB_SOURCES, name), "rb") as f:
+            served_all = served_all and r.status == 200 and body == f.read()
+    expect(served_all, "without http_root every file of daemon/web is served as it is in the tree")
     for path in ("/nothing.html", "/../asphd.conf", "/%2e%2e/asphd.conf", "/.hidden.js",
                  "/web/app.js", "/asphd.conf"):
         r, _ = anon.request("GET", path)

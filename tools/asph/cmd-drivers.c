@@ -13,9 +13,12 @@ DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_registry *, asph_registry_free)
 static int print_json(const struct asph_registry *reg)
 {
 	_cleanup_free_ char *text = NULL;
+	struct asph_error err;
+	char buf[640];
 
-	if (asph_registry_to_json(reg, true, &text) < 0) {
-		fprintf(stderr, "asph drivers: out of memory\n");
+	asph_error_clear(&err);
+	if (asph_registry_to_json(reg, true, &text, &err) < 0) {
+		fprintf(stderr, "asph drivers: %s\n", asph_error_format(&err, buf, sizeof(buf)));
 		return EXIT_FAILURE_RUN;
 	}
 	printf("%s\n", text);
@@ -49,15 +52,26 @@ static const char *roles_text(unsigned roles)
 	return roles & ASPH_ROLE_STAGE ? "stage" : roles & ASPH_ROLE_PROBE ? "probe" : "-";
 }
 
-/* The profile files the driver's "profile" option can name, found now. */
-static void print_profiles(const struct asph_registry *reg, size_t i)
+/* The profiles the driver's "profile" option can name, found now; -errno
+ * having said why when they cannot be listed. */
+static int print_profiles(const struct asph_registry *reg, size_t i)
 {
 	_cleanup_free_ struct asph_driver_profile *v = NULL;
+	struct asph_error err;
+	char buf[640];
 	size_t n = 0;
+	int r;
 
-	if (asph_registry_profiles(reg, i, &v, &n, NULL) < 0 || n == 0)
-		return;
-	printf("  Profiles (option profile), as found in the profile directories:\n");
+	asph_error_clear(&err);
+	r = asph_registry_profiles(reg, i, &v, &n, &err);
+	if (r < 0) {
+		fflush(stdout);
+		fprintf(stderr, "asph drivers: %s\n", asph_error_format(&err, buf, sizeof(buf)));
+		return r;
+	}
+	if (n == 0)
+		return 0;
+	printf("  Profiles (option profile), as found in the profile directories and built in:\n");
 	for (size_t k = 0; k < n; k++) {
 		if (v[k].error[0]) {
 			printf("    %-16s does not load: %s\n", v[k].name, v[k].error);
@@ -66,10 +80,13 @@ static void print_profiles(const struct asph_registry *reg, size_t i)
 		printf("    %-16s %-7s %s\n", v[k].name, roles_text(v[k].roles), v[k].description);
 		printf("    %-16s %-7s %s\n", "", "", v[k].path);
 	}
+	return 0;
 }
 
-static void print_text(const struct asph_registry *reg)
+static int print_text(const struct asph_registry *reg)
 {
+	int status = EXIT_OK;
+
 	printf("Driver ABI %d\n", ASPH_DRIVER_ABI_VERSION);
 	for (size_t i = 0; i < asph_registry_count(reg); i++) {
 		const struct asph_driver *d = asph_registry_get(reg, i);
@@ -83,8 +100,10 @@ static void print_text(const struct asph_registry *reg)
 			printf("  Options:\n");
 		for (size_t k = 0; k < d->n_options; k++)
 			print_option(&d->options[k]);
-		print_profiles(reg, i);
+		if (print_profiles(reg, i) < 0)
+			status = EXIT_FAILURE_RUN;
 	}
+	return status;
 }
 
 static void usage(FILE *out)
@@ -135,6 +154,5 @@ int cmd_drivers(int argc, char **argv)
 		return EXIT_FAILURE_RUN;
 	if (a.json)
 		return print_json(reg);
-	print_text(reg);
-	return EXIT_OK;
+	return print_text(reg);
 }

@@ -40,7 +40,8 @@ static void usage(FILE *out)
 
 	plan_mesh_methods(mesh, sizeof(mesh));
 	fprintf(out,
-		"Usage: asph plan LENS --method M (--h H | --spacing MM | --points N) [-o FILE]\n"
+		"Usage: asph plan LENS --method M (--h H | --spacing MM | --points N)\n"
+		"                 [--profiles N] [-o FILE]\n"
 		"       asph plan LENS --for-tolerance TOL --instrument INST [--capability R]\n"
 		"                 [--method M] [-o FILE]\n\n"
 		"Computes a sampling plan on LENS (a preset: weak, strong, turning-point, or a\n"
@@ -203,6 +204,9 @@ static int parse_args(int argc, char **argv, struct plan_args *a)
 		fprintf(stderr, "asph: plan: give exactly one of --h, --spacing, --points\n");
 		return EXIT_USAGE;
 	}
+	/* what remains to check: --profiles only with its method */
+	if (plan_source_finish(&a->src, NULL) < 0)
+		return EXIT_USAGE;
 	return 0;
 }
 

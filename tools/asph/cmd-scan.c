@@ -213,6 +213,7 @@ static void usage(FILE *out)
 	plan_method_help(out, "", "");
 	fprintf(out,
 		"  --h H | --spacing MM | --points N   the plan's density (exactly one)\n"
+		PLAN_SOURCE_PROFILES_HELP
 		"  --instrument I      a configuration file (FILE or FILE#NAME), or a driver\n"
 		"                      spec NAME[:key=value,...], e.g. mock, mock:rate=20000\n"
 		"  -o, --output SCAN   the scan file to write\n"

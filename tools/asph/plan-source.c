@@ -73,6 +73,22 @@ void plan_mesh_methods(char *buf, size_t size)
 						asph_plan_method_name((enum asph_plan_method)m));
 }
 
+static int set_profiles(struct plan_source *ps, const char *arg)
+{
+	char *end;
+	long v;
+
+	errno = 0;
+	v = strtol(arg, &end, 10);
+	if (errno || end == arg || *end || v < 1 || v > ASPH_PLAN_MAX_PROFILES) {
+		fprintf(stderr, "asph: --profiles: '%s' is not a whole number in 1..%d\n", arg,
+			ASPH_PLAN_MAX_PROFILES);
+		return -1;
+	}
+	ps->profiles = (unsigned)v;
+	return 0;
+}
+
 /* The methods from their table, with the one meant when it is near. */
 static void unknown_method(const char *arg)
 {
@@ -106,6 +122,8 @@ int plan_source_option(struct plan_source *ps, int opt, const char *arg)
 		return set_density(ps, ASPH_DENSITY_SPACING, arg, "spacing");
 	case PLAN_OPT_POINTS:
 		return set_density(ps, ASPH_DENSITY_POINTS, arg, "points");
+	case PLAN_OPT_PROFILES:
+		return set_profiles(ps, arg);
 	default:
 		return 1;
 	}
@@ -126,6 +144,10 @@ int plan_source_finish(struct plan_source *ps, const char *plan_file)
 		fprintf(stderr, "asph: --method needs exactly one of --h, --spacing, --points\n");
 		return -1;
 	}
+	if (ps->profiles && !(ps->have_method && ps->method == ASPH_PLAN_PROFILES)) {
+		fprintf(stderr, "asph: --profiles is for --method profiles\n");
+		return -1;
+	}
 	return 0;
 }
 
@@ -142,6 +164,7 @@ int plan_source_compute(const struct plan_source *ps, const struct asph_surface 
 	progress_start(&p, what, "iterations", ps->quiet);
 	p.at_most = true;
 	o.progress = progress_hook(&p);
+	o.profiles = ps->profiles;
 	r = asph_plan_compute_opts(s, ps->method, ps->density, &o, out, err);
 	progress_stop(&p);
 	return r;
@@ -225,7 +248,14 @@ int plan_quality_run(struct plan_quality *pq, const char *cmd, int argc,
 
 void plan_source_label(const struct plan_source *ps, char *buf, size_t size)
 {
-	const char *name = ps->have_method ? asph_plan_method_name(ps->method) : "";
+	const char *method = ps->have_method ? asph_plan_method_name(ps->method) : "";
+	char name[48];
+
+	if (ps->have_method && ps->method == ASPH_PLAN_PROFILES)
+		snprintf(name, sizeof(name), "%u profile%s", ps->profiles ? ps->profiles : 1,
+			 ps->profiles > 1 ? "s" : "");
+	else
+		snprintf(name, sizeof(name), "%s", method);
 
 	if (ps->plan_file) {
 		const char *slash = strrchr(ps->plan_file, '/');

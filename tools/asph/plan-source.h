@@ -18,14 +18,16 @@ enum {
 	PLAN_OPT_SPACING,
 	PLAN_OPT_POINTS,
 	PLAN_OPT_QUIET,
+	PLAN_OPT_PROFILES,
 };
 
-/* getopt_long entries for --method, --h, --spacing, --points. */
+/* getopt_long entries for --method, --h, --spacing, --points, --profiles. */
 #define PLAN_SOURCE_LONG_OPTIONS                                          \
 	{ "method", required_argument, NULL, PLAN_OPT_METHOD },           \
 	{ "h", required_argument, NULL, PLAN_OPT_H },                     \
 	{ "spacing", required_argument, NULL, PLAN_OPT_SPACING },         \
-	{ "points", required_argument, NULL, PLAN_OPT_POINTS }
+	{ "points", required_argument, NULL, PLAN_OPT_POINTS },           \
+	{ "profiles", required_argument, NULL, PLAN_OPT_PROFILES }
 
 /* --quiet for the commands whose only quiet is the plan's progress. */
 #define PLAN_SOURCE_QUIET_OPTION { "quiet", no_argument, NULL, PLAN_OPT_QUIET }
@@ -35,11 +37,20 @@ enum {
 /* The help of --method M: before, the methods from their table, after. */
 void plan_method_help(FILE *out, const char *before, const char *after);
 
-/* The help of the density options, --h, --spacing and --points. */
+/* The help of the density options, --h, --spacing and --points, and of
+ * --profiles. */
 #define PLAN_DENSITY_HELP                                                                 \
 	"  --h H               mean edge length / aperture radius (the paper's h)\n"             \
 	"  --spacing MM        mean point spacing on the surface, mm\n"                           \
-	"  --points N          approximate number of points\n"
+	"  --points N          approximate number of points\n"                                    \
+	PLAN_SOURCE_PROFILES_HELP
+
+/* --profiles, with the density options wherever --method is offered. */
+#define PLAN_SOURCE_PROFILES_HELP                                                         \
+	"  --profiles N        --method profiles: N profiles through the apex at equal\n"       \
+	"                      angles (default 1, at most " PLAN_STRING(ASPH_PLAN_MAX_PROFILES) ")\n"
+#define PLAN_STRING(x) PLAN_STRING_(x)
+#define PLAN_STRING_(x) #x
 
 /* The help of PLAN_FILE or --method with a density. */
 void plan_source_help(FILE *out);
@@ -54,6 +65,7 @@ struct plan_source {
 	enum asph_plan_method method;
 	int n_density;
 	struct asph_plan_density density;
+	unsigned profiles;      /* --profiles; 0: not given */
 };
 
 /* Handles one of the options above: 0 when taken, 1 when opt is not one of

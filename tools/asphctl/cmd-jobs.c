@@ -173,7 +173,7 @@ static json_t *tolerance_param(const char *arg)
 }
 
 static const char submit_usage[] =
-	"submit LENS --method M (--h H | --spacing MM | --points N)\n"
+	"submit LENS --method M (--h H | --spacing MM | --points N) [--profiles N]\n"
 	"       [--instrument NAME] [--priority P] [--label TEXT] [--dof LIST]\n"
 	"       [--residual " NAMES_RESIDUALS "] [--robust] [--zernike N] [--tolerance T]\n"
 	"       [--part P] [--lot L] [--serial S] [--wait [--quiet]] [--json]";
@@ -214,6 +214,7 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 		{ "h", required_argument, NULL, 'H' },
 		{ "spacing", required_argument, NULL, 'S' },
 		{ "points", required_argument, NULL, 'P' },
+		{ "profiles", required_argument, NULL, 'F' },
 		{ "instrument", required_argument, NULL, 'i' },
 		{ "priority", required_argument, NULL, 'p' },
 		{ "label", required_argument, NULL, 'l' },
@@ -243,6 +244,7 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 		case 'H': ok = set_real(plan, "h", optarg); break;
 		case 'S': ok = set_real(plan, "spacing", optarg); break;
 		case 'P': ok = set_real(plan, "points", optarg); break;
+		case 'F': ok = set_integer(plan, "profiles", optarg); break;
 		case 'i': json_object_set_new(params, "instrument", json_string(optarg)); break;
 		case 'p': ok = set_integer(params, "priority", optarg); break;
 		case 'l': json_object_set_new(params, "label", json_string(optarg)); break;

@@ -16,6 +16,7 @@
 #include <gsl/gsl_rng.h>
 
 #include "asph/areal.h"
+#include "asph/delaunay.h"
 
 /* Points on a hexagonal lattice of spacing h in the disc of radius a,
  * less those in the hole (centre hx, hy, radius hr; hr = 0: no hole). */
@@ -161,6 +162,130 @@ static void test_slope(void **state)
 }
 
 /* A sinusoid's amplitude in the mean line, away from the ends. */
+/* Points uniform in the disc of radius a, from a seeded generator. */
+static double *random_disc(size_t n, double a, unsigned long seed)
+{
+	gsl_rng *g = gsl_rng_alloc(gsl_rng_mt19937);
+	double *xy = malloc(2 * n * sizeof(double));
+
+	gsl_rng_set(g, seed);
+	for (size_t i = 0; i < n; i++) {
+		double r = a * sqrt(gsl_rng_uniform(g)), t = 2 * M_PI * gsl_rng_uniform(g);
+		xy[2 * i] = r * cos(t);
+		xy[2 * i + 1] = r * sin(t);
+	}
+	gsl_rng_free(g);
+	return xy;
+}
+
+static int cmp_double(const void *a, const void *b)
+{
+	double x = *(const double *)a, y = *(const double *)b;
+
+	return (x > y) - (x < y);
+}
+
+/* The median edge is the element a full sort puts in the middle of the
+ * triangulation's 3 ntri edge lengths, exactly; on random points and on a
+ * lattice, where most lengths are equal. */
+static void check_median_edge(const double *xy, size_t n)
+{
+	struct asph_delaunay *d = asph_delaunay_alloc(n);
+	uint32_t *tri = NULL;
+	size_t ntri = 0;
+	double *v = calloc(n, sizeof(double)), *len;
+	struct asph_scatter *s = NULL;
+
+	assert_int_equal(asph_delaunay_triangulate(d, xy, n, &tri, &ntri, NULL), 0);
+	len = malloc(3 * ntri * sizeof(double));
+	for (size_t t = 0; t < ntri; t++)
+		for (int k = 0; k < 3; k++) {
+			uint32_t a = tri[3 * t + k], b = tri[3 * t + (k + 1) % 3];
+			len[3 * t + k] = hypot(xy[2 * a] - xy[2 * b], xy[2 * a + 1] - xy[2 * b + 1]);
+		}
+	qsort(len, 3 * ntri, sizeof(double), cmp_double);
+	assert_int_equal(asph_scatter_alloc(xy, v, n, NULL, &s, NULL), 0);
+	assert_true(asph_scatter_median_edge(s) == len[3 * ntri / 2]);
+	asph_scatter_free(s);
+	free(len);
+	free(tri);
+	free(v);
+	asph_delaunay_free(d);
+}
+
+static void test_median_edge(void **state)
+{
+	double *xy = random_disc(20001, 10, 7);
+
+	(void)state;
+	check_median_edge(xy, 20001);
+	free(xy);
+	size_t n = hex_points(10, 0.3, 0, 0, 0, &xy);
+	check_median_edge(xy, n);
+	free(xy);
+}
+
+/* One stencil's difference quotient, each end located from scratch. */
+static int quotient_ref(const struct asph_scatter *s, double a, double x, double y, double ex,
+			double ey, double L, double *q)
+{
+	double v[2];
+
+	for (int k = 0; k < 2; k++) {
+		double sign = k ? -0.5 : 0.5, px = x + sign * L * ex, py = y + sign * L * ey;
+		if (hypot(px, py) > a || asph_scatter_eval(s, px, py, NULL, &v[k], NULL, NULL) < 0)
+			return -1;
+	}
+	*q = (v[0] - v[1]) / L;
+	return 0;
+}
+
+/* The slope deviation of rough data on random points against the same
+ * sums, every stencil end found by a walk from the first triangle: how
+ * the search is started changes nothing beyond rounding. */
+static void test_slope_reference(void **state)
+{
+	const double a = 10, L = 1.0, h = 0.23;
+	size_t n = 30000;
+	double *xy = random_disc(n, a, 11), *v = malloc(n * sizeof(double));
+	double r2 = 0, t2 = 0, mmax = 0, rmax = 0, tmax = 0;
+	long half = (long)floor(a / h);
+	size_t m = 0;
+	gsl_rng *g = gsl_rng_alloc(gsl_rng_mt19937);
+	struct asph_scatter *s = NULL;
+	struct asph_slope sl;
+
+	(void)state;
+	for (size_t i = 0; i < n; i++)
+		v[i] = bowl(xy[2 * i], xy[2 * i + 1]) + gsl_ran_gaussian(g, 0.05);
+	assert_int_equal(asph_scatter_alloc(xy, v, n, NULL, &s, NULL), 0);
+	assert_int_equal(asph_slope_compute(s, a, L, h, 0, &sl, NULL), 0);
+	for (long j = -half; j <= half; j++)
+		for (long i = -half; i <= half; i++) {
+			double x = (double)i * h, y = (double)j * h, rr = hypot(x, y), qr, qt;
+			if (rr > a || rr == 0 || quotient_ref(s, a, x, y, x / rr, y / rr, L, &qr) < 0 ||
+			    quotient_ref(s, a, x, y, -y / rr, x / rr, L, &qt) < 0)
+				continue;
+			r2 += qr * qr;
+			t2 += qt * qt;
+			mmax = fmax(mmax, hypot(qr, qt));
+			rmax = fmax(rmax, fabs(qr));
+			tmax = fmax(tmax, fabs(qt));
+			m++;
+		}
+	assert_int_equal(sl.n, m);
+	assert_true(fabs(sl.rms.v - sqrt((r2 + t2) / (double)m)) < 1e-12 * sl.rms.v);
+	assert_true(fabs(sl.rms_radial.v - sqrt(r2 / (double)m)) < 1e-12 * sl.rms.v);
+	assert_true(fabs(sl.rms_azimuthal.v - sqrt(t2 / (double)m)) < 1e-12 * sl.rms.v);
+	assert_true(fabs(sl.max.v - mmax) < 1e-12 * mmax);
+	assert_true(fabs(sl.max_radial.v - rmax) < 1e-12 * mmax);
+	assert_true(fabs(sl.max_azimuthal.v - tmax) < 1e-12 * mmax);
+	asph_scatter_free(s);
+	gsl_rng_free(g);
+	free(v);
+	free(xy);
+}
+
 static double transmitted(double wavelength, double cutoff)
 {
 	size_t n = 4000;
@@ -356,6 +481,8 @@ int main(void)
 		cmocka_unit_test(test_interpolation),
 		cmocka_unit_test(test_grid_masks),
 		cmocka_unit_test(test_slope),
+		cmocka_unit_test(test_median_edge),
+		cmocka_unit_test(test_slope_reference),
 		cmocka_unit_test(test_gaussian_profile),
 		cmocka_unit_test(test_gaussian_areal),
 		cmocka_unit_test(test_psd_profile),

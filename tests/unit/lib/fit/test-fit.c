@@ -18,6 +18,7 @@
 #include "asph/prescription.h"
 #include "asph/surface.h"
 #include "asph/zernike.h"
+#include "custom-surface.h"
 
 static const char *const lenses[] = { "weak", "strong", "turning-point" };
 
@@ -38,19 +39,6 @@ static struct asph_surface *lens(const char *name)
 	struct asph_surface *s = NULL;
 
 	assert_int_equal(asph_prescription_preset(name, &p), 0);
-	assert_int_equal(asph_surface_alloc(&p, &s, NULL), 0);
-	return s;
-}
-
-static struct asph_surface *custom(double R, double k, double diameter)
-{
-	struct asph_prescription p = { .type = ASPH_SURFACE_EVEN_ASPHERE };
-	struct asph_surface *s = NULL;
-
-	snprintf(p.name, sizeof(p.name), "custom");
-	p.R = R;
-	p.k = k;
-	p.aperture_diameter = diameter;
 	assert_int_equal(asph_surface_alloc(&p, &s, NULL), 0);
 	return s;
 }
@@ -429,14 +417,28 @@ static void test_bad_input(void **state)
 	xyz[3 * 17 + 1] = NAN;
 	assert_int_equal(asph_fit_init(w, xyz, n, &err), -EINVAL);
 	assert_non_null(strstr(err.message, "point 18"));
-	for (size_t i = 0; i < n; i++) {      /* all on one line */
+	for (size_t i = 0; i < n; i++) {      /* all at one place */
+		xyz[3 * i] = 0.3;
+		xyz[3 * i + 1] = -0.2;
+		xyz[3 * i + 2] = 0.01 * i;
+	}
+	assert_int_equal(asph_fit_init(w, xyz, n, &err), -EINVAL);
+	assert_non_null(strstr(err.message, "one place"));
+	assert_int_equal(asph_fit_iterate(w, &err), -EINVAL);
+	for (size_t i = 0; i < n; i++) {      /* all on one line: a line profile */
 		xyz[3 * i] = 0.3 * i - 7;
 		xyz[3 * i + 1] = 0.5 * xyz[3 * i] + 0.2;
 		xyz[3 * i + 2] = asph_surface_sag(s, hypot(xyz[3 * i], xyz[3 * i + 1]));
 	}
-	assert_int_equal(asph_fit_init(w, xyz, n, &err), -EINVAL);
-	assert_non_null(strstr(err.message, "line"));
-	assert_int_equal(asph_fit_iterate(w, &err), -EINVAL);
+	assert_int_equal(asph_fit_init(w, xyz, n, &err), 0);
+	/* which cannot tell ty and rx apart when they are asked for */
+	struct asph_fit *rigid = NULL;
+	struct asph_fit_options ro = { .dof = ASPH_FIT_DOF_RIGID };
+	assert_int_equal(asph_fit_alloc(s, n, &ro, &rigid, &err), 0);
+	assert_int_equal(asph_fit_init(rigid, xyz, n, &err), -EINVAL);
+	assert_non_null(strstr(err.message, "line profile"));
+	assert_non_null(strstr(err.message, "not ty, rx"));
+	asph_fit_free(rigid);
 	/* All at one radius: a decentre and a tilt do the same there. */
 	for (size_t i = 0; i < n; i++) {
 		double t = 0.37 + 2 * M_PI * i / n, r = 11.3;

@@ -30,10 +30,12 @@
 static const char *const presets[N_PRESETS] = { "weak", "strong", "turning-point" };
 #define PLAN_H 0.05
 #define PLAN_H_CVT 0.2
+/* a profile's points at h = 0.05 are 43: as many as the others at 0.005 */
+#define PLAN_H_PROFILES 0.005
 
 static double plan_h(enum asph_plan_method m)
 {
-	return m == ASPH_PLAN_CVT ? PLAN_H_CVT : PLAN_H;
+	return m == ASPH_PLAN_CVT ? PLAN_H_CVT : m == ASPH_PLAN_PROFILES ? PLAN_H_PROFILES : PLAN_H;
 }
 
 /* Set by the test setups valgrind and valgrindpy (tests/meson.build). */
@@ -498,7 +500,8 @@ static void test_density_h_spacing(void **state)
 	struct fixture *f = *state;
 
 	for (int i = 0; i < N_PRESETS; i++) {
-		for (int m = 0; m < ASPH_PLAN_N_METHODS; m++) {
+		/* the profiles plan covers lines, not the area: test_profiles */
+		for (int m = 0; m < ASPH_PLAN_PROFILES; m++) {
 			const struct asph_plan *p = f->plan[i][m];
 			double a = asph_surface_aperture_radius(f->s[i]);
 			double h = plan_h((enum asph_plan_method)m);
@@ -718,6 +721,96 @@ static void test_fermat(void **state)
 
 /* The plan's JSON: one writer, and a reader of both shapes scan headers
  * have held. */
+/*
+ * The profiles plan: N diameters at azimuths k 180 / N deg, each with its
+ * ends on the rim, the apex on every one, at most the pitch apart in x-y,
+ * back and forth, on the surface; the mean spacing along a trace on the
+ * surface is the one asked for, less by at most one step in the
+ * diameter's (the count is rounded up); --points N gives N / profiles a
+ * profile.
+ */
+static void check_profiles(const struct asph_surface *s, unsigned profiles, double h)
+{
+	struct asph_plan_options o = { .profiles = profiles };
+	struct asph_plan *p = NULL;
+	double a = asph_surface_aperture_radius(s), e;
+	size_t n;
+
+	assert_int_equal(asph_plan_compute_opts(s, ASPH_PLAN_PROFILES,
+						(struct asph_plan_density){ ASPH_DENSITY_H, h }, &o,
+						&p, NULL), 0);
+	assert_int_equal(asph_plan_resolve_opts(s, ASPH_PLAN_PROFILES,
+						(struct asph_plan_density){ ASPH_DENSITY_H, h }, &o,
+						&e, &n, NULL), 0);
+	assert_int_equal(p->n, n);
+	assert_int_equal(p->profiles, profiles);
+	assert_int_equal(p->n % profiles, 0);
+	assert_true(e == p->spacing_mm && fabs(e - h * a) <= 1e-15 * a);
+	size_t m = n / profiles;
+	for (unsigned j = 0; j < profiles; j++) {
+		const double *q = p->xyz + 3 * m * j;
+		double phi = M_PI * j / profiles, len = 0, apex = INFINITY;
+		/* from -a to a along phi for even profiles, back for odd ones */
+		double sign = j % 2 ? 1 : -1;
+		assert_true(fabs(q[0] - sign * a * cos(phi)) < 1e-12 &&
+			    fabs(q[1] - sign * a * sin(phi)) < 1e-12);
+		for (size_t k = 0; k < m; k++) {
+			const double *v = q + 3 * k;
+			double r = hypot(v[0], v[1]);
+			assert_true(fabs(v[0] * sin(phi) - v[1] * cos(phi)) < 1e-12);
+			/* (cos, sin) of the azimuth put the rim within rounding of a) */
+			assert_true(r <= a * (1 + 1e-15) &&
+				    fabs(v[2] - asph_surface_sag(s, fmin(r, a))) <= 1e-12 * a);
+			apex = fmin(apex, r);
+			if (k > 0) {
+				assert_true(dist2(v, v - 3) <= h * a * a /
+						asph_surface_arc_length(s, a) * (1 + 1e-12));
+				len += dist3(v, v - 3);
+			}
+		}
+		assert_true(fabs(hypot(q[3 * (m - 1)], q[3 * (m - 1) + 1]) - a) < 1e-12);
+		assert_true(apex < 1e-12 || m % 2 == 0);
+		double mean = len / (double)(m - 1);
+		if (!(mean <= e * (1 + 1e-9) && mean >= e * (1 - 1.0 / (double)(m - 1)) * (1 - 1e-3)))
+			fail_msg("%u profiles h=%g: mean spacing %g, asked %g", profiles, h, mean, e);
+	}
+	asph_plan_free(p);
+	assert_int_equal(asph_plan_resolve_opts(s, ASPH_PLAN_PROFILES,
+						(struct asph_plan_density){ ASPH_DENSITY_POINTS, 1000 },
+						&o, &e, &n, NULL), 0);
+	assert_int_equal(n, profiles * (size_t)round(1000.0 / profiles));
+}
+
+static void test_profiles(void **state)
+{
+	struct fixture *f = *state;
+	struct asph_plan_options o = { .profiles = ASPH_PLAN_MAX_PROFILES + 1 };
+	struct asph_plan *p = NULL;
+	struct asph_error err;
+	size_t n;
+
+	for (int i = 0; i < N_PRESETS; i++) {
+		check_profiles(f->s[i], 1, 0.0137);
+		check_profiles(f->s[i], 2, 0.011);
+		check_profiles(f->s[i], 4, 0.02);
+		check_profiles(f->s[i], ASPH_PLAN_MAX_PROFILES, 0.05);
+	}
+	/* the default is one profile */
+	assert_int_equal(f->plan[0][ASPH_PLAN_PROFILES]->profiles, 1);
+	/* refused: too many profiles, a count for another method */
+	asph_error_clear(&err);
+	assert_int_equal(asph_plan_compute_opts(f->s[0], ASPH_PLAN_PROFILES,
+						(struct asph_plan_density){ ASPH_DENSITY_H, 0.05 },
+						&o, &p, &err), -EINVAL);
+	assert_non_null(strstr(err.message, "1 to 36"));
+	o.profiles = 2;
+	assert_int_equal(asph_plan_resolve_opts(f->s[0], ASPH_PLAN_OT,
+						(struct asph_plan_density){ ASPH_DENSITY_H, 0.05 },
+						&o, NULL, &n, &err), -EINVAL);
+	assert_non_null(strstr(err.message, "profiles method"));
+	assert_null(p);
+}
+
 static void test_plan_json(void **state)
 {
 	struct fixture *f = *state;
@@ -733,8 +826,25 @@ static void test_plan_json(void **state)
 	assert_true(info.density.value == p->density.value);
 	assert_true(info.spacing_mm == p->spacing_mm);
 	assert_int_equal(info.points, p->n);
+	assert_int_equal(info.profiles, 0);
 	assert_non_null(strstr(text, "\"density\":\"h\""));
+	assert_null(strstr(text, "profiles"));
 	free(text);
+
+	/* the profiles plan says how many */
+	struct asph_plan *pp = NULL;
+	struct asph_plan_options po = { .profiles = 3 };
+	assert_int_equal(asph_plan_compute_opts(f->s[0], ASPH_PLAN_PROFILES,
+						(struct asph_plan_density){ ASPH_DENSITY_H, 0.1 },
+						&po, &pp, NULL), 0);
+	assert_int_equal(asph_plan_to_json(pp, &text), 0);
+	assert_int_equal(asph_plan_info_from_json(text, strlen(text), "t", &info, &err), 0);
+	assert_true(info.method == ASPH_PLAN_PROFILES && info.profiles == 3 && info.points == pp->n);
+	free(text);
+	asph_plan_free(pp);
+	const char *one = "{\"method\":\"profiles\",\"density\":\"h\",\"value\":0.1}";
+	assert_int_equal(asph_plan_info_from_json(one, strlen(one), "t", &info, &err), 0);
+	assert_int_equal(info.profiles, 1);
 
 	/* as asph scan wrote it before: the density an object */
 	const char *old = "{\"method\":\"fermat\",\"density\":{\"kind\":\"points\","
@@ -756,6 +866,11 @@ static void test_plan_json(void **state)
 		{ "{\"method\":\"ot\",\"density\":{\"kind\":\"h\"}}", "plan.density.value" },
 		{ "{\"method\":\"ot\",\"density\":{\"kind\":1,\"value\":1}}", "plan.density.kind" },
 		{ "{\"method\":\"ot\",\"density\":\"h\",\"value\":0.1,\"points\":-3}", "plan.points" },
+		{ "{\"method\":\"ot\",\"density\":\"h\",\"value\":0.1,\"profiles\":2}", "plan.profiles" },
+		{ "{\"method\":\"profiles\",\"density\":\"h\",\"value\":0.1,\"profiles\":37}",
+		  "plan.profiles" },
+		{ "{\"method\":\"profiles\",\"density\":\"h\",\"value\":0.1,\"profiles\":1.5}",
+		  "plan.profiles" },
 	};
 	for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++) {
 		asph_error_clear(&err);
@@ -797,6 +912,7 @@ int main(void)
 		cmocka_unit_test(test_concentric),
 		cmocka_unit_test(test_archimedean),
 		cmocka_unit_test(test_fermat),
+		cmocka_unit_test(test_profiles),
 		cmocka_unit_test(test_plan_json),
 	};
 

@@ -175,6 +175,28 @@ static void test_csv_tolerant(void **state)
 	asph_points_free(p);
 }
 
+/* A line profile as a tactile profilometer exports it: x and z named,
+ * no y; read as the profile along x (y = 0), units from the header. */
+static void test_text_profile(void **state)
+{
+	const char text[] = "X [mm]\tZ [um]\r\n-2,5\t1,25\r\n0\t0\r\n2,5\t-0,5\r\n";
+	const char named[] = "z,x,residual_nm\n0.004,1,7\n";
+	struct asph_points *p = NULL;
+	struct asph_error err;
+
+	asph_error_clear(&err);
+	assert_int_equal(asph_points_read_csv_text(text, strlen(text), "p.txt", &p, &err), 0);
+	assert_int_equal(p->n, 3);
+	assert_true(p->xyz[0] == -2.5 && p->xyz[1] == 0 && p->xyz[2] == 1.25e-3);
+	assert_true(p->xyz[3] == 0 && p->xyz[4] == 0 && p->xyz[5] == 0);
+	assert_true(p->xyz[6] == 2.5 && p->xyz[7] == 0 && p->xyz[8] == -0.5e-3);
+	asph_points_free(p);
+	assert_int_equal(asph_points_read_csv_text(named, strlen(named), "p.csv", &p, &err), 0);
+	assert_true(p->n == 1 && p->xyz[0] == 1 && p->xyz[1] == 0 && p->xyz[2] == 0.004);
+	assert_true(p->value[0] == 7);
+	asph_points_free(p);
+}
+
 /* Headers as R's write.csv() and spreadsheets write them. */
 static void test_csv_quoted_header(void **state)
 {
@@ -397,6 +419,7 @@ int main(void)
 		cmocka_unit_test(test_csv_errors),
 		cmocka_unit_test(test_csv_tolerant),
 		cmocka_unit_test(test_csv_quoted_header),
+		cmocka_unit_test(test_text_profile),
 		cmocka_unit_test(test_ply_errors),
 		cmocka_unit_test(test_missing_file),
 		cmocka_unit_test(test_read_memory),

@@ -119,6 +119,50 @@ static void test_summarize(void **state)
 	assert_int_equal(asph_quality_summarize(odd, 0, &st, &err), -EINVAL);
 }
 
+static int cmp_double(const void *a, const void *b)
+{
+	double x = *(const double *)a, y = *(const double *)b;
+
+	return (x > y) - (x < y);
+}
+
+/* Type 7 on a sorted copy, as the summary's quantiles were computed by
+ * sorting: selecting the order statistics gives the same numbers exactly. */
+static double sorted_quantile(const double *s, size_t n, double p)
+{
+	double pos = p * (double)(n - 1);
+	size_t i = (size_t)floor(pos);
+
+	return i + 1 >= n ? s[n - 1] : s[i] + (pos - (double)i) * (s[i + 1] - s[i]);
+}
+
+static void test_summarize_against_sort(void **state)
+{
+	const size_t sizes[] = { 1, 2, 3, 4, 7, 1000, 4097 };
+	uint64_t x = 88172645463325252u;
+
+	(void)state;
+	for (size_t c = 0; c < sizeof(sizes) / sizeof(sizes[0]); c++) {
+		size_t n = sizes[c];
+		double *v = malloc(n * sizeof(double)), *s = malloc(n * sizeof(double));
+		struct asph_quality_stats st;
+		for (size_t i = 0; i < n; i++) {
+			x ^= x << 13, x ^= x >> 7, x ^= x << 17;
+			/* many ties: 64 distinct values, and a spread of magnitudes */
+			v[i] = ldexp((double)(x % 64) - 20.5, (int)(x >> 60) - 8);
+		}
+		memcpy(s, v, n * sizeof(double));
+		qsort(s, n, sizeof(double), cmp_double);
+		assert_int_equal(asph_quality_summarize(v, n, &st, NULL), 0);
+		assert_true(st.min == s[0] && st.max == s[n - 1]);
+		assert_true(st.p25 == sorted_quantile(s, n, 0.25));
+		assert_true(st.median == sorted_quantile(s, n, 0.5));
+		assert_true(st.p75 == sorted_quantile(s, n, 0.75));
+		free(s);
+		free(v);
+	}
+}
+
 /*
  * Sphere of radius R: with r = R sin(phi) the metric is
  * R^2 (dphi^2 + sin^2 phi dtheta^2), isothermal for drho / rho = dphi /
@@ -455,6 +499,7 @@ int main(void)
 	const struct CMUnitTest tests[] = {
 		cmocka_unit_test(test_q_closed_forms),
 		cmocka_unit_test(test_summarize),
+		cmocka_unit_test(test_summarize_against_sort),
 		cmocka_unit_test(test_chart_sphere),
 		cmocka_unit_test(test_chart_paraboloid),
 		cmocka_unit_test(test_chart_conformal),

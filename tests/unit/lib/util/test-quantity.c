@@ -86,17 +86,20 @@ static void test_figures(void **state)
 	assert_string_equal(small, "-123456");   /* cut to the buffer, terminated */
 }
 
-/* The member at a path of the summary: "rms_nm" or "form.A_nm" (the
- * table's deeper paths are outside the summary). */
+/* The member at a path of the summary: "rms_nm" or "form.A_nm", or in
+ * the first element of an array ("profiles.rms_nm"; the table's deeper
+ * paths are outside the summary). */
 static json_t *member(json_t *root, const char *path)
 {
 	const char *dot = strchr(path, '.');
 	char head[32];
+	json_t *o;
 
 	if (!dot)
 		return json_object_get(root, path);
 	snprintf(head, sizeof(head), "%.*s", (int)(dot - path), path);
-	return json_object_get(json_object_get(root, head), dot + 1);
+	o = json_object_get(root, head);
+	return json_object_get(json_is_array(o) ? json_array_get(o, 0) : o, dot + 1);
 }
 
 /* A key the Monte Carlo adds to uncertainty_k2. */
@@ -113,7 +116,7 @@ static void test_keys(void **state)
 	static const char *const outside[] = { "band_rms.", "acquisition.", NULL };
 	struct asph_fit_result r = { .dof = ASPH_FIT_DOF_RIGID6 | ASPH_FIT_DOF_BIT(ASPH_FIT_R) |
 					    ASPH_FIT_DOF_BIT(ASPH_FIT_K),
-				     .n_zernike = 1 };
+				     .n_zernike = 1, .profile = 1, .n_profiles = 1 };
 	char *text = NULL;
 	json_t *root;
 	size_t n;
