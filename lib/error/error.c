@@ -52,7 +52,9 @@ int asph_error_vset_at(struct asph_error *err, int code, const char *source,
 	/* formatted aside first: the arguments may be err's own strings */
 	vsnprintf(msg, sizeof(msg), fmt, ap);
 	asph_error_locate(err, source, line, column, field);
-	memcpy(err->message, msg, sizeof(msg));
+	/* up to its end only: the bytes past it stay as they were (a
+	 * cleared error's zeros), not the stack's leftovers */
+	memcpy(err->message, msg, strlen(msg) + 1);
 	err->code = code;
 	return code;
 }

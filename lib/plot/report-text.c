@@ -11,14 +11,15 @@
 #include "asph/report.h"
 #include "report-text.h"
 
-/* The length of the valid UTF-8 sequence at s (1 to 4), or 0 when it is
- * not one: a stray continuation byte, a truncated or overlong sequence, a
- * surrogate, or past U+10FFFF. */
-static size_t utf8_valid_length(const unsigned char *s)
+/* The length of the valid UTF-8 sequence at s (1 to 4), its code point in
+ * *code, or 0 when it is not one: a stray continuation byte, a truncated or
+ * overlong sequence, a surrogate, or past U+10FFFF. */
+static size_t utf8_valid_length(const unsigned char *s, uint32_t *code)
 {
 	uint32_t c;
 	size_t n;
 
+	*code = s[0];
 	if (s[0] < 0x80)
 		return 1;
 	if (s[0] >= 0xc2 && s[0] <= 0xdf)
@@ -37,6 +38,7 @@ static size_t utf8_valid_length(const unsigned char *s)
 	if ((n == 3 && c < 0x800) || (n == 4 && (c < 0x10000 || c > 0x10ffff)) ||
 	    (c >= 0xd800 && c <= 0xdfff))
 		return 0;
+	*code = c;
 	return n;
 }
 
@@ -44,6 +46,15 @@ static size_t utf8_valid_length(const unsigned char *s)
 static int is_c1_control(const unsigned char *s, size_t n)
 {
 	return n == 2 && s[0] == 0xc2 && s[1] < 0xa0;
+}
+
+/* A noncharacter (U+FDD0 to U+FDEF, and the last two code points of every
+ * plane, U+FFFE, U+FFFF, U+1FFFE, ...): valid UTF-8, but cairo refuses a
+ * string holding one (CAIRO_STATUS_INVALID_STRING), and its error would
+ * end the drawing of the whole report. */
+static int is_noncharacter(uint32_t c)
+{
+	return (c >= 0xfdd0 && c <= 0xfdef) || (c & 0xfffe) == 0xfffe;
 }
 
 char *report_text_clean(const char *text)
@@ -59,11 +70,13 @@ char *report_text_clean(const char *text)
 		return NULL;
 	o = out;
 	while (*s) {
-		size_t n = utf8_valid_length(s);
-		if (n == 0) {
+		uint32_t c;
+		size_t n = utf8_valid_length(s, &c);
+		if (n == 0 || is_noncharacter(c)) {
+			/* a noncharacter's 3 or 4 bytes become U+FFFD's 3 */
 			memcpy(o, "\xef\xbf\xbd", 3);
 			o += 3;
-			s++;
+			s += n ? n : 1;
 		} else if ((n == 1 && ((*s < 0x20 && *s != '\n') || *s == 0x7f)) ||
 			   is_c1_control(s, n)) {
 			*o++ = ' ';
@@ -135,7 +148,8 @@ static int lines_add(struct report_lines *l, const char *s, size_t len)
 /* The byte length of the (clean) character at s. */
 static size_t char_length(const char *s)
 {
-	size_t n = utf8_valid_length((const unsigned char *)s);
+	uint32_t c;
+	size_t n = utf8_valid_length((const unsigned char *)s, &c);
 
 	return n ? n : 1;
 }

@@ -8,8 +8,10 @@
 
 #include "config.h"
 
-/* A copy of text that cairo can show: invalid UTF-8 replaced by U+FFFD,
- * control characters other than '\n' (tabs, carriage returns) by a space.
+/* A copy of text that cairo can show: invalid UTF-8 and noncharacters
+ * (U+FDD0 to U+FDEF, U+FFFE, U+FFFF, U+1FFFE, ...: cairo refuses them)
+ * replaced by U+FFFD, control characters other than '\n' (tabs, carriage
+ * returns) by a space.
  * NULL for NULL text or ENOMEM. */
 char *report_text_clean(const char *text);
 

@@ -7,18 +7,28 @@
  * interferometric scale factor, [3] the obliquity factor). Row 0 is the
  * top one. */
 #include <errno.h>
-#include <stdarg.h>
+#include <fcntl.h>
+#include <limits.h>
 #include <math.h>
+#include <poll.h>
+#include <signal.h>
+#include <stdarg.h>
 #include <stdbool.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <strings.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
 #include <hdf5.h>
 
+#include "fileio.h"
 #include "readers.h"
 #include "util-mem.h"
+#include "util-time.h"
 
 #define M_TO_MM 1000.0
 #define SURFACE_GROUP "/Data/Surface"
@@ -270,13 +280,21 @@ static double no_data(struct datx *x)
 	return v;
 }
 
-static int read_map(struct datx *x, size_t file_len, struct asph_points **out,
-		    struct asph_points_read_info *info)
+/* What the decoder hands back through its pipe: this, then (code 0) the
+ * map's nx * ny heights, mm, NaN where a node is invalid. */
+struct datx_answer {
+	int code;               /* 0, or the decoder's error, told in err */
+	struct asph_error err;
+	size_t nx, ny;
+	double dx, dy;          /* spacing, mm */
+};
+
+static int read_map(struct datx *x, size_t file_len, struct datx_answer *a, double **out)
 {
 	hid_t space = H5Dget_space(x->set);
 	hsize_t dims[2];
 	size_t nodes;
-	double dx = 0, dy = 0, zs = 0;
+	double zs = 0;
 
 	int nd = space >= 0 ? H5Sget_simple_extent_ndims(space) : -1;
 	if (nd == 2)
@@ -297,9 +315,9 @@ static int read_map(struct datx *x, size_t file_len, struct asph_points **out,
 	    nodes / MAX_VALUES_PER_BYTE > file_len)
 		return datx_error(x, -EFBIG, x->name, "a map of %llu x %llu is too large for the file",
 				  (unsigned long long)dims[1], (unsigned long long)dims[0]);
-	int r = lateral_spacing(x, "X Converter", &dx);
+	int r = lateral_spacing(x, "X Converter", &a->dx);
 	if (r == 0)
-		r = lateral_spacing(x, "Y Converter", &dy);
+		r = lateral_spacing(x, "Y Converter", &a->dy);
 	if (r == 0)
 		r = height_scale(x, &zs);
 	if (r < 0)
@@ -312,22 +330,21 @@ static int read_map(struct datx *x, size_t file_len, struct asph_points **out,
 	double nd_value = no_data(x);
 	for (size_t k = 0; k < nodes; k++)
 		z[k] = z[k] >= nd_value || !isfinite(z[k]) ? NAN : z[k] * zs;
-	struct points_map m = { .nx = (size_t)dims[1], .ny = (size_t)dims[0], .z = z };
-	points_map_centre(&m, dx, dy, 1);
-	return points_from_map(&m, "datx", x->source, out, info, x->err);
+	a->nx = (size_t)dims[1];
+	a->ny = (size_t)dims[0];
+	*out = steal_ptr(z);
+	return 0;
 }
 
-int points_read_datx(const uint8_t *data, size_t len, const char *source,
-		     struct asph_points **out, struct asph_points_read_info *info,
-		     struct asph_error *err)
+/* The map of the file in data, decoded by libhdf5 (in the decoder's
+ * process: decoder_run()). */
+static int decode(const uint8_t *data, size_t len, const char *source, struct datx_answer *a,
+		  double **z)
 {
-	struct datx x = { .source = source, .err = err, .file = -1, .set = -1 };
-	H5E_auto2_t old_func;
-	void *old_data;
+	struct datx x = { .source = source, .err = &a->err, .file = -1, .set = -1 };
 	int r;
 
 	/* HDF5 prints its error stack by default: the library stays quiet */
-	H5Eget_auto2(H5E_DEFAULT, &old_func, &old_data);
 	H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
 	hid_t fapl = H5Pcreate(H5P_FILE_ACCESS);
 	if (fapl >= 0 && H5Pset_fapl_core(fapl, 1 << 20, 0) >= 0 &&
@@ -340,11 +357,203 @@ int points_read_datx(const uint8_t *data, size_t len, const char *source,
 	if (x.file < 0)
 		r = datx_error(&x, -EINVAL, NULL, "not a readable HDF5 file");
 	else if ((r = open_map(&x)) == 0)
-		r = read_map(&x, len, out, info);
+		r = read_map(&x, len, a, z);
 	if (x.set >= 0)
 		H5Dclose(x.set);
 	if (x.file >= 0)
 		H5Fclose(x.file);
-	H5Eset_auto2(H5E_DEFAULT, old_func, old_data);
 	return r;
+}
+
+/*
+ * libhdf5 is not safe with files it did not write: Debian 12's leaks on
+ * malformed files and reads past a heap buffer (H5HG_read) on some of
+ * them, and a reader of a file from anywhere must not take the program
+ * down with it. So libhdf5 decodes the file in a process of its own,
+ * forked for the one file, which sends the map back through a pipe and
+ * ends with _exit() (what libhdf5 leaked or broke ends with it; nothing
+ * of the caller's runs there: no atexit handlers, no flushing of the
+ * caller's stdio). Its limits: address space for the image, the decoded
+ * values and libhdf5's own work (DECODER_MEMORY), CPU time (RLIMIT_CPU,
+ * DECODER_CPU_SECONDS) and, as a process that is stopped or waits would
+ * use none, a wall-clock time of four times that. The caller only ever
+ * sees the map, or an error naming the file and what happened. In a
+ * program with threads the process holds only the forking one: glibc
+ * keeps malloc usable there, and libhdf5 has never run in the caller's
+ * process, so none of its locks can be held.
+ */
+#define DECODER_MEMORY(len) \
+	(((size_t)512 << 20) + 2 * (len) + \
+	 sizeof(double) * ((len) < POINTS_MAX / MAX_VALUES_PER_BYTE ? (len) * MAX_VALUES_PER_BYTE : POINTS_MAX))
+#define DECODER_CPU_SECONDS(len) (20 + (len) / (8 << 20))
+
+/* The address space the process maps now, bytes (0: unknown). */
+static size_t address_space(void)
+{
+	unsigned long pages = 0;
+	_cleanup_fclose_ FILE *f = fopen("/proc/self/statm", "re");
+
+	if (!f || fscanf(f, "%lu", &pages) != 1)
+		return 0;
+	return pages * (size_t)sysconf(_SC_PAGESIZE);
+}
+
+static void decoder_limits(size_t len)
+{
+	rlim_t cpu = DECODER_CPU_SECONDS(len);
+	struct rlimit l = { cpu, cpu + 1 }; /* SIGXCPU, then SIGKILL */
+	size_t now = address_space();
+
+	setrlimit(RLIMIT_CPU, &l);
+	/* relative to what is mapped already: a sanitizer's shadow memory
+	 * alone is terabytes. Unknown (no /proc): the CPU time bounds it. */
+	if (now) {
+		l.rlim_cur = l.rlim_max = now + DECODER_MEMORY(len);
+		setrlimit(RLIMIT_AS, &l);
+	}
+}
+
+/* The caller's signal handlers and mask are not for this process: a
+ * handler of the caller's (a test framework's, a crash reporter's) could
+ * take a crash of libhdf5 back into the caller's code here, and a blocked
+ * SIGXCPU would not stop it. Every signal has its default action: a crash
+ * ends the process, a reader gone away (SIGPIPE) too. */
+static void reset_signals(void)
+{
+	sigset_t none;
+
+	for (int sig = 1; sig < NSIG; sig++)
+		signal(sig, SIG_DFL); /* SIGKILL, SIGSTOP and glibc's own refuse */
+	sigemptyset(&none);
+	sigprocmask(SIG_SETMASK, &none, NULL);
+}
+
+static _Noreturn void decoder_run(const uint8_t *data, size_t len, const char *source, int fd)
+{
+	struct datx_answer a;
+	double *z = NULL;
+
+	memset(&a, 0, sizeof(a)); /* every byte goes down the pipe */
+	reset_signals();
+	decoder_limits(len);
+	a.code = decode(data, len, source, &a, &z);
+	int r = fd_write_all(fd, &a, sizeof(a));
+	if (r == 0 && a.code == 0)
+		r = fd_write_all(fd, z, a.nx * a.ny * sizeof(double));
+	free(z);
+	_exit(r < 0 ? 1 : 0);
+}
+
+/* n bytes from fd into p before deadline (now_monotonic_ms()): 0,
+ * -ETIMEDOUT, -EPIPE at an early end, or -errno. */
+static int read_before(int fd, void *p, size_t n, uint64_t deadline)
+{
+	uint8_t *b = p;
+
+	while (n > 0) {
+		int64_t left = (int64_t)(deadline - now_monotonic_ms());
+		struct pollfd pfd = { .fd = fd, .events = POLLIN };
+		if (left <= 0)
+			return -ETIMEDOUT;
+		int k = poll(&pfd, 1, left > INT_MAX ? INT_MAX : (int)left);
+		if (k < 0 && errno == EINTR)
+			continue;
+		if (k < 0)
+			return -errno;
+		if (k == 0)
+			continue;
+		ssize_t got = read(fd, b, n);
+		if (got < 0 && errno == EINTR)
+			continue;
+		if (got < 0)
+			return -errno;
+		if (got == 0)
+			return -EPIPE;
+		b += got;
+		n -= (size_t)got;
+	}
+	return 0;
+}
+
+/* The decoder's answer and its map (*z, malloc'd) before deadline. */
+static int read_answer(int fd, struct datx_answer *a, double **z, uint64_t deadline)
+{
+	size_t nodes;
+	int r = read_before(fd, a, sizeof(*a), deadline);
+
+	if (r < 0 || a->code < 0)
+		return r;
+	if (points_map_size(a->nx, a->ny, sizeof(double), &nodes, NULL) < 0)
+		return -EPROTO;
+	*z = malloc(nodes * sizeof(double));
+	if (!*z)
+		return -ENOMEM;
+	return read_before(fd, *z, nodes * sizeof(double), deadline);
+}
+
+/* Why the decoder gave no map: its end (wait status), or none in time. */
+static int decoder_failed(const char *source, int status, int r, unsigned cpu,
+			  struct asph_error *err)
+{
+	if (r == -ETIMEDOUT)
+		return asph_error_set_at(err, -ETIMEDOUT, source, 0, 0, NULL,
+					 "datx: libhdf5 gave no answer in %u s: the file was not read",
+					 4 * cpu);
+	if (WIFSIGNALED(status) && WTERMSIG(status) == SIGXCPU)
+		return asph_error_set_at(err, -ETIME, source, 0, 0, NULL,
+					 "datx: libhdf5 took over %u s of CPU time: the file was not read",
+					 cpu);
+	if (WIFSIGNALED(status))
+		return asph_error_set_at(err, -EINVAL, source, 0, 0, NULL,
+					 "datx: libhdf5 crashed on the file (signal SIG%s): the file was not read",
+					 sigabbrev_np(WTERMSIG(status)) ? sigabbrev_np(WTERMSIG(status)) : "?");
+	if (r == -ENOMEM)
+		return asph_error_set_at(err, -ENOMEM, source, 0, 0, NULL, "datx: out of memory");
+	return asph_error_set_at(err, -EINVAL, source, 0, 0, NULL,
+				 "datx: libhdf5's decoding failed (exit status %d): the file was not read",
+				 WIFEXITED(status) ? WEXITSTATUS(status) : -1);
+}
+
+int points_read_datx(const uint8_t *data, size_t len, const char *source,
+		     struct asph_points **out, struct asph_points_read_info *info,
+		     struct asph_error *err)
+{
+	unsigned cpu = DECODER_CPU_SECONDS(len);
+	struct datx_answer a = { 0 };
+	_cleanup_free_ double *z = NULL;
+	int fds[2], status = 0;
+
+	if (pipe2(fds, O_CLOEXEC) < 0)
+		return asph_error_set_at(err, -errno, source, 0, 0, NULL,
+					 "datx: no pipe for libhdf5's decoder: %s", strerror(errno));
+	pid_t pid = fork();
+	if (pid < 0) {
+		int e = errno;
+		close(fds[0]);
+		close(fds[1]);
+		return asph_error_set_at(err, -e, source, 0, 0, NULL,
+					 "datx: no process for libhdf5's decoder: %s", strerror(e));
+	}
+	if (pid == 0) {
+		close(fds[0]);
+		decoder_run(data, len, source, fds[1]);
+	}
+	close(fds[1]);
+	int r = read_answer(fds[0], &a, &z, now_monotonic_ms() + 4000 * (uint64_t)cpu);
+	close(fds[0]);
+	if (r == -ETIMEDOUT)
+		kill(pid, SIGKILL);
+	while (waitpid(pid, &status, 0) < 0 && errno == EINTR)
+		;
+	/* the decoder's own refusal of the file */
+	if (r == 0 && a.code < 0) {
+		if (err)
+			*err = a.err;
+		return a.code;
+	}
+	if (r < 0 || !WIFEXITED(status) || WEXITSTATUS(status) != 0)
+		return decoder_failed(source, status, r, cpu, err);
+	struct points_map m = { .nx = a.nx, .ny = a.ny, .z = z };
+	points_map_centre(&m, a.dx, a.dy, 1);
+	return points_from_map(&m, "datx", source, out, info, err);
 }

@@ -21,6 +21,7 @@
 #include "config.h"
 #include "asph/scanfile.h"
 #include "crc32c.h"
+#include "fileio.h"
 #include "scanfile-format.h"
 #include "util-mem.h"
 #include "util-time.h"
@@ -115,22 +116,6 @@ static int writer_alloc(int dirfd, const char *path,
 	return 0;
 }
 
-static int write_all(int fd, const uint8_t *p, size_t n)
-{
-	while (n > 0) {
-		ssize_t r = write(fd, p, n);
-		if (r < 0 && errno == EINTR)
-			continue;
-		if (r < 0)
-			return -errno;
-		if (r == 0)
-			return -EIO;
-		p += r;
-		n -= (size_t)r;
-	}
-	return 0;
-}
-
 /* Remembers the first error; every later call returns it again. */
 static int writer_error(struct asph_scanfile_writer *w, struct asph_error *err,
 			int code, const char *what)
@@ -147,7 +132,7 @@ static int writer_error(struct asph_scanfile_writer *w, struct asph_error *err,
 static int emit(struct asph_scanfile_writer *w, const uint8_t *block, size_t len,
 		uint32_t n_points, struct asph_error *err)
 {
-	int r = write_all(w->fd, block, len);
+	int r = fd_write_all(w->fd, block, len);
 
 	if (r < 0) {
 		if (ftruncate(w->fd, (off_t)w->offset) < 0) {
@@ -439,7 +424,7 @@ static int write_header(struct asph_scanfile_writer *w, const char *json,
 	memcpy(b + SCANFILE_PREFIX_SIZE, json, len); // NOLINT(bugprone-not-null-terminated-result)
 	put_le32(b + SCANFILE_PREFIX_CRC_OFFSET,
 		 crc32c(crc32c(0, b, SCANFILE_PREFIX_CRC_OFFSET), json, len));
-	int r = write_all(w->fd, b, SCANFILE_PREFIX_SIZE + len);
+	int r = fd_write_all(w->fd, b, SCANFILE_PREFIX_SIZE + len);
 	if (r == 0 && fsync(w->fd) < 0)
 		r = -errno;
 	if (r < 0)

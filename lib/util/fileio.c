@@ -1,8 +1,10 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 #include <errno.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "fileio.h"
 #include "util-mem.h"
@@ -56,5 +58,23 @@ int file_read_all(const char *path, size_t limit, char **out, size_t *len,
 	buf[n] = '\0';
 	*out = steal_ptr(buf);
 	*len = n;
+	return 0;
+}
+
+int fd_write_all(int fd, const void *p, size_t n)
+{
+	const uint8_t *b = p;
+
+	while (n > 0) {
+		ssize_t r = write(fd, b, n);
+		if (r < 0 && errno == EINTR)
+			continue;
+		if (r < 0)
+			return -errno;
+		if (r == 0)
+			return -EIO;
+		b += r;
+		n -= (size_t)r;
+	}
 	return 0;
 }

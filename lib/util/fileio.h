@@ -1,6 +1,6 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
-/* Reading a whole text file into memory, the one way the tree does it.
- * Internal. */
+/* Reading a whole text file into memory and writing all of a buffer to a
+ * descriptor, the one way the tree does each. Internal. */
 #ifndef ASPH_FILEIO_H
 #define ASPH_FILEIO_H
 
@@ -15,5 +15,9 @@
  */
 int file_read_all(const char *path, size_t limit, char **out, size_t *len,
 		  struct asph_error *err);
+
+/* All n bytes of p to fd (a pipe, a file), through EINTR and short writes:
+ * 0 or -errno (-EIO when the descriptor takes nothing). */
+int fd_write_all(int fd, const void *p, size_t n);
 
 #endif

@@ -75,10 +75,14 @@ def _with_raw(doc, path, raw):
     return text.replace('"' + marker + '"', raw).encode("utf-8", "surrogateescape")
 
 
-def json_syntax_cases(kind, doc, string_path):
+def json_syntax_cases(kind, doc, string_path, line_comments=False):
     """Mutations any JSON reader must refuse: the text is not JSON, or not
     the object the format wants. string_path names a string member (for
-    invalid UTF-8 and very long strings)."""
+    invalid UTF-8 and very long strings). line_comments: the format takes
+    // comments to the end of a line (the daemon's configuration,
+    docs/daemon.md), so such a comment is no bad input there, but other
+    comments are, and so is one that comments out the rest of a line the
+    object needs."""
     text = dumps(doc)
     cases = [
         Case(kind, "empty", b"", None),
@@ -91,7 +95,13 @@ def json_syntax_cases(kind, doc, string_path):
         Case(kind, "second-object", text + text, None),
         Case(kind, "byte-order-mark", b"\xef\xbb\xbf" + text, None),
         Case(kind, "nul-byte", text[:len(text) // 2] + b"\0" + text[len(text) // 2:], None),
+    ] + ([
+        Case(kind, "block-comment", b"/* a comment */\n" + text, None),
+        Case(kind, "hash-comment", b"# a comment\n" + text, None),
+        Case(kind, "comment-hides-the-object", b"{ // " + dumps(doc, None)[1:], None),
+    ] if line_comments else [
         Case(kind, "comment", b"// a comment\n" + text, None),
+    ]) + [
         Case(kind, "single-quotes", text.replace(b'"', b"'"), None),
         Case(kind, "latin1-file", text.replace(b"{", b"{\"\xe9t\xe9\": 1, ", 1), None),
         Case(kind, "utf16", text.decode().encode("utf-16"), None),
@@ -482,7 +492,7 @@ def instrument_cases():
 def daemon_cases():
     k = "daemon"
     d = DAEMON
-    cases = json_syntax_cases(k, d, ["socket_mode"])
+    cases = json_syntax_cases(k, d, ["socket_mode"], line_comments=True)
     cases += json_value_cases(k, d, [["limits", "max_clients"], ["limits", "max_queue"]],
                               True, [["limitz"], ["limits", "max_client"], ["instruments", 0, "extra"]])
     cases += [

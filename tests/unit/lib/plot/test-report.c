@@ -30,6 +30,15 @@ static void test_clean(void **state)
 	assert_string_equal(c, "µ λ ° \xef\xbf\xbd \xef\xbf\xbd\xef\xbf\xbd "
 			       "\xef\xbf\xbd\xef\xbf\xbd\xef\xbf\xbd \xef\xbf\xbd\xef\xbf\xbd");
 	free(c);
+	/* noncharacters (valid UTF-8 that cairo refuses) become U+FFFD; the
+	 * code points beside them stay */
+	c = report_text_clean("\xef\xb7\x8f \xef\xb7\x90 \xef\xb7\xaf \xef\xb7\xb0 "
+			      "\xef\xbf\xbd \xef\xbf\xbe \xef\xbf\xbf "
+			      "\xf0\x9f\xbf\xbd \xf0\x9f\xbf\xbe \xf4\x8f\xbf\xbf");
+	assert_string_equal(c, "\xef\xb7\x8f \xef\xbf\xbd \xef\xbf\xbd \xef\xb7\xb0 "
+			       "\xef\xbf\xbd \xef\xbf\xbd \xef\xbf\xbd "
+			       "\xf0\x9f\xbf\xbd \xef\xbf\xbd \xef\xbf\xbd");
+	free(c);
 	assert_null(report_text_clean(NULL));
 }
 
@@ -177,6 +186,27 @@ static void test_wrap_prefers_spaces(void **state)
 	report_lines_release(&l);
 	cairo_destroy(cr);
 }
+
+/* cairo shows every cleaned text: a noncharacter left in would put the
+ * context in an error state (CAIRO_STATUS_INVALID_STRING) and end the
+ * drawing of the whole report. */
+static void test_clean_text_shown(void **state)
+{
+	static const char *const texts[] = {
+		"lot \xef\xbf\xbe", "\xef\xb7\x90 serial", "\xf4\x8f\xbf\xbf",
+		"\xf0\x9f\xbf\xbe part", "a\x80" "b\xed\xa0\x80", "plain",
+	};
+
+	for (size_t i = 0; i < sizeof(texts) / sizeof(texts[0]); i++) {
+		cairo_t *cr = measuring_context(REPORT_SANS, 8);
+		char *c = report_text_clean(texts[i]);
+		cairo_move_to(cr, 0, 10);
+		cairo_show_text(cr, c);
+		assert_int_equal(cairo_status(cr), CAIRO_STATUS_SUCCESS);
+		free(c);
+		cairo_destroy(cr);
+	}
+}
 #endif
 
 static void test_noise_floor(void **state)
@@ -195,6 +225,7 @@ int main(void)
 		cmocka_unit_test(test_wrap_words),
 		cmocka_unit_test(test_wrap_long_tokens),
 		cmocka_unit_test(test_wrap_prefers_spaces),
+		cmocka_unit_test(test_clean_text_shown),
 #endif
 		cmocka_unit_test(test_noise_floor),
 	};

@@ -808,6 +808,23 @@ static void test_datx(void **state)
 	write_datx("volts.datx", z, 3, 2, big, &volts, 1);
 	struct asph_error err = read_bad("volts.datx", "not a length");
 	assert_string_equal(err.field, "Z Converter");
+
+	/* A file on which libhdf5 copies a negative size (H5HG_read, found
+	 * by fuzzing): its decoding process ends, the reader names the file
+	 * and what happened, and the next file reads. */
+	char crash[1024];
+	struct asph_points *none = NULL;
+	snprintf(crash, sizeof(crash), "%s/../fuzz/corpus/points-datx/%s", getenv("ASPH_TEST_DATA"),
+		 "regress-h5hg-read-negative-size.datx");
+	asph_error_clear(&err);
+	assert_true(asph_points_read_as(crash, NULL, &none, NULL, &err) < 0);
+	assert_null(none);
+	assert_string_equal(err.source, crash);
+	if (!strstr(err.message, "datx: libhdf5 crashed on the file (signal SIG")) {
+		print_error("%s\n", err.message);
+		fail();
+	}
+	asph_points_free(read_ok("fringes.datx", NULL, NULL));
 }
 
 /* The format names one table defines, and detection of each magic. */
