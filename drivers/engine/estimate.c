@@ -231,3 +231,12 @@ int asph_scan_estimate(const struct asph_instrument_config *c, const struct asph
 	*seconds = t;
 	return 0;
 }
+
+int asph_scan_plan_time(void *timing, const struct asph_plan *plan, double *seconds,
+			struct asph_error *err)
+{
+	const struct asph_scan_timing *t = timing;
+
+	return asph_scan_estimate(t->instrument, t->surface, plan->xyz, plan->n, &t->options,
+				  seconds, err);
+}

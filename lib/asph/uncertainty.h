@@ -134,6 +134,19 @@ struct asph_mc_options {
 	unsigned long seed;     /* trial t draws from a seed made of (seed, t):
 				   the result does not depend on which worker
 				   runs which trial, nor in what order */
+	/*
+	 * A decision instead of a report (asph/plan-search.h): where
+	 * decide_U[q] > 0, the adaptive stop tests quantity q only, and only
+	 * as far as the decision U <= decide_U[q] needs: its U = k u is
+	 * stable when 2 k s_u <= max(decide_precision x decide_U[q],
+	 * |U - decide_U[q]| / 2), s_u the spread of the block standard
+	 * deviations of GUM S1 7.9.4 (the mean is not tested: the decision
+	 * does not depend on it). Quantities without a threshold are not
+	 * tested. NULL: GUM S1 7.9's numerical tolerance from
+	 * significant_digits, on every covered quantity. Copied.
+	 */
+	const double *decide_U;         /* ASPH_MC_N_QUANTITIES entries */
+	double decide_precision;        /* relative, 0 < p < 1; 0 = 0.05 */
 };
 
 struct asph_mc_result {

@@ -39,6 +39,7 @@ struct asph_mc {
 	size_t planned;         /* trials asked for so far */
 	size_t n_run;           /* trials of the last finish */
 	int stable;             /* the adaptive stop's last answer */
+	double decide_U[ASPH_MC_N_QUANTITIES];  /* opt.decide_U's copy */
 };
 
 /* The quantities of one characterization; NaN where it has none. */
@@ -202,6 +203,15 @@ static int check_options(struct asph_mc_options *o, struct asph_error *err)
 				      "block size, %zu and %zu are not", o->n_trials, o->block_size);
 	if (o->significant_digits < 1 || o->significant_digits > 4)
 		return asph_error_set(err, -EINVAL, "significant_digits must be 1..4");
+	if (o->decide_precision == 0)
+		o->decide_precision = 0.05;
+	if (!(o->decide_precision > 0 && o->decide_precision < 1))
+		return asph_error_set(err, -EINVAL, "decide_precision must be in (0, 1), not %g",
+				      o->decide_precision);
+	for (int q = 0; o->decide_U && q < ASPH_MC_N_QUANTITIES; q++)
+		if (!(o->decide_U[q] >= 0 && isfinite(o->decide_U[q])))
+			return asph_error_set(err, -EINVAL, "the threshold of U for %s must be a "
+					      "number >= 0", asph_mc_quantity_key((enum asph_mc_quantity)q));
 	return 0;
 }
 
@@ -267,6 +277,10 @@ int asph_mc_alloc(const struct asph_surface *s, const double *xyz, size_t n,
 	mc->n = n;
 	mc->model = *model;
 	mc->opt = o;
+	if (o.decide_U) {
+		memcpy(mc->decide_U, o.decide_U, sizeof(mc->decide_U));
+		mc->opt.decide_U = mc->decide_U;
+	}
 	mc->fit_opts = fit_opts ? *fit_opts : (struct asph_fit_options){ 0 };
 	mc->fit_opts.tolerance = NULL;
 	/* the trials' fits run on the runner's workers: the caller hears of
@@ -328,8 +342,9 @@ int asph_mc_next_block(struct asph_mc *mc, size_t done, size_t *first, size_t *c
 	if (done == mc->planned) {
 		if (o->fixed)
 			return 0;
-		mc->stable = mc_stable(mc->values, done, mc->covered, o->block_size,
-				       o->significant_digits, mc->block_stats);
+		struct mc_stop stop = { .block = o->block_size, .ndig = o->significant_digits,
+					.decide_U = o->decide_U, .precision = o->decide_precision };
+		mc->stable = mc_stable(mc->values, done, mc->covered, &stop, mc->block_stats);
 		if (mc->stable || mc->planned + o->block_size > o->max_trials)
 			return 0;
 		mc->planned += o->block_size;

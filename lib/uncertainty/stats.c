@@ -72,30 +72,52 @@ static double numerical_tolerance(double u, int ndig)
 	return 0.5 * pow(10, floor(log10(u)) - (ndig - 1));
 }
 
-static int quantity_stable(const double *values, size_t n, int q, size_t block, int ndig,
-			   double *scratch)
+/* The block statistics of quantity q over the first h blocks: y[r], u[r]
+ * of block r, and sd over them all. 0 when a block has fewer than two
+ * values (failed trials), else 1. */
+static int block_stats(const double *values, size_t h, size_t block, int q, double *y,
+		       double *u, double *sd)
 {
-	size_t h = n / block;
-	double *y = scratch, *u = scratch + h, mean, sd;
+	double mean;
 
-	mean_sd(values, 0, h * block, q, &mean, &sd);
-	if (!(sd > 0))
-		return 1;       /* nothing varies: nothing to settle */
+	mean_sd(values, 0, h * block, q, &mean, sd);
 	for (size_t r = 0; r < h; r++)
 		if (mean_sd(values, r * block, (r + 1) * block, q, &y[r], &u[r]) < 2)
 			return 0;
-	double delta = numerical_tolerance(sd, ndig);
+	return 1;
+}
+
+static int quantity_stable(const double *values, size_t n, int q, const struct mc_stop *stop,
+			   double *scratch)
+{
+	size_t h = n / stop->block;
+	double *y = scratch, *u = scratch + h, sd;
+
+	if (!block_stats(values, h, stop->block, q, y, u, &sd))
+		return 0;
+	if (!(sd > 0))
+		return 1;       /* nothing varies: nothing to settle */
+	if (stop->decide_U) {
+		/* settled when U's spread is small against the precision the
+		 * decision asks for, or against U's distance to the threshold */
+		double limit = stop->decide_U[q], U = ASPH_MC_COVERAGE_FACTOR * sd;
+		double room = fmax(stop->precision * limit, fabs(U - limit) / 2);
+		return 2 * ASPH_MC_COVERAGE_FACTOR * spread_of_mean(u, h) <= room;
+	}
+	double delta = numerical_tolerance(sd, stop->ndig);
 	return 2 * spread_of_mean(y, h) <= delta && 2 * spread_of_mean(u, h) <= delta;
 }
 
-int mc_stable(const double *values, size_t n, const int *covered, size_t block, int ndig,
+int mc_stable(const double *values, size_t n, const int *covered, const struct mc_stop *stop,
 	      double *scratch)
 {
-	if (n / block < 2)
+	if (n / stop->block < 2)
 		return 0;
-	for (int q = 0; q < NQ; q++)
-		if (covered[q] && !quantity_stable(values, n, q, block, ndig, scratch))
+	for (int q = 0; q < NQ; q++) {
+		int tested = covered[q] && (!stop->decide_U || stop->decide_U[q] > 0);
+		if (tested && !quantity_stable(values, n, q, stop, scratch))
 			return 0;
+	}
 	return 1;
 }
 

@@ -8,12 +8,14 @@
 
 #include "acquire-tool.h"
 #include "asph-engine/executor.h"
+#include "asph/plan-search.h"
 #include "asph/plan.h"
 #include "asph/points.h"
 #include "asph/prescription.h"
 #include "asph-tool.h"
 #include "command.h"
 #include "plan-source.h"
+#include "plan-tolerance.h"
 #include "util-mem.h"
 
 /* Guards against a density typo that would ask for billions of points;
@@ -39,9 +41,13 @@ static void usage(FILE *out)
 	plan_mesh_methods(mesh, sizeof(mesh));
 	fprintf(out,
 		"Usage: asph plan LENS --method M (--h H | --spacing MM | --points N)\n"
-		"                 [--profiles N] [-o FILE]\n\n"
+		"                 [--profiles N] [-o FILE]\n"
+		"       asph plan LENS --for-tolerance TOL --instrument INST [--capability R]\n"
+		"                 [--method M] [-o FILE]\n\n"
 		"Computes a sampling plan on LENS (a preset: weak, strong, turning-point, or a\n"
-		"prescription file) and writes its points in scan order.\n\n");
+		"prescription file) and writes its points in scan order. With --for-tolerance\n"
+		"it chooses the plan: the shortest predicted measuring time on INST whose\n"
+		"expanded uncertainty decides the tolerance TOL.\n\n");
 	plan_method_help(out, "", "");
 	fputs(PLAN_DENSITY_HELP, out);
 	snprintf(text, sizeof(text), ".csv (x,y,z), .ply (with faces for %s) or .json; default: "
@@ -54,19 +60,39 @@ static void usage(FILE *out)
 		"                      INSTRUMENT (a configuration file or a driver spec, as\n"
 		"                      asph scan takes it), streamed where the instrument can:\n"
 		"                      on standard output with -o, else on standard error\n"
-		"  --max-points N      refuse plans with more points (default %d)\n"
+		"  --max-points N      refuse plans with more points (default %d; with\n"
+		"                      --for-tolerance the finest plan tried, default %d)\n"
 		"  -q, --quiet         no summary line, and no progress of a long plan (CVT),\n"
 		"                      on standard error\n"
 		"  -h, --help          this help\n\n"
-		"Exactly one of --h, --spacing, --points. docs/sampling-plans.md explains the\n"
-		"methods, the density relations and the scan orders.\n",
-		PLAN_DEFAULT_MAX_POINTS);
+		"The plan for a tolerance:\n"
+		"  --for-tolerance TOL the drawing's tolerance: an ISO 10110-5 call-out\n"
+		"                      ('3/2(0.5/0.3)'), JSON text or a file, as asph fit\n"
+		"                      --tolerance takes it\n"
+		"  --instrument INST   the instrument configuration (FILE or FILE#NAME) whose\n"
+		"                      \"uncertainty\" section is its model; the time is\n"
+		"                      predicted on it, streamed where it can\n"
+		"  --capability R      the largest U (k = 2) / T allowed for every quantity,\n"
+		"                      in (0, 1] (default 0.25)\n"
+		"  --method M          search this method only (default: every method)\n"
+		"  --dof LIST          the fit's degrees of freedom (default tx,ty,tz,rx,ry)\n"
+		"  --seed S            the Monte Carlo's seed (default 1)\n"
+		"  --threads N         its worker threads (default: the online processors)\n"
+		"  --json              the search's result as JSON on standard output\n"
+		"  -o FILE             writes the chosen plan's points\n\n"
+		"Exactly one of --h, --spacing, --points, or --for-tolerance.\n"
+		"docs/sampling-plans.md explains the methods, the density relations, the scan\n"
+		"orders and the plan for a tolerance. Exit status 1 when no plan meets the\n"
+		"ratio.\n",
+		PLAN_DEFAULT_MAX_POINTS, ASPH_PLAN_SEARCH_DEFAULT_MAX_POINTS);
 }
 
 struct plan_args {
 	struct plan_source src;
+	struct plan_tolerance_cli tol;
 	const char *lens, *output, *estimate;
 	struct asph_plan_options opts;
+	int max_points_given;
 	int quiet;
 };
 
@@ -85,6 +111,29 @@ static int parse_count(const char *arg, size_t *out)
 	return 0;
 }
 
+/* --for-tolerance chooses the density, and needs the instrument. */
+static int check_tolerance_args(struct plan_args *a)
+{
+	if (!a->tol.tolerance) {
+		fprintf(stderr, "asph: plan: --instrument, --capability, --dof, --seed, --threads "
+			"and --json go with --for-tolerance\n");
+		return EXIT_USAGE;
+	}
+	if (!a->tol.instrument) {
+		fprintf(stderr, "asph: plan: --for-tolerance needs --instrument INST: the plan is "
+			"chosen on that instrument's uncertainty and measuring time\n");
+		return EXIT_USAGE;
+	}
+	if (a->src.n_density || a->estimate) {
+		fprintf(stderr, "asph: plan: --for-tolerance chooses the density and predicts the "
+			"time itself: no --h, --spacing, --points or --estimate with it\n");
+		return EXIT_USAGE;
+	}
+	if (!a->max_points_given)
+		a->opts.max_points = ASPH_PLAN_SEARCH_DEFAULT_MAX_POINTS;
+	return 0;
+}
+
 /* 0: parsed; EXIT_OK + 1000 for --help; EXIT_USAGE on error. */
 static int parse_args(int argc, char **argv, struct plan_args *a)
 {
@@ -94,6 +143,7 @@ static int parse_args(int argc, char **argv, struct plan_args *a)
 		{ "max-points", required_argument, NULL, OPT_MAX_POINTS },
 		{ "no-mesh", no_argument, NULL, OPT_NO_MESH },
 		{ "estimate", required_argument, NULL, OPT_ESTIMATE },
+		PLAN_TOLERANCE_LONG_OPTIONS,
 		{ "quiet", no_argument, NULL, 'q' },
 		{ "help", no_argument, NULL, 'h' },
 		{ NULL, 0, NULL, 0 },
@@ -105,6 +155,8 @@ static int parse_args(int argc, char **argv, struct plan_args *a)
 	opterr = 0;
 	while ((c = getopt_long(argc, argv, ":ho:q", longopts, NULL)) != -1) {
 		int r = plan_source_option(&a->src, c, optarg);
+		if (r == 1)
+			r = plan_tolerance_option(&a->tol, c, optarg);
 		if (r < 0)
 			return EXIT_USAGE;
 		if (r == 0)
@@ -123,6 +175,7 @@ static int parse_args(int argc, char **argv, struct plan_args *a)
 		case OPT_MAX_POINTS:
 			if (parse_count(optarg, &a->opts.max_points) < 0)
 				return EXIT_USAGE;
+			a->max_points_given = 1;
 			break;
 		case OPT_NO_MESH:
 			a->opts.flags |= ASPH_PLAN_NO_MESH;
@@ -141,6 +194,8 @@ static int parse_args(int argc, char **argv, struct plan_args *a)
 		return EXIT_USAGE;
 	}
 	a->lens = argv[optind];
+	if (a->tol.given)
+		return check_tolerance_args(a);
 	if (!a->src.have_method) {
 		fprintf(stderr, "asph: plan: --method is required\n");
 		return EXIT_USAGE;
@@ -226,6 +281,17 @@ int cmd_plan(int argc, char **argv)
 		return r;
 	if (tool_load_surface(a.lens, &s) < 0)
 		return EXIT_FAILURE_RUN;
+	if (a.tol.given) {
+		/* the chosen plan is written only where -o asks for it */
+		int found = 0;
+		r = plan_tolerance_run(&a.tol, a.lens, s, a.src.have_method ? 1u << a.src.method : 0,
+				       a.opts.max_points, a.quiet, &found, &a.src.method,
+				       &a.src.density);
+		if (r != EXIT_OK || !found || !a.output)
+			return r != EXIT_OK ? r : found ? EXIT_OK : EXIT_FAILURE_RUN;
+		a.src.have_method = 1;
+		a.src.n_density = 1;
+	}
 	asph_error_clear(&err);
 	r = plan_source_compute(&a.src, s, &a.opts, &plan, &err);
 	if (r < 0) {

@@ -22,8 +22,8 @@
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_registry *, asph_registry_free)
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_config *, asph_config_free)
 
-static int parse_count(const char *arg, const char *name, unsigned long lo, unsigned long hi,
-		       unsigned long *out)
+int fit_mc_parse_count(const char *who, const char *arg, const char *name, unsigned long lo,
+		       unsigned long hi, unsigned long *out)
 {
 	char *end;
 	unsigned long v;
@@ -31,7 +31,7 @@ static int parse_count(const char *arg, const char *name, unsigned long lo, unsi
 	errno = 0;
 	v = strtoul(arg, &end, 10);
 	if (errno || end == arg || *end || arg[0] == '-' || v < lo || v > hi) {
-		fprintf(stderr, "asph fit: --%s: '%s' is not a whole number in %lu..%lu\n", name,
+		fprintf(stderr, "%s: --%s: '%s' is not a whole number in %lu..%lu\n", who, name,
 			arg, lo, hi);
 		return -1;
 	}
@@ -54,17 +54,17 @@ int fit_mc_take_option(struct fit_mc_cli *c, int opt, const char *arg)
 		c->opts.fixed = 1;
 		return 0;
 	case OPT_MC_TRIALS:
-		if (parse_count(arg, "trials", 2, ASPH_MC_DEFAULT_MAX_TRIALS, &v) < 0)
+		if (fit_mc_parse_count("asph fit", arg, "trials", 2, ASPH_MC_DEFAULT_MAX_TRIALS, &v) < 0)
 			return -1;
 		c->opts.n_trials = v;
 		return 0;
 	case OPT_MC_THREADS:
-		if (parse_count(arg, "threads", 1, 256, &v) < 0)
+		if (fit_mc_parse_count("asph fit", arg, "threads", 1, 256, &v) < 0)
 			return -1;
 		c->threads = (int)v;
 		return 0;
 	case OPT_MC_SEED:
-		if (parse_count(arg, "seed", 0, 4294967295ul, &v) < 0)
+		if (fit_mc_parse_count("asph fit", arg, "seed", 0, 4294967295ul, &v) < 0)
 			return -1;
 		c->opts.seed = v;
 		c->seed_set = 1;
@@ -153,7 +153,7 @@ static int model_from_config(const char *arg, struct asph_uncertainty_model *m)
 
 /* The trials on --threads workers (drivers/mc/mc-runner.c), their progress
  * on a terminal (tools/progress.c). */
-static int run_threads(void *data, struct asph_mc *mc, struct asph_mc_result *out,
+int fit_mc_run_threads(void *data, struct asph_mc *mc, struct asph_mc_result *out,
 		       struct asph_error *err)
 {
 	const struct fit_mc_run *run = data;
@@ -187,7 +187,7 @@ int fit_mc_prepare(const struct fit_mc_cli *c, const char *scan, const char *ins
 	o->mc = c->opts;
 	if (!c->seed_set)
 		o->mc.seed = 1;
-	o->run_mc = run_threads;
+	o->run_mc = fit_mc_run_threads;
 	o->run_mc_data = run;
 	return EXIT_OK;
 }

@@ -68,6 +68,17 @@ struct fit_mc_run {
 int fit_mc_prepare(const struct fit_mc_cli *c, const char *scan, const char *instrument_json,
 		   struct fit_mc_run *run, struct asph_characterize_options *o);
 
+/* The trials on run->threads workers, their progress on a terminal unless
+ * run->quiet: an asph_characterize_mc_fn whose data is a struct
+ * fit_mc_run. */
+int fit_mc_run_threads(void *run, struct asph_mc *mc, struct asph_mc_result *out,
+		       struct asph_error *err);
+
+/* A whole number in lo..hi for option --name: 0, or -1 after saying what
+ * is wrong, after "who: " ("asph fit"). */
+int fit_mc_parse_count(const char *who, const char *arg, const char *name, unsigned long lo,
+		       unsigned long hi, unsigned long *out);
+
 /* The text summary of the Monte Carlo. */
 void fit_mc_show(const struct asph_mc_result *mc);
 

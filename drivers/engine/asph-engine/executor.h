@@ -168,6 +168,21 @@ int asph_scan_estimate(const struct asph_instrument_config *c, const struct asph
 		       double *seconds, struct asph_error *err);
 
 /*
+ * The measuring time of a plan on an instrument as the plan search
+ * (asph/plan-search.h) asks for it: an asph_plan_time_fn whose data is a
+ * struct asph_scan_timing. The instrument carries the lens (the mock's
+ * part).
+ */
+struct asph_scan_timing {
+	const struct asph_instrument_config *instrument;
+	const struct asph_surface *surface;
+	struct asph_scan_options options;       /* ASPH_SCAN_STREAM where the
+						   program measures streamed */
+};
+int asph_scan_plan_time(void *timing, const struct asph_plan *plan, double *seconds,
+			struct asph_error *err);
+
+/*
  * Re-simulation for a Monte Carlo evaluation: the points instrument c (a
  * simulated one: the mock and its physical model, time_factor=0) measures
  * for the n plan points xyz of surface s, streamed where it can, as
