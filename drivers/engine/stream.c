@@ -14,6 +14,7 @@
 #include <string.h>
 
 #include "scan.h"
+#include "util-mem.h"
 #include "util-time.h"
 
 /* ------------------------------------------------------------ set up */
@@ -60,21 +61,6 @@ void scan_stream_fini(struct asph_scan *sc)
 
 /* ------------------------------------------------------------ queues */
 
-static int grow(void **p, size_t *cap, size_t need, size_t size)
-{
-	if (*cap >= need)
-		return 0;
-	size_t c = *cap ? *cap : 256;
-	while (c < need)
-		c *= 2;
-	void *n = realloc(*p, c * size);
-	if (!n)
-		return -ENOMEM;
-	*p = n;
-	*cap = c;
-	return 0;
-}
-
 static struct pending *push_pending(struct asph_scan *sc)
 {
 	struct scan_stream *st = &sc->stream;
@@ -83,8 +69,8 @@ static struct pending *push_pending(struct asph_scan *sc)
 		memmove(st->pend, st->pend + st->pend_head, st->pend_n * sizeof(*st->pend));
 		st->pend_head = 0;
 	}
-	if (grow((void **)&st->pend, &st->pend_cap, st->pend_head + st->pend_n + 1,
-		 sizeof(*st->pend)) < 0)
+	if (array_grow((void **)&st->pend, &st->pend_cap, st->pend_head + st->pend_n + 1,
+		       sizeof(*st->pend), 256) < 0)
 		return NULL;
 	return &st->pend[st->pend_head + st->pend_n++];
 }
@@ -104,8 +90,8 @@ static int pull_trace(struct asph_scan *sc, size_t i, struct asph_error *err)
 				st->trace_n * sizeof(*st->trace));
 			st->trace_head = 0;
 		}
-		if (grow((void **)&st->trace, &st->trace_cap, st->trace_head + st->trace_n + 256,
-			 sizeof(*st->trace)) < 0)
+		if (array_grow((void **)&st->trace, &st->trace_cap, st->trace_head + st->trace_n + 256,
+			       sizeof(*st->trace), 256) < 0)
 			return asph_error_set(err, -ENOMEM, "out of memory");
 		int r = ops->sweep_trace(sc->inst->stage, st->trace + st->trace_head + st->trace_n,
 					 256, &got, sc->o.read_timeout_ms, err);

@@ -6,6 +6,7 @@
 #include <string.h>
 
 #include "bench.h"
+#include "util-mem.h"
 
 /* Encoders are logged this often when the capture is by time. */
 #define SERVO_PERIOD 0.001
@@ -328,21 +329,6 @@ static void encoders(const struct mock_bench *b, const double m[3], double t, do
 
 /* ------------------------------------------------------ running pieces */
 
-static int grow(void **p, size_t *cap, size_t need, size_t size)
-{
-	if (*cap >= need)
-		return 0;
-	size_t c = *cap ? *cap : 64;
-	while (c < need)
-		c *= 2;
-	void *n = realloc(*p, c * size);
-	if (!n)
-		return -ENOMEM;
-	*p = n;
-	*cap = c;
-	return 0;
-}
-
 static int push_trace(struct mock_bench *b, double t, const double e[3], uint32_t source,
 		      uint32_t trigger)
 {
@@ -350,8 +336,8 @@ static int push_trace(struct mock_bench *b, double t, const double e[3], uint32_
 		memmove(b->trace, b->trace + b->trace_head, b->trace_n * sizeof(*b->trace));
 		b->trace_head = 0;
 	}
-	if (grow((void **)&b->trace, &b->trace_cap, b->trace_head + b->trace_n + 1,
-		 sizeof(*b->trace)) < 0)
+	if (array_grow((void **)&b->trace, &b->trace_cap, b->trace_head + b->trace_n + 1,
+		       sizeof(*b->trace), 64) < 0)
 		return -ENOMEM;
 	struct asph_position_sample *s = &b->trace[b->trace_head + b->trace_n++];
 	s->t_ns = (uint64_t)llround(t * 1e9);
@@ -368,8 +354,8 @@ static struct mock_trigger *push_trigger(struct mock_bench *b)
 		b->trig_unsampled = b->trig_unsampled > b->trig_head ? b->trig_unsampled - b->trig_head : 0;
 		b->trig_head = 0;
 	}
-	if (grow((void **)&b->trig, &b->trig_cap, b->trig_head + b->trig_n + 1,
-		 sizeof(*b->trig)) < 0)
+	if (array_grow((void **)&b->trig, &b->trig_cap, b->trig_head + b->trig_n + 1,
+		       sizeof(*b->trig), 64) < 0)
 		return NULL;
 	return &b->trig[b->trig_head + b->trig_n++];
 }
@@ -497,7 +483,7 @@ void mock_bench_home(struct mock_bench *b)
 
 static struct piece *pieces(struct mock_bench *b, size_t n)
 {
-	if (grow((void **)&b->pcs, &b->pcs_cap, n, sizeof(*b->pcs)) < 0)
+	if (array_grow((void **)&b->pcs, &b->pcs_cap, n, sizeof(*b->pcs), 64) < 0)
 		return NULL;
 	memset(b->pcs, 0, n * sizeof(*b->pcs));
 	return b->pcs;
