@@ -7,6 +7,17 @@
 #include "asph/fit.h"
 #include "fit-internal.h"
 
+/* A profile is fitted in its trace's frame: back to the part's. */
+void fit_frame_to_part(const struct asph_fit *w, double xy[2])
+{
+	double x = xy[0];
+
+	if (!w->traces.single)
+		return;
+	xy[0] = w->traces.ca * x - w->traces.sa * xy[1];
+	xy[1] = w->traces.sa * x + w->traces.ca * xy[1];
+}
+
 void fit_point_foot(const struct asph_fit *w, size_t i, double xy[2])
 {
 	struct asph_pose pose = {

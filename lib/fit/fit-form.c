@@ -194,8 +194,7 @@ void fit_form_lengths(const struct asph_fit *w, double *wavelength, double *leng
 
 /* The form quantities, slope and their uncertainties of an areal
  * measurement. */
-static int areal_form(struct asph_fit *w, struct asph_fit_result *out,
-		      struct asph_error *err)
+int fit_areal_form(struct asph_fit *w, struct asph_fit_result *out, struct asph_error *err)
 {
 	_cleanup_free_ double *xy = malloc(2 * w->n * sizeof(double) + 1);
 	_cleanup_free_ double *val = malloc(w->n * sizeof(double) + 1);
@@ -217,35 +216,4 @@ static int areal_form(struct asph_fit *w, struct asph_fit_result *out,
 		out->slope.rms.v = out->slope.max.v = NAN;
 	}
 	return r;
-}
-
-/* R = 1/c and its deviation from the nominal, with U. */
-static void radius(const struct asph_fit *w, struct asph_fit_result *out)
-{
-	out->R_nominal_mm = w->model.c0 != 0 ? 1.0 / w->model.c0 : INFINITY;
-	out->R_deviation_mm = NAN;
-	if (w->opt.dof & ASPH_FIT_DOF_BIT(ASPH_FIT_R)) {
-		out->R_deviation_mm = out->value[ASPH_FIT_R] - out->R_nominal_mm;
-		out->uncertainty_k2.R_mm = 2 * out->uncertainty[ASPH_FIT_R];
-		out->uncertainty_k2.c_per_mm = 2 * out->u_curvature;
-	}
-}
-
-int fit_fill_form(struct asph_fit *w, struct asph_fit_result *out,
-		  struct asph_error *err)
-{
-	const struct asph_tolerance *t = w->opt.tolerance;
-	int r;
-
-	asph_uncertainty_k2_clear(&out->uncertainty_k2);
-	r = w->traces.n ? fit_profile_fill(w, out, err) : areal_form(w, out, err);
-	if (r < 0)
-		return r;
-	radius(w, out);
-	memset(&out->verdict, 0, sizeof(out->verdict));
-	if (t)
-		asph_verdict_evaluate(t, out->form_valid ? &out->form : NULL,
-				      out->slope_valid ? &out->slope : NULL, out->R_deviation_mm,
-				      &out->uncertainty_k2, &out->verdict);
-	return 0;
 }

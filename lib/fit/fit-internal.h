@@ -136,10 +136,9 @@ void fit_point_polar(const struct asph_fit *w, size_t i, double *rho,
 int fit_smooth_residual(struct asph_fit *w, double *left,
 			struct asph_error *err);
 
-/* Form quantities, slope, radius deviation, uncertainties and verdict
- * (lib/fit/fit-form.c), after fit_fill_statistics(). */
-int fit_fill_form(struct asph_fit *w, struct asph_fit_result *out,
-		  struct asph_error *err);
+/* The form quantities, slope and their uncertainties of an areal
+ * measurement (lib/fit/fit-form.c); fit_profile_fill() for profiles. */
+int fit_areal_form(struct asph_fit *w, struct asph_fit_result *out, struct asph_error *err);
 
 int fit_fill_statistics(struct asph_fit *w, struct asph_fit_result *out,
 			struct asph_error *err);

@@ -332,16 +332,6 @@ int fit_profile_setup(struct asph_fit *w, const double *xyz, size_t n, const dou
 	return r;
 }
 
-void fit_frame_to_part(const struct asph_fit *w, double xy[2])
-{
-	double x = xy[0];
-
-	if (!w->traces.single)
-		return;
-	xy[0] = w->traces.ca * x - w->traces.sa * xy[1];
-	xy[1] = w->traces.sa * x + w->traces.ca * xy[1];
-}
-
 /*
  * p = Rz(a) (Ry(ry) Rx(rx) q' + t) in the machine frame for a profile
  * fitted in its trace's frame: t turned by a, and the axis Rz(a) Ry Rx e_z

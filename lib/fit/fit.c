@@ -609,26 +609,6 @@ void asph_fit_free(struct asph_fit *w)
 	free(w);
 }
 
-int fit_select_dof(struct asph_fit *w, unsigned mask, struct asph_error *err)
-{
-	int p = 0;
-
-	for (int d = 0; d < ASPH_FIT_N_DOF; d++)
-		if (mask & ASPH_FIT_DOF_BIT(d))
-			w->idx[p++] = d;
-	w->opt.dof = mask;
-	w->p = p;
-	if (w->x0 && w->x0->size == (size_t)p)
-		return 0;
-	gsl_vector_free(w->x0);
-	gsl_matrix_free(w->covar);
-	w->x0 = gsl_vector_alloc((size_t)p);
-	w->covar = gsl_matrix_alloc((size_t)p, (size_t)p);
-	if (!w->x0 || !w->covar)
-		return asph_error_set(err, -ENOMEM, "out of memory");
-	return 0;
-}
-
 /* --- Input checks ------------------------------------------------------- */
 
 static int check_points(const struct asph_fit *w, const double *xyz, size_t n,

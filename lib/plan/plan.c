@@ -128,39 +128,10 @@ static int refuse_on_freeform(const struct asph_surface *s, enum asph_plan_metho
 				 asph_surface_type_name(asph_surface_prescription(s)->type), known);
 }
 
-/* ---- density ------------------------------------------------------------- */
-
-static const char *const density_names[ASPH_PLAN_N_DENSITIES] = {
-	[ASPH_DENSITY_H] = "h",
-	[ASPH_DENSITY_SPACING] = "spacing",
-	[ASPH_DENSITY_POINTS] = "points",
-};
-
-int asph_plan_density_names(char *buf, size_t size)
-{
-	return suggest_join(buf, size, density_names, ARRAY_SIZE(density_names), ", ");
-}
-
-const char *asph_plan_density_name(enum asph_plan_density_kind k)
-{
-	return (unsigned)k < ARRAY_SIZE(density_names) ? density_names[k] : "unknown";
-}
-
-int asph_plan_density_from_name(const char *name, enum asph_plan_density_kind *out)
-{
-	for (unsigned i = 0; name && i < ARRAY_SIZE(density_names); i++) {
-		if (!strcmp(name, density_names[i])) {
-			*out = (enum asph_plan_density_kind)i;
-			return 0;
-		}
-	}
-	return -EINVAL;
-}
-
 /* The option an error about the density names. */
 static const char *density_field(enum asph_plan_density_kind k)
 {
-	return (unsigned)k < ARRAY_SIZE(density_names) ? density_names[k] : "density";
+	return (unsigned)k < ASPH_PLAN_N_DENSITIES ? asph_plan_density_name(k) : "density";
 }
 
 /* What a density resolves to for one method on one surface. */
