@@ -25,6 +25,7 @@ struct estimate {
 	json_t *params;                 /* a copy of the request's */
 	struct jobspec_limits limits;
 	struct asph_config *instrument; /* a copy, or NULL: no time wanted */
+	bool search;                    /* choose a plan for the tolerance */
 	/* what was found */
 	int code;                       /* 0, or the protocol's error code */
 	struct proto_why why;
@@ -32,12 +33,16 @@ struct estimate {
 	uint64_t points;
 	bool timed;                     /* the instrument can predict: seconds */
 	double seconds;
+	/* job.estimate of a plan for the tolerance (tolplan.h): the plan
+	 * chosen and why; NULL otherwise (job.submit searches when the
+	 * job runs). */
+	json_t *choice;
 };
 
 /* Loop: the work for params (copied), with the time on instrument ic
  * (copied; NULL: none wanted). 0 or -ENOMEM. */
 int estimate_new(json_t *params, const struct jobspec_limits *limits,
-		 const struct asph_instrument_config *ic, struct estimate **out);
+		 const struct asph_instrument_config *ic, bool search, struct estimate **out);
 /* A task's run(): worker thread. Always 0 (what it found is in e). */
 int estimate_run(void *e, const struct task *task);
 /* A task's free(): loop. */

@@ -141,6 +141,8 @@ json_t *instrument_to_json(const struct instrument *in, const struct instrument_
 
 const char *activity_phase(const struct instrument_activity *a)
 {
+	if (a->planning)
+		return "planning";
 	if (!a->characterizing)
 		return "measuring";
 	return a->trials_planned > 0 ? "uncertainty" : "characterizing";

@@ -43,6 +43,8 @@ json_t *instrument_lock_to_json(const struct instrument_lock *l);
 struct instrument_activity {
 	int64_t job;            /* running or paused job, 0 if none */
 	bool paused;
+	bool planning;          /* its plan is searched for its tolerance
+				   (done of total: characterizations) */
 	bool characterizing;    /* its scan is recorded, the result being made */
 	int64_t done, total;    /* live progress of that job: plan points */
 	double rate, eta_s;     /* points/s; s left of the phase, -1: unknown */

@@ -28,22 +28,14 @@ static int plan_tolerance(json_t *tol, struct job_plan *jp, struct asph_error *e
 	return 0;
 }
 
-int job_plan_build(const char *spec_text, uint64_t max_points, struct job_plan *jp,
-		   struct asph_error *err)
+/* Everything of spec but its plan: the lens, its surface, the fit. */
+static int build_part(json_t *spec, struct job_plan *jp, struct asph_error *err)
 {
-	_cleanup_(json_decrefp) json_t *spec = json_loads(spec_text, 0, NULL);
-	json_t *lens, *plan, *fit;
-	struct asph_plan_density density = { 0 };
-	struct asph_plan_options po = { .max_points = max_points, .flags = ASPH_PLAN_NO_MESH };
-	enum asph_plan_method m;
+	json_t *lens = json_object_get(spec, "lens"), *fit = json_object_get(spec, "fit");
 	_cleanup_free_ char *text = NULL;
 	int r;
 
-	memset(jp, 0, sizeof(*jp));
-	lens = json_object_get(spec, "lens");
-	plan = json_object_get(spec, "plan");
-	fit = json_object_get(spec, "fit");
-	if (!lens || !plan || !fit)
+	if (!lens || !json_object_get(spec, "plan") || !fit)
 		return asph_error_set(err, -EINVAL, "the stored job specification is damaged");
 	text = json_dumps(json_object_get(lens, "prescription"), JSON_COMPACT);
 	if (!text)
@@ -56,18 +48,7 @@ int job_plan_build(const char *spec_text, uint64_t max_points, struct job_plan *
 	r = asph_surface_alloc(&jp->prescription, &jp->surface, err);
 	if (r < 0)
 		return r;
-	if (asph_plan_method_from_name(json_string_value(json_object_get(plan, "method")), &m) < 0)
-		return asph_error_set(err, -EINVAL, "the stored plan method is damaged");
-	if (asph_plan_density_from_name(json_string_value(json_object_get(plan, "density")),
-					&density.kind) < 0)
-		return asph_error_set(err, -EINVAL, "the stored plan density is damaged");
-	density.value = json_number_value(json_object_get(plan, "value"));
-	po.profiles = (unsigned)json_integer_value(json_object_get(plan, "profiles"));
-	r = asph_plan_compute_opts(jp->surface, m, density, &po, &jp->plan, err);
-	if (r < 0)
-		return r;
-	if (asph_plan_to_json(jp->plan, &jp->plan_json) < 0 ||
-	    asph_prescription_to_json(&jp->prescription, &jp->prescription_json) < 0)
+	if (asph_prescription_to_json(&jp->prescription, &jp->prescription_json) < 0)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	jp->fit_json = json_dumps(fit, JSON_COMPACT);
 	r = asph_fit_dof_parse(json_string_value(json_object_get(fit, "dof")), &jp->fit.dof, err);
@@ -80,6 +61,43 @@ int job_plan_build(const char *spec_text, uint64_t max_points, struct job_plan *
 	jp->fit.robust = json_is_true(json_object_get(fit, "robust"));
 	jp->fit.n_zernike = (int)json_integer_value(json_object_get(fit, "zernike"));
 	return plan_tolerance(json_object_get(spec, "tolerance"), jp, err);
+}
+
+int job_plan_build_part(const char *spec_text, struct job_plan *jp, struct asph_error *err)
+{
+	_cleanup_(json_decrefp) json_t *spec = json_loads(spec_text, 0, NULL);
+
+	memset(jp, 0, sizeof(*jp));
+	return build_part(spec, jp, err);
+}
+
+int job_plan_build(const char *spec_text, uint64_t max_points, struct job_plan *jp,
+		   struct asph_error *err)
+{
+	_cleanup_(json_decrefp) json_t *spec = json_loads(spec_text, 0, NULL);
+	json_t *plan = json_object_get(spec, "plan");
+	struct asph_plan_density density = { 0 };
+	struct asph_plan_options po = { .max_points = max_points, .flags = ASPH_PLAN_NO_MESH };
+	enum asph_plan_method m;
+	int r;
+
+	memset(jp, 0, sizeof(*jp));
+	r = build_part(spec, jp, err);
+	if (r < 0)
+		return r;
+	if (asph_plan_method_from_name(json_string_value(json_object_get(plan, "method")), &m) < 0)
+		return asph_error_set(err, -EINVAL, "the stored plan method is damaged");
+	if (asph_plan_density_from_name(json_string_value(json_object_get(plan, "density")),
+					&density.kind) < 0)
+		return asph_error_set(err, -EINVAL, "the stored plan density is damaged");
+	density.value = json_number_value(json_object_get(plan, "value"));
+	po.profiles = (unsigned)json_integer_value(json_object_get(plan, "profiles"));
+	r = asph_plan_compute_opts(jp->surface, m, density, &po, &jp->plan, err);
+	if (r < 0)
+		return r;
+	if (asph_plan_to_json(jp->plan, &jp->plan_json) < 0)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	return 0;
 }
 
 void job_plan_release(struct job_plan *jp)

@@ -34,6 +34,10 @@ struct job_plan {
 int job_plan_build(const char *spec, uint64_t max_points, struct job_plan *jp,
 		   struct asph_error *err);
 void job_plan_release(struct job_plan *jp);
+/* As job_plan_build() without the plan (jp->plan NULL): the lens, its
+ * surface, the fit and the tolerance, for the search that chooses the
+ * plan (tolplan.h). Release jp all the same. */
+int job_plan_build_part(const char *spec, struct job_plan *jp, struct asph_error *err);
 
 /* The predicted measuring time of the job spec on instrument c (the
  * daemon measures streamed where it can): asph_scan_estimate() on a copy

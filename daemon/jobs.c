@@ -622,6 +622,7 @@ static void job_progress(struct slot *sl, const struct runner_report *rep)
 	/* Points measured: what the progress passes beyond what was counted
 	 * (from where the job started, for a resumed one where its last run
 	 * had got to; the executor's last report is never coalesced away). */
+	sl->act.planning = false;
 	if (rep->kind == RUNNER_PROGRESS && (int64_t)rep->done > sl->counted) {
 		sl->act.points_measured += (int64_t)rep->done - sl->counted;
 		sl->counted = (int64_t)rep->done;
@@ -635,6 +636,21 @@ static void job_progress(struct slot *sl, const struct runner_report *rep)
 		sl->last_progress_store_ns = now;
 	}
 	events_job_progress(jobs->events, rep->job, sl->in->name, &sl->act);
+}
+
+/* The plan for the job's tolerance is searched (tolplan.h): the
+ * characterizations run of the search's budget, shown but not stored (the
+ * job's points are not known yet). */
+static void job_planning(struct slot *sl, const struct runner_report *rep)
+{
+	struct instrument_activity *a = &sl->act;
+
+	a->planning = true;
+	a->done = (int64_t)rep->done;
+	a->total = (int64_t)rep->total;
+	a->rate = 0;
+	a->eta_s = -1;
+	events_job_progress(sl->jobs->events, rep->job, sl->in->name, a);
 }
 
 /* The recorded scan is being characterized: no points move any more;
@@ -695,7 +711,7 @@ static void job_done(struct slot *sl, const struct runner_report *rep)
 	const char *reason = NULL;
 
 	sl->act.job = 0;
-	sl->act.paused = sl->act.characterizing = false;
+	sl->act.paused = sl->act.characterizing = sl->act.planning = false;
 	sl->cancel = false;
 	if (store_get(jobs->store, rep->job, &j) < 0) {
 		log_job(LOG_ERR, rep->job, "finished, but is gone from the store");
@@ -746,6 +762,10 @@ static void on_report(const struct runner_report *rep, void *data)
 	struct slot *sl = data;
 
 	switch (rep->kind) {
+	case RUNNER_PLANNING:
+		if (rep->job == sl->act.job)
+			job_planning(sl, rep);
+		break;
 	case RUNNER_STARTED:
 	case RUNNER_PROGRESS:
 		if (rep->job == sl->act.job)
@@ -1561,7 +1581,7 @@ void jobs_status_text(const struct jobs *jobs, char *buf, size_t size)
 		if (!a->job)
 			continue;
 		n += (size_t)snprintf(buf + n, size - n, "%s%s job %" PRId64 ": %d %%",
-				      n ? ", " : "", a->paused ? "paused"
+				      n ? ", " : "", a->paused ? "paused" : a->planning ? "planning"
 				      : a->characterizing ? "characterizing" : "measuring", a->job,
 				      a->total > 0 ? (int)(100 * a->done / a->total) : 0);
 		if (n < size && a->characterizing && a->trials_planned > 0)

@@ -8,6 +8,7 @@
 #include <string.h>
 
 #include "asph/fit.h"
+#include "asph/plan-search.h"
 #include "asph/prescription.h"
 #include "asph/tolerance.h"
 #include "jobspec.h"
@@ -129,6 +130,48 @@ static int plan_size(const struct asph_prescription *p, enum asph_plan_method m,
 	return r;
 }
 
+/* The plan for the job's tolerance (tolplan.h): {"for_tolerance": true,
+ * "capability" (default 0.25), "method" (default: every method the
+ * search tries)}. The search runs when the job runs; the tolerance is
+ * checked with the fit's (spec_tolerance()). */
+static int spec_plan_for_tolerance(json_t *plan, json_t *spec, struct proto_why *why)
+{
+	static const char *const names[] = { "for_tolerance", "capability", "method", NULL };
+	double capability = ASPH_PLAN_SEARCH_DEFAULT_CAPABILITY;
+	const char *method = NULL;
+	enum asph_plan_method m;
+	int r;
+
+	if (proto_params_only(plan, names, why) < 0)
+		return PROTO_INVALID_PARAMS;
+	if (!json_is_true(json_object_get(plan, "for_tolerance"))) {
+		snprintf(why->text, sizeof(why->text), "\"plan.for_tolerance\" must be true "
+			 "(or left out, with \"method\" and a density)");
+		return PROTO_INVALID_PARAMS;
+	}
+	r = proto_param_number(plan, "capability", false, -1e300, 1e300, &capability, why);
+	if (r == -EINVAL)
+		return PROTO_INVALID_PARAMS;
+	if (!(capability > 0 && capability <= 1)) {
+		snprintf(why->text, sizeof(why->text), "\"plan.capability\": %g is outside (0, 1]: "
+			 "it is the largest U (k = 2) the plan may reach, as a fraction of each "
+			 "quantity's tolerance T", capability);
+		return PROTO_INVALID_PARAMS;
+	}
+	if (proto_param_string(plan, "method", false, 32, &method, why) == -EINVAL)
+		return PROTO_INVALID_PARAMS;
+	if (method && asph_plan_method_from_name(method, &m) < 0) {
+		snprintf(why->text, sizeof(why->text), "\"plan.method\": unknown method \"%s\"",
+			 method);
+		return PROTO_INVALID_PLAN;
+	}
+	json_object_set_new(spec, "plan", json_pack("{s:b, s:f}", "for_tolerance", 1,
+						    "capability", capability));
+	if (method)
+		json_object_set_new(json_object_get(spec, "plan"), "method", json_string(method));
+	return 0;
+}
+
 static int spec_plan(json_t *params, json_t *spec, const struct asph_prescription *p,
 		     const struct jobspec_limits *lim, uint64_t *points, struct proto_why *why)
 {
@@ -145,6 +188,10 @@ static int spec_plan(json_t *params, json_t *spec, const struct asph_prescriptio
 
 	if (proto_param_object(params, "plan", true, &plan, why) < 0)
 		return PROTO_INVALID_PARAMS;
+	if (json_object_get(plan, "for_tolerance")) {
+		*points = 0;    /* chosen when the job runs */
+		return spec_plan_for_tolerance(plan, spec, why);
+	}
 	if (proto_params_only(plan, names, why) < 0 ||
 	    proto_param_string(plan, "method", true, 32, &method, why) < 0)
 		return PROTO_INVALID_PARAMS;
@@ -207,9 +254,10 @@ static int spec_plan(json_t *params, json_t *spec, const struct asph_prescriptio
 static bool one_profile(const json_t *spec)
 {
 	const json_t *plan = json_object_get(spec, "plan");
+	const char *method = json_string_value(json_object_get(plan, "method"));
 
-	return !strcmp(json_string_value(json_object_get(plan, "method")),
-		       asph_plan_method_name(ASPH_PLAN_PROFILES)) &&
+	/* (a plan for the tolerance may name no method) */
+	return method && !strcmp(method, asph_plan_method_name(ASPH_PLAN_PROFILES)) &&
 	       json_integer_value(json_object_get(plan, "profiles")) == 1;
 }
 
@@ -333,10 +381,20 @@ int jobspec_from_params(json_t *params, const struct jobspec_limits *lim, json_t
 		code = spec_fit(params, spec, why);
 	if (!code)
 		code = spec_tolerance(params, spec, why);
+	if (!code && jobspec_for_tolerance(spec) && !json_object_get(spec, "tolerance")) {
+		snprintf(why->text, sizeof(why->text), "\"plan.for_tolerance\" chooses the plan "
+			 "from the job's tolerance: \"tolerance\" is missing");
+		code = PROTO_INVALID_PARAMS;
+	}
 	if (code) {
 		json_decref(spec);
 		return code;
 	}
 	*out = spec;
 	return 0;
+}
+
+bool jobspec_for_tolerance(const json_t *spec)
+{
+	return json_is_true(json_object_get(json_object_get(spec, "plan"), "for_tolerance"));
 }

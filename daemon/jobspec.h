@@ -7,11 +7,13 @@
  *
  * The specification: {"lens": {"name": PRESET or null, "prescription":
  * {...}}, "plan": {"method", "density": "h" | "spacing" | "points"
- * (asph_plan_density_name()), "value"}, "fit": {"dof", "residual", "robust", "zernike"}}.
+ * (asph_plan_density_name()), "value"} or {"for_tolerance": true,
+ * "capability", "method"?}, "fit": {"dof", "residual", "robust", "zernike"}}.
  */
 #ifndef ASPHD_JOBSPEC_H
 #define ASPHD_JOBSPEC_H
 
+#include <stdbool.h>
 #include <stdint.h>
 
 #include <jansson.h>
@@ -37,6 +39,10 @@ struct jobspec_limits {
  */
 int jobspec_from_params(json_t *params, const struct jobspec_limits *lim, json_t **spec,
 			uint64_t *points, struct proto_why *why);
+
+/* Whether spec's plan is to be chosen for its tolerance (tolplan.h):
+ * "plan": {"for_tolerance": true, "capability", "method"?}. */
+bool jobspec_for_tolerance(const json_t *spec);
 
 /* The terms of a prescription: its base, and each coefficient that is
  * not zero (what one evaluation of its sag costs). */

@@ -584,6 +584,8 @@ static void check_answer(struct check *k, struct estimate *e)
 
 	if (!k->submit) {
 		result = json_pack("{s:o, s:I}", "estimate_s", t, "points", (json_int_t)e->points);
+		if (result && e->choice)
+			json_object_set(result, "plan_for_tolerance", e->choice);
 		line_answer(l, &c, result ? 0 : PROTO_INTERNAL_ERROR, result);
 		return;
 	}
@@ -659,7 +661,8 @@ static int check_plan(struct call *c, json_t *params, bool submit)
 	    check_keep(k, 2, &k->sub.part) || check_keep(k, 3, &k->sub.lot) ||
 	    check_keep(k, 4, &k->sub.serial) ||
 	    estimate_new(params, &jl, i >= 0 && (size_t)i < instruments_count(c->rpc->instruments)
-			 ? instruments_get(c->rpc->instruments, (size_t)i)->config : NULL, &e) < 0) {
+			 ? instruments_get(c->rpc->instruments, (size_t)i)->config : NULL, !submit,
+			 &e) < 0) {
 		check_free(k);
 		return PROTO_INTERNAL_ERROR;
 	}

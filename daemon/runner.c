@@ -16,6 +16,8 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <jansson.h>
+
 #include "asph-engine/executor.h"
 #include "asph-driver/instrument.h"
 #include "asph/plan.h"
@@ -26,6 +28,7 @@
 #include "jobplan.h"
 #include "result.h"
 #include "runner.h"
+#include "tolplan.h"
 #include "util-mem.h"
 #include "util-time.h"
 
@@ -91,7 +94,8 @@ static bool replaces(const void *last, const void *msg)
 {
 	const struct runner_report *a = last, *b = msg;
 
-	return (b->kind == RUNNER_PROGRESS || b->kind == RUNNER_UNCERTAINTY) && a->kind == b->kind;
+	return (b->kind == RUNNER_PROGRESS || b->kind == RUNNER_UNCERTAINTY ||
+		b->kind == RUNNER_PLANNING) && a->kind == b->kind;
 }
 
 static void on_progress(const struct asph_scan_progress *p, void *data)
@@ -122,6 +126,8 @@ struct run {
 	struct asph_error err;
 	struct runner_report *final;
 	uint64_t trials_start_ns, trials_post_ns;       /* the Monte Carlo's */
+	char *spec;             /* the plan chosen for the tolerance, or NULL */
+	char *choice;           /* and why (tolplan.h) */
 };
 
 /* The final report is posted by the worker once the runner is idle again,
@@ -276,6 +282,80 @@ static void on_trials(void *data, size_t done, size_t planned, bool last)
 	post(run->r, &rep);
 }
 
+/* Cancelled, or the daemon stops: the search ends (it starts again when
+ * the job is resumed). */
+static bool search_stopped(void *data)
+{
+	struct runner *r = data;
+	bool yes;
+
+	pthread_mutex_lock(&r->lock);
+	yes = r->want_abort || r->want_stop;
+	pthread_mutex_unlock(&r->lock);
+	return yes;
+}
+
+static bool search_cancelled(void *data)
+{
+	const struct run *run = data;
+
+	return search_stopped(run->r);
+}
+
+/* A plan characterized: a log line and the job's progress. */
+static void search_step(void *data, const struct asph_plan_search_status *st)
+{
+	struct run *run = data;
+	struct runner_report rep = {
+		.kind = RUNNER_PLANNING, .job = run->job->id, .done = st->characterizations,
+		.total = st->budget, .eta_s = -1,
+	};
+	char line[256];
+
+	tolplan_step_format(st, line, sizeof(line));
+	log_job(LOG_INFO, run->job->id, "plan for the tolerance: %s", line);
+	post(run->r, &rep);
+}
+
+/* The plan for the job's tolerance, when it asks for one: run->spec. */
+static int choose_plan(struct run *run)
+{
+	const struct tolplan_hooks hooks = { .cancelled = search_cancelled, .step = search_step,
+					     .data = run };
+	struct runner_report rep = { .kind = RUNNER_PLANNING, .job = run->job->id, .eta_s = -1,
+				     .total = ASPH_PLAN_SEARCH_DEFAULT_BUDGET };
+	int rc;
+
+	if (!tolplan_wanted(run->job->spec))
+		return 0;
+	post(run->r, &rep);
+	rc = tolplan_choose(run->job->spec, run->job->max_points, run->r->ic, &hooks, &run->spec,
+			    &run->choice, &run->err);
+	if (rc == 0)
+		log_job(LOG_INFO, run->job->id, "plan for the tolerance: %s", run->choice);
+	return rc;
+}
+
+/* The result with the plan's choice in it ("plan_for_tolerance"). */
+static char *with_choice(const struct run *run, char *result)
+{
+	_cleanup_(json_decrefp) json_t *o = NULL;
+	json_t *choice;
+	char *text;
+
+	if (!run->choice || !result)
+		return result;
+	o = json_loads(result, 0, NULL);
+	choice = json_loads(run->choice, 0, NULL);
+	if (!o || !choice || json_object_set_new(o, "plan_for_tolerance", choice) < 0)
+		return result;
+	text = json_dumps(o, JSON_COMPACT);
+	if (!text)
+		return result;
+	free(result);
+	return text;
+}
+
 static void characterize(struct run *run)
 {
 	struct runner_job *job = run->job;
@@ -293,7 +373,7 @@ static void characterize(struct run *run)
 	if (rc == -ECANCELED)
 		done(run, RUNNER_ABORTED, NULL);
 	else
-		done(run, rc < 0 ? RUNNER_FAILED : RUNNER_COMPLETED, result);
+		done(run, rc < 0 ? RUNNER_FAILED : RUNNER_COMPLETED, with_choice(run, result));
 }
 
 static void run_job(struct runner *r, struct runner_job *job, struct runner_report *final)
@@ -304,10 +384,17 @@ static void run_job(struct runner *r, struct runner_job *job, struct runner_repo
 	int rc;
 
 	asph_error_clear(&run.err);
-	rc = job_plan_build(job->spec, job->max_points, &run.jp, &run.err);
+	rc = choose_plan(&run);
+	if (rc == 0)
+		rc = job_plan_build(run.spec ? run.spec : job->spec, job->max_points, &run.jp,
+				    &run.err);
 	if (rc < 0) {
-		done(&run, RUNNER_FAILED, NULL);
+		stop = search_stopped(r);
+		done(&run, rc != -ECANCELED ? RUNNER_FAILED :
+		     stop && !abort_wanted(r) ? RUNNER_STOPPED : RUNNER_ABORTED, NULL);
 		job_plan_release(&run.jp);
+		free(run.spec);
+		free(run.choice);
 		return;
 	}
 	rep.total = run.jp.plan->n;
@@ -325,6 +412,8 @@ static void run_job(struct runner *r, struct runner_job *job, struct runner_repo
 	else
 		characterize(&run);
 	job_plan_release(&run.jp);
+	free(run.spec);
+	free(run.choice);
 }
 
 static void *worker(void *data)

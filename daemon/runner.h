@@ -37,6 +37,8 @@ struct runner_job {
 void runner_job_free(struct runner_job *j);
 
 enum runner_report_kind {
+	RUNNER_PLANNING,        /* the plan for the tolerance is searched:
+				   done of total characterizations */
 	RUNNER_STARTED,         /* the plan is computed; total is known */
 	RUNNER_PROGRESS,
 	RUNNER_CHARACTERIZING,  /* the scan is recorded; the result is being made */
