@@ -27,6 +27,18 @@ static const char *str(const json_t *o, const char *key)
 	return s ? s : "-";
 }
 
+/* A plan for the tolerance: "plan for the tolerance (U <= 0.25 T, ci)". */
+static bool plan_for_tolerance(const json_t *plan, char *buf, size_t size)
+{
+	if (!json_is_true(json_object_get(plan, "for_tolerance")))
+		return false;
+	snprintf(buf, size, "for the tolerance (U <= %g T%s%s)",
+		 json_number_value(json_object_get(plan, "capability")),
+		 json_is_string(json_object_get(plan, "method")) ? ", " : "",
+		 json_is_string(json_object_get(plan, "method")) ? str(plan, "method") : "");
+	return true;
+}
+
 void ctl_print_job_line(const json_t *job)
 {
 	json_t *p = json_object_get(job, "progress");
@@ -35,8 +47,12 @@ void ctl_print_job_line(const json_t *job)
 	json_t *plan = json_object_get(job, "plan");
 	char density[64];
 
-	snprintf(density, sizeof(density), "%s %s=%g", str(plan, "method"), str(plan, "density"),
-		 json_number_value(json_object_get(plan, "value")));
+	if (json_is_true(json_object_get(plan, "for_tolerance")))
+		snprintf(density, sizeof(density), "for-tolerance %g",
+			 json_number_value(json_object_get(plan, "capability")));
+	else
+		snprintf(density, sizeof(density), "%s %s=%g", str(plan, "method"),
+			 str(plan, "density"), json_number_value(json_object_get(plan, "value")));
 	printf("%6lld  %-11s %-10s %-14s %-20s %4lld  %7lld/%-7lld %s\n",
 	       (long long)json_integer_value(json_object_get(job, "id")), str(job, "state"),
 	       str(job, "instrument"), str(job, "lens"), density,
@@ -60,9 +76,13 @@ static void print_job(const json_t *job)
 	       str(job, "state"));
 	printf("  instrument  %s\n", str(job, "instrument"));
 	printf("  lens        %s\n", str(job, "lens"));
-	printf("  plan        %s, %s = %g\n", str(json_object_get(job, "plan"), "method"),
-	       str(json_object_get(job, "plan"), "density"),
-	       json_number_value(json_object_get(json_object_get(job, "plan"), "value")));
+	char tol[96];
+	if (plan_for_tolerance(json_object_get(job, "plan"), tol, sizeof(tol)))
+		printf("  plan        %s\n", tol);
+	else
+		printf("  plan        %s, %s = %g\n", str(json_object_get(job, "plan"), "method"),
+		       str(json_object_get(job, "plan"), "density"),
+		       json_number_value(json_object_get(json_object_get(job, "plan"), "value")));
 	printf("  points      %lld of %lld\n",
 	       (long long)json_integer_value(json_object_get(p, "done")),
 	       (long long)json_integer_value(json_object_get(p, "total")));
@@ -173,7 +193,8 @@ static json_t *tolerance_param(const char *arg)
 }
 
 static const char submit_usage[] =
-	"submit LENS --method M (--h H | --spacing MM | --points N) [--profiles N]\n"
+	"submit LENS (--method M (--h H | --spacing MM | --points N) [--profiles N]\n"
+	"             | --for-tolerance [--capability R] [--method M])\n"
 	"       [--instrument NAME] [--priority P] [--label TEXT] [--dof LIST]\n"
 	"       [--residual " NAMES_RESIDUALS "] [--robust] [--zernike N] [--tolerance T]\n"
 	"       [--part P] [--lot L] [--serial S] [--wait [--quiet]] [--json]";
@@ -189,6 +210,13 @@ void cmd_submit_values(FILE *out)
 static void print_queued(const json_t *job, json_int_t id)
 {
 	json_t *est = json_object_get(job, "estimate_s");
+	char tol[96];
+
+	if (plan_for_tolerance(json_object_get(job, "plan"), tol, sizeof(tol))) {
+		printf("job %lld queued: its plan is chosen %s when it runs\n", (long long)id,
+		       tol);
+		return;
+	}
 	long long n = (long long)json_integer_value(json_object_get(json_object_get(job, "progress"),
 								     "total"));
 
@@ -205,6 +233,79 @@ static void print_queued(const json_t *job, json_int_t id)
 		printf("job %lld queued (%lld points; no estimate of the measuring time)\n",
 		       (long long)id, n);
 	}
+}
+
+/* The plan the daemon chose for the tolerance, and why: each quantity's
+ * U and U/T, and what became of the other methods. */
+static void print_choice(const json_t *ch)
+{
+	const json_t *plan = json_object_get(ch, "plan"), *q, *m;
+	size_t i;
+
+	printf("plan for the tolerance: %s, h = %.4g, %lld points, %.1f s to measure "
+	       "(U <= %g T for every quantity, k = 2)\n", str(plan, "method"),
+	       json_number_value(json_object_get(plan, "h")),
+	       (long long)json_integer_value(json_object_get(plan, "points")),
+	       json_number_value(json_object_get(ch, "estimate_s")),
+	       json_number_value(json_object_get(ch, "capability")));
+	printf("  %-16s %12s %12s %8s\n", "quantity", "T", "U (k = 2)", "U/T");
+	json_array_foreach(json_object_get(ch, "quantities"), i, q)
+		printf("  %-16s %12.4g %12.4g %8.3f\n", str(q, "quantity"),
+		       json_number_value(json_object_get(q, "limit")),
+		       json_number_value(json_object_get(q, "U")),
+		       json_number_value(json_object_get(q, "ratio")));
+	json_array_foreach(json_object_get(ch, "methods"), i, m) {
+		const char *outcome = str(m, "outcome");
+		if (!strcmp(outcome, "chosen") || !strcmp(outcome, "not-tried"))
+			continue;
+		printf("  %-10s %s: %lld points, %.1f s", str(m, "method"), outcome,
+		       (long long)json_integer_value(json_object_get(m, "points")),
+		       json_number_value(json_object_get(m, "estimate_s")));
+		if (json_is_number(json_object_get(m, "ratio")))
+			printf(", U/T %.3f", json_number_value(json_object_get(m, "ratio")));
+		printf("\n");
+	}
+}
+
+/* After --wait: the plan chosen for the tolerance, when there is one. */
+static void show_choice(struct ctl *ctl, json_int_t id)
+{
+	_cleanup_(json_decrefp) json_t *result = NULL;
+	json_t *ch;
+
+	if (ctl_call(ctl, "job.result", json_pack("{s:I}", "id", id), &result) != 0)
+		return;
+	ch = json_object_get(result, "plan_for_tolerance");
+	if (json_is_object(ch))
+		print_choice(ch);
+}
+
+/* --for-tolerance: no density; a tolerance; --capability in (0, 1]. */
+static bool for_tolerance_ok(json_t *params, json_t *plan, const char *capability)
+{
+	static const char *const density[] = { "h", "spacing", "points", "profiles" };
+	double v = 0.25;
+
+	for (size_t i = 0; i < ARRAY_SIZE(density); i++)
+		if (json_object_get(plan, density[i])) {
+			fprintf(stderr, "asphctl: submit: --%s: --for-tolerance chooses the plan's "
+				"density itself\n", density[i]);
+			return false;
+		}
+	if (!json_object_get(params, "tolerance")) {
+		fprintf(stderr, "asphctl: submit: --for-tolerance chooses the plan for the part's "
+			"tolerance: give it with --tolerance\n");
+		return false;
+	}
+	if (capability && (ctl_parse_real(capability, &v) < 0 || !(v > 0 && v <= 1))) {
+		fprintf(stderr, "asphctl: submit: --capability: '%s' is not in (0, 1]: the largest "
+			"U (k = 2) of each quantity, as a fraction of its tolerance T\n", capability);
+		return false;
+	}
+	json_object_set_new(plan, "for_tolerance", json_true());
+	if (capability)
+		json_object_set_new(plan, "capability", json_real(v));
+	return true;
 }
 
 int cmd_submit(struct ctl *ctl, int argc, char **argv)
@@ -226,6 +327,8 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 		{ "lot", required_argument, NULL, 'L' },
 		{ "serial", required_argument, NULL, 'N' },
 		{ "tolerance", required_argument, NULL, 't' },
+		{ "for-tolerance", no_argument, NULL, 'T' },
+		{ "capability", required_argument, NULL, 'C' },
 		{ "wait", no_argument, NULL, 'w' },
 		{ "quiet", no_argument, NULL, 'q' },
 		CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
@@ -233,7 +336,8 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 	_cleanup_(json_decrefp) json_t *params = json_object();
 	_cleanup_(json_decrefp) json_t *result = NULL;
 	json_t *plan = json_object(), *fit = json_object();
-	bool wait = false, quiet = false;
+	bool wait = false, quiet = false, for_tolerance = false;
+	const char *capability = NULL;
 	int c, r;
 
 	json_object_set_new(params, "plan", plan);
@@ -262,6 +366,8 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 				json_object_set_new(params, "tolerance", t);
 			break;
 		}
+		case 'T': for_tolerance = true; break;
+		case 'C': capability = optarg; break;
 		case 'w': wait = true; break;
 		case 'q': quiet = true; break;
 		}
@@ -274,9 +380,13 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 		json_decref(fit);
 		return ctl_options_exit(c);
 	}
-	if (optind + 1 != argc) {
+	if (optind + 1 != argc || (capability && !for_tolerance)) {
 		json_decref(fit);
 		return ctl_usage_error(submit_usage);
+	}
+	if (for_tolerance && !for_tolerance_ok(params, plan, capability)) {
+		json_decref(fit);
+		return EXIT_USAGE;
 	}
 	if (json_object_size(fit))
 		json_object_set_new(params, "fit", fit);
@@ -295,7 +405,12 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 	else if (!ctl->json)
 		print_queued(result, id);
 	fflush(stdout);
-	return wait ? ctl_watch_job(ctl, id, !quiet) : EXIT_OK;
+	if (!wait)
+		return EXIT_OK;
+	r = ctl_watch_job(ctl, id, !quiet);
+	if (for_tolerance && !ctl->json)
+		show_choice(ctl, id);
+	return r;
 }
 
 /* Commands that take JOB and [--json] and call one method. */

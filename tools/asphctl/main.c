@@ -23,8 +23,12 @@ static const struct ctl_command commands[] = {
 	  "Queues a measurement of LENS (a preset or a prescription file, which asphctl\n"
 	  "reads and sends) on the plan of --method and one density. --tolerance takes\n"
 	  "an ISO 10110-5 call-out ('3/2(0.5/0.3)'), JSON text or a file holding it; the\n"
-	  "completed job then has a verdict. --wait follows the job as watch does (and\n"
-	  "exits as watch does); --quiet leaves its progress out.\n",
+	  "completed job then has a verdict. --for-tolerance lets the daemon choose the\n"
+	  "plan for the tolerance on the instrument's uncertainty: the shortest whose U\n"
+	  "(k = 2) is at most R T for every toleranced quantity (--capability, default\n"
+	  "0.25; --method restricts the search to one method). --wait follows the job\n"
+	  "as watch does (and exits as watch does), then prints the plan chosen for the\n"
+	  "tolerance and why; --quiet leaves its progress out.\n",
 	  cmd_submit_values },
 	{ "status", "the daemon's status, or a job's", cmd_status,
 	  "The daemon: version, queue, jobs by state, instruments. A job: its state, plan,\n"
