@@ -16,8 +16,6 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-#include <jansson.h>
-
 #include "asph-engine/executor.h"
 #include "asph-driver/instrument.h"
 #include "asph/plan.h"
@@ -336,33 +334,13 @@ static int choose_plan(struct run *run)
 	return rc;
 }
 
-/* The result with the plan's choice in it ("plan_for_tolerance"). */
-static char *with_choice(const struct run *run, char *result)
-{
-	_cleanup_(json_decrefp) json_t *o = NULL;
-	json_t *choice;
-	char *text;
-
-	if (!run->choice || !result)
-		return result;
-	o = json_loads(result, 0, NULL);
-	choice = json_loads(run->choice, 0, NULL);
-	if (!o || !choice || json_object_set_new(o, "plan_for_tolerance", choice) < 0)
-		return result;
-	text = json_dumps(o, JSON_COMPACT);
-	if (!text)
-		return result;
-	free(result);
-	return text;
-}
-
 static void characterize(struct run *run)
 {
 	struct runner_job *job = run->job;
 	struct result_source src = {
 		.job = job->id, .dir_fd = job->dir_fd, .dir = job->result_dir,
 		.metadata = job->metadata, .cancelled = abort_wanted, .cancelled_data = run->r,
-		.trials = on_trials, .trials_data = run,
+		.trials = on_trials, .trials_data = run, .plan_for_tolerance = run->choice,
 	};
 	struct runner_report rep = { .kind = RUNNER_CHARACTERIZING, .job = job->id, .eta_s = -1 };
 	char *result = NULL;
@@ -373,7 +351,7 @@ static void characterize(struct run *run)
 	if (rc == -ECANCELED)
 		done(run, RUNNER_ABORTED, NULL);
 	else
-		done(run, rc < 0 ? RUNNER_FAILED : RUNNER_COMPLETED, with_choice(run, result));
+		done(run, rc < 0 ? RUNNER_FAILED : RUNNER_COMPLETED, result);
 }
 
 static void run_job(struct runner *r, struct runner_job *job, struct runner_report *final)

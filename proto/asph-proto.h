@@ -18,7 +18,7 @@
 /* Protocol version reported by `hello`; the minor part grows with
  * compatible additions. */
 #define PROTO_VERSION_MAJOR 1
-#define PROTO_VERSION_MINOR 6
+#define PROTO_VERSION_MINOR 7
 
 #define PROTO_DEFAULT_SOCKET "/run/asphd/asphd.sock"
 #define PROTO_DEFAULT_MAX_LINE (1u << 20)

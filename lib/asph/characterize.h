@@ -262,6 +262,9 @@ struct asph_characterize_folder {
 	/* provenance.fit_options (JSON object text); NULL: the options' */
 	const char *fit_options_json;
 	const char *tolerance_json;     /* provenance.tolerance; NULL: none */
+	/* plan_for_tolerance: why the plan was chosen (asphd's plan for a
+	 * tolerance, asph/plan-search.h's JSON); NULL: none */
+	const char *plan_for_tolerance_json;
 	int64_t finished_ns;            /* provenance.finished; 0: now */
 };
 

@@ -94,6 +94,9 @@ try:
     expect(ch.get("plan", {}).get("points") == 360 and ch.get("quantities") and
            any(m["outcome"] == "chosen" for m in ch.get("methods", [])),
            f"the result records the plan chosen and why: {json.dumps(ch)[:300]}")
+    with open(os.path.join(r["dir"], "result.json")) as f:
+        expect(json.load(f).get("plan_for_tolerance") == ch,
+               "result.json holds it too (its hash in MQTT and the central store holds)")
     prov = r["provenance"]["plan"]
     expect(prov.get("method") == "ci" and prov.get("points") == 360,
            f"and measured it: {prov}")
