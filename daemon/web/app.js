@@ -194,7 +194,7 @@ function renderQueue(q) {
     const p = j.progress;
     const tr = el("tr", { "data-job": j.id },
       el("td", {}, j.id), el("td", { class: "state" }, j.state), el("td", {}, typeof j.lens === "string" ? j.lens : "prescription"),
-      el("td", {}, `${j.plan.method} ${j.plan.density} ${j.plan.value}`), el("td", {}, pls(j)), el("td", {}, j.priority),
+      el("td", {}, planText(j.plan)), el("td", {}, pls(j)), el("td", {}, j.priority),
       el("td", {}, `${p.done} / ${p.total}`), actions(j));
     if (role !== "viewer" && j.state === "queued") {
       // Reorder by drag, or with the keyboard: Alt+Up / Alt+Down.
@@ -229,11 +229,35 @@ function fillChoices(form) {
 }
 fillChoices($("submit-form"));
 
+// A job's plan as the queue shows it.
+function planText(plan) {
+  return plan.for_tolerance ? `for the tolerance (U ≤ ${plan.capability} T${plan.method ? `, ${plan.method}` : ""})`
+    : `${plan.method} ${plan.density} ${plan.value}`;
+}
+
+// The plan for the tolerance (docs/sampling-plans.md): the daemon chooses
+// the method and density when the job runs, so those fields rest.
+function formPlan(f) {
+  if (f.get("for_tolerance") !== "on")
+    return { method: f.get("method"), [f.get("density")]: Number(f.get("value")) };
+  const plan = { for_tolerance: true };
+  if (f.get("capability")) plan.capability = Number(f.get("capability"));
+  return plan;
+}
+
+function showForTolerance(form) {
+  const on = form.elements.for_tolerance.checked;
+  for (const k of ["method", "density", "value"]) form.elements[k].disabled = on;
+  form.elements.capability.disabled = !on;
+}
+showForTolerance($("submit-form"));
+$("submit-form").elements.for_tolerance.addEventListener("change", (e) => showForTolerance(e.target.form));
+
 // The form as job.submit's parameters; throws an Error saying which field
 // does not read.
 async function submitParams(form) {
   const f = new FormData(form);
-  const params = { lens: f.get("lens"), plan: { method: f.get("method"), [f.get("density")]: Number(f.get("value")) } };
+  const params = { lens: f.get("lens"), plan: formPlan(f) };
   const file = f.get("prescription");
   if (file && file.size) {
     try {
@@ -275,6 +299,14 @@ async function showEstimate() {
   const seq = ++estimateSeq;
   const out = $("submit-estimate");
   let text;
+  if ($("submit-form").elements.for_tolerance.checked) {
+    // the search characterizes many plans: it runs when the job does, not
+    // on every change of the form
+    out.textContent = "The plan is chosen for the tolerance when the job runs (the job's result says which and why)";
+    out.dataset.estimate = "";
+    out.classList.remove("error");
+    return;
+  }
   try {
     const e = await rpc("job.estimate", await submitParams($("submit-form")));
     text = e.estimate_s === null
@@ -322,6 +354,7 @@ function showProgress(p) {
   $("live-text").textContent = t
     ? `Uncertainty: ${t.done} of ${t.planned} trials, ${t.rate.toFixed(1)} trials/s${eta}`
     : p.phase === "characterizing" ? `Characterizing ${p.done} points`
+    : p.phase === "planning" ? `Choosing the plan for the tolerance: ${p.done} of at most ${p.total} characterizations`
     : `${p.done} of ${p.total} points, ${p.rate.toFixed(0)} points/s${eta}`;
 }
 
@@ -402,6 +435,17 @@ async function showResult(id) {
       el("thead", {}, el("tr", {}, ...["quantity", "value", "U", "limit", "verdict"].map((h) => el("th", {}, h)))),
       el("tbody", {}, ...s.verdict.items.map(item))));
   } else parts.push(el("p", {}, "No tolerance was given: no verdict."));
+  const ch = r.plan_for_tolerance;
+  if (ch) {
+    // why this plan: each toleranced quantity's U against its tolerance
+    parts.push(el("h3", {}, "Plan for the tolerance"),
+      el("p", { id: "plan-choice" }, `${ch.plan.method}, ${ch.plan.points} points (h = ${ch.plan.h.toPrecision(4)}), ` +
+        `${duration(ch.estimate_s)} predicted: the shortest whose U ≤ ${ch.capability} T for every quantity`),
+      el("table", { id: "plan-quantities" },
+        el("thead", {}, el("tr", {}, ...["quantity", "T", "U (k = 2)", "U/T"].map((h) => el("th", {}, h)))),
+        el("tbody", {}, ...ch.quantities.map((q) => el("tr", {}, el("td", {}, q.quantity),
+          el("td", {}, q.limit.toPrecision(4)), el("td", {}, q.U.toPrecision(4)), el("td", {}, q.ratio.toFixed(3)))))));
+  }
   parts.push(el("h3", {}, "Pose"), pose);
   if (s.zernike_nm) parts.push(el("h3", { id: "zernike-h" }, "Zernike coefficients"), zernikeBars(s.zernike_nm));
   if (r.files.residuals) {
