@@ -409,6 +409,22 @@ def huge_number_cases():
                                                            "profiles": 2}), rid=1)
     add("plan-profiles-with-ot", obj, ["params", "plan", "profiles"], "2",
         Err(PARAMS, '"plan.profiles" is for the method', 1, None))
+    # The plan for the tolerance: its capability in (0, 1], and only with
+    # a tolerance (refused before any search).
+    tol = copy_set(copy_set(SUBMIT, ["plan"], {"for_tolerance": True, "capability": 0.5}),
+                   ["tolerance"], {"rms_nm": {"t": 50}})
+    obj = request("job.submit", tol, rid=1)
+    for name, raw in [("zero", "0"), ("minus-zero", "-0.0"), ("1.5", "1.5"), ("-1", "-1"),
+                      ("1e-400", "1e-400"), ("1e300", "1e300")]:
+        add("plan-capability-%s" % name, obj, ["params", "plan", "capability"], raw,
+            Err(PARAMS, quoted("plan.capability"), 1, None))
+    add("plan-capability-1e400", obj, ["params", "plan", "capability"], "1e400", "parse")
+    add("plan-for-tolerance-false", obj, ["params", "plan", "for_tolerance"], "false",
+        Err(PARAMS, quoted("plan.for_tolerance") + " must be true", 1, None))
+    add("plan-for-tolerance-without-tolerance", request("job.submit", copy_set(tol, ["tolerance"],
+                                                                              ABSENT), rid=1),
+        ["params", "plan", "capability"], "0.5",
+        Err(PARAMS, quoted("tolerance") + " is missing", 1, None))
     # Coordinates of an inline prescription.
     lens = request("job.submit", copy_set(SUBMIT, ["lens"], PRESCRIPTION), rid=1)
     for path, name, raw, code, detail in [
