@@ -140,6 +140,10 @@ try:
     g = c.call("job.get", {"id": jid})
     expect(g["progress"]["phase"] == "planning" and g["progress"]["total"] == 20000,
            f"job.get shows the search: {g['progress']}")
+    _, out, _ = d.ctl("status", jid)
+    expect("plan        for the tolerance (U <= 0.25 T)" in out and
+           "plan search" in out and "of at most 20000 characterizations" in out,
+           f"asphctl status JOB shows the search: {out}")
     c.call("job.cancel", {"id": jid})
     t0 = time.monotonic()
     state = c.wait_state(jid, ["completed", "failed", "cancelled"], timeout=600)

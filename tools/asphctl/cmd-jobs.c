@@ -83,7 +83,9 @@ static void print_job(const json_t *job)
 		printf("  plan        %s, %s = %g\n", str(json_object_get(job, "plan"), "method"),
 		       str(json_object_get(job, "plan"), "density"),
 		       json_number_value(json_object_get(json_object_get(job, "plan"), "value")));
-	printf("  points      %lld of %lld\n",
+	const char *phase = json_string_value(json_object_get(p, "phase"));
+	printf(phase && !strcmp(phase, "planning") ? "  plan search %lld of at most %lld "
+	       "characterizations\n" : "  points      %lld of %lld\n",
 	       (long long)json_integer_value(json_object_get(p, "done")),
 	       (long long)json_integer_value(json_object_get(p, "total")));
 	if (json_is_object(json_object_get(p, "trials")))

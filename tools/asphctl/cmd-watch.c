@@ -18,11 +18,14 @@ struct view {
 	bool progress;          /* not --quiet: the progress bar or lines */
 	int last_percent;
 	bool last_mc;           /* the last progress counted trials */
+	bool last_planning;     /* the last progress was the plan's search */
 	bool bar_drawn;
 };
 
 /* The progress of a job.progress event: plan points while measuring,
- * trials during its Monte Carlo uncertainty (phase "uncertainty"). */
+ * trials during its Monte Carlo uncertainty (phase "uncertainty"), the
+ * search's characterizations while the plan for the tolerance is chosen
+ * (phase "planning"). */
 static void show_progress(struct view *v, const json_t *p)
 {
 	const json_t *trials = json_object_get(p, "trials");
@@ -33,7 +36,10 @@ static void show_progress(struct view *v, const json_t *p)
 	double rate = json_number_value(json_object_get(src, "rate"));
 	double frac = total > 0 ? (double)done / (double)total : 0;
 	int percent = (int)(100 * frac);
-	const char *unit = mc ? "trials" : "points";
+	const char *phase = json_string_value(json_object_get(p, "phase"));
+	bool planning = !mc && phase && !strcmp(phase, "planning");
+	const char *unit = mc ? "trials" : planning ? "characterizations" : "points";
+	const char *what = mc ? "uncertainty " : planning ? "plan search " : "";
 	char eta_text[32];
 
 	if (v->quiet || !v->progress)
@@ -48,16 +54,18 @@ static void show_progress(struct view *v, const json_t *p)
 			bar[i] = i < fill ? '#' : '.';
 		bar[BAR_WIDTH] = '\0';
 		printf("\r\033[Kjob %lld %s[%s] %5.1f %%  %lld/%lld  %.1f %s/s  ETA %s",
-		       (long long)v->id, mc ? "uncertainty " : "", bar, 100 * frac, (long long)done,
-		       (long long)total, rate, mc ? "trials" : "pt", eta_text);
+		       (long long)v->id, what, bar, 100 * frac, (long long)done,
+		       (long long)total, rate, mc ? "trials" : planning ? "char" : "pt", eta_text);
 		v->bar_drawn = true;
-	} else if (percent != v->last_percent || mc != v->last_mc) {
+	} else if (percent != v->last_percent || mc != v->last_mc ||
+		   planning != v->last_planning) {
 		printf("job %lld: %s%lld/%lld %s (%d %%), %.1f %s/s, ETA %s\n", (long long)v->id,
-		       mc ? "uncertainty " : "", (long long)done, (long long)total, unit, percent,
-		       rate, unit, eta_text);
+		       what, (long long)done, (long long)total, unit, percent, rate, unit,
+		       eta_text);
 	}
 	v->last_percent = percent;
 	v->last_mc = mc;
+	v->last_planning = planning;
 	fflush(stdout);
 }
 
