@@ -11,6 +11,7 @@
 
 #include "asph-proto.h"
 #include "log.h"
+#include "jobs-store.h"
 #include "outbox.h"
 #include "util-hash.h"
 #include "util-mem.h"
