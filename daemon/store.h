@@ -58,22 +58,6 @@ int store_backup(const char *path, const char *dst, store_backup_fn progress, vo
  * refused (-ENOTDIR). */
 int store_backup_dir(const char *path, bool make, char **dir, struct asph_error *err);
 
-/* --- API tokens (tokens.c): name, role, SHA-256 of the secret */
-
-struct store_token {
-	const char *name;
-	int role;
-	const uint8_t *digest;  /* 32 bytes */
-	int64_t created_ns, expires_ns, revoked_ns;     /* 0: never, not */
-	const char *created_by;
-};
-typedef int (*store_token_fn)(const struct store_token *t, void *data);
-/* -EEXIST when a token of that name exists (revoked or not). */
-int store_token_insert(struct store *s, const struct store_token *t);
-int store_token_list(struct store *s, store_token_fn fn, void *data);
-/* -ENOENT when there is no such token, -EALREADY when it is revoked. */
-int store_token_revoke(struct store *s, const char *name, int64_t now_ns);
-
 /* --- the outbox (outbox.c): what waits for a broker or a database */
 
 struct store_outbox_item {
