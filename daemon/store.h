@@ -58,33 +58,6 @@ int store_backup(const char *path, const char *dst, store_backup_fn progress, vo
  * refused (-ENOTDIR). */
 int store_backup_dir(const char *path, bool make, char **dir, struct asph_error *err);
 
-/* --- the outbox (outbox.c): what waits for a broker or a database */
-
-struct store_outbox_item {
-	int64_t id;             /* assigned by store_outbox_add() */
-	const char *sink;       /* "mqtt", "postgres" */
-	const char *topic;      /* MQTT; NULL for the database */
-	const char *payload;
-	int qos;
-	bool retain;
-	const char *message_id;
-	int64_t created_ns;
-};
-typedef int (*store_outbox_fn)(const struct store_outbox_item *it, void *data);
-int store_outbox_add(struct store *s, struct store_outbox_item *it);
-/* Items of sink with an id above after, oldest first, at most limit. */
-int store_outbox_list(struct store *s, const char *sink, int64_t after, int64_t limit,
-		      store_outbox_fn fn, void *data);
-/* Acknowledged: gone. 0 also when it was gone before. */
-int store_outbox_remove(struct store *s, int64_t id);
-/* Items waiting for sink. */
-int store_outbox_count(struct store *s, const char *sink, int64_t *n);
-/* Moves item id (any sink) to sink to, keeping its id and text: 0, also
- * when it was gone. */
-int store_outbox_move(struct store *s, int64_t id, const char *to);
-/* Moves every item of sink from to sink to; *n: how many (may be NULL). */
-int store_outbox_move_all(struct store *s, const char *from, const char *to, int64_t *n);
-
 /* Runs several changes in one transaction. */
 int store_begin(struct store *s);
 int store_commit(struct store *s);
