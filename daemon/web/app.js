@@ -7,7 +7,7 @@
 import { drawMap, colourScale } from "./map.js";
 import { zernikeBars, radialProfile, psdChart, psdTable, parsePsd } from "./charts.js";
 import { csvText } from "./csv.js";
-import { planMethods, presets } from "./names.js";
+import { PLAN_MAX_PROFILES, planMethods, presets } from "./names.js";
 import { NO_SIGN, UNIT, formatQuantity, labelOf, quantityAt, quantityOfVerdict } from "./quantity.js";
 
 const $ = (id) => document.getElementById(id);
@@ -226,14 +226,23 @@ function fillChoices(form) {
   const option = (value, text, chosen) => el("option", { value, ...(chosen ? { selected: "" } : {}) }, text);
   form.elements.lens.replaceChildren(...presets.map((p) => option(p, p, p === "strong")));
   form.elements.method.replaceChildren(...planMethods.map((m) => option(m.name, m.title, m.name === "fermat")));
+  form.elements.profiles.max = PLAN_MAX_PROFILES;
 }
 fillChoices($("submit-form"));
+
+// The number of profiles is the profiles method's own: asked for it only.
+function followMethod(form) {
+  form.elements.profiles.disabled = form.elements.method.value !== "profiles";
+}
+$("submit-form").elements.method.addEventListener("change", (e) => followMethod(e.target.form));
+followMethod($("submit-form"));
 
 // The form as job.submit's parameters; throws an Error saying which field
 // does not read.
 async function submitParams(form) {
   const f = new FormData(form);
   const params = { lens: f.get("lens"), plan: { method: f.get("method"), [f.get("density")]: Number(f.get("value")) } };
+  if (f.get("method") === "profiles") params.plan.profiles = Number(f.get("profiles"));
   const file = f.get("prescription");
   if (file && file.size) {
     try {
