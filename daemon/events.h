@@ -23,7 +23,7 @@
 
 #include <jansson.h>
 
-#include "store.h"
+#include "job.h"
 
 /* Classes of events, as a client subscribes to them. */
 enum event_class {

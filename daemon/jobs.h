@@ -1,7 +1,7 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
  * The job queue: the one owner and writer of job state. Jobs wait in the
- * store (store.h) ordered by priority, then submission; each idle
+ * store (jobs-store.h) ordered by priority, then submission; each idle
  * instrument takes its first queued job and runs it on its worker
  * (runner.h). Every change of a job's state goes through this module: it
  * records the change, counts it, logs it and builds its event (events.h).
@@ -36,8 +36,8 @@
 #include "asph/error.h"
 #include "events.h"
 #include "instruments.h"
+#include "jobs-store.h"
 #include "settings.h"
-#include "store.h"
 
 struct jobs_setup {
 	sd_event *event;                        /* the workers report here */

@@ -236,6 +236,18 @@ static int list_settings(void)
 	return ASPHD_EXIT_OK;
 }
 
+/* --list-methods: every method of the protocol, a line each: its name and
+ * the role it needs, separated by a tab. */
+static int list_methods(void)
+{
+	enum access_role need;
+	const char *name;
+
+	for (size_t i = 0; (name = rpc_method(i, &need)); i++)
+		printf("%s\t%s\n", name, access_role_name(need));
+	return ASPHD_EXIT_OK;
+}
+
 static int check_config(struct daemon *d)
 {
 	int n_errors = 0;
@@ -977,6 +989,8 @@ static void usage(FILE *f)
 		   "      --check-config    check the configuration, name every error, exit\n"
 		   "      --list-settings   print every setting of the configuration file: name,\n"
 		   "                        what it takes, default, meaning (tab-separated), exit\n"
+		   "      --list-methods    print every method of the protocol with the role it\n"
+		   "                        needs (tab-separated), exit\n"
 		   "      --db-migrate      create or migrate the central database's schema\n"
 		   "                        (the configuration's postgres section), exit\n"
 		   "      --device-policy=systemd|udev\n"
@@ -998,6 +1012,7 @@ int main(int argc, char **argv)
 		{ "state-dir", required_argument, NULL, 'd' },
 		{ "check-config", no_argument, NULL, 'C' },
 		{ "list-settings", no_argument, NULL, 'L' },
+		{ "list-methods", no_argument, NULL, 'R' },
 		{ "db-migrate", no_argument, NULL, 'M' },
 		{ "device-policy", required_argument, NULL, 'D' },
 		{ "verbose", no_argument, NULL, 'v' },
@@ -1022,6 +1037,7 @@ int main(int argc, char **argv)
 		case 'd': d.state_override = optarg; break;
 		case 'C': check = true; break;
 		case 'L': return list_settings();
+		case 'R': return list_methods();
 		case 'M': migrate = true; break;
 		case 'D': policy = optarg; break;
 		case 'v': verbose = true; break;

@@ -11,7 +11,10 @@
 
 #include "asph-proto.h"
 #include "log.h"
+#include "jobs-store.h"
 #include "outbox.h"
+#include "store.h"
+#include "store-sql.h"
 #include "util-hash.h"
 #include "util-mem.h"
 #include "util-time.h"
@@ -43,6 +46,123 @@ struct outbox {
 	int64_t after;                  /* the last history rowid taken */
 	struct sink_state sinks[OUTBOX_N_SINKS];
 };
+
+/* ------------------------------------ the table outbox in the store */
+
+typedef int (*store_outbox_fn)(const struct store_outbox_item *it, void *data);
+
+static int store_outbox_add(struct store *s, struct store_outbox_item *it)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = store_prepare(s,
+		"INSERT INTO outbox (sink, topic, payload, qos, retain, message_id, created_ns)"
+		" VALUES (?,?,?,?,?,?,?)");
+	int r;
+
+	if (!st)
+		return -EIO;
+	store_bind_text(st, 1, it->sink);
+	store_bind_text(st, 2, it->topic);
+	store_bind_text(st, 3, it->payload);
+	sqlite3_bind_int(st, 4, it->qos);
+	sqlite3_bind_int(st, 5, it->retain);
+	store_bind_text(st, 6, it->message_id);
+	sqlite3_bind_int64(st, 7, it->created_ns);
+	r = store_step_done(st);
+	if (r == 0)
+		it->id = sqlite3_last_insert_rowid(store_db(s));
+	return r;
+}
+
+/* Items of sink with an id above after, oldest first, at most limit. */
+static int store_outbox_list(struct store *s, const char *sink, int64_t after,
+			     int64_t limit, store_outbox_fn fn, void *data)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = store_prepare(s,
+		"SELECT id, sink, topic, payload, qos, retain, message_id, created_ns FROM outbox"
+		" WHERE sink = ? AND id > ? ORDER BY id LIMIT ?");
+	int r;
+
+	if (!st)
+		return -EIO;
+	store_bind_text(st, 1, sink);
+	sqlite3_bind_int64(st, 2, after);
+	sqlite3_bind_int64(st, 3, limit);
+	while ((r = sqlite3_step(st)) == SQLITE_ROW) {
+		struct store_outbox_item it = {
+			.id = sqlite3_column_int64(st, 0),
+			.sink = (const char *)sqlite3_column_text(st, 1),
+			.topic = (const char *)sqlite3_column_text(st, 2),
+			.payload = (const char *)sqlite3_column_text(st, 3),
+			.qos = sqlite3_column_int(st, 4),
+			.retain = sqlite3_column_int(st, 5) != 0,
+			.message_id = (const char *)sqlite3_column_text(st, 6),
+			.created_ns = sqlite3_column_int64(st, 7),
+		};
+		int k;
+		if (!it.sink || !it.payload || !it.message_id)
+			return -ENOMEM;
+		k = fn(&it, data);
+		if (k < 0)
+			return k;
+	}
+	return r == SQLITE_DONE ? 0 : -EIO;
+}
+
+/* Acknowledged: gone. 0 also when it was gone before. */
+static int store_outbox_remove(struct store *s, int64_t id)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = store_prepare(s, "DELETE FROM outbox WHERE id = ?");
+
+	if (!st)
+		return -EIO;
+	sqlite3_bind_int64(st, 1, id);
+	return store_step_done(st);
+}
+
+/* Moves item id (any sink) to sink to, keeping its id and text: 0, also
+ * when it was gone. */
+static int store_outbox_move(struct store *s, int64_t id, const char *to)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = store_prepare(s, "UPDATE outbox SET sink = ? WHERE id = ?");
+
+	if (!st)
+		return -EIO;
+	store_bind_text(st, 1, to);
+	sqlite3_bind_int64(st, 2, id);
+	return store_step_done(st);
+}
+
+/* Moves every item of sink from to sink to; *n: how many (may be NULL). */
+static int store_outbox_move_all(struct store *s, const char *from, const char *to, int64_t *n)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = store_prepare(s, "UPDATE outbox SET sink = ? WHERE sink = ?");
+	int r;
+
+	if (!st)
+		return -EIO;
+	store_bind_text(st, 1, to);
+	store_bind_text(st, 2, from);
+	r = store_step_done(st);
+	if (r == 0 && n)
+		*n = sqlite3_changes(store_db(s));
+	return r;
+}
+
+/* Items waiting for sink. */
+static int store_outbox_count(struct store *s, const char *sink, int64_t *n)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = store_prepare(s, "SELECT COUNT(*) FROM outbox WHERE sink = ?");
+
+	if (!st)
+		return -EIO;
+	store_bind_text(st, 1, sink);
+	if (sqlite3_step(st) != SQLITE_ROW)
+		return -EIO;
+	*n = sqlite3_column_int64(st, 0);
+	return 0;
+}
+
+/* ---------------------------------------------------------- the outbox */
 
 /* A UUID (version 4) from the kernel's random numbers. */
 static int make_uuid(char out[37])

@@ -29,12 +29,23 @@
 #include <stdint.h>
 
 #include "asph/error.h"
-#include "store.h"
 
 enum outbox_sink_kind {
 	OUTBOX_MQTT,
 	OUTBOX_POSTGRES,
 	OUTBOX_N_SINKS,
+};
+
+/* An item of the outbox as the store keeps it. */
+struct store_outbox_item {
+	int64_t id;             /* assigned by store_outbox_add() */
+	const char *sink;       /* "mqtt", "postgres" */
+	const char *topic;      /* MQTT; NULL for the database */
+	const char *payload;
+	int qos;
+	bool retain;
+	const char *message_id;
+	int64_t created_ns;
 };
 
 /* A receiver: send() takes an item (0) or not now (< 0: it is handed

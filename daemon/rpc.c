@@ -1352,6 +1352,14 @@ static const struct method *find_method(const char *name)
 	return NULL;
 }
 
+const char *rpc_method(size_t i, enum access_role *need)
+{
+	if (i >= ARRAY_SIZE(methods))
+		return NULL;
+	*need = methods[i].need;
+	return methods[i].name;
+}
+
 /* A refused mutating call is logged, at most so often per peer: a reader
  * could otherwise write the log full with notifications. */
 static void log_refusal(const struct call *c, const char *method)

@@ -68,6 +68,9 @@ struct rpc;
 
 int rpc_new(const struct rpc_setup *setup, struct rpc **out);
 void rpc_free(struct rpc *rpc);
+/* The methods' table, in its order (asphd --list-methods): the name of
+ * method i and, in *need, the role it needs; NULL past the last. */
+const char *rpc_method(size_t i, enum access_role *need);
 /* Who may do what, after a reload. */
 void rpc_set_access(struct rpc *rpc, const struct access *access);
 

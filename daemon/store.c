@@ -12,57 +12,13 @@
 
 #include "log.h"
 #include "store.h"
+#include "store-sql.h"
 #include "util-mem.h"
 #include "util-time.h"
 
 /* 2: part, lot and serial of jobs, the actor's name in the history, API
  * tokens, instrument locks, the outbox. */
 #define SCHEMA_VERSION 2
-
-static const char *const state_names[JOB_N_STATES] = {
-	[JOB_QUEUED] = "queued",
-	[JOB_RUNNING] = "running",
-	[JOB_PAUSED] = "paused",
-	[JOB_COMPLETED] = "completed",
-	[JOB_FAILED] = "failed",
-	[JOB_CANCELLED] = "cancelled",
-	[JOB_INTERRUPTED] = "interrupted",
-};
-
-const char *job_state_name(enum job_state s)
-{
-	return (unsigned)s < JOB_N_STATES ? state_names[s] : "unknown";
-}
-
-int job_state_from_name(const char *name, enum job_state *out)
-{
-	for (int i = 0; i < JOB_N_STATES; i++)
-		if (!strcmp(state_names[i], name)) {
-			*out = (enum job_state)i;
-			return 0;
-		}
-	return -EINVAL;
-}
-
-bool job_state_final(enum job_state s)
-{
-	return s == JOB_COMPLETED || s == JOB_FAILED || s == JOB_CANCELLED;
-}
-
-void job_record_clear(struct job_record *j)
-{
-	free(j->label);
-	free(j->instrument);
-	free(j->user);
-	free(j->spec);
-	free(j->reason);
-	free(j->result);
-	free(j->scan_path);
-	free(j->part);
-	free(j->lot);
-	free(j->serial);
-	memset(j, 0, sizeof(*j));
-}
 
 struct store {
 	sqlite3 *db;
@@ -73,9 +29,12 @@ struct store {
  * stops: a few transactions of a few pages each. */
 #define RESERVE_BYTES (1 << 20)
 
-/* The states of the queue, of the index jobs_queue_order. */
-#define QUEUE_STATES (1u << JOB_QUEUED | 1u << JOB_RUNNING | 1u << JOB_PAUSED)
-
+/*
+ * The schema, one version for the file: the store creates every table and
+ * upgrades them together (after one backup), and each table's statements
+ * are its module's: jobs and history in jobs-store.c, locks in
+ * locks-store.c, tokens in tokens.c, outbox in outbox.c; meta here.
+ */
 static const char schema[] =
 	"CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);"
 	"CREATE TABLE IF NOT EXISTS jobs ("
@@ -88,7 +47,7 @@ static const char schema[] =
 	" resume INTEGER NOT NULL, attempts INTEGER NOT NULL);"
 	"CREATE INDEX IF NOT EXISTS jobs_queue ON jobs (state, instrument, priority DESC, seq);"
 	/* The queue in the order it runs, for listings taken a few jobs at a
-	 * time (store_list()); the states are those of QUEUE_STATES_SQL. */
+	 * time (store_list()); the states are those of QUEUE_STATES (jobs-store.c). */
 	"CREATE INDEX IF NOT EXISTS jobs_queue_order ON jobs (priority DESC, seq, id)"
 	" WHERE state IN (0,1,2);"
 	"CREATE TABLE IF NOT EXISTS history ("
@@ -123,7 +82,7 @@ static int sql_error(struct store *s, struct asph_error *err, const char *what)
 }
 
 /* A full or read-only disk is told apart: the daemon acts on it. */
-static int sql_errno(int rc)
+int store_errno(int rc)
 {
 	switch (rc & 0xff) {
 	case SQLITE_FULL:
@@ -135,21 +94,14 @@ static int sql_errno(int rc)
 	}
 }
 
-static int exec(struct store *s, const char *sql)
+int store_exec(struct store *s, const char *sql)
 {
 	int rc = sqlite3_exec(s->db, sql, NULL, NULL, NULL);
 
-	return rc == SQLITE_OK ? 0 : sql_errno(rc);
+	return rc == SQLITE_OK ? 0 : store_errno(rc);
 }
 
-static void finalizep(sqlite3_stmt **st)
-{
-	if (*st)
-		sqlite3_finalize(*st);
-}
-#define _cleanup_stmt_ _cleanup_(finalizep)
-
-static sqlite3_stmt *prepare(struct store *s, const char *sql)
+sqlite3_stmt *store_prepare(struct store *s, const char *sql)
 {
 	sqlite3_stmt *st = NULL;
 
@@ -158,15 +110,15 @@ static sqlite3_stmt *prepare(struct store *s, const char *sql)
 	return st;
 }
 
-static int step_done(sqlite3_stmt *st)
+int store_step_done(sqlite3_stmt *st)
 {
 	int rc = sqlite3_step(st);
 
-	return rc == SQLITE_DONE ? 0 : sql_errno(rc);
+	return rc == SQLITE_DONE ? 0 : store_errno(rc);
 }
 
 /* The one row a query of one record reads: 0, -ENOENT when there is none. */
-static int step_row(sqlite3_stmt *st)
+int store_step_row(sqlite3_stmt *st)
 {
 	int rc = sqlite3_step(st);
 
@@ -191,10 +143,10 @@ static int add_columns(struct store *s)
 		sqlite3_finalize(st);
 		snprintf(sql, sizeof(sql), "ALTER TABLE %s ADD COLUMN %s TEXT",
 			 schema_2_columns[i][0], schema_2_columns[i][1]);
-		if (!have && exec(s, sql) < 0)
+		if (!have && store_exec(s, sql) < 0)
 			return -EIO;
 	}
-	return exec(s, "CREATE INDEX IF NOT EXISTS jobs_part ON jobs (part)");
+	return store_exec(s, "CREATE INDEX IF NOT EXISTS jobs_part ON jobs (part)");
 }
 
 /* The schema version of the store: 0 for a new one (no meta table, or no
@@ -202,7 +154,7 @@ static int add_columns(struct store *s)
  * newer than this daemon. */
 static int read_version(struct store *s, long *version, struct asph_error *err)
 {
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
+	_cleanup_stmt_ sqlite3_stmt *st = store_prepare(s,
 		"SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'meta'");
 	_cleanup_free_ char *v = NULL;
 	char *end;
@@ -211,7 +163,7 @@ static int read_version(struct store *s, long *version, struct asph_error *err)
 	*version = 0;
 	if (!st)
 		return sql_error(s, err, "reading the schema version");
-	r = step_row(st);
+	r = store_step_row(st);
 	if (r == -ENOENT)
 		return 0;
 	r = r < 0 ? r : store_meta_get(s, "schema", &v);
@@ -337,7 +289,7 @@ static int copy_db(sqlite3 *src, sqlite3 *out, const char *dst, store_backup_fn 
 	if (cancelled)
 		return asph_error_set(err, -ECANCELED, "the backup was cancelled");
 	if (rc != SQLITE_DONE)
-		return asph_error_set(err, sql_errno(rc), "copying the job store into %s: %s", dst,
+		return asph_error_set(err, store_errno(rc), "copying the job store into %s: %s", dst,
 				      sqlite3_errstr(rc));
 	/* a file of its own, without a write-ahead log beside it */
 	if (sqlite3_exec(out, "PRAGMA journal_mode=DELETE", NULL, NULL, NULL) != SQLITE_OK)
@@ -457,9 +409,9 @@ int store_open(const char *path, struct store **out, struct asph_error *err)
 	sqlite3_busy_timeout(s->db, 5000);
 	/* WAL with synchronous=FULL: a committed state change survives power
 	 * loss, and readers never block the writer. */
-	if (exec(s, "PRAGMA journal_mode=WAL;") < 0 ||
-	    exec(s, "PRAGMA synchronous=FULL;") < 0 ||
-	    exec(s, "PRAGMA foreign_keys=ON;") < 0) {
+	if (store_exec(s, "PRAGMA journal_mode=WAL;") < 0 ||
+	    store_exec(s, "PRAGMA synchronous=FULL;") < 0 ||
+	    store_exec(s, "PRAGMA foreign_keys=ON;") < 0) {
 		r = sql_error(s, err, path);
 		store_close(s);
 		return r;
@@ -468,7 +420,7 @@ int store_open(const char *path, struct store **out, struct asph_error *err)
 	r = read_version(s, &version, err);
 	if (r == 0 && version > 0 && version < SCHEMA_VERSION)
 		r = backup_before_upgrade(s, path, version, err);
-	if (r == 0 && (exec(s, schema) < 0 || exec(s, schema_2_tables) < 0))
+	if (r == 0 && (store_exec(s, schema) < 0 || store_exec(s, schema_2_tables) < 0))
 		r = sql_error(s, err, path);
 	if (r == 0)
 		r = set_version(s, version, err);
@@ -530,7 +482,7 @@ int store_release_reserve(struct store *s)
 	return unlink(s->reserve) < 0 ? -errno : 0;
 }
 
-static void bind_text(sqlite3_stmt *st, int i, const char *v)
+void store_bind_text(sqlite3_stmt *st, int i, const char *v)
 {
 	if (v)
 		sqlite3_bind_text(st, i, v, -1, SQLITE_TRANSIENT);
@@ -538,817 +490,58 @@ static void bind_text(sqlite3_stmt *st, int i, const char *v)
 		sqlite3_bind_null(st, i);
 }
 
-static char *column_text(sqlite3_stmt *st, int i)
+char *store_column_text(sqlite3_stmt *st, int i)
 {
 	const unsigned char *t = sqlite3_column_text(st, i);
 
 	return t ? strdup((const char *)t) : NULL;
 }
 
-#define JOB_COLUMNS "id, state, priority, seq, label, instrument, uid, user, spec," \
-	" submitted_ns, started_ns, finished_ns, points_done, points_total," \
-	" reason, result, scan_path, resume, attempts, part, lot, serial"
-
-/* The job's columns (JOB_COLUMNS) from column o on. */
-static int read_job_at(sqlite3_stmt *st, int o, struct job_record *j)
+sqlite3 *store_db(struct store *s)
 {
-	memset(j, 0, sizeof(*j));
-	j->id = sqlite3_column_int64(st, o);
-	j->state = (enum job_state)sqlite3_column_int(st, o + 1);
-	j->priority = sqlite3_column_int64(st, o + 2);
-	j->seq = sqlite3_column_int64(st, o + 3);
-	j->label = column_text(st, o + 4);
-	j->instrument = column_text(st, o + 5);
-	j->uid = sqlite3_column_int64(st, o + 6);
-	j->user = column_text(st, o + 7);
-	j->spec = column_text(st, o + 8);
-	j->submitted_ns = sqlite3_column_int64(st, o + 9);
-	j->started_ns = sqlite3_column_int64(st, o + 10);
-	j->finished_ns = sqlite3_column_int64(st, o + 11);
-	j->points_done = sqlite3_column_int64(st, o + 12);
-	j->points_total = sqlite3_column_int64(st, o + 13);
-	j->reason = column_text(st, o + 14);
-	j->result = column_text(st, o + 15);
-	j->scan_path = column_text(st, o + 16);
-	j->resume = sqlite3_column_int(st, o + 17) != 0;
-	j->attempts = sqlite3_column_int64(st, o + 18);
-	j->part = column_text(st, o + 19);
-	j->lot = column_text(st, o + 20);
-	j->serial = column_text(st, o + 21);
-	if (!j->instrument || !j->spec) {
-		job_record_clear(j);
-		return -ENOMEM;
-	}
-	return 0;
-}
-
-static int read_job(sqlite3_stmt *st, struct job_record *j)
-{
-	return read_job_at(st, 0, j);
-}
-
-static int add_history(struct store *s, int64_t id, enum job_state state,
-		       const char *reason, int64_t actor_uid, const char *actor, int64_t now)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
-		"INSERT INTO history (job, t_ns, state, reason, actor_uid, actor)"
-		" VALUES (?,?,?,?,?,?)");
-
-	if (!st)
-		return -EIO;
-	sqlite3_bind_int64(st, 1, id);
-	sqlite3_bind_int64(st, 2, now);
-	sqlite3_bind_int(st, 3, state);
-	bind_text(st, 4, reason);
-	sqlite3_bind_int64(st, 5, actor_uid);
-	bind_text(st, 6, actor);
-	return step_done(st);
-}
-
-int store_insert(struct store *s, struct job_record *j, int64_t now_ns)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = NULL;
-	int r;
-
-	r = store_begin(s);
-	if (r < 0)
-		return r;
-	st = prepare(s, "INSERT INTO jobs (state, priority, seq, label, instrument, uid,"
-		     " user, spec, submitted_ns, started_ns, finished_ns, points_done,"
-		     " points_total, reason, result, scan_path, resume, attempts, part, lot, serial)"
-		     " VALUES (?,?,(SELECT IFNULL(MAX(seq),0)+1 FROM jobs),?,?,?,?,?,?,0,0,0,?,NULL,NULL,?,0,0,"
-		     "?,?,?)");
-	if (!st) {
-		store_rollback(s);
-		return -EIO;
-	}
-	sqlite3_bind_int(st, 1, j->state);
-	sqlite3_bind_int64(st, 2, j->priority);
-	bind_text(st, 3, j->label);
-	bind_text(st, 4, j->instrument);
-	sqlite3_bind_int64(st, 5, j->uid);
-	bind_text(st, 6, j->user);
-	bind_text(st, 7, j->spec);
-	sqlite3_bind_int64(st, 8, now_ns);
-	sqlite3_bind_int64(st, 9, j->points_total);
-	bind_text(st, 10, j->scan_path);
-	bind_text(st, 11, j->part);
-	bind_text(st, 12, j->lot);
-	bind_text(st, 13, j->serial);
-	r = step_done(st);
-	if (r < 0) {
-		store_rollback(s);
-		return r;
-	}
-	j->id = sqlite3_last_insert_rowid(s->db);
-	j->submitted_ns = now_ns;
-	r = add_history(s, j->id, j->state, NULL, j->uid, j->user, now_ns);
-	if (r < 0) {
-		store_rollback(s);
-		return r;
-	}
-	r = store_commit(s);
-	if (r < 0) {
-		store_rollback(s);
-		return r;
-	}
-	{
-		_cleanup_stmt_ sqlite3_stmt *q = prepare(s, "SELECT seq FROM jobs WHERE id = ?");
-		if (q) {
-			sqlite3_bind_int64(q, 1, j->id);
-			if (sqlite3_step(q) == SQLITE_ROW)
-				j->seq = sqlite3_column_int64(q, 0);
-		}
-	}
-	return 0;
-}
-
-int store_skip_ids(struct store *s, int64_t last)
-{
-	_cleanup_stmt_ sqlite3_stmt *ins = prepare(s,
-		"INSERT INTO sqlite_sequence (name, seq) SELECT 'jobs', 0"
-		" WHERE NOT EXISTS (SELECT 1 FROM sqlite_sequence WHERE name = 'jobs')");
-	_cleanup_stmt_ sqlite3_stmt *up = prepare(s,
-		"UPDATE sqlite_sequence SET seq = ?1 WHERE name = 'jobs' AND seq < ?1");
-	int r;
-
-	if (!ins || !up)
-		return -EIO;
-	r = store_begin(s);
-	if (r == 0)
-		r = step_done(ins);
-	sqlite3_bind_int64(up, 1, last);
-	if (r == 0)
-		r = step_done(up);
-	if (r == 0 && (r = store_commit(s)) == 0)
-		return sqlite3_changes(s->db) > 0;
-	store_rollback(s);
-	return r;
-}
-
-int store_get(struct store *s, int64_t id, struct job_record *out)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "SELECT " JOB_COLUMNS " FROM jobs WHERE id = ?");
-	int r;
-
-	if (!st)
-		return -EIO;
-	sqlite3_bind_int64(st, 1, id);
-	r = step_row(st);
-	if (r < 0)
-		return r;
-	return read_job(st, out);
-}
-
-/* The state change and its history entry, inside a transaction. */
-static int change_state(struct store *s, int64_t id, enum job_state state,
-			const char *reason, int64_t actor_uid, const char *actor, int64_t now_ns)
-{
-	/* A state change without a reason keeps the last one (a pause does
-	 * not explain away a fault), except a return to the queue: a re-queued
-	 * job starts afresh, so a failure it later recovers from is not shown
-	 * as its reason once it completes. The history keeps every reason. */
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, state == JOB_QUEUED
-			? "UPDATE jobs SET state = ?, reason = ? WHERE id = ?"
-			: "UPDATE jobs SET state = ?, reason = IFNULL(?, reason) WHERE id = ?");
-	int r;
-
-	if (!st)
-		return -EIO;
-	sqlite3_bind_int(st, 1, state);
-	bind_text(st, 2, reason);
-	sqlite3_bind_int64(st, 3, id);
-	r = step_done(st);
-	if (r == 0)
-		r = add_history(s, id, state, reason, actor_uid, actor, now_ns);
-	return r;
-}
-
-int store_set_state(struct store *s, int64_t id, enum job_state state,
-		    const char *reason, int64_t actor_uid, const char *actor, int64_t now_ns)
-{
-	int r = store_begin(s);
-
-	if (r < 0)
-		return r;
-	r = change_state(s, id, state, reason, actor_uid, actor, now_ns);
-	if (r == 0)
-		r = store_commit(s);
-	if (r < 0)
-		store_rollback(s);
-	return r;
-}
-
-int store_transition(struct store *s, const struct job_record *j, enum job_state state,
-		     const char *reason, int64_t actor_uid, const char *actor, int64_t now_ns)
-{
-	int r = store_begin(s);
-
-	if (r < 0)
-		return r;
-	r = store_update(s, j);
-	if (r == 0)
-		r = change_state(s, j->id, state, reason, actor_uid, actor, now_ns);
-	if (r == 0)
-		r = store_commit(s);
-	if (r < 0)
-		store_rollback(s);
-	return r;
-}
-
-int store_update(struct store *s, const struct job_record *j)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
-		"UPDATE jobs SET state=?, priority=?, seq=?, started_ns=?, finished_ns=?,"
-		" points_done=?, points_total=?, reason=?, result=?, scan_path=?, resume=?,"
-		" attempts=? WHERE id=?");
-
-	if (!st)
-		return -EIO;
-	sqlite3_bind_int(st, 1, j->state);
-	sqlite3_bind_int64(st, 2, j->priority);
-	sqlite3_bind_int64(st, 3, j->seq);
-	sqlite3_bind_int64(st, 4, j->started_ns);
-	sqlite3_bind_int64(st, 5, j->finished_ns);
-	sqlite3_bind_int64(st, 6, j->points_done);
-	sqlite3_bind_int64(st, 7, j->points_total);
-	bind_text(st, 8, j->reason);
-	bind_text(st, 9, j->result);
-	bind_text(st, 10, j->scan_path);
-	sqlite3_bind_int(st, 11, j->resume);
-	sqlite3_bind_int64(st, 12, j->attempts);
-	sqlite3_bind_int64(st, 13, j->id);
-	return step_done(st);
-}
-
-int store_set_progress(struct store *s, int64_t id, int64_t done, int64_t total)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
-		"UPDATE jobs SET points_done = ?, points_total = ? WHERE id = ?");
-	int r;
-
-	if (!st)
-		return -EIO;
-	sqlite3_bind_int64(st, 1, done);
-	sqlite3_bind_int64(st, 2, total);
-	sqlite3_bind_int64(st, 3, id);
-	/* Progress is a hint (a resumed scan starts from its file), so its
-	 * commit skips the fsync that would stall the event loop; the next
-	 * state change's commit makes it durable with everything else. */
-	exec(s, "PRAGMA synchronous=NORMAL");
-	r = step_done(st);
-	exec(s, "PRAGMA synchronous=FULL");
-	return r;
-}
-
-/* Builds the WHERE clause; binds follow the same order. */
-static void filter_sql(const struct store_filter *f, char *sql, size_t size)
-{
-	size_t n = strlen(sql);
-
-	n += (size_t)snprintf(sql + n, size - n, " WHERE 1");
-	/* "state IN (...)" as the queue's index says it, so that a listing of
-	 * the queue may use it */
-	if (f->states) {
-		n += (size_t)snprintf(sql + n, size - n, " AND state IN (");
-		for (int k = 0, first = 1; k < JOB_N_STATES; k++)
-			if (f->states & (1u << k)) {
-				n += (size_t)snprintf(sql + n, size - n, "%s%d", first ? "" : ",", k);
-				first = 0;
-			}
-		n += (size_t)snprintf(sql + n, size - n, ")");
-	}
-	if (f->instrument)
-		n += (size_t)snprintf(sql + n, size - n, " AND instrument = ?");
-	if (f->uid != STORE_ANY_UID)
-		n += (size_t)snprintf(sql + n, size - n, " AND uid = ?");
-	if (f->label)
-		n += (size_t)snprintf(sql + n, size - n, " AND label = ?");
-	if (f->user)
-		n += (size_t)snprintf(sql + n, size - n, " AND user = ?");
-	if (f->part)
-		n += (size_t)snprintf(sql + n, size - n, " AND part = ?");
-	if (f->lot)
-		n += (size_t)snprintf(sql + n, size - n, " AND lot = ?");
-	if (f->serial)
-		n += (size_t)snprintf(sql + n, size - n, " AND serial = ?");
-	if (f->before_id > 0)
-		n += (size_t)snprintf(sql + n, size - n, " AND id < ?");
-	if (f->after)
-		snprintf(sql + n, size - n, " AND priority = ? AND (seq, id) > (?, ?)");
-	else if (f->below)
-		snprintf(sql + n, size - n, " AND priority < ?");
-}
-
-static int filter_bind(sqlite3_stmt *st, const struct store_filter *f)
-{
-	int i = 1;
-
-	if (f->instrument)
-		bind_text(st, i++, f->instrument);
-	if (f->uid != STORE_ANY_UID)
-		sqlite3_bind_int64(st, i++, f->uid);
-	if (f->label)
-		bind_text(st, i++, f->label);
-	if (f->user)
-		bind_text(st, i++, f->user);
-	if (f->part)
-		bind_text(st, i++, f->part);
-	if (f->lot)
-		bind_text(st, i++, f->lot);
-	if (f->serial)
-		bind_text(st, i++, f->serial);
-	if (f->before_id > 0)
-		sqlite3_bind_int64(st, i++, f->before_id);
-	if (f->after) {
-		sqlite3_bind_int64(st, i++, f->after_priority);
-		sqlite3_bind_int64(st, i++, f->after_seq);
-		sqlite3_bind_int64(st, i++, f->after_id);
-	} else if (f->below) {
-		sqlite3_bind_int64(st, i++, f->after_priority);
-	}
-	return i;
-}
-
-int store_total(struct store *s, const struct store_filter *f, int64_t *total)
-{
-	char sql[768] = "SELECT COUNT(*) FROM jobs";
-	_cleanup_stmt_ sqlite3_stmt *c = NULL;
-
-	filter_sql(f, sql, sizeof(sql));
-	c = prepare(s, sql);
-	if (!c)
-		return -EIO;
-	filter_bind(c, f);
-	if (sqlite3_step(c) != SQLITE_ROW)
-		return -EIO;
-	*total = sqlite3_column_int64(c, 0);
-	return 0;
-}
-
-int store_list(struct store *s, const struct store_filter *f,
-	       store_job_fn fn, void *data, int64_t *total)
-{
-	char sql[1024] = "SELECT " JOB_COLUMNS " FROM jobs";
-	_cleanup_stmt_ sqlite3_stmt *st = NULL;
-	int i, r;
-
-	if (total && (r = store_total(s, f, total)) < 0)
-		return r;
-	/* A slice of the queue: its index in its order, a seek and a few
-	 * steps, not a sort of the whole queue. */
-	if (f->queue_order && f->states == QUEUE_STATES && (f->after || f->below || f->limit > 0))
-		strncat(sql, " INDEXED BY jobs_queue_order", sizeof(sql) - strlen(sql) - 1);
-	filter_sql(f, sql, sizeof(sql));
-	strncat(sql, f->queue_order ? " ORDER BY priority DESC, seq, id" : " ORDER BY id DESC",
-		sizeof(sql) - strlen(sql) - 1);
-	strncat(sql, " LIMIT ? OFFSET ?", sizeof(sql) - strlen(sql) - 1);
-	st = prepare(s, sql);
-	if (!st)
-		return -EIO;
-	i = filter_bind(st, f);
-	sqlite3_bind_int64(st, i, f->limit > 0 ? f->limit : -1);
-	sqlite3_bind_int64(st, i + 1, f->offset);
-	while ((r = sqlite3_step(st)) == SQLITE_ROW) {
-		struct job_record j;
-		int k = read_job(st, &j);
-		if (k < 0)
-			return k;
-		k = fn(&j, data);
-		job_record_clear(&j);
-		if (k < 0)
-			return k;
-	}
-	return r == SQLITE_DONE ? 0 : -EIO;
-}
-
-int store_next(struct store *s, const char *instrument, struct job_record *out)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "SELECT " JOB_COLUMNS
-		" FROM jobs WHERE state = ? AND instrument = ? ORDER BY priority DESC, seq LIMIT 1");
-	int r;
-
-	if (!st)
-		return -EIO;
-	sqlite3_bind_int(st, 1, JOB_QUEUED);
-	bind_text(st, 2, instrument);
-	r = step_row(st);
-	if (r < 0)
-		return r;
-	return read_job(st, out);
-}
-
-int store_history(struct store *s, int64_t id, store_event_fn fn, void *data)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
-		"SELECT t_ns, state, reason, actor_uid, actor FROM history WHERE job = ?"
-		" ORDER BY rowid");
-	int r;
-
-	if (!st)
-		return -EIO;
-	sqlite3_bind_int64(st, 1, id);
-	while ((r = sqlite3_step(st)) == SQLITE_ROW) {
-		struct store_event e = {
-			.t_ns = sqlite3_column_int64(st, 0),
-			.state = (enum job_state)sqlite3_column_int(st, 1),
-			.reason = (const char *)sqlite3_column_text(st, 2),
-			.actor_uid = sqlite3_column_int64(st, 3),
-			.actor = (const char *)sqlite3_column_text(st, 4),
-		};
-		int k = fn(&e, data);
-		if (k < 0)
-			return k;
-	}
-	return r == SQLITE_DONE ? 0 : -EIO;
-}
-
-int store_recover(struct store *s, int64_t now_ns)
-{
-	_cleanup_stmt_ sqlite3_stmt *sel = prepare(s,
-		"SELECT id FROM jobs WHERE state IN (?, ?)");
-	int64_t ids[64];
-	int n = 0, total = 0, r;
-
-	if (!sel)
-		return -EIO;
-	do {
-		n = 0;
-		sqlite3_reset(sel);
-		sqlite3_bind_int(sel, 1, JOB_RUNNING);
-		sqlite3_bind_int(sel, 2, JOB_PAUSED);
-		while (n < (int)ARRAY_SIZE(ids) && sqlite3_step(sel) == SQLITE_ROW)
-			ids[n++] = sqlite3_column_int64(sel, 0);
-		sqlite3_reset(sel);
-		for (int i = 0; i < n; i++) {
-			r = store_set_state(s, ids[i], JOB_INTERRUPTED,
-					    "the daemon stopped during the scan", 0, NULL, now_ns);
-			if (r < 0)
-				return r;
-			_cleanup_stmt_ sqlite3_stmt *u = prepare(s,
-				"UPDATE jobs SET resume = 1 WHERE id = ? AND scan_path IS NOT NULL");
-			if (!u)
-				return -EIO;
-			sqlite3_bind_int64(u, 1, ids[i]);
-			if (step_done(u) < 0)
-				return -EIO;
-		}
-		total += n;
-	} while (n == (int)ARRAY_SIZE(ids));
-	return total;
-}
-
-int store_count(struct store *s, int64_t counts[JOB_N_STATES])
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
-		"SELECT state, COUNT(*) FROM jobs GROUP BY state");
-	int r;
-
-	if (!st)
-		return -EIO;
-	memset(counts, 0, sizeof(int64_t) * JOB_N_STATES);
-	while ((r = sqlite3_step(st)) == SQLITE_ROW) {
-		int k = sqlite3_column_int(st, 0);
-		if (k >= 0 && k < JOB_N_STATES)
-			counts[k] = sqlite3_column_int64(st, 1);
-	}
-	return r == SQLITE_DONE ? 0 : -EIO;
+	return s->db;
 }
 
 int store_meta_get(struct store *s, const char *key, char **value)
 {
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "SELECT value FROM meta WHERE key = ?");
+	_cleanup_stmt_ sqlite3_stmt *st = store_prepare(s, "SELECT value FROM meta WHERE key = ?");
 	int r;
 
 	if (!st)
 		return -EIO;
-	bind_text(st, 1, key);
-	r = step_row(st);
+	store_bind_text(st, 1, key);
+	r = store_step_row(st);
 	if (r < 0)
 		return r;
-	*value = column_text(st, 0);
+	*value = store_column_text(st, 0);
 	return *value ? 0 : -ENOMEM;
 }
 
 int store_meta_set(struct store *s, const char *key, const char *value)
 {
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
+	_cleanup_stmt_ sqlite3_stmt *st = store_prepare(s,
 		"INSERT INTO meta (key, value) VALUES (?, ?)"
 		" ON CONFLICT(key) DO UPDATE SET value = excluded.value");
 
 	if (!st)
 		return -EIO;
-	bind_text(st, 1, key);
-	bind_text(st, 2, value);
-	return step_done(st);
+	store_bind_text(st, 1, key);
+	store_bind_text(st, 2, value);
+	return store_step_done(st);
 }
 
 int store_begin(struct store *s)
 {
-	return exec(s, "BEGIN IMMEDIATE");
+	return store_exec(s, "BEGIN IMMEDIATE");
 }
 
 int store_commit(struct store *s)
 {
-	return exec(s, "COMMIT");
+	return store_exec(s, "COMMIT");
 }
 
 void store_rollback(struct store *s)
 {
-	exec(s, "ROLLBACK");
+	store_exec(s, "ROLLBACK");
 }
 
-/* ------------------------------------------------------------ tokens */
-
-int store_token_insert(struct store *s, const struct store_token *t)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
-		"INSERT INTO tokens (name, role, digest, created_ns, expires_ns, revoked_ns,"
-		" created_by) VALUES (?,?,?,?,?,0,?)");
-	int rc;
-
-	if (!st)
-		return -EIO;
-	bind_text(st, 1, t->name);
-	sqlite3_bind_int(st, 2, t->role);
-	sqlite3_bind_blob(st, 3, t->digest, 32, SQLITE_TRANSIENT);
-	sqlite3_bind_int64(st, 4, t->created_ns);
-	sqlite3_bind_int64(st, 5, t->expires_ns);
-	bind_text(st, 6, t->created_by);
-	rc = sqlite3_step(st);
-	if (rc == SQLITE_DONE)
-		return 0;
-	return (rc & 0xff) == SQLITE_CONSTRAINT ? -EEXIST : sql_errno(rc);
-}
-
-int store_token_list(struct store *s, store_token_fn fn, void *data)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
-		"SELECT name, role, digest, created_ns, expires_ns, revoked_ns, created_by"
-		" FROM tokens ORDER BY name");
-	int r;
-
-	if (!st)
-		return -EIO;
-	while ((r = sqlite3_step(st)) == SQLITE_ROW) {
-		struct store_token t = {
-			.name = (const char *)sqlite3_column_text(st, 0),
-			.role = sqlite3_column_int(st, 1),
-			.digest = sqlite3_column_blob(st, 2),
-			.created_ns = sqlite3_column_int64(st, 3),
-			.expires_ns = sqlite3_column_int64(st, 4),
-			.revoked_ns = sqlite3_column_int64(st, 5),
-			.created_by = (const char *)sqlite3_column_text(st, 6),
-		};
-		int k;
-		if (!t.name || !t.digest || sqlite3_column_bytes(st, 2) != 32)
-			continue;
-		k = fn(&t, data);
-		if (k < 0)
-			return k;
-	}
-	return r == SQLITE_DONE ? 0 : -EIO;
-}
-
-int store_token_revoke(struct store *s, const char *name, int64_t now_ns)
-{
-	_cleanup_stmt_ sqlite3_stmt *q = prepare(s, "SELECT revoked_ns FROM tokens WHERE name = ?");
-	_cleanup_stmt_ sqlite3_stmt *st = NULL;
-	int r;
-
-	if (!q)
-		return -EIO;
-	bind_text(q, 1, name);
-	r = step_row(q);
-	if (r < 0)
-		return r;
-	if (sqlite3_column_int64(q, 0) != 0)
-		return -EALREADY;
-	st = prepare(s, "UPDATE tokens SET revoked_ns = ? WHERE name = ?");
-	if (!st)
-		return -EIO;
-	sqlite3_bind_int64(st, 1, now_ns);
-	bind_text(st, 2, name);
-	return step_done(st);
-}
-
-/* ------------------------------------------------------------- locks */
-
-int store_lock_set(struct store *s, const struct store_lock *l)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
-		"INSERT INTO locks (instrument, holder, holder_uid, reason, since_ns, pause,"
-		" paused_job) VALUES (?,?,?,?,?,?,?) ON CONFLICT(instrument) DO UPDATE SET"
-		" holder = excluded.holder, holder_uid = excluded.holder_uid,"
-		" reason = excluded.reason, since_ns = excluded.since_ns,"
-		" pause = excluded.pause, paused_job = excluded.paused_job");
-
-	if (!st)
-		return -EIO;
-	bind_text(st, 1, l->instrument);
-	bind_text(st, 2, l->holder);
-	sqlite3_bind_int64(st, 3, l->holder_uid);
-	bind_text(st, 4, l->reason);
-	sqlite3_bind_int64(st, 5, l->since_ns);
-	sqlite3_bind_int(st, 6, l->pause);
-	sqlite3_bind_int64(st, 7, l->paused_job);
-	return step_done(st);
-}
-
-int store_lock_clear(struct store *s, const char *instrument)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "DELETE FROM locks WHERE instrument = ?");
-
-	if (!st)
-		return -EIO;
-	bind_text(st, 1, instrument);
-	return step_done(st);
-}
-
-int store_lock_list(struct store *s, store_lock_fn fn, void *data)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
-		"SELECT instrument, holder, holder_uid, reason, since_ns, pause, paused_job"
-		" FROM locks ORDER BY instrument");
-	int r;
-
-	if (!st)
-		return -EIO;
-	while ((r = sqlite3_step(st)) == SQLITE_ROW) {
-		struct store_lock l = {
-			.instrument = (const char *)sqlite3_column_text(st, 0),
-			.holder = (const char *)sqlite3_column_text(st, 1),
-			.holder_uid = sqlite3_column_int64(st, 2),
-			.reason = (const char *)sqlite3_column_text(st, 3),
-			.since_ns = sqlite3_column_int64(st, 4),
-			.pause = sqlite3_column_int(st, 5) != 0,
-			.paused_job = sqlite3_column_int64(st, 6),
-		};
-		int k;
-		if (!l.instrument || !l.holder || !l.reason)
-			return -ENOMEM;
-		k = fn(&l, data);
-		if (k < 0)
-			return k;
-	}
-	return r == SQLITE_DONE ? 0 : -EIO;
-}
-
-/* ------------------------------------------------------------ outbox */
-
-int store_outbox_add(struct store *s, struct store_outbox_item *it)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
-		"INSERT INTO outbox (sink, topic, payload, qos, retain, message_id, created_ns)"
-		" VALUES (?,?,?,?,?,?,?)");
-	int r;
-
-	if (!st)
-		return -EIO;
-	bind_text(st, 1, it->sink);
-	bind_text(st, 2, it->topic);
-	bind_text(st, 3, it->payload);
-	sqlite3_bind_int(st, 4, it->qos);
-	sqlite3_bind_int(st, 5, it->retain);
-	bind_text(st, 6, it->message_id);
-	sqlite3_bind_int64(st, 7, it->created_ns);
-	r = step_done(st);
-	if (r == 0)
-		it->id = sqlite3_last_insert_rowid(s->db);
-	return r;
-}
-
-int store_outbox_list(struct store *s, const char *sink, int64_t after, int64_t limit,
-		      store_outbox_fn fn, void *data)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
-		"SELECT id, sink, topic, payload, qos, retain, message_id, created_ns FROM outbox"
-		" WHERE sink = ? AND id > ? ORDER BY id LIMIT ?");
-	int r;
-
-	if (!st)
-		return -EIO;
-	bind_text(st, 1, sink);
-	sqlite3_bind_int64(st, 2, after);
-	sqlite3_bind_int64(st, 3, limit);
-	while ((r = sqlite3_step(st)) == SQLITE_ROW) {
-		struct store_outbox_item it = {
-			.id = sqlite3_column_int64(st, 0),
-			.sink = (const char *)sqlite3_column_text(st, 1),
-			.topic = (const char *)sqlite3_column_text(st, 2),
-			.payload = (const char *)sqlite3_column_text(st, 3),
-			.qos = sqlite3_column_int(st, 4),
-			.retain = sqlite3_column_int(st, 5) != 0,
-			.message_id = (const char *)sqlite3_column_text(st, 6),
-			.created_ns = sqlite3_column_int64(st, 7),
-		};
-		int k;
-		if (!it.sink || !it.payload || !it.message_id)
-			return -ENOMEM;
-		k = fn(&it, data);
-		if (k < 0)
-			return k;
-	}
-	return r == SQLITE_DONE ? 0 : -EIO;
-}
-
-int store_outbox_remove(struct store *s, int64_t id)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "DELETE FROM outbox WHERE id = ?");
-
-	if (!st)
-		return -EIO;
-	sqlite3_bind_int64(st, 1, id);
-	return step_done(st);
-}
-
-int store_outbox_move(struct store *s, int64_t id, const char *to)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "UPDATE outbox SET sink = ? WHERE id = ?");
-
-	if (!st)
-		return -EIO;
-	bind_text(st, 1, to);
-	sqlite3_bind_int64(st, 2, id);
-	return step_done(st);
-}
-
-int store_outbox_move_all(struct store *s, const char *from, const char *to, int64_t *n)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "UPDATE outbox SET sink = ? WHERE sink = ?");
-	int r;
-
-	if (!st)
-		return -EIO;
-	bind_text(st, 1, to);
-	bind_text(st, 2, from);
-	r = step_done(st);
-	if (r == 0 && n)
-		*n = sqlite3_changes(s->db);
-	return r;
-}
-
-int store_outbox_count(struct store *s, const char *sink, int64_t *n)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "SELECT COUNT(*) FROM outbox WHERE sink = ?");
-
-	if (!st)
-		return -EIO;
-	bind_text(st, 1, sink);
-	if (sqlite3_step(st) != SQLITE_ROW)
-		return -EIO;
-	*n = sqlite3_column_int64(st, 0);
-	return 0;
-}
-
-int store_changes(struct store *s, int64_t after, int64_t limit, store_change_fn fn,
-		  void *data)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s,
-		"SELECT h.rowid, h.t_ns, h.state, h.reason, h.actor,"
-		" (SELECT p.state FROM history p WHERE p.job = h.job AND p.rowid < h.rowid"
-		"  ORDER BY p.rowid DESC LIMIT 1), jobs.id, jobs.state, priority, seq, label,"
-		" instrument, uid, user, spec, submitted_ns, started_ns, finished_ns, points_done,"
-		" points_total, jobs.reason, result, scan_path, resume, attempts, part, lot, serial"
-		" FROM history h JOIN jobs ON jobs.id = h.job WHERE h.rowid > ?"
-		" ORDER BY h.rowid LIMIT ?");
-	int r;
-
-	if (!st)
-		return -EIO;
-	sqlite3_bind_int64(st, 1, after);
-	sqlite3_bind_int64(st, 2, limit);
-	while ((r = sqlite3_step(st)) == SQLITE_ROW) {
-		struct job_record j;
-		struct store_change c = {
-			.rowid = sqlite3_column_int64(st, 0),
-			.t_ns = sqlite3_column_int64(st, 1),
-			.state = (enum job_state)sqlite3_column_int(st, 2),
-			.reason = (const char *)sqlite3_column_text(st, 3),
-			.actor = (const char *)sqlite3_column_text(st, 4),
-			.previous = sqlite3_column_type(st, 5) == SQLITE_NULL
-				    ? -1 : sqlite3_column_int(st, 5),
-			.job = &j,
-		};
-		int k = read_job_at(st, 6, &j);
-		if (k < 0)
-			return k;
-		k = fn(&c, data);
-		job_record_clear(&j);
-		if (k < 0)
-			return k;
-	}
-	return r == SQLITE_DONE ? 0 : -EIO;
-}
-
-int store_last_change(struct store *s, int64_t *rowid)
-{
-	_cleanup_stmt_ sqlite3_stmt *st = prepare(s, "SELECT IFNULL(MAX(rowid), 0) FROM history");
-
-	if (!st)
-		return -EIO;
-	if (sqlite3_step(st) != SQLITE_ROW)
-		return -EIO;
-	*rowid = sqlite3_column_int64(st, 0);
-	return 0;
-}

@@ -12,6 +12,7 @@
 
 #include "util-hash.h"
 #include "store.h"
+#include "store-sql.h"
 #include "tokens.h"
 #include "util-mem.h"
 #include "util-time.h"
@@ -52,6 +53,94 @@ struct tokens {
 	void (*changed)(void *data);
 	void *changed_data;
 };
+
+/* ------------------------------------ the table tokens in the store */
+
+/* A row: name, role, SHA-256 of the secret. */
+struct store_token {
+	const char *name;
+	int role;
+	const uint8_t *digest;  /* 32 bytes */
+	int64_t created_ns, expires_ns, revoked_ns;     /* 0: never, not */
+	const char *created_by;
+};
+typedef int (*store_token_fn)(const struct store_token *t, void *data);
+
+/* -EEXIST when a token of that name exists (revoked or not). */
+static int store_token_insert(struct store *s, const struct store_token *t)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = store_prepare(s,
+		"INSERT INTO tokens (name, role, digest, created_ns, expires_ns, revoked_ns,"
+		" created_by) VALUES (?,?,?,?,?,0,?)");
+	int rc;
+
+	if (!st)
+		return -EIO;
+	store_bind_text(st, 1, t->name);
+	sqlite3_bind_int(st, 2, t->role);
+	sqlite3_bind_blob(st, 3, t->digest, 32, SQLITE_TRANSIENT);
+	sqlite3_bind_int64(st, 4, t->created_ns);
+	sqlite3_bind_int64(st, 5, t->expires_ns);
+	store_bind_text(st, 6, t->created_by);
+	rc = sqlite3_step(st);
+	if (rc == SQLITE_DONE)
+		return 0;
+	return (rc & 0xff) == SQLITE_CONSTRAINT ? -EEXIST : store_errno(rc);
+}
+
+static int store_token_list(struct store *s, store_token_fn fn, void *data)
+{
+	_cleanup_stmt_ sqlite3_stmt *st = store_prepare(s,
+		"SELECT name, role, digest, created_ns, expires_ns, revoked_ns, created_by"
+		" FROM tokens ORDER BY name");
+	int r;
+
+	if (!st)
+		return -EIO;
+	while ((r = sqlite3_step(st)) == SQLITE_ROW) {
+		struct store_token t = {
+			.name = (const char *)sqlite3_column_text(st, 0),
+			.role = sqlite3_column_int(st, 1),
+			.digest = sqlite3_column_blob(st, 2),
+			.created_ns = sqlite3_column_int64(st, 3),
+			.expires_ns = sqlite3_column_int64(st, 4),
+			.revoked_ns = sqlite3_column_int64(st, 5),
+			.created_by = (const char *)sqlite3_column_text(st, 6),
+		};
+		int k;
+		if (!t.name || !t.digest || sqlite3_column_bytes(st, 2) != 32)
+			continue;
+		k = fn(&t, data);
+		if (k < 0)
+			return k;
+	}
+	return r == SQLITE_DONE ? 0 : -EIO;
+}
+
+/* -ENOENT when there is no such token, -EALREADY when it is revoked. */
+static int store_token_revoke(struct store *s, const char *name, int64_t now_ns)
+{
+	_cleanup_stmt_ sqlite3_stmt *q = store_prepare(s, "SELECT revoked_ns FROM tokens WHERE name = ?");
+	_cleanup_stmt_ sqlite3_stmt *st = NULL;
+	int r;
+
+	if (!q)
+		return -EIO;
+	store_bind_text(q, 1, name);
+	r = store_step_row(q);
+	if (r < 0)
+		return r;
+	if (sqlite3_column_int64(q, 0) != 0)
+		return -EALREADY;
+	st = store_prepare(s, "UPDATE tokens SET revoked_ns = ? WHERE name = ?");
+	if (!st)
+		return -EIO;
+	sqlite3_bind_int64(st, 1, now_ns);
+	store_bind_text(st, 2, name);
+	return store_step_done(st);
+}
+
+/* --------------------------------------------------------- the tokens */
 
 static int add(struct tokens *t, const struct store_token *st)
 {

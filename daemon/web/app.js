@@ -7,7 +7,7 @@
 import { drawMap, colourScale } from "./map.js";
 import { zernikeBars, radialProfile, psdChart, psdTable, parsePsd } from "./charts.js";
 import { csvText } from "./csv.js";
-import { planMethods, presets } from "./names.js";
+import { PLAN_MAX_PROFILES, planMethods, presets } from "./names.js";
 import { NO_SIGN, UNIT, formatQuantity, labelOf, quantityAt, quantityOfVerdict } from "./quantity.js";
 
 const $ = (id) => document.getElementById(id);
@@ -226,6 +226,7 @@ function fillChoices(form) {
   const option = (value, text, chosen) => el("option", { value, ...(chosen ? { selected: "" } : {}) }, text);
   form.elements.lens.replaceChildren(...presets.map((p) => option(p, p, p === "strong")));
   form.elements.method.replaceChildren(...planMethods.map((m) => option(m.name, m.title, m.name === "fermat")));
+  form.elements.profiles.max = PLAN_MAX_PROFILES;
 }
 fillChoices($("submit-form"));
 
@@ -238,20 +239,27 @@ function planText(plan) {
 // The plan for the tolerance (docs/sampling-plans.md): the daemon chooses
 // the method and density when the job runs, so those fields rest.
 function formPlan(f) {
-  if (f.get("for_tolerance") !== "on")
-    return { method: f.get("method"), [f.get("density")]: Number(f.get("value")) };
+  if (f.get("for_tolerance") !== "on") {
+    const plan = { method: f.get("method"), [f.get("density")]: Number(f.get("value")) };
+    if (f.get("method") === "profiles") plan.profiles = Number(f.get("profiles"));
+    return plan;
+  }
   const plan = { for_tolerance: true };
   if (f.get("capability")) plan.capability = Number(f.get("capability"));
   return plan;
 }
 
-function showForTolerance(form) {
-  const on = form.elements.for_tolerance.checked;
-  for (const k of ["method", "density", "value"]) form.elements[k].disabled = on;
-  form.elements.capability.disabled = !on;
+// The number of profiles is the profiles method's own: asked for it only;
+// the plan for the tolerance asks for none of the plan's fields.
+function followMethod(form) {
+  const tol = form.elements.for_tolerance.checked;
+  for (const k of ["method", "density", "value"]) form.elements[k].disabled = tol;
+  form.elements.capability.disabled = !tol;
+  form.elements.profiles.disabled = tol || form.elements.method.value !== "profiles";
 }
-showForTolerance($("submit-form"));
-$("submit-form").elements.for_tolerance.addEventListener("change", (e) => showForTolerance(e.target.form));
+for (const k of ["method", "for_tolerance"])
+  $("submit-form").elements[k].addEventListener("change", (e) => followMethod(e.target.form));
+followMethod($("submit-form"));
 
 // The form as job.submit's parameters; throws an Error saying which field
 // does not read.

@@ -74,3 +74,4 @@ export const quantities = [
   {"path":"acquisition.drift.rms_nm","u_key":null,"verdict":null,"label":"drift RMS","unit":"nm","symbol":"nm","scale":1.0,"decimals":2,"sign":false,"two_sided":false},
 ];
 export const QUANTITY_MAX_FIXED = 1e+12;
+export const PLAN_MAX_PROFILES = 36;

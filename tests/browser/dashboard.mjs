@@ -114,6 +114,30 @@ try {
   ok(true, "the mock instrument is listed");
   await shot(page, "1-dashboard");
 
+  // The profiles method asks for its number of profiles, and the estimate
+  // follows it: at one h, four profiles hold twice the points of two (the
+  // default: one profile sees fewer degrees of freedom than the form's).
+  const profilesInput = "#submit-form input[name=profiles]";
+  ok(await page.$eval(profilesInput, (e) => e.disabled), "the number of profiles is not asked for a Fermat spiral");
+  await page.select("#submit-form select[name=method]", "profiles");
+  await page.select("#submit-form select[name=density]", "h");
+  await page.$eval("#submit-form input[name=value]", (e) => {
+    e.value = "0.05";
+    e.dispatchEvent(new Event("input", { bubbles: true }));
+  });
+  const [enabled, max] = await page.$eval(profilesInput, (e) => [!e.disabled, Number(e.max)]);
+  ok(enabled && max === 36, `the profiles method asks for 1 to ${max} profiles`);
+  await page.waitForFunction(() => /^Estimated .* for \d+ points$/.test(document.querySelector("#submit-estimate").textContent) &&
+    !document.querySelector("#submit-estimate").textContent.endsWith(" 2000 points"), { timeout: 30000 });
+  const twoPoints = Number((await page.$eval("#submit-estimate", (e) => e.textContent)).match(/for (\d+) points$/)[1]);
+  await page.$eval(profilesInput, (e) => {
+    e.value = "4";
+    e.dispatchEvent(new Event("input", { bubbles: true }));
+  });
+  await page.waitForFunction((n) => document.querySelector("#submit-estimate").textContent.endsWith(`for ${n} points`),
+    { timeout: 30000 }, 2 * twoPoints);
+  ok(true, `four profiles: ${2 * twoPoints} points, two: ${twoPoints}`);
+
   // Submit: a Fermat spiral of 2000 points, measured for a few seconds.
   await page.select("#submit-form select[name=method]", "fermat");
   await page.select("#submit-form select[name=density]", "points");

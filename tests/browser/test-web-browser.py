@@ -94,8 +94,9 @@ try:
     p = subprocess.run([node, os.path.join(HERE, "dashboard.mjs"), url, op, viewer, SHOTS],
                        env=env, capture_output=True, text=True, timeout=300,
                        cwd=NODE_DIR)
-    # (the last line is the findings, the CSV among them)
-    sys.stdout.write("".join(p.stdout.splitlines(True)[:-1]))
+    # (the last line is the findings, the CSV among them, when it passed)
+    lines = p.stdout.splitlines(True)
+    sys.stdout.write("".join(lines[:-1] if p.returncode == 0 else lines))
     sys.stderr.write(p.stderr[-4000:])
     expect(p.returncode == 0, "the browser session passed")
     findings = json.loads(p.stdout.strip().splitlines()[-1]) if p.returncode == 0 else {}

@@ -12,7 +12,7 @@ import sys
 import tempfile
 
 sys.path.insert(0, os.path.dirname(__file__))
-from schemalite import SchemaSet  # noqa: E402
+from protoschema import SchemaSet  # noqa: E402
 
 ASPH = os.environ.get("ASPH_BIN")
 ROOT = os.path.join(os.path.dirname(__file__), "..", "..")

@@ -4,8 +4,9 @@
 methods (lib/plan/plan.c), their densities, the degrees of freedom, the
 residuals, the presets, the verdicts, the uncertainty methods and the
 quantities (libasph's tables as print-names prints them), the job states
-(asphd's, as daemon.status counts them) and the drivers' options (as
-`asph drivers --json` lists them), wherever they are listed again: the
+(asphd's, as daemon.status counts them), the protocol's methods and the
+roles they need (asphd's, as `asphd --list-methods` prints them) and the
+drivers' options (as `asph drivers --json` lists them), wherever they are listed again: the
 protocol's JSON Schemas and README, the manual pages and docs, the help
 of asph and asphctl, asphctl's bash completion, the web page's names.js
 and its rule of printing a quantity. A failure names the list and says
@@ -19,7 +20,7 @@ import subprocess
 import sys
 import tempfile
 
-from daemontest import ASPHCTL, Client, Daemon, expect, finish, mock_instrument
+from daemontest import ASPHCTL, ASPHD, Client, Daemon, expect, finish, mock_instrument
 from quantities import PRINT_NAMES, NO_SIGN, UNIT, format_quantity, tables
 
 ASPH = os.environ.get("ASPH_BIN", "asph")
@@ -259,6 +260,42 @@ def check_driver_options():
                                      f"(missing {missing})")
 
 
+def check_methods():
+    """The protocol's methods are those of asphd's table, as `asphd
+    --list-methods` prints it: each has its schema in proto/schema
+    (METHOD.json, with its params and result), and each stands in the
+    first row of proto/README.md's roles that may call it with the role it
+    needs (hello, which needs none, in the viewers' row)."""
+    out = run(ASPHD, "--list-methods")
+    expect(out.returncode == 0 and out.stdout, f"asphd --list-methods runs ({out.stderr.strip()})")
+    table = dict(line.split("\t") for line in out.stdout.splitlines())
+    schemas = []
+    for f in glob.glob(os.path.join(ROOT, "proto", "schema", "*.json")):
+        with open(f) as fh:
+            defs = json.load(fh).get("$defs", {})
+        if "params" in defs and "result" in defs:
+            schemas.append(os.path.basename(f)[:-len(".json")])
+    expect(set(schemas) == set(table),
+           "proto/schema has a schema for each method of asphd's table and for no other "
+           f"(without a schema: {sorted(set(table) - set(schemas))}; "
+           f"not in the table: {sorted(set(schemas) - set(table))})")
+    m = re.search(r"^\| role \| may call \|\n\|---\|---\|\n((?:\|.*\n)+)",
+                  read("proto", "README.md"), re.M)
+    expect(m, "proto/README.md has the table of roles (\"| role | may call |\")")
+    listed = {}
+    for row in m.group(1).splitlines() if m else []:
+        role, calls = (x.strip() for x in row.strip("|").split("|"))
+        # a method's name; an argument (`force`) is not one
+        for name in re.findall(r"`([a-z_]+(?:\.[a-z_]+)?)`", calls):
+            if "." in name or name in table:
+                listed.setdefault(name, role)
+    want = {name: "viewer" if role == "none" else role for name, role in table.items()}
+    differ = {name: (listed.get(name), want.get(name)) for name in sorted(set(listed) | set(want))
+              if listed.get(name) != want.get(name)}
+    expect(not differ, "proto/README.md's roles list each method of asphd's table with the "
+                       f"role it needs (README, table: {differ})")
+
+
 def main():
     t = tables()
     d = Daemon([mock_instrument()])
@@ -277,6 +314,7 @@ def main():
     check_completion(t, states)
     check_web(t)
     check_driver_options()
+    check_methods()
     finish()
 
 

@@ -15,6 +15,7 @@
 #include <cmocka.h>
 #include <sqlite3.h>
 
+#include "jobs-store.h"
 #include "rmtree.h"
 #include "store.h"
 

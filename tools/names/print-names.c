@@ -176,6 +176,7 @@ static int web(void)
 	    print_js_array("quantities", json_object_get(t, "quantities")) < 0)
 		return EXIT_FAILURE;
 	printf("export const QUANTITY_MAX_FIXED = %g;\n", QUANTITY_MAX_FIXED);
+	printf("export const PLAN_MAX_PROFILES = %d;\n", ASPH_PLAN_MAX_PROFILES);
 	return fflush(stdout) ? EXIT_FAILURE : EXIT_SUCCESS;
 }
 
