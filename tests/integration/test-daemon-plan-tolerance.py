@@ -14,7 +14,7 @@ import time
 
 sys.path.insert(0, os.path.dirname(__file__))
 from daemontest import Client, Daemon, RpcError, expect, finish, mock_instrument  # noqa: E402
-from schemalite import SchemaSet  # noqa: E402
+from protoschema import SchemaSet  # noqa: E402
 
 ROOT = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(os.path.dirname(__file__), "..", ".."))
 SCHEMAS = SchemaSet(os.path.join(ROOT, "proto", "schema"))
