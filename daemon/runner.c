@@ -329,8 +329,11 @@ static int choose_plan(struct run *run)
 	post(run->r, &rep);
 	rc = tolplan_choose(run->job->spec, run->job->max_points, run->r->ic, &hooks, &run->spec,
 			    &run->choice, &run->err);
-	if (rc == 0)
-		log_job(LOG_INFO, run->job->id, "plan for the tolerance: %s", run->choice);
+	if (rc == 0) {
+		char line[256];
+		tolplan_choice_format(run->choice, line, sizeof(line));
+		log_job(LOG_INFO, run->job->id, "plan for the tolerance chosen: %s", line);
+	}
 	return rc;
 }
 

@@ -205,6 +205,24 @@ int tolplan_choose(const char *spec_text, uint64_t max_points, const struct asph
 	return r;
 }
 
+void tolplan_choice_format(const char *choice, char *buf, size_t size)
+{
+	_cleanup_(json_decrefp) json_t *o = json_loads(choice, 0, NULL);
+	json_t *plan = json_object_get(o, "plan"), *q, *worst = NULL;
+	size_t i;
+
+	json_array_foreach(json_object_get(o, "quantities"), i, q)
+		if (!worst || json_number_value(json_object_get(q, "ratio")) >
+			      json_number_value(json_object_get(worst, "ratio")))
+			worst = q;
+	snprintf(buf, size, "%s, %lld points, %.1f s predicted, the largest U/T %.3f (%s)",
+		 json_string_value(json_object_get(plan, "method")),
+		 (long long)json_integer_value(json_object_get(plan, "points")),
+		 json_number_value(json_object_get(o, "estimate_s")),
+		 json_number_value(json_object_get(worst, "ratio")),
+		 json_string_value(json_object_get(worst, "quantity")));
+}
+
 bool tolplan_wanted(const char *spec_text)
 {
 	_cleanup_(json_decrefp) json_t *spec = json_loads(spec_text, 0, NULL);

@@ -46,6 +46,10 @@ int tolplan_choose(const char *spec, uint64_t max_points, const struct asph_inst
 /* Whether the stored job specification spec asks for the search. */
 bool tolplan_wanted(const char *spec);
 
+/* The choice (tolplan_choose()'s) for a log line: "ci, 1200 points,
+ * 245.1 s predicted, the largest U/T 0.243 (rms_i_nm)". */
+void tolplan_choice_format(const char *choice, char *buf, size_t size);
+
 /* "ci, 1200 points, 4.1 min: U/T 0.31 (does not meet the capability)":
  * a step for a log line. */
 void tolplan_step_format(const struct asph_plan_search_status *st, char *buf, size_t size);

@@ -100,8 +100,10 @@ try:
     prov = r["provenance"]["plan"]
     expect(prov.get("method") == "ci" and prov.get("points") == 360,
            f"and measured it: {prov}")
-    expect("plan for the tolerance: ci, 360 points" in d.log_text(),
-           "the daemon's log tells each plan the search characterized")
+    expect("plan for the tolerance: ci, 360 points" in d.log_text() and
+           "plan for the tolerance chosen: ci, 360 points, 31.9 s predicted, the largest U/T "
+           "0.201 (rms_t_nm)" in d.log_text(),
+           "the daemon's log tells each plan the search characterized, and the one chosen")
 
     # bad input, refused at once saying where and why
     code, msg = refused(c, {k: v for k, v in QUICK.items() if k != "tolerance"})
