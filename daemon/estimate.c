@@ -43,10 +43,9 @@ static int for_tolerance(struct estimate *e, const struct task *task, char **tex
 	struct asph_error err;
 	int r;
 
-	if (!ic->has_uncertainty || asph_uncertainty_model_is_empty(&ic->uncertainty)) {
-		proto_why_set(&e->why, "\"plan.for_tolerance\": the instrument '%s' declares no "
-			      "uncertainty contributions (an \"uncertainty\" section of its "
-			      "configuration, docs/drivers.md)", ic->name);
+	asph_error_clear(&err);
+	if (tolplan_instrument_ok(ic, &err) < 0) {
+		proto_why_set(&e->why, "\"plan.for_tolerance\": %s", err.message);
 		return PROTO_INVALID_PLAN;
 	}
 	if (!e->search)
@@ -54,7 +53,6 @@ static int for_tolerance(struct estimate *e, const struct task *task, char **tex
 	spec = json_dumps(e->spec, JSON_COMPACT);
 	if (!spec)
 		return PROTO_INTERNAL_ERROR;
-	asph_error_clear(&err);
 	r = tolplan_choose(spec, e->limits.max_points, ic, &hooks, &chosen, &choice, &err);
 	if (r == -ECANCELED)
 		return 0;

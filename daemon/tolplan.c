@@ -126,18 +126,23 @@ static int chosen_spec(json_t *spec, const struct asph_plan_search_result *r, ch
 	return 0;
 }
 
+int tolplan_instrument_ok(const struct asph_instrument_config *ic, struct asph_error *err)
+{
+	if (!ic->has_uncertainty || asph_uncertainty_model_is_empty(&ic->uncertainty))
+		return asph_error_set(err, -EINVAL, "the instrument '%s' declares no uncertainty "
+				      "contributions (an \"uncertainty\" section of its "
+				      "configuration, docs/drivers.md)", ic->name);
+	return 0;
+}
+
 /* The instrument's copy carrying the lens, with its contributions. */
 static int instrument(const struct asph_instrument_config *ic, const struct job_plan *jp,
 		      struct asph_config **own, struct asph_error *err)
 {
-	int r;
+	int r = tolplan_instrument_ok(ic, err);
 
-	if (!ic->has_uncertainty || asph_uncertainty_model_is_empty(&ic->uncertainty))
-		return asph_error_set(err, -EINVAL, "the instrument '%s' declares no uncertainty "
-				      "contributions (an \"uncertainty\" section of its "
-				      "configuration, docs/drivers.md): the plan for a tolerance "
-				      "needs them", ic->name);
-	r = asph_instrument_config_copy(ic, own, err);
+	if (r == 0)
+		r = asph_instrument_config_copy(ic, own, err);
 	if (r == 0)
 		r = asph_instrument_config_set_lens(&(*own)->instruments[0], jp->prescription_json,
 						    err);

@@ -43,6 +43,10 @@ int tolplan_choose(const char *spec, uint64_t max_points, const struct asph_inst
 		   const struct tolplan_hooks *hooks, char **spec_out, char **choice,
 		   struct asph_error *err);
 
+/* Whether ic declares the uncertainty contributions the search needs:
+ * 0, or -EINVAL with err naming the instrument and the section. */
+int tolplan_instrument_ok(const struct asph_instrument_config *ic, struct asph_error *err);
+
 /* Whether the stored job specification spec asks for the search. */
 bool tolplan_wanted(const char *spec);
 
