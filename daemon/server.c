@@ -37,8 +37,6 @@
 /* Bytes read from one client per wake-up, so that one fast writer cannot
  * starve the others. */
 #define READ_BUDGET (256 * 1024)
-/* TCP addresses listened on at once (a host name may have several). */
-#define MAX_TCP_LISTENERS 16
 /* An output buffer this large is given back once it has drained, and the
  * heap trimmed, so that a spike does not stay in the daemon's RSS. */
 #define OUT_KEEP_BYTES (256 * 1024)
@@ -46,63 +44,6 @@
  * doubling up to the maximum while it lasts. */
 #define ACCEPT_BACKOFF_MIN_USEC 50000
 #define ACCEPT_BACKOFF_MAX_USEC 2000000
-
-struct client {
-	struct server *srv;
-	struct client *next, *prev;
-	struct rpc_session session;
-	uint64_t serial;
-	int fd;
-	bool tcp;
-	sd_event_source *io;
-	sd_event_source *timer;         /* the nearest of client_deadline() */
-	struct turn turn;               /* its requests wait for their turn */
-	bool waiting;                   /* its line waits for a computation */
-	struct proto_lines in;
-	bool have_lines;                /* input not yet cut into lines */
-	struct rpc_line *line;          /* being answered */
-	char *out;                      /* pending output */
-	size_t out_off, out_len, out_cap;
-	/* Notifications that came while a batch's answer line was open, sent
-	 * after its end so that they do not split it. */
-	char *held;
-	size_t held_len, held_cap;
-	bool closing;                   /* flush what is queued, then close */
-	bool eof;
-	uint64_t connected_usec;
-	uint64_t partial_usec;          /* since when an incomplete line waits, or 0 */
-	uint64_t request_usec;          /* the last line taken */
-	uint64_t stalled_usec;          /* since when output waits unread, or 0 */
-};
-
-struct listener {
-	struct server *srv;
-	int fd;
-	sd_event_source *src;
-	bool tcp;
-	bool activated;                 /* from systemd: not ours to unlink */
-};
-
-struct server {
-	sd_event *event;
-	struct rpc *rpc;
-	const struct settings_limits *limits;
-	struct listener listeners[1 + MAX_TCP_LISTENERS];
-	size_t n_listeners;
-	char *socket_path;              /* bound by us: unlinked at the end */
-	char *tcp_listen;               /* as it was bound */
-	struct client *clients;
-	struct client *dead;            /* dropped, freed by the reaper */
-	sd_event_source *reaper;
-	struct turns *turns;
-	uint64_t next_serial;
-	bool refusing;
-	/* EMFILE: a descriptor kept to be given up, the pause, its log. */
-	int reserve_fd;
-	sd_event_source *accept_timer;
-	uint64_t accept_backoff;
-	struct ratelimit *log_limit;
-};
 
 static int reap(sd_event_source *s, void *data);
 static int accept_resume(sd_event_source *s, uint64_t usec, void *data);
@@ -209,7 +150,7 @@ static int reap(sd_event_source *s, void *data)
 	return 0;
 }
 
-static void client_drop(struct client *c, const char *why)
+void server_client_drop(struct client *c, const char *why)
 {
 	struct server *srv = c->srv;
 
@@ -331,7 +272,7 @@ static int flush_output(struct client *c)
 				continue;
 			if (errno == EAGAIN)
 				break;
-			client_drop(c, strerror(errno));
+			server_client_drop(c, strerror(errno));
 			return -ECONNRESET;
 		}
 		c->out_off += (size_t)n;
@@ -419,7 +360,7 @@ static int client_send(struct client *c, const json_t *msg)
 			log_info("client %" PRIu64 " (%s) does not read its output: dropped",
 				 c->serial, c->session.peer.name);
 		c->out_len = start < c->out_off ? c->out_off : start;
-		client_drop(c, "output buffer full");
+		server_client_drop(c, "output buffer full");
 		return -ECONNRESET;
 	}
 	return flush_output(c);
@@ -428,7 +369,7 @@ static int client_send(struct client *c, const json_t *msg)
 /* An error of the transport, which closes the connection or drops a line:
  * a batch's answer line still open is cut off first, so that the error has
  * a line of its own. */
-static void send_error(struct client *c, int code, const char *detail)
+void server_send_error(struct client *c, int code, const char *detail)
 {
 	_cleanup_(json_decrefp) json_t *e = proto_make_error(NULL, code, NULL,
 		detail ? json_pack("{s:s}", "detail", detail) : NULL);
@@ -436,7 +377,7 @@ static void send_error(struct client *c, int code, const char *detail)
 	if (!e || client_dead(c))
 		return;
 	if (c->line && rpc_line_open(c->line) && out_put(c, "\n", 1) < 0) {
-		client_drop(c, "out of memory");
+		server_client_drop(c, "out of memory");
 		return;
 	}
 	client_send(c, e);
@@ -452,7 +393,7 @@ static void hold_notification(struct client *c, const json_t *msg)
 	if (!text || output_pending(c) + c->held_len + n > c->srv->limits->max_output_bytes) {
 		log_info("client %" PRIu64 " (%s) does not read its output: dropped",
 			 c->serial, c->session.peer.name);
-		client_drop(c, "output buffer full");
+		server_client_drop(c, "output buffer full");
 		return;
 	}
 	if (c->held_len + n > c->held_cap) {
@@ -461,7 +402,7 @@ static void hold_notification(struct client *c, const json_t *msg)
 			cap *= 2;
 		char *b = realloc(c->held, cap);
 		if (!b) {
-			client_drop(c, "out of memory");
+			server_client_drop(c, "out of memory");
 			return;
 		}
 		c->held = b;
@@ -479,7 +420,7 @@ static void release_held(struct client *c)
 	if (!c->held_len || client_dead(c))
 		return;
 	if (out_put(c, c->held, c->held_len) < 0) {
-		client_drop(c, "out of memory");
+		server_client_drop(c, "out of memory");
 		return;
 	}
 	c->held_len = 0;
@@ -504,7 +445,7 @@ static void update_events(struct client *c)
 		ev |= EPOLLOUT;
 	if (!ev && !work_pending(c) && !c->waiting) {
 		/* Nothing more to read, answer or write. */
-		client_drop(c, c->closing ? "closed" : "end of input");
+		server_client_drop(c, c->closing ? "closed" : "end of input");
 		return;
 	}
 	/* A client whose request is computed is not read, but its hang-up
@@ -529,7 +470,7 @@ static int take_line(struct client *c)
 		char why[96];
 		snprintf(why, sizeof(why), "a request is longer than %u bytes",
 			 c->srv->limits->max_request_bytes);
-		send_error(c, PROTO_REQUEST_TOO_LARGE, why);
+		server_send_error(c, PROTO_REQUEST_TOO_LARGE, why);
 		if (client_dead(c))
 			return 0;
 	}
@@ -544,7 +485,7 @@ static int take_line(struct client *c)
 	 * daemon next reads, not while it answers this one. */
 	c->partial_usec = 0;
 	if (rpc_line_new(c->srv->rpc, &c->session, line, len, &c->line) < 0) {
-		client_drop(c, "out of memory");
+		server_client_drop(c, "out of memory");
 		return 0;
 	}
 	rpc_line_on_ready(c->line, line_ready, c);
@@ -554,7 +495,7 @@ static int take_line(struct client *c)
 /* The input ended: what is left of a line is refused. */
 static void end_of_input(struct client *c)
 {
-	send_error(c, PROTO_PARSE_ERROR, "the input ended inside a request");
+	server_send_error(c, PROTO_PARSE_ERROR, "the input ended inside a request");
 	if (client_dead(c))
 		return;
 	proto_lines_release(&c->in);
@@ -593,7 +534,7 @@ static void client_turn(void *data)
 			release_held(c);
 		}
 		if (r < 0) {
-			client_drop(c, r == -ENOMEM ? "out of memory" : "connection lost");
+			server_client_drop(c, r == -ENOMEM ? "out of memory" : "connection lost");
 			return;
 		}
 		n++;
@@ -617,7 +558,7 @@ static void read_input(struct client *c)
 		ssize_t n;
 
 		if (proto_lines_reserve(&c->in, READ_CHUNK, &dst) < 0) {
-			client_drop(c, "out of memory");
+			server_client_drop(c, "out of memory");
 			return;
 		}
 		n = recv(c->fd, dst, READ_CHUNK, MSG_DONTWAIT);
@@ -625,7 +566,7 @@ static void read_input(struct client *c)
 			if (errno == EINTR)
 				continue;
 			if (errno != EAGAIN)
-				client_drop(c, strerror(errno));
+				server_client_drop(c, strerror(errno));
 			break;
 		}
 		if (n == 0) {
@@ -658,7 +599,7 @@ static int client_io(sd_event_source *s, int fd, uint32_t revents, void *data)
 	struct client *c = data;
 
 	if (c->waiting && (revents & (EPOLLHUP | EPOLLERR))) {
-		client_drop(c, "hung up while its request was computed");
+		server_client_drop(c, "hung up while its request was computed");
 		return 0;
 	}
 	if (revents & EPOLLOUT)
@@ -681,19 +622,19 @@ static int client_timer(sd_event_source *s, uint64_t usec, void *data)
 	}
 	switch (which) {
 	case DEADLINE_PARTIAL:
-		send_error(c, PROTO_REQUEST_TIMEOUT, "an incomplete request waited too long");
+		server_send_error(c, PROTO_REQUEST_TIMEOUT, "an incomplete request waited too long");
 		break;
 	case DEADLINE_OUTPUT:
 		log_info("client %" PRIu64 " (%s) does not read its output: dropped",
 			 c->serial, c->session.peer.name);
-		client_drop(c, "output not read");
+		server_client_drop(c, "output not read");
 		return 0;
 	case DEADLINE_AUTH:
-		send_error(c, PROTO_REQUEST_TIMEOUT, "no hello with the token in time "
+		server_send_error(c, PROTO_REQUEST_TIMEOUT, "no hello with the token in time "
 			   "(limits.auth_timeout_ms)");
 		break;
 	case DEADLINE_IDLE:
-		send_error(c, PROTO_REQUEST_TIMEOUT, "no request for limits.idle_timeout_ms");
+		server_send_error(c, PROTO_REQUEST_TIMEOUT, "no request for limits.idle_timeout_ms");
 		break;
 	case DEADLINE_NONE:
 		return 0;
@@ -766,9 +707,9 @@ static bool refused(struct server *srv, const struct peer *p, char *why, size_t 
 		return true;
 	}
 	if (p->tcp && n >= l->max_clients && (old = oldest_anonymous(srv))) {
-		send_error(old, PROTO_TOO_MANY_CLIENTS, "closed to make room: no hello with the "
+		server_send_error(old, PROTO_TOO_MANY_CLIENTS, "closed to make room: no hello with the "
 			   "token came, and limits.max_clients are connected");
-		client_drop(old, "made room for a new connection");
+		server_client_drop(old, "made room for a new connection");
 		n = rpc_sessions(srv->rpc);
 	}
 	if (n >= l->max_clients) {
@@ -883,14 +824,14 @@ static struct client *client_new(struct server *srv, int cfd, bool tcp, struct p
 	if (sd_event_add_io(srv->event, &c->io, cfd, EPOLLIN, client_io, c) < 0 ||
 	    sd_event_add_time(srv->event, &c->timer, CLOCK_MONOTONIC, UINT64_MAX, 0,
 			      client_timer, c) < 0) {
-		client_drop(c, "out of memory");
+		server_client_drop(c, "out of memory");
 		return NULL;
 	}
 	arm_timer(c);
 	return c;
 }
 
-static int on_accept(sd_event_source *s, int fd, uint32_t revents, void *data)
+int server_accept(sd_event_source *s, int fd, uint32_t revents, void *data)
 {
 	const struct listener *l = data;
 	struct server *srv = l->srv;
@@ -968,7 +909,7 @@ void server_revalidate(struct server *srv)
 			continue;
 		log_info("client %" PRIu64 " (%s): its token was changed or removed: "
 			 "disconnected", c->serial, c->session.peer.name);
-		send_error(c, PROTO_PERMISSION_DENIED, "the token this connection sent was "
+		server_send_error(c, PROTO_PERMISSION_DENIED, "the token this connection sent was "
 			   "changed or removed: connect again with the new one");
 		if (!client_dead(c)) {
 			c->closing = true;
@@ -1265,7 +1206,7 @@ int server_listen(struct server *srv, const struct settings *s, const struct add
 	}
 	for (size_t i = 0; i < srv->n_listeners; i++) {
 		struct listener *l = &srv->listeners[i];
-		r = sd_event_add_io(srv->event, &l->src, l->fd, EPOLLIN, on_accept, l);
+		r = sd_event_add_io(srv->event, &l->src, l->fd, EPOLLIN, server_accept, l);
 		if (r < 0)
 			return r;
 	}
@@ -1311,8 +1252,8 @@ static void close_tcp(struct server *srv)
 		next = c->next;
 		if (!c->tcp)
 			continue;
-		send_error(c, PROTO_SHUTTING_DOWN, "the TCP listener was turned off");
-		client_drop(c, "TCP turned off");
+		server_send_error(c, PROTO_SHUTTING_DOWN, "the TCP listener was turned off");
+		server_client_drop(c, "TCP turned off");
 	}
 	free(srv->tcp_listen);
 	srv->tcp_listen = NULL;
