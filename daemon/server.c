@@ -8,7 +8,6 @@
  * served between two of another's. A line whose request waits for a
  * computation (tasks.h) leaves the turns until it is ready.
  */
-#include <arpa/inet.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <malloc.h>
@@ -16,19 +15,14 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
-#include <sys/stat.h>
-#include <sys/un.h>
 #include <time.h>
 #include <unistd.h>
 
-#include <systemd/sd-daemon.h>
-
-#include "account.h"
 #include "asph-proto.h"
-#include "dirs.h"
 #include "log.h"
 #include "ratelimit.h"
 #include "server.h"
+#include "server-internal.h"
 #include "turns.h"
 #include "util-mem.h"
 
@@ -36,8 +30,6 @@
 /* Bytes read from one client per wake-up, so that one fast writer cannot
  * starve the others. */
 #define READ_BUDGET (256 * 1024)
-/* TCP addresses listened on at once (a host name may have several). */
-#define MAX_TCP_LISTENERS 16
 /* An output buffer this large is given back once it has drained, and the
  * heap trimmed, so that a spike does not stay in the daemon's RSS. */
 #define OUT_KEEP_BYTES (256 * 1024)
@@ -45,63 +37,6 @@
  * doubling up to the maximum while it lasts. */
 #define ACCEPT_BACKOFF_MIN_USEC 50000
 #define ACCEPT_BACKOFF_MAX_USEC 2000000
-
-struct client {
-	struct server *srv;
-	struct client *next, *prev;
-	struct rpc_session session;
-	uint64_t serial;
-	int fd;
-	bool tcp;
-	sd_event_source *io;
-	sd_event_source *timer;         /* the nearest of client_deadline() */
-	struct turn turn;               /* its requests wait for their turn */
-	bool waiting;                   /* its line waits for a computation */
-	struct proto_lines in;
-	bool have_lines;                /* input not yet cut into lines */
-	struct rpc_line *line;          /* being answered */
-	char *out;                      /* pending output */
-	size_t out_off, out_len, out_cap;
-	/* Notifications that came while a batch's answer line was open, sent
-	 * after its end so that they do not split it. */
-	char *held;
-	size_t held_len, held_cap;
-	bool closing;                   /* flush what is queued, then close */
-	bool eof;
-	uint64_t connected_usec;
-	uint64_t partial_usec;          /* since when an incomplete line waits, or 0 */
-	uint64_t request_usec;          /* the last line taken */
-	uint64_t stalled_usec;          /* since when output waits unread, or 0 */
-};
-
-struct listener {
-	struct server *srv;
-	int fd;
-	sd_event_source *src;
-	bool tcp;
-	bool activated;                 /* from systemd: not ours to unlink */
-};
-
-struct server {
-	sd_event *event;
-	struct rpc *rpc;
-	const struct settings_limits *limits;
-	struct listener listeners[1 + MAX_TCP_LISTENERS];
-	size_t n_listeners;
-	char *socket_path;              /* bound by us: unlinked at the end */
-	char *tcp_listen;               /* as it was bound */
-	struct client *clients;
-	struct client *dead;            /* dropped, freed by the reaper */
-	sd_event_source *reaper;
-	struct turns *turns;
-	uint64_t next_serial;
-	bool refusing;
-	/* EMFILE: a descriptor kept to be given up, the pause, its log. */
-	int reserve_fd;
-	sd_event_source *accept_timer;
-	uint64_t accept_backoff;
-	struct ratelimit *log_limit;
-};
 
 static int reap(sd_event_source *s, void *data);
 static int accept_resume(sd_event_source *s, uint64_t usec, void *data);
@@ -208,7 +143,7 @@ static int reap(sd_event_source *s, void *data)
 	return 0;
 }
 
-static void client_drop(struct client *c, const char *why)
+void server_client_drop(struct client *c, const char *why)
 {
 	struct server *srv = c->srv;
 
@@ -330,7 +265,7 @@ static int flush_output(struct client *c)
 				continue;
 			if (errno == EAGAIN)
 				break;
-			client_drop(c, strerror(errno));
+			server_client_drop(c, strerror(errno));
 			return -ECONNRESET;
 		}
 		c->out_off += (size_t)n;
@@ -418,7 +353,7 @@ static int client_send(struct client *c, const json_t *msg)
 			log_info("client %" PRIu64 " (%s) does not read its output: dropped",
 				 c->serial, c->session.peer.name);
 		c->out_len = start < c->out_off ? c->out_off : start;
-		client_drop(c, "output buffer full");
+		server_client_drop(c, "output buffer full");
 		return -ECONNRESET;
 	}
 	return flush_output(c);
@@ -427,7 +362,7 @@ static int client_send(struct client *c, const json_t *msg)
 /* An error of the transport, which closes the connection or drops a line:
  * a batch's answer line still open is cut off first, so that the error has
  * a line of its own. */
-static void send_error(struct client *c, int code, const char *detail)
+void server_send_error(struct client *c, int code, const char *detail)
 {
 	_cleanup_(json_decrefp) json_t *e = proto_make_error(NULL, code, NULL,
 		detail ? json_pack("{s:s}", "detail", detail) : NULL);
@@ -435,7 +370,7 @@ static void send_error(struct client *c, int code, const char *detail)
 	if (!e || client_dead(c))
 		return;
 	if (c->line && rpc_line_open(c->line) && out_put(c, "\n", 1) < 0) {
-		client_drop(c, "out of memory");
+		server_client_drop(c, "out of memory");
 		return;
 	}
 	client_send(c, e);
@@ -451,7 +386,7 @@ static void hold_notification(struct client *c, const json_t *msg)
 	if (!text || output_pending(c) + c->held_len + n > c->srv->limits->max_output_bytes) {
 		log_info("client %" PRIu64 " (%s) does not read its output: dropped",
 			 c->serial, c->session.peer.name);
-		client_drop(c, "output buffer full");
+		server_client_drop(c, "output buffer full");
 		return;
 	}
 	if (c->held_len + n > c->held_cap) {
@@ -460,7 +395,7 @@ static void hold_notification(struct client *c, const json_t *msg)
 			cap *= 2;
 		char *b = realloc(c->held, cap);
 		if (!b) {
-			client_drop(c, "out of memory");
+			server_client_drop(c, "out of memory");
 			return;
 		}
 		c->held = b;
@@ -478,7 +413,7 @@ static void release_held(struct client *c)
 	if (!c->held_len || client_dead(c))
 		return;
 	if (out_put(c, c->held, c->held_len) < 0) {
-		client_drop(c, "out of memory");
+		server_client_drop(c, "out of memory");
 		return;
 	}
 	c->held_len = 0;
@@ -503,7 +438,7 @@ static void update_events(struct client *c)
 		ev |= EPOLLOUT;
 	if (!ev && !work_pending(c) && !c->waiting) {
 		/* Nothing more to read, answer or write. */
-		client_drop(c, c->closing ? "closed" : "end of input");
+		server_client_drop(c, c->closing ? "closed" : "end of input");
 		return;
 	}
 	/* A client whose request is computed is not read, but its hang-up
@@ -528,7 +463,7 @@ static int take_line(struct client *c)
 		char why[96];
 		snprintf(why, sizeof(why), "a request is longer than %u bytes",
 			 c->srv->limits->max_request_bytes);
-		send_error(c, PROTO_REQUEST_TOO_LARGE, why);
+		server_send_error(c, PROTO_REQUEST_TOO_LARGE, why);
 		if (client_dead(c))
 			return 0;
 	}
@@ -543,7 +478,7 @@ static int take_line(struct client *c)
 	 * daemon next reads, not while it answers this one. */
 	c->partial_usec = 0;
 	if (rpc_line_new(c->srv->rpc, &c->session, line, len, &c->line) < 0) {
-		client_drop(c, "out of memory");
+		server_client_drop(c, "out of memory");
 		return 0;
 	}
 	rpc_line_on_ready(c->line, line_ready, c);
@@ -553,7 +488,7 @@ static int take_line(struct client *c)
 /* The input ended: what is left of a line is refused. */
 static void end_of_input(struct client *c)
 {
-	send_error(c, PROTO_PARSE_ERROR, "the input ended inside a request");
+	server_send_error(c, PROTO_PARSE_ERROR, "the input ended inside a request");
 	if (client_dead(c))
 		return;
 	proto_lines_release(&c->in);
@@ -592,7 +527,7 @@ static void client_turn(void *data)
 			release_held(c);
 		}
 		if (r < 0) {
-			client_drop(c, r == -ENOMEM ? "out of memory" : "connection lost");
+			server_client_drop(c, r == -ENOMEM ? "out of memory" : "connection lost");
 			return;
 		}
 		n++;
@@ -616,7 +551,7 @@ static void read_input(struct client *c)
 		ssize_t n;
 
 		if (proto_lines_reserve(&c->in, READ_CHUNK, &dst) < 0) {
-			client_drop(c, "out of memory");
+			server_client_drop(c, "out of memory");
 			return;
 		}
 		n = recv(c->fd, dst, READ_CHUNK, MSG_DONTWAIT);
@@ -624,7 +559,7 @@ static void read_input(struct client *c)
 			if (errno == EINTR)
 				continue;
 			if (errno != EAGAIN)
-				client_drop(c, strerror(errno));
+				server_client_drop(c, strerror(errno));
 			break;
 		}
 		if (n == 0) {
@@ -657,7 +592,7 @@ static int client_io(sd_event_source *s, int fd, uint32_t revents, void *data)
 	struct client *c = data;
 
 	if (c->waiting && (revents & (EPOLLHUP | EPOLLERR))) {
-		client_drop(c, "hung up while its request was computed");
+		server_client_drop(c, "hung up while its request was computed");
 		return 0;
 	}
 	if (revents & EPOLLOUT)
@@ -680,19 +615,19 @@ static int client_timer(sd_event_source *s, uint64_t usec, void *data)
 	}
 	switch (which) {
 	case DEADLINE_PARTIAL:
-		send_error(c, PROTO_REQUEST_TIMEOUT, "an incomplete request waited too long");
+		server_send_error(c, PROTO_REQUEST_TIMEOUT, "an incomplete request waited too long");
 		break;
 	case DEADLINE_OUTPUT:
 		log_info("client %" PRIu64 " (%s) does not read its output: dropped",
 			 c->serial, c->session.peer.name);
-		client_drop(c, "output not read");
+		server_client_drop(c, "output not read");
 		return 0;
 	case DEADLINE_AUTH:
-		send_error(c, PROTO_REQUEST_TIMEOUT, "no hello with the token in time "
+		server_send_error(c, PROTO_REQUEST_TIMEOUT, "no hello with the token in time "
 			   "(limits.auth_timeout_ms)");
 		break;
 	case DEADLINE_IDLE:
-		send_error(c, PROTO_REQUEST_TIMEOUT, "no request for limits.idle_timeout_ms");
+		server_send_error(c, PROTO_REQUEST_TIMEOUT, "no request for limits.idle_timeout_ms");
 		break;
 	case DEADLINE_NONE:
 		return 0;
@@ -706,96 +641,6 @@ static int client_timer(sd_event_source *s, uint64_t usec, void *data)
 }
 
 /* ------------------------------------------------------------ accept */
-
-/* The peer's supplementary groups as the kernel has them for the
- * connecting process, not as /etc/group says: room for 32 first, then
- * the size the kernel says it needs (ERANGE). None when it cannot tell. */
-static void peer_groups(int fd, struct peer *p)
-{
-	socklen_t len = 32 * sizeof(gid_t);
-
-	for (int tries = 0; tries < 2; tries++) {
-		gid_t *g = realloc(p->groups, len > 0 ? len : 1);
-		if (!g)
-			return;
-		p->groups = g;
-		if (getsockopt(fd, SOL_SOCKET, SO_PEERGROUPS, g, &len) == 0) {
-			p->n_groups = (int)(len / sizeof(gid_t));
-			return;
-		}
-		if (errno != ERANGE)
-			return;
-	}
-}
-
-/* A TCP peer: its address, and its key (an IPv6 address by its /64). */
-void server_tcp_peer(int fd, struct peer *p)
-{
-	struct sockaddr_storage sa = { 0 };
-	socklen_t len = sizeof(sa);
-
-	if (getpeername(fd, (struct sockaddr *)&sa, &len) < 0)
-		sa.ss_family = AF_UNSPEC;
-	server_addr_peer((const struct sockaddr *)&sa, p);
-}
-
-void server_addr_peer(const struct sockaddr *addr, struct peer *p)
-{
-	struct sockaddr_storage sa = { 0 };
-	char host[INET6_ADDRSTRLEN] = "?";
-
-	p->uid = (uid_t)-1;
-	p->gid = (gid_t)-1;
-	if (addr->sa_family == AF_INET6 || addr->sa_family == AF_INET) {
-		memcpy(&sa, addr, addr->sa_family == AF_INET6 ? sizeof(struct sockaddr_in6)
-							      : sizeof(struct sockaddr_in));
-		if (sa.ss_family == AF_INET6) {
-			struct in6_addr a = ((struct sockaddr_in6 *)&sa)->sin6_addr;
-			if (IN6_IS_ADDR_V4MAPPED(&a)) {
-				inet_ntop(AF_INET, &a.s6_addr[12], host, sizeof(host));
-				snprintf(p->key, sizeof(p->key), "tcp %s", host);
-			} else {
-				inet_ntop(AF_INET6, &a, host, sizeof(host));
-				memset(&a.s6_addr[8], 0, 8);
-				char prefix[INET6_ADDRSTRLEN];
-				inet_ntop(AF_INET6, &a, prefix, sizeof(prefix));
-				snprintf(p->key, sizeof(p->key), "tcp %s/64", prefix);
-			}
-		} else if (sa.ss_family == AF_INET) {
-			inet_ntop(AF_INET, &((struct sockaddr_in *)&sa)->sin_addr, host, sizeof(host));
-			snprintf(p->key, sizeof(p->key), "tcp %s", host);
-		}
-	}
-	if (!p->key[0])
-		snprintf(p->key, sizeof(p->key), "tcp ?");
-	snprintf(p->name, sizeof(p->name), "tcp %s", host);
-}
-
-static void peer_identity(int fd, bool tcp, struct peer *p)
-{
-	struct ucred cred;
-	socklen_t len = sizeof(cred);
-
-	p->tcp = tcp;
-	if (tcp) {
-		server_tcp_peer(fd, p);
-		return;
-	}
-	if (getsockopt(fd, SOL_SOCKET, SO_PEERCRED, &cred, &len) < 0) {
-		p->uid = (uid_t)-1;
-		p->gid = (gid_t)-1;
-		snprintf(p->name, sizeof(p->name), "unknown");
-		snprintf(p->key, sizeof(p->key), "uid ?");
-		return;
-	}
-	p->uid = cred.uid;
-	p->gid = cred.gid;
-	p->pid = cred.pid;
-	peer_groups(fd, p);
-	if (account_user_name(cred.uid, p->name, sizeof(p->name)) < 0)
-		snprintf(p->name, sizeof(p->name), "uid %u", (unsigned)cred.uid);
-	snprintf(p->key, sizeof(p->key), "uid %u", (unsigned)cred.uid);
-}
 
 /* A connection that cannot be taken gets the reason and is closed. */
 static void refuse(struct server *srv, int fd, int code, const char *detail)
@@ -855,9 +700,9 @@ static bool refused(struct server *srv, const struct peer *p, char *why, size_t 
 		return true;
 	}
 	if (p->tcp && n >= l->max_clients && (old = oldest_anonymous(srv))) {
-		send_error(old, PROTO_TOO_MANY_CLIENTS, "closed to make room: no hello with the "
+		server_send_error(old, PROTO_TOO_MANY_CLIENTS, "closed to make room: no hello with the "
 			   "token came, and limits.max_clients are connected");
-		client_drop(old, "made room for a new connection");
+		server_client_drop(old, "made room for a new connection");
 		n = rpc_sessions(srv->rpc);
 	}
 	if (n >= l->max_clients) {
@@ -972,14 +817,14 @@ static struct client *client_new(struct server *srv, int cfd, bool tcp, struct p
 	if (sd_event_add_io(srv->event, &c->io, cfd, EPOLLIN, client_io, c) < 0 ||
 	    sd_event_add_time(srv->event, &c->timer, CLOCK_MONOTONIC, UINT64_MAX, 0,
 			      client_timer, c) < 0) {
-		client_drop(c, "out of memory");
+		server_client_drop(c, "out of memory");
 		return NULL;
 	}
 	arm_timer(c);
 	return c;
 }
 
-static int on_accept(sd_event_source *s, int fd, uint32_t revents, void *data)
+int server_accept(sd_event_source *s, int fd, uint32_t revents, void *data)
 {
 	const struct listener *l = data;
 	struct server *srv = l->srv;
@@ -1003,7 +848,7 @@ static int on_accept(sd_event_source *s, int fd, uint32_t revents, void *data)
 		refuse(srv, cfd, PROTO_SHUTTING_DOWN, NULL);
 		return 0;
 	}
-	peer_identity(cfd, l->tcp, &p);
+	server_peer_identity(cfd, l->tcp, &p);
 	if (refused(srv, &p, why, sizeof(why))) {
 		char what[256];
 		snprintf(what, sizeof(what), "refused a connection of %.63s: %.160s", p.name, why);
@@ -1057,378 +902,13 @@ void server_revalidate(struct server *srv)
 			continue;
 		log_info("client %" PRIu64 " (%s): its token was changed or removed: "
 			 "disconnected", c->serial, c->session.peer.name);
-		send_error(c, PROTO_PERMISSION_DENIED, "the token this connection sent was "
+		server_send_error(c, PROTO_PERMISSION_DENIED, "the token this connection sent was "
 			   "changed or removed: connect again with the new one");
 		if (!client_dead(c)) {
 			c->closing = true;
 			update_events(c);
 		}
 	}
-}
-
-/* -------------------------------------------------------------- listen */
-
-static struct listener *add_listener(struct server *srv, int fd, bool tcp, bool activated)
-{
-	struct listener *l;
-
-	if (srv->n_listeners == ARRAY_SIZE(srv->listeners))
-		return NULL;
-	l = &srv->listeners[srv->n_listeners++];
-	*l = (struct listener){ .srv = srv, .fd = fd, .tcp = tcp, .activated = activated };
-	return l;
-}
-
-/* Gives the socket at path its group and mode as the settings say. */
-static void socket_access(const struct settings *s, const char *path)
-{
-	if (s->socket_group) {
-		gid_t gid;
-		int r = account_group_id(s->socket_group, &gid);
-		if (r == 0 && chown(path, (uid_t)-1, gid) < 0)
-			r = -errno;
-		if (r < 0)
-			log_warning("cannot give %s to group %s: %s", path, s->socket_group,
-				    r == -ENOENT ? "no such group" : strerror(-r));
-	}
-	if (chmod(path, s->socket_mode) < 0)
-		log_warning("chmod %s: %s", path, strerror(errno));
-}
-
-/*
- * A socket file left by a daemon that died is replaced; a live one is not,
- * and nothing that is not a socket is ever removed (--socket names a path
- * that may be anything).
- */
-static int clear_socket_path(const struct sockaddr_un *sa)
-{
-	const char *path = sa->sun_path;
-	_cleanup_close_ int probe = -1;
-	struct stat st;
-
-	if (lstat(path, &st) < 0)
-		return errno == ENOENT ? 0 : -errno;
-	if (!S_ISSOCK(st.st_mode)) {
-		log_error("%s exists and is not a socket: refusing to remove it", path);
-		return -EEXIST;
-	}
-	probe = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
-	if (probe >= 0 && connect(probe, (const struct sockaddr *)sa, sizeof(*sa)) == 0) {
-		log_error("another daemon listens on %s", path);
-		return -EADDRINUSE;
-	}
-	if (unlink(path) < 0 && errno != ENOENT)
-		return -errno;
-	return 0;
-}
-
-static int bind_unix(struct server *srv, const struct settings *s)
-{
-	struct sockaddr_un sa = { .sun_family = AF_UNIX };
-	const char *path = s->socket_path;
-	_cleanup_close_ int fd = -1;
-	int r;
-
-	if (strlen(path) >= sizeof(sa.sun_path)) {
-		log_error("socket path %s is too long", path);
-		return -ENAMETOOLONG;
-	}
-	r = dirs_check_socket_dir(path);
-	if (r < 0)
-		return r;
-	memcpy(sa.sun_path, path, strlen(path));
-	fd = socket(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
-	if (fd < 0)
-		return -errno;
-	r = clear_socket_path(&sa);
-	if (r < 0)
-		return r;
-	mode_t old = umask(0777 & ~s->socket_mode);
-	r = bind(fd, (struct sockaddr *)&sa, sizeof(sa));
-	umask(old);
-	if (r < 0) {
-		r = -errno;
-		log_error("cannot bind %s: %s", path, strerror(-r));
-		return r;
-	}
-	srv->socket_path = strdup(path);
-	if (!srv->socket_path)
-		return -ENOMEM;
-	socket_access(s, path);
-	if (listen(fd, 128) < 0)
-		return -errno;
-	add_listener(srv, steal_fd(fd), false, false);
-	return 0;
-}
-
-/* Whether ai's address came earlier in the list (a name may resolve to
- * the same address twice). */
-static bool seen_before(const struct addrinfo *list, const struct addrinfo *ai)
-{
-	for (const struct addrinfo *p = list; p != ai; p = p->ai_next)
-		if (p->ai_addrlen == ai->ai_addrlen && !memcmp(p->ai_addr, ai->ai_addr, ai->ai_addrlen))
-			return true;
-	return false;
-}
-
-/* Whether a bind's error means this host has no such address (a name
- * that resolves to an IPv6 address on a host without IPv6). */
-static bool address_unavailable(int r)
-{
-	return r == -EADDRNOTAVAIL || r == -EAFNOSUPPORT;
-}
-
-static in_port_t *port_of(struct sockaddr_storage *sa)
-{
-	return sa->ss_family == AF_INET6 ? &((struct sockaddr_in6 *)sa)->sin6_port
-					 : &((struct sockaddr_in *)sa)->sin_port;
-}
-
-/* A listening socket on sa (an IPv6 one for IPv6 only). */
-static int bind_address(const struct sockaddr_storage *sa, socklen_t len, int *out)
-{
-	_cleanup_close_ int fd = -1;
-	int one = 1;
-
-	fd = socket(sa->ss_family, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
-	if (fd < 0 || setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof(one)) < 0 ||
-	    (sa->ss_family == AF_INET6 &&
-	     setsockopt(fd, IPPROTO_IPV6, IPV6_V6ONLY, &one, sizeof(one)) < 0) ||
-	    bind(fd, (const struct sockaddr *)sa, len) < 0 || listen(fd, 128) < 0)
-		return -errno;
-	*out = steal_fd(fd);
-	return 0;
-}
-
-/* One pass of server_listen_tcp(): the sockets into fds, their number
- * into *n (closed again on an error). */
-static int bind_each(const struct addrinfo *list, const char *field, const char *text,
-		     int *fds, size_t max, size_t *n)
-{
-	struct sockaddr_storage sa;
-	char where[INET6_ADDRSTRLEN + 8];
-	in_port_t port = 0;
-	int r = 0;
-
-	*n = 0;
-	for (const struct addrinfo *ai = list; ai; ai = ai->ai_next) {
-		if (seen_before(list, ai) || ai->ai_addrlen > sizeof(sa) ||
-		    (ai->ai_family != AF_INET && ai->ai_family != AF_INET6))
-			continue;
-		memcpy(&sa, ai->ai_addr, ai->ai_addrlen);
-		if (getnameinfo(ai->ai_addr, ai->ai_addrlen, where, sizeof(where), NULL, 0,
-				NI_NUMERICHOST) != 0)
-			snprintf(where, sizeof(where), "?");
-		/* port 0: the one chosen at the first address, for all */
-		if (*port_of(&sa) == 0)
-			*port_of(&sa) = port;
-		if (*n == max) {
-			log_error("%s %s: more than %zu addresses", field, text, max);
-			r = -E2BIG;
-			break;
-		}
-		r = bind_address(&sa, ai->ai_addrlen, &fds[*n]);
-		if (r < 0) {
-			log_job(address_unavailable(r) ? LOG_WARNING : LOG_ERR, 0,
-				"%s %s: cannot listen on %s: %s", field, text, where, strerror(-r));
-			if (!address_unavailable(r))
-				break;
-			r = 0;
-			continue;
-		}
-		if (!port) {
-			socklen_t len = sizeof(sa);
-			getsockname(fds[*n], (struct sockaddr *)&sa, &len);
-			port = *port_of(&sa);
-		}
-		log_debug("%s %s: listening on %s port %u", field, text, where, ntohs(port));
-		(*n)++;
-	}
-	if (r < 0)
-		while (*n)
-			close(fds[--*n]);
-	return r;
-}
-
-static bool port_zero(const struct addrinfo *ai)
-{
-	struct sockaddr_storage sa = { 0 };
-
-	memcpy(&sa, ai->ai_addr, ai->ai_addrlen <= sizeof(sa) ? ai->ai_addrlen : 0);
-	return *port_of(&sa) == 0;
-}
-
-int server_listen_tcp(const struct addrinfo *list, const char *field, const char *text,
-		      int *fds, size_t max, size_t *n)
-{
-	int r;
-
-	/* A port 0 chose at the first address may be taken at another: a
-	 * few more tries pick another. */
-	for (int tries = 0;; tries++) {
-		r = bind_each(list, field, text, fds, max, n);
-		if (r != -EADDRINUSE || tries == 8 || !port_zero(list))
-			break;
-	}
-	if (r < 0)
-		return r;
-	if (*n)
-		return 0;
-	log_error("%s %s: no address of it is on this host", field, text);
-	return -EADDRNOTAVAIL;
-}
-
-/* Every address of tcp_listen. */
-static int bind_tcp_all(struct server *srv, const struct settings *s, const struct addrinfo *tcp)
-{
-	int fds[MAX_TCP_LISTENERS];
-	size_t n;
-	int r = server_listen_tcp(tcp, "tcp_listen", s->tcp_listen, fds,
-				  MAX_TCP_LISTENERS, &n);
-
-	for (size_t i = 0; r == 0 && i < n; i++)
-		add_listener(srv, fds[i], true, false);
-	return r;
-}
-
-static bool has_unix(const struct server *srv)
-{
-	for (size_t i = 0; i < srv->n_listeners; i++)
-		if (!srv->listeners[i].tcp)
-			return true;
-	return false;
-}
-
-static bool has_tcp(const struct server *srv, bool activated)
-{
-	for (size_t i = 0; i < srv->n_listeners; i++)
-		if (srv->listeners[i].tcp && srv->listeners[i].activated == activated)
-			return true;
-	return false;
-}
-
-/* What a socket systemd passed is for: 0 the unix socket, 1 TCP (whose
- * clients must show a token), -1 nothing. */
-static int passed_kind(const struct server *srv, const struct settings *s, int fd)
-{
-	if (sd_is_socket_unix(fd, SOCK_STREAM, 1, NULL, 0) > 0 && !has_unix(srv))
-		return 0;
-	if (sd_is_socket_inet(fd, AF_UNSPEC, SOCK_STREAM, 1, 0) > 0)
-		return 1;
-	return -1;
-}
-
-static void take_activated(struct server *srv, const struct settings *s)
-{
-	int n = sd_listen_fds(1);
-
-	for (int i = 0; i < (n > 0 ? n : 0); i++) {
-		int fd = SD_LISTEN_FDS_START + i;
-		int kind = passed_kind(srv, s, fd);
-
-		if (kind < 0 || !add_listener(srv, fd, kind == 1, true)) {
-			log_warning("ignoring passed file descriptor %d", fd);
-			close(fd);
-			continue;
-		}
-		fcntl(fd, F_SETFL, fcntl(fd, F_GETFL) | O_NONBLOCK);
-	}
-}
-
-int server_listen(struct server *srv, const struct settings *s, const struct addrinfo *tcp)
-{
-	int r;
-
-	take_activated(srv, s);
-	/* The unix socket last: once it answers, everything listens, and a
-	 * bad TCP setting leaves no socket behind. */
-	if (s->tcp_listen && !has_tcp(srv, true)) {
-		r = bind_tcp_all(srv, s, tcp);
-		if (r < 0)
-			return r;
-	}
-	if (!has_unix(srv)) {
-		r = bind_unix(srv, s);
-		if (r < 0)
-			return r;
-	}
-	for (size_t i = 0; i < srv->n_listeners; i++) {
-		struct listener *l = &srv->listeners[i];
-		r = sd_event_add_io(srv->event, &l->src, l->fd, EPOLLIN, on_accept, l);
-		if (r < 0)
-			return r;
-	}
-	srv->tcp_listen = s->tcp_listen ? strdup(s->tcp_listen) : NULL;
-	return s->tcp_listen && !srv->tcp_listen ? -ENOMEM : 0;
-}
-
-/* ------------------------------------------------------------- reload */
-
-int server_check_reload(const struct server *srv, const struct settings *s, char *why,
-			size_t size)
-{
-	/* Listening on a new address needs a restart; ceasing to does not. */
-	if (!s->tcp_listen || has_tcp(srv, true))
-		return 0;
-	if (srv->tcp_listen && !strcmp(srv->tcp_listen, s->tcp_listen))
-		return 0;
-	snprintf(why, size, "tcp_listen (from %s to %s)", srv->tcp_listen ? srv->tcp_listen : "off",
-		 s->tcp_listen);
-	return -EBUSY;
-}
-
-static void close_tcp(struct server *srv)
-{
-	struct client *c, *next;
-	size_t k = 0;
-
-	for (size_t i = 0; i < srv->n_listeners; i++) {
-		struct listener *l = &srv->listeners[i];
-		if (!l->tcp) {
-			srv->listeners[k++] = *l;
-			continue;
-		}
-		sd_event_source_disable_unref(l->src);
-		close(l->fd);
-	}
-	srv->n_listeners = k;
-	/* The sources point at their listener: the array moved. */
-	for (size_t i = 0; i < srv->n_listeners; i++)
-		if (srv->listeners[i].src)
-			sd_event_source_set_userdata(srv->listeners[i].src, &srv->listeners[i]);
-	for (c = srv->clients; c; c = next) {
-		next = c->next;
-		if (!c->tcp)
-			continue;
-		send_error(c, PROTO_SHUTTING_DOWN, "the TCP listener was turned off");
-		client_drop(c, "TCP turned off");
-	}
-	free(srv->tcp_listen);
-	srv->tcp_listen = NULL;
-	log_info("TCP listener closed (tcp_listen removed)");
-}
-
-void server_reload(struct server *srv, const struct settings *s)
-{
-	if (srv->socket_path)
-		socket_access(s, srv->socket_path);
-	else if (s->socket_group || s->socket_mode != 0660)
-		log_notice("socket_mode and socket_group apply to a socket asphd binds itself; "
-			   "systemd's (asphd.socket: SocketMode=, SocketGroup=) keeps its own");
-	if (!s->tcp_listen && has_tcp(srv, false))
-		close_tcp(srv);
-}
-
-int server_resolve_tcp(const char *host, const char *port, struct addrinfo **out,
-		       struct asph_error *err)
-{
-	struct addrinfo hints = { .ai_socktype = SOCK_STREAM, .ai_protocol = IPPROTO_TCP };
-	int r = getaddrinfo(host, port, &hints, out);
-
-	if (r != 0)
-		return asph_error_set(err, -EINVAL, "%s: %s", host,
-				      r == EAI_SYSTEM ? strerror(errno) : gai_strerror(r));
-	return 0;
 }
 
 void server_free(struct server *srv)
