@@ -335,6 +335,12 @@ static int open_hid(struct env *e, const char *opts, struct asph_device **d,
 	return r;
 }
 
+/* The timeout of a read that must succeed: generous, as a loaded machine
+ * or valgrind may take seconds to pass a report through umockdev, and the
+ * read returns as soon as the reading is complete (a read meant to time
+ * out or fail says its own, short timeout). */
+#define READ_OK_MS 60000
+
 static int read_once(struct env *e, struct asph_device *d, struct asph_reading *rd,
 		     unsigned timeout_ms, struct asph_error *err)
 {
@@ -513,7 +519,7 @@ static void test_open(void **state)
 	assert_string_equal(pi.serial, "IND-0002");
 	assert_string_equal(pi.model, "HID HID indicator");
 	assert_int_equal(pi.type, ASPH_PROBE_TACTILE);
-	if (read_once(e, d, &rd, 500, &err) < 0)
+	if (read_once(e, d, &rd, READ_OK_MS, &err) < 0)
 		fail_msg("read: %s", err.message);
 	assert_int_equal(e->ind[1].n_requests, 1);
 	assert_int_equal(e->ind[0].n_requests, 0);
@@ -552,7 +558,7 @@ static void test_readings(void **state)
 		assert_int_equal(mock_part_probe_z(ind->part, p[0], p[1], 0, &z), 0);
 		p[2] = z - 1.61 - 0.037 * i;    /* inside 0.5 .. 3.5 */
 		indicator_at(ind, p);
-		if (read_once(e, d, &rd, 500, &err) < 0)
+		if (read_once(e, d, &rd, READ_OK_MS, &err) < 0)
 			fail_msg("read %d: %s", i, err.message);
 		assert_false(rd.flags & ASPH_READING_OUT_OF_RANGE);
 		if (fabs(rd.value - (z - p[2])) > 0.5e-6 + 1e-12)
@@ -564,7 +570,7 @@ static void test_readings(void **state)
 	assert_int_equal(mock_part_probe_z(ind->part, far[0], far[1], 0, &z), 0);
 	far[2] = z - 3.71;
 	indicator_at(ind, far);
-	assert_int_equal(read_once(e, d, &rd, 500, &err), 0);
+	assert_int_equal(read_once(e, d, &rd, READ_OK_MS, &err), 0);
 	assert_true(rd.flags & ASPH_READING_OUT_OF_RANGE);
 	e->hid->probe->close(d);
 }
@@ -585,11 +591,11 @@ static void test_zero_hold(void **state)
 		fail_msg("open: %s", err.message);
 	assert_int_equal(ind->n_zero, 1);
 	/* zeroed here: the reading is the offset, then follows the motion */
-	assert_int_equal(read_once(e, d, &rd, 500, &err), 0);
+	assert_int_equal(read_once(e, d, &rd, READ_OK_MS, &err), 0);
 	assert_true(fabs(rd.value - 2) <= 1e-12);
 	p[2] -= 0.3179;
 	indicator_at(ind, p);
-	assert_int_equal(read_once(e, d, &rd, 500, &err), 0);
+	assert_int_equal(read_once(e, d, &rd, READ_OK_MS, &err), 0);
 	assert_true(fabs(rd.value - 2.3179) <= 0.5e-6 + 1e-12);
 	assert_int_equal(ind->n_hold, 2);
 	assert_int_equal(ind->last_feature, 0x02);
@@ -627,9 +633,9 @@ static void test_faults(void **state)
 	for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
 		if (open_hid(e, ID0, &d, &err) < 0)
 			fail_msg("open: %s", err.message);
-		assert_int_equal(read_once(e, d, &rd, 500, &err), 0);
+		assert_int_equal(read_once(e, d, &rd, READ_OK_MS, &err), 0);
 		indicator_fault(ind, cases[i].fault, 2);
-		assert_int_equal(read_once(e, d, &rd, 500, &err), 0);
+		assert_int_equal(read_once(e, d, &rd, READ_OK_MS, &err), 0);
 		int r = read_once(e, d, &rd, 150, &err);
 		if (r != cases[i].code || !strstr(err.message, cases[i].words))
 			fail_msg("case %zu: %d %s", i, r, err.message);
@@ -639,7 +645,7 @@ static void test_faults(void **state)
 		} else {
 			/* the device goes on */
 			indicator_fault(ind, FAULT_NONE, 0);
-			if (read_once(e, d, &rd, 500, &err) < 0)
+			if (read_once(e, d, &rd, READ_OK_MS, &err) < 0)
 				fail_msg("case %zu, after: %s", i, err.message);
 		}
 		e->hid->probe->close(d);
@@ -651,7 +657,7 @@ static void test_faults(void **state)
 		fail_msg("open: %s", err.message);
 	indicator_at(&e->ind[1], p);
 	indicator_fault(&e->ind[1], FAULT_RANGE_BIT, 1);
-	assert_int_equal(read_once(e, d, &rd, 500, &err), 0);
+	assert_int_equal(read_once(e, d, &rd, READ_OK_MS, &err), 0);
 	assert_true(rd.flags & ASPH_READING_OUT_OF_RANGE);
 	e->hid->probe->close(d);
 }
@@ -1075,8 +1081,9 @@ static void *type_later(void *data)
 }
 
 static int read_typed(struct env *e, struct asph_device *d, struct keyboard *kb, const char *text,
-		      bool keypad, struct asph_reading *rd, unsigned timeout_ms, struct asph_error *err)
+		      bool keypad, struct asph_reading *rd, struct asph_error *err)
 {
+	const unsigned timeout_ms = READ_OK_MS;
 	struct typist t = { kb, text, keypad };
 	pthread_t th;
 
@@ -1107,7 +1114,7 @@ static void test_keyboard_device(void **state)
 	/* what was typed before the reading is stale */
 	type(&kb, "7.5\n", false, false);
 	/* the operator presses the data button: typed with the keypad */
-	if (read_typed(&e, d, &kb, "-12.0875\n", true, &rd, 2000, &err) < 0)
+	if (read_typed(&e, d, &kb, "-12.0875\n", true, &rd, &err) < 0)
 		fail_msg("read: %s", err.message);
 	assert_true(fabs(rd.value + 12.0875) < 1e-12);
 	assert_false(rd.flags & ASPH_READING_OUT_OF_RANGE);
@@ -1115,7 +1122,7 @@ static void test_keyboard_device(void **state)
 	assert_int_equal(read_once(&e, d, &rd, 80, &err), -ETIMEDOUT);
 	assert_non_null(strstr(err.message, "press the gauge's data button or foot switch"));
 	/* a key that has no place in a reading */
-	assert_int_equal(read_typed(&e, d, &kb, "1q\n", false, &rd, 2000, &err), -EPROTO);
+	assert_int_equal(read_typed(&e, d, &kb, "1q\n", false, &rd, &err), -EPROTO);
 	assert_non_null(strstr(err.message, "key 0x14"));
 	e.hid->probe->close(d);
 
@@ -1125,7 +1132,7 @@ static void test_keyboard_device(void **state)
 		     "probe=optical,standoff=0,range=100,unit_scale=0.0254", &d, &err) < 0)
 		fail_msg("open: %s", err.message);
 	assert_int_equal(kb.grabs, 1);
-	if (read_once(&e, d, &rd, 1000, &err) < 0)
+	if (read_once(&e, d, &rd, READ_OK_MS, &err) < 0)
 		fail_msg("read: %s", err.message);
 	assert_int_equal(kb.requests, 1);
 	assert_true(fabs(rd.value - 3.141 * 0.0254) < 1e-12);
