@@ -104,10 +104,12 @@ try:
     # the Monte Carlo's members come only with an instrument that declares
     # uncertainty contributions (test-daemon-uncertainty.py has them), the
     # curvature's only with R fitted and the traces' only for line profiles
-    # (test-cli-profiles.py has both)
+    # (test-cli-profiles.py has both), and the plan chosen for the
+    # tolerance only for a job submitted with plan.for_tolerance
+    # (test-daemon-plan-tolerance.py has it)
     conditional = {"uncertainty_standard", "uncertainty_model", "c", "c_per_mm",
                    "nominal_c_per_mm", "azimuth_deg", "offset_mm", "length_mm",
-                   "slope_max_urad", "n_slope_positions"}
+                   "slope_max_urad", "n_slope_positions", "plan_for_tolerance"}
     extra = documented - returned - {"id"} - conditional
     expect(not extra, f"the README documents no member job.result does not return ({sorted(extra)})")
 
