@@ -363,9 +363,54 @@ static void draw_colour_bar(cairo_t *cr, const struct plot_frame *f,
 	rotated_label(cr, label, r->x + r->w + 8 + widest + 18, r->y + 0.5 * r->h);
 }
 
+/* Raster resolution of a point map in a vector document (a PDF): 300 per
+ * inch of the page, which is 72 units. */
+#define RASTER_PER_UNIT (300.0 / 72.0)
+#define RASTER_MAX_SIDE 8000
+
+static void draw_points_vector(cairo_t *cr, const struct asph_plot_panel *p,
+			       const struct plot_frame *f,
+			       const struct colour_scale *cs, double radius);
+
 static void draw_points(cairo_t *cr, const struct asph_plot_panel *p,
 			const struct plot_frame *f,
 			const struct colour_scale *cs, double radius)
+{
+	cairo_surface_t *target = cairo_get_target(cr);
+	double dw = f->box.w, dh = f->box.h;
+	int w, h;
+
+	/* A page of a million discs, each its own path and colour, takes
+	 * seconds to write and to open: in a vector document the map is drawn
+	 * once into a picture at print resolution, which goes in its place. */
+	if (cairo_surface_get_type(target) == CAIRO_SURFACE_TYPE_IMAGE) {
+		draw_points_vector(cr, p, f, cs, radius);
+		return;
+	}
+	cairo_user_to_device_distance(cr, &dw, &dh);
+	w = (int)fmin(ceil(fabs(dw) * RASTER_PER_UNIT), RASTER_MAX_SIDE);
+	h = (int)fmin(ceil(fabs(dh) * RASTER_PER_UNIT), RASTER_MAX_SIDE);
+	cairo_surface_t *img = cairo_image_surface_create(CAIRO_FORMAT_ARGB32, w > 0 ? w : 1,
+							  h > 0 ? h : 1);
+	cairo_t *ic = cairo_create(img);
+
+	cairo_scale(ic, (double)w / f->box.w, (double)h / f->box.h);
+	cairo_translate(ic, -f->box.x, -f->box.y);
+	draw_points_vector(ic, p, f, cs, radius);
+	cairo_destroy(ic);
+	cairo_surface_flush(img);
+	cairo_save(cr);
+	cairo_translate(cr, f->box.x, f->box.y);
+	cairo_scale(cr, f->box.w / w, f->box.h / h);
+	cairo_set_source_surface(cr, img, 0, 0);
+	cairo_paint(cr);
+	cairo_restore(cr);
+	cairo_surface_destroy(img);
+}
+
+static void draw_points_vector(cairo_t *cr, const struct asph_plot_panel *p,
+			       const struct plot_frame *f,
+			       const struct colour_scale *cs, double radius)
 {
 	double u, v;
 
