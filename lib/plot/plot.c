@@ -1,6 +1,7 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 #include <errno.h>
 #include <math.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <string.h>
 #include <unistd.h>
@@ -372,6 +373,92 @@ static void draw_points_vector(cairo_t *cr, const struct asph_plot_panel *p,
 			       const struct plot_frame *f,
 			       const struct colour_scale *cs, double radius);
 
+static void value_rgb(const struct colour_scale *cs, double value, uint8_t rgb[3])
+{
+	double t = (value - cs->lo) / (cs->hi - cs->lo);
+
+	if (cs->diverging)
+		colormap_diverging(t, rgb);
+	else
+		colormap_sequential(t, rgb);
+}
+
+/* One pixel of an image (cairo's premultiplied ARGB32, or RGB24 whose
+ * alpha is unused) covered to the fraction a by the colour rgb. */
+static void blend_pixel(uint32_t *px, const uint8_t rgb[3], double a)
+{
+	uint32_t old = *px;
+	double b = 1 - a;
+	uint32_t out = (uint32_t)lround(255 * a + (double)(old >> 24) * b) << 24;
+
+	for (int k = 0; k < 3; k++) {
+		int shift = 16 - 8 * k;
+		out |= (uint32_t)lround(rgb[k] * a + (double)((old >> shift) & 0xff) * b) << shift;
+	}
+	*px = out;
+}
+
+/*
+ * The discs drawn straight into the image's pixels, each pixel covered by
+ * the fraction of it inside the disc (its centre's distance from the
+ * rim, clamped to [0, 1]), clipped to the map's box: what cairo_arc and
+ * cairo_fill draw, without building and filling a path a point. Returns
+ * false when the image or its transformation is not one this handles
+ * (cairo then draws).
+ */
+static bool draw_points_pixels(cairo_t *cr, const struct asph_plot_panel *p,
+			       const struct plot_frame *f,
+			       const struct colour_scale *cs, double radius)
+{
+	cairo_surface_t *s = cairo_get_group_target(cr);
+	cairo_format_t fmt = cairo_image_surface_get_format(s);
+	cairo_matrix_t m;
+	double ox, oy, bx0, by0, bx1, by1;
+
+	cairo_get_matrix(cr, &m);
+	cairo_surface_get_device_offset(s, &ox, &oy);
+	if ((fmt != CAIRO_FORMAT_ARGB32 && fmt != CAIRO_FORMAT_RGB24) || m.xy != 0 ||
+	    m.yx != 0 || m.xx <= 0 || m.xx != m.yy || ox != 0 || oy != 0)
+		return false;
+	cairo_surface_flush(s);
+	unsigned char *data = cairo_image_surface_get_data(s);
+	int w = cairo_image_surface_get_width(s), h = cairo_image_surface_get_height(s);
+	int stride = cairo_image_surface_get_stride(s);
+	double rd = radius * m.xx;
+	uint8_t rgb[3] = { 51, 51, 64 };	/* (0.2, 0.2, 0.25): no values */
+
+	if (!data)
+		return false;
+	bx0 = fmax(m.x0 + f->box.x * m.xx, 0);
+	by0 = fmax(m.y0 + f->box.y * m.yy, 0);
+	bx1 = fmin(m.x0 + (f->box.x + f->box.w) * m.xx, w);
+	by1 = fmin(m.y0 + (f->box.y + f->box.h) * m.yy, h);
+	for (size_t i = 0; i < p->n; i++) {
+		double u, v;
+
+		plot_frame_to_pixel(f, p->xyz[3 * i], p->xyz[3 * i + 1], &u, &v);
+		u = m.x0 + u * m.xx;
+		v = m.y0 + v * m.yy;
+		if (p->value)
+			value_rgb(cs, p->value[i], rgb);
+		/* pixel j covers [j, j + 1): those whose centre is in the box */
+		int j0 = (int)fmax(floor(u - rd - 0.5), ceil(bx0 - 0.5));
+		int j1 = (int)fmin(ceil(u + rd - 0.5), ceil(bx1 - 0.5) - 1);
+		int k0 = (int)fmax(floor(v - rd - 0.5), ceil(by0 - 0.5));
+		int k1 = (int)fmin(ceil(v + rd - 0.5), ceil(by1 - 0.5) - 1);
+		for (int k = k0; k <= k1; k++) {
+			uint32_t *row = (uint32_t *)(void *)(data + (size_t)k * (size_t)stride);
+			for (int j = j0; j <= j1; j++) {
+				double a = rd + 0.5 - hypot(j + 0.5 - u, k + 0.5 - v);
+				if (a > 0)
+					blend_pixel(&row[j], rgb, fmin(a, 1));
+			}
+		}
+	}
+	cairo_surface_mark_dirty(s);
+	return true;
+}
+
 static void draw_points(cairo_t *cr, const struct asph_plot_panel *p,
 			const struct plot_frame *f,
 			const struct colour_scale *cs, double radius)
@@ -384,7 +471,8 @@ static void draw_points(cairo_t *cr, const struct asph_plot_panel *p,
 	 * seconds to write and to open: in a vector document the map is drawn
 	 * once into a picture at print resolution, which goes in its place. */
 	if (cairo_surface_get_type(target) == CAIRO_SURFACE_TYPE_IMAGE) {
-		draw_points_vector(cr, p, f, cs, radius);
+		if (!draw_points_pixels(cr, p, f, cs, radius))
+			draw_points_vector(cr, p, f, cs, radius);
 		return;
 	}
 	cairo_user_to_device_distance(cr, &dw, &dh);
