@@ -286,8 +286,39 @@ static size_t fill_rows(struct rows_src *src, gsl_matrix *m, size_t row)
 }
 
 /*
- * Normal equations, (Z^T W Z) c = Z^T W v, accumulated by blocks (BLAS
- * dsyrk) and solved by Cholesky. The Noll terms are orthonormal over the
+ * g += B^T B on g's lower triangle, B the first `rows` rows of blk: the
+ * sums of the block are formed in t (packed lower triangle) a row at a time,
+ * then added to g. Each element sums its products in the order the
+ * reference BLAS dsyrk does (down the block from zero, then into g), so the
+ * result is the same to the bit; but the rows are read where they lie
+ * instead of striding down every pair of columns, and the inner loop runs
+ * over contiguous memory.
+ */
+static void add_gram_lower(const gsl_matrix *blk, size_t rows, gsl_matrix *g, double *t)
+{
+	size_t p1 = g->size1;
+
+	memset(t, 0, p1 * (p1 + 1) / 2 * sizeof(*t));
+	for (size_t l = 0; l < rows; l++) {
+		const double *r = gsl_matrix_const_ptr(blk, l, 0);
+		double *ti = t;
+		for (size_t i = 0; i < p1; i++) {
+			double ri = r[i];
+			for (size_t j = 0; j <= i; j++)
+				ti[j] += ri * r[j];
+			ti += i + 1;
+		}
+	}
+	for (size_t i = 0; i < p1; i++, t += i) {
+		double *gi = gsl_matrix_ptr(g, i, 0);
+		for (size_t j = 0; j <= i; j++)
+			gi[j] += t[j];
+	}
+}
+
+/*
+ * Normal equations, (Z^T W Z) c = Z^T W v, accumulated by blocks (a
+ * rank-k update, add_gram_lower) and solved by Cholesky. The Noll terms are orthonormal over the
  * disk, so for points spread over it Z^T W Z is close to a multiple of the
  * identity and squaring its condition number costs nothing. Returns 1 when
  * the matrix is not safely conditioned (the caller then uses QR).
@@ -298,14 +329,13 @@ static int solve_normal(struct rows_src *src, double *coef)
 	_cleanup_(gsl_matrix_freep) gsl_matrix *blk = gsl_matrix_alloc(DECOMPOSE_BLOCK, p1);
 	_cleanup_(gsl_matrix_freep) gsl_matrix *g = gsl_matrix_calloc(p1, p1);
 	_cleanup_(gsl_vector_freep) gsl_vector *work = gsl_vector_alloc(3 * p);
+	_cleanup_free_ double *t = malloc(p1 * (p1 + 1) / 2 * sizeof(double));
 	double rcond = 0;
 
-	if (!blk || !g || !work)
+	if (!blk || !g || !work || !t)
 		return -ENOMEM;
-	while ((rows = fill_rows(src, blk, 0)) > 0) {
-		gsl_matrix_view b = gsl_matrix_submatrix(blk, 0, 0, rows, p1);
-		gsl_blas_dsyrk(CblasLower, CblasTrans, 1.0, &b.matrix, 1.0, g);
-	}
+	while ((rows = fill_rows(src, blk, 0)) > 0)
+		add_gram_lower(blk, rows, g, t);
 	gsl_matrix_view a = gsl_matrix_submatrix(g, 0, 0, p, p);
 	gsl_vector_view rhs = gsl_matrix_subrow(g, p, 0, p);   /* lower triangle */
 	gsl_vector_view x = gsl_vector_view_array(coef, p);
