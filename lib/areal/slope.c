@@ -3,6 +3,7 @@
  * tangent, with the propagation of independent noise. */
 #include <errno.h>
 #include <math.h>
+#include <stdbool.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -95,6 +96,7 @@ int asph_slope_compute(const struct asph_scatter *s, double radius,
 	struct slope_sums a = { 0 };
 	long half;
 	uint32_t hint[2][2] = { { 0 } };       /* radial, tangential; each end */
+	uint32_t row_hint[2][2] = { { 0 } };   /* at the first position of a row */
 	int r = check_args(radius, length_mm, spacing, err);
 
 	if (r < 0)
@@ -103,7 +105,12 @@ int asph_slope_compute(const struct asph_scatter *s, double radius,
 	if (!grad)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	half = (long)floor(radius / spacing);
-	for (long j = -half; j <= half; j++)
+	for (long j = -half; j <= half; j++) {
+		/* A row's searches start where the previous row's first found
+		 * its triangles, one spacing away, rather than at the far end
+		 * of the previous row, a diameter away. */
+		bool row_started = false;
+		memcpy(hint, row_hint, sizeof(hint));
 		for (long i = -half; i <= half; i++) {
 			double x = (double)i * spacing, y = (double)j * spacing, rr = hypot(x, y);
 			struct quotient qr, qt;
@@ -111,6 +118,10 @@ int asph_slope_compute(const struct asph_scatter *s, double radius,
 			    quotient_at(s, radius, x, y, x / rr, y / rr, length_mm, hint[0], &qr) < 0 ||
 			    quotient_at(s, radius, x, y, -y / rr, x / rr, length_mm, hint[1], &qt) < 0)
 				continue;
+			if (!row_started) {
+				memcpy(row_hint, hint, sizeof(hint));
+				row_started = true;
+			}
 			double m2 = qr.value * qr.value + qt.value * qt.value;
 			a.r2 += qr.value * qr.value;
 			a.t2 += qt.value * qt.value;
@@ -128,6 +139,7 @@ int asph_slope_compute(const struct asph_scatter *s, double radius,
 			}
 			a.n++;
 		}
+	}
 	if (a.n == 0)
 		return asph_error_set(err, -EDOM,
 				      "no position where both %g mm stencils lie in the measured region",
