@@ -464,7 +464,7 @@ static void draw_points(cairo_t *cr, const struct asph_plot_panel *p,
 			const struct colour_scale *cs, double radius)
 {
 	cairo_surface_t *target = cairo_get_target(cr);
-	double dw = f->box.w, dh = f->box.h;
+	double dw = f->box.w, dh = f->box.h, k;
 	int w, h;
 
 	/* A page of a million discs, each its own path and colour, takes
@@ -475,21 +475,25 @@ static void draw_points(cairo_t *cr, const struct asph_plot_panel *p,
 			draw_points_vector(cr, p, f, cs, radius);
 		return;
 	}
+	/* pixels per unit of the panel, the same across and down (the
+	 * picture may overhang the box by a pixel: the box clips it) */
 	cairo_user_to_device_distance(cr, &dw, &dh);
-	w = (int)fmin(ceil(fabs(dw) * RASTER_PER_UNIT), RASTER_MAX_SIDE);
-	h = (int)fmin(ceil(fabs(dh) * RASTER_PER_UNIT), RASTER_MAX_SIDE);
-	cairo_surface_t *img = cairo_image_surface_create(CAIRO_FORMAT_ARGB32, w > 0 ? w : 1,
-							  h > 0 ? h : 1);
+	k = RASTER_PER_UNIT * fabs(dw) / f->box.w;
+	k = fmin(k, RASTER_MAX_SIDE / fmax(f->box.w, f->box.h));
+	w = (int)fmax(ceil(f->box.w * k), 1);
+	h = (int)fmax(ceil(f->box.h * k), 1);
+	cairo_surface_t *img = cairo_image_surface_create(CAIRO_FORMAT_ARGB32, w, h);
 	cairo_t *ic = cairo_create(img);
 
-	cairo_scale(ic, (double)w / f->box.w, (double)h / f->box.h);
+	cairo_scale(ic, k, k);
 	cairo_translate(ic, -f->box.x, -f->box.y);
-	draw_points_vector(ic, p, f, cs, radius);
+	if (!draw_points_pixels(ic, p, f, cs, radius))
+		draw_points_vector(ic, p, f, cs, radius);
 	cairo_destroy(ic);
 	cairo_surface_flush(img);
 	cairo_save(cr);
 	cairo_translate(cr, f->box.x, f->box.y);
-	cairo_scale(cr, f->box.w / w, f->box.h / h);
+	cairo_scale(cr, 1 / k, 1 / k);
 	cairo_set_source_surface(cr, img, 0, 0);
 	cairo_paint(cr);
 	cairo_restore(cr);
