@@ -204,16 +204,22 @@ static void value_range(const double *v, size_t n,
 	cs->hi = hi;
 }
 
-static void set_value_colour(cairo_t *cr, const struct colour_scale *cs,
-			     double value)
+static void value_rgb(const struct colour_scale *cs, double value, uint8_t rgb[3])
 {
-	uint8_t rgb[3];
 	double t = (value - cs->lo) / (cs->hi - cs->lo);
 
 	if (cs->diverging)
 		colormap_diverging(t, rgb);
 	else
 		colormap_sequential(t, rgb);
+}
+
+static void set_value_colour(cairo_t *cr, const struct colour_scale *cs,
+			     double value)
+{
+	uint8_t rgb[3];
+
+	value_rgb(cs, value, rgb);
 	cairo_set_source_rgb(cr, rgb[0] / 255.0, rgb[1] / 255.0, rgb[2] / 255.0);
 }
 
@@ -364,24 +370,9 @@ static void draw_colour_bar(cairo_t *cr, const struct plot_frame *f,
 	rotated_label(cr, label, r->x + r->w + 8 + widest + 18, r->y + 0.5 * r->h);
 }
 
-/* Raster resolution of a point map in a vector document (a PDF): 300 per
- * inch of the page, which is 72 units. */
-#define RASTER_PER_UNIT (300.0 / 72.0)
-#define RASTER_MAX_SIDE 8000
-
 static void draw_points_vector(cairo_t *cr, const struct asph_plot_panel *p,
 			       const struct plot_frame *f,
 			       const struct colour_scale *cs, double radius);
-
-static void value_rgb(const struct colour_scale *cs, double value, uint8_t rgb[3])
-{
-	double t = (value - cs->lo) / (cs->hi - cs->lo);
-
-	if (cs->diverging)
-		colormap_diverging(t, rgb);
-	else
-		colormap_sequential(t, rgb);
-}
 
 /* One pixel of an image (cairo's premultiplied ARGB32, or RGB24 whose
  * alpha is unused) covered to the fraction a by the colour rgb. */
@@ -459,45 +450,15 @@ static bool draw_points_pixels(cairo_t *cr, const struct asph_plot_panel *p,
 	return true;
 }
 
+/* The discs of a points panel: into an image's pixels when they can be,
+ * else as cairo paths. */
 static void draw_points(cairo_t *cr, const struct asph_plot_panel *p,
 			const struct plot_frame *f,
 			const struct colour_scale *cs, double radius)
 {
-	cairo_surface_t *target = cairo_get_target(cr);
-	double dw = f->box.w, dh = f->box.h, k;
-	int w, h;
-
-	/* A page of a million discs, each its own path and colour, takes
-	 * seconds to write and to open: in a vector document the map is drawn
-	 * once into a picture at print resolution, which goes in its place. */
-	if (cairo_surface_get_type(target) == CAIRO_SURFACE_TYPE_IMAGE) {
-		if (!draw_points_pixels(cr, p, f, cs, radius))
-			draw_points_vector(cr, p, f, cs, radius);
-		return;
-	}
-	/* pixels per unit of the panel, the same across and down (the
-	 * picture may overhang the box by a pixel: the box clips it) */
-	cairo_user_to_device_distance(cr, &dw, &dh);
-	k = RASTER_PER_UNIT * fabs(dw) / f->box.w;
-	k = fmin(k, RASTER_MAX_SIDE / fmax(f->box.w, f->box.h));
-	w = (int)fmax(ceil(f->box.w * k), 1);
-	h = (int)fmax(ceil(f->box.h * k), 1);
-	cairo_surface_t *img = cairo_image_surface_create(CAIRO_FORMAT_ARGB32, w, h);
-	cairo_t *ic = cairo_create(img);
-
-	cairo_scale(ic, k, k);
-	cairo_translate(ic, -f->box.x, -f->box.y);
-	if (!draw_points_pixels(ic, p, f, cs, radius))
-		draw_points_vector(ic, p, f, cs, radius);
-	cairo_destroy(ic);
-	cairo_surface_flush(img);
-	cairo_save(cr);
-	cairo_translate(cr, f->box.x, f->box.y);
-	cairo_scale(cr, 1 / k, 1 / k);
-	cairo_set_source_surface(cr, img, 0, 0);
-	cairo_paint(cr);
-	cairo_restore(cr);
-	cairo_surface_destroy(img);
+	if (cairo_surface_get_type(cairo_get_target(cr)) != CAIRO_SURFACE_TYPE_IMAGE ||
+	    !draw_points_pixels(cr, p, f, cs, radius))
+		draw_points_vector(cr, p, f, cs, radius);
 }
 
 static void draw_points_vector(cairo_t *cr, const struct asph_plot_panel *p,
