@@ -308,10 +308,52 @@ static void test_errors(void **state)
 	assert_int_equal(access(path, F_OK), -1);
 }
 
+/* One point is a disc of 4 pixels' radius (plot_point_radius): its colour
+ * in full inside, nothing 1 pixel beyond its rim, and its pixels' coverage
+ * (how far each went from white to the colour) adds up to the disc's area,
+ * pi r^2, within 1 %. */
+static void test_disc_area(void **state)
+{
+	const double xyz[3] = { 3.25, -1.5, 0 }, value = 7;
+	const double r = 4.0;
+	struct asph_plot_options o = { .width = 400, .height = 360 };
+	struct asph_error err;
+	struct plot_frame f;
+	struct image im;
+	uint8_t got[3], want[3], white[3] = { 255, 255, 255 };
+	char path[128];
+	double u, v, area = 0;
+	int k = 0;
+
+	png_path(path, sizeof(path), "disc.png");
+	assert_int_equal(asph_plot_points_png(path, xyz, &value, 1, &o, &err), 0);
+	load(path, &im);
+	colormap_sequential(0.5, want);
+	single_frame(xyz, 1, NULL, 0, 400, 360, &f);
+	plot_frame_to_pixel(&f, xyz[0], xyz[1], &u, &v);
+	pixel(&im, u, v, got);
+	assert_colour(got, want, 1);
+	pixel(&im, u + r + 1.5, v, got);
+	assert_colour(got, white, 0);
+	pixel(&im, u, v - r - 1.5, got);
+	assert_colour(got, white, 0);
+	for (int c = 1; c < 3; c++)	/* the channel farthest from white */
+		if (want[c] < want[k])
+			k = c;
+	for (int y = (int)floor(v - r - 2); y <= (int)ceil(v + r + 2); y++)
+		for (int x = (int)floor(u - r - 2); x <= (int)ceil(u + r + 2); x++) {
+			pixel(&im, x + 0.5, y + 0.5, got);
+			area += (255.0 - got[k]) / (255.0 - want[k]);
+		}
+	cairo_surface_destroy(im.surface);
+	assert_true(fabs(area - M_PI * r * r) < 0.01 * M_PI * r * r);
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
 		cmocka_unit_test(test_single_value_disk_is_uniform),
+		cmocka_unit_test(test_disc_area),
 		cmocka_unit_test(test_quadrants_and_explicit_range),
 		cmocka_unit_test(test_triangles),
 		cmocka_unit_test(test_two_panels),
