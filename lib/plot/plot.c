@@ -380,11 +380,17 @@ static void blend_pixel(uint32_t *px, const uint8_t rgb[3], double a)
 {
 	uint32_t old = *px;
 	double b = 1 - a;
-	uint32_t out = (uint32_t)lround(255 * a + (double)(old >> 24) * b) << 24;
+	uint32_t out;
 
+	if (a >= 1) {
+		*px = 0xff000000u | (uint32_t)rgb[0] << 16 | (uint32_t)rgb[1] << 8 | rgb[2];
+		return;
+	}
+	/* rounded to nearest: the sums are never negative */
+	out = (uint32_t)(255 * a + (double)(old >> 24) * b + 0.5) << 24;
 	for (int k = 0; k < 3; k++) {
 		int shift = 16 - 8 * k;
-		out |= (uint32_t)lround(rgb[k] * a + (double)((old >> shift) & 0xff) * b) << shift;
+		out |= (uint32_t)(rgb[k] * a + (double)((old >> shift) & 0xff) * b + 0.5) << shift;
 	}
 	*px = out;
 }
@@ -440,7 +446,8 @@ static bool draw_points_pixels(cairo_t *cr, const struct asph_plot_panel *p,
 		for (int k = k0; k <= k1; k++) {
 			uint32_t *row = (uint32_t *)(void *)(data + (size_t)k * (size_t)stride);
 			for (int j = j0; j <= j1; j++) {
-				double a = rd + 0.5 - hypot(j + 0.5 - u, k + 0.5 - v);
+				double du = j + 0.5 - u, dv = k + 0.5 - v;
+				double a = rd + 0.5 - sqrt(du * du + dv * dv);
 				if (a > 0)
 					blend_pixel(&row[j], rgb, fmin(a, 1));
 			}
