@@ -15,6 +15,7 @@
 #include "asph/drift.h"
 #include "asph/prescription.h"
 #include "characterize-internal.h"
+#include "util-hash.h"
 #include "util-mem.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_mc *, asph_mc_free)
@@ -49,6 +50,8 @@ int asph_characterize_alloc(const struct asph_surface *s,
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	c->surface = s;
 	c->opts = *opts;
+	if (opts->run.data)
+		sha256_hex(opts->run.data, opts->run.data_len, c->data_sha256);
 	if (c->opts.outputs & ASPH_CHARACTERIZE_BANDS)
 		c->opts.outputs |= ASPH_CHARACTERIZE_MAP;
 	c->res.surface = s;
@@ -263,8 +266,10 @@ static int keep_header(struct asph_characterization *c, const struct asph_scanfi
 	return 0;
 }
 
-int asph_characterize_scan(struct asph_characterization *c, const struct asph_scanfile *scan,
-			   const char *name, struct asph_error *err)
+/* What the characterization keeps of the scan: its header's descriptions,
+ * the drift-corrected points and the acquisition's account. */
+static int scan_points(struct asph_characterization *c, const struct asph_scanfile *scan,
+		       const char *name, struct asph_error *err)
 {
 	struct asph_drift_summary sum;
 	int r = once(c, err);
@@ -280,7 +285,25 @@ int asph_characterize_scan(struct asph_characterization *c, const struct asph_sc
 	if (asph_drift_report_json(scan, &sum, 1, &c->acquisition) < 0)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	c->res.acquisition_json = c->acquisition;
-	return run(c, err);
+	return 0;
+}
+
+int asph_characterize_scan(struct asph_characterization *c, const struct asph_scanfile *scan,
+			   const char *name, struct asph_error *err)
+{
+	int r = scan_points(c, scan, name, err);
+
+	return r < 0 ? r : run(c, err);
+}
+
+int asph_characterize_scan_take(struct asph_characterization *c, struct asph_scanfile **scan,
+				const char *name, struct asph_error *err)
+{
+	int r = scan_points(c, *scan, name, err);
+
+	asph_scanfile_free(*scan);
+	*scan = NULL;
+	return r < 0 ? r : run(c, err);
 }
 
 static struct asph_points *points_copy(const struct asph_points *p)
