@@ -261,7 +261,7 @@ static struct asph_report report_of(const struct asph_characterization *c, const
 		.data_name = run->data_name, .data = run->data, .data_len = run->data_len,
 		.data_sha256 = run->data ? c->data_sha256 : NULL,
 		.software = run->program, .fit = &c->res.fit, .tolerance = c->opts.fit.tolerance,
-		.xy = c->map_xy, .residual_nm = c->map_nm, .n = c->res.n_map,
+		.xy = c->res.map_xy, .residual_nm = c->res.map_nm, .n = c->res.n_map,
 		.scatter = c->scatter, .radius = asph_surface_aperture_radius(c->surface),
 		.psd = c->psd,
 	};

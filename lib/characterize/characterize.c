@@ -151,8 +151,16 @@ static int residual_map(struct asph_characterization *c, struct asph_error *err)
 			       "area (grid, PSD, correction table, report)");
 		return 0;
 	}
-	r = asph_fit_residual_scatter(c->fit, &c->scatter, &res->map_error);
+	/* the interpolant of the map (asph_fit_residual_scatter()'s points),
+	 * whose copies of the map's arrays stand for ours from then on */
+	r = asph_scatter_alloc(c->map_xy, c->map_nm, res->n_map, NULL, &c->scatter,
+			       &res->map_error);
 	if (r == 0) {
+		free(c->map_xy);
+		free(c->map_nm);
+		c->map_xy = c->map_nm = NULL;
+		res->map_xy = asph_scatter_xy(c->scatter);
+		res->map_nm = asph_scatter_values(c->scatter);
 		res->scatter = c->scatter;
 		res->grid_spacing_mm = grid_spacing(c, radius);
 		r = asph_grid_resample(c->scatter, radius, res->grid_spacing_mm, &c->grid,
@@ -228,6 +236,9 @@ static int run(struct asph_characterization *c, struct asph_error *err)
 	c->res.points = c->points;
 	c->res.fit_workspace = c->fit;
 	r = uncertainty(c, err);
+	/* the Monte Carlo fits on workspaces of its own, and what follows
+	 * reads the fit's residuals and feet only */
+	asph_fit_release_solver(c->fit);
 	if (r == 0)
 		r = map_outputs(c, err);
 	return r;
