@@ -436,6 +436,8 @@ static bool draw_points_pixels(cairo_t *cr, const struct asph_plot_panel *p,
 		plot_frame_to_pixel(f, p->xyz[3 * i], p->xyz[3 * i + 1], &u, &v);
 		u = m.x0 + u * m.xx;
 		v = m.y0 + v * m.yy;
+		if (!isfinite(u) || !isfinite(v))
+			continue;	/* nowhere to draw it */
 		if (p->value)
 			value_rgb(cs, p->value[i], rgb);
 		/* pixel j covers [j, j + 1): those whose centre is in the box */
