@@ -12,13 +12,10 @@
 
 #include "log.h"
 #include "store.h"
+#include "store-schema.h"
 #include "store-sql.h"
 #include "util-mem.h"
 #include "util-time.h"
-
-/* 2: part, lot and serial of jobs, the actor's name in the history, API
- * tokens, instrument locks, the outbox. */
-#define SCHEMA_VERSION 2
 
 struct store {
 	sqlite3 *db;
@@ -31,50 +28,20 @@ struct store {
 
 /*
  * The schema, one version for the file: the store creates every table and
- * upgrades them together (after one backup), and each table's statements
- * are its module's: jobs and history in jobs-store.c, locks in
- * locks-store.c, tokens in tokens.c, outbox in outbox.c; meta here.
+ * upgrades them together, after one backup. Each module's tables are its
+ * own (store-schema.h): jobs and history in jobs-schema.c, tokens in
+ * tokens-schema.c, locks in locks-schema.c, the outbox in outbox-schema.c;
+ * meta, the settings and the version, is the store's.
  */
-static const char schema[] =
-	"CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);"
-	"CREATE TABLE IF NOT EXISTS jobs ("
-	" id INTEGER PRIMARY KEY AUTOINCREMENT,"
-	" state INTEGER NOT NULL, priority INTEGER NOT NULL, seq INTEGER NOT NULL,"
-	" label TEXT, instrument TEXT NOT NULL, uid INTEGER NOT NULL, user TEXT,"
-	" spec TEXT NOT NULL, submitted_ns INTEGER NOT NULL, started_ns INTEGER NOT NULL,"
-	" finished_ns INTEGER NOT NULL, points_done INTEGER NOT NULL,"
-	" points_total INTEGER NOT NULL, reason TEXT, result TEXT, scan_path TEXT,"
-	" resume INTEGER NOT NULL, attempts INTEGER NOT NULL);"
-	"CREATE INDEX IF NOT EXISTS jobs_queue ON jobs (state, instrument, priority DESC, seq);"
-	/* The queue in the order it runs, for listings taken a few jobs at a
-	 * time (store_list()); the states are those of QUEUE_STATES (jobs-store.c). */
-	"CREATE INDEX IF NOT EXISTS jobs_queue_order ON jobs (priority DESC, seq, id)"
-	" WHERE state IN (0,1,2);"
-	"CREATE TABLE IF NOT EXISTS history ("
-	" job INTEGER NOT NULL REFERENCES jobs(id), t_ns INTEGER NOT NULL,"
-	" state INTEGER NOT NULL, reason TEXT, actor_uid INTEGER NOT NULL);"
-	"CREATE INDEX IF NOT EXISTS history_job ON history (job);";
+static const char meta_table[] =
+	"CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);";
 
-/* Schema 2 on top of 1 (a store of schema 1 is upgraded in place): the
- * columns it adds, as table, column. */
-static const char *const schema_2_columns[][2] = {
-	{ "jobs", "part" }, { "jobs", "lot" }, { "jobs", "serial" }, { "history", "actor" },
+/* In the order their tables are made: the order of the tables in the
+ * stores made so far. */
+const struct store_schema *const store_schemas[] = {
+	&jobs_schema, &tokens_schema, &locks_schema, &outbox_schema,
 };
-
-static const char schema_2_tables[] =
-	"CREATE TABLE IF NOT EXISTS tokens ("
-	" name TEXT PRIMARY KEY, role INTEGER NOT NULL, digest BLOB NOT NULL,"
-	" created_ns INTEGER NOT NULL, expires_ns INTEGER NOT NULL,"
-	" revoked_ns INTEGER NOT NULL, created_by TEXT);"
-	"CREATE TABLE IF NOT EXISTS locks ("
-	" instrument TEXT PRIMARY KEY, holder TEXT NOT NULL, holder_uid INTEGER NOT NULL,"
-	" reason TEXT NOT NULL, since_ns INTEGER NOT NULL, pause INTEGER NOT NULL,"
-	" paused_job INTEGER NOT NULL);"
-	"CREATE TABLE IF NOT EXISTS outbox ("
-	" id INTEGER PRIMARY KEY AUTOINCREMENT, sink TEXT NOT NULL, topic TEXT,"
-	" payload TEXT NOT NULL, qos INTEGER NOT NULL, retain INTEGER NOT NULL,"
-	" message_id TEXT NOT NULL, created_ns INTEGER NOT NULL);"
-	"CREATE INDEX IF NOT EXISTS outbox_sink ON outbox (sink, id);";
+const size_t store_n_schemas = ARRAY_SIZE(store_schemas);
 
 static int sql_error(struct store *s, struct asph_error *err, const char *what)
 {
@@ -127,26 +94,68 @@ int store_step_row(sqlite3_stmt *st)
 	return rc == SQLITE_DONE ? -ENOENT : -EIO;
 }
 
-/* The columns of schema 2 that the store lacks, added. */
-static int add_columns(struct store *s)
+/* The module's step to version, NULL when it has none. */
+static const struct store_step *schema_step(const struct store_schema *m, long version)
 {
-	for (size_t i = 0; i < ARRAY_SIZE(schema_2_columns); i++) {
+	for (size_t i = 0; i < m->n_steps; i++)
+		if (m->steps[i].version == version)
+			return &m->steps[i];
+	return NULL;
+}
+
+/* Every table of every version that the store lacks, version by version,
+ * module by module; run on every open. */
+static int create_tables(struct store *s)
+{
+	int r = store_exec(s, meta_table);
+
+	for (long v = 1; r == 0 && v <= STORE_SCHEMA_VERSION; v++)
+		for (size_t i = 0; r == 0 && i < store_n_schemas; i++) {
+			const struct store_step *step = schema_step(store_schemas[i], v);
+
+			if (step && step->tables)
+				r = store_exec(s, step->tables);
+		}
+	return r;
+}
+
+/* The columns of step that the store lacks, added. */
+static int add_columns(struct store *s, const struct store_step *step)
+{
+	for (size_t i = 0; i < step->n_columns; i++) {
+		const struct store_column *c = &step->columns[i];
 		char sql[160];
 		sqlite3_stmt *st;
 		bool have;
 
 		snprintf(sql, sizeof(sql), "SELECT 1 FROM pragma_table_info('%s') WHERE name = '%s'",
-			 schema_2_columns[i][0], schema_2_columns[i][1]);
+			 c->table, c->column);
 		if (sqlite3_prepare_v2(s->db, sql, -1, &st, NULL) != SQLITE_OK)
 			return -EIO;
 		have = sqlite3_step(st) == SQLITE_ROW;
 		sqlite3_finalize(st);
-		snprintf(sql, sizeof(sql), "ALTER TABLE %s ADD COLUMN %s TEXT",
-			 schema_2_columns[i][0], schema_2_columns[i][1]);
+		snprintf(sql, sizeof(sql), "ALTER TABLE %s ADD COLUMN %s TEXT", c->table, c->column);
 		if (!have && store_exec(s, sql) < 0)
 			return -EIO;
 	}
-	return store_exec(s, "CREATE INDEX IF NOT EXISTS jobs_part ON jobs (part)");
+	return 0;
+}
+
+/* Every module's steps after version up to STORE_SCHEMA_VERSION: the
+ * columns they add, then their indexes. */
+static int upgrade_tables(struct store *s, long version)
+{
+	for (long v = version + 1; v <= STORE_SCHEMA_VERSION; v++)
+		for (size_t i = 0; i < store_n_schemas; i++) {
+			const struct store_step *step = schema_step(store_schemas[i], v);
+
+			if (!step)
+				continue;
+			if (add_columns(s, step) < 0 ||
+			    (step->indexes && store_exec(s, step->indexes) < 0))
+				return -EIO;
+		}
+	return 0;
 }
 
 /* The schema version of the store: 0 for a new one (no meta table, or no
@@ -178,10 +187,10 @@ static int read_version(struct store *s, long *version, struct asph_error *err)
 		return asph_error_set(err, -EPROTO,
 				      "the job store's schema version \"%.32s\" is not a number "
 				      "from 1 on: the store is damaged or not asphd's", v);
-	if (*version > SCHEMA_VERSION)
+	if (*version > STORE_SCHEMA_VERSION)
 		return asph_error_set(err, -EPROTO,
 				      "the job store has schema %ld, newer than %d",
-				      *version, SCHEMA_VERSION);
+				      *version, STORE_SCHEMA_VERSION);
 	return 0;
 }
 
@@ -189,18 +198,20 @@ static int read_version(struct store *s, long *version, struct asph_error *err)
  * backup is made before, in store_open()). */
 static int set_version(struct store *s, long version, struct asph_error *err)
 {
-	char buf[16];
+	char buf[16], what[64];
 	int r;
 
-	snprintf(buf, sizeof(buf), "%d", SCHEMA_VERSION);
+	snprintf(buf, sizeof(buf), "%d", STORE_SCHEMA_VERSION);
 	if (version == 0)
-		return add_columns(s) < 0 ? sql_error(s, err, "creating the store")
-					  : store_meta_set(s, "schema", buf);
-	if (version == SCHEMA_VERSION)
+		return upgrade_tables(s, 0) < 0 ? sql_error(s, err, "creating the store")
+						: store_meta_set(s, "schema", buf);
+	if (version == STORE_SCHEMA_VERSION)
 		return 0;
-	if (store_begin(s) < 0 || add_columns(s) < 0 ||
+	if (store_begin(s) < 0 || upgrade_tables(s, version) < 0 ||
 	    store_meta_set(s, "schema", buf) < 0 || store_commit(s) < 0) {
-		r = sql_error(s, err, "upgrading the job store to schema 2");
+		snprintf(what, sizeof(what), "upgrading the job store to schema %d",
+			 STORE_SCHEMA_VERSION);
+		r = sql_error(s, err, what);
 		store_rollback(s);
 		return r;
 	}
@@ -365,9 +376,9 @@ static int backup_before_upgrade(struct store *s, const char *path, long version
 	if (r < 0)
 		return asph_error_set(err, r, "the job store %s has schema %ld; it is upgraded to "
 				      "schema %d only after a backup, which failed: %s", path,
-				      version, SCHEMA_VERSION, why.message);
+				      version, STORE_SCHEMA_VERSION, why.message);
 	log_notice("the job store %s has schema %ld: backed up to %s before its upgrade to "
-		   "schema %d", path, version, dst, SCHEMA_VERSION);
+		   "schema %d", path, version, dst, STORE_SCHEMA_VERSION);
 	return 0;
 }
 
@@ -418,9 +429,9 @@ int store_open(const char *path, struct store **out, struct asph_error *err)
 	}
 	/* An older store is copied as it is before anything of it changes. */
 	r = read_version(s, &version, err);
-	if (r == 0 && version > 0 && version < SCHEMA_VERSION)
+	if (r == 0 && version > 0 && version < STORE_SCHEMA_VERSION)
 		r = backup_before_upgrade(s, path, version, err);
-	if (r == 0 && (store_exec(s, schema) < 0 || store_exec(s, schema_2_tables) < 0))
+	if (r == 0 && create_tables(s) < 0)
 		r = sql_error(s, err, path);
 	if (r == 0)
 		r = set_version(s, version, err);

@@ -2,10 +2,12 @@
 /*
  * The job store: SQLite in WAL mode under the state directory. Jobs, their
  * states and every transition survive a restart. This is the connection:
- * opening, the schema and its upgrades, transactions, settings, the disk's
- * reserve and backups. The tables' queries are their modules' own:
- * jobs-store.h, locks-store.h, tokens.c and outbox.c, through
- * store-sql.h. Used from the event loop thread only (backups: any).
+ * opening, the migration runner (one schema version and one backup for
+ * every table), transactions, settings, the disk's reserve and backups.
+ * The tables are their modules' own: their schemas in jobs-schema.c,
+ * locks-schema.c, tokens-schema.c and outbox-schema.c (store-schema.h),
+ * their queries in jobs-store.h, locks-store.h, tokens.c and outbox.c,
+ * through store-sql.h. Used from the event loop thread only (backups: any).
  */
 #ifndef ASPHD_STORE_H
 #define ASPHD_STORE_H

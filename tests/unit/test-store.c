@@ -18,6 +18,8 @@
 #include "jobs-store.h"
 #include "rmtree.h"
 #include "store.h"
+#include "store-schema.h"
+#include "util-mem.h"
 
 struct fixture {
 	char dir[64];
@@ -187,6 +189,78 @@ static void test_list(void **state)
 	job_record_clear(&j);
 }
 
+/* The number of rows query returns in db, its ?1 and ?2 bound to a and b. */
+static int rows_of(sqlite3 *db, const char *query, const char *a, const char *b)
+{
+	sqlite3_stmt *st = NULL;
+	int n = 0;
+
+	assert_int_equal(sqlite3_prepare_v2(db, query, -1, &st, NULL), SQLITE_OK);
+	sqlite3_bind_text(st, 1, a, -1, SQLITE_STATIC);
+	sqlite3_bind_text(st, 2, b, -1, SQLITE_STATIC);
+	while (sqlite3_step(st) == SQLITE_ROW)
+		n++;
+	sqlite3_finalize(st);
+	return n;
+}
+
+/* What the statements sql create as "CREATE KIND IF NOT EXISTS NAME" is in
+ * the store as an object of that type; their number. */
+static int assert_created(sqlite3 *db, const char *module, const char *sql, const char *kind,
+			  const char *type)
+{
+	char prefix[64], name[64];
+	int n = 0;
+
+	snprintf(prefix, sizeof(prefix), "CREATE %s IF NOT EXISTS ", kind);
+	for (const char *p = sql ? strstr(sql, prefix) : NULL; p; p = strstr(p, prefix), n++) {
+		p += strlen(prefix);
+		snprintf(name, sizeof(name), "%.*s", (int)strcspn(p, " ("), p);
+		if (rows_of(db, "SELECT 1 FROM sqlite_master WHERE type = ?1 AND name = ?2",
+			    type, name) != 1)
+			fail_msg("%s's %s %s is missing", module, type, name);
+	}
+	return n;
+}
+
+/* The modules with tables in the store, listed here again so that one
+ * left out of store.c's list is noticed. */
+static const struct store_schema *const modules[] = {
+	&jobs_schema, &locks_schema, &tokens_schema, &outbox_schema,
+};
+
+/* The store at path holds the tables, indexes and columns of every
+ * module's schema (store-schema.h) and meta, and nothing besides. */
+static void assert_schema_is_modules(const char *path)
+{
+	sqlite3 *db = NULL;
+	int named = 1;          /* meta, the store's own */
+
+	assert_int_equal(sqlite3_open_v2(path, &db, SQLITE_OPEN_READONLY, NULL), SQLITE_OK);
+	assert_int_equal(rows_of(db, "SELECT 1 FROM sqlite_master WHERE type = ?1 AND name = ?2",
+				 "table", "meta"), 1);
+	assert_int_equal(store_n_schemas, ARRAY_SIZE(modules));
+	for (size_t i = 0; i < ARRAY_SIZE(modules); i++)
+		for (size_t k = 0; k < modules[i]->n_steps; k++) {
+			const struct store_step *step = &modules[i]->steps[k];
+
+			/* a step of a later version would never run */
+			assert_in_range(step->version, 1, STORE_SCHEMA_VERSION);
+			named += assert_created(db, modules[i]->module, step->tables, "TABLE", "table");
+			named += assert_created(db, modules[i]->module, step->tables, "INDEX", "index");
+			named += assert_created(db, modules[i]->module, step->indexes, "INDEX", "index");
+			for (size_t c = 0; c < step->n_columns; c++)
+				if (rows_of(db, "SELECT 1 FROM pragma_table_info(?1) WHERE name = ?2",
+					    step->columns[c].table, step->columns[c].column) != 1)
+					fail_msg("%s's column %s.%s is missing", modules[i]->module,
+						 step->columns[c].table, step->columns[c].column);
+		}
+	/* (sqlite_sequence and the automatic indexes are SQLite's) */
+	assert_int_equal(rows_of(db, "SELECT 1 FROM sqlite_master WHERE substr(name, 1, 7) <> ?1",
+				 "sqlite_", NULL), named);
+	sqlite3_close(db);
+}
+
 static void test_meta_and_schema(void **state)
 {
 	struct fixture *f = *state;
@@ -194,6 +268,7 @@ static void test_meta_and_schema(void **state)
 	struct store *s2 = NULL;
 	struct asph_error err;
 
+	assert_schema_is_modules(f->path);
 	assert_int_equal(store_meta_get(f->s, "queue.running", &v), -ENOENT);
 	assert_int_equal(store_meta_set(f->s, "queue.running", "0"), 0);
 	assert_int_equal(store_meta_set(f->s, "queue.running", "1"), 0);
@@ -425,6 +500,7 @@ static void test_backup_before_upgrade(void **state)
 		}
 	closedir(d);
 	assert_int_equal(n, 1);
+	assert_schema_is_modules(path);
 	/* the copy is schema 1's store: no tables of schema 2 */
 	assert_int_equal(rows_in(copy, "jobs"), 1);
 	assert_int_equal(rows_in(copy, "tokens"), -1);
