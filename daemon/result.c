@@ -117,7 +117,6 @@ int result_build(const struct result_source *job, const struct job_plan *jp,
 		.mode = DIRS_FILE_MODE, .scan_file = RUNNER_SCAN_FILE,
 		.software_json = SOFTWARE_JSON, .fit_options_json = jp->fit_json,
 		.tolerance_json = jp->tolerance_json,
-		.plan_for_tolerance_json = job->plan_for_tolerance,
 	};
 	int r = map_scan(job, &m, err);
 

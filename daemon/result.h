@@ -29,9 +29,6 @@ struct result_source {
 	 * once, when it has completed (done == planned). May be NULL. */
 	void (*trials)(void *data, size_t done, size_t planned, bool last);
 	void *trials_data;
-	/* The plan chosen for the job's tolerance and why (tolplan.h), for
-	 * result.json's "plan_for_tolerance"; NULL: none. */
-	const char *plan_for_tolerance;
 };
 
 /*

@@ -16,6 +16,8 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <jansson.h>
+
 #include "asph-engine/executor.h"
 #include "asph-driver/instrument.h"
 #include "asph/plan.h"
@@ -144,12 +146,34 @@ static void done(struct run *run, enum runner_outcome outcome, char *result)
 		asph_error_format(&run->err, rep->reason, sizeof(rep->reason));
 }
 
+/* The plan the scan's header records: with the plan chosen for the job's
+ * tolerance, how it was chosen ("for_tolerance"), so that the result, and
+ * asph replay of the scan, tell it (lib/characterize reads it back). */
+static char *header_plan(const struct run *run)
+{
+	json_t *plan, *choice;
+	char *text;
+
+	if (!run->choice)
+		return strdup(run->jp.plan_json);
+	plan = json_loads(run->jp.plan_json, 0, NULL);
+	choice = json_loads(run->choice, 0, NULL);
+	if (!json_is_object(plan) || !json_is_object(choice) ||
+	    json_object_set_new(plan, "for_tolerance", choice) < 0) {
+		json_decref(plan);
+		return NULL;
+	}
+	text = json_dumps(plan, JSON_COMPACT);
+	json_decref(plan);
+	return text;
+}
+
 static int open_writer(struct run *run, uint64_t *start,
 		       struct asph_scanfile_writer **w)
 {
 	struct runner_job *job = run->job;
 	struct asph_scanfile_writer_options wo = { 0 };
-	_cleanup_free_ char *instrument = NULL;
+	_cleanup_free_ char *instrument = NULL, *plan = NULL;
 	struct asph_scanfile_header_info info;
 	struct stat st;
 	bool exists;
@@ -175,7 +199,10 @@ static int open_writer(struct run *run, uint64_t *start,
 	if (r < 0)
 		return asph_error_set(&run->err, r, "cannot describe the instrument");
 	info.prescription = run->jp.prescription_json;
-	info.plan = run->jp.plan_json;
+	plan = header_plan(run);
+	if (!plan)
+		return asph_error_set(&run->err, -ENOMEM, "out of memory");
+	info.plan = plan;
 	info.instrument = instrument;
 	info.metadata = job->metadata;
 	if (exists && unlinkat(job->dir_fd, RUNNER_SCAN_FILE, 0) < 0)
@@ -343,7 +370,7 @@ static void characterize(struct run *run)
 	struct result_source src = {
 		.job = job->id, .dir_fd = job->dir_fd, .dir = job->result_dir,
 		.metadata = job->metadata, .cancelled = abort_wanted, .cancelled_data = run->r,
-		.trials = on_trials, .trials_data = run, .plan_for_tolerance = run->choice,
+		.trials = on_trials, .trials_data = run,
 	};
 	struct runner_report rep = { .kind = RUNNER_CHARACTERIZING, .job = job->id, .eta_s = -1 };
 	char *result = NULL;

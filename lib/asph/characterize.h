@@ -262,9 +262,6 @@ struct asph_characterize_folder {
 	/* provenance.fit_options (JSON object text); NULL: the options' */
 	const char *fit_options_json;
 	const char *tolerance_json;     /* provenance.tolerance; NULL: none */
-	/* plan_for_tolerance: why the plan was chosen (asphd's plan for a
-	 * tolerance, asph/plan-search.h's JSON); NULL: none */
-	const char *plan_for_tolerance_json;
 	int64_t finished_ns;            /* provenance.finished; 0: now */
 };
 
@@ -273,7 +270,9 @@ struct asph_characterize_folder {
  * into a job's folder (docs/daemon.md): residuals.csv (every point),
  * residual-map.png (with cairo), residual.x3p and psd.csv (with a map),
  * report.pdf (with cairo and a map), and result.json (job, summary,
- * provenance, hashes, files), each created exclusively under a temporary
+ * provenance, hashes, files, and plan_for_tolerance when the scan's
+ * header plan records how it was chosen: its "for_tolerance" member,
+ * which provenance.plan leaves out), each created exclusively under a temporary
  * name in dir_fd and renamed into place. *result_json (may be NULL)
  * receives result.json's text. Needs a characterized scan (-EINVAL).
  */

@@ -120,7 +120,9 @@ int asph_scanfile_outcome_from_name(const char *name,
  */
 struct asph_scanfile_header_info {
 	const char *prescription;  /* asph_prescription_to_json() text */
-	const char *plan;          /* method, density, spacing, points, ... */
+	const char *plan;          /* method, density, spacing, points, ...;
+	                            * asphd adds "for_tolerance" (how a plan
+	                            * for a tolerance was chosen) */
 	const char *instrument;    /* drivers, options, versions */
 	const char *metadata;      /* or NULL */
 };

@@ -23,6 +23,9 @@ struct asph_characterization {
 	/* The descriptions of the scan's header (copies), or of the surface
 	 * for points: what the report and result.json name. */
 	char *prescription_json, *plan_json, *instrument_json, *metadata_json;
+	/* how the plan was chosen, when the header's plan records it
+	 * (asphd's plan for a tolerance: its "for_tolerance" member) */
+	char *plan_choice_json;
 	char *created;                  /* the scan's creation, ISO 8601 */
 	int64_t created_ns, ended_ns;   /* its creation and its end block's */
 	struct asph_characterize_result res;
@@ -31,6 +34,8 @@ struct asph_characterization {
 /* The scan's descriptions (NULL for points without one). */
 const char *characterize_instrument(const struct asph_characterization *c);
 const char *characterize_plan(const struct asph_characterization *c);
+/* Why the plan was chosen (result.json's plan_for_tolerance), or NULL. */
+const char *characterize_plan_choice(const struct asph_characterization *c);
 const char *characterize_metadata(const struct asph_characterization *c);
 /* When the measurement was made and ended (ns since 1970), 0 when not
  * known. */

@@ -202,8 +202,8 @@ int characterize_result_json(const struct asph_characterization *c,
 			   "provenance", provenance(c, f, sha),
 			   "hashes", file_hashes(dir_fd, files, sha),
 			   "files", files);
-	if (result && f->plan_for_tolerance_json)
-		json_object_set_new(result, "plan_for_tolerance", loads(f->plan_for_tolerance_json));
+	if (result && characterize_plan_choice(c))
+		json_object_set_new(result, "plan_for_tolerance", loads(characterize_plan_choice(c)));
 	*out = result ? json_dumps(result, JSON_INDENT(2)) : NULL;
 	json_decref(result);
 	return *out ? 0 : asph_error_set(err, -ENOMEM, "out of memory");

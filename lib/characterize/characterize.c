@@ -70,6 +70,7 @@ void asph_characterize_free(struct asph_characterization *c)
 	free(c->acquisition);
 	free(c->prescription_json);
 	free(c->plan_json);
+	free(c->plan_choice_json);
 	free(c->instrument_json);
 	free(c->metadata_json);
 	free(c->created);
@@ -240,18 +241,38 @@ static int once(struct asph_characterization *c, struct asph_error *err)
 
 /* ------------------------------------------------------------ the inputs */
 
+/* The header's plan, less the record of how it was chosen, which asphd
+ * keeps there ("for_tolerance": asph/plan-search.h's JSON) so that a
+ * replay of the scan tells it as the job's result did. */
+static int keep_plan(struct asph_characterization *c, const char *plan)
+{
+	json_t *p = json_loads(plan, 0, NULL), *choice = json_object_get(p, "for_tolerance");
+
+	if (!json_is_object(choice)) {
+		json_decref(p);
+		c->plan_json = strdup(plan);
+		return c->plan_json ? 0 : -ENOMEM;
+	}
+	c->plan_choice_json = json_dumps(choice, JSON_COMPACT);
+	json_object_del(p, "for_tolerance");
+	c->plan_json = json_dumps(p, JSON_COMPACT);
+	json_decref(p);
+	return c->plan_json && c->plan_choice_json ? 0 : -ENOMEM;
+}
+
 static int keep_header(struct asph_characterization *c, const struct asph_scanfile *s)
 {
 	const struct asph_scanfile_header *h = &s->header;
 
 	c->prescription_json = strdup(h->prescription);
-	c->plan_json = h->plan ? strdup(h->plan) : NULL;
+	if (h->plan && keep_plan(c, h->plan) < 0)
+		return -ENOMEM;
 	c->instrument_json = h->instrument ? strdup(h->instrument) : NULL;
 	c->metadata_json = h->metadata ? strdup(h->metadata) : NULL;
 	c->created = strdup(h->created ? h->created : "");
 	c->created_ns = h->created_ns;
 	c->ended_ns = s->report.ended_ns;
-	if (!c->prescription_json || (h->plan && !c->plan_json) ||
+	if (!c->prescription_json ||
 	    (h->instrument && !c->instrument_json) || (h->metadata && !c->metadata_json) ||
 	    !c->created)
 		return -ENOMEM;
@@ -321,6 +342,11 @@ const char *characterize_instrument(const struct asph_characterization *c)
 const char *characterize_plan(const struct asph_characterization *c)
 {
 	return c->plan_json;
+}
+
+const char *characterize_plan_choice(const struct asph_characterization *c)
+{
+	return c->plan_choice_json;
 }
 
 const char *characterize_metadata(const struct asph_characterization *c)

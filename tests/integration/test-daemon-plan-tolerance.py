@@ -9,6 +9,7 @@ instrument without an "uncertainty" section or a capability outside
 (0, 1] is refused saying where and why; asphctl submit --for-tolerance."""
 import json
 import os
+import subprocess
 import sys
 import time
 
@@ -19,6 +20,7 @@ from protoschema import SchemaSet  # noqa: E402
 ROOT = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(os.path.dirname(__file__), "..", ".."))
 SCHEMAS = SchemaSet(os.path.join(ROOT, "proto", "schema"))
 VALGRIND = os.environ.get("ASPH_UNDER_VALGRIND", "0") not in ("", "0")
+ASPH = os.environ.get("ASPH_BIN", "asph")
 
 MODEL = {"probe_noise_nm": 7.5, "position_noise_um": 0.1, "tip_radius_um": 0.25,
          "drift_residual_nm": 4}
@@ -98,8 +100,19 @@ try:
         expect(json.load(f).get("plan_for_tolerance") == ch,
                "result.json holds it too (its hash in MQTT and the central store holds)")
     prov = r["provenance"]["plan"]
-    expect(prov.get("method") == "ci" and prov.get("points") == 360,
+    expect(prov.get("method") == "ci" and prov.get("points") == 360 and "for_tolerance" not in prov,
            f"and measured it: {prov}")
+    # the scan records how its plan was chosen: asph replay tells it too
+    out = os.path.join(d.top, "replay")
+    p = subprocess.run([ASPH, "replay", os.path.join(r["dir"], r["files"]["scan"]), "--uncertainty",
+                        "--tolerance", json.dumps(TOLERANCE), "--out", out],
+                       capture_output=True, text=True, timeout=600)
+    expect(p.returncode == 0, f"asph replay --out of the job's scan: {p.stderr.strip()[-300:]}")
+    with open(os.path.join(out, "result.json")) as f:
+        replayed = json.load(f)
+    expect(replayed.get("plan_for_tolerance") == ch and
+           replayed["provenance"]["plan"] == r["provenance"]["plan"],
+           "asph replay's result.json holds the same plan_for_tolerance, and the same plan")
     expect("plan for the tolerance: ci, 360 points" in d.log_text() and
            "plan for the tolerance chosen: ci, 360 points, 31.9 s predicted, the largest U/T "
            "0.201 (rms_t_nm)" in d.log_text(),
