@@ -39,7 +39,7 @@ struct instrument_lock {
  * null when l is NULL. */
 json_t *instrument_lock_to_json(const struct instrument_lock *l);
 
-/* What an instrument is doing: written by the job queue (jobs.c). */
+/* What an instrument is doing: written by the job queue (jobs-run.c, jobs-locks.c). */
 struct instrument_activity {
 	int64_t job;            /* running or paused job, 0 if none */
 	bool paused;

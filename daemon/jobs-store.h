@@ -1,7 +1,7 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
  * The jobs' tables in the store (store.h): the jobs, in the queue's order,
- * and the history of every state change. Written by the queue (jobs.c)
+ * and the history of every state change. Written by the queue (jobs*.c)
  * only; the outbox reads the history (store_changes()). Event loop thread.
  */
 #ifndef ASPHD_JOBS_STORE_H

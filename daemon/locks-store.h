@@ -1,7 +1,8 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
  * The operator locks of instruments in the store (store.h), which the
- * queue (jobs.c) takes and gives back, so that a lock outlives a restart.
+ * queue (jobs-locks.c) takes and gives back, so that a lock outlives a
+ * restart.
  * Event loop thread.
  */
 #ifndef ASPHD_LOCKS_STORE_H

@@ -8,6 +8,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <getopt.h>
+#include <malloc.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -1026,6 +1027,12 @@ int main(int argc, char **argv)
 	int c, r, n_errors = 0;
 
 	gsl_set_error_handler_off();
+	/* A job's arrays of points (hundreds of kB to hundreds of MB) get pages
+	 * of their own, returned when freed: glibc would otherwise raise this
+	 * threshold after the first such free and serve the next from the
+	 * heap, which keeps what the characterization has already let go of
+	 * (docs/daemon.md, "Memory"). */
+	mallopt(M_MMAP_THRESHOLD, 256 * 1024);
 	/* Jobs, scans and results are private to the daemon's user and group,
 	 * under systemd (UMask=0027) or not. */
 	umask(0027);

@@ -3,7 +3,7 @@
  * The outbox: what must leave the PC and may not be lost, waiting in the
  * job store until its receiver acknowledged it (docs/fleet.md).
  *
- * Its source is the history of job states, which jobs.c writes in the
+ * Its source is the history of job states, which the queue writes in the
  * transaction of each change: outbox_catch_up() reads the changes after
  * the last one it took and turns each into the messages of each sink (for
  * MQTT the job's state, and the result of a completed job; for the

@@ -128,10 +128,14 @@ int result_build(const struct result_source *job, const struct job_plan *jp,
 	o.run.data_len = m.len;
 	if (r == 0)
 		r = asph_characterize_alloc(jp->surface, &o, &c, err);
+	/* Parsed and hashed (by the characterization's alloc): the file's
+	 * pages leave the daemon's memory (they stay in the page cache). */
+	if (m.data)
+		madvise(m.data, m.len, MADV_DONTNEED);
+	/* what the files need of the scan, the characterization keeps; the
+	 * records go before the fit */
 	if (r == 0)
-		r = asph_characterize_scan(c, scan, path, err);
-	/* what the files need of it, the characterization keeps */
-	asph_scanfile_free(steal_ptr(scan));
+		r = asph_characterize_scan_take(c, &scan, path, err);
 	if (r == 0 && job->cancelled && job->cancelled(job->cancelled_data))
 		r = -ECANCELED;
 	if (r == 0)

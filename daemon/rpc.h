@@ -39,8 +39,8 @@
 struct rpc_session {
 	struct peer peer;               /* the transport fills it */
 	bool authenticated;             /* unix peers at once; TCP after hello */
-	struct access_grant grant;      /* rpc.c's: what a TCP peer proved */
-	/* rpc.c's: whose share of subscriptions and computations it takes:
+	struct access_grant grant;      /* rpc-daemon.c's: what a TCP peer proved */
+	/* rpc's: whose share of subscriptions and computations it takes:
 	 * the peer's key, or once a named token is proved "token NAME" (a
 	 * user's, from whichever address and listener). */
 	char owner[RATELIMIT_KEY_MAX];

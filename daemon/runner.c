@@ -410,6 +410,9 @@ static void run_job(struct runner *r, struct runner_job *job, struct runner_repo
 	rc = measure(&run);
 	asph_instrument_close(run.inst);
 	asph_scanfile_free(run.recovered);
+	/* measured: the characterization reads the points from the scan, and
+	 * the plan's (24 bytes each) need not stay beside it */
+	asph_plan_free(steal_ptr(run.jp.plan));
 	pthread_mutex_lock(&r->lock);
 	stop = r->want_stop;
 	pthread_mutex_unlock(&r->lock);

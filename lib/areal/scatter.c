@@ -114,6 +114,16 @@ size_t asph_scatter_n_points(const struct asph_scatter *s)
 	return s->n;
 }
 
+const double *asph_scatter_xy(const struct asph_scatter *s)
+{
+	return s->xy;
+}
+
+const double *asph_scatter_values(const struct asph_scatter *s)
+{
+	return s->value;
+}
+
 double asph_scatter_median_edge(const struct asph_scatter *s)
 {
 	return s->median_edge;

@@ -44,6 +44,10 @@ int asph_scatter_alloc(const double *xy, const double *value, size_t n,
 void asph_scatter_free(struct asph_scatter *s);
 
 size_t asph_scatter_n_points(const struct asph_scatter *s);
+/* The scatter's copies of xy (x, y pairs) and of the values, in the order
+ * given: a caller may let its own arrays go. */
+const double *asph_scatter_xy(const struct asph_scatter *s);
+const double *asph_scatter_values(const struct asph_scatter *s);
 double asph_scatter_median_edge(const struct asph_scatter *s);
 double asph_scatter_max_edge(const struct asph_scatter *s);
 

@@ -94,7 +94,9 @@ struct asph_characterize_run {
 	 * creation and its end (unknown for points without a scan). */
 	int64_t measured_ns;
 	/* The measured data as read (the scan file, the points file), named
-	 * and hashed in the report and result.json; NULL: not known. */
+	 * and hashed in the report and result.json; NULL: not known. It is
+	 * hashed once, by asph_characterize_alloc(): its bytes are not read
+	 * after that. */
 	const char *data_name;
 	const void *data;
 	size_t data_len;
@@ -143,6 +145,14 @@ void asph_characterize_free(struct asph_characterization *c);
 int asph_characterize_scan(struct asph_characterization *c,
 			   const struct asph_scanfile *scan, const char *name,
 			   struct asph_error *err);
+
+/* As asph_characterize_scan(), but frees *scan (and sets it to NULL), also
+ * on an error, once its points are taken and before the fit: a scan's
+ * records take several times the memory of the points fitted, and the fit
+ * and the map need none of them. */
+int asph_characterize_scan_take(struct asph_characterization *c,
+				struct asph_scanfile **scan, const char *name,
+				struct asph_error *err);
 
 /* Characterizes points (mm, machine frame, copied) as they are. */
 int asph_characterize_points(struct asph_characterization *c,

@@ -258,6 +258,11 @@ int asph_fit_alloc(const struct asph_surface *s, size_t n_max,
 		   const struct asph_fit_options *opts, struct asph_fit **out,
 		   struct asph_error *err);
 void asph_fit_free(struct asph_fit *w);
+/* Frees the solver's workspace (GSL's, about seven doubles a point) once
+ * the result is taken: the residuals, statuses, weights and feet stay. A
+ * later asph_fit_run() makes it again; until then the progress's rms_mm
+ * is 0. */
+void asph_fit_release_solver(struct asph_fit *w);
 
 /*
  * The fit runs GSL's solvers: a program using it turns GSL's abort-on-error

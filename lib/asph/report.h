@@ -45,6 +45,7 @@ struct asph_report {
 	const char *data_name;              /* the measured data, hashed */
 	const void *data;
 	size_t data_len;
+	const char *data_sha256;            /* NULL: hashed from data */
 	const char *software;               /* e.g. "asph 0.1.0" */
 	const struct asph_fit_result *fit;
 	const struct asph_tolerance *tolerance;   /* NULL: none */

@@ -20,6 +20,10 @@ struct asph_characterization {
 	struct asph_psd *psd;
 	double *map_xy, *map_nm;
 	char *acquisition;
+	/* run.data's SHA-256, hashed once when the characterization is made:
+	 * the caller may then let the data's pages go (asphd's mapped scan)
+	 * while the fit runs, and the writers need not touch them again. */
+	char data_sha256[65];
 	/* The descriptions of the scan's header (copies), or of the surface
 	 * for points: what the report and result.json name. */
 	char *prescription_json, *plan_json, *instrument_json, *metadata_json;

@@ -187,15 +187,9 @@ int characterize_result_json(const struct asph_characterization *c,
 			     const struct asph_characterize_folder *f, int dir_fd,
 			     json_t *files, char **out, struct asph_error *err)
 {
-	const struct asph_characterize_run *run = &c->opts.run;
-	struct sha256_ctx h;
+	const char *sha = c->data_sha256;
 	int64_t job = characterize_job(c);
-	char sha[65];
 	json_t *result;
-
-	sha256_init(&h);
-	sha256_update(&h, run->data_len, run->data);
-	sha256_hex_of(&h, sha);
 	result = json_pack("{s:o, s:o, s:o, s:o, s:O}",
 			   "job", job > 0 ? json_integer(job) : json_null(),
 			   "summary", summary(c),

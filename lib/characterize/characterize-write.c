@@ -259,8 +259,9 @@ static struct asph_report report_of(const struct asph_characterization *c, const
 		.lens_json = c->prescription_json, .plan_json = characterize_plan(c),
 		.instrument_json = characterize_instrument(c),
 		.data_name = run->data_name, .data = run->data, .data_len = run->data_len,
+		.data_sha256 = run->data ? c->data_sha256 : NULL,
 		.software = run->program, .fit = &c->res.fit, .tolerance = c->opts.fit.tolerance,
-		.xy = c->map_xy, .residual_nm = c->map_nm, .n = c->res.n_map,
+		.xy = c->res.map_xy, .residual_nm = c->res.map_nm, .n = c->res.n_map,
 		.scatter = c->scatter, .radius = asph_surface_aperture_radius(c->surface),
 		.psd = c->psd,
 	};
@@ -360,6 +361,9 @@ static int folder_residuals(struct folder *d, struct asph_error *err)
 		return r;
 	asph_error_clear(&perr);
 	folder_file(d, "map", "residual-map.png", map_stream, d->all, &perr);
+	/* its last reader: not held beside the report's own copies */
+	asph_points_free(d->all);
+	d->all = NULL;
 	return 0;
 }
 

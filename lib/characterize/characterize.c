@@ -15,6 +15,7 @@
 #include "asph/drift.h"
 #include "asph/prescription.h"
 #include "characterize-internal.h"
+#include "util-hash.h"
 #include "util-mem.h"
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_mc *, asph_mc_free)
@@ -49,6 +50,8 @@ int asph_characterize_alloc(const struct asph_surface *s,
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	c->surface = s;
 	c->opts = *opts;
+	if (opts->run.data)
+		sha256_hex(opts->run.data, opts->run.data_len, c->data_sha256);
 	if (c->opts.outputs & ASPH_CHARACTERIZE_BANDS)
 		c->opts.outputs |= ASPH_CHARACTERIZE_MAP;
 	c->res.surface = s;
@@ -149,8 +152,16 @@ static int residual_map(struct asph_characterization *c, struct asph_error *err)
 			       "area (grid, PSD, correction table, report)");
 		return 0;
 	}
-	r = asph_fit_residual_scatter(c->fit, &c->scatter, &res->map_error);
+	/* the interpolant of the map (asph_fit_residual_scatter()'s points),
+	 * whose copies of the map's arrays stand for ours from then on */
+	r = asph_scatter_alloc(c->map_xy, c->map_nm, res->n_map, NULL, &c->scatter,
+			       &res->map_error);
 	if (r == 0) {
+		free(c->map_xy);
+		free(c->map_nm);
+		c->map_xy = c->map_nm = NULL;
+		res->map_xy = asph_scatter_xy(c->scatter);
+		res->map_nm = asph_scatter_values(c->scatter);
 		res->scatter = c->scatter;
 		res->grid_spacing_mm = grid_spacing(c, radius);
 		r = asph_grid_resample(c->scatter, radius, res->grid_spacing_mm, &c->grid,
@@ -226,6 +237,9 @@ static int run(struct asph_characterization *c, struct asph_error *err)
 	c->res.points = c->points;
 	c->res.fit_workspace = c->fit;
 	r = uncertainty(c, err);
+	/* the Monte Carlo fits on workspaces of its own, and what follows
+	 * reads the fit's residuals and feet only */
+	asph_fit_release_solver(c->fit);
 	if (r == 0)
 		r = map_outputs(c, err);
 	return r;
@@ -284,8 +298,10 @@ static int keep_header(struct asph_characterization *c, const struct asph_scanfi
 	return 0;
 }
 
-int asph_characterize_scan(struct asph_characterization *c, const struct asph_scanfile *scan,
-			   const char *name, struct asph_error *err)
+/* What the characterization keeps of the scan: its header's descriptions,
+ * the drift-corrected points and the acquisition's account. */
+static int scan_points(struct asph_characterization *c, const struct asph_scanfile *scan,
+		       const char *name, struct asph_error *err)
 {
 	struct asph_drift_summary sum;
 	int r = once(c, err);
@@ -301,7 +317,25 @@ int asph_characterize_scan(struct asph_characterization *c, const struct asph_sc
 	if (asph_drift_report_json(scan, &sum, 1, &c->acquisition) < 0)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	c->res.acquisition_json = c->acquisition;
-	return run(c, err);
+	return 0;
+}
+
+int asph_characterize_scan(struct asph_characterization *c, const struct asph_scanfile *scan,
+			   const char *name, struct asph_error *err)
+{
+	int r = scan_points(c, scan, name, err);
+
+	return r < 0 ? r : run(c, err);
+}
+
+int asph_characterize_scan_take(struct asph_characterization *c, struct asph_scanfile **scan,
+				const char *name, struct asph_error *err)
+{
+	int r = scan_points(c, *scan, name, err);
+
+	asph_scanfile_free(*scan);
+	*scan = NULL;
+	return r < 0 ? r : run(c, err);
 }
 
 static struct asph_points *points_copy(const struct asph_points *p)

@@ -57,9 +57,11 @@ double plot_nice_step(double span, int target);
 #include <cairo.h>
 
 /* Draws one map panel into panel (device units) of any cairo surface: the
- * PNG figures and the PDF report share it. The panel must be valid. */
-void plot_draw_panel(cairo_t *cr, const struct asph_plot_panel *p,
-		     const struct plot_rect *panel);
+ * PNG figures and the PDF report share it. The panel must be valid. On a
+ * vector surface the points are painted as an image at 300 dpi. 0, or
+ * -ENOMEM when that image cannot be made. */
+int plot_draw_panel(cairo_t *cr, const struct asph_plot_panel *p,
+		    const struct plot_rect *panel);
 
 /* A cairo write function appending to the FILE * closure. */
 cairo_status_t plot_write_to_file(void *closure, const unsigned char *data,

@@ -384,6 +384,48 @@ static void draw_points(cairo_t *cr, const struct asph_plot_panel *p,
 		cairo_fill(cr);
 }
 
+/* Resolution of the discs on a vector surface. */
+#define POINTS_DPI 300.0
+#define POINTS_MAX_PIXELS 4096
+
+/* The discs on a vector surface (the PDF report): drawn into an image of
+ * the frame's box at POINTS_DPI and that image painted. A vector surface
+ * records every disc until its page ends (about 900 bytes each, 4.5 GB for
+ * five million points) and its file would hold them all; the image's size
+ * does not depend on the number of points. */
+static int draw_points_raster(cairo_t *cr, const struct asph_plot_panel *p,
+			      const struct plot_frame *f,
+			      const struct colour_scale *cs, double radius)
+{
+	double w = f->box.w, h = f->box.h;
+	cairo_surface_t *img;
+	cairo_t *icr;
+	double s;
+	int r;
+
+	cairo_user_to_device_distance(cr, &w, &h);
+	s = fmin(fmax(fabs(w), fabs(h)) * POINTS_DPI / 72, POINTS_MAX_PIXELS) /
+	    fmax(f->box.w, f->box.h);
+	img = cairo_image_surface_create(CAIRO_FORMAT_ARGB32, (int)ceil(f->box.w * s),
+					 (int)ceil(f->box.h * s));
+	icr = cairo_create(img);	/* on an error, an inert context */
+	cairo_scale(icr, s, s);
+	cairo_translate(icr, -f->box.x, -f->box.y);
+	draw_points(icr, p, f, cs, radius);
+	r = cairo_status(icr) == CAIRO_STATUS_SUCCESS ? 0 : -ENOMEM;
+	cairo_destroy(icr);
+	if (r == 0) {
+		cairo_save(cr);
+		cairo_translate(cr, f->box.x, f->box.y);
+		cairo_scale(cr, 1 / s, 1 / s);
+		cairo_set_source_surface(cr, img, 0, 0);
+		cairo_paint(cr);
+		cairo_restore(cr);
+	}
+	cairo_surface_destroy(img);
+	return r;
+}
+
 static void draw_triangles(cairo_t *cr, const struct asph_plot_panel *p,
 			   const struct plot_frame *f,
 			   const struct colour_scale *cs)
@@ -413,12 +455,13 @@ static void draw_triangles(cairo_t *cr, const struct asph_plot_panel *p,
 	}
 }
 
-void plot_draw_panel(cairo_t *cr, const struct asph_plot_panel *p,
-		     const struct plot_rect *panel)
+int plot_draw_panel(cairo_t *cr, const struct asph_plot_panel *p,
+		    const struct plot_rect *panel)
 {
 	struct plot_frame f;
 	struct colour_scale cs;
 	double ext[4];
+	int r = 0;
 	size_t n_values = p->kind == ASPH_PLOT_POINTS ? p->n : p->n_triangles;
 
 	plot_data_extent(p->xyz, p->n, p->kind == ASPH_PLOT_TRIANGLES ? p->triangles : NULL,
@@ -430,7 +473,11 @@ void plot_draw_panel(cairo_t *cr, const struct asph_plot_panel *p,
 	cairo_save(cr);
 	cairo_rectangle(cr, f.box.x, f.box.y, f.box.w, f.box.h);
 	cairo_clip(cr);
-	if (p->kind == ASPH_PLOT_POINTS)
+	if (p->kind == ASPH_PLOT_POINTS &&
+	    cairo_surface_get_type(cairo_get_target(cr)) != CAIRO_SURFACE_TYPE_IMAGE)
+		r = draw_points_raster(cr, p, &f, &cs,
+				       plot_point_radius(&f, ext, p->n, p->opts.point_size));
+	else if (p->kind == ASPH_PLOT_POINTS)
 		draw_points(cr, p, &f, &cs,
 			    plot_point_radius(&f, ext, p->n, p->opts.point_size));
 	else
@@ -439,6 +486,7 @@ void plot_draw_panel(cairo_t *cr, const struct asph_plot_panel *p,
 	draw_axes(cr, &f);
 	if (p->value)
 		draw_colour_bar(cr, &f, &cs, p->opts.colour_label);
+	return r;
 }
 
 cairo_status_t plot_write_to_file(void *closure, const unsigned char *data,
@@ -510,7 +558,9 @@ int asph_plot_panels_png_stream(FILE *f, const char *name,
 	cairo_paint(cr);
 	for (size_t i = 0; i < n_panels; i++) {
 		plot_figure_panel(width, height, n_panels, i, &panel);
-		plot_draw_panel(cr, &panels[i], &panel);
+		r = plot_draw_panel(cr, &panels[i], &panel);
+		if (r < 0)
+			return asph_error_set(err, r, "out of memory");
 	}
 	cairo_surface_flush(surface);
 	return write_png(surface, f, name ? name : "the plot", err);

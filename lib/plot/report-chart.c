@@ -310,9 +310,9 @@ int report_map(cairo_t *cr, const struct report_rect *area, const struct asph_re
 	cairo_save(cr);
 	cairo_translate(cr, area->x, area->y);
 	cairo_scale(cr, MAP_SCALE, MAP_SCALE);
-	plot_draw_panel(cr, &p, &panel);
+	int drawn = plot_draw_panel(cr, &p, &panel);
 	cairo_restore(cr);
-	return 0;
+	return drawn;
 }
 
 int report_profiles(cairo_t *cr, const struct report_rect *area, const struct asph_report *r,

@@ -472,7 +472,10 @@ static void measurement(struct doc *d)
 	}
 	if (r->data) {
 		char hex[65];
-		sha256_hex(r->data, r->data_len, hex);
+		if (r->data_sha256)
+			snprintf(hex, sizeof(hex), "%s", r->data_sha256);
+		else
+			sha256_hex(r->data, r->data_len, hex);
 		if (asprintf(&data, "%s (%zu bytes)", d->data_name, r->data_len) < 0)
 			data = NULL;
 		field(d, "Data", data ? data : d->data_name, hex);

@@ -1,6 +1,6 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
- * The job state machine (daemon/jobs.c) against a job store in a temporary
+ * The job state machine (daemon/jobs*.c) against a job store in a temporary
  * state directory, with real workers measuring through mock instruments
  * and no sockets: every transition, with its record, count, history and
  * event, and every refused transition, which changes nothing.

@@ -1,6 +1,6 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /*
- * The methods (daemon/rpc.c) over sessions without sockets: the errors of
+ * The methods (daemon/rpc*.c) over sessions without sockets: the errors of
  * the job queue come back as the documented protocol codes with their
  * detail, the sessions and their subscriptions are counted once however
  * they end, and every line is counted as a request.

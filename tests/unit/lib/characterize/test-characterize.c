@@ -284,6 +284,46 @@ static void test_scan(void **state)
 	asph_surface_free(s);
 }
 
+/* asph_characterize_scan_take(): the same result as
+ * asph_characterize_scan() with the scan freed before the fit, also when
+ * it refuses; the map held once, by its interpolant. */
+static void test_scan_take(void **state)
+{
+	struct asph_surface *s = strong();
+	struct asph_scanfile *f = drifting_scan(s, 1600);
+	struct asph_scanfile *g = drifting_scan(s, 1600);
+	struct asph_characterize_options o = { .outputs = ASPH_CHARACTERIZE_MAP };
+	struct asph_characterization *c, *t;
+	char *kept, *taken;
+
+	assert_int_equal(asph_characterize_alloc(s, &o, &c, NULL), 0);
+	assert_int_equal(asph_characterize_alloc(s, &o, &t, NULL), 0);
+	assert_int_equal(asph_characterize_scan(c, f, "scan", NULL), 0);
+	assert_int_equal(asph_characterize_scan_take(t, &g, "scan", NULL), 0);
+	assert_null(g);
+	assert_int_equal(asph_characterize_summary_json(c, 0, &kept), 0);
+	assert_int_equal(asph_characterize_summary_json(t, 0, &taken), 0);
+	assert_string_equal(kept, taken);
+	const struct asph_characterize_result *a = asph_characterize_result(c);
+	const struct asph_characterize_result *b = asph_characterize_result(t);
+	assert_non_null(b->scatter);
+	assert_int_equal((int)a->n_map, (int)b->n_map);
+	assert_true(b->map_xy == asph_scatter_xy(b->scatter));
+	assert_true(b->map_nm == asph_scatter_values(b->scatter));
+	assert_memory_equal(a->map_xy, b->map_xy, 2 * a->n_map * sizeof(double));
+	assert_memory_equal(a->map_nm, b->map_nm, a->n_map * sizeof(double));
+	/* a characterization runs once: the scan is freed all the same */
+	g = drifting_scan(s, 100);
+	assert_int_equal(asph_characterize_scan_take(t, &g, "scan", NULL), -EINVAL);
+	assert_null(g);
+	free(kept);
+	free(taken);
+	asph_scanfile_free(f);
+	asph_characterize_free(c);
+	asph_characterize_free(t);
+	asph_surface_free(s);
+}
+
 /* ---------------------------------------------------------- Monte Carlo */
 
 struct mc_call {
@@ -715,6 +755,7 @@ int main(void)
 		cmocka_unit_test(test_points),
 		cmocka_unit_test(test_summary),
 		cmocka_unit_test(test_scan),
+		cmocka_unit_test(test_scan_take),
 		cmocka_unit_test(test_uncertainty),
 		cmocka_unit_test(test_map_error),
 		cmocka_unit_test(test_residual_files),

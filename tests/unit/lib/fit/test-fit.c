@@ -509,6 +509,16 @@ static void test_stepwise(void **state)
 	assert_int_equal(res.iterations, steps);
 	expect_pose(&res, &so.pose, 1e-9, 1e-9);
 	assert_true(asph_fit_residuals(w) && asph_fit_weights(w)[5] == 1.0);
+	/* the solver released, the residuals stay; a run makes it again */
+	double r5 = asph_fit_residuals(w)[5];
+	struct asph_fit_result again;
+	asph_fit_release_solver(w);
+	asph_fit_release_solver(w);
+	assert_true(asph_fit_residuals(w)[5] == r5);
+	asph_fit_get_progress(w, &pr);
+	assert_true(pr.rms_mm == 0);
+	assert_int_equal(asph_fit_run(w, meas, n, &again, NULL), 0);
+	expect_pose(&again, &so.pose, 1e-9, 1e-9);
 	asph_fit_free(w);
 	free(xyz);
 	free(meas);
