@@ -141,7 +141,9 @@ struct asph_mc_options {
 	 * stable when 2 k s_u <= max(decide_precision x decide_U[q],
 	 * |U - decide_U[q]| / 2), s_u the spread of the block standard
 	 * deviations of GUM S1 7.9.4 (the mean is not tested: the decision
-	 * does not depend on it). Quantities without a threshold are not
+	 * does not depend on it). Once one quantity's U is stable beyond its
+	 * threshold the decision is made (the plan fails) and the stop does
+	 * not wait for the others. Quantities without a threshold are not
 	 * tested. NULL: GUM S1 7.9's numerical tolerance from
 	 * significant_digits, on every covered quantity. Copied.
 	 */

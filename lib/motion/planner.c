@@ -897,24 +897,32 @@ static void advance(struct asph_motion_planner *p)
 	build_phases(p);
 	if (p->g_sampled < p->g_emit)
 		p->g_sampled = p->g_emit;
-	size_t repair_node = SIZE_MAX, redo;
+	size_t repair_node = SIZE_MAX, redo, kept = p->g_emit;
 	unsigned repairs = 0;
+	/* a repair goes back a stopping distance: a node given up on is not
+	 * repaired again, else two neighbours each lowering the other's
+	 * limits would take turns with 60 repairs each, a plan of long
+	 * segments for minutes; and the repairs of one window are bounded */
+	size_t budget = 60 * (p->g_vlim - p->g_sampled + 1);
 	while (sampleable(p, p->g_sampled)) {
 		size_t g = p->g_sampled;
 		double acc;
 		sample(p, g, &acc);
-		if (!(g == repair_node && repairs >= 60) && !keeps_limits(p, g, acc, &redo)) {
+		int give_up = (g == repair_node && repairs >= 60) || budget == 0;
+		if (g >= kept && !give_up && !keeps_limits(p, g, acc, &redo)) {
 			repairs = g == repair_node ? repairs + 1 : 1;
 			repair_node = g;
+			budget--;
 			passes(p);
 			build_phases(p);
 			p->g_sampled = redo;
 			continue;
 		}
-		if (g == repair_node && repairs >= 60) {
+		if (g >= kept && give_up) {
 			/* no lower limit helps here: keep what the motion can do */
 			p->unrepaired++;
 			repair_node = SIZE_MAX;
+			kept = budget ? g + 1 : SIZE_MAX;
 		}
 		p->g_sampled++;
 	}

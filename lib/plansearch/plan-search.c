@@ -17,6 +17,12 @@
 
 /* Runs of one method, at most (the bisection needs a handful). */
 #define MAX_EVALS 48
+/* The trials of one run, at most: U to 2.5 % (1 / sqrt(2 M)). A run near
+ * the threshold would otherwise go on to the Monte Carlo's 2000 trials to
+ * settle U to 5 % of the threshold alone; the model pools the runs of a
+ * method, and a floor near the threshold (the tip on a weak lens) would
+ * have each finer run pay them again. */
+#define RUN_MAX_TRIALS 800
 /* Probes of a method's time for the points that take as long as the best
  * plan, at most. */
 #define MAX_TIME_PROBES 6
@@ -451,7 +457,7 @@ static int decision_options(const struct asph_plan_search *ps, struct asph_mc_op
 	mc->decide_precision = ps->o.precision;
 	if (left < mc->n_trials + spare)
 		return 0;
-	size_t most = mc->max_trials ? mc->max_trials : ASPH_MC_DEFAULT_MAX_TRIALS;
+	size_t most = mc->max_trials ? mc->max_trials : RUN_MAX_TRIALS;
 	if (most > left - spare)
 		most = left - spare;
 	if (!mc->fixed && mc->block_size)

@@ -21,13 +21,22 @@ struct ps_eval {
 	size_t n_terms;
 };
 
+/* The floor of U beyond the threshold by at least this factor (less
+ * twice the floor's standard error) ends a method: beyond what the Monte
+ * Carlo's error and a model that is only about right can account for. */
+#define PS_FLOOR_MARGIN 1.1
+
 /*
- * U^2 = a / N + b of quantity q, fitted to the runs evals[] of one method
- * whose N lies within a factor 4 of n, each weighted by its trials
- * (var(U^2) = 2 U^4 / M), a and b >= 0; with one run b = 0. *U_out at n,
- * *root the N where it meets limit (0 when it meets it everywhere,
- * INFINITY when nowhere), *floor_beyond 1 when b is beyond limit^2 by
- * more than twice its standard error. 0, or -EDOM without a run to fit.
+ * U^2 = a / N + b of quantity q, fitted to the runs evals[] of one method,
+ * each weighted by its trials (var(U^2) = 2 U^4 / M), a and b >= 0; with
+ * one run b = 0. *U_out at n and *root, the N where U meets limit (0 when
+ * it meets it everywhere, INFINITY when nowhere), are those of the runs
+ * whose N lies within a factor 4 of n when two or more of them span a
+ * factor 1.5, else of all the method's runs. *floor_beyond is 1 when the
+ * floor b of all the method's runs (spanning a factor 1.5 or more), less
+ * twice its standard error, is beyond (PS_FLOOR_MARGIN limit)^2, and the
+ * finest run's own U fails limit by more than twice its standard error.
+ * 0, or -EDOM without a run to fit.
  */
 int ps_model(const struct ps_eval *evals, size_t n_evals, int q, double n, double limit,
 	     double *U_out, double *root, int *floor_beyond);

@@ -87,8 +87,10 @@ static int block_stats(const double *values, size_t h, size_t block, int q, doub
 	return 1;
 }
 
+/* 1 when quantity q's U is stable (its decision settled), *above then 1
+ * when U is beyond the threshold a decision tests it against. */
 static int quantity_stable(const double *values, size_t n, int q, const struct mc_stop *stop,
-			   double *scratch)
+			   double *scratch, int *above)
 {
 	size_t h = n / stop->block;
 	double *y = scratch, *u = scratch + h, sd;
@@ -102,6 +104,7 @@ static int quantity_stable(const double *values, size_t n, int q, const struct m
 		 * decision asks for, or against U's distance to the threshold */
 		double limit = stop->decide_U[q], U = ASPH_MC_COVERAGE_FACTOR * sd;
 		double room = fmax(stop->precision * limit, fabs(U - limit) / 2);
+		*above = U > limit;
 		return 2 * ASPH_MC_COVERAGE_FACTOR * spread_of_mean(u, h) <= room;
 	}
 	double delta = numerical_tolerance(sd, stop->ndig);
@@ -111,14 +114,20 @@ static int quantity_stable(const double *values, size_t n, int q, const struct m
 int mc_stable(const double *values, size_t n, const int *covered, const struct mc_stop *stop,
 	      double *scratch)
 {
+	int all = 1;
+
 	if (n / stop->block < 2)
 		return 0;
 	for (int q = 0; q < NQ; q++) {
-		int tested = covered[q] && (!stop->decide_U || stop->decide_U[q] > 0);
-		if (tested && !quantity_stable(values, n, q, stop, scratch))
-			return 0;
+		int tested = covered[q] && (!stop->decide_U || stop->decide_U[q] > 0), above = 0;
+		if (!tested)
+			continue;
+		if (!quantity_stable(values, n, q, stop, scratch, &above))
+			all = 0;
+		else if (stop->decide_U && above)
+			return 1;       /* one quantity settled beyond: the plan fails */
 	}
-	return 1;
+	return all;
 }
 
 void mc_summarize(const double *values, size_t n, const int *covered,

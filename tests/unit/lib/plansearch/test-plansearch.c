@@ -8,7 +8,10 @@
  * seed on it gives U/T within 10 % of r; half its points fail the ratio; a
  * tip radius (a floor that no number of points lowers: the whole plane
  * moves along its normal) below the ratio is reported impossible and
- * named; bad options are refused with the field.
+ * named; bad options are refused with the field. The model U^2 = a / N + b
+ * against runs laid exactly on it, and the floor's stop on the plane: a tip
+ * whose floor is beyond the ratio ends the search after two plans; one
+ * below it moves the plan to N* / (1 - (floor / r T)^2), within 10 %.
  */
 #include <errno.h>
 #include <math.h>
@@ -26,6 +29,7 @@
 #include "asph-mc/mc-runner.h"
 #include "asph/plan-search.h"
 #include "asph/prescription.h"
+#include "plansearch-internal.h"
 
 #define SIGMA_NM 25.0
 #define RATIO 0.25
@@ -197,10 +201,104 @@ static void test_impossible(void **state)
 	assert_int_equal(r->dominant, ASPH_PLAN_SEARCH_TIP);
 	assert_true(r->contribution_U[ASPH_PLAN_SEARCH_TIP] >
 		    r->contribution_U[ASPH_PLAN_SEARCH_PROBE]);
-	print_message("impossible: U/T %.3f, tip alone U %.3g mm, %zu characterizations\n",
-		      r->quantity[0].ratio, r->contribution_U[ASPH_PLAN_SEARCH_TIP],
+	print_message("impossible: U/T %.3f, tip alone U %.3g mm, %zu plans, %zu "
+		      "characterizations\n", r->quantity[0].ratio,
+		      r->contribution_U[ASPH_PLAN_SEARCH_TIP], r->evaluations,
 		      r->characterizations);
 	assert_true(r->quantity[0].ratio > RATIO);
+	/* the floor is told by the model from the coarsest plan and one
+	 * finer (its root), not by plans up to the finest */
+	assert_true(r->evaluations <= 3);
+	asph_plan_search_free(ps);
+	asph_surface_free(s);
+}
+
+/* Runs of a synthetic U^2 = a / N + b at the n[] points, m trials each. */
+static void synthetic(struct ps_eval *e, const double *n, size_t count, double a, double b,
+		      size_t m)
+{
+	memset(e, 0, count * sizeof(*e));
+	for (size_t i = 0; i < count; i++) {
+		for (int q = 0; q < NQ; q++)
+			e[i].U[q] = NAN;
+		e[i].n = e[i].request = (size_t)n[i];
+		e[i].trials = m;
+		e[i].computed = 1;
+		e[i].U[ASPH_FIT_TZ] = sqrt(a / n[i] + b);
+	}
+}
+
+/* The model on runs laid exactly on it (800 trials: U to 2.5 %): the root
+ * a / (L^2 - b) to 1e-9; a floor 1.5x the limit stops, one 0.6x the limit
+ * or one run alone does not; nor does a floor the finest run contradicts. */
+static void test_model(void **state)
+{
+	const double L = 1.0, a = 400.0;
+	struct ps_eval e[3];
+	double U, root;
+	int beyond;
+
+	(void)state;
+	/* no floor: b = 0, the root a / L^2 */
+	synthetic(e, (const double[]){ 100, 400, 1600 }, 3, a, 0, 800);
+	assert_int_equal(ps_model(e, 3, ASPH_FIT_TZ, 400, L, &U, &root, &beyond), 0);
+	assert_false(beyond);
+	assert_true(fabs(root - a / (L * L)) <= 1e-9 * a);
+	assert_true(fabs(U - 1.0) <= 1e-9);
+	/* a floor below the limit: the root moves to a / (L^2 - b) */
+	double b = 0.6 * 0.6 * L * L;
+	synthetic(e, (const double[]){ 100, 1600 }, 2, a, b, 800);
+	assert_int_equal(ps_model(e, 2, ASPH_FIT_TZ, 1600, L, &U, &root, &beyond), 0);
+	assert_false(beyond);
+	assert_true(fabs(root - a / (L * L - b)) <= 1e-9 * root);
+	/* a floor 1.5x the limit: two runs 16x apart tell it, a and b
+	 * from the coarser and the finer */
+	b = 1.5 * 1.5 * L * L;
+	synthetic(e, (const double[]){ 100, 1600 }, 2, a, b, 800);
+	assert_int_equal(ps_model(e, 2, ASPH_FIT_TZ, 1600, L, &U, &root, &beyond), 0);
+	assert_true(beyond);
+	assert_true(isinf(root));
+	/* one run cannot tell a floor from 1 / sqrt(N) */
+	assert_int_equal(ps_model(e, 1, ASPH_FIT_TZ, 100, L, &U, &root, &beyond), 0);
+	assert_false(beyond);
+	assert_true(isfinite(root));
+	/* the finest run meets the limit: no floor stops the method */
+	synthetic(e, (const double[]){ 100, 200, 6400 }, 3, a, b, 800);
+	e[2].U[ASPH_FIT_TZ] = 0.9 * L;
+	assert_int_equal(ps_model(e, 3, ASPH_FIT_TZ, 6400, L, &U, &root, &beyond), 0);
+	assert_false(beyond);
+	/* nor a floor within 10 % of the limit (the margin) */
+	b = 1.05 * 1.05 * L * L;
+	synthetic(e, (const double[]){ 100, 1600 }, 2, a, b, 800);
+	assert_int_equal(ps_model(e, 2, ASPH_FIT_TZ, 1600, L, &U, &root, &beyond), 0);
+	assert_false(beyond);
+}
+
+/* A tip floor 0.6 r T below the ratio: U(tz)^2 = 4 sigma^2 / N + (0.6 r T)^2,
+ * the fewest points N* / (1 - 0.36). The search still finds a plan, whose
+ * closed-form U is within 10 % of r T (as the chosen plan holds with
+ * another seed); in N within 25 %: near the floor U falls as N^-0.32, so
+ * the Monte Carlo's few % in U are three times as many in N. */
+static void test_floor_below(void **state)
+{
+	struct asph_surface *s = plane();
+	struct asph_plan_search_options o;
+	struct asph_plan_search *ps;
+	const double n_floor = N_STAR / (1 - 0.6 * 0.6);
+
+	(void)state;
+	options(&o, 0.6 * RATIO * T_TZ_MM * 1e3 / 2);  /* u_tip in um: 2 u_tip = 0.6 r T */
+	const struct asph_plan_search_result *r = search(&ps, s, &o);
+	assert_true(r->found);
+	print_message("floor 0.6 r T: chosen %zu points (N = %.0f), %zu plans, %zu "
+		      "characterizations\n", r->points, n_floor, r->evaluations,
+		      r->characterizations);
+	double U = 2 * sqrt(pow(SIGMA_NM * 1e-6, 2) / (double)r->points +
+			    pow(0.6 * RATIO * T_TZ_MM / 2, 2));
+	print_message("closed-form U/T there %.4f\n", U / T_TZ_MM);
+	assert_true(fabs(U / T_TZ_MM - RATIO) <= 0.10 * RATIO);
+	assert_true(fabs((double)r->points - n_floor) <= 0.25 * n_floor);
+	assert_true(r->quantity[0].ratio <= RATIO);
 	asph_plan_search_free(ps);
 	asph_surface_free(s);
 }
@@ -255,6 +353,8 @@ int main(void)
 		cmocka_unit_test(test_bad_options),
 		cmocka_unit_test(test_closed_form),
 		cmocka_unit_test(test_impossible),
+		cmocka_unit_test(test_model),
+		cmocka_unit_test(test_floor_below),
 	};
 
 	gsl_set_error_handler_off();
