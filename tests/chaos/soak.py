@@ -2,8 +2,8 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """Soak test: asphd measures job after job with the mock instrument at full
 speed while 32 clients poll and 8 listen to every event. After the warm-up
-the daemon's resident memory must show no trend of 1 MB (and no peak 4 MB
-above where it was), its descriptor
+the daemon's resident memory must show no trend of 1 MB (and no peak 16 MB
+above where it was: a job's report picture comes and goes), its descriptor
 count must come back to where it started, and every submitted job must
 complete.
 
@@ -39,6 +39,11 @@ from daemontest import Client, Daemon, expect, finish, free_port, mock_instrumen
 ROOT = os.environ.get("ASPH_SOURCE_ROOT", os.path.join(HERE, "..", ".."))
 PREFIX = "lab/soak"
 QUIET_S = 5
+# What a job may hold for a moment above the daemon's steady memory: the
+# PDF report paints its residual map as one 300 dpi picture (lib/plot,
+# several MB, with cairo's copy of it for the page), made and freed within
+# each job. A leak shows as the trend, which stays under 1 MB.
+PEAK_KB = 16 * 1024
 
 
 def proc_figures(pid):
@@ -352,7 +357,7 @@ def main():
                f"every subscriber received events ({sorted(stats.events.values())})")
         expect(trend < 1024, f"RSS trend after the warm-up under 1 MB ({trend} kB, the last third's "
                f"median against the first's; {base} -> peak {peak}, end {rss_end})")
-        expect(peak - base < 4096, f"RSS peak after the warm-up under 4 MB above its start "
+        expect(peak - base < PEAK_KB, f"RSS peak after the warm-up under {PEAK_KB // 1024} MB above its start "
                f"({peak - base} kB: {base} -> peak {peak}, end {rss_end})")
         expect(fds_after == fds_idle, f"no descriptor leak ({fds_idle} before the clients, {fds_after} after)")
         expect(d.stop() == 0, "clean stop after the soak")
