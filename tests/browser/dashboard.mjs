@@ -201,6 +201,9 @@ try {
   // summary through the quantity table.
   findings.figures = await page.evaluate(() => Object.fromEntries(["#verdict", "#pose tbody", "#tolerances tbody"].map((s) =>
     [s.split(" ")[0].slice(1), [...document.querySelectorAll(`${s} tr`)].map((r) => [...r.cells].map((c) => c.textContent))])));
+  // The picture loads after the table: wait for it to finish loading. A
+  // broken picture completes with no width and fails here.
+  await page.waitForFunction(() => document.querySelector("img.residual-map")?.complete, { timeout: 120000 });
   ok(await page.$eval("img.residual-map", (e) => e.complete && e.naturalWidth > 0), "the residual map is drawn");
   await page.waitForFunction(() => document.querySelectorAll("#result svg.chart").length === 3);
   const bars = await page.$$eval("#result svg.chart", (s) => [s[0].querySelectorAll("rect").length, s[1].querySelector("path").getAttribute("d").split("M").length - 1]);
