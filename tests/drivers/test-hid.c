@@ -868,6 +868,7 @@ struct keyboard {
 	int grabs;                      /* EVIOCGRAB 1 seen */
 	int requests;                   /* output reports (the data request) */
 	const char *on_request;         /* typed when asked */
+	unsigned empty_reads;           /* reads that found nothing queued */
 };
 
 /* Key codes of usage page 7 for a character, with shift when asked. */
@@ -913,6 +914,8 @@ static gboolean kbd_read(UMockdevIoctlBase *h, UMockdevIoctlClient *c, gpointer 
 	if (kb->head != kb->tail) {
 		n = len < 8 ? len : 8;
 		memcpy(buf, kb->queue[kb->head++ % 64], n);
+	} else {
+		kb->empty_reads++;
 	}
 	pthread_mutex_unlock(&kb->lock);
 	umockdev_ioctl_client_complete(c, n ? (glong)n : -1, n ? 0 : EAGAIN);
@@ -1067,15 +1070,25 @@ struct typist {
 	struct keyboard *kb;
 	const char *text;
 	bool keypad;
+	unsigned empty_reads;           /* kb's count when the read was asked */
 };
 
-/* The operator, a moment after the driver started waiting. */
+/* The operator, once the driver is waiting: after it has drained what was
+ * queued before (a read finding nothing), so that the reading is not taken
+ * for a stale one however slowly the driver runs (under valgrind). */
 static void *type_later(void *data)
 {
 	struct typist *t = data;
-	struct timespec ts = { 0, 50000000 };
+	struct timespec ts = { 0, 1000000 };
 
-	nanosleep(&ts, NULL);
+	for (unsigned waited = 0; waited < READ_OK_MS; waited++) {
+		pthread_mutex_lock(&t->kb->lock);
+		bool drained = t->kb->empty_reads != t->empty_reads;
+		pthread_mutex_unlock(&t->kb->lock);
+		if (drained)
+			break;
+		nanosleep(&ts, NULL);
+	}
 	type(t->kb, t->text, t->keypad, false);
 	return NULL;
 }
@@ -1084,8 +1097,12 @@ static int read_typed(struct env *e, struct asph_device *d, struct keyboard *kb,
 		      bool keypad, struct asph_reading *rd, struct asph_error *err)
 {
 	const unsigned timeout_ms = READ_OK_MS;
-	struct typist t = { kb, text, keypad };
+	struct typist t = { kb, text, keypad, 0 };
 	pthread_t th;
+
+	pthread_mutex_lock(&kb->lock);
+	t.empty_reads = kb->empty_reads;
+	pthread_mutex_unlock(&kb->lock);
 
 	assert_int_equal(pthread_create(&th, NULL, type_later, &t), 0);
 	int r = read_once(e, d, rd, timeout_ms, err);
