@@ -158,8 +158,12 @@ static char *header_plan(const struct run *run)
 		return strdup(run->jp.plan_json);
 	plan = json_loads(run->jp.plan_json, 0, NULL);
 	choice = json_loads(run->choice, 0, NULL);
-	if (!json_is_object(plan) || !json_is_object(choice) ||
-	    json_object_set_new(plan, "for_tolerance", choice) < 0) {
+	if (!json_is_object(plan) || !json_is_object(choice)) {
+		json_decref(plan);
+		json_decref(choice);
+		return NULL;
+	}
+	if (json_object_set_new(plan, "for_tolerance", choice) < 0) {	/* takes choice */
 		json_decref(plan);
 		return NULL;
 	}
