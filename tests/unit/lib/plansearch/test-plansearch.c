@@ -230,7 +230,8 @@ static void synthetic(struct ps_eval *e, const double *n, size_t count, double a
 
 /* The model on runs laid exactly on it (800 trials: U to 2.5 %): the root
  * a / (L^2 - b) to 1e-9; a floor 1.5x the limit stops, one 0.6x the limit
- * or one run alone does not; nor does a floor the finest run contradicts. */
+ * or one run alone does not; nor does a floor the finest run contradicts.
+ * Runs 4x apart need the floor beyond by three of its errors, not two. */
 static void test_model(void **state)
 {
 	const double L = 1.0, a = 400.0;
@@ -272,6 +273,19 @@ static void test_model(void **state)
 	synthetic(e, (const double[]){ 100, 1600 }, 2, a, b, 800);
 	assert_int_equal(ps_model(e, 2, ASPH_FIT_TZ, 1600, L, &U, &root, &beyond), 0);
 	assert_false(beyond);
+	/* 100 trials a run: a floor 1.5x the limit is told by runs 16x apart
+	 * (b 2.25 +- 0.34, at twice its error) and not yet by runs 4x apart
+	 * (+- 0.46, at three times); one twice the limit is (4 +- 0.80) */
+	b = 1.5 * 1.5 * L * L;
+	synthetic(e, (const double[]){ 100, 1600 }, 2, 40, b, 100);
+	assert_int_equal(ps_model(e, 2, ASPH_FIT_TZ, 1600, L, &U, &root, &beyond), 0);
+	assert_true(beyond);
+	synthetic(e, (const double[]){ 100, 400 }, 2, 40, b, 100);
+	assert_int_equal(ps_model(e, 2, ASPH_FIT_TZ, 400, L, &U, &root, &beyond), 0);
+	assert_false(beyond);
+	synthetic(e, (const double[]){ 100, 400 }, 2, 40, 4 * L * L, 100);
+	assert_int_equal(ps_model(e, 2, ASPH_FIT_TZ, 400, L, &U, &root, &beyond), 0);
+	assert_true(beyond);
 }
 
 /* A tip floor 0.6 r T below the ratio: U(tz)^2 = 4 sigma^2 / N + (0.6 r T)^2,
