@@ -613,8 +613,9 @@ static size_t clamp_request(double n, size_t lo, size_t hi)
 /* The largest step from the finest failing run while growing: 16, or 4
  * while the method's runs do not yet span PS_MIN_SPAN. One run cannot tell
  * the floor from 1 / sqrt(N) (its root assumes no floor), and two runs 4x
- * apart tell a floor of 1.4 times the threshold or more from 100 trials
- * each (16x apart: 1.3 times), for a quarter of the points per trial. */
+ * apart tell a floor far beyond the threshold (4 times it in 95 % of
+ * searches, 100 trials each) for a quarter of the points per trial; one
+ * nearer it takes a third plan (ps_model's margin). */
 static size_t growth(const struct method_state *st)
 {
 	double lo = INFINITY, hi = 0;
