@@ -91,8 +91,15 @@ static void fit_runs(const struct ps_eval *evals, size_t n_evals, int q, double 
 	solve(&s, f);
 }
 
+/* Run e's U of q less twice its own standard error (U's relative one is
+ * 1 / sqrt(2 M) for M trials). */
+static double run_low(const struct ps_eval *e, int q)
+{
+	return e->U[q] * (1 - 2 / sqrt(2.0 * (double)e->trials));
+}
+
 /* The finest run of q fails limit by more than twice its own standard
- * error (U's relative one is 1 / sqrt(2 M) for M trials). */
+ * error. */
 static int finest_fails(const struct ps_eval *evals, size_t n_evals, int q, double limit)
 {
 	const struct ps_eval *finest = NULL;
@@ -100,7 +107,22 @@ static int finest_fails(const struct ps_eval *evals, size_t n_evals, int q, doub
 	for (size_t i = 0; i < n_evals; i++)
 		if (usable(&evals[i], q) && (!finest || evals[i].n > finest->n))
 			finest = &evals[i];
-	return finest && finest->U[q] * (1 - 2 / sqrt(2.0 * (double)finest->trials)) > limit;
+	return finest && run_low(finest, q) > limit;
+}
+
+/* The model's U at n, or the run at n's own U less twice its error where
+ * that is larger: U falling faster than the a / N + b form (a slope's
+ * maximum as the plan resolves its evaluation length) bends the fit below
+ * a coarse run, which must not pass on a fit its own trials contradict. */
+static double U_at(const struct ps_eval *evals, size_t n_evals, int q, double n,
+		   const struct fit *f)
+{
+	double U = sqrt(f->a / n + f->b);
+
+	for (size_t i = 0; i < n_evals; i++)
+		if (usable(&evals[i], q) && (double)evals[i].n == n)
+			U = fmax(U, run_low(&evals[i], q));
+	return U;
 }
 
 /* The floor's margin in its standard errors on runs spanning span. Runs
@@ -126,7 +148,7 @@ int ps_model(const struct ps_eval *evals, size_t n_evals, int q, double n, doubl
 	fit_runs(evals, n_evals, q, n, WINDOW, &local);
 	/* too few runs near n to tell the floor: the method's runs all */
 	const struct fit *f = local.m >= 2 && local.span >= PS_MIN_SPAN ? &local : &all;
-	*U_out = sqrt(f->a / n + f->b);
+	*U_out = U_at(evals, n_evals, q, n, f);
 	*root = f->b >= L2 ? INFINITY : f->a / (L2 - f->b);
 	*floor_beyond = all.span >= PS_MIN_SPAN &&
 			all.b - floor_margin(all.span) * sqrt(all.var_b) > beyond * beyond &&

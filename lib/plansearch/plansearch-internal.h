@@ -38,7 +38,8 @@ struct ps_eval {
 /*
  * U^2 = a / N + b of quantity q, fitted to the runs evals[] of one method,
  * each weighted by its trials (var(U^2) = 2 U^4 / M), a and b >= 0; with
- * one run b = 0. *U_out at n and *root, the N where U meets limit (0 when
+ * one run b = 0. *U_out at n (never below a run at n's own U less twice
+ * its standard error) and *root, the N where U meets limit (0 when
  * it meets it everywhere, INFINITY when nowhere), are those of the runs
  * whose N lies within a factor 4 of n when two or more of them span a
  * factor 1.5, else of all the method's runs. *floor_beyond is 1 when the

@@ -232,7 +232,8 @@ static void synthetic(struct ps_eval *e, const double *n, size_t count, double a
 /* The model on runs laid exactly on it (800 trials: U to 2.5 %): the root
  * a / (L^2 - b) to 1e-9; a floor 1.5x the limit stops, one 0.6x the limit
  * or one run alone does not; nor does a floor the finest run contradicts.
- * Runs 4x apart need the floor beyond by three of its errors, not two. */
+ * Runs 4x apart need the floor beyond by three of its errors, not two. A
+ * run whose own U the fit contradicts is judged by its own U. */
 static void test_model(void **state)
 {
 	const double L = 1.0, a = 400.0;
@@ -287,6 +288,18 @@ static void test_model(void **state)
 	synthetic(e, (const double[]){ 100, 400 }, 2, 40, 4 * L * L, 100);
 	assert_int_equal(ps_model(e, 2, ASPH_FIT_TZ, 400, L, &U, &root, &beyond), 0);
 	assert_true(beyond);
+	/* U falling faster than 1 / sqrt(N), 0.41 L at 1654 points and 0.10 L
+	 * at 4556 (100 trials each): the fit is a / N alone, weighted to the
+	 * finer run, 0.18 L at 1654; the coarse run's own U less twice its
+	 * error, 0.41 (1 - 2 / sqrt(200)) L, is what it is judged by */
+	synthetic(e, (const double[]){ 1654, 4556 }, 2, 1, 0, 100);
+	e[0].U[ASPH_FIT_TZ] = 0.411 * L;
+	e[1].U[ASPH_FIT_TZ] = 0.100 * L;
+	assert_int_equal(ps_model(e, 2, ASPH_FIT_TZ, 1654, L, &U, &root, &beyond), 0);
+	assert_true(fabs(U - 0.411 * L * (1 - 2 / sqrt(200.0))) <= 1e-12);
+	/* and the finer run, where the fit is above its own U, by the fit */
+	assert_int_equal(ps_model(e, 2, ASPH_FIT_TZ, 4556, L, &U, &root, &beyond), 0);
+	assert_true(U > 0.100 * L);
 }
 
 /* A tip floor 0.6 r T below the ratio: U(tz)^2 = 4 sigma^2 / N + (0.6 r T)^2,
