@@ -9,7 +9,8 @@ does. A CSV that `asph synth` writes and an X3P matrix with invalid nodes
 --json` prints, byte for byte, and the result lists the data's copy, the
 same bytes. A file that does not parse is refused at once with the reader's
 message (format and position); the descriptors a client sends beyond those
-a connection may hold are closed; a submit over TCP is refused."""
+a connection may hold are closed; a submit over TCP is refused; a job
+queued before the daemon restarts still has its data."""
 import ctypes
 import importlib.util
 import json
@@ -149,6 +150,22 @@ def over_tcp(c, port):
            f"job.submit with measured over TCP: refused, naming why: {detail}")
 
 
+def restarted(d, path):
+    """Queued while the queue is stopped, the daemon stopped and started
+    again: the job still has its data, and completes."""
+    d.ctl("queue", "stop", check=0)
+    job = json.loads(d.ctl("--json", "submit", "strong", "--measured", path, check=0)[1])
+    d.stop()
+    d.start()
+    c = Client(d.socket, timeout=120)
+    c.call("events.subscribe", {"events": ["job"]})
+    d.ctl("queue", "start", check=0)
+    state = c.wait_state(job["id"], ("completed", "failed", "cancelled"))
+    expect(state == "completed", f"a job queued before a restart completes with its data: {state} "
+           f"({c.call('job.get', {'id': job['id']}).get('reason')})")
+    c.close()
+
+
 def main():
     port = free_port()
     d = Daemon(instruments=[mock_instrument()], extra={"tcp_listen": f"127.0.0.1:{port}"})
@@ -172,6 +189,8 @@ def main():
         refused(d, tmp)
         many_fds(d, csv)
         over_tcp(c, port)
+        c.close()
+        restarted(d, csv)
     finally:
         d.stop()
         d.cleanup()
