@@ -397,8 +397,10 @@ static int spec_measured(json_t *params, json_t *spec, struct proto_why *why)
 		return PROTO_INVALID_PARAMS;
 	}
 	if (units && asph_points_unit_parse(units, &mm) < 0) {
+		char list[128];
+		asph_points_unit_names(list, sizeof(list));
 		snprintf(why->text, sizeof(why->text), "\"measured.units\": unknown unit \"%s\" "
-			 "(nm, um, mm, cm, m, in)", units);
+			 "(%s)", units, list);
 		return PROTO_INVALID_PARAMS;
 	}
 	return json_object_set_new(spec, "measured", json_pack("{s:s, s:s?}", "format",

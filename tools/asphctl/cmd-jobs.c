@@ -218,7 +218,7 @@ void cmd_submit_values(FILE *out)
 			    "instead of measuring (asphctl opens it and passes it to the "
 			    "daemon, which must run on this machine)");
 	command_help_option(out, "--format F", NAMES_POINTS_FORMATS);
-	command_help_option(out, "--units U", "nm, um, mm, cm, m, in");
+	command_help_option(out, "--units U", NAMES_POINTS_UNITS);
 }
 
 /* --measured FILE: the file opened here, passed to the daemon as
