@@ -73,6 +73,9 @@ def characterized(d, c, lens, path, dof, name):
     expect(prov["plan"] is None and "scan" not in prov and prov["measured"]["points"]
            == got["progress"]["total"] > 0 and res["hashes"][res["files"]["measured"]]
            == prov["measured"]["sha256"], f"{name}: the provenance names the data, no plan")
+    _, out, _ = d.ctl("result", job["id"])
+    expect(f"Measured data {res['files']['measured']}, sha256 {prov['measured']['sha256']}" in out,
+           f"{name}: asphctl result names the data and its hash")
     with open(os.path.join(res["dir"], "result.json")) as f:
         text = f.read()
     r = asph("fit", lens, path, "--json", "--dof", dof)

@@ -934,7 +934,12 @@ static void print_summary(const json_t *res)
 	printf("job %lld:\n", (long long)json_integer_value(json_object_get(res, "job")));
 	fit_summary_print(stdout, s, "  ");
 	fit_summary_print_acquisition(stdout, json_object_get(s, "acquisition"), "  ");
-	printf("  Scan sha256 %s\n", str(json_object_get(prov, "scan"), "sha256"));
+	if (json_is_object(json_object_get(prov, "measured")))
+		printf("  Measured data %s, sha256 %s\n",
+		       str(json_object_get(prov, "measured"), "file"),
+		       str(json_object_get(prov, "measured"), "sha256"));
+	else
+		printf("  Scan sha256 %s\n", str(json_object_get(prov, "scan"), "sha256"));
 	printf("  Files in %s\n", str(res, "dir"));
 }
 
