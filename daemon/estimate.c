@@ -5,9 +5,11 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "asph/points.h"
+#include "fileio.h"
 
 #include "estimate.h"
 #include "jobplan.h"
@@ -41,69 +43,43 @@ void estimate_set_measured(struct estimate *e, int measured_fd, int data_fd,
 	e->max_measured_bytes = max_bytes;
 }
 
-/* The client's data, at most max bytes (one more tells it is longer):
- * 0, or a protocol error code with why. */
+/* The client's data, at most max_measured_bytes: a regular file, whose
+ * reading ends (a pipe the client holds open would hold the thread). 0,
+ * or a protocol error code with why. */
 static int measured_slurp(struct estimate *e, char **data, size_t *len)
 {
-	size_t cap = 0, n = 0;
-	char *buf = NULL;
+	struct asph_error err;
+	struct stat st;
 
-	for (;;) {
-		ssize_t k;
-
-		if (n == cap) {
-			size_t want = cap ? cap * 2 : 65536;
-			char *grown;
-			if (want > e->max_measured_bytes + 1)
-				want = e->max_measured_bytes + 1;
-			grown = want > cap ? realloc(buf, want) : NULL;
-			if (!grown) {
-				free(buf);
-				if (want > cap)
-					return PROTO_INTERNAL_ERROR;
-				proto_why_set(&e->why, "\"measured\": the data is larger than "
-					      "limits.max_measured_bytes (%" PRIu64 " bytes)",
-					      e->max_measured_bytes);
-				return PROTO_LIMIT_REACHED;
-			}
-			buf = grown;
-			cap = want;
-		}
-		k = read(e->measured_fd, buf + n, cap - n);
-		if (k < 0 && errno == EINTR)
-			continue;
-		if (k < 0) {
-			int saved = errno;
-			free(buf);
-			proto_why_set(&e->why, "\"measured\": cannot read the descriptor passed: %s",
-				      strerror(saved));
-			return PROTO_INVALID_PARAMS;
-		}
-		if (k == 0)
-			break;
-		n += (size_t)k;
+	if (fstat(e->measured_fd, &st) < 0 || !S_ISREG(st.st_mode)) {
+		proto_why_set(&e->why, "\"measured\": the descriptor passed is not a regular "
+			      "file");
+		return PROTO_INVALID_PARAMS;
 	}
-	*data = buf;
-	*len = n;
-	return 0;
+	asph_error_clear(&err);
+	if ((uint64_t)st.st_size <= e->max_measured_bytes &&
+	    fd_read_all(e->measured_fd, e->max_measured_bytes, "measured data", data, len,
+			&err) == 0)
+		return 0;
+	if ((uint64_t)st.st_size > e->max_measured_bytes || err.code == -EFBIG) {
+		proto_why_set(&e->why, "\"measured\": the data is larger than "
+			      "limits.max_measured_bytes (%" PRIu64 " bytes)", e->max_measured_bytes);
+		return PROTO_LIMIT_REACHED;
+	}
+	proto_why_set(&e->why, "\"measured\": %s", err.message);
+	return err.code == -ENOMEM ? PROTO_INTERNAL_ERROR : PROTO_INVALID_PARAMS;
 }
 
 /* len bytes into the unnamed file, on disk before the job is queued. */
 static int measured_keep(struct estimate *e, const char *data, size_t len)
 {
-	size_t off = 0;
+	int r = fd_write_all(e->data_fd, data, len);
 
-	while (off < len) {
-		ssize_t k = write(e->data_fd, data + off, len - off);
-		if (k < 0 && errno == EINTR)
-			continue;
-		if (k < 0)
-			break;
-		off += (size_t)k;
-	}
-	if (off < len || fsync(e->data_fd) < 0) {
+	if (r == 0 && fsync(e->data_fd) < 0)
+		r = -errno;
+	if (r < 0) {
 		proto_why_set(&e->why, "\"measured\": cannot keep the data in the state "
-			      "directory: %s", strerror(errno));
+			      "directory: %s", strerror(-r));
 		return PROTO_INTERNAL_ERROR;
 	}
 	return 0;

@@ -8,8 +8,9 @@ does. A CSV that `asph synth` writes and an X3P matrix with invalid nodes
 (test-cli-measured's, written from ISO 25178-72) give the summary `asph fit
 --json` prints, byte for byte, and the result lists the data's copy, the
 same bytes. A file that does not parse is refused at once with the reader's
-message (format and position); the descriptors a client sends beyond those
-a connection may hold are closed; a submit over TCP is refused; a job
+message (format and position), as are a pipe and a file past
+limits.max_measured_bytes; the descriptors a client sends beyond those a
+connection may hold are closed; a submit over TCP is refused; a job
 queued before the daemon restarts still has its data."""
 import ctypes
 import importlib.util
@@ -27,6 +28,7 @@ from protoschema import SchemaSet  # noqa: E402
 
 ASPH = os.environ.get("ASPH_BIN", "asph")
 HERE = os.path.dirname(os.path.abspath(__file__))
+LIMIT = 1 << 20         # limits.max_measured_bytes: the files here are smaller
 SCHEMAS = SchemaSet(os.path.join(HERE, "..", "..", "proto", "schema"))
 
 
@@ -100,22 +102,18 @@ def refused(d, tmp):
     expect(code == 0 and json.loads(out)["total"] == 2, "nothing was queued for the bad files")
 
 
-def many_fds(d, path):
-    """A client that sends 64 descriptors with one line: those past what a
-    connection holds are closed, the connection goes on and a request
-    names one of those held."""
-    before = len(os.listdir(f"/proc/{d.proc.pid}/fd"))
-    fds = [os.open(path, os.O_RDONLY) for _ in range(64)]
+def estimate_with(d, fds, index):
+    """job.estimate of measured data, the descriptors fds sent with its line
+    and the one at index named: the answer."""
     s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    s.settimeout(120)
     s.connect(d.socket)
     req = {"jsonrpc": "2.0", "id": 1, "method": "job.estimate",
-           "params": {"lens": "strong", "measured": {"fd": 3, "format": "auto", "units": "mm"}}}
+           "params": {"lens": "strong", "measured": {"fd": index, "format": "auto", "units": "mm"}}}
     conforms(req["params"], "job.submit.json#/$defs/params", "job.estimate's params")
     s.sendmsg([json.dumps(req).encode() + b"\n"],
               [(socket.SOL_SOCKET, socket.SCM_RIGHTS, bytes(memoryview(
                   (len(fds) * ctypes.c_int)(*fds)).cast("B")))])
-    for fd in fds:
-        os.close(fd)
     buf = b""
     while b"\n" not in buf:
         chunk = s.recv(65536)
@@ -123,7 +121,18 @@ def many_fds(d, path):
             break
         buf += chunk
     s.close()
-    answer = json.loads(buf.split(b"\n")[0]) if buf else {}
+    return json.loads(buf.split(b"\n")[0]) if buf else {}
+
+
+def many_fds(d, path):
+    """A client that sends 64 descriptors with one line: those past what a
+    connection holds are closed, the connection goes on and a request
+    names one of those held."""
+    before = len(os.listdir(f"/proc/{d.proc.pid}/fd"))
+    fds = [os.open(path, os.O_RDONLY) for _ in range(64)]
+    answer = estimate_with(d, fds, 3)
+    for fd in fds:
+        os.close(fd)
     expect(answer.get("result", {}).get("points", 0) > 0,
            f"64 descriptors at once: the fourth held is read, the rest closed: {answer}")
     deadline = time.time() + 30
@@ -132,6 +141,26 @@ def many_fds(d, path):
     own = len(os.listdir(f"/proc/{d.proc.pid}/fd"))
     expect(own <= before, f"the daemon holds none of them once the client has gone "
            f"({own} descriptors open, {before} before)")
+
+
+def not_files(d, tmp):
+    """A pipe whose writer stays open would hold a thread: only a regular
+    file is read. A file past limits.max_measured_bytes: 104, naming it."""
+    r, w = os.pipe()
+    answer = estimate_with(d, [r], 0)
+    os.close(r)
+    os.close(w)
+    detail = json.dumps(answer.get("error", {}))
+    expect("not a regular file" in detail, f"a pipe is refused: {detail}")
+    big = os.path.join(tmp, "big.csv")
+    with open(big, "wb") as f:
+        f.truncate(LIMIT + 1)
+    fd = os.open(big, os.O_RDONLY)
+    answer = estimate_with(d, [fd], 0)
+    os.close(fd)
+    error = answer.get("error", {})
+    expect(error.get("code") == 104 and "max_measured_bytes" in json.dumps(error),
+           f"a file past the limit: 104, naming it: {error}")
 
 
 def over_tcp(c, port):
@@ -171,7 +200,8 @@ def restarted(d, path):
 
 def main():
     port = free_port()
-    d = Daemon(instruments=[mock_instrument()], extra={"tcp_listen": f"127.0.0.1:{port}"})
+    d = Daemon(instruments=[mock_instrument()], extra={"tcp_listen": f"127.0.0.1:{port}",
+                                                       "limits": {"max_measured_bytes": LIMIT}})
     tmp = tempfile.mkdtemp(prefix="asph-measured-", dir=d.top)
     try:
         d.start()
@@ -191,6 +221,7 @@ def main():
         characterized(d, c, lens, x3p, "tz,rx,ry", "X3P")
         refused(d, tmp)
         many_fds(d, csv)
+        not_files(d, tmp)
         over_tcp(c, port)
         c.close()
         restarted(d, csv)
