@@ -368,7 +368,8 @@ static int spec_tolerance(json_t *params, json_t *spec, struct proto_why *why)
 
 /* "measured" in place of "plan": the descriptor's index (the transport
  * holds it), the format and the unit of unitless text columns, checked
- * here; the data itself is read by the caller (estimate.c). */
+ * here (into spec, unless NULL); the data itself is read by the caller
+ * (estimate.c). */
 static int spec_measured(json_t *params, json_t *spec, struct proto_why *why)
 {
 	static const char *const names[] = { "fd", "format", "units", NULL };
@@ -403,9 +404,16 @@ static int spec_measured(json_t *params, json_t *spec, struct proto_why *why)
 			 "(%s)", units, list);
 		return PROTO_INVALID_PARAMS;
 	}
+	if (!spec)
+		return 0;
 	return json_object_set_new(spec, "measured", json_pack("{s:s, s:s?}", "format",
 				   format ? format : "auto", "units", units)) < 0
 		? PROTO_INTERNAL_ERROR : 0;
+}
+
+int jobspec_check_measured(json_t *params, struct proto_why *why)
+{
+	return spec_measured(params, NULL, why);
 }
 
 bool jobspec_measured(const json_t *spec)

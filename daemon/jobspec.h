@@ -47,6 +47,11 @@ int jobspec_from_params(json_t *params, const struct jobspec_limits *lim, json_t
 /* The highest descriptor index a request may name ("measured.fd"). */
 #define JOBSPEC_MAX_FD 3
 
+/* The checks of job.submit's "measured" alone (as jobspec_from_params()
+ * makes them), for the loop before it takes the descriptor: 0 or
+ * PROTO_INVALID_PARAMS with why. */
+int jobspec_check_measured(json_t *params, struct proto_why *why);
+
 /* Whether spec is of measured data ("measured", no plan). */
 bool jobspec_measured(const json_t *spec);
 

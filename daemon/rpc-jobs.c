@@ -161,20 +161,20 @@ _Static_assert(JOBSPEC_MAX_FD + 1 == RPC_SESSION_MAX_FDS,
 	       "a request may name every descriptor a session holds");
 
 /*
- * "measured": the descriptor the request names, taken from those its
- * connection passed, and for job.submit the file it is copied into. 0,
- * or the refusal (a TCP peer cannot pass one). A bad index is left to
- * the spec's check (jobspec.c), which names it.
+ * "measured": checked (cheap: names and types), then the descriptor the
+ * request names, taken from those its connection passed, and for
+ * job.submit the file it is copied into. 0, or the refusal (a TCP peer
+ * cannot pass one).
  */
 static int take_measured(struct call *c, json_t *params, bool submit, struct estimate *e)
 {
-	json_t *m = json_object_get(params, "measured");
-	json_t *fd = json_object_get(m, "fd");
+	json_t *fd = json_object_get(json_object_get(params, "measured"), "fd");
 	int in, data = -1;
 
-	if (!json_is_object(m) || json_object_get(params, "plan") || !json_is_integer(fd) ||
-	    json_integer_value(fd) < 0 || json_integer_value(fd) > JOBSPEC_MAX_FD)
+	if (!json_object_get(params, "measured"))
 		return 0;
+	if (jobspec_check_measured(params, &c->why))
+		return PROTO_INVALID_PARAMS;
 	if (c->s->peer.tcp)
 		return rpc_fail(c, PROTO_INVALID_PARAMS, "\"measured\" passes the data as a file "
 				"descriptor on the daemon's unix socket: not over TCP or the web "
