@@ -62,6 +62,24 @@ static int mark_kept(struct asph_scatter *s, const struct asph_scatter_options *
 	return 0;
 }
 
+static int check_values(const double *value, size_t n, struct asph_error *err)
+{
+	for (size_t i = 0; i < n; i++)
+		if (!isfinite(value[i]))
+			return asph_error_set(err, -EINVAL, "point %zu: value is not finite", i);
+	return 0;
+}
+
+int asph_scatter_set_values(struct asph_scatter *s, const double *value,
+			    struct asph_error *err)
+{
+	int r = check_values(value, s->n, err);
+
+	if (r == 0)
+		memcpy(s->value, value, s->n * sizeof(double));
+	return r;
+}
+
 int asph_scatter_alloc(const double *xy, const double *value, size_t n,
 		       const struct asph_scatter_options *opts,
 		       struct asph_scatter **out, struct asph_error *err)
@@ -76,9 +94,9 @@ int asph_scatter_alloc(const double *xy, const double *value, size_t n,
 	if (!isfinite(o.max_edge_mm) || o.max_edge_mm < 0 || !isfinite(o.max_edge_factor) ||
 	    o.max_edge_factor < 0)
 		return asph_error_set(err, -EINVAL, "the longest edge must be a positive number");
-	for (size_t i = 0; i < n; i++)
-		if (!isfinite(value[i]))
-			return asph_error_set(err, -EINVAL, "point %zu: value is not finite", i);
+	r = check_values(value, n, err);
+	if (r < 0)
+		return r;
 	d = asph_delaunay_alloc(n);
 	s = calloc(1, sizeof(*s));
 	if (!d || !s) {
