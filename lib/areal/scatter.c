@@ -62,8 +62,9 @@ static int mark_kept(struct asph_scatter *s, const struct asph_scatter_options *
 	return 0;
 }
 
-/* Bits of the Morton code: cells of 2^MORTON_BITS x 2^MORTON_BITS. */
-#define MORTON_BITS 10
+/* Bits of a cell's x or y: at most 1024 x 1024 cells, about two triangles
+ * in each. */
+#define MORTON_MAX_BITS 10
 
 /* x (below 2^16) with a zero bit after each of its bits. */
 static uint32_t spread_bits(uint32_t x)
@@ -77,15 +78,15 @@ static uint32_t spread_bits(uint32_t x)
 
 /* The cell of triangle t's centroid along a Z-order curve. */
 static uint32_t morton_cell(const struct asph_scatter *s, size_t t, const double lo[2],
-			    const double scale[2])
+			    const double scale[2], int bits)
 {
-	uint32_t c[2];
+	uint32_t c[2], top = ((uint32_t)1 << bits) - 1;
 
 	for (int d = 0; d < 2; d++) {
 		double x = (s->xy[2 * s->tri[3 * t] + d] + s->xy[2 * s->tri[3 * t + 1] + d] +
 			    s->xy[2 * s->tri[3 * t + 2] + d]) / 3;
 		double f = (x - lo[d]) * scale[d];
-		c[d] = f <= 0 ? 0 : f >= (1 << MORTON_BITS) - 1 ? (1 << MORTON_BITS) - 1 : (uint32_t)f;
+		c[d] = f <= 0 ? 0 : f >= top ? top : (uint32_t)f;
 	}
 	return spread_bits(c[0]) | (spread_bits(c[1]) << 1);
 }
@@ -98,7 +99,11 @@ static uint32_t morton_cell(const struct asph_scatter *s, size_t t, const double
  * stay its neighbours: a search visits the same triangles. */
 static int order_triangles(struct asph_scatter *s, struct asph_error *err)
 {
-	size_t nc = (size_t)1 << (2 * MORTON_BITS);
+	int bits = 1;
+
+	while (bits < MORTON_MAX_BITS && ((size_t)2 << (2 * bits)) < s->n_tri)
+		bits++;
+	size_t nc = (size_t)1 << (2 * bits);
 	_cleanup_free_ uint32_t *start = calloc(nc + 1, sizeof(uint32_t));
 	_cleanup_free_ uint32_t *to = malloc(s->n_tri * sizeof(uint32_t) + 1);
 	uint32_t *tri = malloc(3 * s->n_tri * sizeof(uint32_t) + 1);
@@ -116,9 +121,9 @@ static int order_triangles(struct asph_scatter *s, struct asph_error *err)
 			hi[d] = fmax(hi[d], s->xy[2 * i + d]);
 		}
 	for (int d = 0; d < 2; d++)
-		scale[d] = hi[d] > lo[d] ? (1 << MORTON_BITS) / (hi[d] - lo[d]) : 0;
+		scale[d] = hi[d] > lo[d] ? (double)((size_t)1 << bits) / (hi[d] - lo[d]) : 0;
 	for (size_t t = 0; t < s->n_tri; t++) {
-		to[t] = morton_cell(s, t, lo, scale);
+		to[t] = morton_cell(s, t, lo, scale, bits);
 		start[to[t] + 1]++;
 	}
 	for (size_t c = 0; c < nc; c++)
