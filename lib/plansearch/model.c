@@ -11,9 +11,6 @@
  * a / N + b form is exact for the noise and the floor alone; between them
  * U may bend otherwise). */
 #define WINDOW 4.0
-/* The runs of a model that can tell a from b span at least this factor
- * in N. */
-#define MIN_SPAN 1.5
 
 struct sums {
 	double sw, sx, sy, sxx, sxy;
@@ -106,6 +103,17 @@ static int finest_fails(const struct ps_eval *evals, size_t n_evals, int q, doub
 	return finest && finest->U[q] * (1 - 2 / sqrt(2.0 * (double)finest->trials)) > limit;
 }
 
+/* The floor's margin in its standard errors on runs spanning span. Runs
+ * close together tell the floor from runs far beyond the threshold for
+ * their span: a U that still falls as 1 / sqrt(N) is taken for a floor at
+ * twice the error in about 1.3 % of methods whose root is 100x the
+ * coarsest plan with runs 4x apart (100 trials each), 0.1 % 16x apart;
+ * at three times, under 0.05 % 4x apart. */
+static double floor_margin(double span)
+{
+	return span >= PS_WIDE_SPAN ? 2 : 3;
+}
+
 int ps_model(const struct ps_eval *evals, size_t n_evals, int q, double n, double limit,
 	     double *U_out, double *root, int *floor_beyond)
 {
@@ -117,11 +125,11 @@ int ps_model(const struct ps_eval *evals, size_t n_evals, int q, double n, doubl
 		return -EDOM;
 	fit_runs(evals, n_evals, q, n, WINDOW, &local);
 	/* too few runs near n to tell the floor: the method's runs all */
-	const struct fit *f = local.m >= 2 && local.span >= MIN_SPAN ? &local : &all;
+	const struct fit *f = local.m >= 2 && local.span >= PS_MIN_SPAN ? &local : &all;
 	*U_out = sqrt(f->a / n + f->b);
 	*root = f->b >= L2 ? INFINITY : f->a / (L2 - f->b);
-	*floor_beyond = all.span >= MIN_SPAN &&
-			all.b - 2 * sqrt(all.var_b) > beyond * beyond &&
+	*floor_beyond = all.span >= PS_MIN_SPAN &&
+			all.b - floor_margin(all.span) * sqrt(all.var_b) > beyond * beyond &&
 			finest_fails(evals, n_evals, q, limit);
 	return 0;
 }

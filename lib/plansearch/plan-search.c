@@ -610,6 +610,23 @@ static size_t clamp_request(double n, size_t lo, size_t hi)
 	return (size_t)ceil(n);
 }
 
+/* The largest step from the finest failing run while growing: 16, or 4
+ * while the method's runs do not yet span PS_MIN_SPAN. One run cannot tell
+ * the floor from 1 / sqrt(N) (its root assumes no floor), and two runs 4x
+ * apart tell a floor far beyond the threshold (4 times it in 95 % of
+ * searches, 100 trials each) for a quarter of the points per trial; one
+ * nearer it takes a third plan (ps_model's margin). */
+static size_t growth(const struct method_state *st)
+{
+	double lo = INFINITY, hi = 0;
+
+	for (size_t i = 0; i < st->n_evals; i++) {
+		lo = fmin(lo, (double)st->evals[i].n);
+		hi = fmax(hi, (double)st->evals[i].n);
+	}
+	return hi >= PS_MIN_SPAN * lo ? 16 : 4;
+}
+
 /*
  * The next request of method m, or 0 when its search is over (*outcome
  * then says how). lo and hi are the bracket's runs (-1: none).
@@ -649,7 +666,7 @@ static size_t next_request(const struct asph_plan_search *ps, const struct metho
 		 * that costs 16 times as much per trial */
 		if (!isfinite(root))
 			root = 4.0 * (double)L->n;
-		size_t n = clamp_request(root, 2 * L->request, 16 * L->request);
+		size_t n = clamp_request(root, 2 * L->request, growth(st) * L->request);
 		return n > top ? top : n;
 	}
 	judge(ps, st, H, &v);

@@ -21,6 +21,15 @@ struct ps_eval {
 	size_t n_terms;
 };
 
+/* The runs of a model that can tell a from b span at least this factor
+ * in N. */
+#define PS_MIN_SPAN 1.5
+
+/* Runs spanning this factor in N tell the floor at twice its standard
+ * error; runs closer together at three times (the floor's stop). A step
+ * of 16 gives it, its points within a few % of the request. */
+#define PS_WIDE_SPAN 12.0
+
 /* The floor of U beyond the threshold by at least this factor (less
  * twice the floor's standard error) ends a method: beyond what the Monte
  * Carlo's error and a model that is only about right can account for. */
@@ -34,8 +43,9 @@ struct ps_eval {
  * whose N lies within a factor 4 of n when two or more of them span a
  * factor 1.5, else of all the method's runs. *floor_beyond is 1 when the
  * floor b of all the method's runs (spanning a factor 1.5 or more), less
- * twice its standard error, is beyond (PS_FLOOR_MARGIN limit)^2, and the
- * finest run's own U fails limit by more than twice its standard error.
+ * twice its standard error (three times while they span less than
+ * PS_WIDE_SPAN), is beyond (PS_FLOOR_MARGIN limit)^2, and the finest run's
+ * own U fails limit by more than twice its standard error.
  * 0, or -EDOM without a run to fit.
  */
 int ps_model(const struct ps_eval *evals, size_t n_evals, int q, double n, double limit,

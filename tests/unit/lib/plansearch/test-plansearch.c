@@ -10,7 +10,7 @@
  * moves along its normal) below the ratio is reported impossible and
  * named; bad options are refused with the field. The model U^2 = a / N + b
  * against runs laid exactly on it, and the floor's stop on the plane: a tip
- * whose floor is beyond the ratio ends the search after two plans; one
+ * whose floor is beyond the ratio ends the search after three plans; one
  * below it moves the plan to N* / (1 - (floor / r T)^2), within 10 %.
  */
 #include <errno.h>
@@ -206,8 +206,9 @@ static void test_impossible(void **state)
 		      r->contribution_U[ASPH_PLAN_SEARCH_TIP], r->evaluations,
 		      r->characterizations);
 	assert_true(r->quantity[0].ratio > RATIO);
-	/* the floor is told by the model from the coarsest plan and one
-	 * finer (its root), not by plans up to the finest */
+	/* the floor is told by the model from the coarsest plan and one or
+	 * two finer (a floor twice the threshold), not by plans up to the
+	 * finest */
 	assert_true(r->evaluations <= 3);
 	asph_plan_search_free(ps);
 	asph_surface_free(s);
@@ -230,7 +231,8 @@ static void synthetic(struct ps_eval *e, const double *n, size_t count, double a
 
 /* The model on runs laid exactly on it (800 trials: U to 2.5 %): the root
  * a / (L^2 - b) to 1e-9; a floor 1.5x the limit stops, one 0.6x the limit
- * or one run alone does not; nor does a floor the finest run contradicts. */
+ * or one run alone does not; nor does a floor the finest run contradicts.
+ * Runs 4x apart need the floor beyond by three of its errors, not two. */
 static void test_model(void **state)
 {
 	const double L = 1.0, a = 400.0;
@@ -272,6 +274,19 @@ static void test_model(void **state)
 	synthetic(e, (const double[]){ 100, 1600 }, 2, a, b, 800);
 	assert_int_equal(ps_model(e, 2, ASPH_FIT_TZ, 1600, L, &U, &root, &beyond), 0);
 	assert_false(beyond);
+	/* 100 trials a run: a floor 1.5x the limit is told by runs 16x apart
+	 * (b 2.25 +- 0.34, at twice its error) and not yet by runs 4x apart
+	 * (+- 0.46, at three times); one twice the limit is (4 +- 0.80) */
+	b = 1.5 * 1.5 * L * L;
+	synthetic(e, (const double[]){ 100, 1600 }, 2, 40, b, 100);
+	assert_int_equal(ps_model(e, 2, ASPH_FIT_TZ, 1600, L, &U, &root, &beyond), 0);
+	assert_true(beyond);
+	synthetic(e, (const double[]){ 100, 400 }, 2, 40, b, 100);
+	assert_int_equal(ps_model(e, 2, ASPH_FIT_TZ, 400, L, &U, &root, &beyond), 0);
+	assert_false(beyond);
+	synthetic(e, (const double[]){ 100, 400 }, 2, 40, 4 * L * L, 100);
+	assert_int_equal(ps_model(e, 2, ASPH_FIT_TZ, 400, L, &U, &root, &beyond), 0);
+	assert_true(beyond);
 }
 
 /* A tip floor 0.6 r T below the ratio: U(tz)^2 = 4 sigma^2 / N + (0.6 r T)^2,
