@@ -95,8 +95,8 @@ static void test_points(void **state)
 	double radius = asph_surface_aperture_radius(s);
 	struct asph_fit *w;
 	struct asph_fit_result fr;
-	struct asph_scatter *sc;
-	struct asph_grid *g;
+	struct asph_scatter *sc, *sc2;
+	struct asph_grid *g, *g2;
 	struct asph_psd *psd;
 	struct asph_psd2 *p2;
 	struct asph_band_rms bands;
@@ -134,6 +134,19 @@ static void test_points(void **state)
 		    res->bands.mid == bands.mid && res->bands.high == bands.high &&
 		    res->bands.total == bands.total);
 	assert_int_equal((int)res->n_map, (int)fr.n_used);
+	/* the first call handed on the slope's triangulation with the map's
+	 * values; a second one triangulates the map anew, to the same
+	 * interpolant */
+	assert_int_equal(asph_fit_residual_scatter(w, &sc2, NULL), 0);
+	assert_true(sc2 != sc && asph_scatter_n_points(sc2) == asph_scatter_n_points(sc));
+	assert_memory_equal(asph_scatter_xy(sc2), asph_scatter_xy(sc),
+			    2 * fr.n_used * sizeof(double));
+	assert_memory_equal(asph_scatter_values(sc2), asph_scatter_values(sc),
+			    fr.n_used * sizeof(double));
+	assert_int_equal(asph_grid_resample(sc2, radius, dx, &g2, NULL), 0);
+	assert_memory_equal(g2->z, g->z, g->nx * g->ny * sizeof(double));
+	asph_grid_free(g2);
+	asph_scatter_free(sc2);
 	assert_null(res->acquisition_json);
 	assert_false(res->mc_done);
 
