@@ -1,7 +1,15 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 /* The check and estimate of a job, on a task's thread (estimate.h). */
 #include <errno.h>
+#include <inttypes.h>
+#include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "asph/points.h"
+#include "fileio.h"
 
 #include "estimate.h"
 #include "jobplan.h"
@@ -15,6 +23,7 @@ int estimate_new(json_t *params, const struct jobspec_limits *limits,
 
 	if (!e)
 		return -ENOMEM;
+	e->measured_fd = e->data_fd = -1;
 	e->limits = *limits;
 	e->search = search;
 	e->params = json_deep_copy(params);
@@ -24,6 +33,97 @@ int estimate_new(json_t *params, const struct jobspec_limits *limits,
 	}
 	*out = e;
 	return 0;
+}
+
+void estimate_set_measured(struct estimate *e, int measured_fd, int data_fd,
+			   uint64_t max_bytes)
+{
+	e->measured_fd = measured_fd;
+	e->data_fd = data_fd;
+	e->max_measured_bytes = max_bytes;
+}
+
+/* The client's data, at most max_measured_bytes: a regular file, whose
+ * reading ends (a pipe the client holds open would hold the thread). 0,
+ * or a protocol error code with why. */
+static int measured_slurp(struct estimate *e, char **data, size_t *len)
+{
+	struct asph_error err;
+	struct stat st;
+
+	if (fstat(e->measured_fd, &st) < 0 || !S_ISREG(st.st_mode)) {
+		proto_why_set(&e->why, "\"measured\": the descriptor passed is not a regular "
+			      "file");
+		return PROTO_INVALID_PARAMS;
+	}
+	asph_error_clear(&err);
+	if ((uint64_t)st.st_size <= e->max_measured_bytes &&
+	    fd_read_all(e->measured_fd, e->max_measured_bytes, "measured data", data, len,
+			&err) == 0)
+		return 0;
+	if ((uint64_t)st.st_size > e->max_measured_bytes || err.code == -EFBIG) {
+		proto_why_set(&e->why, "\"measured\": the data is larger than "
+			      "limits.max_measured_bytes (%" PRIu64 " bytes)", e->max_measured_bytes);
+		return PROTO_LIMIT_REACHED;
+	}
+	proto_why_set(&e->why, "\"measured\": %s", err.message);
+	return err.code == -ENOMEM ? PROTO_INTERNAL_ERROR : PROTO_INVALID_PARAMS;
+}
+
+/* len bytes into the unnamed file, on disk before the job is queued. */
+static int measured_keep(struct estimate *e, const char *data, size_t len)
+{
+	int r = fd_write_all(e->data_fd, data, len);
+
+	if (r == 0 && fsync(e->data_fd) < 0)
+		r = -errno;
+	if (r < 0) {
+		proto_why_set(&e->why, "\"measured\": cannot keep the data in the state "
+			      "directory: %s", strerror(-r));
+		return PROTO_INTERNAL_ERROR;
+	}
+	return 0;
+}
+
+/* The measured data read, as the job will read it (its format then
+ * fixed in the spec, with the file's name), and kept: the answer to a
+ * file that does not parse is the reader's message. */
+static int measured_read(struct estimate *e)
+{
+	json_t *m = json_object_get(e->spec, "measured");
+	struct asph_points_read_options o = { 0 };
+	struct asph_points_read_info info;
+	struct asph_points *pts = NULL;
+	const char *units = json_string_value(json_object_get(m, "units"));
+	const char *format;
+	_cleanup_free_ char *data = NULL;
+	struct asph_error err;
+	size_t len;
+	int code = measured_slurp(e, &data, &len);
+
+	if (code)
+		return code;
+	asph_points_format_parse(json_string_value(json_object_get(m, "format")), &o.format);
+	if (units)
+		asph_points_unit_parse(units, &o.unit_mm);
+	asph_error_clear(&err);
+	if (asph_points_read_memory_as(data, len, "measured data", &o, &pts, &info, &err) < 0) {
+		char text[sizeof(e->why.text)];
+		asph_error_format(&err, text, sizeof(text));
+		proto_why_set(&e->why, "\"measured\": %s", text);
+		return err.code == -ENOMEM ? PROTO_INTERNAL_ERROR : PROTO_INVALID_PARAMS;
+	}
+	e->points = pts->n;
+	asph_points_free(pts);
+	format = asph_points_format_name(info.format);
+	/* the extension the lab's tools know the file by */
+	snprintf(e->data_name, sizeof(e->data_name), "measured.%s",
+		 info.format == ASPH_POINTS_TEXT ? "txt" :
+		 info.format == ASPH_POINTS_METROPRO ? "dat" : format);
+	if (json_object_set_new(m, "format", json_string(format)) < 0 ||
+	    json_object_set_new(m, "file", json_string(e->data_name)) < 0)
+		return PROTO_INTERNAL_ERROR;
+	return e->data_fd >= 0 ? measured_keep(e, data, len) : 0;   /* job.estimate: none */
 }
 
 static bool cancelled(void *task)
@@ -76,6 +176,12 @@ int estimate_run(void *data, const struct task *task)
 	struct asph_error err;
 
 	e->code = jobspec_from_params(e->params, &e->limits, &e->spec, &e->points, &e->why);
+	if (!e->code && jobspec_measured(e->spec)) {
+		/* no plan, nothing to time: what there is to check is the data */
+		if (e->measured_fd >= 0 && !task_cancelled(task))
+			e->code = measured_read(e);
+		return 0;
+	}
 	if (e->code || !e->instrument || task_cancelled(task))
 		return 0;
 	if (jobspec_for_tolerance(e->spec)) {
@@ -104,5 +210,9 @@ void estimate_free(void *data)
 	json_decref(e->spec);
 	json_decref(e->choice);
 	asph_config_free(e->instrument);
+	if (e->measured_fd >= 0)
+		close(e->measured_fd);
+	if (e->data_fd >= 0)
+		close(e->data_fd);
 	free(e);
 }

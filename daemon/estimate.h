@@ -26,11 +26,18 @@ struct estimate {
 	struct jobspec_limits limits;
 	struct asph_config *instrument; /* a copy, or NULL: no time wanted */
 	bool search;                    /* choose a plan for the tolerance */
+	/* A job of measured data ("measured"): the client's descriptor it is
+	 * read from (at most max_measured_bytes), and the unnamed file of the
+	 * state directory it is copied into (jobs.h, data_fd); both owned,
+	 * -1 otherwise. */
+	int measured_fd, data_fd;
+	uint64_t max_measured_bytes;
 	/* what was found */
 	int code;                       /* 0, or the protocol's error code */
 	struct proto_why why;
 	json_t *spec;                   /* the job's specification */
-	uint64_t points;
+	uint64_t points;                /* the plan's, or the measured data's */
+	char data_name[32];             /* the measured data's file in the job's folder */
 	bool timed;                     /* the instrument can predict: seconds */
 	double seconds;
 	/* job.estimate of a plan for the tolerance (tolplan.h): the plan
@@ -43,6 +50,10 @@ struct estimate {
  * (copied; NULL: none wanted). 0 or -ENOMEM. */
 int estimate_new(json_t *params, const struct jobspec_limits *limits,
 		 const struct asph_instrument_config *ic, bool search, struct estimate **out);
+/* Loop: e reads its measured data from measured_fd into data_fd, each
+ * taken (closed with e). */
+void estimate_set_measured(struct estimate *e, int measured_fd, int data_fd,
+			   uint64_t max_bytes);
 /* A task's run(): worker thread. Always 0 (what it found is in e). */
 int estimate_run(void *e, const struct task *task);
 /* A task's free(): loop. */

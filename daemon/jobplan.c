@@ -28,14 +28,16 @@ static int plan_tolerance(json_t *tol, struct job_plan *jp, struct asph_error *e
 	return 0;
 }
 
-/* Everything of spec but its plan: the lens, its surface, the fit. */
+/* Everything of spec but its plan (or its measured data): the lens, its
+ * surface, the fit. */
 static int build_part(json_t *spec, struct job_plan *jp, struct asph_error *err)
 {
 	json_t *lens = json_object_get(spec, "lens"), *fit = json_object_get(spec, "fit");
 	_cleanup_free_ char *text = NULL;
 	int r;
 
-	if (!lens || !json_object_get(spec, "plan") || !fit)
+	if (!lens || (!json_object_get(spec, "plan") && !json_object_get(spec, "measured")) ||
+	    !fit)
 		return asph_error_set(err, -EINVAL, "the stored job specification is damaged");
 	text = json_dumps(json_object_get(lens, "prescription"), JSON_COMPACT);
 	if (!text)

@@ -221,8 +221,8 @@ json_t *jobs_job_to_json(const struct jobs *jobs, const struct job_record *j)
 				     "phase", "trials");
 	}
 
-	return json_pack("{s:I, s:s, s:s?, s:s, s:I, s:{s:I, s:s?}, s:O?, s:O?, s:O?, s:O?, s:s?,"
-			 " s:o, s:o, s:o, s:o, s:s?, s:I, s:b, s:s?, s:s?, s:s?}",
+	return json_pack("{s:I, s:s, s:s?, s:s, s:I, s:{s:I, s:s?}, s:O?, s:O, s:O*, s:O?, s:O?,"
+			 " s:s?, s:o, s:o, s:o, s:o, s:s?, s:I, s:b, s:s?, s:s?, s:s?}",
 		"id", (json_int_t)j->id,
 		"state", job_state_name(j->state),
 		"label", j->label,
@@ -230,7 +230,9 @@ json_t *jobs_job_to_json(const struct jobs *jobs, const struct job_record *j)
 		"priority", (json_int_t)j->priority,
 		"submitter", "uid", (json_int_t)j->uid, "name", j->user,
 		"lens", json_object_get(lens, "name"),
-		"plan", json_object_get(spec, "plan"),
+		/* a job of measured data has none, and says what it measured */
+		"plan", json_object_get(spec, "plan") ? json_object_get(spec, "plan") : json_null(),
+		"measured", json_object_get(spec, "measured"),
 		"fit", json_object_get(spec, "fit"),
 		"tolerance", json_object_get(spec, "tolerance"),
 		"verdict", jobs_verdict(j, verdict),

@@ -6,6 +6,7 @@
  * way the calls go.
  */
 #include <errno.h>
+#include <fcntl.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -157,6 +158,49 @@ int jobs_check_submit(const struct jobs *jobs, const char *instrument, struct as
 	return 0;
 }
 
+int jobs_open_data(const struct jobs *jobs)
+{
+	int fd = openat(jobs->state_fd, ".", O_TMPFILE | O_WRONLY | O_CLOEXEC, DIRS_FILE_MODE);
+
+	return fd < 0 ? -errno : fd;
+}
+
+/* The measured data's file given its name in the folder of job id, which
+ * it creates: 0 or -errno (a name taken already is refused). */
+static int keep_data(struct jobs *jobs, int64_t id, const struct job_submission *sub,
+		     struct asph_error *err)
+{
+	_cleanup_close_ int dir = dirs_open_job(jobs->state_fd, id, true);
+	char self[64];
+
+	if (dir < 0)
+		return asph_error_set(err, dir, "cannot create the job's folder: %s",
+				      strerror(-dir));
+	/* linkat(AT_EMPTY_PATH) would need CAP_DAC_READ_SEARCH: the file
+	 * is named through /proc instead, as open(2) describes */
+	snprintf(self, sizeof(self), "/proc/self/fd/%d", sub->data_fd);
+	if (linkat(AT_FDCWD, self, dir, sub->data_name, AT_SYMLINK_FOLLOW) < 0 ||
+	    fsync(dir) < 0)
+		return asph_error_set(err, -errno, "cannot keep the measured data in the job's "
+				      "folder: %s", strerror(errno));
+	return 0;
+}
+
+/* The job stored whose data could not be kept fails, saying why. */
+static void fail_unkept(struct jobs *jobs, int64_t id, const struct asph_error *why)
+{
+	struct job_record j;
+	char reason[320];
+
+	asph_error_format(why, reason, sizeof(reason));
+	log_job(LOG_ERR, id, "%s", reason);
+	if (jobs_load(jobs, id, &j, NULL) < 0)
+		return;
+	j.finished_ns = now_realtime_ns();
+	jobs_transition(jobs, &j, JOB_FAILED, reason, NULL, NULL);
+	job_record_clear(&j);
+}
+
 int jobs_submit(struct jobs *jobs, const struct job_submission *sub,
 		const struct job_actor *who, struct job_record *out, struct asph_error *err)
 {
@@ -180,8 +224,12 @@ int jobs_submit(struct jobs *jobs, const struct job_submission *sub,
 	if (r < 0)
 		return asph_error_set(err, r, "cannot store the job: %s", strerror(-r));
 	jobs->counts[JOB_QUEUED]++;
-	log_job(LOG_INFO, j.id, "submitted by %s (uid %" PRId64 ") for %s", who->name, who->uid,
-		instrument);
+	if (sub->data_name && (r = keep_data(jobs, j.id, sub, err)) < 0) {
+		fail_unkept(jobs, j.id, err);
+		return r;
+	}
+	log_job(LOG_INFO, j.id, "submitted by %s (uid %" PRId64 ") for %s%s", who->name, who->uid,
+		instrument, sub->data_name ? ", of measured data" : "");
 	events_job_state(jobs->events, j.id, JOB_QUEUED, -1, NULL, instrument, NULL);
 	r = out ? jobs_load(jobs, j.id, out, err) : 0;
 	jobs_schedule(jobs);

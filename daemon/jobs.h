@@ -73,7 +73,16 @@ struct job_submission {
 	int64_t priority;
 	const char *label;      /* may be NULL */
 	const char *part, *lot, *serial;        /* what is measured; each may be NULL */
+	/* A job of measured data: the file jobs_open_data() gave, written,
+	 * linked into the job's folder as data_name before the job can start;
+	 * NULL (and data_fd unused) for a plan. */
+	const char *data_name;
+	int data_fd;
 };
+
+/* An unnamed file (O_TMPFILE) in the state directory, for a job's
+ * measured data before the job exists; the descriptor or -errno. */
+int jobs_open_data(const struct jobs *jobs);
 
 /* Whether instrument (NULL: the first) names one of the daemon's
  * instruments: 0 or -ENODEV. */

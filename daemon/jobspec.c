@@ -9,6 +9,7 @@
 
 #include "asph/fit.h"
 #include "asph/plan-search.h"
+#include "asph/points.h"
 #include "asph/prescription.h"
 #include "asph/tolerance.h"
 #include "jobspec.h"
@@ -365,6 +366,61 @@ static int spec_tolerance(json_t *params, json_t *spec, struct proto_why *why)
 	return 0;
 }
 
+/* "measured" in place of "plan": the descriptor's index (the transport
+ * holds it), the format and the unit of unitless text columns, checked
+ * here (into spec, unless NULL); the data itself is read by the caller
+ * (estimate.c). */
+static int spec_measured(json_t *params, json_t *spec, struct proto_why *why)
+{
+	static const char *const names[] = { "fd", "format", "units", NULL };
+	const char *format = NULL, *units = NULL;
+	enum asph_points_format f;
+	json_t *m;
+	int64_t fd;
+	double mm;
+
+	if (json_object_get(params, "plan")) {
+		snprintf(why->text, sizeof(why->text), "\"measured\" is the job's data: a job with "
+			 "it has no \"plan\"");
+		return PROTO_INVALID_PARAMS;
+	}
+	if (proto_param_object(params, "measured", true, &m, why) < 0 ||
+	    proto_params_only(m, names, why) < 0 ||
+	    proto_param_int(m, "fd", true, 0, JOBSPEC_MAX_FD, &fd, why) < 0 ||
+	    proto_param_string(m, "format", false, 32, &format, why) == -EINVAL ||
+	    proto_param_string(m, "units", false, 16, &units, why) == -EINVAL)
+		return PROTO_INVALID_PARAMS;
+	if (format && asph_points_format_parse(format, &f) < 0) {
+		char list[128];
+		asph_points_format_names(list, sizeof(list));
+		snprintf(why->text, sizeof(why->text), "\"measured.format\": unknown format "
+			 "\"%s\" (%s)", format, list);
+		return PROTO_INVALID_PARAMS;
+	}
+	if (units && asph_points_unit_parse(units, &mm) < 0) {
+		char list[128];
+		asph_points_unit_names(list, sizeof(list));
+		snprintf(why->text, sizeof(why->text), "\"measured.units\": unknown unit \"%s\" "
+			 "(%s)", units, list);
+		return PROTO_INVALID_PARAMS;
+	}
+	if (!spec)
+		return 0;
+	return json_object_set_new(spec, "measured", json_pack("{s:s, s:s?}", "format",
+				   format ? format : "auto", "units", units)) < 0
+		? PROTO_INTERNAL_ERROR : 0;
+}
+
+int jobspec_check_measured(json_t *params, struct proto_why *why)
+{
+	return spec_measured(params, NULL, why);
+}
+
+bool jobspec_measured(const json_t *spec)
+{
+	return json_object_get(spec, "measured") != NULL;
+}
+
 int jobspec_from_params(json_t *params, const struct jobspec_limits *lim, json_t **out,
 			uint64_t *points, struct proto_why *why)
 {
@@ -375,8 +431,12 @@ int jobspec_from_params(json_t *params, const struct jobspec_limits *lim, json_t
 	if (!spec)
 		return PROTO_INTERNAL_ERROR;
 	code = spec_lens(params, spec, &p, why);
-	if (!code)
+	if (!code && json_object_get(params, "measured")) {
+		*points = 0;    /* counted as the data is read */
+		code = spec_measured(params, spec, why);
+	} else if (!code) {
 		code = spec_plan(params, spec, &p, lim, points, why);
+	}
 	if (!code)
 		code = spec_fit(params, spec, why);
 	if (!code)

@@ -9,6 +9,10 @@
  * {...}}, "plan": {"method", "density": "h" | "spacing" | "points"
  * (asph_plan_density_name()), "value"} or {"for_tolerance": true,
  * "capability", "method"?}, "fit": {"dof", "residual", "robust", "zernike"}}.
+ * A job of measured data has, in place of "plan", "measured": {"format":
+ * the format read (asph_points_format_name()), "units": a unit name or
+ * null, "file": the data's name in the job's folder}; its request's
+ * "measured" names a descriptor its client passed ("fd") instead of a file.
  */
 #ifndef ASPHD_JOBSPEC_H
 #define ASPHD_JOBSPEC_H
@@ -39,6 +43,17 @@ struct jobspec_limits {
  */
 int jobspec_from_params(json_t *params, const struct jobspec_limits *lim, json_t **spec,
 			uint64_t *points, struct proto_why *why);
+
+/* The highest descriptor index a request may name ("measured.fd"). */
+#define JOBSPEC_MAX_FD 3
+
+/* The checks of job.submit's "measured" alone (as jobspec_from_params()
+ * makes them), for the loop before it takes the descriptor: 0 or
+ * PROTO_INVALID_PARAMS with why. */
+int jobspec_check_measured(json_t *params, struct proto_why *why);
+
+/* Whether spec is of measured data ("measured", no plan). */
+bool jobspec_measured(const json_t *spec);
 
 /* Whether spec's plan is to be chosen for its tolerance (tolplan.h):
  * "plan": {"for_tolerance": true, "capability", "method"?}. */

@@ -367,8 +367,13 @@ static char *result_message(const struct outbox *o, const struct store_change *c
 	json_object_set_new(m, "finished", proto_time_json(c->t_ns));
 	json_object_set(m, "summary", json_object_get(res, "summary"));
 	json_object_set_new(m, "verdict", verdict_of(json_object_get(res, "summary")));
+	json_t *data = json_object_get(prov, "scan");
+
+	/* a job of measured data: the data its result was made from */
+	if (!data)
+		data = json_object_get(prov, "measured");
 	json_object_set_new(m, "provenance", json_pack("{s:O?, s:O?, s:O?, s:O?, s:o}",
-		"scan", json_object_get(prov, "scan"),
+		"scan", data,
 		"software", json_object_get(prov, "software"),
 		"plan", json_object_get(prov, "plan"),
 		"submitted_by", json_object_get(prov, "submitted_by"),

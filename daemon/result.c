@@ -13,6 +13,7 @@
 #include <sys/stat.h>
 
 #include "asph/characterize.h"
+#include "asph/points.h"
 #include "asph-driver/instrument.h"
 #include "asph-mc/mc-runner.h"
 #include "asph-proto.h"
@@ -33,6 +34,7 @@
 
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scanfile *, asph_scanfile_free)
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_characterization *, asph_characterize_free)
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_points *, asph_points_free)
 
 /* The recorded scan, mapped read-only from the job's folder. */
 struct mapped {
@@ -46,25 +48,50 @@ static void unmap(struct mapped *m)
 		munmap(m->data, m->len);
 }
 
-static int map_scan(const struct result_source *job, struct mapped *m, struct asph_error *err)
+/* The file name of the job's folder (the recorded scan, the measured
+ * data), mapped read-only. */
+static int map_file(const struct result_source *job, const char *name, struct mapped *m,
+		    struct asph_error *err)
 {
-	_cleanup_close_ int fd = fs_open_beneath(job->dir_fd, RUNNER_SCAN_FILE, O_RDONLY, 0);
+	_cleanup_close_ int fd = fs_open_beneath(job->dir_fd, name, O_RDONLY, 0);
 	struct stat st;
 
 	if (fd < 0)
-		return asph_error_set(err, fd, "%s/%s: %s", job->dir, RUNNER_SCAN_FILE,
+		return asph_error_set(err, fd, "%s/%s: %s", job->dir, name,
 				      fd == -ELOOP ? "a symbolic link: not read" : strerror(-fd));
 	if (fstat(fd, &st) < 0 || !S_ISREG(st.st_mode) || st.st_size <= 0)
-		return asph_error_set(err, -EINVAL, "%s/%s: not a recorded scan", job->dir,
-				      RUNNER_SCAN_FILE);
+		return asph_error_set(err, -EINVAL, "%s/%s: not a file of data", job->dir, name);
 	m->len = (size_t)st.st_size;
 	m->data = mmap(NULL, m->len, PROT_READ, MAP_PRIVATE, fd, 0);
 	if (m->data == MAP_FAILED) {
 		m->data = NULL;
-		return asph_error_set(err, -errno, "%s/%s: %s", job->dir, RUNNER_SCAN_FILE,
-				      strerror(errno));
+		return asph_error_set(err, -errno, "%s/%s: %s", job->dir, name, strerror(errno));
 	}
 	return 0;
+}
+
+/* The data file name of the job's folder mapped, and its path for
+ * messages. */
+static int open_data(const struct result_source *job, const char *name, struct mapped *m,
+		     char **path, struct asph_error *err)
+{
+	int r = map_file(job, name, m, err);
+
+	if (r == 0 && asprintf(path, "%s/%s", job->dir, name) < 0) {
+		*path = NULL;
+		r = asph_error_set(err, -ENOMEM, "out of memory");
+	}
+	return r;
+}
+
+/* The result files, unless the job was cancelled meanwhile. */
+static int write_files(const struct result_source *job, const struct asph_characterization *c,
+		       const struct asph_characterize_folder *f, char **out,
+		       struct asph_error *err)
+{
+	if (job->cancelled && job->cancelled(job->cancelled_data))
+		return -ECANCELED;
+	return asph_characterize_write_folder(c, job->dir_fd, f, out, err);
 }
 
 /* Between trials: tells the progress; a non-zero answer stops the run. */
@@ -118,10 +145,8 @@ int result_build(const struct result_source *job, const struct job_plan *jp,
 		.software_json = SOFTWARE_JSON, .fit_options_json = jp->fit_json,
 		.tolerance_json = jp->tolerance_json,
 	};
-	int r = map_scan(job, &m, err);
+	int r = open_data(job, RUNNER_SCAN_FILE, &m, &path, err);
 
-	if (r == 0 && asprintf(&path, "%s/%s", job->dir, RUNNER_SCAN_FILE) < 0)
-		r = asph_error_set(err, -ENOMEM, "out of memory");
 	if (r == 0)
 		r = asph_scanfile_read_memory(m.data, m.len, path, &scan, err);
 	o.run.data = m.data;
@@ -136,10 +161,46 @@ int result_build(const struct result_source *job, const struct job_plan *jp,
 	 * records go before the fit */
 	if (r == 0)
 		r = asph_characterize_scan_take(c, &scan, path, err);
-	if (r == 0 && job->cancelled && job->cancelled(job->cancelled_data))
-		r = -ECANCELED;
 	if (r == 0)
-		r = asph_characterize_write_folder(c, job->dir_fd, &f, out, err);
+		r = write_files(job, c, &f, out, err);
+	unmap(&m);
+	return r;
+}
+
+int result_build_measured(const struct result_source *job, const struct job_plan *jp,
+			  const struct asph_points_read_options *ro, const char *name,
+			  char **out, struct asph_error *err)
+{
+	_cleanup_(asph_characterize_freep) struct asph_characterization *c = NULL;
+	_cleanup_(asph_points_freep) struct asph_points *pts = NULL;
+	_cleanup_free_ char *path = NULL;
+	struct asph_points_read_info info;
+	struct mapped m = { 0 };
+	/* as asph fit FILE characterizes it: the lab's instrument that
+	 * measured it is not this one, whose uncertainty does not apply */
+	struct asph_characterize_options o = {
+		.fit = jp->fit, .outputs = ASPH_CHARACTERIZE_MAP,
+		.run = {
+			.program = "asphd " ASPH_VERSION, .lens_name = jp->lens_name,
+			.metadata_json = job->metadata, .data_name = name,
+		},
+	};
+	const struct asph_characterize_folder f = {
+		.mode = DIRS_FILE_MODE, .scan_file = name, .software_json = SOFTWARE_JSON,
+		.fit_options_json = jp->fit_json, .tolerance_json = jp->tolerance_json,
+	};
+	int r = open_data(job, name, &m, &path, err);
+
+	if (r == 0)
+		r = asph_points_read_memory_as(m.data, m.len, path, ro, &pts, &info, err);
+	o.run.data = m.data;
+	o.run.data_len = m.len;
+	if (r == 0)
+		r = asph_characterize_alloc(jp->surface, &o, &c, err);
+	if (r == 0)
+		r = asph_characterize_points(c, pts, err);
+	if (r == 0)
+		r = write_files(job, c, &f, out, err);
 	unmap(&m);
 	return r;
 }

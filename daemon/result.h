@@ -42,4 +42,16 @@ int result_build(const struct result_source *job, const struct job_plan *jp,
 		 const struct asph_instrument_config *ic, char **out,
 		 struct asph_error *err);
 
+/*
+ * The same for a job of measured data: the file name of its folder read
+ * as ro says (the format the submission found), characterized as asph
+ * fit characterizes points (no Monte Carlo: the instrument that measured
+ * them is not the daemon's), and its result files, which list it as
+ * "measured".
+ */
+struct asph_points_read_options;
+int result_build_measured(const struct result_source *job, const struct job_plan *jp,
+			  const struct asph_points_read_options *ro, const char *name,
+			  char **out, struct asph_error *err);
+
 #endif

@@ -158,6 +158,8 @@ int rpc_fail(struct call *c, int code, const char *fmt, ...)
 int rpc_job_error(struct call *c, int r, const struct asph_error *err);
 enum access_role rpc_role(const struct call *c);
 bool rpc_is_operator(const struct call *c);
+/* Takes the descriptor index of those s holds (rpc.h): it, or -ENOENT. */
+int rpc_session_take_fd(struct rpc_session *s, unsigned index);
 /* Who a change is recorded as: the user, or over TCP the token's name. */
 struct job_actor rpc_actor(const struct call *c);
 /* params: only the listed members, each checked by the handler. */

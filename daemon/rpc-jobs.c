@@ -9,6 +9,7 @@
 #include <errno.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "asph-proto.h"
 #include "estimate.h"
@@ -65,8 +66,9 @@ static int submission_from_params(struct call *c, json_t *params,
 					       struct asph_error *),
 				  struct job_submission *sub)
 {
-	static const char *const names[] = { "lens", "plan", "fit", "tolerance", "instrument",
-					     "priority", "label", "part", "lot", "serial", NULL };
+	static const char *const names[] = { "lens", "plan", "measured", "fit", "tolerance",
+					     "instrument", "priority", "label", "part", "lot",
+					     "serial", NULL };
 	const struct settings_limits *lim = c->rpc->limits;
 	struct asph_error err;
 	int code = rpc_only(c, params, names), r;
@@ -75,6 +77,9 @@ static int submission_from_params(struct call *c, json_t *params,
 		return code;
 	if (!params || !json_object_get(params, "lens"))
 		return rpc_fail(c, PROTO_INVALID_PARAMS, "missing parameter \"lens\"");
+	if (!json_object_get(params, "plan") && !json_object_get(params, "measured"))
+		return rpc_fail(c, PROTO_INVALID_PARAMS, "missing parameter \"plan\" (or "
+				"\"measured\", the job's data)");
 	if (proto_param_string(params, "instrument", false, 63, &sub->instrument,
 			       &c->why) == -EINVAL ||
 	    proto_param_string(params, "label", false, lim->max_label_bytes, &sub->label,
@@ -114,6 +119,10 @@ static void check_answer(struct check *k, struct estimate *e)
 	text = json_dumps(e->spec, JSON_COMPACT);
 	k->sub.spec = text;
 	k->sub.points = (int64_t)e->points;
+	if (e->data_fd >= 0) {
+		k->sub.data_fd = e->data_fd;
+		k->sub.data_name = e->data_name;
+	}
 	asph_error_clear(&err);
 	r = text ? jobs_submit(l->rpc->jobs, &k->sub, &k->who, &j, &err) : -ENOMEM;
 	if (r < 0) {
@@ -146,6 +155,42 @@ static void check_done(void *work, int r, void *data)
 	} else {
 		check_answer(k, e);
 	}
+}
+
+_Static_assert(JOBSPEC_MAX_FD + 1 == RPC_SESSION_MAX_FDS,
+	       "a request may name every descriptor a session holds");
+
+/*
+ * "measured": checked (cheap: names and types), then the descriptor the
+ * request names, taken from those its connection passed, and for
+ * job.submit the file it is copied into. 0, or the refusal (a TCP peer
+ * cannot pass one).
+ */
+static int take_measured(struct call *c, json_t *params, bool submit, struct estimate *e)
+{
+	json_t *fd = json_object_get(json_object_get(params, "measured"), "fd");
+	int in, data = -1;
+
+	if (!json_object_get(params, "measured"))
+		return 0;
+	if (jobspec_check_measured(params, &c->why))
+		return PROTO_INVALID_PARAMS;
+	if (c->s->peer.tcp)
+		return rpc_fail(c, PROTO_INVALID_PARAMS, "\"measured\" passes the data as a file "
+				"descriptor on the daemon's unix socket: not over TCP or the web "
+				"(run asphctl submit --measured on the daemon's machine)");
+	in = rpc_session_take_fd(c->s, (unsigned)json_integer_value(fd));
+	if (in < 0)
+		return rpc_fail(c, PROTO_INVALID_PARAMS, "\"measured.fd\": no descriptor %" PRId64
+				" was passed (SCM_RIGHTS, with the request's line)",
+				(int64_t)json_integer_value(fd));
+	if (submit && (data = jobs_open_data(c->rpc->jobs)) < 0) {
+		close(in);
+		return rpc_fail(c, PROTO_INTERNAL_ERROR, "cannot make room for the measured data "
+				"in the state directory: %s", strerror(-data));
+	}
+	estimate_set_measured(e, in, data, c->rpc->limits->max_measured_bytes);
+	return 0;
 }
 
 /*
@@ -187,6 +232,12 @@ static int check_plan(struct call *c, json_t *params, bool submit)
 			 &e) < 0) {
 		check_free(k);
 		return PROTO_INTERNAL_ERROR;
+	}
+	code = take_measured(c, params, submit, e);
+	if (code) {
+		estimate_free(e);
+		check_free(k);
+		return code;
 	}
 	rpc_defer(c, k, check_free);
 	if (!c->rpc->tasks) {           /* no pool: at once */

@@ -36,8 +36,16 @@
 #include "settings.h"
 #include "tasks.h"
 
+/* The descriptors a unix peer may have passed and no request has taken
+ * yet; more are closed as they come. */
+#define RPC_SESSION_MAX_FDS 4
+
 struct rpc_session {
 	struct peer peer;               /* the transport fills it */
+	/* What the peer passed with SCM_RIGHTS, oldest first, until a request
+	 * takes it (job.submit's "measured"); closed with the session. */
+	int fds[RPC_SESSION_MAX_FDS];
+	unsigned n_fds;
 	bool authenticated;             /* unix peers at once; TCP after hello */
 	struct access_grant grant;      /* rpc-daemon.c's: what a TCP peer proved */
 	/* rpc's: whose share of subscriptions and computations it takes:
@@ -79,6 +87,12 @@ void rpc_set_access(struct rpc *rpc, const struct access *access);
 void rpc_session_open(struct rpc *rpc, struct rpc_session *s);
 void rpc_session_close(struct rpc *rpc, struct rpc_session *s);
 size_t rpc_sessions(const struct rpc *rpc);
+/* A descriptor s's peer passed (taken): kept for a request, or closed
+ * when RPC_SESSION_MAX_FDS wait already (false). */
+bool rpc_session_add_fd(struct rpc_session *s, int fd);
+/* Closes every descriptor s holds (the transport's end of a session, also
+ * one never opened). */
+void rpc_session_close_fds(struct rpc_session *s);
 /* Whether a peer operates as it connects (root, the operator group; a TCP
  * peer not before hello): it may take the connections reserved for them. */
 bool rpc_peer_operator(const struct rpc *rpc, const struct peer *p);

@@ -21,6 +21,7 @@
 #include "asph-engine/executor.h"
 #include "asph-driver/instrument.h"
 #include "asph/plan.h"
+#include "asph/points.h"
 #include "asph/prescription.h"
 #include "asph/scanfile.h"
 #include "log.h"
@@ -388,6 +389,48 @@ static void characterize(struct run *run)
 		done(run, rc < 0 ? RUNNER_FAILED : RUNNER_COMPLETED, result);
 }
 
+/*
+ * A job of measured data (jobspec.h, "measured"): no plan and no device;
+ * its data, copied into its folder when it was submitted, characterized
+ * as the scan of a measured job is.
+ */
+static bool run_measured(struct runner *r, struct runner_job *job, struct runner_report *final)
+{
+	struct run run = { .r = r, .job = job, .final = final };
+	struct runner_report rep = { .kind = RUNNER_CHARACTERIZING, .job = job->id, .eta_s = -1 };
+	_cleanup_(json_decrefp) json_t *spec = json_loads(job->spec, 0, NULL);
+	json_t *m = json_object_get(spec, "measured");
+	const char *units = json_string_value(json_object_get(m, "units"));
+	const char *name = json_string_value(json_object_get(m, "file"));
+	struct asph_points_read_options ro = { 0 };
+	struct result_source src = {
+		.job = job->id, .dir_fd = job->dir_fd, .dir = job->result_dir,
+		.metadata = job->metadata, .cancelled = abort_wanted, .cancelled_data = r,
+	};
+	char *result = NULL;
+	int rc;
+
+	if (!m)
+		return false;
+	asph_error_clear(&run.err);
+	rc = job_plan_build_part(job->spec, &run.jp, &run.err);
+	if (rc == 0 && (!name || asph_points_format_parse(json_string_value(
+				json_object_get(m, "format")), &ro.format) < 0 ||
+			(units && asph_points_unit_parse(units, &ro.unit_mm) < 0)))
+		rc = asph_error_set(&run.err, -EINVAL, "the stored measured data's description "
+				    "is damaged");
+	if (rc == 0) {
+		post(r, &rep);
+		rc = result_build_measured(&src, &run.jp, &ro, name, &result, &run.err);
+	}
+	if (rc == -ECANCELED)
+		done(&run, RUNNER_ABORTED, NULL);
+	else
+		done(&run, rc < 0 ? RUNNER_FAILED : RUNNER_COMPLETED, result);
+	job_plan_release(&run.jp);
+	return true;
+}
+
 static void run_job(struct runner *r, struct runner_job *job, struct runner_report *final)
 {
 	struct run run = { .r = r, .job = job, .final = final };
@@ -395,6 +438,8 @@ static void run_job(struct runner *r, struct runner_job *job, struct runner_repo
 	bool stop;
 	int rc;
 
+	if (run_measured(r, job, final))
+		return;
 	asph_error_clear(&run.err);
 	rc = choose_plan(&run);
 	if (rc == 0)

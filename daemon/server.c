@@ -112,6 +112,7 @@ static void client_free(struct client *c)
 	turn_remove(c);
 	rpc_line_free(c->line);
 	rpc_session_close(c->srv->rpc, &c->session);
+	rpc_session_close_fds(&c->session);
 	sd_event_source_disable_unref(c->io);
 	sd_event_source_disable_unref(c->timer);
 	if (c->fd >= 0)
@@ -159,6 +160,7 @@ void server_client_drop(struct client *c, const char *why)
 	rpc_line_free(c->line);
 	c->line = NULL;
 	rpc_session_close(srv->rpc, &c->session);
+	rpc_session_close_fds(&c->session);
 	c->next = srv->dead;
 	srv->dead = c;
 	sd_event_source_set_enabled(srv->reaper, SD_EVENT_ONESHOT);
@@ -542,6 +544,46 @@ static void client_turn(void *data)
 		flush_output(c);
 }
 
+/*
+ * recv() of up to len bytes; on a unix socket recvmsg(), whose descriptors
+ * (SCM_RIGHTS) the session keeps for the requests that name them, up to
+ * RPC_SESSION_MAX_FDS, closing the rest. The kernel closes those that did
+ * not fit the buffer (MSG_CTRUNC); credentials are not asked for.
+ */
+static ssize_t receive(struct client *c, char *dst, size_t len)
+{
+	union {
+		struct cmsghdr align;
+		char buf[CMSG_SPACE(sizeof(int) * RPC_SESSION_MAX_FDS)];
+	} control;
+	struct iovec iov = { .iov_base = dst, .iov_len = len };
+	struct msghdr msg = { .msg_iov = &iov, .msg_iovlen = 1,
+			      .msg_control = control.buf, .msg_controllen = sizeof(control.buf) };
+	ssize_t n;
+
+	if (c->tcp)
+		return recv(c->fd, dst, len, MSG_DONTWAIT);
+	n = recvmsg(c->fd, &msg, MSG_DONTWAIT | MSG_CMSG_CLOEXEC);
+	if (n < 0)
+		return n;
+	for (struct cmsghdr *cm = CMSG_FIRSTHDR(&msg); cm; cm = CMSG_NXTHDR(&msg, cm)) {
+		size_t k;
+
+		if (cm->cmsg_level != SOL_SOCKET || cm->cmsg_type != SCM_RIGHTS)
+			continue;
+		k = (cm->cmsg_len - CMSG_LEN(0)) / sizeof(int);
+		for (size_t i = 0; i < k; i++) {
+			int fd;
+			memcpy(&fd, CMSG_DATA(cm) + i * sizeof(int), sizeof(int));
+			if (!rpc_session_add_fd(&c->session, fd))
+				log_debug("client %" PRIu64 " (%s): a descriptor past the %d held "
+					  "closed", c->serial, c->session.peer.name,
+					  RPC_SESSION_MAX_FDS);
+		}
+	}
+	return n;
+}
+
 static void read_input(struct client *c)
 {
 	size_t budget = READ_BUDGET;
@@ -554,7 +596,7 @@ static void read_input(struct client *c)
 			server_client_drop(c, "out of memory");
 			return;
 		}
-		n = recv(c->fd, dst, READ_CHUNK, MSG_DONTWAIT);
+		n = receive(c, dst, READ_CHUNK);
 		if (n < 0) {
 			if (errno == EINTR)
 				continue;

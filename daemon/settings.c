@@ -62,6 +62,7 @@ static const struct settings_limits default_limits = {
 	.idle_timeout_ms = 600000,
 	.progress_interval_ms = 250,
 	.max_label_bytes = 256,
+	.max_measured_bytes = 256u << 20,
 	.min_free_disk_mb = 64,
 };
 
@@ -526,6 +527,8 @@ static const struct row rows[] = {
 	      "a web session unused without an event stream (0: none)"),
 	LIMIT(progress_interval_ms, 10, 60000, "between two progress events of a job"),
 	LIMIT(max_label_bytes, 16, 4096, "a job's label"),
+	LIMIT(max_measured_bytes, 1024, 4000000000u, "the measured data file of one job.submit "
+	      "(\"measured\"), copied into the job's folder"),
 	LIMIT(min_free_disk_mb, 0, 1048576, "MiB kept free on the state directory: jobs and "
 	      "backups that would not leave it are refused (0: no check)"),
 	{ "health", "object", "the defaults below", "when the daemon's health is degraded "

@@ -34,6 +34,7 @@ struct settings_limits {
 	uint32_t idle_timeout_ms;       /* a client without requests; 0: none */
 	uint32_t progress_interval_ms;  /* between progress events of a job */
 	uint32_t max_label_bytes;
+	uint32_t max_measured_bytes;    /* a job's measured data (job.submit) */
 	uint32_t min_free_disk_mb;      /* kept free on the state directory */
 };
 

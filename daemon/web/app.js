@@ -194,7 +194,7 @@ function renderQueue(q) {
     const p = j.progress;
     const tr = el("tr", { "data-job": j.id },
       el("td", {}, j.id), el("td", { class: "state" }, j.state), el("td", {}, typeof j.lens === "string" ? j.lens : "prescription"),
-      el("td", {}, planText(j.plan)), el("td", {}, pls(j)), el("td", {}, j.priority),
+      el("td", {}, planText(j.plan, j.measured)), el("td", {}, pls(j)), el("td", {}, j.priority),
       el("td", {}, `${p.done} / ${p.total}`), actions(j));
     if (role !== "viewer" && j.state === "queued") {
       // Reorder by drag, or with the keyboard: Alt+Up / Alt+Down.
@@ -230,8 +230,9 @@ function fillChoices(form) {
 }
 fillChoices($("submit-form"));
 
-// A job's plan as the queue shows it.
-function planText(plan) {
+// A job's plan as the queue shows it; a job of measured data has none.
+function planText(plan, measured) {
+  if (!plan) return measured ? `measured ${measured.format} data` : "";
   return plan.for_tolerance ? `for the tolerance (U ≤ ${plan.capability} T${plan.method ? `, ${plan.method}` : ""})`
     : `${plan.method} ${plan.density} ${plan.value}`;
 }

@@ -3,6 +3,7 @@
  * filter. */
 #include <errno.h>
 #include <math.h>
+#include <stdbool.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -59,7 +60,7 @@ int asph_grid_resample(const struct asph_scatter *s, double radius, double dx,
 {
 	struct asph_grid *g;
 	size_t half, n;
-	uint32_t hint = 0;
+	uint32_t hint = 0, row_hint = 0;
 	int r = check_spacing(radius, dx, "grid spacing", err);
 
 	if (r < 0)
@@ -73,10 +74,20 @@ int asph_grid_resample(const struct asph_scatter *s, double radius, double dx,
 	g->x0 = g->y0 = -(double)half * dx;
 	for (size_t j = 0; j < n; j++) {
 		double y = g->y0 + (double)j * dx;
+		/* A row's search starts where the previous row's first node
+		 * found its triangle, one spacing away, rather than at the far
+		 * end of the previous row, a diameter away. */
+		bool row_started = false;
+		hint = row_hint;
 		for (size_t i = 0; i < n; i++) {
 			double x = g->x0 + (double)i * dx;
-			if (hypot(x, y) <= radius)
-				asph_scatter_eval(s, x, y, &hint, &g->z[j * n + i], NULL, NULL);
+			if (hypot(x, y) > radius)
+				continue;
+			asph_scatter_eval(s, x, y, &hint, &g->z[j * n + i], NULL, NULL);
+			if (!row_started) {
+				row_hint = hint;
+				row_started = true;
+			}
 		}
 	}
 	*out = g;

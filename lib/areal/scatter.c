@@ -62,6 +62,105 @@ static int mark_kept(struct asph_scatter *s, const struct asph_scatter_options *
 	return 0;
 }
 
+/* Bits of a cell's x or y: at most 1024 x 1024 cells, about two triangles
+ * in each. */
+#define MORTON_MAX_BITS 10
+
+/* x (below 2^16) with a zero bit after each of its bits. */
+static uint32_t spread_bits(uint32_t x)
+{
+	x = (x | (x << 8)) & 0x00ff00ffu;
+	x = (x | (x << 4)) & 0x0f0f0f0fu;
+	x = (x | (x << 2)) & 0x33333333u;
+	x = (x | (x << 1)) & 0x55555555u;
+	return x;
+}
+
+/* The cell of triangle t's centroid along a Z-order curve. */
+static uint32_t morton_cell(const struct asph_scatter *s, size_t t, const double lo[2],
+			    const double scale[2], int bits)
+{
+	uint32_t c[2], top = ((uint32_t)1 << bits) - 1;
+
+	for (int d = 0; d < 2; d++) {
+		double x = (s->xy[2 * s->tri[3 * t] + d] + s->xy[2 * s->tri[3 * t + 1] + d] +
+			    s->xy[2 * s->tri[3 * t + 2] + d]) / 3;
+		double f = (x - lo[d]) * scale[d];
+		c[d] = f <= 0 ? 0 : f >= top ? top : (uint32_t)f;
+	}
+	return spread_bits(c[0]) | (spread_bits(c[1]) << 1);
+}
+
+/* Renumbers the triangles along a Z-order curve of their centroids (a
+ * counting sort by cell, stable), so that searches at nearby positions
+ * read nearby memory: in the triangulation's own order, neighbours in the
+ * plane are far apart in the arrays, and a search's steps wait for memory.
+ * Each triangle keeps its vertices in their order, and its neighbours
+ * stay its neighbours: a search visits the same triangles. */
+static int order_triangles(struct asph_scatter *s, struct asph_error *err)
+{
+	int bits = 1;
+
+	while (bits < MORTON_MAX_BITS && ((size_t)2 << (2 * bits)) < s->n_tri)
+		bits++;
+	size_t nc = (size_t)1 << (2 * bits);
+	_cleanup_free_ uint32_t *start = calloc(nc + 1, sizeof(uint32_t));
+	_cleanup_free_ uint32_t *to = malloc(s->n_tri * sizeof(uint32_t) + 1);
+	uint32_t *tri = malloc(3 * s->n_tri * sizeof(uint32_t) + 1);
+	uint32_t *adj = malloc(3 * s->n_tri * sizeof(uint32_t) + 1);
+	double lo[2] = { INFINITY, INFINITY }, hi[2] = { -INFINITY, -INFINITY }, scale[2];
+
+	if (!start || !to || !tri || !adj) {
+		free(tri);
+		free(adj);
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	}
+	for (size_t i = 0; i < s->n; i++)
+		for (int d = 0; d < 2; d++) {
+			lo[d] = fmin(lo[d], s->xy[2 * i + d]);
+			hi[d] = fmax(hi[d], s->xy[2 * i + d]);
+		}
+	for (int d = 0; d < 2; d++)
+		scale[d] = hi[d] > lo[d] ? (double)((size_t)1 << bits) / (hi[d] - lo[d]) : 0;
+	for (size_t t = 0; t < s->n_tri; t++) {
+		to[t] = morton_cell(s, t, lo, scale, bits);
+		start[to[t] + 1]++;
+	}
+	for (size_t c = 0; c < nc; c++)
+		start[c + 1] += start[c];
+	for (size_t t = 0; t < s->n_tri; t++)
+		to[t] = start[to[t]]++;
+	for (size_t t = 0; t < s->n_tri; t++)
+		for (int k = 0; k < 3; k++) {
+			uint32_t nb = s->adj[3 * t + k];
+			tri[3 * (size_t)to[t] + k] = s->tri[3 * t + k];
+			adj[3 * (size_t)to[t] + k] = nb == UINT32_MAX ? UINT32_MAX : to[nb];
+		}
+	free(s->tri);
+	free(s->adj);
+	s->tri = tri;
+	s->adj = adj;
+	return 0;
+}
+
+static int check_values(const double *value, size_t n, struct asph_error *err)
+{
+	for (size_t i = 0; i < n; i++)
+		if (!isfinite(value[i]))
+			return asph_error_set(err, -EINVAL, "point %zu: value is not finite", i);
+	return 0;
+}
+
+int asph_scatter_set_values(struct asph_scatter *s, const double *value,
+			    struct asph_error *err)
+{
+	int r = check_values(value, s->n, err);
+
+	if (r == 0)
+		memcpy(s->value, value, s->n * sizeof(double));
+	return r;
+}
+
 int asph_scatter_alloc(const double *xy, const double *value, size_t n,
 		       const struct asph_scatter_options *opts,
 		       struct asph_scatter **out, struct asph_error *err)
@@ -76,9 +175,9 @@ int asph_scatter_alloc(const double *xy, const double *value, size_t n,
 	if (!isfinite(o.max_edge_mm) || o.max_edge_mm < 0 || !isfinite(o.max_edge_factor) ||
 	    o.max_edge_factor < 0)
 		return asph_error_set(err, -EINVAL, "the longest edge must be a positive number");
-	for (size_t i = 0; i < n; i++)
-		if (!isfinite(value[i]))
-			return asph_error_set(err, -EINVAL, "point %zu: value is not finite", i);
+	r = check_values(value, n, err);
+	if (r < 0)
+		return r;
 	d = asph_delaunay_alloc(n);
 	s = calloc(1, sizeof(*s));
 	if (!d || !s) {
@@ -99,6 +198,8 @@ int asph_scatter_alloc(const double *xy, const double *value, size_t n,
 		r = asph_delaunay_neighbors(d, &s->adj, err);
 	/* the workspace's memory is not needed for the rest */
 	asph_delaunay_free(steal_ptr(d));
+	if (r == 0)
+		r = order_triangles(s, err);
 	if (r == 0)
 		r = mark_kept(s, &o, err);
 	if (r < 0) {

@@ -42,6 +42,11 @@ int asph_scatter_alloc(const double *xy, const double *value, size_t n,
 		       const struct asph_scatter_options *opts,
 		       struct asph_scatter **out, struct asph_error *err);
 void asph_scatter_free(struct asph_scatter *s);
+/* Gives the same points other values (n of them, in the points' order), as
+ * if the scatter had been made with these: the triangulation, which depends
+ * on xy alone, is kept. -EINVAL for a non-finite value. */
+int asph_scatter_set_values(struct asph_scatter *s, const double *value,
+			    struct asph_error *err);
 
 size_t asph_scatter_n_points(const struct asph_scatter *s);
 /* The scatter's copies of xy (x, y pairs) and of the values, in the order

@@ -284,7 +284,9 @@ struct asph_characterize_folder {
  * header plan records how it was chosen: its "for_tolerance" member,
  * which provenance.plan leaves out), each created exclusively under a temporary
  * name in dir_fd and renamed into place. *result_json (may be NULL)
- * receives result.json's text. Needs a characterized scan (-EINVAL).
+ * receives result.json's text. Needs a characterized scan, or points with
+ * their data (run.data): then f->scan_file names the measured file, listed
+ * as files.measured and provenance.measured, with no plan (-EINVAL).
  */
 int asph_characterize_write_folder(const struct asph_characterization *c, int dir_fd,
 				   const struct asph_characterize_folder *f,

@@ -337,8 +337,11 @@ size_t asph_fit_residual_map(const struct asph_fit *w, double *xy,
 
 struct asph_scatter;
 /* After the fit: that map as the interpolant over the part (areal.h), for
- * the gridded exports, the correction tables and the report. */
-int asph_fit_residual_scatter(const struct asph_fit *w, struct asph_scatter **out,
+ * the gridded exports, the correction tables and the report. The first
+ * call after the fit hands on the triangulation the slope was computed on
+ * (the workspace keeps it until then), later ones triangulate anew: the
+ * interpolant is the same either way. */
+int asph_fit_residual_scatter(struct asph_fit *w, struct asph_scatter **out,
 			      struct asph_error *err);
 
 /* --- Synthetic measurements (tests, the mock instrument) ----------------- */

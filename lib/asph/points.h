@@ -108,6 +108,9 @@ struct asph_points_read_options {
 /* Length units by name: "nm", "um" (also "µm", "micron"), "mm", "cm",
  * "m", "in" (also "inch"): *mm is one unit in mm. -EINVAL otherwise. */
 int asph_points_unit_parse(const char *name, double *mm);
+/* The units' names without their aliases, ", " separated, for usage
+ * texts, into buf (cut to size); the length of the whole list. */
+size_t asph_points_unit_names(char *buf, size_t size);
 
 struct asph_points_read_info {
 	enum asph_points_format format;  /* the format read */

@@ -116,7 +116,7 @@ static json_t *file_hashes(int dir_fd, json_t *files, const char *scan_sha)
 		const char *name = json_string_value(v);
 		if (!name || !strcmp(key, "result"))
 			continue;
-		if (!strcmp(key, "scan"))
+		if (!strcmp(key, "scan") || !strcmp(key, "measured"))
 			json_object_set_new(out, name, json_string(scan_sha));
 		else if (hash_file(dir_fd, name, hex) == 0)
 			json_object_set_new(out, name, json_string(hex));
@@ -146,6 +146,9 @@ static json_t *fit_options(const struct asph_characterization *c)
 static json_t *scan_json(const struct asph_characterization *c,
 			 const struct asph_characterize_folder *f, const char *sha)
 {
+	if (!c->from_scan)
+		return json_pack("{s:s, s:s, s:I}", "file", f->scan_file, "sha256", sha,
+				 "points", (json_int_t)c->res.fit.n_points);
 	return json_pack("{s:s, s:s, s:I, s:i, s:s}", "file", f->scan_file, "sha256", sha,
 			 "points", (json_int_t)c->res.scan_points, "resumes",
 			 (int)c->res.scan_resumes, "created", c->created ? c->created : "");
@@ -163,11 +166,11 @@ static json_t *provenance(const struct asph_characterization *c,
 		iso8601_utc(st, 0, started, sizeof(started));
 	iso8601_utc(f->finished_ns ? f->finished_ns : now_realtime_ns(), 0, finished,
 		    sizeof(finished));
-	p = json_pack("{s:s?, s:o, s:o, s:o, s:o?, s:o?, s:o, s:O?, s:O?, s:O?,"
+	p = json_pack("{s:s?, s:o, s:o?, s:o, s:o?, s:o?, s:o, s:O?, s:O?, s:O?,"
 		      " s:s?, s:s, s:o}",
 		"lens_name", c->opts.run.lens_name,
 		"prescription", loads(c->prescription_json),
-		"plan", loads(characterize_plan(c)),
+		"plan", loads(characterize_plan(c)),    /* none for measured points */
 		"fit_options", f->fit_options_json ? loads(f->fit_options_json) : fit_options(c),
 		"tolerance", loads(f->tolerance_json),
 		"instrument", loads(characterize_instrument(c)),
@@ -177,7 +180,7 @@ static json_t *provenance(const struct asph_characterization *c,
 		"submitted", json_object_get(meta, "submitted"),
 		"started", started[0] ? started : NULL,
 		"finished", finished,
-		"scan", scan_json(c, f, sha));
+		c->from_scan ? "scan" : "measured", scan_json(c, f, sha));
 	if (p)
 		json_object_set_new(p, "acquisition", loads(c->res.acquisition_json));
 	return p;

@@ -399,11 +399,13 @@ int asph_characterize_write_folder(const struct asph_characterization *c, int di
 	_cleanup_free_ char *text = NULL;
 	int r = not_yet(c, err);
 
-	if (r == 0 && (!c->from_scan || !f->scan_file || !c->opts.run.data))
-		r = asph_error_set(err, -EINVAL, "a result folder is a recorded scan's");
+	if (r == 0 && (!f->scan_file || !c->opts.run.data))
+		r = asph_error_set(err, -EINVAL, "a result folder needs its measured data");
 	if (r < 0)
 		return r;
-	d.files = json_pack("{s:s, s:s}", "scan", f->scan_file, "result", "result.json");
+	/* a recorded scan's, or measured points read from a file's */
+	d.files = json_pack("{s:s, s:s}", c->from_scan ? "scan" : "measured", f->scan_file,
+			    "result", "result.json");
 	if (!d.files)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	r = folder_residuals(&d, err);

@@ -128,15 +128,12 @@ static double grid_spacing(const struct asph_characterization *c, double radius)
 		    2 * radius / ASPH_CHARACTERIZE_GRID_NODES);
 }
 
-/* The used points as a map of the part, its interpolant, the grid. Points
- * too sparse for a map, or a grid too fine to make (-EDOM, -EINVAL): the
- * error is kept in the result, which stands without them. */
-static int residual_map(struct asph_characterization *c, struct asph_error *err)
+/* The used points as a map of the part, in arrays of its own: line
+ * profiles, or points too sparse for an interpolant. */
+static int residual_map_points(struct asph_characterization *c, struct asph_error *err)
 {
 	struct asph_characterize_result *res = &c->res;
-	double radius = asph_surface_aperture_radius(c->surface);
 	size_t n = res->fit.n_used;
-	int r;
 
 	c->map_xy = malloc(2 * n * sizeof(double) + 1);
 	c->map_nm = malloc(n * sizeof(double) + 1);
@@ -145,27 +142,38 @@ static int residual_map(struct asph_characterization *c, struct asph_error *err)
 	res->n_map = asph_fit_residual_map(c->fit, c->map_xy, c->map_nm);
 	res->map_xy = c->map_xy;
 	res->map_nm = c->map_nm;
+	return 0;
+}
+
+/* The used points as a map of the part, its interpolant, the grid. Points
+ * too sparse for a map, or a grid too fine to make (-EDOM, -EINVAL): the
+ * error is kept in the result, which stands without them. */
+static int residual_map(struct asph_characterization *c, struct asph_error *err)
+{
+	struct asph_characterize_result *res = &c->res;
+	double radius = asph_surface_aperture_radius(c->surface);
+	int r;
+
 	asph_error_clear(&res->map_error);
 	if (res->fit.profile) {
 		asph_error_set(&res->map_error, -EDOM,
 			       "the points are line profiles: they have no residual map of the "
 			       "area (grid, PSD, correction table, report)");
-		return 0;
+		return residual_map_points(c, err);
 	}
-	/* the interpolant of the map (asph_fit_residual_scatter()'s points),
-	 * whose copies of the map's arrays stand for ours from then on */
-	r = asph_scatter_alloc(c->map_xy, c->map_nm, res->n_map, NULL, &c->scatter,
-			       &res->map_error);
+	/* the interpolant of the map, on the triangulation the fit's slope
+	 * was computed on; the map's points are its copies */
+	r = asph_fit_residual_scatter(c->fit, &c->scatter, &res->map_error);
 	if (r == 0) {
-		free(c->map_xy);
-		free(c->map_nm);
-		c->map_xy = c->map_nm = NULL;
+		res->n_map = asph_scatter_n_points(c->scatter);
 		res->map_xy = asph_scatter_xy(c->scatter);
 		res->map_nm = asph_scatter_values(c->scatter);
 		res->scatter = c->scatter;
 		res->grid_spacing_mm = grid_spacing(c, radius);
 		r = asph_grid_resample(c->scatter, radius, res->grid_spacing_mm, &c->grid,
 				       &res->map_error);
+	} else if (r == -EDOM || r == -EINVAL) {
+		return residual_map_points(c, err);
 	}
 	if (r == -EDOM || r == -EINVAL)
 		return 0;

@@ -14,8 +14,6 @@
 
 #define DEFAULT_SLOPE_LENGTH_MM 1.0
 
-DEFINE_TRIVIAL_CLEANUP_FUNC(struct asph_scatter *, asph_scatter_free)
-
 size_t asph_fit_residual_map(const struct asph_fit *w, double *xy,
 			     double *value_nm)
 {
@@ -37,12 +35,14 @@ size_t asph_fit_residual_map(const struct asph_fit *w, double *xy,
 	return m;
 }
 
-int asph_fit_residual_scatter(const struct asph_fit *w, struct asph_scatter **out,
+int asph_fit_residual_scatter(struct asph_fit *w, struct asph_scatter **out,
 			      struct asph_error *err)
 {
 	_cleanup_free_ double *xy = NULL;
 	_cleanup_free_ double *v = NULL;
+	struct asph_scatter *s = w->slope_scatter;
 	size_t m = 0;
+	int r;
 
 	for (size_t i = 0; i < w->n; i++)
 		m += w->status[i] == ASPH_FIT_POINT_USED;
@@ -51,6 +51,14 @@ int asph_fit_residual_scatter(const struct asph_fit *w, struct asph_scatter **ou
 	if (!xy || !v)
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	m = asph_fit_residual_map(w, xy, v);
+	/* the slope's triangulation, when it is of these very points */
+	if (s && asph_scatter_n_points(s) == m &&
+	    memcmp(asph_scatter_xy(s), xy, 2 * m * sizeof(double)) == 0) {
+		r = asph_scatter_set_values(s, v, err);
+		if (r == 0)
+			*out = steal_ptr(w->slope_scatter);
+		return r;
+	}
 	return asph_scatter_alloc(xy, v, m, NULL, out, err);
 }
 
@@ -118,14 +126,16 @@ void fit_slope_invalid(struct asph_slope *s, double length)
 
 /* The slope of the residual with its tilt plane (least squares, over the
  * points) removed, as ISO 14999-4 removes tilt before any quantity. */
-static int compute_slope(double *xy, double *val, size_t m, double a, double length,
-			 double noise, struct asph_fit_result *out, struct asph_error *err)
+static int compute_slope(struct asph_fit *w, double *xy, double *val, size_t m, double a,
+			 double length, double noise, struct asph_fit_result *out,
+			 struct asph_error *err)
 {
-	_cleanup_(asph_scatter_freep) struct asph_scatter *s = NULL;
+	struct asph_scatter *s;
 	double spacing;
 	int r;
 
-	r = asph_scatter_alloc(xy, val, m, NULL, &s, err);
+	r = asph_scatter_alloc(xy, val, m, NULL, &w->slope_scatter, err);
+	s = w->slope_scatter;
 	if (r == 0) {
 		/* Positions about as dense as the points, never more than
 		 * 400 x 400 of them. */
@@ -206,11 +216,13 @@ int fit_areal_form(struct asph_fit *w, struct asph_fit_result *out, struct asph_
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	fit_form_lengths(w, &wavelength, &length);
 	asph_surface_aperture_disk(w->model.s, centre, &disk_r);
+	asph_scatter_free(w->slope_scatter);
+	w->slope_scatter = NULL;
 	m = asph_fit_residual_map(w, xy, val);
 	r = compute_form(xy, val, m, centre, disk_r, wavelength, noise, out, err);
 	if (r == 0 && out->form_valid) {
 		remove_tilt(xy, val, m);
-		r = compute_slope(xy, val, m, a, length, noise, out, err);
+		r = compute_slope(w, xy, val, m, a, length, noise, out, err);
 	} else if (r == 0) {
 		out->slope.length_mm = length;
 		out->slope.rms.v = out->slope.max.v = NAN;

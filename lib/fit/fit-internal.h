@@ -84,6 +84,11 @@ struct asph_fit {
 	double *scratch;    /* n, for f evaluations the solver does not own */
 	double *left;       /* n, robust fit: residual minus its Zernike fit */
 	uint8_t *status;
+	/* The interpolant of the residual map the slope was computed on (the
+	 * map's tilt removed from its values), kept for
+	 * asph_fit_residual_scatter() to hand on with the map's own values:
+	 * a triangulation depends on x, y alone, so one serves both. */
+	struct asph_scatter *slope_scatter;
 
 	/* Solver coordinates: x = xref + T y, T upper triangular. */
 	double xref[ASPH_FIT_N_DOF];

@@ -16,6 +16,7 @@
 #include <gsl/gsl_linalg.h>
 #include <gsl/gsl_statistics_double.h>
 
+#include "asph/areal.h"
 #include "asph/fit.h"
 #include "fit-internal.h"
 #include "util-mem.h"
@@ -612,6 +613,7 @@ void asph_fit_free(struct asph_fit *w)
 	free(w->left);
 	free(w->foot);
 	free(w->status);
+	asph_scatter_free(w->slope_scatter);
 	free(w->trace_of);
 	free(w->xyz_frame);
 	free(w);
@@ -761,6 +763,8 @@ int asph_fit_init(struct asph_fit *w, const double *xyz, size_t n,
 	int r = check_points(w, xyz, n, err);
 
 	w->phase = FIT_PHASE_IDLE;
+	asph_scatter_free(w->slope_scatter);
+	w->slope_scatter = NULL;
 	if (r == 0)
 		r = fit_profile_setup(w, xyz, n, &pts, err);
 	if (r == 0)

@@ -61,11 +61,26 @@ size_t asph_points_format_names(char *buf, size_t size)
 static const struct unit_entry {
 	const char *name;
 	double mm;
+	int alias;              /* another name of the unit before it: not listed */
 } units[] = {
-	{ "nm", 1e-6 }, { "um", 1e-3 }, { "\xc2\xb5m", 1e-3 }, { "\xce\xbcm", 1e-3 },
-	{ "micron", 1e-3 }, { "microns", 1e-3 }, { "mm", 1 }, { "cm", 10 }, { "m", 1000 },
-	{ "in", 25.4 }, { "inch", 25.4 },
+	{ "nm", 1e-6, 0 }, { "um", 1e-3, 0 }, { "\xc2\xb5m", 1e-3, 1 }, { "\xce\xbcm", 1e-3, 1 },
+	{ "micron", 1e-3, 1 }, { "microns", 1e-3, 1 }, { "mm", 1, 0 }, { "cm", 10, 0 },
+	{ "m", 1000, 0 }, { "in", 25.4, 0 }, { "inch", 25.4, 1 },
 };
+
+size_t asph_points_unit_names(char *buf, size_t size)
+{
+	size_t used = 0;
+
+	if (size)
+		buf[0] = '\0';
+	for (size_t i = 0; i < ARRAY_SIZE(units); i++)
+		if (!units[i].alias)
+			used += (size_t)snprintf(buf + (used < size ? used : size),
+						 used < size ? size - used : 0, "%s%s",
+						 used ? ", " : "", units[i].name);
+	return used;
+}
 
 int asph_points_unit_parse(const char *name, double *mm)
 {

@@ -586,16 +586,34 @@ static void value_range(const struct asph_points *p,
 	*hi = m;
 }
 
+/* A CSV line of "%.17g" numbers (the default precision), through
+ * format_double_g17(): the bytes fprintf() writes, several times faster. */
+static void write_csv_g17(FILE *f, const double *v, int count)
+{
+	char line[4 * FORMAT_G17_MAX + 1];
+	size_t len = 0;
+
+	for (int k = 0; k < count; k++) {
+		len += format_double_g17(line + len, v[k]);
+		line[len++] = k + 1 < count ? ',' : '\n';
+	}
+	fwrite(line, 1, len, f);
+}
+
 static void write_csv(FILE *f, const struct asph_points *p, int prec)
 {
 	fprintf(f, "x,y,z%s%s\n", p->value ? "," : "", p->value ? p->value_name : "");
 	for (size_t i = 0; i < p->n; i++) {
 		const double *q = p->xyz + 3 * i;
-		if (p->value)
+		if (prec == 17) {
+			double v[4] = { q[0], q[1], q[2], p->value ? p->value[i] : 0 };
+			write_csv_g17(f, v, p->value ? 4 : 3);
+		} else if (p->value) {
 			fprintf(f, "%.*g,%.*g,%.*g,%.*g\n", prec, q[0], prec, q[1], prec, q[2],
 				prec, p->value[i]);
-		else
+		} else {
 			fprintf(f, "%.*g,%.*g,%.*g\n", prec, q[0], prec, q[1], prec, q[2]);
+		}
 	}
 }
 

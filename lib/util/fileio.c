@@ -1,5 +1,6 @@
 /* SPDX-License-Identifier: GPL-3.0-or-later */
 #include <errno.h>
+#include <fcntl.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -15,25 +16,18 @@ static int fail(struct asph_error *err, const char *source, int code,
 	return asph_error_set_at(err, code, source, 0, 0, NULL, "%s", what);
 }
 
-int file_read_all(const char *path, size_t limit, char **out, size_t *len,
-		  struct asph_error *err)
+int fd_read_all(int fd, size_t limit, const char *source, char **out, size_t *len,
+		struct asph_error *err)
 {
-	int is_stdin = !strcmp(path, "-");
-	const char *source = is_stdin ? "<stdin>" : path;
-	_cleanup_fclose_ FILE *owned = is_stdin ? NULL : fopen(path, "re");
-	FILE *f = is_stdin ? stdin : owned;
 	_cleanup_free_ char *buf = NULL;
 	size_t n = 0, cap = 0;
 
-	if (!f) {
-		int e = -errno;
-		return asph_error_set_at(err, e, source, 0, 0, NULL, "cannot open: %s",
-					 strerror(-e));
-	}
 	for (;;) {
+		ssize_t got;
+
 		if (n == cap) {
 			if (cap > limit)
-				return fail(err, source, -EFBIG, "file too large");
+				break;
 			cap = cap ? 2 * cap : 1 << 14;
 			/* one byte past the limit tells "exactly limit" from "more" */
 			if (cap > limit + 1)
@@ -43,22 +37,39 @@ int file_read_all(const char *path, size_t limit, char **out, size_t *len,
 				return fail(err, source, -ENOMEM, "out of memory");
 			buf = grown;
 		}
-		size_t got = fread(buf + n, 1, cap - n, f);
-		n += got;
-		if (n > limit) {
-			char msg[96];
-			snprintf(msg, sizeof(msg), "larger than the limit of %zu bytes", limit);
-			return fail(err, source, -EFBIG, msg);
-		}
+		got = read(fd, buf + n, cap - n);
+		if (got < 0 && errno == EINTR)
+			continue;
+		if (got < 0)
+			return fail(err, source, -errno, strerror(errno));
 		if (got == 0)
 			break;
+		n += (size_t)got;
 	}
-	if (ferror(f))
-		return fail(err, source, -EIO, "read error");
+	if (n > limit) {
+		char msg[96];
+		snprintf(msg, sizeof(msg), "larger than the limit of %zu bytes", limit);
+		return fail(err, source, -EFBIG, msg);
+	}
 	buf[n] = '\0';
 	*out = steal_ptr(buf);
 	*len = n;
 	return 0;
+}
+
+int file_read_all(const char *path, size_t limit, char **out, size_t *len,
+		  struct asph_error *err)
+{
+	int is_stdin = !strcmp(path, "-");
+	const char *source = is_stdin ? "<stdin>" : path;
+	_cleanup_close_ int owned = is_stdin ? -1 : open(path, O_RDONLY | O_CLOEXEC);
+
+	if (!is_stdin && owned < 0) {
+		int e = -errno;
+		return asph_error_set_at(err, e, source, 0, 0, NULL, "cannot open: %s",
+					 strerror(-e));
+	}
+	return fd_read_all(is_stdin ? STDIN_FILENO : owned, limit, source, out, len, err);
 }
 
 int fd_write_all(int fd, const void *p, size_t n)

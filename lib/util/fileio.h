@@ -15,6 +15,10 @@
  */
 int file_read_all(const char *path, size_t limit, char **out, size_t *len,
 		  struct asph_error *err);
+/* The same from an open descriptor, to its end; source names it in
+ * errors. */
+int fd_read_all(int fd, size_t limit, const char *source, char **out, size_t *len,
+		struct asph_error *err);
 
 /* All n bytes of p to fd (a pipe, a file), through EINTR and short writes:
  * 0 or -errno (-EIO when the descriptor takes nothing). */

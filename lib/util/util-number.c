@@ -17,6 +17,7 @@
 #include <math.h>
 #include <stdbool.h>
 #include <stdint.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -204,5 +205,126 @@ size_t parse_double(const char *text, size_t len, double *out)
 	if (d.dropped || !convert(d.w, d.e10, &v))
 		return parse_with_strtod(text, i, out);
 	*out = neg ? -v : v;
+	return i;
+}
+
+/* ------------------------------------------------------------ writing */
+
+#define G17_DIGITS 17
+#define TEN_16 10000000000000000ull
+#define TEN_17 100000000000000000ull
+
+/* m 2^q 10^k rounded to an integer, ties to even, for 0 <= k <= 27 (the
+ * product m 5^k of a 53-bit m is below 2^116); false when it would not fit
+ * in 64 bits. */
+static bool scaled_round(uint64_t m, int q, int k, uint64_t *out)
+{
+	u128 p = (u128)m * pow5[k], n;
+	int s = -(q + k);
+
+	if (s <= 0) {
+		if (-s >= 64 || (p >> (64 + s)) != 0)
+			return false;
+		*out = (uint64_t)(p << -s);
+		return true;
+	}
+	if (s >= 127) {
+		*out = 0;       /* below 2^-10: no power of ten here needs it */
+		return true;
+	}
+	n = p >> s;
+	u128 rem = p - (n << s), half = (u128)1 << (s - 1);
+	if (rem > half || (rem == half && (n & 1)))
+		n++;
+	if (n >> 64)
+		return false;
+	*out = (uint64_t)n;
+	return true;
+}
+
+/* The 17 significant digits of |v| (a normal double) as an integer in
+ * [10^16, 10^17) and the decimal exponent of the first; false where the
+ * power of ten needed is not exact in 128 bits. */
+static bool g17_digits(double v, uint64_t *digits, int *exp10)
+{
+	uint64_t b;
+	int be, e;
+
+	memcpy(&b, &v, sizeof(b));
+	be = (int)((b >> 52) & 0x7ff);
+	if (be == 0 || be == 0x7ff)
+		return false;           /* zero, subnormal, inf, nan */
+	uint64_t m = (b & ((1ull << 52) - 1)) | (1ull << 52);
+	int q = be - 1075;
+	/* 2^(q + 52) <= |v| < 2^(q + 53): e is the exponent or one below */
+	e = (int)floor((q + 52) * 0.30102999566398119521);
+	for (int tries = 0; tries < 3; tries++) {
+		int k = G17_DIGITS - 1 - e;
+		uint64_t n;
+		if (k < 0 || k > MAX_EXACT_EXP || !scaled_round(m, q, k, &n))
+			return false;
+		if (n >= TEN_17)
+			e++;
+		else if (n < TEN_16)
+			e--;
+		else {
+			*digits = n;
+			*exp10 = e;
+			return true;
+		}
+	}
+	return false;
+}
+
+/* %g's layout of the digits d[0 .. nd) (trailing zeros gone) of a number
+ * d.ddd 10^e: fixed when -4 <= e < 17, else with an exponent. */
+static size_t g17_layout(char *buf, size_t i, const char *d, int nd, int e)
+{
+	if (e < -4 || e >= G17_DIGITS) {
+		buf[i++] = d[0];
+		if (nd > 1) {
+			buf[i++] = '.';
+			memcpy(buf + i, d + 1, (size_t)nd - 1);
+			i += (size_t)nd - 1;
+		}
+		return i + (size_t)sprintf(buf + i, "e%c%02d", e < 0 ? '-' : '+', abs(e));
+	}
+	if (e < 0) {
+		buf[i++] = '0';
+		buf[i++] = '.';
+		for (int z = 0; z < -e - 1; z++)
+			buf[i++] = '0';
+		memcpy(buf + i, d, (size_t)nd);
+		return i + (size_t)nd;
+	}
+	memcpy(buf + i, d, (size_t)e + 1);
+	i += (size_t)e + 1;
+	if (nd > e + 1) {
+		buf[i++] = '.';
+		memcpy(buf + i, d + e + 1, (size_t)(nd - e - 1));
+		i += (size_t)(nd - e - 1);
+	}
+	return i;
+}
+
+size_t format_double_g17(char buf[FORMAT_G17_MAX], double v)
+{
+	char d[G17_DIGITS];
+	uint64_t n;
+	int e, nd = G17_DIGITS;
+	size_t i = 0;
+
+	if (!g17_digits(v, &n, &e))
+		return (size_t)snprintf(buf, FORMAT_G17_MAX, "%.17g", v);
+	for (int k = G17_DIGITS - 1; k >= 0; k--) {
+		d[k] = (char)('0' + n % 10);
+		n /= 10;
+	}
+	while (nd > 1 && d[nd - 1] == '0')
+		nd--;
+	if (signbit(v))
+		buf[i++] = '-';
+	i = g17_layout(buf, i, d, nd, e);
+	buf[i] = '\0';
 	return i;
 }

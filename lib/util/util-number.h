@@ -27,4 +27,18 @@
  */
 size_t parse_double(const char *text, size_t len, double *out);
 
+/* The longest text format_double_g17() writes, its NUL included. */
+#define FORMAT_G17_MAX 32
+
+/*
+ * Writes v as snprintf("%.17g") does in the C locale, byte for byte, and
+ * returns its length (the NUL is written after it). Seventeen significant
+ * digits give every double back through parse_double() or strtod(). The
+ * digits of a number between 1e-11 and 1e16 in magnitude are found exactly
+ * in 128-bit integers, without snprintf()'s arbitrary-precision machinery,
+ * which is what makes writing millions of them slow; the rest is
+ * snprintf()'s.
+ */
+size_t format_double_g17(char buf[FORMAT_G17_MAX], double v);
+
 #endif

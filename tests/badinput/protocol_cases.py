@@ -238,6 +238,9 @@ WRONG = {
 }
 
 SUBMIT = REQUESTS["job.submit"]
+# measured data in place of a plan: no descriptor comes on this connection,
+# and each wrong type is refused naming its member before one is looked for
+MEASURED = {"lens": "strong", "measured": {"fd": 0, "format": "auto", "units": "mm"}}
 PARAM_TYPES = [
     ("hello", None, ["client"], "string"), ("hello", None, ["token"], "string"),
     ("job.submit", None, ["lens"], "lens"), ("job.submit", None, ["plan"], "object"),
@@ -255,6 +258,10 @@ PARAM_TYPES = [
     ("job.submit", None, ["fit", "zernike"], "int"),
     ("job.submit", None, ["instrument"], "string"), ("job.submit", None, ["priority"], "int"),
     ("job.submit", None, ["label"], "string"),
+    ("job.submit", MEASURED, ["measured"], "object"),
+    ("job.submit", MEASURED, ["measured", "fd"], "int"),
+    ("job.submit", MEASURED, ["measured", "format"], "string"),
+    ("job.submit", MEASURED, ["measured", "units"], "string"),
     ("job.get", None, ["id"], "int"), ("job.get", None, ["history"], "bool"),
     ("job.list", None, ["states"], "flags"), ("job.list", None, ["instrument"], "string"),
     ("job.list", None, ["label"], "string"), ("job.list", None, ["uid"], "int"),

@@ -106,10 +106,11 @@ try:
     # curvature's only with R fitted and the traces' only for line profiles
     # (test-cli-profiles.py has both), and the plan chosen for the
     # tolerance only for a job submitted with plan.for_tolerance
-    # (test-daemon-plan-tolerance.py has it)
+    # (test-daemon-plan-tolerance.py has it), the measured data's only for
+    # a job of measured data (test-daemon-measured.py)
     conditional = {"uncertainty_standard", "uncertainty_model", "c", "c_per_mm",
                    "nominal_c_per_mm", "azimuth_deg", "offset_mm", "length_mm",
-                   "slope_max_urad", "n_slope_positions", "plan_for_tolerance"}
+                   "slope_max_urad", "n_slope_positions", "plan_for_tolerance", "measured"}
     extra = documented - returned - {"id"} - conditional
     expect(not extra, f"the README documents no member job.result does not return ({sorted(extra)})")
 

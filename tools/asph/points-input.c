@@ -19,8 +19,9 @@ int points_input_format(struct points_input *in, const char *prog, const char *a
 int points_input_units(struct points_input *in, const char *prog, const char *arg)
 {
 	if (asph_points_unit_parse(arg, &in->opts.unit_mm) < 0) {
-		fprintf(stderr, "asph %s: --units: unknown unit '%s' (nm, um, mm, cm, m, in)\n",
-			prog, arg);
+		char names[128];
+		asph_points_unit_names(names, sizeof(names));
+		fprintf(stderr, "asph %s: --units: unknown unit '%s' (%s)\n", prog, arg, names);
 		return -1;
 	}
 	in->units_arg = arg;

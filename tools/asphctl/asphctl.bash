@@ -1,9 +1,10 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 # bash completion for asphctl. The commands, each command's options and the
 # values that come from a table (presets, plan methods, residuals, the
-# queue's subcommands) come from asphctl itself (`asphctl --help`, `asphctl
-# help COMMAND`), so they are the ones the installed asphctl has. The job
-# states are the protocol's (proto/schema/common.json, jobState).
+# formats of measured data, the queue's subcommands) come from asphctl
+# itself (`asphctl --help`, `asphctl help COMMAND`), so they are the ones
+# the installed asphctl has. The job states are the protocol's
+# (proto/schema/common.json, jobState).
 
 # The text of an operand or option in `asphctl help COMMAND`, its lines
 # joined: _asphctl_item submit '--method M'.
@@ -34,8 +35,10 @@ _asphctl()
 		esac
 	done
 	case $prev in
-	-s|--socket|--out|--report|--tolerance) COMPREPLY=($(compgen -f -- "$cur")); return ;;
+	-s|--socket|--out|--report|--tolerance|--measured) COMPREPLY=($(compgen -f -- "$cur")); return ;;
 	--method) COMPREPLY=($(compgen -W "$(_asphctl_item submit '--method M' | tr -d ,)" -- "$cur")); return ;;
+	--format) COMPREPLY=($(compgen -W "$(_asphctl_item submit '--format F' | tr -d ,)" -- "$cur")); return ;;
+	--units) COMPREPLY=($(compgen -W "$(_asphctl_item submit '--units U' | tr -d ,)" -- "$cur")); return ;;
 	--residual)
 		COMPREPLY=($(compgen -W "$(asphctl help submit 2>/dev/null |
 			grep -o -- '--residual [a-z|-]*' | cut -d' ' -f2 | tr '|' ' ')" -- "$cur"))

@@ -34,6 +34,11 @@ void conn_close(struct conn *c);
  */
 int conn_call(struct conn *c, const char *method, json_t *params,
 	      json_t **result, struct ctl_error *e);
+/* The same, passing n_fds descriptors (at most CONN_MAX_FDS) with the
+ * request (SCM_RIGHTS): the request names them by their index. */
+#define CONN_MAX_FDS 4
+int conn_call_fds(struct conn *c, const char *method, json_t *params, const int *fds,
+		  size_t n_fds, json_t **result, struct ctl_error *e);
 /* Next notification: 1 with *msg, 0 on timeout (ms, -1 = none), or -errno. */
 int conn_next_event(struct conn *c, int timeout_ms, json_t **msg);
 
@@ -65,6 +70,9 @@ int ctl_fail(const struct ctl_error *e);
  * (> 0), else 0 with *result. */
 int ctl_call(struct ctl *ctl, const char *method, json_t *params,
 	     json_t **result);
+/* The same, passing n_fds descriptors with the request (conn_call_fds()). */
+int ctl_call_fds(struct ctl *ctl, const char *method, json_t *params, const int *fds,
+		 size_t n_fds, json_t **result);
 /* Prints JSON (pretty) to stdout, with the characters that ctl_escape()
  * escapes written as \u escapes. */
 void ctl_print_json(const json_t *j);

@@ -50,6 +50,9 @@ void ctl_print_job_line(const json_t *job)
 	if (json_is_true(json_object_get(plan, "for_tolerance")))
 		snprintf(density, sizeof(density), "for-tolerance %g",
 			 json_number_value(json_object_get(plan, "capability")));
+	else if (json_is_object(json_object_get(job, "measured")))
+		snprintf(density, sizeof(density), "measured %s",
+			 str(json_object_get(job, "measured"), "format"));
 	else
 		snprintf(density, sizeof(density), "%s %s=%g", str(plan, "method"),
 			 str(plan, "density"), json_number_value(json_object_get(plan, "value")));
@@ -77,7 +80,11 @@ static void print_job(const json_t *job)
 	printf("  instrument  %s\n", str(job, "instrument"));
 	printf("  lens        %s\n", str(job, "lens"));
 	char tol[96];
-	if (plan_for_tolerance(json_object_get(job, "plan"), tol, sizeof(tol)))
+	json_t *measured = json_object_get(job, "measured");
+	if (json_is_object(measured))
+		printf("  measured    %s data, %s in the job's folder\n", str(measured, "format"),
+		       str(measured, "file"));
+	else if (plan_for_tolerance(json_object_get(job, "plan"), tol, sizeof(tol)))
 		printf("  plan        %s\n", tol);
 	else
 		printf("  plan        %s, %s = %g\n", str(json_object_get(job, "plan"), "method"),
@@ -196,7 +203,8 @@ static json_t *tolerance_param(const char *arg)
 
 static const char submit_usage[] =
 	"submit LENS (--method M (--h H | --spacing MM | --points N) [--profiles N]\n"
-	"             | --for-tolerance [--capability R] [--method M])\n"
+	"             | --for-tolerance [--capability R] [--method M]\n"
+	"             | --measured FILE [--format F] [--units U])\n"
 	"       [--instrument NAME] [--priority P] [--label TEXT] [--dof LIST]\n"
 	"       [--residual " NAMES_RESIDUALS "] [--robust] [--zernike N] [--tolerance T]\n"
 	"       [--part P] [--lot L] [--serial S] [--wait [--quiet]] [--json]";
@@ -206,6 +214,31 @@ void cmd_submit_values(FILE *out)
 {
 	command_help_option(out, "LENS", "a preset (" NAMES_PRESETS ") or a prescription file");
 	command_help_option(out, "--method M", NAMES_PLAN_METHODS);
+	command_help_option(out, "--measured FILE", "measured data the daemon characterizes "
+			    "instead of measuring (asphctl opens it and passes it to the "
+			    "daemon, which must run on this machine)");
+	command_help_option(out, "--format F", NAMES_POINTS_FORMATS);
+	command_help_option(out, "--units U", NAMES_POINTS_UNITS);
+}
+
+/* --measured FILE: the file opened here, passed to the daemon as
+ * descriptor 0 of the request; -1 after saying why. */
+static int measured_param(json_t *params, const char *path, const char *format,
+			  const char *units)
+{
+	int fd = open(path, O_RDONLY | O_CLOEXEC);
+	struct stat st;
+
+	if (fd < 0 || fstat(fd, &st) < 0 || S_ISDIR(st.st_mode)) {
+		fprintf(stderr, "asphctl: submit: --measured: %s: %s\n", path,
+			fd < 0 || !S_ISDIR(st.st_mode) ? strerror(errno) : "a directory");
+		if (fd >= 0)
+			close(fd);
+		return -1;
+	}
+	json_object_set_new(params, "measured", json_pack("{s:i, s:s*, s:s*}", "fd", 0,
+							   "format", format, "units", units));
+	return fd;
 }
 
 /* "job 12 queued (700 points, about 1 min 15 s to measure)". */
@@ -221,6 +254,11 @@ static void print_queued(const json_t *job, json_int_t id)
 	}
 	long long n = (long long)json_integer_value(json_object_get(json_object_get(job, "progress"),
 								     "total"));
+
+	if (json_is_object(json_object_get(job, "measured"))) {
+		printf("job %lld queued (%lld measured points to characterize)\n", (long long)id, n);
+		return;
+	}
 
 	if (json_is_number(est)) {
 		double t = json_number_value(est);
@@ -331,15 +369,19 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 		{ "tolerance", required_argument, NULL, 't' },
 		{ "for-tolerance", no_argument, NULL, 'T' },
 		{ "capability", required_argument, NULL, 'C' },
+		{ "measured", required_argument, NULL, 'M' },
+		{ "format", required_argument, NULL, 'O' },
+		{ "units", required_argument, NULL, 'U' },
 		{ "wait", no_argument, NULL, 'w' },
 		{ "quiet", no_argument, NULL, 'q' },
 		CTL_JSON_OPTION, CTL_HELP_OPTION, { NULL, 0, NULL, 0 },
 	};
 	_cleanup_(json_decrefp) json_t *params = json_object();
 	_cleanup_(json_decrefp) json_t *result = NULL;
+	_cleanup_close_ int data = -1;
 	json_t *plan = json_object(), *fit = json_object();
 	bool wait = false, quiet = false, for_tolerance = false;
-	const char *capability = NULL;
+	const char *capability = NULL, *measured = NULL, *format = NULL, *units = NULL;
 	int c, r;
 
 	json_object_set_new(params, "plan", plan);
@@ -370,6 +412,9 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 		}
 		case 'T': for_tolerance = true; break;
 		case 'C': capability = optarg; break;
+		case 'M': measured = optarg; break;
+		case 'O': format = optarg; break;
+		case 'U': units = optarg; break;
 		case 'w': wait = true; break;
 		case 'q': quiet = true; break;
 		}
@@ -382,9 +427,19 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 		json_decref(fit);
 		return ctl_options_exit(c);
 	}
-	if (optind + 1 != argc || (capability && !for_tolerance)) {
+	if (optind + 1 != argc || (capability && !for_tolerance) ||
+	    ((format || units) && !measured) ||
+	    (measured && (for_tolerance || json_object_size(plan)))) {
 		json_decref(fit);
 		return ctl_usage_error(submit_usage);
+	}
+	if (measured) {
+		json_object_del(params, "plan");
+		data = measured_param(params, measured, format, units);
+		if (data < 0) {
+			json_decref(fit);
+			return EXIT_FAILURE_RUN;
+		}
 	}
 	if (for_tolerance && !for_tolerance_ok(params, plan, capability)) {
 		json_decref(fit);
@@ -398,7 +453,8 @@ int cmd_submit(struct ctl *ctl, int argc, char **argv)
 	if (!lens)
 		return EXIT_FAILURE_RUN;
 	json_object_set_new(params, "lens", lens);
-	r = ctl_call(ctl, "job.submit", json_incref(params), &result);
+	r = ctl_call_fds(ctl, "job.submit", json_incref(params), &data, data >= 0 ? 1 : 0,
+			 &result);
 	if (r)
 		return r;
 	json_int_t id = json_integer_value(json_object_get(result, "id"));
@@ -878,7 +934,12 @@ static void print_summary(const json_t *res)
 	printf("job %lld:\n", (long long)json_integer_value(json_object_get(res, "job")));
 	fit_summary_print(stdout, s, "  ");
 	fit_summary_print_acquisition(stdout, json_object_get(s, "acquisition"), "  ");
-	printf("  Scan sha256 %s\n", str(json_object_get(prov, "scan"), "sha256"));
+	if (json_is_object(json_object_get(prov, "measured")))
+		printf("  Measured data %s, sha256 %s\n",
+		       str(json_object_get(prov, "measured"), "file"),
+		       str(json_object_get(prov, "measured"), "sha256"));
+	else
+		printf("  Scan sha256 %s\n", str(json_object_get(prov, "scan"), "sha256"));
 	printf("  Files in %s\n", str(res, "dir"));
 }
 

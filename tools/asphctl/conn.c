@@ -101,6 +101,38 @@ static int send_all(int fd, const char *s, size_t n)
 	return 0;
 }
 
+/* The first byte of a request with descriptors passed (SCM_RIGHTS), so
+ * that they arrive with the request's line; then the rest as send_all(). */
+static int send_with_fds(int fd, const char *s, size_t n, const int *fds, size_t n_fds)
+{
+	union {
+		struct cmsghdr align;
+		char buf[CMSG_SPACE(sizeof(int) * CONN_MAX_FDS)];
+	} control;
+	struct iovec iov = { .iov_base = (void *)s, .iov_len = 1 };
+	struct msghdr msg = { .msg_iov = &iov, .msg_iovlen = 1, .msg_control = control.buf,
+			      .msg_controllen = CMSG_SPACE(sizeof(int) * n_fds) };
+	struct cmsghdr *cm;
+	ssize_t k;
+
+	if (!n_fds)
+		return send_all(fd, s, n);
+	if (n_fds > CONN_MAX_FDS || n == 0)
+		return -EINVAL;
+	memset(&control, 0, sizeof(control));
+	cm = CMSG_FIRSTHDR(&msg);
+	cm->cmsg_level = SOL_SOCKET;
+	cm->cmsg_type = SCM_RIGHTS;
+	cm->cmsg_len = CMSG_LEN(sizeof(int) * n_fds);
+	memcpy(CMSG_DATA(cm), fds, sizeof(int) * n_fds);
+	do
+		k = sendmsg(fd, &msg, MSG_NOSIGNAL);
+	while (k < 0 && errno == EINTR);
+	if (k < 0)
+		return -errno;
+	return send_all(fd, s + 1, n - 1);
+}
+
 /* Reads one message; 1 with *msg, 0 on timeout, -errno. */
 static int read_message(struct conn *c, int timeout_ms, json_t **msg)
 {
@@ -143,6 +175,12 @@ static int read_message(struct conn *c, int timeout_ms, json_t **msg)
 int conn_call(struct conn *c, const char *method, json_t *params,
 	      json_t **result, struct ctl_error *e)
 {
+	return conn_call_fds(c, method, params, NULL, 0, result, e);
+}
+
+int conn_call_fds(struct conn *c, const char *method, json_t *params, const int *fds,
+		  size_t n_fds, json_t **result, struct ctl_error *e)
+{
 	json_int_t id = ++c->next_id;
 	_cleanup_(json_decrefp) json_t *req = proto_make_request(id, method, params);
 	_cleanup_free_ char *text = req ? proto_dump(req, NULL) : NULL;
@@ -150,7 +188,7 @@ int conn_call(struct conn *c, const char *method, json_t *params,
 
 	if (!text)
 		return io_error(e, -ENOMEM, "out of memory");
-	r = send_all(c->fd, text, strlen(text));
+	r = send_with_fds(c->fd, text, strlen(text), fds, n_fds);
 	if (r < 0)
 		return io_error(e, r, "the connection to asphd broke");
 	for (;;) {

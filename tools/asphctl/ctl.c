@@ -29,6 +29,12 @@ int ctl_fail(const struct ctl_error *e)
 
 int ctl_call(struct ctl *ctl, const char *method, json_t *params, json_t **result)
 {
+	return ctl_call_fds(ctl, method, params, NULL, 0, result);
+}
+
+int ctl_call_fds(struct ctl *ctl, const char *method, json_t *params, const int *fds,
+		 size_t n_fds, json_t **result)
+{
 	struct ctl_error e = { 0 };
 	int r;
 
@@ -36,7 +42,7 @@ int ctl_call(struct ctl *ctl, const char *method, json_t *params, json_t **resul
 		json_decref(params);
 		return ctl_fail(&e);
 	}
-	r = conn_call(ctl->conn, method, params, result, &e);
+	r = conn_call_fds(ctl->conn, method, params, fds, n_fds, result, &e);
 	if (r < 0)
 		return ctl_fail(&e);
 	if (!ctl->json)

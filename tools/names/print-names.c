@@ -20,6 +20,7 @@
 #include "asph/fit.h"
 #include "asph/form.h"
 #include "asph/plan.h"
+#include "asph/points.h"
 #include "asph/prescription.h"
 #include "asph/quality.h"
 #include "asph/tolerance.h"
@@ -134,6 +135,11 @@ static int header(void)
 	print_list("NAMES_PLAN_METHODS", method_name, ", ");
 	print_list("NAMES_PRESETS", preset_name, ", ");
 	print_list("NAMES_RESIDUALS", residual_name, "|");
+	char formats[256];       /* and then the units */
+	asph_points_format_names(formats, sizeof(formats));
+	printf("#define NAMES_POINTS_FORMATS \"%s\"\n", formats);
+	asph_points_unit_names(formats, sizeof(formats));
+	printf("#define NAMES_POINTS_UNITS \"%s\"\n", formats);
 	printf("#define NAMES_VERDICT_LIST ");
 	for (int i = 0; verdict_name(i); i++)
 		printf("%s\"%s\"", i ? ", " : "", verdict_name(i));

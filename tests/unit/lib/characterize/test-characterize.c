@@ -95,8 +95,8 @@ static void test_points(void **state)
 	double radius = asph_surface_aperture_radius(s);
 	struct asph_fit *w;
 	struct asph_fit_result fr;
-	struct asph_scatter *sc;
-	struct asph_grid *g;
+	struct asph_scatter *sc, *sc2;
+	struct asph_grid *g, *g2;
 	struct asph_psd *psd;
 	struct asph_psd2 *p2;
 	struct asph_band_rms bands;
@@ -134,6 +134,19 @@ static void test_points(void **state)
 		    res->bands.mid == bands.mid && res->bands.high == bands.high &&
 		    res->bands.total == bands.total);
 	assert_int_equal((int)res->n_map, (int)fr.n_used);
+	/* the first call handed on the slope's triangulation with the map's
+	 * values; a second one triangulates the map anew, to the same
+	 * interpolant */
+	assert_int_equal(asph_fit_residual_scatter(w, &sc2, NULL), 0);
+	assert_true(sc2 != sc && asph_scatter_n_points(sc2) == asph_scatter_n_points(sc));
+	assert_memory_equal(asph_scatter_xy(sc2), asph_scatter_xy(sc),
+			    2 * fr.n_used * sizeof(double));
+	assert_memory_equal(asph_scatter_values(sc2), asph_scatter_values(sc),
+			    fr.n_used * sizeof(double));
+	assert_int_equal(asph_grid_resample(sc2, radius, dx, &g2, NULL), 0);
+	assert_memory_equal(g2->z, g->z, g->nx * g->ny * sizeof(double));
+	asph_grid_free(g2);
+	asph_scatter_free(sc2);
 	assert_null(res->acquisition_json);
 	assert_false(res->mc_done);
 
@@ -702,10 +715,42 @@ static void test_folder(void **state)
 	free(text);
 	asph_characterize_free(c);
 
-	/* points are no job */
+	/* points read from a file with their data: measured data, no plan */
 	struct asph_points *p = part(s, 200, &pose);
+	const struct asph_characterize_folder measured = {
+		.mode = 0600, .scan_file = "measured.txt", .software_json = "{}",
+		.tolerance_json = "{}", .finished_ns = 1772600800000000000,
+	};
+	assert_int_equal(rmtree(dir), 0);
+	assert_non_null(mkdtemp(strcpy(dir, "/tmp/asph-char-XXXXXX")));
+	close(fd);
+	fd = open(dir, O_RDONLY | O_DIRECTORY);
 	c = characterize(s, &o, p);
-	assert_int_equal(asph_characterize_write_folder(c, fd, &folder, NULL, NULL), -EINVAL);
+	assert_int_equal(asph_characterize_write_folder(c, fd, &measured, &text, NULL), 0);
+	r = json_loads(text, 0, NULL);
+	assert_non_null(r);
+	files = json_object_get(r, "files");
+	prov = json_object_get(r, "provenance");
+	assert_string_equal(json_string_value(json_object_get(files, "measured")),
+			    "measured.txt");
+	assert_null(json_object_get(files, "scan"));
+	assert_null(json_object_get(prov, "scan"));
+	assert_true(json_is_null(json_object_get(prov, "plan")) ||
+		    !json_object_get(prov, "plan"));
+	assert_int_equal(json_integer_value(json_object_get(json_object_get(prov, "measured"),
+							    "points")), 200);
+	assert_string_equal(json_string_value(json_object_get(json_object_get(prov, "measured"),
+							      "sha256")), hex);
+	json_decref(r);
+	free(text);
+	asph_characterize_free(c);
+
+	/* points without the bytes they were read from make no folder */
+	struct asph_characterize_options bare = o;
+	bare.run.data = NULL;
+	bare.run.data_len = 0;
+	c = characterize(s, &bare, p);
+	assert_int_equal(asph_characterize_write_folder(c, fd, &measured, NULL, NULL), -EINVAL);
 	asph_characterize_free(c);
 	asph_points_free(p);
 	close(fd);

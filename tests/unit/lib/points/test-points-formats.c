@@ -856,6 +856,23 @@ static void test_formats(void **state)
 	assert_non_null(strstr(err.message, "text:"));
 }
 
+/* The units' list names each unit once, every name parses, and a buffer
+ * too short is cut, not overrun. */
+static void test_unit_names(void **state)
+{
+	char list[128], cut[8], *save = NULL;
+	size_t n = asph_points_unit_names(list, sizeof(list));
+	double mm;
+
+	(void)state;
+	assert_string_equal(list, "nm, um, mm, cm, m, in");
+	assert_int_equal(n, strlen(list));
+	for (char *t = strtok_r(list, ", ", &save); t; t = strtok_r(NULL, ", ", &save))
+		assert_int_equal(asph_points_unit_parse(t, &mm), 0);
+	assert_int_equal(asph_points_unit_names(cut, sizeof(cut)), n);
+	assert_string_equal(cut, "nm, um,");
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -869,6 +886,7 @@ int main(void)
 		cmocka_unit_test(test_metropro),
 		cmocka_unit_test(test_datx),
 		cmocka_unit_test(test_formats),
+		cmocka_unit_test(test_unit_names),
 	};
 	return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -170,6 +170,59 @@ static void test_forms(void **state)
 	free(big);
 }
 
+/* v written as snprintf("%.17g") writes it, byte for byte. */
+static void check_as_snprintf(double v)
+{
+	char want[64], got[FORMAT_G17_MAX];
+	int n = snprintf(want, sizeof(want), "%.17g", v);
+	size_t len = format_double_g17(got, v);
+
+	if (len != (size_t)n || strcmp(got, want) != 0) {
+		fprintf(stderr, "%a: format_double_g17 '%s', snprintf '%s'\n", v, got, want);
+		fail();
+	}
+}
+
+static void test_format_g17(void **state)
+{
+	uint64_t s = 0x243f6a8885a308d3ull;
+
+	/* every kind of double (random bits), and the magnitudes of the exact
+	 * path, 1e-12 to 1e17, both signs */
+	for (int i = 0; i < N_RANDOM / 2; i++) {
+		uint64_t b = next(&s);
+		double v;
+		if (i % 4)
+			b = (b & 0x800fffffffffffffull) | ((uint64_t)(1023 - 40 + i % 97) << 52);
+		memcpy(&v, &b, sizeof(v));
+		check_as_snprintf(v);
+	}
+	/* ties at the 18th digit (u / 2^k with k fraction bits has an
+	 * expansion of k digits: 17 + 1 significant ones for the right k),
+	 * rounded to even; and the neighbours of powers of ten, where the
+	 * rounding carries into a new digit */
+	for (int i = 0; i < N_RANDOM / 8; i++) {
+		uint64_t u = (next(&s) >> (11 + i % 40)) | 1;
+		check_as_snprintf(ldexp((double)u, -(i % 64)));
+	}
+	for (int e = -14; e <= 18; e++) {
+		double p = pow(10, e), v = p;
+		for (int k = 0; k < 40; k++, v = nextafter(v, 0))
+			check_as_snprintf(v);
+		v = p;
+		for (int k = 0; k < 40; k++, v = nextafter(v, INFINITY))
+			check_as_snprintf(-v);
+		check_as_snprintf(9.9999999999999995 * p);
+		check_as_snprintf(9.99999999999999995 * p);
+	}
+	/* what the exact path leaves to snprintf */
+	double others[] = { 0.0, -0.0, INFINITY, -INFINITY, NAN, -NAN, 5e-324, 1e300,
+			    -1e-300, 1e16, 1e17, 123456789012345678.0, 1e-11, 1e-12, 0.1, 1.5,
+			    1 + 0x1p-17, 1 + 3 * 0x1p-17 /* ties */ };
+	for (size_t i = 0; i < sizeof(others) / sizeof(others[0]); i++)
+		check_as_snprintf(others[i]);
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -177,6 +230,7 @@ int main(void)
 		cmocka_unit_test(test_random_texts),
 		cmocka_unit_test(test_ties),
 		cmocka_unit_test(test_forms),
+		cmocka_unit_test(test_format_g17),
 	};
 
 	return cmocka_run_group_tests(tests, NULL, NULL);
