@@ -48,6 +48,7 @@ static int mark_kept(struct asph_scatter *s, const struct asph_scatter_options *
 	s->kept = malloc(s->n_tri + 1);
 	if (!len || !s->kept)
 		return asph_error_set(err, -ENOMEM, "out of memory");
+	mem_advise_huge(len, 3 * s->n_tri * sizeof(double));
 	for (size_t t = 0; t < s->n_tri; t++)
 		for (int k = 0; k < 3; k++)
 			len[3 * t + k] = edge_length(s, s->tri[3 * t + k], s->tri[3 * t + (k + 1) % 3]);
@@ -115,6 +116,10 @@ static int order_triangles(struct asph_scatter *s, struct asph_error *err)
 		free(adj);
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	}
+	mem_advise_huge(start, (nc + 1) * sizeof(uint32_t));
+	mem_advise_huge(to, s->n_tri * sizeof(uint32_t));
+	mem_advise_huge(tri, 3 * s->n_tri * sizeof(uint32_t));
+	mem_advise_huge(adj, 3 * s->n_tri * sizeof(uint32_t));
 	for (size_t i = 0; i < s->n; i++)
 		for (int d = 0; d < 2; d++) {
 			lo[d] = fmin(lo[d], s->xy[2 * i + d]);
@@ -191,6 +196,8 @@ int asph_scatter_alloc(const double *xy, const double *value, size_t n,
 		asph_scatter_free(s);
 		return asph_error_set(err, -ENOMEM, "out of memory");
 	}
+	mem_advise_huge(s->xy, 2 * n * sizeof(double));
+	mem_advise_huge(s->value, n * sizeof(double));
 	memcpy(s->xy, xy, 2 * n * sizeof(double));
 	memcpy(s->value, value, n * sizeof(double));
 	r = asph_delaunay_triangulate(d, xy, n, &s->tri, &s->n_tri, err);

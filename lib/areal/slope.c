@@ -104,6 +104,7 @@ int asph_slope_compute(const struct asph_scatter *s, double radius,
 	grad = calloc(asph_scatter_n_points(s) + 1, sizeof(double));
 	if (!grad)
 		return asph_error_set(err, -ENOMEM, "out of memory");
+	mem_advise_huge(grad, asph_scatter_n_points(s) * sizeof(double));
 	half = (long)floor(radius / spacing);
 	for (long j = -half; j <= half; j++) {
 		/* A row's searches start where the previous row's first found

@@ -139,6 +139,8 @@ static int residual_map_points(struct asph_characterization *c, struct asph_erro
 	c->map_nm = malloc(n * sizeof(double) + 1);
 	if (!c->map_xy || !c->map_nm)
 		return asph_error_set(err, -ENOMEM, "out of memory");
+	mem_advise_huge(c->map_xy, 2 * n * sizeof(double));
+	mem_advise_huge(c->map_nm, n * sizeof(double));
 	res->n_map = asph_fit_residual_map(c->fit, c->map_xy, c->map_nm);
 	res->map_xy = c->map_xy;
 	res->map_nm = c->map_nm;

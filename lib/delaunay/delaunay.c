@@ -12,6 +12,7 @@
 #include "asph/delaunay.h"
 #include "delaunay-internal.h"
 #include "predicates.h"
+#include "util-mem.h"
 
 #define MAX_COORD 1e60
 
@@ -54,6 +55,16 @@ struct asph_delaunay *asph_delaunay_alloc(size_t max_points)
 		errno = ENOMEM;
 		return NULL;
 	}
+	mem_advise_huge(w->xy, 2 * n * sizeof(*w->xy));
+	mem_advise_huge(w->ids, n * sizeof(*w->ids));
+	mem_advise_huge(w->sort_a, n * sizeof(*w->sort_a));
+	mem_advise_huge(w->sort_b, n * sizeof(*w->sort_b));
+	mem_advise_huge(w->tri, 3 * max_tri * sizeof(*w->tri));
+	mem_advise_huge(w->adj, 3 * max_tri * sizeof(*w->adj));
+	mem_advise_huge(w->hull_next, n * sizeof(*w->hull_next));
+	mem_advise_huge(w->hull_prev, n * sizeof(*w->hull_prev));
+	mem_advise_huge(w->hull_tri, n * sizeof(*w->hull_tri));
+	mem_advise_huge(w->hash, w->hash_cap * sizeof(*w->hash));
 	return w;
 }
 
@@ -387,6 +398,7 @@ int asph_delaunay_triangulate(struct asph_delaunay *w, const double *xy,
 	uint32_t *out = malloc(3 * w->n_tri * sizeof(*out));
 	if (!out)
 		return asph_error_set(err, -ENOMEM, "triangulation: out of memory");
+	mem_advise_huge(out, 3 * w->n_tri * sizeof(*out));
 	for (size_t h = 0; h < 3 * w->n_tri; h++)
 		out[h] = w->ids[w->tri[h]];
 	w->n_points = n;
@@ -405,6 +417,7 @@ int asph_delaunay_neighbors(const struct asph_delaunay *w,
 	uint32_t *out = malloc(3 * w->n_tri * sizeof(*out));
 	if (!out)
 		return asph_error_set(err, -ENOMEM, "triangulation: out of memory");
+	mem_advise_huge(out, 3 * w->n_tri * sizeof(*out));
 	for (size_t h = 0; h < 3 * w->n_tri; h++)
 		out[h] = w->adj[h] == NONE ? UINT32_MAX : w->adj[h] / 3;
 	*neighbors = out;

@@ -50,6 +50,8 @@ int asph_fit_residual_scatter(struct asph_fit *w, struct asph_scatter **out,
 	v = malloc(m * sizeof(double) + 1);
 	if (!xy || !v)
 		return asph_error_set(err, -ENOMEM, "out of memory");
+	mem_advise_huge(xy, 2 * m * sizeof(double));
+	mem_advise_huge(v, m * sizeof(double));
 	m = asph_fit_residual_map(w, xy, v);
 	/* the slope's triangulation, when it is of these very points */
 	if (s && asph_scatter_n_points(s) == m &&
@@ -107,6 +109,8 @@ static int compute_form(const double *xy, const double *val, size_t m, const dou
 
 	if (!rho || !theta)
 		return asph_error_set(err, -ENOMEM, "out of memory");
+	mem_advise_huge(rho, m * sizeof(double));
+	mem_advise_huge(theta, m * sizeof(double));
 	for (size_t k = 0; k < m; k++) {
 		rho[k] = hypot(xy[2 * k] - centre[0], xy[2 * k + 1] - centre[1]) / a;
 		theta[k] = atan2(xy[2 * k + 1] - centre[1], xy[2 * k] - centre[0]);
@@ -214,6 +218,8 @@ int fit_areal_form(struct asph_fit *w, struct asph_fit_result *out, struct asph_
 
 	if (!xy || !val)
 		return asph_error_set(err, -ENOMEM, "out of memory");
+	mem_advise_huge(xy, 2 * w->n * sizeof(double));
+	mem_advise_huge(val, w->n * sizeof(double));
 	fit_form_lengths(w, &wavelength, &length);
 	asph_surface_aperture_disk(w->model.s, centre, &disk_r);
 	asph_scatter_free(w->slope_scatter);

@@ -117,6 +117,10 @@ static int field_build(const struct asph_fit *w, struct field *f,
 	f->mask = malloc(w->n * sizeof(double) + 1);
 	if (!f->rho || !f->theta || !f->val || !f->mask)
 		return asph_error_set(err, -ENOMEM, "out of memory");
+	mem_advise_huge(f->rho, w->n * sizeof(double));
+	mem_advise_huge(f->theta, w->n * sizeof(double));
+	mem_advise_huge(f->val, w->n * sizeof(double));
+	mem_advise_huge(f->mask, w->n * sizeof(double));
 	for (size_t i = 0; i < w->n; i++) {
 		int used = w->status[i] == ASPH_FIT_POINT_USED;
 		fit_point_polar(w, i, &f->rho[i], &f->theta[i]);
@@ -198,6 +202,8 @@ static int zernike_stats(const struct asph_fit *w, const struct field *f,
 	asph_surface_aperture_disk(w->model.s, centre, &disk_r);
 	if (!zf || !g)
 		return asph_error_set(err, -ENOMEM, "out of memory");
+	mem_advise_huge(zf, w->n * sizeof(double));
+	mem_advise_huge(g, 2 * w->n * sizeof(double));
 	asph_zernike_series_many(coef, out->n_zernike, f->rho, f->theta, w->n, zf, g);
 	for (size_t i = 0; i < w->n; i++) {
 		if (!f->mask[i])

@@ -519,6 +519,23 @@ static int options_resolve(struct asph_fit_options *o, struct asph_error *err)
 	return 0;
 }
 
+/* The per-point arrays of asph_fit_alloc(), on huge pages where the kernel
+ * gives them. */
+static void advise_huge_arrays(struct asph_fit *w)
+{
+	size_t n = w->n_max * sizeof(double);
+
+	mem_advise_huge(w->r_foot, n);
+	mem_advise_huge(w->slope, n);
+	mem_advise_huge(w->resid, n);
+	mem_advise_huge(w->weight, n);
+	mem_advise_huge(w->scratch, n);
+	mem_advise_huge(w->status, w->n_max);
+	mem_advise_huge(w->trace_of, w->n_max);
+	mem_advise_huge(w->left, w->left ? n : 0);
+	mem_advise_huge(w->foot, w->foot ? w->n_max * sizeof(*w->foot) : 0);
+}
+
 int asph_fit_alloc(const struct asph_surface *s, size_t n_max,
 		   const struct asph_fit_options *opts, struct asph_fit **out,
 		   struct asph_error *err)
@@ -585,6 +602,7 @@ int asph_fit_alloc(const struct asph_surface *s, size_t n_max,
 	if (!w->r_foot || !w->slope || !w->resid || !w->weight || !w->scratch ||
 	    !w->status || !w->trace_of || (w->opt.robust && !w->left))
 		return asph_error_set(err, -ENOMEM, "out of memory for %zu points", n_max);
+	advise_huge_arrays(w);
 	*out = steal_ptr(w);
 	return 0;
 }
@@ -752,6 +770,8 @@ static int solver_setup(struct asph_fit *w, size_t n, struct asph_error *err)
 	w->solver = gsl_multilarge_nlinear_alloc(gsl_multilarge_nlinear_trust, &par, n, (size_t)w->p);
 	if (!w->solver)
 		return asph_error_set(err, -ENOMEM, "out of memory for the solver (%zu points)", n);
+	/* its residual vector, written at every point at every step */
+	mem_advise_huge(gsl_multilarge_nlinear_residual(w->solver)->data, n * sizeof(double));
 	return 0;
 }
 

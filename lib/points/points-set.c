@@ -7,6 +7,7 @@
 
 #include "asph/points.h"
 #include "readers.h"
+#include "util-mem.h"
 
 struct asph_points *asph_points_alloc(size_t n)
 {
@@ -22,6 +23,7 @@ struct asph_points *asph_points_alloc(size_t n)
 		free(p);
 		return NULL;
 	}
+	mem_advise_huge(p->xyz, 3 * n * sizeof(double));
 	return p;
 }
 
@@ -31,6 +33,7 @@ int asph_points_add_value(struct asph_points *p, const char *name)
 	p->value = calloc(p->n ? p->n : 1, sizeof(double));
 	if (!p->value)
 		return -ENOMEM;
+	mem_advise_huge(p->value, p->n * sizeof(double));
 	snprintf(p->value_name, sizeof(p->value_name), "%s", name);
 	return 0;
 }

@@ -422,6 +422,23 @@ struct growing {
 	size_t n, cap;
 };
 
+/* Room for cap points in g. */
+static int reserve(struct growing *g, size_t cap, struct asph_error *err)
+{
+	double *x = realloc(g->xyz, 3 * cap * sizeof(double));
+	if (!x)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	g->xyz = x;
+	mem_advise_huge(x, 3 * cap * sizeof(double));
+	double *v = realloc(g->val, cap * sizeof(double));
+	if (!v)
+		return asph_error_set(err, -ENOMEM, "out of memory");
+	g->val = v;
+	mem_advise_huge(v, cap * sizeof(double));
+	g->cap = cap;
+	return 0;
+}
+
 static int grow(struct growing *g, const struct text_line *l, struct asph_error *err)
 {
 	if (g->n < g->cap)
@@ -429,17 +446,21 @@ static int grow(struct growing *g, const struct text_line *l, struct asph_error 
 	if (g->cap >= POINTS_MAX)
 		return asph_error_set_at(err, -E2BIG, l->source, l->no, 1, NULL,
 					 "text: more than %zu points", POINTS_MAX);
-	size_t cap = g->cap ? 2 * g->cap : 1024;
-	double *x = realloc(g->xyz, 3 * cap * sizeof(double));
-	if (!x)
-		return asph_error_set(err, -ENOMEM, "out of memory");
-	g->xyz = x;
-	double *v = realloc(g->val, cap * sizeof(double));
-	if (!v)
-		return asph_error_set(err, -ENOMEM, "out of memory");
-	g->val = v;
-	g->cap = cap;
-	return 0;
+	return reserve(g, g->cap ? 2 * g->cap : 1024, err);
+}
+
+/* Room for as many points as the text has lines (within POINTS_MAX), so
+ * that a large file's points are not copied from one array to the next as
+ * it doubles. */
+static int reserve_lines(struct growing *g, const char *text, size_t len,
+			 struct asph_error *err)
+{
+	size_t lines = 1;
+
+	for (const char *s = text, *end = text + len;
+	     (s = memchr(s, '\n', (size_t)(end - s))) && lines < POINTS_MAX; s++)
+		lines++;
+	return lines > 1024 ? reserve(g, lines, err) : 0;
 }
 
 static bool is_comment(const char *s, size_t n)
@@ -467,6 +488,7 @@ int points_read_text(const char *text, size_t len, const char *source,
 	/* spreadsheets' "CSV UTF-8" starts with a byte-order mark */
 	if (len >= 3 && !memcmp(text, "\xef\xbb\xbf", 3))
 		pos = 3;
+	r = reserve_lines(&g, text, len, err);
 	while (pos < len && r == 0) {
 		size_t end = pos;
 		while (end < len && text[end] != '\n')

@@ -631,6 +631,26 @@ void asph_scanfile_reader_free(struct asph_scanfile_reader *r)
 	free(r);
 }
 
+/* Room for need points in s, *cap of them now: at least need, doubling. */
+static int reserve_points(struct asph_scanfile *s, size_t *cap, size_t need)
+{
+	size_t nc = *cap ? *cap : need > 1024 ? need : 1024;
+
+	if (need <= *cap)
+		return 0;
+	while (nc < need)
+		nc *= 2;
+	if (nc > SIZE_MAX / sizeof(*s->points))
+		return -ENOMEM;
+	struct asph_scanfile_point *np = realloc(s->points, nc * sizeof(*np));
+	if (!np)
+		return -ENOMEM;
+	s->points = np;
+	*cap = nc;
+	mem_advise_huge(np, nc * sizeof(*np));
+	return 0;
+}
+
 static int append_points(struct asph_scanfile *s, size_t *cap,
 			 const struct asph_scanfile_point *pts, size_t n)
 {
@@ -638,18 +658,9 @@ static int append_points(struct asph_scanfile *s, size_t *cap,
 	 * arguments must not be, even for 0 bytes). */
 	if (n == 0)
 		return 0;
-	if (s->n + n > *cap) {
-		size_t nc = *cap ? *cap : 1024;
-		while (nc < s->n + n)
-			nc *= 2;
-		if (nc > SIZE_MAX / sizeof(*pts))
-			return -ENOMEM;
-		struct asph_scanfile_point *np = realloc(s->points, nc * sizeof(*np));
-		if (!np)
-			return -ENOMEM;
-		s->points = np;
-		*cap = nc;
-	}
+	int r = reserve_points(s, cap, s->n + n);
+	if (r < 0)
+		return r;
 	memcpy(s->points + s->n, pts, n * sizeof(*pts));
 	s->n += n;
 	return 0;
@@ -661,10 +672,19 @@ int scanfile_collect(struct asph_scanfile_reader *r, struct asph_scanfile **out,
 	_cleanup_(asph_scanfile_freep) struct asph_scanfile *s = calloc(1, sizeof(*s));
 	const struct asph_scanfile_point *pts;
 	size_t n, cap = 0;
+	uint64_t size;
 	int ret;
 
 	if (!s)
 		return -ENOMEM;
+	/* As many points as the rest of the file holds records, at most (its
+	 * blocks' headers and references take some): read without copying
+	 * them as the array doubles. */
+	if (scanfile_source_size(&r->src, &size) == 0 && size > r->offset &&
+	    (size - r->offset) / ASPH_SCANFILE_RECORD_SIZE < SIZE_MAX / sizeof(*s->points) &&
+	    reserve_points(s, &cap, (size_t)((size - r->offset) / ASPH_SCANFILE_RECORD_SIZE)) < 0)
+		return asph_error_set(err, -ENOMEM, "out of memory reading a scan of %llu bytes",
+				      (unsigned long long)size);
 	while ((ret = asph_scanfile_reader_next(r, &pts, &n, err)) > 0)
 		if ((ret = append_points(s, &cap, pts, n)) < 0)
 			return asph_error_set(err, ret, "out of memory reading %zu points", s->n);

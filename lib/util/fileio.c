@@ -5,6 +5,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "fileio.h"
@@ -14,6 +15,19 @@ static int fail(struct asph_error *err, const char *source, int code,
 		const char *what)
 {
 	return asph_error_set_at(err, code, source, 0, 0, NULL, "%s", what);
+}
+
+/* The first size of the buffer: a regular file's size (and one byte more
+ * to see its end), so that a large file is read without being copied from
+ * one buffer to the next as it doubles. */
+static size_t first_capacity(int fd)
+{
+	struct stat st;
+
+	if (fstat(fd, &st) == 0 && S_ISREG(st.st_mode) && st.st_size >= 1 << 14 &&
+	    (uintmax_t)st.st_size < SIZE_MAX / 2)
+		return (size_t)st.st_size + 1;
+	return 1 << 14;
 }
 
 int fd_read_all(int fd, size_t limit, const char *source, char **out, size_t *len,
@@ -28,7 +42,7 @@ int fd_read_all(int fd, size_t limit, const char *source, char **out, size_t *le
 		if (n == cap) {
 			if (cap > limit)
 				break;
-			cap = cap ? 2 * cap : 1 << 14;
+			cap = cap ? 2 * cap : first_capacity(fd);
 			/* one byte past the limit tells "exactly limit" from "more" */
 			if (cap > limit + 1)
 				cap = limit + 1;
@@ -36,6 +50,7 @@ int fd_read_all(int fd, size_t limit, const char *source, char **out, size_t *le
 			if (!grown)
 				return fail(err, source, -ENOMEM, "out of memory");
 			buf = grown;
+			mem_advise_huge(buf, cap + 1);
 		}
 		got = read(fd, buf + n, cap - n);
 		if (got < 0 && errno == EINTR)

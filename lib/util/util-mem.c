@@ -1,0 +1,28 @@
+/* SPDX-License-Identifier: GPL-3.0-or-later */
+#include <stdint.h>
+#include <sys/mman.h>
+
+#include "util-mem.h"
+
+/* The size of a transparent huge page on x86-64 and on arm64 with 4 KiB
+ * pages; elsewhere the advice covers fewer pages or none, and costs nothing. */
+#define HUGE_PAGE ((uintptr_t)2 << 20)
+
+/* Below this a block spans at most one huge page, and the pages it would
+ * save are not worth the memory a half-used huge page can hold. */
+#define HUGE_MIN ((size_t)4 << 20)
+
+void mem_advise_huge(void *p, size_t n)
+{
+	uintptr_t start, end;
+
+	if (!p || n < HUGE_MIN)
+		return;
+	start = ((uintptr_t)p + HUGE_PAGE - 1) & ~(HUGE_PAGE - 1);
+	end = ((uintptr_t)p + n) & ~(HUGE_PAGE - 1);
+	if (start >= end)
+		return;
+	/* Advice only: a kernel without transparent huge pages, or with them
+	 * off, refuses it and the block stays as it was. */
+	(void)madvise((void *)start, end - start, MADV_HUGEPAGE);
+}
