@@ -30,6 +30,7 @@ struct asph_grid *asph_grid_alloc(size_t nx, size_t ny)
 		free(g);
 		return NULL;
 	}
+	mem_advise_huge(g->z, nx * ny * sizeof(double));
 	for (size_t i = 0; i < nx * ny; i++)
 		g->z[i] = NAN;
 	return g;

@@ -116,6 +116,7 @@ static int write_residuals_x3p(const struct asph_characterization *c, const char
 
 	if (!xyz)
 		return asph_error_set(err, -ENOMEM, "out of memory");
+	mem_advise_huge(xyz, 3 * p->n * sizeof(double));
 	for (size_t i = 0; i < p->n; i++) {
 		xyz[3 * i] = p->xyz[3 * i];
 		xyz[3 * i + 1] = p->xyz[3 * i + 1];

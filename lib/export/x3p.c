@@ -325,6 +325,7 @@ static int grid_data(const char *name, const struct asph_grid *g, struct layout 
 	data = malloc(8 * m);
 	if (!data)
 		return asph_error_set(err, -ENOMEM, "out of memory");
+	mem_advise_huge(data, 8 * m);
 	for (size_t i = 0; i < m; i++)
 		put_le_double(data + 8 * i, isnan(g->z[i]) ? NAN : g->z[i] * NM_TO_M);
 	*out = data;

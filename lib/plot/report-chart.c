@@ -291,6 +291,7 @@ int report_map(cairo_t *cr, const struct report_rect *area, const struct asph_re
 
 	if (!xyz)
 		return -ENOMEM;
+	mem_advise_huge(xyz, 3 * r->n * sizeof(double));
 	for (size_t k = 0; k < r->n; k++) {
 		xyz[3 * k] = r->xy[2 * k];
 		xyz[3 * k + 1] = r->xy[2 * k + 1];

@@ -8,9 +8,9 @@
  * pages; elsewhere the advice covers fewer pages or none, and costs nothing. */
 #define HUGE_PAGE ((uintptr_t)2 << 20)
 
-/* Below this a block spans at most one huge page, and the pages it would
- * save are not worth the memory a half-used huge page can hold. */
-#define HUGE_MIN ((size_t)4 << 20)
+/* Below this a block seldom holds a whole huge page (an array of 10^5
+ * points, say), and those few faults are not worth the system call. */
+#define HUGE_MIN ((size_t)3 << 20)
 
 void mem_advise_huge(void *p, size_t n)
 {

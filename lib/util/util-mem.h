@@ -65,7 +65,7 @@ static inline void closep(int *fd)
 /* Asks the kernel to back the whole 2 MiB pages inside the block p of n
  * bytes with transparent huge pages (when its setting is "madvise" or
  * "always"): an array of millions of points then takes one page fault per
- * 2 MiB instead of one per 4 KiB. Nothing changes for blocks of a few MiB,
+ * 2 MiB instead of one per 4 KiB. Nothing changes for blocks under 3 MiB,
  * or where the kernel declines; the block is freed as before. */
 void mem_advise_huge(void *p, size_t n);
 
