@@ -150,6 +150,13 @@ struct asph_fit_options {
 	 * done while the statistics are computed; a cancel makes it return
 	 * -ECANCELED. The stepwise calls do not use it. */
 	struct asph_progress progress;
+	/* 1: asph_fit_get_result() frees the solver's workspace (as
+	 * asph_fit_release_solver() does) once it has the uncertainties,
+	 * before the form quantities triangulate the residual map, so that
+	 * the two are not held at once: for a fit whose result is taken once
+	 * (the characterization's), not for one run again and again (the
+	 * Monte Carlo's, which would make the solver anew each time). */
+	int release_solver;
 };
 
 /* Per-point state after the fit. */

@@ -238,7 +238,12 @@ static int map_outputs(struct asph_characterization *c, struct asph_error *err)
 /* The fit, the map and the Monte Carlo of c->points. */
 static int run(struct asph_characterization *c, struct asph_error *err)
 {
-	int r = asph_fit_alloc(c->surface, c->points->n, &c->opts.fit, &c->fit, err);
+	/* The result is taken once: the solver goes before the form
+	 * quantities' triangulation, the fit's peak (docs/daemon.md,
+	 * "Memory"); the Monte Carlo keeps c->opts.fit's own. */
+	struct asph_fit_options once = c->opts.fit;
+	once.release_solver = 1;
+	int r = asph_fit_alloc(c->surface, c->points->n, &once, &c->fit, err);
 
 	if (r == 0)
 		r = asph_fit_run(c->fit, c->points->xyz, c->points->n, &c->res.fit, err);
@@ -247,9 +252,6 @@ static int run(struct asph_characterization *c, struct asph_error *err)
 	c->res.points = c->points;
 	c->res.fit_workspace = c->fit;
 	r = uncertainty(c, err);
-	/* the Monte Carlo fits on workspaces of its own, and what follows
-	 * reads the fit's residuals and feet only */
-	asph_fit_release_solver(c->fit);
 	if (r == 0)
 		r = map_outputs(c, err);
 	return r;

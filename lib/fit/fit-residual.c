@@ -283,11 +283,21 @@ static int fill_form(struct asph_fit *w, struct asph_fit_result *out, struct asp
 	return 0;
 }
 
+void asph_fit_release_solver(struct asph_fit *w)
+{
+	if (w && w->solver) {
+		gsl_multilarge_nlinear_free(w->solver);
+		w->solver = NULL;
+	}
+}
+
 int asph_fit_get_result(struct asph_fit *w, struct asph_fit_result *out,
 			struct asph_error *err)
 {
 	if (w->phase != FIT_PHASE_DONE)
 		return asph_error_set(err, -EINVAL, "fit not finished");
+	if (!w->solver)
+		return asph_error_set(err, -EINVAL, "fit: the solver was released, the result already taken");
 	memset(out, 0, sizeof(*out));
 	count_points(w, out);
 	out->dof = w->opt.dof;
@@ -298,6 +308,8 @@ int asph_fit_get_result(struct asph_fit *w, struct asph_fit_result *out,
 	out->converged = w->converged;
 	snprintf(out->reason, sizeof(out->reason), "%s", w->reason);
 	uncertainties(w, out);
+	if (w->opt.release_solver)
+		asph_fit_release_solver(w);
 	radius_from_curvature(w, out);
 	fit_machine_pose(w, &out->pose);
 	int r = fit_fill_statistics(w, out, err);

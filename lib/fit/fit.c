@@ -607,14 +607,6 @@ int asph_fit_alloc(const struct asph_surface *s, size_t n_max,
 	return 0;
 }
 
-void asph_fit_release_solver(struct asph_fit *w)
-{
-	if (w && w->solver) {
-		gsl_multilarge_nlinear_free(w->solver);
-		w->solver = NULL;
-	}
-}
-
 void asph_fit_free(struct asph_fit *w)
 {
 	if (!w)

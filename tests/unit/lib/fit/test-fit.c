@@ -525,6 +525,40 @@ static void test_stepwise(void **state)
 	asph_surface_free(s);
 }
 
+/* release_solver: the solver goes inside the result, which is the same
+ * bit for bit; a second result is refused, a run makes the solver again. */
+static void test_release_solver_option(void **state)
+{
+	struct asph_surface *s = lens("strong");
+	size_t n = 800;
+	double *xyz = ring_points(s, n, 1.0, &n), *meas = malloc(3 * n * sizeof(double));
+	struct asph_synth_options so = { .pose = { { 0.051, 0.022, -0.034 }, 8.1e-4, 2.9e-4 } };
+	struct asph_fit_options once = { .release_solver = 1 };
+	struct asph_fit *kept = NULL, *w = NULL;
+	struct asph_fit_result ref, res, again;
+	struct asph_fit_progress pr;
+	struct asph_error err = { 0 };
+
+	assert_int_equal(asph_fit_synthesize(s, xyz, n, &so, meas, NULL), 0);
+	assert_int_equal(asph_fit_alloc(s, n, NULL, &kept, NULL), 0);
+	assert_int_equal(asph_fit_alloc(s, n, &once, &w, NULL), 0);
+	assert_int_equal(asph_fit_run(kept, meas, n, &ref, NULL), 0);
+	assert_int_equal(asph_fit_run(w, meas, n, &res, NULL), 0);
+	assert_memory_equal(&res, &ref, sizeof(res));
+	assert_memory_equal(asph_fit_residuals(w), asph_fit_residuals(kept), n * sizeof(double));
+	asph_fit_get_progress(w, &pr);
+	assert_true(pr.rms_mm == 0);
+	assert_int_equal(asph_fit_get_result(w, &again, &err), -EINVAL);
+	assert_non_null(strstr(err.message, "released"));
+	assert_int_equal(asph_fit_run(w, meas, n, &again, NULL), 0);
+	assert_memory_equal(&again, &ref, sizeof(again));
+	asph_fit_free(kept);
+	asph_fit_free(w);
+	free(xyz);
+	free(meas);
+	asph_surface_free(s);
+}
+
 int main(void)
 {
 	const struct CMUnitTest tests[] = {
@@ -540,6 +574,7 @@ int main(void)
 		cmocka_unit_test(test_too_many_outside),
 		cmocka_unit_test(test_bad_input),
 		cmocka_unit_test(test_stepwise),
+		cmocka_unit_test(test_release_solver_option),
 		cmocka_unit_test(test_few_points),
 	};
 
