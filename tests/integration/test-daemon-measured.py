@@ -7,7 +7,9 @@ a copy in the job's folder and characterizes it as `asph fit LENS FILE`
 does. A CSV that `asph synth` writes and an X3P matrix with invalid nodes
 (test-cli-measured's, written from ISO 25178-72) give the summary `asph fit
 --json` prints, byte for byte, and the result lists the data's copy, the
-same bytes. A file that does not parse is refused at once with the reader's
+same bytes; `asph replay LENS COPY --out DIR` writes that folder again, the
+same files but for the fields that name the run, and refuses measured data
+given no lens. A file that does not parse is refused at once with the reader's
 message (format and position), as are a pipe and a file past
 limits.max_measured_bytes; the descriptors a client sends beyond those a
 connection may hold are closed; a submit over TCP is refused; a job
@@ -20,7 +22,9 @@ import socket
 import subprocess
 import sys
 import tempfile
+import re
 import time
+import zipfile
 
 sys.path.insert(0, os.path.dirname(__file__))
 from daemontest import Client, Daemon, expect, finish, free_port, mock_instrument  # noqa: E402
@@ -30,6 +34,13 @@ ASPH = os.environ.get("ASPH_BIN", "asph")
 HERE = os.path.dirname(os.path.abspath(__file__))
 LIMIT = 1 << 20         # limits.max_measured_bytes: the files here are smaller
 SCHEMAS = SchemaSet(os.path.join(HERE, "..", "..", "proto", "schema"))
+# The fields of result.json that name the run, not the measurement (as
+# test-daemon-replay's RUN_FIELDS): the job and who submitted it when, the
+# program and when it finished, and the hashes of the two files whose
+# contents name the program (the X3P's Creator, the report's software).
+RUN_FIELDS = ["job", "provenance.submitted_by", "provenance.label", "provenance.submitted",
+              "provenance.started", "provenance.finished", "provenance.software",
+              "hashes.residual.x3p", "hashes.report.pdf"]
 
 
 def conforms(value, ref, what):
@@ -85,6 +96,66 @@ def characterized(d, c, lens, path, dof, name):
     body = r.stdout.rstrip("\n").replace("\n", "\n  ")
     expect('"summary": ' + body + ",\n" in text,
            f"{name}: result.json's summary is the bytes asph fit --json prints")
+    replayed(lens, data, dof, name, res["dir"], r.stdout, os.path.dirname(path))
+
+
+def without_run(result):
+    """result.json but for RUN_FIELDS."""
+    for field in RUN_FIELDS:
+        *parents, key = field.split(".", 1)
+        node = result
+        for p in parents:
+            node = node[p]
+        node.pop(key, None)
+    return json.dumps(result, indent=2)
+
+
+def replayed(lens, data, dof, name, job_dir, fit_json, tmp):
+    """`asph replay LENS DATA --out` of the job's copy of the data, with the
+    job's options: the folder the daemon wrote, but for RUN_FIELDS, and
+    the summary asph fit --json prints."""
+    out = os.path.join(tmp, f"replay-{name}")
+    r = asph("replay", lens, data, "--dof", dof, "--json", "--out", out)
+    expect(r.returncode == 0 and r.stdout == fit_json,
+           f"{name}: asph replay LENS MEASURED --json prints what asph fit --json does: "
+           f"{r.stderr.strip()}")
+    if r.returncode:
+        return
+    with open(os.path.join(job_dir, "result.json")) as f1, \
+            open(os.path.join(out, "result.json")) as f2:
+        daemon, replay = json.load(f1), json.load(f2)
+    expect(replay["provenance"]["measured"] == daemon["provenance"]["measured"] and
+           without_run(daemon) == without_run(replay),
+           f"{name}: result.json of asph replay --out is the daemon's but for "
+           f"{', '.join(RUN_FIELDS)}")
+    for member in ("residuals.csv", "psd.csv", "residual-map.png", "residual.x3p"):
+        a, b = (os.path.join(p, member) for p in (job_dir, out))
+        if not os.path.exists(a) and member == "residual-map.png":
+            continue  # built without cairo
+        if member.endswith(".x3p"):
+            same = x3p_masked(a) == x3p_masked(b)
+        else:
+            with open(a, "rb") as f1, open(b, "rb") as f2:
+                same = f1.read() == f2.read()
+        expect(same, f"{name}: {member} of asph replay --out is the daemon's, byte for byte"
+               + (" but the Creator, dates and job" if member.endswith(".x3p") else ""))
+
+
+def x3p_masked(path):
+    """An X3P's grid and main.xml but for the program that made it, when
+    (data with no scan has no time of measurement of its own) and the job
+    its Comment names."""
+    with zipfile.ZipFile(path) as z:
+        xml = re.sub(r"<(Creator|Date|CalibrationDate)>[^<]*</\1>", "",
+                     z.read("main.xml").decode())
+        return z.read("bindata/data.bin"), re.sub(r", job \d+</Comment>", "</Comment>", xml)
+
+
+def no_lens(path):
+    """Measured data with no LENS: refused, saying it names none."""
+    r = asph("replay", path, "--out", os.path.join(os.path.dirname(path), "never"))
+    expect(r.returncode == 2 and "names no lens" in r.stderr and "asph replay LENS" in r.stderr,
+           f"asph replay MEASURED, no LENS: exit 2 saying why ({r.returncode}, {r.stderr.strip()})")
 
 
 def refused(d, tmp):
@@ -219,6 +290,7 @@ def main():
         with open(lens, "w") as f:
             f.write(m.LENS)
         characterized(d, c, lens, x3p, "tz,rx,ry", "X3P")
+        no_lens(x3p)
         refused(d, tmp)
         many_fds(d, csv)
         not_files(d, tmp)

@@ -201,7 +201,8 @@ def compare_corrections(tmp, scan):
 
 
 def check_refused(tmp, scan):
-    """--out where no folder can be, and with asph fit: refused, saying why."""
+    """--out where no folder can be, with asph fit, and a scan given a LENS
+    (its header names its own): refused, saying why."""
     blocker = os.path.join(tmp, "a-file")
     with open(blocker, "w") as f:
         f.write("not a folder\n")
@@ -211,6 +212,10 @@ def check_refused(tmp, scan):
     r = run("fit", "strong", os.path.join(tmp, "exported.csv"), "--out", tmp)
     expect(r.returncode == 2 and "asph replay" in r.stderr,
            f"fit --out is refused ({r.returncode}, {r.stderr.strip()})")
+    r = run("replay", "strong", scan, "--out", os.path.join(tmp, "never"))
+    expect(r.returncode == 2 and "names its lens" in r.stderr and not os.path.exists(
+        os.path.join(tmp, "never")), f"a scan given a LENS is refused ({r.returncode}, "
+           f"{r.stderr.strip()})")
 
 
 def main():

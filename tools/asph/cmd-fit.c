@@ -450,13 +450,14 @@ int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
 
 	if (r >= 0)
 		return r == EXIT_OK ? -1 : r;
-	if (argc - optind != operands) {
+	/* asph replay: SCAN, or LENS and MEASURED */
+	if (argc - optind != operands && !(operands == 1 && argc - optind == 2)) {
 		fprintf(stderr, "asph %s: need %s (see --help)\n", argv[0],
-			operands == 2 ? "LENS and POINTS_FILE" : "SCAN");
+			operands == 2 ? "LENS and POINTS_FILE" : "SCAN, or LENS and MEASURED");
 		return EXIT_USAGE;
 	}
-	c->lens = operands == 2 ? argv[optind] : NULL;
-	c->points = argv[optind + operands - 1];
+	c->lens = argc - optind == 2 ? argv[optind] : NULL;
+	c->points = argv[argc - 1];
 	if (fit_mc_check(&c->mc) != EXIT_OK)
 		return EXIT_USAGE;
 	return check_tolerance(c);
@@ -728,7 +729,7 @@ int cmd_fit(int argc, char **argv)
 	if (r != EXIT_OK)
 		return r < 0 ? EXIT_OK : r;
 	if (c.out_dir) {
-		fprintf(stderr, "asph fit: --out goes with asph replay SCAN\n");
+		fprintf(stderr, "asph fit: --out goes with asph replay (SCAN, or LENS MEASURED)\n");
 		return EXIT_USAGE;
 	}
 	if (tool_load_surface(c.lens, &s) < 0)

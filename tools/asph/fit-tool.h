@@ -39,9 +39,10 @@ struct fit_cli {
 /* Frees what parsing kept. */
 void fit_cli_release(struct fit_cli *c);
 
-/* The fit's options and `operands` operands (asph fit: LENS POINTS_FILE,
- * asph replay: SCAN, in points). EXIT_OK, the exit code to leave with, or
- * -1 after --help. */
+/* The fit's options and `operands` operands (asph fit: 2, LENS
+ * POINTS_FILE; asph replay: 1, SCAN, or LENS MEASURED), in lens (NULL
+ * for a scan) and points. EXIT_OK, the exit code to leave with, or -1
+ * after --help. */
 int fit_cli_parse(struct fit_cli *c, int argc, char **argv, int operands,
 		  void (*usage_fn)(FILE *out));
 

@@ -22,7 +22,7 @@ static const struct tool_command commands[] = {
 	{ "plan", "compute a sampling plan: points in scan order", cmd_plan },
 	{ "plot", "draw a plan and a heatmap of its triangles' area ratio or q (PNG)", cmd_plot },
 	{ "quality", "triangle quality of a plan: q and A_i / mean A statistics", cmd_quality },
-	{ "replay", "characterize a recorded scan (asph fit on its points)", cmd_replay },
+	{ "replay", "characterize a recorded scan, or measured data, as asphd does", cmd_replay },
 	{ "report", "the measurement report of a scan or a fit, as PDF", cmd_report },
 	{ "scan", "measure a plan with an instrument into a scan file", cmd_scan },
 	{ "scaninfo", "show a recorded scan: header, points, outcome, recovery", cmd_scaninfo },

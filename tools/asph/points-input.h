@@ -21,6 +21,11 @@ int points_input_units(struct points_input *in, const char *prog, const char *ar
 int points_input_read(const struct points_input *in, const char *prog, const char *path,
 		      struct asph_points **out);
 
+/* The same of a file's bytes (len of data), path naming it in messages. */
+int points_input_read_memory(const struct points_input *in, const char *prog,
+			     const void *data, size_t len, const char *path,
+			     struct asph_points **out);
+
 /* The options' help lines. */
 #define POINTS_INPUT_HELP \
 	"  --format F          the points file's format: auto (default: found from the\n" \
