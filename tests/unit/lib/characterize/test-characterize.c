@@ -721,12 +721,12 @@ static void test_folder(void **state)
 		.mode = 0600, .scan_file = "measured.txt", .software_json = "{}",
 		.tolerance_json = "{}", .finished_ns = 1772600800000000000,
 	};
-	assert_int_equal(rmtree(dir), 0);
-	assert_non_null(mkdtemp(strcpy(dir, "/tmp/asph-char-XXXXXX")));
-	close(fd);
-	fd = open(dir, O_RDONLY | O_DIRECTORY);
+	/* a folder of its own: the scan's files are in dir already */
+	assert_int_equal(mkdirat(fd, "measured", 0700), 0);
+	int mfd = openat(fd, "measured", O_RDONLY | O_DIRECTORY);
+	assert_true(mfd >= 0);
 	c = characterize(s, &o, p);
-	assert_int_equal(asph_characterize_write_folder(c, fd, &measured, &text, NULL), 0);
+	assert_int_equal(asph_characterize_write_folder(c, mfd, &measured, &text, NULL), 0);
 	r = json_loads(text, 0, NULL);
 	assert_non_null(r);
 	files = json_object_get(r, "files");
@@ -750,8 +750,9 @@ static void test_folder(void **state)
 	bare.run.data = NULL;
 	bare.run.data_len = 0;
 	c = characterize(s, &bare, p);
-	assert_int_equal(asph_characterize_write_folder(c, fd, &measured, NULL, NULL), -EINVAL);
+	assert_int_equal(asph_characterize_write_folder(c, mfd, &measured, NULL, NULL), -EINVAL);
 	asph_characterize_free(c);
+	close(mfd);
 	asph_points_free(p);
 	close(fd);
 	assert_int_equal(rmtree(dir), 0);
